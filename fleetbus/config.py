@@ -1,0 +1,55 @@
+"""Settings read from the environment, with the defaults the README documents.
+
+Every component reads its configuration through :func:`load_settings` so that one place
+says which variable means what.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+DEFAULT_DATA_DIR = ".fleetbus"
+DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
+
+
+@dataclass(frozen=True)
+class Settings:
+    data_dir: Path
+    """Everything fleetbus keeps on this machine: private broker node, credentials, SQLite store."""
+    amqp_url: str | None
+    """Administrator URL of an existing broker; ``None`` means the private node under ``data_dir``."""
+    management_url: str | None
+    """Management HTTP API of that broker; derived from ``amqp_url`` when unset."""
+    mongodb_url: str | None
+    """MongoDB connection string; ``None`` selects the embedded SQLite store."""
+    max_message_bytes: int
+    """Bodies larger than this are dead-lettered by the workers."""
+
+    @property
+    def sqlite_path(self) -> Path:
+        return self.data_dir / "store.sqlite3"
+
+    @property
+    def broker_dir(self) -> Path:
+        return self.data_dir / "broker"
+
+    @property
+    def accounts_dir(self) -> Path:
+        return self.data_dir / "accounts"
+
+    @property
+    def robots_dir(self) -> Path:
+        return self.data_dir / "robots"
+
+
+def load_settings(environ: dict[str, str] | None = None) -> Settings:
+    env = os.environ if environ is None else environ
+    return Settings(
+        data_dir=Path(env.get("FLEETBUS_DATA_DIR") or DEFAULT_DATA_DIR).resolve(),
+        amqp_url=env.get("FLEETBUS_AMQP_URL") or None,
+        management_url=env.get("FLEETBUS_MANAGEMENT_URL") or None,
+        mongodb_url=env.get("FLEETBUS_MONGODB_URL") or None,
+        max_message_bytes=int(env.get("FLEETBUS_MAX_MESSAGE_BYTES") or DEFAULT_MAX_MESSAGE_BYTES),
+    )

@@ -1,0 +1,132 @@
+"""The envelope every event travels in, and parsing of raw message bodies."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import datetime, timezone
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import (
+    AwareDatetime,
+    BaseModel,
+    ConfigDict,
+    Field,
+    NonNegativeInt,
+    TypeAdapter,
+    ValidationError,
+)
+
+from schemas.bodies import (
+    BeaconSighting,
+    BehaviourOutcome,
+    HazardDetected,
+    LocalisationState,
+    MapUpdate,
+    RobotStatus,
+)
+from schemas.identity import RobotId
+from schemas.routing import EventType
+
+SCHEMA_VERSION = 1
+
+
+class _EnvelopeBase(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    message_id: uuid.UUID = Field(default_factory=uuid.uuid4)
+    robot_id: RobotId
+    seq: NonNegativeInt = Field(description="per-robot sequence number; it only grows")
+    sent_at: AwareDatetime = Field(default_factory=lambda: datetime.now(timezone.utc))
+    schema_version: Literal[1] = SCHEMA_VERSION
+
+
+class HazardEvent(_EnvelopeBase):
+    type: Literal[EventType.HAZARD] = EventType.HAZARD
+    body: HazardDetected
+
+
+class MapEvent(_EnvelopeBase):
+    type: Literal[EventType.MAP] = EventType.MAP
+    body: MapUpdate
+
+
+class StatusEvent(_EnvelopeBase):
+    type: Literal[EventType.STATUS] = EventType.STATUS
+    body: RobotStatus
+
+
+class LocalisationEvent(_EnvelopeBase):
+    type: Literal[EventType.LOCALISATION] = EventType.LOCALISATION
+    body: LocalisationState
+
+
+class BeaconEvent(_EnvelopeBase):
+    type: Literal[EventType.BEACON] = EventType.BEACON
+    body: BeaconSighting
+
+
+class BehaviourEvent(_EnvelopeBase):
+    type: Literal[EventType.BEHAVIOUR] = EventType.BEHAVIOUR
+    body: BehaviourOutcome
+
+
+Event = Annotated[
+    Union[HazardEvent, MapEvent, StatusEvent, LocalisationEvent, BeaconEvent, BehaviourEvent],  # noqa: UP007
+    Field(discriminator="type"),
+]
+EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
+    EventType.HAZARD: HazardEvent,
+    EventType.MAP: MapEvent,
+    EventType.STATUS: StatusEvent,
+    EventType.LOCALISATION: LocalisationEvent,
+    EventType.BEACON: BeaconEvent,
+    EventType.BEHAVIOUR: BehaviourEvent,
+}
+BODY_MODELS: dict[EventType, type[BaseModel]] = {
+    t: m.model_fields["body"].annotation for t, m in EVENT_MODELS.items()  # type: ignore[misc]
+}
+EVENT_ADAPTER: TypeAdapter[Event] = TypeAdapter(Event)
+
+
+class SchemaError(ValueError):
+    """A message that is not a valid event; ``str()`` names every offending field."""
+
+    def __init__(self, problems: list[str]) -> None:
+        self.problems = problems
+        super().__init__("; ".join(problems))
+
+
+def describe_validation_error(error: ValidationError, prefix: str = "") -> list[str]:
+    problems = []
+    for item in error.errors(include_url=False):
+        location = ".".join(str(part) for part in item["loc"]) or "(message)"
+        problems.append(f"{prefix}{location}: {item['msg']}")
+    return problems
+
+
+def parse_event(raw: bytes | str) -> Event:
+    """Validate a JSON message body; raise :class:`SchemaError` naming what is wrong."""
+    try:
+        return EVENT_ADAPTER.validate_json(raw)
+    except ValidationError as error:
+        raise SchemaError(describe_validation_error(error)) from None
+
+
+def validate_body(event_type: EventType | str, data: Any) -> BaseModel:
+    """Validate just a body (what a robot hands to the client) against its type's model."""
+    model = BODY_MODELS[EventType(event_type)]
+    if isinstance(data, model):
+        return data
+    try:
+        return model.model_validate(data)
+    except ValidationError as error:
+        raise SchemaError(describe_validation_error(error, prefix="body.")) from None
+
+
+def build_event(event_type: EventType | str, robot_id: str, seq: int, body: Any, **envelope: Any) -> Event:
+    model = EVENT_MODELS[EventType(event_type)]
+    return model(robot_id=robot_id, seq=seq, body=validate_body(event_type, body), **envelope)  # type: ignore[return-value]
+
+
+def encode_event(event: BaseModel) -> bytes:
+    return event.model_dump_json().encode()

@@ -1,0 +1,27 @@
+"""JSON Schema export of every message on the bus."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from schemas.envelope import EVENT_ADAPTER, EVENT_MODELS
+
+
+def json_schemas() -> dict[str, dict[str, Any]]:
+    """One schema per event type, plus ``event`` for the discriminated union."""
+    schemas: dict[str, dict[str, Any]] = {"event": EVENT_ADAPTER.json_schema()}
+    for event_type, model in EVENT_MODELS.items():
+        schemas[event_type.value] = model.model_json_schema()
+    return schemas
+
+
+def write_json_schemas(directory: Path) -> list[Path]:
+    directory.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, schema in json_schemas().items():
+        path = directory / f"{name}.schema.json"
+        path.write_text(json.dumps(schema, indent=2) + "\n")
+        written.append(path)
+    return written

@@ -1,0 +1,90 @@
+"""The naming and routing-key convention of the bus, written down once.
+
+Robots and users own every resource that starts with their name::
+
+    <robot>.events      topic exchange the robot publishes to (write permission ``^<robot>\\.``)
+    <robot>.inbox       durable queue of the notifications the robot subscribed to
+
+Event routing keys are ``<robot>.<type>`` (for example ``explorer1.hazard``); topic permissions
+make the broker refuse any key that does not start with the publisher's own name.
+
+The service owns everything that starts with ``fleetbus.``::
+
+    fleetbus.ingest         topic exchange; every ``<robot>.events`` is bound into it with ``#``
+    fleetbus.ingest.events  quorum queue the workers consume
+    fleetbus.notify         topic exchange of notifications, keys ``notify.<topic>``
+    fleetbus.dlx            dead-letter exchange (fanout)
+    fleetbus.dead-letters   classic durable queue of rejected messages, with their reasons
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+SERVICE_PREFIX = "fleetbus"
+INGEST_EXCHANGE = "fleetbus.ingest"
+INGEST_QUEUE = "fleetbus.ingest.events"
+NOTIFY_EXCHANGE = "fleetbus.notify"
+DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
+DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
+
+
+class EventType(str, Enum):
+    HAZARD = "hazard"
+    MAP = "map"
+    STATUS = "status"
+    LOCALISATION = "localisation"
+    BEACON = "beacon"
+    BEHAVIOUR = "behaviour"
+
+
+class Topic(str, Enum):
+    """What a notification is about; the routing key is ``notify.<topic>``."""
+
+    HAZARD = "hazard"
+    MAP = "map"
+    BATTERY = "battery"
+
+
+class RobotKind(str, Enum):
+    EXPLORER = "explorer"
+    WARDEN = "warden"
+    GUIDE = "guide"
+
+
+#: Notification topics each kind of robot subscribes to; operators get every topic.
+SUBSCRIPTIONS: dict[RobotKind, tuple[Topic, ...]] = {
+    RobotKind.EXPLORER: (),
+    RobotKind.WARDEN: (Topic.HAZARD, Topic.MAP),
+    RobotKind.GUIDE: (Topic.MAP,),
+}
+ALL_TOPICS_BINDING = "notify.#"
+
+
+def events_exchange(owner: str) -> str:
+    return f"{owner}.events"
+
+
+def inbox_queue(owner: str) -> str:
+    return f"{owner}.inbox"
+
+
+def event_routing_key(robot: str, event_type: EventType | str) -> str:
+    return f"{robot}.{EventType(event_type).value}"
+
+
+def split_event_routing_key(routing_key: str) -> tuple[str, str]:
+    """Return ``(robot, type)`` of an event routing key; the type is not checked here."""
+    robot, sep, type_name = routing_key.partition(".")
+    if not sep or not robot or not type_name:
+        raise ValueError(f"routing key {routing_key!r} is not of the form <robot>.<type>")
+    return robot, type_name
+
+
+def notification_routing_key(topic: Topic | str) -> str:
+    return f"notify.{Topic(topic).value}"
+
+
+def owner_pattern(owner: str) -> str:
+    """Regular expression of the resources (and routing keys) ``owner`` may touch."""
+    return f"^{owner}\\."

@@ -1,0 +1,104 @@
+"""The storage interface every adapter implements, and the record it stores.
+
+Writes are idempotent on ``(robot_id, seq)``: the document-id strategy is that pair, so a
+redelivered or resent event never becomes a second record. ``write_events`` returns only once
+the batch is durable, which is what lets a worker ack after it.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+
+class StoreError(Exception):
+    """Base of the errors a store raises."""
+
+
+class StoreUnavailable(StoreError):
+    """Transient: the database cannot be reached or is locked. Retry later; nothing was written."""
+
+
+@dataclass(frozen=True)
+class EventRecord:
+    """One stored event: the validated envelope plus what the broker told us about it."""
+
+    robot_id: str
+    seq: int
+    type: str
+    message_id: str
+    sent_at: datetime
+    received_at: datetime
+    body: dict[str, Any]
+    user_id: str
+    """The broker-validated user that published the message."""
+    exchange: str
+    routing_key: str
+    mission_id: str | None = None
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.robot_id, self.seq)
+
+
+@dataclass(frozen=True)
+class WriteResult:
+    inserted: bool
+    """False when a record with the same (robot_id, seq) was already stored."""
+    notified: bool
+    """Whether the notifications for this record were already marked as sent."""
+
+
+@dataclass(frozen=True)
+class EventQuery:
+    type: str | None = None
+    robot_id: str | None = None
+    since: datetime | None = None
+    """Inclusive lower bound on ``sent_at``."""
+    until: datetime | None = None
+    """Exclusive upper bound on ``sent_at``."""
+    limit: int | None = None
+    newest_first: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class EventStore(abc.ABC):
+    """Async storage of events. Implementations: SQLite (embedded default) and MongoDB."""
+
+    name: str
+
+    @abc.abstractmethod
+    async def open(self) -> None:
+        """Connect and create tables or indexes; idempotent."""
+
+    @abc.abstractmethod
+    async def close(self) -> None: ...
+
+    @abc.abstractmethod
+    async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
+        """Store a batch atomically and durably, skipping records whose key exists.
+
+        Returns one result per record, in order. Raises :class:`StoreUnavailable` when the
+        database cannot be reached; then nothing of the batch may be assumed written.
+        """
+
+    @abc.abstractmethod
+    async def mark_notified(self, keys: Sequence[tuple[str, int]]) -> None:
+        """Record that the notifications for these events were published."""
+
+    @abc.abstractmethod
+    async def find_events(self, query: EventQuery) -> list[EventRecord]:
+        """Events matching the query, ordered by ``sent_at`` then robot and sequence number."""
+
+    @abc.abstractmethod
+    async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int: ...
+
+    async def __aenter__(self) -> EventStore:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
