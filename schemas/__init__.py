@@ -22,6 +22,7 @@ from schemas.envelope import (
     validate_body,
 )
 from schemas.identity import RobotId, validate_name
+from schemas.notifications import Notification
 from schemas.routing import EventType, RobotKind, Topic
 
 __all__ = [
@@ -35,6 +36,7 @@ __all__ = [
     "LocalisationState",
     "MapMetadata",
     "MapUpdate",
+    "Notification",
     "Pose",
     "Quaternion",
     "RobotId",

@@ -83,7 +83,8 @@ EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
     EventType.BEHAVIOUR: BehaviourEvent,
 }
 BODY_MODELS: dict[EventType, type[BaseModel]] = {
-    t: m.model_fields["body"].annotation for t, m in EVENT_MODELS.items()  # type: ignore[misc]
+    t: m.model_fields["body"].annotation
+    for t, m in EVENT_MODELS.items()  # type: ignore[misc]
 }
 EVENT_ADAPTER: TypeAdapter[Event] = TypeAdapter(Event)
 

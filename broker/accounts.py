@@ -1,0 +1,138 @@
+"""Broker accounts: one per user, robot and service, each confined to its own name prefix.
+
+The broker enforces the confinement: permissions allow configure, write and read only on
+resources matching ``^<name>\\.``, topic permissions allow only routing keys starting with the
+name, and every message a robot publishes carries ``user_id`` = its account, which RabbitMQ
+checks against the connection's login.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+from urllib.parse import quote, unquote, urlsplit, urlunsplit
+
+import pika
+import pika.exceptions
+
+from broker.management import ManagementAPI
+from broker.topology import account_topology, core_topology, declare_with_url
+from schemas.identity import validate_name
+from schemas.routing import SERVICE_PREFIX, RobotKind, events_exchange, owner_pattern
+
+SERVICE_USER = SERVICE_PREFIX
+
+
+class Role(str, Enum):
+    ROBOT = "robot"
+    OPERATOR = "operator"
+    SERVICE = "service"
+
+
+#: Management UI access: operators trace messages there; robots and services need none.
+ROLE_TAGS = {Role.ROBOT: "", Role.OPERATOR: "management", Role.SERVICE: ""}
+
+
+class AccountExists(RuntimeError):
+    pass
+
+
+@dataclass(frozen=True)
+class Account:
+    name: str
+    role: Role
+    amqp_url: str
+
+
+def vhost_of(amqp_url: str) -> str:
+    path = urlsplit(amqp_url).path
+    return unquote(path[1:]) if len(path) > 1 else "/"
+
+
+def url_for(amqp_url: str, username: str, password: str) -> str:
+    """The same broker and virtual host as ``amqp_url``, logged in as another account."""
+    parts = urlsplit(amqp_url)
+    host = parts.hostname or "localhost"
+    netloc = f"{quote(username, safe='')}:{quote(password, safe='')}@{host}"
+    if parts.port:
+        netloc += f":{parts.port}"
+    return urlunsplit((parts.scheme, netloc, parts.path, parts.query, ""))
+
+
+def _grant(api: ManagementAPI, vhost: str, name: str) -> None:
+    pattern = owner_pattern(name)
+    api.put_permissions(vhost, name, configure=pattern, write=pattern, read=pattern)
+
+
+async def provision_account(
+    admin_url: str,
+    api: ManagementAPI,
+    name: str,
+    role: Role,
+    kind: RobotKind | None = None,
+    *,
+    rotate: bool = False,
+) -> Account:
+    """Create (or with ``rotate``, re-key) an account with its exchange, inbox and permissions."""
+    validate_name(name)
+    if role is not Role.ROBOT and kind is not None:
+        raise ValueError("--kind applies to robots only")
+    if api.get_user(name) is not None and not rotate:
+        raise AccountExists(f"user {name!r} exists; use --rotate to give it a new password")
+    vhost = vhost_of(admin_url)
+    password = secrets.token_urlsafe(24)
+    api.put_user(name, password, ROLE_TAGS[role])
+    _grant(api, vhost, name)
+    pattern = owner_pattern(name).replace(name, "{username}")
+    api.put_topic_permissions(vhost, name, events_exchange(name), write=pattern, read=pattern)
+    await declare_with_url(
+        admin_url, [core_topology(), account_topology(name, kind=kind, operator=role is Role.OPERATOR)]
+    )
+    return Account(name, role, url_for(admin_url, name, password))
+
+
+def ensure_service_account(admin_url: str, api: ManagementAPI, credentials_dir: Path) -> str:
+    """The workers' own account (``fleetbus``, confined to ``fleetbus.*``); returns its URL.
+
+    The password lives in ``credentials_dir`` (mode 0600) and is re-keyed when that file is
+    missing, so a fresh data directory never needs the old secret.
+    """
+    vhost = vhost_of(admin_url)
+    secret_file = credentials_dir / f"{SERVICE_USER}.password"
+    password = secret_file.read_text().strip() if secret_file.exists() else None
+    if password is None or not can_login(url_for(admin_url, SERVICE_USER, password)):
+        password = secrets.token_urlsafe(24)
+        api.put_user(SERVICE_USER, password, ROLE_TAGS[Role.SERVICE])
+        save_secret(secret_file, password)
+    _grant(api, vhost, SERVICE_USER)
+    return url_for(admin_url, SERVICE_USER, password)
+
+
+def can_login(amqp_url: str) -> bool:
+    """Whether the broker accepts this URL's credentials (it answers at all, or this raises)."""
+    parameters = pika.URLParameters(amqp_url)
+    parameters.connection_attempts = 1
+    parameters.socket_timeout = 5
+    try:
+        pika.BlockingConnection(parameters).close()
+    except pika.exceptions.ProbableAuthenticationError:
+        return False
+    except pika.exceptions.ProbableAccessDeniedError:
+        return True  # the password is right; the permissions are granted next
+    return True
+
+
+def save_secret(path: Path, secret: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as handle:
+        handle.write(secret + "\n")
+
+
+def delete_account(admin_url: str, api: ManagementAPI, name: str) -> None:
+    """Remove the account; its exchange and inbox go with a later ``users remove --purge``."""
+    validate_name(name)
+    api.delete_user(name)

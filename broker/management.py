@@ -1,0 +1,99 @@
+"""A small client of RabbitMQ's management HTTP API: the parts fleetbus administers with.
+
+Accounts, permissions, topic permissions and virtual hosts have no AMQP operations, so the
+service manages them here; queues, exchanges and bindings are declared over AMQP by
+:mod:`broker.topology`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+from urllib.parse import quote, urlsplit
+
+import httpx
+
+
+class ManagementError(RuntimeError):
+    """The management API refused or failed a request; the message quotes its answer."""
+
+
+def _q(part: str) -> str:
+    return quote(part, safe="")
+
+
+class ManagementAPI:
+    def __init__(self, base_url: str, username: str, password: str, timeout: float = 15.0) -> None:
+        self.base_url = base_url.rstrip("/") + "/"
+        self._client = httpx.Client(
+            base_url=self.base_url + "api/", auth=(username, password), timeout=timeout
+        )
+
+    @classmethod
+    def from_urls(cls, management_url: str, amqp_url: str) -> ManagementAPI:
+        """Use the credentials of an AMQP URL (the administrator's) against the HTTP API."""
+        parts = urlsplit(amqp_url)
+        return cls(management_url, parts.username or "", parts.password or "")
+
+    def close(self) -> None:
+        self._client.close()
+
+    def __enter__(self) -> ManagementAPI:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+        response = self._client.request(method, path, **kwargs)
+        if response.status_code == 404 and method == "DELETE":
+            return None
+        if response.status_code >= 400:
+            raise ManagementError(f"{method} /api/{path} -> {response.status_code}: {response.text.strip()}")
+        return response.json() if response.content else None
+
+    # accounts
+    def put_user(self, name: str, password: str, tags: str = "") -> None:
+        self._request("PUT", f"users/{_q(name)}", json={"password": password, "tags": tags})
+
+    def get_user(self, name: str) -> dict[str, Any] | None:
+        response = self._client.get(f"users/{_q(name)}")
+        return response.json() if response.status_code == 200 else None
+
+    def delete_user(self, name: str) -> None:
+        self._request("DELETE", f"users/{_q(name)}")
+
+    def list_users(self) -> list[dict[str, Any]]:
+        return self._request("GET", "users")
+
+    # permissions
+    def put_permissions(self, vhost: str, user: str, configure: str, write: str, read: str) -> None:
+        body = {"configure": configure, "write": write, "read": read}
+        self._request("PUT", f"permissions/{_q(vhost)}/{_q(user)}", json=body)
+
+    def get_permissions(self, vhost: str, user: str) -> dict[str, Any] | None:
+        response = self._client.get(f"permissions/{_q(vhost)}/{_q(user)}")
+        return response.json() if response.status_code == 200 else None
+
+    def put_topic_permissions(self, vhost: str, user: str, exchange: str, write: str, read: str) -> None:
+        body = {"exchange": exchange, "write": write, "read": read}
+        self._request("PUT", f"topic-permissions/{_q(vhost)}/{_q(user)}", json=body)
+
+    # virtual hosts
+    def put_vhost(self, vhost: str) -> None:
+        self._request("PUT", f"vhosts/{_q(vhost)}")
+
+    def delete_vhost(self, vhost: str) -> None:
+        self._request("DELETE", f"vhosts/{_q(vhost)}")
+
+    # observation
+    def list_bindings(self, vhost: str) -> list[dict[str, Any]]:
+        return self._request("GET", f"bindings/{_q(vhost)}")
+
+    def get_queue(self, vhost: str, name: str) -> dict[str, Any]:
+        return self._request("GET", f"queues/{_q(vhost)}/{_q(name)}")
+
+    def list_connections(self) -> list[dict[str, Any]]:
+        return self._request("GET", "connections")
+
+    def overview(self) -> dict[str, Any]:
+        return self._request("GET", "overview")

@@ -1,0 +1,143 @@
+"""The bus topology as code: what exists, declared idempotently with aio-pika.
+
+:func:`core_topology` is the service's part (ingest, notifications, dead letters);
+:func:`account_topology` is what one user or robot owns. Both are plain data, so the worker,
+the provisioning commands and the tests declare exactly the same arguments (RabbitMQ refuses a
+re-declaration whose arguments differ).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import aio_pika
+from aio_pika.abc import AbstractChannel, ExchangeType
+
+from schemas.routing import (
+    ALL_TOPICS_BINDING,
+    DEAD_LETTER_EXCHANGE,
+    DEAD_LETTER_QUEUE,
+    INGEST_EXCHANGE,
+    INGEST_QUEUE,
+    NOTIFY_EXCHANGE,
+    SUBSCRIPTIONS,
+    RobotKind,
+    events_exchange,
+    inbox_queue,
+    notification_routing_key,
+)
+
+#: A message redelivered this many times (the worker died on it each time) is dead-lettered
+#: by the broker itself, so one poison message cannot stop the ingest forever.
+INGEST_DELIVERY_LIMIT = 50
+
+
+@dataclass(frozen=True)
+class ExchangeSpec:
+    name: str
+    type: ExchangeType
+
+
+@dataclass(frozen=True)
+class QueueSpec:
+    name: str
+    arguments: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class BindingSpec:
+    source: str
+    destination: str
+    routing_key: str
+    to_exchange: bool = False
+
+
+@dataclass(frozen=True)
+class Topology:
+    exchanges: Sequence[ExchangeSpec] = ()
+    queues: Sequence[QueueSpec] = ()
+    bindings: Sequence[BindingSpec] = ()
+
+
+def core_topology() -> Topology:
+    return Topology(
+        exchanges=(
+            ExchangeSpec(INGEST_EXCHANGE, ExchangeType.TOPIC),
+            ExchangeSpec(NOTIFY_EXCHANGE, ExchangeType.TOPIC),
+            ExchangeSpec(DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),
+        ),
+        queues=(
+            QueueSpec(
+                INGEST_QUEUE,
+                {
+                    "x-queue-type": "quorum",
+                    # One active consumer at a time keeps per-robot order with standby workers.
+                    "x-single-active-consumer": True,
+                    "x-delivery-limit": INGEST_DELIVERY_LIMIT,
+                    "x-dead-letter-exchange": DEAD_LETTER_EXCHANGE,
+                },
+            ),
+            # Classic, not quorum: listing it (`fleetbus dlq`) gets and requeues messages, and a
+            # quorum queue would count each listing as a delivery.
+            QueueSpec(DEAD_LETTER_QUEUE, {"x-queue-type": "classic"}),
+        ),
+        bindings=(
+            BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),
+            BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
+        ),
+    )
+
+
+def inbox_bindings(owner: str, kind: RobotKind | None, operator: bool) -> list[str]:
+    if operator:
+        return [ALL_TOPICS_BINDING]
+    if kind is None:
+        return []
+    return [notification_routing_key(topic) for topic in SUBSCRIPTIONS[kind]]
+
+
+def account_topology(owner: str, *, kind: RobotKind | None = None, operator: bool = False) -> Topology:
+    """A user's own exchange (bound into the ingest) and inbox (bound to its notifications)."""
+    exchange = events_exchange(owner)
+    inbox = inbox_queue(owner)
+    return Topology(
+        exchanges=(ExchangeSpec(exchange, ExchangeType.TOPIC),),
+        queues=(QueueSpec(inbox, {"x-queue-type": "quorum"}),),
+        bindings=(
+            BindingSpec(exchange, INGEST_EXCHANGE, "#", to_exchange=True),
+            *(BindingSpec(NOTIFY_EXCHANGE, inbox, key) for key in inbox_bindings(owner, kind, operator)),
+        ),
+    )
+
+
+async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> None:
+    """Declare every exchange, queue and binding; declaring what exists is a no-op."""
+    topologies = list(topologies)
+    exchanges: dict[str, aio_pika.abc.AbstractExchange] = {}
+    queues: dict[str, aio_pika.abc.AbstractQueue] = {}
+    for topology in topologies:
+        for spec in topology.exchanges:
+            exchanges[spec.name] = await channel.declare_exchange(spec.name, spec.type, durable=True)
+    for topology in topologies:
+        for spec in topology.queues:
+            queues[spec.name] = await channel.declare_queue(spec.name, durable=True, arguments=spec.arguments)
+    for topology in topologies:
+        for binding in topology.bindings:
+            source = exchanges.get(binding.source) or await channel.get_exchange(binding.source)
+            if binding.to_exchange:
+                destination = exchanges.get(binding.destination) or await channel.get_exchange(
+                    binding.destination
+                )
+                await destination.bind(source, routing_key=binding.routing_key)
+            else:
+                queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
+                await queue.bind(source, routing_key=binding.routing_key)
+
+
+async def declare_with_url(amqp_url: str, topologies: Iterable[Topology]) -> None:
+    connection = await aio_pika.connect(amqp_url)
+    async with connection:
+        channel = await connection.channel()
+        await declare(channel, topologies)

@@ -1,0 +1,179 @@
+"""The robot-side client: synchronous, on pika, for robot code that is usually synchronous.
+
+with RobotClient(url) as robot:                   # the URL's user is the robot's account
+    robot.publish("hazard", {...})                # returns once the broker confirmed it
+    robot.publish_many([("status", {...}), ...])  # pipelined confirms
+    for note in robot.notifications(timeout=5):   # this robot's inbox
+        ...
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+from urllib.parse import unquote, urlsplit
+
+import pika
+import pika.exceptions
+
+from publishers.confirms import Outgoing, PipelinedConfirms
+from publishers.errors import BrokerUnavailable
+from publishers.sequence import SequenceCounter
+from schemas.envelope import Event, build_event, encode_event, validate_body
+from schemas.identity import validate_name
+from schemas.notifications import Notification
+from schemas.routing import EventType, event_routing_key, events_exchange, inbox_queue
+
+#: Largest batch written before waiting for its confirms; bounds memory and redelivery work.
+PUBLISH_WINDOW = 1000
+
+
+def robot_state_path(state_dir: Path, robot_id: str) -> Path:
+    return state_dir / robot_id / "state.json"
+
+
+def to_outgoing(event: Event) -> Outgoing:
+    properties = pika.BasicProperties(
+        content_type="application/json",
+        delivery_mode=pika.DeliveryMode.Persistent,
+        message_id=str(event.message_id),
+        user_id=event.robot_id,  # checked by the broker against the login
+        timestamp=int(event.sent_at.timestamp()),
+        type=event.type.value,
+        app_id="fleetbus-robot",
+    )
+    return Outgoing(
+        events_exchange(event.robot_id),
+        event_routing_key(event.robot_id, event.type),
+        encode_event(event),
+        properties,
+    )
+
+
+class RobotClient:
+    def __init__(
+        self,
+        amqp_url: str,
+        *,
+        state_dir: Path,
+        connect_timeout: float = 30.0,
+        confirm_timeout: float = 30.0,
+    ) -> None:
+        self.robot_id = validate_name(unquote(urlsplit(amqp_url).username or ""))
+        self._parameters = pika.URLParameters(amqp_url)
+        self._parameters.heartbeat = 30
+        self._parameters.connection_attempts = 1
+        self._connect_timeout = connect_timeout
+        self._confirm_timeout = confirm_timeout
+        self._sequence = SequenceCounter(robot_state_path(state_dir, self.robot_id))
+        self._connection: pika.BlockingConnection | None = None
+        self._confirms: PipelinedConfirms | None = None
+
+    # connection
+    def connect(self) -> None:
+        """Connect, retrying with backoff until ``connect_timeout``; raise BrokerUnavailable then."""
+        deadline = time.monotonic() + self._connect_timeout
+        delay = 0.2
+        while True:
+            try:
+                self._connection = pika.BlockingConnection(self._parameters)
+                break
+            except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
+                raise
+            except pika.exceptions.AMQPConnectionError as error:
+                if time.monotonic() + delay > deadline:
+                    raise BrokerUnavailable(
+                        f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} "
+                        f"within {self._connect_timeout:.0f} s: {error!r}"
+                    ) from error
+                time.sleep(delay)  # backoff between connection attempts
+                delay = min(delay * 2, 5.0)
+        self._confirms = PipelinedConfirms(
+            self._connection, self._connection.channel(), self._confirm_timeout
+        )
+
+    def _ready(self) -> PipelinedConfirms:
+        if self._confirms is None or self._connection is None or not self._connection.is_open:
+            self.connect()
+        elif self._confirms._closed_reason is not None:  # refused earlier: start a clean channel
+            self._confirms = PipelinedConfirms(
+                self._connection, self._connection.channel(), self._confirm_timeout
+            )
+        assert self._confirms is not None
+        return self._confirms
+
+    def close(self) -> None:
+        if self._connection is not None and self._connection.is_open:
+            self._connection.close()
+        self._connection = None
+        self._confirms = None
+        self._sequence.close()
+
+    def __enter__(self) -> RobotClient:
+        self.connect()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # publishing
+    def build(self, items: Sequence[tuple[EventType | str, Any]]) -> list[Event]:
+        """Validate bodies, then give them consecutive sequence numbers (none wasted on bad input)."""
+        bodies = [(event_type, validate_body(event_type, body)) for event_type, body in items]
+        first = self._sequence.reserve(len(bodies)) if bodies else 0
+        return [build_event(t, self.robot_id, first + i, body) for i, (t, body) in enumerate(bodies)]
+
+    def publish(self, event_type: EventType | str, body: Any) -> Event:
+        return self.publish_many([(event_type, body)])[0]
+
+    def publish_many(self, items: Iterable[tuple[EventType | str, Any]]) -> list[Event]:
+        events = self.build(list(items))
+        self.send(events)
+        return events
+
+    def send(self, events: Sequence[Event]) -> None:
+        """Publish already built events (also a resend: same sequence number, no second record)."""
+        for start in range(0, len(events), PUBLISH_WINDOW):
+            window = [to_outgoing(event) for event in events[start : start + PUBLISH_WINDOW]]
+            self._ready().publish(window, self._confirm_timeout)
+
+    # notifications
+    def notifications(self, timeout: float | None = None, prefetch: int = 64) -> Iterator[Notification]:
+        """This robot's notifications; stops after ``timeout`` seconds without one.
+
+        Each notification is acked when the caller asks for the next, so one that was being
+        handled when the robot died is delivered again.
+        """
+        if self._connection is None or not self._connection.is_open:
+            self.connect()
+        assert self._connection is not None
+        channel = self._connection.channel()
+        channel.basic_qos(prefetch_count=prefetch)
+        try:
+            for method, _properties, body in channel.consume(
+                inbox_queue(self.robot_id), inactivity_timeout=timeout
+            ):
+                if method is None:
+                    return
+                yield Notification.model_validate_json(body)
+                channel.basic_ack(method.delivery_tag)
+        finally:
+            if channel.is_open:
+                channel.cancel()
+                channel.close()
+
+    def receive(self, count: int, timeout: float) -> list[Notification]:
+        """Exactly ``count`` notifications, or fewer if ``timeout`` passes first."""
+        received: list[Notification] = []
+        deadline = time.monotonic() + timeout
+        while len(received) < count and time.monotonic() < deadline:
+            for note in self.notifications(timeout=max(0.1, deadline - time.monotonic())):
+                received.append(note)
+                if len(received) == count:
+                    break
+        return received

@@ -1,0 +1,19 @@
+"""What the service sends to robots and operators after it stored an event."""
+
+from __future__ import annotations
+
+from pydantic import AwareDatetime, BaseModel, ConfigDict
+
+from schemas.envelope import Event
+from schemas.routing import Topic
+
+
+class Notification(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    topic: Topic
+    event: Event
+    """The event exactly as the robot sent it."""
+    received_at: AwareDatetime
+    """When the service received the event."""
+    notified_at: AwareDatetime
