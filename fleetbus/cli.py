@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from fleetbus.commands import broker as broker_commands
+from fleetbus.commands import broker, dlq, events, schemas_export, users, worker
 
 app = typer.Typer(
     name="fleetbus",
@@ -12,7 +12,13 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_show_locals=False,
 )
-app.add_typer(broker_commands.app, name="broker")
+app.add_typer(broker.app, name="broker")
+app.add_typer(users.app, name="users")
+app.command("worker")(worker.worker)
+app.command("publish")(events.publish)
+app.command("query")(events.query)
+app.command("dlq")(dlq.dlq)
+app.command("schemas")(schemas_export.export_schemas)
 
 if __name__ == "__main__":
     app()

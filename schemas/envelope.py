@@ -97,6 +97,10 @@ class SchemaError(ValueError):
         super().__init__("; ".join(problems))
 
 
+class NotJSONError(SchemaError):
+    """The body is not JSON at all."""
+
+
 def describe_validation_error(error: ValidationError, prefix: str = "") -> list[str]:
     problems = []
     for item in error.errors(include_url=False):
@@ -110,7 +114,10 @@ def parse_event(raw: bytes | str) -> Event:
     try:
         return EVENT_ADAPTER.validate_json(raw)
     except ValidationError as error:
-        raise SchemaError(describe_validation_error(error)) from None
+        problems = describe_validation_error(error)
+        if any(item["type"] == "json_invalid" for item in error.errors()):
+            raise NotJSONError(problems) from None
+        raise SchemaError(problems) from None
 
 
 def validate_body(event_type: EventType | str, data: Any) -> BaseModel:

@@ -88,3 +88,7 @@ def notification_routing_key(topic: Topic | str) -> str:
 def owner_pattern(owner: str) -> str:
     """Regular expression of the resources (and routing keys) ``owner`` may touch."""
     return f"^{owner}\\."
+
+#: Headers the workers put on a dead-lettered message: a reason code and a readable detail.
+REASON_HEADER = "x-fleetbus-reason"
+DETAIL_HEADER = "x-fleetbus-detail"

@@ -1,0 +1,3 @@
+from fleetbus.cli import app
+
+app()

@@ -1,0 +1,120 @@
+"""``fleetbus publish`` and ``fleetbus query``: put one event on the bus, read stored ones."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from datetime import datetime, timezone
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from fleetbus.context import console, fail, load_data, settings
+from publishers.client import RobotClient
+from publishers.errors import PublisherError
+from schemas.envelope import SchemaError, validate_body
+from schemas.routing import EventType
+from workers.store import open_store
+from workers.store.base import EventQuery, EventRecord
+
+
+def robot_url(robot: str, url: str | None) -> str:
+    if url:
+        return url
+    saved = settings().accounts_dir / f"{robot}.url"
+    if saved.exists():
+        return saved.read_text().strip()
+    fail(f"no credentials for {robot!r}: use --url, FLEETBUS_ROBOT_URL or `fleetbus users add {robot}`")
+
+
+def publish(
+    robot: str,
+    event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
+    data: Annotated[str, typer.Argument(help="JSON, or @file.json / @file.yaml")],
+    url: Annotated[str | None, typer.Option(envvar="FLEETBUS_ROBOT_URL", help="the robot's AMQP URL")] = None,
+) -> None:
+    """Publish one event as ROBOT; it returns once the broker confirmed it."""
+    body = load_data(data)
+    try:
+        validate_body(event_type, body)
+    except SchemaError as error:
+        fail(f"invalid {event_type.value} body: {error}", code=2)
+    try:
+        with RobotClient(
+            robot_url(robot, url), state_dir=settings().robots_dir, connect_timeout=10
+        ) as client:
+            if client.robot_id != robot:
+                fail(f"the URL logs in as {client.robot_id!r}, not {robot!r}")
+            event = client.publish(event_type, body)
+    except PublisherError as error:
+        fail(str(error))
+    console.print(f"published {event.type.value} {event.message_id} as {robot}, seq {event.seq}")
+
+
+def parse_time(value: str | None) -> datetime | None:
+    """ISO 8601, or a duration back from now: ``90s``, ``10m``, ``2h``, ``1d``."""
+    if value is None:
+        return None
+    units = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+    if value[-1:] in units and value[:-1].replace(".", "", 1).isdigit():
+        return datetime.fromtimestamp(
+            datetime.now(timezone.utc).timestamp() - float(value[:-1]) * units[value[-1]], timezone.utc
+        )
+    try:
+        parsed = datetime.fromisoformat(value)
+    except ValueError:
+        fail(f"cannot read time {value!r}: use ISO 8601 or a duration like 10m")
+    return parsed if parsed.tzinfo else parsed.replace(tzinfo=timezone.utc)
+
+
+def record_dict(record: EventRecord) -> dict[str, Any]:
+    out = record.__dict__.copy()
+    out["sent_at"] = record.sent_at.isoformat()
+    out["received_at"] = record.received_at.isoformat()
+    return out
+
+
+async def _find(query: EventQuery) -> list[EventRecord]:
+    store = open_store(settings())
+    async with store:
+        return await store.find_events(query)
+
+
+def query(
+    event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
+    robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
+    since: Annotated[str | None, typer.Option(help="from this time (ISO 8601 or e.g. 10m ago)")] = None,
+    until: Annotated[str | None, typer.Option(help="before this time")] = None,
+    limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
+    as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
+) -> None:
+    """Stored events of TYPE, oldest first (the newest LIMIT of them)."""
+    q = EventQuery(
+        type=event_type.value,
+        robot_id=robot,
+        since=parse_time(since),
+        until=parse_time(until),
+        limit=limit,
+        newest_first=True,
+    )
+    records = list(reversed(asyncio.run(_find(q))))
+    if as_json:
+        for record in records:
+            typer.echo(json.dumps(record_dict(record)))
+        return
+    table = Table(
+        "robot", "seq", "sent at", "received at", "body", title=f"{len(records)} {event_type.value} events"
+    )
+    for record in records:
+        body = json.dumps(record.body)
+        table.add_row(
+            record.robot_id,
+            str(record.seq),
+            record.sent_at.isoformat(timespec="milliseconds"),
+            record.received_at.isoformat(timespec="milliseconds"),
+            body if len(body) < 90 else body[:87] + "...",
+        )
+    console.print(table)
+    if len(records) == limit:
+        console.print(f"[dim]showing the newest {limit}; use --limit or --since for more[/]")

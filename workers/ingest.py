@@ -1,0 +1,179 @@
+"""The ingest worker: validate, store durably, notify, then ack, in batches.
+
+A batch is what arrived within a few milliseconds (at most the prefetch). Rejected messages
+are dead-lettered first, accepted ones are written in one transaction, notifications for the new
+ones follow, and only then is the batch acked. A crash anywhere before the ack means
+redelivery, and the store's (robot, seq) key turns redelivery into a no-op.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from dataclasses import dataclass, field
+
+import aiormq.exceptions
+from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMessage, AbstractQueue
+from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
+
+from workers.backoff import Backoff
+from workers.dead_letters import dead_letter
+from workers.notifier import needs_notification, notify
+from workers.store.base import EventStore, StoreUnavailable, WriteResult
+from workers.validation import Accepted, Rejected, classify
+
+log = logging.getLogger("fleetbus.ingest")
+
+
+class Stopping(Exception):
+    """The worker is stopping while the store is down: leave the batch unacked."""
+
+
+@dataclass
+class IngestStats:
+    stored: int = 0
+    duplicates: int = 0
+    rejected: int = 0
+    notified: int = 0
+    store_retries: int = 0
+    by_reason: dict[str, int] = field(default_factory=dict)
+
+
+class IngestConsumer:
+    def __init__(
+        self,
+        channel: AbstractChannel,
+        queue: AbstractQueue,
+        store: EventStore,
+        notify_exchange: AbstractExchange,
+        dead_letter_exchange: AbstractExchange,
+        *,
+        service_user: str,
+        max_message_bytes: int,
+        batch_size: int = 256,
+        linger: float = 0.005,
+    ) -> None:
+        self._channel = channel
+        self._queue = queue
+        self._store = store
+        self._notify_exchange = notify_exchange
+        self._dead_letter_exchange = dead_letter_exchange
+        self._service_user = service_user
+        self._max_bytes = max_message_bytes
+        self._batch_size = batch_size
+        self._linger = linger
+        self._inbox: asyncio.Queue[AbstractIncomingMessage] = asyncio.Queue()
+        self._stopping = asyncio.Event()
+        self._consumer_tag: str | None = None
+        self.stats = IngestStats()
+
+    async def _on_message(self, message: AbstractIncomingMessage) -> None:
+        await self._inbox.put(message)
+
+    async def run(self) -> None:
+        """Consume until :meth:`stop`; then finish what was received and return."""
+        self._consumer_tag = await self._queue.consume(self._on_message, no_ack=False)
+        while not (self._stopping.is_set() and self._inbox.empty()):
+            batch = await self._next_batch()
+            if batch:
+                try:
+                    await self._process(batch)
+                except Stopping:
+                    log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
+                    return
+                except (
+                    AMQPError,
+                    aiormq.exceptions.AMQPError,
+                    ChannelInvalidStateError,
+                    ConnectionError,
+                ) as error:
+                    # The channel is gone; the broker redelivers the batch to whoever consumes next.
+                    log.warning(
+                        "broker connection lost mid-batch (%r); %d messages will be redelivered",
+                        error,
+                        len(batch),
+                    )
+
+    async def stop(self) -> None:
+        """Stop taking new messages; :meth:`run` returns once the ones received are handled."""
+        if self._consumer_tag is not None and not self._channel.is_closed:
+            with contextlib.suppress(AMQPError, aiormq.exceptions.AMQPError, ChannelInvalidStateError):
+                await self._queue.cancel(self._consumer_tag)
+        self._stopping.set()
+
+    async def _next_batch(self) -> list[AbstractIncomingMessage]:
+        batch: list[AbstractIncomingMessage] = []
+        stop_wait = asyncio.ensure_future(self._stopping.wait())
+        try:
+            get = asyncio.ensure_future(self._inbox.get())
+            done, _ = await asyncio.wait({get, stop_wait}, return_when=asyncio.FIRST_COMPLETED)
+            if get not in done:
+                get.cancel()
+                return []
+            batch.append(get.result())
+        finally:
+            stop_wait.cancel()
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self._linger
+        while len(batch) < self._batch_size:
+            try:
+                batch.append(self._inbox.get_nowait())
+            except asyncio.QueueEmpty:
+                remaining = deadline - loop.time()
+                if remaining <= 0:
+                    break
+                try:
+                    batch.append(await asyncio.wait_for(self._inbox.get(), remaining))
+                except asyncio.TimeoutError:
+                    break
+        return batch
+
+    async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
+        accepted: list[Accepted] = []
+        for message in batch:
+            verdict = classify(message, self._max_bytes)
+            if isinstance(verdict, Rejected):
+                await dead_letter(self._dead_letter_exchange, message, verdict)
+                self.stats.rejected += 1
+                self.stats.by_reason[verdict.reason.value] = (
+                    self.stats.by_reason.get(verdict.reason.value, 0) + 1
+                )
+                log.warning(
+                    "dead-lettered %s from %s: %s: %s",
+                    message.message_id,
+                    message.user_id,
+                    verdict.reason.value,
+                    verdict.detail,
+                )
+            else:
+                accepted.append(verdict)
+        if accepted:
+            results = await self._write(accepted)
+            pending = [
+                item
+                for item, result in zip(accepted, results, strict=True)
+                if not result.notified and needs_notification(item)
+            ]
+            if pending:
+                await notify(self._notify_exchange, pending, self._service_user)
+                await self._store.mark_notified([item.record.key for item in pending])
+                self.stats.notified += len(pending)
+            inserted = sum(result.inserted for result in results)
+            self.stats.stored += inserted
+            self.stats.duplicates += len(results) - inserted
+        await batch[-1].ack(multiple=True)
+
+    async def _write(self, accepted: list[Accepted]) -> list[WriteResult]:
+        backoff = Backoff()
+        while True:
+            try:
+                return await self._store.write_events([item.record for item in accepted])
+            except StoreUnavailable as error:
+                if self._stopping.is_set():
+                    raise Stopping from error
+                self.stats.store_retries += 1
+                delay = backoff.next_delay()
+                log.warning("store unavailable (%s); retry %d in %.1f s", error, backoff.attempts, delay)
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(self._stopping.wait(), delay)

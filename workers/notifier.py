@@ -1,0 +1,42 @@
+"""Fan a notification out for each newly stored event that robots or operators follow.
+
+The service publishes once to ``fleetbus.notify``; the broker copies it into every inbox bound
+to its topic (wardens to ``notify.hazard``, operators to ``notify.#``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import datetime, timezone
+
+import aio_pika
+from aio_pika.abc import AbstractExchange
+
+from schemas.notifications import Notification
+from schemas.routing import EventType, Topic, notification_routing_key
+from workers.validation import Accepted
+
+TOPICS: dict[EventType, Topic] = {EventType.HAZARD: Topic.HAZARD, EventType.MAP: Topic.MAP}
+
+
+def needs_notification(item: Accepted) -> bool:
+    return item.event.type in TOPICS
+
+
+async def notify(exchange: AbstractExchange, items: Sequence[Accepted], service_user: str) -> None:
+    """Publish the notifications of ``items`` in order and wait for all their confirms."""
+    now = datetime.now(timezone.utc)
+    for item in items:
+        topic = TOPICS[item.event.type]
+        note = Notification(
+            topic=topic, event=item.event, received_at=item.record.received_at, notified_at=now
+        )
+        message = aio_pika.Message(
+            note.model_dump_json().encode(),
+            content_type="application/json",
+            delivery_mode=aio_pika.DeliveryMode.PERSISTENT,
+            message_id=f"{item.record.message_id}:{topic.value}",
+            user_id=service_user,
+            type=topic.value,
+        )
+        await exchange.publish(message, routing_key=notification_routing_key(topic), mandatory=False)

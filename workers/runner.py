@@ -1,0 +1,81 @@
+"""Start the workers against a broker and a store, and stop them cleanly on a signal."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+from dataclasses import dataclass
+
+import aio_pika
+from aio_pika.abc import AbstractRobustConnection
+from broker.endpoint import BrokerEndpoint
+
+from broker.accounts import SERVICE_USER, ensure_service_account
+from broker.management import ManagementAPI
+from broker.topology import core_topology, declare
+from fleetbus.config import Settings
+from schemas.routing import DEAD_LETTER_EXCHANGE, INGEST_QUEUE, NOTIFY_EXCHANGE
+from workers.ingest import IngestConsumer
+from workers.store import EventStore, open_store
+
+log = logging.getLogger("fleetbus.worker")
+
+PREFETCH = 512
+
+
+@dataclass
+class WorkerContext:
+    connection: AbstractRobustConnection
+    consumer: IngestConsumer
+    store: EventStore
+
+
+def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
+    with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
+        return ensure_service_account(endpoint.amqp_url, api, settings.accounts_dir)
+
+
+async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerContext:
+    url = await asyncio.to_thread(service_url, settings, endpoint)
+    store = open_store(settings)
+    await store.open()
+    connection = await aio_pika.connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
+    channel = await connection.channel(publisher_confirms=True)
+    await channel.set_qos(prefetch_count=PREFETCH)
+    await declare(channel, [core_topology()])
+    queue = await channel.get_queue(INGEST_QUEUE, ensure=False)
+    consumer = IngestConsumer(
+        channel,
+        queue,
+        store,
+        await channel.get_exchange(NOTIFY_EXCHANGE, ensure=False),
+        await channel.get_exchange(DEAD_LETTER_EXCHANGE, ensure=False),
+        service_user=SERVICE_USER,
+        max_message_bytes=settings.max_message_bytes,
+        batch_size=PREFETCH,
+    )
+    return WorkerContext(connection, consumer, store)
+
+
+async def run_worker(settings: Settings, endpoint: BrokerEndpoint, stop: asyncio.Event | None = None) -> None:
+    """Run until ``stop`` is set, or SIGTERM/SIGINT when run as the main program."""
+    stop = stop or asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+            loop.add_signal_handler(signum, stop.set)
+    context = await start_worker(settings, endpoint)
+    log.info("worker consuming %s (store: %s)", INGEST_QUEUE, context.store.name)
+    consuming = asyncio.create_task(context.consumer.run())
+    stopping = asyncio.create_task(stop.wait())
+    try:
+        await asyncio.wait({consuming, stopping}, return_when=asyncio.FIRST_COMPLETED)
+        await context.consumer.stop()
+        await consuming
+    finally:
+        stopping.cancel()
+        await context.connection.close()
+        await context.store.close()
+        log.info("worker stopped: %s", context.consumer.stats)

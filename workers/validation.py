@@ -1,0 +1,82 @@
+"""Decide what a delivered message is: an event to store, or a rejection with a reason."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from enum import Enum
+
+from aio_pika.abc import AbstractIncomingMessage
+
+from schemas.envelope import Event, NotJSONError, SchemaError, parse_event
+from schemas.routing import EventType, split_event_routing_key
+from workers.store.base import EventRecord
+
+
+class RejectReason(str, Enum):
+    TOO_LARGE = "too-large"
+    NOT_JSON = "not-json"
+    SCHEMA = "schema"
+    UNKNOWN_TYPE = "unknown-type"
+    NO_USER_ID = "no-user-id"
+    IDENTITY_MISMATCH = "identity-mismatch"
+
+
+@dataclass(frozen=True)
+class Accepted:
+    event: Event
+    record: EventRecord
+
+
+@dataclass(frozen=True)
+class Rejected:
+    reason: RejectReason
+    detail: str
+
+
+def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rejected:
+    received_at = datetime.now(timezone.utc)
+    body = message.body
+    if len(body) > max_bytes:
+        return Rejected(RejectReason.TOO_LARGE, f"body is {len(body)} bytes; the limit is {max_bytes}")
+    user_id = message.user_id
+    if not user_id:
+        return Rejected(
+            RejectReason.NO_USER_ID, "the message has no user_id property, so its origin is unproven"
+        )
+    routing_key = message.routing_key or ""
+    try:
+        key_robot, key_type = split_event_routing_key(routing_key)
+    except ValueError as error:
+        return Rejected(RejectReason.UNKNOWN_TYPE, str(error))
+    if key_type not in EventType._value2member_map_:
+        known = ", ".join(t.value for t in EventType)
+        return Rejected(
+            RejectReason.UNKNOWN_TYPE,
+            f"routing key {routing_key!r} names unknown type {key_type!r}; known: {known}",
+        )
+    try:
+        event = parse_event(body)
+    except NotJSONError as error:
+        return Rejected(RejectReason.NOT_JSON, str(error))
+    except SchemaError as error:
+        return Rejected(RejectReason.SCHEMA, str(error))
+    if not (event.robot_id == key_robot == user_id) or event.type.value != key_type:
+        return Rejected(
+            RejectReason.IDENTITY_MISMATCH,
+            f"user_id {user_id!r}, routing key {routing_key!r} and body robot_id {event.robot_id!r} "
+            f"type {event.type.value!r} do not agree",
+        )
+    record = EventRecord(
+        robot_id=event.robot_id,
+        seq=event.seq,
+        type=event.type.value,
+        message_id=str(event.message_id),
+        sent_at=event.sent_at,
+        received_at=received_at,
+        body=event.body.model_dump(mode="json"),
+        user_id=user_id,
+        exchange=message.exchange or "",
+        routing_key=routing_key,
+    )
+    return Accepted(event, record)
