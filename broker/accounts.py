@@ -62,6 +62,21 @@ def url_for(amqp_url: str, username: str, password: str) -> str:
     return urlunsplit((parts.scheme, netloc, parts.path, parts.query, ""))
 
 
+def with_vhost(amqp_url: str, vhost: str) -> str:
+    """The same login on another virtual host."""
+    parts = urlsplit(amqp_url)
+    return urlunsplit((parts.scheme, parts.netloc, "/" + quote(vhost, safe=""), parts.query, ""))
+
+
+def fresh_vhost(api: ManagementAPI, admin_url: str, vhost: str) -> str:
+    """Create ``vhost`` empty (deleting any old one), let the administrator in; return its URL."""
+    api.delete_vhost(vhost)
+    api.put_vhost(vhost)
+    admin = unquote(urlsplit(admin_url).username or "")
+    api.put_permissions(vhost, admin, ".*", ".*", ".*")
+    return with_vhost(admin_url, vhost)
+
+
 def _grant(api: ManagementAPI, vhost: str, name: str) -> None:
     pattern = owner_pattern(name)
     api.put_permissions(vhost, name, configure=pattern, write=pattern, read=pattern)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from fleetbus.commands import broker, dlq, events, schemas_export, users, worker
+from fleetbus.commands import broker, demo, dlq, events, schemas_export, users, worker
 
 app = typer.Typer(
     name="fleetbus",
@@ -18,6 +18,7 @@ app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)
 app.command("dlq")(dlq.dlq)
+app.command("demo")(demo.demo)
 app.command("schemas")(schemas_export.export_schemas)
 
 if __name__ == "__main__":

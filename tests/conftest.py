@@ -1,0 +1,45 @@
+"""Fixtures: the broker the README's command starts, and a fresh virtual host per test."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from broker.endpoint import BrokerEndpoint, resolve_broker
+
+from broker.accounts import fresh_vhost
+from broker.management import ManagementAPI
+from fleetbus.config import load_settings
+from tests.support import Bus
+
+
+@pytest.fixture(scope="session")
+def endpoint() -> BrokerEndpoint:
+    """The same code path as `fleetbus broker up`: FLEETBUS_AMQP_URL, Docker, or the private node."""
+    return resolve_broker(load_settings(), start=True)
+
+
+@pytest.fixture(scope="session")
+def management(endpoint: BrokerEndpoint) -> Iterator[ManagementAPI]:
+    with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
+        yield api
+
+
+@pytest.fixture
+def bus(endpoint: BrokerEndpoint, management: ManagementAPI, tmp_path: Path) -> Iterator[Bus]:
+    vhost = f"test-{uuid.uuid4().hex[:10]}"
+    admin_url = fresh_vhost(management, endpoint.amqp_url, vhost)
+    settings = replace(
+        load_settings(),
+        data_dir=tmp_path,
+        amqp_url=admin_url,
+        management_url=endpoint.management_url,
+        mongodb_url=None,
+    )
+    try:
+        yield Bus(endpoint, management, vhost, settings)
+    finally:
+        management.delete_vhost(vhost)

@@ -1,0 +1,134 @@
+"""The core loop against the real broker: robots publish, workers store and notify."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+
+import pika
+
+from broker.accounts import Role
+from broker.dead_letter_queue import peek_dead_letters
+from schemas.routing import RobotKind
+from tests.factories import TABLE1_TIME, hazard, status
+from tests.support import Bus, wait_for
+
+
+def test_200_hazards_reach_both_wardens_and_are_stored_once_in_order(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    wardens = [bus.robot(bus.add(name, kind=RobotKind.WARDEN)) for name in ("warden1", "warden2")]
+    with bus.worker():
+        sent = explorer.publish_many([("hazard", hazard(i)) for i in range(200)])
+        for warden in wardens:
+            notes = warden.receive(200, timeout=60)
+            assert [n.event.seq for n in notes] == [e.seq for e in sent], "FIFO order, no loss, no repeats"
+            assert [n.event for n in notes] == sent, "every field arrives exactly as sent"
+            assert notes[0].event.body.detected_at.isoformat() == TABLE1_TIME
+            assert warden.receive(1, timeout=0.5) == []
+        stored = bus.find()
+    assert [(r.robot_id, r.seq) for r in stored] == [("explorer1", e.seq) for e in sent]
+    assert {r.user_id for r in stored} == {"explorer1"}
+    assert {r.exchange for r in stored} == {"explorer1.events"}
+    assert stored[0].body["description"] == "Fire"
+
+
+def test_telemetry_is_stored_but_not_sent_to_wardens(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with bus.worker():
+        explorer.publish_many([("status", status(90 - i)) for i in range(10)] + [("hazard", hazard())])
+        notes = warden.receive(2, timeout=15)
+        wait_for(lambda: bus.count() == 11, what="11 stored events")
+    assert [n.topic.value for n in notes] == ["hazard"]
+
+
+def _publish_raw(url: str, routing_key: str, body: bytes, user_id: str | None) -> None:
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    channel = connection.channel()
+    channel.confirm_delivery()
+    properties = pika.BasicProperties(
+        delivery_mode=2, user_id=user_id, message_id=f"raw-{routing_key}-{len(body)}"
+    )
+    channel.basic_publish("explorer1.events", routing_key, body, properties, mandatory=True)
+    connection.close()
+
+
+def test_bad_input_is_dead_lettered_with_reasons_and_good_input_is_unaffected(bus: Bus) -> None:
+    bus.settings = replace(bus.settings, max_message_bytes=8 * 1024)
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    explorer = bus.robot(account)
+    bad = [
+        ("explorer1.hazard", b"{not json", "not-json"),
+        ("explorer1.hazard", b'{"type": "hazard", "robot_id": "explorer1", "seq": 1, "body": {}}', "schema"),
+        ("explorer1.hazard", b"x" * (9 * 1024), "too-large"),
+        ("explorer1.teleport", b'{"type": "teleport"}', "unknown-type"),
+    ]
+    with bus.worker():
+        explorer.publish_many([("hazard", hazard(i)) for i in range(100)])
+        for routing_key, body, _reason in bad:
+            _publish_raw(account.amqp_url, routing_key, body, "explorer1")
+        explorer.publish_many([("hazard", hazard(i)) for i in range(100, 200)])
+        wait_for(lambda: bus.count() == 200, what="200 stored events")
+        letters = wait_for(lambda: (found := peek_dead_letters(bus.admin_url)) and len(found) == 4 and found)
+    assert sorted(letter.reason for letter in letters) == sorted(reason for _, _, reason in bad)
+    for letter in letters:
+        assert letter.user_id == "explorer1"
+        assert letter.detail, "each dead letter says why"
+    schema_letter = next(letter for letter in letters if letter.reason == "schema")
+    assert "body.pose: Field required" in schema_letter.detail
+    assert [r.seq for r in bus.find()] == list(range(200))
+    assert peek_dead_letters(bus.admin_url) == letters, "listing does not consume"
+
+
+def test_worker_keeps_running_after_poison_and_later_events_flow(bus: Bus) -> None:
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    explorer = bus.robot(account)
+    with bus.worker() as worker:
+        for _ in range(20):
+            _publish_raw(account.amqp_url, "explorer1.hazard", b"\xff\xfe", "explorer1")
+        explorer.publish("hazard", hazard())
+        wait_for(lambda: bus.count() == 1, what="the good event after 20 poison messages")
+        assert worker.error is None
+
+
+def test_worker_killed_mid_stream_ends_with_exactly_2000(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    first = bus.spawn_worker()
+    published: list[int] = []
+
+    def produce() -> None:
+        for _ in range(20):
+            events = explorer.publish_many([("status", status(50)) for _ in range(100)])
+            published.extend(e.seq for e in events)
+
+    producer = threading.Thread(target=produce)
+    producer.start()
+    try:
+        wait_for(lambda: bus.count() >= 300, timeout=60, what="the first worker to store 300 events")
+        first.kill()
+        first.wait(10)
+        stored_at_kill = bus.count()
+        producer.join(120)
+        assert len(published) == 2000
+        second = bus.spawn_worker()
+        try:
+            wait_for(lambda: bus.count() == 2000, timeout=120, what="2000 stored events after the restart")
+        finally:
+            second.terminate()
+            assert second.wait(60) == 0, "SIGTERM stops the worker cleanly"
+    finally:
+        producer.join(120)
+        if first.poll() is None:
+            first.kill()
+    assert stored_at_kill < 2000, "the kill happened mid-stream"
+    seqs = [r.seq for r in bus.find()]
+    assert seqs == sorted(set(seqs)) == list(range(2000)), "no gaps, no duplicates"
+
+
+def test_operator_receives_every_notification_topic(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    operator = bus.robot(bus.add("ops1", role=Role.OPERATOR))
+    with bus.worker():
+        explorer.publish("hazard", hazard())
+        [note] = operator.receive(1, timeout=15)
+    assert note.event.robot_id == "explorer1"

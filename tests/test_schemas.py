@@ -1,0 +1,77 @@
+"""The message models: what is accepted, and errors that name the field."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from schemas import EventType, SchemaError, build_event, encode_event, parse_event, validate_body
+from schemas.envelope import NotJSONError
+from schemas.export import json_schemas
+from schemas.identity import validate_name
+from schemas.routing import event_routing_key, split_event_routing_key
+from tests.factories import TABLE1_TIME, hazard, small_map, status
+
+
+def test_hazard_round_trips_exactly() -> None:
+    event = build_event(EventType.HAZARD, "explorer1", 7, hazard())
+    again = parse_event(encode_event(event))
+    assert again == event
+    assert again.body.detected_at.isoformat() == TABLE1_TIME
+    assert (again.body.pose.x, again.body.pose.y) == (2.66, 1.22)
+
+
+def test_map_keeps_pgm_bytes_and_yaml_fields() -> None:
+    data = small_map()
+    event = parse_event(encode_event(build_event("map", "explorer1", 0, data)))
+    assert event.body.pgm.startswith(b"P5\n64 48\n255\n")
+    assert event.body.metadata.origin == (2.1, 3.5, 0.0)
+    assert event.body.metadata.free_thresh == 0.196
+
+
+@pytest.mark.parametrize(
+    ("event_type", "body", "field"),
+    [
+        ("hazard", {**hazard(), "pose": {"x": "north", "y": 1}}, "body.pose.x"),
+        ("hazard", {**hazard(), "description": "  "}, "body.description"),
+        ("status", {**status(), "battery_percent": 140}, "body.battery_percent"),
+        ("map", {**small_map(), "pgm": "aGVsbG8="}, "body.pgm"),
+        ("beacon", {"beacon_id": "b1", "rssi": -60, "colour": "red"}, "body.colour"),
+    ],
+)
+def test_invalid_bodies_name_the_field(event_type: str, body: dict, field: str) -> None:
+    with pytest.raises(SchemaError) as caught:
+        validate_body(event_type, body)
+    assert field in str(caught.value)
+
+
+def test_not_json_is_its_own_error() -> None:
+    with pytest.raises(NotJSONError):
+        parse_event(b"\x00not json")
+
+
+def test_envelope_rejects_unknown_type() -> None:
+    raw = json.loads(encode_event(build_event("status", "explorer1", 0, status())))
+    raw["type"] = "teleport"
+    with pytest.raises(SchemaError, match="type"):
+        parse_event(json.dumps(raw))
+
+
+@pytest.mark.parametrize("name", ["Explorer", "a", "x.y", "fleetbus-x", "amq1", "guest", "w*", ""])
+def test_names_that_cannot_be_accounts(name: str) -> None:
+    with pytest.raises(ValueError, match="invalid name"):
+        validate_name(name)
+
+
+def test_routing_keys() -> None:
+    assert event_routing_key("warden1", "localisation") == "warden1.localisation"
+    assert split_event_routing_key("warden1.localisation") == ("warden1", "localisation")
+    with pytest.raises(ValueError):
+        split_event_routing_key("nodot")
+
+
+def test_every_type_has_a_json_schema() -> None:
+    schemas = json_schemas()
+    assert set(schemas) == {"event", *(t.value for t in EventType)}
+    assert "body" in schemas["hazard"]["properties"]

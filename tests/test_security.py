@@ -1,0 +1,72 @@
+"""What the broker itself refuses: each robot is confined to its own name."""
+
+from __future__ import annotations
+
+import pika
+import pika.exceptions
+import pytest
+
+from publishers.confirms import Outgoing, PipelinedConfirms
+from publishers.errors import PublishRefused
+from schemas.routing import RobotKind
+from tests.support import Bus
+
+
+def _channel(url: str) -> tuple[pika.BlockingConnection, pika.adapters.blocking_connection.BlockingChannel]:
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    return connection, connection.channel()
+
+
+def _publish(url: str, exchange: str, routing_key: str, user_id: str) -> None:
+    connection, channel = _channel(url)
+    try:
+        confirms = PipelinedConfirms(connection, channel, timeout=10)
+        properties = pika.BasicProperties(delivery_mode=2, user_id=user_id, message_id="m1")
+        confirms.publish([Outgoing(exchange, routing_key, b"{}", properties)], timeout=10)
+    finally:
+        if connection.is_open:
+            connection.close()
+
+
+def test_robot_cannot_publish_to_another_robots_exchange(bus: Bus) -> None:
+    explorer = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.add("warden1", kind=RobotKind.WARDEN)
+    with pytest.raises(PublishRefused, match="ACCESS_REFUSED"):
+        _publish(explorer.amqp_url, "warden1.events", "warden1.hazard", "explorer1")
+
+
+def test_forged_user_id_is_refused_by_the_broker(bus: Bus) -> None:
+    explorer = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.add("warden1", kind=RobotKind.WARDEN)
+    with pytest.raises(PublishRefused, match="PRECONDITION_FAILED"):
+        _publish(explorer.amqp_url, "explorer1.events", "explorer1.hazard", "warden1")
+
+
+def test_routing_key_must_start_with_the_robots_name(bus: Bus) -> None:
+    explorer = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.add("warden1", kind=RobotKind.WARDEN)
+    with pytest.raises(PublishRefused, match="ACCESS_REFUSED"):
+        _publish(explorer.amqp_url, "explorer1.events", "warden1.hazard", "explorer1")
+
+
+def test_robot_cannot_read_bind_or_delete_another_robots_queue(bus: Bus) -> None:
+    explorer = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.add("warden1", kind=RobotKind.WARDEN)
+    attempts = {
+        "consume": lambda ch: ch.basic_get("warden1.inbox"),
+        "bind": lambda ch: ch.queue_bind("warden1.inbox", "explorer1.events", "#"),
+        "bind to notifications": lambda ch: ch.queue_bind("explorer1.inbox", "fleetbus.notify", "notify.#"),
+        "delete": lambda ch: ch.queue_delete("warden1.inbox"),
+        "purge": lambda ch: ch.queue_purge("warden1.inbox"),
+        "read the ingest": lambda ch: ch.basic_get("fleetbus.ingest.events"),
+    }
+    for what, attempt in attempts.items():
+        connection, channel = _channel(explorer.amqp_url)
+        with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:
+            attempt(channel)
+        assert refused.value.reply_code == 403, what
+        connection.close()
+
+
+def test_no_guest_account(bus: Bus) -> None:
+    assert "guest" not in {user["name"] for user in bus.api.list_users()}
