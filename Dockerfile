@@ -1,0 +1,19 @@
+# The fleetbus worker image (compose.yaml's `worker` service).
+FROM python:3.12-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+
+WORKDIR /app
+COPY . .
+RUN pip install . \
+    && useradd --system --create-home --uid 10001 fleetbus \
+    && mkdir -p /data \
+    && chown fleetbus /data
+
+USER fleetbus
+# service credentials and local state (a named volume in compose.yaml)
+ENV FLEETBUS_DATA_DIR=/data
+CMD ["fleetbus", "worker"]

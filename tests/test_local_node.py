@@ -1,0 +1,247 @@
+"""The private RabbitMQ node, for real, in a temporary folder (never the project's .fleetbus).
+
+One node serves the whole module (a start costs about 5 s); the kill test restarts it once and
+the last test stops it.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import re
+import stat
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+from pathlib import Path
+from typing import TypeVar
+from urllib.parse import urlsplit
+
+import httpx
+import pika
+import pytest
+
+from broker.endpoint import BrokerUnavailable, docker_engine_answers, resolve_broker
+from broker.local_node import (
+    ADMIN_USER,
+    RABBITMQ_SERVER,
+    LocalNode,
+    amqp_login,
+    listening_addresses,
+    pid_alive,
+    pids_listening_on,
+)
+from fleetbus.config import Settings, load_settings
+
+pytestmark = pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed")
+
+T = TypeVar("T")
+
+
+def poll(condition: Callable[[], T], timeout: float, what: str) -> T:
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what} (last: {value!r})")
+        time.sleep(0.1)
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("fleetbus-data")
+
+
+@pytest.fixture(scope="module")
+def node_settings(data_dir: Path) -> Settings:
+    return load_settings({"FLEETBUS_DATA_DIR": str(data_dir)})
+
+
+@pytest.fixture(scope="module")
+def module_node(node_settings: Settings) -> Iterator[LocalNode]:
+    node = LocalNode(node_settings.broker_dir)
+    try:
+        yield node
+    finally:
+        node.down()
+
+
+@pytest.fixture
+def node(module_node: LocalNode) -> LocalNode:
+    """The module's node, running (started on first use, or again after the down test)."""
+    module_node.up()
+    return module_node
+
+
+def admin(node: LocalNode) -> tuple[str, str]:
+    credentials = node.admin_credentials()
+    assert credentials is not None
+    return credentials
+
+
+def test_up_is_idempotent(node: LocalNode) -> None:
+    first = node.status()
+    assert first.running and first.pid is not None
+    started = time.monotonic()
+    again = node.up()
+    assert time.monotonic() - started < 5
+    assert again.pid == first.pid == node.pid()
+    assert again.amqp_url == first.amqp_url
+
+
+def test_status_shows_urls_and_keeps_state_in_its_folder(node: LocalNode) -> None:
+    info = node.status()
+    ports = json.loads(node.node_file.read_text())["ports"]
+    assert set(ports) == {"amqp", "management", "dist", "epmd", "stream"}
+    assert len(set(ports.values())) == 5
+    assert info.ports == ports
+    assert info.amqp_url is not None
+    match = re.fullmatch(r"amqp://fleetbus-admin:([^@]+)@127\.0\.0\.1:(\d+)/", info.amqp_url)
+    assert match and int(match[2]) == ports["amqp"]
+    assert match[1] == admin(node)[1]
+    assert info.management_url == f"http://127.0.0.1:{ports['management']}/"
+    assert info.node_name.startswith("fleetbus-") and info.node_name.endswith("@localhost")
+    assert stat.S_IMODE(node.admin_file.stat().st_mode) == 0o600
+    assert (node.base_dir / ".erlang.cookie").exists()  # HOME is the node's folder
+    assert node.pid_file.read_text().strip() == str(info.pid)
+    assert "rabbitmq_management" in (node.base_dir / "enabled_plugins").read_text()
+
+
+def test_admin_logs_in_and_there_is_no_guest(node: LocalNode) -> None:
+    info = node.status()
+    assert info.amqp_url is not None and info.management_url is not None
+    assert amqp_login(info.amqp_url) is True
+    port = info.ports["amqp"]
+    assert amqp_login(f"amqp://guest:guest@127.0.0.1:{port}/") is False
+    users = httpx.get(info.management_url + "api/users", auth=admin(node), timeout=10)
+    assert users.status_code == 200
+    assert [user["name"] for user in users.json()] == [ADMIN_USER]
+    assert "administrator" in str(users.json()[0]["tags"])
+    guest = httpx.get(info.management_url + "api/overview", auth=("guest", "guest"), timeout=10)
+    assert guest.status_code == 401
+    listing = node.rabbitmqctl("list_users", "--silent", "--no-table-headers").stdout
+    assert ADMIN_USER in listing and "guest" not in listing
+
+
+def test_listens_only_on_loopback(node: LocalNode) -> None:
+    info = node.status()
+    assert info.pid is not None
+    beam = listening_addresses(info.pid)
+    assert {port for _, port in beam} >= {info.ports["amqp"], info.ports["management"], info.ports["dist"]}
+    epmds = node.epmd_pids()
+    assert epmds, "the node's private epmd is not running"
+    assert {host for host, _ in beam} == {"127.0.0.1"}, beam
+    epmd = [address for pid in epmds for address in listening_addresses(pid)]
+    assert all(ipaddress.ip_address(host).is_loopback for host, _ in epmd), epmd  # 127.0.0.1 and ::1
+    assert {port for _, port in listening_addresses(epmds[0])} == {info.ports["epmd"]}
+
+
+def _publish(url: str, queue: str, bodies: list[bytes]) -> None:
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    try:
+        channel = connection.channel()
+        channel.queue_declare(queue, durable=True)
+        channel.confirm_delivery()
+        for body in bodies:
+            channel.basic_publish(
+                "", queue, body, pika.BasicProperties(delivery_mode=pika.DeliveryMode.Persistent)
+            )
+    finally:
+        connection.close()
+
+
+def _ready(url: str, queue: str) -> int | None:
+    try:
+        connection = pika.BlockingConnection(pika.URLParameters(url))
+    except pika.exceptions.AMQPError:
+        return None
+    try:
+        return connection.channel().queue_declare(queue, passive=True).method.message_count
+    finally:
+        connection.close()
+
+
+def _drain(url: str, queue: str) -> list[bytes]:
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    bodies: list[bytes] = []
+    try:
+        channel = connection.channel()
+        while True:
+            method, _, body = channel.basic_get(queue, auto_ack=True)
+            if method is None:
+                return bodies
+            bodies.append(body)
+    finally:
+        connection.close()
+
+
+def test_kill_then_up_keeps_durable_persistent_messages(node: LocalNode) -> None:
+    before = node.status()
+    assert before.amqp_url is not None and before.pid is not None
+    bodies = [f"message {i}".encode() for i in range(300)]
+    _publish(before.amqp_url, "kill-test", bodies)
+
+    node.kill()
+    assert not pid_alive(before.pid)
+    assert not node.status().running
+    assert node.pid_file.exists()  # stale: up() must cope with it
+
+    after = node.up()
+    assert after.running and after.pid != before.pid
+    assert after.ports == before.ports and after.amqp_url == before.amqp_url
+    poll(
+        lambda: _ready(after.amqp_url or "", "kill-test") == len(bodies), 30, "the 300 messages after restart"
+    )
+    assert sorted(_drain(after.amqp_url, "kill-test")) == sorted(bodies)
+
+
+def test_resolve_broker_prefers_a_working_amqp_url(node: LocalNode, node_settings: Settings) -> None:
+    info = node.status()
+    assert info.amqp_url is not None and info.management_url is not None
+    external = resolve_broker(
+        replace(node_settings, amqp_url=info.amqp_url, management_url=info.management_url), start=False
+    )
+    assert (external.kind, external.amqp_url, external.management_url) == (
+        "external",
+        info.amqp_url,
+        info.management_url,
+    )
+    derived = resolve_broker(replace(node_settings, amqp_url=info.amqp_url, management_url=None), start=False)
+    assert derived.management_url == "http://127.0.0.1:15672/"
+
+    parts = urlsplit(info.amqp_url)
+    wrong = info.amqp_url.replace(f":{parts.password}@", ":not-the-password@")
+    with pytest.raises(BrokerUnavailable, match="refused"):
+        resolve_broker(replace(node_settings, amqp_url=wrong), start=False)
+
+
+@pytest.mark.skipif(docker_engine_answers(), reason="a Docker engine answers: resolve_broker would use it")
+def test_resolve_broker_falls_back_to_the_private_node(node: LocalNode, node_settings: Settings) -> None:
+    dead = f"amqp://someone:secret@127.0.0.1:{node.status().ports['stream']}/"  # nothing listens there
+    endpoint = resolve_broker(replace(node_settings, amqp_url=dead), start=False)
+    assert endpoint.kind == "private"
+    assert endpoint.amqp_url == node.status().amqp_url
+
+
+def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> None:
+    info = node.status()
+    assert info.pid is not None
+    epmds = node.epmd_pids()
+    started = time.monotonic()
+    node.down()
+    took = time.monotonic() - started
+    assert not pid_alive(info.pid)
+    assert node.pid() is None and not node.status().running
+    assert not any(pid_alive(pid) for pid in epmds)
+    assert node.epmd_pids() == []
+    for name, port in info.ports.items():
+        assert pids_listening_on(port) == [], f"something still listens on the {name} port {port}"
+    assert took < 60
+    started = time.monotonic()
+    node.down()  # idempotent, and quick when there is nothing to stop
+    assert time.monotonic() - started < 5
+    if not docker_engine_answers():
+        with pytest.raises(BrokerUnavailable, match="not running"):
+            resolve_broker(replace(node_settings, amqp_url=None), start=False)
