@@ -27,12 +27,12 @@ from typing import Any
 
 import aio_pika
 import pika
-from broker.endpoint import BrokerEndpoint, resolve_broker
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
 from broker.accounts import Role, fresh_vhost, provision_account
+from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
 from broker.topology import QueueSpec, Topology, core_topology, declare_with_url
 from fleetbus.config import Settings, load_settings

@@ -8,9 +8,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from broker.endpoint import BrokerEndpoint, resolve_broker
 
 from broker.accounts import fresh_vhost
+from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
 from tests.support import Bus

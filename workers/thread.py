@@ -11,7 +11,6 @@ import threading
 from types import TracebackType
 
 from broker.endpoint import BrokerEndpoint
-
 from fleetbus.config import Settings
 from workers.runner import run_worker
 
