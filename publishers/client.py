@@ -146,8 +146,8 @@ class RobotClient:
     def notifications(self, timeout: float | None = None, prefetch: int = 64) -> Iterator[Notification]:
         """This robot's notifications; stops after ``timeout`` seconds without one.
 
-        Each notification is acked when the caller asks for the next, so one that was being
-        handled when the robot died is delivered again.
+        Each notification is acked when the caller asks for the next one or stops iterating, so
+        one that was being handled when the robot process died is delivered again.
         """
         if self._connection is None or not self._connection.is_open:
             self.connect()
@@ -160,8 +160,11 @@ class RobotClient:
             ):
                 if method is None:
                     return
-                yield Notification.model_validate_json(body)
-                channel.basic_ack(method.delivery_tag)
+                try:
+                    yield Notification.model_validate_json(body)
+                finally:  # the caller asked for the next one, or stopped iterating
+                    if channel.is_open:
+                        channel.basic_ack(method.delivery_tag)
         finally:
             if channel.is_open:
                 channel.cancel()

@@ -87,12 +87,13 @@ class PipelinedConfirms:
         batch: dict[int, str] = {}
         try:
             for message in messages:
-                self._channel.basic_publish(
-                    message.exchange, message.routing_key, message.body, message.properties, mandatory=True
-                )
+                # registered before the write: the ack can arrive while basic_publish flushes
                 batch[self._next_tag] = message.properties.message_id or ""
                 self._unconfirmed.add(self._next_tag)
                 self._next_tag += 1
+                self._channel.basic_publish(
+                    message.exchange, message.routing_key, message.body, message.properties, mandatory=True
+                )
         except pika.exceptions.ChannelClosed as error:
             raise PublishRefused(f"the broker closed the channel: {self._closed_reason or error}") from error
         except pika.exceptions.AMQPError as error:

@@ -39,7 +39,9 @@ def bus(endpoint: BrokerEndpoint, management: ManagementAPI, tmp_path: Path) -> 
         management_url=endpoint.management_url,
         mongodb_url=None,
     )
+    test_bus = Bus(endpoint, management, vhost, settings)
     try:
-        yield Bus(endpoint, management, vhost, settings)
+        yield test_bus
     finally:
+        test_bus.remove_accounts()
         management.delete_vhost(vhost)

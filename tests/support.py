@@ -10,7 +10,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -60,8 +60,16 @@ class Bus:
         assert self.settings.amqp_url is not None
         return self.settings.amqp_url
 
+    accounts: list[str] = field(default_factory=list)
+
     def add(self, name: str, role: Role = Role.ROBOT, kind: RobotKind | None = None) -> Account:
-        return asyncio.run(provision_account(self.admin_url, self.api, name, role, kind))
+        """A new account; users are broker-wide, so one left by an aborted run is re-keyed."""
+        self.accounts.append(name)
+        return asyncio.run(provision_account(self.admin_url, self.api, name, role, kind, rotate=True))
+
+    def remove_accounts(self) -> None:
+        for name in self.accounts:
+            self.api.delete_user(name)
 
     def robot(self, account: Account, **kwargs: Any) -> RobotClient:
         client = RobotClient(account.amqp_url, state_dir=self.settings.robots_dir, **kwargs)

@@ -1,0 +1,27 @@
+"""Event storage: one interface, an embedded SQLite default and MongoDB for production."""
+
+from __future__ import annotations
+
+from fleetbus.config import Settings
+from workers.store.base import EventQuery, EventRecord, EventStore, StoreError, StoreUnavailable, WriteResult
+
+__all__ = [
+    "EventQuery",
+    "EventRecord",
+    "EventStore",
+    "StoreError",
+    "StoreUnavailable",
+    "WriteResult",
+    "open_store",
+]
+
+
+def open_store(settings: Settings) -> EventStore:
+    """The store the settings select (MongoDB when ``mongodb_url`` is set), not yet opened."""
+    if settings.mongodb_url:
+        from workers.store.mongo import MongoEventStore
+
+        return MongoEventStore(settings.mongodb_url)
+    from workers.store.sqlite import SQLiteEventStore
+
+    return SQLiteEventStore(settings.sqlite_path)

@@ -1,0 +1,204 @@
+"""The embedded default store: SQLite in WAL mode, one durable transaction per batch.
+
+All SQLite work runs on one thread owned by the store, off the event loop. ``synchronous=FULL``
+makes each commit durable before ``write_events`` returns, which is what the worker's ack waits for.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sqlite3
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, TypeVar
+
+from workers.store.base import EventQuery, EventRecord, EventStore, StoreUnavailable, WriteResult
+
+T = TypeVar("T")
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS events (
+    robot_id    TEXT    NOT NULL,
+    seq         INTEGER NOT NULL,
+    type        TEXT    NOT NULL,
+    message_id  TEXT    NOT NULL,
+    sent_at     INTEGER NOT NULL,
+    received_at INTEGER NOT NULL,
+    body        TEXT    NOT NULL,
+    user_id     TEXT    NOT NULL,
+    exchange    TEXT    NOT NULL,
+    routing_key TEXT    NOT NULL,
+    mission_id  TEXT,
+    notified    INTEGER NOT NULL DEFAULT 0,
+    PRIMARY KEY (robot_id, seq)
+) WITHOUT ROWID;
+CREATE INDEX IF NOT EXISTS events_type_time ON events (type, sent_at);
+CREATE INDEX IF NOT EXISTS events_robot_time ON events (robot_id, sent_at);
+CREATE INDEX IF NOT EXISTS events_time ON events (sent_at);
+CREATE INDEX IF NOT EXISTS events_message_id ON events (message_id);
+"""
+COLUMNS = (
+    "robot_id, seq, type, message_id, sent_at, received_at, body, user_id, exchange, routing_key, mission_id"
+)
+TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
+
+
+def to_micros(moment: datetime) -> int:
+    delta = moment.astimezone(timezone.utc) - datetime(1970, 1, 1, tzinfo=timezone.utc)
+    return (delta.days * 86_400 + delta.seconds) * 1_000_000 + delta.microseconds
+
+
+def from_micros(value: int) -> datetime:
+    seconds, micros = divmod(value, 1_000_000)
+    return datetime.fromtimestamp(seconds, timezone.utc).replace(microsecond=micros)
+
+
+def _row(record: EventRecord) -> tuple[Any, ...]:
+    return (
+        record.robot_id,
+        record.seq,
+        record.type,
+        record.message_id,
+        to_micros(record.sent_at),
+        to_micros(record.received_at),
+        json.dumps(record.body, separators=(",", ":"), ensure_ascii=False),
+        record.user_id,
+        record.exchange,
+        record.routing_key,
+        record.mission_id,
+    )
+
+
+def _record(row: sqlite3.Row) -> EventRecord:
+    return EventRecord(
+        robot_id=row["robot_id"],
+        seq=row["seq"],
+        type=row["type"],
+        message_id=row["message_id"],
+        sent_at=from_micros(row["sent_at"]),
+        received_at=from_micros(row["received_at"]),
+        body=json.loads(row["body"]),
+        user_id=row["user_id"],
+        exchange=row["exchange"],
+        routing_key=row["routing_key"],
+        mission_id=row["mission_id"],
+    )
+
+
+class SQLiteEventStore(EventStore):
+    name = "sqlite"
+
+    def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
+        self.path = path
+        self._busy_timeout = busy_timeout
+        self._executor: ThreadPoolExecutor | None = None
+        self._db: sqlite3.Connection | None = None
+
+    async def _run(self, work: Callable[[sqlite3.Connection], T]) -> T:
+        if self._executor is None:
+            raise RuntimeError("the store is not open")
+
+        def call() -> T:
+            try:
+                if self._db is None:
+                    self._db = self._connect()
+                return work(self._db)
+            except sqlite3.OperationalError as error:
+                if self._db is not None and self._db.in_transaction:
+                    self._db.rollback()
+                if any(word in str(error).lower() for word in TRANSIENT):
+                    raise StoreUnavailable(f"SQLite {self.path}: {error}") from error
+                raise
+
+        return await asyncio.get_running_loop().run_in_executor(self._executor, call)
+
+    def _connect(self) -> sqlite3.Connection:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        db = sqlite3.connect(self.path, timeout=self._busy_timeout, isolation_level=None)
+        db.row_factory = sqlite3.Row
+        db.execute("PRAGMA journal_mode=WAL")
+        db.execute("PRAGMA synchronous=FULL")
+        db.executescript(SCHEMA)
+        return db
+
+    async def open(self) -> None:
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fleetbus-sqlite")
+        await self._run(lambda db: None)
+
+    async def close(self) -> None:
+        if self._executor is None:
+            return
+
+        def shut(db: sqlite3.Connection) -> None:
+            db.close()
+            self._db = None
+
+        if self._db is not None:
+            await self._run(shut)
+        self._executor.shutdown(wait=True)
+        self._executor = None
+
+    async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
+        rows = [_row(record) for record in records]
+
+        def write(db: sqlite3.Connection) -> list[WriteResult]:
+            results: list[WriteResult] = []
+            db.execute("BEGIN IMMEDIATE")
+            for row in rows:
+                cursor = db.execute(
+                    f"INSERT OR IGNORE INTO events ({COLUMNS}) VALUES ({','.join('?' * 11)})", row
+                )
+                if cursor.rowcount == 1:
+                    results.append(WriteResult(inserted=True, notified=False))
+                else:
+                    (notified,) = db.execute(
+                        "SELECT notified FROM events WHERE robot_id = ? AND seq = ?", row[:2]
+                    ).fetchone()
+                    results.append(WriteResult(inserted=False, notified=bool(notified)))
+            db.execute("COMMIT")
+            return results
+
+        return await self._run(write)
+
+    async def mark_notified(self, keys: Sequence[tuple[str, int]]) -> None:
+        def mark(db: sqlite3.Connection) -> None:
+            db.execute("BEGIN IMMEDIATE")
+            db.executemany("UPDATE events SET notified = 1 WHERE robot_id = ? AND seq = ?", list(keys))
+            db.execute("COMMIT")
+
+        await self._run(mark)
+
+    async def find_events(self, query: EventQuery) -> list[EventRecord]:
+        where, params = _where(query.type, query.robot_id, query.since, query.until)
+        order = "DESC" if query.newest_first else "ASC"
+        sql = f"SELECT * FROM events{where} ORDER BY sent_at {order}, robot_id {order}, seq {order}"
+        if query.limit is not None:
+            sql += f" LIMIT {int(query.limit)}"
+        return await self._run(lambda db: [_record(row) for row in db.execute(sql, params)])
+
+    async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int:
+        where, params = _where(type, robot_id, None, None)
+        return await self._run(
+            lambda db: db.execute(f"SELECT count(*) FROM events{where}", params).fetchone()[0]
+        )
+
+
+def _where(
+    type: str | None, robot_id: str | None, since: datetime | None, until: datetime | None
+) -> tuple[str, list[Any]]:
+    clauses: list[str] = []
+    params: list[Any] = []
+    for clause, value in (
+        ("type = ?", type),
+        ("robot_id = ?", robot_id),
+        ("sent_at >= ?", to_micros(since) if since else None),
+        ("sent_at < ?", to_micros(until) if until else None),
+    ):
+        if value is not None:
+            clauses.append(clause)
+            params.append(value)
+    return (" WHERE " + " AND ".join(clauses) if clauses else ""), params
