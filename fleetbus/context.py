@@ -10,9 +10,9 @@ from typing import Any, NoReturn
 
 import typer
 import yaml
-from broker.endpoint import BrokerEndpoint, resolve_broker
 from rich.console import Console
 
+from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
 from fleetbus.config import Settings, load_settings
 

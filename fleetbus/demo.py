@@ -13,13 +13,13 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
-from broker.endpoint import BrokerEndpoint
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
 from broker.accounts import Role, fresh_vhost, provision_account
 from broker.dead_letter_queue import peek_dead_letters
+from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from fleetbus.config import Settings
 from publishers.client import RobotClient

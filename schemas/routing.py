@@ -89,6 +89,7 @@ def owner_pattern(owner: str) -> str:
     """Regular expression of the resources (and routing keys) ``owner`` may touch."""
     return f"^{owner}\\."
 
+
 #: Headers the workers put on a dead-lettered message: a reason code and a readable detail.
 REASON_HEADER = "x-fleetbus-reason"
 DETAIL_HEADER = "x-fleetbus-detail"

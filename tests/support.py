@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import pika
-from broker.endpoint import BrokerEndpoint
 
 from broker.accounts import Account, Role, provision_account
+from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from fleetbus.config import Settings
 from publishers.client import RobotClient

@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import aio_pika
 from aio_pika.abc import AbstractRobustConnection
-from broker.endpoint import BrokerEndpoint
 
 from broker.accounts import SERVICE_USER, ensure_service_account
+from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.topology import core_topology, declare
 from fleetbus.config import Settings
