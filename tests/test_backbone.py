@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sqlite3
 import threading
 from dataclasses import replace
 
@@ -132,3 +133,33 @@ def test_operator_receives_every_notification_topic(bus: Bus) -> None:
         explorer.publish("hazard", hazard())
         [note] = operator.receive(1, timeout=15)
     assert note.event.robot_id == "explorer1"
+
+
+def test_ingest_into_mongodb(bus: Bus, mongodb_url: str) -> None:
+    bus.settings = replace(
+        bus.settings, mongodb_url=f"{mongodb_url.rstrip('/')}/fleetbus_{bus.vhost.replace('-', '_')}"
+    )
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with bus.worker():
+        sent = explorer.publish_many([("hazard", hazard(i)) for i in range(50)])
+        assert [n.event for n in warden.receive(50, timeout=60)] == sent
+        wait_for(lambda: bus.count() == 50, what="50 events in MongoDB")
+    assert [r.seq for r in bus.find()] == [e.seq for e in sent]
+
+
+def test_store_locked_means_no_ack_then_everything_lands(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    with bus.worker() as worker:
+        explorer.publish("status", status())
+        wait_for(lambda: bus.count() == 1, what="the first event")
+        locker = sqlite3.connect(bus.settings.sqlite_path, isolation_level=None)
+        locker.execute("BEGIN EXCLUSIVE")
+        try:
+            explorer.publish_many([("status", status()) for _ in range(50)])
+            wait_for(lambda: worker.stats().store_retries >= 2, what="the worker to retry the locked store")
+            assert bus.ready_messages("fleetbus.ingest.events") == 0, "held unacked by the worker, not lost"
+        finally:
+            locker.execute("ROLLBACK")
+            locker.close()
+        wait_for(lambda: bus.count() == 51, what="all 51 events once the lock is gone")

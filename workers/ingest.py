@@ -150,11 +150,14 @@ class IngestConsumer:
                 accepted.append(verdict)
         if accepted:
             results = await self._write(accepted)
-            pending = [
-                item
-                for item, result in zip(accepted, results, strict=True)
-                if not result.notified and needs_notification(item)
-            ]
+            # keyed, so a robot's resend inside the same batch is announced once
+            pending = list(
+                {
+                    item.record.key: item
+                    for item, result in zip(accepted, results, strict=True)
+                    if not result.notified and needs_notification(item)
+                }.values()
+            )
             if pending:
                 await notify(self._notify_exchange, pending, self._service_user)
                 await self._store.mark_notified([item.record.key for item in pending])

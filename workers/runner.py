@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import logging
 import signal
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import aio_pika
@@ -59,7 +60,12 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     return WorkerContext(connection, consumer, store)
 
 
-async def run_worker(settings: Settings, endpoint: BrokerEndpoint, stop: asyncio.Event | None = None) -> None:
+async def run_worker(
+    settings: Settings,
+    endpoint: BrokerEndpoint,
+    stop: asyncio.Event | None = None,
+    on_started: Callable[[WorkerContext], None] | None = None,
+) -> None:
     """Run until ``stop`` is set, or SIGTERM/SIGINT when run as the main program."""
     stop = stop or asyncio.Event()
     loop = asyncio.get_running_loop()
@@ -68,6 +74,8 @@ async def run_worker(settings: Settings, endpoint: BrokerEndpoint, stop: asyncio
             loop.add_signal_handler(signum, stop.set)
     context = await start_worker(settings, endpoint)
     log.info("worker consuming %s (store: %s)", INGEST_QUEUE, context.store.name)
+    if on_started is not None:
+        on_started(context)
     consuming = asyncio.create_task(context.consumer.run())
     stopping = asyncio.create_task(stop.wait())
     try:

@@ -12,7 +12,8 @@ from types import TracebackType
 
 from broker.endpoint import BrokerEndpoint
 from fleetbus.config import Settings
-from workers.runner import run_worker
+from workers.ingest import IngestStats
+from workers.runner import WorkerContext, run_worker
 
 
 class WorkerThread:
@@ -22,6 +23,7 @@ class WorkerThread:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
         self._started = threading.Event()
+        self._context: WorkerContext | None = None
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._main, name="fleetbus-worker", daemon=True)
 
@@ -30,7 +32,7 @@ class WorkerThread:
             self._loop = asyncio.get_running_loop()
             self._stop = asyncio.Event()
             self._started.set()
-            await run_worker(self._settings, self._endpoint, self._stop)
+            await run_worker(self._settings, self._endpoint, self._stop, on_started=self._on_started)
 
         try:
             asyncio.run(body())
@@ -38,6 +40,13 @@ class WorkerThread:
             self.error = error
         finally:
             self._started.set()
+
+    def _on_started(self, context: WorkerContext) -> None:
+        self._context = context
+
+    def stats(self) -> IngestStats:
+        """The running worker's counters (a snapshot is not needed: they only grow)."""
+        return self._context.consumer.stats if self._context else IngestStats()
 
     def start(self) -> WorkerThread:
         self._thread.start()

@@ -11,11 +11,19 @@ import json
 import sqlite3
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
-from workers.store.base import EventQuery, EventRecord, EventStore, StoreUnavailable, WriteResult
+from workers.store.base import (
+    EventQuery,
+    EventRecord,
+    EventStore,
+    StoreUnavailable,
+    WriteResult,
+    from_micros,
+    to_micros,
+)
 
 T = TypeVar("T")
 
@@ -44,16 +52,6 @@ COLUMNS = (
     "robot_id, seq, type, message_id, sent_at, received_at, body, user_id, exchange, routing_key, mission_id"
 )
 TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
-
-
-def to_micros(moment: datetime) -> int:
-    delta = moment.astimezone(timezone.utc) - datetime(1970, 1, 1, tzinfo=timezone.utc)
-    return (delta.days * 86_400 + delta.seconds) * 1_000_000 + delta.microseconds
-
-
-def from_micros(value: int) -> datetime:
-    seconds, micros = divmod(value, 1_000_000)
-    return datetime.fromtimestamp(seconds, timezone.utc).replace(microsecond=micros)
 
 
 def _row(record: EventRecord) -> tuple[Any, ...]:

@@ -1,0 +1,113 @@
+"""One contract, every adapter: exact round trips, idempotent writes, queries, unavailability."""
+
+from __future__ import annotations
+
+import sqlite3
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+import pytest
+
+from workers.store.base import EventQuery, EventRecord, EventStore, StoreUnavailable
+from workers.store.mongo import MongoEventStore
+from workers.store.sqlite import SQLiteEventStore
+
+T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
+
+
+def record(
+    robot: str = "explorer1", seq: int = 0, type: str = "hazard", at: datetime = T0, **body: object
+) -> EventRecord:
+    return EventRecord(
+        robot_id=robot,
+        seq=seq,
+        type=type,
+        message_id=f"m-{robot}-{seq}",
+        sent_at=at,
+        received_at=at + timedelta(microseconds=1234),
+        body=body or {"pose": {"x": 2.66, "y": 1.22}, "description": "Feu ☢", "nested": [1, {"a": None}]},
+        user_id=robot,
+        exchange=f"{robot}.events",
+        routing_key=f"{robot}.{type}",
+    )
+
+
+async def test_every_field_round_trips_exactly(store: EventStore) -> None:
+    original = record()
+    [result] = await store.write_events([original])
+    assert result.inserted and not result.notified
+    [found] = await store.find_events(EventQuery())
+    assert found == original
+    assert found.sent_at.microsecond == 564500 and found.sent_at.tzinfo is not None
+
+
+async def test_writes_are_idempotent_on_robot_and_sequence(store: EventStore) -> None:
+    first = await store.write_events([record(seq=0), record(seq=1), record(seq=0)])
+    assert [r.inserted for r in first] == [True, True, False]
+    again = await store.write_events([record(seq=1, description="changed"), record(seq=2)])
+    assert [r.inserted for r in again] == [False, True]
+    assert await store.count_events() == 3
+    [one] = await store.find_events(EventQuery(robot_id="explorer1", since=T0, limit=1, newest_first=False))
+    assert one.seq == 0
+    stored_1 = next(r for r in await store.find_events(EventQuery()) if r.seq == 1)
+    assert stored_1.body["description"] == "Feu ☢", "a duplicate never overwrites what is stored"
+
+
+async def test_notified_flag_is_reported_on_later_duplicates(store: EventStore) -> None:
+    await store.write_events([record(seq=0), record(seq=1)])
+    await store.mark_notified([("explorer1", 0)])
+    results = await store.write_events([record(seq=0), record(seq=1)])
+    assert [(r.inserted, r.notified) for r in results] == [(False, True), (False, False)]
+
+
+async def test_queries_filter_and_order(store: EventStore) -> None:
+    records = [
+        record("explorer1", 0, "hazard", T0),
+        record("explorer1", 1, "status", T0 + timedelta(seconds=1)),
+        record("warden1", 0, "localisation", T0 + timedelta(seconds=1)),
+        record("explorer1", 2, "hazard", T0 + timedelta(seconds=2)),
+        record("warden1", 1, "hazard", T0 + timedelta(seconds=3)),
+    ]
+    await store.write_events(list(reversed(records)))
+    keys = lambda found: [(r.robot_id, r.seq) for r in found]  # noqa: E731
+    assert keys(await store.find_events(EventQuery())) == keys(records), "by time, then robot, then seq"
+    assert keys(await store.find_events(EventQuery(type="hazard"))) == [
+        ("explorer1", 0),
+        ("explorer1", 2),
+        ("warden1", 1),
+    ]
+    assert keys(await store.find_events(EventQuery(robot_id="warden1"))) == [("warden1", 0), ("warden1", 1)]
+    window = EventQuery(since=T0 + timedelta(seconds=1), until=T0 + timedelta(seconds=3))
+    assert keys(await store.find_events(window)) == [("explorer1", 1), ("warden1", 0), ("explorer1", 2)]
+    newest = EventQuery(limit=2, newest_first=True)
+    assert keys(await store.find_events(newest)) == [("warden1", 1), ("explorer1", 2)]
+    assert await store.count_events(type="hazard") == 3
+    assert await store.count_events(robot_id="warden1") == 2
+    assert await store.count_events(type="hazard", robot_id="warden1") == 1
+
+
+async def test_a_batch_of_500_in_one_call(store: EventStore) -> None:
+    batch = [record("explorer1", i, "status", T0 + timedelta(milliseconds=i), battery=i) for i in range(500)]
+    results = await store.write_events(batch)
+    assert all(r.inserted for r in results)
+    assert await store.count_events(type="status") == 500
+
+
+async def test_locked_sqlite_is_unavailable_and_nothing_is_written(tmp_path: Path) -> None:
+    async with SQLiteEventStore(tmp_path / "store.sqlite3", busy_timeout=0.2) as store:
+        locker = sqlite3.connect(tmp_path / "store.sqlite3", isolation_level=None)
+        locker.execute("BEGIN EXCLUSIVE")
+        with pytest.raises(StoreUnavailable, match="locked"):
+            await store.write_events([record(seq=0)])
+        locker.execute("ROLLBACK")
+        locker.close()
+        assert await store.count_events() == 0
+        [result] = await store.write_events([record(seq=0)])
+        assert result.inserted
+
+
+async def test_unreachable_mongodb_is_unavailable() -> None:
+    store = MongoEventStore("mongodb://127.0.0.1:9/fleetbus", server_selection_timeout=0.5)
+    with pytest.raises(StoreUnavailable, match=r"127\.0\.0\.1:9"):
+        await store.open()
+    await store.close()

@@ -1,0 +1,203 @@
+"""The production store: MongoDB through pymongo's ``AsyncMongoClient``.
+
+Document ids follow a small strategy (``<robot>:<seq>``), so MongoDB's own ``_id`` uniqueness
+makes writes idempotent. Times are kept twice: as BSON dates for people querying MongoDB, and as
+integer microseconds, which round-trip exactly (BSON dates stop at milliseconds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+from urllib.parse import urlsplit
+
+from pymongo import ASCENDING, DESCENDING, AsyncMongoClient
+from pymongo.errors import (
+    AutoReconnect,
+    BulkWriteError,
+    ConnectionFailure,
+    NetworkTimeout,
+    ServerSelectionTimeoutError,
+)
+from pymongo.write_concern import WriteConcern
+
+from workers.store.base import (
+    EventQuery,
+    EventRecord,
+    EventStore,
+    StoreUnavailable,
+    WriteResult,
+    from_micros,
+    to_micros,
+)
+
+DUPLICATE_KEY = 11000
+UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
+DEFAULT_DATABASE = "fleetbus"
+
+
+class RobotSequenceId:
+    """Document-id strategy: one document per (robot, sequence number)."""
+
+    @staticmethod
+    def of(robot_id: str, seq: int) -> str:
+        return f"{robot_id}:{seq}"
+
+
+def database_name(url: str) -> str:
+    path = urlsplit(url).path.strip("/")
+    return path or DEFAULT_DATABASE
+
+
+def to_document(record: EventRecord) -> dict[str, Any]:
+    return {
+        "_id": RobotSequenceId.of(record.robot_id, record.seq),
+        "robot_id": record.robot_id,
+        "seq": record.seq,
+        "type": record.type,
+        "message_id": record.message_id,
+        "sent_at": record.sent_at,
+        "sent_at_us": to_micros(record.sent_at),
+        "received_at": record.received_at,
+        "received_at_us": to_micros(record.received_at),
+        "body": record.body,
+        "user_id": record.user_id,
+        "exchange": record.exchange,
+        "routing_key": record.routing_key,
+        "mission_id": record.mission_id,
+        "notified": False,
+    }
+
+
+def from_document(doc: dict[str, Any]) -> EventRecord:
+    return EventRecord(
+        robot_id=doc["robot_id"],
+        seq=doc["seq"],
+        type=doc["type"],
+        message_id=doc["message_id"],
+        sent_at=from_micros(doc["sent_at_us"]),
+        received_at=from_micros(doc["received_at_us"]),
+        body=doc["body"],
+        user_id=doc["user_id"],
+        exchange=doc["exchange"],
+        routing_key=doc["routing_key"],
+        mission_id=doc.get("mission_id"),
+    )
+
+
+class MongoEventStore(EventStore):
+    name = "mongodb"
+
+    def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
+        self.url = url
+        self._database_name = database or database_name(url)
+        self._timeout_ms = int(server_selection_timeout * 1000)
+        self._client: AsyncMongoClient[dict[str, Any]] | None = None
+
+    def _events(self) -> Any:
+        """The collection of events (one for all types; the recorder issue splits it per type)."""
+        if self._client is None:
+            raise RuntimeError("the store is not open")
+        # journaled majority writes: acked events survive a crash of the primary
+        return self._client[self._database_name].get_collection(
+            "events", write_concern=WriteConcern(w="majority", j=True)
+        )
+
+    async def open(self) -> None:
+        if self._client is None:
+            self._client = AsyncMongoClient(
+                self.url, serverSelectionTimeoutMS=self._timeout_ms, tz_aware=True
+            )
+        try:
+            events = self._events()
+            await events.create_index([("type", ASCENDING), ("sent_at_us", ASCENDING)])
+            await events.create_index([("robot_id", ASCENDING), ("sent_at_us", ASCENDING)])
+            await events.create_index([("sent_at_us", ASCENDING)])
+            await events.create_index([("message_id", ASCENDING)])
+        except UNAVAILABLE as error:
+            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+
+    def _safe_url(self) -> str:
+        parts = urlsplit(self.url)
+        return f"{parts.hostname}:{parts.port or 27017}/{self._database_name}"
+
+    async def close(self) -> None:
+        if self._client is not None:
+            await self._client.close()
+            self._client = None
+
+    async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
+        if not records:
+            return []
+        documents = [to_document(record) for record in records]
+        duplicates: set[int] = set()
+        try:
+            await self._events().insert_many(documents, ordered=False)
+        except BulkWriteError as error:
+            others = [e for e in error.details.get("writeErrors", []) if e.get("code") != DUPLICATE_KEY]
+            if others:
+                raise
+            duplicates = {e["index"] for e in error.details["writeErrors"]}
+        except UNAVAILABLE as error:
+            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        notified: dict[str, bool] = {}
+        if duplicates:
+            ids = [documents[i]["_id"] for i in duplicates]
+            async for doc in self._events().find({"_id": {"$in": ids}}, {"notified": 1}):
+                notified[doc["_id"]] = bool(doc.get("notified"))
+        seen: set[str] = set()
+        results = []
+        for index, doc in enumerate(documents):
+            # a key repeated inside the batch: the first copy was inserted, later ones are duplicates
+            first_copy = doc["_id"] not in seen
+            seen.add(doc["_id"])
+            inserted = index not in duplicates and first_copy
+            results.append(
+                WriteResult(
+                    inserted=inserted, notified=False if inserted else notified.get(doc["_id"], False)
+                )
+            )
+        return results
+
+    async def mark_notified(self, keys: Sequence[tuple[str, int]]) -> None:
+        ids = [RobotSequenceId.of(robot, seq) for robot, seq in keys]
+        try:
+            await self._events().update_many({"_id": {"$in": ids}}, {"$set": {"notified": True}})
+        except UNAVAILABLE as error:
+            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+
+    @staticmethod
+    def _filter(type: str | None, robot_id: str | None, query: EventQuery | None = None) -> dict[str, Any]:
+        conditions: dict[str, Any] = {}
+        if type is not None:
+            conditions["type"] = type
+        if robot_id is not None:
+            conditions["robot_id"] = robot_id
+        if query is not None and (query.since or query.until):
+            window: dict[str, int] = {}
+            if query.since:
+                window["$gte"] = to_micros(query.since)
+            if query.until:
+                window["$lt"] = to_micros(query.until)
+            conditions["sent_at_us"] = window
+        return conditions
+
+    async def find_events(self, query: EventQuery) -> list[EventRecord]:
+        direction = DESCENDING if query.newest_first else ASCENDING
+        cursor = (
+            self._events()
+            .find(self._filter(query.type, query.robot_id, query))
+            .sort([("sent_at_us", direction), ("robot_id", direction), ("seq", direction)])
+        )
+        if query.limit is not None:
+            cursor = cursor.limit(query.limit)
+        try:
+            return [from_document(doc) async for doc in cursor]
+        except UNAVAILABLE as error:
+            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+
+    async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int:
+        try:
+            return await self._events().count_documents(self._filter(type, robot_id))
+        except UNAVAILABLE as error:
+            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
