@@ -29,7 +29,8 @@ from workers.store.base import EventQuery
 from workers.thread import WorkerThread
 
 DEMO_VHOST = "fleetbus-demo"
-WARDENS = ("warden1", "warden2")
+EXPLORER = "demo-explorer1"
+WARDENS = ("demo-warden1", "demo-warden2")
 
 
 @dataclass
@@ -84,7 +85,7 @@ async def _count_since(settings: Settings, since: datetime) -> dict[str, int]:
         records = await store.find_events(EventQuery(since=since))
     counts: dict[str, int] = {}
     for record in records:
-        if record.robot_id == "explorer1":
+        if record.robot_id == EXPLORER:
             counts[record.type] = counts.get(record.type, 0) + 1
     return counts
 
@@ -105,7 +106,7 @@ def run_demo(
         admin_url = fresh_vhost(api, endpoint.amqp_url, DEMO_VHOST)
         accounts = {
             name: asyncio.run(provision_account(admin_url, api, name, Role.ROBOT, kind, rotate=True))
-            for name, kind in [("explorer1", RobotKind.EXPLORER), *((w, RobotKind.WARDEN) for w in WARDENS)]
+            for name, kind in [(EXPLORER, RobotKind.EXPLORER), *((w, RobotKind.WARDEN) for w in WARDENS)]
         }
         demo_settings = replace(demo_settings, amqp_url=admin_url, management_url=endpoint.management_url)
         clients = {
@@ -116,13 +117,13 @@ def run_demo(
             client.connect()
         progress.update(step, description="starting the worker")
         with WorkerThread(demo_settings, replace(endpoint, amqp_url=admin_url)):
-            progress.update(step, description="explorer1 publishing")
+            progress.update(step, description=f"{EXPLORER} publishing")
             items: list[tuple[EventType, Any]] = [
                 (EventType.HAZARD, demo_hazard(i, run_start)) for i in range(hazards)
             ]
             items += [(EventType.STATUS, demo_status(i)) for i in range(telemetry)]
             items.append((EventType.MAP, demo_map(run_start)))
-            sent = clients["explorer1"].publish_many(items)
+            sent = clients[EXPLORER].publish_many(items)
             for event in sent:
                 report.published[event.type.value] = report.published.get(event.type.value, 0) + 1
             expected = report.published.get("hazard", 0) + report.published.get("map", 0)
@@ -138,10 +139,12 @@ def run_demo(
             progress.update(step, description="waiting for the store")
             deadline = time.monotonic() + 30
             while sum(report.stored.values()) < len(sent) and time.monotonic() < deadline:
-                report.stored = asyncio.run(_count_since(demo_settings, run_start - timedelta(minutes=1)))
+                report.stored = asyncio.run(_count_since(demo_settings, run_start))
         for client in clients.values():
             client.close()
         report.dead_letters = len(peek_dead_letters(admin_url))
+        for name in accounts:  # broker users are global: leave none behind to clash with a real team's
+            api.delete_user(name)
     report.seconds = time.monotonic() - started
     return report
 
@@ -149,7 +152,7 @@ def run_demo(
 def report_table(report: DemoReport) -> Table:
     table = Table(title=f"fleetbus demo ({report.seconds:.1f} s)")
     table.add_column("event type")
-    table.add_column("published by explorer1", justify="right")
+    table.add_column(f"published by {EXPLORER}", justify="right")
     table.add_column("stored", justify="right")
     for warden in report.delivered:
         table.add_column(f"delivered to {warden}", justify="right")

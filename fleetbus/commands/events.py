@@ -81,6 +81,14 @@ async def _find(query: EventQuery) -> list[EventRecord]:
         return await store.find_events(query)
 
 
+def _shorten(text: str, width: int) -> str:
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def _clock(moment: datetime) -> str:
+    return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+
 def query(
     event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
@@ -103,17 +111,20 @@ def query(
         for record in records:
             typer.echo(json.dumps(record_dict(record)))
         return
-    table = Table(
-        "robot", "seq", "sent at", "received at", "body", title=f"{len(records)} {event_type.value} events"
-    )
+    table = Table(title=f"{len(records)} {event_type.value} events")
+    widest = max((len(r.robot_id) for r in records), default=5)
+    seq_width = max((len(str(r.seq)) for r in records), default=3)
+    table.add_column("robot", no_wrap=True)
+    table.add_column("seq", justify="right", no_wrap=True)
+    table.add_column("sent at (UTC)", no_wrap=True)
+    table.add_column("body", no_wrap=True)
+    room = max(20, console.width - widest - seq_width - 23 - 13)
     for record in records:
-        body = json.dumps(record.body)
         table.add_row(
             record.robot_id,
             str(record.seq),
-            record.sent_at.isoformat(timespec="milliseconds"),
-            record.received_at.isoformat(timespec="milliseconds"),
-            body if len(body) < 90 else body[:87] + "...",
+            _clock(record.sent_at),
+            _shorten(json.dumps(record.body, separators=(",", ":")), room),
         )
     console.print(table)
     if len(records) == limit:

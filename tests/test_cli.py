@@ -1,0 +1,59 @@
+"""The console script as a user types it, against the real broker."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+from schemas.routing import EventType
+from tests.factories import hazard
+from tests.support import Bus, wait_for
+
+
+def fleetbus(bus: Bus, *args: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, **bus.worker_env(), "COLUMNS": "200"}
+    return subprocess.run(
+        [sys.executable, "-m", "fleetbus", *args], env=env, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_users_publish_query_and_dlq(bus: Bus, tmp_path: Path) -> None:
+    bus.accounts.append("cli-explorer")
+    added = fleetbus(bus, "users", "add", "cli-explorer", "--kind", "explorer")
+    assert added.returncode == 0, added.stderr
+    assert "amqp://cli-explorer:" in added.stdout
+    assert "fleetbus-demo" not in added.stdout
+    again = fleetbus(bus, "users", "add", "cli-explorer")
+    assert again.returncode == 1 and "exists" in again.stderr
+
+    data = tmp_path / "hazard.yaml"
+    data.write_text(yaml.safe_dump(hazard()))
+    with bus.worker():
+        published = fleetbus(bus, "publish", "cli-explorer", "hazard", f"@{data}")
+        assert published.returncode == 0, published.stderr
+        wait_for(lambda: bus.count() == 1, what="the published hazard to be stored")
+        bad = fleetbus(
+            bus, "publish", "cli-explorer", "hazard", json.dumps({**hazard(), "pose": {"x": "a", "y": 1}})
+        )
+        assert bad.returncode == 2
+        assert "body.pose.x" in bad.stderr
+    found = fleetbus(bus, "query", "hazard", "--robot", "cli-explorer", "--json")
+    assert found.returncode == 0, found.stderr
+    [line] = found.stdout.splitlines()
+    assert json.loads(line)["body"]["description"] == "Fire"
+    table = fleetbus(bus, "query", "hazard")
+    assert "cli-explorer" in table.stdout and "1 hazard events" in table.stdout
+    letters = fleetbus(bus, "dlq", "--json")
+    assert letters.returncode == 0 and letters.stdout == ""
+
+
+def test_schema_export(bus: Bus, tmp_path: Path) -> None:
+    result = fleetbus(bus, "schemas", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    written = {path.name for path in tmp_path.glob("*.schema.json")}
+    assert written == {"event.schema.json", *(f"{t.value}.schema.json" for t in EventType)}
