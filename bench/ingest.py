@@ -3,7 +3,7 @@
     .venv/bin/python -m bench.ingest [--events 20000] [--runs 3]
 
 Scenarios, each in a fresh virtual host, repeated ``--runs`` times (medians reported):
-  raw publish    pika, persistent 512-byte messages, pipelined confirms, into a quorum queue
+  raw publish    pika, persistent messages as large as the events below, pipelined confirms, into a quorum queue
                  declared like fleetbus's ingest queue
   raw consume    aio-pika, manual ack per message, prefetch 512, from that queue
   ingest         a robot publishes status events (pipelined confirms) while the worker runs;
@@ -38,6 +38,7 @@ from broker.topology import QueueSpec, Topology, core_topology, declare_with_url
 from fleetbus.config import Settings, load_settings
 from publishers.client import RobotClient
 from publishers.confirms import Outgoing, PipelinedConfirms
+from schemas.envelope import build_event, encode_event
 from schemas.routing import INGEST_QUEUE, EventType
 from workers.store import open_store
 from workers.thread import WorkerThread
@@ -47,7 +48,13 @@ RAW_QUEUE = "bench.raw"
 console = Console()
 
 
-def raw_publish(url: str, count: int, size: int = 512) -> float:
+def event_size() -> int:
+    """Bytes of one benchmark event on the wire; the raw scenarios send bodies of this size."""
+    event_type, body = status_items(1)[0]
+    return len(encode_event(build_event(event_type, "bench-ingest", 0, body)))
+
+
+def raw_publish(url: str, count: int, size: int) -> float:
     connection = pika.BlockingConnection(pika.URLParameters(url))
     confirms = PipelinedConfirms(connection, connection.channel(), timeout=60)
     properties = pika.BasicProperties(delivery_mode=2)
@@ -104,7 +111,7 @@ def status_items(count: int) -> list[tuple[EventType, dict[str, Any]]]:
     body = {
         "battery_percent": 80.0,
         "pose": {"x": 1.0, "y": 2.0},
-        "current_waypoint": "wp-" + "x" * 300,
+        "current_waypoint": "wp-" + "x" * 120,
         "processing_rate_hz": 10.0,
     }
     return [(EventType.STATUS, body)] * count
@@ -115,7 +122,7 @@ def one_run(endpoint: BrokerEndpoint, api: ManagementAPI, count: int) -> dict[st
     ingest_args = next(q.arguments for q in core_topology().queues if q.name == INGEST_QUEUE)
     asyncio.run(declare_with_url(admin_url, [Topology(queues=(QueueSpec(RAW_QUEUE, ingest_args),))]))
     result = {
-        "raw_publish": raw_publish(admin_url, count),
+        "raw_publish": raw_publish(admin_url, count, event_size()),
         "raw_consume": asyncio.run(raw_consume(admin_url, count)),
     }
     ep = replace(endpoint, amqp_url=admin_url)
@@ -165,7 +172,9 @@ def main() -> None:
             runs.append(one_run(endpoint, api, args.events))
             progress.advance(task)
     medians = {key: statistics.median(run[key] for run in runs) for key in runs[0]}
-    table = Table(title=f"msg/s, median of {args.runs} runs of {args.events} events (min-max)")
+    table = Table(
+        title=f"msg/s, median of {args.runs} runs of {args.events} messages of {event_size()} bytes"
+    )
     table.add_column("scenario")
     table.add_column("median msg/s", justify="right")
     table.add_column("spread", justify="right")
