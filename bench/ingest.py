@@ -3,8 +3,8 @@
     .venv/bin/python -m bench.ingest [--events 20000] [--runs 3]
 
 Scenarios, each in a fresh virtual host, repeated ``--runs`` times (medians reported):
-  raw publish    pika, persistent messages as large as the events below, pipelined confirms, into a quorum queue
-                 declared like fleetbus's ingest queue
+  raw publish    pika, persistent messages as large as the events below, pipelined confirms,
+                 into a quorum queue declared like fleetbus's ingest queue
   raw consume    aio-pika, manual ack per message, prefetch 512, from that queue
   ingest         a robot publishes status events (pipelined confirms) while the worker runs;
                  timed from the first publish until the store holds them all
