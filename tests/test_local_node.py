@@ -11,10 +11,9 @@ import json
 import re
 import stat
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import TypeVar
 from urllib.parse import urlsplit
 
 import httpx
@@ -32,21 +31,9 @@ from broker.local_node import (
     pids_listening_on,
 )
 from fleetbus.config import Settings, load_settings
+from tests.support import wait_for
 
 pytestmark = pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed")
-
-T = TypeVar("T")
-
-
-def poll(condition: Callable[[], T], timeout: float, what: str) -> T:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what} (last: {value!r})")
-        time.sleep(0.1)
 
 
 @pytest.fixture(scope="module")
@@ -191,7 +178,7 @@ def test_kill_then_up_keeps_durable_persistent_messages(node: LocalNode) -> None
     after = node.up()
     assert after.running and after.pid != before.pid
     assert after.ports == before.ports and after.amqp_url == before.amqp_url
-    poll(
+    wait_for(
         lambda: _ready(after.amqp_url or "", "kill-test") == len(bodies), 30, "the 300 messages after restart"
     )
     assert sorted(_drain(after.amqp_url, "kill-test")) == sorted(bodies)
