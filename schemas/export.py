@@ -1,4 +1,4 @@
-"""JSON Schema export of every message on the bus."""
+"""JSON Schema export of every message on the bus, and the AsyncAPI document of its channels."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from schemas.asyncapi import asyncapi_document
 from schemas.envelope import EVENT_ADAPTER, EVENT_MODELS
 
 
@@ -18,10 +19,13 @@ def json_schemas() -> dict[str, dict[str, Any]]:
 
 
 def write_json_schemas(directory: Path) -> list[Path]:
+    """``<type>.schema.json`` for every event type, plus ``asyncapi.json`` for the whole bus."""
     directory.mkdir(parents=True, exist_ok=True)
+    documents = {f"{name}.schema.json": schema for name, schema in json_schemas().items()}
+    documents["asyncapi.json"] = asyncapi_document()
     written = []
-    for name, schema in json_schemas().items():
-        path = directory / f"{name}.schema.json"
-        path.write_text(json.dumps(schema, indent=2) + "\n")
+    for filename, document in documents.items():
+        path = directory / filename
+        path.write_text(json.dumps(document, indent=2) + "\n")
         written.append(path)
     return written

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -57,3 +58,12 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     written = {path.name for path in tmp_path.glob("*.schema.json")}
     assert written == {"event.schema.json", *(f"{t.value}.schema.json" for t in EventType)}
+    asyncapi = json.loads((tmp_path / "asyncapi.json").read_text())
+    assert set(asyncapi["channels"]) == {"{robot}.{type}", "notify.{topic}", "fleetbus.dead-letters"}
+    text = json.dumps(asyncapi)
+    targets = {
+        f"#/components/{kind}/{name}"
+        for kind in ("schemas", "messages")
+        for name in asyncapi["components"][kind]
+    }
+    assert set(re.findall(r'"\$ref": "([^"]+)"', text)) <= targets, "every $ref resolves"

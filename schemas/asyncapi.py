@@ -1,0 +1,105 @@
+"""An AsyncAPI 2.6 description of every channel on the bus, generated from the models.
+
+Operators and integrators open it in any AsyncAPI tool to see which exchange carries what,
+with which routing key and payload, without reading the code.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic.json_schema import models_json_schema
+
+from schemas.envelope import EVENT_MODELS
+from schemas.identity import NAME_PATTERN
+from schemas.notifications import Notification
+from schemas.routing import (
+    DEAD_LETTER_EXCHANGE,
+    DEAD_LETTER_QUEUE,
+    DETAIL_HEADER,
+    NOTIFY_EXCHANGE,
+    REASON_HEADER,
+    EventType,
+    Topic,
+)
+
+REF = "#/components/schemas/{model}"
+
+
+def _exchange(name: str, kind: str) -> dict[str, Any]:
+    return {
+        "amqp": {"is": "routingKey", "exchange": {"name": name, "type": kind, "durable": True, "vhost": "/"}}
+    }
+
+
+def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
+    models = [*EVENT_MODELS.values(), Notification]
+    refs, definitions = models_json_schema([(m, "validation") for m in models], ref_template=REF)
+    messages: dict[str, Any] = {
+        f"{event_type.value}_event": {
+            "name": f"{event_type.value} event",
+            "contentType": "application/json",
+            "payload": refs[(model, "validation")],
+            "bindings": {"amqp": {"deliveryMode": 2}},
+            "headers": {"type": "object", "description": "AMQP properties: user_id = the robot's account"},
+        }
+        for event_type, model in EVENT_MODELS.items()
+    }
+    messages["notification"] = {
+        "name": "notification",
+        "contentType": "application/json",
+        "payload": refs[(Notification, "validation")],
+    }
+    types = [t.value for t in EventType]
+    return {
+        "asyncapi": "2.6.0",
+        "info": {
+            "title": "fleetbus",
+            "version": version,
+            "description": "Event backbone of a robot team on RabbitMQ. Every account owns the "
+            "exchanges and queues that start with its name; the broker validates user_id.",
+        },
+        "servers": {
+            "rabbitmq": {
+                "url": "{host}:5672",
+                "protocol": "amqp",
+                "protocolVersion": "0.9.1",
+                "variables": {"host": {"default": "127.0.0.1"}},
+            }
+        },
+        "channels": {
+            "{robot}.{type}": {
+                "description": "Events a robot publishes to its own exchange {robot}.events (persistent, "
+                "publisher confirms, user_id = robot). The service binds it into fleetbus.ingest.",
+                "parameters": {
+                    "robot": {"schema": {"type": "string", "pattern": NAME_PATTERN.pattern}},
+                    "type": {"schema": {"type": "string", "enum": types}},
+                },
+                "publish": {
+                    "operationId": "publishEvent",
+                    "message": {"oneOf": [{"$ref": f"#/components/messages/{t}_event"} for t in types]},
+                },
+                "bindings": _exchange("{robot}.events", "topic"),
+            },
+            "notify.{topic}": {
+                "description": f"Notifications from the service on {NOTIFY_EXCHANGE}, copied by the broker "
+                "into each subscribed {user}.inbox queue.",
+                "parameters": {"topic": {"schema": {"type": "string", "enum": [t.value for t in Topic]}}},
+                "subscribe": {
+                    "operationId": "receiveNotification",
+                    "message": {"$ref": "#/components/messages/notification"},
+                },
+                "bindings": _exchange(NOTIFY_EXCHANGE, "topic"),
+            },
+            DEAD_LETTER_QUEUE: {
+                "description": f"Messages the workers refused, as received, with headers {REASON_HEADER} "
+                f"and {DETAIL_HEADER}; fed by the fanout exchange {DEAD_LETTER_EXCHANGE}.",
+                "subscribe": {
+                    "operationId": "readDeadLetters",
+                    "message": {"name": "dead letter", "payload": {"type": "string"}},
+                },
+                "bindings": {"amqp": {"is": "queue", "queue": {"name": DEAD_LETTER_QUEUE, "durable": True}}},
+            },
+        },
+        "components": {"messages": messages, "schemas": definitions.get("$defs", {})},
+    }
