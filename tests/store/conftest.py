@@ -8,15 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from workers.store.base import EventStore
+from workers.store.interface import Store
 from workers.store.mongo import MongoEventStore
 from workers.store.sqlite import SQLiteEventStore
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])
-async def store(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[EventStore]:
+async def store(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Store]:
     if request.param == "sqlite":
-        adapter: EventStore = SQLiteEventStore(tmp_path / "store.sqlite3")
+        adapter: Store = SQLiteEventStore(tmp_path / "store.sqlite3")
     else:
         url = request.getfixturevalue("mongodb_url")
         adapter = MongoEventStore(url, database=f"test_{uuid.uuid4().hex[:12]}")

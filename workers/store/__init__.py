@@ -4,11 +4,18 @@ from __future__ import annotations
 
 from fleetbus.config import Settings
 from workers.store.base import EventQuery, EventRecord, EventStore, StoreError, StoreUnavailable, WriteResult
+from workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
+from workers.store.interface import Store
 
 __all__ = [
     "EventQuery",
     "EventRecord",
     "EventStore",
+    "Hazard",
+    "HazardRefused",
+    "HazardState",
+    "RobotState",
+    "Store",
     "StoreError",
     "StoreUnavailable",
     "WriteResult",
@@ -16,7 +23,7 @@ __all__ = [
 ]
 
 
-def open_store(settings: Settings) -> EventStore:
+def open_store(settings: Settings) -> Store:
     """The store the settings select (MongoDB when ``mongodb_url`` is set), not yet opened."""
     if settings.mongodb_url:
         from workers.store.mongo import MongoEventStore

@@ -24,12 +24,13 @@ from pymongo.write_concern import WriteConcern
 from workers.store.base import (
     EventQuery,
     EventRecord,
-    EventStore,
     StoreUnavailable,
     WriteResult,
     from_micros,
     to_micros,
 )
+from workers.store.interface import Store
+from workers.store.mongo_hazards import MongoCoordination
 
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
@@ -85,7 +86,7 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
-class MongoEventStore(EventStore):
+class MongoEventStore(MongoCoordination, Store):
     name = "mongodb"
 
     def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
@@ -94,14 +95,17 @@ class MongoEventStore(EventStore):
         self._timeout_ms = int(server_selection_timeout * 1000)
         self._client: AsyncMongoClient[dict[str, Any]] | None = None
 
-    def _events(self) -> Any:
-        """The collection of events (one for all types; the recorder issue splits it per type)."""
+    def _collection(self, name: str) -> Any:
         if self._client is None:
             raise RuntimeError("the store is not open")
-        # journaled majority writes: acked events survive a crash of the primary
+        # journaled majority writes: acknowledged data survives a crash of the primary
         return self._client[self._database_name].get_collection(
-            "events", write_concern=WriteConcern(w="majority", j=True)
+            name, write_concern=WriteConcern(w="majority", j=True)
         )
+
+    def _events(self) -> Any:
+        """The collection of events (one for all types; the recorder issue splits it per type)."""
+        return self._collection("events")
 
     async def open(self) -> None:
         if self._client is None:
@@ -114,6 +118,7 @@ class MongoEventStore(EventStore):
             await events.create_index([("robot_id", ASCENDING), ("sent_at_us", ASCENDING)])
             await events.create_index([("sent_at_us", ASCENDING)])
             await events.create_index([("message_id", ASCENDING)])
+            await self.create_coordination_indexes()
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
 

@@ -18,12 +18,13 @@ from typing import Any, TypeVar
 from workers.store.base import (
     EventQuery,
     EventRecord,
-    EventStore,
     StoreUnavailable,
     WriteResult,
     from_micros,
     to_micros,
 )
+from workers.store.interface import Store
+from workers.store.sqlite_hazards import HAZARD_SCHEMA, SQLiteCoordination
 
 T = TypeVar("T")
 
@@ -86,7 +87,7 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(EventStore):
+class SQLiteEventStore(SQLiteCoordination, Store):
     name = "sqlite"
 
     def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
@@ -120,6 +121,7 @@ class SQLiteEventStore(EventStore):
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA synchronous=FULL")
         db.executescript(SCHEMA)
+        db.executescript(HAZARD_SCHEMA)
         return db
 
     async def open(self) -> None:

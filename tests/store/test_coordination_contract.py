@@ -1,0 +1,86 @@
+"""The coordination state on every adapter: hazard ids, the held list, claims, localisation."""
+
+from __future__ import annotations
+
+import asyncio
+from datetime import datetime, timedelta, timezone
+
+import pytest
+
+from workers.store.hazards import HazardRefused, HazardState
+from workers.store.interface import Store
+
+T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
+BODY = {"pose": {"x": 2.66, "y": 1.22}, "description": "Fire"}
+
+
+async def test_ids_are_sequential_per_mission_and_idempotent(store: Store) -> None:
+    first = await store.add_hazard("m1", "explorer1", 10, BODY, T0, held=False)
+    second = await store.add_hazard("m1", "explorer1", 11, BODY, T0, held=False)
+    other = await store.add_hazard("m2", "explorer1", 12, BODY, T0, held=False)
+    again = await store.add_hazard("m1", "explorer1", 10, {"different": True}, T0, held=True)
+    assert (first.hazard_id, second.hazard_id, other.hazard_id) == (1, 2, 1)
+    assert again == first, "the same event registers the same hazard once"
+    assert first.body == BODY and first.state is HazardState.ANNOUNCED and first.received_at == T0
+
+
+async def test_held_hazards_come_out_in_detection_order(store: Store) -> None:
+    for seq in range(3):
+        await store.add_hazard("m1", "explorer1", seq, {**BODY, "n": seq}, T0, held=True)
+    held = await store.held_hazards("m1")
+    assert [h.hazard_id for h in held] == [1, 2, 3]
+    await store.mark_announced(held[:2], T0 + timedelta(seconds=5))
+    assert [h.hazard_id for h in await store.held_hazards()] == [3]
+    announced = await store.get_hazard("m1", 1)
+    assert announced is not None and announced.state is HazardState.ANNOUNCED
+    assert announced.announced_at == T0 + timedelta(seconds=5)
+
+
+async def test_claim_reach_release_and_refusals(store: Store) -> None:
+    await store.add_hazard("m1", "explorer1", 0, BODY, T0, held=False)
+    await store.add_hazard("m1", "explorer1", 1, BODY, T0, held=True)
+    claimed = await store.claim("m1", 1, "warden1", T0)
+    assert (claimed.state, claimed.claimed_by) == (HazardState.CLAIMED, "warden1")
+    with pytest.raises(HazardRefused, match="claimed by warden1"):
+        await store.claim("m1", 1, "warden2", T0)
+    with pytest.raises(HazardRefused, match="no hazard 9"):
+        await store.claim("m1", 9, "warden2", T0)
+    with pytest.raises(HazardRefused, match="held"):
+        await store.claim("m1", 2, "warden2", T0)
+    with pytest.raises(HazardRefused, match="claimed by warden1"):
+        await store.mark_reached("m1", 1, "warden2", T0)
+    released = await store.release("m1", 1, "warden1")
+    assert (released.state, released.claimed_by) == (HazardState.ANNOUNCED, None)
+    await store.claim("m1", 1, "warden2", T0)
+    reached = await store.mark_reached("m1", 1, "warden2", T0 + timedelta(seconds=30))
+    assert reached.state is HazardState.REACHED and reached.reached_at == T0 + timedelta(seconds=30)
+    assert [h.hazard_id for h in await store.open_hazards("m1")] == [1, 2]
+    unchanged = await store.get_hazard("m1", 2)
+    assert unchanged is not None and unchanged.state is HazardState.HELD
+
+
+async def test_two_claims_at_once_one_wins(store: Store) -> None:
+    await store.add_hazard("m1", "explorer1", 0, BODY, T0, held=False)
+    outcomes = await asyncio.gather(
+        store.claim("m1", 1, "warden1", T0), store.claim("m1", 1, "warden2", T0), return_exceptions=True
+    )
+    winners = [o for o in outcomes if not isinstance(o, Exception)]
+    refusals = [o for o in outcomes if isinstance(o, HazardRefused)]
+    assert len(winners) == 1 and len(refusals) == 1
+    stored = await store.get_hazard("m1", 1)
+    assert stored is not None and stored.claimed_by == winners[0].claimed_by
+
+
+async def test_robot_registry_and_localisation(store: Store) -> None:
+    await store.register_robot("warden1", "warden")
+    await store.register_robot("warden2", "warden")
+    await store.set_localised("warden1", True, T0)
+    await store.set_localised("warden1", False, T0 - timedelta(seconds=1))  # late, older report: ignored
+    await store.set_localised("guide1", True, T0)
+    wardens = await store.robots("warden")
+    assert [(r.name, r.localised) for r in wardens] == [("warden1", True), ("warden2", False)]
+    assert {r.name: r.kind for r in await store.robots()} == {
+        "guide1": None,
+        "warden1": "warden",
+        "warden2": "warden",
+    }

@@ -1,0 +1,130 @@
+"""The hazard registry and the robots' localisation states, kept by the coordination service.
+
+Hazards get an id sequential within their mission, assigned atomically by the store. A hazard
+is ``held`` while some warden of the team is not localised, ``announced`` once the wardens were
+told, then ``claimed`` by one warden, ``reached``, and finally ``cleared``.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from datetime import datetime
+from enum import Enum
+from typing import Any
+
+from workers.store.base import StoreError
+
+DEFAULT_MISSION = "default"
+
+
+class HazardState(str, Enum):
+    HELD = "held"
+    ANNOUNCED = "announced"
+    CLAIMED = "claimed"
+    REACHED = "reached"
+    CLEARED = "cleared"
+
+
+@dataclass(frozen=True)
+class Hazard:
+    mission_id: str
+    hazard_id: int
+    robot_id: str
+    seq: int
+    body: dict[str, Any]
+    state: HazardState
+    received_at: datetime
+    announced_at: datetime | None = None
+    claimed_by: str | None = None
+    claimed_at: datetime | None = None
+    reached_at: datetime | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        out = dict(self.__dict__)
+        out["state"] = self.state.value
+        for name in ("received_at", "announced_at", "claimed_at", "reached_at"):
+            out[name] = out[name].isoformat() if out[name] else None
+        return out
+
+
+@dataclass(frozen=True)
+class RobotState:
+    name: str
+    kind: str | None
+    localised: bool
+    updated_at: datetime | None
+
+
+class HazardRefused(StoreError):
+    """A claim, release or arrival the hazard's state does not allow; the message says why."""
+
+
+class CoordinationStore(abc.ABC):
+    @abc.abstractmethod
+    async def register_robot(self, name: str, kind: str | None) -> None:
+        """Record a robot and its kind (explorer, warden, guide); idempotent."""
+
+    @abc.abstractmethod
+    async def set_localised(self, name: str, localised: bool, at: datetime) -> None:
+        """Record a robot's localisation state (an unknown robot is recorded without a kind)."""
+
+    @abc.abstractmethod
+    async def robots(self, kind: str | None = None) -> list[RobotState]: ...
+
+    @abc.abstractmethod
+    async def add_hazard(
+        self,
+        mission_id: str,
+        robot_id: str,
+        seq: int,
+        body: dict[str, Any],
+        received_at: datetime,
+        held: bool,
+    ) -> Hazard:
+        """Register the hazard of event (robot_id, seq) with the mission's next id.
+
+        Idempotent: the same event again returns the hazard registered the first time.
+        """
+
+    @abc.abstractmethod
+    async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
+        """Held hazards in the order they were detected (id order)."""
+
+    @abc.abstractmethod
+    async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
+        """Move these hazards from held to announced (others are left as they are)."""
+
+    @abc.abstractmethod
+    async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None: ...
+
+    @abc.abstractmethod
+    async def open_hazards(self, mission_id: str) -> list[Hazard]:
+        """Hazards not cleared, in id order."""
+
+    @abc.abstractmethod
+    async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        """Give an announced hazard to ``warden``; atomic, so of two claims one wins."""
+
+    @abc.abstractmethod
+    async def release(self, mission_id: str, hazard_id: int, warden: str) -> Hazard:
+        """The claiming warden gives the hazard up; it is announced again."""
+
+    @abc.abstractmethod
+    async def mark_reached(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        """The claiming warden reports it reached the hazard."""
+
+
+def refuse_transition(
+    hazard: Hazard | None, mission_id: str, hazard_id: int, action: str, warden: str
+) -> HazardRefused:
+    """The error for an action the hazard's current state does not allow."""
+    if hazard is None:
+        return HazardRefused(f"no hazard {hazard_id} in mission {mission_id!r}")
+    if hazard.state is HazardState.HELD:
+        return HazardRefused(
+            f"hazard {hazard_id} is held until every warden is localised; it cannot be {action}"
+        )
+    if hazard.claimed_by and hazard.claimed_by != warden:
+        return HazardRefused(f"hazard {hazard_id} is claimed by {hazard.claimed_by}")
+    return HazardRefused(f"hazard {hazard_id} is {hazard.state.value}; {warden} cannot have it {action}")

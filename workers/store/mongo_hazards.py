@@ -1,0 +1,206 @@
+"""The coordination collections on MongoDB, mixed into :class:`MongoEventStore`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from datetime import datetime
+from typing import Any
+
+from pymongo import ASCENDING, ReturnDocument
+from pymongo.errors import DuplicateKeyError
+
+from workers.store.base import from_micros, to_micros
+from workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState, refuse_transition
+
+TIMES = ("announced_at", "claimed_at", "reached_at")
+
+
+def hazard_id_of(mission_id: str, hazard_id: int) -> str:
+    return f"{mission_id}:{hazard_id}"
+
+
+def _hazard(doc: dict[str, Any]) -> Hazard:
+    return Hazard(
+        mission_id=doc["mission_id"],
+        hazard_id=doc["hazard_id"],
+        robot_id=doc["robot_id"],
+        seq=doc["seq"],
+        body=doc["body"],
+        state=HazardState(doc["state"]),
+        received_at=from_micros(doc["received_at_us"]),
+        claimed_by=doc.get("claimed_by"),
+        **{
+            name: from_micros(doc[f"{name}_us"]) if doc.get(f"{name}_us") is not None else None
+            for name in TIMES
+        },
+    )
+
+
+class MongoCoordination(CoordinationStore):
+    """Needs the host class's ``_collection(name)``."""
+
+    _collection: Callable[[str], Any]
+
+    async def create_coordination_indexes(self) -> None:
+        await self._collection("hazards").create_index(
+            [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
+        )
+        await self._collection("hazards").create_index(
+            [("state", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
+        )
+
+    async def register_robot(self, name: str, kind: str | None) -> None:
+        await self._collection("robots").update_one(
+            {"_id": name},
+            {"$set": {"kind": kind}, "$setOnInsert": {"localised": False, "updated_at_us": None}},
+            upsert=True,
+        )
+
+    async def set_localised(self, name: str, localised: bool, at: datetime) -> None:
+        stamp = to_micros(at)
+        robots = self._collection("robots")
+        current = await robots.find_one({"_id": name})
+        if current is None:
+            try:
+                await robots.insert_one(
+                    {"_id": name, "kind": None, "localised": localised, "updated_at_us": stamp}
+                )
+                return
+            except DuplicateKeyError:
+                pass
+        older = {"$or": [{"updated_at_us": None}, {"updated_at_us": {"$lte": stamp}}]}
+        await robots.update_one(
+            {"_id": name, **older}, {"$set": {"localised": localised, "updated_at_us": stamp}}
+        )
+
+    async def robots(self, kind: str | None = None) -> list[RobotState]:
+        query = {} if kind is None else {"kind": kind}
+        found = []
+        async for doc in self._collection("robots").find(query).sort("_id", ASCENDING):
+            stamp = doc.get("updated_at_us")
+            found.append(
+                RobotState(
+                    doc["_id"],
+                    doc.get("kind"),
+                    bool(doc.get("localised")),
+                    from_micros(stamp) if stamp else None,
+                )
+            )
+        return found
+
+    async def add_hazard(
+        self,
+        mission_id: str,
+        robot_id: str,
+        seq: int,
+        body: dict[str, Any],
+        received_at: datetime,
+        held: bool,
+    ) -> Hazard:
+        hazards = self._collection("hazards")
+        existing = await hazards.find_one({"robot_id": robot_id, "seq": seq})
+        if existing:
+            return _hazard(existing)
+        counter = await self._collection("hazard_counters").find_one_and_update(
+            {"_id": mission_id}, {"$inc": {"last_id": 1}}, upsert=True, return_document=ReturnDocument.AFTER
+        )
+        next_id = counter["last_id"]
+        doc = {
+            "_id": hazard_id_of(mission_id, next_id),
+            "mission_id": mission_id,
+            "hazard_id": next_id,
+            "robot_id": robot_id,
+            "seq": seq,
+            "body": body,
+            "state": (HazardState.HELD if held else HazardState.ANNOUNCED).value,
+            "received_at": received_at,
+            "received_at_us": to_micros(received_at),
+            "claimed_by": None,
+            **{f"{name}_us": None for name in TIMES},
+        }
+        try:
+            await hazards.insert_one(doc)
+        except DuplicateKeyError:  # another worker registered this event first; its id stands
+            existing = await hazards.find_one({"robot_id": robot_id, "seq": seq})
+            return _hazard(existing)
+        return _hazard(doc)
+
+    async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
+        query: dict[str, Any] = {"state": HazardState.HELD.value}
+        if mission_id is not None:
+            query["mission_id"] = mission_id
+        cursor = (
+            self._collection("hazards")
+            .find(query)
+            .sort([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
+        )
+        return [_hazard(doc) async for doc in cursor]
+
+    async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
+        ids = [hazard_id_of(h.mission_id, h.hazard_id) for h in hazards]
+        await self._collection("hazards").update_many(
+            {"_id": {"$in": ids}, "state": HazardState.HELD.value},
+            {"$set": {"state": HazardState.ANNOUNCED.value, "announced_at_us": to_micros(at)}},
+        )
+
+    async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None:
+        doc = await self._collection("hazards").find_one({"_id": hazard_id_of(mission_id, hazard_id)})
+        return _hazard(doc) if doc else None
+
+    async def open_hazards(self, mission_id: str) -> list[Hazard]:
+        cursor = (
+            self._collection("hazards")
+            .find({"mission_id": mission_id, "state": {"$ne": HazardState.CLEARED.value}})
+            .sort("hazard_id", ASCENDING)
+        )
+        return [_hazard(doc) async for doc in cursor]
+
+    async def _transition(
+        self,
+        mission_id: str,
+        hazard_id: int,
+        warden: str,
+        action: str,
+        condition: dict[str, Any],
+        change: dict[str, Any],
+        done: Callable[[Hazard], bool],
+    ) -> Hazard:
+        key = hazard_id_of(mission_id, hazard_id)
+        await self._collection("hazards").find_one_and_update({"_id": key, **condition}, {"$set": change})
+        hazard = await self.get_hazard(mission_id, hazard_id)
+        if hazard is None or not done(hazard):
+            raise refuse_transition(hazard, mission_id, hazard_id, action, warden)
+        return hazard
+
+    async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "claimed",
+            {"state": HazardState.ANNOUNCED.value},
+            {"state": HazardState.CLAIMED.value, "claimed_by": warden, "claimed_at_us": to_micros(at)},
+            lambda h: h.state is HazardState.CLAIMED and h.claimed_by == warden,
+        )
+
+    async def release(self, mission_id: str, hazard_id: int, warden: str) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "released",
+            {"state": HazardState.CLAIMED.value, "claimed_by": warden},
+            {"state": HazardState.ANNOUNCED.value, "claimed_by": None, "claimed_at_us": None},
+            lambda h: h.state is HazardState.ANNOUNCED,
+        )
+
+    async def mark_reached(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "reached",
+            {"state": HazardState.CLAIMED.value, "claimed_by": warden},
+            {"state": HazardState.REACHED.value, "reached_at_us": to_micros(at)},
+            lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
+        )

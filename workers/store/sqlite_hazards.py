@@ -1,0 +1,262 @@
+"""The coordination tables on SQLite, mixed into :class:`SQLiteEventStore` (one database file)."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from collections.abc import Callable
+from datetime import datetime
+from typing import Any, TypeVar
+
+from workers.store.base import from_micros, to_micros
+from workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState, refuse_transition
+
+T = TypeVar("T")
+
+HAZARD_SCHEMA = """
+CREATE TABLE IF NOT EXISTS robots (
+    name       TEXT PRIMARY KEY,
+    kind       TEXT,
+    localised  INTEGER NOT NULL DEFAULT 0,
+    updated_at INTEGER
+);
+CREATE TABLE IF NOT EXISTS hazard_counters (
+    mission_id TEXT PRIMARY KEY,
+    last_id    INTEGER NOT NULL
+);
+CREATE TABLE IF NOT EXISTS hazards (
+    mission_id   TEXT    NOT NULL,
+    hazard_id    INTEGER NOT NULL,
+    robot_id     TEXT    NOT NULL,
+    seq          INTEGER NOT NULL,
+    body         TEXT    NOT NULL,
+    state        TEXT    NOT NULL,
+    received_at  INTEGER NOT NULL,
+    announced_at INTEGER,
+    claimed_by   TEXT,
+    claimed_at   INTEGER,
+    reached_at   INTEGER,
+    PRIMARY KEY (mission_id, hazard_id),
+    UNIQUE (robot_id, seq)
+);
+CREATE INDEX IF NOT EXISTS hazards_state ON hazards (state, mission_id, hazard_id);
+"""
+
+
+def _micros(moment: datetime | None) -> int | None:
+    return to_micros(moment) if moment else None
+
+
+def _hazard(row: sqlite3.Row) -> Hazard:
+    def moment(name: str) -> datetime | None:
+        return from_micros(row[name]) if row[name] is not None else None
+
+    return Hazard(
+        mission_id=row["mission_id"],
+        hazard_id=row["hazard_id"],
+        robot_id=row["robot_id"],
+        seq=row["seq"],
+        body=json.loads(row["body"]),
+        state=HazardState(row["state"]),
+        received_at=from_micros(row["received_at"]),
+        announced_at=moment("announced_at"),
+        claimed_by=row["claimed_by"],
+        claimed_at=moment("claimed_at"),
+        reached_at=moment("reached_at"),
+    )
+
+
+def _one(db: sqlite3.Connection, mission_id: str, hazard_id: int) -> Hazard | None:
+    row = db.execute(
+        "SELECT * FROM hazards WHERE mission_id = ? AND hazard_id = ?", (mission_id, hazard_id)
+    ).fetchone()
+    return _hazard(row) if row else None
+
+
+def _in_transaction(db: sqlite3.Connection, work: Callable[[], T]) -> T:
+    db.execute("BEGIN IMMEDIATE")
+    try:
+        result = work()
+    except BaseException:
+        db.execute("ROLLBACK")
+        raise
+    db.execute("COMMIT")
+    return result
+
+
+class SQLiteCoordination(CoordinationStore):
+    """Needs the host class's ``_run(work)``, which runs ``work(connection)`` on the store's thread."""
+
+    _run: Callable[..., Any]
+
+    async def register_robot(self, name: str, kind: str | None) -> None:
+        await self._run(
+            lambda db: db.execute(
+                "INSERT INTO robots (name, kind) VALUES (?, ?) "
+                "ON CONFLICT (name) DO UPDATE SET kind = excluded.kind",
+                (name, kind),
+            )
+        )
+
+    async def set_localised(self, name: str, localised: bool, at: datetime) -> None:
+        await self._run(
+            lambda db: db.execute(
+                "INSERT INTO robots (name, localised, updated_at) VALUES (?, ?, ?) "
+                "ON CONFLICT (name) DO UPDATE "
+                "SET localised = excluded.localised, updated_at = excluded.updated_at "
+                "WHERE robots.updated_at IS NULL OR robots.updated_at <= excluded.updated_at",
+                (name, int(localised), to_micros(at)),
+            )
+        )
+
+    async def robots(self, kind: str | None = None) -> list[RobotState]:
+        sql, params = "SELECT * FROM robots", ()
+        if kind is not None:
+            sql, params = sql + " WHERE kind = ?", (kind,)
+        rows = await self._run(lambda db: db.execute(sql + " ORDER BY name", params).fetchall())
+        return [
+            RobotState(
+                r["name"],
+                r["kind"],
+                bool(r["localised"]),
+                from_micros(r["updated_at"]) if r["updated_at"] else None,
+            )
+            for r in rows
+        ]
+
+    async def add_hazard(
+        self,
+        mission_id: str,
+        robot_id: str,
+        seq: int,
+        body: dict[str, Any],
+        received_at: datetime,
+        held: bool,
+    ) -> Hazard:
+        def add(db: sqlite3.Connection) -> Hazard:
+            def work() -> Hazard:
+                row = db.execute(
+                    "SELECT * FROM hazards WHERE robot_id = ? AND seq = ?", (robot_id, seq)
+                ).fetchone()
+                if row:
+                    return _hazard(row)
+                (next_id,) = db.execute(
+                    "INSERT INTO hazard_counters (mission_id, last_id) VALUES (?, 1) "
+                    "ON CONFLICT (mission_id) DO UPDATE SET last_id = last_id + 1 RETURNING last_id",
+                    (mission_id,),
+                ).fetchone()
+                state = HazardState.HELD if held else HazardState.ANNOUNCED
+                db.execute(
+                    "INSERT INTO hazards (mission_id, hazard_id, robot_id, seq, body, state, received_at) "
+                    "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                    (
+                        mission_id,
+                        next_id,
+                        robot_id,
+                        seq,
+                        json.dumps(body),
+                        state.value,
+                        to_micros(received_at),
+                    ),
+                )
+                found = _one(db, mission_id, next_id)
+                assert found is not None
+                return found
+
+            return _in_transaction(db, work)
+
+        return await self._run(add)
+
+    async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
+        sql, params = "SELECT * FROM hazards WHERE state = 'held'", ()
+        if mission_id is not None:
+            sql, params = sql + " AND mission_id = ?", (mission_id,)
+        rows = await self._run(
+            lambda db: db.execute(sql + " ORDER BY mission_id, hazard_id", params).fetchall()
+        )
+        return [_hazard(row) for row in rows]
+
+    async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
+        keys = [(to_micros(at), h.mission_id, h.hazard_id) for h in hazards]
+
+        def mark(db: sqlite3.Connection) -> None:
+            _in_transaction(
+                db,
+                lambda: db.executemany(
+                    "UPDATE hazards SET state = 'announced', announced_at = ? "
+                    "WHERE mission_id = ? AND hazard_id = ? AND state = 'held'",
+                    keys,
+                ),
+            )
+
+        await self._run(mark)
+
+    async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None:
+        return await self._run(lambda db: _one(db, mission_id, hazard_id))
+
+    async def open_hazards(self, mission_id: str) -> list[Hazard]:
+        rows = await self._run(
+            lambda db: db.execute(
+                "SELECT * FROM hazards WHERE mission_id = ? AND state != 'cleared' ORDER BY hazard_id",
+                (mission_id,),
+            ).fetchall()
+        )
+        return [_hazard(row) for row in rows]
+
+    async def _transition(
+        self,
+        mission_id: str,
+        hazard_id: int,
+        warden: str,
+        action: str,
+        update: str,
+        params: tuple[Any, ...],
+        done: Callable[[Hazard], bool],
+    ) -> Hazard:
+        def change(db: sqlite3.Connection) -> Hazard:
+            def work() -> Hazard:
+                db.execute(update, (*params, mission_id, hazard_id))
+                hazard = _one(db, mission_id, hazard_id)
+                if hazard is None or not done(hazard):
+                    raise refuse_transition(hazard, mission_id, hazard_id, action, warden)
+                return hazard
+
+            return _in_transaction(db, work)
+
+        return await self._run(change)
+
+    async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "claimed",
+            "UPDATE hazards SET state = 'claimed', claimed_by = ?, claimed_at = ? "
+            "WHERE state = 'announced' AND mission_id = ? AND hazard_id = ?",
+            (warden, to_micros(at)),
+            lambda h: h.state is HazardState.CLAIMED and h.claimed_by == warden,
+        )
+
+    async def release(self, mission_id: str, hazard_id: int, warden: str) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "released",
+            "UPDATE hazards SET state = 'announced', claimed_by = NULL, claimed_at = NULL "
+            "WHERE state = 'claimed' AND claimed_by = ? AND mission_id = ? AND hazard_id = ?",
+            (warden,),
+            lambda h: h.state is HazardState.ANNOUNCED,
+        )
+
+    async def mark_reached(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "reached",
+            "UPDATE hazards SET state = 'reached', reached_at = ? "
+            "WHERE state = 'claimed' AND claimed_by = ? AND mission_id = ? AND hazard_id = ?",
+            (to_micros(at), warden),
+            lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
+        )
