@@ -22,6 +22,7 @@ from broker.dead_letter_queue import peek_dead_letters
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from fleetbus.config import Settings
+from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from schemas.routing import EventType, RobotKind
 from workers.store import open_store
@@ -31,6 +32,7 @@ from workers.thread import WorkerThread
 DEMO_VHOST = "fleetbus-demo"
 EXPLORER = "demo-explorer1"
 WARDENS = ("demo-warden1", "demo-warden2")
+TEAM = ((EXPLORER, RobotKind.EXPLORER), *((warden, RobotKind.WARDEN) for warden in WARDENS))
 
 
 @dataclass
@@ -106,9 +108,11 @@ def run_demo(
         admin_url = fresh_vhost(api, endpoint.amqp_url, DEMO_VHOST)
         accounts = {
             name: asyncio.run(provision_account(admin_url, api, name, Role.ROBOT, kind, rotate=True))
-            for name, kind in [(EXPLORER, RobotKind.EXPLORER), *((w, RobotKind.WARDEN) for w in WARDENS)]
+            for name, kind in TEAM
         }
         demo_settings = replace(demo_settings, amqp_url=admin_url, management_url=endpoint.management_url)
+        for name, kind in TEAM:
+            register_robot(demo_settings, name, kind)
         clients = {
             name: RobotClient(account.amqp_url, state_dir=demo_settings.robots_dir)
             for name, account in accounts.items()
@@ -117,6 +121,8 @@ def run_demo(
             client.connect()
         progress.update(step, description="starting the worker")
         with WorkerThread(demo_settings, replace(endpoint, amqp_url=admin_url)):
+            for warden in WARDENS:
+                clients[warden].publish(EventType.LOCALISATION, {"localised": True})
             progress.update(step, description=f"{EXPLORER} publishing")
             items: list[tuple[EventType, Any]] = [
                 (EventType.HAZARD, demo_hazard(i, run_start)) for i in range(hazards)

@@ -17,3 +17,7 @@ class Notification(BaseModel):
     received_at: AwareDatetime
     """When the service received the event."""
     notified_at: AwareDatetime
+    hazard_id: int | None = None
+    """For hazards: the id the service gave it, sequential within its mission."""
+    late: bool = False
+    """Announced later than it was received (held while wardens were localising)."""

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -20,9 +20,10 @@ from broker.accounts import Account, Role, provision_account
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from fleetbus.config import Settings
+from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from schemas.routing import RobotKind
-from workers.store import open_store
+from workers.store import Store, open_store
 from workers.store.base import EventQuery, EventRecord
 from workers.thread import WorkerThread
 
@@ -65,7 +66,10 @@ class Bus:
     def add(self, name: str, role: Role = Role.ROBOT, kind: RobotKind | None = None) -> Account:
         """A new account; users are broker-wide, so one left by an aborted run is re-keyed."""
         self.accounts.append(name)
-        return asyncio.run(provision_account(self.admin_url, self.api, name, role, kind, rotate=True))
+        account = asyncio.run(provision_account(self.admin_url, self.api, name, role, kind, rotate=True))
+        if role is Role.ROBOT:
+            register_robot(self.settings, name, kind)
+        return account
 
     def remove_accounts(self) -> None:
         for name in self.accounts:
@@ -104,19 +108,20 @@ class Bus:
             stderr=subprocess.STDOUT,
         )
 
-    def find(self, query: EventQuery | None = None) -> list[EventRecord]:
-        async def go() -> list[EventRecord]:
+    def with_store(self, operation: Callable[[Store], Awaitable[T]]) -> T:
+        """Run one operation on a fresh connection to the test's store (what an operator would see)."""
+
+        async def go() -> T:
             async with open_store(self.settings) as store:
-                return await store.find_events(query or EventQuery())
+                return await operation(store)
 
         return asyncio.run(go())
+
+    def find(self, query: EventQuery | None = None) -> list[EventRecord]:
+        return self.with_store(lambda store: store.find_events(query or EventQuery()))
 
     def count(self, type: str | None = None, robot_id: str | None = None) -> int:
-        async def go() -> int:
-            async with open_store(self.settings) as store:
-                return await store.count_events(type, robot_id)
-
-        return asyncio.run(go())
+        return self.with_store(lambda store: store.count_events(type, robot_id))
 
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""

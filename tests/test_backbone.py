@@ -13,12 +13,15 @@ from broker.dead_letter_queue import peek_dead_letters
 from schemas.routing import RobotKind
 from tests.factories import TABLE1_TIME, hazard, status
 from tests.support import Bus, wait_for
+from workers.store.base import EventQuery
 
 
 def test_200_hazards_reach_both_wardens_and_are_stored_once_in_order(bus: Bus) -> None:
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     wardens = [bus.robot(bus.add(name, kind=RobotKind.WARDEN)) for name in ("warden1", "warden2")]
     with bus.worker():
+        for warden in wardens:
+            warden.publish("localisation", {"localised": True})
         sent = explorer.publish_many([("hazard", hazard(i)) for i in range(200)])
         for warden in wardens:
             notes = warden.receive(200, timeout=60)
@@ -26,7 +29,7 @@ def test_200_hazards_reach_both_wardens_and_are_stored_once_in_order(bus: Bus) -
             assert [n.event for n in notes] == sent, "every field arrives exactly as sent"
             assert notes[0].event.body.detected_at.isoformat() == TABLE1_TIME
             assert warden.receive(1, timeout=0.5) == []
-        stored = bus.find()
+        stored = bus.find(EventQuery(type="hazard"))
     assert [(r.robot_id, r.seq) for r in stored] == [("explorer1", e.seq) for e in sent]
     assert {r.user_id for r in stored} == {"explorer1"}
     assert {r.exchange for r in stored} == {"explorer1.events"}
@@ -37,9 +40,10 @@ def test_telemetry_is_stored_but_not_sent_to_wardens(bus: Bus) -> None:
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     with bus.worker():
+        warden.publish("localisation", {"localised": True})
         explorer.publish_many([("status", status(90 - i)) for i in range(10)] + [("hazard", hazard())])
         notes = warden.receive(2, timeout=15)
-        wait_for(lambda: bus.count() == 11, what="11 stored events")
+        wait_for(lambda: bus.count(robot_id="explorer1") == 11, what="11 stored events")
     assert [n.topic.value for n in notes] == ["hazard"]
 
 
@@ -142,10 +146,11 @@ def test_ingest_into_mongodb(bus: Bus, mongodb_url: str) -> None:
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     with bus.worker():
+        warden.publish("localisation", {"localised": True})
         sent = explorer.publish_many([("hazard", hazard(i)) for i in range(50)])
         assert [n.event for n in warden.receive(50, timeout=60)] == sent
-        wait_for(lambda: bus.count() == 50, what="50 events in MongoDB")
-    assert [r.seq for r in bus.find()] == [e.seq for e in sent]
+        wait_for(lambda: bus.count(robot_id="explorer1") == 50, what="50 events in MongoDB")
+    assert [r.seq for r in bus.find(EventQuery(robot_id="explorer1"))] == [e.seq for e in sent]
 
 
 def test_store_locked_means_no_ack_then_everything_lands(bus: Bus) -> None:

@@ -11,19 +11,24 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from workers.backoff import Backoff
+from workers.coordination import HazardCoordinator
 from workers.dead_letters import dead_letter
 from workers.notifier import needs_notification, notify
-from workers.store.base import EventStore, StoreUnavailable, WriteResult
+from workers.store.base import StoreUnavailable
+from workers.store.interface import Store
 from workers.validation import Accepted, Rejected, classify
 
 log = logging.getLogger("fleetbus.ingest")
+T = TypeVar("T")
 
 
 class Stopping(Exception):
@@ -45,18 +50,20 @@ class IngestConsumer:
         self,
         channel: AbstractChannel,
         queue: AbstractQueue,
-        store: EventStore,
+        store: Store,
         notify_exchange: AbstractExchange,
         dead_letter_exchange: AbstractExchange,
         *,
         service_user: str,
         max_message_bytes: int,
+        coordinator: HazardCoordinator | None = None,
         batch_size: int = 256,
         linger: float = 0.005,
     ) -> None:
         self._channel = channel
         self._queue = queue
         self._store = store
+        self._coordinator = coordinator
         self._notify_exchange = notify_exchange
         self._dead_letter_exchange = dead_letter_exchange
         self._service_user = service_user
@@ -149,7 +156,9 @@ class IngestConsumer:
             else:
                 accepted.append(verdict)
         if accepted:
-            results = await self._write(accepted)
+            results = await self._retrying(
+                lambda: self._store.write_events([item.record for item in accepted])
+            )
             # keyed, so a robot's resend inside the same batch is announced once
             pending = list(
                 {
@@ -160,18 +169,21 @@ class IngestConsumer:
             )
             if pending:
                 await notify(self._notify_exchange, pending, self._service_user)
-                await self._store.mark_notified([item.record.key for item in pending])
+                await self._retrying(lambda: self._store.mark_notified([item.record.key for item in pending]))
                 self.stats.notified += len(pending)
+            if self._coordinator is not None:
+                self.stats.notified += await self._retrying(lambda: self._coordinator.handle(accepted))
             inserted = sum(result.inserted for result in results)
             self.stats.stored += inserted
             self.stats.duplicates += len(results) - inserted
         await batch[-1].ack(multiple=True)
 
-    async def _write(self, accepted: list[Accepted]) -> list[WriteResult]:
+    async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
+        """Run a store operation until the store answers; raise Stopping if asked to stop meanwhile."""
         backoff = Backoff()
         while True:
             try:
-                return await self._store.write_events([item.record for item in accepted])
+                return await operation()
             except StoreUnavailable as error:
                 if self._stopping.is_set():
                     raise Stopping from error

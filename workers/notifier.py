@@ -16,11 +16,25 @@ from schemas.notifications import Notification
 from schemas.routing import EventType, Topic, notification_routing_key
 from workers.validation import Accepted
 
-TOPICS: dict[EventType, Topic] = {EventType.HAZARD: Topic.HAZARD, EventType.MAP: Topic.MAP}
+#: Event types announced as soon as they are stored; hazards go through the coordinator's gate.
+TOPICS: dict[EventType, Topic] = {EventType.MAP: Topic.MAP}
 
 
 def needs_notification(item: Accepted) -> bool:
     return item.event.type in TOPICS
+
+
+async def publish_notification(exchange: AbstractExchange, note: Notification, service_user: str) -> None:
+    """Publish one notification (persistent, confirmed) to everyone subscribed to its topic."""
+    message = aio_pika.Message(
+        note.model_dump_json().encode(),
+        content_type="application/json",
+        delivery_mode=aio_pika.DeliveryMode.PERSISTENT,
+        message_id=f"{note.event.message_id}:{note.topic.value}",
+        user_id=service_user,
+        type=note.topic.value,
+    )
+    await exchange.publish(message, routing_key=notification_routing_key(note.topic), mandatory=False)
 
 
 async def notify(exchange: AbstractExchange, items: Sequence[Accepted], service_user: str) -> None:
@@ -31,12 +45,4 @@ async def notify(exchange: AbstractExchange, items: Sequence[Accepted], service_
         note = Notification(
             topic=topic, event=item.event, received_at=item.record.received_at, notified_at=now
         )
-        message = aio_pika.Message(
-            note.model_dump_json().encode(),
-            content_type="application/json",
-            delivery_mode=aio_pika.DeliveryMode.PERSISTENT,
-            message_id=f"{item.record.message_id}:{topic.value}",
-            user_id=service_user,
-            type=topic.value,
-        )
-        await exchange.publish(message, routing_key=notification_routing_key(topic), mandatory=False)
+        await publish_notification(exchange, note, service_user)

@@ -18,8 +18,9 @@ from broker.management import ManagementAPI
 from broker.topology import core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import DEAD_LETTER_EXCHANGE, INGEST_QUEUE, NOTIFY_EXCHANGE
+from workers.coordination import HazardCoordinator
 from workers.ingest import IngestConsumer
-from workers.store import EventStore, open_store
+from workers.store import Store, open_store
 
 log = logging.getLogger("fleetbus.worker")
 
@@ -30,7 +31,7 @@ PREFETCH = 512
 class WorkerContext:
     connection: AbstractRobustConnection
     consumer: IngestConsumer
-    store: EventStore
+    store: Store
 
 
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
@@ -47,16 +48,20 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     await channel.set_qos(prefetch_count=PREFETCH)
     await declare(channel, [core_topology()])
     queue = await channel.get_queue(INGEST_QUEUE, ensure=False)
+    notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE, ensure=False)
+    coordinator = HazardCoordinator(store, notify_exchange, SERVICE_USER)
     consumer = IngestConsumer(
         channel,
         queue,
         store,
-        await channel.get_exchange(NOTIFY_EXCHANGE, ensure=False),
+        notify_exchange,
         await channel.get_exchange(DEAD_LETTER_EXCHANGE, ensure=False),
         service_user=SERVICE_USER,
         max_message_bytes=settings.max_message_bytes,
+        coordinator=coordinator,
         batch_size=PREFETCH,
     )
+    await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
     return WorkerContext(connection, consumer, store)
 
 

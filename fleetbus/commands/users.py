@@ -10,6 +10,7 @@ from rich.table import Table
 
 from broker.accounts import AccountExists, Role, delete_account, provision_account, save_secret
 from fleetbus.context import admin_api, console, endpoint, fail, settings
+from fleetbus.registry import register_robot
 from schemas.routing import RobotKind
 
 app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
@@ -32,6 +33,8 @@ def add(
             account = asyncio.run(provision_account(ep.amqp_url, api, name, role, kind, rotate=rotate))
         except (AccountExists, ValueError) as error:
             fail(str(error))
+    if role is Role.ROBOT:
+        register_robot(settings(), name, kind)
     if save:
         save_secret(settings().accounts_dir / f"{name}.url", account.amqp_url)
     console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")

@@ -21,7 +21,7 @@ async def test_ids_are_sequential_per_mission_and_idempotent(store: Store) -> No
     again = await store.add_hazard("m1", "explorer1", 10, {"different": True}, T0, held=True)
     assert (first.hazard_id, second.hazard_id, other.hazard_id) == (1, 2, 1)
     assert again == first, "the same event registers the same hazard once"
-    assert first.body == BODY and first.state is HazardState.ANNOUNCED and first.received_at == T0
+    assert first.event == BODY and first.state is HazardState.ANNOUNCED and first.received_at == T0
 
 
 async def test_held_hazards_come_out_in_detection_order(store: Store) -> None:

@@ -32,7 +32,8 @@ class Hazard:
     hazard_id: int
     robot_id: str
     seq: int
-    body: dict[str, Any]
+    event: dict[str, Any]
+    """The hazard event as the robot sent it (envelope and body, JSON types)."""
     state: HazardState
     received_at: datetime
     announced_at: datetime | None = None
@@ -78,7 +79,7 @@ class CoordinationStore(abc.ABC):
         mission_id: str,
         robot_id: str,
         seq: int,
-        body: dict[str, Any],
+        event: dict[str, Any],
         received_at: datetime,
         held: bool,
     ) -> Hazard:

@@ -29,7 +29,7 @@ CREATE TABLE IF NOT EXISTS hazards (
     hazard_id    INTEGER NOT NULL,
     robot_id     TEXT    NOT NULL,
     seq          INTEGER NOT NULL,
-    body         TEXT    NOT NULL,
+    event         TEXT    NOT NULL,
     state        TEXT    NOT NULL,
     received_at  INTEGER NOT NULL,
     announced_at INTEGER,
@@ -56,7 +56,7 @@ def _hazard(row: sqlite3.Row) -> Hazard:
         hazard_id=row["hazard_id"],
         robot_id=row["robot_id"],
         seq=row["seq"],
-        body=json.loads(row["body"]),
+        event=json.loads(row["event"]),
         state=HazardState(row["state"]),
         received_at=from_micros(row["received_at"]),
         announced_at=moment("announced_at"),
@@ -129,7 +129,7 @@ class SQLiteCoordination(CoordinationStore):
         mission_id: str,
         robot_id: str,
         seq: int,
-        body: dict[str, Any],
+        event: dict[str, Any],
         received_at: datetime,
         held: bool,
     ) -> Hazard:
@@ -147,14 +147,14 @@ class SQLiteCoordination(CoordinationStore):
                 ).fetchone()
                 state = HazardState.HELD if held else HazardState.ANNOUNCED
                 db.execute(
-                    "INSERT INTO hazards (mission_id, hazard_id, robot_id, seq, body, state, received_at) "
+                    "INSERT INTO hazards (mission_id, hazard_id, robot_id, seq, event, state, received_at) "
                     "VALUES (?, ?, ?, ?, ?, ?, ?)",
                     (
                         mission_id,
                         next_id,
                         robot_id,
                         seq,
-                        json.dumps(body),
+                        json.dumps(event),
                         state.value,
                         to_micros(received_at),
                     ),

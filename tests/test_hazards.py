@@ -1,0 +1,60 @@
+"""The hazard service against the real broker: ids, the localisation gate (Tables 3-5), claims."""
+
+from __future__ import annotations
+
+from schemas.routing import RobotKind
+from tests.factories import hazard
+from tests.support import Bus, wait_for
+from workers.store.hazards import HazardState
+
+
+def held_and_announced(bus: Bus) -> tuple[int, int]:
+    hazards = bus.with_store(lambda store: store.open_hazards("default"))
+    held = sum(h.state is HazardState.HELD for h in hazards)
+    return held, len(hazards) - held
+
+
+def test_hazards_are_held_until_every_warden_is_localised_tables_3_4_5(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    wardens = {name: bus.robot(bus.add(name, kind=RobotKind.WARDEN)) for name in ("warden1", "warden2")}
+    with bus.worker():
+        sent = explorer.publish_many([("hazard", hazard(0, "Fire")), ("hazard", hazard(1, "Gas leak"))])
+        # Table 3: before the wardens localise, the server holds both and announces none
+        wait_for(lambda: held_and_announced(bus) == (2, 0), what="2 held hazards")
+        assert bus.ready_messages("warden1.inbox") == bus.ready_messages("warden2.inbox") == 0
+
+        # Table 4: one warden localised, the other not: still held
+        wardens["warden1"].publish("localisation", {"localised": True})
+        wait_for(
+            lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.robots("warden"))}["warden1"],
+            what="warden1 recorded as localised",
+        )
+        assert held_and_announced(bus) == (2, 0)
+        assert bus.ready_messages("warden1.inbox") == 0
+
+    # the held list is in the store: a new worker process carries on from it
+    with bus.worker():
+        # Table 5: all localised: none held, both announced, in the order detected
+        wardens["warden2"].publish("localisation", {"localised": True})
+        for warden in wardens.values():
+            notes = warden.receive(2, timeout=30)
+            assert [n.hazard_id for n in notes] == [1, 2]
+            assert [n.event for n in notes] == sent, "every field as the explorer sent it (Table 1)"
+            assert warden.receive(1, timeout=0.5) == []
+        assert held_and_announced(bus) == (0, 2)
+
+
+def test_a_warden_that_loses_localisation_holds_new_hazards_again(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        explorer.publish("hazard", hazard(0))
+        [first] = warden.receive(1, timeout=30)
+        warden.publish("localisation", {"localised": False})
+        wait_for(lambda: not bus.with_store(lambda s: s.robots("warden"))[0].localised, what="warden1 lost")
+        explorer.publish("hazard", hazard(1))
+        wait_for(lambda: held_and_announced(bus) == (1, 1), what="the second hazard held")
+        warden.publish("localisation", {"localised": True})
+        [second] = warden.receive(1, timeout=30)
+    assert (first.hazard_id, second.hazard_id) == (1, 2)

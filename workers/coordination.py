@@ -1,0 +1,85 @@
+"""The hazard service: ids, the localisation gate, and FIFO announcements to the wardens.
+
+Every hazard is registered as held. After each batch, when every warden of the team reports
+itself localised, the held hazards are announced in the order they were detected: each
+notification is published (confirmed) before the hazard is marked announced, so a crash in
+between announces it again rather than never. The held list lives in the store, so a restart
+loses nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from datetime import datetime, timedelta, timezone
+
+from aio_pika.abc import AbstractExchange
+
+from schemas.envelope import EVENT_ADAPTER
+from schemas.notifications import Notification
+from schemas.routing import EventType, RobotKind, Topic
+from workers.notifier import publish_notification
+from workers.store.hazards import DEFAULT_MISSION, Hazard
+from workers.store.interface import Store
+from workers.validation import Accepted
+
+log = logging.getLogger("fleetbus.hazards")
+
+#: A hazard announced this much later than it was received is flagged ``late``.
+LATE_AFTER = timedelta(seconds=5)
+
+
+class HazardCoordinator:
+    def __init__(self, store: Store, notify_exchange: AbstractExchange, service_user: str) -> None:
+        self._store = store
+        self._exchange = notify_exchange
+        self._service_user = service_user
+
+    async def handle(self, accepted: Sequence[Accepted]) -> int:
+        """Apply a stored batch (also redelivered ones: every step is idempotent); return announcements."""
+        touched = False
+        for item in accepted:
+            event = item.event
+            if event.type is EventType.LOCALISATION:
+                await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
+                touched = True
+            elif event.type is EventType.HAZARD:
+                event_json = EVENT_ADAPTER.dump_python(event, mode="json")
+                await self._store.add_hazard(
+                    item.record.mission_id or DEFAULT_MISSION,
+                    event.robot_id,
+                    event.seq,
+                    event_json,
+                    item.record.received_at,
+                    held=True,
+                )
+                touched = True
+        return await self.release_if_ready() if touched else 0
+
+    async def gate_open(self) -> bool:
+        wardens = await self._store.robots(RobotKind.WARDEN.value)
+        return all(warden.localised for warden in wardens)
+
+    async def release_if_ready(self) -> int:
+        held = await self._store.held_hazards()
+        if not held:
+            return 0
+        if not await self.gate_open():
+            log.info("holding %d hazards until every warden is localised", len(held))
+            return 0
+        now = datetime.now(timezone.utc)
+        for hazard in held:
+            await publish_notification(self._exchange, self.notification(hazard, now), self._service_user)
+        await self._store.mark_announced(held, now)
+        return len(held)
+
+    @staticmethod
+    def notification(hazard: Hazard, now: datetime) -> Notification:
+        return Notification(
+            topic=Topic.HAZARD,
+            event=EVENT_ADAPTER.validate_python(hazard.event),
+            received_at=hazard.received_at,
+            notified_at=now,
+            hazard_id=hazard.hazard_id,
+            late=now - hazard.received_at > LATE_AFTER,
+        )
