@@ -21,7 +21,7 @@ import pika.exceptions
 from broker.management import ManagementAPI
 from broker.topology import account_topology, core_topology, declare_with_url
 from schemas.identity import validate_name
-from schemas.routing import SERVICE_PREFIX, RobotKind, events_exchange, owner_pattern
+from schemas.routing import SERVICE_PREFIX, RobotKind, events_exchange, owner_pattern, requests_exchange
 
 SERVICE_USER = SERVICE_PREFIX
 
@@ -77,9 +77,11 @@ def fresh_vhost(api: ManagementAPI, admin_url: str, vhost: str) -> str:
     return with_vhost(admin_url, vhost)
 
 
-def _grant(api: ManagementAPI, vhost: str, name: str) -> None:
+def _grant(api: ManagementAPI, vhost: str, name: str, *, replies: bool = False) -> None:
+    """Confine ``name`` to its prefix; ``replies`` also lets it answer requests by direct reply-to."""
     pattern = owner_pattern(name)
-    api.put_permissions(vhost, name, configure=pattern, write=pattern, read=pattern)
+    write = f"{pattern}|^amq\\.default$" if replies else pattern
+    api.put_permissions(vhost, name, configure=pattern, write=write, read=pattern)
 
 
 async def provision_account(
@@ -102,7 +104,8 @@ async def provision_account(
     api.put_user(name, password, ROLE_TAGS[role])
     _grant(api, vhost, name)
     pattern = owner_pattern(name).replace(name, "{username}")
-    api.put_topic_permissions(vhost, name, events_exchange(name), write=pattern, read=pattern)
+    for exchange in (events_exchange(name), requests_exchange(name)):
+        api.put_topic_permissions(vhost, name, exchange, write=pattern, read=pattern)
     await declare_with_url(
         admin_url, [core_topology(), account_topology(name, kind=kind, operator=role is Role.OPERATOR)]
     )
@@ -122,7 +125,7 @@ def ensure_service_account(admin_url: str, api: ManagementAPI, credentials_dir: 
         password = secrets.token_urlsafe(24)
         api.put_user(SERVICE_USER, password, ROLE_TAGS[Role.SERVICE])
         save_secret(secret_file, password)
-    _grant(api, vhost, SERVICE_USER)
+    _grant(api, vhost, SERVICE_USER, replies=True)
     return url_for(admin_url, SERVICE_USER, password)
 
 

@@ -22,11 +22,14 @@ from schemas.routing import (
     INGEST_EXCHANGE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
+    RPC_EXCHANGE,
+    RPC_QUEUE,
     SUBSCRIPTIONS,
     RobotKind,
     events_exchange,
     inbox_queue,
     notification_routing_key,
+    requests_exchange,
 )
 
 #: A message redelivered this many times (the worker died on it each time) is dead-lettered
@@ -66,6 +69,7 @@ def core_topology() -> Topology:
         exchanges=(
             ExchangeSpec(INGEST_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(NOTIFY_EXCHANGE, ExchangeType.TOPIC),
+            ExchangeSpec(RPC_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),
         ),
         queues=(
@@ -82,9 +86,12 @@ def core_topology() -> Topology:
             # Classic, not quorum: listing it (`fleetbus dlq`) gets and requeues messages, and a
             # quorum queue would count each listing as a delivery.
             QueueSpec(DEAD_LETTER_QUEUE, {"x-queue-type": "classic"}),
+            # Requests are worth nothing once their caller gave up (each carries an expiration).
+            QueueSpec(RPC_QUEUE, {"x-queue-type": "classic"}),
         ),
         bindings=(
             BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),
+            BindingSpec(RPC_EXCHANGE, RPC_QUEUE, "#"),
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
         ),
     )
@@ -99,14 +106,16 @@ def inbox_bindings(owner: str, kind: RobotKind | None, operator: bool) -> list[s
 
 
 def account_topology(owner: str, *, kind: RobotKind | None = None, operator: bool = False) -> Topology:
-    """A user's own exchange (bound into the ingest) and inbox (bound to its notifications)."""
+    """A user's own exchanges (bound into the ingest and the service requests) and inbox."""
     exchange = events_exchange(owner)
+    requests = requests_exchange(owner)
     inbox = inbox_queue(owner)
     return Topology(
-        exchanges=(ExchangeSpec(exchange, ExchangeType.TOPIC),),
+        exchanges=(ExchangeSpec(exchange, ExchangeType.TOPIC), ExchangeSpec(requests, ExchangeType.TOPIC)),
         queues=(QueueSpec(inbox, {"x-queue-type": "quorum"}),),
         bindings=(
             BindingSpec(exchange, INGEST_EXCHANGE, "#", to_exchange=True),
+            BindingSpec(requests, RPC_EXCHANGE, "#", to_exchange=True),
             *(BindingSpec(NOTIFY_EXCHANGE, inbox, key) for key in inbox_bindings(owner, kind, operator)),
         ),
     )

@@ -21,6 +21,7 @@ import pika.exceptions
 
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import BrokerUnavailable
+from publishers.rpc import RpcChannel
 from publishers.sequence import SequenceCounter
 from schemas.envelope import Event, build_event, encode_event, validate_body
 from schemas.identity import validate_name
@@ -71,12 +72,14 @@ class RobotClient:
         self._sequence = SequenceCounter(robot_state_path(state_dir, self.robot_id))
         self._connection: pika.BlockingConnection | None = None
         self._confirms: PipelinedConfirms | None = None
+        self._rpc: RpcChannel | None = None
 
     # connection
     def connect(self) -> None:
         """Connect, retrying with backoff until ``connect_timeout``; raise BrokerUnavailable then."""
         deadline = time.monotonic() + self._connect_timeout
         delay = 0.2
+        self._rpc = None
         while True:
             try:
                 self._connection = pika.BlockingConnection(self._parameters)
@@ -110,6 +113,7 @@ class RobotClient:
             self._connection.close()
         self._connection = None
         self._confirms = None
+        self._rpc = None
         self._sequence.close()
 
     def __enter__(self) -> RobotClient:
@@ -141,6 +145,34 @@ class RobotClient:
         for start in range(0, len(events), PUBLISH_WINDOW):
             window = [to_outgoing(event) for event in events[start : start + PUBLISH_WINDOW]]
             self._ready().publish(window, self._confirm_timeout)
+
+    # services
+    def call(self, method: str, timeout: float = 5.0, **params: Any) -> Any:
+        """Call a fleetbus service; raise ServiceTimeout when no reply comes within ``timeout``."""
+        if self._rpc is None:
+            if self._connection is None or not self._connection.is_open:
+                self.connect()
+            assert self._connection is not None
+            self._rpc = RpcChannel(self._connection, self.robot_id)
+        return self._rpc.call(method, params, timeout)
+
+    def hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
+        return self.call("hazard.get", timeout, hazard_id=hazard_id)
+
+    def open_hazards(self, timeout: float = 5.0) -> list[dict[str, Any]]:
+        return self.call("hazard.open", timeout)
+
+    def claim_hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
+        return self.call("hazard.claim", timeout, hazard_id=hazard_id)
+
+    def release_hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
+        return self.call("hazard.release", timeout, hazard_id=hazard_id)
+
+    def hazard_reached(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
+        return self.call("hazard.reached", timeout, hazard_id=hazard_id)
+
+    def wardens(self, timeout: float = 5.0) -> list[dict[str, Any]]:
+        return self.call("wardens", timeout)
 
     # notifications
     def notifications(self, timeout: float | None = None, prefetch: int = 64) -> Iterator[Notification]:

@@ -4,6 +4,7 @@ Robots and users own every resource that starts with their name::
 
     <robot>.events      topic exchange the robot publishes to (write permission ``^<robot>\\.``)
     <robot>.inbox       durable queue of the notifications the robot subscribed to
+    <robot>.requests    topic exchange of the robot's service requests, keys ``<robot>.<method>``
 
 Event routing keys are ``<robot>.<type>`` (for example ``explorer1.hazard``); topic permissions
 make the broker refuse any key that does not start with the publisher's own name.
@@ -13,6 +14,8 @@ The service owns everything that starts with ``fleetbus.``::
     fleetbus.ingest         topic exchange; every ``<robot>.events`` is bound into it with ``#``
     fleetbus.ingest.events  quorum queue the workers consume
     fleetbus.notify         topic exchange of notifications, keys ``notify.<topic>``
+    fleetbus.rpc            topic exchange of service requests; every ``<robot>.requests`` is bound into it
+    fleetbus.rpc.requests   queue the service answers from (replies go by direct reply-to)
     fleetbus.dlx            dead-letter exchange (fanout)
     fleetbus.dead-letters   classic durable queue of rejected messages, with their reasons
 """
@@ -25,6 +28,8 @@ SERVICE_PREFIX = "fleetbus"
 INGEST_EXCHANGE = "fleetbus.ingest"
 INGEST_QUEUE = "fleetbus.ingest.events"
 NOTIFY_EXCHANGE = "fleetbus.notify"
+RPC_EXCHANGE = "fleetbus.rpc"
+RPC_QUEUE = "fleetbus.rpc.requests"
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
 
@@ -63,6 +68,14 @@ ALL_TOPICS_BINDING = "notify.#"
 
 def events_exchange(owner: str) -> str:
     return f"{owner}.events"
+
+
+def requests_exchange(owner: str) -> str:
+    return f"{owner}.requests"
+
+
+def request_routing_key(robot: str, method: str) -> str:
+    return f"{robot}.{method}"
 
 
 def inbox_queue(owner: str) -> str:

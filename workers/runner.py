@@ -17,9 +17,11 @@ from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.topology import core_topology, declare
 from fleetbus.config import Settings
-from schemas.routing import DEAD_LETTER_EXCHANGE, INGEST_QUEUE, NOTIFY_EXCHANGE
+from schemas.routing import DEAD_LETTER_EXCHANGE, INGEST_QUEUE, NOTIFY_EXCHANGE, RPC_QUEUE
 from workers.coordination import HazardCoordinator
 from workers.ingest import IngestConsumer
+from workers.rpc import RpcServer
+from workers.services import hazard_services
 from workers.store import Store, open_store
 
 log = logging.getLogger("fleetbus.worker")
@@ -31,6 +33,7 @@ PREFETCH = 512
 class WorkerContext:
     connection: AbstractRobustConnection
     consumer: IngestConsumer
+    rpc: RpcServer
     store: Store
 
 
@@ -62,7 +65,11 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
         batch_size=PREFETCH,
     )
     await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
-    return WorkerContext(connection, consumer, store)
+    rpc_channel = await connection.channel()
+    await rpc_channel.set_qos(prefetch_count=32)
+    rpc = RpcServer(rpc_channel, await rpc_channel.get_queue(RPC_QUEUE, ensure=False), hazard_services(store))
+    await rpc.start()
+    return WorkerContext(connection, consumer, rpc, store)
 
 
 async def run_worker(
@@ -85,6 +92,7 @@ async def run_worker(
     stopping = asyncio.create_task(stop.wait())
     try:
         await asyncio.wait({consuming, stopping}, return_when=asyncio.FIRST_COMPLETED)
+        await context.rpc.stop()
         await context.consumer.stop()
         await consuming
     finally:

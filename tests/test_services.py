@@ -1,0 +1,87 @@
+"""Request/reply services against the real broker: claims, lookups, and a service that is down."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from publishers.rpc import ServiceRefused, ServiceTimeout
+from schemas.routing import RobotKind
+from tests.factories import hazard
+from tests.support import Bus
+
+
+def team(bus: Bus) -> tuple:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    wardens = [bus.robot(bus.add(name, kind=RobotKind.WARDEN)) for name in ("warden1", "warden2")]
+    return explorer, wardens
+
+
+def test_services(bus: Bus) -> None:
+    explorer, (warden1, warden2) = team(bus)
+    with bus.worker():
+        for warden in (warden1, warden2):
+            warden.publish("localisation", {"localised": True})
+        sent = explorer.publish_many([("hazard", hazard(0, "Fire")), ("hazard", hazard(1, "Gas leak"))])
+        warden1.receive(2, timeout=30)
+
+        assert [w["name"] for w in warden1.wardens() if w["localised"]] == ["warden1", "warden2"]
+        claimed = warden1.claim_hazard(1)
+        assert (claimed["state"], claimed["claimed_by"]) == ("claimed", "warden1")
+        with pytest.raises(ServiceRefused, match="claimed by warden1"):
+            warden2.claim_hazard(1)
+        with pytest.raises(ServiceRefused, match="no hazard 99"):
+            warden2.claim_hazard(99)
+        with pytest.raises(ServiceRefused, match="hazard_id must be a positive integer"):
+            warden2.call("hazard.claim", hazard_id="one")
+        with pytest.raises(ServiceRefused, match=r"no service 'hazard\.teleport'"):
+            warden2.call("hazard.teleport")
+        assert warden2.hazard(1)["claimed_by"] == "warden1", "a refused claim changes nothing"
+
+        reached = warden1.hazard_reached(1)
+        assert reached["state"] == "reached" and reached["reached_at"]
+        warden2.claim_hazard(2)
+        assert warden2.release_hazard(2)["state"] == "announced"
+        hazard_1 = explorer.hazard(1)
+        assert hazard_1["event"]["body"] == sent[0].body.model_dump(mode="json")
+        assert [(h["hazard_id"], h["state"]) for h in explorer.open_hazards()] == [
+            (1, "reached"),
+            (2, "announced"),
+        ]
+
+
+def test_two_wardens_claim_at_the_same_instant_one_gets_it(bus: Bus) -> None:
+    explorer, wardens = team(bus)
+    with bus.worker():
+        for warden in wardens:
+            warden.publish("localisation", {"localised": True})
+        explorer.publish("hazard", hazard(0))
+        wardens[0].receive(1, timeout=30)
+        start = threading.Barrier(2)
+        outcomes: dict[str, object] = {}
+
+        def claim(index: int) -> None:
+            start.wait()
+            try:
+                outcomes[f"warden{index + 1}"] = wardens[index].claim_hazard(1)["claimed_by"]
+            except ServiceRefused as refused:
+                outcomes[f"warden{index + 1}"] = refused
+
+        threads = [threading.Thread(target=claim, args=(i,)) for i in range(2)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(30)
+        winners = [name for name, outcome in outcomes.items() if outcome == name]
+        assert len(winners) == 1, outcomes
+        assert explorer.hazard(1)["claimed_by"] == winners[0]
+
+
+def test_a_service_that_is_down_times_out_clearly(bus: Bus) -> None:
+    explorer, _ = team(bus)
+    started = time.monotonic()
+    with pytest.raises(ServiceTimeout, match="is `fleetbus worker` running"):
+        explorer.hazard(1, timeout=1.0)
+    assert time.monotonic() - started < 10

@@ -1,0 +1,82 @@
+"""Request/reply over AMQP: robots call the service, the service answers by direct reply-to.
+
+A request is published by a robot to its own ``<robot>.requests`` exchange with the routing key
+``<robot>.<method>``, ``reply_to = amq.rabbitmq.reply-to``, a correlation id and an expiration.
+The broker-validated ``user_id`` is the caller. Replies are JSON: ``{"ok": true, "result": ...}``
+or ``{"ok": false, "error": "..."}``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import aio_pika
+from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
+
+log = logging.getLogger("fleetbus.rpc")
+
+Handler = Callable[[str, dict[str, Any]], Awaitable[Any]]
+
+
+class ServiceError(Exception):
+    """A request the service refuses; the message goes back to the caller as the error."""
+
+
+class RpcServer:
+    def __init__(self, channel: AbstractChannel, queue: AbstractQueue, handlers: dict[str, Handler]) -> None:
+        self._channel = channel
+        self._queue = queue
+        self._handlers = handlers
+        self._tag: str | None = None
+
+    async def start(self) -> None:
+        self._tag = await self._queue.consume(self._on_request)
+
+    async def stop(self) -> None:
+        if self._tag is not None and not self._channel.is_closed:
+            await self._queue.cancel(self._tag)
+
+    async def answer(self, message: AbstractIncomingMessage) -> dict[str, Any]:
+        caller = message.user_id or ""
+        robot, _, method = (message.routing_key or "").partition(".")
+        if not caller or robot != caller:
+            return {
+                "ok": False,
+                "error": f"requests must come from the robot they name ({robot!r} != {caller!r})",
+            }
+        handler = self._handlers.get(method)
+        if handler is None:
+            return {
+                "ok": False,
+                "error": f"no service {method!r}; services: {', '.join(sorted(self._handlers))}",
+            }
+        try:
+            params = json.loads(message.body or b"{}")
+            if not isinstance(params, dict):
+                raise ServiceError("parameters must be a JSON object")
+            return {"ok": True, "result": await handler(caller, params)}
+        except json.JSONDecodeError as error:
+            return {"ok": False, "error": f"parameters are not JSON: {error}"}
+        except (ServiceError, ValueError, KeyError, TypeError) as error:
+            return {"ok": False, "error": str(error).strip("'\"")}
+
+    async def _on_request(self, message: AbstractIncomingMessage) -> None:
+        async with message.process(requeue=False):
+            reply = await self.answer(message)
+            if not message.reply_to:
+                log.warning(
+                    "request %s from %s has no reply_to; dropped", message.routing_key, message.user_id
+                )
+                return
+            await self._channel.default_exchange.publish(
+                aio_pika.Message(
+                    json.dumps(reply, default=str).encode(),
+                    content_type="application/json",
+                    correlation_id=message.correlation_id,
+                ),
+                routing_key=message.reply_to,
+                mandatory=False,
+            )

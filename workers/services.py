@@ -1,0 +1,74 @@
+"""The coordination services robots call: hazards and wardens (maps and beacons come later)."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from typing import Any
+
+from schemas.routing import RobotKind
+from workers.rpc import Handler, ServiceError
+from workers.store.hazards import DEFAULT_MISSION, HazardRefused
+from workers.store.interface import Store
+
+
+def _hazard_id(params: dict[str, Any]) -> int:
+    value = params.get("hazard_id")
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise ServiceError(f"hazard_id must be a positive integer, not {value!r}")
+    return value
+
+
+def _mission(params: dict[str, Any]) -> str:
+    return str(params.get("mission_id") or DEFAULT_MISSION)
+
+
+def hazard_services(store: Store) -> dict[str, Handler]:
+    async def get(caller: str, params: dict[str, Any]) -> Any:
+        hazard = await store.get_hazard(_mission(params), _hazard_id(params))
+        if hazard is None:
+            raise ServiceError(f"no hazard {params['hazard_id']} in mission {_mission(params)!r}")
+        return hazard.as_dict()
+
+    async def open_hazards(caller: str, params: dict[str, Any]) -> Any:
+        return [h.as_dict() for h in await store.open_hazards(_mission(params))]
+
+    async def transition(action: str, caller: str, params: dict[str, Any]) -> Any:
+        mission, hazard_id, now = _mission(params), _hazard_id(params), datetime.now(timezone.utc)
+        try:
+            if action == "claim":
+                hazard = await store.claim(mission, hazard_id, caller, now)
+            elif action == "release":
+                hazard = await store.release(mission, hazard_id, caller)
+            else:
+                hazard = await store.mark_reached(mission, hazard_id, caller, now)
+        except HazardRefused as refused:
+            raise ServiceError(str(refused)) from None
+        return hazard.as_dict()
+
+    async def claim(caller: str, params: dict[str, Any]) -> Any:
+        return await transition("claim", caller, params)
+
+    async def release(caller: str, params: dict[str, Any]) -> Any:
+        return await transition("release", caller, params)
+
+    async def reached(caller: str, params: dict[str, Any]) -> Any:
+        return await transition("reached", caller, params)
+
+    async def wardens(caller: str, params: dict[str, Any]) -> Any:
+        return [
+            {
+                "name": r.name,
+                "localised": r.localised,
+                "updated_at": r.updated_at.isoformat() if r.updated_at else None,
+            }
+            for r in await store.robots(RobotKind.WARDEN.value)
+        ]
+
+    return {
+        "hazard.get": get,
+        "hazard.open": open_hazards,
+        "hazard.claim": claim,
+        "hazard.release": release,
+        "hazard.reached": reached,
+        "wardens": wardens,
+    }
