@@ -12,6 +12,7 @@ from pathlib import Path
 
 DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
+DEFAULT_BATTERY_LOW_PERCENT = 20.0
 
 
 @dataclass(frozen=True)
@@ -26,6 +27,8 @@ class Settings:
     """MongoDB connection string; ``None`` selects the embedded SQLite store."""
     max_message_bytes: int
     """Bodies larger than this are dead-lettered by the workers."""
+    battery_low_percent: float = DEFAULT_BATTERY_LOW_PERCENT
+    """A status below this battery level notifies the operators (once per crossing)."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -52,4 +55,5 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         management_url=env.get("FLEETBUS_MANAGEMENT_URL") or None,
         mongodb_url=env.get("FLEETBUS_MONGODB_URL") or None,
         max_message_bytes=int(env.get("FLEETBUS_MAX_MESSAGE_BYTES") or DEFAULT_MAX_MESSAGE_BYTES),
+        battery_low_percent=float(env.get("FLEETBUS_BATTERY_LOW_PERCENT") or DEFAULT_BATTERY_LOW_PERCENT),
     )

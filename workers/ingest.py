@@ -11,16 +11,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Protocol, TypeVar
 
 import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from workers.backoff import Backoff
-from workers.coordination import HazardCoordinator
 from workers.dead_letters import dead_letter
 from workers.notifier import needs_notification, notify
 from workers.store.base import StoreUnavailable
@@ -29,6 +28,14 @@ from workers.validation import Accepted, Rejected, classify
 
 log = logging.getLogger("fleetbus.ingest")
 T = TypeVar("T")
+
+
+class BatchService(Protocol):
+    """Work done on each stored batch before it is acked; must be idempotent (batches are redelivered)."""
+
+    async def handle(self, accepted: Sequence[Accepted]) -> int:
+        """Apply the batch; return how many notifications it published."""
+        ...
 
 
 class Stopping(Exception):
@@ -56,14 +63,14 @@ class IngestConsumer:
         *,
         service_user: str,
         max_message_bytes: int,
-        coordinator: HazardCoordinator | None = None,
+        services: Sequence[BatchService] = (),
         batch_size: int = 256,
         linger: float = 0.005,
     ) -> None:
         self._channel = channel
         self._queue = queue
         self._store = store
-        self._coordinator = coordinator
+        self._services = services
         self._notify_exchange = notify_exchange
         self._dead_letter_exchange = dead_letter_exchange
         self._service_user = service_user
@@ -171,8 +178,8 @@ class IngestConsumer:
                 await notify(self._notify_exchange, pending, self._service_user)
                 await self._retrying(lambda: self._store.mark_notified([item.record.key for item in pending]))
                 self.stats.notified += len(pending)
-            if self._coordinator is not None:
-                self.stats.notified += await self._retrying(lambda: self._coordinator.handle(accepted))
+            for service in self._services:
+                self.stats.notified += await self._retrying(lambda service=service: service.handle(accepted))
             inserted = sum(result.inserted for result in results)
             self.stats.stored += inserted
             self.stats.duplicates += len(results) - inserted

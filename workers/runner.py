@@ -23,6 +23,7 @@ from workers.ingest import IngestConsumer
 from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.store import Store, open_store
+from workers.telemetry import BatteryWatch
 
 log = logging.getLogger("fleetbus.worker")
 
@@ -61,7 +62,10 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
         await channel.get_exchange(DEAD_LETTER_EXCHANGE, ensure=False),
         service_user=SERVICE_USER,
         max_message_bytes=settings.max_message_bytes,
-        coordinator=coordinator,
+        services=[
+            coordinator,
+            BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
+        ],
         batch_size=PREFETCH,
     )
     await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now

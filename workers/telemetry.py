@@ -1,0 +1,60 @@
+"""The telemetry sub-service: a battery that drops below the threshold notifies the operators.
+
+Status events themselves are stored like every event (query them with ``fleetbus query status``).
+The warning goes out when a robot's battery crosses below the threshold, not on every low
+reading: the robot's previous stored status decides.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import datetime, timezone
+
+from aio_pika.abc import AbstractExchange
+
+from schemas.notifications import Notification
+from schemas.routing import EventType, Topic
+from workers.notifier import publish_notification
+from workers.store.base import EventQuery
+from workers.store.interface import Store
+from workers.validation import Accepted
+
+
+class BatteryWatch:
+    def __init__(
+        self, store: Store, notify_exchange: AbstractExchange, service_user: str, threshold: float
+    ) -> None:
+        self._store = store
+        self._exchange = notify_exchange
+        self._service_user = service_user
+        self.threshold = threshold
+
+    async def _was_low_before(self, item: Accepted) -> bool:
+        previous = await self._store.find_events(
+            EventQuery(
+                type=EventType.STATUS.value,
+                robot_id=item.event.robot_id,
+                until=item.event.sent_at,
+                newest_first=True,
+                limit=1,
+            )
+        )
+        return bool(previous) and previous[0].body["battery_percent"] < self.threshold
+
+    async def handle(self, accepted: Sequence[Accepted]) -> int:
+        sent = 0
+        for item in accepted:
+            event = item.event
+            if event.type is not EventType.STATUS or event.body.battery_percent >= self.threshold:
+                continue
+            if await self._was_low_before(item):
+                continue
+            note = Notification(
+                topic=Topic.BATTERY,
+                event=event,
+                received_at=item.record.received_at,
+                notified_at=datetime.now(timezone.utc),
+            )
+            await publish_notification(self._exchange, note, self._service_user)
+            sent += 1
+        return sent
