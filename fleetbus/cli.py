@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from fleetbus.commands import broker, demo, dlq, events, schemas_export, users, worker
+from fleetbus.commands import beacons, broker, demo, dlq, events, schemas_export, users, worker
 
 app = typer.Typer(
     name="fleetbus",
@@ -14,6 +14,7 @@ app = typer.Typer(
 )
 app.add_typer(broker.app, name="broker")
 app.add_typer(users.app, name="users")
+app.add_typer(beacons.app, name="beacons")
 app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)

@@ -25,7 +25,7 @@ from fleetbus.config import Settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from schemas.routing import EventType, RobotKind
-from workers.store import open_store
+from workers.store import run_with_store
 from workers.store.base import EventQuery
 from workers.thread import WorkerThread
 
@@ -82,13 +82,13 @@ def demo_status(i: int) -> dict[str, Any]:
     }
 
 
-async def _count_since(settings: Settings, since: datetime) -> dict[str, int]:
-    async with open_store(settings) as store:
-        records = await store.find_events(EventQuery(since=since))
+def _count_since(settings: Settings, since: datetime) -> dict[str, int]:
+    records = run_with_store(
+        settings, lambda store: store.find_events(EventQuery(since=since, robot_id=EXPLORER))
+    )
     counts: dict[str, int] = {}
     for record in records:
-        if record.robot_id == EXPLORER:
-            counts[record.type] = counts.get(record.type, 0) + 1
+        counts[record.type] = counts.get(record.type, 0) + 1
     return counts
 
 
@@ -145,7 +145,7 @@ def run_demo(
             progress.update(step, description="waiting for the store")
             deadline = time.monotonic() + 30
             while sum(report.stored.values()) < len(sent) and time.monotonic() < deadline:
-                report.stored = asyncio.run(_count_since(demo_settings, run_start))
+                report.stored = _count_since(demo_settings, run_start)
         for client in clients.values():
             client.close()
         report.dead_letters = len(peek_dead_letters(admin_url))

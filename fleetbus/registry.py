@@ -2,16 +2,10 @@
 
 from __future__ import annotations
 
-import asyncio
-
 from fleetbus.config import Settings
 from schemas.routing import RobotKind
-from workers.store import open_store
+from workers.store import run_with_store
 
 
 def register_robot(settings: Settings, name: str, kind: RobotKind | None) -> None:
-    async def go() -> None:
-        async with open_store(settings) as store:
-            await store.register_robot(name, kind.value if kind else None)
-
-    asyncio.run(go())
+    run_with_store(settings, lambda store: store.register_robot(name, kind.value if kind else None))

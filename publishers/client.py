@@ -174,6 +174,20 @@ class RobotClient:
     def wardens(self, timeout: float = 5.0) -> list[dict[str, Any]]:
         return self.call("wardens", timeout)
 
+    def beacon_info(self, beacon_id: str, timeout: float = 5.0) -> dict[str, Any]:
+        return self.call("beacon.info", timeout, beacon_id=beacon_id)
+
+    def stranded(self, minutes: float = 10, timeout: float = 5.0) -> list[dict[str, Any]]:
+        """Beacons heard in the last ``minutes``: where people are likely stranded."""
+        return self.call("beacon.stranded", timeout, minutes=minutes)
+
+    def beacon_goal(self, minutes: float = 10, timeout: float = 5.0) -> dict[str, Any] | None:
+        """The guide's next beacon: the first heard of the recent ones not visited yet."""
+        return self.call("beacon.goal", timeout, minutes=minutes)
+
+    def beacon_visited(self, beacon_id: str, timeout: float = 5.0) -> dict[str, Any]:
+        return self.call("beacon.visited", timeout, beacon_id=beacon_id)
+
     # notifications
     def notifications(self, timeout: float | None = None, prefetch: int = 64) -> Iterator[Notification]:
         """This robot's notifications; stops after ``timeout`` seconds without one.

@@ -23,7 +23,7 @@ from fleetbus.config import Settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from schemas.routing import RobotKind
-from workers.store import Store, open_store
+from workers.store import Store, run_with_store
 from workers.store.base import EventQuery, EventRecord
 from workers.thread import WorkerThread
 
@@ -110,12 +110,7 @@ class Bus:
 
     def with_store(self, operation: Callable[[Store], Awaitable[T]]) -> T:
         """Run one operation on a fresh connection to the test's store (what an operator would see)."""
-
-        async def go() -> T:
-            async with open_store(self.settings) as store:
-                return await operation(store)
-
-        return asyncio.run(go())
+        return run_with_store(self.settings, operation)
 
     def find(self, query: EventQuery | None = None) -> list[EventRecord]:
         return self.with_store(lambda store: store.find_events(query or EventQuery()))

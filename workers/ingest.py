@@ -38,6 +38,14 @@ class BatchService(Protocol):
         ...
 
 
+class BatchCheck(Protocol):
+    """A check that needs the store, made before a batch is written; refused items are dead-lettered."""
+
+    async def check(self, accepted: Sequence[Accepted]) -> dict[int, Rejected]:
+        """The refused items, by their index in ``accepted``."""
+        ...
+
+
 class Stopping(Exception):
     """The worker is stopping while the store is down: leave the batch unacked."""
 
@@ -63,6 +71,7 @@ class IngestConsumer:
         *,
         service_user: str,
         max_message_bytes: int,
+        checks: Sequence[BatchCheck] = (),
         services: Sequence[BatchService] = (),
         batch_size: int = 256,
         linger: float = 0.005,
@@ -70,6 +79,7 @@ class IngestConsumer:
         self._channel = channel
         self._queue = queue
         self._store = store
+        self._checks = checks
         self._services = services
         self._notify_exchange = notify_exchange
         self._dead_letter_exchange = dead_letter_exchange
@@ -143,25 +153,33 @@ class IngestConsumer:
                     break
         return batch
 
+    async def _reject(self, message: AbstractIncomingMessage, verdict: Rejected) -> None:
+        await dead_letter(self._dead_letter_exchange, message, verdict)
+        self.stats.rejected += 1
+        self.stats.by_reason[verdict.reason.value] = self.stats.by_reason.get(verdict.reason.value, 0) + 1
+        log.warning(
+            "dead-lettered %s from %s: %s: %s",
+            message.message_id,
+            message.user_id,
+            verdict.reason.value,
+            verdict.detail,
+        )
+
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
-        accepted: list[Accepted] = []
+        candidates: list[tuple[AbstractIncomingMessage, Accepted]] = []
         for message in batch:
             verdict = classify(message, self._max_bytes)
             if isinstance(verdict, Rejected):
-                await dead_letter(self._dead_letter_exchange, message, verdict)
-                self.stats.rejected += 1
-                self.stats.by_reason[verdict.reason.value] = (
-                    self.stats.by_reason.get(verdict.reason.value, 0) + 1
-                )
-                log.warning(
-                    "dead-lettered %s from %s: %s: %s",
-                    message.message_id,
-                    message.user_id,
-                    verdict.reason.value,
-                    verdict.detail,
-                )
+                await self._reject(message, verdict)
             else:
-                accepted.append(verdict)
+                candidates.append((message, verdict))
+        for check in self._checks:
+            items = [item for _, item in candidates]
+            refused = await self._retrying(lambda check=check, items=items: check.check(items))
+            for index in sorted(refused):
+                await self._reject(candidates[index][0], refused[index])
+            candidates = [pair for index, pair in enumerate(candidates) if index not in refused]
+        accepted = [item for _, item in candidates]
         if accepted:
             results = await self._retrying(
                 lambda: self._store.write_events([item.record for item in accepted])

@@ -18,6 +18,7 @@ from broker.management import ManagementAPI
 from broker.topology import core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import DEAD_LETTER_EXCHANGE, INGEST_QUEUE, NOTIFY_EXCHANGE, RPC_QUEUE
+from workers.beacons import KnownRobotsOnly, beacon_services
 from workers.coordination import HazardCoordinator
 from workers.ingest import IngestConsumer
 from workers.rpc import RpcServer
@@ -62,6 +63,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
         await channel.get_exchange(DEAD_LETTER_EXCHANGE, ensure=False),
         service_user=SERVICE_USER,
         max_message_bytes=settings.max_message_bytes,
+        checks=[KnownRobotsOnly(store)],
         services=[
             coordinator,
             BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
@@ -71,7 +73,11 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
     rpc_channel = await connection.channel()
     await rpc_channel.set_qos(prefetch_count=32)
-    rpc = RpcServer(rpc_channel, await rpc_channel.get_queue(RPC_QUEUE, ensure=False), hazard_services(store))
+    rpc = RpcServer(
+        rpc_channel,
+        await rpc_channel.get_queue(RPC_QUEUE, ensure=False),
+        {**hazard_services(store), **beacon_services(store)},
+    )
     await rpc.start()
     return WorkerContext(connection, consumer, rpc, store)
 

@@ -20,6 +20,7 @@ class RejectReason(str, Enum):
     UNKNOWN_TYPE = "unknown-type"
     NO_USER_ID = "no-user-id"
     IDENTITY_MISMATCH = "identity-mismatch"
+    UNKNOWN_ROBOT = "unknown-robot"
 
 
 @dataclass(frozen=True)

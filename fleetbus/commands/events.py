@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
 from datetime import datetime, timezone
 from typing import Annotated, Any
@@ -15,7 +14,7 @@ from publishers.client import RobotClient
 from publishers.errors import PublisherError
 from schemas.envelope import SchemaError, validate_body
 from schemas.routing import EventType
-from workers.store import open_store
+from workers.store import run_with_store
 from workers.store.base import EventQuery, EventRecord
 
 
@@ -75,12 +74,6 @@ def record_dict(record: EventRecord) -> dict[str, Any]:
     return out
 
 
-async def _find(query: EventQuery) -> list[EventRecord]:
-    store = open_store(settings())
-    async with store:
-        return await store.find_events(query)
-
-
 def _shorten(text: str, width: int) -> str:
     return text if len(text) <= width else text[: width - 1] + "…"
 
@@ -106,7 +99,7 @@ def query(
         limit=limit,
         newest_first=True,
     )
-    records = list(reversed(asyncio.run(_find(q))))
+    records = list(reversed(run_with_store(settings(), lambda store: store.find_events(q))))
     if as_json:
         for record in records:
             typer.echo(json.dumps(record_dict(record)))

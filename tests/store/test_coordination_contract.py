@@ -7,6 +7,7 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
+from workers.store.beacons import Beacon
 from workers.store.hazards import HazardRefused, HazardState
 from workers.store.interface import Store
 
@@ -84,3 +85,16 @@ async def test_robot_registry_and_localisation(store: Store) -> None:
         "warden1": "warden",
         "warden2": "warden",
     }
+
+
+async def test_beacon_registry(store: Store) -> None:
+    await store.put_beacons([Beacon("b1", 1.0, 2.0, "room 101"), Beacon("b2", 5.5, -1.0, "stairs")])
+    visited = await store.mark_visited("b1", T0)
+    assert visited == Beacon("b1", 1.0, 2.0, "room 101", T0)
+    await store.put_beacons([Beacon("b1", 1.5, 2.0, "room 101 east")])
+    assert await store.get_beacon("b1") == Beacon("b1", 1.5, 2.0, "room 101 east", T0), (
+        "an update keeps the visit"
+    )
+    assert [b.beacon_id for b in await store.beacons()] == ["b1", "b2"]
+    assert await store.get_beacon("b9") is None
+    assert await store.mark_visited("b9", T0) is None

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import asyncio
+from collections.abc import Awaitable, Callable
+from typing import TypeVar
+
 from fleetbus.config import Settings
 from workers.store.base import EventQuery, EventRecord, EventStore, StoreError, StoreUnavailable, WriteResult
 from workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
 from workers.store.interface import Store
+
+T = TypeVar("T")
 
 __all__ = [
     "EventQuery",
@@ -20,7 +26,18 @@ __all__ = [
     "StoreUnavailable",
     "WriteResult",
     "open_store",
+    "run_with_store",
 ]
+
+
+def run_with_store(settings: Settings, operation: Callable[[Store], Awaitable[T]]) -> T:
+    """For synchronous callers (commands, tests): open the store, run one operation, close it."""
+
+    async def go() -> T:
+        async with open_store(settings) as store:
+            return await operation(store)
+
+    return asyncio.run(go())
 
 
 def open_store(settings: Settings) -> Store:

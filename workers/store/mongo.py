@@ -30,7 +30,7 @@ from workers.store.base import (
     to_micros,
 )
 from workers.store.interface import Store
-from workers.store.mongo_hazards import MongoCoordination
+from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
 
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
@@ -86,7 +86,7 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
-class MongoEventStore(MongoCoordination, Store):
+class MongoEventStore(MongoCoordination, MongoBeacons, Store):
     name = "mongodb"
 
     def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:

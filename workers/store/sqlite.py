@@ -24,7 +24,7 @@ from workers.store.base import (
     to_micros,
 )
 from workers.store.interface import Store
-from workers.store.sqlite_hazards import HAZARD_SCHEMA, SQLiteCoordination
+from workers.store.sqlite_coordination import BEACON_SCHEMA, HAZARD_SCHEMA, SQLiteBeacons, SQLiteCoordination
 
 T = TypeVar("T")
 
@@ -87,7 +87,7 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(SQLiteCoordination, Store):
+class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, Store):
     name = "sqlite"
 
     def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
@@ -122,6 +122,7 @@ class SQLiteEventStore(SQLiteCoordination, Store):
         db.execute("PRAGMA synchronous=FULL")
         db.executescript(SCHEMA)
         db.executescript(HAZARD_SCHEMA)
+        db.executescript(BEACON_SCHEMA)
         return db
 
     async def open(self) -> None:

@@ -1,4 +1,4 @@
-"""The coordination collections on MongoDB, mixed into :class:`MongoEventStore`."""
+"""The coordination and beacon collections on MongoDB, mixed into :class:`MongoEventStore`."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pymongo import ASCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
 from workers.store.base import from_micros, to_micros
+from workers.store.beacons import Beacon, BeaconRegistry
 from workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState, refuse_transition
 
 TIMES = ("announced_at", "claimed_at", "reached_at")
@@ -204,3 +205,33 @@ class MongoCoordination(CoordinationStore):
             {"state": HazardState.REACHED.value, "reached_at_us": to_micros(at)},
             lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
         )
+
+
+def _beacon(doc: dict[str, Any]) -> Beacon:
+    visited = doc.get("visited_at_us")
+    return Beacon(doc["_id"], doc["x"], doc["y"], doc["label"], from_micros(visited) if visited else None)
+
+
+class MongoBeacons(BeaconRegistry):
+    _collection: Callable[[str], Any]
+
+    async def put_beacons(self, beacons: list[Beacon]) -> None:
+        for beacon in beacons:
+            await self._collection("beacons").update_one(
+                {"_id": beacon.beacon_id},
+                {"$set": {"x": beacon.x, "y": beacon.y, "label": beacon.label}},
+                upsert=True,
+            )
+
+    async def beacons(self) -> list[Beacon]:
+        return [_beacon(doc) async for doc in self._collection("beacons").find({}).sort("_id", ASCENDING)]
+
+    async def get_beacon(self, beacon_id: str) -> Beacon | None:
+        doc = await self._collection("beacons").find_one({"_id": beacon_id})
+        return _beacon(doc) if doc else None
+
+    async def mark_visited(self, beacon_id: str, at: datetime) -> Beacon | None:
+        await self._collection("beacons").update_one(
+            {"_id": beacon_id}, {"$set": {"visited_at_us": to_micros(at)}}
+        )
+        return await self.get_beacon(beacon_id)

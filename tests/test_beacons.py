@@ -1,0 +1,72 @@
+"""Beacons and the guide robot against the real broker: sightings, stranded people, the next goal."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from broker.accounts import Role, provision_account
+from broker.dead_letter_queue import peek_dead_letters
+from publishers.rpc import ServiceRefused
+from schemas.routing import RobotKind
+from tests.support import Bus, wait_for
+from workers.store.beacons import Beacon
+
+
+def sighting(beacon_id: str, rssi: int, x: float = 0.0) -> dict:
+    return {"beacon_id": beacon_id, "rssi": rssi, "pose": {"x": x, "y": 1.0}}
+
+
+def test_sightings_stranded_people_and_the_guides_goal(bus: Bus) -> None:
+    bus.with_store(
+        lambda s: s.put_beacons([Beacon("b1", 1.0, 2.0, "room 101"), Beacon("b2", 8.0, 3.0, "lab")])
+    )
+    guide = bus.robot(bus.add("guide1", kind=RobotKind.GUIDE))
+    with bus.worker():
+        guide.publish_many([("beacon", sighting("b2", -70, 7.0)), ("beacon", sighting("b1", -60, 1.5))])
+        guide.publish_many([("beacon", sighting("b2", -65, 7.5)), ("beacon", sighting("b9", -80))])
+        wait_for(lambda: bus.count("beacon") == 4, what="4 sightings stored")
+
+        people = guide.stranded(minutes=5)
+        assert [p["beacon_id"] for p in people] == ["b2", "b1", "b9"], "first heard first"
+        b2 = people[0]
+        assert (b2["label"], b2["location"], b2["sightings"], b2["last_rssi"]) == (
+            "lab",
+            {"x": 8.0, "y": 3.0},
+            2,
+            -65,
+        )
+        assert b2["seen_by"] == "guide1" and b2["robot_pose"]["x"] == 7.5
+        assert people[2]["location"] is None, "an unregistered beacon is still reported"
+
+        assert guide.beacon_goal()["beacon_id"] == "b2"
+        guide.beacon_visited("b2")
+        assert guide.beacon_goal()["beacon_id"] == "b1"
+        assert guide.beacon_info("b1") == {
+            "beacon_id": "b1",
+            "x": 1.0,
+            "y": 2.0,
+            "label": "room 101",
+            "visited_at": None,
+        }
+        with pytest.raises(ServiceRefused, match="no beacon 'b7'"):
+            guide.beacon_info("b7")
+
+
+def test_sighting_from_an_unknown_robot_is_dead_lettered(bus: Bus) -> None:
+    # a broker account the team's registry does not know
+    stranger = asyncio.run(provision_account(bus.admin_url, bus.api, "stranger1", Role.ROBOT))
+    bus.accounts.append("stranger1")
+    guide = bus.robot(bus.add("guide1", kind=RobotKind.GUIDE))
+    intruder = bus.robot(stranger)
+    with bus.worker():
+        intruder.publish("beacon", sighting("b1", -50))
+        guide.publish("beacon", sighting("b1", -55))
+        wait_for(lambda: bus.count("beacon") == 1, what="the guide's sighting stored")
+        [letter] = wait_for(
+            lambda: peek_dead_letters(bus.admin_url), what="the stranger's sighting dead-lettered"
+        )
+    assert (letter.reason, letter.user_id) == ("unknown-robot", "stranger1")
+    assert "not a registered robot" in letter.detail
+    assert [r.robot_id for r in bus.find()] == ["guide1"]
