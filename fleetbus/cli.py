@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from fleetbus.commands import beacons, broker, demo, dlq, events, schemas_export, users, worker
+from fleetbus.commands import beacons, broker, demo, dlq, events, maps, schemas_export, users, worker
 
 app = typer.Typer(
     name="fleetbus",
@@ -15,6 +15,7 @@ app = typer.Typer(
 app.add_typer(broker.app, name="broker")
 app.add_typer(users.app, name="users")
 app.add_typer(beacons.app, name="beacons")
+app.add_typer(maps.app, name="map")
 app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)

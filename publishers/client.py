@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from datetime import datetime
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -21,8 +22,10 @@ import pika.exceptions
 
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import BrokerUnavailable
+from publishers.maps import FetchedMap, fetch_map, map_events
 from publishers.rpc import RpcChannel
 from publishers.sequence import SequenceCounter
+from schemas.bodies import MapMetadata
 from schemas.envelope import Event, build_event, encode_event, validate_body
 from schemas.identity import validate_name
 from schemas.notifications import Notification
@@ -173,6 +176,16 @@ class RobotClient:
 
     def wardens(self, timeout: float = 5.0) -> list[dict[str, Any]]:
         return self.call("wardens", timeout)
+
+    def publish_map(
+        self, pgm: bytes, metadata: MapMetadata | dict[str, Any], created_at: datetime | None = None
+    ) -> list[Event]:
+        """Publish a map (PGM bytes and YAML fields); large images go as chunks, in one pipelined batch."""
+        return self.publish_many(map_events(pgm, metadata, created_at))
+
+    def fetch_map(self, version: int | None = None, timeout: float = 10.0) -> FetchedMap:
+        """The latest (or a given) stored map, byte for byte."""
+        return fetch_map(self, version, timeout)
 
     def beacon_info(self, beacon_id: str, timeout: float = 5.0) -> dict[str, Any]:
         return self.call("beacon.info", timeout, beacon_id=beacon_id)

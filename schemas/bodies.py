@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import uuid
 from datetime import datetime
 from typing import Annotated, Literal
 
@@ -15,7 +16,7 @@ from pydantic import (
     model_validator,
 )
 
-PGM_MAGIC = (b"P5", b"P2")
+from schemas.pgm import check_pgm
 
 
 class Strict(BaseModel):
@@ -68,17 +69,67 @@ class MapMetadata(Strict):
         return self
 
 
+#: Largest map image sent inside its ``map`` event; larger ones travel as ``map_chunk`` events.
+MAP_INLINE_BYTES = 256 * 1024
+#: Bytes of image per ``map_chunk`` event (about 700 KB as base64: below the broker's limits).
+MAP_CHUNK_BYTES = 512 * 1024
+
+
+class ChunkedImage(Strict):
+    """A map image sent ahead as ``map_chunk`` events with this ``map_id``."""
+
+    map_id: uuid.UUID
+    size: int = Field(gt=0, description="bytes of the whole PGM file")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    chunks: int = Field(ge=1)
+
+
 class MapUpdate(Strict):
-    pgm: Base64Bytes = Field(description="the PGM image, base64 in JSON")
+    """A new map: the PGM image (inline when small, else by reference to its chunks) and its YAML fields."""
+
+    pgm: Base64Bytes | None = Field(default=None, description="the PGM image, base64 in JSON (small maps)")
+    image: ChunkedImage | None = Field(default=None, description="the PGM image sent as map_chunk events")
     metadata: MapMetadata
     created_at: AwareDatetime
 
     @field_validator("pgm")
     @classmethod
-    def _is_pgm(cls, value: bytes) -> bytes:
-        if not value.startswith(PGM_MAGIC):
-            raise ValueError("pgm is not a PGM image (no P5 or P2 header)")
+    def _is_pgm(cls, value: bytes | None) -> bytes | None:
+        if value is not None:
+            check_pgm(value)
+            if len(value) > MAP_INLINE_BYTES:
+                raise ValueError(
+                    f"inline pgm is limited to {MAP_INLINE_BYTES} bytes; send larger maps in chunks"
+                )
         return value
+
+    @model_validator(mode="after")
+    def _one_image(self) -> MapUpdate:
+        if (self.pgm is None) == (self.image is None):
+            raise ValueError("a map carries exactly one of pgm (inline) or image (chunked)")
+        return self
+
+
+class MapChunk(Strict):
+    """One piece of a large map image; the ``map`` event naming its ``map_id`` follows the last."""
+
+    map_id: uuid.UUID
+    index: int = Field(ge=0)
+    count: int = Field(ge=1)
+    data: Base64Bytes = Field(description=f"at most {MAP_CHUNK_BYTES} bytes of the PGM file")
+
+    @field_validator("data")
+    @classmethod
+    def _bounded(cls, value: bytes) -> bytes:
+        if len(value) > MAP_CHUNK_BYTES:
+            raise ValueError(f"a chunk holds at most {MAP_CHUNK_BYTES} bytes, not {len(value)}")
+        return value
+
+    @model_validator(mode="after")
+    def _index_in_range(self) -> MapChunk:
+        if self.index >= self.count:
+            raise ValueError(f"chunk index {self.index} is not below count {self.count}")
+        return self
 
 
 class RobotStatus(Strict):

@@ -21,6 +21,7 @@ from schemas.bodies import (
     BehaviourOutcome,
     HazardDetected,
     LocalisationState,
+    MapChunk,
     MapUpdate,
     RobotStatus,
 )
@@ -50,6 +51,11 @@ class MapEvent(_EnvelopeBase):
     body: MapUpdate
 
 
+class MapChunkEvent(_EnvelopeBase):
+    type: Literal[EventType.MAP_CHUNK] = EventType.MAP_CHUNK
+    body: MapChunk
+
+
 class StatusEvent(_EnvelopeBase):
     type: Literal[EventType.STATUS] = EventType.STATUS
     body: RobotStatus
@@ -71,12 +77,13 @@ class BehaviourEvent(_EnvelopeBase):
 
 
 Event = Annotated[
-    Union[HazardEvent, MapEvent, StatusEvent, LocalisationEvent, BeaconEvent, BehaviourEvent],  # noqa: UP007
+    Union[HazardEvent, MapEvent, MapChunkEvent, StatusEvent, LocalisationEvent, BeaconEvent, BehaviourEvent],  # noqa: UP007
     Field(discriminator="type"),
 ]
 EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
     EventType.HAZARD: HazardEvent,
     EventType.MAP: MapEvent,
+    EventType.MAP_CHUNK: MapChunkEvent,
     EventType.STATUS: StatusEvent,
     EventType.LOCALISATION: LocalisationEvent,
     EventType.BEACON: BeaconEvent,

@@ -19,5 +19,7 @@ class Notification(BaseModel):
     notified_at: AwareDatetime
     hazard_id: int | None = None
     """For hazards: the id the service gave it, sequential within its mission."""
+    map_version: int | None = None
+    """For maps: the stored version to fetch with the ``map.latest`` / ``map.chunk`` services."""
     late: bool = False
     """Announced later than it was received (held while wardens were localising)."""

@@ -37,6 +37,7 @@ DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
 class EventType(str, Enum):
     HAZARD = "hazard"
     MAP = "map"
+    MAP_CHUNK = "map_chunk"
     STATUS = "status"
     LOCALISATION = "localisation"
     BEACON = "beacon"

@@ -17,7 +17,7 @@ from schemas.routing import EventType, Topic, notification_routing_key
 from workers.validation import Accepted
 
 #: Event types announced as soon as they are stored; hazards go through the coordinator's gate.
-TOPICS: dict[EventType, Topic] = {EventType.MAP: Topic.MAP}
+TOPICS: dict[EventType, Topic] = {}
 
 
 def needs_notification(item: Accepted) -> bool:

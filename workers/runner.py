@@ -21,6 +21,7 @@ from schemas.routing import DEAD_LETTER_EXCHANGE, INGEST_QUEUE, NOTIFY_EXCHANGE,
 from workers.beacons import KnownRobotsOnly, beacon_services
 from workers.coordination import HazardCoordinator
 from workers.ingest import IngestConsumer
+from workers.maps import MapCheck, MapService, map_services
 from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.store import Store, open_store
@@ -63,8 +64,9 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
         await channel.get_exchange(DEAD_LETTER_EXCHANGE, ensure=False),
         service_user=SERVICE_USER,
         max_message_bytes=settings.max_message_bytes,
-        checks=[KnownRobotsOnly(store)],
+        checks=[KnownRobotsOnly(store), MapCheck(store)],
         services=[
+            MapService(store, notify_exchange, SERVICE_USER),
             coordinator,
             BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
         ],
@@ -76,7 +78,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     rpc = RpcServer(
         rpc_channel,
         await rpc_channel.get_queue(RPC_QUEUE, ensure=False),
-        {**hazard_services(store), **beacon_services(store)},
+        {**hazard_services(store), **beacon_services(store), **map_services(store)},
     )
     await rpc.start()
     return WorkerContext(connection, consumer, rpc, store)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from enum import Enum
+from typing import Any
 
 from aio_pika.abc import AbstractIncomingMessage
 
@@ -21,6 +22,7 @@ class RejectReason(str, Enum):
     NO_USER_ID = "no-user-id"
     IDENTITY_MISMATCH = "identity-mismatch"
     UNKNOWN_ROBOT = "unknown-robot"
+    BAD_MAP = "bad-map"
 
 
 @dataclass(frozen=True)
@@ -33,6 +35,15 @@ class Accepted:
 class Rejected:
     reason: RejectReason
     detail: str
+
+
+def record_body(event: Event) -> dict[str, Any]:
+    """The body as stored with the event; map images go to the map store, not the event log."""
+    if event.type is EventType.MAP_CHUNK:
+        return {**event.body.model_dump(mode="json", exclude={"data"}), "size": len(event.body.data)}
+    if event.type is EventType.MAP and event.body.pgm is not None:
+        return {**event.body.model_dump(mode="json", exclude={"pgm"}), "pgm_size": len(event.body.pgm)}
+    return event.body.model_dump(mode="json")
 
 
 def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rejected:
@@ -75,7 +86,7 @@ def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rej
         message_id=str(event.message_id),
         sent_at=event.sent_at,
         received_at=received_at,
-        body=event.body.model_dump(mode="json"),
+        body=record_body(event),
         user_id=user_id,
         exchange=message.exchange or "",
         routing_key=routing_key,

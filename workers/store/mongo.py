@@ -31,6 +31,7 @@ from workers.store.base import (
 )
 from workers.store.interface import Store
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
+from workers.store.mongo_maps import MongoMaps
 
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
@@ -86,7 +87,7 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
-class MongoEventStore(MongoCoordination, MongoBeacons, Store):
+class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
     name = "mongodb"
 
     def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
@@ -95,13 +96,16 @@ class MongoEventStore(MongoCoordination, MongoBeacons, Store):
         self._timeout_ms = int(server_selection_timeout * 1000)
         self._client: AsyncMongoClient[dict[str, Any]] | None = None
 
-    def _collection(self, name: str) -> Any:
+    def _database(self) -> Any:
         if self._client is None:
             raise RuntimeError("the store is not open")
         # journaled majority writes: acknowledged data survives a crash of the primary
-        return self._client[self._database_name].get_collection(
-            name, write_concern=WriteConcern(w="majority", j=True)
+        return self._client.get_database(
+            self._database_name, write_concern=WriteConcern(w="majority", j=True)
         )
+
+    def _collection(self, name: str) -> Any:
+        return self._database()[name]
 
     def _events(self) -> Any:
         """The collection of events (one for all types; the recorder issue splits it per type)."""
@@ -119,6 +123,10 @@ class MongoEventStore(MongoCoordination, MongoBeacons, Store):
             await events.create_index([("sent_at_us", ASCENDING)])
             await events.create_index([("message_id", ASCENDING)])
             await self.create_coordination_indexes()
+            await self._collection("maps").create_index(
+                [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
+            )
+            await self._collection("map_staging").create_index([("map_id", ASCENDING)])
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
 

@@ -24,7 +24,9 @@ from workers.store.base import (
     to_micros,
 )
 from workers.store.interface import Store
-from workers.store.sqlite_coordination import BEACON_SCHEMA, HAZARD_SCHEMA, SQLiteBeacons, SQLiteCoordination
+from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
+from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
+from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 
 T = TypeVar("T")
 
@@ -87,7 +89,7 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, Store):
+class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
     name = "sqlite"
 
     def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
@@ -123,6 +125,7 @@ class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, Store):
         db.executescript(SCHEMA)
         db.executescript(HAZARD_SCHEMA)
         db.executescript(BEACON_SCHEMA)
+        db.executescript(MAP_SCHEMA)
         return db
 
     async def open(self) -> None:

@@ -1,4 +1,4 @@
-"""The coordination and beacon tables on SQLite, mixed into :class:`SQLiteEventStore` (one database file)."""
+"""The coordination tables (robots, hazards) on SQLite, mixed into :class:`SQLiteEventStore`."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from datetime import datetime
 from typing import Any, TypeVar
 
 from workers.store.base import from_micros, to_micros
-from workers.store.beacons import Beacon, BeaconRegistry
 from workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState, refuse_transition
 
 T = TypeVar("T")
@@ -74,7 +73,7 @@ def _one(db: sqlite3.Connection, mission_id: str, hazard_id: int) -> Hazard | No
     return _hazard(row) if row else None
 
 
-def _in_transaction(db: sqlite3.Connection, work: Callable[[], T]) -> T:
+def in_transaction(db: sqlite3.Connection, work: Callable[[], T]) -> T:
     db.execute("BEGIN IMMEDIATE")
     try:
         result = work()
@@ -164,7 +163,7 @@ class SQLiteCoordination(CoordinationStore):
                 assert found is not None
                 return found
 
-            return _in_transaction(db, work)
+            return in_transaction(db, work)
 
         return await self._run(add)
 
@@ -181,7 +180,7 @@ class SQLiteCoordination(CoordinationStore):
         keys = [(to_micros(at), h.mission_id, h.hazard_id) for h in hazards]
 
         def mark(db: sqlite3.Connection) -> None:
-            _in_transaction(
+            in_transaction(
                 db,
                 lambda: db.executemany(
                     "UPDATE hazards SET state = 'announced', announced_at = ? "
@@ -222,7 +221,7 @@ class SQLiteCoordination(CoordinationStore):
                     raise refuse_transition(hazard, mission_id, hazard_id, action, warden)
                 return hazard
 
-            return _in_transaction(db, work)
+            return in_transaction(db, work)
 
         return await self._run(change)
 
@@ -261,59 +260,3 @@ class SQLiteCoordination(CoordinationStore):
             (to_micros(at), warden),
             lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
         )
-
-
-BEACON_SCHEMA = """
-CREATE TABLE IF NOT EXISTS beacons (
-    beacon_id  TEXT PRIMARY KEY,
-    x          REAL NOT NULL,
-    y          REAL NOT NULL,
-    label      TEXT NOT NULL,
-    visited_at INTEGER
-);
-"""
-
-
-def _beacon(row: sqlite3.Row) -> Beacon:
-    visited = row["visited_at"]
-    return Beacon(
-        row["beacon_id"], row["x"], row["y"], row["label"], from_micros(visited) if visited else None
-    )
-
-
-class SQLiteBeacons(BeaconRegistry):
-    _run: Callable[..., Any]
-
-    async def put_beacons(self, beacons: list[Beacon]) -> None:
-        rows = [(b.beacon_id, b.x, b.y, b.label) for b in beacons]
-
-        def put(db: sqlite3.Connection) -> None:
-            _in_transaction(
-                db,
-                lambda: db.executemany(
-                    "INSERT INTO beacons (beacon_id, x, y, label) VALUES (?, ?, ?, ?) "
-                    "ON CONFLICT (beacon_id) "
-                    "DO UPDATE SET x = excluded.x, y = excluded.y, label = excluded.label",
-                    rows,
-                ),
-            )
-
-        await self._run(put)
-
-    async def beacons(self) -> list[Beacon]:
-        rows = await self._run(lambda db: db.execute("SELECT * FROM beacons ORDER BY beacon_id").fetchall())
-        return [_beacon(row) for row in rows]
-
-    async def get_beacon(self, beacon_id: str) -> Beacon | None:
-        row = await self._run(
-            lambda db: db.execute("SELECT * FROM beacons WHERE beacon_id = ?", (beacon_id,)).fetchone()
-        )
-        return _beacon(row) if row else None
-
-    async def mark_visited(self, beacon_id: str, at: datetime) -> Beacon | None:
-        await self._run(
-            lambda db: db.execute(
-                "UPDATE beacons SET visited_at = ? WHERE beacon_id = ?", (to_micros(at), beacon_id)
-            )
-        )
-        return await self.get_beacon(beacon_id)

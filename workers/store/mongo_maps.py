@@ -1,0 +1,112 @@
+"""Map versions on MongoDB: staged chunks in a collection, committed images in GridFS (bucket ``maps``)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from datetime import datetime
+from typing import Any
+
+from bson import Binary
+from gridfs import AsyncGridFSBucket
+from pymongo import DESCENDING, ReturnDocument
+from pymongo.errors import DuplicateKeyError
+
+from workers.store.base import from_micros, to_micros
+from workers.store.maps import MapRejected, MapStore, MapVersion
+
+BUCKET = "maps"
+
+
+def _map_version(doc: dict[str, Any]) -> MapVersion:
+    return MapVersion(
+        version=doc["_id"],
+        robot_id=doc["robot_id"],
+        seq=doc["seq"],
+        metadata=doc["metadata"],
+        created_at=from_micros(doc["created_at_us"]),
+        size=doc["size"],
+        sha256=doc["sha256"],
+        chunk_size=doc["chunk_size"],
+        chunks=doc["chunks"],
+    )
+
+
+class MongoMaps(MapStore):
+    """Needs the host class's ``_collection(name)`` and ``_database()``."""
+
+    _collection: Callable[[str], Any]
+    _database: Callable[[], Any]
+
+    async def stage_map_chunk(self, map_id: str, index: int, data: bytes) -> None:
+        await self._collection("map_staging").update_one(
+            {"_id": f"{map_id}:{index}"},
+            {"$setOnInsert": {"map_id": map_id, "index": index, "data": Binary(data)}},
+            upsert=True,
+        )
+
+    async def staged_map_chunks(self, map_id: str) -> dict[int, bytes]:
+        return {
+            doc["index"]: bytes(doc["data"])
+            async for doc in self._collection("map_staging").find({"map_id": map_id})
+        }
+
+    async def commit_map(
+        self,
+        robot_id: str,
+        seq: int,
+        image: bytes,
+        metadata: dict[str, Any],
+        created_at: datetime,
+        sha256: str,
+        chunk_size: int,
+        staged_map_id: str | None,
+    ) -> MapVersion:
+        maps = self._collection("maps")
+        existing = await maps.find_one({"robot_id": robot_id, "seq": seq})
+        if existing is None:
+            counter = await self._collection("map_counter").find_one_and_update(
+                {"_id": "maps"}, {"$inc": {"last": 1}}, upsert=True, return_document=ReturnDocument.AFTER
+            )
+            version = counter["last"]
+            bucket = AsyncGridFSBucket(self._database(), bucket_name=BUCKET, chunk_size_bytes=chunk_size)
+            await bucket.upload_from_stream_with_id(
+                version, f"map-{version}.pgm", image, metadata={"sha256": sha256}
+            )
+            existing = {
+                "_id": version,
+                "robot_id": robot_id,
+                "seq": seq,
+                "metadata": metadata,
+                "created_at": created_at,
+                "created_at_us": to_micros(created_at),
+                "size": len(image),
+                "sha256": sha256,
+                "chunk_size": chunk_size,
+                "chunks": (len(image) + chunk_size - 1) // chunk_size,
+            }
+            try:
+                await maps.insert_one(existing)
+            except DuplicateKeyError:  # another worker committed this event first
+                await bucket.delete(version)
+                existing = await maps.find_one({"robot_id": robot_id, "seq": seq})
+        if staged_map_id is not None:
+            await self._collection("map_staging").delete_many({"map_id": staged_map_id})
+        return _map_version(existing)
+
+    async def committed_map(self, robot_id: str, seq: int) -> MapVersion | None:
+        doc = await self._collection("maps").find_one({"robot_id": robot_id, "seq": seq})
+        return _map_version(doc) if doc else None
+
+    async def map_version(self, version: int | None = None) -> MapVersion | None:
+        maps = self._collection("maps")
+        doc = await (
+            maps.find_one(sort=[("_id", DESCENDING)]) if version is None else maps.find_one({"_id": version})
+        )
+        return _map_version(doc) if doc else None
+
+    async def map_chunk(self, version: int, index: int) -> bytes:
+        # GridFS keeps a file's n-th chunk as the document {files_id, n} of <bucket>.chunks
+        doc = await self._collection(f"{BUCKET}.chunks").find_one({"files_id": version, "n": index})
+        if doc is None:
+            raise MapRejected(f"map version {version} has no chunk {index}")
+        return bytes(doc["data"])

@@ -1,0 +1,145 @@
+"""Map versions on SQLite: staged chunks and a blob table, mixed into :class:`SQLiteEventStore`."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from collections.abc import Callable
+from datetime import datetime
+from typing import Any
+
+from workers.store.base import from_micros, to_micros
+from workers.store.maps import MapRejected, MapStore, MapVersion
+from workers.store.sqlite_coordination import in_transaction
+
+MAP_SCHEMA = """
+CREATE TABLE IF NOT EXISTS map_staging (
+    map_id TEXT    NOT NULL,
+    idx    INTEGER NOT NULL,
+    data   BLOB    NOT NULL,
+    PRIMARY KEY (map_id, idx)
+);
+CREATE TABLE IF NOT EXISTS maps (
+    version    INTEGER PRIMARY KEY AUTOINCREMENT,
+    robot_id   TEXT    NOT NULL,
+    seq        INTEGER NOT NULL,
+    metadata   TEXT    NOT NULL,
+    created_at INTEGER NOT NULL,
+    size       INTEGER NOT NULL,
+    sha256     TEXT    NOT NULL,
+    chunk_size INTEGER NOT NULL,
+    chunks     INTEGER NOT NULL,
+    UNIQUE (robot_id, seq)
+);
+CREATE TABLE IF NOT EXISTS map_blobs (
+    version INTEGER NOT NULL,
+    idx     INTEGER NOT NULL,
+    data    BLOB    NOT NULL,
+    PRIMARY KEY (version, idx)
+);
+"""
+
+
+def _map_version(row: sqlite3.Row) -> MapVersion:
+    return MapVersion(
+        version=row["version"],
+        robot_id=row["robot_id"],
+        seq=row["seq"],
+        metadata=json.loads(row["metadata"]),
+        created_at=from_micros(row["created_at"]),
+        size=row["size"],
+        sha256=row["sha256"],
+        chunk_size=row["chunk_size"],
+        chunks=row["chunks"],
+    )
+
+
+class SQLiteMaps(MapStore):
+    _run: Callable[..., Any]
+
+    async def stage_map_chunk(self, map_id: str, index: int, data: bytes) -> None:
+        await self._run(
+            lambda db: db.execute(
+                "INSERT OR IGNORE INTO map_staging (map_id, idx, data) VALUES (?, ?, ?)",
+                (map_id, index, data),
+            )
+        )
+
+    async def staged_map_chunks(self, map_id: str) -> dict[int, bytes]:
+        rows = await self._run(
+            lambda db: db.execute("SELECT idx, data FROM map_staging WHERE map_id = ?", (map_id,)).fetchall()
+        )
+        return {row["idx"]: bytes(row["data"]) for row in rows}
+
+    async def commit_map(
+        self,
+        robot_id: str,
+        seq: int,
+        image: bytes,
+        metadata: dict[str, Any],
+        created_at: datetime,
+        sha256: str,
+        chunk_size: int,
+        staged_map_id: str | None,
+    ) -> MapVersion:
+        pieces = [image[i : i + chunk_size] for i in range(0, len(image), chunk_size)]
+
+        def commit(db: sqlite3.Connection) -> MapVersion:
+            def work() -> MapVersion:
+                row = db.execute(
+                    "SELECT * FROM maps WHERE robot_id = ? AND seq = ?", (robot_id, seq)
+                ).fetchone()
+                if row is None:
+                    cursor = db.execute(
+                        "INSERT INTO maps "
+                        "(robot_id, seq, metadata, created_at, size, sha256, chunk_size, chunks) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                        (
+                            robot_id,
+                            seq,
+                            json.dumps(metadata),
+                            to_micros(created_at),
+                            len(image),
+                            sha256,
+                            chunk_size,
+                            len(pieces),
+                        ),
+                    )
+                    db.executemany(
+                        "INSERT INTO map_blobs (version, idx, data) VALUES (?, ?, ?)",
+                        [(cursor.lastrowid, i, piece) for i, piece in enumerate(pieces)],
+                    )
+                    row = db.execute("SELECT * FROM maps WHERE version = ?", (cursor.lastrowid,)).fetchone()
+                if staged_map_id is not None:
+                    db.execute("DELETE FROM map_staging WHERE map_id = ?", (staged_map_id,))
+                return _map_version(row)
+
+            return in_transaction(db, work)
+
+        return await self._run(commit)
+
+    async def committed_map(self, robot_id: str, seq: int) -> MapVersion | None:
+        row = await self._run(
+            lambda db: db.execute(
+                "SELECT * FROM maps WHERE robot_id = ? AND seq = ?", (robot_id, seq)
+            ).fetchone()
+        )
+        return _map_version(row) if row else None
+
+    async def map_version(self, version: int | None = None) -> MapVersion | None:
+        if version is None:
+            sql, params = "SELECT * FROM maps ORDER BY version DESC LIMIT 1", ()
+        else:
+            sql, params = "SELECT * FROM maps WHERE version = ?", (version,)
+        row = await self._run(lambda db: db.execute(sql, params).fetchone())
+        return _map_version(row) if row else None
+
+    async def map_chunk(self, version: int, index: int) -> bytes:
+        row = await self._run(
+            lambda db: db.execute(
+                "SELECT data FROM map_blobs WHERE version = ? AND idx = ?", (version, index)
+            ).fetchone()
+        )
+        if row is None:
+            raise MapRejected(f"map version {version} has no chunk {index}")
+        return bytes(row["data"])
