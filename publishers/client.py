@@ -174,6 +174,9 @@ class RobotClient:
     def hazard_reached(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
         return self.call("hazard.reached", timeout, hazard_id=hazard_id)
 
+    def hazard_cleared(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
+        return self.call("hazard.cleared", timeout, hazard_id=hazard_id)
+
     def wardens(self, timeout: float = 5.0) -> list[dict[str, Any]]:
         return self.call("wardens", timeout)
 

@@ -39,8 +39,10 @@ def hazard_services(store: Store) -> dict[str, Handler]:
                 hazard = await store.claim(mission, hazard_id, caller, now)
             elif action == "release":
                 hazard = await store.release(mission, hazard_id, caller)
-            else:
+            elif action == "reached":
                 hazard = await store.mark_reached(mission, hazard_id, caller, now)
+            else:
+                hazard = await store.mark_cleared(mission, hazard_id, caller, now)
         except HazardRefused as refused:
             raise ServiceError(str(refused)) from None
         return hazard.as_dict()
@@ -53,6 +55,9 @@ def hazard_services(store: Store) -> dict[str, Handler]:
 
     async def reached(caller: str, params: dict[str, Any]) -> Any:
         return await transition("reached", caller, params)
+
+    async def cleared(caller: str, params: dict[str, Any]) -> Any:
+        return await transition("cleared", caller, params)
 
     async def wardens(caller: str, params: dict[str, Any]) -> Any:
         return [
@@ -70,5 +75,6 @@ def hazard_services(store: Store) -> dict[str, Handler]:
         "hazard.claim": claim,
         "hazard.release": release,
         "hazard.reached": reached,
+        "hazard.cleared": cleared,
         "wardens": wardens,
     }

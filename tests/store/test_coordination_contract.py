@@ -56,6 +56,11 @@ async def test_claim_reach_release_and_refusals(store: Store) -> None:
     reached = await store.mark_reached("m1", 1, "warden2", T0 + timedelta(seconds=30))
     assert reached.state is HazardState.REACHED and reached.reached_at == T0 + timedelta(seconds=30)
     assert [h.hazard_id for h in await store.open_hazards("m1")] == [1, 2]
+    with pytest.raises(HazardRefused, match="claimed by warden2"):
+        await store.mark_cleared("m1", 1, "warden1", T0)
+    cleared = await store.mark_cleared("m1", 1, "warden2", T0 + timedelta(seconds=60))
+    assert cleared.state is HazardState.CLEARED and cleared.cleared_at == T0 + timedelta(seconds=60)
+    assert [h.hazard_id for h in await store.open_hazards("m1")] == [2]
     unchanged = await store.get_hazard("m1", 2)
     assert unchanged is not None and unchanged.state is HazardState.HELD
 

@@ -40,11 +40,12 @@ class Hazard:
     claimed_by: str | None = None
     claimed_at: datetime | None = None
     reached_at: datetime | None = None
+    cleared_at: datetime | None = None
 
     def as_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
         out["state"] = self.state.value
-        for name in ("received_at", "announced_at", "claimed_at", "reached_at"):
+        for name in ("received_at", "announced_at", "claimed_at", "reached_at", "cleared_at"):
             out[name] = out[name].isoformat() if out[name] else None
         return out
 
@@ -114,6 +115,10 @@ class CoordinationStore(abc.ABC):
     @abc.abstractmethod
     async def mark_reached(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
         """The claiming warden reports it reached the hazard."""
+
+    @abc.abstractmethod
+    async def mark_cleared(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        """The warden that reached the hazard reports it cleared; it leaves the open hazards."""
 
 
 def refuse_transition(

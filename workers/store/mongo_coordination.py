@@ -13,7 +13,7 @@ from workers.store.base import from_micros, to_micros
 from workers.store.beacons import Beacon, BeaconRegistry
 from workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState, refuse_transition
 
-TIMES = ("announced_at", "claimed_at", "reached_at")
+TIMES = ("announced_at", "claimed_at", "reached_at", "cleared_at")
 
 
 def hazard_id_of(mission_id: str, hazard_id: int) -> str:
@@ -204,6 +204,17 @@ class MongoCoordination(CoordinationStore):
             {"state": HazardState.CLAIMED.value, "claimed_by": warden},
             {"state": HazardState.REACHED.value, "reached_at_us": to_micros(at)},
             lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
+        )
+
+    async def mark_cleared(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "cleared",
+            {"state": HazardState.REACHED.value, "claimed_by": warden},
+            {"state": HazardState.CLEARED.value, "cleared_at_us": to_micros(at)},
+            lambda h: h.state is HazardState.CLEARED and h.claimed_by == warden,
         )
 
 

@@ -36,6 +36,7 @@ CREATE TABLE IF NOT EXISTS hazards (
     claimed_by   TEXT,
     claimed_at   INTEGER,
     reached_at   INTEGER,
+    cleared_at   INTEGER,
     PRIMARY KEY (mission_id, hazard_id),
     UNIQUE (robot_id, seq)
 );
@@ -63,6 +64,7 @@ def _hazard(row: sqlite3.Row) -> Hazard:
         claimed_by=row["claimed_by"],
         claimed_at=moment("claimed_at"),
         reached_at=moment("reached_at"),
+        cleared_at=moment("cleared_at"),
     )
 
 
@@ -259,4 +261,16 @@ class SQLiteCoordination(CoordinationStore):
             "WHERE state = 'claimed' AND claimed_by = ? AND mission_id = ? AND hazard_id = ?",
             (to_micros(at), warden),
             lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
+        )
+
+    async def mark_cleared(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
+        return await self._transition(
+            mission_id,
+            hazard_id,
+            warden,
+            "cleared",
+            "UPDATE hazards SET state = 'cleared', cleared_at = ? "
+            "WHERE state = 'reached' AND claimed_by = ? AND mission_id = ? AND hazard_id = ?",
+            (to_micros(at), warden),
+            lambda h: h.state is HazardState.CLEARED and h.claimed_by == warden,
         )
