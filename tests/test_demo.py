@@ -1,0 +1,31 @@
+"""The main job: the demo scenario ends with everything stored and delivered."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from rich.console import Console
+
+from broker.endpoint import BrokerEndpoint
+from fleetbus.config import load_settings
+from fleetbus.demo import WARDENS, run_demo
+
+
+def test_demo_scenario(endpoint: BrokerEndpoint, tmp_path: Path) -> None:
+    settings = replace(load_settings(), data_dir=tmp_path)
+    report = run_demo(
+        settings,
+        endpoint,
+        Console(file=open(tmp_path / "out.txt", "w")),
+        hazards=5,
+        telemetry=5,
+        map_size=1500,
+    )
+    assert report.ok, report.steps
+    assert report.stored == report.published
+    assert report.published["hazard"] == 7 and report.published["map"] == 1
+    for warden in WARDENS:
+        assert report.delivered[warden] == {"hazard": 7, "map": 1}
+    assert report.dead_letters == 0
+    assert [what for what, _ in report.steps][0] == "2 hazards detected before the wardens localised"
