@@ -28,4 +28,4 @@ def test_demo_scenario(endpoint: BrokerEndpoint, tmp_path: Path) -> None:
     for warden in WARDENS:
         assert report.delivered[warden] == {"hazard": 7, "map": 1}
     assert report.dead_letters == 0
-    assert [what for what, _ in report.steps][0] == "2 hazards detected before the wardens localised"
+    assert report.steps[0][0] == "2 hazards detected before the wardens localised"
