@@ -21,7 +21,6 @@ from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from workers.backoff import Backoff
 from workers.dead_letters import dead_letter
-from workers.notifier import needs_notification, notify
 from workers.store.base import StoreUnavailable
 from workers.store.interface import Store
 from workers.validation import Accepted, Rejected, classify
@@ -184,18 +183,6 @@ class IngestConsumer:
             results = await self._retrying(
                 lambda: self._store.write_events([item.record for item in accepted])
             )
-            # keyed, so a robot's resend inside the same batch is announced once
-            pending = list(
-                {
-                    item.record.key: item
-                    for item, result in zip(accepted, results, strict=True)
-                    if not result.notified and needs_notification(item)
-                }.values()
-            )
-            if pending:
-                await notify(self._notify_exchange, pending, self._service_user)
-                await self._retrying(lambda: self._store.mark_notified([item.record.key for item in pending]))
-                self.stats.notified += len(pending)
             for service in self._services:
                 self.stats.notified += await self._retrying(lambda service=service: service.handle(accepted))
             inserted = sum(result.inserted for result in results)

@@ -35,7 +35,7 @@ def record(
 async def test_every_field_round_trips_exactly(store: EventStore) -> None:
     original = record()
     [result] = await store.write_events([original])
-    assert result.inserted and not result.notified
+    assert result.inserted
     [found] = await store.find_events(EventQuery())
     assert found == original
     assert found.sent_at.microsecond == 564500 and found.sent_at.tzinfo is not None
@@ -51,13 +51,6 @@ async def test_writes_are_idempotent_on_robot_and_sequence(store: EventStore) ->
     assert one.seq == 0
     stored_1 = next(r for r in await store.find_events(EventQuery()) if r.seq == 1)
     assert stored_1.body["description"] == "Feu ☢", "a duplicate never overwrites what is stored"
-
-
-async def test_notified_flag_is_reported_on_later_duplicates(store: EventStore) -> None:
-    await store.write_events([record(seq=0), record(seq=1)])
-    await store.mark_notified([("explorer1", 0)])
-    results = await store.write_events([record(seq=0), record(seq=1)])
-    assert [(r.inserted, r.notified) for r in results] == [(False, True), (False, False)]
 
 
 async def test_queries_filter_and_order(store: EventStore) -> None:

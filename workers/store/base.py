@@ -59,8 +59,6 @@ class EventRecord:
 class WriteResult:
     inserted: bool
     """False when a record with the same (robot_id, seq) was already stored."""
-    notified: bool
-    """Whether the notifications for this record were already marked as sent."""
 
 
 @dataclass(frozen=True)
@@ -95,10 +93,6 @@ class EventStore(abc.ABC):
         Returns one result per record, in order. Raises :class:`StoreUnavailable` when the
         database cannot be reached; then nothing of the batch may be assumed written.
         """
-
-    @abc.abstractmethod
-    async def mark_notified(self, keys: Sequence[tuple[str, int]]) -> None:
-        """Record that the notifications for these events were published."""
 
     @abc.abstractmethod
     async def find_events(self, query: EventQuery) -> list[EventRecord]:

@@ -67,7 +67,6 @@ def to_document(record: EventRecord) -> dict[str, Any]:
         "exchange": record.exchange,
         "routing_key": record.routing_key,
         "mission_id": record.mission_id,
-        "notified": False,
     }
 
 
@@ -153,31 +152,8 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
             duplicates = {e["index"] for e in error.details["writeErrors"]}
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
-        notified: dict[str, bool] = {}
-        if duplicates:
-            ids = [documents[i]["_id"] for i in duplicates]
-            async for doc in self._events().find({"_id": {"$in": ids}}, {"notified": 1}):
-                notified[doc["_id"]] = bool(doc.get("notified"))
-        seen: set[str] = set()
-        results = []
-        for index, doc in enumerate(documents):
-            # a key repeated inside the batch: the first copy was inserted, later ones are duplicates
-            first_copy = doc["_id"] not in seen
-            seen.add(doc["_id"])
-            inserted = index not in duplicates and first_copy
-            results.append(
-                WriteResult(
-                    inserted=inserted, notified=False if inserted else notified.get(doc["_id"], False)
-                )
-            )
-        return results
-
-    async def mark_notified(self, keys: Sequence[tuple[str, int]]) -> None:
-        ids = [RobotSequenceId.of(robot, seq) for robot, seq in keys]
-        try:
-            await self._events().update_many({"_id": {"$in": ids}}, {"$set": {"notified": True}})
-        except UNAVAILABLE as error:
-            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        # a key repeated inside the batch: MongoDB inserts the first copy and reports the others
+        return [WriteResult(inserted=index not in duplicates) for index in range(len(documents))]
 
     @staticmethod
     def _filter(type: str | None, robot_id: str | None, query: EventQuery | None = None) -> dict[str, Any]:

@@ -43,7 +43,6 @@ CREATE TABLE IF NOT EXISTS events (
     exchange    TEXT    NOT NULL,
     routing_key TEXT    NOT NULL,
     mission_id  TEXT,
-    notified    INTEGER NOT NULL DEFAULT 0,
     PRIMARY KEY (robot_id, seq)
 ) WITHOUT ROWID;
 CREATE INDEX IF NOT EXISTS events_type_time ON events (type, sent_at);
@@ -156,25 +155,11 @@ class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
                 cursor = db.execute(
                     f"INSERT OR IGNORE INTO events ({COLUMNS}) VALUES ({','.join('?' * 11)})", row
                 )
-                if cursor.rowcount == 1:
-                    results.append(WriteResult(inserted=True, notified=False))
-                else:
-                    (notified,) = db.execute(
-                        "SELECT notified FROM events WHERE robot_id = ? AND seq = ?", row[:2]
-                    ).fetchone()
-                    results.append(WriteResult(inserted=False, notified=bool(notified)))
+                results.append(WriteResult(inserted=cursor.rowcount == 1))
             db.execute("COMMIT")
             return results
 
         return await self._run(write)
-
-    async def mark_notified(self, keys: Sequence[tuple[str, int]]) -> None:
-        def mark(db: sqlite3.Connection) -> None:
-            db.execute("BEGIN IMMEDIATE")
-            db.executemany("UPDATE events SET notified = 1 WHERE robot_id = ? AND seq = ?", list(keys))
-            db.execute("COMMIT")
-
-        await self._run(mark)
 
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
         where, params = _where(query.type, query.robot_id, query.since, query.until)
