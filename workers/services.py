@@ -38,7 +38,7 @@ def hazard_services(store: Store) -> dict[str, Handler]:
             if action == "claim":
                 hazard = await store.claim(mission, hazard_id, caller, now)
             elif action == "release":
-                hazard = await store.release(mission, hazard_id, caller)
+                hazard = await store.release(mission, hazard_id, caller, now)
             elif action == "reached":
                 hazard = await store.mark_reached(mission, hazard_id, caller, now)
             else:

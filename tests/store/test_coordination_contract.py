@@ -50,7 +50,7 @@ async def test_claim_reach_release_and_refusals(store: Store) -> None:
         await store.claim("m1", 2, "warden2", T0)
     with pytest.raises(HazardRefused, match="claimed by warden1"):
         await store.mark_reached("m1", 1, "warden2", T0)
-    released = await store.release("m1", 1, "warden1")
+    released = await store.release("m1", 1, "warden1", T0)
     assert (released.state, released.claimed_by) == (HazardState.ANNOUNCED, None)
     await store.claim("m1", 1, "warden2", T0)
     reached = await store.mark_reached("m1", 1, "warden2", T0 + timedelta(seconds=30))

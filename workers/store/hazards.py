@@ -58,6 +58,31 @@ class RobotState:
     updated_at: datetime | None
 
 
+@dataclass(frozen=True)
+class Transition:
+    """One step of a hazard's life: from which state, to which, and who may take it."""
+
+    action: str
+    source: HazardState
+    target: HazardState
+    claimer_only: bool
+    """Only the warden holding the claim may take this step."""
+    stamp: str | None
+    """The time field this step sets; ``None`` for a release, which clears the claim."""
+
+    def done_by(self, hazard: Hazard, warden: str) -> bool:
+        """Whether ``hazard`` shows this step taken by ``warden`` (after an atomic update)."""
+        if self.target is HazardState.ANNOUNCED:
+            return hazard.state is HazardState.ANNOUNCED
+        return hazard.state is self.target and hazard.claimed_by == warden
+
+
+CLAIM = Transition("claimed", HazardState.ANNOUNCED, HazardState.CLAIMED, False, "claimed_at")
+RELEASE = Transition("released", HazardState.CLAIMED, HazardState.ANNOUNCED, True, None)
+REACH = Transition("reached", HazardState.CLAIMED, HazardState.REACHED, True, "reached_at")
+CLEAR = Transition("cleared", HazardState.REACHED, HazardState.CLEARED, True, "cleared_at")
+
+
 class HazardRefused(StoreError):
     """A claim, release or arrival the hazard's state does not allow; the message says why."""
 
@@ -105,20 +130,26 @@ class CoordinationStore(abc.ABC):
         """Hazards not cleared, in id order."""
 
     @abc.abstractmethod
+    async def apply_transition(
+        self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
+    ) -> Hazard:
+        """Apply one of the :data:`TRANSITIONS` atomically, or raise :class:`HazardRefused`."""
+
     async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
         """Give an announced hazard to ``warden``; atomic, so of two claims one wins."""
+        return await self.apply_transition(mission_id, hazard_id, warden, CLAIM, at)
 
-    @abc.abstractmethod
-    async def release(self, mission_id: str, hazard_id: int, warden: str) -> Hazard:
+    async def release(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
         """The claiming warden gives the hazard up; it is announced again."""
+        return await self.apply_transition(mission_id, hazard_id, warden, RELEASE, at)
 
-    @abc.abstractmethod
     async def mark_reached(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
         """The claiming warden reports it reached the hazard."""
+        return await self.apply_transition(mission_id, hazard_id, warden, REACH, at)
 
-    @abc.abstractmethod
     async def mark_cleared(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
         """The warden that reached the hazard reports it cleared; it leaves the open hazards."""
+        return await self.apply_transition(mission_id, hazard_id, warden, CLEAR, at)
 
 
 def refuse_transition(

@@ -11,7 +11,14 @@ from pymongo.errors import DuplicateKeyError
 
 from workers.store.base import from_micros, to_micros
 from workers.store.beacons import Beacon, BeaconRegistry
-from workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState, refuse_transition
+from workers.store.hazards import (
+    CoordinationStore,
+    Hazard,
+    HazardState,
+    RobotState,
+    Transition,
+    refuse_transition,
+)
 
 TIMES = ("announced_at", "claimed_at", "reached_at", "cleared_at")
 
@@ -156,66 +163,27 @@ class MongoCoordination(CoordinationStore):
         )
         return [_hazard(doc) async for doc in cursor]
 
-    async def _transition(
-        self,
-        mission_id: str,
-        hazard_id: int,
-        warden: str,
-        action: str,
-        condition: dict[str, Any],
-        change: dict[str, Any],
-        done: Callable[[Hazard], bool],
+    async def apply_transition(
+        self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
-        key = hazard_id_of(mission_id, hazard_id)
-        await self._collection("hazards").find_one_and_update({"_id": key, **condition}, {"$set": change})
+        condition: dict[str, Any] = {
+            "_id": hazard_id_of(mission_id, hazard_id),
+            "state": transition.source.value,
+        }
+        if transition.claimer_only:
+            condition["claimed_by"] = warden
+        change: dict[str, Any] = {"state": transition.target.value}
+        if transition.stamp is None:  # a release gives the claim up
+            change.update(claimed_by=None, claimed_at_us=None)
+        else:
+            change[f"{transition.stamp}_us"] = to_micros(at)
+            if not transition.claimer_only:
+                change["claimed_by"] = warden
+        await self._collection("hazards").find_one_and_update(condition, {"$set": change})
         hazard = await self.get_hazard(mission_id, hazard_id)
-        if hazard is None or not done(hazard):
-            raise refuse_transition(hazard, mission_id, hazard_id, action, warden)
+        if hazard is None or not transition.done_by(hazard, warden):
+            raise refuse_transition(hazard, mission_id, hazard_id, transition.action, warden)
         return hazard
-
-    async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "claimed",
-            {"state": HazardState.ANNOUNCED.value},
-            {"state": HazardState.CLAIMED.value, "claimed_by": warden, "claimed_at_us": to_micros(at)},
-            lambda h: h.state is HazardState.CLAIMED and h.claimed_by == warden,
-        )
-
-    async def release(self, mission_id: str, hazard_id: int, warden: str) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "released",
-            {"state": HazardState.CLAIMED.value, "claimed_by": warden},
-            {"state": HazardState.ANNOUNCED.value, "claimed_by": None, "claimed_at_us": None},
-            lambda h: h.state is HazardState.ANNOUNCED,
-        )
-
-    async def mark_reached(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "reached",
-            {"state": HazardState.CLAIMED.value, "claimed_by": warden},
-            {"state": HazardState.REACHED.value, "reached_at_us": to_micros(at)},
-            lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
-        )
-
-    async def mark_cleared(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "cleared",
-            {"state": HazardState.REACHED.value, "claimed_by": warden},
-            {"state": HazardState.CLEARED.value, "cleared_at_us": to_micros(at)},
-            lambda h: h.state is HazardState.CLEARED and h.claimed_by == warden,
-        )
 
 
 def _beacon(doc: dict[str, Any]) -> Beacon:

@@ -9,7 +9,14 @@ from datetime import datetime
 from typing import Any, TypeVar
 
 from workers.store.base import from_micros, to_micros
-from workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState, refuse_transition
+from workers.store.hazards import (
+    CoordinationStore,
+    Hazard,
+    HazardState,
+    RobotState,
+    Transition,
+    refuse_transition,
+)
 
 T = TypeVar("T")
 
@@ -205,72 +212,29 @@ class SQLiteCoordination(CoordinationStore):
         )
         return [_hazard(row) for row in rows]
 
-    async def _transition(
-        self,
-        mission_id: str,
-        hazard_id: int,
-        warden: str,
-        action: str,
-        update: str,
-        params: tuple[Any, ...],
-        done: Callable[[Hazard], bool],
+    async def apply_transition(
+        self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
+        if transition.stamp is None:  # a release gives the claim up
+            changes, values = "claimed_by = NULL, claimed_at = NULL", ()
+        elif transition.claimer_only:
+            changes, values = f"{transition.stamp} = ?", (to_micros(at),)
+        else:
+            changes, values = f"claimed_by = ?, {transition.stamp} = ?", (warden, to_micros(at))
+        condition = "state = ? AND mission_id = ? AND hazard_id = ?" + (
+            " AND claimed_by = ?" if transition.claimer_only else ""
+        )
+        params = (transition.target.value, *values, transition.source.value, mission_id, hazard_id)
+        params += (warden,) if transition.claimer_only else ()
+
         def change(db: sqlite3.Connection) -> Hazard:
             def work() -> Hazard:
-                db.execute(update, (*params, mission_id, hazard_id))
+                db.execute(f"UPDATE hazards SET state = ?, {changes} WHERE {condition}", params)
                 hazard = _one(db, mission_id, hazard_id)
-                if hazard is None or not done(hazard):
-                    raise refuse_transition(hazard, mission_id, hazard_id, action, warden)
+                if hazard is None or not transition.done_by(hazard, warden):
+                    raise refuse_transition(hazard, mission_id, hazard_id, transition.action, warden)
                 return hazard
 
             return in_transaction(db, work)
 
         return await self._run(change)
-
-    async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "claimed",
-            "UPDATE hazards SET state = 'claimed', claimed_by = ?, claimed_at = ? "
-            "WHERE state = 'announced' AND mission_id = ? AND hazard_id = ?",
-            (warden, to_micros(at)),
-            lambda h: h.state is HazardState.CLAIMED and h.claimed_by == warden,
-        )
-
-    async def release(self, mission_id: str, hazard_id: int, warden: str) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "released",
-            "UPDATE hazards SET state = 'announced', claimed_by = NULL, claimed_at = NULL "
-            "WHERE state = 'claimed' AND claimed_by = ? AND mission_id = ? AND hazard_id = ?",
-            (warden,),
-            lambda h: h.state is HazardState.ANNOUNCED,
-        )
-
-    async def mark_reached(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "reached",
-            "UPDATE hazards SET state = 'reached', reached_at = ? "
-            "WHERE state = 'claimed' AND claimed_by = ? AND mission_id = ? AND hazard_id = ?",
-            (to_micros(at), warden),
-            lambda h: h.state is HazardState.REACHED and h.claimed_by == warden,
-        )
-
-    async def mark_cleared(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
-        return await self._transition(
-            mission_id,
-            hazard_id,
-            warden,
-            "cleared",
-            "UPDATE hazards SET state = 'cleared', cleared_at = ? "
-            "WHERE state = 'reached' AND claimed_by = ? AND mission_id = ? AND hazard_id = ?",
-            (to_micros(at), warden),
-            lambda h: h.state is HazardState.CLEARED and h.claimed_by == warden,
-        )
