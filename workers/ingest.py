@@ -1,9 +1,10 @@
-"""The ingest worker: validate, store durably, notify, then ack, in batches.
+"""The ingest worker: validate, check, store durably, run the services, then ack, in batches.
 
-A batch is what arrived within a few milliseconds (at most the prefetch). Rejected messages
-are dead-lettered first, accepted ones are written in one transaction, notifications for the new
-ones follow, and only then is the batch acked. A crash anywhere before the ack means
-redelivery, and the store's (robot, seq) key turns redelivery into a no-op.
+A batch is what arrived within a few milliseconds (at most the prefetch). Messages that fail
+validation or a check are dead-lettered with their reason, the others are written in one
+transaction, the services (hazards, maps, battery) act on them and publish their notifications,
+and only then is the batch acked. A crash anywhere before the ack means redelivery; the store's
+(robot, seq) key and idempotent services turn it into a no-op.
 """
 
 from __future__ import annotations
@@ -65,10 +66,8 @@ class IngestConsumer:
         channel: AbstractChannel,
         queue: AbstractQueue,
         store: Store,
-        notify_exchange: AbstractExchange,
         dead_letter_exchange: AbstractExchange,
         *,
-        service_user: str,
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
         services: Sequence[BatchService] = (),
@@ -80,9 +79,7 @@ class IngestConsumer:
         self._store = store
         self._checks = checks
         self._services = services
-        self._notify_exchange = notify_exchange
         self._dead_letter_exchange = dead_letter_exchange
-        self._service_user = service_user
         self._max_bytes = max_message_bytes
         self._batch_size = batch_size
         self._linger = linger

@@ -60,9 +60,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
         channel,
         queue,
         store,
-        notify_exchange,
         await channel.get_exchange(DEAD_LETTER_EXCHANGE, ensure=False),
-        service_user=SERVICE_USER,
         max_message_bytes=settings.max_message_bytes,
         checks=[KnownRobotsOnly(store), MapCheck(store)],
         services=[
