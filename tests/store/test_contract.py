@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import sqlite3
+import time
+from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -41,6 +43,20 @@ async def test_every_field_round_trips_exactly(store: EventStore) -> None:
     assert found.sent_at.microsecond == 564500 and found.sent_at.tzinfo is not None
 
 
+async def test_mission_and_local_times_round_trip(store: EventStore) -> None:
+    tokyo = timezone(timedelta(hours=9))
+    original = replace(
+        record(seq=7, at=datetime(2021, 6, 2, 3, 25, 26, 999, tzinfo=tokyo)),
+        mission_id="mission-β",
+        received_at=datetime(2021, 6, 1, 18, 25, 27, 1, tzinfo=timezone.utc),
+    )
+    await store.write_events([original])
+    [found] = await store.find_events(EventQuery())
+    assert found == original and found.mission_id == "mission-β"
+    assert found.sent_at.utcoffset() == timedelta(0), "stored and returned in UTC"
+    assert (found.sent_at.microsecond, found.received_at.microsecond) == (999, 1)
+
+
 async def test_writes_are_idempotent_on_robot_and_sequence(store: EventStore) -> None:
     first = await store.write_events([record(seq=0), record(seq=1), record(seq=0)])
     assert [r.inserted for r in first] == [True, True, False]
@@ -61,21 +77,30 @@ async def test_queries_filter_and_order(store: EventStore) -> None:
         record("explorer1", 2, "hazard", T0 + timedelta(seconds=2)),
         record("warden1", 1, "hazard", T0 + timedelta(seconds=3)),
     ]
+    records += [record("warden1", 9, "status", T0 + timedelta(seconds=4))]
+    records += [record("warden1", 10, "status", T0 + timedelta(seconds=4))]
     await store.write_events(list(reversed(records)))
     keys = lambda found: [(r.robot_id, r.seq) for r in found]  # noqa: E731
     assert keys(await store.find_events(EventQuery())) == keys(records), "by time, then robot, then seq"
+    assert keys(await store.find_events(EventQuery(newest_first=True))) == keys(reversed(records))
     assert keys(await store.find_events(EventQuery(type="hazard"))) == [
         ("explorer1", 0),
         ("explorer1", 2),
         ("warden1", 1),
     ]
-    assert keys(await store.find_events(EventQuery(robot_id="warden1"))) == [("warden1", 0), ("warden1", 1)]
+    assert keys(await store.find_events(EventQuery(robot_id="warden1"))) == [
+        ("warden1", 0),
+        ("warden1", 1),
+        ("warden1", 9),
+        ("warden1", 10),
+    ]
     window = EventQuery(since=T0 + timedelta(seconds=1), until=T0 + timedelta(seconds=3))
     assert keys(await store.find_events(window)) == [("explorer1", 1), ("warden1", 0), ("explorer1", 2)]
     newest = EventQuery(limit=2, newest_first=True)
-    assert keys(await store.find_events(newest)) == [("warden1", 1), ("explorer1", 2)]
+    assert keys(await store.find_events(newest)) == [("warden1", 10), ("warden1", 9)], "seq is numeric"
     assert await store.count_events(type="hazard") == 3
-    assert await store.count_events(robot_id="warden1") == 2
+    assert await store.count_events(robot_id="warden1") == 4
+    assert await store.count_events() == 7
     assert await store.count_events(type="hazard", robot_id="warden1") == 1
 
 
@@ -90,8 +115,10 @@ async def test_locked_sqlite_is_unavailable_and_nothing_is_written(tmp_path: Pat
     async with SQLiteEventStore(tmp_path / "store.sqlite3", busy_timeout=0.2) as store:
         locker = sqlite3.connect(tmp_path / "store.sqlite3", isolation_level=None)
         locker.execute("BEGIN EXCLUSIVE")
+        started = time.monotonic()
         with pytest.raises(StoreUnavailable, match="locked"):
             await store.write_events([record(seq=0)])
+        assert time.monotonic() - started < 10, "the busy timeout bounds the wait"
         locker.execute("ROLLBACK")
         locker.close()
         assert await store.count_events() == 0
@@ -99,8 +126,28 @@ async def test_locked_sqlite_is_unavailable_and_nothing_is_written(tmp_path: Pat
         assert result.inserted
 
 
+async def test_a_failed_sqlite_batch_writes_nothing_and_leaves_no_transaction(tmp_path: Path) -> None:
+    async with SQLiteEventStore(tmp_path / "store.sqlite3") as store:
+        broken = replace(record(seq=1), type=None)  # type: ignore[arg-type]
+        with pytest.raises(sqlite3.IntegrityError):
+            await store.write_events([record(seq=0), broken])
+        assert await store.count_events() == 0
+        [result] = await store.write_events([record(seq=0)])
+        assert result.inserted
+
+
 async def test_unreachable_mongodb_is_unavailable() -> None:
-    store = MongoEventStore("mongodb://127.0.0.1:9/fleetbus", server_selection_timeout=0.5)
-    with pytest.raises(StoreUnavailable, match=r"127\.0\.0\.1:9"):
-        await store.open()
-    await store.close()
+    url = "mongodb://fleet:s3cret@127.0.0.1:9,127.0.0.1:11/fleetbus"
+    store = MongoEventStore(url, server_selection_timeout=0.5)
+    try:
+        with pytest.raises(StoreUnavailable, match=r"127\.0\.0\.1:9,127\.0\.0\.1:11/fleetbus") as opened:
+            await store.open()
+        assert "s3cret" not in str(opened.value)
+        with pytest.raises(StoreUnavailable):
+            await store.write_events([record(seq=0)])
+        with pytest.raises(StoreUnavailable):
+            await store.find_events(EventQuery())
+        with pytest.raises(StoreUnavailable):
+            await store.count_events()
+    finally:
+        await store.close()

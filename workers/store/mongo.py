@@ -98,7 +98,9 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
     def _database(self) -> Any:
         if self._client is None:
             raise RuntimeError("the store is not open")
-        # journaled majority writes: acknowledged data survives a crash of the primary
+        # Journaled majority writes: acknowledged data survives a crash of the primary. mongod
+        # accepts "majority" on a standalone too; mongoeco accepts both (its memory engine has no
+        # journal, so j is a no-op there), so no fallback is needed.
         return self._client.get_database(
             self._database_name, write_concern=WriteConcern(w="majority", j=True)
         )
@@ -130,8 +132,9 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
 
     def _safe_url(self) -> str:
-        parts = urlsplit(self.url)
-        return f"{parts.hostname}:{parts.port or 27017}/{self._database_name}"
+        """Hosts and database without credentials (``urlsplit().port`` fails on a host list)."""
+        hosts = urlsplit(self.url).netloc.rpartition("@")[2]
+        return f"{hosts}/{self._database_name}"
 
     async def close(self) -> None:
         if self._client is not None:
@@ -146,10 +149,17 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
         try:
             await self._events().insert_many(documents, ordered=False)
         except BulkWriteError as error:
-            others = [e for e in error.details.get("writeErrors", []) if e.get("code") != DUPLICATE_KEY]
-            if others:
+            errors = error.details.get("writeErrors", [])
+            if any(e.get("code") != DUPLICATE_KEY for e in errors):
                 raise
-            duplicates = {e["index"] for e in error.details["writeErrors"]}
+            if error.details.get("writeConcernErrors"):
+                # the documents reached the primary but are not known durable: not safe to ack;
+                # a retry is harmless because the ids make it idempotent
+                raise StoreUnavailable(
+                    f"MongoDB at {self._safe_url()}: write concern not met: "
+                    f"{error.details['writeConcernErrors']}"
+                ) from error
+            duplicates = {e["index"] for e in errors}
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
         # a key repeated inside the batch: MongoDB inserts the first copy and reports the others

@@ -25,7 +25,7 @@ from workers.store.base import (
 )
 from workers.store.interface import Store
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
-from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
+from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, in_transaction
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 
 T = TypeVar("T")
@@ -52,6 +52,11 @@ CREATE INDEX IF NOT EXISTS events_message_id ON events (message_id);
 """
 COLUMNS = (
     "robot_id, seq, type, message_id, sent_at, received_at, body, user_id, exchange, routing_key, mission_id"
+)
+# Unlike INSERT OR IGNORE, this skips only an existing key: a NOT NULL violation still raises
+# instead of being reported as a duplicate.
+INSERT = (
+    f"INSERT INTO events ({COLUMNS}) VALUES ({','.join('?' * 11)}) ON CONFLICT (robot_id, seq) DO NOTHING"
 )
 TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
 
@@ -106,10 +111,13 @@ class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
                 if self._db is None:
                     self._db = self._connect()
                 return work(self._db)
-            except sqlite3.OperationalError as error:
+            except BaseException as error:
+                # whatever failed, the next call must not find this transaction still open
                 if self._db is not None and self._db.in_transaction:
                     self._db.rollback()
-                if any(word in str(error).lower() for word in TRANSIENT):
+                if isinstance(error, sqlite3.OperationalError) and any(
+                    word in str(error).lower() for word in TRANSIENT
+                ):
                     raise StoreUnavailable(f"SQLite {self.path}: {error}") from error
                 raise
 
@@ -149,15 +157,9 @@ class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
         rows = [_row(record) for record in records]
 
         def write(db: sqlite3.Connection) -> list[WriteResult]:
-            results: list[WriteResult] = []
-            db.execute("BEGIN IMMEDIATE")
-            for row in rows:
-                cursor = db.execute(
-                    f"INSERT OR IGNORE INTO events ({COLUMNS}) VALUES ({','.join('?' * 11)})", row
-                )
-                results.append(WriteResult(inserted=cursor.rowcount == 1))
-            db.execute("COMMIT")
-            return results
+            return in_transaction(
+                db, lambda: [WriteResult(inserted=db.execute(INSERT, row).rowcount == 1) for row in rows]
+            )
 
         return await self._run(write)
 
