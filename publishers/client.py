@@ -19,6 +19,7 @@ from urllib.parse import unquote, urlsplit
 
 import pika
 import pika.exceptions
+from pika.adapters.blocking_connection import BlockingChannel
 
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import BrokerUnavailable
@@ -144,10 +145,18 @@ class RobotClient:
         return events
 
     def send(self, events: Sequence[Event]) -> None:
-        """Publish already built events (also a resend: same sequence number, no second record)."""
+        """Publish already built events (also a resend: same sequence number, no second record).
+
+        A window whose confirms were lost with the connection is sent again on a new one, once:
+        the store's (robot, seq) key makes the second copy harmless.
+        """
         for start in range(0, len(events), PUBLISH_WINDOW):
             window = [to_outgoing(event) for event in events[start : start + PUBLISH_WINDOW]]
-            self._ready().publish(window, self._confirm_timeout)
+            try:
+                self._ready().publish(window, self._confirm_timeout)
+            except BrokerUnavailable:
+                self.connect()
+                self._ready().publish(window, self._confirm_timeout)
 
     # services
     def call(self, method: str, timeout: float = 5.0, **params: Any) -> Any:
@@ -211,10 +220,7 @@ class RobotClient:
         Each notification is acked when the caller asks for the next one or stops iterating, so
         one that was being handled when the robot process died is delivered again.
         """
-        if self._connection is None or not self._connection.is_open:
-            self.connect()
-        assert self._connection is not None
-        channel = self._connection.channel()
+        channel = self._open_consumer_channel()
         channel.basic_qos(prefetch_count=prefetch)
         try:
             for method, _properties, body in channel.consume(
@@ -232,13 +238,27 @@ class RobotClient:
                 channel.cancel()
                 channel.close()
 
+    def _open_consumer_channel(self) -> BlockingChannel:
+        """A new channel, reconnecting first when the connection is gone (the broker restarted)."""
+        if self._connection is not None and self._connection.is_open:
+            try:
+                return self._connection.channel()
+            except pika.exceptions.AMQPError:
+                pass  # the connection died under us; start a new one
+        self.connect()
+        assert self._connection is not None
+        return self._connection.channel()
+
     def receive(self, count: int, timeout: float) -> list[Notification]:
         """Exactly ``count`` notifications, or fewer if ``timeout`` passes first."""
         received: list[Notification] = []
         deadline = time.monotonic() + timeout
         while len(received) < count and time.monotonic() < deadline:
-            for note in self.notifications(timeout=max(0.1, deadline - time.monotonic())):
-                received.append(note)
-                if len(received) == count:
-                    break
+            try:
+                for note in self.notifications(timeout=max(0.1, deadline - time.monotonic())):
+                    received.append(note)
+                    if len(received) == count:
+                        break
+            except pika.exceptions.AMQPError:
+                continue  # the broker went away; the unacked notification comes again after reconnecting
         return received

@@ -53,14 +53,15 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     channel = await connection.channel(publisher_confirms=True)
     await channel.set_qos(prefetch_count=PREFETCH)
     await declare(channel, [core_topology()])
-    queue = await channel.get_queue(INGEST_QUEUE, ensure=False)
-    notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE, ensure=False)
+    # fetched (not just named) so the robust channel re-consumes them after a broker restart
+    queue = await channel.get_queue(INGEST_QUEUE)
+    notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
     coordinator = HazardCoordinator(store, notify_exchange, SERVICE_USER)
     consumer = IngestConsumer(
         channel,
         queue,
         store,
-        await channel.get_exchange(DEAD_LETTER_EXCHANGE, ensure=False),
+        await channel.get_exchange(DEAD_LETTER_EXCHANGE),
         max_message_bytes=settings.max_message_bytes,
         checks=[KnownRobotsOnly(store), MapCheck(store)],
         services=[
@@ -75,7 +76,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     await rpc_channel.set_qos(prefetch_count=32)
     rpc = RpcServer(
         rpc_channel,
-        await rpc_channel.get_queue(RPC_QUEUE, ensure=False),
+        await rpc_channel.get_queue(RPC_QUEUE),
         {**hazard_services(store), **beacon_services(store), **map_services(store)},
     )
     await rpc.start()
