@@ -6,8 +6,6 @@ server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/
 
 from __future__ import annotations
 
-import os
-import subprocess
 import uuid
 from collections.abc import Iterator
 from dataclasses import replace
@@ -19,7 +17,8 @@ from broker.accounts import fresh_vhost
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
-from tests.support import PROJECT_ROOT, Bus
+from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
+from tests.support import Bus
 
 
 @pytest.fixture(scope="session")
@@ -51,33 +50,3 @@ def bus(endpoint: BrokerEndpoint, management: ManagementAPI, tmp_path: Path) -> 
     finally:
         test_bus.remove_accounts()
         management.delete_vhost(vhost)
-
-
-MONGOECO_PYTHON = PROJECT_ROOT / ".venv-mongoeco" / "bin" / "python"
-MONGOECO_SERVER = PROJECT_ROOT / "tests" / "store" / "mongoeco_server.py"
-
-
-@pytest.fixture(scope="session")
-def mongodb_url() -> Iterator[str]:
-    """A MongoDB to test against; skips (saying why) when there is none."""
-    if os.environ.get("FLEETBUS_MONGODB_URL"):
-        yield os.environ["FLEETBUS_MONGODB_URL"]
-        return
-    if not MONGOECO_PYTHON.exists():
-        pytest.skip("no MongoDB: FLEETBUS_MONGODB_URL is unset and .venv-mongoeco (Python 3.13) is missing")
-    server = subprocess.Popen(
-        [str(MONGOECO_PYTHON), str(MONGOECO_SERVER)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert server.stdout is not None and server.stderr is not None
-        port = server.stdout.readline().strip()  # the server prints its port once it listens
-        if not port:
-            server.wait(30)
-            pytest.fail(f"mongoeco's server exited ({server.returncode}): {server.stderr.read()[-2000:]}")
-        yield f"mongodb://127.0.0.1:{int(port)}/"
-    finally:
-        server.terminate()
-        server.wait(30)
