@@ -6,19 +6,16 @@ server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/
 
 from __future__ import annotations
 
-import uuid
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from broker.accounts import fresh_vhost
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
-from tests.support import Bus
+from tests.support import Bus, fresh_bus
 
 
 @pytest.fixture(scope="session")
@@ -35,18 +32,5 @@ def management(endpoint: BrokerEndpoint) -> Iterator[ManagementAPI]:
 
 @pytest.fixture
 def bus(endpoint: BrokerEndpoint, management: ManagementAPI, tmp_path: Path) -> Iterator[Bus]:
-    vhost = f"test-{uuid.uuid4().hex[:10]}"
-    admin_url = fresh_vhost(management, endpoint.amqp_url, vhost)
-    settings = replace(
-        load_settings(),
-        data_dir=tmp_path,
-        amqp_url=admin_url,
-        management_url=endpoint.management_url,
-        mongodb_url=None,
-    )
-    test_bus = Bus(endpoint, management, vhost, settings)
-    try:
+    with fresh_bus(endpoint, management, tmp_path) as test_bus:
         yield test_bus
-    finally:
-        test_bus.remove_accounts()
-        management.delete_vhost(vhost)

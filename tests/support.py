@@ -16,10 +16,10 @@ from typing import Any, TypeVar
 
 import pika
 
-from broker.accounts import Account, Role, provision_account
+from broker.accounts import Account, Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
-from fleetbus.config import Settings
+from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from schemas.routing import RobotKind
@@ -125,3 +125,23 @@ class Bus:
             return connection.channel().queue_declare(queue, passive=True).method.message_count
         finally:
             connection.close()
+
+
+@contextmanager
+def fresh_bus(endpoint: BrokerEndpoint, api: ManagementAPI, data_dir: Path) -> Iterator[Bus]:
+    """A new virtual host and data directory on ``endpoint``; accounts and vhost removed after."""
+    vhost = f"test-{uuid.uuid4().hex[:10]}"
+    admin_url = fresh_vhost(api, endpoint.amqp_url, vhost)
+    settings = replace(
+        load_settings(),
+        data_dir=data_dir,
+        amqp_url=admin_url,
+        management_url=endpoint.management_url,
+        mongodb_url=None,
+    )
+    bus = Bus(endpoint, api, vhost, settings)
+    try:
+        yield bus
+    finally:
+        bus.remove_accounts()
+        api.delete_vhost(vhost)

@@ -5,21 +5,17 @@ This test runs its own private node (not the suite's shared one), so it can kill
 
 from __future__ import annotations
 
-import uuid
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from broker.accounts import fresh_vhost
 from broker.endpoint import BrokerEndpoint
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
-from fleetbus.config import load_settings
 from schemas.routing import RobotKind
 from tests.factories import status
-from tests.support import Bus, wait_for
+from tests.support import Bus, fresh_bus, wait_for
 from workers.store.base import EventQuery
 
 
@@ -38,19 +34,11 @@ def killable_bus(own_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
     info = own_node.up()
     assert info.amqp_url and info.management_url
     endpoint = BrokerEndpoint(info.amqp_url, info.management_url, "private")
-    with ManagementAPI.from_urls(info.management_url, info.amqp_url) as api:
-        vhost = f"test-{uuid.uuid4().hex[:10]}"
-        admin_url = fresh_vhost(api, info.amqp_url, vhost)
-        settings = replace(
-            load_settings(),
-            data_dir=tmp_path,
-            amqp_url=admin_url,
-            management_url=info.management_url,
-            mongodb_url=None,
-        )
-        bus = Bus(endpoint, api, vhost, settings)
+    with (
+        ManagementAPI.from_urls(info.management_url, info.amqp_url) as api,
+        fresh_bus(endpoint, api, tmp_path) as bus,
+    ):
         yield bus
-        bus.remove_accounts()
 
 
 def test_broker_killed_and_restarted_under_load(killable_bus: Bus, own_node: LocalNode) -> None:
