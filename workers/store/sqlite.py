@@ -1,31 +1,28 @@
 """The embedded default store: SQLite in WAL mode, one durable transaction per batch.
 
-All SQLite work runs on one thread owned by the store, off the event loop. ``synchronous=FULL``
-makes each commit durable before ``write_events`` returns, which is what the worker's ack waits for.
+All SQLite work runs on one thread owned by the store (:mod:`workers.store.sqlite_database`);
+each commit is durable before ``write_events`` returns, which is what the worker's ack waits for.
 """
 
 from __future__ import annotations
 
-import asyncio
 import json
 import sqlite3
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from datetime import datetime
-from pathlib import Path
 from typing import Any, TypeVar
 
 from workers.store.base import (
     EventQuery,
     EventRecord,
-    StoreUnavailable,
     WriteResult,
     from_micros,
     to_micros,
 )
 from workers.store.interface import Store
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
-from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, in_transaction
+from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
+from workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 
 T = TypeVar("T")
@@ -58,7 +55,6 @@ COLUMNS = (
 INSERT = (
     f"INSERT INTO events ({COLUMNS}) VALUES ({','.join('?' * 11)}) ON CONFLICT (robot_id, seq) DO NOTHING"
 )
-TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
 
 
 def _row(record: EventRecord) -> tuple[Any, ...]:
@@ -93,65 +89,14 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
+class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
     name = "sqlite"
 
-    def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
-        self.path = path
-        self._busy_timeout = busy_timeout
-        self._executor: ThreadPoolExecutor | None = None
-        self._db: sqlite3.Connection | None = None
-
-    async def _run(self, work: Callable[[sqlite3.Connection], T]) -> T:
-        if self._executor is None:
-            raise RuntimeError("the store is not open")
-
-        def call() -> T:
-            try:
-                if self._db is None:
-                    self._db = self._connect()
-                return work(self._db)
-            except BaseException as error:
-                # whatever failed, the next call must not find this transaction still open
-                if self._db is not None and self._db.in_transaction:
-                    self._db.rollback()
-                if isinstance(error, sqlite3.OperationalError) and any(
-                    word in str(error).lower() for word in TRANSIENT
-                ):
-                    raise StoreUnavailable(f"SQLite {self.path}: {error}") from error
-                raise
-
-        return await asyncio.get_running_loop().run_in_executor(self._executor, call)
-
-    def _connect(self) -> sqlite3.Connection:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        db = sqlite3.connect(self.path, timeout=self._busy_timeout, isolation_level=None)
-        db.row_factory = sqlite3.Row
-        db.execute("PRAGMA journal_mode=WAL")
-        db.execute("PRAGMA synchronous=FULL")
+    def _prepare(self, db: sqlite3.Connection) -> None:
         db.executescript(SCHEMA)
         db.executescript(HAZARD_SCHEMA)
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
-        return db
-
-    async def open(self) -> None:
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fleetbus-sqlite")
-        await self._run(lambda db: None)
-
-    async def close(self) -> None:
-        if self._executor is None:
-            return
-
-        def shut(db: sqlite3.Connection) -> None:
-            db.close()
-            self._db = None
-
-        if self._db is not None:
-            await self._run(shut)
-        self._executor.shutdown(wait=True)
-        self._executor = None
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         rows = [_row(record) for record in records]

@@ -17,6 +17,7 @@ from workers.store.hazards import (
     Transition,
     refuse_transition,
 )
+from workers.store.sqlite_database import in_transaction
 
 T = TypeVar("T")
 
@@ -80,17 +81,6 @@ def _one(db: sqlite3.Connection, mission_id: str, hazard_id: int) -> Hazard | No
         "SELECT * FROM hazards WHERE mission_id = ? AND hazard_id = ?", (mission_id, hazard_id)
     ).fetchone()
     return _hazard(row) if row else None
-
-
-def in_transaction(db: sqlite3.Connection, work: Callable[[], T]) -> T:
-    db.execute("BEGIN IMMEDIATE")
-    try:
-        result = work()
-    except BaseException:
-        db.execute("ROLLBACK")
-        raise
-    db.execute("COMMIT")
-    return result
 
 
 class SQLiteCoordination(CoordinationStore):

@@ -10,7 +10,7 @@ from typing import Any
 
 from workers.store.base import from_micros, to_micros
 from workers.store.maps import MapRejected, MapStore, MapVersion
-from workers.store.sqlite_coordination import in_transaction
+from workers.store.sqlite_database import in_transaction
 
 MAP_SCHEMA = """
 CREATE TABLE IF NOT EXISTS map_staging (
