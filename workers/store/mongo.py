@@ -9,17 +9,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
-from urllib.parse import urlsplit
 
-from pymongo import ASCENDING, DESCENDING, AsyncMongoClient
-from pymongo.errors import (
-    AutoReconnect,
-    BulkWriteError,
-    ConnectionFailure,
-    NetworkTimeout,
-    ServerSelectionTimeoutError,
-)
-from pymongo.write_concern import WriteConcern
+from pymongo import ASCENDING, DESCENDING
+from pymongo.errors import BulkWriteError
 
 from workers.store.base import (
     EventQuery,
@@ -31,11 +23,8 @@ from workers.store.base import (
 )
 from workers.store.interface import Store
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
+from workers.store.mongo_database import DUPLICATE_KEY, UNAVAILABLE, MongoDatabase
 from workers.store.mongo_maps import MongoMaps
-
-DUPLICATE_KEY = 11000
-UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
-DEFAULT_DATABASE = "fleetbus"
 
 
 class RobotSequenceId:
@@ -44,11 +33,6 @@ class RobotSequenceId:
     @staticmethod
     def of(robot_id: str, seq: int) -> str:
         return f"{robot_id}:{seq}"
-
-
-def database_name(url: str) -> str:
-    path = urlsplit(url).path.strip("/")
-    return path or DEFAULT_DATABASE
 
 
 def to_document(record: EventRecord) -> dict[str, Any]:
@@ -86,37 +70,15 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
-class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
+class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps, Store):
     name = "mongodb"
 
-    def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
-        self.url = url
-        self._database_name = database or database_name(url)
-        self._timeout_ms = int(server_selection_timeout * 1000)
-        self._client: AsyncMongoClient[dict[str, Any]] | None = None
-
-    def _database(self) -> Any:
-        if self._client is None:
-            raise RuntimeError("the store is not open")
-        # Journaled majority writes: acknowledged data survives a crash of the primary. mongod
-        # accepts "majority" on a standalone too; mongoeco accepts both (its memory engine has no
-        # journal, so j is a no-op there), so no fallback is needed.
-        return self._client.get_database(
-            self._database_name, write_concern=WriteConcern(w="majority", j=True)
-        )
-
-    def _collection(self, name: str) -> Any:
-        return self._database()[name]
-
     def _events(self) -> Any:
-        """The collection of events (one for all types; the recorder issue splits it per type)."""
+        """The event log: every validated event, one collection (the recording keeps one per type)."""
         return self._collection("events")
 
     async def open(self) -> None:
-        if self._client is None:
-            self._client = AsyncMongoClient(
-                self.url, serverSelectionTimeoutMS=self._timeout_ms, tz_aware=True
-            )
+        self._connect()
         try:
             events = self._events()
             await events.create_index([("type", ASCENDING), ("sent_at_us", ASCENDING)])
@@ -130,16 +92,6 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
             await self._collection("map_staging").create_index([("map_id", ASCENDING)])
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
-
-    def _safe_url(self) -> str:
-        """Hosts and database without credentials (``urlsplit().port`` fails on a host list)."""
-        hosts = urlsplit(self.url).netloc.rpartition("@")[2]
-        return f"{hosts}/{self._database_name}"
-
-    async def close(self) -> None:
-        if self._client is not None:
-            await self._client.close()
-            self._client = None
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         if not records:
