@@ -35,6 +35,11 @@ class Settings:
         return self.data_dir / "store.sqlite3"
 
     @property
+    def recording_path(self) -> Path:
+        """The recorder's SQLite file (apart from the event log's, so neither waits for the other)."""
+        return self.data_dir / "recording.sqlite3"
+
+    @property
     def broker_dir(self) -> Path:
         return self.data_dir / "broker"
 

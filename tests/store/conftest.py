@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import uuid
 from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from pathlib import Path
 
 import pytest
@@ -12,7 +13,24 @@ from pymongo import AsyncMongoClient
 from tests.store.mongodb import mongodb_url  # noqa: F401  (re-exported fixture)
 from workers.store.interface import Store
 from workers.store.mongo import MongoEventStore
+from workers.store.mongo_recordings import MongoRecordingStore
+from workers.store.recordings import RecordingStore
 from workers.store.sqlite import SQLiteEventStore
+from workers.store.sqlite_recordings import SQLiteRecordingStore
+
+
+@asynccontextmanager
+async def fresh_database(url: str) -> AsyncIterator[str]:
+    """A database name of this test's own, dropped after it (a real server would keep them all)."""
+    database = f"test_{uuid.uuid4().hex[:12]}"
+    try:
+        yield database
+    finally:
+        client: AsyncMongoClient[dict[str, object]] = AsyncMongoClient(url, serverSelectionTimeoutMS=5000)
+        try:
+            await client.drop_database(database)
+        finally:
+            await client.close()
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])
@@ -22,14 +40,17 @@ async def store(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator
             yield adapter
         return
     url: str = request.getfixturevalue("mongodb_url")
-    database = f"test_{uuid.uuid4().hex[:12]}"
-    try:
-        async with MongoEventStore(url, database=database) as adapter:
+    async with fresh_database(url) as database, MongoEventStore(url, database=database) as adapter:
+        yield adapter
+
+
+@pytest.fixture(params=["sqlite", "mongodb"])
+async def recording(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[RecordingStore]:
+    """The recording store on each adapter, empty."""
+    if request.param == "sqlite":
+        async with SQLiteRecordingStore(tmp_path / "recording.sqlite3") as adapter:
             yield adapter
-    finally:
-        # a real server given by FLEETBUS_MONGODB_URL would otherwise keep every test's database
-        client: AsyncMongoClient[dict[str, object]] = AsyncMongoClient(url, serverSelectionTimeoutMS=5000)
-        try:
-            await client.drop_database(database)
-        finally:
-            await client.close()
+        return
+    url: str = request.getfixturevalue("mongodb_url")
+    async with fresh_database(url) as database, MongoRecordingStore(url, database=database) as adapter:
+        yield adapter

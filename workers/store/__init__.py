@@ -10,6 +10,7 @@ from fleetbus.config import Settings
 from workers.store.base import EventQuery, EventRecord, EventStore, StoreError, StoreUnavailable, WriteResult
 from workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
 from workers.store.interface import Store
+from workers.store.recordings import RecordingStore
 
 T = TypeVar("T")
 
@@ -20,11 +21,13 @@ __all__ = [
     "Hazard",
     "HazardRefused",
     "HazardState",
+    "RecordingStore",
     "RobotState",
     "Store",
     "StoreError",
     "StoreUnavailable",
     "WriteResult",
+    "open_recording_store",
     "open_store",
     "run_with_store",
 ]
@@ -49,3 +52,15 @@ def open_store(settings: Settings) -> Store:
     from workers.store.sqlite import SQLiteEventStore
 
     return SQLiteEventStore(settings.sqlite_path)
+
+
+def open_recording_store(settings: Settings) -> RecordingStore:
+    """The recorder's store: MongoDB collections ``recorded.<type>`` when ``mongodb_url`` is set,
+    else a SQLite file of its own next to the event log; not yet opened."""
+    if settings.mongodb_url:
+        from workers.store.mongo_recordings import MongoRecordingStore
+
+        return MongoRecordingStore(settings.mongodb_url)
+    from workers.store.sqlite_recordings import SQLiteRecordingStore
+
+    return SQLiteRecordingStore(settings.recording_path)

@@ -1,0 +1,278 @@
+"""The recording: every message seen on the bus, one collection (or table) per message type.
+
+This is the recorder's storage, apart from the event log the services use: it keeps what was
+received, as received, including types no schema knows. Each record carries when it was
+recorded and where it came from (the broker-validated ``user_id``, exchange, routing key).
+
+Queries name fields of the stored document by dotted paths (``body.name``, ``frame``) and
+compare them with JSON scalars; both adapters give the same answers (``tests/store``).
+"""
+
+from __future__ import annotations
+
+import abc
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from datetime import datetime
+from enum import Enum
+from typing import Any, Union
+
+from workers.store.base import WriteResult
+
+Scalar = Union[str, int, float, bool, None]  # noqa: UP007  (a runtime alias; Python 3.10 reads it)
+
+#: Type names become table and collection names: short, lower case, nothing a query could abuse.
+TYPE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,39}$")
+#: One segment of a field path: a key (letters, digits, ``_``, ``-``) or an array index.
+PATH_SEGMENT = re.compile(r"^(?:[A-Za-z_][A-Za-z0-9_-]{0,63}|[0-9]{1,6})$")
+
+
+class RecordingError(ValueError):
+    """A query the recording cannot run; the message names the problem."""
+
+
+def check_type_name(name: str) -> str:
+    if not TYPE_NAME.fullmatch(name):
+        raise RecordingError(
+            f"invalid type {name!r}: use 1-40 lower-case letters, digits or '_', starting with a letter"
+        )
+    return name
+
+
+def check_path(path: str) -> tuple[str, ...]:
+    """The segments of a dotted field path, or :class:`RecordingError` naming the bad one."""
+    segments = tuple(path.split("."))
+    for segment in segments:
+        if not PATH_SEGMENT.fullmatch(segment):
+            raise RecordingError(
+                f"invalid field {path!r}: segment {segment!r} must be a name (letters, digits, '_', '-') "
+                "or an array index"
+            )
+    return segments
+
+
+@dataclass(frozen=True)
+class RecordedMessage:
+    """One message as the recorder received it, with its provenance."""
+
+    key: str
+    """Idempotency key: the same message delivered twice is recorded once."""
+    type: str
+    recorded_at: datetime
+    exchange: str
+    """The exchange it was published to (the robot's own ``<robot>.events`` for events)."""
+    routing_key: str
+    user_id: str | None
+    """The broker-validated publisher (AMQP ``user_id``); None when the publisher set none."""
+    robot_id: str | None
+    """The robot it came from (events, requests, dead letters); None for the service's messages."""
+    message_id: str | None = None
+    mission_id: str | None = None
+    sent_at: datetime | None = None
+    seq: int | None = None
+    known: bool = False
+    """Whether a fleetbus schema describes this type; unknown types are stored as received."""
+    problem: str | None = None
+    """Why the body is kept raw or not at all (not JSON, too large, not storable as a document)."""
+    document: Any = None
+    """The body as parsed JSON, as received; None when kept raw."""
+    raw: bytes | None = None
+    """The body's bytes, when it is not JSON (or not storable as a document)."""
+    properties: dict[str, Any] = field(default_factory=dict)
+    """AMQP properties and headers that matter for replay and analysis, JSON-safe."""
+    size: int = 0
+    """Bytes of the message body as received."""
+
+    def as_raw(self, problem: str, body: bytes) -> RecordedMessage:
+        """The same record with the body kept as bytes, saying why (for a store that cannot hold it)."""
+        return replace(self, document=None, raw=body, problem=problem)
+
+
+class Op(str, Enum):
+    EQ = "="
+    NE = "!="
+    LT = "<"
+    LE = "<="
+    GT = ">"
+    GE = ">="
+    CONTAINS = "~"
+
+
+ORDERING = (Op.LT, Op.LE, Op.GT, Op.GE)
+
+
+@dataclass(frozen=True)
+class Condition:
+    """``path op value`` on the stored document.
+
+    ``= null`` matches a missing or null field and ``!= null`` a present one; ``!=`` also
+    matches documents without the field. Ordering compares numbers with numbers and strings
+    with strings only; ``~`` is a case-sensitive substring test on strings.
+    """
+
+    path: str
+    op: Op
+    value: Scalar
+
+    def __post_init__(self) -> None:
+        check_path(self.path)
+        if self.op in ORDERING and (self.value is None or isinstance(self.value, bool)):
+            raise RecordingError(f"{self.path} {self.op.value} {self.value!r}: order by a number or a string")
+        if self.op is Op.CONTAINS and not isinstance(self.value, str):
+            raise RecordingError(f"{self.path} ~ {self.value!r}: '~' looks for a string")
+
+
+@dataclass(frozen=True)
+class RecordQuery:
+    type: str
+    conditions: tuple[Condition, ...] = ()
+    robot_id: str | None = None
+    message_id: str | None = None
+    since: datetime | None = None
+    """Inclusive lower bound on ``recorded_at``."""
+    until: datetime | None = None
+    """Exclusive upper bound on ``recorded_at``."""
+    limit: int | None = None
+    newest_first: bool = False
+
+
+@dataclass(frozen=True)
+class TypeSummary:
+    type: str
+    records: int
+    bytes: int
+    """Sum of the recorded bodies' sizes."""
+    first: datetime | None
+    last: datetime | None
+
+
+#: Decimal places kept of computed means and deviations (durations in seconds: nanoseconds).
+DIGITS = 9
+
+
+@dataclass(frozen=True)
+class OutcomeStats:
+    """Successes, failures and duration of one group (one behaviour), as the database computed them."""
+
+    name: str
+    successes: int
+    failures: int
+    mean_duration: float
+    std_duration: float
+    """Population standard deviation, as in the reference's MapReduce ``finalize``."""
+
+    @property
+    def runs(self) -> int:
+        return self.successes + self.failures
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / self.runs if self.runs else 0.0
+
+    @classmethod
+    def of(cls, name: str, successes: int, runs: int, mean: float, std: float) -> OutcomeStats:
+        """What an adapter's database computed, rounded alike (the last bits of a float sum depend
+        on the order and method of summation, which differ between databases)."""
+        return cls(name, int(successes), int(runs - successes), round(mean, DIGITS), round(std, DIGITS))
+
+
+@dataclass(frozen=True)
+class OutcomeFields:
+    """Where a type's documents keep the group name, the success flag and the duration."""
+
+    name: str = "body.name"
+    success: str = "body.success"
+    duration: str = "body.duration_s"
+
+
+@dataclass(frozen=True)
+class StorageSample:
+    """The recorder's periodic look at the database: its size, and what it inserted since the last look."""
+
+    sampled_at: datetime
+    run_id: str
+    database_bytes: int
+    inserted: int
+
+
+class RecordingStore(abc.ABC):
+    """Async storage of recorded messages. Implementations: SQLite (embedded) and MongoDB."""
+
+    name: str
+
+    @abc.abstractmethod
+    async def open(self) -> None: ...
+
+    @abc.abstractmethod
+    async def close(self) -> None: ...
+
+    @abc.abstractmethod
+    async def write_recorded(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
+        """Store a batch durably (one collection per type, made on first sight), skipping known keys.
+
+        Returns one result per record, in order. A record the database cannot hold as a
+        document is stored with its body raw and a ``problem`` saying so, never dropped.
+        Raises :class:`~workers.store.base.StoreUnavailable` when the database cannot be reached.
+        """
+
+    @abc.abstractmethod
+    async def find_recorded(self, query: RecordQuery) -> list[RecordedMessage]:
+        """Records of one type matching the query, by ``recorded_at`` then key."""
+
+    @abc.abstractmethod
+    async def recorded_types(self) -> list[str]:
+        """The name of every type recorded so far, sorted."""
+
+    @abc.abstractmethod
+    async def type_summary(self, type: str) -> TypeSummary:
+        """How many records of a type, their bytes, the first and last recording times."""
+
+    @abc.abstractmethod
+    async def ensure_field_index(self, type: str, paths: Sequence[str]) -> None:
+        """An index on these document fields (then ``recorded_at``) of a type; idempotent."""
+
+    @abc.abstractmethod
+    async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
+        """The field paths of each field index of a type."""
+
+    @abc.abstractmethod
+    async def outcome_stats(
+        self,
+        type: str,
+        fields: OutcomeFields,
+        since: datetime | None = None,
+        until: datetime | None = None,
+        robot_id: str | None = None,
+    ) -> list[OutcomeStats]:
+        """Per name: successes (``success`` is true), failures, and mean and standard deviation of
+        ``duration`` over records with a string name and a numeric duration, by name."""
+
+    # retention
+    @abc.abstractmethod
+    async def delete_recorded_before(self, type: str, before: datetime) -> int: ...
+
+    @abc.abstractmethod
+    async def oldest_recorded(self, type: str, limit: int) -> list[tuple[str, int]]:
+        """``(key, size)`` of the oldest records of a type."""
+
+    @abc.abstractmethod
+    async def delete_recorded(self, type: str, keys: Sequence[str]) -> int: ...
+
+    # statistics
+    @abc.abstractmethod
+    async def database_bytes(self) -> int:
+        """What the recording takes in the database now (files on disk, or data and indexes)."""
+
+    @abc.abstractmethod
+    async def add_sample(self, sample: StorageSample) -> None: ...
+
+    @abc.abstractmethod
+    async def samples(self, since: datetime | None = None) -> list[StorageSample]: ...
+
+    async def __aenter__(self) -> RecordingStore:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
