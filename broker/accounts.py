@@ -9,6 +9,7 @@ checks against the connection's login.
 from __future__ import annotations
 
 import os
+import re
 import secrets
 from dataclasses import dataclass
 from enum import Enum
@@ -21,9 +22,17 @@ import pika.exceptions
 from broker.management import ManagementAPI
 from broker.topology import account_topology, core_topology, declare_with_url
 from schemas.identity import validate_name
-from schemas.routing import SERVICE_PREFIX, RobotKind, events_exchange, owner_pattern, requests_exchange
+from schemas.routing import (
+    RECORDER_QUEUE,
+    SERVICE_PREFIX,
+    RobotKind,
+    events_exchange,
+    owner_pattern,
+    requests_exchange,
+)
 
 SERVICE_USER = SERVICE_PREFIX
+RECORDER_USER = f"{SERVICE_PREFIX}-recorder"
 
 
 class Role(str, Enum):
@@ -112,21 +121,36 @@ async def provision_account(
     return Account(name, role, url_for(admin_url, name, password))
 
 
-def ensure_service_account(admin_url: str, api: ManagementAPI, credentials_dir: Path) -> str:
-    """The workers' own account (``fleetbus``, confined to ``fleetbus.*``); returns its URL.
+def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, name: str, role: Role) -> str:
+    """A service account whose password lives in ``credentials_dir`` (mode 0600); its URL.
 
-    The password lives in ``credentials_dir`` (mode 0600) and is re-keyed when that file is
-    missing, so a fresh data directory never needs the old secret.
+    The password is re-keyed when that file is missing, so a fresh data directory never needs
+    the old secret.
     """
-    vhost = vhost_of(admin_url)
-    secret_file = credentials_dir / f"{SERVICE_USER}.password"
+    secret_file = credentials_dir / f"{name}.password"
     password = secret_file.read_text().strip() if secret_file.exists() else None
-    if password is None or not can_login(url_for(admin_url, SERVICE_USER, password)):
+    if password is None or not can_login(url_for(admin_url, name, password)):
         password = secrets.token_urlsafe(24)
-        api.put_user(SERVICE_USER, password, ROLE_TAGS[Role.SERVICE])
+        api.put_user(name, password, ROLE_TAGS[role])
         save_secret(secret_file, password)
-    _grant(api, vhost, SERVICE_USER, replies=True)
-    return url_for(admin_url, SERVICE_USER, password)
+    return url_for(admin_url, name, password)
+
+
+def ensure_service_account(admin_url: str, api: ManagementAPI, credentials_dir: Path) -> str:
+    """The workers' own account (``fleetbus``, confined to ``fleetbus.*``); returns its URL."""
+    url = _keyed_account(admin_url, api, credentials_dir, SERVICE_USER, Role.SERVICE)
+    _grant(api, vhost_of(admin_url), SERVICE_USER, replies=True)
+    return url
+
+
+def ensure_recorder_account(admin_url: str, api: ManagementAPI, credentials_dir: Path) -> str:
+    """The recorder's account: it may read its one queue and nothing else (it neither declares,
+    binds nor publishes; the administrator declares its queue and bindings). Returns its URL."""
+    url = _keyed_account(admin_url, api, credentials_dir, RECORDER_USER, Role.SERVICE)
+    api.put_permissions(
+        vhost_of(admin_url), RECORDER_USER, configure="^$", write="^$", read=f"^{re.escape(RECORDER_QUEUE)}$"
+    )
+    return url
 
 
 def can_login(amqp_url: str) -> bool:

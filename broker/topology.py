@@ -22,6 +22,7 @@ from schemas.routing import (
     INGEST_EXCHANGE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
+    RECORDER_QUEUE,
     RPC_EXCHANGE,
     RPC_QUEUE,
     SUBSCRIPTIONS,
@@ -94,6 +95,35 @@ def core_topology() -> Topology:
             BindingSpec(RPC_EXCHANGE, RPC_QUEUE, "#"),
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
         ),
+    )
+
+
+#: The recorder's backlog while it is not consuming: beyond this the oldest messages are dropped
+#: (the queue's default overflow), so a recorder that is gone can never stop the robots.
+RECORDER_BACKLOG_BYTES = 1024**3
+#: Every exchange the service's traffic passes: robots' events, notifications, requests, dead letters.
+RECORDED_EXCHANGES = (INGEST_EXCHANGE, NOTIFY_EXCHANGE, RPC_EXCHANGE, DEAD_LETTER_EXCHANGE)
+
+
+def recorder_topology() -> Topology:
+    """The recorder's queue, bound to every exchange of the service with ``#``.
+
+    Bound rather than fed by RabbitMQ's firehose: the copies are persistent and covered by the
+    robots' publisher confirms, the bindings survive a broker restart (the firehose does not),
+    and reading it takes no permission beyond this one queue (README, "The recorder").
+    """
+    return Topology(
+        queues=(
+            QueueSpec(
+                RECORDER_QUEUE,
+                {
+                    "x-queue-type": "classic",
+                    "x-single-active-consumer": True,
+                    "x-max-length-bytes": RECORDER_BACKLOG_BYTES,
+                },
+            ),
+        ),
+        bindings=tuple(BindingSpec(exchange, RECORDER_QUEUE, "#") for exchange in RECORDED_EXCHANGES),
     )
 
 

@@ -13,6 +13,12 @@ from pathlib import Path
 DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
+DEFAULT_RECORDER_KEEP = "*=1GB"
+
+
+def _words(value: str | None) -> tuple[str, ...]:
+    """A list in one variable: separated by commas or spaces."""
+    return tuple(word for word in (value or "").replace(",", " ").split() if word)
 
 
 @dataclass(frozen=True)
@@ -29,6 +35,12 @@ class Settings:
     """Bodies larger than this are dead-lettered by the workers."""
     battery_low_percent: float = DEFAULT_BATTERY_LOW_PERCENT
     """A status below this battery level notifies the operators (once per crossing)."""
+    recorder_include: tuple[str, ...] = ()
+    """Routing-key patterns the recorder keeps (all when empty)."""
+    recorder_exclude: tuple[str, ...] = ()
+    """Routing-key patterns the recorder drops."""
+    recorder_keep: tuple[str, ...] = (DEFAULT_RECORDER_KEEP,)
+    """Retention per type: ``status=7d``, ``map_chunk=500MB``, ``tf=100000``, ``*=1GB``."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -61,4 +73,7 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         mongodb_url=env.get("FLEETBUS_MONGODB_URL") or None,
         max_message_bytes=int(env.get("FLEETBUS_MAX_MESSAGE_BYTES") or DEFAULT_MAX_MESSAGE_BYTES),
         battery_low_percent=float(env.get("FLEETBUS_BATTERY_LOW_PERCENT") or DEFAULT_BATTERY_LOW_PERCENT),
+        recorder_include=_words(env.get("FLEETBUS_RECORDER_INCLUDE")),
+        recorder_exclude=_words(env.get("FLEETBUS_RECORDER_EXCLUDE")),
+        recorder_keep=_words(env.get("FLEETBUS_RECORDER_KEEP")) or (DEFAULT_RECORDER_KEEP,),
     )

@@ -18,6 +18,8 @@ The service owns everything that starts with ``fleetbus.``::
     fleetbus.rpc.requests   queue the service answers from (replies go by direct reply-to)
     fleetbus.dlx            dead-letter exchange (fanout)
     fleetbus.dead-letters   classic durable queue of rejected messages, with their reasons
+    fleetbus.recorder       classic durable queue of a copy of everything on ingest, notify, rpc and dlx,
+                            read only by the recorder's account ``fleetbus-recorder``
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ RPC_EXCHANGE = "fleetbus.rpc"
 RPC_QUEUE = "fleetbus.rpc.requests"
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
+RECORDER_QUEUE = "fleetbus.recorder"
 
 
 class EventType(str, Enum):

@@ -6,7 +6,8 @@ server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,7 @@ import pytest
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
+from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
 
@@ -34,3 +36,15 @@ def management(endpoint: BrokerEndpoint) -> Iterator[ManagementAPI]:
 def bus(endpoint: BrokerEndpoint, management: ManagementAPI, tmp_path: Path) -> Iterator[Bus]:
     with fresh_bus(endpoint, management, tmp_path) as test_bus:
         yield test_bus
+
+
+@pytest.fixture(params=["sqlite", "mongodb"])
+async def stored_bus(request: pytest.FixtureRequest, bus: Bus) -> AsyncIterator[Bus]:
+    """The test's bus with each store: the embedded SQLite, or a MongoDB database of its own."""
+    if request.param == "mongodb":
+        url: str = request.getfixturevalue("mongodb_url")
+        async with fresh_database(url) as database:
+            bus.settings = replace(bus.settings, mongodb_url=url.rstrip("/") + "/" + database)
+            yield bus
+        return
+    yield bus

@@ -23,8 +23,11 @@ from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from schemas.routing import RobotKind
-from workers.store import Store, run_with_store
+from workers.recorder.runner import recorder_options
+from workers.recorder.thread import RecorderThread
+from workers.store import Store, open_recording_store, run_with_store
 from workers.store.base import EventQuery, EventRecord
+from workers.store.recordings import RecordedMessage, RecordQuery
 from workers.thread import WorkerThread
 
 T = TypeVar("T")
@@ -87,6 +90,36 @@ class Bus:
             yield thread
         finally:
             thread.stop()
+
+    @contextmanager
+    def recorder(self, **options: Any) -> Iterator[RecorderThread]:
+        """The recorder, with these :class:`RecorderOptions` over the settings' ones."""
+        endpoint = replace(self.endpoint, amqp_url=self.admin_url)
+        thread = RecorderThread(self.settings, endpoint, recorder_options(self.settings, **options)).start()
+        try:
+            yield thread
+        finally:
+            thread.stop()
+
+    def recorded(self, type: str, **query: Any) -> list[RecordedMessage]:
+        """Records of ``type`` in the test's recording (a :class:`RecordQuery`'s fields)."""
+
+        async def go() -> list[RecordedMessage]:
+            async with open_recording_store(self.settings) as store:
+                return await store.find_recorded(RecordQuery(type, **query))
+
+        return asyncio.run(go())
+
+    def publish_raw(self, account: Account, routing_key: str, body: bytes, **properties: Any) -> None:
+        """Publish as the account with pika, confirmed: what any AMQP client of a robot could send."""
+        connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
+        try:
+            channel = connection.channel()
+            channel.confirm_delivery()
+            props = pika.BasicProperties(user_id=account.name, delivery_mode=2, **properties)
+            channel.basic_publish(f"{account.name}.events", routing_key, body, props, mandatory=True)
+        finally:
+            connection.close()
 
     def worker_env(self) -> dict[str, str]:
         env = dict(os.environ)

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-import signal
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -24,6 +22,7 @@ from workers.ingest import IngestConsumer
 from workers.maps import MapCheck, MapService, map_services
 from workers.rpc import RpcServer
 from workers.services import hazard_services
+from workers.signals import stop_on_signals
 from workers.store import Store, open_store
 from workers.telemetry import BatteryWatch
 
@@ -91,10 +90,7 @@ async def run_worker(
 ) -> None:
     """Run until ``stop`` is set, or SIGTERM/SIGINT when run as the main program."""
     stop = stop or asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-            loop.add_signal_handler(signum, stop.set)
+    stop_on_signals(stop)
     context = await start_worker(settings, endpoint)
     log.info("worker consuming %s (store: %s)", INGEST_QUEUE, context.store.name)
     if on_started is not None:

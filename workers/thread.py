@@ -1,4 +1,4 @@
-"""Run the real worker on its own thread and event loop, beside synchronous code.
+"""Run the real worker (or recorder) on its own thread and event loop, beside synchronous code.
 
 The demo and the tests use it next to pika's blocking robot clients, which would otherwise
 block the worker's event loop.
@@ -8,31 +8,37 @@ from __future__ import annotations
 
 import asyncio
 import threading
+from collections.abc import Awaitable, Callable
 from types import TracebackType
+from typing import Any, Generic, TypeVar
 
 from broker.endpoint import BrokerEndpoint
 from fleetbus.config import Settings
 from workers.ingest import IngestStats
 from workers.runner import WorkerContext, run_worker
 
+C = TypeVar("C")
+T = TypeVar("T", bound="LoopThread[Any]")
+Runner = Callable[[asyncio.Event, Callable[[C], None]], Awaitable[None]]
 
-class WorkerThread:
-    def __init__(self, settings: Settings, endpoint: BrokerEndpoint) -> None:
-        self._settings = settings
-        self._endpoint = endpoint
+
+class LoopThread(Generic[C]):
+    """``run(stop, on_started)`` on a thread of its own until :meth:`stop`; ``context`` once started."""
+
+    def __init__(self, run: Runner[C], name: str) -> None:
+        self._run = run
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
         self._started = threading.Event()
-        self._context: WorkerContext | None = None
+        self.context: C | None = None
         self.error: BaseException | None = None
-        self._thread = threading.Thread(target=self._main, name="fleetbus-worker", daemon=True)
+        self._thread = threading.Thread(target=self._main, name=name, daemon=True)
 
     def _main(self) -> None:
         async def body() -> None:
             self._loop = asyncio.get_running_loop()
             self._stop = asyncio.Event()
-            self._started.set()
-            await run_worker(self._settings, self._endpoint, self._stop, on_started=self._on_started)
+            await self._run(self._stop, self._on_started)
 
         try:
             asyncio.run(body())
@@ -41,32 +47,41 @@ class WorkerThread:
         finally:
             self._started.set()
 
-    def _on_started(self, context: WorkerContext) -> None:
-        self._context = context
+    def _on_started(self, context: C) -> None:
+        self.context = context
+        self._started.set()
 
-    def stats(self) -> IngestStats:
-        """The running worker's counters (a snapshot is not needed: they only grow)."""
-        return self._context.consumer.stats if self._context else IngestStats()
-
-    def start(self) -> WorkerThread:
+    def start(self: T) -> T:
+        """Start, and return once it consumes (its queues exist), or once it failed to start."""
         self._thread.start()
         self._started.wait()
         return self
 
     def stop(self, timeout: float = 60.0) -> None:
-        """Ask the worker to stop as on SIGTERM, wait for it, and re-raise what killed it."""
+        """Ask it to stop as on SIGTERM, wait for it, and re-raise what killed it."""
         if self._loop is not None and self._stop is not None and self._thread.is_alive():
             self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join(timeout)
         if self._thread.is_alive():
-            raise TimeoutError(f"the worker did not stop within {timeout:.0f} s")
+            raise TimeoutError(f"{self._thread.name} did not stop within {timeout:.0f} s")
         if self.error is not None:
             raise self.error
 
-    def __enter__(self) -> WorkerThread:
+    def __enter__(self: T) -> T:
         return self.start()
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.stop()
+
+
+class WorkerThread(LoopThread[WorkerContext]):
+    def __init__(self, settings: Settings, endpoint: BrokerEndpoint) -> None:
+        super().__init__(
+            lambda stop, started: run_worker(settings, endpoint, stop, on_started=started), "fleetbus-worker"
+        )
+
+    def stats(self) -> IngestStats:
+        """The running worker's counters (a snapshot is not needed: they only grow)."""
+        return self.context.consumer.stats if self.context else IngestStats()

@@ -8,7 +8,6 @@ beyond 64 bits, too deep, too large) is stored raw with the reason instead of fa
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Sequence
 from datetime import datetime
@@ -119,7 +118,7 @@ def encode(record: RecordedMessage) -> RawBSONDocument:
     try:
         encoded = bson.encode(to_document(record))
     except (InvalidDocument, OverflowError, RecursionError) as error:
-        raw = record.raw if record.raw is not None else _body_bytes(record)
+        raw = record.body_bytes() or b""
         return encode(record.as_raw(f"not storable as a MongoDB document ({error}); kept raw", raw))
     if len(encoded) > MAX_DOCUMENT_BYTES:
         if record.document is None and record.raw is None:
@@ -128,10 +127,6 @@ def encode(record: RecordedMessage) -> RawBSONDocument:
             record.as_raw(f"larger than a MongoDB document ({len(encoded)} bytes); body not kept", b"")
         )
     return RawBSONDocument(encoded)
-
-
-def _body_bytes(record: RecordedMessage) -> bytes:
-    return json.dumps(record.document, separators=(",", ":"), ensure_ascii=False).encode()
 
 
 def from_document(type: str, doc: dict[str, Any]) -> RecordedMessage:
@@ -207,7 +202,7 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
             for position in refused:  # the server would not take the body as a document (e.g. '$' keys)
                 record = records[position]
                 reason = next(e["errmsg"] for e in error.details["writeErrors"] if e["index"] == position)
-                raw = record.raw if record.raw is not None else _body_bytes(record)
+                raw = record.body_bytes() or b""
                 await self._recorded(type).insert_one(
                     encode(record.as_raw(f"refused as a MongoDB document ({reason}); kept raw", raw))
                 )

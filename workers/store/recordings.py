@@ -11,6 +11,7 @@ compare them with JSON scalars; both adapters give the same answers (``tests/sto
 from __future__ import annotations
 
 import abc
+import json
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -78,11 +79,26 @@ class RecordedMessage:
     document: Any = None
     """The body as parsed JSON, as received; None when kept raw."""
     raw: bytes | None = None
-    """The body's bytes, when it is not JSON (or not storable as a document)."""
+    """The body's bytes, when it is not JSON (or not storable as a document); empty when the body
+    was not kept at all (too large)."""
     properties: dict[str, Any] = field(default_factory=dict)
     """AMQP properties and headers that matter for replay and analysis, JSON-safe."""
     size: int = 0
     """Bytes of the message body as received."""
+    received: bytes | None = field(default=None, compare=False, repr=False)
+    """The body's bytes while the record is written (not stored: for a store that must keep it raw)."""
+
+    @property
+    def body_kept(self) -> bool:
+        return not (self.raw == b"" and self.size > 0)
+
+    def body_bytes(self) -> bytes | None:
+        """The body to send again: the bytes kept raw, or the JSON re-encoded; None when not kept."""
+        if self.received is not None:
+            return self.received
+        if self.raw is not None:
+            return self.raw if self.body_kept else None
+        return json.dumps(self.document, separators=(",", ":"), ensure_ascii=False).encode()
 
     def as_raw(self, problem: str, body: bytes) -> RecordedMessage:
         """The same record with the body kept as bytes, saying why (for a store that cannot hold it)."""

@@ -1,0 +1,185 @@
+"""The recorder against the real broker: every message stored as received, with its provenance."""
+
+from __future__ import annotations
+
+import json
+
+import pika
+import pika.exceptions
+import pytest
+
+from broker.accounts import RECORDER_USER, url_for
+from schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
+from tests.factories import hazard, status
+from tests.support import Bus, wait_for
+from workers.recorder.filters import RoutingFilter
+from workers.recorder.retention import parse_retention
+from workers.store.recordings import Condition, Op
+
+TF = {
+    "frame": "/kinect/depth",
+    "child_frame": "/object/bottle",
+    "translation": {"x": 0.1, "y": 0.2, "z": 0.3},
+}
+
+
+def test_every_message_is_recorded_as_received_with_its_provenance(stored_bus: Bus) -> None:
+    bus = stored_bus
+    explorer = bus.add("rec-explorer", kind=RobotKind.EXPLORER)
+    with bus.worker(), bus.recorder(), bus.robot(explorer) as robot:
+        sent = robot.publish(EventType.HAZARD, hazard())
+        robot.publish(EventType.STATUS, status())
+        bus.publish_raw(explorer, "rec-explorer.tf", json.dumps(TF).encode(), message_id="tf-1")
+        bus.publish_raw(explorer, "rec-explorer.camera.raw", b"\x89PNG\x00\xff")
+        wait_for(
+            lambda: len(bus.recorded("dead_letter")) == 2,
+            what="both unknown types dead-lettered and recorded",
+        )
+        wait_for(lambda: bus.recorded("notification"), what="the hazard's notification recorded")
+
+    [recorded] = bus.recorded("hazard")
+    assert recorded.known and recorded.problem is None
+    assert (recorded.user_id, recorded.robot_id) == ("rec-explorer", "rec-explorer")
+    assert (recorded.exchange, recorded.routing_key) == ("rec-explorer.events", "rec-explorer.hazard")
+    assert recorded.message_id == str(sent.message_id) and recorded.seq == sent.seq
+    assert recorded.sent_at == sent.sent_at and recorded.recorded_at >= sent.sent_at
+    assert recorded.document == json.loads(sent.model_dump_json()), "the envelope, field for field"
+    assert recorded.properties["delivery_mode"] == 2 and recorded.properties["message_id"] == str(
+        sent.message_id
+    )
+
+    [tf] = bus.recorded("tf")
+    assert not tf.known and tf.document == TF and tf.message_id == "tf-1"
+    assert tf.routing_key == "rec-explorer.tf" and tf.user_id == "rec-explorer"
+
+    [camera] = bus.recorded("camera")
+    assert camera.routing_key == "rec-explorer.camera.raw" and camera.raw == b"\x89PNG\x00\xff"
+    assert camera.document is None and "not JSON" in (camera.problem or "")
+
+    [note] = bus.recorded("notification")
+    assert note.user_id == "fleetbus" and note.routing_key == "notify.hazard"
+    assert note.message_id == f"{sent.message_id}:hazard" and note.document["hazard_id"] == 1
+
+    refused = {r.routing_key: r for r in bus.recorded("dead_letter")}
+    assert set(refused) == {"rec-explorer.tf", "rec-explorer.camera.raw"}
+    letter = refused["rec-explorer.tf"]
+    assert letter.robot_id == "rec-explorer" and letter.document == TF
+    assert letter.properties["headers"]["x-fleetbus-reason"] == "unknown-type"
+    assert len(bus.recorded("status")) == 1
+
+
+def test_new_robots_and_types_are_recorded_without_a_restart(bus: Bus) -> None:
+    with bus.recorder() as recorder:
+        late = bus.add("rec-late", kind=RobotKind.WARDEN)
+        bus.publish_raw(late, "rec-late.joint_state", b'{"position": [0.1, 0.2]}')
+        bus.publish_raw(late, "rec-late.joint_state", b'{"position": [0.3, 0.4]}')
+        wait_for(lambda: len(bus.recorded("joint_state")) == 2, what="a type first seen after the start")
+        assert recorder.stats().by_type == {"joint_state": 2}
+    positions = [r.document["position"] for r in bus.recorded("joint_state")]
+    assert positions == [[0.1, 0.2], [0.3, 0.4]]
+
+
+def test_include_and_exclude_patterns(bus: Bus) -> None:
+    one, two = bus.add("rec-one"), bus.add("rec-two")
+    keep = RoutingFilter(include=("rec-one.#",), exclude=("*.status",))
+    with bus.recorder(filter=keep) as recorder:
+        for account in (one, two):
+            with bus.robot(account) as robot:
+                robot.publish(EventType.STATUS, status())
+                robot.publish(EventType.HAZARD, hazard())
+        wait_for(lambda: recorder.stats().filtered == 3, what="three messages left out")
+        wait_for(lambda: bus.recorded("hazard"), what="rec-one's hazard")
+    assert [r.robot_id for r in bus.recorded("hazard")] == ["rec-one"]
+    assert bus.recorded("status") == []
+
+
+def test_a_message_delivered_twice_is_recorded_once(bus: Bus) -> None:
+    robot = bus.add("rec-twice")
+    with bus.recorder() as recorder:
+        for _ in range(2):
+            bus.publish_raw(robot, "rec-twice.tf", b'{"a": 1}', message_id="same-id")
+            bus.publish_raw(robot, "rec-twice.tf", b'{"no": "id"}')
+        bus.publish_raw(robot, "rec-twice.tf", b'{"no": "id, other body"}')
+        wait_for(lambda: recorder.stats().recorded + recorder.stats().duplicates == 5, what="all five seen")
+        assert (recorder.stats().recorded, recorder.stats().duplicates) == (3, 2)
+    assert len(bus.recorded("tf")) == 3
+
+
+def test_what_arrives_while_the_recorder_is_down_is_recorded_when_it_is_back(bus: Bus) -> None:
+    robot = bus.add("rec-backlog")
+    with bus.recorder():
+        pass  # declares the recorder's queue and bindings
+    with bus.robot(robot) as client:
+        client.publish_many([(EventType.STATUS, status(float(i))) for i in range(50)])
+    assert bus.recorded("status") == []
+    with bus.recorder():
+        wait_for(lambda: len(bus.recorded("status")) == 50, what="the backlog recorded")
+    seqs = [r.seq for r in bus.recorded("status")]
+    assert sorted(seqs) == list(range(50))
+
+
+def test_retention_bounds_each_type_while_recording(bus: Bus) -> None:
+    robot = bus.add("rec-bounded")
+    policies = parse_retention(["status=5", "*=1GB"])
+    with bus.recorder(retention=policies, retention_interval=0.1) as recorder, bus.robot(robot) as client:
+        client.publish_many([(EventType.STATUS, status(float(i))) for i in range(20)])
+        client.publish(EventType.HAZARD, hazard())
+        wait_for(lambda: recorder.stats().recorded == 21, what="all recorded")
+        wait_for(lambda: len(bus.recorded("status")) == 5, what="status cut to its newest five")
+    assert [r.seq for r in bus.recorded("status")] == [15, 16, 17, 18, 19]
+    assert len(bus.recorded("hazard")) == 1
+
+
+def test_a_body_the_database_cannot_hold_is_kept_raw_and_recording_goes_on(stored_bus: Bus) -> None:
+    bus = stored_bus
+    robot = bus.add("rec-odd")
+    huge = b'{"big": 123456789012345678901234567890}'
+    with bus.recorder() as recorder:
+        bus.publish_raw(robot, "rec-odd.tf", huge)
+        bus.publish_raw(robot, "rec-odd.tf", b'{"fine": true}')
+        wait_for(lambda: recorder.stats().recorded == 2, what="both recorded")
+    odd, fine = bus.recorded("tf")
+    assert fine.document == {"fine": True}
+    if bus.settings.mongodb_url:  # BSON has no integer that large
+        assert odd.raw == huge and "MongoDB" in (odd.problem or "")
+    else:
+        assert odd.document == {"big": 123456789012345678901234567890}
+
+
+def test_field_conditions_reach_recorded_documents(bus: Bus) -> None:
+    robot = bus.add("rec-fields")
+    with bus.recorder() as recorder:
+        for i, frame in enumerate(("/a", "/b", "/a")):
+            bus.publish_raw(robot, "rec-fields.tf", json.dumps({"frame": frame}).encode(), message_id=f"t{i}")
+        wait_for(lambda: recorder.stats().recorded == 3, what="three transforms")
+    assert len(bus.recorded("tf", conditions=(Condition("frame", Op.EQ, "/a"),))) == 2
+
+
+def test_the_recorder_account_may_only_read_its_queue(bus: Bus) -> None:
+    with bus.recorder():
+        pass
+    password = (bus.settings.accounts_dir / f"{RECORDER_USER}.password").read_text().strip()
+    url = url_for(bus.admin_url, RECORDER_USER, password)
+
+    def refused(action: str) -> None:
+        connection = pika.BlockingConnection(pika.URLParameters(url))
+        channel = connection.channel()
+        with pytest.raises(pika.exceptions.ChannelClosedByBroker) as error:
+            if action == "publish":
+                channel.confirm_delivery()
+                channel.basic_publish(INGEST_EXCHANGE, "someone.hazard", b"{}", mandatory=True)
+            elif action == "consume ingest":
+                channel.basic_consume(INGEST_QUEUE, lambda *a: None)
+            elif action == "declare":
+                channel.queue_declare("fleetbus.recorder.mine")
+            elif action == "bind":
+                channel.queue_bind(RECORDER_QUEUE, "amq.topic", "#")
+        assert error.value.reply_code == 403, action
+        connection.close()
+
+    for action in ("publish", "consume ingest", "declare", "bind"):
+        refused(action)
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection.channel().basic_consume(RECORDER_QUEUE, lambda *a: None)  # its own queue: allowed
+    connection.close()
+    assert bus.api.get_user(RECORDER_USER)["tags"] in ("", []), "no management access either"

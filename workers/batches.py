@@ -1,0 +1,53 @@
+"""Gather delivered messages into batches: what arrived within a few milliseconds, up to a size.
+
+A consumer callback puts messages in; the consuming loop takes a batch at a time and writes it
+in one transaction. (The ingest consumer has its own copy of this; it can move here.)
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from aio_pika.abc import AbstractIncomingMessage
+
+
+class BatchInbox:
+    def __init__(self, batch_size: int = 256, linger: float = 0.005) -> None:
+        self._queue: asyncio.Queue[AbstractIncomingMessage] = asyncio.Queue()
+        self._batch_size = batch_size
+        self._linger = linger
+
+    async def put(self, message: AbstractIncomingMessage) -> None:
+        await self._queue.put(message)
+
+    def empty(self) -> bool:
+        return self._queue.empty()
+
+    async def next_batch(
+        self, stopping: asyncio.Event, idle: float | None = None
+    ) -> list[AbstractIncomingMessage]:
+        """The next batch; empty when ``stopping`` is set or ``idle`` seconds pass with nothing."""
+        batch: list[AbstractIncomingMessage] = []
+        get = asyncio.ensure_future(self._queue.get())
+        stop = asyncio.ensure_future(stopping.wait())
+        try:
+            done, _ = await asyncio.wait({get, stop}, timeout=idle, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stop.cancel()
+        if get not in done and get.cancel():
+            return batch  # the message it would have taken stays in the queue
+        batch.append(get.result())
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self._linger
+        while len(batch) < self._batch_size:
+            try:
+                batch.append(self._queue.get_nowait())
+            except asyncio.QueueEmpty:
+                remaining = deadline - loop.time()
+                if remaining <= 0:
+                    break
+                try:
+                    batch.append(await asyncio.wait_for(self._queue.get(), remaining))
+                except asyncio.TimeoutError:
+                    break
+        return batch

@@ -1,0 +1,203 @@
+"""The recorder: consume the copy of every message on the bus, store it as received, then ack.
+
+Batches are written in one durable write and acked after it, so a crash means redelivery,
+which the records' keys make harmless. Between batches (and when idle) it applies the
+retention policies and samples the database's size for ``fleetbus stats``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import uuid
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from typing import TypeVar
+
+import aiormq.exceptions
+from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
+from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
+
+from fleetbus.config import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
+from workers.batches import BatchInbox
+from workers.recorder.capture import DEFAULT_MAX_TYPES, OTHER, TypeNames, capture
+from workers.recorder.filters import RoutingFilter
+from workers.recorder.retention import Retention, RetentionSweeper, parse_retention
+from workers.retry import Stopping, until_available
+from workers.store.base import StoreUnavailable, WriteResult
+from workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
+
+log = logging.getLogger("fleetbus.recorder")
+T = TypeVar("T")
+CONNECTION_LOST = (AMQPError, aiormq.exceptions.AMQPError, ChannelInvalidStateError, ConnectionError)
+
+
+@dataclass(frozen=True)
+class RecorderOptions:
+    filter: RoutingFilter = field(default_factory=RoutingFilter)
+    retention: Mapping[str, Retention] = field(
+        default_factory=lambda: parse_retention([DEFAULT_RECORDER_KEEP])
+    )
+    max_types: int = DEFAULT_MAX_TYPES
+    max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES
+    sample_interval: float = 60.0
+    """Seconds between two looks at the database's size (``fleetbus stats``)."""
+    retention_interval: float = 30.0
+    batch_size: int = 256
+    linger: float = 0.005
+
+
+@dataclass
+class RecorderStats:
+    recorded: int = 0
+    duplicates: int = 0
+    filtered: int = 0
+    unstorable: int = 0
+    store_retries: int = 0
+    swept: int = 0
+    by_type: dict[str, int] = field(default_factory=dict)
+
+
+class RecorderConsumer:
+    def __init__(
+        self,
+        channel: AbstractChannel,
+        queue: AbstractQueue,
+        store: RecordingStore,
+        options: RecorderOptions,
+        names: TypeNames,
+    ) -> None:
+        self._channel = channel
+        self._queue = queue
+        self._store = store
+        self._options = options
+        self._names = names
+        self._inbox = BatchInbox(options.batch_size, options.linger)
+        self._stopping = asyncio.Event()
+        self._consumer_tag: str | None = None
+        self._sweeper = RetentionSweeper(store, options.retention)
+        self._run_id = uuid.uuid4().hex[:12]
+        self._since_sample = 0
+        self.stats = RecorderStats()
+
+    async def run(self) -> None:
+        """Consume until :meth:`stop`; then finish what was received and return."""
+        self._consumer_tag = await self._queue.consume(self._inbox.put, no_ack=False)
+        loop = asyncio.get_running_loop()
+        next_sample = next_sweep = loop.time()
+        while not (self._stopping.is_set() and self._inbox.empty()):
+            if loop.time() >= next_sample:
+                await self._sample()
+                next_sample = loop.time() + self._options.sample_interval
+            if loop.time() >= next_sweep:
+                await self._sweep()
+                next_sweep = loop.time() + self._options.retention_interval
+            idle = max(0.0, min(next_sample, next_sweep) - loop.time())
+            batch = await self._inbox.next_batch(self._stopping, idle=idle)
+            if not batch:
+                continue
+            try:
+                await self._process(batch)
+            except Stopping:
+                log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
+                return
+            except CONNECTION_LOST as error:
+                log.warning(
+                    "broker connection lost mid-batch (%r); %d messages will be redelivered",
+                    error,
+                    len(batch),
+                )
+        await self._sample()
+
+    async def stop(self) -> None:
+        """Stop taking new messages; :meth:`run` returns once the ones received are stored."""
+        if self._consumer_tag is not None and not self._channel.is_closed:
+            with contextlib.suppress(*CONNECTION_LOST):
+                await self._queue.cancel(self._consumer_tag)
+        self._stopping.set()
+
+    def _capture(self, message: AbstractIncomingMessage) -> RecordedMessage:
+        try:
+            return capture(message, self._names, self._options.max_message_bytes)
+        except Exception as error:  # a bug here must not make the message a poison that stops recording
+            log.exception("could not read a message from %s on %s", message.user_id, message.exchange)
+            return RecordedMessage(
+                key=uuid.uuid4().hex,
+                type=OTHER,
+                recorded_at=datetime.now(timezone.utc),
+                exchange=message.exchange or "",
+                routing_key=message.routing_key or "",
+                user_id=message.user_id,
+                robot_id=message.user_id,
+                problem=f"the recorder could not read it ({error!r}); kept raw",
+                raw=message.body,
+                size=len(message.body),
+            )
+
+    async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
+        records = []
+        for message in batch:
+            if self._options.filter.keeps(message.routing_key or ""):
+                records.append(self._capture(message))
+            else:
+                self.stats.filtered += 1
+        if records:
+            results = await self._retrying(lambda: self._write(records))
+            for record, result in zip(records, results, strict=True):
+                if result.inserted:
+                    self.stats.recorded += 1
+                    self.stats.by_type[record.type] = self.stats.by_type.get(record.type, 0) + 1
+                else:
+                    self.stats.duplicates += 1
+            self._since_sample += sum(result.inserted for result in results)
+        await batch[-1].ack(multiple=True)
+
+    async def _write(self, records: list[RecordedMessage]) -> list[WriteResult]:
+        """Write a batch; one the store refuses is written record by record, so that one bad
+        record cannot hold back the others (it is kept raw under ``other``, or logged and dropped)."""
+        try:
+            return await self._store.write_recorded(records)
+        except StoreUnavailable:
+            raise
+        except Exception as error:
+            if len(records) > 1:
+                log.exception("could not store a batch of %d; storing them one by one", len(records))
+                return [result for record in records for result in await self._write([record])]
+            record = records[0]
+            if record.type == OTHER and record.problem and "could not be stored" in record.problem:
+                log.exception("could not store %s on %s; dropped", record.routing_key, record.exchange)
+                self.stats.unstorable += 1
+                return [WriteResult(inserted=False)]
+            fallback = replace(
+                record.as_raw(
+                    f"could not be stored as recorded ({error!r}); kept raw", record.body_bytes() or b""
+                ),
+                type=OTHER,
+            )
+            return await self._write([fallback])
+
+    async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
+        def counted() -> None:
+            self.stats.store_retries += 1
+
+        return await until_available(operation, self._stopping, log, counted)
+
+    async def _sample(self) -> None:
+        with contextlib.suppress(StoreUnavailable):
+            size = await self._store.database_bytes()
+            await self._store.add_sample(
+                StorageSample(datetime.now(timezone.utc), self._run_id, size, self._since_sample)
+            )
+            self._since_sample = 0
+
+    async def _sweep(self) -> None:
+        try:
+            deleted = await self._sweeper.sweep()
+        except StoreUnavailable as error:
+            log.warning("retention sweep skipped: %s", error)
+            return
+        if deleted:
+            self.stats.swept += sum(deleted.values())
+            log.info("retention deleted %s", ", ".join(f"{n} {t}" for t, n in sorted(deleted.items())))

@@ -1,0 +1,118 @@
+"""Bounded recording: per type, keep records for a time, or up to a size or a number of them.
+
+Specs read like ``status=7d``, ``map_chunk=500MB``, ``tf=100000`` and ``*=1GB`` (any type with
+no spec of its own). Several specs for one type all apply. Sizes count the bodies as received;
+the database holds them with its own overhead (indexes, JSON text or BSON).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, replace
+from datetime import datetime, timedelta, timezone
+
+from workers.store.recordings import RecordingStore
+
+ANY_TYPE = "*"
+AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+SIZE_UNITS = {"B": 1, "KB": 1000, "MB": 1000**2, "GB": 1000**3, "KIB": 1024, "MIB": 1024**2, "GIB": 1024**3}
+SPEC = re.compile(r"^(?P<type>\*|[a-z][a-z0-9_]{0,39})=(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
+SWEEP_CHUNK = 1000
+
+
+@dataclass(frozen=True)
+class Retention:
+    max_age: timedelta | None = None
+    max_bytes: int | None = None
+    max_records: int | None = None
+
+    def merged(self, other: Retention) -> Retention:
+        return replace(
+            self,
+            max_age=other.max_age or self.max_age,
+            max_bytes=other.max_bytes or self.max_bytes,
+            max_records=other.max_records or self.max_records,
+        )
+
+    def describe(self) -> str:
+        parts = []
+        if self.max_age:
+            parts.append(f"{self.max_age.total_seconds():g} s")
+        if self.max_bytes:
+            parts.append(f"{self.max_bytes / 1e6:g} MB")
+        if self.max_records:
+            parts.append(f"{self.max_records} records")
+        return ", ".join(parts) or "everything"
+
+
+def parse_retention(specs: Iterable[str]) -> dict[str, Retention]:
+    """``["status=7d", "*=1GB"]`` as policies by type; a spec that does not parse raises ValueError."""
+    policies: dict[str, Retention] = {}
+    for spec in specs:
+        match = SPEC.fullmatch(spec.strip())
+        if not match:
+            raise ValueError(
+                f"retention {spec!r}: write TYPE=LIMIT with LIMIT an age (30s, 10m, 12h, 7d), a size "
+                "(500KB, 200MB, 1GB) or a number of records; TYPE may be * for every other type"
+            )
+        amount, unit = float(match["amount"]), match["unit"]
+        if unit in AGE_UNITS:
+            policy = Retention(max_age=timedelta(seconds=amount * AGE_UNITS[unit]))
+        elif unit.upper() in SIZE_UNITS:
+            policy = Retention(max_bytes=int(amount * SIZE_UNITS[unit.upper()]))
+        elif not unit and amount.is_integer():
+            policy = Retention(max_records=int(amount))
+        else:
+            raise ValueError(f"retention {spec!r}: unknown unit {unit!r}; use s, m, h, d, KB, MB, GB or none")
+        policies[match["type"]] = policies.get(match["type"], Retention()).merged(policy)
+    return policies
+
+
+def policy_for(policies: Mapping[str, Retention], type: str) -> Retention | None:
+    return policies.get(type) or policies.get(ANY_TYPE)
+
+
+class RetentionSweeper:
+    """Deletes what the policies no longer keep; run it every so often while recording."""
+
+    def __init__(self, store: RecordingStore, policies: Mapping[str, Retention]) -> None:
+        self._store = store
+        self._policies = dict(policies)
+
+    async def sweep(self, now: datetime | None = None) -> dict[str, int]:
+        """Records deleted, by type."""
+        now = now or datetime.now(timezone.utc)
+        deleted: dict[str, int] = {}
+        for type in await self._store.recorded_types():
+            policy = policy_for(self._policies, type)
+            if policy is not None:
+                count = await self._apply(type, policy, now)
+                if count:
+                    deleted[type] = count
+        return deleted
+
+    async def _apply(self, type: str, policy: Retention, now: datetime) -> int:
+        deleted = 0
+        if policy.max_age is not None:
+            deleted += await self._store.delete_recorded_before(type, now - policy.max_age)
+        if policy.max_records is None and policy.max_bytes is None:
+            return deleted
+        summary = await self._store.type_summary(type)
+        records, size = summary.records, summary.bytes
+        while (policy.max_records is not None and records > policy.max_records) or (
+            policy.max_bytes is not None and size > policy.max_bytes
+        ):
+            doomed: list[str] = []
+            for key, record_size in await self._store.oldest_recorded(type, SWEEP_CHUNK):
+                over_count = policy.max_records is not None and records > policy.max_records
+                over_size = policy.max_bytes is not None and size > policy.max_bytes
+                if not (over_count or over_size):
+                    break
+                doomed.append(key)
+                records -= 1
+                size -= record_size
+            if not doomed:
+                break
+            deleted += await self._store.delete_recorded(type, doomed)
+        return deleted

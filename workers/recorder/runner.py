@@ -1,0 +1,95 @@
+"""Start the recorder against a broker and a store, and stop it cleanly on a signal."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import aio_pika
+from aio_pika.abc import AbstractRobustConnection
+
+from broker.accounts import ensure_recorder_account
+from broker.endpoint import BrokerEndpoint
+from broker.management import ManagementAPI
+from broker.topology import core_topology, declare_with_url, recorder_topology
+from fleetbus.config import Settings
+from schemas.routing import RECORDER_QUEUE
+from workers.recorder.capture import TypeNames
+from workers.recorder.consumer import RecorderConsumer, RecorderOptions
+from workers.recorder.filters import RoutingFilter
+from workers.recorder.retention import parse_retention
+from workers.signals import stop_on_signals
+from workers.store import open_recording_store
+from workers.store.recordings import RecordingStore
+
+log = logging.getLogger("fleetbus.recorder")
+
+
+@dataclass
+class RecorderContext:
+    connection: AbstractRobustConnection
+    consumer: RecorderConsumer
+    store: RecordingStore
+
+
+def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions:
+    """The options the settings give (``FLEETBUS_RECORDER_*``), with command-line overrides."""
+    options = RecorderOptions(
+        filter=RoutingFilter(settings.recorder_include, settings.recorder_exclude),
+        retention=parse_retention(settings.recorder_keep),
+        max_message_bytes=settings.max_message_bytes,
+    )
+    return RecorderOptions(**{**options.__dict__, **overrides})  # type: ignore[arg-type]
+
+
+def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
+    with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
+        return ensure_recorder_account(endpoint.amqp_url, api, settings.accounts_dir)
+
+
+async def start_recorder(
+    settings: Settings, endpoint: BrokerEndpoint, options: RecorderOptions
+) -> RecorderContext:
+    # as the administrator: the account, then the queue and its bindings (the account may not)
+    url = await asyncio.to_thread(recorder_url, settings, endpoint)
+    await declare_with_url(endpoint.amqp_url, [core_topology(), recorder_topology()])
+    store = open_recording_store(settings)
+    await store.open()
+    names = TypeNames(await store.recorded_types(), options.max_types)
+    connection = await aio_pika.connect_robust(
+        url, client_properties={"connection_name": "fleetbus-recorder"}
+    )
+    channel = await connection.channel()
+    await channel.set_qos(prefetch_count=options.batch_size)
+    # fetched (not just named) so the robust channel consumes it again after a broker restart
+    queue = await channel.get_queue(RECORDER_QUEUE)
+    return RecorderContext(connection, RecorderConsumer(channel, queue, store, options, names), store)
+
+
+async def run_recorder(
+    settings: Settings,
+    endpoint: BrokerEndpoint,
+    options: RecorderOptions | None = None,
+    stop: asyncio.Event | None = None,
+    on_started: Callable[[RecorderContext], None] | None = None,
+) -> None:
+    """Record until ``stop`` is set, or SIGTERM/SIGINT when run as the main program."""
+    stop = stop or asyncio.Event()
+    stop_on_signals(stop)
+    context = await start_recorder(settings, endpoint, options or recorder_options(settings))
+    log.info("recorder consuming %s (store: %s)", RECORDER_QUEUE, context.store.name)
+    if on_started is not None:
+        on_started(context)
+    consuming = asyncio.create_task(context.consumer.run())
+    stopping = asyncio.create_task(stop.wait())
+    try:
+        await asyncio.wait({consuming, stopping}, return_when=asyncio.FIRST_COMPLETED)
+        await context.consumer.stop()
+        await consuming
+    finally:
+        stopping.cancel()
+        await context.connection.close()
+        await context.store.close()
+        log.info("recorder stopped: %s", context.consumer.stats)

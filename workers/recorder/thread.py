@@ -1,0 +1,22 @@
+"""The recorder on a thread of its own, for the demo and the tests (see :mod:`workers.thread`)."""
+
+from __future__ import annotations
+
+from broker.endpoint import BrokerEndpoint
+from fleetbus.config import Settings
+from workers.recorder.consumer import RecorderOptions, RecorderStats
+from workers.recorder.runner import RecorderContext, run_recorder
+from workers.thread import LoopThread
+
+
+class RecorderThread(LoopThread[RecorderContext]):
+    def __init__(
+        self, settings: Settings, endpoint: BrokerEndpoint, options: RecorderOptions | None = None
+    ) -> None:
+        super().__init__(
+            lambda stop, started: run_recorder(settings, endpoint, options, stop, on_started=started),
+            "fleetbus-recorder",
+        )
+
+    def stats(self) -> RecorderStats:
+        return self.context.consumer.stats if self.context else RecorderStats()
