@@ -92,6 +92,12 @@ class ManagementAPI:
     def get_queue(self, vhost: str, name: str) -> dict[str, Any]:
         return self._request("GET", f"queues/{_q(vhost)}/{_q(name)}")
 
+    def list_exchanges(self, vhost: str) -> list[dict[str, Any]]:
+        return self._request("GET", f"exchanges/{_q(vhost)}")
+
+    def list_consumers(self, vhost: str) -> list[dict[str, Any]]:
+        return self._request("GET", f"consumers/{_q(vhost)}")
+
     def list_connections(self) -> list[dict[str, Any]]:
         return self._request("GET", "connections")
 

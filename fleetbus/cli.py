@@ -4,7 +4,22 @@ from __future__ import annotations
 
 import typer
 
-from fleetbus.commands import beacons, broker, demo, dlq, events, hazards, maps, schemas_export, users, worker
+from fleetbus.commands import (
+    beacons,
+    broker,
+    demo,
+    dlq,
+    evaluate,
+    events,
+    hazards,
+    maps,
+    recorder,
+    schemas_export,
+    timeline,
+    trace,
+    users,
+    worker,
+)
 
 app = typer.Typer(
     name="fleetbus",
@@ -16,6 +31,7 @@ app.add_typer(broker.app, name="broker")
 app.add_typer(users.app, name="users")
 app.add_typer(beacons.app, name="beacons")
 app.add_typer(maps.app, name="map")
+app.add_typer(recorder.app, name="recorder")
 app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)
@@ -23,6 +39,9 @@ app.command("dlq")(dlq.dlq)
 app.command("hazards")(hazards.hazards)
 app.command("demo")(demo.demo)
 app.command("schemas")(schemas_export.export_schemas)
+app.command("timeline")(timeline.timeline)
+app.command("trace")(trace.trace)
+app.command("evaluate")(evaluate.evaluate)
 
 if __name__ == "__main__":
     app()

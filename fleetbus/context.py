@@ -2,19 +2,30 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
-from collections.abc import Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
+from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, TypeVar
 
 import typer
 import yaml
 from rich.console import Console
 
+from broker.accounts import vhost_of
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
+from broker.routes import RouteMap
 from fleetbus.config import Settings, load_settings
+from schemas.routing import DETAIL_HEADER, REASON_HEADER
+from workers.recorder.capture import DEAD_LETTER, NOTIFICATION
+from workers.recorder.queries import EVENT_TYPES
+from workers.store import open_recording_store
+from workers.store.recordings import RecordedMessage, RecordingStore
+
+T = TypeVar("T")
 
 console = Console()
 errors = Console(stderr=True)
@@ -40,6 +51,77 @@ def endpoint(start: bool = True) -> BrokerEndpoint:
 def admin_api(ep: BrokerEndpoint) -> Iterator[ManagementAPI]:
     with ManagementAPI.from_urls(ep.management_url, ep.amqp_url) as api:
         yield api
+
+
+def parse_time(value: str | None) -> datetime | None:
+    """ISO 8601, or a duration back from now: ``90s``, ``10m``, ``2h``, ``1d``."""
+    if value is None:
+        return None
+    units = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+    if value[-1:] in units and value[:-1].replace(".", "", 1).isdigit():
+        return datetime.fromtimestamp(
+            datetime.now(timezone.utc).timestamp() - float(value[:-1]) * units[value[-1]], timezone.utc
+        )
+    try:
+        parsed = datetime.fromisoformat(value)
+    except ValueError:
+        fail(f"cannot read time {value!r}: use ISO 8601 or a duration like 10m")
+    return parsed if parsed.tzinfo else parsed.replace(tzinfo=timezone.utc)
+
+
+def clock(moment: datetime) -> str:
+    return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+
+def shorten(text: str, width: int) -> str:
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def _compact(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"), ensure_ascii=False)
+
+
+def summarize(record: RecordedMessage, width: int) -> str:
+    """One line of what a recorded message says, for tables."""
+    doc = record.document
+    headers = record.properties.get("headers") or {}
+    if record.type == DEAD_LETTER:
+        text = f"refused ({headers.get(REASON_HEADER, 'by the broker')}): {headers.get(DETAIL_HEADER, '')}"
+    elif not record.body_kept:
+        text = f"({record.size} bytes, not kept)"
+    elif record.raw is not None:
+        text = f"({record.size} bytes, not JSON)"
+    elif record.type == NOTIFICATION and isinstance(doc, dict) and isinstance(doc.get("event"), dict):
+        event = doc["event"]
+        extra = {k: v for k, v in doc.items() if k in ("hazard_id", "map_version", "late") and v}
+        text = f"{doc.get('topic')}: {event.get('robot_id')} seq {event.get('seq')} "
+        text += _compact(extra) if extra else ""
+    elif isinstance(doc, dict) and record.type in EVENT_TYPES and "body" in doc:
+        text = _compact(doc["body"])
+    else:
+        text = _compact(doc)
+    return shorten(text.strip(), width)
+
+
+def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:
+    """Open the recording the settings select, run one operation, close it."""
+
+    async def go() -> T:
+        async with open_recording_store(settings()) as store:
+            return await operation(store)
+
+    return asyncio.run(go())
+
+
+def route_map() -> RouteMap | None:
+    """The broker's exchanges, bindings and consumers now; None (with a warning) when it does not answer."""
+    try:
+        ep = resolve_broker(settings(), start=False)
+        with admin_api(ep) as api:
+            return RouteMap.from_management(api, vhost_of(ep.amqp_url))
+    except Exception as error:  # the recording still answers without the broker
+        errors.print(f"[yellow]warning:[/] no broker to ask for routes ({error})", highlight=False)
+        return None
 
 
 def load_data(argument: str) -> Any:

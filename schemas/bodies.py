@@ -152,6 +152,7 @@ class BeaconSighting(Strict):
 
 class BehaviourOutcome(Strict):
     name: str = Field(min_length=1, max_length=128)
+    object: str | None = Field(default=None, max_length=128, description="what it acted on, e.g. bottle")
     success: bool
     duration_s: float = Field(ge=0)
     error: str | None = Field(default=None, max_length=2048)

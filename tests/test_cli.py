@@ -34,10 +34,11 @@ def test_users_publish_query_and_dlq(bus: Bus, tmp_path: Path) -> None:
 
     data = tmp_path / "hazard.yaml"
     data.write_text(yaml.safe_dump(hazard()))
-    with bus.worker():
+    with bus.worker(), bus.recorder():
         published = fleetbus(bus, "publish", "cli-explorer", "hazard", f"@{data}")
         assert published.returncode == 0, published.stderr
         wait_for(lambda: bus.count() == 1, what="the published hazard to be stored")
+        wait_for(lambda: bus.recorded("hazard"), what="the published hazard to be recorded")
         bad = fleetbus(
             bus, "publish", "cli-explorer", "hazard", json.dumps({**hazard(), "pose": {"x": "a", "y": 1}})
         )

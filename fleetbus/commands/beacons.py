@@ -11,8 +11,7 @@ import typer
 import yaml
 from rich.table import Table
 
-from fleetbus.commands.events import parse_time
-from fleetbus.context import console, fail, settings
+from fleetbus.context import console, fail, parse_time, settings
 from workers.beacons import stranded
 from workers.store import run_with_store
 from workers.store.beacons import Beacon

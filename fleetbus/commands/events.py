@@ -1,21 +1,20 @@
-"""``fleetbus publish`` and ``fleetbus query``: put one event on the bus, read stored ones."""
+"""``fleetbus publish`` and ``fleetbus query``: put one event on the bus, read recorded ones."""
 
 from __future__ import annotations
 
 import json
-from datetime import datetime, timezone
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from fleetbus.context import console, fail, load_data, settings
+from fleetbus.context import clock, console, fail, load_data, parse_time, settings, summarize, with_recording
 from publishers.client import RobotClient
 from publishers.errors import PublisherError
 from schemas.envelope import SchemaError, validate_body
 from schemas.routing import EventType
-from workers.store import run_with_store
-from workers.store.base import EventQuery, EventRecord
+from workers.recorder.queries import find, parse_condition, record_view
+from workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
 
 
 def robot_url(robot: str, url: str | None) -> str:
@@ -51,74 +50,75 @@ def publish(
     console.print(f"published {event.type.value} {event.message_id} as {robot}, seq {event.seq}")
 
 
-def parse_time(value: str | None) -> datetime | None:
-    """ISO 8601, or a duration back from now: ``90s``, ``10m``, ``2h``, ``1d``."""
-    if value is None:
-        return None
-    units = {"s": 1, "m": 60, "h": 3600, "d": 86400}
-    if value[-1:] in units and value[:-1].replace(".", "", 1).isdigit():
-        return datetime.fromtimestamp(
-            datetime.now(timezone.utc).timestamp() - float(value[:-1]) * units[value[-1]], timezone.utc
-        )
-    try:
-        parsed = datetime.fromisoformat(value)
-    except ValueError:
-        fail(f"cannot read time {value!r}: use ISO 8601 or a duration like 10m")
-    return parsed if parsed.tzinfo else parsed.replace(tzinfo=timezone.utc)
-
-
-def record_dict(record: EventRecord) -> dict[str, Any]:
-    out = record.__dict__.copy()
-    out["sent_at"] = record.sent_at.isoformat()
-    out["received_at"] = record.received_at.isoformat()
-    return out
-
-
-def _shorten(text: str, width: int) -> str:
-    return text if len(text) <= width else text[: width - 1] + "…"
-
-
-def _clock(moment: datetime) -> str:
-    return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
-
-
 def query(
-    event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
+    message_type: Annotated[
+        str, typer.Argument(metavar="TYPE", help="any recorded type: hazard, behaviour, tf, notification…")
+    ],
+    where: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--where",
+            "-w",
+            help="FIELD=VALUE, or != < <= > >= ~ (contains); repeat for AND. "
+            "Body fields of event types may be named alone (name=grab)",
+        ),
+    ] = None,
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
-    since: Annotated[str | None, typer.Option(help="from this time (ISO 8601 or e.g. 10m ago)")] = None,
-    until: Annotated[str | None, typer.Option(help="before this time")] = None,
+    since: Annotated[
+        str | None, typer.Option(help="recorded from this time (ISO 8601 or e.g. 10m ago)")
+    ] = None,
+    until: Annotated[str | None, typer.Option(help="recorded before this time")] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
+    latest: Annotated[bool, typer.Option("--latest", help="only the newest match")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
-    """Stored events of TYPE, oldest first (the newest LIMIT of them)."""
-    q = EventQuery(
-        type=event_type.value,
-        robot_id=robot,
-        since=parse_time(since),
-        until=parse_time(until),
-        limit=limit,
-        newest_first=True,
-    )
-    records = list(reversed(run_with_store(settings(), lambda store: store.find_events(q))))
+    """Recorded messages of TYPE matching every condition, oldest first (the newest LIMIT of them)."""
+    try:
+        conditions = [parse_condition(text, message_type) for text in where or []]
+        limit = 1 if latest else limit
+
+        async def run(store: RecordingStore) -> tuple[list[RecordedMessage], list[str]]:
+            found = await find(
+                store,
+                message_type,
+                conditions,
+                robot_id=robot,
+                since=parse_time(since),
+                until=parse_time(until),
+                limit=limit,
+                newest_first=True,
+            )
+            return found, await store.recorded_types()
+
+        records, types = with_recording(run)
+    except RecordingError as error:
+        fail(str(error), code=2)
+    records.reverse()
     if as_json:
         for record in records:
-            typer.echo(json.dumps(record_dict(record)))
+            typer.echo(json.dumps(record_view(record), ensure_ascii=False))
         return
-    table = Table(title=f"{len(records)} {event_type.value} events")
-    widest = max((len(r.robot_id) for r in records), default=5)
-    seq_width = max((len(str(r.seq)) for r in records), default=3)
+    if not records and message_type not in types:
+        console.print(
+            f"nothing recorded of type {message_type!r}; recorded: {', '.join(types) or 'nothing yet'} "
+            "(`fleetbus worker` records unless --no-recorder; or run `fleetbus recorder run`)",
+            highlight=False,
+        )
+        return
+    table = Table(title=f"{len(records)} {message_type} events")
+    table.add_column("recorded at (UTC)", no_wrap=True)
     table.add_column("robot", no_wrap=True)
     table.add_column("seq", justify="right", no_wrap=True)
-    table.add_column("sent at (UTC)", no_wrap=True)
     table.add_column("body", no_wrap=True)
-    room = max(20, console.width - widest - seq_width - 23 - 13)
+    widest = max((len(r.robot_id or r.user_id or "") for r in records), default=5)
+    room = max(20, console.width - widest - 23 - 6 - 13)
     for record in records:
         table.add_row(
-            record.robot_id,
-            str(record.seq),
-            _clock(record.sent_at),
-            _shorten(json.dumps(record.body, separators=(",", ":")), room),
+            clock(record.recorded_at),
+            record.robot_id or record.user_id or "",
+            "" if record.seq is None else str(record.seq),
+            summarize(record, room),
         )
     console.print(table)
-    if len(records) == limit:
+    if len(records) == limit and not latest:
         console.print(f"[dim]showing the newest {limit}; use --limit or --since for more[/]")

@@ -1,25 +1,55 @@
-"""``fleetbus worker``: the workers in the foreground until SIGTERM or Ctrl-C."""
+"""``fleetbus worker``: the workers (and the recorder) in the foreground until SIGTERM or Ctrl-C."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Awaitable, Callable
 from typing import Annotated
 
 import typer
 
 from fleetbus.context import endpoint, settings
+from workers.recorder.runner import run_recorder
 from workers.runner import run_worker
+from workers.signals import stop_on_signals
+
+Run = Callable[[asyncio.Event], Awaitable[None]]
 
 
-def worker(
-    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log every batch")] = False,
-) -> None:
-    """Validate, store and fan out every event; stop cleanly on SIGTERM or Ctrl-C."""
+def configure_logging(verbose: bool) -> None:
     logging.basicConfig(
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-    logging.getLogger("aiormq").setLevel(logging.WARNING)
-    logging.getLogger("aio_pika").setLevel(logging.WARNING)
-    asyncio.run(run_worker(settings(), endpoint()))
+    for noisy in ("aiormq", "aio_pika", "httpx"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+
+
+async def run_together(*runs: Run) -> None:
+    """Run side by side until a signal; when one ends (or fails), the others are stopped too."""
+    stop = asyncio.Event()
+    stop_on_signals(stop)
+
+    async def guarded(run: Run) -> None:
+        try:
+            await run(stop)
+        finally:
+            stop.set()
+
+    await asyncio.gather(*(guarded(run) for run in runs))
+
+
+def worker(
+    recorder: Annotated[
+        bool, typer.Option("--recorder/--no-recorder", help="also record every message (`fleetbus recorder`)")
+    ] = True,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log every batch")] = False,
+) -> None:
+    """Validate, store and fan out every event, and record everything; stop cleanly on SIGTERM or Ctrl-C."""
+    configure_logging(verbose)
+    config, broker = settings(), endpoint()
+    runs: list[Run] = [lambda stop: run_worker(config, broker, stop)]
+    if recorder:
+        runs.append(lambda stop: run_recorder(config, broker, stop=stop))
+    asyncio.run(run_together(*runs))

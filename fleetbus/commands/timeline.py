@@ -1,0 +1,67 @@
+"""``fleetbus timeline``: what a robot and the service exchanged in a time window, in order."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from fleetbus.context import clock, console, fail, parse_time, route_map, summarize, with_recording
+from schemas.identity import validate_name
+from schemas.routing import NOTIFY_EXCHANGE, inbox_queue
+from workers.recorder.queries import record_view
+from workers.recorder.queries import timeline as build_timeline
+
+
+def timeline(
+    robot: Annotated[str, typer.Argument(help="the robot (or operator) account")],
+    since: Annotated[str, typer.Option(help="from this time (ISO 8601 or e.g. 10m ago)")] = "1h",
+    until: Annotated[str | None, typer.Option(help="until this time (default: now)")] = None,
+    limit: Annotated[int, typer.Option(help="at most this many, the oldest first")] = 500,
+    as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
+) -> None:
+    """Fault analysis: every message ROBOT sent or was sent, all types merged in time order.
+
+    Sent: its events, its requests, and the service's refusals of them. Received: the
+    notifications its inbox is bound to (asked of the broker now).
+    """
+    try:
+        validate_name(robot)
+    except ValueError as error:
+        fail(str(error), code=2)
+    routes = route_map()
+    inbound = routes.keys_into(inbox_queue(robot), NOTIFY_EXCHANGE) if routes else []
+    result = with_recording(
+        lambda store: build_timeline(
+            store, robot, parse_time(since), parse_time(until), inbound=inbound, limit=limit
+        )
+    )
+    if as_json:
+        for entry in result.entries:
+            typer.echo(json.dumps({"sent": entry.sent, **record_view(entry.record)}, ensure_ascii=False))
+        return
+    table = Table(title=f"{robot}: {len(result.entries)} messages since {since}")
+    table.add_column("recorded at (UTC)", no_wrap=True)
+    table.add_column("", no_wrap=True)
+    table.add_column("type", no_wrap=True)
+    table.add_column("routing key", no_wrap=True)
+    table.add_column("what", no_wrap=True)
+    room = max(24, console.width - 23 - 3 - 14 - 30 - 16)
+    for entry in result.entries:
+        record = entry.record
+        table.add_row(
+            clock(record.recorded_at),
+            "→" if entry.sent else "←",
+            record.type + ("" if record.known else " (unknown)"),
+            record.routing_key,
+            summarize(record, room),
+            style="red" if record.type == "dead_letter" else None,
+        )
+    console.print(table)
+    console.print(
+        f"[dim]→ sent by {robot}, ← sent to it (inbox bound to {', '.join(inbound) or 'nothing'})[/]"
+    )
+    if result.truncated:
+        console.print(f"[dim]more than {limit}: use --limit or a narrower window[/]")
