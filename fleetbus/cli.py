@@ -14,6 +14,7 @@ from fleetbus.commands import (
     hazards,
     maps,
     recorder,
+    replay,
     schemas_export,
     timeline,
     trace,
@@ -42,6 +43,7 @@ app.command("schemas")(schemas_export.export_schemas)
 app.command("timeline")(timeline.timeline)
 app.command("trace")(trace.trace)
 app.command("evaluate")(evaluate.evaluate)
+app.command("replay")(replay.replay)
 
 if __name__ == "__main__":
     app()

@@ -13,10 +13,10 @@ from __future__ import annotations
 import base64
 import heapq
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
-from typing import Any
+from typing import Any, TypeVar
 
 from broker.routes import Route, RouteMap
 from broker.topics import topic_matches
@@ -35,6 +35,8 @@ from workers.store.recordings import (
     Scalar,
     check_type_name,
 )
+
+T = TypeVar("T")
 
 #: The top-level fields of a fleetbus event envelope; any other field of an event type is its body's.
 ENVELOPE_FIELDS = frozenset({"message_id", "robot_id", "seq", "sent_at", "schema_version", "type", "body"})
@@ -96,6 +98,34 @@ async def find(
     return await store.find_recorded(query)
 
 
+def in_time_order(streams: Iterable[Iterable[T]], record: Callable[[T], RecordedMessage]) -> list[T]:
+    """Streams each in recording order, merged into one."""
+    return list(heapq.merge(*streams, key=lambda item: (record(item).recorded_at, record(item).key)))
+
+
+async def recorded_between(
+    store: RecordingStore,
+    since: datetime | None,
+    until: datetime | None,
+    *,
+    types: Sequence[str] = (),
+    robot_id: str | None = None,
+    conditions: Sequence[Condition] = (),
+) -> list[RecordedMessage]:
+    """Records of the window in recording order, of ``types`` (default: all but dead letters,
+    which are copies); ``conditions`` need exactly one type, whose fields they name."""
+    if conditions and len(types) != 1:
+        raise RecordingError("field conditions apply to one type: name exactly one")
+    chosen = list(types) or [t for t in await store.recorded_types() if t != DEAD_LETTER]
+    streams = [
+        await store.find_recorded(
+            RecordQuery(check_type_name(t), tuple(conditions), robot_id, None, since, until)
+        )
+        for t in chosen
+    ]
+    return in_time_order(streams, lambda record: record)
+
+
 @dataclass(frozen=True)
 class TimelineEntry:
     record: RecordedMessage
@@ -133,7 +163,7 @@ async def timeline(
         notes = await store.find_recorded(RecordQuery(NOTIFICATION, since=since, until=until))
         received = [n for n in notes if any(topic_matches(pattern, n.routing_key) for pattern in inbound)]
         streams.append(TimelineEntry(record, False) for record in received[: limit + 1])
-    merged = list(heapq.merge(*streams, key=lambda e: (e.record.recorded_at, e.record.key)))
+    merged = in_time_order(streams, lambda entry: entry.record)
     return Timeline(robot_id, merged[:limit], len(merged) > limit)
 
 

@@ -1,0 +1,99 @@
+"""Send recorded messages again, with their original spacing or faster, to reproduce a fault.
+
+The schedule comes from the recording times: message ``i`` goes out ``(t_i - t_0) / speed``
+seconds after the first (``speed`` 0: as fast as the broker confirms). Each is published at
+that offset from the start, never earlier, so a slow publish delays the next ones only until the
+schedule is caught up again.
+
+A replayed message keeps its body, routing key, message id, correlation id, type and headers.
+It cannot keep its ``user_id`` (the broker refuses a ``user_id`` other than the publisher's), so
+where it came from goes in headers: ``x-replay-of-user-id``, ``x-replay-of-exchange``,
+``x-replay-recorded-at``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from workers.store.recordings import RecordedMessage
+
+#: Properties a replay carries over; reply_to and expiration would point at callers long gone.
+KEPT_PROPERTIES = (
+    "content_type",
+    "content_encoding",
+    "message_id",
+    "correlation_id",
+    "type",
+    "app_id",
+    "priority",
+)
+
+Publish = Callable[[RecordedMessage, bytes, dict[str, Any]], bool]
+"""Publish one message (routing key from the record); False when the broker could not route it."""
+
+
+@dataclass
+class ReplayReport:
+    published: int = 0
+    unroutable: int = 0
+    skipped: int = 0
+    """Records whose body was not kept (too large when recorded)."""
+    planned: list[float] = field(default_factory=list)
+    """Seconds after the start at which each message was due."""
+    sent: list[float | None] = field(default_factory=list)
+    """Seconds after the start at which each message was published (None: skipped)."""
+
+
+def schedule(records: Sequence[RecordedMessage], speed: float) -> list[float]:
+    if not records:
+        return []
+    if speed < 0:
+        raise ValueError("speed must be 0 (as fast as possible) or more")
+    first = records[0].recorded_at
+    return [0.0 if speed == 0 else (r.recorded_at - first).total_seconds() / speed for r in records]
+
+
+def replay_properties(record: RecordedMessage) -> dict[str, Any]:
+    """The AMQP properties of the replayed copy (names as pika's ``BasicProperties`` takes them)."""
+    properties = {name: record.properties[name] for name in KEPT_PROPERTIES if name in record.properties}
+    headers = dict(record.properties.get("headers") or {})
+    headers.update(
+        {
+            "x-replay-of-user-id": record.user_id or "",
+            "x-replay-of-exchange": record.exchange,
+            "x-replay-recorded-at": record.recorded_at.isoformat(),
+        }
+    )
+    return {**properties, "headers": headers, "delivery_mode": 2}
+
+
+def replay(
+    records: Sequence[RecordedMessage],
+    publish: Publish,
+    speed: float = 1.0,
+    *,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+    on_each: Callable[[RecordedMessage], None] = lambda record: None,
+) -> ReplayReport:
+    report = ReplayReport(planned=schedule(records, speed))
+    start = clock()
+    for record, due in zip(records, report.planned, strict=True):
+        wait = start + due - clock()
+        if wait > 0:
+            sleep(wait)
+        body = record.body_bytes()
+        if body is None:
+            report.skipped += 1
+            report.sent.append(None)
+        else:
+            report.sent.append(clock() - start)
+            if publish(record, body, replay_properties(record)):
+                report.published += 1
+            else:
+                report.unroutable += 1
+        on_each(record)
+    return report
