@@ -16,6 +16,7 @@ from fleetbus.commands import (
     recorder,
     replay,
     schemas_export,
+    stats,
     timeline,
     trace,
     users,
@@ -44,6 +45,7 @@ app.command("timeline")(timeline.timeline)
 app.command("trace")(trace.trace)
 app.command("evaluate")(evaluate.evaluate)
 app.command("replay")(replay.replay)
+app.command("stats")(stats.stats)
 
 if __name__ == "__main__":
     app()

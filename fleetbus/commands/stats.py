@@ -1,0 +1,89 @@
+"""``fleetbus stats``: how fast the recording grows (MB and inserts per minute), as a table and a plot."""
+
+from __future__ import annotations
+
+import json
+from datetime import timedelta
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from fleetbus.context import clock, console, errors, fail, parse_time, with_recording
+from workers.recorder.growth import Growth, growth
+
+UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+
+
+def parse_every(text: str) -> timedelta:
+    if text[-1:] in UNITS and text[:-1].isdigit() and int(text[:-1]) > 0:
+        return timedelta(seconds=int(text[:-1]) * UNITS[text[-1]])
+    fail(f"--every {text!r}: write a duration like 1m, 10m or 1h", code=2)
+
+
+def _view(item: Growth) -> dict[str, object]:
+    return {
+        "start": item.start.isoformat(),
+        "end": item.end.isoformat(),
+        "seconds": item.seconds,
+        "database_bytes": item.database_bytes,
+        "grown_bytes": item.grown_bytes,
+        "inserted": item.inserted,
+        "megabytes_per_minute": item.megabytes_per_minute,
+        "inserts_per_minute": item.inserts_per_minute,
+    }
+
+
+def stats(
+    since: Annotated[str, typer.Option(help="from this time (ISO 8601 or e.g. 6h ago)")] = "1h",
+    every: Annotated[str, typer.Option(help="one row per this much time")] = "1m",
+    plot: Annotated[Path | None, typer.Option(help="also write a PNG plot here")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
+) -> None:
+    """Database growth (MB per minute) and inserts per minute over time, from the recorder's samples."""
+    bucket = parse_every(every)
+    start = parse_time(since)
+    rows = growth(with_recording(lambda store: store.samples(start)), bucket)
+    if as_json:
+        for row in rows:
+            typer.echo(json.dumps(_view(row)))
+    elif not rows:
+        console.print(
+            f"no samples since {since}: the recorder samples the database every minute while it runs "
+            "(`fleetbus recorder run --sample-every SECONDS`)"
+        )
+    else:
+        table = Table(title=f"recording growth since {since}, per {every}")
+        for column in ("until (UTC)", "database MB", "MB per minute", "inserts per minute", "inserted"):
+            table.add_column(column, justify="left" if column.startswith("until") else "right")
+        for row in rows:
+            table.add_row(
+                clock(row.end)[:-4],
+                f"{row.database_bytes / 1e6:.2f}",
+                f"{row.megabytes_per_minute:.3f}",
+                f"{row.inserts_per_minute:.0f}",
+                str(row.inserted),
+            )
+        seconds = sum(row.seconds for row in rows)
+        inserted = sum(row.inserted for row in rows)
+        grown = sum(row.grown_bytes for row in rows)
+        console.print(table)
+        console.print(
+            f"over {seconds / 60:.1f} min: {grown / 1e6 / seconds * 60:.3f} MB per minute, "
+            f"{inserted / seconds * 60:.0f} inserts per minute"
+        )
+    if plot is not None:
+        say = errors if as_json else console
+        if rows:
+            from fleetbus.plots import plot_growth  # matplotlib loads in a second: only when asked
+
+            plot_growth(
+                [row.end for row in rows],
+                [row.megabytes_per_minute for row in rows],
+                [row.inserts_per_minute for row in rows],
+                plot,
+            )
+            say.print(f"wrote {plot}")
+        else:
+            say.print("nothing to plot")
