@@ -120,7 +120,7 @@ def route_map() -> RouteMap | None:
         with admin_api(ep) as api:
             return RouteMap.from_management(api, vhost_of(ep.amqp_url))
     except Exception as error:  # the recording still answers without the broker
-        errors.print(f"[yellow]warning:[/] no broker to ask for routes ({error})", highlight=False)
+        errors.print(f"[yellow]note:[/] no broker to ask for routes and consumers ({error})", highlight=False)
         return None
 
 

@@ -30,10 +30,12 @@ from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from publishers.rpc import ServiceRefused
 from schemas.routing import EventType, RobotKind
-from workers.store import run_with_store
+from workers.recorder.thread import RecorderThread
+from workers.store import open_recording_store, run_with_store
 from workers.store.base import EventQuery
 from workers.store.beacons import Beacon
 from workers.store.hazards import HazardState
+from workers.store.recordings import RecordQuery
 from workers.thread import WorkerThread
 
 T = TypeVar("T")
@@ -65,6 +67,8 @@ class DemoReport:
     steps: list[tuple[str, str]] = field(default_factory=list)
     published: dict[str, int] = field(default_factory=dict)
     stored: dict[str, int] = field(default_factory=dict)
+    recorded: dict[str, int] = field(default_factory=dict)
+    """The explorer's messages in the recording, by type."""
     delivered: dict[str, dict[str, int]] = field(default_factory=dict)
     dead_letters: int = 0
     seconds: float = 0.0
@@ -226,6 +230,14 @@ def count_stored(settings: Settings, since: datetime) -> dict[str, int]:
     return counts
 
 
+def count_recorded(settings: Settings, types: list[str]) -> dict[str, int]:
+    async def count() -> dict[str, int]:
+        async with open_recording_store(settings) as store:
+            return {t: len(await store.find_recorded(RecordQuery(t, robot_id=EXPLORER))) for t in types}
+
+    return asyncio.run(count())
+
+
 def run_demo(
     settings: Settings,
     endpoint: BrokerEndpoint,
@@ -264,7 +276,8 @@ def run_demo(
         try:
             for client in clients.values():
                 client.connect()
-            with WorkerThread(demo_settings, replace(endpoint, amqp_url=admin_url)):
+            demo_endpoint = replace(endpoint, amqp_url=admin_url)
+            with WorkerThread(demo_settings, demo_endpoint), RecorderThread(demo_settings, demo_endpoint):
                 scenario = Scenario(demo_settings, clients, report)
                 for description, act in (
                     ("localisation gate", scenario.localisation_gate),
@@ -281,6 +294,10 @@ def run_demo(
                     lambda: (
                         (c := count_stored(demo_settings, scenario.start)) and sum(c.values()) >= total and c
                     )
+                )
+                types = sorted(report.published)
+                report.recorded = wait(
+                    lambda: (c := count_recorded(demo_settings, types)) and sum(c.values()) >= total and c
                 )
             report.dead_letters = len(peek_dead_letters(admin_url))
         finally:
@@ -306,10 +323,12 @@ def report_table(report: DemoReport) -> Table:
     table.add_column("event type")
     table.add_column(f"published by {EXPLORER}", justify="right")
     table.add_column("stored", justify="right")
+    table.add_column("recorded", justify="right")
     for warden in WARDENS:
         table.add_column(f"delivered to {warden}", justify="right")
     for event_type in sorted(report.published):
         row = [event_type, str(report.published[event_type]), str(report.stored.get(event_type, 0))]
+        row.append(str(report.recorded.get(event_type, 0)))
         row += [str(report.delivered.get(w, {}).get(event_type, 0)) for w in WARDENS]
         table.add_row(*row)
     table.caption = f"dead letters: {report.dead_letters}; telemetry is stored but not sent to wardens"

@@ -24,6 +24,7 @@ def test_demo_scenario(endpoint: BrokerEndpoint, tmp_path: Path) -> None:
     )
     assert report.ok, report.steps
     assert report.stored == report.published
+    assert report.recorded == report.published, "the recorder ran alongside and kept every message"
     assert report.published["hazard"] == 7 and report.published["map"] == 1
     for warden in WARDENS:
         assert report.delivered[warden] == {"hazard": 7, "map": 1}

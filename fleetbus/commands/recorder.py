@@ -71,8 +71,11 @@ def types(
             view["last"] = summary.last.isoformat() if summary.last else None
             typer.echo(json.dumps(view))
         return
-    table = Table("type", "known", "records", "MB", "first (UTC)", "last (UTC)", "kept", "field indexes")
-    table.title = f"{len(rows)} recorded types"
+    table = Table(title=f"{len(rows)} recorded types")
+    for column in ("type", "known", "records", "MB"):
+        table.add_column(column, no_wrap=True, justify="left" if column in ("type", "known") else "right")
+    for column in ("first (UTC)", "last (UTC)", "kept", "field indexes"):
+        table.add_column(column)
     for summary, indexes in rows:
         policy = policy_for(retention, summary.type)
         table.add_row(
@@ -80,8 +83,8 @@ def types(
             "yes" if summary.type in KNOWN_TYPES else "no",
             str(summary.records),
             f"{summary.bytes / 1e6:.2f}",
-            clock(summary.first) if summary.first else "",
-            clock(summary.last) if summary.last else "",
+            clock(summary.first)[:19] if summary.first else "",
+            clock(summary.last)[:19] if summary.last else "",
             policy.describe() if policy else "everything",
             "; ".join(", ".join(paths) for paths in indexes),
         )

@@ -8,11 +8,23 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.context import clock, console, fail, parse_time, route_map, summarize, with_recording
+from broker.topology import inbox_bindings
+from fleetbus.context import clock, console, fail, parse_time, route_map, settings, summarize, with_recording
 from schemas.identity import validate_name
-from schemas.routing import NOTIFY_EXCHANGE, inbox_queue
+from schemas.routing import NOTIFY_EXCHANGE, RobotKind, inbox_queue
 from workers.recorder.queries import record_view
 from workers.recorder.queries import timeline as build_timeline
+from workers.store import Store, run_with_store
+
+
+def registered_subscriptions(robot: str) -> list[str]:
+    """Without a broker to ask: the topics the team registry says a robot of its kind follows."""
+
+    async def kind_of(store: Store) -> str | None:
+        return next((r.kind for r in await store.robots() if r.name == robot), None)
+
+    kind = run_with_store(settings(), kind_of)
+    return inbox_bindings(robot, RobotKind(kind) if kind else None, operator=False)
 
 
 def timeline(
@@ -32,7 +44,9 @@ def timeline(
     except ValueError as error:
         fail(str(error), code=2)
     routes = route_map()
-    inbound = routes.keys_into(inbox_queue(robot), NOTIFY_EXCHANGE) if routes else []
+    inbound = (
+        routes.keys_into(inbox_queue(robot), NOTIFY_EXCHANGE) if routes else registered_subscriptions(robot)
+    )
     result = with_recording(
         lambda store: build_timeline(
             store, robot, parse_time(since), parse_time(until), inbound=inbound, limit=limit

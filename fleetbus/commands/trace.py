@@ -60,17 +60,16 @@ def _provenance(record: RecordedMessage, result: Trace) -> Table:
     return table
 
 
-def _routes(result: Trace, records: list[RecordedMessage], title: str) -> Table:
-    table = Table("message", "queue", "via", "consumers now", "outcome", title=title, title_justify="left")
+def _routes(result: Trace, records: list[RecordedMessage], title: str, label: str | None = None) -> Table:
+    """One row per queue each record reaches; ``label`` names a first column telling records apart."""
+    table = Table(title=title, title_justify="left")
+    for column in ([label] if label else []) + ["queue", "via", "consumers now", "outcome"]:
+        table.add_column(column)
     for record in records:
         for route in result.routes.get(record.key, []):
-            table.add_row(
-                record.message_id or record.key,
-                route.queue,
-                " → ".join(route.via),
-                _consumers(route),
-                _outcome(result, record, route),
-            )
+            cells = [record.routing_key] if label else []
+            cells += [route.queue, " → ".join(route.via), _consumers(route), _outcome(result, record, route)]
+            table.add_row(*cells)
     return table
 
 
@@ -120,7 +119,9 @@ def trace(
     if routes is not None:
         console.print(_routes(result, [origin], "received by (the broker's routes now)"))
         if result.caused:
-            console.print(_routes(result, result.caused, "notifications it caused, and their receivers"))
+            console.print(
+                _routes(result, result.caused, "notifications it caused, and their receivers", "notification")
+            )
     elif result.caused:
         console.print(
             f"caused {len(result.caused)} notifications: {', '.join(r.routing_key for r in result.caused)}"

@@ -38,12 +38,22 @@ class Retention:
     def describe(self) -> str:
         parts = []
         if self.max_age:
-            parts.append(f"{self.max_age.total_seconds():g} s")
+            parts.append(_age(self.max_age))
         if self.max_bytes:
-            parts.append(f"{self.max_bytes / 1e6:g} MB")
+            parts.append(
+                f"{self.max_bytes / 1e9:g} GB" if self.max_bytes >= 1e9 else f"{self.max_bytes / 1e6:g} MB"
+            )
         if self.max_records:
             parts.append(f"{self.max_records} records")
         return ", ".join(parts) or "everything"
+
+
+def _age(age: timedelta) -> str:
+    seconds = age.total_seconds()
+    for unit, size in sorted(AGE_UNITS.items(), key=lambda item: -item[1]):
+        if seconds >= size and seconds % size == 0:
+            return f"{seconds / size:g}{unit}"
+    return f"{seconds:g}s"
 
 
 def parse_retention(specs: Iterable[str]) -> dict[str, Retention]:
