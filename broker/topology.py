@@ -22,6 +22,7 @@ from schemas.routing import (
     INGEST_EXCHANGE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
+    RECORDED_EXCHANGES,
     RECORDER_QUEUE,
     RPC_EXCHANGE,
     RPC_QUEUE,
@@ -101,8 +102,6 @@ def core_topology() -> Topology:
 #: The recorder's backlog while it is not consuming: beyond this the oldest messages are dropped
 #: (the queue's default overflow), so a recorder that is gone can never stop the robots.
 RECORDER_BACKLOG_BYTES = 1024**3
-#: Every exchange the service's traffic passes: robots' events, notifications, requests, dead letters.
-RECORDED_EXCHANGES = (INGEST_EXCHANGE, NOTIFY_EXCHANGE, RPC_EXCHANGE, DEAD_LETTER_EXCHANGE)
 
 
 def recorder_topology() -> Topology:

@@ -19,6 +19,8 @@ from schemas.routing import (
     DETAIL_HEADER,
     NOTIFY_EXCHANGE,
     REASON_HEADER,
+    RECORDED_EXCHANGES,
+    RECORDER_QUEUE,
     EventType,
     Topic,
 )
@@ -90,6 +92,32 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
                     "message": {"$ref": "#/components/messages/notification"},
                 },
                 "bindings": _exchange(NOTIFY_EXCHANGE, "topic"),
+            },
+            RECORDER_QUEUE: {
+                "description": "A copy of every message published to "
+                + ", ".join(RECORDED_EXCHANGES)
+                + " (robots' events of any type, notifications, service requests, dead letters), kept by "
+                "the recorder one collection per type, as received, with user_id, exchange and routing key. "
+                "Types other than the event types above are recorded too, flagged unknown. Only the "
+                "account fleetbus-recorder may read it.",
+                "subscribe": {
+                    "operationId": "recordEverything",
+                    "message": {
+                        "name": "any message",
+                        "payload": {"description": "the body as published: JSON when it parses, else bytes"},
+                    },
+                },
+                "bindings": {
+                    "amqp": {
+                        "is": "queue",
+                        "queue": {
+                            "name": RECORDER_QUEUE,
+                            "durable": True,
+                            "exclusive": False,
+                            "autoDelete": False,
+                        },
+                    }
+                },
             },
             DEAD_LETTER_QUEUE: {
                 "description": f"Messages the workers refused, as received, with headers {REASON_HEADER} "

@@ -35,6 +35,9 @@ RPC_QUEUE = "fleetbus.rpc.requests"
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
 RECORDER_QUEUE = "fleetbus.recorder"
+#: Every exchange the service's traffic passes (robots' events, notifications, requests, dead
+#: letters): the recorder's queue is bound to each with ``#``.
+RECORDED_EXCHANGES = (INGEST_EXCHANGE, NOTIFY_EXCHANGE, RPC_EXCHANGE, DEAD_LETTER_EXCHANGE)
 
 
 class EventType(str, Enum):
