@@ -82,6 +82,13 @@ class ManagementAPI:
     def put_vhost(self, vhost: str) -> None:
         self._request("PUT", f"vhosts/{_q(vhost)}")
 
+    def set_tracing(self, vhost: str, on: bool) -> None:
+        """Turn RabbitMQ's firehose (``amq.rabbitmq.trace``) on or off for a virtual host."""
+        self._request("PUT", f"vhosts/{_q(vhost)}", json={"tracing": on})
+
+    def get_vhost(self, vhost: str) -> dict[str, Any]:
+        return self._request("GET", f"vhosts/{_q(vhost)}")
+
     def delete_vhost(self, vhost: str) -> None:
         self._request("DELETE", f"vhosts/{_q(vhost)}")
 

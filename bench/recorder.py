@@ -1,0 +1,282 @@
+"""The recorder under the reference's logger benchmark: 100 messages a second of 480 bytes.
+
+    .venv/bin/python -m bench.recorder [--seconds 30] [--runs 3] [--backlog 20000]
+
+Each run, in a fresh virtual host and data folder:
+
+  raw broker     pika publishes 10,000 persistent 480-byte messages (pipelined confirms) into a
+                 durable classic queue, then aio-pika consumes them: the broker's own rate, now
+  100 msg/s      ``fleetbus recorder run`` as a process of its own (SQLite store); a robot
+                 publishes 480-byte messages at 100 a second, each confirmed, for --seconds; the
+                 recorder's CPU (user + system time over wall time, % of one core) and resident
+                 memory are read from /proc every half second, and the broker's CPU likewise when
+                 it is the private node
+  backlog        --backlog messages queued while the recorder is stopped, then it starts: its
+                 top rate (how much room there is above 100 a second)
+
+Medians and spreads (min-max) over the runs are printed and written to bench/results/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+import pika
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from bench.ingest import RAW_QUEUE, raw_consume, raw_publish
+from broker.accounts import Account, Role, fresh_vhost, provision_account
+from broker.endpoint import BrokerEndpoint, resolve_broker
+from broker.local_node import LocalNode
+from broker.management import ManagementAPI
+from broker.topology import QueueSpec, Topology, declare_with_url
+from fleetbus.config import Settings, load_settings
+from publishers.confirms import Outgoing, PipelinedConfirms
+from schemas.routing import RECORDER_QUEUE, events_exchange
+from workers.store.sqlite_recordings import SQLiteRecordingStore
+
+VHOST = "fleetbus-bench-recorder"
+ROBOT = "bench-recorder"
+SIZE = 480
+RATE = 100
+TICK = os.sysconf("SC_CLK_TCK")
+console = Console()
+
+
+def body(i: int) -> bytes:
+    """A transform as JSON, padded to exactly SIZE bytes."""
+    doc = {"frame": "/kinect/depth", "child_frame": "/object/bottle", "i": i, "translation": [0.1, 0.2, 0.3]}
+    doc["pad"] = ""
+    doc["pad"] = "x" * (SIZE - len(json.dumps(doc)))
+    data = json.dumps(doc).encode()
+    assert len(data) == SIZE
+    return data
+
+
+def properties(i: int) -> pika.BasicProperties:
+    return pika.BasicProperties(
+        delivery_mode=2, user_id=ROBOT, content_type="application/json", message_id=f"bench-{i}"
+    )
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime
+
+
+def rss_megabytes(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return 0.0
+
+
+class Watch:
+    """CPU share and resident memory of processes, sampled on a thread while something runs."""
+
+    def __init__(self, pids: dict[str, int], every: float = 0.5) -> None:
+        self._pids = pids
+        self._every = every
+        self._stop = threading.Event()
+        self.rss: dict[str, list[float]] = {name: [] for name in pids}
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self) -> None:
+        while not self._stop.wait(self._every):
+            for name, pid in self._pids.items():
+                self.rss[name].append(rss_megabytes(pid))
+
+    def measure(self, action: Callable[[], None]) -> dict[str, float]:
+        """Run ``action``; the CPU share (% of one core) of each process meanwhile."""
+        cpu = {name: cpu_seconds(pid) for name, pid in self._pids.items()}
+        started = time.monotonic()
+        self._thread.start()
+        try:
+            action()
+        finally:
+            self._stop.set()
+            self._thread.join()
+        wall = time.monotonic() - started
+        return {name: 100 * (cpu_seconds(pid) - cpu[name]) / wall for name, pid in self._pids.items()}
+
+
+def paced(account: Account, seconds: float, first: int) -> int:
+    """Publish RATE messages a second, each confirmed, on an absolute schedule; how many."""
+    connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
+    channel = connection.channel()
+    channel.confirm_delivery()
+    count = int(RATE * seconds)
+    start = time.monotonic()
+    for i in range(count):
+        delay = start + i / RATE - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        channel.basic_publish(events_exchange(ROBOT), f"{ROBOT}.tf", body(first + i), properties(first + i))
+    connection.close()
+    return count
+
+
+def backlog(account: Account, count: int, first: int) -> None:
+    connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
+    confirms = PipelinedConfirms(connection, connection.channel(), timeout=120)
+    for start in range(0, count, 1000):
+        confirms.publish(
+            [
+                Outgoing(events_exchange(ROBOT), f"{ROBOT}.tf", body(i), properties(i))
+                for i in range(first + start, first + min(count, start + 1000))
+            ],
+            120,
+        )
+    connection.close()
+
+
+def recorded(settings: Settings) -> int:
+    async def count() -> int:
+        async with SQLiteRecordingStore(settings.recording_path) as store:
+            return (await store.type_summary("tf")).records
+
+    return asyncio.run(count()) if settings.recording_path.exists() else 0
+
+
+def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"gave up waiting for {what}")
+        time.sleep(0.05)
+
+
+def consumers(admin_url: str, queue: str) -> int:
+    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    try:
+        return connection.channel().queue_declare(queue, passive=True).method.consumer_count
+    except pika.exceptions.ChannelClosedByBroker:
+        return 0
+    finally:
+        if connection.is_open:
+            connection.close()
+
+
+class RecorderProcess:
+    """``python -m fleetbus recorder run`` against the run's vhost and data folder."""
+
+    def __init__(self, settings: Settings, endpoint: BrokerEndpoint, admin_url: str) -> None:
+        env = {
+            **os.environ,
+            "FLEETBUS_AMQP_URL": admin_url,
+            "FLEETBUS_MANAGEMENT_URL": endpoint.management_url,
+            "FLEETBUS_DATA_DIR": str(settings.data_dir),
+        }
+        env.pop("FLEETBUS_MONGODB_URL", None)
+        self._admin_url = admin_url
+        self._log = open(settings.data_dir / "recorder.log", "wb")
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "fleetbus", "recorder", "run"],
+            env=env,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+        )
+        wait_until(lambda: consumers(admin_url, RECORDER_QUEUE) >= 1, 60, "the recorder to consume")
+
+    def stop(self) -> None:
+        self.process.send_signal(signal.SIGTERM)
+        self.process.wait(60)
+        self._log.close()
+
+
+def one_run(
+    endpoint: BrokerEndpoint, api: ManagementAPI, seconds: float, backlog_size: int
+) -> dict[str, float]:
+    admin_url = fresh_vhost(api, endpoint.amqp_url, VHOST)
+    result: dict[str, float] = {}
+    asyncio.run(
+        declare_with_url(admin_url, [Topology(queues=(QueueSpec(RAW_QUEUE, {"x-queue-type": "classic"}),))])
+    )
+    result["raw publish msg/s"] = raw_publish(admin_url, 10_000, SIZE)
+    result["raw consume msg/s"] = asyncio.run(raw_consume(admin_url, 10_000))
+    broker_pid = LocalNode(load_settings().broker_dir).pid() if endpoint.kind == "private" else None
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = replace(load_settings(), data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None)
+        account = asyncio.run(provision_account(admin_url, api, ROBOT, Role.ROBOT, rotate=True))
+        recorder = RecorderProcess(settings, endpoint, admin_url)
+        pids = {"recorder": recorder.process.pid, **({"broker": broker_pid} if broker_pid else {})}
+        watch = Watch(pids)
+        published: list[int] = []
+        cpu = watch.measure(lambda: published.append(paced(account, seconds, 0)))
+        started = time.monotonic()
+        wait_until(lambda: recorded(settings) >= published[0], 120, "the paced messages to be recorded")
+        result["lag after the last, s"] = time.monotonic() - started
+        result["recorder CPU %"] = cpu["recorder"]
+        result["recorder RSS MB, mean"] = statistics.fmean(watch.rss["recorder"])
+        result["recorder RSS MB, peak"] = max(watch.rss["recorder"])
+        if broker_pid:
+            result["broker CPU %"] = cpu["broker"]
+        recorder.stop()
+        backlog(account, backlog_size, published[0])
+        started = time.monotonic()
+        recorder = RecorderProcess(settings, endpoint, admin_url)
+        wait_until(
+            lambda: recorded(settings) >= published[0] + backlog_size, 600, "the backlog to be recorded"
+        )
+        result["backlog msg/s (process start included)"] = backlog_size / (time.monotonic() - started)
+        recorder.stop()
+        api.delete_user(ROBOT)
+    api.delete_vhost(VHOST)
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--seconds", type=float, default=30)
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--backlog", type=int, default=20000)
+    parser.add_argument("--out", type=Path, default=Path("bench/results"))
+    args = parser.parse_args()
+    endpoint = resolve_broker(load_settings(), start=True)
+    runs: list[dict[str, float]] = []
+    with (
+        ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
+        Progress(console=console, transient=True) as progress,
+    ):
+        task = progress.add_task(f"{args.runs} runs", total=args.runs)
+        for _ in range(args.runs):
+            runs.append(one_run(endpoint, api, args.seconds, args.backlog))
+            progress.advance(task)
+    table = Table(
+        title=f"the recorder at {RATE} msg/s of {SIZE} bytes for {args.seconds:g} s; {args.runs} runs"
+    )
+    table.add_column("measure")
+    table.add_column("median", justify="right")
+    table.add_column("spread", justify="right")
+    medians = {}
+    for key in runs[0]:
+        values = [run[key] for run in runs]
+        medians[key] = statistics.median(values)
+        table.add_row(key, f"{medians[key]:,.1f}", f"{min(values):,.1f}-{max(values):,.1f}")
+    console.print(table)
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / f"recorder-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}.json"
+    path.write_text(json.dumps({"seconds": args.seconds, "runs": runs, "medians": medians}, indent=2))
+    console.print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
