@@ -11,8 +11,9 @@ prefetch 512), in three set-ups:
   firehose     tracing on for the vhost, a queue bound to amq.rabbitmq.trace with ``#`` (every
                publish and every delivery is copied there), as a firehose recorder would read it
 
-It prints the publish and consume rates (median and spread) and each set-up's rate against the
-baseline.
+It prints the publish and consume rates (median and spread), each set-up's rate against the
+baseline, and, when the broker is the private node, the broker's CPU time per 1,000 messages
+(publish and consume together): the cost the rates hide when the client is the bottleneck.
 """
 
 from __future__ import annotations
@@ -29,8 +30,10 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from bench.recorder import cpu_seconds
 from broker.accounts import fresh_vhost
 from broker.endpoint import BrokerEndpoint, resolve_broker
+from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
 from publishers.confirms import Outgoing, PipelinedConfirms
@@ -97,13 +100,18 @@ def settled_count(channel: pika.adapters.blocking_connection.BlockingChannel, qu
     return last
 
 
-def one_run(endpoint: BrokerEndpoint, api: ManagementAPI, setup: str, count: int) -> dict[str, float]:
+def one_run(
+    endpoint: BrokerEndpoint, api: ManagementAPI, setup: str, count: int, broker_pid: int | None
+) -> dict[str, float]:
     url = fresh_vhost(api, endpoint.amqp_url, VHOST)
     api.set_tracing(VHOST, setup == "firehose")
     connection = pika.BlockingConnection(pika.URLParameters(url))
     try:
         prepare(connection.channel(), setup)
+        cpu = cpu_seconds(broker_pid) if broker_pid else 0.0
         result = {"publish": publish(connection, count), "consume": consume(connection, count)}
+        if broker_pid:
+            result["broker CPU s per 1000"] = (cpu_seconds(broker_pid) - cpu) * 1000 / count
         if setup == "firehose":  # a copy of each publish and of each delivery, routed a moment later
             result["trace copies"] = settled_count(connection.channel(), TRACE)
         return result
@@ -123,6 +131,7 @@ def main() -> None:
     args = parser.parse_args()
     endpoint = resolve_broker(load_settings(), start=True)
     runs: dict[str, list[dict[str, float]]] = {setup: [] for setup in SETUPS}
+    broker_pid = LocalNode(load_settings().broker_dir).pid() if endpoint.kind == "private" else None
     with (
         ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
         Progress(console=console, transient=True) as progress,
@@ -130,10 +139,13 @@ def main() -> None:
         task = progress.add_task("runs", total=args.runs * len(SETUPS))
         for _ in range(args.runs):  # set-ups interleaved, so a slow spell of the machine hits them alike
             for setup in SETUPS:
-                runs[setup].append(one_run(endpoint, api, setup, args.messages))
+                runs[setup].append(one_run(endpoint, api, setup, args.messages, broker_pid))
                 progress.advance(task)
     table = Table(title=f"{args.messages} persistent messages of {SIZE} bytes, {args.runs} runs: msg/s")
-    for column in ("set-up", "publish", "spread", "vs baseline", "consume", "spread", "vs baseline"):
+    columns = ["set-up", "publish", "spread", "vs baseline", "consume", "spread", "vs baseline"]
+    if broker_pid:
+        columns.append("broker CPU s / 1000 msg")
+    for column in columns:
         table.add_column(column, justify="left" if column == "set-up" else "right")
     medians = {
         setup: {key: statistics.median(run[key] for run in found) for key in ("publish", "consume")}
@@ -148,6 +160,8 @@ def main() -> None:
                 f"{min(values):,.0f}-{max(values):,.0f}",
                 f"{medians[setup][key] / medians['baseline'][key]:.2f}",
             ]
+        if broker_pid:
+            cells.append(f"{statistics.median(run['broker CPU s per 1000'] for run in found):.3f}")
         table.add_row(*cells)
     console.print(table)
     copies = [run["trace copies"] for run in runs["firehose"]]

@@ -319,9 +319,9 @@ def steps_table(report: DemoReport) -> Table:
 
 
 def report_table(report: DemoReport) -> Table:
-    table = Table(title=f"fleetbus demo ({report.seconds:.1f} s)")
+    table = Table(title=f"fleetbus demo ({report.seconds:.1f} s): what {EXPLORER} published")
     table.add_column("event type")
-    table.add_column(f"published by {EXPLORER}", justify="right")
+    table.add_column("published", justify="right")
     table.add_column("stored", justify="right")
     table.add_column("recorded", justify="right")
     for warden in WARDENS:

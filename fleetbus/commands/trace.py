@@ -18,7 +18,8 @@ from workers.store.recordings import RecordedMessage, RecordingStore
 
 
 def _consumers(route: Route) -> str:
-    return ", ".join(f"{c.user} ({c.connection})" for c in route.consumers) or "none now"
+    """The consuming accounts (``--json`` also gives their connections)."""
+    return ", ".join(sorted({c.user for c in route.consumers})) or "none now"
 
 
 def _outcome(result: Trace, record: RecordedMessage, route: Route) -> str:
