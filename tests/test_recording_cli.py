@@ -116,6 +116,8 @@ def test_a_bad_query_names_its_problem(bus: Bus) -> None:
         result = fleetbus(bus, "query", "tf", "-w", where)
         assert result.returncode == 2 and problem in result.stderr, result.stderr
     assert "nothing recorded of type 'nothing'" in fleetbus(bus, "query", "nothing").stdout
+    retention = fleetbus(bus, "recorder", "run", "--keep", "status=7x")
+    assert retention.returncode == 2 and "retention 'status=7x'" in retention.stderr
 
 
 def test_a_robots_timeline_merges_every_type_in_order(bus: Bus, scene: dict[str, Any]) -> None:
