@@ -19,10 +19,8 @@ baseline, and, when the broker is the private node, the broker's CPU time per 1,
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import pika
@@ -31,6 +29,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from bench.recorder import cpu_seconds
+from bench.results import medians, save, spread
 from broker.accounts import fresh_vhost
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
@@ -147,29 +146,23 @@ def main() -> None:
         columns.append("broker CPU s / 1000 msg")
     for column in columns:
         table.add_column(column, justify="left" if column == "set-up" else "right")
-    medians = {
-        setup: {key: statistics.median(run[key] for run in found) for key in ("publish", "consume")}
-        for setup, found in runs.items()
-    }
+    middle = {setup: medians(found) for setup, found in runs.items()}
     for setup, found in runs.items():
         cells = [setup]
         for key in ("publish", "consume"):
-            values = [run[key] for run in found]
             cells += [
-                f"{medians[setup][key]:,.0f}",
-                f"{min(values):,.0f}-{max(values):,.0f}",
-                f"{medians[setup][key] / medians['baseline'][key]:.2f}",
+                f"{middle[setup][key]:,.0f}",
+                spread(found, key),
+                f"{middle[setup][key] / middle['baseline'][key]:.2f}",
             ]
         if broker_pid:
-            cells.append(f"{statistics.median(run['broker CPU s per 1000'] for run in found):.3f}")
+            cells.append(f"{middle[setup]['broker CPU s per 1000']:.3f}")
         table.add_row(*cells)
     console.print(table)
     copies = [run["trace copies"] for run in runs["firehose"]]
     console.print(f"firehose: {statistics.median(copies):,.0f} trace messages for {args.messages} published")
-    args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"firehose-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}.json"
-    path.write_text(
-        json.dumps({"messages": args.messages, "size": SIZE, "runs": runs, "medians": medians}, indent=2)
+    path = save(
+        args.out, "firehose", {"messages": args.messages, "size": SIZE, "runs": runs, "medians": middle}
     )
     console.print(f"wrote {path}")
 

@@ -16,12 +16,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
-import statistics
 import tempfile
 import time
 from dataclasses import replace
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +28,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from bench.results import medians, save, spread
 from broker.accounts import Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
@@ -171,7 +169,7 @@ def main() -> None:
         for _ in range(args.runs):
             runs.append(one_run(endpoint, api, args.events))
             progress.advance(task)
-    medians = {key: statistics.median(run[key] for run in runs) for key in runs[0]}
+    middle = medians(runs)
     table = Table(
         title=f"msg/s, median of {args.runs} runs of {args.events} messages of {event_size()} bytes"
     )
@@ -179,18 +177,10 @@ def main() -> None:
     table.add_column("median msg/s", justify="right")
     table.add_column("spread", justify="right")
     table.add_column("vs raw consume", justify="right")
-    for key, median in medians.items():
-        values = [run[key] for run in runs]
-        table.add_row(
-            key,
-            f"{median:,.0f}",
-            f"{min(values):,.0f}-{max(values):,.0f}",
-            f"{median / medians['raw_consume']:.2f}",
-        )
+    for key, median in middle.items():
+        table.add_row(key, f"{median:,.0f}", spread(runs, key), f"{median / middle['raw_consume']:.2f}")
     console.print(table)
-    args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"ingest-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}.json"
-    path.write_text(json.dumps({"events": args.events, "runs": runs, "medians": medians}, indent=2))
+    path = save(args.out, "ingest", {"events": args.events, "runs": runs, "medians": middle})
     console.print(f"wrote {path}")
 
 

@@ -32,7 +32,6 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
-from datetime import datetime, timezone
 from pathlib import Path
 
 import pika
@@ -41,6 +40,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from bench.ingest import RAW_QUEUE, raw_consume, raw_publish
+from bench.results import medians, save, spread
 from broker.accounts import Account, Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
@@ -266,15 +266,11 @@ def main() -> None:
     table.add_column("measure")
     table.add_column("median", justify="right")
     table.add_column("spread", justify="right")
-    medians = {}
-    for key in runs[0]:
-        values = [run[key] for run in runs]
-        medians[key] = statistics.median(values)
-        table.add_row(key, f"{medians[key]:,.1f}", f"{min(values):,.1f}-{max(values):,.1f}")
+    middle = medians(runs)
+    for key, median in middle.items():
+        table.add_row(key, f"{median:,.1f}", spread(runs, key, 1))
     console.print(table)
-    args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"recorder-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}.json"
-    path.write_text(json.dumps({"seconds": args.seconds, "runs": runs, "medians": medians}, indent=2))
+    path = save(args.out, "recorder", {"seconds": args.seconds, "runs": runs, "medians": middle})
     console.print(f"wrote {path}")
 
 
