@@ -13,6 +13,7 @@ from pathlib import Path
 DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
+DEFAULT_LATE_AFTER_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,8 @@ class Settings:
     """Bodies larger than this are dead-lettered by the workers."""
     battery_low_percent: float = DEFAULT_BATTERY_LOW_PERCENT
     """A status below this battery level notifies the operators (once per crossing)."""
+    late_after_s: float = DEFAULT_LATE_AFTER_S
+    """A notification that reaches its robots this long after the event was sent is flagged late."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -56,4 +59,5 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         mongodb_url=env.get("FLEETBUS_MONGODB_URL") or None,
         max_message_bytes=int(env.get("FLEETBUS_MAX_MESSAGE_BYTES") or DEFAULT_MAX_MESSAGE_BYTES),
         battery_low_percent=float(env.get("FLEETBUS_BATTERY_LOW_PERCENT") or DEFAULT_BATTERY_LOW_PERCENT),
+        late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
     )

@@ -26,6 +26,7 @@ from workers.store.base import (
 from workers.store.interface import Store
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, in_transaction
+from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 
 T = TypeVar("T")
@@ -93,7 +94,7 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
+class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, SQLiteLedger, Store):
     name = "sqlite"
 
     def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
@@ -133,6 +134,7 @@ class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
         db.executescript(HAZARD_SCHEMA)
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
+        db.executescript(LEDGER_SCHEMA)
         return db
 
     async def open(self) -> None:
@@ -156,10 +158,16 @@ class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         rows = [_row(record) for record in records]
 
+        def result(db: sqlite3.Connection, row: tuple[Any, ...]) -> WriteResult:
+            if db.execute(INSERT, row).rowcount == 1:
+                return WriteResult(inserted=True)
+            stored = db.execute(
+                "SELECT message_id FROM events WHERE robot_id = ? AND seq = ?", (row[0], row[1])
+            ).fetchone()
+            return WriteResult(inserted=False, stored_message_id=stored[0])
+
         def write(db: sqlite3.Connection) -> list[WriteResult]:
-            return in_transaction(
-                db, lambda: [WriteResult(inserted=db.execute(INSERT, row).rowcount == 1) for row in rows]
-            )
+            return in_transaction(db, lambda: [result(db, row) for row in rows])
 
         return await self._run(write)
 
