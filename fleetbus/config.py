@@ -14,6 +14,7 @@ DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
 DEFAULT_RECORDER_KEEP = "*=1GB"
+DEFAULT_LATE_AFTER_S = 5.0
 
 
 def _words(value: str | None) -> tuple[str, ...]:
@@ -41,6 +42,8 @@ class Settings:
     """Routing-key patterns the recorder drops."""
     recorder_keep: tuple[str, ...] = (DEFAULT_RECORDER_KEEP,)
     """Retention per type: ``status=7d``, ``map_chunk=500MB``, ``tf=100000``, ``*=1GB``."""
+    late_after_s: float = DEFAULT_LATE_AFTER_S
+    """A notification that reaches its robots this long after the event was sent is flagged late."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -76,4 +79,5 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         recorder_include=_words(env.get("FLEETBUS_RECORDER_INCLUDE")),
         recorder_exclude=_words(env.get("FLEETBUS_RECORDER_EXCLUDE")),
         recorder_keep=_words(env.get("FLEETBUS_RECORDER_KEEP")) or (DEFAULT_RECORDER_KEEP,),
+        late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
     )

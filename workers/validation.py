@@ -23,6 +23,7 @@ class RejectReason(str, Enum):
     IDENTITY_MISMATCH = "identity-mismatch"
     UNKNOWN_ROBOT = "unknown-robot"
     BAD_MAP = "bad-map"
+    SEQUENCE_REUSED = "sequence-reused"
 
 
 @dataclass(frozen=True)

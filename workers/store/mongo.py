@@ -23,7 +23,8 @@ from workers.store.base import (
 )
 from workers.store.interface import Store
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
-from workers.store.mongo_database import DUPLICATE_KEY, UNAVAILABLE, MongoDatabase
+from workers.store.mongo_database import DUPLICATE_KEY, UNAVAILABLE, MongoDatabase, translate_unavailable
+from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
 
 
@@ -70,7 +71,8 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
-class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps, Store):
+@translate_unavailable(Store)
+class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps, MongoLedger, Store):
     name = "mongodb"
 
     def _events(self) -> Any:
@@ -86,6 +88,7 @@ class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps,
             await events.create_index([("sent_at_us", ASCENDING)])
             await events.create_index([("message_id", ASCENDING)])
             await self.create_coordination_indexes()
+            await self.create_ledger_indexes()
             await self._collection("maps").create_index(
                 [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
             )
@@ -115,7 +118,20 @@ class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps,
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
         # a key repeated inside the batch: MongoDB inserts the first copy and reports the others
-        return [WriteResult(inserted=index not in duplicates) for index in range(len(documents))]
+        stored: dict[str, str] = {}
+        if duplicates:
+            ids = [documents[index]["_id"] for index in duplicates]
+            try:
+                cursor = self._events().find({"_id": {"$in": ids}}, {"message_id": 1})
+                stored = {doc["_id"]: doc["message_id"] async for doc in cursor}
+            except UNAVAILABLE as error:
+                raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        return [
+            WriteResult(inserted=True)
+            if index not in duplicates
+            else WriteResult(inserted=False, stored_message_id=stored.get(documents[index]["_id"]))
+            for index in range(len(documents))
+        ]
 
     @staticmethod
     def _filter(type: str | None, robot_id: str | None, query: EventQuery | None = None) -> dict[str, Any]:

@@ -7,9 +7,10 @@ journal, so j is a no-op there), so no fallback is needed.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
-from typing import Any
+import functools
+import inspect
+from collections.abc import Awaitable, Callable
+from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
 from pymongo import AsyncMongoClient
@@ -21,11 +22,36 @@ from workers.store.base import StoreUnavailable
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
 DEFAULT_DATABASE = "fleetbus"
+C = TypeVar("C", bound=type)
 
 
 def database_name(url: str) -> str:
     path = urlsplit(url).path.strip("/")
     return path or DEFAULT_DATABASE
+
+
+def _unavailable_as_store_error(method: Callable[..., Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
+    @functools.wraps(method)
+    async def guarded(self: MongoDatabase, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return await method(self, *args, **kwargs)
+        except UNAVAILABLE as error:
+            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+
+    return guarded
+
+
+def translate_unavailable(interface: type) -> Callable[[C], C]:
+    """Every operation of ``interface`` reports an unreachable server as StoreUnavailable, which
+    workers retry."""
+
+    def decorate(cls: C) -> C:
+        for name, _ in inspect.getmembers(interface, inspect.iscoroutinefunction):
+            if not name.startswith("_"):
+                setattr(cls, name, _unavailable_as_store_error(getattr(cls, name)))
+        return cls
+
+    return decorate
 
 
 class MongoDatabase:
@@ -55,14 +81,6 @@ class MongoDatabase:
         """Hosts and database without credentials (``urlsplit().port`` fails on a host list)."""
         hosts = urlsplit(self.url).netloc.rpartition("@")[2]
         return f"{hosts}/{self._database_name}"
-
-    @contextmanager
-    def _reachable(self) -> Iterator[None]:
-        """Report a database that cannot be reached as :class:`StoreUnavailable` (retry later)."""
-        try:
-            yield
-        except UNAVAILABLE as error:
-            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
 
     async def close(self) -> None:
         if self._client is not None:

@@ -21,7 +21,7 @@ from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import BulkWriteError
 
 from workers.store.base import StoreUnavailable, WriteResult, from_micros, to_micros
-from workers.store.mongo_database import DUPLICATE_KEY, MongoDatabase
+from workers.store.mongo_database import DUPLICATE_KEY, MongoDatabase, translate_unavailable
 from workers.store.recordings import (
     Condition,
     Op,
@@ -152,6 +152,7 @@ def from_document(type: str, doc: dict[str, Any]) -> RecordedMessage:
     )
 
 
+@translate_unavailable(RecordingStore)
 class MongoRecordingStore(MongoDatabase, RecordingStore):
     name = "mongodb"
 
@@ -161,8 +162,7 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
 
     async def open(self) -> None:
         self._connect()
-        with self._reachable():
-            await self._collection(SAMPLES).create_index([("sampled_at_us", ASCENDING)])
+        await self._collection(SAMPLES).create_index([("sampled_at_us", ASCENDING)])
 
     def _recorded(self, type: str) -> Any:
         return self._collection(collection_name(type))
@@ -182,10 +182,9 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
         for index, record in enumerate(records):
             by_type.setdefault(record.type, []).append(index)
         duplicates: set[int] = set()
-        with self._reachable():
-            for type, indexes in by_type.items():
-                await self._ensure_collection(type)
-                duplicates |= await self._insert(type, [records[i] for i in indexes], indexes)
+        for type, indexes in by_type.items():
+            await self._ensure_collection(type)
+            duplicates |= await self._insert(type, [records[i] for i in indexes], indexes)
         return [WriteResult(inserted=index not in duplicates) for index in range(len(records))]
 
     async def _insert(self, type: str, records: list[RecordedMessage], indexes: list[int]) -> set[int]:
@@ -225,12 +224,10 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
         )
         if query.limit is not None:
             cursor = cursor.limit(query.limit)
-        with self._reachable():
-            return [from_document(query.type, doc) async for doc in cursor]
+        return [from_document(query.type, doc) async for doc in cursor]
 
     async def recorded_types(self) -> list[str]:
-        with self._reachable():
-            names = await self._database().list_collection_names()
+        names = await self._database().list_collection_names()
         return sorted(name[len(COLLECTION_PREFIX) :] for name in names if name.startswith(COLLECTION_PREFIX))
 
     async def type_summary(self, type: str) -> TypeSummary:
@@ -245,8 +242,7 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
                 }
             }
         ]
-        with self._reachable():
-            rows = [row async for row in await self._recorded(type).aggregate(pipeline)]
+        rows = [row async for row in await self._recorded(type).aggregate(pipeline)]
         if not rows:
             return TypeSummary(type, 0, 0, None, None)
         row = rows[0]
@@ -256,13 +252,11 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
 
     async def ensure_field_index(self, type: str, paths: Sequence[str]) -> None:
         keys = [(field(path), ASCENDING) for path in paths] + [("recorded_at_us", ASCENDING)]
-        with self._reachable():
-            await self._ensure_collection(type)
-            await self._recorded(type).create_index(keys, name=FIELD_INDEX_PREFIX + ",".join(paths))
+        await self._ensure_collection(type)
+        await self._recorded(type).create_index(keys, name=FIELD_INDEX_PREFIX + ",".join(paths))
 
     async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
-        with self._reachable():
-            indexes = await self._recorded(type).index_information()
+        indexes = await self._recorded(type).index_information()
         return sorted(
             tuple(name[len(FIELD_INDEX_PREFIX) :].split(","))
             for name in indexes
@@ -322,16 +316,14 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
             },
             {"$sort": {"_id": 1}},
         ]
-        with self._reachable():
-            rows = [row async for row in await self._recorded(type).aggregate(pipeline)]
+        rows = [row async for row in await self._recorded(type).aggregate(pipeline)]
         return [
             OutcomeStats.of(row["_id"], row["successes"], row["runs"], row["mean"], row["std"])
             for row in rows
         ]
 
     async def delete_recorded_before(self, type: str, before: datetime) -> int:
-        with self._reachable():
-            result = await self._recorded(type).delete_many({"recorded_at_us": {"$lt": to_micros(before)}})
+        result = await self._recorded(type).delete_many({"recorded_at_us": {"$lt": to_micros(before)}})
         return result.deleted_count
 
     async def oldest_recorded(self, type: str, limit: int) -> list[tuple[str, int]]:
@@ -341,22 +333,19 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
             .sort([("recorded_at_us", ASCENDING), ("_id", ASCENDING)])
             .limit(int(limit))
         )
-        with self._reachable():
-            return [(doc["_id"], doc.get("size", 0)) async for doc in cursor]
+        return [(doc["_id"], doc.get("size", 0)) async for doc in cursor]
 
     async def delete_recorded(self, type: str, keys: Sequence[str]) -> int:
         if not keys:
             return 0
-        with self._reachable():
-            result = await self._recorded(type).delete_many({"_id": {"$in": list(keys)}})
+        result = await self._recorded(type).delete_many({"_id": {"$in": list(keys)}})
         return result.deleted_count
 
     async def database_bytes(self) -> int:
         total = 0
-        with self._reachable():
-            for type in await self.recorded_types():
-                stats = await self._database().command("collStats", collection_name(type))
-                total += int(stats.get("storageSize", 0)) + int(stats.get("totalIndexSize", 0))
+        for type in await self.recorded_types():
+            stats = await self._database().command("collStats", collection_name(type))
+            total += int(stats.get("storageSize", 0)) + int(stats.get("totalIndexSize", 0))
         return total
 
     async def add_sample(self, sample: StorageSample) -> None:
@@ -368,18 +357,16 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
             "database_bytes": sample.database_bytes,
             "inserted": sample.inserted,
         }
-        with self._reachable():
-            await self._collection(SAMPLES).replace_one({"_id": document["_id"]}, document, upsert=True)
+        await self._collection(SAMPLES).replace_one({"_id": document["_id"]}, document, upsert=True)
 
     async def samples(self, since: datetime | None = None) -> list[StorageSample]:
         query = {"sampled_at_us": {"$gte": to_micros(since)}} if since else {}
         cursor = (
             self._collection(SAMPLES).find(query).sort([("sampled_at_us", ASCENDING), ("run_id", ASCENDING)])
         )
-        with self._reachable():
-            return [
-                StorageSample(
-                    from_micros(doc["sampled_at_us"]), doc["run_id"], doc["database_bytes"], doc["inserted"]
-                )
-                async for doc in cursor
-            ]
+        return [
+            StorageSample(
+                from_micros(doc["sampled_at_us"]), doc["run_id"], doc["database_bytes"], doc["inserted"]
+            )
+            async for doc in cursor
+        ]

@@ -23,6 +23,7 @@ from workers.store.interface import Store
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
 from workers.store.sqlite_database import SQLiteDatabase, in_transaction
+from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 
 T = TypeVar("T")
@@ -89,7 +90,7 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
+class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLiteMaps, SQLiteLedger, Store):
     name = "sqlite"
 
     def _prepare(self, db: sqlite3.Connection) -> None:
@@ -97,14 +98,21 @@ class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLite
         db.executescript(HAZARD_SCHEMA)
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
+        db.executescript(LEDGER_SCHEMA)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         rows = [_row(record) for record in records]
 
+        def result(db: sqlite3.Connection, row: tuple[Any, ...]) -> WriteResult:
+            if db.execute(INSERT, row).rowcount == 1:
+                return WriteResult(inserted=True)
+            stored = db.execute(
+                "SELECT message_id FROM events WHERE robot_id = ? AND seq = ?", (row[0], row[1])
+            ).fetchone()
+            return WriteResult(inserted=False, stored_message_id=stored[0])
+
         def write(db: sqlite3.Connection) -> list[WriteResult]:
-            return in_transaction(
-                db, lambda: [WriteResult(inserted=db.execute(INSERT, row).rowcount == 1) for row in rows]
-            )
+            return in_transaction(db, lambda: [result(db, row) for row in rows])
 
         return await self._run(write)
 
