@@ -23,6 +23,7 @@ from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient
 from schemas.routing import RobotKind
+from workers.recorder.consumer import MissionLookup
 from workers.recorder.runner import recorder_options
 from workers.recorder.thread import RecorderThread
 from workers.store import Store, open_recording_store, run_with_store
@@ -92,10 +93,11 @@ class Bus:
             thread.stop()
 
     @contextmanager
-    def recorder(self, **options: Any) -> Iterator[RecorderThread]:
+    def recorder(self, missions: MissionLookup | None = None, **options: Any) -> Iterator[RecorderThread]:
         """The recorder, with these :class:`RecorderOptions` over the settings' ones."""
         endpoint = replace(self.endpoint, amqp_url=self.admin_url)
-        thread = RecorderThread(self.settings, endpoint, recorder_options(self.settings, **options)).start()
+        options_ = recorder_options(self.settings, **options)
+        thread = RecorderThread(self.settings, endpoint, options_, missions).start()
         try:
             yield thread
         finally:

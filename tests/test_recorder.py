@@ -183,3 +183,20 @@ def test_the_recorder_account_may_only_read_its_queue(bus: Bus) -> None:
     connection.channel().basic_consume(RECORDER_QUEUE, lambda *a: None)  # its own queue: allowed
     connection.close()
     assert bus.api.get_user(RECORDER_USER)["tags"] in ("", []), "no management access either"
+
+
+def test_messages_carry_the_mission_their_robot_is_recorded_under(bus: Bus) -> None:
+    on_mission, idle = bus.add("rec-on-mission"), bus.add("rec-idle")
+
+    async def missions(robots: set[str]) -> dict[str, str]:
+        return {robot: "survey-7" for robot in robots if robot == "rec-on-mission"}
+
+    with bus.recorder(missions=missions) as recorder:
+        for account in (on_mission, idle):
+            bus.publish_raw(account, f"{account.name}.tf", b'{"a": 1}', message_id=f"{account.name}-1")
+        wait_for(lambda: recorder.stats().recorded == 2, what="both recorded")
+    assert [r.robot_id for r in bus.recorded("tf", mission_id="survey-7")] == ["rec-on-mission"]
+    assert {r.robot_id: r.mission_id for r in bus.recorded("tf")} == {
+        "rec-on-mission": "survey-7",
+        "rec-idle": None,
+    }

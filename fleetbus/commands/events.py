@@ -90,6 +90,7 @@ def query(
         ),
     ] = None,
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
+    mission: Annotated[str | None, typer.Option(help="only messages recorded under this mission")] = None,
     since: Annotated[
         str | None, typer.Option(help="recorded from this time (ISO 8601 or e.g. 10m ago)")
     ] = None,
@@ -113,6 +114,7 @@ def query(
                 until=parse_time(until),
                 limit=limit,
                 newest_first=True,
+                mission_id=mission,
             )
             return found, await store.recorded_types()
 

@@ -104,8 +104,8 @@ async def test_time_window_robot_message_order_and_limit(recording: RecordingSto
             rec("e", at=2, robot="b"),
             rec("d", at=1, robot="a", message_id="m-d"),
             rec("c", at=1, robot="b"),
-            rec("a", at=0, robot="a"),
-            rec("b", at=3, robot="a"),
+            rec("a", at=0, robot="a", mission_id="m1"),
+            rec("b", at=3, robot="a", mission_id="m1"),
         ]
     )
     assert keys(await recording.find_recorded(RecordQuery("tf"))) == ["a", "c", "d", "e", "b"]
@@ -113,6 +113,7 @@ async def test_time_window_robot_message_order_and_limit(recording: RecordingSto
     assert keys(await recording.find_recorded(window)) == ["c", "d", "e"], "since inclusive, until exclusive"
     assert keys(await recording.find_recorded(RecordQuery("tf", robot_id="a"))) == ["a", "d", "b"]
     assert keys(await recording.find_recorded(RecordQuery("tf", message_id="m-d"))) == ["d"]
+    assert keys(await recording.find_recorded(RecordQuery("tf", mission_id="m1"))) == ["a", "b"]
     newest = RecordQuery("tf", newest_first=True, limit=3)
     assert keys(await recording.find_recorded(newest)) == ["b", "e", "d"]
 

@@ -31,6 +31,8 @@ from workers.store.recordings import RecordedMessage, RecordingStore, StorageSam
 
 log = logging.getLogger("fleetbus.recorder")
 T = TypeVar("T")
+MissionLookup = Callable[[set[str]], Awaitable[dict[str, str]]]
+"""The mission each of these robots is being recorded under now (robots under none left out)."""
 CONNECTION_LOST = (AMQPError, aiormq.exceptions.AMQPError, ChannelInvalidStateError, ConnectionError)
 
 
@@ -70,12 +72,14 @@ class RecorderConsumer:
         store: RecordingStore,
         options: RecorderOptions,
         names: TypeNames,
+        missions: MissionLookup | None = None,
     ) -> None:
         self._channel = channel
         self._queue = queue
         self._store = store
         self._options = options
         self._names = names
+        self._missions = missions
         self._inbox = BatchInbox(options.batch_size, options.linger)
         self._stopping = asyncio.Event()
         self._consumer_tag: str | None = None
@@ -145,6 +149,8 @@ class RecorderConsumer:
                 records.append(self._capture(message))
             else:
                 self.stats.filtered += 1
+        if records and self._missions is not None:
+            records = await self._stamp_missions(records)
         if records:
             results = await self._retrying(lambda: self._write(records))
             for record, result in zip(records, results, strict=True):
@@ -155,6 +161,19 @@ class RecorderConsumer:
                     self.stats.duplicates += 1
             self._since_sample += sum(result.inserted for result in results)
         await batch[-1].ack(multiple=True)
+
+    async def _stamp_missions(self, records: list[RecordedMessage]) -> list[RecordedMessage]:
+        """Each robot's message carries the mission the robot is recorded under, as the event log's do."""
+        assert self._missions is not None
+        lookup = self._missions
+        robots = {r.robot_id for r in records if r.robot_id and r.mission_id is None}
+        missions = await self._retrying(lambda: lookup(robots)) if robots else {}
+        return [
+            replace(r, mission_id=missions[r.robot_id])
+            if r.mission_id is None and r.robot_id in missions
+            else r
+            for r in records
+        ]
 
     async def _write(self, records: list[RecordedMessage]) -> list[WriteResult]:
         """Write a batch; one the store refuses is written record by record, so that one bad

@@ -86,6 +86,7 @@ async def find(
     until: datetime | None = None,
     limit: int | None = None,
     newest_first: bool = False,
+    mission_id: str | None = None,
     index: bool = True,
 ) -> list[RecordedMessage]:
     """Records of ``type`` meeting every condition, in the window; with ``index``, the fields the
@@ -94,7 +95,16 @@ async def find(
     paths = sorted({condition.path for condition in conditions})
     if index and paths and type in await store.recorded_types():
         await store.ensure_field_index(type, paths)
-    query = RecordQuery(type, tuple(conditions), robot_id, None, since, until, limit, newest_first)
+    query = RecordQuery(
+        type,
+        tuple(conditions),
+        robot_id=robot_id,
+        since=since,
+        until=until,
+        limit=limit,
+        newest_first=newest_first,
+        mission_id=mission_id,
+    )
     return await store.find_recorded(query)
 
 
@@ -119,7 +129,7 @@ async def recorded_between(
     chosen = list(types) or [t for t in await store.recorded_types() if t != DEAD_LETTER]
     streams = [
         await store.find_recorded(
-            RecordQuery(check_type_name(t), tuple(conditions), robot_id, None, since, until)
+            RecordQuery(check_type_name(t), tuple(conditions), robot_id=robot_id, since=since, until=until)
         )
         for t in chosen
     ]

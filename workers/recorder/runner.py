@@ -17,7 +17,7 @@ from broker.topology import core_topology, declare_with_url, recorder_topology
 from fleetbus.config import Settings
 from schemas.routing import RECORDER_QUEUE
 from workers.recorder.capture import TypeNames
-from workers.recorder.consumer import RecorderConsumer, RecorderOptions
+from workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import parse_retention
 from workers.signals import stop_on_signals
@@ -50,7 +50,10 @@ def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
 
 
 async def start_recorder(
-    settings: Settings, endpoint: BrokerEndpoint, options: RecorderOptions
+    settings: Settings,
+    endpoint: BrokerEndpoint,
+    options: RecorderOptions,
+    missions: MissionLookup | None = None,
 ) -> RecorderContext:
     # as the administrator: the account, then the queue and its bindings (the account may not)
     url = await asyncio.to_thread(recorder_url, settings, endpoint)
@@ -65,7 +68,9 @@ async def start_recorder(
     await channel.set_qos(prefetch_count=options.batch_size)
     # fetched (not just named) so the robust channel consumes it again after a broker restart
     queue = await channel.get_queue(RECORDER_QUEUE)
-    return RecorderContext(connection, RecorderConsumer(channel, queue, store, options, names), store)
+    return RecorderContext(
+        connection, RecorderConsumer(channel, queue, store, options, names, missions), store
+    )
 
 
 async def run_recorder(
@@ -74,11 +79,13 @@ async def run_recorder(
     options: RecorderOptions | None = None,
     stop: asyncio.Event | None = None,
     on_started: Callable[[RecorderContext], None] | None = None,
+    missions: MissionLookup | None = None,
 ) -> None:
-    """Record until ``stop`` is set, or SIGTERM/SIGINT when run as the main program."""
+    """Record until ``stop`` is set, or SIGTERM/SIGINT when run as the main program; ``missions``
+    stamps each robot's messages with the mission it is recorded under."""
     stop = stop or asyncio.Event()
     stop_on_signals(stop)
-    context = await start_recorder(settings, endpoint, options or recorder_options(settings))
+    context = await start_recorder(settings, endpoint, options or recorder_options(settings), missions)
     log.info("recorder consuming %s (store: %s)", RECORDER_QUEUE, context.store.name)
     if on_started is not None:
         on_started(context)

@@ -4,17 +4,21 @@ from __future__ import annotations
 
 from broker.endpoint import BrokerEndpoint
 from fleetbus.config import Settings
-from workers.recorder.consumer import RecorderOptions, RecorderStats
+from workers.recorder.consumer import MissionLookup, RecorderOptions, RecorderStats
 from workers.recorder.runner import RecorderContext, run_recorder
 from workers.thread import LoopThread
 
 
 class RecorderThread(LoopThread[RecorderContext]):
     def __init__(
-        self, settings: Settings, endpoint: BrokerEndpoint, options: RecorderOptions | None = None
+        self,
+        settings: Settings,
+        endpoint: BrokerEndpoint,
+        options: RecorderOptions | None = None,
+        missions: MissionLookup | None = None,
     ) -> None:
         super().__init__(
-            lambda stop, started: run_recorder(settings, endpoint, options, stop, on_started=started),
+            lambda stop, started: run_recorder(settings, endpoint, options, stop, started, missions),
             "fleetbus-recorder",
         )
 

@@ -175,6 +175,7 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
         await collection.create_index([("recorded_at_us", ASCENDING), ("_id", ASCENDING)])
         await collection.create_index([("robot_id", ASCENDING), ("recorded_at_us", ASCENDING)])
         await collection.create_index([("message_id", ASCENDING)])
+        await collection.create_index([("mission_id", ASCENDING), ("recorded_at_us", ASCENDING)])
         self._indexed.add(type)
 
     async def write_recorded(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
@@ -215,6 +216,8 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
 
     async def find_recorded(self, query: RecordQuery) -> list[RecordedMessage]:
         filters = provenance_filter(query.robot_id, query.message_id, query.since, query.until)
+        if query.mission_id is not None:
+            filters.append({"mission_id": query.mission_id})
         filters.extend(condition_filter(condition) for condition in query.conditions)
         direction = DESCENDING if query.newest_first else ASCENDING
         cursor = (

@@ -151,6 +151,7 @@ class RecordQuery:
     """Exclusive upper bound on ``recorded_at``."""
     limit: int | None = None
     newest_first: bool = False
+    mission_id: str | None = None
 
 
 @dataclass(frozen=True)

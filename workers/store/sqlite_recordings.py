@@ -99,6 +99,7 @@ CREATE TABLE IF NOT EXISTS {t} (
 CREATE INDEX IF NOT EXISTS "{name}__time" ON {t} (recorded_at, key);
 CREATE INDEX IF NOT EXISTS "{name}__robot_time" ON {t} (robot_id, recorded_at);
 CREATE INDEX IF NOT EXISTS "{name}__message" ON {t} (message_id);
+CREATE INDEX IF NOT EXISTS "{name}__mission_time" ON {t} (mission_id, recorded_at);
 """
 
 
@@ -178,6 +179,8 @@ def provenance_filters(
 def find_sql(query: RecordQuery) -> tuple[str, list[Any]]:
     """The SELECT a query runs (the index test reads its plan)."""
     filters = provenance_filters(query.robot_id, query.message_id, query.since, query.until)
+    if query.mission_id is not None:
+        filters.append(("mission_id = ?", [query.mission_id]))
     filters.extend(condition_sql(condition) for condition in query.conditions)
     clause, params = where(filters)
     order = "DESC" if query.newest_first else "ASC"
