@@ -4,7 +4,19 @@ from __future__ import annotations
 
 import typer
 
-from fleetbus.commands import beacons, broker, demo, dlq, events, hazards, maps, schemas_export, users, worker
+from fleetbus.commands import (
+    beacons,
+    broker,
+    demo,
+    dlq,
+    events,
+    hazards,
+    maps,
+    outbox,
+    schemas_export,
+    users,
+    worker,
+)
 
 app = typer.Typer(
     name="fleetbus",
@@ -20,6 +32,7 @@ app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)
 app.command("dlq")(dlq.dlq)
+app.command("outbox")(outbox.outbox)
 app.command("hazards")(hazards.hazards)
 app.command("demo")(demo.demo)
 app.command("schemas")(schemas_export.export_schemas)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+from dataclasses import asdict
 from datetime import datetime, timezone
 from typing import Annotated, Any
 
@@ -108,17 +109,30 @@ def _clock(moment: datetime) -> str:
     return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
 
 
+#: What ``fleetbus query`` shows besides event types: the sequence ledger.
+LEDGER_VIEWS = ("gaps", "duplicates")
+
+
 def query(
-    event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
+    event_type: Annotated[
+        str, typer.Argument(metavar="TYPE", help=f"an event type, or {' or '.join(LEDGER_VIEWS)}")
+    ],
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
     since: Annotated[str | None, typer.Option(help="from this time (ISO 8601 or e.g. 10m ago)")] = None,
     until: Annotated[str | None, typer.Option(help="before this time")] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
-    """Stored events of TYPE, oldest first (the newest LIMIT of them)."""
+    """Stored events of TYPE, oldest first (the newest LIMIT of them); or the open sequence gaps,
+    or the duplicates the workers were sent."""
+    if event_type in LEDGER_VIEWS:
+        show_ledger(event_type, robot, limit, as_json)
+        return
+    if event_type not in EventType._value2member_map_:
+        known = ", ".join([*(t.value for t in EventType), *LEDGER_VIEWS])
+        fail(f"unknown TYPE {event_type!r}; known: {known}", code=2)
     q = EventQuery(
-        type=event_type.value,
+        type=event_type,
         robot_id=robot,
         since=parse_time(since),
         until=parse_time(until),
@@ -130,7 +144,7 @@ def query(
         for record in records:
             typer.echo(json.dumps(record_dict(record)))
         return
-    table = Table(title=f"{len(records)} {event_type.value} events")
+    table = Table(title=f"{len(records)} {event_type} events")
     widest = max((len(r.robot_id) for r in records), default=5)
     seq_width = max((len(str(r.seq)) for r in records), default=3)
     table.add_column("robot", no_wrap=True)
@@ -148,3 +162,29 @@ def query(
     console.print(table)
     if len(records) == limit:
         console.print(f"[dim]showing the newest {limit}; use --limit or --since for more[/]")
+
+
+def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None:
+    """Open gaps in the robots' sequence numbers, or the duplicates the workers recognised."""
+    if view == "gaps":
+        gaps = run_with_store(settings(), lambda store: store.gaps(robot))
+        if as_json:
+            for gap in gaps:
+                typer.echo(json.dumps({**asdict(gap), "missing": gap.size}, default=datetime.isoformat))
+            return
+        table = Table("robot", "missing seq", "events", "open since (UTC)", title=f"{len(gaps)} open gaps")
+        for gap in gaps:
+            span = str(gap.first) if gap.first == gap.last else f"{gap.first}-{gap.last}"
+            table.add_row(gap.robot_id, span, str(gap.size), _clock(gap.detected_at))
+        console.print(table)
+        return
+    duplicates = run_with_store(settings(), lambda store: store.duplicates(robot, limit))
+    if as_json:
+        for duplicate in duplicates:
+            typer.echo(json.dumps(asdict(duplicate), default=datetime.isoformat))
+        return
+    table = Table("robot", "seq", "message id", "seen at (UTC)", "why", title=f"{len(duplicates)} duplicates")
+    for d in duplicates:
+        why = "redelivered by the broker" if d.redelivered else "sent again by the robot"
+        table.add_row(d.robot_id, str(d.seq), d.message_id, _clock(d.seen_at), why)
+    console.print(table)
