@@ -30,8 +30,12 @@ from workers.store.base import (
     to_micros,
 )
 from workers.store.interface import Store
+from workers.store.mongo_channels import MongoChannels
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
+from workers.store.mongo_discards import MongoDiscards
 from workers.store.mongo_maps import MongoMaps
+from workers.store.mongo_missions import MongoMissions
+from workers.store.mongo_users import MongoUsers
 
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
@@ -86,7 +90,16 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
-class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
+class MongoEventStore(
+    MongoCoordination,
+    MongoBeacons,
+    MongoMaps,
+    MongoUsers,
+    MongoMissions,
+    MongoChannels,
+    MongoDiscards,
+    Store,
+):
     name = "mongodb"
 
     def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
@@ -128,6 +141,8 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, Store):
                 [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
             )
             await self._collection("map_staging").create_index([("map_id", ASCENDING)])
+            await self.create_mission_indexes()
+            await self.create_channel_indexes()
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
 

@@ -25,8 +25,12 @@ from workers.store.base import (
 )
 from workers.store.interface import Store
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
+from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, in_transaction
+from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
+from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
+from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
 T = TypeVar("T")
 
@@ -93,7 +97,16 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
+class SQLiteEventStore(
+    SQLiteCoordination,
+    SQLiteBeacons,
+    SQLiteMaps,
+    SQLiteUsers,
+    SQLiteMissions,
+    SQLiteChannels,
+    SQLiteDiscards,
+    Store,
+):
     name = "sqlite"
 
     def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
@@ -133,6 +146,8 @@ class SQLiteEventStore(SQLiteCoordination, SQLiteBeacons, SQLiteMaps, Store):
         db.executescript(HAZARD_SCHEMA)
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
+        for schema in (USER_SCHEMA, MISSION_SCHEMA, CHANNEL_SCHEMA, DISCARD_SCHEMA):
+            db.executescript(schema)
         return db
 
     async def open(self) -> None:
