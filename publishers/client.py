@@ -30,7 +30,7 @@ from schemas.bodies import MapMetadata
 from schemas.envelope import Event, build_event, encode_event, validate_body
 from schemas.identity import validate_name
 from schemas.notifications import Notification
-from schemas.routing import EventType, event_routing_key, events_exchange, inbox_queue
+from schemas.routing import EventType, beacon_headers, event_routing_key, inbox_queue, publish_exchange
 
 #: Largest batch written before waiting for its confirms; bounds memory and redelivery work.
 PUBLISH_WINDOW = 1000
@@ -49,9 +49,11 @@ def to_outgoing(event: Event) -> Outgoing:
         timestamp=int(event.sent_at.timestamp()),
         type=event.type.value,
         app_id="fleetbus-robot",
+        # beacons pass the robot's beacon exchange only with these headers
+        headers=beacon_headers(event.robot_id) if event.type is EventType.BEACON else None,
     )
     return Outgoing(
-        events_exchange(event.robot_id),
+        publish_exchange(event.robot_id, event.type),
         event_routing_key(event.robot_id, event.type),
         encode_event(event),
         properties,
