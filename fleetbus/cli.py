@@ -4,7 +4,19 @@ from __future__ import annotations
 
 import typer
 
-from fleetbus.commands import beacons, broker, demo, dlq, events, hazards, maps, schemas_export, users, worker
+from fleetbus.commands import (
+    api,
+    beacons,
+    broker,
+    demo,
+    dlq,
+    events,
+    hazards,
+    maps,
+    schemas_export,
+    users,
+    worker,
+)
 
 app = typer.Typer(
     name="fleetbus",
@@ -16,6 +28,7 @@ app.add_typer(broker.app, name="broker")
 app.add_typer(users.app, name="users")
 app.add_typer(beacons.app, name="beacons")
 app.add_typer(maps.app, name="map")
+app.add_typer(api.app, name="api")
 app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)

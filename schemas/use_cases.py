@@ -62,6 +62,14 @@ class TransitionRefused(ValueError):
     """A step the machine does not have from the current state, or a role that may not take it."""
 
 
+class InvalidTransition(TransitionRefused):
+    """The machine has no such step from the current state (or no such use case)."""
+
+
+class RoleNotAllowed(TransitionRefused):
+    """The step exists, but not for the caller's role."""
+
+
 @dataclass(frozen=True)
 class MissionMachine:
     use_case: str
@@ -89,10 +97,10 @@ class MissionMachine:
         """The step from ``state`` to ``target`` for ``role`` (``None``: the service itself)."""
         found = next((s for s in self.steps_from(state) if s.target is target), None)
         if found is None:
-            raise TransitionRefused(self.refusal(state, target))
+            raise InvalidTransition(self.refusal(state, target))
         if role is not None and role not in found.roles:
             who = " or ".join(sorted(r.value for r in found.roles))
-            raise TransitionRefused(
+            raise RoleNotAllowed(
                 f"{state.value} -> {target.value} ({found.meaning}) is for {who}, not {role.value}"
             )
         return found
@@ -167,6 +175,6 @@ def machine_for(use_case: str) -> MissionMachine:
     try:
         return USE_CASES[use_case]
     except KeyError:
-        raise TransitionRefused(
+        raise InvalidTransition(
             f"unknown use case {use_case!r}; use cases: {', '.join(sorted(USE_CASES))}"
         ) from None

@@ -187,6 +187,8 @@ class MongoEventStore(
             conditions["type"] = type
         if robot_id is not None:
             conditions["robot_id"] = robot_id
+        if query is not None and query.mission_id is not None:
+            conditions["mission_id"] = query.mission_id
         if query is not None and (query.since or query.until):
             window: dict[str, int] = {}
             if query.since:

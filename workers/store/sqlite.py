@@ -179,7 +179,7 @@ class SQLiteEventStore(
         return await self._run(write)
 
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
-        where, params = _where(query.type, query.robot_id, query.since, query.until)
+        where, params = _where(query.type, query.robot_id, query.since, query.until, query.mission_id)
         order = "DESC" if query.newest_first else "ASC"
         sql = f"SELECT * FROM events{where} ORDER BY sent_at {order}, robot_id {order}, seq {order}"
         if query.limit is not None:
@@ -194,7 +194,11 @@ class SQLiteEventStore(
 
 
 def _where(
-    type: str | None, robot_id: str | None, since: datetime | None, until: datetime | None
+    type: str | None,
+    robot_id: str | None,
+    since: datetime | None,
+    until: datetime | None,
+    mission_id: str | None = None,
 ) -> tuple[str, list[Any]]:
     clauses: list[str] = []
     params: list[Any] = []
@@ -203,6 +207,7 @@ def _where(
         ("robot_id = ?", robot_id),
         ("sent_at >= ?", to_micros(since) if since else None),
         ("sent_at < ?", to_micros(until) if until else None),
+        ("mission_id = ?", mission_id),
     ):
         if value is not None:
             clauses.append(clause)
