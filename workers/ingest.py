@@ -46,6 +46,12 @@ class BatchCheck(Protocol):
         ...
 
 
+class BatchEnricher(Protocol):
+    """Adds to the records of checked items before they are written (the mission stamp)."""
+
+    async def enrich(self, accepted: Sequence[Accepted]) -> list[Accepted]: ...
+
+
 class Stopping(Exception):
     """The worker is stopping while the store is down: leave the batch unacked."""
 
@@ -71,6 +77,7 @@ class IngestConsumer:
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
         services: Sequence[BatchService] = (),
+        enrichers: Sequence[BatchEnricher] = (),
         batch_size: int = 256,
         linger: float = 0.005,
     ) -> None:
@@ -79,6 +86,7 @@ class IngestConsumer:
         self._store = store
         self._checks = checks
         self._services = services
+        self._enrichers = enrichers
         self._dead_letter_exchange = dead_letter_exchange
         self._max_bytes = max_message_bytes
         self._batch_size = batch_size
@@ -176,6 +184,8 @@ class IngestConsumer:
                 await self._reject(candidates[index][0], refused[index])
             candidates = [pair for index, pair in enumerate(candidates) if index not in refused]
         accepted = [item for _, item in candidates]
+        for enricher in self._enrichers:
+            accepted = await self._retrying(lambda enricher=enricher, items=accepted: enricher.enrich(items))
         if accepted:
             results = await self._retrying(
                 lambda: self._store.write_events([item.record for item in accepted])

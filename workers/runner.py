@@ -29,6 +29,7 @@ from workers.beacons import KnownRobotsOnly, beacon_services
 from workers.coordination import HazardCoordinator
 from workers.ingest import IngestConsumer
 from workers.maps import MapCheck, MapService, map_services
+from workers.missions import MissionStamp
 from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.store import Store, open_store
@@ -77,6 +78,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
             coordinator,
             BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
         ],
+        enrichers=[MissionStamp(store)],
         batch_size=PREFETCH,
     )
     await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now

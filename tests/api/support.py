@@ -57,6 +57,7 @@ class Api:
         self, name: str, role: UserRole, kind: RobotKind | None = None, password: str | None = PASSWORD
     ) -> str:
         """A user made through the service (as an admin would), with its broker account."""
+        self.bus.api.delete_user(name)  # broker users are broker-wide: one left by an aborted run
         self.run(lambda: self.service.accounts.create(name, password, role, kind, by="test"))
         return name
 
