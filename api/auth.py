@@ -64,6 +64,8 @@ class RoleCheck:
         if user.role not in self.roles:
             needs = " or ".join(sorted(role.value for role in self.roles))
             why = f"role {user.role.value} may not do this; it needs {needs}"
+            if user.role is UserRole.INACTIVE:
+                why = "role inactive may not do anything; an admin must give the account a role"
             audit.refused(request, 403, f"{user.name} ({user.role.value})", why)
             raise HTTPException(403, detail=why)
         return user

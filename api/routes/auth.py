@@ -10,6 +10,7 @@ from fastapi.security import OAuth2PasswordRequestForm
 from api import audit
 from api.accounts import WrongCredentials
 from api.auth import ServiceDep
+from api.errors import Forbidden
 from api.models import BrokerOut, TokenOut, UserOut
 
 router = APIRouter(prefix="/auth", tags=["auth"])
@@ -26,6 +27,9 @@ async def login(
     except WrongCredentials as error:
         audit.refused(request, 401, form.username, str(error))
         raise HTTPException(401, detail=str(error), headers={"WWW-Authenticate": "Bearer"}) from None
+    except Forbidden as error:
+        audit.refused(request, 403, form.username, error.detail)
+        raise HTTPException(403, detail=error.detail) from None
     return TokenOut(
         access_token=login.token.value,
         expires_at=login.token.expires_at,
