@@ -14,6 +14,7 @@ DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
 DEFAULT_TOKEN_MINUTES = 60.0
+DEFAULT_LATE_AFTER_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,8 @@ class Settings:
     a random one kept in ``data_dir/api/secret``. Every replica of the API needs the same."""
     token_minutes: float = DEFAULT_TOKEN_MINUTES
     """How long a login token is valid."""
+    late_after_s: float = DEFAULT_LATE_AFTER_S
+    """A notification that reaches its robots this long after the event was sent is flagged late."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -68,4 +71,5 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         battery_low_percent=float(env.get("FLEETBUS_BATTERY_LOW_PERCENT") or DEFAULT_BATTERY_LOW_PERCENT),
         api_secret=env.get("FLEETBUS_API_SECRET") or None,
         token_minutes=float(env.get("FLEETBUS_API_TOKEN_MINUTES") or DEFAULT_TOKEN_MINUTES),
+        late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
     )

@@ -1,16 +1,22 @@
 """The robot-side client: synchronous, on pika, for robot code that is usually synchronous.
 
-with RobotClient(url) as robot:                   # the URL's user is the robot's account
-    robot.publish("hazard", {...})                # returns once the broker confirmed it
-    robot.publish_many([("status", {...}), ...])  # pipelined confirms
+with RobotClient(url, state_dir=...) as robot:    # the URL's user is the robot's account
+    robot.publish("hazard", {...})                # durable in the outbox, then confirmed by the broker
+    robot.publish_many([("status", {...}), ...])  # one outbox write, pipelined confirms
     for note in robot.notifications(timeout=5):   # this robot's inbox
         ...
+
+Every event goes through the robot's outbox (its personal TinyDB database, on disk) and a sender
+thread drains the outbox to the broker in order. ``publish`` waits for the broker's confirm while
+the broker is reachable, and returns at once while it is not: the event waits in the outbox and
+goes out, in order, when the broker is back, also after the robot process restarted.
 """
 
 from __future__ import annotations
 
+import logging
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
 from types import TracebackType
@@ -21,41 +27,52 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
-from publishers.confirms import Outgoing, PipelinedConfirms
-from publishers.errors import BrokerUnavailable
+from publishers.confirms import Outgoing
+from publishers.errors import BrokerUnavailable, PublishRefused
 from publishers.maps import FetchedMap, fetch_map, map_events
+from publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
 from publishers.rpc import RpcChannel
+from publishers.sender import Sender
 from publishers.sequence import SequenceCounter
+from publishers.state_lock import StateLock
 from schemas.bodies import MapMetadata
-from schemas.envelope import Event, build_event, encode_event, validate_body
+from schemas.envelope import Event, build_event, validate_body
 from schemas.identity import validate_name
 from schemas.notifications import Notification
 from schemas.routing import EventType, beacon_headers, event_routing_key, inbox_queue, publish_exchange
 
-#: Largest batch written before waiting for its confirms; bounds memory and redelivery work.
-PUBLISH_WINDOW = 1000
+log = logging.getLogger("fleetbus.robot")
+
+
+def robot_folder(state_dir: Path, robot_id: str) -> Path:
+    """The robot's personal database: sequence counter, outbox, lock."""
+    return state_dir / robot_id
 
 
 def robot_state_path(state_dir: Path, robot_id: str) -> Path:
-    return state_dir / robot_id / "state.json"
+    return robot_folder(state_dir, robot_id) / "state.json"
 
 
-def to_outgoing(event: Event) -> Outgoing:
+def outbox_folder(state_dir: Path, robot_id: str) -> Path:
+    return robot_folder(state_dir, robot_id) / "outbox"
+
+
+def outgoing(robot_id: str, entry: Entry) -> Outgoing:
     properties = pika.BasicProperties(
         content_type="application/json",
         delivery_mode=pika.DeliveryMode.Persistent,
-        message_id=str(event.message_id),
-        user_id=event.robot_id,  # checked by the broker against the login
-        timestamp=int(event.sent_at.timestamp()),
-        type=event.type.value,
+        message_id=entry.message_id,
+        user_id=robot_id,  # checked by the broker against the login
+        timestamp=int(entry.sent_at.timestamp()),
+        type=entry.type,
         app_id="fleetbus-robot",
         # beacons pass the robot's beacon exchange only with these headers
-        headers=beacon_headers(event.robot_id) if event.type is EventType.BEACON else None,
+        headers=beacon_headers(robot_id) if entry.type == EventType.BEACON.value else None,
     )
     return Outgoing(
-        publish_exchange(event.robot_id, event.type),
-        event_routing_key(event.robot_id, event.type),
-        encode_event(event),
+        publish_exchange(robot_id, entry.type),
+        event_routing_key(robot_id, entry.type),
+        entry.body,
         properties,
     )
 
@@ -67,69 +84,97 @@ class RobotClient:
         *,
         state_dir: Path,
         connect_timeout: float = 30.0,
-        confirm_timeout: float = 30.0,
+        confirm_timeout: float = 10.0,
+        outbox_policies: Mapping[str, TypePolicy] = DEFAULT_POLICIES,
+        durable: bool = True,
     ) -> None:
         self.robot_id = validate_name(unquote(urlsplit(amqp_url).username or ""))
         self._parameters = pika.URLParameters(amqp_url)
         self._parameters.heartbeat = 30
         self._parameters.connection_attempts = 1
+        self._parameters.socket_timeout = 5
         self._connect_timeout = connect_timeout
         self._confirm_timeout = confirm_timeout
-        self._sequence = SequenceCounter(robot_state_path(state_dir, self.robot_id))
+        folder = robot_folder(state_dir, self.robot_id)
+        self._lock = StateLock(folder)
+        self._lock.acquire()
+        try:
+            self._sequence = SequenceCounter(folder / "state.json", durable=durable)
+            self.outbox = Outbox(folder / "outbox", outbox_policies, durable=durable)
+            last = self.outbox.max_seq()
+            if last is not None:
+                self._sequence.at_least(last + 1)
+        except BaseException:
+            self._lock.release()
+            raise
+        self._sender = Sender(
+            self.outbox,
+            self._parameters,
+            lambda entry: outgoing(self.robot_id, entry),
+            confirm_timeout=confirm_timeout,
+            name=f"fleetbus-sender-{self.robot_id}",
+        )
+        self._started = False
         self._connection: pika.BlockingConnection | None = None
-        self._confirms: PipelinedConfirms | None = None
         self._rpc: RpcChannel | None = None
 
     # connection
-    def connect(self) -> None:
-        """Connect, retrying with backoff until ``connect_timeout``; raise BrokerUnavailable then."""
-        deadline = time.monotonic() + self._connect_timeout
-        delay = 0.2
-        self._rpc = None
-        while True:
-            try:
-                self._connection = pika.BlockingConnection(self._parameters)
-                break
-            except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
-                raise
-            except pika.exceptions.AMQPConnectionError as error:
-                if time.monotonic() + delay > deadline:
-                    raise BrokerUnavailable(
-                        f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} "
-                        f"within {self._connect_timeout:.0f} s: {error!r}"
-                    ) from error
-                time.sleep(delay)  # backoff between connection attempts
-                delay = min(delay * 2, 5.0)
-        self._confirms = PipelinedConfirms(
-            self._connection, self._connection.channel(), self._confirm_timeout
-        )
+    def start(self) -> None:
+        """Start draining the outbox in the background (connecting whenever the broker answers)."""
+        if not self._started:
+            self._started = True
+            self._sender.start()
 
-    def _ready(self) -> PipelinedConfirms:
-        if self._confirms is None or self._connection is None or not self._connection.is_open:
-            self.connect()
-        elif self._confirms._closed_reason is not None:  # refused earlier: start a clean channel
-            self._confirms = PipelinedConfirms(
-                self._connection, self._connection.channel(), self._confirm_timeout
+    def connect(self, timeout: float | None = None) -> None:
+        """Start, and wait until the sender reached the broker; raise BrokerUnavailable if it did not."""
+        self.start()
+        timeout = self._connect_timeout if timeout is None else timeout
+        if not self._sender.wait_connected(timeout):
+            raise BrokerUnavailable(
+                f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} within "
+                f"{timeout:g} s: {self._sender.last_error or 'no answer'}"
             )
-        assert self._confirms is not None
-        return self._confirms
 
-    def close(self) -> None:
+    @property
+    def connected(self) -> bool:
+        """Whether the sender has a connection to the broker now."""
+        return self._sender.connected
+
+    @property
+    def last_error(self) -> str | None:
+        """Why the sender last lost or could not reach the broker."""
+        return self._sender.last_error
+
+    def flush(self, timeout: float = 30.0) -> bool:
+        """Wait until every waiting event is confirmed; False if ``timeout`` passed first."""
+        self.start()
+        return self._sender.wait_drained(timeout)
+
+    def close(self, flush_timeout: float = 0.0) -> None:
+        """Stop; events not yet confirmed stay in the outbox for the next run."""
+        if flush_timeout > 0 and self._started and self.connected:
+            self.flush(flush_timeout)
         if self._connection is not None and self._connection.is_open:
-            self._connection.close()
+            try:
+                self._connection.close()
+            except pika.exceptions.AMQPError:
+                pass  # already broken
         self._connection = None
-        self._confirms = None
         self._rpc = None
+        if self._started:
+            self._sender.stop()
+        self.outbox.close()
         self._sequence.close()
+        self._lock.release()
 
     def __enter__(self) -> RobotClient:
-        self.connect()
+        self.start()
         return self
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close()
+        self.close(flush_timeout=5.0 if exc is None else 0.0)
 
     # publishing
     def build(self, items: Sequence[tuple[EventType | str, Any]]) -> list[Event]:
@@ -138,36 +183,39 @@ class RobotClient:
         first = self._sequence.reserve(len(bodies)) if bodies else 0
         return [build_event(t, self.robot_id, first + i, body) for i, (t, body) in enumerate(bodies)]
 
-    def publish(self, event_type: EventType | str, body: Any) -> Event:
-        return self.publish_many([(event_type, body)])[0]
+    def publish(self, event_type: EventType | str, body: Any, *, wait: bool = True) -> Event:
+        return self.publish_many([(event_type, body)], wait=wait)[0]
 
-    def publish_many(self, items: Iterable[tuple[EventType | str, Any]]) -> list[Event]:
+    def publish_many(self, items: Iterable[tuple[EventType | str, Any]], *, wait: bool = True) -> list[Event]:
+        """Validate, number and store the events in the outbox, then (``wait``) await their confirms.
+
+        Raises SchemaError for a bad body (nothing is stored), OutboxFull when a type that is never
+        dropped reached its outbox limit, PublishRefused when the broker refused one of them.
+        """
         events = self.build(list(items))
-        self.send(events)
+        self.enqueue(events, wait=wait)
         return events
 
-    def send(self, events: Sequence[Event]) -> None:
-        """Publish already built events (also a resend: same sequence number, no second record).
+    def enqueue(self, events: Sequence[Event], *, wait: bool = True) -> None:
+        """Put already built events in the outbox (a resend keeps its sequence number: no second record).
 
-        A window whose confirms were lost with the connection is sent again on a new one, once:
-        the store's (robot, seq) key makes the second copy harmless.
+        With ``wait``, return once the broker confirmed them, or at once if it is unreachable, or
+        after ``confirm_timeout`` at most; they go out when it is back.
         """
-        for start in range(0, len(events), PUBLISH_WINDOW):
-            window = [to_outgoing(event) for event in events[start : start + PUBLISH_WINDOW]]
-            try:
-                self._ready().publish(window, self._confirm_timeout)
-            except BrokerUnavailable:
-                self.connect()
-                self._ready().publish(window, self._confirm_timeout)
+        self.outbox.append(events)
+        self.start()
+        self._sender.wake()
+        if not wait:
+            return
+        refused = self._sender.wait_settled([str(e.message_id) for e in events], self._confirm_timeout)
+        if refused:
+            raise PublishRefused("; ".join(f"{mid}: {reason}" for mid, reason in refused.items()))
 
     # services
     def call(self, method: str, timeout: float = 5.0, **params: Any) -> Any:
         """Call a fleetbus service; raise ServiceTimeout when no reply comes within ``timeout``."""
-        if self._rpc is None:
-            if self._connection is None or not self._connection.is_open:
-                self.connect()
-            assert self._connection is not None
-            self._rpc = RpcChannel(self._connection, self.robot_id)
+        if self._rpc is None or self._connection is None or not self._connection.is_open:
+            self._rpc = RpcChannel(self._session(), self.robot_id)
         return self._rpc.call(method, params, timeout)
 
     def hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
@@ -240,16 +288,38 @@ class RobotClient:
                 channel.cancel()
                 channel.close()
 
+    def _session(self) -> pika.BlockingConnection:
+        """The caller's own connection (services, notifications), opened with retries when needed.
+
+        Separate from the sender's: a pika connection belongs to one thread.
+        """
+        if self._connection is not None and self._connection.is_open:
+            return self._connection
+        self._rpc = None
+        deadline = time.monotonic() + self._connect_timeout
+        delay = 0.2
+        while True:
+            try:
+                self._connection = pika.BlockingConnection(self._parameters)
+                return self._connection
+            except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
+                raise
+            except pika.exceptions.AMQPConnectionError as error:
+                if time.monotonic() + delay > deadline:
+                    raise BrokerUnavailable(
+                        f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} "
+                        f"within {self._connect_timeout:g} s: {error!r}"
+                    ) from error
+                time.sleep(delay)  # backoff between connection attempts
+                delay = min(delay * 2, 5.0)
+
     def _open_consumer_channel(self) -> BlockingChannel:
         """A new channel, reconnecting first when the connection is gone (the broker restarted)."""
-        if self._connection is not None and self._connection.is_open:
-            try:
-                return self._connection.channel()
-            except pika.exceptions.AMQPError:
-                pass  # the connection died under us; start a new one
-        self.connect()
-        assert self._connection is not None
-        return self._connection.channel()
+        try:
+            return self._session().channel()
+        except pika.exceptions.AMQPError:
+            self._connection = None  # it died under us; start a new one
+            return self._session().channel()
 
     def receive(self, count: int, timeout: float) -> list[Notification]:
         """Exactly ``count`` notifications, or fewer if ``timeout`` passes first."""

@@ -30,6 +30,14 @@ class Outgoing:
     properties: pika.BasicProperties
 
 
+@dataclass(frozen=True)
+class Outcome:
+    nacked: set[str]
+    """Message ids the broker nacked: not queued, worth sending again."""
+    returned: dict[str, str]
+    """Message ids the broker could not route (mandatory), with its reply: sending again will not help."""
+
+
 class PipelinedConfirms:
     def __init__(self, connection: BlockingConnection, channel: BlockingChannel, timeout: float) -> None:
         self._connection = connection
@@ -82,8 +90,13 @@ class PipelinedConfirms:
             except pika.exceptions.AMQPError as error:
                 raise BrokerUnavailable(f"connection lost while waiting for {what}: {error!r}") from error
 
-    def publish(self, messages: Sequence[Outgoing], timeout: float) -> None:
-        """Publish all messages, then wait until each is confirmed; raise if any was not."""
+    def send(self, messages: Sequence[Outgoing], timeout: float) -> Outcome:
+        """Publish all messages, then wait until the broker answered each; say which it did not take.
+
+        Raises :class:`PublishRefused` when the broker closed the channel (the whole batch is then
+        in doubt), :class:`BrokerUnavailable` when the connection broke and :class:`PublishTimeout`
+        when the confirms did not come in time.
+        """
         batch: dict[int, str] = {}
         try:
             for message in messages:
@@ -99,12 +112,15 @@ class PipelinedConfirms:
         except pika.exceptions.AMQPError as error:
             raise BrokerUnavailable(f"connection lost while publishing: {error!r}") from error
         self._pump_until(lambda: not (self._unconfirmed & batch.keys()), timeout, "publisher confirm")
-        problems = [f"{batch[tag]}: nacked by the broker" for tag in sorted(self._nacked & batch.keys())]
-        problems += [
-            f"{mid}: unroutable ({self._returned.pop(mid)})"
-            for mid in list(batch.values())
-            if mid in self._returned
-        ]
+        nacked = {batch[tag] for tag in self._nacked & batch.keys()}
         self._nacked -= batch.keys()
+        returned = {mid: self._returned.pop(mid) for mid in list(batch.values()) if mid in self._returned}
+        return Outcome(nacked, returned)
+
+    def publish(self, messages: Sequence[Outgoing], timeout: float) -> None:
+        """Publish all messages and wait for their confirms; raise if any was not taken."""
+        outcome = self.send(messages, timeout)
+        problems = [f"{mid}: nacked by the broker" for mid in sorted(outcome.nacked)]
+        problems += [f"{mid}: unroutable ({reason})" for mid, reason in outcome.returned.items()]
         if problems:
             raise PublishRefused("; ".join(problems))

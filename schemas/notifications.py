@@ -22,4 +22,6 @@ class Notification(BaseModel):
     map_version: int | None = None
     """For maps: the stored version to fetch with the ``map.latest`` / ``map.chunk`` services."""
     late: bool = False
-    """Announced later than it was received (held while wardens were localising)."""
+    """Announced long after the robot sent the event (``FLEETBUS_LATE_AFTER_S``, 5 s by default):
+    it waited in the robot's outbox, in the queue while the workers were down, or for the wardens
+    to localise. The event keeps its original times (``sent_at``, a hazard's ``detected_at``)."""

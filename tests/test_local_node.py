@@ -140,14 +140,20 @@ def _publish(url: str, queue: str, bodies: list[bytes]) -> None:
 
 
 def _ready(url: str, queue: str) -> int | None:
+    """Messages ready in ``queue``; None while the node is not answering or still recovering it."""
     try:
         connection = pika.BlockingConnection(pika.URLParameters(url))
     except pika.exceptions.AMQPError:
         return None
     try:
         return connection.channel().queue_declare(queue, passive=True).method.message_count
+    except pika.exceptions.ChannelClosedByBroker as error:
+        if error.reply_code == 404:  # a restarted node answers NOT_FOUND until it recovered the queue
+            return None
+        raise
     finally:
-        connection.close()
+        if connection.is_open:
+            connection.close()
 
 
 def _drain(url: str, queue: str) -> list[bytes]:

@@ -25,15 +25,22 @@ from workers.validation import Accepted
 
 log = logging.getLogger("fleetbus.hazards")
 
-#: A hazard announced this much later than it was received is flagged ``late``.
+#: A hazard announced this much later than its robot sent it is flagged ``late``.
 LATE_AFTER = timedelta(seconds=5)
 
 
 class HazardCoordinator:
-    def __init__(self, store: Store, notify_exchange: AbstractExchange, service_user: str) -> None:
+    def __init__(
+        self,
+        store: Store,
+        notify_exchange: AbstractExchange,
+        service_user: str,
+        late_after: timedelta = LATE_AFTER,
+    ) -> None:
         self._store = store
         self._exchange = notify_exchange
         self._service_user = service_user
+        self._late_after = late_after
 
     async def handle(self, accepted: Sequence[Accepted]) -> int:
         """Apply a stored batch (also redelivered ones: every step is idempotent); return announcements."""
@@ -73,13 +80,15 @@ class HazardCoordinator:
         await self._store.mark_announced(held, now)
         return len(held)
 
-    @staticmethod
-    def notification(hazard: Hazard, now: datetime) -> Notification:
+    def notification(self, hazard: Hazard, now: datetime) -> Notification:
+        """The announcement; ``late`` when it reaches the wardens long after the explorer sent it
+        (its robot was cut off, the workers were down, or the wardens were not localised yet)."""
+        event = EVENT_ADAPTER.validate_python(hazard.event)
         return Notification(
             topic=Topic.HAZARD,
-            event=EVENT_ADAPTER.validate_python(hazard.event),
+            event=event,
             received_at=hazard.received_at,
             notified_at=now,
             hazard_id=hazard.hazard_id,
-            late=now - hazard.received_at > LATE_AFTER,
+            late=now - event.sent_at > self._late_after,
         )

@@ -14,6 +14,7 @@ import contextlib
 import logging
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from typing import Protocol, TypeVar
 
 import aiormq.exceptions
@@ -22,9 +23,10 @@ from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from workers.backoff import Backoff
 from workers.dead_letters import dead_letter
-from workers.store.base import StoreUnavailable
+from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.interface import Store
-from workers.validation import Accepted, Rejected, classify
+from workers.store.ledger import Duplicate
+from workers.validation import Accepted, Rejected, RejectReason, classify
 
 log = logging.getLogger("fleetbus.ingest")
 T = TypeVar("T")
@@ -183,19 +185,47 @@ class IngestConsumer:
             for index in sorted(refused):
                 await self._reject(candidates[index][0], refused[index])
             candidates = [pair for index, pair in enumerate(candidates) if index not in refused]
-        accepted = [item for _, item in candidates]
         for enricher in self._enrichers:
-            accepted = await self._retrying(lambda enricher=enricher, items=accepted: enricher.enrich(items))
-        if accepted:
-            results = await self._retrying(
-                lambda: self._store.write_events([item.record for item in accepted])
-            )
+            items = [item for _, item in candidates]
+            enriched = await self._retrying(lambda enricher=enricher, items=items: enricher.enrich(items))
+            candidates = [(message, item) for (message, _), item in zip(candidates, enriched, strict=True)]
+        if candidates:
+            records = [item.record for _, item in candidates]
+            results = await self._retrying(lambda: self._store.write_events(records))
+            accepted = await self._sort_out(candidates, results)
             for service in self._services:
                 self.stats.notified += await self._retrying(lambda service=service: service.handle(accepted))
-            inserted = sum(result.inserted for result in results)
-            self.stats.stored += inserted
-            self.stats.duplicates += len(results) - inserted
         await batch[-1].ack(multiple=True)
+
+    async def _sort_out(
+        self, candidates: list[tuple[AbstractIncomingMessage, Accepted]], results: Sequence[WriteResult]
+    ) -> list[Accepted]:
+        """Count what was stored, record duplicates and sequence gaps, dead-letter reused numbers."""
+        now = datetime.now(timezone.utc)
+        accepted: list[Accepted] = []
+        duplicates: list[Duplicate] = []
+        seen: dict[str, list[int]] = {}
+        for (message, item), result in zip(candidates, results, strict=True):
+            record = item.record
+            if not result.inserted and result.stored_message_id != record.message_id:
+                detail = (
+                    f"{record.robot_id} reused sequence number {record.seq}: message {record.message_id} "
+                    f"is not the stored {result.stored_message_id} (was its personal database reset?)"
+                )
+                await self._reject(message, Rejected(RejectReason.SEQUENCE_REUSED, detail))
+                continue
+            accepted.append(item)
+            seen.setdefault(record.robot_id, []).append(record.seq)
+            if result.inserted:
+                self.stats.stored += 1
+            else:
+                self.stats.duplicates += 1
+                duplicates.append(
+                    Duplicate(record.robot_id, record.seq, record.message_id, now, bool(message.redelivered))
+                )
+        await self._retrying(lambda: self._store.record_duplicates(duplicates))
+        await self._retrying(lambda: self._store.observe_sequences(seen, now))
+        return accepted
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
         """Run a store operation until the store answers; raise Stopping if asked to stop meanwhile."""

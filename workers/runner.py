@@ -8,6 +8,7 @@ import logging
 import signal
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import timedelta
 
 import aio_pika
 from aio_pika.abc import AbstractRobustConnection
@@ -65,7 +66,9 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     # fetched (not just named) so the robust channel re-consumes them after a broker restart
     queue = await channel.get_queue(INGEST_QUEUE)
     notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
-    coordinator = HazardCoordinator(store, notify_exchange, SERVICE_USER)
+    coordinator = HazardCoordinator(
+        store, notify_exchange, SERVICE_USER, timedelta(seconds=settings.late_after_s)
+    )
     consumer = IngestConsumer(
         channel,
         queue,

@@ -24,6 +24,7 @@ class RejectReason(str, Enum):
     UNKNOWN_ROBOT = "unknown-robot"
     BAD_MAP = "bad-map"
     WRONG_EXCHANGE = "wrong-exchange"
+    SEQUENCE_REUSED = "sequence-reused"
 
 
 @dataclass(frozen=True)

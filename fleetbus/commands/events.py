@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 from datetime import datetime, timezone
 from typing import Annotated, Any
@@ -11,7 +12,8 @@ from rich.table import Table
 
 from fleetbus.context import console, fail, load_data, settings
 from publishers.client import RobotClient
-from publishers.errors import PublisherError
+from publishers.errors import BrokerUnavailable, PublisherError
+from publishers.state_lock import RobotStateInUse
 from schemas.envelope import SchemaError, validate_body
 from schemas.routing import EventType
 from workers.store import run_with_store
@@ -32,23 +34,47 @@ def publish(
     event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
     data: Annotated[str, typer.Argument(help="JSON, or @file.json / @file.yaml")],
     url: Annotated[str | None, typer.Option(envvar="FLEETBUS_ROBOT_URL", help="the robot's AMQP URL")] = None,
+    timeout: Annotated[float, typer.Option(help="seconds to wait for the broker's confirm")] = 10.0,
 ) -> None:
-    """Publish one event as ROBOT; it returns once the broker confirmed it."""
+    """Publish one event as ROBOT, through its outbox; it returns once the broker confirmed it.
+
+    If the broker does not confirm within TIMEOUT, the event stays in the robot's outbox (exit
+    status 3) and goes out, in order, with the robot's next connection.
+    """
     body = load_data(data)
     try:
         validate_body(event_type, body)
     except SchemaError as error:
         fail(f"invalid {event_type.value} body: {error}", code=2)
+    client = open_robot(robot, url, timeout)
     try:
-        with RobotClient(
-            robot_url(robot, url), state_dir=settings().robots_dir, connect_timeout=10
-        ) as client:
-            if client.robot_id != robot:
-                fail(f"the URL logs in as {client.robot_id!r}, not {robot!r}")
-            event = client.publish(event_type, body)
+        with contextlib.suppress(BrokerUnavailable):
+            client.connect(timeout)
+        event = client.publish(event_type, body, wait=False)
+        confirmed = client.flush(timeout)
     except PublisherError as error:
         fail(str(error))
+    finally:
+        client.close()
+    if not confirmed:
+        fail(
+            f"{event.type.value} seq {event.seq} waits in {robot}'s outbox: the broker did not confirm it "
+            f"within {timeout:g} s ({client.last_error or 'no answer'}); it goes out with the robot's next "
+            f"connection (see `fleetbus outbox {robot}`)",
+            code=3,
+        )
     console.print(f"published {event.type.value} {event.message_id} as {robot}, seq {event.seq}")
+
+
+def open_robot(robot: str, url: str | None, timeout: float) -> RobotClient:
+    try:
+        client = RobotClient(robot_url(robot, url), state_dir=settings().robots_dir, connect_timeout=timeout)
+    except RobotStateInUse as error:
+        fail(str(error))
+    if client.robot_id != robot:
+        client.close()
+        fail(f"the URL logs in as {client.robot_id!r}, not {robot!r}")
+    return client
 
 
 def parse_time(value: str | None) -> datetime | None:

@@ -59,6 +59,9 @@ class EventRecord:
 class WriteResult:
     inserted: bool
     """False when a record with the same (robot_id, seq) was already stored."""
+    stored_message_id: str | None = None
+    """When not inserted: the message id of the record already stored under that key. The same id
+    means a resend or redelivery; another id means the robot reused a sequence number."""
 
 
 @dataclass(frozen=True)

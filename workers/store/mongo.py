@@ -7,8 +7,10 @@ integer microseconds, which round-trip exactly (BSON dates stop at milliseconds)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+import functools
+import inspect
+from collections.abc import Awaitable, Callable, Sequence
+from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
 from pymongo import ASCENDING, DESCENDING, AsyncMongoClient
@@ -33,6 +35,7 @@ from workers.store.interface import Store
 from workers.store.mongo_channels import MongoChannels
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
 from workers.store.mongo_discards import MongoDiscards
+from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
 from workers.store.mongo_missions import MongoMissions
 from workers.store.mongo_users import MongoUsers
@@ -40,6 +43,7 @@ from workers.store.mongo_users import MongoUsers
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
 DEFAULT_DATABASE = "fleetbus"
+C = TypeVar("C", bound=type)
 
 
 class RobotSequenceId:
@@ -90,10 +94,31 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
+def _unavailable_as_store_error(method: Callable[..., Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
+    @functools.wraps(method)
+    async def guarded(self: MongoEventStore, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return await method(self, *args, **kwargs)
+        except UNAVAILABLE as error:
+            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+
+    return guarded
+
+
+def translate_unavailable(cls: C) -> C:
+    """Every store operation reports an unreachable server as StoreUnavailable, which workers retry."""
+    for name, _ in inspect.getmembers(Store, inspect.iscoroutinefunction):
+        if not name.startswith("_"):
+            setattr(cls, name, _unavailable_as_store_error(getattr(cls, name)))
+    return cls
+
+
+@translate_unavailable
 class MongoEventStore(
     MongoCoordination,
     MongoBeacons,
     MongoMaps,
+    MongoLedger,
     MongoUsers,
     MongoMissions,
     MongoChannels,
@@ -137,6 +162,7 @@ class MongoEventStore(
             await events.create_index([("sent_at_us", ASCENDING)])
             await events.create_index([("message_id", ASCENDING)])
             await self.create_coordination_indexes()
+            await self.create_ledger_indexes()
             await self._collection("maps").create_index(
                 [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
             )
@@ -178,7 +204,20 @@ class MongoEventStore(
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
         # a key repeated inside the batch: MongoDB inserts the first copy and reports the others
-        return [WriteResult(inserted=index not in duplicates) for index in range(len(documents))]
+        stored: dict[str, str] = {}
+        if duplicates:
+            ids = [documents[index]["_id"] for index in duplicates]
+            try:
+                cursor = self._events().find({"_id": {"$in": ids}}, {"message_id": 1})
+                stored = {doc["_id"]: doc["message_id"] async for doc in cursor}
+            except UNAVAILABLE as error:
+                raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        return [
+            WriteResult(inserted=True)
+            if index not in duplicates
+            else WriteResult(inserted=False, stored_message_id=stored.get(documents[index]["_id"]))
+            for index in range(len(documents))
+        ]
 
     @staticmethod
     def _filter(type: str | None, robot_id: str | None, query: EventQuery | None = None) -> dict[str, Any]:

@@ -28,6 +28,7 @@ from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, in_transaction
 from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
+from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
 from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
@@ -101,6 +102,7 @@ class SQLiteEventStore(
     SQLiteCoordination,
     SQLiteBeacons,
     SQLiteMaps,
+    SQLiteLedger,
     SQLiteUsers,
     SQLiteMissions,
     SQLiteChannels,
@@ -146,6 +148,7 @@ class SQLiteEventStore(
         db.executescript(HAZARD_SCHEMA)
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
+        db.executescript(LEDGER_SCHEMA)
         for schema in (USER_SCHEMA, MISSION_SCHEMA, CHANNEL_SCHEMA, DISCARD_SCHEMA):
             db.executescript(schema)
         return db
@@ -171,10 +174,16 @@ class SQLiteEventStore(
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         rows = [_row(record) for record in records]
 
+        def result(db: sqlite3.Connection, row: tuple[Any, ...]) -> WriteResult:
+            if db.execute(INSERT, row).rowcount == 1:
+                return WriteResult(inserted=True)
+            stored = db.execute(
+                "SELECT message_id FROM events WHERE robot_id = ? AND seq = ?", (row[0], row[1])
+            ).fetchone()
+            return WriteResult(inserted=False, stored_message_id=stored[0])
+
         def write(db: sqlite3.Connection) -> list[WriteResult]:
-            return in_transaction(
-                db, lambda: [WriteResult(inserted=db.execute(INSERT, row).rowcount == 1) for row in rows]
-            )
+            return in_transaction(db, lambda: [result(db, row) for row in rows])
 
         return await self._run(write)
 

@@ -1,0 +1,441 @@
+"""The robot's outbox: every event waits here, on disk, until the broker confirmed it.
+
+The outbox is part of the robot's personal database (TinyDB). TinyDB rewrites a whole file on
+every write, so one file would make each append slower as the outbox grows; the outbox is
+therefore split into segment files of at most ``segment_events`` events (and ``segment_bytes``
+of bodies), and bodies larger than ``blob_bytes`` (map chunks) go to a file of their own. An
+append rewrites only the newest segment; a confirmed window rewrites or deletes only the oldest.
+
+Each event type has an overflow policy: ``keep`` types (hazards, maps, behaviour outcomes,
+beacon sightings) are never dropped, and an append that would pass their limit raises
+:class:`OutboxFull` instead; ``drop-oldest`` types (telemetry) lose their oldest waiting entries
+when the limit is reached, and the outbox counts what it dropped.
+
+Entries the broker refused for good (access refused, unroutable) move to ``refused.json`` with
+the reason, so one bad event cannot block the ones behind it.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+import threading
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from tinydb import TinyDB
+from tinydb.table import Document
+
+from publishers.storage import AtomicJSONStorage, write_atomically
+from schemas.envelope import Event, encode_event
+from schemas.routing import EventType
+
+SEGMENT_NAME = re.compile(r"^seg-(\d{12})\.json$")
+BLOB_PREFIX = "blob-"
+
+
+class Overflow(str, enum.Enum):
+    KEEP = "keep"
+    DROP_OLDEST = "drop-oldest"
+
+
+@dataclass(frozen=True)
+class TypePolicy:
+    overflow: Overflow
+    limit: int
+    """Most entries of this type that may wait."""
+
+
+KEEP_LIMIT = 100_000
+DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
+    EventType.STATUS.value: TypePolicy(Overflow.DROP_OLDEST, 10_000),
+    EventType.LOCALISATION.value: TypePolicy(Overflow.DROP_OLDEST, 1_000),
+    EventType.HAZARD.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
+    EventType.MAP.value: TypePolicy(Overflow.KEEP, 1_000),
+    EventType.MAP_CHUNK.value: TypePolicy(Overflow.KEEP, 20_000),
+    EventType.BEHAVIOUR.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
+    EventType.BEACON.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
+}
+DEFAULT_POLICY = TypePolicy(Overflow.KEEP, KEEP_LIMIT)
+
+
+class OutboxFull(Exception):
+    """A type that is never dropped reached its limit; the events were not taken."""
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One waiting event, as it goes on the wire."""
+
+    seq: int
+    type: str
+    message_id: str
+    sent_at: datetime
+    body: bytes
+    position: tuple[int, int]
+    """(segment number, TinyDB document id): where it waits."""
+
+
+@dataclass(frozen=True)
+class RefusedEntry:
+    seq: int
+    type: str
+    message_id: str
+    sent_at: datetime
+    reason: str
+    refused_at: datetime
+
+
+@dataclass(frozen=True)
+class TypeSummary:
+    waiting: int
+    dropped: int
+    refused: int
+    oldest: datetime | None
+
+
+@dataclass
+class _Segment:
+    number: int
+    path: Path
+    counts: Counter[str] = field(default_factory=Counter)
+    bytes: int = 0
+    db: TinyDB | None = None
+
+    @property
+    def size(self) -> int:
+        return sum(self.counts.values())
+
+
+def _policy(policies: Mapping[str, TypePolicy], event_type: str) -> TypePolicy:
+    return policies.get(event_type, DEFAULT_POLICY)
+
+
+def _parse_time(text: str) -> datetime:
+    return datetime.fromisoformat(text)
+
+
+class Outbox:
+    def __init__(
+        self,
+        folder: Path,
+        policies: Mapping[str, TypePolicy] = DEFAULT_POLICIES,
+        *,
+        durable: bool = True,
+        segment_events: int = 256,
+        segment_bytes: int = 1 << 20,
+        blob_bytes: int = 64 << 10,
+    ) -> None:
+        self.folder = folder
+        self.policies = policies
+        self._durable = durable
+        self._segment_events = segment_events
+        self._segment_bytes = segment_bytes
+        self._blob_bytes = blob_bytes
+        self._lock = threading.RLock()
+        self._in_flight: set[tuple[int, int]] = set()
+        folder.mkdir(parents=True, exist_ok=True)
+        self._meta = TinyDB(folder / "meta.json", storage=AtomicJSONStorage, durable=durable)
+        self._refused = TinyDB(folder / "refused.json", storage=AtomicJSONStorage, durable=durable)
+        self._segments: list[_Segment] = []
+        self._recover()
+
+    # ------------------------------------------------------------------ opening and recovery
+
+    def _recover(self) -> None:
+        """Index the segments left by an earlier run; drop leftovers of writes a crash cut short."""
+        referenced: set[str] = set()
+        for path in sorted(self.folder.iterdir()):
+            if path.name.startswith(".") and path.name.endswith(".tmp"):
+                path.unlink()
+                continue
+            match = SEGMENT_NAME.match(path.name)
+            if not match:
+                continue
+            segment = _Segment(int(match[1]), path)
+            for doc in self._docs(segment):
+                segment.counts[doc["type"]] += 1
+                segment.bytes += len(doc.get("body", ""))
+                if "blob" in doc:
+                    referenced.add(doc["blob"])
+            self._release(segment)
+            if segment.size:
+                self._segments.append(segment)
+            else:
+                path.unlink()
+        for path in self.folder.glob(f"{BLOB_PREFIX}*"):
+            if path.name not in referenced:
+                path.unlink()  # written just before a crash, never appended
+
+    def _open(self, segment: _Segment) -> TinyDB:
+        if segment.db is None:
+            segment.db = TinyDB(segment.path, storage=AtomicJSONStorage, durable=self._durable)
+        return segment.db
+
+    def _release(self, segment: _Segment) -> None:
+        """Forget a segment's cached contents unless it is the newest (appends) or oldest (drains)."""
+        if segment.db is not None and (
+            not self._segments or segment not in (self._segments[0], self._segments[-1])
+        ):
+            segment.db.close()
+            segment.db = None
+
+    def _docs(self, segment: _Segment) -> list[Any]:
+        return sorted(self._open(segment).table("events").all(), key=lambda doc: doc.doc_id)
+
+    def close(self) -> None:
+        with self._lock:
+            for segment in self._segments:
+                if segment.db is not None:
+                    segment.db.close()
+                    segment.db = None
+            self._meta.close()
+            self._refused.close()
+
+    # ------------------------------------------------------------------ appending
+
+    def append(self, events: Sequence[Event]) -> None:
+        """Store events durably, in order; raise :class:`OutboxFull` (taking none) past a keep limit."""
+        if not events:
+            return
+        with self._lock:
+            adding = Counter(event.type.value for event in events)
+            counts = self.counts()
+            for event_type, n in adding.items():
+                policy = _policy(self.policies, event_type)
+                if policy.overflow is Overflow.KEEP and counts[event_type] + n > policy.limit:
+                    raise OutboxFull(
+                        f"{counts[event_type]} {event_type} events wait already and {event_type} is never "
+                        f"dropped; its limit is {policy.limit}"
+                    )
+            docs = [self._doc(event) for event in events]
+            start = 0
+            while start < len(docs):
+                segment = self._tail_with_room()
+                room = max(1, self._segment_events - segment.size)
+                part = docs[start : start + room]
+                self._open(segment).table("events").insert_multiple(part)
+                for doc in part:
+                    segment.counts[doc["type"]] += 1
+                    segment.bytes += len(doc.get("body", ""))
+                start += len(part)
+            for event_type in adding:
+                self._enforce_drop_limit(event_type)
+
+    def _doc(self, event: Event) -> dict[str, Any]:
+        doc: dict[str, Any] = {
+            "seq": event.seq,
+            "type": event.type.value,
+            "message_id": str(event.message_id),
+            "sent_at": event.sent_at.isoformat(),
+        }
+        body = encode_event(event)
+        if len(body) > self._blob_bytes:
+            name = f"{BLOB_PREFIX}{event.message_id}.json"
+            write_atomically(self.folder / name, body, self._durable)
+            doc["blob"] = name
+        else:
+            doc["body"] = body.decode()
+        return doc
+
+    def _tail_with_room(self) -> _Segment:
+        if self._segments:
+            tail = self._segments[-1]
+            if tail.size < self._segment_events and tail.bytes < self._segment_bytes:
+                return tail
+        number = self._segments[-1].number + 1 if self._segments else 0
+        segment = _Segment(number, self.folder / f"seg-{number:012d}.json")
+        self._segments.append(segment)
+        if len(self._segments) > 2:
+            self._release(self._segments[-2])
+        return segment
+
+    def _enforce_drop_limit(self, event_type: str) -> None:
+        policy = _policy(self.policies, event_type)
+        excess = self.counts()[event_type] - policy.limit
+        if policy.overflow is not Overflow.DROP_OLDEST or excess <= 0:
+            return
+        dropped = 0
+        for segment in list(self._segments):
+            if dropped == excess:
+                break
+            if not segment.counts[event_type]:
+                continue
+            doomed = [
+                doc
+                for doc in self._docs(segment)
+                if doc["type"] == event_type and (segment.number, doc.doc_id) not in self._in_flight
+            ][: excess - dropped]
+            self._remove(segment, doomed)
+            dropped += len(doomed)
+        if dropped:
+            self._count("dropped", event_type, dropped)
+
+    # ------------------------------------------------------------------ draining
+
+    def take(self, limit: int) -> list[Entry]:
+        """The oldest ``limit`` entries, marked in flight until :meth:`settle`."""
+        with self._lock:
+            entries: list[Entry] = []
+            for segment in self._segments:
+                for doc in self._docs(segment):
+                    if len(entries) == limit:
+                        break
+                    entries.append(self._entry(segment, doc))
+                self._release(segment)
+                if len(entries) == limit:
+                    break
+            self._in_flight = {entry.position for entry in entries}
+            return entries
+
+    def _entry(self, segment: _Segment, doc: Any) -> Entry:
+        body = (self.folder / doc["blob"]).read_bytes() if "blob" in doc else doc["body"].encode()
+        return Entry(
+            seq=doc["seq"],
+            type=doc["type"],
+            message_id=doc["message_id"],
+            sent_at=_parse_time(doc["sent_at"]),
+            body=body,
+            position=(segment.number, doc.doc_id),
+        )
+
+    def settle(self, confirmed: Iterable[Entry], refused: Mapping[str, str] | None = None) -> None:
+        """Remove confirmed entries and move refused ones (message id -> reason) aside.
+
+        Entries taken but neither confirmed nor refused stay, in their place, for the next take.
+        """
+        refused = refused or {}
+        with self._lock:
+            taken = list(confirmed)
+            by_segment: dict[int, set[int]] = {}
+            refused_docs: list[dict[str, Any]] = []
+            now = datetime.now(timezone.utc).isoformat()
+            for entry in taken:
+                by_segment.setdefault(entry.position[0], set()).add(entry.position[1])
+                if entry.message_id in refused:
+                    refused_docs.append(
+                        {
+                            "seq": entry.seq,
+                            "type": entry.type,
+                            "message_id": entry.message_id,
+                            "sent_at": entry.sent_at.isoformat(),
+                            "reason": refused[entry.message_id],
+                            "refused_at": now,
+                        }
+                    )
+            if refused_docs:
+                self._refused.table("refused").insert_multiple(refused_docs)
+            for segment in list(self._segments):
+                ids = by_segment.get(segment.number)
+                if ids:
+                    self._remove(segment, [doc for doc in self._docs(segment) if doc.doc_id in ids])
+            self._in_flight = set()
+
+    def release(self) -> None:
+        """Nothing of the last take was settled (the connection broke): it waits again."""
+        with self._lock:
+            self._in_flight = set()
+
+    def _remove(self, segment: _Segment, docs: Sequence[Any]) -> None:
+        if not docs:
+            return
+        if len(docs) == segment.size:
+            if segment.db is not None:
+                segment.db.close()
+                segment.db = None
+            segment.path.unlink()
+            self._segments.remove(segment)
+        else:
+            self._open(segment).table("events").remove(doc_ids=[doc.doc_id for doc in docs])
+            for doc in docs:
+                segment.counts[doc["type"]] -= 1
+                segment.bytes -= len(doc.get("body", ""))
+            self._release(segment)
+        for doc in docs:
+            if "blob" in doc:
+                (self.folder / doc["blob"]).unlink(missing_ok=True)
+
+    # ------------------------------------------------------------------ what waits
+
+    def counts(self) -> Counter[str]:
+        with self._lock:
+            total: Counter[str] = Counter()
+            for segment in self._segments:
+                total.update(segment.counts)
+            return +total
+
+    def pending(self) -> int:
+        return sum(self.counts().values())
+
+    def max_seq(self) -> int | None:
+        with self._lock:
+            if not self._segments:
+                return None
+            docs = self._docs(self._segments[-1])
+            self._release(self._segments[-1])
+            return max((doc["seq"] for doc in docs), default=None)
+
+    def entries(self, limit: int | None = None) -> list[Entry]:
+        """Waiting entries, oldest first (without marking them in flight)."""
+        with self._lock:
+            out: list[Entry] = []
+            for segment in self._segments:
+                for doc in self._docs(segment):
+                    if limit is not None and len(out) == limit:
+                        return out
+                    out.append(self._entry(segment, doc))
+                self._release(segment)
+            return out
+
+    def refused(self) -> list[RefusedEntry]:
+        with self._lock:
+            return [
+                RefusedEntry(
+                    seq=doc["seq"],
+                    type=doc["type"],
+                    message_id=doc["message_id"],
+                    sent_at=_parse_time(doc["sent_at"]),
+                    reason=doc["reason"],
+                    refused_at=_parse_time(doc["refused_at"]),
+                )
+                for doc in self._refused.table("refused").all()
+            ]
+
+    def dropped(self) -> Counter[str]:
+        return self._counter("dropped")
+
+    def summary(self) -> dict[str, TypeSummary]:
+        """Per type: how many wait, the oldest one's time, how many were dropped or refused."""
+        with self._lock:
+            oldest: dict[str, datetime] = {}
+            for segment in self._segments:
+                missing = [t for t, n in segment.counts.items() if n and t not in oldest]
+                if missing:
+                    for doc in self._docs(segment):
+                        oldest.setdefault(doc["type"], _parse_time(doc["sent_at"]))
+                    self._release(segment)
+            waiting = self.counts()
+            dropped = self.dropped()
+            refused = Counter(entry.type for entry in self.refused())
+            types = sorted(set(waiting) | set(dropped) | set(refused))
+            never = datetime.max.replace(tzinfo=timezone.utc)
+            return {
+                t: TypeSummary(waiting[t], dropped[t], refused[t], oldest.get(t))
+                for t in sorted(types, key=lambda t: (oldest.get(t, never), t))
+            }
+
+    def _counter(self, name: str) -> Counter[str]:
+        doc = self._meta.table("counters").get(doc_id=1)
+        return Counter(doc.get(name, {})) if doc else Counter()
+
+    def _count(self, name: str, event_type: str, n: int) -> None:
+        table = self._meta.table("counters")
+        doc = dict(table.get(doc_id=1) or {})
+        counts = dict(doc.get(name, {}))
+        counts[event_type] = counts.get(event_type, 0) + n
+        doc[name] = counts
+        table.upsert(Document(doc, doc_id=1))

@@ -1,0 +1,236 @@
+"""The robot's sender: a thread that drains the outbox to the broker, in order, for as long as it runs.
+
+It owns its own pika connection (pika connections belong to one thread), connects with backoff
+while the broker is away, sends the oldest waiting events as one pipelined window, and removes
+them from the outbox only once the broker confirmed them. A window whose confirms were lost with
+the connection is sent again after reconnecting; the server's (robot, seq) key makes the second
+copy harmless. A message the broker refuses for good (access refused, unroutable) is moved to the
+outbox's refused list with the reason, so it cannot block the events behind it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import pika
+import pika.exceptions
+
+from publishers.confirms import Outgoing, PipelinedConfirms
+from publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
+from publishers.outbox import Entry, Outbox
+
+log = logging.getLogger("fleetbus.robot.sender")
+
+#: Largest window written before waiting for its confirms; bounds memory and resend work.
+PUBLISH_WINDOW = 1000
+#: How often an idle sender lets pika answer heartbeats.
+IDLE_TICK = 1.0
+
+
+@dataclass
+class Waiter:
+    """A caller waiting for some of its events to be settled (confirmed or refused)."""
+
+    pending: set[str]
+    refused: dict[str, str] = field(default_factory=dict)
+
+
+class Sender:
+    def __init__(
+        self,
+        outbox: Outbox,
+        parameters: pika.URLParameters,
+        to_outgoing: Callable[[Entry], Outgoing],
+        *,
+        confirm_timeout: float,
+        name: str,
+    ) -> None:
+        self._outbox = outbox
+        self._parameters = parameters
+        self._to_outgoing = to_outgoing
+        self._confirm_timeout = confirm_timeout
+        self._condition = threading.Condition()
+        self._stopping = False
+        self._connected = False
+        self._work = False
+        self._waiters: list[Waiter] = []
+        self._connection: pika.BlockingConnection | None = None
+        self._confirms: PipelinedConfirms | None = None
+        self.last_error: str | None = None
+        self.sent = 0
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    # ------------------------------------------------------------------ control (any thread)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        with self._condition:
+            self._stopping = True
+            self._condition.notify_all()
+        self._thread.join(timeout)
+
+    def wake(self) -> None:
+        with self._condition:
+            self._work = True
+            self._condition.notify_all()
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    def wait_connected(self, timeout: float) -> bool:
+        with self._condition:
+            return self._condition.wait_for(lambda: self._connected or self._stopping, timeout) and (
+                self._connected
+            )
+
+    def wait_settled(self, message_ids: Sequence[str], timeout: float) -> dict[str, str] | None:
+        """Wait while connected until these events are confirmed or refused.
+
+        Returns the refused ones (message id -> reason), or None if the sender lost the broker
+        (or ``timeout`` passed) first: then the events simply wait in the outbox.
+        """
+        waiter = Waiter(set(message_ids))
+        with self._condition:
+            if not self._connected:
+                return None
+            self._waiters.append(waiter)
+            try:
+                done = self._condition.wait_for(
+                    lambda: not waiter.pending or not self._connected or self._stopping, timeout
+                )
+            finally:
+                self._waiters.remove(waiter)
+            return waiter.refused if done and not waiter.pending else None
+
+    def wait_drained(self, timeout: float) -> bool:
+        """Wait until the outbox is empty; False if ``timeout`` passed first."""
+        deadline = time.monotonic() + timeout
+        with self._condition:
+            while self._outbox.pending():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._condition.wait(min(remaining, IDLE_TICK))
+            return True
+
+    # ------------------------------------------------------------------ the thread
+
+    def _run(self) -> None:
+        delay = 0.1
+        while not self._stopping:
+            try:
+                if self._connection is None:
+                    self._connect()  # at once, not on the first event: publish() needs to know
+                    delay = 0.1
+                    continue
+                entries = self._outbox.take(PUBLISH_WINDOW)
+                if not entries:
+                    self._idle_wait()
+                    continue
+                self._send(entries)
+            except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
+                self._outbox.release()
+                self._disconnect(repr(error))
+                with self._condition:
+                    self._condition.wait_for(lambda: self._stopping, delay)  # backoff, cut short by stop
+                delay = min(delay * 2, 5.0)
+            except Exception as error:  # never let the sender die silently
+                log.exception("robot sender failed; retrying")
+                self._outbox.release()
+                self._disconnect(repr(error))
+                with self._condition:
+                    self._condition.wait_for(lambda: self._stopping, 1.0)
+        self._disconnect(None)
+
+    def _idle_wait(self) -> None:
+        """Sleep until woken or a tick passes, then let pika answer heartbeats."""
+        with self._condition:
+            if not self._work:
+                self._condition.wait(IDLE_TICK)
+            self._work = False
+        if self._connection is not None:
+            self._connection.process_data_events(0)
+
+    def _connect(self) -> None:
+        connection = pika.BlockingConnection(self._parameters)
+        try:
+            confirms = PipelinedConfirms(connection, connection.channel(), self._confirm_timeout)
+        except Exception:
+            connection.close()
+            raise
+        self._connection, self._confirms = connection, confirms
+        with self._condition:
+            self._connected = True
+            self.last_error = None
+            self._condition.notify_all()
+        log.info("robot sender connected to %s:%s", self._parameters.host, self._parameters.port)
+
+    def _disconnect(self, error: str | None) -> None:
+        connection, self._connection, self._confirms = self._connection, None, None
+        with self._condition:
+            if self._connected and error:
+                log.warning("robot sender lost the broker: %s; events wait in the outbox", error)
+            self._connected = False
+            if error:
+                self.last_error = error
+            self._condition.notify_all()
+        if connection is not None and connection.is_open:
+            try:
+                connection.close()
+            except Exception:  # the connection is already broken; nothing more to do with it
+                pass
+
+    def _fresh_channel(self) -> PipelinedConfirms:
+        assert self._connection is not None
+        channel = self._connection.channel()
+        self._confirms = PipelinedConfirms(self._connection, channel, self._confirm_timeout)
+        return self._confirms
+
+    def _send(self, entries: list[Entry]) -> None:
+        assert self._confirms is not None
+        messages = [self._to_outgoing(entry) for entry in entries]
+        try:
+            outcome = self._confirms.send(messages, self._confirm_timeout)
+        except PublishRefused:
+            # The broker closed the channel on one of them: find which, one at a time.
+            self._settle_one_by_one(entries, messages)
+            return
+        refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
+        confirmed = [e for e in entries if e.message_id not in outcome.nacked]
+        if outcome.nacked:
+            log.warning("broker nacked %d messages; they stay in the outbox", len(outcome.nacked))
+        self._settle(confirmed, refused)
+
+    def _settle_one_by_one(self, entries: list[Entry], messages: list[Outgoing]) -> None:
+        for entry, message in zip(entries, messages, strict=True):
+            confirms = self._confirms
+            if confirms is None or confirms.closed:
+                confirms = self._fresh_channel()
+            try:
+                outcome = confirms.send([message], self._confirm_timeout)
+            except PublishRefused as error:
+                log.error("broker refused %s seq %d: %s", entry.type, entry.seq, error)
+                self._settle([entry], {entry.message_id: str(error)})
+                continue
+            if outcome.nacked:
+                break  # transient: it and the ones after it stay, in order
+            refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
+            self._settle([entry], refused)
+        self._outbox.release()
+
+    def _settle(self, confirmed: list[Entry], refused: dict[str, str]) -> None:
+        self._outbox.settle(confirmed, refused)
+        self.sent += len(confirmed) - len(refused)
+        ids = {entry.message_id for entry in confirmed}
+        with self._condition:
+            for waiter in self._waiters:
+                waiter.refused.update({m: why for m, why in refused.items() if m in waiter.pending})
+                waiter.pending -= ids
+            self._condition.notify_all()

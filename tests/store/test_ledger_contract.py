@@ -1,0 +1,76 @@
+"""The sequence ledger on every adapter: gaps open and close, duplicates are recorded, reused numbers seen."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+from datetime import datetime, timedelta, timezone
+
+from tests.store.test_contract import record
+from workers.store.interface import Store
+from workers.store.ledger import Duplicate, Gap, apply_seqs
+
+T0 = datetime(2026, 11, 23, 8, 0, tzinfo=timezone.utc)
+T1 = T0 + timedelta(seconds=1)
+
+
+def spans(gaps: list[Gap]) -> list[tuple[str, int, int]]:
+    return [(gap.robot_id, gap.first, gap.last) for gap in gaps]
+
+
+async def test_a_gap_opens_and_closes_piece_by_piece(store: Store) -> None:
+    await store.observe_sequences({"explorer1": [0, 1, 2]}, T0)
+    assert await store.gaps() == [] and await store.high_water("explorer1") == 2
+    await store.observe_sequences({"explorer1": [7, 8], "warden1": [3]}, T0)
+    assert spans(await store.gaps()) == [("explorer1", 3, 6), ("warden1", 0, 2)]
+    await store.observe_sequences({"explorer1": [5]}, T1)
+    assert spans(await store.gaps("explorer1")) == [("explorer1", 3, 4), ("explorer1", 6, 6)]
+    assert {gap.detected_at for gap in await store.gaps()} == {T0}, "pieces keep the time it opened"
+    await store.observe_sequences({"explorer1": [3, 4, 6, 9]}, T1)
+    assert spans(await store.gaps()) == [("warden1", 0, 2)]
+    assert await store.high_water("explorer1") == 9
+
+
+async def test_observing_again_changes_nothing(store: Store) -> None:
+    for seqs in ([0, 4], [4, 0], [2], [2], [0, 4]):
+        await store.observe_sequences({"explorer1": seqs}, T0)
+    assert spans(await store.gaps()) == [("explorer1", 1, 1), ("explorer1", 3, 3)]
+    assert await store.high_water("explorer1") == 4
+    assert await store.high_water("nobody") is None
+
+
+async def test_duplicates_are_recorded_newest_first(store: Store) -> None:
+    await store.record_duplicates(
+        [
+            Duplicate("explorer1", 3, "m-3", T0, redelivered=False),
+            Duplicate("explorer1", 4, "m-4", T1, redelivered=True),
+            Duplicate("warden1", 1, "w-1", T0, redelivered=False),
+        ]
+    )
+    found = await store.duplicates("explorer1")
+    assert [(d.seq, d.redelivered, d.seen_at) for d in found] == [(4, True, T1), (3, False, T0)]
+    assert len(await store.duplicates()) == 3 and len(await store.duplicates(limit=1)) == 1
+
+
+async def test_a_write_that_finds_its_key_taken_says_by_which_message(store: Store) -> None:
+    first = record(seq=5)
+    await store.write_events([first])
+    resent, reused = first, replace(first, message_id="another-message")
+    results = await store.write_events([resent, reused, record(seq=6)])
+    assert [(r.inserted, r.stored_message_id) for r in results] == [
+        (False, first.message_id),
+        (False, first.message_id),
+        (True, None),
+    ]
+
+
+def test_the_ledger_does_not_depend_on_the_order_it_sees_numbers_in() -> None:
+    numbers = [0, 2, 3, 7, 9, 12]
+    outcomes = set()
+    for order in itertools.permutations(numbers):
+        high_water, gaps = None, []
+        for seq in order:
+            change = apply_seqs("r", high_water, gaps, [seq], T0)
+            high_water, gaps = change.high_water, change.gaps
+        outcomes.add((high_water, tuple((g.first, g.last) for g in gaps)))
+    assert outcomes == {(12, ((1, 1), (4, 6), (8, 8), (10, 11)))}

@@ -1,0 +1,126 @@
+"""The robot's outbox on disk (TinyDB segments): order, policies, crash leftovers. No broker needed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy
+from publishers.sequence import SequenceCounter
+from publishers.storage import AtomicJSONStorage
+from schemas.envelope import Event, build_event, parse_event
+from tests.factories import hazard, status
+
+
+def events(kind: str, first: int, count: int) -> list[Event]:
+    body = hazard if kind == "hazard" else status
+    return [build_event(kind, "explorer1", first + i, body()) for i in range(count)]
+
+
+def seqs(outbox: Outbox) -> list[int]:
+    return [entry.seq for entry in outbox.entries()]
+
+
+def test_entries_wait_in_order_across_segments_and_survive_reopening(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, segment_events=10)
+    sent = events("hazard", 0, 25) + events("status", 25, 10)
+    outbox.append(sent[:7])
+    outbox.append(sent[7:])
+    assert len(list(tmp_path.glob("seg-*.json"))) == 4
+    outbox.close()
+
+    reopened = Outbox(tmp_path, segment_events=10)
+    assert seqs(reopened) == list(range(35))
+    assert [parse_event(entry.body) for entry in reopened.entries()] == sent, "bodies byte for byte"
+    assert reopened.counts() == {"hazard": 25, "status": 10}
+    assert reopened.max_seq() == 34
+
+
+def test_settle_removes_confirmed_moves_refused_and_keeps_the_rest(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, segment_events=4)
+    outbox.append(events("hazard", 0, 10))
+    window = outbox.take(6)
+    assert [entry.seq for entry in window] == [0, 1, 2, 3, 4, 5]
+    outbox.settle(window[:5], {window[2].message_id: "unroutable (312 NO_ROUTE)"})
+    assert seqs(outbox) == [5, 6, 7, 8, 9], "the unsettled one stays first"
+    [refused] = outbox.refused()
+    assert (refused.seq, refused.reason) == (2, "unroutable (312 NO_ROUTE)")
+    assert len(list(tmp_path.glob("seg-*.json"))) == 2, "the emptied segment file is gone"
+    outbox.settle(outbox.take(100))
+    assert outbox.pending() == 0 and not list(tmp_path.glob("seg-*.json"))
+
+
+def test_telemetry_drops_its_oldest_and_counts_them(tmp_path: Path) -> None:
+    policies = {
+        "status": TypePolicy(Overflow.DROP_OLDEST, 5),
+        "hazard": TypePolicy(Overflow.KEEP, 100),
+    }
+    outbox = Outbox(tmp_path, policies, segment_events=3)
+    outbox.append(events("status", 0, 4) + events("hazard", 4, 2))
+    outbox.append(events("status", 6, 4))
+    assert outbox.counts() == {"status": 5, "hazard": 2}
+    assert seqs(outbox) == [3, 4, 5, 6, 7, 8, 9], "the three oldest status events went"
+    assert outbox.dropped() == {"status": 3}
+    outbox.close()
+    assert Outbox(tmp_path, policies).dropped() == {"status": 3}, "the count is on disk"
+
+
+def test_drop_spares_the_window_in_flight(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, {"status": TypePolicy(Overflow.DROP_OLDEST, 3)})
+    outbox.append(events("status", 0, 3))
+    in_flight = outbox.take(2)
+    outbox.append(events("status", 3, 1))
+    assert seqs(outbox) == [0, 1, 3], "seq 2 dropped, not the two being sent"
+    outbox.settle(in_flight)
+    assert seqs(outbox) == [3]
+
+
+def test_a_type_never_dropped_refuses_past_its_limit_and_takes_nothing(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, {"hazard": TypePolicy(Overflow.KEEP, 3)})
+    outbox.append(events("hazard", 0, 2))
+    with pytest.raises(OutboxFull, match="2 hazard events wait already and hazard is never dropped"):
+        outbox.append(events("hazard", 2, 2) + events("status", 4, 1))
+    assert seqs(outbox) == [0, 1]
+
+
+def test_large_bodies_wait_in_files_of_their_own(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, blob_bytes=600)
+    big = build_event("hazard", "explorer1", 0, {**hazard(), "description": "x" * 500})
+    outbox.append([big, *events("hazard", 1, 1)])
+    blobs = list(tmp_path.glob("blob-*.json"))
+    assert len(blobs) == 1
+    assert parse_event(outbox.entries()[0].body) == big
+    outbox.settle(outbox.take(1))
+    assert not blobs[0].exists()
+
+
+def test_leftovers_of_a_write_cut_short_are_cleaned(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, blob_bytes=1000)
+    outbox.append(events("hazard", 0, 2))
+    outbox.close()
+    (tmp_path / ".seg-000000000000.json.tmp").write_text('{"events": {"1": ')  # a torn temporary file
+    (tmp_path / "blob-orphan.json").write_text("{}")  # written just before a crash, never appended
+    reopened = Outbox(tmp_path)
+    assert seqs(reopened) == [0, 1]
+    assert not (tmp_path / ".seg-000000000000.json.tmp").exists()
+    assert not (tmp_path / "blob-orphan.json").exists()
+
+
+def test_the_storage_replaces_its_file_whole(tmp_path: Path) -> None:
+    storage = AtomicJSONStorage(tmp_path / "db.json")
+    storage.write({"t": {"1": {"a": 1}}})
+    storage.write({"t": {"1": {"a": 2}}})
+    assert json.loads((tmp_path / "db.json").read_text()) == {"t": {"1": {"a": 2}}}
+    assert [path.name for path in tmp_path.iterdir()] == ["db.json"], "no temporary file left"
+
+
+def test_sequence_numbers_only_grow(tmp_path: Path) -> None:
+    counter = SequenceCounter(tmp_path / "state.json")
+    assert counter.reserve(3) == 0
+    counter.at_least(2)
+    assert counter.reserve() == 3
+    counter.at_least(10)
+    counter.close()
+    assert SequenceCounter(tmp_path / "state.json").reserve() == 10

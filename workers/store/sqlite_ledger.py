@@ -1,0 +1,131 @@
+"""The sequence ledger (gaps, duplicates) on SQLite, mixed into :class:`SQLiteEventStore`."""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Callable, Mapping, Sequence
+from datetime import datetime
+from typing import Any
+
+from workers.store.base import from_micros, to_micros
+from workers.store.ledger import Duplicate, Gap, SequenceLedger, apply_seqs
+from workers.store.sqlite_coordination import in_transaction
+
+LEDGER_SCHEMA = """
+CREATE TABLE IF NOT EXISTS robot_sequences (
+    robot_id   TEXT PRIMARY KEY,
+    high_water INTEGER NOT NULL
+) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS sequence_gaps (
+    robot_id    TEXT    NOT NULL,
+    first_seq   INTEGER NOT NULL,
+    last_seq    INTEGER NOT NULL,
+    detected_at INTEGER NOT NULL,
+    PRIMARY KEY (robot_id, first_seq)
+) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS duplicates (
+    robot_id    TEXT    NOT NULL,
+    seq         INTEGER NOT NULL,
+    message_id  TEXT    NOT NULL,
+    seen_at     INTEGER NOT NULL,
+    redelivered INTEGER NOT NULL
+);
+CREATE INDEX IF NOT EXISTS duplicates_robot_time ON duplicates (robot_id, seen_at);
+"""
+
+
+def _gap(row: sqlite3.Row) -> Gap:
+    return Gap(row["robot_id"], row["first_seq"], row["last_seq"], from_micros(row["detected_at"]))
+
+
+def _observe(db: sqlite3.Connection, robot_id: str, seqs: Sequence[int], at: datetime) -> None:
+    row = db.execute("SELECT high_water FROM robot_sequences WHERE robot_id = ?", (robot_id,)).fetchone()
+    high_water = row[0] if row else None
+    low = min(seqs)
+    touched: list[Gap] = []
+    if high_water is not None and low <= high_water:
+        touched = [
+            _gap(r)
+            for r in db.execute(
+                "SELECT * FROM sequence_gaps WHERE robot_id = ? AND last_seq >= ? AND first_seq <= ?",
+                (robot_id, low, min(max(seqs), high_water)),
+            )
+        ]
+    change = apply_seqs(robot_id, high_water, touched, seqs, at)
+    db.executemany(
+        "DELETE FROM sequence_gaps WHERE robot_id = ? AND first_seq = ?",
+        [(gap.robot_id, gap.first) for gap in change.touched],
+    )
+    db.executemany(
+        "INSERT INTO sequence_gaps (robot_id, first_seq, last_seq, detected_at) VALUES (?, ?, ?, ?)",
+        [(gap.robot_id, gap.first, gap.last, to_micros(gap.detected_at)) for gap in change.gaps],
+    )
+    db.execute(
+        "INSERT INTO robot_sequences (robot_id, high_water) VALUES (?, ?) "
+        "ON CONFLICT (robot_id) DO UPDATE SET high_water = max(high_water, excluded.high_water)",
+        (robot_id, change.high_water),
+    )
+
+
+class SQLiteLedger(SequenceLedger):
+    _run: Callable[..., Any]
+
+    async def observe_sequences(self, seen: Mapping[str, Sequence[int]], at: datetime) -> None:
+        work = {robot: list(seqs) for robot, seqs in seen.items() if seqs}
+        if not work:
+            return
+
+        def observe(db: sqlite3.Connection) -> None:
+            in_transaction(db, lambda: [_observe(db, robot, seqs, at) for robot, seqs in work.items()])
+
+        await self._run(observe)
+
+    async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None:
+        rows = [
+            (d.robot_id, d.seq, d.message_id, to_micros(d.seen_at), int(d.redelivered)) for d in duplicates
+        ]
+        if not rows:
+            return
+
+        def record(db: sqlite3.Connection) -> None:
+            in_transaction(
+                db,
+                lambda: db.executemany(
+                    "INSERT INTO duplicates (robot_id, seq, message_id, seen_at, redelivered) "
+                    "VALUES (?, ?, ?, ?, ?)",
+                    rows,
+                ),
+            )
+
+        await self._run(record)
+
+    async def gaps(self, robot_id: str | None = None) -> list[Gap]:
+        where, params = (" WHERE robot_id = ?", (robot_id,)) if robot_id else ("", ())
+        sql = f"SELECT * FROM sequence_gaps{where} ORDER BY robot_id, first_seq"
+        return await self._run(lambda db: [_gap(row) for row in db.execute(sql, params)])
+
+    async def duplicates(self, robot_id: str | None = None, limit: int | None = None) -> list[Duplicate]:
+        where, params = (" WHERE robot_id = ?", (robot_id,)) if robot_id else ("", ())
+        sql = f"SELECT * FROM duplicates{where} ORDER BY seen_at DESC, robot_id, seq DESC"
+        if limit is not None:
+            sql += f" LIMIT {int(limit)}"
+        return await self._run(
+            lambda db: [
+                Duplicate(
+                    row["robot_id"],
+                    row["seq"],
+                    row["message_id"],
+                    from_micros(row["seen_at"]),
+                    bool(row["redelivered"]),
+                )
+                for row in db.execute(sql, params)
+            ]
+        )
+
+    async def high_water(self, robot_id: str) -> int | None:
+        row = await self._run(
+            lambda db: db.execute(
+                "SELECT high_water FROM robot_sequences WHERE robot_id = ?", (robot_id,)
+            ).fetchone()
+        )
+        return row[0] if row else None
