@@ -14,6 +14,7 @@ from fleetbus.commands import (
     hazards,
     maps,
     schemas_export,
+    tail,
     users,
     worker,
 )
@@ -36,6 +37,7 @@ app.command("dlq")(dlq.dlq)
 app.command("hazards")(hazards.hazards)
 app.command("demo")(demo.demo)
 app.command("schemas")(schemas_export.export_schemas)
+app.command("tail")(tail.tail)
 
 if __name__ == "__main__":
     app()
