@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from fleetbus.commands import (
+    api,
     beacons,
     broker,
     demo,
@@ -14,6 +15,7 @@ from fleetbus.commands import (
     maps,
     outbox,
     schemas_export,
+    tail,
     users,
     worker,
 )
@@ -28,6 +30,7 @@ app.add_typer(broker.app, name="broker")
 app.add_typer(users.app, name="users")
 app.add_typer(beacons.app, name="beacons")
 app.add_typer(maps.app, name="map")
+app.add_typer(api.app, name="api")
 app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)
@@ -36,6 +39,7 @@ app.command("outbox")(outbox.outbox)
 app.command("hazards")(hazards.hazards)
 app.command("demo")(demo.demo)
 app.command("schemas")(schemas_export.export_schemas)
+app.command("tail")(tail.tail)
 
 if __name__ == "__main__":
     app()

@@ -13,6 +13,7 @@ from pathlib import Path
 DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
+DEFAULT_TOKEN_MINUTES = 60.0
 DEFAULT_LATE_AFTER_S = 5.0
 
 
@@ -30,6 +31,11 @@ class Settings:
     """Bodies larger than this are dead-lettered by the workers."""
     battery_low_percent: float = DEFAULT_BATTERY_LOW_PERCENT
     """A status below this battery level notifies the operators (once per crossing)."""
+    api_secret: str | None = None
+    """The HTTP API's master secret (signs tokens, encrypts stored broker passwords); ``None``:
+    a random one kept in ``data_dir/api/secret``. Every replica of the API needs the same."""
+    token_minutes: float = DEFAULT_TOKEN_MINUTES
+    """How long a login token is valid."""
     late_after_s: float = DEFAULT_LATE_AFTER_S
     """A notification that reaches its robots this long after the event was sent is flagged late."""
 
@@ -49,6 +55,10 @@ class Settings:
     def robots_dir(self) -> Path:
         return self.data_dir / "robots"
 
+    @property
+    def api_dir(self) -> Path:
+        return self.data_dir / "api"
+
 
 def load_settings(environ: dict[str, str] | None = None) -> Settings:
     env = os.environ if environ is None else environ
@@ -59,5 +69,7 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         mongodb_url=env.get("FLEETBUS_MONGODB_URL") or None,
         max_message_bytes=int(env.get("FLEETBUS_MAX_MESSAGE_BYTES") or DEFAULT_MAX_MESSAGE_BYTES),
         battery_low_percent=float(env.get("FLEETBUS_BATTERY_LOW_PERCENT") or DEFAULT_BATTERY_LOW_PERCENT),
+        api_secret=env.get("FLEETBUS_API_SECRET") or None,
+        token_minutes=float(env.get("FLEETBUS_API_TOKEN_MINUTES") or DEFAULT_TOKEN_MINUTES),
         late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
     )

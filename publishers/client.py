@@ -40,7 +40,7 @@ from schemas.bodies import MapMetadata
 from schemas.envelope import Event, build_event, validate_body
 from schemas.identity import validate_name
 from schemas.notifications import Notification
-from schemas.routing import EventType, event_routing_key, events_exchange, inbox_queue
+from schemas.routing import EventType, beacon_headers, event_routing_key, inbox_queue, publish_exchange
 
 log = logging.getLogger("fleetbus.robot")
 
@@ -70,9 +70,14 @@ def outgoing(robot_id: str, entry: Entry) -> Outgoing:
         timestamp=int(entry.sent_at.timestamp()),
         type=entry.type,
         app_id="fleetbus-robot",
+        # beacons pass the robot's beacon exchange only with these headers
+        headers=beacon_headers(robot_id) if entry.type == EventType.BEACON.value else None,
     )
     return Outgoing(
-        events_exchange(robot_id), event_routing_key(robot_id, entry.type), entry.body, properties
+        publish_exchange(robot_id, entry.type),
+        event_routing_key(robot_id, entry.type),
+        entry.body,
+        properties,
     )
 
 

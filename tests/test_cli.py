@@ -59,7 +59,15 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
     written = {path.name for path in tmp_path.glob("*.schema.json")}
     assert written == {"event.schema.json", *(f"{t.value}.schema.json" for t in EventType)}
     asyncapi = json.loads((tmp_path / "asyncapi.json").read_text())
-    assert set(asyncapi["channels"]) == {"{robot}.{type}", "notify.{topic}", "fleetbus.dead-letters"}
+    assert set(asyncapi["channels"]) == {
+        "{robot}.{type}",
+        "{robot}.beacon",
+        "{robot}.{command}",
+        "{user}.stream",
+        "notify.{topic}",
+        "fleetbus.beacon.discarded",
+        "fleetbus.dead-letters",
+    }
     text = json.dumps(asyncapi)
     targets = {
         f"#/components/{kind}/{name}"

@@ -49,6 +49,12 @@ class BatchCheck(Protocol):
         ...
 
 
+class BatchEnricher(Protocol):
+    """Adds to the records of checked items before they are written (the mission stamp)."""
+
+    async def enrich(self, accepted: Sequence[Accepted]) -> list[Accepted]: ...
+
+
 class Stopping(Exception):
     """The worker is stopping while the store is down: leave the batch unacked."""
 
@@ -74,6 +80,7 @@ class IngestConsumer:
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
         services: Sequence[BatchService] = (),
+        enrichers: Sequence[BatchEnricher] = (),
         batch_size: int = 256,
         linger: float = 0.005,
     ) -> None:
@@ -82,6 +89,7 @@ class IngestConsumer:
         self._store = store
         self._checks = checks
         self._services = services
+        self._enrichers = enrichers
         self._dead_letter_exchange = dead_letter_exchange
         self._max_bytes = max_message_bytes
         self._batch_size = batch_size
@@ -187,6 +195,10 @@ class IngestConsumer:
             for index in sorted(refused):
                 await self._reject(candidates[index][0], refused[index])
             candidates = [pair for index, pair in enumerate(candidates) if index not in refused]
+        for enricher in self._enrichers:
+            items = [item for _, item in candidates]
+            enriched = await self._retrying(lambda enricher=enricher, items=items: enricher.enrich(items))
+            candidates = [(message, item) for (message, _), item in zip(candidates, enriched, strict=True)]
         if candidates:
             records = [item.record for _, item in candidates]
             results = await self._retrying(lambda: self._store.write_events(records))

@@ -118,6 +118,7 @@ def query(
         str, typer.Argument(metavar="TYPE", help=f"an event type, or {' or '.join(LEDGER_VIEWS)}")
     ],
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
+    mission: Annotated[str | None, typer.Option(help="only events recorded under this mission")] = None,
     since: Annotated[str | None, typer.Option(help="from this time (ISO 8601 or e.g. 10m ago)")] = None,
     until: Annotated[str | None, typer.Option(help="before this time")] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
@@ -138,6 +139,7 @@ def query(
         until=parse_time(until),
         limit=limit,
         newest_first=True,
+        mission_id=mission,
     )
     records = list(reversed(run_with_store(settings(), lambda store: store.find_events(q))))
     if as_json:

@@ -32,9 +32,13 @@ from workers.store.base import (
     to_micros,
 )
 from workers.store.interface import Store
+from workers.store.mongo_channels import MongoChannels
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
+from workers.store.mongo_discards import MongoDiscards
 from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
+from workers.store.mongo_missions import MongoMissions
+from workers.store.mongo_users import MongoUsers
 
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
@@ -110,7 +114,17 @@ def translate_unavailable(cls: C) -> C:
 
 
 @translate_unavailable
-class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, MongoLedger, Store):
+class MongoEventStore(
+    MongoCoordination,
+    MongoBeacons,
+    MongoMaps,
+    MongoLedger,
+    MongoUsers,
+    MongoMissions,
+    MongoChannels,
+    MongoDiscards,
+    Store,
+):
     name = "mongodb"
 
     def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
@@ -153,6 +167,8 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, MongoLedger, S
                 [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
             )
             await self._collection("map_staging").create_index([("map_id", ASCENDING)])
+            await self.create_mission_indexes()
+            await self.create_channel_indexes()
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
 
@@ -210,6 +226,8 @@ class MongoEventStore(MongoCoordination, MongoBeacons, MongoMaps, MongoLedger, S
             conditions["type"] = type
         if robot_id is not None:
             conditions["robot_id"] = robot_id
+        if query is not None and query.mission_id is not None:
+            conditions["mission_id"] = query.mission_id
         if query is not None and (query.since or query.until):
             window: dict[str, int] = {}
             if query.since:
