@@ -1,4 +1,4 @@
-# The fleetbus worker image (compose.yaml's `worker` service).
+# The fleetbus image (compose.yaml's `worker` and `api` services).
 FROM python:3.12-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \

@@ -12,13 +12,13 @@ import os
 import re
 import secrets
 from dataclasses import dataclass
-from enum import Enum
 from pathlib import Path
 from urllib.parse import quote, unquote, urlsplit, urlunsplit
 
 import pika
 import pika.exceptions
 
+from broker.account_roles import ROLE_TAGS, Role
 from broker.management import ManagementAPI
 from broker.topology import account_topology, core_topology, declare_with_url
 from schemas.identity import validate_name
@@ -34,15 +34,7 @@ from schemas.routing import (
 SERVICE_USER = SERVICE_PREFIX
 RECORDER_USER = f"{SERVICE_PREFIX}-recorder"
 
-
-class Role(str, Enum):
-    ROBOT = "robot"
-    OPERATOR = "operator"
-    SERVICE = "service"
-
-
-#: Management UI access: operators trace messages there; robots and services need none.
-ROLE_TAGS = {Role.ROBOT: "", Role.OPERATOR: "management", Role.SERVICE: ""}
+__all__ = ["ROLE_TAGS", "SERVICE_USER", "Account", "AccountExists", "Role"]
 
 
 class AccountExists(RuntimeError):
@@ -108,17 +100,31 @@ async def provision_account(
         raise ValueError("--kind applies to robots only")
     if api.get_user(name) is not None and not rotate:
         raise AccountExists(f"user {name!r} exists; use --rotate to give it a new password")
-    vhost = vhost_of(admin_url)
     password = secrets.token_urlsafe(24)
     api.put_user(name, password, ROLE_TAGS[role])
+    await configure_account(admin_url, api, name, role, kind)
+    return Account(name, role, url_for(admin_url, name, password))
+
+
+async def configure_account(
+    admin_url: str, api: ManagementAPI, name: str, role: Role, kind: RobotKind | None = None
+) -> None:
+    """Grant an existing account its confined permissions and declare what it owns (idempotent)."""
+    validate_name(name)
+    vhost = vhost_of(admin_url)
+    api.put_user_tags(name, ROLE_TAGS[role])
     _grant(api, vhost, name)
     pattern = owner_pattern(name).replace(name, "{username}")
     for exchange in (events_exchange(name), requests_exchange(name)):
         api.put_topic_permissions(vhost, name, exchange, write=pattern, read=pattern)
-    await declare_with_url(
-        admin_url, [core_topology(), account_topology(name, kind=kind, operator=role is Role.OPERATOR)]
-    )
-    return Account(name, role, url_for(admin_url, name, password))
+    await declare_with_url(admin_url, [core_topology(), account_topology(name, role, kind=kind)])
+
+
+def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:
+    """Take every permission in the virtual host away: the account can no longer even connect."""
+    validate_name(name)
+    api.delete_permissions(vhost_of(admin_url), name)
+    api.put_user_tags(name, "")
 
 
 def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, name: str, role: Role) -> str:

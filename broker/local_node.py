@@ -23,6 +23,7 @@ import json
 import logging
 import os
 import random
+import re
 import secrets
 import signal
 import socket
@@ -41,6 +42,16 @@ ADMIN_USER = "fleetbus-admin"
 HOST = "127.0.0.1"
 PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream")
 PLUGINS = ("rabbitmq_management",)
+
+#: Erlang run by ``rabbitmqctl eval``: trigger an election in every quorum queue whose Ra
+#: server does not know a leader; print their names.
+_LEADERLESS_QUORUM_QUEUES = """
+Leaderless = [Q || Q <- rabbit_amqqueue:list(),
+                   amqqueue:get_type(Q) =:= rabbit_quorum_queue,
+                   case ra:members(amqqueue:get_pid(Q), 2000) of {ok, _, _} -> false; _ -> true end],
+[ra:trigger_election(amqqueue:get_pid(Q)) || Q <- Leaderless],
+io:format("~p~n", [[rabbit_misc:rs(amqqueue:get_name(Q)) || Q <- Leaderless]]).
+"""
 SETUP_HINT = "run scripts/setup (it installs Debian's rabbitmq-server)"
 
 log = logging.getLogger("fleetbus.broker")
@@ -589,7 +600,30 @@ log.console = false
             self._wait_ready(deadline, started)
             if started:
                 self._drop_guest()
+                self.heal_quorum_queues(deadline)
         return self.status()
+
+    def heal_quorum_queues(self, deadline: float) -> int:
+        """Elect a leader for every quorum queue that came back from a crash without one.
+
+        RabbitMQ 3.10 can restart a single-node quorum queue with no leader (it answers
+        ``INTERNAL_ERROR`` to consumers and its messages look gone; rabbitmq-server #10070),
+        mostly one created moments before the crash. Its messages are still on disk: an election
+        brings them back. Returns how many queues needed one.
+        """
+        healed: set[str] = set()
+        while True:
+            result = self.rabbitmqctl("eval", _LEADERLESS_QUORUM_QUEUES, check=False, timeout=60)
+            names = re.findall(r'"([^"]+)"', result.stdout) if result.returncode == 0 else []
+            if not names:
+                if healed:
+                    log.warning("elected leaders for %d leaderless quorum queues: %s", len(healed), healed)
+                return len(healed)
+            healed.update(names)
+            if time.monotonic() >= deadline:
+                log.error("quorum queues still without a leader: %s", names)
+                return len(healed)
+            time.sleep(0.5)  # elections run in the background; then check again
 
     def _start(self) -> None:
         ports = self.ports(create=True)

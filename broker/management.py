@@ -59,6 +59,14 @@ class ManagementAPI:
         response = self._client.get(f"users/{_q(name)}")
         return response.json() if response.status_code == 200 else None
 
+    def put_user_tags(self, name: str, tags: str) -> None:
+        """Change an account's tags and keep its password (the API wants the hash sent back)."""
+        user = self._request("GET", f"users/{_q(name)}")
+        body = {"tags": tags, "password_hash": user.get("password_hash", "")}
+        if user.get("hashing_algorithm"):
+            body["hashing_algorithm"] = user["hashing_algorithm"]
+        self._request("PUT", f"users/{_q(name)}", json=body)
+
     def delete_user(self, name: str) -> None:
         self._request("DELETE", f"users/{_q(name)}")
 
@@ -73,6 +81,9 @@ class ManagementAPI:
     def get_permissions(self, vhost: str, user: str) -> dict[str, Any] | None:
         response = self._client.get(f"permissions/{_q(vhost)}/{_q(user)}")
         return response.json() if response.status_code == 200 else None
+
+    def delete_permissions(self, vhost: str, user: str) -> None:
+        self._request("DELETE", f"permissions/{_q(vhost)}/{_q(user)}")
 
     def put_topic_permissions(self, vhost: str, user: str, exchange: str, write: str, read: str) -> None:
         body = {"exchange": exchange, "write": write, "read": read}
@@ -91,6 +102,36 @@ class ManagementAPI:
 
     def delete_vhost(self, vhost: str) -> None:
         self._request("DELETE", f"vhosts/{_q(vhost)}")
+
+    # bindings (mount and unmount change them while the service runs)
+    def bind(
+        self,
+        vhost: str,
+        source: str,
+        destination: str,
+        routing_key: str,
+        *,
+        to_exchange: bool = False,
+        arguments: dict[str, Any] | None = None,
+    ) -> None:
+        kind = "e" if to_exchange else "q"
+        body = {"routing_key": routing_key, "arguments": arguments or {}}
+        self._request("POST", f"bindings/{_q(vhost)}/e/{_q(source)}/{kind}/{_q(destination)}", json=body)
+
+    def unbind(
+        self, vhost: str, source: str, destination: str, routing_key: str, *, to_exchange: bool = False
+    ) -> None:
+        """Remove every binding between the two with this routing key (whatever its arguments)."""
+        kind = "e" if to_exchange else "q"
+        path = f"bindings/{_q(vhost)}/e/{_q(source)}/{kind}/{_q(destination)}"
+        response = self._client.get(path)
+        if response.status_code == 404:  # either end is gone, and the binding with it
+            return
+        if response.status_code >= 400:
+            raise ManagementError(f"GET /api/{path} -> {response.status_code}: {response.text.strip()}")
+        for binding in response.json():
+            if binding["routing_key"] == routing_key:
+                self._request("DELETE", f"{path}/{_q(binding['properties_key'])}")
 
     # observation
     def list_bindings(self, vhost: str) -> list[dict[str, Any]]:

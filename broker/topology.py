@@ -15,8 +15,13 @@ from typing import Any
 import aio_pika
 from aio_pika.abc import AbstractChannel, ExchangeType
 
+from broker.account_roles import Role
 from schemas.routing import (
     ALL_TOPICS_BINDING,
+    BEACON_DISCARD_EXCHANGE,
+    BEACON_DISCARD_QUEUE,
+    BEACON_EXCHANGE,
+    BEACON_MATCH,
     DEAD_LETTER_EXCHANGE,
     DEAD_LETTER_QUEUE,
     INGEST_EXCHANGE,
@@ -28,21 +33,37 @@ from schemas.routing import (
     RPC_QUEUE,
     SUBSCRIPTIONS,
     RobotKind,
+    beacon_exchange,
+    commands_exchange,
+    commands_queue,
     events_exchange,
     inbox_queue,
     notification_routing_key,
     requests_exchange,
+    stream_queue,
 )
 
 #: A message redelivered this many times (the worker died on it each time) is dead-lettered
 #: by the broker itself, so one poison message cannot stop the ingest forever.
 INGEST_DELIVERY_LIMIT = 50
 
+#: A command older than this is dropped by the broker: a robot must not act on a stale order.
+COMMAND_TTL_MS = 30_000
+
+#: An operator's stream keeps a day of history, at most 200 MB, for ``fleetbus tail --since``.
+STREAM_ARGUMENTS = {
+    "x-queue-type": "stream",
+    "x-max-age": "1D",
+    "x-max-length-bytes": 200_000_000,
+    "x-stream-max-segment-size-bytes": 10_000_000,
+}
+
 
 @dataclass(frozen=True)
 class ExchangeSpec:
     name: str
     type: ExchangeType
+    arguments: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -57,6 +78,7 @@ class BindingSpec:
     destination: str
     routing_key: str
     to_exchange: bool = False
+    arguments: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -73,6 +95,8 @@ def core_topology() -> Topology:
             ExchangeSpec(NOTIFY_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(RPC_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),
+            ExchangeSpec(BEACON_EXCHANGE, ExchangeType.TOPIC),
+            ExchangeSpec(BEACON_DISCARD_EXCHANGE, ExchangeType.FANOUT),
         ),
         queues=(
             QueueSpec(
@@ -90,11 +114,15 @@ def core_topology() -> Topology:
             QueueSpec(DEAD_LETTER_QUEUE, {"x-queue-type": "classic"}),
             # Requests are worth nothing once their caller gave up (each carries an expiration).
             QueueSpec(RPC_QUEUE, {"x-queue-type": "classic"}),
+            # Drained into the store's discard log by the workers, which is where they are counted.
+            QueueSpec(BEACON_DISCARD_QUEUE, {"x-queue-type": "classic"}),
         ),
         bindings=(
             BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),
             BindingSpec(RPC_EXCHANGE, RPC_QUEUE, "#"),
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
+            BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
+            BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
         ),
     )
 
@@ -134,20 +162,35 @@ def inbox_bindings(owner: str, kind: RobotKind | None, operator: bool) -> list[s
     return [notification_routing_key(topic) for topic in SUBSCRIPTIONS[kind]]
 
 
-def account_topology(owner: str, *, kind: RobotKind | None = None, operator: bool = False) -> Topology:
-    """A user's own exchanges (bound into the ingest and the service requests) and inbox."""
+def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | None = None) -> Topology:
+    """What an account owns: its exchanges (bound into the ingest and the service requests), its
+    inbox, and by role a robot's beacon exchange and commands queue, or an operator's commands
+    exchange and stream. Mount bindings are not here: the service makes them while it runs."""
     exchange = events_exchange(owner)
     requests = requests_exchange(owner)
     inbox = inbox_queue(owner)
-    return Topology(
-        exchanges=(ExchangeSpec(exchange, ExchangeType.TOPIC), ExchangeSpec(requests, ExchangeType.TOPIC)),
-        queues=(QueueSpec(inbox, {"x-queue-type": "quorum"}),),
-        bindings=(
-            BindingSpec(exchange, INGEST_EXCHANGE, "#", to_exchange=True),
-            BindingSpec(requests, RPC_EXCHANGE, "#", to_exchange=True),
-            *(BindingSpec(NOTIFY_EXCHANGE, inbox, key) for key in inbox_bindings(owner, kind, operator)),
-        ),
-    )
+    operator = role is Role.OPERATOR
+    exchanges = [ExchangeSpec(exchange, ExchangeType.TOPIC), ExchangeSpec(requests, ExchangeType.TOPIC)]
+    queues = [QueueSpec(inbox, {"x-queue-type": "quorum"})]
+    bindings = [
+        BindingSpec(exchange, INGEST_EXCHANGE, "#", to_exchange=True),
+        BindingSpec(requests, RPC_EXCHANGE, "#", to_exchange=True),
+        *(BindingSpec(NOTIFY_EXCHANGE, inbox, key) for key in inbox_bindings(owner, kind, operator)),
+    ]
+    if role is Role.ROBOT:
+        beacons = beacon_exchange(owner)
+        exchanges.append(
+            ExchangeSpec(beacons, ExchangeType.HEADERS, {"alternate-exchange": BEACON_DISCARD_EXCHANGE})
+        )
+        bindings.append(BindingSpec(beacons, BEACON_EXCHANGE, "", to_exchange=True, arguments=BEACON_MATCH))
+        queues.append(
+            QueueSpec(commands_queue(owner), {"x-queue-type": "classic", "x-message-ttl": COMMAND_TTL_MS})
+        )
+    if operator:
+        exchanges.append(ExchangeSpec(commands_exchange(owner), ExchangeType.TOPIC))
+        queues.append(QueueSpec(stream_queue(owner), STREAM_ARGUMENTS))
+        bindings.append(BindingSpec(BEACON_EXCHANGE, stream_queue(owner), "#"))
+    return Topology(exchanges=tuple(exchanges), queues=tuple(queues), bindings=tuple(bindings))
 
 
 async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> None:
@@ -157,7 +200,9 @@ async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> N
     queues: dict[str, aio_pika.abc.AbstractQueue] = {}
     for topology in topologies:
         for spec in topology.exchanges:
-            exchanges[spec.name] = await channel.declare_exchange(spec.name, spec.type, durable=True)
+            exchanges[spec.name] = await channel.declare_exchange(
+                spec.name, spec.type, durable=True, arguments=spec.arguments or None
+            )
     for topology in topologies:
         for spec in topology.queues:
             queues[spec.name] = await channel.declare_queue(spec.name, durable=True, arguments=spec.arguments)
@@ -168,10 +213,12 @@ async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> N
                 destination = exchanges.get(binding.destination) or await channel.get_exchange(
                     binding.destination
                 )
-                await destination.bind(source, routing_key=binding.routing_key)
+                await destination.bind(
+                    source, routing_key=binding.routing_key, arguments=binding.arguments or None
+                )
             else:
                 queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
-                await queue.bind(source, routing_key=binding.routing_key)
+                await queue.bind(source, routing_key=binding.routing_key, arguments=binding.arguments or None)
 
 
 async def declare_with_url(amqp_url: str, topologies: Iterable[Topology]) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from fleetbus.commands import (
+    api,
     beacons,
     broker,
     demo,
@@ -13,10 +14,12 @@ from fleetbus.commands import (
     events,
     hazards,
     maps,
+    outbox,
     recorder,
     replay,
     schemas_export,
     stats,
+    tail,
     timeline,
     trace,
     users,
@@ -34,13 +37,16 @@ app.add_typer(users.app, name="users")
 app.add_typer(beacons.app, name="beacons")
 app.add_typer(maps.app, name="map")
 app.add_typer(recorder.app, name="recorder")
+app.add_typer(api.app, name="api")
 app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)
 app.command("dlq")(dlq.dlq)
+app.command("outbox")(outbox.outbox)
 app.command("hazards")(hazards.hazards)
 app.command("demo")(demo.demo)
 app.command("schemas")(schemas_export.export_schemas)
+app.command("tail")(tail.tail)
 app.command("timeline")(timeline.timeline)
 app.command("trace")(trace.trace)
 app.command("evaluate")(evaluate.evaluate)

@@ -14,6 +14,7 @@ DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
 DEFAULT_RECORDER_KEEP = "*=1GB"
+DEFAULT_TOKEN_MINUTES = 60.0
 DEFAULT_LATE_AFTER_S = 5.0
 
 
@@ -42,6 +43,11 @@ class Settings:
     """Routing-key patterns the recorder drops."""
     recorder_keep: tuple[str, ...] = (DEFAULT_RECORDER_KEEP,)
     """Retention per type: ``status=7d``, ``map_chunk=500MB``, ``tf=100000``, ``*=1GB``."""
+    api_secret: str | None = None
+    """The HTTP API's master secret (signs tokens, encrypts stored broker passwords); ``None``:
+    a random one kept in ``data_dir/api/secret``. Every replica of the API needs the same."""
+    token_minutes: float = DEFAULT_TOKEN_MINUTES
+    """How long a login token is valid."""
     late_after_s: float = DEFAULT_LATE_AFTER_S
     """A notification that reaches its robots this long after the event was sent is flagged late."""
 
@@ -66,6 +72,10 @@ class Settings:
     def robots_dir(self) -> Path:
         return self.data_dir / "robots"
 
+    @property
+    def api_dir(self) -> Path:
+        return self.data_dir / "api"
+
 
 def load_settings(environ: dict[str, str] | None = None) -> Settings:
     env = os.environ if environ is None else environ
@@ -79,5 +89,7 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         recorder_include=_words(env.get("FLEETBUS_RECORDER_INCLUDE")),
         recorder_exclude=_words(env.get("FLEETBUS_RECORDER_EXCLUDE")),
         recorder_keep=_words(env.get("FLEETBUS_RECORDER_KEEP")) or (DEFAULT_RECORDER_KEEP,),
+        api_secret=env.get("FLEETBUS_API_SECRET") or None,
+        token_minutes=float(env.get("FLEETBUS_API_TOKEN_MINUTES") or DEFAULT_TOKEN_MINUTES),
         late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
     )

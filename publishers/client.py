@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -39,9 +40,12 @@ from schemas.bodies import MapMetadata
 from schemas.envelope import Event, build_event, validate_body
 from schemas.identity import validate_name
 from schemas.notifications import Notification
-from schemas.routing import EventType, event_routing_key, events_exchange, inbox_queue
+from schemas.routing import EventType, beacon_headers, event_routing_key, inbox_queue, publish_exchange
 
 log = logging.getLogger("fleetbus.robot")
+
+#: How many notification ids a client remembers to skip repeats of the same announcement.
+SEEN_NOTIFICATIONS = 10_000
 
 
 def robot_folder(state_dir: Path, robot_id: str) -> Path:
@@ -66,9 +70,14 @@ def outgoing(robot_id: str, entry: Entry) -> Outgoing:
         timestamp=int(entry.sent_at.timestamp()),
         type=entry.type,
         app_id="fleetbus-robot",
+        # beacons pass the robot's beacon exchange only with these headers
+        headers=beacon_headers(robot_id) if entry.type == EventType.BEACON.value else None,
     )
     return Outgoing(
-        events_exchange(robot_id), event_routing_key(robot_id, entry.type), entry.body, properties
+        publish_exchange(robot_id, entry.type),
+        event_routing_key(robot_id, entry.type),
+        entry.body,
+        properties,
     )
 
 
@@ -110,8 +119,10 @@ class RobotClient:
             name=f"fleetbus-sender-{self.robot_id}",
         )
         self._started = False
+        self._closed = False
         self._connection: pika.BlockingConnection | None = None
         self._rpc: RpcChannel | None = None
+        self._seen_notes: OrderedDict[str, None] = OrderedDict()
 
     # connection
     def start(self) -> None:
@@ -147,6 +158,9 @@ class RobotClient:
 
     def close(self, flush_timeout: float = 0.0) -> None:
         """Stop; events not yet confirmed stay in the outbox for the next run."""
+        if self._closed:
+            return
+        self._closed = True
         if flush_timeout > 0 and self._started and self.connected:
             self.flush(flush_timeout)
         if self._connection is not None and self._connection.is_open:
@@ -263,17 +277,21 @@ class RobotClient:
         """This robot's notifications; stops after ``timeout`` seconds without one.
 
         Each notification is acked when the caller asks for the next one or stops iterating, so
-        one that was being handled when the robot process died is delivered again.
+        one that was being handled when the robot process died is delivered again. The service
+        sends at least once (it announces again when it cannot be sure a broker took the first
+        announcement); a notification this client has already handed out is acked and skipped.
         """
         channel = self._open_consumer_channel()
         channel.basic_qos(prefetch_count=prefetch)
         try:
-            for method, _properties, body in channel.consume(
+            for method, properties, body in channel.consume(
                 inbox_queue(self.robot_id), inactivity_timeout=timeout
             ):
                 if method is None:
                     return
                 try:
+                    if self._seen_before(properties.message_id):
+                        continue
                     yield Notification.model_validate_json(body)
                 finally:  # the caller asked for the next one, or stopped iterating
                     if channel.is_open:
@@ -282,6 +300,16 @@ class RobotClient:
             if channel.is_open:
                 channel.cancel()
                 channel.close()
+
+    def _seen_before(self, message_id: str | None) -> bool:
+        if not message_id:
+            return False
+        if message_id in self._seen_notes:
+            return True
+        self._seen_notes[message_id] = None
+        if len(self._seen_notes) > SEEN_NOTIFICATIONS:
+            self._seen_notes.popitem(last=False)
+        return False
 
     def _session(self) -> pika.BlockingConnection:
         """The caller's own connection (services, notifications), opened with retries when needed.

@@ -129,16 +129,22 @@ class Outbox:
         segment_events: int = 256,
         segment_bytes: int = 1 << 20,
         blob_bytes: int = 64 << 10,
+        read_only: bool = False,
     ) -> None:
+        """``read_only``: look into the outbox of a robot that may be running, changing nothing."""
         self.folder = folder
         self.policies = policies
         self._durable = durable
         self._segment_events = segment_events
         self._segment_bytes = segment_bytes
         self._blob_bytes = blob_bytes
+        self._read_only = read_only
         self._lock = threading.RLock()
         self._in_flight: set[tuple[int, int]] = set()
-        folder.mkdir(parents=True, exist_ok=True)
+        if not read_only:
+            folder.mkdir(parents=True, exist_ok=True)
+        elif not folder.is_dir():
+            raise FileNotFoundError(f"no outbox at {folder}")
         self._meta = TinyDB(folder / "meta.json", storage=AtomicJSONStorage, durable=durable)
         self._refused = TinyDB(folder / "refused.json", storage=AtomicJSONStorage, durable=durable)
         self._segments: list[_Segment] = []
@@ -151,7 +157,8 @@ class Outbox:
         referenced: set[str] = set()
         for path in sorted(self.folder.iterdir()):
             if path.name.startswith(".") and path.name.endswith(".tmp"):
-                path.unlink()
+                if not self._read_only:
+                    path.unlink()
                 continue
             match = SEGMENT_NAME.match(path.name)
             if not match:
@@ -165,8 +172,10 @@ class Outbox:
             self._release(segment)
             if segment.size:
                 self._segments.append(segment)
-            else:
+            elif not self._read_only:
                 path.unlink()
+        if self._read_only:
+            return
         for path in self.folder.glob(f"{BLOB_PREFIX}*"):
             if path.name not in referenced:
                 path.unlink()  # written just before a crash, never appended

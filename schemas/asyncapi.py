@@ -14,6 +14,12 @@ from schemas.envelope import EVENT_MODELS
 from schemas.identity import NAME_PATTERN
 from schemas.notifications import Notification
 from schemas.routing import (
+    BEACON_CODENAME_HEADER,
+    BEACON_DISCARD_EXCHANGE,
+    BEACON_DISCARD_QUEUE,
+    BEACON_EXCHANGE,
+    BEACON_TYPE,
+    BEACON_TYPE_HEADER,
     DEAD_LETTER_EXCHANGE,
     DEAD_LETTER_QUEUE,
     DETAIL_HEADER,
@@ -52,7 +58,16 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
         "contentType": "application/json",
         "payload": refs[(Notification, "validation")],
     }
-    types = [t.value for t in EventType]
+    types = [t.value for t in EventType if t is not EventType.BEACON]
+    robot = {"schema": {"type": "string", "pattern": NAME_PATTERN.pattern}}
+    beacon_headers = {
+        "type": "object",
+        "required": [BEACON_TYPE_HEADER, BEACON_CODENAME_HEADER],
+        "properties": {
+            BEACON_TYPE_HEADER: {"const": BEACON_TYPE},
+            BEACON_CODENAME_HEADER: {"type": "string", "description": "the sensor's name"},
+        },
+    }
     return {
         "asyncapi": "2.6.0",
         "info": {
@@ -73,10 +88,7 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
             "{robot}.{type}": {
                 "description": "Events a robot publishes to its own exchange {robot}.events (persistent, "
                 "publisher confirms, user_id = robot). The service binds it into fleetbus.ingest.",
-                "parameters": {
-                    "robot": {"schema": {"type": "string", "pattern": NAME_PATTERN.pattern}},
-                    "type": {"schema": {"type": "string", "enum": types}},
-                },
+                "parameters": {"robot": robot, "type": {"schema": {"type": "string", "enum": types}}},
                 "publish": {
                     "operationId": "publishEvent",
                     "message": {"oneOf": [{"$ref": f"#/components/messages/{t}_event"} for t in types]},
@@ -117,6 +129,65 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
                             "autoDelete": False,
                         },
                     }
+                },
+            },
+            "{robot}.beacon": {
+                "description": "Beacons a robot publishes to its own headers exchange {robot}.beacon. Only a "
+                f"message with the headers {BEACON_TYPE_HEADER}: {BEACON_TYPE} and {BEACON_CODENAME_HEADER} "
+                f"passes on to {BEACON_EXCHANGE} (to the ingest and every operator's stream); the broker "
+                f"sends the rest to {BEACON_DISCARD_EXCHANGE}, and the workers count them.",
+                "parameters": {"robot": robot},
+                "publish": {
+                    "operationId": "publishBeacon",
+                    "message": {
+                        "name": "beacon event",
+                        "headers": beacon_headers,
+                        "payload": refs[(EVENT_MODELS[EventType.BEACON], "validation")],
+                    },
+                },
+                "bindings": _exchange("{robot}.beacon", "headers"),
+            },
+            "{robot}.{command}": {
+                "description": "Commands an operator publishes to its exchange {operator}.commands "
+                "(user_id = operator). While the operator has the robot mounted, the service binds "
+                "the robot's queue {robot}.commands to it with the key {robot}.#; otherwise a command "
+                "is unroutable. Commands expire after 30 s in the queue.",
+                "parameters": {"robot": robot, "command": {"schema": {"type": "string"}}},
+                "subscribe": {
+                    "operationId": "receiveCommand",
+                    "message": {"name": "command", "payload": {"type": "object"}},
+                },
+                "bindings": _exchange("{operator}.commands", "topic"),
+            },
+            "{user}.stream": {
+                "description": f"An operator's stream queue: every message of {BEACON_EXCHANGE}, and the "
+                "events of each robot it has mounted (bound by the service on mount). Read with "
+                "x-stream-offset (`fleetbus tail`); delivery keeps the original exchange, routing key "
+                "and user_id.",
+                "parameters": {"user": robot},
+                "subscribe": {
+                    "operationId": "followStream",
+                    "message": {
+                        "oneOf": [{"$ref": f"#/components/messages/{t.value}_event"} for t in EventType]
+                    },
+                },
+                "bindings": {
+                    "amqp": {
+                        "is": "queue",
+                        "queue": {"name": "{user}.stream", "durable": True, "exclusive": False},
+                    }
+                },
+            },
+            BEACON_DISCARD_QUEUE: {
+                "description": f"Beacon messages without the required headers, routed by the alternate "
+                f"exchange {BEACON_DISCARD_EXCHANGE}; the workers record and count them by publishing "
+                "exchange.",
+                "subscribe": {
+                    "operationId": "countDiscardedBeacons",
+                    "message": {"name": "discarded beacon", "payload": {"type": "string"}},
+                },
+                "bindings": {
+                    "amqp": {"is": "queue", "queue": {"name": BEACON_DISCARD_QUEUE, "durable": True}}
                 },
             },
             DEAD_LETTER_QUEUE: {

@@ -6,6 +6,15 @@ Robots and users own every resource that starts with their name::
     <robot>.inbox       durable queue of the notifications the robot subscribed to
     <robot>.requests    topic exchange of the robot's service requests, keys ``<robot>.<method>``
 
+    <robot>.beacon      headers exchange of the robot's beacons: only messages with the headers
+                        ``type: beacon`` and ``codename`` pass on to fleetbus.beacon; the rest go
+                        to its alternate exchange, fleetbus.beacon.discard, and are counted
+    <robot>.commands    queue of the commands of the operator who mounted the robot
+    <operator>.commands topic exchange an operator sends commands to, keys ``<robot>.<command>``;
+                        mounting binds it to the robot's commands queue
+    <operator>.stream   stream queue an operator follows (``fleetbus tail``): every beacon, and
+                        the events of the robots it mounted
+
 Event routing keys are ``<robot>.<type>`` (for example ``explorer1.hazard``); topic permissions
 make the broker refuse any key that does not start with the publisher's own name.
 
@@ -16,10 +25,14 @@ The service owns everything that starts with ``fleetbus.``::
     fleetbus.notify         topic exchange of notifications, keys ``notify.<topic>``
     fleetbus.rpc            topic exchange of service requests; every ``<robot>.requests`` is bound into it
     fleetbus.rpc.requests   queue the service answers from (replies go by direct reply-to)
+    fleetbus.beacon         topic exchange of every robot's accepted beacons, bound into the ingest
+                            and into every operator's stream
+    fleetbus.beacon.discard fanout exchange, the alternate exchange of every <robot>.beacon
+    fleetbus.beacon.discarded  queue of discarded beacon messages; the workers count them
     fleetbus.dlx            dead-letter exchange (fanout)
     fleetbus.dead-letters   classic durable queue of rejected messages, with their reasons
-    fleetbus.recorder       classic durable queue of a copy of everything on ingest, notify, rpc and dlx,
-                            read only by the recorder's account ``fleetbus-recorder``
+    fleetbus.recorder       classic durable queue of a copy of everything on ingest, notify, rpc, dlx and
+                            the beacon discards, read only by the recorder's account ``fleetbus-recorder``
 """
 
 from __future__ import annotations
@@ -32,12 +45,27 @@ INGEST_QUEUE = "fleetbus.ingest.events"
 NOTIFY_EXCHANGE = "fleetbus.notify"
 RPC_EXCHANGE = "fleetbus.rpc"
 RPC_QUEUE = "fleetbus.rpc.requests"
+BEACON_EXCHANGE = "fleetbus.beacon"
+BEACON_DISCARD_EXCHANGE = "fleetbus.beacon.discard"
+BEACON_DISCARD_QUEUE = "fleetbus.beacon.discarded"
+#: The headers a beacon message must carry (RabbitMQ matches a binding header without a value,
+#: ``None`` here, on the header's presence alone).
+BEACON_TYPE_HEADER = "type"
+BEACON_TYPE = "beacon"
+BEACON_CODENAME_HEADER = "codename"
+BEACON_MATCH = {"x-match": "all", BEACON_TYPE_HEADER: BEACON_TYPE, BEACON_CODENAME_HEADER: None}
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
 RECORDER_QUEUE = "fleetbus.recorder"
 #: Every exchange the service's traffic passes (robots' events, notifications, requests, dead
 #: letters): the recorder's queue is bound to each with ``#``.
-RECORDED_EXCHANGES = (INGEST_EXCHANGE, NOTIFY_EXCHANGE, RPC_EXCHANGE, DEAD_LETTER_EXCHANGE)
+RECORDED_EXCHANGES = (
+    INGEST_EXCHANGE,
+    NOTIFY_EXCHANGE,
+    RPC_EXCHANGE,
+    DEAD_LETTER_EXCHANGE,
+    BEACON_DISCARD_EXCHANGE,
+)
 
 
 class EventType(str, Enum):
@@ -87,6 +115,38 @@ def request_routing_key(robot: str, method: str) -> str:
 
 def inbox_queue(owner: str) -> str:
     return f"{owner}.inbox"
+
+
+def beacon_exchange(owner: str) -> str:
+    return f"{owner}.beacon"
+
+
+def commands_queue(robot: str) -> str:
+    return f"{robot}.commands"
+
+
+def commands_exchange(operator: str) -> str:
+    return f"{operator}.commands"
+
+
+def command_routing_key(robot: str, command: str) -> str:
+    return f"{robot}.{command}"
+
+
+def stream_queue(owner: str) -> str:
+    return f"{owner}.stream"
+
+
+def beacon_headers(codename: str) -> dict[str, str]:
+    """The headers without which the broker discards a beacon message."""
+    return {BEACON_TYPE_HEADER: BEACON_TYPE, BEACON_CODENAME_HEADER: codename}
+
+
+def publish_exchange(robot: str, event_type: EventType | str) -> str:
+    """Where a robot publishes this type: beacons to its beacon exchange, the rest to its events."""
+    if EventType(event_type) is EventType.BEACON:
+        return beacon_exchange(robot)
+    return events_exchange(robot)
 
 
 def event_routing_key(robot: str, event_type: EventType | str) -> str:

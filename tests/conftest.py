@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from broker.endpoint import BrokerEndpoint, resolve_broker
+from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
 from tests.store.conftest import fresh_database
@@ -48,3 +49,27 @@ async def stored_bus(request: pytest.FixtureRequest, bus: Bus) -> AsyncIterator[
             yield bus
         return
     yield bus
+
+
+@pytest.fixture(scope="session")
+def killable_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode]:
+    """A private node of the tests' own (not the suite's shared broker), for tests that kill it."""
+    node = LocalNode(tmp_path_factory.mktemp("killable") / "broker")
+    node.up()
+    try:
+        yield node
+    finally:
+        node.down()
+
+
+@pytest.fixture
+def killable_bus(killable_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
+    """A fresh virtual host on the killable node, started again if an earlier test left it down."""
+    info = killable_node.up()
+    assert info.amqp_url and info.management_url
+    endpoint = BrokerEndpoint(info.amqp_url, info.management_url, "private")
+    with (
+        ManagementAPI.from_urls(info.management_url, info.amqp_url) as api,
+        fresh_bus(endpoint, api, tmp_path) as test_bus,
+    ):
+        yield test_bus

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import os
+import selectors
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Awaitable, Callable, Iterator
@@ -21,13 +23,17 @@ from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
-from publishers.client import RobotClient
+from publishers.client import RobotClient, outbox_folder
+from publishers.outbox import Outbox
 from schemas.routing import RobotKind
+from tests.factories import hazard, status
+from tests.link import NetworkLink
 from workers.recorder.consumer import MissionLookup
 from workers.recorder.runner import recorder_options
 from workers.recorder.thread import RecorderThread
 from workers.store import Store, open_recording_store, run_with_store
 from workers.store.base import EventQuery, EventRecord
+from workers.store.ledger import Gap
 from workers.store.recordings import RecordedMessage, RecordQuery
 from workers.thread import WorkerThread
 
@@ -66,6 +72,7 @@ class Bus:
         return self.settings.amqp_url
 
     accounts: list[str] = field(default_factory=list)
+    clients: list[RobotClient] = field(default_factory=list)
 
     def add(self, name: str, role: Role = Role.ROBOT, kind: RobotKind | None = None) -> Account:
         """A new account; users are broker-wide, so one left by an aborted run is re-keyed."""
@@ -79,10 +86,34 @@ class Bus:
         for name in self.accounts:
             self.api.delete_user(name)
 
-    def robot(self, account: Account, **kwargs: Any) -> RobotClient:
-        client = RobotClient(account.amqp_url, state_dir=self.settings.robots_dir, **kwargs)
+    def robot(self, account: Account, via: NetworkLink | None = None, **kwargs: Any) -> RobotClient:
+        """A connected robot client (through ``via`` if given), its personal database in the test folder."""
+        url = via.url(account.amqp_url) if via else account.amqp_url
+        client = RobotClient(url, state_dir=self.settings.robots_dir, **kwargs)
+        self.clients.append(client)
         client.connect()
         return client
+
+    def close_robots(self) -> None:
+        for client in self.clients:
+            client.close()
+
+    def spawn_robot(self, url: str, *args: str) -> subprocess.Popen[str]:
+        """A robot as its own process (``tests.robot_process``), to be killed for real."""
+        return subprocess.Popen(
+            [sys.executable, "-m", "tests.robot_process", url, str(self.settings.robots_dir), *args],
+            cwd=PROJECT_ROOT,
+            stdout=subprocess.PIPE,
+            stderr=open(self.settings.data_dir / f"robot-{uuid.uuid4().hex[:6]}.log", "wb"),
+            text=True,
+        )
+
+    def outbox(self, robot: str) -> Outbox:
+        """A robot's outbox as `fleetbus outbox` reads it (read-only; the robot may be running)."""
+        return Outbox(outbox_folder(self.settings.robots_dir, robot), read_only=True)
+
+    def gaps(self, robot: str | None = None) -> list[Gap]:
+        return self.with_store(lambda store: store.gaps(robot))
 
     @contextmanager
     def worker(self) -> Iterator[WorkerThread]:
@@ -178,5 +209,71 @@ def fresh_bus(endpoint: BrokerEndpoint, api: ManagementAPI, data_dir: Path) -> I
     try:
         yield bus
     finally:
+        bus.close_robots()
         bus.remove_accounts()
         api.delete_vhost(vhost)
+
+
+def read_line(process: subprocess.Popen[str], expected: str, timeout: float = 60.0) -> None:
+    """Wait until ``process`` prints a line starting with ``expected``; fail if it ends or time runs out."""
+    assert process.stdout is not None
+    deadline = time.monotonic() + timeout
+    with selectors.DefaultSelector() as selector:
+        selector.register(process.stdout, selectors.EVENT_READ)
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"the process did not print {expected!r} within {timeout:.0f} s")
+            if selector.select(remaining):
+                line = process.stdout.readline()
+                if line.startswith(expected):
+                    return
+                if not line:
+                    raise AssertionError(f"the process ended ({process.wait()}) before printing {expected!r}")
+
+
+def assert_stored_once_in_order(bus: Bus, robot: str, sent: list[int]) -> None:
+    """The store holds each of ``sent`` exactly once, and received them in sequence order."""
+    records = sorted(bus.find(EventQuery(robot_id=robot)), key=lambda record: record.seq)
+    assert [r.seq for r in records] == sorted(sent), f"{robot}: every event once, nothing else"
+    arrival = [r.received_at for r in records]
+    assert arrival == sorted(arrival), f"{robot}: a later event was stored before an earlier one"
+
+
+class Publishing:
+    """A robot publishing on a thread of its own, as robot code does, until :meth:`stop`.
+
+    Every ``period`` seconds it publishes a status event, and a hazard every ``hazard_every``-th
+    time, with ``publish`` as robot code calls it: confirmed while the broker answers, queued in
+    the outbox at once while it does not. ``sent`` holds every sequence number it was given.
+    """
+
+    def __init__(self, robot: RobotClient, period: float = 0.02, hazard_every: int = 10) -> None:
+        self.robot = robot
+        self.sent: list[int] = []
+        self.error: BaseException | None = None
+        self._period = period
+        self._hazard_every = hazard_every
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"publishing-{robot.robot_id}", daemon=True)
+
+    def start(self) -> Publishing:
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                n = len(self.sent)
+                item = ("hazard", hazard(n)) if n % self._hazard_every == 0 else ("status", status(80))
+                self.sent.append(self.robot.publish(*item).seq)
+                self._stop.wait(self._period)  # the robot's publishing rate
+        except BaseException as error:  # reported by stop()
+            self.error = error
+
+    def stop(self) -> list[int]:
+        self._stop.set()
+        self._thread.join(30)
+        if self.error is not None:
+            raise self.error
+        return self.sent

@@ -1,47 +1,23 @@
 """The broker killed with SIGKILL and restarted: workers and robots carry on, nothing lost or doubled.
 
-This test runs its own private node (not the suite's shared one), so it can kill it.
+These tests run on a private node of their own (``killable_node``), not the suite's shared one.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from pathlib import Path
+import time
+from dataclasses import replace
+from datetime import timedelta
 
-import pytest
-
-from broker.endpoint import BrokerEndpoint
 from broker.local_node import LocalNode
-from broker.management import ManagementAPI
+from publishers.client import RobotClient
 from schemas.routing import RobotKind
-from tests.factories import status
-from tests.support import Bus, fresh_bus, wait_for
+from tests.factories import hazard, status
+from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
 from workers.store.base import EventQuery
 
 
-@pytest.fixture(scope="module")
-def own_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode]:
-    node = LocalNode(tmp_path_factory.mktemp("killable") / "broker")
-    node.up()
-    try:
-        yield node
-    finally:
-        node.down()
-
-
-@pytest.fixture
-def killable_bus(own_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
-    info = own_node.up()
-    assert info.amqp_url and info.management_url
-    endpoint = BrokerEndpoint(info.amqp_url, info.management_url, "private")
-    with (
-        ManagementAPI.from_urls(info.management_url, info.amqp_url) as api,
-        fresh_bus(endpoint, api, tmp_path) as bus,
-    ):
-        yield bus
-
-
-def test_broker_killed_and_restarted_under_load(killable_bus: Bus, own_node: LocalNode) -> None:
+def test_broker_killed_and_restarted_under_load(killable_bus: Bus, killable_node: LocalNode) -> None:
     """Events reach the store exactly once, in order, across a SIGKILL of the broker.
 
     (Notifications across a broker kill are issue 4's subject; see its notes.)
@@ -51,10 +27,90 @@ def test_broker_killed_and_restarted_under_load(killable_bus: Bus, own_node: Loc
     with bus.worker():
         before = explorer.publish_many([("status", status(80)) for _ in range(100)])
         wait_for(lambda: bus.count("status") == 100, what="100 events before the kill")
-        own_node.kill()
-        own_node.up()
+        killable_node.kill()
+        killable_node.up()
         # the robot reconnects and resends its window; the worker's connection recovers by itself
         after = explorer.publish_many([("status", status(70)) for _ in range(100)])
         wait_for(lambda: bus.count("status") == 200, timeout=120, what="200 events after the restart")
     sent = [e.seq for e in before + after]
     assert [r.seq for r in bus.find(EventQuery(type="status"))] == sent, "each once, in order"
+
+
+#: The issue's outage: the broker stays dead this long while the robots keep publishing.
+BROKER_OUTAGE_S = 30.0
+
+
+def test_broker_killed_for_30_s_while_three_robots_publish(
+    killable_bus: Bus, killable_node: LocalNode
+) -> None:
+    bus = killable_bus
+    robots = [bus.robot(bus.add(f"explorer{i}", kind=RobotKind.EXPLORER)) for i in (1, 2, 3)]
+    with bus.worker():
+        publishing = [Publishing(robot).start() for robot in robots]
+        wait_for(lambda: bus.count() >= 150, what="traffic before the kill")
+        killable_node.kill()
+        outage_ends = time.monotonic() + BROKER_OUTAGE_S
+        stored_at_kill = bus.count()
+        wait_for(
+            lambda: time.monotonic() >= outage_ends and all(r.outbox.pending() >= 100 for r in robots),
+            timeout=BROKER_OUTAGE_S + 30,
+            what=f"{BROKER_OUTAGE_S:g} s of outage with every robot still publishing into its outbox",
+        )
+        assert bus.count() == stored_at_kill, "nothing reached the store while the broker was dead"
+        killable_node.up()
+        wait_for(lambda: all(r.connected for r in robots), timeout=60, what="the robots to reconnect")
+        drained_from = [len(p.sent) for p in publishing]
+        wait_for(
+            lambda: all(len(p.sent) >= n + 50 for p, n in zip(publishing, drained_from, strict=True)),
+            what="live publishing after the restart",
+        )
+        sent = {p.robot.robot_id: p.stop() for p in publishing}
+        for robot in robots:
+            assert robot.flush(120), f"{robot.robot_id}'s outbox did not drain"
+        total = sum(len(seqs) for seqs in sent.values())
+        wait_for(lambda: bus.count() == total, timeout=120, what=f"all {total} events in the store")
+    for robot_id, seqs in sent.items():
+        assert_stored_once_in_order(bus, robot_id, seqs)
+    assert bus.gaps() == []
+
+
+def table7_row(bus: Bus, explorer: RobotClient) -> tuple[int, int]:
+    return explorer.outbox.pending(), bus.count("hazard")
+
+
+def test_tables_6_and_7_hazards_detected_while_the_server_is_down(
+    killable_bus: Bus, killable_node: LocalNode
+) -> None:
+    """The reference's Appendix A.4 and A.5, with the broker killed as the server that stops responding.
+
+    Table 7 (hazards in the personal database, hazards in the central database):
+    responding 0, 1; not responding 1, 1; responding again 0, 2. Table 6: the hazard detected while
+    the server did not respond reaches the warden once it responds, late, with its detection time.
+    """
+    bus = killable_bus
+    bus.settings = replace(bus.settings, late_after_s=1.0)  # the outage below lasts longer than this
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    table7: list[tuple[str, int, int]] = []
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        fresh = explorer.publish("hazard", hazard(0, "Fire"))
+        [note] = warden.receive(1, timeout=30)
+        assert note.event == fresh and not note.late
+        table7.append(("responding", *table7_row(bus, explorer)))
+
+        killable_node.kill()
+        started = time.monotonic()
+        detected = explorer.publish("hazard", hazard(1, "Gas leak"))
+        assert time.monotonic() - started < 5, "publishing returns at once while the server is down"
+        table7.append(("not responding", *table7_row(bus, explorer)))
+
+        killable_node.up()
+        assert explorer.flush(60)
+        wait_for(lambda: bus.count("hazard") == 2, timeout=60, what="the second hazard in the store")
+        table7.append(("responding again", *table7_row(bus, explorer)))
+        [late] = warden.receive(1, timeout=60)
+    assert table7 == [("responding", 0, 1), ("not responding", 1, 1), ("responding again", 0, 2)]
+    assert late.event == detected, "Table 6: the hazard reaches the warden exactly as detected"
+    assert late.late and late.event.body.detected_at == detected.body.detected_at
+    assert late.received_at > detected.sent_at + timedelta(seconds=1)

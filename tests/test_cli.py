@@ -62,7 +62,11 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
     asyncapi = json.loads((tmp_path / "asyncapi.json").read_text())
     assert set(asyncapi["channels"]) == {
         "{robot}.{type}",
+        "{robot}.beacon",
+        "{robot}.{command}",
+        "{user}.stream",
         "notify.{topic}",
+        "fleetbus.beacon.discarded",
         "fleetbus.dead-letters",
         "fleetbus.recorder",
     }

@@ -200,3 +200,23 @@ def test_messages_carry_the_mission_their_robot_is_recorded_under(bus: Bus) -> N
         "rec-on-mission": "survey-7",
         "rec-idle": None,
     }
+
+
+def test_beacons_are_recorded_and_those_the_broker_discarded_say_so(bus: Bus) -> None:
+    guide = bus.add("rec-guide", kind=RobotKind.GUIDE)
+    sighting = {"beacon_id": "b1", "rssi": -60}
+    with bus.recorder() as recorder, bus.robot(guide) as robot:
+        robot.publish(EventType.BEACON, sighting)  # the client sets the beacon headers
+        connection = pika.BlockingConnection(pika.URLParameters(guide.amqp_url))
+        channel = connection.channel()
+        channel.confirm_delivery()
+        properties = pika.BasicProperties(user_id="rec-guide", message_id="no-headers", delivery_mode=2)
+        channel.basic_publish(
+            "rec-guide.beacon", "rec-guide.beacon", json.dumps(sighting).encode(), properties
+        )
+        connection.close()
+        wait_for(lambda: recorder.stats().recorded == 2, what="both beacons recorded")
+    passed, discarded = sorted(bus.recorded("beacon"), key=lambda r: r.message_id == "no-headers")
+    assert (passed.exchange, passed.robot_id, passed.problem) == ("rec-guide.beacon", "rec-guide", None)
+    assert (discarded.exchange, discarded.robot_id) == ("rec-guide.beacon", "rec-guide")
+    assert discarded.problem == "discarded by the broker: no 'type' header; no 'codename' header"

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pika
 import pika.exceptions
 import pytest
+import yaml
 
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import PublishRefused
@@ -72,3 +75,11 @@ def test_robot_cannot_read_bind_or_delete_another_robots_queue(bus: Bus) -> None
 
 def test_no_guest_account(bus: Bus) -> None:
     assert "guest" not in {user["name"] for user in bus.api.list_users()}
+
+
+def test_compose_makes_no_guest_account() -> None:
+    """RabbitMQ's image creates ``guest`` only when no default user is given; compose gives one."""
+    compose = yaml.safe_load((Path(__file__).resolve().parent.parent / "compose.yaml").read_text())
+    environment = compose["services"]["rabbitmq"]["environment"]
+    assert environment["RABBITMQ_DEFAULT_USER"] == "fleetbus-admin"
+    assert "guest" not in yaml.safe_dump(compose)

@@ -30,6 +30,7 @@ from workers.validation import Accepted, Rejected, RejectReason, classify
 
 log = logging.getLogger("fleetbus.ingest")
 T = TypeVar("T")
+BROKER_ERRORS = (AMQPError, aiormq.exceptions.AMQPError, ChannelInvalidStateError, ConnectionError)
 
 
 class BatchService(Protocol):
@@ -46,6 +47,12 @@ class BatchCheck(Protocol):
     async def check(self, accepted: Sequence[Accepted]) -> dict[int, Rejected]:
         """The refused items, by their index in ``accepted``."""
         ...
+
+
+class BatchEnricher(Protocol):
+    """Adds to the records of checked items before they are written (the mission stamp)."""
+
+    async def enrich(self, accepted: Sequence[Accepted]) -> list[Accepted]: ...
 
 
 class Stopping(Exception):
@@ -73,6 +80,7 @@ class IngestConsumer:
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
         services: Sequence[BatchService] = (),
+        enrichers: Sequence[BatchEnricher] = (),
         batch_size: int = 256,
         linger: float = 0.005,
     ) -> None:
@@ -81,6 +89,7 @@ class IngestConsumer:
         self._store = store
         self._checks = checks
         self._services = services
+        self._enrichers = enrichers
         self._dead_letter_exchange = dead_letter_exchange
         self._max_bytes = max_message_bytes
         self._batch_size = batch_size
@@ -104,18 +113,27 @@ class IngestConsumer:
                 except Stopping:
                     log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                     return
-                except (
-                    AMQPError,
-                    aiormq.exceptions.AMQPError,
-                    ChannelInvalidStateError,
-                    ConnectionError,
-                ) as error:
-                    # The channel is gone; the broker redelivers the batch to whoever consumes next.
+                except BROKER_ERRORS as error:
                     log.warning(
                         "broker connection lost mid-batch (%r); %d messages will be redelivered",
                         error,
                         len(batch),
                     )
+                    await self._give_back(batch)
+
+    async def _give_back(self, batch: list[AbstractIncomingMessage]) -> None:
+        """Return an unfinished batch for redelivery.
+
+        When the channel is gone the broker redelivers it by itself; when the channel survived
+        (the error was elsewhere), an unacked message would stay with this consumer forever, so
+        it is nacked back to the queue, after a pause that keeps a persistent fault from spinning.
+        """
+        if self._channel.is_closed:
+            return
+        with contextlib.suppress(asyncio.TimeoutError):
+            await asyncio.wait_for(self._stopping.wait(), 1.0)
+        with contextlib.suppress(*BROKER_ERRORS):
+            await batch[-1].nack(multiple=True, requeue=True)
 
     async def stop(self) -> None:
         """Stop taking new messages; :meth:`run` returns once the ones received are handled."""
@@ -177,6 +195,10 @@ class IngestConsumer:
             for index in sorted(refused):
                 await self._reject(candidates[index][0], refused[index])
             candidates = [pair for index, pair in enumerate(candidates) if index not in refused]
+        for enricher in self._enrichers:
+            items = [item for _, item in candidates]
+            enriched = await self._retrying(lambda enricher=enricher, items=items: enricher.enrich(items))
+            candidates = [(message, item) for (message, _), item in zip(candidates, enriched, strict=True)]
         if candidates:
             records = [item.record for _, item in candidates]
             results = await self._retrying(lambda: self._store.write_events(records))
@@ -216,16 +238,21 @@ class IngestConsumer:
         return accepted
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
-        """Run a store operation until the store answers; raise Stopping if asked to stop meanwhile."""
+        """Run a store or service step until it succeeds; raise Stopping if asked to stop meanwhile.
+
+        Transient: the store unreachable, or the broker nacking a notification (a queue it routes
+        to is still recovering after a broker restart). Every step is idempotent, so a retry after
+        a partial success repeats at most a notification, never a record.
+        """
         backoff = Backoff()
         while True:
             try:
                 return await operation()
-            except StoreUnavailable as error:
+            except (StoreUnavailable, aiormq.exceptions.DeliveryError) as error:
                 if self._stopping.is_set():
                     raise Stopping from error
                 self.stats.store_retries += 1
                 delay = backoff.next_delay()
-                log.warning("store unavailable (%s); retry %d in %.1f s", error, backoff.attempts, delay)
+                log.warning("%s; retry %d in %.1f s", error, backoff.attempts, delay)
                 with contextlib.suppress(asyncio.TimeoutError):
                     await asyncio.wait_for(self._stopping.wait(), delay)

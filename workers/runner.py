@@ -16,11 +16,19 @@ from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.topology import core_topology, declare
 from fleetbus.config import Settings
-from schemas.routing import DEAD_LETTER_EXCHANGE, INGEST_QUEUE, NOTIFY_EXCHANGE, RPC_QUEUE
+from schemas.routing import (
+    BEACON_DISCARD_QUEUE,
+    DEAD_LETTER_EXCHANGE,
+    INGEST_QUEUE,
+    NOTIFY_EXCHANGE,
+    RPC_QUEUE,
+)
+from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
 from workers.coordination import HazardCoordinator
 from workers.ingest import IngestConsumer
 from workers.maps import MapCheck, MapService, map_services
+from workers.missions import MissionStamp
 from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.signals import stop_on_signals
@@ -37,6 +45,7 @@ class WorkerContext:
     connection: AbstractRobustConnection
     consumer: IngestConsumer
     rpc: RpcServer
+    discards: DiscardCounter
     store: Store
 
 
@@ -71,6 +80,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
             coordinator,
             BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
         ],
+        enrichers=[MissionStamp(store)],
         batch_size=PREFETCH,
     )
     await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
@@ -82,7 +92,11 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
         {**hazard_services(store), **beacon_services(store), **map_services(store)},
     )
     await rpc.start()
-    return WorkerContext(connection, consumer, rpc, store)
+    discard_channel = await connection.channel()
+    await discard_channel.set_qos(prefetch_count=64)
+    discards = DiscardCounter(discard_channel, await discard_channel.get_queue(BEACON_DISCARD_QUEUE), store)
+    await discards.start()
+    return WorkerContext(connection, consumer, rpc, discards, store)
 
 
 async def run_worker(
@@ -103,6 +117,7 @@ async def run_worker(
     try:
         await asyncio.wait({consuming, stopping}, return_when=asyncio.FIRST_COMPLETED)
         await context.rpc.stop()
+        await context.discards.stop()
         await context.consumer.stop()
         await consuming
     finally:

@@ -18,22 +18,29 @@ def _hazard_id(params: dict[str, Any]) -> int:
     return value
 
 
-def _mission(params: dict[str, Any]) -> str:
-    return str(params.get("mission_id") or DEFAULT_MISSION)
-
-
 def hazard_services(store: Store) -> dict[str, Handler]:
+    async def _mission(caller: str, params: dict[str, Any]) -> str:
+        """The mission asked for, else the one the caller is being recorded under, else the default."""
+        if params.get("mission_id"):
+            return str(params["mission_id"])
+        return (await store.recording_missions([caller])).get(caller, DEFAULT_MISSION)
+
     async def get(caller: str, params: dict[str, Any]) -> Any:
-        hazard = await store.get_hazard(_mission(params), _hazard_id(params))
+        mission = await _mission(caller, params)
+        hazard = await store.get_hazard(mission, _hazard_id(params))
         if hazard is None:
-            raise ServiceError(f"no hazard {params['hazard_id']} in mission {_mission(params)!r}")
+            raise ServiceError(f"no hazard {params['hazard_id']} in mission {mission!r}")
         return hazard.as_dict()
 
     async def open_hazards(caller: str, params: dict[str, Any]) -> Any:
-        return [h.as_dict() for h in await store.open_hazards(_mission(params))]
+        return [h.as_dict() for h in await store.open_hazards(await _mission(caller, params))]
 
     async def transition(action: str, caller: str, params: dict[str, Any]) -> Any:
-        mission, hazard_id, now = _mission(params), _hazard_id(params), datetime.now(timezone.utc)
+        mission, hazard_id, now = (
+            await _mission(caller, params),
+            _hazard_id(params),
+            datetime.now(timezone.utc),
+        )
         try:
             if action == "claim":
                 hazard = await store.claim(mission, hazard_id, caller, now)

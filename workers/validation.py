@@ -10,7 +10,7 @@ from typing import Any
 from aio_pika.abc import AbstractIncomingMessage
 
 from schemas.envelope import Event, NotJSONError, SchemaError, parse_event
-from schemas.routing import EventType, split_event_routing_key
+from schemas.routing import EventType, publish_exchange, split_event_routing_key
 from workers.store.base import EventRecord
 
 
@@ -23,6 +23,7 @@ class RejectReason(str, Enum):
     IDENTITY_MISMATCH = "identity-mismatch"
     UNKNOWN_ROBOT = "unknown-robot"
     BAD_MAP = "bad-map"
+    WRONG_EXCHANGE = "wrong-exchange"
     SEQUENCE_REUSED = "sequence-reused"
 
 
@@ -79,6 +80,12 @@ def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rej
             RejectReason.IDENTITY_MISMATCH,
             f"user_id {user_id!r}, routing key {routing_key!r} and body robot_id {event.robot_id!r} "
             f"type {event.type.value!r} do not agree",
+        )
+    expected_exchange = publish_exchange(event.robot_id, event.type)
+    if message.exchange != expected_exchange:
+        return Rejected(
+            RejectReason.WRONG_EXCHANGE,
+            f"{event.type.value} events are published to {expected_exchange!r}, not {message.exchange!r}",
         )
     record = EventRecord(
         robot_id=event.robot_id,

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+from dataclasses import asdict
+from datetime import datetime
 from typing import Annotated
 
 import typer
@@ -15,7 +17,9 @@ from publishers.errors import BrokerUnavailable, PublisherError
 from publishers.state_lock import RobotStateInUse
 from schemas.envelope import SchemaError, validate_body
 from schemas.routing import EventType
+from workers.recorder.capture import LEDGER_VIEWS
 from workers.recorder.queries import find, parse_condition, record_view
+from workers.store import run_with_store
 from workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
 
 
@@ -78,7 +82,11 @@ def open_robot(robot: str, url: str | None, timeout: float) -> RobotClient:
 
 def query(
     message_type: Annotated[
-        str, typer.Argument(metavar="TYPE", help="any recorded type: hazard, behaviour, tf, notification…")
+        str,
+        typer.Argument(
+            metavar="TYPE",
+            help=f"any recorded type: hazard, behaviour, tf, notification…; or {' or '.join(LEDGER_VIEWS)}",
+        ),
     ],
     where: Annotated[
         list[str] | None,
@@ -99,7 +107,11 @@ def query(
     latest: Annotated[bool, typer.Option("--latest", help="only the newest match")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
-    """Recorded messages of TYPE matching every condition, oldest first (the newest LIMIT of them)."""
+    """Recorded messages of TYPE matching every condition, oldest first (the newest LIMIT of them);
+    or the open sequence gaps, or the duplicates the workers were sent."""
+    if message_type in LEDGER_VIEWS:
+        show_ledger(message_type, robot, limit, as_json)
+        return
     try:
         conditions = [parse_condition(text, message_type) for text in where or []]
         limit = 1 if latest else limit
@@ -150,3 +162,29 @@ def query(
     console.print(table)
     if len(records) == limit and not latest:
         console.print(f"[dim]showing the newest {limit}; use --limit or --since for more[/]")
+
+
+def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None:
+    """Open gaps in the robots' sequence numbers, or the duplicates the workers recognised."""
+    if view == "gaps":
+        gaps = run_with_store(settings(), lambda store: store.gaps(robot))
+        if as_json:
+            for gap in gaps:
+                typer.echo(json.dumps({**asdict(gap), "missing": gap.size}, default=datetime.isoformat))
+            return
+        table = Table("robot", "missing seq", "events", "open since (UTC)", title=f"{len(gaps)} open gaps")
+        for gap in gaps:
+            span = str(gap.first) if gap.first == gap.last else f"{gap.first}-{gap.last}"
+            table.add_row(gap.robot_id, span, str(gap.size), clock(gap.detected_at))
+        console.print(table)
+        return
+    duplicates = run_with_store(settings(), lambda store: store.duplicates(robot, limit))
+    if as_json:
+        for duplicate in duplicates:
+            typer.echo(json.dumps(asdict(duplicate), default=datetime.isoformat))
+        return
+    table = Table("robot", "seq", "message id", "seen at (UTC)", "why", title=f"{len(duplicates)} duplicates")
+    for d in duplicates:
+        why = "redelivered by the broker" if d.redelivered else "sent again by the robot"
+        table.add_row(d.robot_id, str(d.seq), d.message_id, clock(d.seen_at), why)
+    console.print(table)

@@ -57,6 +57,19 @@ async def test_mission_and_local_times_round_trip(store: EventStore) -> None:
     assert (found.sent_at.microsecond, found.received_at.microsecond) == (999, 1)
 
 
+async def test_a_records_mission_never_changes_and_can_be_queried(store: EventStore) -> None:
+    await store.write_events([replace(record(seq=0), mission_id="m-1"), record(seq=1)])
+    again = await store.write_events(
+        [replace(record(seq=0), mission_id="m-2"), replace(record(seq=1), mission_id="m-2")]
+    )
+    assert [r.inserted for r in again] == [False, False], (
+        "a redelivery under another mission is the same event"
+    )
+    assert [(r.seq, r.mission_id) for r in await store.find_events(EventQuery())] == [(0, "m-1"), (1, None)]
+    assert [r.seq for r in await store.find_events(EventQuery(mission_id="m-1"))] == [0]
+    assert await store.find_events(EventQuery(mission_id="m-2")) == []
+
+
 async def test_writes_are_idempotent_on_robot_and_sequence(store: EventStore) -> None:
     first = await store.write_events([record(seq=0), record(seq=1), record(seq=0)])
     assert [r.inserted for r in first] == [True, True, False]

@@ -5,9 +5,12 @@ Where a message was published says what it is:
 ========================  =================  ===================================
 exchange                  type               robot
 ========================  =================  ===================================
-``<robot>.events``        ``<type>`` of the  the key's first word (topic
-                          key ``<robot>.     permissions make it the publisher)
+``<robot>.events``        ``<type>`` of the  the exchange's owner (only it may
+                          key ``<robot>.     write to it)
                           <type>[.…]``
+``<robot>.beacon``        ``beacon`` (the    the exchange's owner
+                          broker's discards
+                          say why)
 ``<robot>.requests``      ``request``        the exchange's owner
 ``fleetbus.notify``       ``notification``   none (the service speaks)
 ``fleetbus.dlx``          ``dead_letter``    ``x-original-user-id``
@@ -30,7 +33,15 @@ from typing import Any
 
 from aio_pika.abc import AbstractIncomingMessage
 
-from schemas.routing import DEAD_LETTER_EXCHANGE, NOTIFY_EXCHANGE, EventType
+from schemas.routing import (
+    BEACON_CODENAME_HEADER,
+    BEACON_TYPE,
+    BEACON_TYPE_HEADER,
+    DEAD_LETTER_EXCHANGE,
+    NOTIFY_EXCHANGE,
+    EventType,
+)
+from workers.beacon_discards import discard_reason
 from workers.store.recordings import TYPE_NAME, RecordedMessage
 
 NOTIFICATION = "notification"
@@ -38,6 +49,8 @@ REQUEST = "request"
 DEAD_LETTER = "dead_letter"
 OTHER = "other"
 SERVICE_TYPES = (NOTIFICATION, REQUEST, DEAD_LETTER, OTHER)
+#: What ``fleetbus query`` shows besides recorded types: the workers' sequence ledger.
+LEDGER_VIEWS = ("gaps", "duplicates")
 #: Types whose messages follow a fleetbus schema; everything else is stored as received, flagged unknown.
 KNOWN_TYPES = frozenset({t.value for t in EventType} | {NOTIFICATION, REQUEST, DEAD_LETTER})
 DEFAULT_MAX_TYPES = 200
@@ -53,7 +66,7 @@ class TypeNames:
 
     def admit(self, name: str) -> tuple[str, str | None]:
         """The type to record a robot's ``name`` under, and why it is not ``name`` itself."""
-        if name in SERVICE_TYPES:
+        if name in SERVICE_TYPES or name in LEDGER_VIEWS:
             return OTHER, f"type {name!r} is reserved by the recorder"
         if name in self._names:
             return name, None
@@ -79,13 +92,21 @@ def origin(
         return Origin(NOTIFICATION, None)
     if exchange == DEAD_LETTER_EXCHANGE:
         return Origin(DEAD_LETTER, _text(headers.get("x-original-user-id")) or user_id)
+    # the owner of <owner>.<kind> is proven: only it may write to that exchange
     owner, _, kind = exchange.partition(".")
     if kind == "requests":
         return Origin(REQUEST, owner)
     if kind == "events":
-        robot, _, rest = routing_key.partition(".")
-        type_name, problem = names.admit(rest.partition(".")[0])
-        return Origin(type_name, robot, problem)
+        type_name, problem = names.admit(routing_key.split(".")[1] if "." in routing_key else "")
+        return Origin(type_name, owner, problem)
+    if kind == BEACON_TYPE:
+        strings = json_safe(dict(headers))
+        passed = strings.get(BEACON_TYPE_HEADER) == BEACON_TYPE and BEACON_CODENAME_HEADER in strings
+        return Origin(
+            EventType.BEACON.value,
+            owner,
+            None if passed else f"discarded by the broker: {discard_reason(strings)}",
+        )
     return Origin(OTHER, user_id)
 
 

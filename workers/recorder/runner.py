@@ -21,7 +21,7 @@ from workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderO
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import parse_retention
 from workers.signals import stop_on_signals
-from workers.store import open_recording_store
+from workers.store import Store, open_recording_store, open_store
 from workers.store.recordings import RecordingStore
 
 log = logging.getLogger("fleetbus.recorder")
@@ -32,6 +32,14 @@ class RecorderContext:
     connection: AbstractRobustConnection
     consumer: RecorderConsumer
     store: RecordingStore
+    events: Store | None = None
+    """The service's store, when the recorder asks it which mission each robot is recorded under."""
+
+    async def close(self) -> None:
+        await self.connection.close()
+        await self.store.close()
+        if self.events is not None:
+            await self.events.close()
 
 
 def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions:
@@ -55,12 +63,19 @@ async def start_recorder(
     options: RecorderOptions,
     missions: MissionLookup | None = None,
 ) -> RecorderContext:
+    """Ready to consume. Without ``missions``, the service's store says which mission each robot
+    is recorded under (its check-ins), as it does for the event log."""
     # as the administrator: the account, then the queue and its bindings (the account may not)
     url = await asyncio.to_thread(recorder_url, settings, endpoint)
     await declare_with_url(endpoint.amqp_url, [core_topology(), recorder_topology()])
     store = open_recording_store(settings)
     await store.open()
     names = TypeNames(await store.recorded_types(), options.max_types)
+    events: Store | None = None
+    if missions is None:
+        events = open_store(settings)
+        await events.open()
+        missions = events.recording_missions
     connection = await aio_pika.connect_robust(
         url, client_properties={"connection_name": "fleetbus-recorder"}
     )
@@ -69,7 +84,7 @@ async def start_recorder(
     # fetched (not just named) so the robust channel consumes it again after a broker restart
     queue = await channel.get_queue(RECORDER_QUEUE)
     return RecorderContext(
-        connection, RecorderConsumer(channel, queue, store, options, names, missions), store
+        connection, RecorderConsumer(channel, queue, store, options, names, missions), store, events
     )
 
 
@@ -97,6 +112,5 @@ async def run_recorder(
         await consuming
     finally:
         stopping.cancel()
-        await context.connection.close()
-        await context.store.close()
+        await context.close()
         log.info("recorder stopped: %s", context.consumer.stats)

@@ -74,6 +74,8 @@ class EventQuery:
     """Exclusive upper bound on ``sent_at``."""
     limit: int | None = None
     newest_first: bool = False
+    mission_id: str | None = None
+    """Only events recorded under this mission."""
     extra: dict[str, Any] = field(default_factory=dict)
 
 

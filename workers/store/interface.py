@@ -1,14 +1,29 @@
-"""What a fleetbus store is: events, sequence ledger, coordination, beacons and maps, in one database."""
+"""What a fleetbus store is: events, sequence ledger, coordination, beacons, maps, and the service
+layer's users, missions and channels, in one database."""
 
 from __future__ import annotations
 
 from workers.store.base import EventStore
 from workers.store.beacons import BeaconRegistry
+from workers.store.channels import ChannelStore
+from workers.store.discards import DiscardLog
 from workers.store.hazards import CoordinationStore
 from workers.store.ledger import SequenceLedger
 from workers.store.maps import MapStore
+from workers.store.missions import MissionStore
+from workers.store.users import UserStore
 
 
-class Store(EventStore, CoordinationStore, BeaconRegistry, MapStore, SequenceLedger):
+class Store(
+    EventStore,
+    CoordinationStore,
+    BeaconRegistry,
+    MapStore,
+    SequenceLedger,
+    UserStore,
+    MissionStore,
+    ChannelStore,
+    DiscardLog,
+):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""

@@ -22,10 +22,14 @@ from workers.store.base import (
     to_micros,
 )
 from workers.store.interface import Store
+from workers.store.mongo_channels import MongoChannels
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
 from workers.store.mongo_database import DUPLICATE_KEY, UNAVAILABLE, MongoDatabase, translate_unavailable
+from workers.store.mongo_discards import MongoDiscards
 from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
+from workers.store.mongo_missions import MongoMissions
+from workers.store.mongo_users import MongoUsers
 
 
 class RobotSequenceId:
@@ -72,7 +76,18 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
 
 
 @translate_unavailable(Store)
-class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps, MongoLedger, Store):
+class MongoEventStore(
+    MongoDatabase,
+    MongoCoordination,
+    MongoBeacons,
+    MongoMaps,
+    MongoLedger,
+    MongoUsers,
+    MongoMissions,
+    MongoChannels,
+    MongoDiscards,
+    Store,
+):
     name = "mongodb"
 
     def _events(self) -> Any:
@@ -93,6 +108,8 @@ class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps,
                 [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
             )
             await self._collection("map_staging").create_index([("map_id", ASCENDING)])
+            await self.create_mission_indexes()
+            await self.create_channel_indexes()
         except UNAVAILABLE as error:
             raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
 
@@ -140,6 +157,8 @@ class MongoEventStore(MongoDatabase, MongoCoordination, MongoBeacons, MongoMaps,
             conditions["type"] = type
         if robot_id is not None:
             conditions["robot_id"] = robot_id
+        if query is not None and query.mission_id is not None:
+            conditions["mission_id"] = query.mission_id
         if query is not None and (query.since or query.until):
             window: dict[str, int] = {}
             if query.since:

@@ -21,10 +21,14 @@ from workers.store.base import (
 )
 from workers.store.interface import Store
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
+from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
 from workers.store.sqlite_database import SQLiteDatabase, in_transaction
+from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
+from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
+from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
 T = TypeVar("T")
 
@@ -90,7 +94,18 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLiteMaps, SQLiteLedger, Store):
+class SQLiteEventStore(
+    SQLiteDatabase,
+    SQLiteCoordination,
+    SQLiteBeacons,
+    SQLiteMaps,
+    SQLiteLedger,
+    SQLiteUsers,
+    SQLiteMissions,
+    SQLiteChannels,
+    SQLiteDiscards,
+    Store,
+):
     name = "sqlite"
 
     def _prepare(self, db: sqlite3.Connection) -> None:
@@ -99,6 +114,8 @@ class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLite
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
         db.executescript(LEDGER_SCHEMA)
+        for schema in (USER_SCHEMA, MISSION_SCHEMA, CHANNEL_SCHEMA, DISCARD_SCHEMA):
+            db.executescript(schema)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         rows = [_row(record) for record in records]
@@ -117,7 +134,7 @@ class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLite
         return await self._run(write)
 
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
-        where, params = _where(query.type, query.robot_id, query.since, query.until)
+        where, params = _where(query.type, query.robot_id, query.since, query.until, query.mission_id)
         order = "DESC" if query.newest_first else "ASC"
         sql = f"SELECT * FROM events{where} ORDER BY sent_at {order}, robot_id {order}, seq {order}"
         if query.limit is not None:
@@ -132,7 +149,11 @@ class SQLiteEventStore(SQLiteDatabase, SQLiteCoordination, SQLiteBeacons, SQLite
 
 
 def _where(
-    type: str | None, robot_id: str | None, since: datetime | None, until: datetime | None
+    type: str | None,
+    robot_id: str | None,
+    since: datetime | None,
+    until: datetime | None,
+    mission_id: str | None = None,
 ) -> tuple[str, list[Any]]:
     clauses: list[str] = []
     params: list[Any] = []
@@ -141,6 +162,7 @@ def _where(
         ("robot_id = ?", robot_id),
         ("sent_at >= ?", to_micros(since) if since else None),
         ("sent_at < ?", to_micros(until) if until else None),
+        ("mission_id = ?", mission_id),
     ):
         if value is not None:
             clauses.append(clause)

@@ -1,0 +1,176 @@
+"""Users of the service layer: create, change role, remove, log in; each with its broker account.
+
+The store holds the user (role, password hash, encrypted broker password); the broker holds an
+account of the same name with a random password, confined to ``^<name>\\.``. The store is
+written first, so a name is claimed atomically; a broker failure then undoes the store write.
+An ``inactive`` user's broker account has no permissions at all: it cannot even connect.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import secrets
+from dataclasses import dataclass
+from datetime import datetime, timezone
+
+from api.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
+from api.security import Secrets, Token, password_problem
+from broker.account_roles import ROLE_TAGS, Role
+from broker.accounts import configure_account, delete_account, revoke_account, url_for, vhost_of
+from broker.management import ManagementAPI, ManagementError
+from schemas.identity import validate_name
+from schemas.roles import UserRole
+from schemas.routing import RobotKind
+from workers.store.interface import Store
+from workers.store.users import User, UserExists
+
+log = logging.getLogger("fleetbus.api.accounts")
+
+#: What kind of broker account each role gets (it decides the queues and exchanges it owns).
+BROKER_ROLE: dict[UserRole, Role] = {
+    UserRole.ROBOT: Role.ROBOT,
+    UserRole.OPERATOR: Role.OPERATOR,
+    UserRole.SUPERVISOR: Role.OPERATOR,
+}
+
+
+def broker_role(role: UserRole) -> Role:
+    return BROKER_ROLE.get(role, Role.USER)
+
+
+@dataclass(frozen=True)
+class BrokerCredentials:
+    username: str
+    password: str
+    vhost: str
+    amqp_url: str
+
+
+@dataclass(frozen=True)
+class Login:
+    user: User
+    token: Token
+    broker: BrokerCredentials
+
+
+class Accounts:
+    def __init__(self, store: Store, secrets_: Secrets, management: ManagementAPI, admin_url: str) -> None:
+        self._store = store
+        self._secrets = secrets_
+        self._management = management
+        self._admin_url = admin_url
+
+    async def _broker(self, name: str, role: UserRole, kind: str | None, password: str | None = None) -> None:
+        """Bring the broker account in line with the role (and set its password when given)."""
+
+        def apply() -> None:
+            if password is not None:
+                self._management.put_user(name, password, ROLE_TAGS[broker_role(role)])
+            if role is UserRole.INACTIVE:
+                revoke_account(self._admin_url, self._management, name)
+            else:
+                robot_kind = RobotKind(kind) if kind else None
+                asyncio.run(
+                    configure_account(self._admin_url, self._management, name, broker_role(role), robot_kind)
+                )
+
+        try:
+            await asyncio.to_thread(apply)
+        except (ManagementError, OSError) as error:
+            raise Unavailable(f"the broker refused or failed to set up account {name!r}: {error}") from error
+
+    async def create(
+        self, name: str, password: str | None, role: UserRole, kind: RobotKind | None, by: str
+    ) -> User:
+        """A new user and its broker account; ``password`` ``None``: cannot log in until one is set."""
+        try:
+            validate_name(name)
+        except ValueError as error:
+            raise BadRequest(str(error)) from None
+        if kind is not None and role is not UserRole.ROBOT:
+            raise BadRequest("kind applies to robots only")
+        if password is not None and (problem := password_problem(password)):
+            raise BadRequest(problem)
+        if await asyncio.to_thread(self._management.get_user, name) is not None:
+            if await self._store.get_user(name) is None:
+                raise Conflict(f"a broker account named {name!r} exists outside the service; remove it first")
+        now = datetime.now(timezone.utc)
+        broker_password = secrets.token_urlsafe(24)
+        user = User(
+            name=name,
+            role=role,
+            password_hash=self._secrets.passwords.hash(password) if password is not None else None,
+            broker_secret=self._secrets.box.seal(broker_password),
+            kind=kind.value if kind else None,
+            created_at=now,
+            created_by=by,
+            updated_at=now,
+        )
+        try:
+            await self._store.add_user(user)
+        except UserExists:
+            raise Conflict(f"user {name!r} exists") from None
+        try:
+            await self._broker(name, role, user.kind, password=broker_password)
+        except Unavailable:
+            await self._store.remove_user(name)
+            await asyncio.to_thread(self._management.delete_user, name)
+            raise
+        if role is UserRole.ROBOT:
+            await self._store.register_robot(name, user.kind)
+        log.info("user %s created by %s with role %s", name, by, role.value)
+        return user
+
+    async def get(self, name: str) -> User:
+        user = await self._store.get_user(name)
+        if user is None:
+            raise NotFound(f"no user {name!r}")
+        return user
+
+    async def set_role(self, name: str, role: UserRole, by: str) -> User:
+        user = await self.get(name)
+        if user.kind is not None and role is not UserRole.ROBOT and role is not UserRole.INACTIVE:
+            raise BadRequest(f"{name} is a robot ({user.kind}); it can be a robot or inactive")
+        await self._broker(name, role, user.kind)
+        changed = await self._store.update_user(name, datetime.now(timezone.utc), role=role)
+        log.info("user %s: role %s -> %s, by %s", name, user.role.value, role.value, by)
+        return changed
+
+    async def set_password(self, name: str, password: str) -> User:
+        if problem := password_problem(password):
+            raise BadRequest(problem)
+        await self.get(name)
+        return await self._store.update_user(
+            name, datetime.now(timezone.utc), password_hash=self._secrets.passwords.hash(password)
+        )
+
+    async def remove(self, name: str, by: str) -> None:
+        await self.get(name)
+        mounts = await self._store.mounts(operator=name) + await self._store.mounts(robot=name)
+        if mounts or await self._store.check_ins(operator=name):
+            held = ", ".join(f"{m.robot} mounted by {m.operator} for {m.mission_id}" for m in mounts)
+            raise Conflict(f"{name} is in use ({held or 'checked in'}); unmount and check out first")
+        await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
+        await self._store.remove_user(name)
+        log.info("user %s removed by %s", name, by)
+
+    async def login(self, name: str, password: str) -> Login:
+        user = await self._store.get_user(name)
+        if not self._secrets.passwords.verify(user.password_hash if user else None, password) or user is None:
+            raise WrongCredentials("wrong user name or password")
+        if user.role is UserRole.INACTIVE:
+            raise Forbidden(f"user {name} is inactive: an admin must give it a role first")
+        return Login(user, self._secrets.tokens.issue(user.name), self.broker_credentials(user))
+
+    def broker_credentials(self, user: User) -> BrokerCredentials:
+        if user.broker_secret is None:
+            raise Unavailable(f"user {user.name} has no broker password on record")
+        password = self._secrets.box.open(user.broker_secret)
+        return BrokerCredentials(
+            user.name, password, vhost_of(self._admin_url), url_for(self._admin_url, user.name, password)
+        )
+
+
+class WrongCredentials(Exception):
+    """A login with an unknown user or a wrong password (told apart from neither in the answer)."""

@@ -1,0 +1,94 @@
+"""The fleetbus HTTP API: users and roles, missions, mounts and check-ins (FastAPI).
+
+``create_app`` builds the app for one broker (as administrator) and the settings' store; the
+``fleetbus api`` command serves it with uvicorn. The OpenAPI document is at ``/openapi.json``
+(and ``/docs``); each operation lists the roles it admits under ``x-roles``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import APIRouter, FastAPI, Request
+from fastapi.dependencies.models import Dependant
+from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
+
+from api import audit
+from api.auth import RoleCheck
+from api.errors import ServiceRefusal
+from api.routes import auth, beacons, channels, missions, recording, users
+from api.service import open_service
+from fleetbus.config import Settings
+from schemas.roles import UserRole
+from workers.store.base import StoreUnavailable
+
+
+def _role_checks(dependant: Dependant) -> Iterator[RoleCheck]:
+    for sub in dependant.dependencies:
+        if isinstance(sub.call, RoleCheck):
+            yield sub.call
+        yield from _role_checks(sub)
+
+
+def route_roles(route: APIRoute) -> list[UserRole]:
+    """The roles a route admits (every role check on it must pass)."""
+    admitted = set(UserRole)
+    for check in _role_checks(route.dependant):
+        admitted &= check.roles
+    return sorted(admitted, key=list(UserRole).index)
+
+
+def document_roles(router: APIRouter) -> APIRouter:
+    """Put each route's roles in its OpenAPI operation (``x-roles``) and description."""
+    for route in router.routes:
+        already = isinstance(route, APIRoute) and "x-roles" in (route.openapi_extra or {})
+        if isinstance(route, APIRoute) and not already and any(True for _ in _role_checks(route.dependant)):
+            roles = route_roles(route)
+            route.openapi_extra = {**(route.openapi_extra or {}), "x-roles": [r.value for r in roles]}
+            route.description = (route.description or "") + f"\n\nRoles: {', '.join(r.value for r in roles)}."
+    return router
+
+
+def create_app(settings: Settings, admin_url: str, management_url: str) -> FastAPI:
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        async with open_service(settings, admin_url, management_url) as service:
+            app.state.service = service
+            yield
+
+    app = FastAPI(
+        title="fleetbus service layer",
+        version="0.1.0",
+        description="Accounts and roles, missions and their state machines, mount and check-in of "
+        "robots. Log in at POST /auth/token; send the token as 'Authorization: Bearer <token>'.",
+        lifespan=lifespan,
+    )
+    for router in (
+        auth.router,
+        users.router,
+        missions.router,
+        channels.router,
+        beacons.router,
+        recording.router,
+    ):
+        app.include_router(document_roles(router))
+
+    @app.get("/health", tags=["health"])
+    async def health() -> dict[str, Any]:
+        return {"ok": True, "store": app.state.service.store.name}
+
+    @app.exception_handler(ServiceRefusal)
+    async def refusal(request: Request, error: ServiceRefusal) -> JSONResponse:
+        if error.status == 403:
+            user = getattr(request.state, "user", None)
+            audit.refused(request, 403, f"{user.name} ({user.role.value})" if user else "?", error.detail)
+        return JSONResponse({"detail": error.detail}, status_code=error.status)
+
+    @app.exception_handler(StoreUnavailable)
+    async def store_down(request: Request, error: StoreUnavailable) -> JSONResponse:
+        return JSONResponse({"detail": f"the store is unavailable: {error}"}, status_code=503)
+
+    return app

@@ -1,0 +1,194 @@
+"""Channel changes, made by the service only: mount, unmount, check-in, check-out.
+
+A mount is booked in the store first (atomic: of two operators, one gets the robot), then its
+bindings are made on the broker; if the broker fails, the booking is undone. An unmount removes
+the booking first, then the bindings. Either way a crash in between leaves the broker with more
+or fewer bindings than the store says, which :meth:`Channels.verify` reports and
+:meth:`Channels.repair` fixes by making the broker follow the store. Every change is recorded.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass
+from datetime import datetime, timezone
+
+from api.errors import Conflict, Forbidden, NotFound, Unavailable
+from api.missions import Missions
+from broker.management import ManagementAPI, ManagementError
+from broker.mounts import QueueBinding, bind_all, mount_bindings, mount_bindings_on_broker, unbind_all
+from schemas.missions import MissionState
+from schemas.roles import UserRole
+from schemas.use_cases import CHECK_IN_STATES, InvalidTransition, machine_for
+from workers.store.channels import Booked, ChannelAction, ChannelChange, CheckIn, Mount
+from workers.store.interface import Store
+from workers.store.missions import Mission
+from workers.store.users import User
+
+log = logging.getLogger("fleetbus.api.channels")
+
+
+@dataclass(frozen=True)
+class BindingReport:
+    expected: list[QueueBinding]
+    actual: list[QueueBinding]
+
+    @property
+    def missing(self) -> list[QueueBinding]:
+        return sorted(set(self.expected) - set(self.actual))
+
+    @property
+    def unexpected(self) -> list[QueueBinding]:
+        return sorted(set(self.actual) - set(self.expected))
+
+    @property
+    def consistent(self) -> bool:
+        return not self.missing and not self.unexpected
+
+
+@dataclass(frozen=True)
+class CheckOut:
+    operator: str
+    mission: Mission
+    operators_left: int
+
+
+class Channels:
+    def __init__(self, store: Store, management: ManagementAPI, vhost: str, missions: Missions) -> None:
+        self._store = store
+        self._management = management
+        self._vhost = vhost
+        self._missions = missions
+        # one channel change at a time in this process, so store and broker change in the same order
+        self._lock = asyncio.Lock()
+
+    async def _record(
+        self,
+        actor: User,
+        action: ChannelAction,
+        mission_id: str | None,
+        operator: str | None,
+        robot: str | None,
+        detail: str = "",
+    ) -> None:
+        change = ChannelChange(
+            datetime.now(timezone.utc), actor.name, action, mission_id, operator, robot, detail
+        )
+        await self._store.record_change(change)
+        log.info(
+            "%s by %s: robot %s, operator %s, mission %s %s",
+            action.value,
+            actor.name,
+            robot,
+            operator,
+            mission_id,
+            detail,
+        )
+
+    async def _broker(self, work: str, bindings: tuple[QueueBinding, ...], bind: bool) -> None:
+        try:
+            await asyncio.to_thread(bind_all if bind else unbind_all, self._management, self._vhost, bindings)
+        except (ManagementError, OSError) as error:
+            raise Unavailable(f"the broker failed to {work}: {error}") from error
+
+    async def mount(self, operator: User, robot: str, mission_id: str) -> Mount:
+        target = await self._store.get_user(robot)
+        if target is None or target.role is not UserRole.ROBOT:
+            raise NotFound(f"no robot {robot!r}")
+        mission = await self._missions.get(operator, mission_id)
+        machine = machine_for(mission.use_case)
+        if not machine.mountable(mission.state):
+            states = ", ".join(s.value for s in machine.states if machine.mountable(s))
+            raise Conflict(
+                f"mission {mission_id} is {mission.state.value}; robots can be mounted when it is {states}"
+            )
+        async with self._lock:
+            try:
+                mount = await self._store.mount(robot, operator.name, mission_id, datetime.now(timezone.utc))
+            except Booked as booked:
+                raise Conflict(str(booked)) from None
+            try:
+                await self._broker(f"mount {robot}", mount_bindings(robot, operator.name), bind=True)
+            except Unavailable:
+                await self._store.unmount(robot, operator.name)
+                raise
+            await self._record(operator, ChannelAction.MOUNT, mission_id, operator.name, robot)
+        return mount
+
+    async def unmount(self, user: User, robot: str) -> Mount:
+        """An operator unmounts its own robot; a supervisor may unmount anyone's (a forced unmount)."""
+        current = await self._store.mounts(robot=robot)
+        if not current:
+            raise NotFound(f"robot {robot} is not mounted")
+        force = user.role is UserRole.SUPERVISOR
+        if not force and current[0].operator != user.name:
+            raise Forbidden(
+                f"robot {robot} is mounted by {current[0].operator}; only they or a supervisor can unmount it"
+            )
+        async with self._lock:
+            removed = await self._store.unmount(robot, None if force else user.name)
+            if removed is None:
+                raise NotFound(f"robot {robot} is not mounted")
+            await self._broker(f"unmount {robot}", mount_bindings(robot, removed.operator), bind=False)
+            action = ChannelAction.FORCE_UNMOUNT if force else ChannelAction.UNMOUNT
+            await self._record(user, action, removed.mission_id, removed.operator, robot)
+        return removed
+
+    async def check_in(self, operator: User, mission_id: str) -> CheckIn:
+        mission = await self._missions.get(operator, mission_id)
+        if mission.state not in CHECK_IN_STATES:
+            raise Conflict(
+                f"mission {mission_id} is {mission.state.value}; operators check in while it is in_progress"
+            )
+        try:
+            check_in = await self._store.check_in(operator.name, mission_id, datetime.now(timezone.utc))
+        except Booked as booked:
+            raise Conflict(str(booked)) from None
+        robots = [m.robot for m in await self._store.mounts(operator=operator.name, mission_id=mission_id)]
+        await self._record(
+            operator, ChannelAction.CHECK_IN, mission_id, operator.name, None, f"recording {robots}"
+        )
+        return check_in
+
+    async def check_out(self, operator: User, mission_id: str) -> CheckOut:
+        mission = await self._missions.get(operator, mission_id)
+        if not await self._store.check_out(operator.name, mission_id):
+            raise Conflict(f"{operator.name} is not checked in to mission {mission_id}")
+        await self._record(operator, ChannelAction.CHECK_OUT, mission_id, operator.name, None)
+        left = await self._store.check_ins(mission_id=mission_id)
+        if not left:
+            mission = await self._end_operations(mission)
+        return CheckOut(operator.name, mission, len(left))
+
+    async def _end_operations(self, mission: Mission) -> Mission:
+        """The last operator checked out: the mission moves to reviewing, if its machine allows it now."""
+        try:
+            machine_for(mission.use_case).step(mission.state, MissionState.REVIEWING, None)
+        except InvalidTransition:
+            return mission
+        try:
+            return await self._missions.transition(
+                None, mission.mission_id, MissionState.REVIEWING, "every operator checked out"
+            )
+        except Conflict:  # someone else changed the state meanwhile; theirs stands
+            return await self._missions.get_any(mission.mission_id)
+
+    async def verify(self) -> BindingReport:
+        expected = [b for m in await self._store.mounts() for b in mount_bindings(m.robot, m.operator)]
+        actual = await asyncio.to_thread(mount_bindings_on_broker, self._management, self._vhost)
+        return BindingReport(sorted(expected), sorted(actual))
+
+    async def repair(self, user: User) -> BindingReport:
+        """Make the broker's mount bindings what the store says, and record what was changed."""
+        async with self._lock:
+            report = await self.verify()
+            if report.consistent:
+                return report
+            await self._broker("add missing bindings", tuple(report.missing), bind=True)
+            await self._broker("remove unexpected bindings", tuple(report.unexpected), bind=False)
+            detail = (
+                f"added {[str(b) for b in report.missing]}, removed {[str(b) for b in report.unexpected]}"
+            )
+            await self._record(user, ChannelAction.REPAIR, None, None, None, detail)
+        return await self.verify()

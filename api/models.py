@@ -1,0 +1,290 @@
+"""The HTTP API's request and reply bodies (its OpenAPI document is generated from these)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from api.accounts import BrokerCredentials
+from api.channels import BindingReport, CheckOut
+from schemas.missions import MissionPlan, MissionState
+from schemas.roles import UserRole
+from schemas.routing import RobotKind
+from schemas.use_cases import MissionMachine, machine_for
+from workers.store.base import EventRecord
+from workers.store.channels import ChannelChange, CheckIn, Mount
+from workers.store.discards import Discard, DiscardCount
+from workers.store.missions import Mission, StateChange
+from workers.store.users import User
+
+
+class _In(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class UserOut(BaseModel):
+    name: str
+    role: UserRole
+    kind: str | None
+    can_log_in: bool
+    created_at: datetime
+    created_by: str
+    updated_at: datetime
+
+    @classmethod
+    def of(cls, user: User) -> UserOut:
+        return cls(
+            name=user.name,
+            role=user.role,
+            kind=user.kind,
+            can_log_in=user.password_hash is not None,
+            created_at=user.created_at,
+            created_by=user.created_by,
+            updated_at=user.updated_at,
+        )
+
+
+class UserCreate(_In):
+    name: str = Field(
+        description="2-32 characters: lower-case letters, digits, '-' or '_'; also the broker account"
+    )
+    password: str | None = Field(None, description="at least 10 characters; none: cannot log in until set")
+    role: UserRole = UserRole.INACTIVE
+    kind: RobotKind | None = Field(None, description="robots only: explorer, warden or guide")
+
+
+class RoleChange(_In):
+    role: UserRole
+
+
+class PasswordSet(_In):
+    password: str
+
+
+class PasswordChange(_In):
+    current_password: str
+    new_password: str
+
+
+class BrokerOut(BaseModel):
+    username: str
+    password: str
+    vhost: str
+    amqp_url: str
+
+    @classmethod
+    def of(cls, credentials: BrokerCredentials) -> BrokerOut:
+        return cls(**credentials.__dict__)
+
+
+class TokenOut(BaseModel):
+    access_token: str
+    token_type: str = "bearer"
+    expires_at: datetime
+    user: UserOut
+    broker: BrokerOut = Field(description="the broker account: confined to resources named <user>.*")
+
+
+class MissionCreate(_In):
+    use_case: str = Field(description="see GET /use-cases")
+    title: str = Field(min_length=1, max_length=200)
+    plan: MissionPlan = MissionPlan()
+
+
+class TransitionIn(_In):
+    to: MissionState
+    note: str = Field("", max_length=500)
+
+
+class MountOut(BaseModel):
+    robot: str
+    operator: str
+    mission_id: str
+    mounted_at: datetime
+
+    @classmethod
+    def of(cls, mount: Mount) -> MountOut:
+        return cls(**mount.__dict__)
+
+
+class CheckInOut(BaseModel):
+    operator: str
+    mission_id: str
+    checked_in_at: datetime
+
+    @classmethod
+    def of(cls, check_in: CheckIn) -> CheckInOut:
+        return cls(**check_in.__dict__)
+
+
+class StateChangeOut(BaseModel):
+    source: MissionState | None
+    target: MissionState
+    by: str
+    at: datetime
+    note: str
+
+    @classmethod
+    def of(cls, change: StateChange) -> StateChangeOut:
+        return cls(source=change.source, target=change.target, by=change.by, at=change.at, note=change.note)
+
+
+class MissionOut(BaseModel):
+    mission_id: str
+    use_case: str
+    title: str
+    owner: str
+    state: MissionState
+    allowed_next: list[MissionState]
+    plan: MissionPlan
+    created_at: datetime
+    updated_at: datetime
+
+    @classmethod
+    def of(cls, mission: Mission) -> MissionOut:
+        return cls(
+            mission_id=mission.mission_id,
+            use_case=mission.use_case,
+            title=mission.title,
+            owner=mission.owner,
+            state=mission.state,
+            allowed_next=machine_for(mission.use_case).allowed_targets(mission.state),
+            plan=MissionPlan.model_validate(mission.plan),
+            created_at=mission.created_at,
+            updated_at=mission.updated_at,
+        )
+
+
+class MissionDetail(MissionOut):
+    mounts: list[MountOut]
+    checked_in: list[CheckInOut]
+    history: list[StateChangeOut]
+
+
+class CheckOutOut(BaseModel):
+    operator: str
+    operators_left: int
+    mission: MissionOut
+
+    @classmethod
+    def of(cls, check_out: CheckOut) -> CheckOutOut:
+        return cls(
+            operator=check_out.operator,
+            operators_left=check_out.operators_left,
+            mission=MissionOut.of(check_out.mission),
+        )
+
+
+class MountIn(_In):
+    robot: str
+    mission_id: str
+
+
+class ChannelChangeOut(BaseModel):
+    at: datetime
+    actor: str
+    action: str
+    mission_id: str | None
+    operator: str | None
+    robot: str | None
+    detail: str
+
+    @classmethod
+    def of(cls, change: ChannelChange) -> ChannelChangeOut:
+        return cls(**{**change.__dict__, "action": change.action.value})
+
+
+class BindingReportOut(BaseModel):
+    consistent: bool
+    expected: list[str]
+    actual: list[str]
+    missing: list[str]
+    unexpected: list[str]
+
+    @classmethod
+    def of(cls, report: BindingReport) -> BindingReportOut:
+        return cls(
+            consistent=report.consistent,
+            expected=[str(b) for b in report.expected],
+            actual=[str(b) for b in report.actual],
+            missing=[str(b) for b in report.missing],
+            unexpected=[str(b) for b in report.unexpected],
+        )
+
+
+class StepOut(BaseModel):
+    source: MissionState
+    target: MissionState
+    roles: list[UserRole]
+    meaning: str
+
+
+class UseCaseOut(BaseModel):
+    use_case: str
+    description: str
+    states: list[MissionState]
+    steps: list[StepOut]
+
+    @classmethod
+    def of(cls, machine: MissionMachine) -> UseCaseOut:
+        return cls(
+            use_case=machine.use_case,
+            description=machine.description,
+            states=machine.states,
+            steps=[
+                StepOut(source=s.source, target=s.target, roles=sorted(s.roles), meaning=s.meaning)
+                for s in machine.steps
+            ],
+        )
+
+
+class EventOut(BaseModel):
+    """A stored event with its provenance: the broker-validated user, exchange, routing key, mission."""
+
+    message_id: str
+    robot_id: str
+    seq: int
+    type: str
+    sent_at: datetime
+    received_at: datetime
+    user_id: str
+    exchange: str
+    routing_key: str
+    mission_id: str | None
+    body: dict[str, Any]
+
+    @classmethod
+    def of(cls, record: EventRecord) -> EventOut:
+        return cls(**record.__dict__)
+
+
+class DiscardCountOut(BaseModel):
+    exchange: str
+    count: int
+    last_at: datetime
+    last_reason: str
+
+    @classmethod
+    def of(cls, count: DiscardCount) -> DiscardCountOut:
+        return cls(**count.__dict__)
+
+
+class DiscardOut(BaseModel):
+    exchange: str
+    routing_key: str
+    user_id: str | None
+    message_id: str | None
+    reason: str
+    received_at: datetime
+    headers: dict[str, str]
+
+    @classmethod
+    def of(cls, discard: Discard) -> DiscardOut:
+        return cls(**discard.__dict__)
+
+
+class DiscardsOut(BaseModel):
+    counts: list[DiscardCountOut]
+    recent: list[DiscardOut]

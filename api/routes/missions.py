@@ -1,0 +1,103 @@
+"""Missions: create, plan, move through the use case's states, check in and out, recorded events."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Query
+
+from api.auth import ServiceDep, require_role
+from api.models import (
+    CheckInOut,
+    CheckOutOut,
+    EventOut,
+    MissionCreate,
+    MissionDetail,
+    MissionOut,
+    MountOut,
+    StateChangeOut,
+    TransitionIn,
+    UseCaseOut,
+)
+from schemas.missions import MissionPlan, MissionState
+from schemas.roles import ACTIVE_ROLES, UserRole
+from schemas.use_cases import USE_CASES
+from workers.store.base import EventQuery
+from workers.store.users import User
+
+router = APIRouter(tags=["missions"])
+R = UserRole
+Anyone = Annotated[User, Depends(require_role(*ACTIVE_ROLES))]
+Reader = Annotated[
+    User, Depends(require_role(R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST))
+]
+DataReader = Annotated[User, Depends(require_role(R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR))]
+Author = Annotated[User, Depends(require_role(R.CLIENT, R.PLANNER))]
+Mover = Annotated[User, Depends(require_role(R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR))]
+Operator = Annotated[User, Depends(require_role(R.OPERATOR))]
+
+
+@router.get("/use-cases", response_model=list[UseCaseOut])
+async def use_cases(user: Anyone) -> list[UseCaseOut]:
+    """Each use case's states and steps: who may take which step."""
+    return [UseCaseOut.of(machine) for machine in USE_CASES.values()]
+
+
+@router.post("/missions", response_model=MissionOut, status_code=201)
+async def create_mission(body: MissionCreate, user: Author, svc: ServiceDep) -> MissionOut:
+    return MissionOut.of(await svc.missions.create(user, body.use_case, body.title, body.plan))
+
+
+@router.get("/missions", response_model=list[MissionOut])
+async def list_missions(user: Reader, svc: ServiceDep, state: MissionState | None = None) -> list[MissionOut]:
+    """Every mission; a client sees its own."""
+    return [MissionOut.of(m) for m in await svc.missions.visible(user, state)]
+
+
+@router.get("/missions/{mission_id}", response_model=MissionDetail)
+async def get_mission(mission_id: str, user: Reader, svc: ServiceDep) -> MissionDetail:
+    mission = await svc.missions.get(user, mission_id)
+    return MissionDetail(
+        **MissionOut.of(mission).model_dump(),
+        mounts=[MountOut.of(m) for m in await svc.store.mounts(mission_id=mission_id)],
+        checked_in=[CheckInOut.of(c) for c in await svc.store.check_ins(mission_id=mission_id)],
+        history=[StateChangeOut.of(c) for c in await svc.store.mission_history(mission_id)],
+    )
+
+
+@router.put("/missions/{mission_id}/plan", response_model=MissionOut)
+async def edit_plan(mission_id: str, plan: MissionPlan, user: Author, svc: ServiceDep) -> MissionOut:
+    """Replace the plan (geofence, points of interest, itinerary, risk assessment) while in planning."""
+    return MissionOut.of(await svc.missions.edit_plan(user, mission_id, plan))
+
+
+@router.post("/missions/{mission_id}/transitions", response_model=MissionOut)
+async def transition(mission_id: str, body: TransitionIn, user: Mover, svc: ServiceDep) -> MissionOut:
+    """Take one step of the use case's state machine (409 names the current state and the allowed ones)."""
+    return MissionOut.of(await svc.missions.transition(user, mission_id, body.to, body.note))
+
+
+@router.get("/missions/{mission_id}/events", response_model=list[EventOut])
+async def mission_events(
+    mission_id: str,
+    user: DataReader,
+    svc: ServiceDep,
+    type: str | None = None,
+    limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
+) -> list[EventOut]:
+    """The events recorded under the mission, each with its provenance."""
+    await svc.missions.get(user, mission_id)
+    records = await svc.store.find_events(EventQuery(type=type, mission_id=mission_id, limit=limit))
+    return [EventOut.of(r) for r in records]
+
+
+@router.post("/missions/{mission_id}/check-in", response_model=CheckInOut)
+async def check_in(mission_id: str, user: Operator, svc: ServiceDep) -> CheckInOut:
+    """From now on, the data of the robots this operator mounted for the mission is recorded under it."""
+    return CheckInOut.of(await svc.channels.check_in(user, mission_id))
+
+
+@router.post("/missions/{mission_id}/check-out", response_model=CheckOutOut)
+async def check_out(mission_id: str, user: Operator, svc: ServiceDep) -> CheckOutOut:
+    """Stop recording; when the last operator checks out, the mission moves to reviewing."""
+    return CheckOutOut.of(await svc.channels.check_out(user, mission_id))

@@ -1,0 +1,150 @@
+"""Passwords, tokens and the one stored secret, each with a well-kept library.
+
+- Passwords: argon2id (argon2-cffi), salted; only the hash is stored.
+- Tokens: JWT (PyJWT, HS256) with ``sub``, ``iat`` and ``exp``; an expired, tampered or foreign
+  token is refused. The caller's role is read from the store on every request, never trusted
+  from the token, so a role change or removal takes effect at once.
+- Broker passwords: the login reply must hand them back, so they are stored encrypted (Fernet:
+  AES-128-CBC with HMAC-SHA256) under a key derived from the service's master secret.
+"""
+
+from __future__ import annotations
+
+import base64
+import secrets
+from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
+
+import jwt
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+from cryptography.fernet import Fernet, InvalidToken
+from cryptography.hazmat.primitives import hashes
+from cryptography.hazmat.primitives.kdf.hkdf import HKDF
+
+from broker.accounts import save_secret
+from fleetbus.config import Settings
+
+TOKEN_ALGORITHM = "HS256"
+TOKEN_ISSUER = "fleetbus"
+MIN_PASSWORD_LENGTH = 10
+
+
+def master_secret(settings: Settings) -> bytes:
+    """``FLEETBUS_API_SECRET``, else a random secret kept in ``data_dir/api/secret`` (mode 0600)."""
+    if settings.api_secret:
+        return settings.api_secret.encode()
+    path = settings.api_dir / "secret"
+    if not path.exists():
+        save_secret(path, secrets.token_urlsafe(48))
+    return path.read_text().strip().encode()
+
+
+def derive_key(secret: bytes, purpose: str) -> bytes:
+    """A 32-byte key for one purpose, so the token key and the encryption key never coincide."""
+    return HKDF(algorithm=hashes.SHA256(), length=32, salt=None, info=purpose.encode()).derive(secret)
+
+
+class Passwords:
+    def __init__(self) -> None:
+        self._hasher = PasswordHasher()
+        # verifying against this when the user does not exist takes as long as a real check
+        self._dummy = self._hasher.hash(secrets.token_urlsafe(16))
+
+    def hash(self, password: str) -> str:
+        return self._hasher.hash(password)
+
+    def verify(self, password_hash: str | None, password: str) -> bool:
+        try:
+            return self._hasher.verify(password_hash or self._dummy, password) and password_hash is not None
+        except (VerificationError, InvalidHashError):
+            return False
+
+
+def password_problem(password: str) -> str | None:
+    if len(password) < MIN_PASSWORD_LENGTH:
+        return f"the password must have at least {MIN_PASSWORD_LENGTH} characters"
+    if len(password) > 256:
+        return "the password must have at most 256 characters"
+    return None
+
+
+class TokenRefused(Exception):
+    """Why a token cannot be accepted; the message is what the caller is told."""
+
+
+@dataclass(frozen=True)
+class Token:
+    value: str
+    subject: str
+    expires_at: datetime
+
+
+class Tokens:
+    def __init__(self, key: bytes, lifetime: timedelta) -> None:
+        self._key = key
+        self.lifetime = lifetime
+
+    def issue(self, subject: str, now: datetime | None = None, lifetime: timedelta | None = None) -> Token:
+        issued = now or datetime.now(timezone.utc)
+        expires = issued + (lifetime if lifetime is not None else self.lifetime)
+        claims = {
+            "sub": subject,
+            "iss": TOKEN_ISSUER,
+            "iat": int(issued.timestamp()),
+            "exp": int(expires.timestamp()),
+            "jti": secrets.token_hex(8),
+        }
+        return Token(jwt.encode(claims, self._key, algorithm=TOKEN_ALGORITHM), subject, expires)
+
+    def subject(self, value: str) -> str:
+        """The user a token was issued to; raise :class:`TokenRefused` saying why not."""
+        try:
+            claims = jwt.decode(
+                value,
+                self._key,
+                algorithms=[TOKEN_ALGORITHM],
+                issuer=TOKEN_ISSUER,
+                options={"require": ["sub", "iat", "exp", "iss"]},
+            )
+        except jwt.ExpiredSignatureError:
+            raise TokenRefused("the token has expired; log in again") from None
+        except jwt.InvalidSignatureError:
+            raise TokenRefused("the token's signature is not valid (tampered with, or not ours)") from None
+        except jwt.InvalidTokenError as error:
+            raise TokenRefused(f"the token is not valid: {error}") from None
+        return str(claims["sub"])
+
+
+class SecretBox:
+    """Encrypts the broker passwords kept in the store."""
+
+    def __init__(self, key: bytes) -> None:
+        self._fernet = Fernet(base64.urlsafe_b64encode(key))
+
+    def seal(self, plain: str) -> str:
+        return self._fernet.encrypt(plain.encode()).decode()
+
+    def open(self, sealed: str) -> str:
+        try:
+            return self._fernet.decrypt(sealed.encode()).decode()
+        except InvalidToken:
+            raise ValueError(
+                "the stored broker password cannot be decrypted with this service's secret"
+            ) from None
+
+
+@dataclass(frozen=True)
+class Secrets:
+    passwords: Passwords
+    tokens: Tokens
+    box: SecretBox
+
+    @classmethod
+    def for_settings(cls, settings: Settings) -> Secrets:
+        secret = master_secret(settings)
+        return cls(
+            Passwords(),
+            Tokens(derive_key(secret, "fleetbus api tokens"), timedelta(minutes=settings.token_minutes)),
+            SecretBox(derive_key(secret, "fleetbus broker passwords")),
+        )

@@ -1,0 +1,65 @@
+"""Everything the HTTP API works with, opened once for the app's life."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+
+from api.accounts import Accounts
+from api.channels import Channels
+from api.missions import Missions
+from api.security import Secrets
+from broker.accounts import vhost_of
+from broker.management import ManagementAPI
+from broker.routes import RouteMap
+from fleetbus.config import Settings
+from workers.store import open_recording_store, open_store
+from workers.store.interface import Store
+from workers.store.recordings import RecordingStore
+
+
+@dataclass
+class Service:
+    settings: Settings
+    store: Store
+    secrets: Secrets
+    accounts: Accounts
+    missions: Missions
+    channels: Channels
+    recording: RecordingStore
+    management: ManagementAPI
+    vhost: str
+
+    async def route_map(self) -> RouteMap:
+        """The broker's exchanges, bindings and consumers now (the management API, off the loop)."""
+        return await asyncio.to_thread(RouteMap.from_management, self.management, self.vhost)
+
+
+@asynccontextmanager
+async def open_service(settings: Settings, admin_url: str, management_url: str) -> AsyncIterator[Service]:
+    """The store, the broker's management API (as administrator) and the services on top."""
+    secrets_ = Secrets.for_settings(settings)
+    store = open_store(settings)
+    await store.open()
+    recording = open_recording_store(settings)
+    await recording.open()
+    management = ManagementAPI.from_urls(management_url, admin_url)
+    try:
+        missions = Missions(store)
+        yield Service(
+            settings=settings,
+            store=store,
+            secrets=secrets_,
+            accounts=Accounts(store, secrets_, management, admin_url),
+            missions=missions,
+            channels=Channels(store, management, vhost_of(admin_url), missions),
+            recording=recording,
+            management=management,
+            vhost=vhost_of(admin_url),
+        )
+    finally:
+        management.close()
+        await recording.close()
+        await store.close()

@@ -1,0 +1,36 @@
+"""The roles of the service layer's users, and what each is for.
+
+A new account is ``inactive`` and may do nothing until an admin gives it a role. The HTTP API
+checks the caller's role on every endpoint (``api.auth.require_role``); the broker account each
+user also gets is confined to its own name whatever the role.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+
+class UserRole(str, Enum):
+    ADMIN = "admin"
+    CLIENT = "client"
+    PLANNER = "planner"
+    SUPERVISOR = "supervisor"
+    OPERATOR = "operator"
+    ROBOT = "robot"
+    GUEST = "guest"
+    INACTIVE = "inactive"
+
+
+ROLE_PURPOSE: dict[UserRole, str] = {
+    UserRole.ADMIN: "creates users, sets their roles, sees every account and mission",
+    UserRole.CLIENT: "requests missions (use case, geofence, points of interest) and accepts their results",
+    UserRole.PLANNER: "plans missions: itinerary, risk assessment; files them",
+    UserRole.SUPERVISOR: "approves, starts, interrupts and closes missions; may force an unmount",
+    UserRole.OPERATOR: "mounts robots, checks in to missions, follows and commands mounted robots",
+    UserRole.ROBOT: "publishes its data; logs in only to fetch its broker credentials",
+    UserRole.GUEST: "reads the mission list",
+    UserRole.INACTIVE: "nothing (the role of every new account)",
+}
+
+#: Every role that may do anything at all.
+ACTIVE_ROLES = frozenset(UserRole) - {UserRole.INACTIVE}

@@ -1,0 +1,113 @@
+"""The HTTP API on a test's own slice of the real broker and a real store, driven over TestClient.
+
+Setup goes through the same services the API uses (``Service``), on the app's own event loop;
+what is being tested goes through HTTP.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any, TypeVar
+
+from fastapi.testclient import TestClient
+
+from api.app import create_app
+from api.service import Service
+from fleetbus.config import Settings
+from schemas.missions import MissionState
+from schemas.roles import UserRole
+from schemas.routing import RobotKind
+from schemas.use_cases import machine_for
+from tests.support import Bus
+from workers.store.missions import Mission
+
+T = TypeVar("T")
+PASSWORD = "correct horse battery"
+SQUARE = {"polygon": [{"x": 0, "y": 0}, {"x": 20, "y": 0}, {"x": 20, "y": 20}, {"x": 0, "y": 20}]}
+READY_PLAN = {"geofence": SQUARE, "risk_assessment": {"level": "low", "summary": "indoor, no people"}}
+
+#: The shortest way to each state, per use case (steps taken directly in the store for setup).
+PATHS = {
+    "hazard-response": [
+        MissionState.FILED,
+        MissionState.APPROVED,
+        MissionState.IN_PROGRESS,
+        MissionState.REVIEWING,
+    ],
+    "survey": [MissionState.IN_PROGRESS, MissionState.REVIEWING],
+}
+
+
+@dataclass
+class Api:
+    client: TestClient
+    service: Service
+    bus: Bus
+    tokens: dict[str, str] = field(default_factory=dict)
+
+    def run(self, work: Callable[[], Awaitable[T]]) -> T:
+        """Run a coroutine on the app's event loop (where its store connection lives)."""
+        assert self.client.portal is not None
+        return self.client.portal.call(work)
+
+    def user(
+        self, name: str, role: UserRole, kind: RobotKind | None = None, password: str | None = PASSWORD
+    ) -> str:
+        """A user made through the service (as an admin would), with its broker account."""
+        self.bus.api.delete_user(name)  # broker users are broker-wide: one left by an aborted run
+        self.run(lambda: self.service.accounts.create(name, password, role, kind, by="test"))
+        return name
+
+    def token(self, name: str) -> str:
+        """A token for ``name``: logged in over HTTP, or minted when login is refused (inactive)."""
+        if name not in self.tokens:
+            reply = self.client.post("/auth/token", data={"username": name, "password": PASSWORD})
+            if reply.status_code == 200:
+                self.tokens[name] = reply.json()["access_token"]
+            else:
+                self.tokens[name] = self.service.secrets.tokens.issue(name).value
+        return self.tokens[name]
+
+    def headers(self, name: str) -> dict[str, str]:
+        return {"Authorization": f"Bearer {self.token(name)}"}
+
+    def call(self, name: str, method: str, path: str, **kwargs: Any) -> Any:
+        return self.client.request(method, path, headers=self.headers(name), **kwargs)
+
+    def mission(
+        self,
+        state: MissionState = MissionState.PLANNING,
+        use_case: str = "hazard-response",
+        owner: str = "client1",
+    ) -> Mission:
+        """A mission with a ready plan, walked to ``state`` directly in the store."""
+        store, now = self.service.store, datetime.now(timezone.utc)
+        mission = self.run(lambda: store.create_mission(use_case, f"{use_case} test", owner, READY_PLAN, now))
+        machine, mission_id = machine_for(use_case), mission.mission_id
+        for target in PATHS[use_case]:
+            if mission.state is state:
+                break
+            source = machine.step(mission.state, target, None).source
+            mission = self.run(
+                lambda s=source, t=target: store.transition_mission(mission_id, s, t, "test", now)
+            )
+        assert mission.state is state, f"{use_case} has no path to {state.value} here"
+        return mission
+
+
+@contextmanager
+def running_api(bus: Bus, settings: Settings | None = None) -> Iterator[Api]:
+    """The app on ``bus`` (its virtual host, as administrator) and its store; broker users removed after."""
+    settings = settings or bus.settings
+    app = create_app(settings, bus.admin_url, bus.endpoint.management_url)
+    with TestClient(app) as client:
+        service: Service = app.state.service
+        api = Api(client, service, bus)
+        try:
+            yield api
+        finally:
+            for user in api.run(service.store.users):
+                bus.api.delete_user(user.name)

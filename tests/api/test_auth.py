@@ -1,0 +1,188 @@
+"""Logging in against the real app, store and broker: tokens that expire, hashed passwords, the
+broker account the login hands over, and each refusal answered 401/403 with a plain message and logged."""
+
+from __future__ import annotations
+
+import base64
+import json
+import logging
+from collections.abc import Iterator
+from datetime import datetime, timedelta, timezone
+
+import pika
+import pika.exceptions
+import pytest
+
+from broker.accounts import can_login
+from schemas.roles import UserRole
+from tests.api.support import PASSWORD, Api, running_api
+from tests.support import Bus
+
+SECURITY_LOG = "fleetbus.api.security"
+
+
+@pytest.fixture
+def api(bus: Bus) -> Iterator[Api]:
+    with running_api(bus) as running:
+        running.user("admin1", UserRole.ADMIN)
+        yield running
+
+
+def refusals(caplog: pytest.LogCaptureFixture) -> list[str]:
+    return [r.getMessage() for r in caplog.records if r.name == SECURITY_LOG]
+
+
+def test_login_returns_an_expiring_token_and_working_broker_credentials(api: Api) -> None:
+    api.user("alice", UserRole.OPERATOR)
+    before = datetime.now(timezone.utc)
+    reply = api.client.post("/auth/token", data={"username": "alice", "password": PASSWORD})
+    assert reply.status_code == 200, reply.text
+    body = reply.json()
+    expires = datetime.fromisoformat(body["expires_at"].replace("Z", "+00:00"))  # 3.10 reads no Z
+    assert timedelta(minutes=59) < expires - before <= timedelta(minutes=61)
+    assert body["user"]["role"] == "operator" and body["token_type"] == "bearer"
+    broker = body["broker"]
+    assert broker["username"] == "alice" and broker["vhost"] == api.bus.vhost
+    assert can_login(broker["amqp_url"]), "the broker account accepts the password the login handed over"
+    connection = pika.BlockingConnection(pika.URLParameters(broker["amqp_url"]))
+    channel = connection.channel()
+    assert channel.queue_declare("alice.stream", passive=True).method.queue == "alice.stream"
+    connection.close()
+    me = api.client.get("/users/me", headers={"Authorization": f"Bearer {body['access_token']}"})
+    assert me.status_code == 200 and me.json()["name"] == "alice"
+
+
+def test_passwords_are_stored_as_argon2_hashes_and_broker_passwords_encrypted(api: Api) -> None:
+    api.user("alice", UserRole.CLIENT)
+    broker_password = api.client.post("/auth/token", data={"username": "alice", "password": PASSWORD}).json()[
+        "broker"
+    ]["password"]
+    stored = api.run(lambda: api.service.store.get_user("alice"))
+    assert stored is not None and stored.password_hash is not None and stored.broker_secret is not None
+    assert stored.password_hash.startswith("$argon2id$") and PASSWORD not in stored.password_hash
+    assert broker_password not in stored.broker_secret
+    other = api.service.secrets.passwords.hash(PASSWORD)
+    assert other != stored.password_hash, "salted: the same password hashes differently"
+
+
+@pytest.mark.parametrize(
+    ("username", "password"),
+    [("alice", "wrong password!"), ("nobody", PASSWORD)],
+    ids=["wrong password", "unknown user"],
+)
+def test_wrong_credentials_get_401_and_are_logged(
+    api: Api, caplog: pytest.LogCaptureFixture, username: str, password: str
+) -> None:
+    api.user("alice", UserRole.CLIENT)
+    with caplog.at_level(logging.WARNING, SECURITY_LOG):
+        reply = api.client.post("/auth/token", data={"username": username, "password": password})
+    assert (reply.status_code, reply.json()) == (401, {"detail": "wrong user name or password"})
+    assert reply.headers["WWW-Authenticate"] == "Bearer"
+    assert [m for m in refusals(caplog) if f"POST /auth/token from testclient as {username}" in m]
+
+
+@pytest.mark.parametrize(
+    ("token", "detail"),
+    [
+        ("expired", "the token has expired; log in again"),
+        ("tampered", "the token's signature is not valid (tampered with, or not ours)"),
+        ("garbage", "the token is not valid: Not enough segments"),
+        (None, "not logged in: send 'Authorization: Bearer <token>' from POST /auth/token"),
+    ],
+)
+def test_bad_tokens_get_401_with_a_plain_message_and_are_logged(
+    api: Api, caplog: pytest.LogCaptureFixture, token: str | None, detail: str
+) -> None:
+    tokens = api.service.secrets.tokens
+    values = {
+        "expired": tokens.issue("admin1", now=datetime.now(timezone.utc) - timedelta(hours=2)).value,
+        "tampered": _tamper(tokens.issue("admin1").value),
+        "garbage": "not-a-token",
+    }
+    headers = {"Authorization": f"Bearer {values[token]}"} if token else {}
+    with caplog.at_level(logging.WARNING, SECURITY_LOG):
+        reply = api.client.get("/users", headers=headers)
+    assert (reply.status_code, reply.json()) == (401, {"detail": detail})
+    assert [m for m in refusals(caplog) if "refused 401: GET /users" in m and detail in m]
+
+
+def _tamper(token: str) -> str:
+    """Change the payload (make the subject someone else) and keep the old signature."""
+    header, payload, signature = token.split(".")
+    claims = json.loads(base64.urlsafe_b64decode(payload + "=" * (-len(payload) % 4)))
+    claims["sub"] = "root"
+    forged = base64.urlsafe_b64encode(json.dumps(claims).encode()).rstrip(b"=").decode()
+    return f"{header}.{forged}.{signature}"
+
+
+def test_a_guest_calling_an_admin_endpoint_gets_403_and_is_logged(
+    api: Api, caplog: pytest.LogCaptureFixture
+) -> None:
+    api.user("visitor", UserRole.GUEST)
+    with caplog.at_level(logging.WARNING, SECURITY_LOG):
+        reply = api.call("visitor", "POST", "/users", json={"name": "mallory", "role": "admin"})
+    assert (reply.status_code, reply.json()) == (
+        403,
+        {"detail": "role guest may not do this; it needs admin"},
+    )
+    assert api.run(lambda: api.service.store.get_user("mallory")) is None
+    assert api.bus.api.get_user("mallory") is None, "no broker account made either"
+    assert refusals(caplog) == [
+        "refused 403: POST /users from testclient as visitor (guest): "
+        "role guest may not do this; it needs admin"
+    ]
+
+
+def test_a_new_account_is_inactive_may_not_log_in_and_has_no_broker_access(api: Api) -> None:
+    created = api.call("admin1", "POST", "/users", json={"name": "newbie", "password": PASSWORD})
+    assert created.status_code == 201 and created.json()["role"] == "inactive"
+    reply = api.client.post("/auth/token", data={"username": "newbie", "password": PASSWORD})
+    assert (reply.status_code, reply.json()) == (
+        403,
+        {"detail": "user newbie is inactive: an admin must give it a role first"},
+    )
+    stored = api.run(lambda: api.service.store.get_user("newbie"))
+    assert stored is not None
+    url = api.service.accounts.broker_credentials(stored).amqp_url
+    with pytest.raises(pika.exceptions.ProbableAccessDeniedError):
+        pika.BlockingConnection(pika.URLParameters(url))  # right password, no permission on the vhost
+    # an admin activates it: the same broker password now opens its own queues
+    assert api.call("admin1", "PUT", "/users/newbie/role", json={"role": "client"}).status_code == 200
+    login = api.client.post("/auth/token", data={"username": "newbie", "password": PASSWORD})
+    assert login.status_code == 200 and login.json()["broker"]["amqp_url"] == url
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection.channel().queue_declare("newbie.inbox", passive=True)
+    connection.close()
+
+
+def test_a_role_change_takes_effect_on_the_next_request(api: Api) -> None:
+    api.user("alice", UserRole.SUPERVISOR)
+    assert api.call("alice", "GET", "/users").status_code == 200
+    assert api.call("admin1", "PUT", "/users/alice/role", json={"role": "guest"}).status_code == 200
+    reply = api.call("alice", "GET", "/users")  # the same token
+    assert (reply.status_code, reply.json()["detail"]) == (
+        403,
+        "role guest may not do this; it needs admin or supervisor",
+    )
+    assert api.call("admin1", "DELETE", "/users/alice").status_code == 204
+    gone = api.call("alice", "GET", "/users/me")
+    assert (gone.status_code, gone.json()["detail"]) == (401, "user 'alice' no longer exists")
+    assert api.bus.api.get_user("alice") is None, "its broker account went with it"
+
+
+def test_users_cannot_be_created_twice_or_with_bad_names_or_short_passwords(api: Api) -> None:
+    api.user("alice", UserRole.CLIENT)
+    cases = [
+        ({"name": "alice", "password": PASSWORD}, 409, "user 'alice' exists"),
+        ({"name": "Bad.Name", "password": PASSWORD}, 422, "invalid name 'Bad.Name'"),
+        ({"name": "bob", "password": "short"}, 422, "at least 10 characters"),
+        (
+            {"name": "bob", "password": PASSWORD, "role": "client", "kind": "warden"},
+            422,
+            "kind applies to robots only",
+        ),
+    ]
+    for body, status, detail in cases:
+        reply = api.call("admin1", "POST", "/users", json=body)
+        assert reply.status_code == status and detail in reply.json()["detail"], (body, reply.text)
+    assert [u.name for u in api.run(api.service.store.users)] == ["admin1", "alice"]

@@ -1,0 +1,98 @@
+"""The commands people run against the service layer: the first admin made on the server, the API
+served by uvicorn over real HTTP, a login from the shell that keeps the broker URL."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+
+import httpx
+import pika
+import pytest
+from typer.testing import CliRunner
+
+from fleetbus.cli import app
+from tests.support import Bus, wait_for
+
+PASSWORD = "first admin password"
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture
+def env(bus: Bus) -> Iterator[dict[str, str]]:
+    environment = bus.worker_env()
+    environment.pop("FLEETBUS_API_SECRET", None)  # the secret the server keeps itself
+    yield environment
+    for name in ("admin", "ops1"):
+        bus.api.delete_user(name)
+
+
+def test_create_admin_serve_and_log_in_from_the_shell(bus: Bus, env: dict[str, str]) -> None:
+    runner = CliRunner()
+    created = runner.invoke(
+        app, ["api", "create-admin", "admin", "--password-stdin"], input=PASSWORD + "\n", env=env
+    )
+    assert created.exit_code == 0, created.output
+    again = runner.invoke(
+        app, ["api", "create-admin", "admin", "--password-stdin"], input=PASSWORD + "\n", env=env
+    )
+    assert again.exit_code == 1 and "user 'admin' exists" in again.output
+    short = runner.invoke(app, ["api", "create-admin", "root2", "--password-stdin"], input="short\n", env=env)
+    assert short.exit_code == 1 and "at least 10 characters" in short.output
+
+    port = free_port()
+    log = open(bus.settings.data_dir / "api.log", "wb")
+    server = subprocess.Popen(
+        [sys.executable, "-m", "fleetbus", "api", "--port", str(port)],
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
+    base = f"http://127.0.0.1:{port}"
+    try:
+
+        def healthy() -> bool:
+            try:
+                return httpx.get(f"{base}/health", timeout=2).status_code == 200
+            except httpx.HTTPError:
+                return False
+
+        wait_for(healthy, timeout=60, what="the API answering")
+        token = httpx.post(f"{base}/auth/token", data={"username": "admin", "password": PASSWORD}).json()[
+            "access_token"
+        ]
+        made = httpx.post(
+            f"{base}/users",
+            json={"name": "ops1", "password": "operator password", "role": "operator"},
+            headers={"Authorization": f"Bearer {token}"},
+        )
+        assert made.status_code == 201, made.text
+        login = runner.invoke(
+            app,
+            ["api", "login", "ops1", "--api", base, "--password-stdin"],
+            input="operator password\n",
+            env=env,
+        )
+        assert login.exit_code == 0, login.output
+        assert "logged in as ops1 (operator)" in login.output
+        saved = bus.settings.accounts_dir / "ops1.url"
+        assert oct(saved.stat().st_mode & 0o777) == "0o600"
+        connection = pika.BlockingConnection(pika.URLParameters(saved.read_text().strip()))
+        connection.channel().queue_declare("ops1.stream", passive=True)
+        connection.close()
+        wrong = runner.invoke(
+            app, ["api", "login", "ops1", "--api", base, "--password-stdin"], input="nope\n", env=env
+        )
+        assert wrong.exit_code == 1 and "401: wrong user name or password" in wrong.output
+    finally:
+        server.terminate()
+        server.wait(30)
+        log.close()
+    assert oct((bus.settings.api_dir / "secret").stat().st_mode & 0o777) == "0o600"

@@ -1,0 +1,89 @@
+"""The beacon exchange against the real broker: only messages with the beacon headers get through;
+the broker discards the rest and the workers count them, by publisher, with the reason."""
+
+from __future__ import annotations
+
+import pika
+import pytest
+
+from broker.dead_letter_queue import peek_dead_letters
+from publishers.confirms import Outgoing, PipelinedConfirms
+from publishers.errors import PublishRefused
+from schemas.envelope import build_event, encode_event
+from schemas.routing import RobotKind
+from tests.support import Bus, wait_for
+from workers.store.discards import Discard
+
+
+def sighting(beacon_id: str = "b1", rssi: int = -60) -> dict:
+    return {"beacon_id": beacon_id, "rssi": rssi, "pose": {"x": 1.0, "y": 2.0}}
+
+
+def publish_raw(url: str, exchange: str, seq: int, headers: dict | None, robot: str = "guide1") -> None:
+    event = build_event("beacon", robot, seq, sighting())
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    try:
+        confirms = PipelinedConfirms(connection, connection.channel(), timeout=10)
+        properties = pika.BasicProperties(
+            delivery_mode=2, user_id=robot, message_id=str(event.message_id), headers=headers
+        )
+        confirms.publish([Outgoing(exchange, f"{robot}.beacon", encode_event(event), properties)], timeout=10)
+    finally:
+        if connection.is_open:
+            connection.close()
+
+
+def recorded_discards(bus: Bus, count: int) -> list[Discard] | None:
+    found = bus.with_store(lambda store: store.recent_discards(2 * count))
+    return found if len(found) == count else None
+
+
+def test_beacons_without_the_headers_are_discarded_and_counted(bus: Bus) -> None:
+    account = bus.add("guide1", kind=RobotKind.GUIDE)
+    guide = bus.robot(account)
+    bad = [
+        ({"codename": "guide1"}, "no 'type' header"),
+        ({"type": "beacon"}, "no 'codename' header"),
+        ({"type": "sighting", "codename": "guide1"}, "header 'type' is 'sighting', not 'beacon'"),
+        (None, "no 'type' header; no 'codename' header"),
+    ]
+    with bus.worker() as worker:
+        for seq, (headers, _) in enumerate(bad, start=100):
+            publish_raw(account.amqp_url, "guide1.beacon", seq, headers)  # confirmed: the broker took it
+        publish_raw(account.amqp_url, "guide1.beacon", 200, {"type": "beacon", "codename": "ble-1"})
+        guide.publish("beacon", sighting("b2"))  # the client sets the headers itself
+        wait_for(lambda: bus.count("beacon") == 2, what="the two beacons with headers stored")
+        discards = wait_for(lambda: recorded_discards(bus, 4), what="4 discards recorded")
+        assert worker.stats().rejected == 0, "discarded by the broker, never seen by the ingest"
+    assert sorted(d.reason for d in discards) == sorted(reason for _, reason in bad)
+    assert {(d.exchange, d.user_id, d.routing_key) for d in discards} == {
+        ("guide1.beacon", "guide1", "guide1.beacon")
+    }
+    [count] = bus.with_store(lambda s: s.discard_counts())
+    assert (count.exchange, count.count) == ("guide1.beacon", 4)
+    stored = bus.find()
+    assert {r.seq for r in stored} == {200, 0} and {r.exchange for r in stored} == {"guide1.beacon"}
+
+
+def test_a_beacon_sent_to_the_events_exchange_is_dead_lettered(bus: Bus) -> None:
+    account = bus.add("guide1", kind=RobotKind.GUIDE)
+    with bus.worker():
+        publish_raw(account.amqp_url, "guide1.events", 5, {"type": "beacon", "codename": "guide1"})
+        [letter] = wait_for(lambda: peek_dead_letters(bus.admin_url), what="the sighting dead-lettered")
+    assert letter.reason == "wrong-exchange"
+    assert "beacon events are published to 'guide1.beacon', not 'guide1.events'" in letter.detail
+    assert bus.count("beacon") == 0
+
+
+def test_a_robot_cannot_publish_to_another_robots_beacon_exchange(bus: Bus) -> None:
+    explorer = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.add("guide1", kind=RobotKind.GUIDE)
+    with pytest.raises(PublishRefused, match="ACCESS_REFUSED"):
+        publish_raw(
+            explorer.amqp_url, "guide1.beacon", 1, {"type": "beacon", "codename": "x"}, robot="explorer1"
+        )
+    # nor straight to the shared beacon exchange, which only the service writes to
+    with pytest.raises(PublishRefused, match="ACCESS_REFUSED"):
+        publish_raw(
+            explorer.amqp_url, "fleetbus.beacon", 1, {"type": "beacon", "codename": "x"}, robot="explorer1"
+        )

@@ -1,0 +1,88 @@
+"""Count what the beacon exchange discarded: drain the discard queue into the store's discard log.
+
+The broker does the filtering (a robot's ``<robot>.beacon`` headers exchange passes only messages
+with ``type: beacon`` and a ``codename``; its alternate exchange takes the rest). This consumer
+only says why each one was discarded, logs it and records it, then acks; a message is acked
+only after its record is durable, and a redelivered one counts once (its message id).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from datetime import datetime, timezone
+from typing import Any
+
+from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
+
+from schemas.routing import BEACON_CODENAME_HEADER, BEACON_TYPE, BEACON_TYPE_HEADER
+from workers.backoff import Backoff
+from workers.store.base import StoreUnavailable
+from workers.store.discards import Discard, DiscardLog
+
+log = logging.getLogger("fleetbus.beacons")
+
+
+def discard_reason(headers: dict[str, Any]) -> str:
+    problems = []
+    kind = headers.get(BEACON_TYPE_HEADER)
+    if kind is None:
+        problems.append(f"no {BEACON_TYPE_HEADER!r} header")
+    elif kind != BEACON_TYPE:
+        problems.append(f"header {BEACON_TYPE_HEADER!r} is {kind!r}, not {BEACON_TYPE!r}")
+    if BEACON_CODENAME_HEADER not in headers:
+        problems.append(f"no {BEACON_CODENAME_HEADER!r} header")
+    return "; ".join(problems) or "no header problem found (bound only after it was published?)"
+
+
+def to_discard(message: AbstractIncomingMessage, at: datetime) -> Discard:
+    headers = {
+        str(k): v.decode(errors="replace") if isinstance(v, bytes) else str(v)
+        for k, v in (message.headers or {}).items()
+    }
+    return Discard(
+        exchange=message.exchange or "",
+        routing_key=message.routing_key or "",
+        user_id=message.user_id,
+        message_id=message.message_id,
+        reason=discard_reason(dict(message.headers or {})),
+        received_at=at,
+        headers=headers,
+    )
+
+
+class DiscardCounter:
+    def __init__(self, channel: AbstractChannel, queue: AbstractQueue, store: DiscardLog) -> None:
+        self._channel = channel
+        self._queue = queue
+        self._store = store
+        self._tag: str | None = None
+        self.counted = 0
+
+    async def start(self) -> None:
+        self._tag = await self._queue.consume(self._on_message)
+
+    async def stop(self) -> None:
+        if self._tag is not None and not self._channel.is_closed:
+            await self._queue.cancel(self._tag)
+
+    async def _on_message(self, message: AbstractIncomingMessage) -> None:
+        discard = to_discard(message, datetime.now(timezone.utc))
+        backoff = Backoff()
+        while True:
+            try:
+                self.counted += await self._store.record_discards([discard])
+                break
+            except StoreUnavailable as error:
+                if backoff.attempts >= 5:
+                    log.warning("store unavailable (%s); the discard will be redelivered", error)
+                    await message.nack(requeue=True)
+                    return
+                await asyncio.sleep(backoff.next_delay())
+        log.warning(
+            "discarded a beacon message on %s from %s: %s",
+            discard.exchange,
+            discard.user_id or "(no user_id)",
+            discard.reason,
+        )
+        await message.ack()
