@@ -22,6 +22,10 @@ from publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
 _SLICE = 0.05
 
 
+def _nothing() -> None:
+    pass
+
+
 @dataclass(frozen=True)
 class Outgoing:
     exchange: str
@@ -68,14 +72,27 @@ class PipelinedConfirms:
         self._unconfirmed -= tags
         if isinstance(method, Basic.Nack):
             self._nacked |= tags
+        self._wake()
+
+    def _wake(self) -> None:
+        """End the current ``process_data_events`` wait now.
+
+        Confirms arrive on the channel underneath the blocking facade, which pika does not count
+        as an event worth returning for: without this, each wait would last its whole time slice
+        (a confirmed publish took 53 ms here instead of about 2).
+        """
+        self._connection.call_later(0, _nothing)
 
     def _on_return(
         self, _channel: object, method: Basic.Return, properties: pika.BasicProperties, _body: bytes
     ) -> None:
         self._returned[properties.message_id or ""] = f"{method.reply_code} {method.reply_text}"
+        self._wake()
 
     def _on_close(self, _channel: object, reason: Exception) -> None:
         self._closed_reason = str(reason)
+        if self._connection.is_open:
+            self._wake()
 
     def _pump_until(self, done: Callable[[], bool], timeout: float, what: str) -> None:
         deadline = time.monotonic() + timeout

@@ -31,6 +31,15 @@ PUBLISH_WINDOW = 1000
 IDLE_TICK = 1.0
 
 
+def _abort(connection: pika.BlockingConnection) -> None:
+    """Drop the socket at once. A graceful close waits for the broker's answer, which never comes
+    when the network went silent (no RST): the sender would hang until the heartbeat timed out."""
+    transport = getattr(connection._impl, "_transport", None)
+    if transport is not None:
+        transport.abort()
+    connection.process_data_events(0)
+
+
 @dataclass
 class Waiter:
     """A caller waiting for some of its events to be settled (confirmed or refused)."""
@@ -183,7 +192,10 @@ class Sender:
             self._condition.notify_all()
         if connection is not None and connection.is_open:
             try:
-                connection.close()
+                if error:
+                    _abort(connection)
+                else:
+                    connection.close()
             except Exception:  # the connection is already broken; nothing more to do with it
                 pass
 

@@ -9,6 +9,8 @@ import time
 from dataclasses import replace
 from datetime import timedelta
 
+import pytest
+
 from broker.local_node import LocalNode
 from publishers.client import RobotClient
 from schemas.routing import RobotKind
@@ -40,6 +42,7 @@ def test_broker_killed_and_restarted_under_load(killable_bus: Bus, killable_node
 BROKER_OUTAGE_S = 30.0
 
 
+@pytest.mark.slow
 def test_broker_killed_for_30_s_while_three_robots_publish(
     killable_bus: Bus, killable_node: LocalNode
 ) -> None:

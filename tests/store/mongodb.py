@@ -33,12 +33,14 @@ class MongoecoServer:
         self.log_path = log_path
         self._process: subprocess.Popen[str] | None = None
 
-    def start(self, deadline: float = START_DEADLINE) -> str:
+    def start(self, deadline: float = START_DEADLINE, port: int = 0, path: Path | None = None) -> str:
+        """Start on ``port`` (0: any), in memory or, with ``path``, on a data file that outlives it."""
+        command = [str(MONGOECO_PYTHON), str(LAUNCHER), str(port)]
+        if path is not None:
+            command += ["--path", str(path)]
         # stderr to a file: a pipe nobody reads would block the server once it fills
-        with self.log_path.open("w") as log:
-            self._process = subprocess.Popen(
-                [str(MONGOECO_PYTHON), str(LAUNCHER)], stdout=subprocess.PIPE, stderr=log, text=True
-            )
+        with self.log_path.open("a") as log:
+            self._process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=log, text=True)
         end = time.monotonic() + deadline
         port = self._read_port(end)
         self._await_connection(port, end)
@@ -69,6 +71,15 @@ class MongoecoServer:
         self.stop()
         log = self.log_path.read_text(errors="replace")[-2000:]
         pytest.fail(f"mongoeco's server {what}; its log ({self.log_path}):\n{log}")
+
+    def kill(self) -> None:
+        """SIGKILL the server, as a crash would."""
+        if self._process is not None:
+            self._process.kill()
+            self._process.wait(10)
+            if self._process.stdout is not None:
+                self._process.stdout.close()
+            self._process = None
 
     def stop(self) -> None:
         if self._process is None:

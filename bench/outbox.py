@@ -1,0 +1,138 @@
+"""The robot's outbox: append time as it fills, and how fast it drains after an outage.
+
+    .venv/bin/python -m bench.outbox [--waiting 0,10000,50000] [--appends 300] [--drain 10000] [--runs 3]
+
+append   one event appended (and fsynced) to an outbox that already holds N waiting events;
+         median and 99th percentile over ``--appends`` appends, for each N
+drain    ``--drain`` events wait in a robot's outbox (the broker was away); the robot starts and
+         the time until the broker confirmed them all gives the drain rate, next to the raw broker
+         publish rate (pika, pipelined confirms, same message size) measured in the same run
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import statistics
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from bench.ingest import BENCH_VHOST, RAW_QUEUE, event_size, raw_publish, status_items
+from broker.accounts import Role, fresh_vhost, provision_account
+from broker.endpoint import resolve_broker
+from broker.management import ManagementAPI
+from broker.topology import QueueSpec, Topology, core_topology, declare_with_url
+from fleetbus.config import load_settings
+from publishers.client import RobotClient
+from publishers.outbox import Outbox, Overflow, TypePolicy
+from schemas.envelope import build_event
+from schemas.routing import INGEST_QUEUE
+
+console = Console()
+#: Nothing dropped, whatever the fill: the benchmark measures appends, not the overflow policy.
+KEEP_ALL = {"status": TypePolicy(Overflow.KEEP, 10_000_000)}
+
+
+def append_times(waiting: int, appends: int) -> list[float]:
+    """Seconds per single-event append into an outbox already holding ``waiting`` events."""
+    (event_type, body) = status_items(1)[0]
+    with tempfile.TemporaryDirectory() as folder:
+        outbox = Outbox(Path(folder), KEEP_ALL)
+        for start in range(0, waiting, 1000):
+            n = min(1000, waiting - start)
+            outbox.append([build_event(event_type, "bench", start + i, body) for i in range(n)])
+        times = []
+        for i in range(appends):
+            event = build_event(event_type, "bench", waiting + i, body)
+            started = time.perf_counter()
+            outbox.append([event])
+            times.append(time.perf_counter() - started)
+        outbox.close()
+    return times
+
+
+def drain_rate(admin_url: str, api: ManagementAPI, count: int) -> float:
+    account = asyncio.run(provision_account(admin_url, api, "bench-outbox", Role.ROBOT, rotate=True))
+    with tempfile.TemporaryDirectory() as folder:
+        robot = RobotClient(account.amqp_url, state_dir=Path(folder), outbox_policies=KEEP_ALL)
+        items = status_items(count)
+        for start in range(0, count, 1000):  # queued while the robot is not started: an outage
+            robot.outbox.append(robot.build(items[start : start + 1000]))
+        started = time.perf_counter()
+        robot.start()
+        if not robot.flush(600):
+            raise TimeoutError(f"{robot.outbox.pending()} events still waiting")
+        elapsed = time.perf_counter() - started
+        robot.close()
+    return count / elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--waiting", default="0,10000,50000")
+    parser.add_argument("--appends", type=int, default=300)
+    parser.add_argument("--drain", type=int, default=10000)
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=Path("bench/results"))
+    args = parser.parse_args()
+    fills = [int(n) for n in args.waiting.split(",")]
+    endpoint = resolve_broker(load_settings(), start=True)
+    appends: dict[int, list[float]] = {n: [] for n in fills}
+    drains: list[float] = []
+    raws: list[float] = []
+    with (
+        ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
+        Progress(console=console) as progress,
+    ):
+        task = progress.add_task("outbox", total=args.runs * (len(fills) + 2))
+        for _ in range(args.runs):
+            for n in fills:
+                appends[n] += append_times(n, args.appends)
+                progress.advance(task)
+            admin_url = fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST)
+            ingest_args = next(q.arguments for q in core_topology().queues if q.name == INGEST_QUEUE)
+            asyncio.run(declare_with_url(admin_url, [Topology(queues=(QueueSpec(RAW_QUEUE, ingest_args),))]))
+            raws.append(raw_publish(admin_url, args.drain, event_size()))
+            progress.advance(task)
+            drains.append(drain_rate(admin_url, api, args.drain))
+            progress.advance(task)
+            api.delete_user("bench-outbox")
+            api.delete_vhost(BENCH_VHOST)
+    table = Table(title=f"outbox append, {args.runs} runs of {args.appends} appends (fsync on)")
+    for column in ("events waiting", "median ms", "p99 ms", "max ms"):
+        table.add_column(column, justify="right")
+    summary: dict[str, object] = {"appends": {}, "drain": drains, "raw_publish": raws}
+    for n, times in appends.items():
+        ms = sorted(t * 1000 for t in times)
+        p99 = ms[int(len(ms) * 0.99) - 1]
+        table.add_row(f"{n:,}", f"{statistics.median(ms):.2f}", f"{p99:.2f}", f"{ms[-1]:.2f}")
+        summary["appends"][n] = {"median_ms": statistics.median(ms), "p99_ms": p99}  # type: ignore[index]
+    console.print(table)
+    drain, raw = statistics.median(drains), statistics.median(raws)
+    rates = Table(title=f"drain of {args.drain:,} waiting events of {event_size()} bytes, {args.runs} runs")
+    for column in ("scenario", "median msg/s", "spread", "vs raw publish"):
+        rates.add_column(column, justify="left" if column == "scenario" else "right")
+    rates.add_row(
+        "raw publish (pika, pipelined confirms)", f"{raw:,.0f}", f"{min(raws):,.0f}-{max(raws):,.0f}", "1.00"
+    )
+    rates.add_row(
+        "outbox drain", f"{drain:,.0f}", f"{min(drains):,.0f}-{max(drains):,.0f}", f"{drain / raw:.2f}"
+    )
+    console.print(rates)
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / f"outbox-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}.json"
+    path.write_text(json.dumps(summary, indent=2))
+    console.print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,210 @@
+"""Outages a robot team meets in the field, each made for real, and what arrived counted exactly.
+
+The broker itself is killed in ``test_broker_restart.py``; here the workers stop, robots lose
+the network or are killed, a confirm is lost on the way back, MongoDB goes away.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import time
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import pytest
+
+from broker.accounts import Account
+from broker.dead_letter_queue import peek_dead_letters
+from publishers.client import robot_folder
+from publishers.outbox import Overflow, TypePolicy
+from schemas.routing import INGEST_QUEUE, RobotKind
+from tests.factories import hazard, status
+from tests.link import NetworkLink
+from tests.store.mongodb import MONGOECO_PYTHON, NO_MONGODB, MongoecoServer
+from tests.support import Bus, Publishing, assert_stored_once_in_order, read_line, wait_for
+from tests.test_cli import fleetbus
+from workers.store.base import EventQuery
+
+#: The issue's outage: the workers stay stopped this long while the robots keep publishing.
+WORKER_OUTAGE_S = 60.0
+
+
+@pytest.fixture
+def link_for(bus: Bus) -> Iterator[list[NetworkLink]]:
+    links: list[NetworkLink] = []
+    yield links
+    for link in links:
+        link.stop()
+
+
+def network_link(links: list[NetworkLink], account: Account) -> NetworkLink:
+    link = NetworkLink(urlsplit(account.amqp_url).port or 5672).start()
+    links.append(link)
+    return link
+
+
+@pytest.mark.slow
+def test_workers_stopped_for_a_minute_while_robots_publish(bus: Bus) -> None:
+    robots = [bus.robot(bus.add(f"explorer{i}", kind=RobotKind.EXPLORER)) for i in (1, 2)]
+    worker = bus.spawn_worker()
+    try:
+        publishing = [Publishing(robot).start() for robot in robots]
+        wait_for(lambda: bus.count() >= 100, what="events stored before the workers stop")
+        worker.send_signal(signal.SIGTERM)
+        assert worker.wait(60) == 0, "the worker stops cleanly on SIGTERM"
+        stored = bus.count()
+        outage_ends = time.monotonic() + WORKER_OUTAGE_S
+        wait_for(
+            lambda: time.monotonic() >= outage_ends,
+            timeout=WORKER_OUTAGE_S + 10,
+            what=f"{WORKER_OUTAGE_S:g} s of robots publishing with no worker",
+        )
+        sent = {p.robot.robot_id: p.stop() for p in publishing}
+        for robot in robots:
+            assert robot.flush(30)
+        total = sum(len(seqs) for seqs in sent.values())
+        assert bus.count() == stored, "nothing was stored while no worker ran"
+        assert bus.ready_messages(INGEST_QUEUE) == total - stored, "the queue holds every event since"
+        assert total - stored > 2000, "a minute of publishing from two robots"
+        worker = bus.spawn_worker()
+        wait_for(lambda: bus.count() == total, timeout=120, what=f"the worker to catch up to {total}")
+    finally:
+        worker.send_signal(signal.SIGTERM)
+        worker.wait(60)
+    for robot_id, seqs in sent.items():
+        assert_stored_once_in_order(bus, robot_id, seqs)
+    assert bus.gaps() == [] and bus.ready_messages(INGEST_QUEUE) == 0
+
+
+def test_robot_process_killed_with_1000_events_in_its_outbox(bus: Bus, link_for: list[NetworkLink]) -> None:
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    link.cut()
+    with bus.worker():
+        robot = bus.spawn_robot(link.url(account.amqp_url), "--events", "1000")
+        read_line(robot, "queued 1000")
+        robot.kill()
+        robot.wait(30)
+        outbox = bus.outbox("explorer1")
+        assert outbox.pending() == 1000, "all 1000 wait on disk after the kill"
+        outbox.close()
+        assert bus.count() == 0
+
+        link.restore()
+        robot = bus.spawn_robot(link.url(account.amqp_url), "--drain")
+        try:
+            read_line(robot, "drained", timeout=120)
+        finally:
+            robot.terminate()
+            robot.wait(30)
+        wait_for(lambda: bus.count() == 1000, timeout=60, what="the 1000 events in the store")
+    assert_stored_once_in_order(bus, "explorer1", list(range(1000)))
+
+
+def test_a_lost_confirm_makes_a_resend_not_a_second_record(bus: Bus, link_for: list[NetworkLink]) -> None:
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    explorer = bus.robot(account, via=link)
+    with bus.worker() as worker:
+        link.mute_replies()  # the broker takes the events; its confirms never reach the robot
+        sent = explorer.publish_many([("hazard", hazard(i)) for i in range(20)], wait=False)
+        wait_for(lambda: bus.count() == 20, what="the 20 events stored from the first copy")
+        assert explorer.outbox.pending() == 20, "unconfirmed, so still in the outbox"
+        link.restore()
+        link.drop_connections()  # the robot notices, reconnects and sends its window again
+        assert explorer.flush(60)
+        wait_for(lambda: worker.stats().duplicates == 20, what="the 20 resent copies recognised")
+        duplicates = bus.with_store(lambda store: store.duplicates("explorer1"))
+    assert bus.count() == 20
+    assert sorted(d.seq for d in duplicates) == [e.seq for e in sent]
+    assert not any(d.redelivered for d in duplicates), "sent again by the robot, not redelivered"
+    assert bus.gaps() == []
+
+
+def test_gaps_are_recorded_and_cleared_when_the_missing_events_arrive(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    events = explorer.build([("status", status(80 - i)) for i in range(10)])
+    with bus.worker():
+        explorer.enqueue(events[:3] + events[6:])
+        wait_for(lambda: bus.count() == 7, what="7 events stored")
+        [gap] = bus.gaps("explorer1")
+        assert (gap.first, gap.last, gap.size) == (3, 5, 3)
+        listed = fleetbus(bus, "query", "gaps", "--json")
+        assert listed.returncode == 0, listed.stderr
+        assert [json.loads(line)["missing"] for line in listed.stdout.splitlines()] == [3]
+        explorer.enqueue(events[4:5])
+        wait_for(lambda: bus.count() == 8, what="a late event")
+        assert [(g.first, g.last) for g in bus.gaps()] == [(3, 3), (5, 5)]
+        explorer.enqueue(events[3:4] + events[5:6])
+        wait_for(lambda: bus.count() == 10, what="the last two")
+    assert bus.gaps() == []
+    assert "0 open gaps" in fleetbus(bus, "query", "gaps").stdout
+
+
+def test_telemetry_dropped_while_cut_off_shows_as_a_gap(bus: Bus, link_for: list[NetworkLink]) -> None:
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    policies = {"status": TypePolicy(Overflow.DROP_OLDEST, 10), "hazard": TypePolicy(Overflow.KEEP, 100)}
+    explorer = bus.robot(account, via=link, outbox_policies=policies)
+    with bus.worker():
+        link.cut()
+        explorer.publish_many(
+            [("status", status(90)) for _ in range(30)] + [("hazard", hazard())], wait=False
+        )
+        shown = fleetbus(bus, "outbox", "explorer1", "--json")
+        assert shown.returncode == 0, shown.stderr
+        types = json.loads(shown.stdout)["types"]
+        assert (types["status"]["waiting"], types["status"]["dropped"]) == (10, 20)
+        assert (types["hazard"]["waiting"], types["hazard"]["dropped"]) == (1, 0)
+        link.restore()
+        assert explorer.flush(60)
+        wait_for(lambda: bus.count() == 11, what="the 10 newest status events and the hazard")
+    assert [(g.first, g.last) for g in bus.gaps("explorer1")] == [(0, 19)], "the dropped ones, on record"
+    assert [r.seq for r in bus.find(EventQuery(robot_id="explorer1"))] == list(range(20, 31))
+
+
+def test_a_reused_sequence_number_is_dead_lettered_and_the_stored_event_kept(bus: Bus) -> None:
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    explorer = bus.robot(account)
+    with bus.worker():
+        first = explorer.publish_many([("hazard", hazard(i, "Fire")) for i in range(3)])
+        wait_for(lambda: bus.count() == 3, what="3 hazards")
+        explorer.close()
+        shutil.rmtree(robot_folder(bus.settings.robots_dir, "explorer1"))  # its personal database lost
+        again = bus.robot(account)
+        reused = again.publish("hazard", hazard(9, "Gas leak"))
+        assert reused.seq == 0
+        letters = wait_for(lambda: peek_dead_letters(bus.admin_url), what="the reused number dead-lettered")
+    [letter] = letters
+    assert letter.reason == "sequence-reused" and "reused sequence number 0" in letter.detail
+    stored = bus.find(EventQuery(robot_id="explorer1"))
+    assert [r.message_id for r in stored] == [str(e.message_id) for e in first], "nothing stored changed"
+
+
+@pytest.mark.skipif(not MONGOECO_PYTHON.exists(), reason=NO_MONGODB)
+def test_mongodb_gone_while_events_arrive(bus: Bus, tmp_path: Path) -> None:
+    """The MongoDB server killed mid-stream and started again on its data: nothing acked while it
+    was gone, everything stored once it is back."""
+    server = MongoecoServer(tmp_path / "mongoeco.log")
+    data = tmp_path / "mongo.db"
+    url = server.start(path=data)
+    port = urlsplit(url).port
+    bus.settings = replace(bus.settings, mongodb_url=f"{url}fleetbus")
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    try:
+        with bus.worker() as worker:
+            first = explorer.publish_many([("status", status(80)) for _ in range(20)])
+            wait_for(lambda: bus.count() == 20, what="20 events in MongoDB")
+            server.kill()
+            second = explorer.publish_many([("status", status(70)) for _ in range(30)])
+            wait_for(lambda: worker.stats().store_retries >= 2, what="the worker to retry the store")
+            assert bus.ready_messages(INGEST_QUEUE) == 0, "held unacked by the worker, not lost"
+            server.start(port=port or 0, path=data)
+            wait_for(lambda: bus.count() == 50, timeout=90, what="all 50 events once MongoDB is back")
+        assert_stored_once_in_order(bus, "explorer1", [e.seq for e in first + second])
+    finally:
+        server.stop()
