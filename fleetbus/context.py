@@ -15,7 +15,7 @@ import yaml
 from rich.console import Console
 
 from broker.accounts import vhost_of
-from broker.endpoint import BrokerEndpoint, resolve_broker
+from broker.endpoint import BrokerEndpoint, derive_management_url, resolve_broker
 from broker.management import ManagementAPI
 from broker.routes import RouteMap
 from fleetbus.config import Settings, load_settings
@@ -115,8 +115,13 @@ def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:
 
 def route_map() -> RouteMap | None:
     """The broker's exchanges, bindings and consumers now; None (with a warning) when it does not answer."""
+    config = settings()
     try:
-        ep = resolve_broker(settings(), start=False)
+        if config.amqp_url:  # only its management API is asked: no AMQP login to probe first
+            management_url = config.management_url or derive_management_url(config.amqp_url)
+            ep = BrokerEndpoint(config.amqp_url, management_url, "external")
+        else:
+            ep = resolve_broker(config, start=False)
         with admin_api(ep) as api:
             return RouteMap.from_management(api, vhost_of(ep.amqp_url))
     except Exception as error:  # the recording still answers without the broker
