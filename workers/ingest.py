@@ -185,6 +185,7 @@ class IngestConsumer:
                 self.stats.notified += await self._retrying(lambda service=service: service.handle(accepted))
             # bookkeeping after the services, so that it does not delay notifications
             await self._retrying(lambda: self._store.record_duplicates(ledger.duplicates))
+            self.stats.duplicates += len(ledger.duplicates)  # counted once the ledger holds them
             await self._retrying(lambda: self._store.observe_sequences(ledger.seen, ledger.at))
         await batch[-1].ack(multiple=True)
 
@@ -208,7 +209,6 @@ class IngestConsumer:
             if result.inserted:
                 self.stats.stored += 1
             else:
-                self.stats.duplicates += 1
                 ledger.duplicates.append(
                     Duplicate(
                         record.robot_id, record.seq, record.message_id, ledger.at, bool(message.redelivered)
