@@ -77,7 +77,11 @@ class Bus:
     def add(self, name: str, role: Role = Role.ROBOT, kind: RobotKind | None = None) -> Account:
         """A new account; users are broker-wide, so one left by an aborted run is re-keyed."""
         self.accounts.append(name)
-        account = asyncio.run(provision_account(self.admin_url, self.api, name, role, kind, rotate=True))
+        account = asyncio.run(
+            provision_account(
+                self.admin_url, self.api, name, role, kind, rotate=True, shards=self.settings.ingest_shards
+            )
+        )
         if role is Role.ROBOT:
             register_robot(self.settings, name, kind)
         return account
