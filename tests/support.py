@@ -164,15 +164,19 @@ class Bus:
             FLEETBUS_AMQP_URL=self.admin_url,
             FLEETBUS_MANAGEMENT_URL=self.endpoint.management_url,
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
+            FLEETBUS_INGEST_SHARDS=str(self.settings.ingest_shards),
         )
-        env.pop("FLEETBUS_MONGODB_URL", None) if self.settings.mongodb_url is None else None
+        if self.settings.mongodb_url is None:
+            env.pop("FLEETBUS_MONGODB_URL", None)
+        else:
+            env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
         return env
 
-    def spawn_worker(self) -> subprocess.Popen[bytes]:
+    def spawn_worker(self, *options: str) -> subprocess.Popen[bytes]:
         """The worker as its own process (``python -m fleetbus worker``), to be killed for real."""
         log = open(self.settings.data_dir / f"worker-{uuid.uuid4().hex[:6]}.log", "wb")
         return subprocess.Popen(
-            [sys.executable, "-m", "fleetbus", "worker"],
+            [sys.executable, "-m", "fleetbus", "worker", *options],
             env=self.worker_env(),
             stdout=log,
             stderr=subprocess.STDOUT,

@@ -83,6 +83,7 @@ class IngestConsumer:
         enrichers: Sequence[BatchEnricher] = (),
         batch_size: int = 256,
         linger: float = 0.005,
+        stats: IngestStats | None = None,
     ) -> None:
         self._channel = channel
         self._queue = queue
@@ -97,7 +98,8 @@ class IngestConsumer:
         self._inbox: asyncio.Queue[AbstractIncomingMessage] = asyncio.Queue()
         self._stopping = asyncio.Event()
         self._consumer_tag: str | None = None
-        self.stats = IngestStats()
+        # one worker's shard consumers share their counters
+        self.stats = stats if stats is not None else IngestStats()
 
     async def _on_message(self, message: AbstractIncomingMessage) -> None:
         await self._inbox.put(message)
