@@ -23,7 +23,8 @@ from schemas.routing import (
     shard_binding_key,
 )
 from tests.factories import status
-from tests.support import Bus, wait_for
+from tests.support import Bus, assert_stored_once_in_order, wait_for
+from tests.test_cli import fleetbus
 
 
 def _queued(bus: Bus, shards: int) -> list[int]:
@@ -139,3 +140,46 @@ def test_a_move_binds_the_new_shard_before_it_unbinds_the_old(bus: Bus) -> None:
     bus.add("robot-b")
     apply_move(bus.api, bus.vhost, Move("robot-b", (1,), 0))
     assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (0,)}
+
+
+def _management_count(bus: Bus, shard: int) -> int:
+    queue = bus.api.get_queue(bus.vhost, ingest_shard_queue(shard))
+    return queue.get("messages_ready", 0) + queue.get("messages_unacknowledged", 0)
+
+
+def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
+    robots = {name: bus.robot(bus.add(name)) for name in ("robot-a", "robot-b", "robot-c", "robot-d")}
+    sent = {
+        name: [e.seq for e in robot.publish_many([("status", status())] * 5)]
+        for name, robot in robots.items()
+    }
+    bus.settings = replace(bus.settings, ingest_shards=2)  # the workers and the commands from now on
+
+    listed = json.loads(fleetbus(bus, "shards", "--json").stdout)
+    assert [(s["shard"], len(s["robots"]), s["worker"]) for s in listed["states"]] == [
+        (0, 4, None),
+        (1, 0, None),
+    ]
+    dry = fleetbus(bus, "shards", "rebalance", "--dry-run")
+    assert dry.returncode == 0 and "2 moves (dry run: none made)" in dry.stdout
+    assert "robot-d: shard 0 -> 1" in dry.stdout
+    wait_for(lambda: _management_count(bus, 0) == 20, what="the management API to count 20 waiting")
+    refused = fleetbus(bus, "shards", "rebalance")
+    assert refused.returncode == 1 and "shard 0 holds 20" in refused.stderr
+    assert read_shard_map(bus.api, bus.vhost, 2).load() == [4, 0], "nothing moved"
+
+    with bus.worker() as worker:
+        wait_for(lambda: bus.count() == 20, what="the waiting events stored")
+        wait_for(lambda: _management_count(bus, 0) == 0, what="the management API to see shard 0 empty")
+        moved = fleetbus(bus, "shards", "rebalance")
+        assert moved.returncode == 0, moved.stderr
+        assert "moved 2 robots: [2, 2]" in moved.stdout
+        for name, robot in robots.items():
+            sent[name] += [e.seq for e in robot.publish_many([("status", status())] * 5)]
+        wait_for(lambda: bus.count() == 40, what="the events after the move stored")
+        table = fleetbus(bus, "shards")
+        assert worker.context is not None and worker.context.shards.holder in table.stdout
+        assert "2 ingest shards, 1 live workers" in table.stdout
+    for name in robots:
+        assert_stored_once_in_order(bus, name, sent[name])
+    assert fleetbus(bus, "shards", "rebalance").stdout.startswith("balanced: [2, 2]")
