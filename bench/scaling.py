@@ -9,10 +9,12 @@ Each run, in a fresh virtual host and data folder:
   raw consume      aio-pika, one process, manual acks, prefetch 512, from that queue
   raw consume xP   the same with P processes at once (P = the most workers), each on a queue of
                    its own: what the broker and the Python client can do in parallel on this machine
-  drain, W workers --robots robots (spread over --shards shards) have queued --events status
-                   events; W ``fleetbus worker`` processes start. Measured from the moment each
-                   worker holds its share of the shards until the first shard runs dry, so every
-                   worker is busy all along; the workers' and the broker's CPU in that window
+  drain, W workers --robots robots (spread evenly over --shards shards) have queued --events
+                   status events; W ``fleetbus worker`` processes start (the bench holds the shards'
+                   leases until all are up, then lets go, so they begin together). Measured from
+                   the moment each worker holds its share until 85 % of the events are stored
+                   (the shards drain evenly, so every worker is busy all along); the workers' and
+                   the broker's CPU in that window
   ingest, W workers W workers run; the robots (threads of this process) publish the events with
                    pipelined confirms; from the first publish until the store holds them all
 
@@ -38,7 +40,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
@@ -59,12 +61,15 @@ from broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare
 from fleetbus.config import Settings, load_settings
 from publishers.client import RobotClient
 from publishers.confirms import Outgoing, PipelinedConfirms
-from schemas.routing import ingest_shard_queue
-from workers.shards import SHARD_PREFIX, share
+from workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
 from workers.store import Store, open_store
 
 VHOST = "fleetbus-bench-scaling"
 POLL_SECONDS = 0.05
+#: The bench's name as the holder of the shards while the workers start.
+GATE = "bench-gate:0:scaling"
+#: The drain is timed until this share of the events is stored: before any shard runs dry.
+WINDOW_END = 0.85
 console = Console()
 
 
@@ -162,33 +167,34 @@ def raw_rates(admin_url: str, events: int, processes: int) -> dict[str, float]:
 
 
 class Probe:
-    """What the bench watches while workers run: the store's count and leases, the shards' queues."""
+    """What the bench watches while workers run: the store's count and its shard leases."""
 
     def __init__(self, settings: Settings) -> None:
         self._loop = asyncio.new_event_loop()
         self._store: Store = open_store(settings)
         self._loop.run_until_complete(self._store.open())
-        self._shards = settings.ingest_shards
-        assert settings.amqp_url is not None
-        self._connection = pika.BlockingConnection(pika.URLParameters(settings.amqp_url))
-        self._channel = self._connection.channel()
 
     def stored(self) -> int:
         return self._loop.run_until_complete(self._store.count_events())
 
-    def holders(self) -> Counter[str]:
+    def holders(self, prefix: str = SHARD_PREFIX) -> Counter[str]:
         now = datetime.now(timezone.utc)
-        leases = self._loop.run_until_complete(self._store.leases(SHARD_PREFIX))
+        leases = self._loop.run_until_complete(self._store.leases(prefix))
         return Counter(lease.holder for lease in leases if lease.live(now))
 
-    def ready(self) -> list[int]:
-        return [
-            self._channel.queue_declare(ingest_shard_queue(shard), passive=True).method.message_count
-            for shard in range(self._shards)
-        ]
+    def close_gate(self, shards: int) -> None:
+        """Hold every shard's lease as the bench, so starting workers wait for one another."""
+        now = datetime.now(timezone.utc)
+        for shard in range(shards):
+            done = self._store.acquire_lease(shard_lease(shard), GATE, now + timedelta(minutes=5), now)
+            assert self._loop.run_until_complete(done)
+
+    def open_gate(self, shards: int) -> None:
+        """Let every shard go at once: the waiting workers each take their share at their next beat."""
+        for shard in range(shards):
+            self._loop.run_until_complete(self._store.release_lease(shard_lease(shard), GATE))
 
     def close(self) -> None:
-        self._connection.close()
         self._loop.run_until_complete(self._store.close())
         self._loop.close()
 
@@ -299,17 +305,21 @@ def drain(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, worker
         total = options.events // options.robots * options.robots
         probe = Probe(team.settings)
         try:
+            # started together, else the first worker up would drain most of the backlog alone
+            probe.close_gate(options.shards)
             with worker_processes(team, workers) as processes:
                 pids = [p.pid for p in processes]
+                wait_until(lambda: len(probe.holders(WORKER_PREFIX)) == workers, 120, "every worker up")
+                probe.open_gate(options.shards)
                 wait_until(lambda: balanced(probe, options.shards, workers), 120, "share for every worker")
                 started, first = time.monotonic(), probe.stored()
                 cpu = {pid: cpu_seconds(pid) for pid in pids}
                 broker = cpu_seconds(team.broker_pid) if team.broker_pid else 0.0
-                if first >= total * 0.9:
+                if first >= total * WINDOW_END / 2:
                     raise RuntimeError(
                         f"{first} of {total} stored before the shares were even: use more --events"
                     )
-                ended = wait_until(lambda: min(probe.ready()) == 0, 600, "shard run dry")
+                ended = wait_until(lambda: probe.stored() >= total * WINDOW_END, 600, "most events stored")
                 last = probe.stored()
                 window = ended - started
                 worker_cpu = sum(cpu_seconds(pid) - cpu[pid] for pid in pids)
