@@ -267,29 +267,51 @@ def fleet(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options) -> Ite
             api.delete_vhost(VHOST)
 
 
+@dataclass
+class Workers:
+    processes: list[subprocess.Popen[bytes]]
+    log: Path
+
+    @property
+    def pids(self) -> list[int]:
+        return [process.pid for process in self.processes]
+
+    def check(self) -> None:
+        """Raise, with the end of their log, when a worker has ended."""
+        ended = [process.returncode for process in self.processes if process.poll() is not None]
+        if ended:
+            tail = "\n".join(self.log.read_text(errors="replace").splitlines()[-30:])
+            raise RuntimeError(f"a worker ended (exit {ended}); its log ends:\n{tail}")
+
+
 @contextmanager
-def worker_processes(fleet_: Fleet, count: int) -> Iterator[list[subprocess.Popen[bytes]]]:
-    log = open(fleet_.settings.data_dir / f"workers-{count}.log", "ab")
+def worker_processes(fleet_: Fleet, count: int) -> Iterator[Workers]:
+    path = fleet_.settings.data_dir / f"workers-{count}.log"
     command = [sys.executable, "-m", "fleetbus", "worker", "--no-recorder"]
-    workers = [
-        subprocess.Popen(command, env=fleet_.env(), stdout=log, stderr=subprocess.STDOUT)
-        for _ in range(count)
-    ]
-    try:
-        yield workers
-    finally:
-        for worker in workers:
-            worker.terminate()
-        for worker in workers:
-            worker.wait(60)
-        log.close()
+    with open(path, "ab") as log:
+        workers = Workers(
+            [
+                subprocess.Popen(command, env=fleet_.env(), stdout=log, stderr=subprocess.STDOUT)
+                for _ in range(count)
+            ],
+            path,
+        )
+        try:
+            yield workers
+        finally:
+            for worker in workers.processes:
+                worker.terminate()
+            for worker in workers.processes:
+                worker.wait(60)
 
 
-def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> float:
+def wait_until(condition: Callable[[], bool], timeout: float, what: str, workers: Workers) -> float:
     deadline = time.monotonic() + timeout
     while not condition():
+        workers.check()
         if time.monotonic() > deadline:
-            raise TimeoutError(f"no {what} within {timeout:.0f} s")
+            tail = "\n".join(workers.log.read_text(errors="replace").splitlines()[-30:])
+            raise TimeoutError(f"no {what} within {timeout:.0f} s; the workers' log ends:\n{tail}")
         time.sleep(POLL_SECONDS)
     return time.monotonic()
 
@@ -307,11 +329,15 @@ def drain(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, worker
         try:
             # started together, else the first worker up would drain most of the backlog alone
             probe.close_gate(options.shards)
-            with worker_processes(team, workers) as processes:
-                pids = [p.pid for p in processes]
-                wait_until(lambda: len(probe.holders(WORKER_PREFIX)) == workers, 120, "every worker up")
+            with worker_processes(team, workers) as group:
+                pids = group.pids
+                wait_until(
+                    lambda: len(probe.holders(WORKER_PREFIX)) == workers, 120, "every worker up", group
+                )
                 probe.open_gate(options.shards)
-                wait_until(lambda: balanced(probe, options.shards, workers), 120, "share for every worker")
+                wait_until(
+                    lambda: balanced(probe, options.shards, workers), 120, "share for every worker", group
+                )
                 started, first = time.monotonic(), probe.stored()
                 cpu = {pid: cpu_seconds(pid) for pid in pids}
                 broker = cpu_seconds(team.broker_pid) if team.broker_pid else 0.0
@@ -319,12 +345,12 @@ def drain(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, worker
                     raise RuntimeError(
                         f"{first} of {total} stored before the shares were even: use more --events"
                     )
-                ended = wait_until(lambda: probe.stored() >= total * WINDOW_END, 600, "most events stored")
+                ended = wait_until(lambda: probe.stored() >= total * WINDOW_END, 600, "most stored", group)
                 last = probe.stored()
                 window = ended - started
                 worker_cpu = sum(cpu_seconds(pid) - cpu[pid] for pid in pids)
                 broker_cpu = cpu_seconds(team.broker_pid) - broker if team.broker_pid else float("nan")
-                wait_until(lambda: probe.stored() >= total, 600, "every event stored")
+                wait_until(lambda: probe.stored() >= total, 600, "every event stored", group)
             stored = probe.stored()
         finally:
             probe.close()
@@ -342,10 +368,12 @@ def ingest(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, worke
         total = options.events // options.robots * options.robots
         probe = Probe(team.settings)
         try:
-            with worker_processes(team, workers):
-                wait_until(lambda: balanced(probe, options.shards, workers), 120, "share for every worker")
+            with worker_processes(team, workers) as group:
+                wait_until(
+                    lambda: balanced(probe, options.shards, workers), 120, "share for every worker", group
+                )
                 started = team.publish_all(options.events)
-                wait_until(lambda: probe.stored() >= total, 600, "every event stored")
+                wait_until(lambda: probe.stored() >= total, 600, "every event stored", group)
                 elapsed = time.perf_counter() - started
             stored = probe.stored()
         finally:

@@ -8,9 +8,12 @@ checks against the connection's login.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import re
 import secrets
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote, unquote, urlsplit, urlunsplit
@@ -143,15 +146,29 @@ def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, na
     """A service account whose password lives in ``credentials_dir`` (mode 0600); its URL.
 
     The password is re-keyed when that file is missing, so a fresh data directory never needs
-    the old secret.
+    the old secret. Processes starting at once (several workers) take turns: the first re-keys,
+    the others read what it saved, so none is left holding a password that was just replaced.
     """
     secret_file = credentials_dir / f"{name}.password"
-    password = secret_file.read_text().strip() if secret_file.exists() else None
-    if password is None or not can_login(url_for(admin_url, name, password)):
-        password = secrets.token_urlsafe(24)
-        api.put_user(name, password, ROLE_TAGS[role])
-        save_secret(secret_file, password)
+    with _exclusive(credentials_dir / f".{name}.lock"):
+        password = secret_file.read_text().strip() if secret_file.exists() else None
+        if password is None or not can_login(url_for(admin_url, name, password)):
+            password = secrets.token_urlsafe(24)
+            api.put_user(name, password, ROLE_TAGS[role])
+            save_secret(secret_file, password)
     return url_for(admin_url, name, password)
+
+
+@contextlib.contextmanager
+def _exclusive(lock_file: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on ``lock_file`` (waited for), between processes of this machine."""
+    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
 
 
 def ensure_service_account(admin_url: str, api: ManagementAPI, credentials_dir: Path) -> str:

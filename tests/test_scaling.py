@@ -38,11 +38,13 @@ def worker_processes(bus: Bus, count: int) -> Iterator[list[subprocess.Popen[byt
     workers = [bus.spawn_worker("--no-recorder") for _ in range(count)]
     try:
         expected = sorted(share(SHARDS, [str(n) for n in range(count)], str(n)) for n in range(count))
-        wait_for(
-            lambda: sorted(shard_holders(bus).values()) == expected,
-            timeout=90,
-            what=f"{expected} shards each",
-        )
+
+        def shares_taken() -> bool:
+            ended = [worker.returncode for worker in workers if worker.poll() is not None]
+            assert not ended, f"a worker started at the same time as others ended: exit {ended}"
+            return sorted(shard_holders(bus).values()) == expected
+
+        wait_for(shares_taken, timeout=90, what=f"{expected} shards each")
         yield workers
     finally:
         for worker in workers:
