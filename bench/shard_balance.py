@@ -61,7 +61,7 @@ def ensure_plugin(endpoint: BrokerEndpoint, url: str) -> None:
         try:
             connection.channel().exchange_declare(EXCHANGE, "x-consistent-hash", durable=False)
             return
-        except pika.exceptions.ChannelClosedByBroker as error:
+        except (pika.exceptions.ChannelClosedByBroker, pika.exceptions.ConnectionClosedByBroker) as error:
             if attempt == 2 or endpoint.kind != "private":
                 raise SystemExit(
                     f"the broker has no consistent-hash exchange ({error}); enable {PLUGIN}"
