@@ -17,6 +17,8 @@ Each run, in a fresh virtual host and data folder:
                    the broker's CPU in that window
   ingest, W workers W workers run; the robots (threads of this process) publish the events with
                    pipelined confirms; from the first publish until the store holds them all
+  takeover         two workers share the shards; one is stopped (SIGTERM), or killed (SIGKILL):
+                   seconds until the other holds every shard
 
 Every scenario checks that the store ends with exactly --events events (none lost, none doubled).
 
@@ -383,6 +385,32 @@ def ingest(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, worke
     return {f"ingest_{workers}w": total / elapsed}
 
 
+def takeover(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options) -> dict[str, float]:
+    """Two workers share the shards; one stops (SIGTERM), or is killed (SIGKILL): seconds until the
+    other consumes every shard."""
+    result = {}
+    with fleet(endpoint, api, options) as team:
+        probe = Probe(team.settings)
+        try:
+            for how, end in (("sigterm", subprocess.Popen.terminate), ("sigkill", subprocess.Popen.kill)):
+                with worker_processes(team, 2) as group:
+                    wait_until(
+                        lambda: balanced(probe, options.shards, 2), 120, "share for both workers", group
+                    )
+                    gone, survivor = group.processes
+                    started = time.monotonic()
+                    end(gone)
+                    gone.wait(60)
+                    alone = Workers([survivor], group.log)
+                    done = wait_until(
+                        lambda: balanced(probe, options.shards, 1), 60, "every shard taken over", alone
+                    )
+                    result[f"takeover_{how}_s"] = done - started
+        finally:
+            probe.close()
+    return result
+
+
 def one_run(
     endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, step: Callable[[str], None]
 ) -> dict[str, float]:
@@ -396,6 +424,9 @@ def one_run(
     for workers in options.workers:
         step(f"ingest, {workers} workers")
         result.update(ingest(endpoint, api, options, workers))
+    step("takeover")
+    result.update(takeover(endpoint, api, options))
+    result["load_average"] = os.getloadavg()[1]  # the machine's load over the last 5 minutes
     return result
 
 
@@ -431,7 +462,7 @@ def run(
         "cores": os.cpu_count(),
         "runs": results,
         "medians": medians(results),
-        "spreads": {key: spread(results, key) for key in keys},
+        "spreads": {key: spread(results, key, digits=1 if key.endswith("_s") else 0) for key in keys},
     }
 
 
@@ -481,7 +512,7 @@ def main() -> None:
     mongodb_url = load_settings().mongodb_url if args.mongodb else None
     if args.mongodb and not mongodb_url:
         parser.error("--mongodb needs FLEETBUS_MONGODB_URL")
-    steps = args.runs * (1 + 2 * len(args.workers))
+    steps = args.runs * (2 + 2 * len(args.workers))
     with Progress(console=console) as progress:
         task = progress.add_task("scaling", total=steps)
         begun = 0
@@ -494,6 +525,14 @@ def main() -> None:
         result = run(args.events, args.robots, args.shards, args.workers, args.runs, mongodb_url, step)
         progress.update(task, completed=steps)
     console.print(table(result))
+    loads = [round(run["load_average"], 1) for run in result["runs"]]
+    console.print(f"the machine's load average (5 min) at the end of each run: {loads}")
+    for how, signal_name in (("sigterm", "stopped (SIGTERM)"), ("sigkill", "killed (SIGKILL)")):
+        key = f"takeover_{how}_s"
+        console.print(
+            f"a worker {signal_name}: the other holds every shard after {result['medians'][key]:.1f} s "
+            f"(spread {result['spreads'][key]} s)"
+        )
     console.print(f"wrote {save(args.out, 'scaling', result)}")
 
 

@@ -24,7 +24,7 @@ def configure_logging(verbose: bool) -> None:
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-    for noisy in ("aiormq", "aio_pika", "httpx"):
+    for noisy in ("aiormq", "aio_pika", "httpx", "pika"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
