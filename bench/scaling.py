@@ -46,13 +46,11 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
-import aio_pika
-import pika
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.ingest import event_size, status_items
+from bench.ingest import event_size, raw_consume, raw_publish, status_items
 from bench.recorder import cpu_seconds
 from bench.results import medians, save, spread
 from broker.accounts import Account, Role, fresh_vhost, provision_account
@@ -62,7 +60,6 @@ from broker.management import ManagementAPI
 from broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from fleetbus.config import Settings, load_settings
 from publishers.client import RobotClient
-from publishers.confirms import Outgoing, PipelinedConfirms
 from workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
 from workers.store import Store, open_store
 
@@ -92,50 +89,14 @@ def raw_queue(n: int) -> str:
     return f"bench.raw.{n}"
 
 
-def raw_publish(url: str, queue: str, count: int, size: int) -> float:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
-    confirms = PipelinedConfirms(connection, connection.channel(), timeout=60)
-    properties = pika.BasicProperties(delivery_mode=2)
-    body = b"x" * size
-    started = time.perf_counter()
-    for start in range(0, count, 1000):
-        window = [Outgoing("", queue, body, properties) for _ in range(min(1000, count - start))]
-        confirms.publish(window, 60)
-    elapsed = time.perf_counter() - started
-    connection.close()
-    return count / elapsed
-
-
-async def consume(url: str, queue: str, count: int) -> tuple[float, float]:
-    """Consume ``count`` messages with manual acks; (start, end) in wall-clock seconds."""
-    connection = await aio_pika.connect(url)
-    async with connection:
-        channel = await connection.channel()
-        await channel.set_qos(prefetch_count=512)
-        source = await channel.get_queue(queue, ensure=False)
-        done = asyncio.Event()
-        seen = 0
-
-        async def on_message(message: aio_pika.abc.AbstractIncomingMessage) -> None:
-            nonlocal seen
-            await message.ack()
-            seen += 1
-            if seen == count:
-                done.set()
-
-        started = time.time()
-        await source.consume(on_message)
-        await asyncio.wait_for(done.wait(), 600)
-        return started, time.time()
-
-
 def _consume_process(url: str, queue: str, count: int, ready: Any, results: Any) -> None:
-    ready.wait()  # every process connected and imported: they start together
-    results.put(asyncio.run(consume(url, queue, count)))
+    ready.wait()  # every process started and imported: they begin together
+    results.put(asyncio.run(raw_consume(url, count, queue)))
 
 
 def parallel_consume(url: str, count: int, processes: int) -> float:
-    """``processes`` consumers at once, each on its own queue of count / processes messages."""
+    """``processes`` consumers at once, each on its own queue of count / processes messages; the
+    rate of all together (they begin at once, so the slowest one's time is the whole's)."""
     context = multiprocessing.get_context("spawn")
     ready, results = context.Barrier(processes), context.Queue()
     each = count // processes
@@ -145,22 +106,21 @@ def parallel_consume(url: str, count: int, processes: int) -> float:
     ]
     for worker in workers:
         worker.start()
-    spans = [results.get(timeout=600) for _ in workers]
+    rates = [results.get(timeout=600) for _ in workers]
     for worker in workers:
         worker.join(60)
-    return each * processes / (max(end for _, end in spans) - min(start for start, _ in spans))
+    return each * processes / max(each / rate for rate in rates)
 
 
 def raw_rates(admin_url: str, events: int, processes: int) -> dict[str, float]:
     queues = tuple(QueueSpec(raw_queue(n), INGEST_QUEUE_ARGUMENTS) for n in range(max(processes, 1)))
     asyncio.run(declare_with_url(admin_url, [Topology(queues=queues)]))
     size = event_size()
-    result = {"raw_publish": raw_publish(admin_url, raw_queue(0), events, size)}
-    start, end = asyncio.run(consume(admin_url, raw_queue(0), events))
-    result["raw_consume"] = events / (end - start)
+    result = {"raw_publish": raw_publish(admin_url, events, size, raw_queue(0))}
+    result["raw_consume"] = asyncio.run(raw_consume(admin_url, events, raw_queue(0)))
     if processes > 1:
         for n in range(processes):
-            raw_publish(admin_url, raw_queue(n), events // processes, size)
+            raw_publish(admin_url, events // processes, size, raw_queue(n))
         result[f"raw_consume_x{processes}"] = parallel_consume(admin_url, events, processes)
     return result
 
