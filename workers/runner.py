@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,7 +28,7 @@ from schemas.routing import (
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
 from workers.coordination import HazardCoordinator
-from workers.ingest import IngestConsumer, IngestStats
+from workers.ingest import BROKER_ERRORS, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
 from workers.missions import MissionStamp
 from workers.mutex import LocalMutex, Mutex, StoreMutex
@@ -71,7 +72,8 @@ class ShardConsumer:
         await self.consumer.stop()
         await asyncio.gather(self.task, return_exceptions=True)
         # what was received but not acked (the store down at SIGTERM) goes back to the queue
-        await self.channel.close()
+        with contextlib.suppress(*BROKER_ERRORS):
+            await self.channel.close()
 
 
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:

@@ -113,6 +113,8 @@ class ShardPool:
             except StoreUnavailable as error:
                 # keep consuming what is held: the single active consumer still guards each shard
                 log.warning("shard leases not renewed: %s", error)
+            except Exception:  # a broker error starting a shard, say: the next beat tries again
+                log.exception("sharing the shards failed this time")
 
     async def tick(self) -> None:
         now = datetime.now(timezone.utc)
@@ -152,7 +154,12 @@ class ShardPool:
             return
         if replacing:
             log.info("taking shard %d over from %s, which is no longer running", shard, replacing)
-        running = await self._start_shard(shard)
+        try:
+            running = await self._start_shard(shard)
+        except BaseException:
+            with contextlib.suppress(StoreUnavailable):
+                await self._store.release_lease(shard_lease(shard), self.holder)
+            raise
         self.held[shard] = running
         running.done.add_done_callback(lambda done, shard=shard: self._ended(shard, done))
 
