@@ -10,6 +10,7 @@ import sys
 import threading
 import time
 import uuid
+from collections import Counter
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -191,6 +192,12 @@ class Bus:
 
     def count(self, type: str | None = None, robot_id: str | None = None) -> int:
         return self.with_store(lambda store: store.count_events(type, robot_id))
+
+    def shard_holders(self) -> Counter[str]:
+        """How many ingest shards each worker holds an unexpired lease on, by worker."""
+        leases = self.with_store(lambda store: store.leases("shard:"))
+        now = time.time()
+        return Counter(lease.holder for lease in leases if lease.expires_at.timestamp() > now)
 
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""

@@ -27,7 +27,6 @@ from tests.factories import hazard, status
 from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
 from workers.shards import share
 from workers.store.hazards import HazardState
-from workers.store.leases import Lease
 
 SHARDS = 4
 
@@ -42,7 +41,7 @@ def worker_processes(bus: Bus, count: int) -> Iterator[list[subprocess.Popen[byt
         def shares_taken() -> bool:
             ended = [worker.returncode for worker in workers if worker.poll() is not None]
             assert not ended, f"a worker started at the same time as others ended: exit {ended}"
-            return sorted(shard_holders(bus).values()) == expected
+            return sorted(bus.shard_holders().values()) == expected
 
         wait_for(shares_taken, timeout=90, what=f"{expected} shards each")
         yield workers
@@ -52,12 +51,6 @@ def worker_processes(bus: Bus, count: int) -> Iterator[list[subprocess.Popen[byt
                 worker.terminate()
         for worker in workers:
             assert worker.wait(60) in (0, -9), "SIGTERM stops a worker cleanly"
-
-
-def shard_holders(bus: Bus) -> Counter[str]:
-    leases: list[Lease] = bus.with_store(lambda store: store.leases("shard:"))
-    now = time.time()
-    return Counter(lease.holder for lease in leases if lease.expires_at.timestamp() > now)
 
 
 def hazard_states(bus: Bus) -> Counter[HazardState]:
@@ -232,7 +225,7 @@ def test_a_worker_killed_while_others_run_loses_and_doubles_nothing(bus: Bus) ->
         victim.kill()
         killed_at = time.monotonic()
         assert victim.wait(10) == -9
-        wait_for(lambda: len(shard_holders(bus)) == 1, timeout=30, what="the survivor holding every shard")
+        wait_for(lambda: len(bus.shard_holders()) == 1, timeout=30, what="the survivor holding every shard")
         takeover = time.monotonic() - killed_at
         time.sleep(1)  # the robots' publishing rate: a second more of events after the takeover
         sent = [stream.stop() for stream in streams]
