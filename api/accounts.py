@@ -55,8 +55,11 @@ class Login:
 
 
 class Accounts:
-    def __init__(self, store: Store, secrets_: Secrets, management: ManagementAPI, admin_url: str) -> None:
+    def __init__(
+        self, store: Store, secrets_: Secrets, management: ManagementAPI, admin_url: str, shards: int = 1
+    ) -> None:
         self._store = store
+        self._shards = shards
         self._secrets = secrets_
         self._management = management
         self._admin_url = admin_url
@@ -72,7 +75,14 @@ class Accounts:
             else:
                 robot_kind = RobotKind(kind) if kind else None
                 asyncio.run(
-                    configure_account(self._admin_url, self._management, name, broker_role(role), robot_kind)
+                    configure_account(
+                        self._admin_url,
+                        self._management,
+                        name,
+                        broker_role(role),
+                        robot_kind,
+                        shards=self._shards,
+                    )
                 )
 
         try:

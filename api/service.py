@@ -52,7 +52,7 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
             settings=settings,
             store=store,
             secrets=secrets_,
-            accounts=Accounts(store, secrets_, management, admin_url),
+            accounts=Accounts(store, secrets_, management, admin_url, settings.ingest_shards),
             missions=missions,
             channels=Channels(store, management, vhost_of(admin_url), missions),
             recording=recording,

@@ -52,27 +52,25 @@ def event_size() -> int:
     return len(encode_event(build_event(event_type, "bench-ingest", 0, body)))
 
 
-def raw_publish(url: str, count: int, size: int) -> float:
+def raw_publish(url: str, count: int, size: int, queue: str = RAW_QUEUE) -> float:
     connection = pika.BlockingConnection(pika.URLParameters(url))
     confirms = PipelinedConfirms(connection, connection.channel(), timeout=60)
     properties = pika.BasicProperties(delivery_mode=2)
     body = b"x" * size
     started = time.perf_counter()
     for start in range(0, count, 1000):
-        confirms.publish(
-            [Outgoing("", RAW_QUEUE, body, properties) for _ in range(min(1000, count - start))], 60
-        )
+        confirms.publish([Outgoing("", queue, body, properties) for _ in range(min(1000, count - start))], 60)
     elapsed = time.perf_counter() - started
     connection.close()
     return count / elapsed
 
 
-async def raw_consume(url: str, count: int) -> float:
+async def raw_consume(url: str, count: int, queue_name: str = RAW_QUEUE) -> float:
     connection = await aio_pika.connect(url)
     async with connection:
         channel = await connection.channel()
         await channel.set_qos(prefetch_count=512)
-        queue = await channel.get_queue(RAW_QUEUE, ensure=False)
+        queue = await channel.get_queue(queue_name, ensure=False)
         done = asyncio.Event()
         seen = 0
 

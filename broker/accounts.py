@@ -8,9 +8,12 @@ checks against the connection's login.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import re
 import secrets
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote, unquote, urlsplit, urlunsplit
@@ -20,6 +23,7 @@ import pika.exceptions
 
 from broker.account_roles import ROLE_TAGS, Role
 from broker.management import ManagementAPI
+from broker.shards import assign_shard, unassign_shard
 from broker.topology import account_topology, core_topology, declare_with_url
 from schemas.identity import validate_name
 from schemas.routing import (
@@ -93,8 +97,10 @@ async def provision_account(
     kind: RobotKind | None = None,
     *,
     rotate: bool = False,
+    shards: int = 1,
 ) -> Account:
-    """Create (or with ``rotate``, re-key) an account with its exchange, inbox and permissions."""
+    """Create (or with ``rotate``, re-key) an account with its exchange, inbox and permissions;
+    a robot is bound to one of the ``shards`` ingest shards (``FLEETBUS_INGEST_SHARDS``)."""
     validate_name(name)
     if role is not Role.ROBOT and kind is not None:
         raise ValueError("--kind applies to robots only")
@@ -102,14 +108,21 @@ async def provision_account(
         raise AccountExists(f"user {name!r} exists; use --rotate to give it a new password")
     password = secrets.token_urlsafe(24)
     api.put_user(name, password, ROLE_TAGS[role])
-    await configure_account(admin_url, api, name, role, kind)
+    await configure_account(admin_url, api, name, role, kind, shards=shards)
     return Account(name, role, url_for(admin_url, name, password))
 
 
 async def configure_account(
-    admin_url: str, api: ManagementAPI, name: str, role: Role, kind: RobotKind | None = None
+    admin_url: str,
+    api: ManagementAPI,
+    name: str,
+    role: Role,
+    kind: RobotKind | None = None,
+    *,
+    shards: int = 1,
 ) -> None:
-    """Grant an existing account its confined permissions and declare what it owns (idempotent)."""
+    """Grant an existing account its confined permissions and declare what it owns (idempotent);
+    a robot keeps its ingest shard, or gets the least loaded of ``shards``."""
     validate_name(name)
     vhost = vhost_of(admin_url)
     api.put_user_tags(name, ROLE_TAGS[role])
@@ -117,7 +130,9 @@ async def configure_account(
     pattern = owner_pattern(name).replace(name, "{username}")
     for exchange in (events_exchange(name), requests_exchange(name)):
         api.put_topic_permissions(vhost, name, exchange, write=pattern, read=pattern)
-    await declare_with_url(admin_url, [core_topology(), account_topology(name, role, kind=kind)])
+    await declare_with_url(admin_url, [core_topology(shards), account_topology(name, role, kind=kind)])
+    if role is Role.ROBOT:
+        assign_shard(api, vhost, name, shards)
 
 
 def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:
@@ -131,15 +146,29 @@ def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, na
     """A service account whose password lives in ``credentials_dir`` (mode 0600); its URL.
 
     The password is re-keyed when that file is missing, so a fresh data directory never needs
-    the old secret.
+    the old secret. Processes starting at once (several workers) take turns: the first re-keys,
+    the others read what it saved, so none is left holding a password that was just replaced.
     """
     secret_file = credentials_dir / f"{name}.password"
-    password = secret_file.read_text().strip() if secret_file.exists() else None
-    if password is None or not can_login(url_for(admin_url, name, password)):
-        password = secrets.token_urlsafe(24)
-        api.put_user(name, password, ROLE_TAGS[role])
-        save_secret(secret_file, password)
+    with _exclusive(credentials_dir / f".{name}.lock"):
+        password = secret_file.read_text().strip() if secret_file.exists() else None
+        if password is None or not can_login(url_for(admin_url, name, password)):
+            password = secrets.token_urlsafe(24)
+            api.put_user(name, password, ROLE_TAGS[role])
+            save_secret(secret_file, password)
     return url_for(admin_url, name, password)
+
+
+@contextlib.contextmanager
+def _exclusive(lock_file: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on ``lock_file`` (waited for), between processes of this machine."""
+    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
 
 
 def ensure_service_account(admin_url: str, api: ManagementAPI, credentials_dir: Path) -> str:
@@ -181,6 +210,7 @@ def save_secret(path: Path, secret: str) -> None:
 
 
 def delete_account(admin_url: str, api: ManagementAPI, name: str) -> None:
-    """Remove the account; its exchange and inbox go with a later ``users remove --purge``."""
+    """Remove the account and its ingest shard binding; its exchange and inbox stay."""
     validate_name(name)
     api.delete_user(name)
+    unassign_shard(api, vhost_of(admin_url), name)

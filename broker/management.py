@@ -137,6 +137,20 @@ class ManagementAPI:
     def list_bindings(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"bindings/{_q(vhost)}")
 
+    def exchange_bindings(self, vhost: str, exchange: str, side: str = "source") -> list[dict[str, Any]]:
+        """The bindings whose ``side`` (source or destination) is ``exchange``; none if it does not exist."""
+        response = self._client.get(f"exchanges/{_q(vhost)}/{_q(exchange)}/bindings/{side}")
+        if response.status_code == 404:
+            return []
+        if response.status_code >= 400:
+            raise ManagementError(
+                f"GET bindings of {exchange} -> {response.status_code}: {response.text.strip()}"
+            )
+        return response.json()
+
+    def list_queues(self, vhost: str) -> list[dict[str, Any]]:
+        return self._request("GET", f"queues/{_q(vhost)}")
+
     def get_queue(self, vhost: str, name: str) -> dict[str, Any]:
         return self._request("GET", f"queues/{_q(vhost)}/{_q(name)}")
 

@@ -3,7 +3,8 @@
 Built from the management API (:meth:`RouteMap.from_management`), then asked without the
 broker: :meth:`RouteMap.routes` follows exchange-to-exchange bindings the way RabbitMQ does
 (direct: equal keys; topic: patterns; fanout: everything; the default exchange: the queue
-named by the key) and names the consumers each queue has.
+named by the key; an exchange that routes nowhere: its alternate exchange) and names the
+consumers each queue has.
 """
 
 from __future__ import annotations
@@ -44,8 +45,10 @@ class RouteMap:
         exchange_types: Mapping[str, str],
         bindings: Iterable[Binding],
         consumers: Mapping[str, Iterable[Consumer]],
+        alternates: Mapping[str, str] | None = None,
     ) -> None:
         self._types = dict(exchange_types)
+        self._alternates = dict(alternates or {})
         self._bindings: dict[str, list[Binding]] = {}
         for binding in bindings:
             self._bindings.setdefault(binding.source, []).append(binding)
@@ -53,7 +56,13 @@ class RouteMap:
 
     @classmethod
     def from_management(cls, api: ManagementAPI, vhost: str) -> RouteMap:
-        exchanges = {e["name"]: e["type"] for e in api.list_exchanges(vhost)}
+        listed = api.list_exchanges(vhost)
+        exchanges = {e["name"]: e["type"] for e in listed}
+        alternates = {
+            e["name"]: e["arguments"]["alternate-exchange"]
+            for e in listed
+            if (e.get("arguments") or {}).get("alternate-exchange")
+        }
         bindings = [
             Binding(b["source"], b["destination"], b["destination_type"] == "exchange", b["routing_key"])
             for b in api.list_bindings(vhost)
@@ -65,7 +74,7 @@ class RouteMap:
             consumers.setdefault(consumer["queue"]["name"], []).append(
                 Consumer(details.get("user", "?"), details.get("connection_name", "?"))
             )
-        return cls(exchanges, bindings, consumers)
+        return cls(exchanges, bindings, consumers, alternates)
 
     def keys_into(self, queue: str, source: str) -> list[str]:
         """The binding keys by which ``source`` feeds ``queue`` (an inbox's subscriptions)."""
@@ -97,9 +106,11 @@ class RouteMap:
             if current in visited:
                 continue
             visited.add(current)
-            for binding in self._bindings.get(current, []):
-                if not self._matches(current, binding, routing_key):
-                    continue
+            matched = [b for b in self._bindings.get(current, []) if self._matches(current, b, routing_key)]
+            alternate = self._alternates.get(current)
+            if not matched and alternate:
+                pending.append((alternate, (*via, alternate)))
+            for binding in matched:
                 if binding.to_exchange:
                     pending.append((binding.destination, (*via, binding.destination)))
                 elif binding.destination not in found:

@@ -31,13 +31,16 @@ from schemas.routing import (
     RECORDER_QUEUE,
     RPC_EXCHANGE,
     RPC_QUEUE,
+    SHARD_EXCHANGE,
     SUBSCRIPTIONS,
+    UNASSIGNED_EXCHANGE,
     RobotKind,
     beacon_exchange,
     commands_exchange,
     commands_queue,
     events_exchange,
     inbox_queue,
+    ingest_shard_queue,
     notification_routing_key,
     requests_exchange,
     stream_queue,
@@ -92,12 +95,34 @@ class Topology:
     exchanges: Sequence[ExchangeSpec] = ()
     queues: Sequence[QueueSpec] = ()
     bindings: Sequence[BindingSpec] = ()
+    obsolete: Sequence[BindingSpec] = ()
+    """Bindings an older version made, removed once the others are in place."""
 
 
-def core_topology() -> Topology:
+#: The arguments of every ingest shard's queue (shard 0 is the ingest queue of a single worker).
+INGEST_QUEUE_ARGUMENTS: dict[str, Any] = {
+    "x-queue-type": "quorum",
+    # One active consumer at a time keeps per-robot order, whichever worker holds the shard.
+    "x-single-active-consumer": True,
+    "x-delivery-limit": INGEST_DELIVERY_LIMIT,
+    "x-dead-letter-exchange": DEAD_LETTER_EXCHANGE,
+}
+
+
+def core_topology(shards: int = 1) -> Topology:
+    """The service's exchanges and queues, with ``shards`` ingest shard queues.
+
+    Robots' events reach the shards through ``fleetbus.ingest.shards``, where each robot is bound
+    to one shard by its name (:mod:`broker.shards`); a message no robot binding matches goes to
+    shard 0 by the alternate exchange, so nothing is ever routed to no shard.
+    """
+    if shards < 1:
+        raise ValueError(f"the ingest needs at least one shard, not {shards}")
     return Topology(
         exchanges=(
             ExchangeSpec(INGEST_EXCHANGE, ExchangeType.TOPIC),
+            ExchangeSpec(SHARD_EXCHANGE, ExchangeType.TOPIC, {"alternate-exchange": UNASSIGNED_EXCHANGE}),
+            ExchangeSpec(UNASSIGNED_EXCHANGE, ExchangeType.FANOUT),
             ExchangeSpec(NOTIFY_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(RPC_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),
@@ -105,16 +130,7 @@ def core_topology() -> Topology:
             ExchangeSpec(BEACON_DISCARD_EXCHANGE, ExchangeType.FANOUT),
         ),
         queues=(
-            QueueSpec(
-                INGEST_QUEUE,
-                {
-                    "x-queue-type": "quorum",
-                    # One active consumer at a time keeps per-robot order with standby workers.
-                    "x-single-active-consumer": True,
-                    "x-delivery-limit": INGEST_DELIVERY_LIMIT,
-                    "x-dead-letter-exchange": DEAD_LETTER_EXCHANGE,
-                },
-            ),
+            *(QueueSpec(ingest_shard_queue(shard), INGEST_QUEUE_ARGUMENTS) for shard in range(shards)),
             # Classic, not quorum: listing it (`fleetbus dlq`) gets and requeues messages, and a
             # quorum queue would count each listing as a delivery.
             QueueSpec(DEAD_LETTER_QUEUE, {"x-queue-type": "classic"}),
@@ -124,12 +140,15 @@ def core_topology() -> Topology:
             QueueSpec(BEACON_DISCARD_QUEUE, {"x-queue-type": "classic"}),
         ),
         bindings=(
-            BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),
+            BindingSpec(INGEST_EXCHANGE, SHARD_EXCHANGE, "#", to_exchange=True),
+            BindingSpec(UNASSIGNED_EXCHANGE, INGEST_QUEUE, ""),
             BindingSpec(RPC_EXCHANGE, RPC_QUEUE, "#"),
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
             BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
         ),
+        # before shards, the ingest queue was bound to the ingest exchange directly
+        obsolete=(BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),),
     )
 
 
@@ -225,6 +244,11 @@ async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> N
             else:
                 queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
                 await queue.bind(source, routing_key=binding.routing_key, arguments=binding.arguments or None)
+    # removed only now: the new path carries every message before the old one is taken away
+    for topology in topologies:
+        for binding in topology.obsolete:
+            queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
+            await queue.unbind(binding.source, routing_key=binding.routing_key)
 
 
 async def declare_with_url(amqp_url: str, topologies: Iterable[Topology]) -> None:

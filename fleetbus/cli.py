@@ -18,6 +18,7 @@ from fleetbus.commands import (
     recorder,
     replay,
     schemas_export,
+    shards,
     stats,
     tail,
     timeline,
@@ -38,6 +39,7 @@ app.add_typer(beacons.app, name="beacons")
 app.add_typer(maps.app, name="map")
 app.add_typer(recorder.app, name="recorder")
 app.add_typer(api.app, name="api")
+app.add_typer(shards.app, name="shards")
 app.command("worker")(worker.worker)
 app.command("publish")(events.publish)
 app.command("query")(events.query)

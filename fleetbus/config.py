@@ -16,6 +16,8 @@ DEFAULT_BATTERY_LOW_PERCENT = 20.0
 DEFAULT_RECORDER_KEEP = "*=1GB"
 DEFAULT_TOKEN_MINUTES = 60.0
 DEFAULT_LATE_AFTER_S = 5.0
+DEFAULT_INGEST_SHARDS = 1
+MAX_INGEST_SHARDS = 64
 
 
 def _words(value: str | None) -> tuple[str, ...]:
@@ -50,6 +52,8 @@ class Settings:
     """How long a login token is valid."""
     late_after_s: float = DEFAULT_LATE_AFTER_S
     """A notification that reaches its robots this long after the event was sent is flagged late."""
+    ingest_shards: int = DEFAULT_INGEST_SHARDS
+    """Ingest shard queues; each robot's events go through one, and the workers share them."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -92,4 +96,19 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         api_secret=env.get("FLEETBUS_API_SECRET") or None,
         token_minutes=float(env.get("FLEETBUS_API_TOKEN_MINUTES") or DEFAULT_TOKEN_MINUTES),
         late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
+        ingest_shards=_shards(env.get("FLEETBUS_INGEST_SHARDS")),
     )
+
+
+def _shards(value: str | None) -> int:
+    if not value:
+        return DEFAULT_INGEST_SHARDS
+    try:
+        shards = int(value)
+    except ValueError:
+        shards = 0
+    if not 1 <= shards <= MAX_INGEST_SHARDS:
+        raise ValueError(
+            f"FLEETBUS_INGEST_SHARDS must be a whole number from 1 to {MAX_INGEST_SHARDS}, not {value!r}"
+        )
+    return shards

@@ -260,7 +260,11 @@ def run_demo(
         admin_url = fresh_vhost(api, endpoint.amqp_url, DEMO_VHOST)
         demo_settings = replace(demo_settings, amqp_url=admin_url, management_url=endpoint.management_url)
         accounts = {
-            name: asyncio.run(provision_account(admin_url, api, name, Role.ROBOT, kind, rotate=True))
+            name: asyncio.run(
+                provision_account(
+                    admin_url, api, name, Role.ROBOT, kind, rotate=True, shards=demo_settings.ingest_shards
+                )
+            )
             for name, kind in TEAM
         }
         for name, kind in TEAM:

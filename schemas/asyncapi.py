@@ -23,10 +23,14 @@ from schemas.routing import (
     DEAD_LETTER_EXCHANGE,
     DEAD_LETTER_QUEUE,
     DETAIL_HEADER,
+    INGEST_EXCHANGE,
+    INGEST_QUEUE,
     NOTIFY_EXCHANGE,
     REASON_HEADER,
     RECORDED_EXCHANGES,
     RECORDER_QUEUE,
+    SHARD_EXCHANGE,
+    UNASSIGNED_EXCHANGE,
     EventType,
     Topic,
 )
@@ -104,6 +108,27 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
                     "message": {"$ref": "#/components/messages/notification"},
                 },
                 "bindings": _exchange(NOTIFY_EXCHANGE, "topic"),
+            },
+            INGEST_QUEUE: {
+                "description": f"The ingest shards the workers consume: {INGEST_QUEUE} (shard 0), "
+                f"{INGEST_QUEUE}.1, .2 ... (FLEETBUS_INGEST_SHARDS). {INGEST_EXCHANGE} feeds the topic "
+                f"exchange {SHARD_EXCHANGE}, where each robot is bound to one shard with the key "
+                "{robot}.# when its account is made, so all of one robot's events (every type) keep "
+                f"their order in one quorum queue with a single active consumer. A message no robot "
+                f"binding matches goes to shard 0 through the alternate exchange {UNASSIGNED_EXCHANGE}. "
+                "Only the service's workers read them; several workers share the shards.",
+                "subscribe": {
+                    "operationId": "ingestEvents",
+                    "message": {
+                        "oneOf": [{"$ref": f"#/components/messages/{t.value}_event"} for t in EventType]
+                    },
+                },
+                "bindings": {
+                    "amqp": {
+                        "is": "queue",
+                        "queue": {"name": INGEST_QUEUE, "durable": True, "exclusive": False},
+                    }
+                },
             },
             RECORDER_QUEUE: {
                 "description": "A copy of every message published to "

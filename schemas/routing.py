@@ -21,7 +21,12 @@ make the broker refuse any key that does not start with the publisher's own name
 The service owns everything that starts with ``fleetbus.``::
 
     fleetbus.ingest         topic exchange; every ``<robot>.events`` is bound into it with ``#``
-    fleetbus.ingest.events  quorum queue the workers consume
+    fleetbus.ingest.shards  topic exchange fed by fleetbus.ingest; each robot's key ``<robot>.#`` is
+                            bound to one ingest shard (made when its account is provisioned)
+    fleetbus.ingest.unassigned  fanout exchange, the alternate exchange of fleetbus.ingest.shards:
+                            whatever no robot binding matches goes to shard 0
+    fleetbus.ingest.events  quorum queue of ingest shard 0 (single active consumer); shards 1, 2...
+                            are fleetbus.ingest.events.1, .2... (``FLEETBUS_INGEST_SHARDS``)
     fleetbus.notify         topic exchange of notifications, keys ``notify.<topic>``
     fleetbus.rpc            topic exchange of service requests; every ``<robot>.requests`` is bound into it
     fleetbus.rpc.requests   queue the service answers from (replies go by direct reply-to)
@@ -42,6 +47,8 @@ from enum import Enum
 SERVICE_PREFIX = "fleetbus"
 INGEST_EXCHANGE = "fleetbus.ingest"
 INGEST_QUEUE = "fleetbus.ingest.events"
+SHARD_EXCHANGE = "fleetbus.ingest.shards"
+UNASSIGNED_EXCHANGE = "fleetbus.ingest.unassigned"
 NOTIFY_EXCHANGE = "fleetbus.notify"
 RPC_EXCHANGE = "fleetbus.rpc"
 RPC_QUEUE = "fleetbus.rpc.requests"
@@ -159,6 +166,28 @@ def split_event_routing_key(routing_key: str) -> tuple[str, str]:
     if not sep or not robot or not type_name:
         raise ValueError(f"routing key {routing_key!r} is not of the form <robot>.<type>")
     return robot, type_name
+
+
+def ingest_shard_queue(shard: int) -> str:
+    """The queue of ingest shard ``shard``; shard 0 keeps the name of the single ingest queue."""
+    if shard < 0:
+        raise ValueError(f"shard numbers start at 0, not {shard}")
+    return INGEST_QUEUE if shard == 0 else f"{INGEST_QUEUE}.{shard}"
+
+
+def shard_of_queue(queue: str) -> int | None:
+    """The shard an ingest queue serves, or None for any other queue."""
+    if queue == INGEST_QUEUE:
+        return 0
+    prefix, _, number = queue.rpartition(".")
+    if prefix == INGEST_QUEUE and number.isdigit() and number == str(int(number)) and int(number) > 0:
+        return int(number)
+    return None
+
+
+def shard_binding_key(robot: str) -> str:
+    """The binding key that sends every message of ``robot`` (any type, beacons too) to its shard."""
+    return f"{robot}.#"
 
 
 def notification_routing_key(topic: Topic | str) -> str:

@@ -10,6 +10,7 @@ import sys
 import threading
 import time
 import uuid
+from collections import Counter
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -77,7 +78,11 @@ class Bus:
     def add(self, name: str, role: Role = Role.ROBOT, kind: RobotKind | None = None) -> Account:
         """A new account; users are broker-wide, so one left by an aborted run is re-keyed."""
         self.accounts.append(name)
-        account = asyncio.run(provision_account(self.admin_url, self.api, name, role, kind, rotate=True))
+        account = asyncio.run(
+            provision_account(
+                self.admin_url, self.api, name, role, kind, rotate=True, shards=self.settings.ingest_shards
+            )
+        )
         if role is Role.ROBOT:
             register_robot(self.settings, name, kind)
         return account
@@ -160,15 +165,19 @@ class Bus:
             FLEETBUS_AMQP_URL=self.admin_url,
             FLEETBUS_MANAGEMENT_URL=self.endpoint.management_url,
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
+            FLEETBUS_INGEST_SHARDS=str(self.settings.ingest_shards),
         )
-        env.pop("FLEETBUS_MONGODB_URL", None) if self.settings.mongodb_url is None else None
+        if self.settings.mongodb_url is None:
+            env.pop("FLEETBUS_MONGODB_URL", None)
+        else:
+            env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
         return env
 
-    def spawn_worker(self) -> subprocess.Popen[bytes]:
+    def spawn_worker(self, *options: str) -> subprocess.Popen[bytes]:
         """The worker as its own process (``python -m fleetbus worker``), to be killed for real."""
         log = open(self.settings.data_dir / f"worker-{uuid.uuid4().hex[:6]}.log", "wb")
         return subprocess.Popen(
-            [sys.executable, "-m", "fleetbus", "worker"],
+            [sys.executable, "-m", "fleetbus", "worker", *options],
             env=self.worker_env(),
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -183,6 +192,12 @@ class Bus:
 
     def count(self, type: str | None = None, robot_id: str | None = None) -> int:
         return self.with_store(lambda store: store.count_events(type, robot_id))
+
+    def shard_holders(self) -> Counter[str]:
+        """How many ingest shards each worker holds an unexpired lease on, by worker."""
+        leases = self.with_store(lambda store: store.leases("shard:"))
+        now = time.time()
+        return Counter(lease.holder for lease in leases if lease.expires_at.timestamp() > now)
 
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""

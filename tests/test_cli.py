@@ -68,6 +68,7 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
         "notify.{topic}",
         "fleetbus.beacon.discarded",
         "fleetbus.dead-letters",
+        "fleetbus.ingest.events",
         "fleetbus.recorder",
     }
     text = json.dumps(asyncapi)

@@ -5,6 +5,10 @@ itself localised, the held hazards are announced in the order they were detected
 notification is published (confirmed) before the hazard is marked announced, so a crash in
 between announces it again rather than never. The held list lives in the store, so a restart
 loses nothing.
+
+Registering hazards and announcing the held ones happen in one critical section (``serial``):
+with several workers, each on its own shards, two announcing at once would send hazards twice or
+out of order, and a hazard registered while another worker announces would be overtaken.
 """
 
 from __future__ import annotations
@@ -18,12 +22,16 @@ from aio_pika.abc import AbstractExchange
 from schemas.envelope import EVENT_ADAPTER
 from schemas.notifications import Notification
 from schemas.routing import EventType, RobotKind, Topic
+from workers.mutex import LocalMutex, Mutex
 from workers.notifier import publish_notification
 from workers.store.hazards import DEFAULT_MISSION, Hazard
 from workers.store.interface import Store
 from workers.validation import Accepted
 
 log = logging.getLogger("fleetbus.hazards")
+
+#: The event types the hazard service acts on: the gate's inputs and the hazards it holds.
+GATED = (EventType.LOCALISATION, EventType.HAZARD)
 
 #: A hazard announced this much later than its robot sent it is flagged ``late``.
 LATE_AFTER = timedelta(seconds=5)
@@ -36,38 +44,45 @@ class HazardCoordinator:
         notify_exchange: AbstractExchange,
         service_user: str,
         late_after: timedelta = LATE_AFTER,
+        serial: Mutex | None = None,
     ) -> None:
         self._store = store
         self._exchange = notify_exchange
         self._service_user = service_user
         self._late_after = late_after
+        self._serial = serial or LocalMutex()
 
     async def handle(self, accepted: Sequence[Accepted]) -> int:
         """Apply a stored batch (also redelivered ones: every step is idempotent); return announcements."""
-        touched = False
-        for item in accepted:
-            event = item.event
-            if event.type is EventType.LOCALISATION:
-                await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
-                touched = True
-            elif event.type is EventType.HAZARD:
-                event_json = EVENT_ADAPTER.dump_python(event, mode="json")
-                await self._store.add_hazard(
-                    item.record.mission_id or DEFAULT_MISSION,
-                    event.robot_id,
-                    event.seq,
-                    event_json,
-                    item.record.received_at,
-                    held=True,
-                )
-                touched = True
-        return await self.release_if_ready() if touched else 0
+        relevant = [item for item in accepted if item.event.type in GATED]
+        if not relevant:
+            return 0
+        async with self._serial.hold():
+            for item in relevant:
+                event = item.event
+                if event.type is EventType.LOCALISATION:
+                    await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
+                else:
+                    await self._store.add_hazard(
+                        item.record.mission_id or DEFAULT_MISSION,
+                        event.robot_id,
+                        event.seq,
+                        EVENT_ADAPTER.dump_python(event, mode="json"),
+                        item.record.received_at,
+                        held=True,
+                    )
+            return await self._release()
 
     async def gate_open(self) -> bool:
         wardens = await self._store.robots(RobotKind.WARDEN.value)
         return all(warden.localised for warden in wardens)
 
     async def release_if_ready(self) -> int:
+        """Announce the held hazards if every warden is localised (after a restart, say)."""
+        async with self._serial.hold():
+            return await self._release()
+
+    async def _release(self) -> int:
         held = await self._store.held_hazards()
         if not held:
             return 0

@@ -93,6 +93,7 @@ class IngestConsumer:
         enrichers: Sequence[BatchEnricher] = (),
         batch_size: int = 256,
         linger: float = 0.0,
+        stats: IngestStats | None = None,
     ) -> None:
         self._channel = channel
         self._queue = queue
@@ -105,7 +106,8 @@ class IngestConsumer:
         self._inbox = BatchInbox(batch_size, linger)
         self._stopping = asyncio.Event()
         self._consumer_tag: str | None = None
-        self.stats = IngestStats()
+        # one worker's shard consumers share their counters
+        self.stats = stats if stats is not None else IngestStats()
 
     async def run(self) -> None:
         """Consume until :meth:`stop`; then finish what was received and return."""

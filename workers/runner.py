@@ -3,34 +3,38 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import timedelta
 
 import aio_pika
-from aio_pika.abc import AbstractRobustConnection
+from aio_pika.abc import AbstractChannel, AbstractRobustConnection
 
-from broker.accounts import SERVICE_USER, ensure_service_account
+from broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
+from broker.shards import read_shard_map
 from broker.topology import core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import (
     BEACON_DISCARD_QUEUE,
     DEAD_LETTER_EXCHANGE,
-    INGEST_QUEUE,
     NOTIFY_EXCHANGE,
     RPC_QUEUE,
+    ingest_shard_queue,
 )
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
 from workers.coordination import HazardCoordinator
-from workers.ingest import IngestConsumer
+from workers.ingest import BROKER_ERRORS, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
 from workers.missions import MissionStamp
+from workers.mutex import LocalMutex, Mutex, StoreMutex
 from workers.rpc import RpcServer
 from workers.services import hazard_services
+from workers.shards import ShardPool
 from workers.signals import stop_on_signals
 from workers.store import Store, open_store
 from workers.telemetry import BatteryWatch
@@ -43,15 +47,52 @@ PREFETCH = 512
 @dataclass
 class WorkerContext:
     connection: AbstractRobustConnection
-    consumer: IngestConsumer
+    shards: ShardPool
     rpc: RpcServer
     discards: DiscardCounter
     store: Store
+    stats: IngestStats = field(default_factory=IngestStats)
+    """Counters of every shard this worker consumed."""
+
+
+@dataclass
+class ShardConsumer:
+    """One shard consumed on a channel of its own, so it can be let go without touching the others."""
+
+    shard: int
+    channel: AbstractChannel
+    consumer: IngestConsumer
+    task: asyncio.Task[None]
+
+    @property
+    def done(self) -> asyncio.Future[None]:
+        return self.task
+
+    async def stop(self) -> None:
+        await self.consumer.stop()
+        await asyncio.gather(self.task, return_exceptions=True)
+        # what was received but not acked (the store down at SIGTERM) goes back to the queue
+        with contextlib.suppress(*BROKER_ERRORS):
+            await self.channel.close()
 
 
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
-        return ensure_service_account(endpoint.amqp_url, api, settings.accounts_dir)
+        url = ensure_service_account(endpoint.amqp_url, api, settings.accounts_dir)
+        stray = read_shard_map(api, vhost_of(endpoint.amqp_url), settings.ingest_shards).stray()
+    if stray:
+        log.warning(
+            "robots bound to a shard beyond FLEETBUS_INGEST_SHARDS=%d, or to several: %s; "
+            "run `fleetbus shards rebalance`",
+            settings.ingest_shards,
+            ", ".join(stray),
+        )
+    return url
+
+
+def hazard_mutex(settings: Settings, store: Store) -> Mutex:
+    """One worker consuming the only shard needs no lock in the store; shared shards do."""
+    return LocalMutex() if settings.ingest_shards == 1 else StoreMutex(store, "hazards")
 
 
 async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerContext:
@@ -59,31 +100,44 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     store = open_store(settings)
     await store.open()
     connection = await aio_pika.connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
-    channel = await connection.channel(publisher_confirms=True)
-    await channel.set_qos(prefetch_count=PREFETCH)
-    await declare(channel, [core_topology()])
-    # fetched (not just named) so the robust channel re-consumes them after a broker restart
-    queue = await channel.get_queue(INGEST_QUEUE)
-    notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
-    coordinator = HazardCoordinator(
-        store, notify_exchange, SERVICE_USER, timedelta(seconds=settings.late_after_s)
-    )
-    consumer = IngestConsumer(
-        channel,
-        queue,
-        store,
-        await channel.get_exchange(DEAD_LETTER_EXCHANGE),
-        max_message_bytes=settings.max_message_bytes,
-        checks=[KnownRobotsOnly(store), MapCheck(store)],
-        services=[
-            MapService(store, notify_exchange, SERVICE_USER),
-            coordinator,
-            BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
-        ],
-        enrichers=[MissionStamp(store)],
-        batch_size=PREFETCH,
-    )
-    await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
+    setup = await connection.channel()
+    await declare(setup, [core_topology(settings.ingest_shards)])
+    await setup.close()
+    stats = IngestStats()
+    serial = hazard_mutex(settings, store)
+
+    async def consume_shard(shard: int) -> ShardConsumer:
+        channel = await connection.channel(publisher_confirms=True)
+        await channel.set_qos(prefetch_count=PREFETCH)
+        # fetched (not just named) so the robust channel re-consumes it after a broker restart
+        queue = await channel.get_queue(ingest_shard_queue(shard))
+        notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
+        coordinator = HazardCoordinator(
+            store, notify_exchange, SERVICE_USER, timedelta(seconds=settings.late_after_s), serial
+        )
+        consumer = IngestConsumer(
+            channel,
+            queue,
+            store,
+            await channel.get_exchange(DEAD_LETTER_EXCHANGE),
+            max_message_bytes=settings.max_message_bytes,
+            checks=[KnownRobotsOnly(store), MapCheck(store)],
+            services=[
+                MapService(store, notify_exchange, SERVICE_USER),
+                coordinator,
+                BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
+            ],
+            enrichers=[MissionStamp(store)],
+            batch_size=PREFETCH,
+            stats=stats,
+        )
+        await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
+        task = asyncio.create_task(consumer.run(), name=f"fleetbus-shard-{shard}")
+        log.info("consuming shard %d (%s)", shard, ingest_shard_queue(shard))
+        return ShardConsumer(shard, channel, consumer, task)
+
+    shards = ShardPool(store, settings.ingest_shards, consume_shard)
+    await shards.start()
     rpc_channel = await connection.channel()
     await rpc_channel.set_qos(prefetch_count=32)
     rpc = RpcServer(
@@ -96,7 +150,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     await discard_channel.set_qos(prefetch_count=64)
     discards = DiscardCounter(discard_channel, await discard_channel.get_queue(BEACON_DISCARD_QUEUE), store)
     await discards.start()
-    return WorkerContext(connection, consumer, rpc, discards, store)
+    return WorkerContext(connection, shards, rpc, discards, store, stats)
 
 
 async def run_worker(
@@ -109,19 +163,27 @@ async def run_worker(
     stop = stop or asyncio.Event()
     stop_on_signals(stop)
     context = await start_worker(settings, endpoint)
-    log.info("worker consuming %s (store: %s)", INGEST_QUEUE, context.store.name)
+    log.info(
+        "worker %s shares %d ingest shards, consuming %s (store: %s)",
+        context.shards.holder,
+        context.shards.shards,
+        sorted(context.shards.held) or "none yet",
+        context.store.name,
+    )
     if on_started is not None:
         on_started(context)
-    consuming = asyncio.create_task(context.consumer.run())
+    failing = asyncio.create_task(context.shards.wait_failed())
     stopping = asyncio.create_task(stop.wait())
     try:
-        await asyncio.wait({consuming, stopping}, return_when=asyncio.FIRST_COMPLETED)
+        await asyncio.wait({failing, stopping}, return_when=asyncio.FIRST_COMPLETED)
         await context.rpc.stop()
         await context.discards.stop()
-        await context.consumer.stop()
-        await consuming
+        await context.shards.stop()
+        if failing.done() and (error := failing.result()) is not None:
+            raise error
     finally:
+        failing.cancel()
         stopping.cancel()
         await context.connection.close()
         await context.store.close()
-        log.info("worker stopped: %s", context.consumer.stats)
+        log.info("worker stopped: %s", context.stats)

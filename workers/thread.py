@@ -84,4 +84,4 @@ class WorkerThread(LoopThread[WorkerContext]):
 
     def stats(self) -> IngestStats:
         """The running worker's counters (a snapshot is not needed: they only grow)."""
-        return self.context.consumer.stats if self.context else IngestStats()
+        return self.context.stats if self.context else IngestStats()

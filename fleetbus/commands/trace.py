@@ -10,7 +10,7 @@ from rich.table import Table
 
 from broker.routes import Route
 from fleetbus.context import clock, console, fail, route_map, settings, with_recording
-from schemas.routing import DETAIL_HEADER, INGEST_QUEUE, REASON_HEADER, RECORDER_QUEUE
+from schemas.routing import DETAIL_HEADER, REASON_HEADER, RECORDER_QUEUE, shard_of_queue
 from workers.recorder.queries import Trace, record_view
 from workers.recorder.queries import trace as trace_message
 from workers.store import open_store
@@ -26,7 +26,7 @@ def _outcome(result: Trace, record: RecordedMessage, route: Route) -> str:
     """What is known of what the queue's consumer did with it."""
     if route.queue == RECORDER_QUEUE:
         return f"recorded at {clock(record.recorded_at)}"
-    if route.queue == INGEST_QUEUE:
+    if shard_of_queue(route.queue) is not None:
         if result.stored is not None:
             return f"stored at {clock(result.stored.received_at)} as seq {result.stored.seq}"
         refused = result.refused

@@ -27,16 +27,20 @@ def add(
     ] = True,
 ) -> None:
     """Create an account with a random password; its URL is printed once."""
-    ep = endpoint()
+    ep, config = endpoint(), settings()
     with admin_api(ep) as api:
         try:
-            account = asyncio.run(provision_account(ep.amqp_url, api, name, role, kind, rotate=rotate))
+            account = asyncio.run(
+                provision_account(
+                    ep.amqp_url, api, name, role, kind, rotate=rotate, shards=config.ingest_shards
+                )
+            )
         except (AccountExists, ValueError) as error:
             fail(str(error))
     if role is Role.ROBOT:
-        register_robot(settings(), name, kind)
+        register_robot(config, name, kind)
     if save:
-        save_secret(settings().accounts_dir / f"{name}.url", account.amqp_url)
+        save_secret(config.accounts_dir / f"{name}.url", account.amqp_url)
     console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")
     console.print(account.amqp_url, soft_wrap=True, highlight=False)
 

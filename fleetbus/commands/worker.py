@@ -5,10 +5,12 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Awaitable, Callable
+from dataclasses import replace
 from typing import Annotated
 
 import typer
 
+from fleetbus.config import MAX_INGEST_SHARDS
 from fleetbus.context import endpoint, settings
 from workers.recorder.runner import run_recorder
 from workers.runner import run_worker
@@ -22,7 +24,7 @@ def configure_logging(verbose: bool) -> None:
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-    for noisy in ("aiormq", "aio_pika", "httpx"):
+    for noisy in ("aiormq", "aio_pika", "httpx", "pika"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
@@ -45,10 +47,23 @@ def worker(
         bool, typer.Option("--recorder/--no-recorder", help="also record every message (`fleetbus recorder`)")
     ] = True,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log every batch")] = False,
+    shards: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            max=MAX_INGEST_SHARDS,
+            help="ingest shards the workers share (default: FLEETBUS_INGEST_SHARDS, 1)",
+        ),
+    ] = None,
 ) -> None:
-    """Validate, store and fan out every event, and record everything; stop cleanly on SIGTERM or Ctrl-C."""
+    """Validate, store and fan out every event, and record everything; stop cleanly on SIGTERM or Ctrl-C.
+
+    Run several to share the ingest: each takes its share of the shards.
+    """
     configure_logging(verbose)
     config, broker = settings(), endpoint()
+    if shards is not None:
+        config = replace(config, ingest_shards=shards)
     runs: list[Run] = [lambda stop: run_worker(config, broker, stop)]
     if recorder:
         runs.append(lambda stop: run_recorder(config, broker, stop=stop))

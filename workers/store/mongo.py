@@ -26,6 +26,7 @@ from workers.store.mongo_channels import MongoChannels
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
 from workers.store.mongo_database import DUPLICATE_KEY, UNAVAILABLE, MongoDatabase, translate_unavailable
 from workers.store.mongo_discards import MongoDiscards
+from workers.store.mongo_leases import MongoLeases
 from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
 from workers.store.mongo_missions import MongoMissions
@@ -86,6 +87,7 @@ class MongoEventStore(
     MongoMissions,
     MongoChannels,
     MongoDiscards,
+    MongoLeases,
     Store,
 ):
     name = "mongodb"

@@ -25,6 +25,7 @@ from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
 from workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
+from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
 from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
@@ -104,6 +105,7 @@ class SQLiteEventStore(
     SQLiteMissions,
     SQLiteChannels,
     SQLiteDiscards,
+    SQLiteLeases,
     Store,
 ):
     name = "sqlite"
@@ -114,7 +116,7 @@ class SQLiteEventStore(
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
         db.executescript(LEDGER_SCHEMA)
-        for schema in (USER_SCHEMA, MISSION_SCHEMA, CHANNEL_SCHEMA, DISCARD_SCHEMA):
+        for schema in (USER_SCHEMA, MISSION_SCHEMA, CHANNEL_SCHEMA, DISCARD_SCHEMA, LEASE_SCHEMA):
             db.executescript(schema)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:

@@ -1,0 +1,245 @@
+"""Several worker processes sharing the ingest shards, on the real broker and both stores.
+
+Every event stored exactly once and in its robot's order, the hazard gate and the FIFO
+announcements correct with the wardens and the explorers on different workers, one battery
+warning per crossing, and a worker killed with SIGKILL while the others run.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import replace
+
+import pika
+import pytest
+
+from broker.accounts import Account, Role
+from broker.shards import read_shard_map
+from publishers.client import RobotClient
+from schemas.notifications import Notification
+from schemas.routing import RobotKind, Topic, inbox_queue
+from tests.factories import hazard, status
+from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
+from workers.shards import share
+from workers.store.hazards import HazardState
+
+SHARDS = 4
+
+
+@contextmanager
+def worker_processes(bus: Bus, count: int) -> Iterator[list[subprocess.Popen[bytes]]]:
+    """``count`` worker processes (no recorder), started at once; returns once each holds its share."""
+    workers = [bus.spawn_worker("--no-recorder") for _ in range(count)]
+    try:
+        expected = sorted(share(SHARDS, [str(n) for n in range(count)], str(n)) for n in range(count))
+
+        def shares_taken() -> bool:
+            ended = [worker.returncode for worker in workers if worker.poll() is not None]
+            assert not ended, f"a worker started at the same time as others ended: exit {ended}"
+            return sorted(bus.shard_holders().values()) == expected
+
+        wait_for(shares_taken, timeout=90, what=f"{expected} shards each")
+        yield workers
+    finally:
+        for worker in workers:
+            if worker.poll() is None:
+                worker.terminate()
+        for worker in workers:
+            assert worker.wait(60) in (0, -9), "SIGTERM stops a worker cleanly"
+
+
+def hazard_states(bus: Bus) -> Counter[HazardState]:
+    return Counter(h.state for h in bus.with_store(lambda store: store.open_hazards("default")))
+
+
+def in_parallel(*jobs: threading.Thread) -> None:
+    for job in jobs:
+        job.start()
+    for job in jobs:
+        job.join(120)
+        assert not job.is_alive()
+
+
+def publisher(robot: RobotClient, items: list, sent: list[int]) -> threading.Thread:
+    def publish() -> None:
+        for start in range(0, len(items), 10):  # in windows, as robot code does, to interleave robots
+            sent.extend(event.seq for event in robot.publish_many(items[start : start + 10]))
+
+    return threading.Thread(target=publish)
+
+
+def battery_run(levels: list[float]) -> list:
+    return [("status", status(level)) for level in levels]
+
+
+LOW = 20.0
+#: A battery that crosses below 20 % three times (a warning each), and stays low in between.
+SWINGS = [60.0, 40.0, 25.0, 19.0, 15.0, 10.0, 30.0, 50.0, 15.0] * 3
+
+
+def crossings(levels: list[float]) -> int:
+    return sum(1 for n, level in enumerate(levels) if level < LOW and (n == 0 or levels[n - 1] >= LOW))
+
+
+@pytest.mark.parametrize(
+    ("workers", "store"),
+    [(2, "sqlite"), (4, "sqlite"), (2, "mongodb")],
+    ids=["2-workers-sqlite", "4-workers-sqlite", "2-workers-mongodb"],
+)
+def test_worker_processes_store_everything_once_in_order_and_announce_hazards_once_in_fifo_order(
+    bus: Bus, workers: int, store: str, request: pytest.FixtureRequest
+) -> None:
+    if store == "mongodb":
+        url: str = request.getfixturevalue("mongodb_url")
+        bus.settings = replace(
+            bus.settings, mongodb_url=f"{url.rstrip('/')}/scale_{bus.vhost.replace('-', '_')}"
+        )
+    bus.settings = replace(bus.settings, ingest_shards=SHARDS)
+    team = [
+        ("explorer1", RobotKind.EXPLORER),
+        ("warden1", RobotKind.WARDEN),
+        ("explorer2", RobotKind.EXPLORER),
+        ("warden2", RobotKind.WARDEN),
+        ("guide1", RobotKind.GUIDE),
+    ]
+    accounts = {name: bus.add(name, kind=kind) for name, kind in team}
+    robots = {name: bus.robot(account) for name, account in accounts.items()}
+    ops = bus.robot(bus.add("ops1", role=Role.OPERATOR))
+    shard_map = read_shard_map(bus.api, bus.vhost, SHARDS)
+    assert {name: shard_map.shard_of(name) for name, _ in team} == {
+        "explorer1": 0,
+        "warden1": 1,
+        "explorer2": 2,
+        "warden2": 3,
+        "guide1": 0,
+    }, "the gate's inputs and the hazards it holds go through different shards"
+    sent: dict[str, list[int]] = {name: [] for name in robots}
+
+    with worker_processes(bus, workers):
+        # held: no warden is localised yet; the explorers' hazards wait in the store
+        in_parallel(
+            *(
+                publisher(
+                    robots[name],
+                    [("hazard", hazard(n)) for n in range(8)] + battery_run([90] * 12),
+                    sent[name],
+                )
+                for name in ("explorer1", "explorer2")
+            )
+        )
+        wait_for(lambda: hazard_states(bus) == {HazardState.HELD: 16}, what="16 hazards held")
+        sent["warden1"] += [robots["warden1"].publish("localisation", {"localised": True}).seq]
+        wait_for(
+            lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.robots("warden"))}["warden1"],
+            what="warden1 recorded as localised",
+        )
+        assert hazard_states(bus) == {HazardState.HELD: 16}, "one warden localised: still held"
+
+        # the last warden localises on another worker while both explorers go on detecting
+        in_parallel(
+            publisher(
+                robots["warden2"],
+                [("localisation", {"localised": True}), *battery_run([80] * 30)],
+                sent["warden2"],
+            ),
+            *(
+                publisher(
+                    robots[name],
+                    [item for n in range(8, 28) for item in (("hazard", hazard(n)), ("status", status(90)))],
+                    sent[name],
+                )
+                for name in ("explorer1", "explorer2")
+            ),
+            # each battery crosses below 20 % once: one warning each
+            *(publisher(robots[name], battery_run(SWINGS), sent[name]) for name in ("warden1", "guide1")),
+        )
+        notes = {name: inbox(accounts[name], 56, timeout=60) for name in ("warden1", "warden2")}
+        for name in notes:
+            assert inbox(accounts[name], 1, timeout=1) == [], "no hazard announced twice"
+        warnings = ops.receive(100, timeout=5)
+        for name in robots:
+            wait_for(
+                lambda name=name: bus.count(robot_id=name) == len(sent[name]), what=f"{name}'s events stored"
+            )
+
+    hazards = {h.hazard_id: h for h in bus.with_store(lambda store: store.open_hazards("default"))}
+    assert len(hazards) == 56 and all(h.state is HazardState.ANNOUNCED for h in hazards.values())
+    for warden, received in notes.items():
+        ids = [note.hazard_id for note in received]
+        assert ids == sorted(hazards), f"{warden}: every hazard once, in the order registered (FIFO)"
+        for explorer in ("explorer1", "explorer2"):
+            seqs = [note.event.seq for note in received if note.event.robot_id == explorer]
+            assert seqs == sorted(seqs) and len(seqs) == 28, (
+                f"{warden}: {explorer}'s hazards in detection order"
+            )
+        first_16 = {(n.event.robot_id, n.event.seq) for n in received[:16]}
+        assert first_16 == {(h.robot_id, h.seq) for h in hazards.values() if h.hazard_id <= 16}, (
+            "held ones first"
+        )
+    battery = Counter(n.event.robot_id for n in warnings if n.topic is Topic.BATTERY)
+    assert battery == {"warden1": crossings(SWINGS), "guide1": crossings(SWINGS)}, (
+        "one per crossing below 20 %"
+    )
+    for name in robots:
+        assert_stored_once_in_order(bus, name, sent[name])
+    assert bus.gaps() == [] and bus.with_store(lambda store: store.duplicates()) == []
+
+
+def _hazard_ids(notes: list[Notification]) -> list[int | None]:
+    return [note.hazard_id for note in notes]
+
+
+def inbox(account: Account, count: int, timeout: float) -> list[Notification]:
+    """What the broker delivered to the account's inbox, repeats included (the robot client skips
+    a notification it already handed out, which would hide a hazard announced twice)."""
+    connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
+    notes: list[Notification] = []
+    try:
+        channel = connection.channel()
+        for method, _, body in channel.consume(inbox_queue(account.name), inactivity_timeout=timeout):
+            if method is None:
+                break
+            notes.append(Notification.model_validate_json(body))
+            channel.basic_ack(method.delivery_tag)
+            if len(notes) == count:
+                break
+    finally:
+        connection.close()
+    return notes
+
+
+def test_a_worker_killed_while_others_run_loses_and_doubles_nothing(bus: Bus) -> None:
+    bus.settings = replace(bus.settings, ingest_shards=SHARDS)
+    names = ["robot1", "robot2", "robot3", "robot4"]
+    robots = [bus.robot(bus.add(name, kind=RobotKind.EXPLORER)) for name in names]
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with worker_processes(bus, 2) as (victim, survivor):
+        warden.publish("localisation", {"localised": True})
+        streams = [Publishing(robot, period=0.005, hazard_every=10).start() for robot in robots]
+        wait_for(lambda: bus.count() >= 400, timeout=60, what="400 events stored")
+        victim.kill()
+        killed_at = time.monotonic()
+        assert victim.wait(10) == -9
+        wait_for(lambda: len(bus.shard_holders()) == 1, timeout=30, what="the survivor holding every shard")
+        takeover = time.monotonic() - killed_at
+        time.sleep(1)  # the robots' publishing rate: a second more of events after the takeover
+        sent = [stream.stop() for stream in streams]
+        for name, seqs in zip(names, sent, strict=True):
+            wait_for(
+                lambda name=name, seqs=seqs: bus.count(robot_id=name) >= len(seqs), timeout=60, what=f"{name}"
+            )
+        hazards = sum(1 for seqs in sent for n in range(len(seqs)) if n % 10 == 0)
+        received = warden.receive(hazards, timeout=60)
+        assert warden.receive(1, timeout=0.5) == []
+        assert survivor.poll() is None
+    assert takeover < 10, f"the dead worker's shards were taken over in {takeover:.1f} s"
+    for name, seqs in zip(names, sent, strict=True):
+        assert_stored_once_in_order(bus, name, seqs)
+    assert bus.gaps() == []
+    ids = _hazard_ids(received)
+    assert ids == sorted(set(ids)) and len(ids) == hazards, "every hazard announced, once each, in order"

@@ -1,0 +1,185 @@
+"""Ingest shards on the real broker: where each robot's messages go, before any worker runs."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from dataclasses import replace
+
+import pika
+
+from broker.accounts import Role, delete_account
+from broker.management import ManagementAPI
+from broker.routes import RouteMap
+from broker.shards import Move, ShardMap, apply_move, read_shard_map, rebalance_plan
+from broker.topology import BindingSpec, Topology, core_topology, declare_with_url
+from schemas.routing import (
+    INGEST_EXCHANGE,
+    INGEST_QUEUE,
+    SHARD_EXCHANGE,
+    RobotKind,
+    beacon_headers,
+    ingest_shard_queue,
+    shard_binding_key,
+)
+from tests.factories import status
+from tests.support import Bus, assert_stored_once_in_order, wait_for
+from tests.test_cli import fleetbus
+
+
+def _queued(bus: Bus, shards: int) -> list[int]:
+    return [bus.ready_messages(ingest_shard_queue(shard)) for shard in range(shards)]
+
+
+def test_robots_are_spread_evenly_and_each_robots_messages_reach_only_its_shard(bus: Bus) -> None:
+    bus.settings = replace(bus.settings, ingest_shards=4)
+    names = [f"robot{n}" for n in range(8)]
+    robots = {name: bus.robot(bus.add(name, kind=RobotKind.EXPLORER)) for name in names}
+    bus.add("ops1", role=Role.OPERATOR)
+    shard_map = read_shard_map(bus.api, bus.vhost, 4)
+    assert shard_map.load() == [2, 2, 2, 2], "least loaded first: an even spread"
+    assert set(shard_map.bindings) == set(names), "robots only: an operator publishes no events"
+    assert shard_map.unassigned == () and shard_map.stray() == []
+
+    expected = [0, 0, 0, 0]
+    for n, name in enumerate(names):
+        robots[name].publish_many([("status", status())] * (n + 1))
+        shard = shard_map.shard_of(name)
+        assert shard is not None
+        expected[shard] += n + 1
+        wait_for(lambda: _queued(bus, 4) == expected, what=f"{name}'s events in shard {shard} only")
+
+
+def test_a_robot_bound_to_no_shard_goes_to_shard_0_and_trace_shows_the_way(bus: Bus) -> None:
+    bus.settings = replace(bus.settings, ingest_shards=2)
+    bus.add("robot-a")
+    second = bus.robot(bus.add("robot-b"))
+    assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (1,)}
+    bus.api.unbind(bus.vhost, SHARD_EXCHANGE, ingest_shard_queue(1), shard_binding_key("robot-b"))
+    shard_map = read_shard_map(bus.api, bus.vhost, 2)
+    assert shard_map.unassigned == ("robot-b",) and shard_map.shard_of("robot-b") == 0
+
+    second.publish("status", status())
+    wait_for(lambda: _queued(bus, 2) == [1, 0], what="the unassigned robot's event in shard 0")
+    [route] = RouteMap.from_management(bus.api, bus.vhost).routes("robot-b.events", "robot-b.status")
+    assert route.queue == INGEST_QUEUE
+    assert route.via == ("robot-b.events", INGEST_EXCHANGE, SHARD_EXCHANGE, "fleetbus.ingest.unassigned")
+    [bound] = RouteMap.from_management(bus.api, bus.vhost).routes("robot-a.events", "robot-a.status")
+    assert bound.via == ("robot-a.events", INGEST_EXCHANGE, SHARD_EXCHANGE)
+
+
+def test_a_beacon_under_another_robots_name_goes_to_that_robots_shard(bus: Bus) -> None:
+    """The beacon exchange is a headers exchange, whose keys the broker does not check: the message
+    lands in the named robot's shard, where the workers refuse it (``identity-mismatch``)."""
+    bus.settings = replace(bus.settings, ingest_shards=2)
+    forger = bus.add("robot-a")
+    bus.add("robot-b")
+    connection = pika.BlockingConnection(pika.URLParameters(forger.amqp_url))
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        properties = pika.BasicProperties(
+            user_id="robot-a", delivery_mode=2, headers=beacon_headers("robot-a")
+        )
+        channel.basic_publish("robot-a.beacon", "robot-b.beacon", json.dumps({}).encode(), properties)
+    finally:
+        connection.close()
+    wait_for(lambda: _queued(bus, 2) == [0, 1], what="the forged beacon in robot-b's shard")
+
+
+def test_a_deleted_robot_leaves_its_shard(bus: Bus) -> None:
+    bus.settings = replace(bus.settings, ingest_shards=2)
+    bus.add("robot-a")
+    bus.add("robot-b")
+    delete_account(bus.admin_url, bus.api, "robot-b")
+    assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,)}
+    bus.add("robot-c")
+    assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-c": (1,)}
+
+
+def test_a_broker_set_up_before_shards_loses_the_direct_binding_and_nothing_doubles(bus: Bus) -> None:
+    legacy = Topology(bindings=(BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),))
+    asyncio.run(declare_with_url(bus.admin_url, [core_topology()]))
+    asyncio.run(declare_with_url(bus.admin_url, [legacy]))
+    assert _direct_bindings(bus.api, bus.vhost) == ["#"]
+    robot = bus.robot(bus.add("robot-a"))  # declares the topology of this version
+    assert _direct_bindings(bus.api, bus.vhost) == []
+    robot.publish("status", status())
+    wait_for(lambda: _queued(bus, 1) == [1], what="the event in shard 0")
+    assert _queued(bus, 1) == [1], "once, not also by the old binding"
+
+
+def _direct_bindings(api: ManagementAPI, vhost: str) -> list[str]:
+    return [
+        b["routing_key"]
+        for b in api.exchange_bindings(vhost, INGEST_EXCHANGE)
+        if b["destination"] == INGEST_QUEUE
+    ]
+
+
+def test_rebalance_places_every_robot_once_and_evens_the_load() -> None:
+    current = ShardMap(
+        3,
+        {"a": (0,), "b": (0,), "c": (0,), "d": (0,), "e": (5,), "f": (1, 2)},
+        unassigned=("g",),
+    )
+    moves = rebalance_plan(current)
+    after = {robot: bound[0] for robot, bound in current.bindings.items() if len(bound) == 1}
+    after.update({move.robot: move.target for move in moves})
+    assert [after.get(r) is not None for r in "abcdefg"] == [True] * 7
+    counts = [list(after.values()).count(shard) for shard in range(3)]
+    assert max(counts) - min(counts) <= 1 and sum(counts) == 7
+    assert Move("e", (5,), after["e"]) in moves and Move("g", (), after["g"]) in moves
+    assert "a" not in {m.robot for m in moves}, "robots in place stay put, the last by name move"
+    assert rebalance_plan(ShardMap(2, {"a": (0,), "b": (1,)})) == []
+
+
+def test_a_move_binds_the_new_shard_before_it_unbinds_the_old(bus: Bus) -> None:
+    bus.settings = replace(bus.settings, ingest_shards=2)
+    bus.add("robot-a")
+    bus.add("robot-b")
+    apply_move(bus.api, bus.vhost, Move("robot-b", (1,), 0))
+    assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (0,)}
+
+
+def _management_count(bus: Bus, shard: int) -> int:
+    queue = bus.api.get_queue(bus.vhost, ingest_shard_queue(shard))
+    return queue.get("messages_ready", 0) + queue.get("messages_unacknowledged", 0)
+
+
+def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
+    robots = {name: bus.robot(bus.add(name)) for name in ("robot-a", "robot-b", "robot-c", "robot-d")}
+    sent = {
+        name: [e.seq for e in robot.publish_many([("status", status())] * 5)]
+        for name, robot in robots.items()
+    }
+    bus.settings = replace(bus.settings, ingest_shards=2)  # the workers and the commands from now on
+
+    listed = json.loads(fleetbus(bus, "shards", "--json").stdout)
+    assert [(s["shard"], len(s["robots"]), s["worker"]) for s in listed["states"]] == [
+        (0, 4, None),
+        (1, 0, None),
+    ]
+    dry = fleetbus(bus, "shards", "rebalance", "--dry-run")
+    assert dry.returncode == 0 and "2 moves (dry run: none made)" in dry.stdout
+    assert "robot-d: shard 0 -> 1" in dry.stdout
+    wait_for(lambda: _management_count(bus, 0) == 20, what="the management API to count 20 waiting")
+    refused = fleetbus(bus, "shards", "rebalance")
+    assert refused.returncode == 1 and "shard 0 holds 20" in refused.stderr
+    assert read_shard_map(bus.api, bus.vhost, 2).load() == [4, 0], "nothing moved"
+
+    with bus.worker() as worker:
+        wait_for(lambda: bus.count() == 20, what="the waiting events stored")
+        wait_for(lambda: _management_count(bus, 0) == 0, what="the management API to see shard 0 empty")
+        moved = fleetbus(bus, "shards", "rebalance")
+        assert moved.returncode == 0, moved.stderr
+        assert "moved 2 robots: [2, 2]" in moved.stdout
+        for name, robot in robots.items():
+            sent[name] += [e.seq for e in robot.publish_many([("status", status())] * 5)]
+        wait_for(lambda: bus.count() == 40, what="the events after the move stored")
+        table = fleetbus(bus, "shards")
+        assert worker.context is not None and worker.context.shards.holder in table.stdout
+        assert "2 ingest shards, 1 live workers" in table.stdout
+    for name in robots:
+        assert_stored_once_in_order(bus, name, sent[name])
+    assert fleetbus(bus, "shards", "rebalance").stdout.startswith("balanced: [2, 2]")
