@@ -24,16 +24,15 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.ingest import BENCH_VHOST, RAW_QUEUE, event_size, raw_publish, status_items
+from bench.ingest import BENCH_VHOST, SIZE, event_size, status_items
+from bench.raw import declare_queue, ingest_queue_arguments, raw_publish
 from broker.accounts import Role, fresh_vhost, provision_account
 from broker.endpoint import resolve_broker
 from broker.management import ManagementAPI
-from broker.topology import QueueSpec, Topology, core_topology, declare_with_url
 from fleetbus.config import load_settings
 from publishers.client import RobotClient
 from publishers.outbox import Outbox, Overflow, TypePolicy
 from schemas.envelope import build_event
-from schemas.routing import INGEST_QUEUE
 
 console = Console()
 #: Nothing dropped, whatever the fill: the benchmark measures appends, not the overflow policy.
@@ -58,11 +57,12 @@ def append_times(waiting: int, appends: int) -> list[float]:
     return times
 
 
-def drain_rate(admin_url: str, api: ManagementAPI, count: int) -> float:
+def drain_rate(admin_url: str, api: ManagementAPI, count: int, size: int = SIZE) -> float:
+    """Events a second confirmed by the broker from a robot that starts with ``count`` waiting."""
     account = asyncio.run(provision_account(admin_url, api, "bench-outbox", Role.ROBOT, rotate=True))
     with tempfile.TemporaryDirectory() as folder:
         robot = RobotClient(account.amqp_url, state_dir=Path(folder), outbox_policies=KEEP_ALL)
-        items = status_items(count)
+        items = status_items(count, size)
         for start in range(0, count, 1000):  # queued while the robot is not started: an outage
             robot.outbox.append(robot.build(items[start : start + 1000]))
         started = time.perf_counter()
@@ -99,8 +99,7 @@ def main() -> None:
                 appends[n] += append_times(n, args.appends)
                 progress.advance(task)
             admin_url = fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST)
-            ingest_args = next(q.arguments for q in core_topology().queues if q.name == INGEST_QUEUE)
-            asyncio.run(declare_with_url(admin_url, [Topology(queues=(QueueSpec(RAW_QUEUE, ingest_args),))]))
+            declare_queue(admin_url, ingest_queue_arguments())
             raws.append(raw_publish(admin_url, args.drain, event_size()))
             progress.advance(task)
             drains.append(drain_rate(admin_url, api, args.drain))

@@ -161,7 +161,10 @@ class Bus:
             FLEETBUS_MANAGEMENT_URL=self.endpoint.management_url,
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
         )
-        env.pop("FLEETBUS_MONGODB_URL", None) if self.settings.mongodb_url is None else None
+        if self.settings.mongodb_url is None:
+            env.pop("FLEETBUS_MONGODB_URL", None)
+        else:  # the test's own database, not the server's default one
+            env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
         return env
 
     def spawn_worker(self) -> subprocess.Popen[bytes]:
@@ -194,9 +197,11 @@ class Bus:
 
 
 @contextmanager
-def fresh_bus(endpoint: BrokerEndpoint, api: ManagementAPI, data_dir: Path) -> Iterator[Bus]:
+def fresh_bus(
+    endpoint: BrokerEndpoint, api: ManagementAPI, data_dir: Path, prefix: str = "test"
+) -> Iterator[Bus]:
     """A new virtual host and data directory on ``endpoint``; accounts and vhost removed after."""
-    vhost = f"test-{uuid.uuid4().hex[:10]}"
+    vhost = f"{prefix}-{uuid.uuid4().hex[:10]}"
     admin_url = fresh_vhost(api, endpoint.amqp_url, vhost)
     settings = replace(
         load_settings(),
