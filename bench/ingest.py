@@ -19,19 +19,25 @@ the ingest queue is empty (all acked) with nothing dead-lettered.
 from __future__ import annotations
 
 import argparse
-import asyncio
+import os
 import tempfile
 import time
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit, urlunsplit
 
+from pymongo import MongoClient
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
 from bench.processes import worker_process
-from bench.raw import declare_queue, ingest_queue_arguments, raw_consume, raw_publish
+from bench.raw import SIZE, raw_rates
 from bench.results import medians, save, spread
+from bench.scenario import Context, Figures, Skip
 from broker.accounts import fresh_vhost
 from broker.dead_letter_queue import peek_dead_letters
 from broker.endpoint import BrokerEndpoint, resolve_broker
@@ -43,7 +49,6 @@ from tests.support import Bus, fresh_bus, wait_for
 
 BENCH_VHOST = "fleetbus-bench"
 ROBOT = "bench-ingest"
-SIZE = 512
 console = Console()
 
 
@@ -109,21 +114,48 @@ def ingest_rate(bus: Bus, count: int, size: int = SIZE, queued_first: bool = Fal
     return (count - before) / elapsed
 
 
-def raw_rates(admin_url: str, count: int, size: int = SIZE) -> dict[str, float]:
-    """Raw publish and consume of ``count`` messages of ``size`` bytes, in a queue like the ingest's."""
-    declare_queue(admin_url, ingest_queue_arguments())
-    return {
-        "raw_publish": raw_publish(admin_url, count, size),
-        "raw_consume": asyncio.run(raw_consume(admin_url, count)),
-    }
-
-
 def one_run(endpoint: BrokerEndpoint, api: ManagementAPI, count: int, size: int) -> dict[str, float]:
-    result = raw_rates(fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST), count, size)
+    raw = raw_rates(fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST), count, size)
     api.delete_vhost(BENCH_VHOST)
+    result = {"raw_publish": raw["publish msg/s"], "raw_consume": raw["consume msg/s"]}
     for scenario in ("ingest", "drain"):
         with tempfile.TemporaryDirectory() as tmp, fresh_bus(endpoint, api, Path(tmp), "bench") as bus:
             result[scenario] = ingest_rate(bus, count, size, queued_first=scenario == "drain")
+    return result
+
+
+@contextmanager
+def fresh_database(url: str) -> Iterator[str]:
+    """``url`` pointing at a new database of its own, dropped afterwards."""
+    name = f"bench_{uuid.uuid4().hex[:10]}"
+    try:
+        yield urlunsplit(urlsplit(url)._replace(path="/" + name))
+    finally:
+        with MongoClient(url, serverSelectionTimeoutMS=5000) as client:
+            client.drop_database(name)
+
+
+def figures(context: Context) -> Figures:
+    """The suite's ingest on the embedded SQLite store: end to end, and the worker's drain."""
+    return _figures(context, None)
+
+
+def figures_mongodb(context: Context) -> Figures:
+    """The same on the MongoDB at FLEETBUS_MONGODB_URL, in a database of the run's own."""
+    url = os.environ.get("FLEETBUS_MONGODB_URL")
+    if not url:
+        raise Skip("FLEETBUS_MONGODB_URL is unset (no MongoDB server can be installed here)")
+    with fresh_database(url) as database_url:
+        return _figures(context, database_url)
+
+
+def _figures(context: Context, mongodb_url: str | None) -> Figures:
+    count = context.size(20_000, 5_000)
+    result: Figures = {}
+    for key, queued_first in (("end to end msg/s", False), ("drain msg/s", True)):
+        context.show(f"{key.split(' msg')[0]}: {count:,} events of {SIZE} bytes")
+        with context.bus(mongodb_url) as bus:
+            result[key] = ingest_rate(bus, count, SIZE, queued_first)
     return result
 
 

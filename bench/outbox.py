@@ -24,8 +24,8 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.ingest import BENCH_VHOST, SIZE, event_size, status_items
-from bench.raw import declare_queue, ingest_queue_arguments, raw_publish
+from bench.ingest import BENCH_VHOST, event_size, status_items
+from bench.raw import SIZE, declare_queue, ingest_queue_arguments, raw_publish
 from broker.accounts import Role, fresh_vhost, provision_account
 from broker.endpoint import resolve_broker
 from broker.management import ManagementAPI

@@ -14,11 +14,13 @@ from typing import Any
 import aio_pika
 import pika
 
+from bench.scenario import Context, Figures
 from broker.topology import QueueSpec, Topology, core_topology, declare_with_url
 from publishers.confirms import Outgoing, PipelinedConfirms
 from schemas.routing import INGEST_QUEUE
 
 RAW_QUEUE = "bench.raw"
+SIZE = 512
 WINDOW = 1000
 PREFETCH = 512
 
@@ -76,3 +78,20 @@ async def raw_consume(url: str, count: int, queue: str = RAW_QUEUE, prefetch: in
         await source.consume(on_message)
         await asyncio.wait_for(done.wait(), 600)
         return count / (time.perf_counter() - started)
+
+
+def raw_rates(admin_url: str, count: int, size: int = SIZE) -> Figures:
+    """Raw publish and consume of ``count`` messages of ``size`` bytes, in a queue like the ingest's."""
+    declare_queue(admin_url, ingest_queue_arguments())
+    return {
+        "publish msg/s": raw_publish(admin_url, count, size),
+        "consume msg/s": asyncio.run(raw_consume(admin_url, count)),
+    }
+
+
+def figures(context: Context) -> Figures:
+    """The suite's baseline: raw rates into a quorum queue declared like fleetbus's ingest queue."""
+    count = context.size(20_000, 5_000)
+    context.show(f"{count:,} messages of {SIZE} bytes")
+    with context.vhost() as admin_url:
+        return raw_rates(admin_url, count)
