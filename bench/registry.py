@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bench import ingest, raw
+from bench import hazard_latency, ingest, raw
 from bench.scenario import Scenario, Target
 
 #: Ingest against the raw broker's consume rate of the same run.
@@ -12,6 +12,15 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("raw", "raw broker: pika publish with pipelined confirms, aio-pika consume", raw.figures),
     Scenario("ingest", "robot events stored (SQLite) and acked", ingest.figures, (INGEST_TARGET,)),
     Scenario("ingest-mongodb", "the same with MongoDB", ingest.figures_mongodb, (INGEST_TARGET,)),
+    Scenario(
+        "hazard",
+        f"explorer's hazard to the warden's receipt, {hazard_latency.RATE:,} telemetry events/s beside",
+        hazard_latency.figures,
+        (
+            Target("hazard p50 ms", 5, at_most=True, unit=" ms"),
+            Target("hazard p99 ms", 20, at_most=True, unit=" ms"),
+        ),
+    ),
 )
 
 

@@ -134,6 +134,9 @@ def figure_rows(outcomes: dict[str, Outcome]) -> list[tuple[str, str, str, str, 
     return rows
 
 
+TARGET_COLUMNS = ("scenario", "what", "measured", "target", "met")
+
+
 def target_rows(found: list[Verdict]) -> list[tuple[str, str, str, str]]:
     return [(v.scenario, v.target, "" if v.measured is None else number(v.measured), v.answer) for v in found]
 
@@ -145,11 +148,11 @@ def tables(outcomes: dict[str, Outcome], found: list[Verdict]) -> list[Table]:
     for row in figure_rows(outcomes):
         figures.add_row(*row)
     targets = Table(title="targets (ratios are run by run, against the raw broker of the same run)")
-    for column in ("scenario", "target", "measured", "met"):
+    for column in TARGET_COLUMNS:
         targets.add_column(column, justify="right" if column == "measured" else "left")
-    for row in target_rows(found):
+    for verdict_, row in zip(found, target_rows(found), strict=True):
         targets.add_row(
-            *(cell.replace("**", "") for cell in row), style=None if "no" not in row[3] else "red"
+            *(cell.replace("**", "") for cell in row), style="red" if verdict_.met is False else None
         )
     return [figures, targets]
 
@@ -172,7 +175,7 @@ def markdown(meta: dict[str, Any], outcomes: dict[str, Outcome], found: list[Ver
         f"{machine_['cpu']}, {machine_['memory']}; {machine_['os']}; Python {machine_['python']}; "
         f"{machine_['broker']}; {machine_['load']} at the start.",
         "",
-        *_table(("scenario", "measured", "", "target", "met"), target_rows(found), {2}),
+        *_table(TARGET_COLUMNS, target_rows(found), {2}),
         "",
         *_table(("scenario", "figure", "median", "spread", "runs"), figure_rows(outcomes), {2, 3, 4}),
         "",

@@ -1,0 +1,170 @@
+"""Hazard notification latency: the explorer's publish to the warden's receipt, under telemetry load.
+
+    .venv/bin/python -m bench --only hazard [--runs 3] [--quick]
+
+An explorer publishes hazards (``robot.publish``, as robot code does: outbox, broker confirm) at
+HAZARD_RATE a second while four other robots publish RATE telemetry events a second in a
+process of their own, and `fleetbus worker` runs in another. A warden, localised beforehand so
+the gate is open, takes its notifications. Explorer and warden live in this process and both
+read ``time.monotonic()``, so no clock skew enters the figures.
+
+Between two hazards a raw message goes through a queue declared like the ingest queue to a
+consumer of this process (pika both ends): one hop through the same broker under the same load,
+next to the hazard's two hops (robot to worker, worker to warden) with the store in between.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from types import TracebackType
+from typing import Any
+
+import pika
+
+from bench.processes import worker_process
+from bench.raw import declare_queue, ingest_queue_arguments
+from bench.results import percentile
+from bench.scenario import Context, Figures
+from bench.telemetry import TelemetryLoad
+from publishers.client import RobotClient
+from schemas.routing import EventType, RobotKind, Topic
+from tests.support import wait_for
+
+HAZARD_RATE = 20
+RATE = 1000
+LOADERS = 4
+PING_QUEUE = "bench.ping"
+
+
+def hazard(i: int) -> dict[str, Any]:
+    return {
+        "pose": {"x": 2.5, "y": 1.25},
+        "description": f"bench hazard {i}",
+        "detected_at": datetime.now(timezone.utc).isoformat(),
+    }
+
+
+class Arrivals:
+    """Receive on a thread of its own; ``at[i]`` is when message ``i`` arrived (monotonic seconds)."""
+
+    def __init__(self, receive: Callable[[Callable[[int], bool]], None], name: str) -> None:
+        self._receive = receive
+        self.at: dict[int, float] = {}
+        self.stop = threading.Event()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def arrived(self, i: int) -> bool:
+        """Note message ``i``; True to go on receiving."""
+        self.at.setdefault(i, time.monotonic())
+        return not self.stop.is_set()
+
+    def _run(self) -> None:
+        try:
+            while not self.stop.is_set():
+                self._receive(self.arrived)
+        except BaseException as error:  # handed over by wait
+            self.error = error
+
+    def __enter__(self) -> Arrivals:
+        self._thread.start()
+        return self
+
+    def wait(self, count: int, timeout: float) -> None:
+        wait_for(lambda: self.error is not None or len(self.at) >= count, timeout, f"{count} arrivals")
+        if self.error is not None:
+            raise self.error
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop.set()
+        self._thread.join(30)
+
+
+def warden_receiver(warden: RobotClient) -> Callable[[Callable[[int], bool]], None]:
+    """The warden's notifications, as robot code takes them; hazards are numbered by description."""
+
+    def receive(arrived: Callable[[int], bool]) -> None:
+        for note in warden.notifications(timeout=0.5):
+            if note.topic is Topic.HAZARD and not arrived(int(note.event.body.description.split()[-1])):
+                return
+
+    return receive
+
+
+def ping_receiver(admin_url: str) -> Callable[[Callable[[int], bool]], None]:
+    def receive(arrived: Callable[[int], bool]) -> None:
+        connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+        try:
+            channel = connection.channel()
+            channel.basic_qos(prefetch_count=64)
+            for method, _properties, body in channel.consume(PING_QUEUE, inactivity_timeout=0.5):
+                if method is None:
+                    return  # quiet for a while: back to the caller, who knows whether to go on
+                going_on = arrived(int(body))
+                channel.basic_ack(method.delivery_tag)
+                if not going_on:
+                    return
+        finally:
+            if connection.is_open:
+                connection.close()
+
+    return receive
+
+
+def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> Figures:
+    with context.bus() as bus:
+        explorer = bus.robot(bus.add("bench-explorer", kind=RobotKind.EXPLORER))
+        warden = bus.robot(bus.add("bench-warden", kind=RobotKind.WARDEN))
+        loaders = [bus.add(f"bench-telemetry{i}").amqp_url for i in range(LOADERS)]
+        declare_queue(bus.admin_url, ingest_queue_arguments(), PING_QUEUE)
+        with worker_process(bus, *worker_args):
+            warden.publish(EventType.LOCALISATION, {"localised": True})
+            wait_for(lambda: all(w.localised for w in bus.with_store(lambda s: s.robots("warden"))))
+            context.show(f"{RATE:,} telemetry events/s starting")
+            ping = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+            sent: dict[int, float] = {}
+            pinged: dict[int, float] = {}
+            with (
+                TelemetryLoad(bus, loaders, RATE) as load,
+                Arrivals(warden_receiver(warden), "warden") as hazards,
+                Arrivals(ping_receiver(bus.admin_url), "ping") as pings,
+            ):
+                context.show(f"{count} hazards at {HAZARD_RATE}/s under {RATE:,} telemetry events/s")
+                channel = ping.channel()
+                start = time.monotonic()
+                for i in range(count):
+                    time.sleep(max(0.0, start + i / HAZARD_RATE - time.monotonic()))  # the schedule
+                    sent[i] = time.monotonic()
+                    explorer.publish(EventType.HAZARD, hazard(i))
+                    time.sleep(max(0.0, start + (i + 0.5) / HAZARD_RATE - time.monotonic()))
+                    pinged[i] = time.monotonic()
+                    channel.basic_publish("", PING_QUEUE, str(i).encode())
+                hazards.wait(count, 60)
+                pings.wait(count, 60)
+            ping.close()
+    hazard_ms = [1000 * (hazards.at[i] - sent[i]) for i in sent]
+    ping_ms = [1000 * (pings.at[i] - pinged[i]) for i in pinged]
+    return {
+        "hazard p50 ms": percentile(hazard_ms, 50),
+        "hazard p99 ms": percentile(hazard_ms, 99),
+        "hazard max ms": max(hazard_ms),
+        "raw hop p50 ms": percentile(ping_ms, 50),
+        "raw hop p99 ms": percentile(ping_ms, 99),
+        "telemetry events/s": load.rate,
+    }
+
+
+def figures(context: Context) -> Figures:
+    return measure(context, context.size(200, 100), ("--no-recorder",))
+
+
+if __name__ == "__main__":
+    from bench.suite import main
+
+    sys.exit(main(["--only", "hazard", *sys.argv[1:]]))
