@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bench import hazard_latency, ingest, raw
+from bench import hazard_latency, ingest, map_transfer, raw
 from bench.scenario import Scenario, Target
 
 #: Ingest against the raw broker's consume rate of the same run.
@@ -20,6 +20,12 @@ SCENARIOS: tuple[Scenario, ...] = (
             Target("hazard p50 ms", 5, at_most=True, unit=" ms"),
             Target("hazard p99 ms", 20, at_most=True, unit=" ms"),
         ),
+    ),
+    Scenario(
+        "map",
+        "a 4000 x 4000 PGM (16 MB) from the explorer's publish to a warden's identical copy",
+        map_transfer.figures,
+        (Target("transfer s", 2, at_most=True, unit=" s"),),
     ),
 )
 

@@ -137,8 +137,11 @@ def figure_rows(outcomes: dict[str, Outcome]) -> list[tuple[str, str, str, str, 
 TARGET_COLUMNS = ("scenario", "what", "measured", "target", "met")
 
 
-def target_rows(found: list[Verdict]) -> list[tuple[str, str, str, str]]:
-    return [(v.scenario, v.target, "" if v.measured is None else number(v.measured), v.answer) for v in found]
+def target_rows(found: list[Verdict]) -> list[tuple[str, str, str, str, str]]:
+    return [
+        (v.scenario, v.measures, "" if v.measured is None else number(v.measured), v.target, v.answer)
+        for v in found
+    ]
 
 
 def tables(outcomes: dict[str, Outcome], found: list[Verdict]) -> list[Table]:
