@@ -38,6 +38,7 @@ from bench.proc import Watch
 from bench.processes import FleetbusProcess
 from bench.raw import declare_queue, raw_consume, raw_publish
 from bench.results import medians, save, spread
+from bench.scenario import Context, Figures
 from broker.accounts import Account, Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
@@ -156,6 +157,13 @@ def one_run(
         api.delete_user(ROBOT)
     api.delete_vhost(VHOST)
     return result
+
+
+def figures(context: Context) -> Figures:
+    """The suite's recorder: the logger benchmark's rate, and its top rate on a backlog."""
+    seconds, backlog_size = context.size(30, 10), context.size(20_000, 5_000)
+    context.show(f"{RATE} msg/s of {SIZE} bytes for {seconds} s, then a backlog of {backlog_size:,}")
+    return one_run(context.endpoint, context.api, seconds, backlog_size)
 
 
 def main() -> None:
