@@ -38,6 +38,10 @@ HAZARD_RATE = 20
 RATE = 1000
 LOADERS = 4
 PING_QUEUE = "bench.ping"
+#: Where a hazard's time goes, by the product's own stamps: the explorer's outbox, the broker and
+#: the ingest queue up to the worker's batch; the worker's store writes and hazard service; the
+#: notification's publish and delivery to the warden.
+STAGES = ("to the worker", "in the worker", "to the warden")
 
 
 def hazard(i: int) -> dict[str, Any]:
@@ -86,15 +90,29 @@ class Arrivals:
         self._thread.join(30)
 
 
-def warden_receiver(warden: RobotClient) -> Callable[[Callable[[int], bool]], None]:
-    """The warden's notifications, as robot code takes them; hazards are numbered by description."""
+class WardenReceiver:
+    """The warden's notifications, as robot code takes them; hazards are numbered by description.
 
-    def receive(arrived: Callable[[int], bool]) -> None:
-        for note in warden.notifications(timeout=0.5):
-            if note.topic is Topic.HAZARD and not arrived(int(note.event.body.description.split()[-1])):
+    ``stages[i]`` splits hazard i's way with the times the product stamps (wall clock, one machine):
+    the robot's ``sent_at``, the worker's ``received_at`` and ``notified_at``, and the receipt.
+    """
+
+    def __init__(self, warden: RobotClient) -> None:
+        self._warden = warden
+        self.stages: dict[int, tuple[float, float, float]] = {}
+
+    def __call__(self, arrived: Callable[[int], bool]) -> None:
+        for note in self._warden.notifications(timeout=0.5):
+            now = time.time()
+            if note.topic is not Topic.HAZARD:
+                continue
+            i = int(note.event.body.description.split()[-1])
+            sent, received, notified = (
+                t.timestamp() for t in (note.event.sent_at, note.received_at, note.notified_at)
+            )
+            self.stages[i] = (received - sent, notified - received, now - notified)
+            if not arrived(i):
                 return
-
-    return receive
 
 
 def ping_receiver(admin_url: str) -> Callable[[Callable[[int], bool]], None]:
@@ -132,7 +150,7 @@ def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> 
             pinged: dict[int, float] = {}
             with (
                 TelemetryLoad(bus, loaders, RATE) as load,
-                Arrivals(warden_receiver(warden), "warden") as hazards,
+                Arrivals(receiver := WardenReceiver(warden), "warden") as hazards,
                 Arrivals(ping_receiver(bus.admin_url), "ping") as pings,
             ):
                 context.show(f"{count} hazards at {HAZARD_RATE}/s under {RATE:,} telemetry events/s")
@@ -154,6 +172,10 @@ def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> 
         "hazard p50 ms": percentile(hazard_ms, 50),
         "hazard p99 ms": percentile(hazard_ms, 99),
         "hazard max ms": max(hazard_ms),
+        **{
+            f"{stage} p50 ms": percentile([1000 * times[k] for times in receiver.stages.values()], 50)
+            for k, stage in enumerate(STAGES)
+        },
         "raw hop p50 ms": percentile(ping_ms, 50),
         "raw hop p99 ms": percentile(ping_ms, 99),
         "telemetry events/s": load.rate,
