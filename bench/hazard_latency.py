@@ -148,6 +148,7 @@ def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> 
             ping = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
             sent: dict[int, float] = {}
             pinged: dict[int, float] = {}
+            confirmed: list[float] = []  # how long each publish took: outbox, broker confirm
             with (
                 TelemetryLoad(bus, loaders, RATE) as load,
                 Arrivals(receiver := WardenReceiver(warden), "warden") as hazards,
@@ -160,6 +161,7 @@ def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> 
                     time.sleep(max(0.0, start + i / HAZARD_RATE - time.monotonic()))  # the schedule
                     sent[i] = time.monotonic()
                     explorer.publish(EventType.HAZARD, hazard(i))
+                    confirmed.append(time.monotonic() - sent[i])
                     time.sleep(max(0.0, start + (i + 0.5) / HAZARD_RATE - time.monotonic()))
                     pinged[i] = time.monotonic()
                     channel.basic_publish("", PING_QUEUE, str(i).encode())
@@ -172,6 +174,7 @@ def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> 
         "hazard p50 ms": percentile(hazard_ms, 50),
         "hazard p99 ms": percentile(hazard_ms, 99),
         "hazard max ms": max(hazard_ms),
+        "explorer's publish p50 ms": percentile([1000 * seconds for seconds in confirmed], 50),
         **{
             f"{stage} p50 ms": percentile([1000 * times[k] for times in receiver.stages.values()], 50)
             for k, stage in enumerate(STAGES)
