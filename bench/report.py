@@ -26,6 +26,8 @@ class Outcome:
     """The figures of each run that succeeded, by the suite's run number (0, 1, ...)."""
     skipped: str | None = None
     errors: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    """Wall time of all its runs."""
 
     def figures(self) -> list[str]:
         names: dict[str, None] = {}
@@ -118,8 +120,12 @@ def machine(api: ManagementAPI, endpoint: BrokerEndpoint) -> dict[str, str]:
         "python": platform.python_version(),
         "broker": f"RabbitMQ {overview.get('rabbitmq_version', '?')} "
         f"(Erlang {overview.get('erlang_version', '?')}), {endpoint.kind} node",
-        "load": "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()),
+        "load": load_average(),
     }
+
+
+def load_average() -> str:
+    return "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
 
 
 def figure_rows(outcomes: dict[str, Outcome]) -> list[tuple[str, str, str, str, str]]:
@@ -176,7 +182,10 @@ def markdown(meta: dict[str, Any], outcomes: dict[str, Outcome], found: list[Ver
         f"fleetbus benchmark suite, {meta['finished']} ({meta['seconds'] / 60:.1f} min): `{meta['command']}`",
         "",
         f"{machine_['cpu']}, {machine_['memory']}; {machine_['os']}; Python {machine_['python']}; "
-        f"{machine_['broker']}; {machine_['load']} at the start.",
+        f"{machine_['broker']}; {machine_['load']} at the start, {meta['load at the end']} at the end.",
+        "Minutes per scenario: "
+        + ", ".join(f"{name} {outcome.seconds / 60:.1f}" for name, outcome in outcomes.items())
+        + ".",
         "",
         *_table(TARGET_COLUMNS, target_rows(found), {2}),
         "",
@@ -196,6 +205,7 @@ def as_json(meta: dict[str, Any], outcomes: dict[str, Outcome], found: list[Verd
                 "medians": {f: statistics.median(outcome.values(f)) for f in outcome.figures()},
                 "skipped": outcome.skipped,
                 "errors": outcome.errors,
+                "seconds": outcome.seconds,
             }
             for name, outcome in outcomes.items()
         },

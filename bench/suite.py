@@ -25,7 +25,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from bench.registry import SCENARIOS, by_name
-from bench.report import Outcome, as_json, machine, markdown, tables, verdicts
+from bench.report import Outcome, as_json, load_average, machine, markdown, tables, verdicts
 from bench.scenario import Context, Scenario, Skip
 from broker.endpoint import resolve_broker
 from broker.local_node import LocalNode
@@ -63,6 +63,7 @@ def run(scenarios: Sequence[Scenario], context: Context, runs: int, progress: Pr
             name = f"run {number + 1}/{outcome.planned} {outcome.scenario.name}"
             context.show = lambda text, name=name: progress.update(task, description=f"{name}: {text}")
             context.show("starting")
+            started = time.monotonic()
             try:
                 outcome.runs[number] = outcome.scenario.measure(context)
             except Skip as skip:
@@ -72,6 +73,7 @@ def run(scenarios: Sequence[Scenario], context: Context, runs: int, progress: Pr
                 outcome.errors.append(f"{type(error).__name__}: {error}")
                 progress.console.print(f"[red]{name} failed[/red]")
                 progress.console.print(traceback.format_exc(), markup=False, highlight=False)
+            outcome.seconds += time.monotonic() - started
             progress.advance(task)
     return outcomes
 
@@ -113,6 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "started": f"{started:%Y-%m-%d %H:%M} UTC",
         "finished": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC",
         "seconds": time.monotonic() - clock,
+        "load at the end": load_average(),
         "runs": args.runs,
         "quick": args.quick,
         "machine": where,

@@ -75,7 +75,7 @@ def test_verdicts_say_why_a_target_was_not_measured() -> None:
     assert found["hazard"].met is None and "TimeoutError: 3 arrivals" in found["hazard"].note
     assert [v.met for v in verdicts({"ingest": outcomes["ingest"]})] == [None]  # raw was not run
     text = markdown(
-        {"finished": "now", "seconds": 60, "command": "x", "machine": _machine()},
+        {"finished": "now", "seconds": 60, "command": "x", "machine": _machine(), "load at the end": "x"},
         outcomes,
         list(found.values()),
     )
