@@ -1,6 +1,10 @@
 """Hazard notification latency: the explorer's publish to the warden's receipt, under telemetry load.
 
-    .venv/bin/python -m bench --only hazard [--runs 3] [--quick]
+    .venv/bin/python -m bench.hazard_latency [--runs 3] [--quick]
+
+The suite runs it three ways: ``hazard`` (`fleetbus worker --no-recorder` under the telemetry;
+the targets are on it), ``hazard-idle`` (no telemetry: the floor) and ``hazard-recorder``
+(`fleetbus worker` as it starts by default, the recorder in its process, under the telemetry).
 
 An explorer publishes hazards (``robot.publish``, as robot code does: outbox, broker confirm) at
 HAZARD_RATE a second while four other robots publish RATE telemetry events a second in a
@@ -135,7 +139,8 @@ def ping_receiver(admin_url: str) -> Callable[[Callable[[int], bool]], None]:
     return receive
 
 
-def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> Figures:
+def measure(context: Context, count: int, rate: float = RATE, worker_args: tuple[str, ...] = ()) -> Figures:
+    """``count`` hazards under ``rate`` telemetry events a second; `fleetbus worker WORKER_ARGS`."""
     with context.bus() as bus:
         explorer = bus.robot(bus.add("bench-explorer", kind=RobotKind.EXPLORER))
         warden = bus.robot(bus.add("bench-warden", kind=RobotKind.WARDEN))
@@ -144,17 +149,17 @@ def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> 
         with worker_process(bus, *worker_args):
             warden.publish(EventType.LOCALISATION, {"localised": True})
             wait_for(lambda: all(w.localised for w in bus.with_store(lambda s: s.robots("warden"))))
-            context.show(f"{RATE:,} telemetry events/s starting")
+            context.show(f"{rate:,.0f} telemetry events/s starting")
             ping = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
             sent: dict[int, float] = {}
             pinged: dict[int, float] = {}
             confirmed: list[float] = []  # how long each publish took: outbox, broker confirm
             with (
-                TelemetryLoad(bus, loaders, RATE) as load,
+                TelemetryLoad(bus, loaders, rate) as load,
                 Arrivals(receiver := WardenReceiver(warden), "warden") as hazards,
                 Arrivals(ping_receiver(bus.admin_url), "ping") as pings,
             ):
-                context.show(f"{count} hazards at {HAZARD_RATE}/s under {RATE:,} telemetry events/s")
+                context.show(f"{count} hazards at {HAZARD_RATE}/s under {rate:,.0f} telemetry events/s")
                 channel = ping.channel()
                 start = time.monotonic()
                 for i in range(count):
@@ -186,10 +191,21 @@ def measure(context: Context, count: int, worker_args: tuple[str, ...] = ()) -> 
 
 
 def figures(context: Context) -> Figures:
-    return measure(context, context.size(200, 100), ("--no-recorder",))
+    """The suite's hazard latency: the worker alone (`--no-recorder`), under the telemetry load."""
+    return measure(context, context.size(200, 100), RATE, ("--no-recorder",))
+
+
+def figures_idle(context: Context) -> Figures:
+    """The same path with no telemetry beside it: the floor the load adds to."""
+    return measure(context, context.size(200, 100), 0, ("--no-recorder",))
+
+
+def figures_with_recorder(context: Context) -> Figures:
+    """Under the load, with `fleetbus worker` as it starts by default: the recorder in its process."""
+    return measure(context, context.size(200, 100), RATE)
 
 
 if __name__ == "__main__":
     from bench.suite import main
 
-    sys.exit(main(["--only", "hazard", *sys.argv[1:]]))
+    sys.exit(main(["--only", "hazard,hazard-idle,hazard-recorder", *sys.argv[1:]]))

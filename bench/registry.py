@@ -30,6 +30,12 @@ SCENARIOS: tuple[Scenario, ...] = (
             Target("hazard p99 ms", 20, at_most=True, unit=" ms"),
         ),
     ),
+    Scenario("hazard-idle", "the same with no telemetry beside", hazard_latency.figures_idle),
+    Scenario(
+        "hazard-recorder",
+        "as hazard, the recorder in the worker's process",
+        hazard_latency.figures_with_recorder,
+    ),
     Scenario(
         "map",
         "a 4000 x 4000 PGM (16 MB) from the explorer's publish to a warden's identical copy",
