@@ -16,6 +16,7 @@ from types import TracebackType
 import pika
 import pika.exceptions
 
+from bench.profile import record
 from schemas.routing import INGEST_QUEUE
 from tests.support import Bus, wait_for
 
@@ -55,6 +56,7 @@ class FleetbusProcess:
         except BaseException:
             self.kill()
             raise
+        self._profiler = record(self.pid, args[0])
 
     @property
     def pid(self) -> int:
@@ -65,13 +67,19 @@ class FleetbusProcess:
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGTERM)
             self.process.wait(timeout)
-        self._log.close()
+        self._finish()
 
     def kill(self) -> None:
         if self.process.poll() is None:
             self.process.kill()
             self.process.wait(30)
+        self._finish()
+
+    def _finish(self) -> None:
         self._log.close()
+        profiler = getattr(self, "_profiler", None)
+        if profiler is not None:
+            profiler.wait(60)  # py-spy writes its file once the process it records has ended
 
     def __enter__(self) -> FleetbusProcess:
         return self

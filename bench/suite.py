@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import sys
 import time
@@ -24,6 +25,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from bench import profile
 from bench.registry import SCENARIOS, by_name
 from bench.report import Outcome, as_json, load_average, machine, markdown, tables, verdicts
 from bench.scenario import Context, Scenario, Skip
@@ -63,6 +65,8 @@ def run(scenarios: Sequence[Scenario], context: Context, runs: int, progress: Pr
             name = f"run {number + 1}/{outcome.planned} {outcome.scenario.name}"
             context.show = lambda text, name=name: progress.update(task, description=f"{name}: {text}")
             context.show("starting")
+            if os.environ.get(profile.FOLDER_VARIABLE):
+                os.environ[profile.SCENARIO_VARIABLE] = outcome.scenario.name  # names its profiles
             started = time.monotonic()
             try:
                 outcome.runs[number] = outcome.scenario.measure(context)
@@ -87,6 +91,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--only", help="comma-separated scenario names (see --list)")
     parser.add_argument("--list", action="store_true", help="list the scenarios and their targets, and exit")
     parser.add_argument("--out", type=Path, default=Path("bench/results"), help="where results go")
+    parser.add_argument(
+        "--profile", action="store_true", help="record each fleetbus process with py-spy (see bench.profile)"
+    )
     args = parser.parse_args(argv)
     if args.list:
         for scenario in SCENARIOS:
@@ -96,9 +103,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.runs < 1:
         parser.error("--runs must be at least 1")
     scenarios = select(args.only)
+    started = datetime.now(timezone.utc)
+    stem = args.out / f"suite-{started:%Y%m%dT%H%M%S}"
+    if args.profile:
+        profile.py_spy()  # fails now, not after the first scenario, when py-spy is missing
+        os.environ[profile.FOLDER_VARIABLE] = str(args.out / f"profiles-{started:%Y%m%dT%H%M%S}")
     settings = load_settings()
     endpoint = resolve_broker(settings, start=True)
-    started, clock = datetime.now(timezone.utc), time.monotonic()
+    clock = time.monotonic()
     command = " ".join(
         [".venv/bin/python -m bench", *map(shlex.quote, sys.argv[1:] if argv is None else argv)]
     )
@@ -123,8 +135,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for table in tables(outcomes, found):
         console.print(table)
     args.out.mkdir(parents=True, exist_ok=True)
-    stem = args.out / f"suite-{started:%Y%m%dT%H%M%S}"
     stem.with_suffix(".json").write_text(json.dumps(as_json(meta, outcomes, found), indent=2))
     stem.with_suffix(".md").write_text(markdown(meta, outcomes, found))
     console.print(f"wrote {stem}.json and {stem}.md")
+    if args.profile:
+        console.print(f"profiles in {os.environ[profile.FOLDER_VARIABLE]}: python -m bench.profile FILE")
     return 1 if any(o.errors for o in outcomes.values()) else 0

@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.progress import Progress
 
 from bench import ingest
+from bench.profile import PROJECT_ROOT, busiest
 from bench.registry import SCENARIOS, by_name
 from bench.report import Outcome, as_json, markdown, verdicts
 from bench.scenario import Context, Figures, Scenario, Skip, Target
@@ -168,6 +169,36 @@ def test_the_registry_names_are_unique_and_every_baseline_exists() -> None:
         for target in scenario.targets:
             if target.per:
                 assert target.per[0] in by_name(), (scenario.name, target.per)
+
+
+def test_a_profile_is_summed_up_by_package_per_thread(tmp_path: Path) -> None:
+    files = [
+        ".venv/lib/python3.11/site-packages/aiormq/connection.py",
+        "/usr/lib/python3.11/asyncio/events.py",
+    ]
+    frames = [
+        {"name": "f", "file": file, "line": 1} for file in [*files, str(PROJECT_ROOT / "workers/ingest.py")]
+    ]
+    threads = [
+        {
+            "type": "sampled",
+            "name": "MainThread",
+            "samples": [[1, 0], [1, 0], [1, 2], [1]],
+            "weights": [0.1] * 4,
+        },
+        {"type": "sampled", "name": "sqlite", "samples": [[2]], "weights": [0.1]},
+    ]
+    path = tmp_path / "worker.speedscope.json"
+    path.write_text(json.dumps({"shared": {"frames": frames}, "profiles": threads}))
+    (main_thread, seconds, packages), (other, _, other_packages) = busiest(path)
+    assert (main_thread, other) == ("MainThread", "sqlite")
+    assert seconds == pytest.approx(0.4)
+    assert [(name, round(share, 2)) for name, share in packages] == [
+        ("aiormq", 0.5),
+        ("workers", 0.25),
+        ("asyncio", 0.25),
+    ]
+    assert other_packages == [("workers", 1.0)]
 
 
 def _machine() -> dict[str, str]:
