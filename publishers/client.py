@@ -34,7 +34,7 @@ from publishers.maps import FetchedMap, fetch_map, map_events
 from publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
 from publishers.rpc import RpcChannel
 from publishers.sender import Sender
-from publishers.sequence import SequenceCounter
+from publishers.sequence import SequenceCounter, legacy_floor
 from publishers.state_lock import StateLock
 from schemas.bodies import MapMetadata
 from schemas.envelope import Event, build_event, validate_body
@@ -51,10 +51,6 @@ SEEN_NOTIFICATIONS = 10_000
 def robot_folder(state_dir: Path, robot_id: str) -> Path:
     """The robot's personal database: sequence counter, outbox, lock."""
     return state_dir / robot_id
-
-
-def robot_state_path(state_dir: Path, robot_id: str) -> Path:
-    return robot_folder(state_dir, robot_id) / "state.json"
 
 
 def outbox_folder(state_dir: Path, robot_id: str) -> Path:
@@ -103,11 +99,8 @@ class RobotClient:
         self._lock = StateLock(folder)
         self._lock.acquire()
         try:
-            self._sequence = SequenceCounter(folder / "state.json", durable=durable)
             self.outbox = Outbox(folder / "outbox", outbox_policies, durable=durable)
-            last = self.outbox.max_seq()
-            if last is not None:
-                self._sequence.at_least(last + 1)
+            self._sequence = SequenceCounter(max(self.outbox.next_seq(), legacy_floor(folder / "state.json")))
         except BaseException:
             self._lock.release()
             raise
@@ -173,7 +166,6 @@ class RobotClient:
         if self._started:
             self._sender.stop()
         self.outbox.close()
-        self._sequence.close()
         self._lock.release()
 
     def __enter__(self) -> RobotClient:
@@ -211,8 +203,8 @@ class RobotClient:
         With ``wait``, return once the broker confirmed them, or at once if it is unreachable, or
         after ``confirm_timeout`` at most; they go out when it is back.
         """
-        self.outbox.append(events)
         self.start()
+        self.outbox.append(events, express=self._sender.offer_express)
         self._sender.wake()
         if not wait:
             return

@@ -121,7 +121,9 @@ class PipelinedConfirms:
                 batch[self._next_tag] = message.properties.message_id or ""
                 self._unconfirmed.add(self._next_tag)
                 self._next_tag += 1
-                self._channel.basic_publish(
+                # On the channel underneath: the blocking facade writes to the socket after every
+                # message (one send syscall each); these frames go out together when we pump.
+                self._impl.basic_publish(
                     message.exchange, message.routing_key, message.body, message.properties, mandatory=True
                 )
         except pika.exceptions.ChannelClosed as error:

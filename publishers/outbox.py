@@ -21,11 +21,11 @@ import enum
 import re
 import threading
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from tinydb import TinyDB
 from tinydb.table import Document
@@ -50,6 +50,9 @@ class TypePolicy:
     """Most entries of this type that may wait."""
 
 
+#: Publishes of at most this many events may be sent while they are being written (latency);
+#: larger ones are bulk and go the ordinary way, from the outbox.
+EXPRESS_MAX = 16
 KEEP_LIMIT = 100_000
 DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
     EventType.STATUS.value: TypePolicy(Overflow.DROP_OLDEST, 10_000),
@@ -61,6 +64,16 @@ DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
     EventType.BEACON.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
 }
 DEFAULT_POLICY = TypePolicy(Overflow.KEEP, KEEP_LIMIT)
+
+
+class ExpressJob(Protocol):
+    entries: list[Entry]
+
+    def stored(self, entries: list[Entry] | None) -> None:
+        """Where the entries were written (positions filled in), or None if the write failed."""
+
+
+ExpressOffer = Callable[[list["Entry"]], "ExpressJob | None"]
 
 
 class OutboxFull(Exception):
@@ -109,6 +122,10 @@ class _Segment:
     @property
     def size(self) -> int:
         return sum(self.counts.values())
+
+
+def _entry_of(event: Event, body: bytes, position: tuple[int, int]) -> Entry:
+    return Entry(event.seq, event.type.value, str(event.message_id), event.sent_at, body, position)
 
 
 def _policy(policies: Mapping[str, TypePolicy], event_type: str) -> TypePolicy:
@@ -207,8 +224,13 @@ class Outbox:
 
     # ------------------------------------------------------------------ appending
 
-    def append(self, events: Sequence[Event]) -> None:
-        """Store events durably, in order; raise :class:`OutboxFull` (taking none) past a keep limit."""
+    def append(self, events: Sequence[Event], express: ExpressOffer | None = None) -> None:
+        """Store events durably, in order; raise :class:`OutboxFull` (taking none) past a keep limit.
+
+        ``express``: when nothing waits or is in flight, the events are offered to the sender before
+        they are written, so the network send and the fsync overlap; an accepted offer learns where
+        they were stored (or that the write failed) and they stay in flight until it settles them.
+        """
         if not events:
             return
         with self._lock:
@@ -221,28 +243,54 @@ class Outbox:
                         f"{counts[event_type]} {event_type} events wait already and {event_type} is never "
                         f"dropped; its limit is {policy.limit}"
                     )
-            docs = [self._doc(event) for event in events]
-            start = 0
-            while start < len(docs):
-                segment = self._tail_with_room()
-                room = max(1, self._segment_events - segment.size)
-                part = docs[start : start + room]
-                self._open(segment).table("events").insert_multiple(part)
-                for doc in part:
-                    segment.counts[doc["type"]] += 1
-                    segment.bytes += len(doc.get("body", ""))
-                start += len(part)
+            bodies = [encode_event(event) for event in events]
+            job = None
+            if (
+                express is not None
+                and len(events) <= EXPRESS_MAX
+                and not self._segments
+                and not self._in_flight
+            ):
+                job = express(
+                    [_entry_of(event, body, (-1, -1)) for event, body in zip(events, bodies, strict=True)]
+                )
+            try:
+                positions = self._write(events, bodies)
+            except BaseException:
+                if job is not None:
+                    job.stored(None)
+                raise
+            if job is not None:
+                self._in_flight |= set(positions)
+                job.stored(
+                    [replace(entry, position=p) for entry, p in zip(job.entries, positions, strict=True)]
+                )
             for event_type in adding:
                 self._enforce_drop_limit(event_type)
 
-    def _doc(self, event: Event) -> dict[str, Any]:
+    def _write(self, events: Sequence[Event], bodies: Sequence[bytes]) -> list[tuple[int, int]]:
+        docs = [self._doc(event, body) for event, body in zip(events, bodies, strict=True)]
+        positions: list[tuple[int, int]] = []
+        start = 0
+        while start < len(docs):
+            segment = self._tail_with_room()
+            room = max(1, self._segment_events - segment.size)
+            part = docs[start : start + room]
+            ids = self._open(segment).table("events").insert_multiple(part)
+            positions += [(segment.number, doc_id) for doc_id in ids]
+            for doc in part:
+                segment.counts[doc["type"]] += 1
+                segment.bytes += len(doc.get("body", ""))
+            start += len(part)
+        return positions
+
+    def _doc(self, event: Event, body: bytes) -> dict[str, Any]:
         doc: dict[str, Any] = {
             "seq": event.seq,
             "type": event.type.value,
             "message_id": str(event.message_id),
             "sent_at": event.sent_at.isoformat(),
         }
-        body = encode_event(event)
         if len(body) > self._blob_bytes:
             name = f"{BLOB_PREFIX}{event.message_id}.json"
             write_atomically(self.folder / name, body, self._durable)
@@ -279,6 +327,7 @@ class Outbox:
                 for doc in self._docs(segment)
                 if doc["type"] == event_type and (segment.number, doc.doc_id) not in self._in_flight
             ][: excess - dropped]
+            self._note_removed(doomed)
             self._remove(segment, doomed)
             dropped += len(doomed)
         if dropped:
@@ -338,6 +387,7 @@ class Outbox:
                     )
             if refused_docs:
                 self._refused.table("refused").insert_multiple(refused_docs)
+            self._note_removed(taken)
             for segment in list(self._segments):
                 ids = by_segment.get(segment.number)
                 if ids:
@@ -345,9 +395,13 @@ class Outbox:
             self._in_flight = set()
 
     def release(self) -> None:
-        """Nothing of the last take was settled (the connection broke): it waits again."""
+        """Nothing of the last take was settled (the connection broke): it waits again, and counts
+        again against the drop limits it was spared while in flight."""
         with self._lock:
+            types = {t for segment in self._segments for t, n in segment.counts.items() if n}
             self._in_flight = set()
+            for event_type in types:
+                self._enforce_drop_limit(event_type)
 
     def _remove(self, segment: _Segment, docs: Sequence[Any]) -> None:
         if not docs:
@@ -387,6 +441,27 @@ class Outbox:
             docs = self._docs(self._segments[-1])
             self._release(self._segments[-1])
             return max((doc["seq"] for doc in docs), default=None)
+
+    def next_seq(self) -> int:
+        """The lowest sequence number never given to an event this outbox held.
+
+        The robot's numbers are kept here rather than in a file of their own, so that a publish
+        costs one durable write, not two: the newest waiting event has the highest number handed
+        out, and before any event leaves the outbox its number is recorded as ``removed_through``.
+        """
+        with self._lock:
+            newest = self.max_seq()
+            doc = self._meta.table("sequence").get(doc_id=1)
+            removed = doc["removed_through"] if doc else -1
+            return max(-1 if newest is None else newest, removed) + 1
+
+    def _note_removed(self, items: Iterable[Entry] | Iterable[Any]) -> None:
+        """Record the highest number about to leave the outbox, before it leaves (see next_seq)."""
+        highest = max((item.seq if isinstance(item, Entry) else item["seq"] for item in items), default=-1)
+        table = self._meta.table("sequence")
+        doc = table.get(doc_id=1)
+        if highest > (doc["removed_through"] if doc else -1):
+            table.upsert(Document({"removed_through": highest}, doc_id=1))
 
     def entries(self, limit: int | None = None) -> list[Entry]:
         """Waiting entries, oldest first (without marking them in flight)."""

@@ -40,6 +40,23 @@ def _abort(connection: pika.BlockingConnection) -> None:
     connection.process_data_events(0)
 
 
+class ExpressJob:
+    """Events handed to the sender while the publishing thread writes them to the outbox."""
+
+    def __init__(self, entries: list[Entry]) -> None:
+        self.entries = entries
+        self._written = threading.Event()
+        self._positioned: list[Entry] | None = None
+
+    def stored(self, entries: list[Entry] | None) -> None:
+        self._positioned = entries
+        self._written.set()
+
+    def wait_stored(self, timeout: float) -> list[Entry] | None:
+        """The entries with their outbox positions; None if the write failed or took too long."""
+        return self._positioned if self._written.wait(timeout) else None
+
+
 @dataclass
 class Waiter:
     """A caller waiting for some of its events to be settled (confirmed or refused)."""
@@ -67,6 +84,10 @@ class Sender:
         self._connected = False
         self._work = False
         self._waiters: list[Waiter] = []
+        self._express: ExpressJob | None = None
+        self._busy = False
+        self._settled = 0
+        """Bumped at every settle, so a waiter cannot miss one."""
         self._connection: pika.BlockingConnection | None = None
         self._confirms: PipelinedConfirms | None = None
         self.last_error: str | None = None
@@ -92,6 +113,19 @@ class Sender:
     @property
     def connected(self) -> bool:
         return self._connected
+
+    def offer_express(self, entries: list[Entry]) -> ExpressJob | None:
+        """Take events to send right now, before they are durable in the outbox (see Outbox.append).
+
+        Only while connected and idle: with anything else waiting, they go in order behind it.
+        """
+        with self._condition:
+            if not self._connected or self._express is not None or self._busy:
+                return None
+            self._express = job = ExpressJob(entries)
+            self._work = True
+            self._condition.notify_all()
+            return job
 
     def wait_connected(self, timeout: float) -> bool:
         with self._condition:
@@ -121,13 +155,18 @@ class Sender:
     def wait_drained(self, timeout: float) -> bool:
         """Wait until the outbox is empty; False if ``timeout`` passed first."""
         deadline = time.monotonic() + timeout
-        with self._condition:
-            while self._outbox.pending():
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                self._condition.wait(min(remaining, IDLE_TICK))
-            return True
+        while True:
+            with self._condition:
+                settled = self._settled
+            # the outbox is asked outside the condition: publishers take the outbox's lock first
+            if not self._outbox.pending():
+                return True
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            with self._condition:
+                if self._settled == settled:
+                    self._condition.wait(min(remaining, IDLE_TICK))
 
     # ------------------------------------------------------------------ the thread
 
@@ -139,11 +178,21 @@ class Sender:
                     self._connect()  # at once, not on the first event: publish() needs to know
                     delay = 0.1
                     continue
-                entries = self._outbox.take(PUBLISH_WINDOW)
+                with self._condition:
+                    job, self._express = self._express, None
+                    self._busy = True
+                try:
+                    if job is not None:
+                        self._send_express(job)
+                        continue
+                    entries = self._outbox.take(PUBLISH_WINDOW)
+                    if entries:
+                        self._send(entries)
+                finally:
+                    with self._condition:
+                        self._busy = False
                 if not entries:
                     self._idle_wait()
-                    continue
-                self._send(entries)
             except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
                 self._outbox.release()
                 self._disconnect(repr(error))
@@ -220,6 +269,27 @@ class Sender:
             log.warning("broker nacked %d messages; they stay in the outbox", len(outcome.nacked))
         self._settle(confirmed, refused)
 
+    def _send_express(self, job: ExpressJob) -> None:
+        """Send before the outbox write is done; settle once it is (the confirm may come first)."""
+        assert self._confirms is not None
+        messages = [self._to_outgoing(entry) for entry in job.entries]
+        try:
+            outcome = self._confirms.send(messages, self._confirm_timeout)
+        except PublishRefused:
+            # the entries wait in the outbox like any others; the normal path finds the culprit
+            job.wait_stored(self._confirm_timeout)
+            self._outbox.release()
+            self._fresh_channel()
+            return
+        positioned = job.wait_stored(self._confirm_timeout)
+        if positioned is None:
+            log.error("the outbox could not store %d events the broker took", len(job.entries))
+            self._outbox.release()
+            return
+        refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
+        self._settle([e for e in positioned if e.message_id not in outcome.nacked], refused)
+        self._outbox.release()
+
     def _settle_one_by_one(self, entries: list[Entry], messages: list[Outgoing]) -> None:
         for entry, message in zip(entries, messages, strict=True):
             confirms = self._confirms
@@ -245,4 +315,5 @@ class Sender:
             for waiter in self._waiters:
                 waiter.refused.update({m: why for m, why in refused.items() if m in waiter.pending})
                 waiter.pending -= ids
+            self._settled += 1
             self._condition.notify_all()

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy
-from publishers.sequence import SequenceCounter
+from publishers.sequence import SequenceCounter, legacy_floor
 from publishers.storage import AtomicJSONStorage
 from schemas.envelope import Event, build_event, parse_event
 from tests.factories import hazard, status
@@ -116,11 +116,27 @@ def test_the_storage_replaces_its_file_whole(tmp_path: Path) -> None:
     assert [path.name for path in tmp_path.iterdir()] == ["db.json"], "no temporary file left"
 
 
-def test_sequence_numbers_only_grow(tmp_path: Path) -> None:
-    counter = SequenceCounter(tmp_path / "state.json")
-    assert counter.reserve(3) == 0
+def test_the_next_sequence_number_survives_reopening_however_the_outbox_emptied(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, {"status": TypePolicy(Overflow.DROP_OLDEST, 2)})
+    assert outbox.next_seq() == 0
+    outbox.append(events("hazard", 0, 3))
+    assert outbox.next_seq() == 3, "the newest waiting event"
+    outbox.settle(outbox.take(3))
+    outbox.close()
+    reopened = Outbox(tmp_path, {"status": TypePolicy(Overflow.DROP_OLDEST, 2)})
+    assert reopened.pending() == 0 and reopened.next_seq() == 3, "recorded before they left"
+    reopened.append(events("status", 7, 3))  # 7 dropped at once
+    window = reopened.take(2)
+    reopened.settle(window, {window[1].message_id: "unroutable"})
+    reopened.close()
+    assert Outbox(tmp_path).next_seq() == 10
+
+
+def test_a_client_numbers_on_from_its_outbox_and_from_the_old_state_file(tmp_path: Path) -> None:
+    (tmp_path / "state.json").write_text('{"sequence": {"1": {"next": 42}}}')
+    assert legacy_floor(tmp_path / "state.json") == 42
+    assert legacy_floor(tmp_path / "missing.json") == 0
+    counter = SequenceCounter(5)
+    assert counter.reserve(3) == 5
     counter.at_least(2)
-    assert counter.reserve() == 3
-    counter.at_least(10)
-    counter.close()
-    assert SequenceCounter(tmp_path / "state.json").reserve() == 10
+    assert counter.reserve() == 8

@@ -1,7 +1,9 @@
-"""Gather delivered messages into batches: what arrived within a few milliseconds, up to a size.
+"""Gather delivered messages into batches: what has arrived, up to a size.
 
 A consumer callback puts messages in; the consuming loop takes a batch at a time and writes it
-in one transaction. (The ingest consumer has its own copy of this; it can move here.)
+in one transaction. With no ``linger`` a batch is whatever waits when the loop asks: one message
+when traffic is light (no added latency), hundreds under load (they pile up while the previous
+batch is being written). A ``linger`` waits that long for more, trading latency for fewer writes.
 """
 
 from __future__ import annotations
@@ -12,13 +14,14 @@ from aio_pika.abc import AbstractIncomingMessage
 
 
 class BatchInbox:
-    def __init__(self, batch_size: int = 256, linger: float = 0.005) -> None:
+    def __init__(self, batch_size: int = 256, linger: float = 0.0) -> None:
         self._queue: asyncio.Queue[AbstractIncomingMessage] = asyncio.Queue()
         self._batch_size = batch_size
         self._linger = linger
 
     async def put(self, message: AbstractIncomingMessage) -> None:
-        await self._queue.put(message)
+        """The consumer callback (aio-pika wants a coroutine function)."""
+        self._queue.put_nowait(message)
 
     def empty(self) -> bool:
         return self._queue.empty()

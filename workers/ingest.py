@@ -22,6 +22,7 @@ from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMess
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from workers.backoff import Backoff
+from workers.batches import BatchInbox
 from workers.dead_letters import dead_letter
 from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.interface import Store
@@ -60,6 +61,15 @@ class Stopping(Exception):
 
 
 @dataclass
+class LedgerUpdate:
+    """What a batch tells the sequence ledger: the numbers stored and the duplicates seen."""
+
+    at: datetime
+    seen: dict[str, list[int]] = field(default_factory=dict)
+    duplicates: list[Duplicate] = field(default_factory=list)
+
+
+@dataclass
 class IngestStats:
     stored: int = 0
     duplicates: int = 0
@@ -82,7 +92,7 @@ class IngestConsumer:
         services: Sequence[BatchService] = (),
         enrichers: Sequence[BatchEnricher] = (),
         batch_size: int = 256,
-        linger: float = 0.005,
+        linger: float = 0.0,
     ) -> None:
         self._channel = channel
         self._queue = queue
@@ -92,21 +102,16 @@ class IngestConsumer:
         self._enrichers = enrichers
         self._dead_letter_exchange = dead_letter_exchange
         self._max_bytes = max_message_bytes
-        self._batch_size = batch_size
-        self._linger = linger
-        self._inbox: asyncio.Queue[AbstractIncomingMessage] = asyncio.Queue()
+        self._inbox = BatchInbox(batch_size, linger)
         self._stopping = asyncio.Event()
         self._consumer_tag: str | None = None
         self.stats = IngestStats()
 
-    async def _on_message(self, message: AbstractIncomingMessage) -> None:
-        await self._inbox.put(message)
-
     async def run(self) -> None:
         """Consume until :meth:`stop`; then finish what was received and return."""
-        self._consumer_tag = await self._queue.consume(self._on_message, no_ack=False)
+        self._consumer_tag = await self._queue.consume(self._inbox.put, no_ack=False)
         while not (self._stopping.is_set() and self._inbox.empty()):
-            batch = await self._next_batch()
+            batch = await self._inbox.next_batch(self._stopping)
             if batch:
                 try:
                     await self._process(batch)
@@ -142,33 +147,6 @@ class IngestConsumer:
                 await self._queue.cancel(self._consumer_tag)
         self._stopping.set()
 
-    async def _next_batch(self) -> list[AbstractIncomingMessage]:
-        batch: list[AbstractIncomingMessage] = []
-        stop_wait = asyncio.ensure_future(self._stopping.wait())
-        try:
-            get = asyncio.ensure_future(self._inbox.get())
-            done, _ = await asyncio.wait({get, stop_wait}, return_when=asyncio.FIRST_COMPLETED)
-            if get not in done:
-                get.cancel()
-                return []
-            batch.append(get.result())
-        finally:
-            stop_wait.cancel()
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self._linger
-        while len(batch) < self._batch_size:
-            try:
-                batch.append(self._inbox.get_nowait())
-            except asyncio.QueueEmpty:
-                remaining = deadline - loop.time()
-                if remaining <= 0:
-                    break
-                try:
-                    batch.append(await asyncio.wait_for(self._inbox.get(), remaining))
-                except asyncio.TimeoutError:
-                    break
-        return batch
-
     async def _reject(self, message: AbstractIncomingMessage, verdict: Rejected) -> None:
         await dead_letter(self._dead_letter_exchange, message, verdict)
         self.stats.rejected += 1
@@ -202,19 +180,20 @@ class IngestConsumer:
         if candidates:
             records = [item.record for _, item in candidates]
             results = await self._retrying(lambda: self._store.write_events(records))
-            accepted = await self._sort_out(candidates, results)
+            accepted, ledger = await self._sort_out(candidates, results)
             for service in self._services:
                 self.stats.notified += await self._retrying(lambda service=service: service.handle(accepted))
+            # bookkeeping after the services, so that it does not delay notifications
+            await self._retrying(lambda: self._store.record_duplicates(ledger.duplicates))
+            await self._retrying(lambda: self._store.observe_sequences(ledger.seen, ledger.at))
         await batch[-1].ack(multiple=True)
 
     async def _sort_out(
         self, candidates: list[tuple[AbstractIncomingMessage, Accepted]], results: Sequence[WriteResult]
-    ) -> list[Accepted]:
-        """Count what was stored, record duplicates and sequence gaps, dead-letter reused numbers."""
-        now = datetime.now(timezone.utc)
+    ) -> tuple[list[Accepted], LedgerUpdate]:
+        """Count what was stored, dead-letter reused numbers; say what the ledger must record."""
+        ledger = LedgerUpdate(datetime.now(timezone.utc))
         accepted: list[Accepted] = []
-        duplicates: list[Duplicate] = []
-        seen: dict[str, list[int]] = {}
         for (message, item), result in zip(candidates, results, strict=True):
             record = item.record
             if not result.inserted and result.stored_message_id != record.message_id:
@@ -225,17 +204,17 @@ class IngestConsumer:
                 await self._reject(message, Rejected(RejectReason.SEQUENCE_REUSED, detail))
                 continue
             accepted.append(item)
-            seen.setdefault(record.robot_id, []).append(record.seq)
+            ledger.seen.setdefault(record.robot_id, []).append(record.seq)
             if result.inserted:
                 self.stats.stored += 1
             else:
                 self.stats.duplicates += 1
-                duplicates.append(
-                    Duplicate(record.robot_id, record.seq, record.message_id, now, bool(message.redelivered))
+                ledger.duplicates.append(
+                    Duplicate(
+                        record.robot_id, record.seq, record.message_id, ledger.at, bool(message.redelivered)
+                    )
                 )
-        await self._retrying(lambda: self._store.record_duplicates(duplicates))
-        await self._retrying(lambda: self._store.observe_sequences(seen, now))
-        return accepted
+        return accepted, ledger
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
         """Run a store or service step until it succeeds; raise Stopping if asked to stop meanwhile.
