@@ -24,7 +24,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.ingest import BENCH_VHOST, event_size, status_items
+from bench.ingest import BENCH_VHOST, status_items
 from bench.raw import SIZE, declare_queue, ingest_queue_arguments, raw_publish
 from bench.results import percentile
 from bench.scenario import Context, Figures
@@ -118,7 +118,7 @@ def main() -> None:
                 progress.advance(task)
             admin_url = fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST)
             declare_queue(admin_url, ingest_queue_arguments())
-            raws.append(raw_publish(admin_url, args.drain, event_size()))
+            raws.append(raw_publish(admin_url, args.drain, SIZE))
             progress.advance(task)
             account = asyncio.run(provision_account(admin_url, api, ROBOT, Role.ROBOT, rotate=True))
             drains.append(drain_rate(account.amqp_url, args.drain))
@@ -136,7 +136,7 @@ def main() -> None:
         summary["appends"][n] = {"median_ms": statistics.median(ms), "p99_ms": p99}  # type: ignore[index]
     console.print(table)
     drain, raw = statistics.median(drains), statistics.median(raws)
-    rates = Table(title=f"drain of {args.drain:,} waiting events of {event_size()} bytes, {args.runs} runs")
+    rates = Table(title=f"drain of {args.drain:,} waiting events of {SIZE} bytes, {args.runs} runs")
     for column in ("scenario", "median msg/s", "spread", "vs raw publish"):
         rates.add_column(column, justify="left" if column == "scenario" else "right")
     rates.add_row(

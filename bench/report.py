@@ -125,7 +125,8 @@ def machine(api: ManagementAPI, endpoint: BrokerEndpoint) -> dict[str, str]:
 
 
 def load_average() -> str:
-    return "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
+    """The 1, 5 and 15 minute load averages: how busy the shared machine was."""
+    return "{:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
 
 
 def figure_rows(outcomes: dict[str, Outcome]) -> list[tuple[str, str, str, str, str]]:
@@ -182,7 +183,8 @@ def markdown(meta: dict[str, Any], outcomes: dict[str, Outcome], found: list[Ver
         f"fleetbus benchmark suite, {meta['finished']} ({meta['seconds'] / 60:.1f} min): `{meta['command']}`",
         "",
         f"{machine_['cpu']}, {machine_['memory']}; {machine_['os']}; Python {machine_['python']}; "
-        f"{machine_['broker']}; {machine_['load']} at the start, {meta['load at the end']} at the end.",
+        f"{machine_['broker']}; load average {machine_['load']} at the start, "
+        f"{meta['load at the end']} at the end.",
         "Minutes per scenario: "
         + ", ".join(f"{name} {outcome.seconds / 60:.1f}" for name, outcome in outcomes.items())
         + ".",
