@@ -37,7 +37,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from bench.processes import worker_process
-from bench.raw import SIZE, raw_rates
+from bench.raw import SIZE, raw_consume, raw_publish, raw_rates  # noqa: F401  (bench.scaling imports them from here)
 from bench.results import medians, save, spread
 from bench.scenario import Context, Figures, Skip
 from broker.accounts import fresh_vhost
@@ -66,18 +66,22 @@ def status_body(waypoint: str = "wp-") -> dict[str, Any]:
     }
 
 
-def event_size(body: dict[str, Any] | None = None) -> int:
-    """Bytes of one benchmark event on the wire (sequence number 10,000)."""
-    return len(encode_event(build_event(EventType.STATUS, ROBOT, 10_000, body or status_body())))
+def _size(body: dict[str, Any]) -> int:
+    return len(encode_event(build_event(EventType.STATUS, ROBOT, 10_000, body)))
 
 
 def status_items(count: int, size: int = SIZE) -> list[tuple[EventType, dict[str, Any]]]:
     """``count`` status events of ``size`` bytes on the wire (give or take the digits of their numbers);
     the waypoint pads them, up to its 128 characters."""
-    pad = size - event_size()
+    pad = size - _size(status_body())
     if pad < 0:
-        raise ValueError(f"a status event is at least {event_size()} bytes")
+        raise ValueError(f"a status event is at least {_size(status_body())} bytes")
     return [(EventType.STATUS, status_body("wp-" + "x" * pad))] * count
+
+
+def event_size(size: int = SIZE) -> int:
+    """Bytes on the wire of one event of :func:`status_items` (sequence number 10,000)."""
+    return _size(status_items(1, size)[0][1])
 
 
 def stored_and_acked(bus: Bus, count: int) -> None:
@@ -187,7 +191,7 @@ def main() -> None:
             runs.append(one_run(endpoint, api, args.events, args.size))
             progress.advance(task)
     middle = medians(runs)
-    size = event_size(status_items(1, args.size)[0][1])
+    size = event_size(args.size)
     table = Table(title=f"msg/s, median of {args.runs} runs of {args.events} messages of {size} bytes")
     table.add_column("scenario")
     table.add_column("median msg/s", justify="right")
