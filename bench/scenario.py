@@ -30,8 +30,6 @@ class Context:
     endpoint: BrokerEndpoint
     api: ManagementAPI
     quick: bool = False
-    broker_pid: int | None = None
-    """The broker's process, when it is the private node (its CPU can then be read)."""
     show: Callable[[str], None] = field(default=lambda text: None)
     """Say what the run is doing now (on the progress bar)."""
 

@@ -30,7 +30,6 @@ from bench.registry import SCENARIOS, by_name
 from bench.report import Outcome, as_json, load_average, machine, markdown, tables, verdicts
 from bench.scenario import Context, Scenario, Skip
 from broker.endpoint import resolve_broker
-from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
 
@@ -77,6 +76,10 @@ def run(scenarios: Sequence[Scenario], context: Context, runs: int, progress: Pr
                 outcome.errors.append(f"{type(error).__name__}: {error}")
                 progress.console.print(f"[red]{name} failed[/red]")
                 progress.console.print(traceback.format_exc(), markup=False, highlight=False)
+            except KeyboardInterrupt:  # Ctrl-C: report what was measured so far
+                outcome.errors.append("interrupted")
+                progress.console.print(f"[red]{name} interrupted: reporting the runs done so far[/red]")
+                return outcomes
             outcome.seconds += time.monotonic() - started
             progress.advance(task)
     return outcomes
@@ -116,8 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         where = machine(api, endpoint)
-        broker_pid = LocalNode(settings.broker_dir).pid() if endpoint.kind == "private" else None
-        context = Context(endpoint, api, quick=args.quick, broker_pid=broker_pid)
+        context = Context(endpoint, api, quick=args.quick)
         columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
         with Progress(*columns, console=console) as progress:
             outcomes = run(scenarios, context, args.runs, progress)
