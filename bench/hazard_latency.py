@@ -44,6 +44,7 @@ HAZARD_RATE = 20
 RATE = 1000
 LOADERS = 4
 PING_QUEUE = "bench.ping"
+PERSISTENT = pika.BasicProperties(delivery_mode=2)
 #: Where a hazard's time goes, by the product's own stamps: the explorer's outbox, the broker and
 #: the ingest queue up to the worker's batch; the worker's store writes and hazard service; the
 #: notification's publish and delivery to the warden.
@@ -178,7 +179,7 @@ def measure(
                     confirmed.append(time.monotonic() - sent[i])
                     time.sleep(max(0.0, start + (i + 0.5) / HAZARD_RATE - time.monotonic()))
                     pinged[i] = time.monotonic()
-                    channel.basic_publish("", PING_QUEUE, str(i).encode())
+                    channel.basic_publish("", PING_QUEUE, str(i).encode(), PERSISTENT)
                 hazards.wait(count, 60)
                 pings.wait(count, 60)
             ping.close()
