@@ -28,7 +28,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.recorder import cpu_seconds
+from bench.proc import cpu_seconds
 from bench.results import medians, save, spread
 from broker.accounts import fresh_vhost
 from broker.endpoint import BrokerEndpoint, resolve_broker

@@ -24,17 +24,20 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.ingest import BENCH_VHOST, RAW_QUEUE, event_size, raw_publish, status_items
+from bench.ingest import BENCH_VHOST, status_items
+from bench.raw import SIZE, declare_queue, ingest_queue_arguments, raw_publish
+from bench.results import percentile
+from bench.scenario import Context, Figures
 from broker.accounts import Role, fresh_vhost, provision_account
 from broker.endpoint import resolve_broker
 from broker.management import ManagementAPI
-from broker.topology import QueueSpec, Topology, core_topology, declare_with_url
 from fleetbus.config import load_settings
 from publishers.client import RobotClient
 from publishers.outbox import Outbox, Overflow, TypePolicy
 from schemas.envelope import build_event
-from schemas.routing import INGEST_QUEUE
 
+ROBOT = "bench-outbox"
+WAITING = (0, 10_000, 50_000)
 console = Console()
 #: Nothing dropped, whatever the fill: the benchmark measures appends, not the overflow policy.
 KEEP_ALL = {"status": TypePolicy(Overflow.KEEP, 10_000_000)}
@@ -58,11 +61,11 @@ def append_times(waiting: int, appends: int) -> list[float]:
     return times
 
 
-def drain_rate(admin_url: str, api: ManagementAPI, count: int) -> float:
-    account = asyncio.run(provision_account(admin_url, api, "bench-outbox", Role.ROBOT, rotate=True))
+def drain_rate(robot_url: str, count: int, size: int = SIZE) -> float:
+    """Events a second confirmed by the broker from a robot that starts with ``count`` waiting."""
     with tempfile.TemporaryDirectory() as folder:
-        robot = RobotClient(account.amqp_url, state_dir=Path(folder), outbox_policies=KEEP_ALL)
-        items = status_items(count)
+        robot = RobotClient(robot_url, state_dir=Path(folder), outbox_policies=KEEP_ALL)
+        items = status_items(count, size)
         for start in range(0, count, 1000):  # queued while the robot is not started: an outage
             robot.outbox.append(robot.build(items[start : start + 1000]))
         started = time.perf_counter()
@@ -74,11 +77,26 @@ def drain_rate(admin_url: str, api: ManagementAPI, count: int) -> float:
     return count / elapsed
 
 
+def figures(context: Context) -> Figures:
+    """The suite's outbox: append times as it fills, and the drain after an outage."""
+    appends, drain = context.size(300, 100), context.size(10_000, 5_000)
+    result: Figures = {}
+    for waiting in WAITING:
+        context.show(f"{appends} appends at {waiting:,} waiting events")
+        ms = [1000 * seconds for seconds in append_times(waiting, appends)]
+        result[f"append ms at {waiting:,}, median"] = statistics.median(ms)
+        result[f"append ms at {waiting:,}, p99"] = percentile(ms, 99)
+    context.show(f"draining {drain:,} events that waited out an outage")
+    with context.bus() as bus:
+        result["drain msg/s"] = drain_rate(bus.add(ROBOT).amqp_url, drain)
+    return result
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--waiting", default="0,10000,50000")
+    parser.add_argument("--waiting", default=",".join(map(str, WAITING)))
     parser.add_argument("--appends", type=int, default=300)
     parser.add_argument("--drain", type=int, default=10000)
     parser.add_argument("--runs", type=int, default=3)
@@ -99,13 +117,13 @@ def main() -> None:
                 appends[n] += append_times(n, args.appends)
                 progress.advance(task)
             admin_url = fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST)
-            ingest_args = next(q.arguments for q in core_topology().queues if q.name == INGEST_QUEUE)
-            asyncio.run(declare_with_url(admin_url, [Topology(queues=(QueueSpec(RAW_QUEUE, ingest_args),))]))
-            raws.append(raw_publish(admin_url, args.drain, event_size()))
+            declare_queue(admin_url, ingest_queue_arguments())
+            raws.append(raw_publish(admin_url, args.drain, SIZE))
             progress.advance(task)
-            drains.append(drain_rate(admin_url, api, args.drain))
+            account = asyncio.run(provision_account(admin_url, api, ROBOT, Role.ROBOT, rotate=True))
+            drains.append(drain_rate(account.amqp_url, args.drain))
             progress.advance(task)
-            api.delete_user("bench-outbox")
+            api.delete_user(ROBOT)
             api.delete_vhost(BENCH_VHOST)
     table = Table(title=f"outbox append, {args.runs} runs of {args.appends} appends (fsync on)")
     for column in ("events waiting", "median ms", "p99 ms", "max ms"):
@@ -113,12 +131,12 @@ def main() -> None:
     summary: dict[str, object] = {"appends": {}, "drain": drains, "raw_publish": raws}
     for n, times in appends.items():
         ms = sorted(t * 1000 for t in times)
-        p99 = ms[int(len(ms) * 0.99) - 1]
+        p99 = percentile(ms, 99)
         table.add_row(f"{n:,}", f"{statistics.median(ms):.2f}", f"{p99:.2f}", f"{ms[-1]:.2f}")
         summary["appends"][n] = {"median_ms": statistics.median(ms), "p99_ms": p99}  # type: ignore[index]
     console.print(table)
     drain, raw = statistics.median(drains), statistics.median(raws)
-    rates = Table(title=f"drain of {args.drain:,} waiting events of {event_size()} bytes, {args.runs} runs")
+    rates = Table(title=f"drain of {args.drain:,} waiting events of {SIZE} bytes, {args.runs} runs")
     for column in ("scenario", "median msg/s", "spread", "vs raw publish"):
         rates.add_column(column, justify="left" if column == "scenario" else "right")
     rates.add_row(

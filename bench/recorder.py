@@ -23,14 +23,9 @@ import argparse
 import asyncio
 import json
 import os
-import signal
 import statistics
-import subprocess
-import sys
 import tempfile
-import threading
 import time
-from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -39,23 +34,25 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.ingest import RAW_QUEUE, raw_consume, raw_publish
+from bench.proc import Watch
+from bench.processes import FleetbusProcess
+from bench.raw import declare_queue, raw_consume, raw_publish
 from bench.results import medians, save, spread
+from bench.scenario import Context, Figures
 from broker.accounts import Account, Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
-from broker.topology import QueueSpec, Topology, declare_with_url
 from fleetbus.config import Settings, load_settings
 from publishers.confirms import Outgoing, PipelinedConfirms
 from schemas.routing import RECORDER_QUEUE, events_exchange
+from tests.support import wait_for
 from workers.store.sqlite_recordings import SQLiteRecordingStore
 
 VHOST = "fleetbus-bench-recorder"
 ROBOT = "bench-recorder"
 SIZE = 480
 RATE = 100
-TICK = os.sysconf("SC_CLK_TCK")
 console = Console()
 
 
@@ -73,47 +70,6 @@ def properties(i: int) -> pika.BasicProperties:
     return pika.BasicProperties(
         delivery_mode=2, user_id=ROBOT, content_type="application/json", message_id=f"bench-{i}"
     )
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
-    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime
-
-
-def rss_megabytes(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return 0.0
-
-
-class Watch:
-    """CPU share and resident memory of processes, sampled on a thread while something runs."""
-
-    def __init__(self, pids: dict[str, int], every: float = 0.5) -> None:
-        self._pids = pids
-        self._every = every
-        self._stop = threading.Event()
-        self.rss: dict[str, list[float]] = {name: [] for name in pids}
-        self._thread = threading.Thread(target=self._sample, daemon=True)
-
-    def _sample(self) -> None:
-        while not self._stop.wait(self._every):
-            for name, pid in self._pids.items():
-                self.rss[name].append(rss_megabytes(pid))
-
-    def measure(self, action: Callable[[], None]) -> dict[str, float]:
-        """Run ``action``; the CPU share (% of one core) of each process meanwhile."""
-        cpu = {name: cpu_seconds(pid) for name, pid in self._pids.items()}
-        started = time.monotonic()
-        self._thread.start()
-        try:
-            action()
-        finally:
-            self._stop.set()
-            self._thread.join()
-        wall = time.monotonic() - started
-        return {name: 100 * (cpu_seconds(pid) - cpu[name]) / wall for name, pid in self._pids.items()}
 
 
 def paced(account: Account, seconds: float, first: int) -> int:
@@ -154,50 +110,17 @@ def recorded(settings: Settings) -> int:
     return asyncio.run(count()) if settings.recording_path.exists() else 0
 
 
-def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"gave up waiting for {what}")
-        time.sleep(0.05)
-
-
-def consumers(admin_url: str, queue: str) -> int:
-    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
-    try:
-        return connection.channel().queue_declare(queue, passive=True).method.consumer_count
-    except pika.exceptions.ChannelClosedByBroker:
-        return 0
-    finally:
-        if connection.is_open:
-            connection.close()
-
-
-class RecorderProcess:
+def recorder_process(settings: Settings, endpoint: BrokerEndpoint, admin_url: str) -> FleetbusProcess:
     """``python -m fleetbus recorder run`` against the run's vhost and data folder."""
-
-    def __init__(self, settings: Settings, endpoint: BrokerEndpoint, admin_url: str) -> None:
-        env = {
-            **os.environ,
-            "FLEETBUS_AMQP_URL": admin_url,
-            "FLEETBUS_MANAGEMENT_URL": endpoint.management_url,
-            "FLEETBUS_DATA_DIR": str(settings.data_dir),
-        }
-        env.pop("FLEETBUS_MONGODB_URL", None)
-        self._admin_url = admin_url
-        self._log = open(settings.data_dir / "recorder.log", "wb")
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "fleetbus", "recorder", "run"],
-            env=env,
-            stdout=self._log,
-            stderr=subprocess.STDOUT,
-        )
-        wait_until(lambda: consumers(admin_url, RECORDER_QUEUE) >= 1, 60, "the recorder to consume")
-
-    def stop(self) -> None:
-        self.process.send_signal(signal.SIGTERM)
-        self.process.wait(60)
-        self._log.close()
+    env = {
+        **os.environ,
+        "FLEETBUS_AMQP_URL": admin_url,
+        "FLEETBUS_MANAGEMENT_URL": endpoint.management_url,
+        "FLEETBUS_DATA_DIR": str(settings.data_dir),
+    }
+    env.pop("FLEETBUS_MONGODB_URL", None)
+    log = settings.data_dir / "recorder.log"
+    return FleetbusProcess(["recorder", "run"], env, log, admin_url, RECORDER_QUEUE)
 
 
 def one_run(
@@ -205,40 +128,42 @@ def one_run(
 ) -> dict[str, float]:
     admin_url = fresh_vhost(api, endpoint.amqp_url, VHOST)
     result: dict[str, float] = {}
-    asyncio.run(
-        declare_with_url(admin_url, [Topology(queues=(QueueSpec(RAW_QUEUE, {"x-queue-type": "classic"}),))])
-    )
+    declare_queue(admin_url, {"x-queue-type": "classic"})
     result["raw publish msg/s"] = raw_publish(admin_url, 10_000, SIZE)
     result["raw consume msg/s"] = asyncio.run(raw_consume(admin_url, 10_000))
     broker_pid = LocalNode(load_settings().broker_dir).pid() if endpoint.kind == "private" else None
     with tempfile.TemporaryDirectory() as tmp:
         settings = replace(load_settings(), data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None)
         account = asyncio.run(provision_account(admin_url, api, ROBOT, Role.ROBOT, rotate=True))
-        recorder = RecorderProcess(settings, endpoint, admin_url)
-        pids = {"recorder": recorder.process.pid, **({"broker": broker_pid} if broker_pid else {})}
-        watch = Watch(pids)
-        published: list[int] = []
-        cpu = watch.measure(lambda: published.append(paced(account, seconds, 0)))
-        started = time.monotonic()
-        wait_until(lambda: recorded(settings) >= published[0], 120, "the paced messages to be recorded")
-        result["lag after the last, s"] = time.monotonic() - started
+        with recorder_process(settings, endpoint, admin_url) as recorder:
+            pids = {"recorder": recorder.pid, **({"broker": broker_pid} if broker_pid else {})}
+            watch = Watch(pids)
+            published: list[int] = []
+            cpu = watch.measure(lambda: published.append(paced(account, seconds, 0)))
+            started = time.monotonic()
+            wait_for(lambda: recorded(settings) >= published[0], 120, "the paced messages to be recorded")
+            result["lag after the last, s"] = time.monotonic() - started
         result["recorder CPU %"] = cpu["recorder"]
         result["recorder RSS MB, mean"] = statistics.fmean(watch.rss["recorder"])
         result["recorder RSS MB, peak"] = max(watch.rss["recorder"])
         if broker_pid:
             result["broker CPU %"] = cpu["broker"]
-        recorder.stop()
         backlog(account, backlog_size, published[0])
         started = time.monotonic()
-        recorder = RecorderProcess(settings, endpoint, admin_url)
-        wait_until(
-            lambda: recorded(settings) >= published[0] + backlog_size, 600, "the backlog to be recorded"
-        )
-        result["backlog msg/s (process start included)"] = backlog_size / (time.monotonic() - started)
-        recorder.stop()
+        with recorder_process(settings, endpoint, admin_url):
+            total = published[0] + backlog_size
+            wait_for(lambda: recorded(settings) >= total, 600, "the backlog to be recorded")
+            result["backlog msg/s (process start included)"] = backlog_size / (time.monotonic() - started)
         api.delete_user(ROBOT)
     api.delete_vhost(VHOST)
     return result
+
+
+def figures(context: Context) -> Figures:
+    """The suite's recorder: the logger benchmark's rate, and its top rate on a backlog."""
+    seconds, backlog_size = context.size(30, 10), context.size(20_000, 5_000)
+    context.show(f"{RATE} msg/s of {SIZE} bytes for {seconds} s, then a backlog of {backlog_size:,}")
+    return one_run(context.endpoint, context.api, seconds, backlog_size)
 
 
 def main() -> None:

@@ -50,7 +50,8 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from bench.ingest import event_size, raw_consume, raw_publish, status_items
+from bench.ingest import event_size, status_items
+from bench.raw import raw_consume, raw_publish
 from bench.recorder import cpu_seconds
 from bench.results import medians, save, spread
 from broker.accounts import Account, Role, fresh_vhost, provision_account

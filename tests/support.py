@@ -169,7 +169,7 @@ class Bus:
         )
         if self.settings.mongodb_url is None:
             env.pop("FLEETBUS_MONGODB_URL", None)
-        else:
+        else:  # the test's own database, not the server's default one
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
         return env
 
@@ -209,9 +209,11 @@ class Bus:
 
 
 @contextmanager
-def fresh_bus(endpoint: BrokerEndpoint, api: ManagementAPI, data_dir: Path) -> Iterator[Bus]:
+def fresh_bus(
+    endpoint: BrokerEndpoint, api: ManagementAPI, data_dir: Path, prefix: str = "test"
+) -> Iterator[Bus]:
     """A new virtual host and data directory on ``endpoint``; accounts and vhost removed after."""
-    vhost = f"test-{uuid.uuid4().hex[:10]}"
+    vhost = f"{prefix}-{uuid.uuid4().hex[:10]}"
     admin_url = fresh_vhost(api, endpoint.amqp_url, vhost)
     settings = replace(
         load_settings(),

@@ -1,0 +1,226 @@
+"""Hazard notification latency: the explorer's publish to the warden's receipt, under telemetry load.
+
+    .venv/bin/python -m bench.hazard_latency [--runs 3] [--quick]
+
+The suite runs it four ways: ``hazard`` (`fleetbus worker --no-recorder` under the telemetry;
+the targets are on it), ``hazard-idle`` (no telemetry: the floor), ``hazard-recorder``
+(`fleetbus worker` as it starts by default, the recorder in its process, under the telemetry) and
+``hazard-recorder-apart`` (the recorder as `fleetbus recorder run`, a process of its own).
+
+An explorer publishes hazards (``robot.publish``, as robot code does: outbox, broker confirm) at
+HAZARD_RATE a second while four other robots publish RATE telemetry events a second in a
+process of their own, and `fleetbus worker` runs in another. A warden, localised beforehand so
+the gate is open, takes its notifications. Explorer and warden live in this process and both
+read ``time.monotonic()``, so no clock skew enters the figures.
+
+Between two hazards a raw message goes through a queue declared like the ingest queue to a
+consumer of this process (pika both ends): one hop through the same broker under the same load,
+next to the hazard's two hops (robot to worker, worker to warden) with the store in between.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections.abc import Callable
+from contextlib import nullcontext
+from datetime import datetime, timezone
+from types import TracebackType
+from typing import Any
+
+import pika
+
+from bench.processes import recorder_process, worker_process
+from bench.raw import declare_queue, ingest_queue_arguments
+from bench.results import percentile
+from bench.scenario import Context, Figures
+from bench.telemetry import TelemetryLoad
+from publishers.client import RobotClient
+from schemas.routing import EventType, RobotKind, Topic
+from tests.support import wait_for
+
+HAZARD_RATE = 20
+RATE = 1000
+LOADERS = 4
+PING_QUEUE = "bench.ping"
+PERSISTENT = pika.BasicProperties(delivery_mode=2)
+#: Where a hazard's time goes, by the product's own stamps: the explorer's outbox, the broker and
+#: the ingest queue up to the worker's batch; the worker's store writes and hazard service; the
+#: notification's publish and delivery to the warden.
+STAGES = ("to the worker", "in the worker", "to the warden")
+
+
+def hazard(i: int) -> dict[str, Any]:
+    return {
+        "pose": {"x": 2.5, "y": 1.25},
+        "description": f"bench hazard {i}",
+        "detected_at": datetime.now(timezone.utc).isoformat(),
+    }
+
+
+class Arrivals:
+    """Receive on a thread of its own; ``at[i]`` is when message ``i`` arrived (monotonic seconds)."""
+
+    def __init__(self, receive: Callable[[Callable[[int], bool]], None], name: str) -> None:
+        self._receive = receive
+        self.at: dict[int, float] = {}
+        self.stop = threading.Event()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def arrived(self, i: int) -> bool:
+        """Note message ``i``; True to go on receiving."""
+        self.at.setdefault(i, time.monotonic())
+        return not self.stop.is_set()
+
+    def _run(self) -> None:
+        try:
+            while not self.stop.is_set():
+                self._receive(self.arrived)
+        except BaseException as error:  # handed over by wait
+            self.error = error
+
+    def __enter__(self) -> Arrivals:
+        self._thread.start()
+        return self
+
+    def wait(self, count: int, timeout: float) -> None:
+        wait_for(lambda: self.error is not None or len(self.at) >= count, timeout, f"{count} arrivals")
+        if self.error is not None:
+            raise self.error
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop.set()
+        self._thread.join(30)
+
+
+class WardenReceiver:
+    """The warden's notifications, as robot code takes them; hazards are numbered by description.
+
+    ``stages[i]`` splits hazard i's way with the times the product stamps (wall clock, one machine):
+    the robot's ``sent_at``, the worker's ``received_at`` and ``notified_at``, and the receipt.
+    """
+
+    def __init__(self, warden: RobotClient) -> None:
+        self._warden = warden
+        self.stages: dict[int, tuple[float, float, float]] = {}
+
+    def __call__(self, arrived: Callable[[int], bool]) -> None:
+        for note in self._warden.notifications(timeout=0.5):
+            now = time.time()
+            if note.topic is not Topic.HAZARD:
+                continue
+            i = int(note.event.body.description.split()[-1])
+            sent, received, notified = (
+                t.timestamp() for t in (note.event.sent_at, note.received_at, note.notified_at)
+            )
+            self.stages[i] = (received - sent, notified - received, now - notified)
+            if not arrived(i):
+                return
+
+
+def ping_receiver(admin_url: str) -> Callable[[Callable[[int], bool]], None]:
+    def receive(arrived: Callable[[int], bool]) -> None:
+        connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+        try:
+            channel = connection.channel()
+            channel.basic_qos(prefetch_count=64)
+            for method, _properties, body in channel.consume(PING_QUEUE, inactivity_timeout=0.5):
+                if method is None:
+                    return  # quiet for a while: back to the caller, who knows whether to go on
+                going_on = arrived(int(body))
+                channel.basic_ack(method.delivery_tag)
+                if not going_on:
+                    return
+        finally:
+            if connection.is_open:
+                connection.close()
+
+    return receive
+
+
+def measure(
+    context: Context,
+    count: int,
+    rate: float = RATE,
+    worker_args: tuple[str, ...] = (),
+    recorder: bool = False,
+) -> Figures:
+    """``count`` hazards under ``rate`` telemetry events a second; `fleetbus worker WORKER_ARGS`,
+    and with ``recorder`` `fleetbus recorder run` beside it."""
+    with context.bus() as bus:
+        explorer = bus.robot(bus.add("bench-explorer", kind=RobotKind.EXPLORER))
+        warden = bus.robot(bus.add("bench-warden", kind=RobotKind.WARDEN))
+        loaders = [bus.add(f"bench-telemetry{i}").amqp_url for i in range(LOADERS)]
+        declare_queue(bus.admin_url, ingest_queue_arguments(), PING_QUEUE)
+        with worker_process(bus, *worker_args), recorder_process(bus) if recorder else nullcontext():
+            warden.publish(EventType.LOCALISATION, {"localised": True})
+            wait_for(lambda: all(w.localised for w in bus.with_store(lambda s: s.robots("warden"))))
+            context.show(f"{rate:,.0f} telemetry events/s starting")
+            ping = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+            sent: dict[int, float] = {}
+            pinged: dict[int, float] = {}
+            confirmed: list[float] = []  # how long each publish took: outbox, broker confirm
+            with (
+                TelemetryLoad(bus, loaders, rate) as load,
+                Arrivals(receiver := WardenReceiver(warden), "warden") as hazards,
+                Arrivals(ping_receiver(bus.admin_url), "ping") as pings,
+            ):
+                context.show(f"{count} hazards at {HAZARD_RATE}/s under {rate:,.0f} telemetry events/s")
+                channel = ping.channel()
+                start = time.monotonic()
+                for i in range(count):
+                    time.sleep(max(0.0, start + i / HAZARD_RATE - time.monotonic()))  # the schedule
+                    sent[i] = time.monotonic()
+                    explorer.publish(EventType.HAZARD, hazard(i))
+                    confirmed.append(time.monotonic() - sent[i])
+                    time.sleep(max(0.0, start + (i + 0.5) / HAZARD_RATE - time.monotonic()))
+                    pinged[i] = time.monotonic()
+                    channel.basic_publish("", PING_QUEUE, str(i).encode(), PERSISTENT)
+                hazards.wait(count, 60)
+                pings.wait(count, 60)
+            ping.close()
+    hazard_ms = [1000 * (hazards.at[i] - sent[i]) for i in sent]
+    ping_ms = [1000 * (pings.at[i] - pinged[i]) for i in pinged]
+    return {
+        "hazard p50 ms": percentile(hazard_ms, 50),
+        "hazard p99 ms": percentile(hazard_ms, 99),
+        "hazard max ms": max(hazard_ms),
+        "explorer's publish p50 ms": percentile([1000 * seconds for seconds in confirmed], 50),
+        **{
+            f"{stage} p50 ms": percentile([1000 * times[k] for times in receiver.stages.values()], 50)
+            for k, stage in enumerate(STAGES)
+        },
+        "raw hop p50 ms": percentile(ping_ms, 50),
+        "raw hop p99 ms": percentile(ping_ms, 99),
+        "telemetry events/s": load.rate,
+    }
+
+
+def figures(context: Context) -> Figures:
+    """The suite's hazard latency: the worker alone (`--no-recorder`), under the telemetry load."""
+    return measure(context, context.size(200, 100), RATE, ("--no-recorder",))
+
+
+def figures_idle(context: Context) -> Figures:
+    """The same path with no telemetry beside it: the floor the load adds to."""
+    return measure(context, context.size(200, 100), 0, ("--no-recorder",))
+
+
+def figures_with_recorder(context: Context) -> Figures:
+    """Under the load, with `fleetbus worker` as it starts by default: the recorder in its process."""
+    return measure(context, context.size(200, 100), RATE)
+
+
+def figures_recorder_apart(context: Context) -> Figures:
+    """Under the load, `fleetbus worker --no-recorder` and `fleetbus recorder run` side by side."""
+    return measure(context, context.size(200, 100), RATE, ("--no-recorder",), recorder=True)
+
+
+if __name__ == "__main__":
+    from bench.suite import main
+
+    sys.exit(main(["--only", "hazard,hazard-idle,hazard-recorder,hazard-recorder-apart", *sys.argv[1:]]))

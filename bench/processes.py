@@ -1,0 +1,105 @@
+"""fleetbus's own processes (`fleetbus worker`, `fleetbus recorder run`), started for a measurement.
+
+A benchmark runs the workers as they are deployed, in a process of their own: the robots it
+drives then do not share an interpreter (and its lock) with them, and their CPU time and resident
+memory can be read from /proc.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from types import TracebackType
+
+import pika
+import pika.exceptions
+
+from bench.profile import record
+from schemas.routing import INGEST_QUEUE, RECORDER_QUEUE
+from tests.support import Bus, wait_for
+
+
+def consumers(admin_url: str, queue: str) -> int:
+    """Consumers of ``queue`` now (0 while it does not exist)."""
+    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    try:
+        return connection.channel().queue_declare(queue, passive=True).method.consumer_count
+    except pika.exceptions.ChannelClosedByBroker:
+        return 0
+    finally:
+        if connection.is_open:
+            connection.close()
+
+
+class FleetbusProcess:
+    """``python -m fleetbus ARGS``; returns from the constructor once it consumes ``queue``."""
+
+    def __init__(
+        self, args: list[str], env: dict[str, str], log: Path, admin_url: str, queue: str, timeout: float = 60
+    ) -> None:
+        self._log = log.open("ab")
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "fleetbus", *args], env=env, stdout=self._log, stderr=subprocess.STDOUT
+        )
+        try:
+            wait_for(
+                lambda: self.process.poll() is not None or consumers(admin_url, queue) >= 1,
+                timeout,
+                f"`fleetbus {' '.join(args)}` to consume {queue}",
+            )
+            if self.process.returncode is not None:
+                raise RuntimeError(
+                    f"`fleetbus {' '.join(args)}` exited with {self.process.returncode}; see {log}"
+                )
+        except BaseException:
+            self.kill()
+            raise
+        self._profiler = record(self.pid, args[0])
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def stop(self, timeout: float = 60) -> None:
+        """SIGTERM, as an operator stops it: the batch in hand is finished and acked."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            self.process.wait(timeout)
+        self._finish()
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(30)
+        self._finish()
+
+    def _finish(self) -> None:
+        self._log.close()
+        profiler = getattr(self, "_profiler", None)
+        if profiler is not None:
+            profiler.wait(60)  # py-spy writes its file once the process it records has ended
+
+    def __enter__(self) -> FleetbusProcess:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc is None:
+            self.stop()
+        else:
+            self.kill()
+
+
+def worker_process(bus: Bus, *args: str) -> FleetbusProcess:
+    """`fleetbus worker ARGS` on the bus's virtual host and store, consuming the ingest queue."""
+    log = bus.settings.data_dir / "worker.log"
+    return FleetbusProcess(["worker", *args], bus.worker_env(), log, bus.admin_url, INGEST_QUEUE)
+
+
+def recorder_process(bus: Bus) -> FleetbusProcess:
+    """`fleetbus recorder run` on the bus's virtual host and data folder, consuming its queue."""
+    log = bus.settings.data_dir / "recorder.log"
+    return FleetbusProcess(["recorder", "run"], bus.worker_env(), log, bus.admin_url, RECORDER_QUEUE)

@@ -1,0 +1,116 @@
+"""Background telemetry: robots publishing status events at a steady total rate, in a process of its own.
+
+    python -m bench.telemetry STATE_DIR RATE URL [URL ...]
+
+Each URL is a robot's account. Every robot publishes its share of RATE events a second with
+``publish_many`` (robot code's call, confirmed), in small batches ``TICKS`` times a second on an
+absolute schedule. The process prints ``publishing`` once every robot is connected, runs until
+its standard input closes, then prints one JSON line: ``{"published": N, "seconds": S}``.
+
+:class:`TelemetryLoad` runs it beside a measurement.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from types import TracebackType
+
+from bench.ingest import status_items
+from publishers.client import RobotClient
+from tests.support import Bus, read_line
+
+TICKS = 50
+
+
+def publish_steadily(
+    robot: RobotClient, rate: float, stop: threading.Event, counts: list[int], errors: list[BaseException]
+) -> None:
+    """By time t, ``rate * t`` events published (and confirmed), a batch every 1/TICKS s."""
+    item = status_items(1)[0]
+    started = time.monotonic()
+    published = 0
+    try:
+        while not stop.is_set():
+            due = int(rate * (time.monotonic() - started)) - published
+            if due > 0:
+                robot.publish_many([item] * due)
+                published += due
+                counts.append(due)
+            stop.wait(1 / TICKS)  # the schedule's tick; the count catches up with the clock
+    except BaseException as error:  # reported by main
+        errors.append(error)
+
+
+def main() -> None:
+    state_dir, rate, urls = Path(sys.argv[1]), float(sys.argv[2]), sys.argv[3:]
+    robots = [RobotClient(url, state_dir=state_dir) for url in urls]
+    for robot in robots:
+        robot.connect()
+    stop = threading.Event()
+    counts: list[int] = []
+    errors: list[BaseException] = []
+    threads = [
+        threading.Thread(target=publish_steadily, args=(robot, rate / len(robots), stop, counts, errors))
+        for robot in robots
+    ]
+    started = time.monotonic()
+    for thread in threads:
+        thread.start()
+    print("publishing", flush=True)
+    sys.stdin.read()  # until the parent closes it (or dies)
+    stop.set()
+    for thread in threads:
+        thread.join()
+    seconds = time.monotonic() - started
+    for robot in robots:
+        robot.close()
+    if errors:
+        raise SystemExit(f"a robot stopped publishing: {errors[0]!r}")
+    print(json.dumps({"published": sum(counts), "seconds": seconds}), flush=True)
+
+
+class TelemetryLoad:
+    """``python -m bench.telemetry`` for robots (their URLs) of ``bus``, while the ``with`` lasts."""
+
+    def __init__(self, bus: Bus, urls: list[str], rate: float) -> None:
+        self._command = [
+            sys.executable,
+            "-m",
+            "bench.telemetry",
+            str(bus.settings.robots_dir),
+            str(rate),
+            *urls,
+        ]
+        self._log = bus.settings.data_dir / "telemetry.log"
+        self.rate = 0.0
+        """The rate achieved, once stopped."""
+
+    def __enter__(self) -> TelemetryLoad:
+        with self._log.open("ab") as log:
+            self._process = subprocess.Popen(
+                self._command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True
+            )
+        try:
+            read_line(self._process, "publishing", timeout=60)
+        except BaseException:
+            self._process.kill()
+            raise
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        output, _ = self._process.communicate(timeout=60)  # closes its stdin: it stops
+        if self._process.returncode != 0:
+            raise RuntimeError(f"the telemetry load failed ({self._process.returncode}); see {self._log}")
+        summary = json.loads(output.strip().splitlines()[-1])
+        self.rate = summary["published"] / summary["seconds"]
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,135 @@
+"""Worker resident memory over one million events: it must not grow with the number of events.
+
+    .venv/bin/python -m bench --only memory [--quick]
+
+A robot's account publishes the events first, fast: valid status events (its own ``user_id``,
+exchange and routing key, exactly the properties its client sets) with pipelined confirms and
+no outbox, since the point is the worker, not the robot. Then `fleetbus worker --no-recorder`
+starts and drains the queue while its resident memory is sampled from /proc, with how many
+events it has taken so far. Growth is measured between a tenth of the events and the end
+(100,000 and 1,000,000; with ``--quick``, 10,000 and 100,000); at the end every event must be
+stored once, the queue empty and nothing dead-lettered.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import uuid
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
+
+import pika
+
+from bench.ingest import status_items, stored_and_acked
+from bench.proc import rss_megabytes
+from bench.processes import worker_process
+from bench.raw import WINDOW
+from bench.scenario import Context, Figures
+from publishers.client import outgoing
+from publishers.confirms import PipelinedConfirms
+from publishers.outbox import Entry
+from schemas.envelope import build_event, encode_event, parse_event
+from schemas.routing import INGEST_QUEUE, EventType
+from tests.support import Bus, wait_for
+
+ROBOT = "bench-memory"
+SAMPLE_EVERY = 0.5
+
+
+def event_renderer(robot: str) -> Callable[[int, str], bytes]:
+    """Status events as JSON for any (seq, message id), from one event pydantic encoded."""
+    marker_id, marker_seq = uuid.UUID(int=0), 987_654_321_987
+    event_type, body = status_items(1)[0]
+    sample = encode_event(build_event(event_type, robot, marker_seq, body, message_id=marker_id))
+    head, rest = sample.split(str(marker_id).encode())
+    middle, tail = rest.split(str(marker_seq).encode())
+
+    def render(seq: int, message_id: str) -> bytes:
+        return b"".join((head, message_id.encode(), middle, str(seq).encode(), tail))
+
+    checked = parse_event(render(7, str(uuid.uuid4())))
+    assert checked.seq == 7 and checked.robot_id == robot, "the template renders other events"
+    return render
+
+
+def prefill(url: str, robot: str, count: int, show: Callable[[str], None]) -> float:
+    """Publish ``count`` events as ``robot`` (pipelined confirms); events a second."""
+    render = event_renderer(robot)
+    sent_at = datetime.now(timezone.utc)
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    try:
+        confirms = PipelinedConfirms(connection, connection.channel(), timeout=120)
+        started = time.perf_counter()
+        for start in range(0, count, WINDOW):
+            window = []
+            for seq in range(start, min(count, start + WINDOW)):
+                message_id = str(uuid.uuid4())
+                entry = Entry(
+                    seq, EventType.STATUS.value, message_id, sent_at, render(seq, message_id), (0, 0)
+                )
+                window.append(outgoing(robot, entry))
+            confirms.publish(window, 120)
+            if start % (50 * WINDOW) == 0:
+                show(f"queueing {count:,} events: {start:,}")
+        return count / (time.perf_counter() - started)
+    finally:
+        if connection.is_open:
+            connection.close()
+
+
+def peak_megabytes(pid: int) -> float:
+    """The process's resident high-water mark (VmHWM)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return 0.0
+
+
+def drain(bus: Bus, count: int, show: Callable[[str], None]) -> dict[str, float]:
+    """Start the worker on ``count`` queued events; its memory along the way, until all are stored."""
+    samples: list[tuple[int, float]] = []  # (events taken, resident MB)
+    with worker_process(bus, "--no-recorder") as worker:
+        started = time.monotonic()
+        deadline = started + 600 + count / 500
+        while True:
+            waiting = bus.ready_messages(INGEST_QUEUE)
+            samples.append((count - waiting, rss_megabytes(worker.pid)))
+            show(f"worker drained {count - waiting:,} of {count:,}: {samples[-1][1]:.0f} MB resident")
+            if waiting == 0:
+                break
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{waiting:,} of {count:,} events still queued")
+            time.sleep(SAMPLE_EVERY)  # the sampling interval of the measurement
+        wait_for(lambda: bus.count(EventType.STATUS.value) >= count, 600, f"{count:,} stored", interval=0.5)
+        elapsed = time.monotonic() - started
+        end, peak = rss_megabytes(worker.pid), peak_megabytes(worker.pid)
+    warm = next(rss for taken, rss in samples if taken >= count // 10)
+    return {
+        "RSS MB at a tenth": warm,
+        "RSS MB at the end": end,
+        "peak RSS MB": peak,
+        "growth %": 100 * (end - warm) / warm,
+        "drain msg/s": count / elapsed,
+    }
+
+
+def figures(context: Context) -> Figures:
+    count = context.size(1_000_000, 100_000)
+    with context.bus() as bus:
+        account = bus.add(ROBOT)
+        result = {
+            "events": float(count),
+            "queueing msg/s": prefill(account.amqp_url, ROBOT, count, context.show),
+        }
+        wait_for(lambda: bus.ready_messages(INGEST_QUEUE) >= count, 120, f"{count:,} events queued")
+        result.update(drain(bus, count, context.show))
+        stored_and_acked(bus, count)
+    return result
+
+
+if __name__ == "__main__":
+    from bench.suite import main
+
+    sys.exit(main(["--only", "memory", *sys.argv[1:]]))

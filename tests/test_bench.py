@@ -1,0 +1,205 @@
+"""The benchmark suite runs, checks what it measured, and reports it: no speed is asserted here."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from pymongo import MongoClient
+from rich.console import Console
+from rich.progress import Progress
+
+from bench import ingest
+from bench.profile import PROJECT_ROOT, busiest
+from bench.registry import SCENARIOS, by_name
+from bench.report import Outcome, as_json, markdown, verdicts
+from bench.scenario import Context, Figures, Scenario, Skip, Target
+from bench.suite import main, run, select
+from broker.endpoint import BrokerEndpoint
+from broker.management import ManagementAPI
+
+RAW = Scenario("raw", "raw", lambda context: {"consume msg/s": 1000.0})
+
+
+class Tiny(Context):
+    """Every scenario at a fiftieth of its ``--quick`` size (at least 2): does it work, not how fast."""
+
+    def size(self, full: int, quick: int) -> int:
+        return max(2, quick // 50)
+
+
+@pytest.fixture
+def progress() -> Iterator[Progress]:
+    with Progress(console=Console(file=io.StringIO())) as bar:
+        yield bar
+
+
+@pytest.fixture
+def tiny(endpoint: BrokerEndpoint, management: ManagementAPI) -> Tiny:
+    return Tiny(endpoint, management)
+
+
+def outcome(scenario: Scenario, runs: dict[int, Figures], **kwargs: object) -> Outcome:
+    return Outcome(scenario, 3, runs, **kwargs)  # type: ignore[arg-type]
+
+
+def test_a_ratio_target_pairs_each_run_with_the_baseline_run_of_the_same_number() -> None:
+    target = Target("msg/s", 0.5, at_most=False, per=("raw", "consume msg/s"))
+    runs = {0: {"msg/s": 400.0}, 1: {"msg/s": 900.0}, 2: {"msg/s": 2000.0}}
+    baseline = {0: {"consume msg/s": 1000.0}, 2: {"consume msg/s": 4000.0}}  # run 1 of raw failed
+    assert target.value(runs, baseline) == pytest.approx((0.4 + 0.5) / 2)
+    assert target.met(0.5) and not target.met(0.49)
+    assert Target("p99 ms", 20, at_most=True).met(19.9) and not Target("p99 ms", 20, at_most=True).met(20)
+
+
+def test_verdicts_say_why_a_target_was_not_measured() -> None:
+    per_raw = Target("msg/s", 0.5, at_most=False, per=("raw", "consume msg/s"))
+    ingest_ = Scenario("ingest", "", lambda context: {}, (per_raw,))
+    mongo = Scenario("ingest-mongodb", "", lambda context: {}, (per_raw,))
+    latency = Scenario("hazard", "", lambda context: {}, (Target("p99 ms", 20, at_most=True, unit=" ms"),))
+    outcomes = {
+        "raw": outcome(RAW, {0: {"consume msg/s": 1000.0}}),
+        "ingest": outcome(ingest_, {0: {"msg/s": 450.0}}),
+        "ingest-mongodb": outcome(mongo, {}, skipped="FLEETBUS_MONGODB_URL is unset"),
+        "hazard": outcome(latency, {}, errors=["TimeoutError: 3 arrivals"]),
+    }
+    found = {v.scenario: v for v in verdicts(outcomes)}
+    assert (found["ingest"].measured, found["ingest"].met) == (0.45, False)
+    assert (
+        found["ingest-mongodb"].met is None
+        and "FLEETBUS_MONGODB_URL is unset" in found["ingest-mongodb"].note
+    )
+    assert found["hazard"].met is None and "TimeoutError: 3 arrivals" in found["hazard"].note
+    assert [v.met for v in verdicts({"ingest": outcomes["ingest"]})] == [None]  # raw was not run
+    text = markdown(
+        {"finished": "now", "seconds": 60, "command": "x", "machine": _machine(), "load at the end": "x"},
+        outcomes,
+        list(found.values()),
+    )
+    assert "| ingest | msg/s ÷ raw consume msg/s | 0.45 | ≥ 0.5 | **no** |" in text
+    assert (
+        "| hazard | p99 ms |  | < 20 ms | not measured (1 of 3 runs failed: TimeoutError: 3 arrivals) |"
+        in text
+    )
+
+
+def test_selecting_a_scenario_adds_the_one_its_targets_compare_with() -> None:
+    assert [s.name for s in select("ingest")] == ["raw", "ingest"]
+    assert [s.name for s in select("map,raw")] == ["raw", "map"]  # the registry's order
+    with pytest.raises(SystemExit, match="unknown scenario nope; known: raw, ingest"):
+        select("nope,raw")
+
+
+def test_a_failing_scenario_is_reported_and_the_others_still_run(tiny: Tiny, progress: Progress) -> None:
+    calls: list[int] = []
+
+    def flaky(context: Context) -> Figures:
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("the broker went away")
+        return {"x": 1.0}
+
+    def absent(context: Context) -> Figures:
+        raise Skip("no such thing here")
+
+    scenarios = [
+        Scenario("flaky", "", flaky),
+        Scenario("absent", "", absent),
+        Scenario("once", "", lambda context: {"y": 2.0}, max_runs=1),
+    ]
+    outcomes = run(scenarios, tiny, 3, progress)
+    assert sorted(outcomes["flaky"].runs) == [0, 2]
+    assert outcomes["flaky"].errors == ["RuntimeError: the broker went away"]
+    assert outcomes["absent"].skipped == "no such thing here" and not outcomes["absent"].runs
+    assert list(outcomes["once"].runs) == [0]
+    assert progress.tasks[0].completed == progress.tasks[0].total == 3 + 3 + 1
+
+
+def test_every_scenario_runs_against_the_real_broker_and_checks_what_it_measured(
+    tiny: Tiny, progress: Progress, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each scenario checks its own result (every event stored once and acked, the map identical)."""
+    monkeypatch.delenv("FLEETBUS_MONGODB_URL", raising=False)
+    outcomes = run(SCENARIOS, tiny, 1, progress)
+    assert {name: o.errors for name, o in outcomes.items() if o.errors} == {}
+    assert outcomes["ingest-mongodb"].skipped is not None
+    assert "FLEETBUS_MONGODB_URL is unset" in outcomes["ingest-mongodb"].skipped
+    for name, found in outcomes.items():
+        if name != "ingest-mongodb":
+            figures = found.runs[0]
+            assert all(math.isfinite(value) for value in figures.values()), name
+            assert {t.figure for t in found.scenario.targets} <= figures.keys(), name
+    assert outcomes["hazard"].runs[0]["telemetry events/s"] > 0
+    report = as_json({}, outcomes, verdicts(outcomes))
+    assert len(report["targets"]) == sum(len(s.targets) for s in SCENARIOS)
+    json.dumps(report)  # plain JSON
+
+
+def test_ingest_on_mongodb_runs_in_a_database_of_its_own(
+    tiny: Tiny, mongodb_url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FLEETBUS_MONGODB_URL", mongodb_url)
+    figures = ingest.figures_mongodb(tiny)
+    assert figures.keys() == {"end to end msg/s", "drain msg/s"}
+    with MongoClient(mongodb_url, serverSelectionTimeoutMS=5000) as client:
+        assert not [name for name in client.list_database_names() if name.startswith("bench_")]
+    monkeypatch.delenv("FLEETBUS_MONGODB_URL")
+    with pytest.raises(Skip, match="FLEETBUS_MONGODB_URL is unset"):
+        ingest.figures_mongodb(tiny)
+
+
+def test_the_command_writes_json_and_markdown(endpoint: BrokerEndpoint, tmp_path: Path) -> None:
+    assert main(["--only", "raw", "--runs", "2", "--quick", "--out", str(tmp_path)]) == 0
+    (written,) = tmp_path.glob("suite-*.json")
+    report = json.loads(written.read_text())
+    assert report["runs"] == 2 and report["quick"] is True
+    assert sorted(report["scenarios"]["raw"]["runs"]) == ["0", "1"]
+    assert report["command"] == ".venv/bin/python -m bench --only raw --runs 2 --quick --out " + str(tmp_path)
+    table = written.with_suffix(".md").read_text()
+    assert "| raw | consume msg/s |" in table and report["machine"]["cpu"] in table
+
+
+def test_the_registry_names_are_unique_and_every_baseline_exists() -> None:
+    assert len(by_name()) == len(SCENARIOS)
+    for scenario in SCENARIOS:
+        for target in scenario.targets:
+            if target.per:
+                assert target.per[0] in by_name(), (scenario.name, target.per)
+
+
+def test_a_profile_is_summed_up_by_package_per_thread(tmp_path: Path) -> None:
+    files = [
+        ".venv/lib/python3.11/site-packages/aiormq/connection.py",
+        "/usr/lib/python3.11/asyncio/events.py",
+    ]
+    frames = [
+        {"name": "f", "file": file, "line": 1} for file in [*files, str(PROJECT_ROOT / "workers/ingest.py")]
+    ]
+    threads = [
+        {
+            "type": "sampled",
+            "name": "MainThread",
+            "samples": [[1, 0], [1, 0], [1, 2], [1]],
+            "weights": [0.1] * 4,
+        },
+        {"type": "sampled", "name": "sqlite", "samples": [[2]], "weights": [0.1]},
+    ]
+    path = tmp_path / "worker.speedscope.json"
+    path.write_text(json.dumps({"shared": {"frames": frames}, "profiles": threads}))
+    (main_thread, seconds, packages), (other, _, other_packages) = busiest(path)
+    assert (main_thread, other) == ("MainThread", "sqlite")
+    assert seconds == pytest.approx(0.4)
+    assert [(name, round(share, 2)) for name, share in packages] == [
+        ("aiormq", 0.5),
+        ("workers", 0.25),
+        ("asyncio", 0.25),
+    ]
+    assert other_packages == [("workers", 1.0)]
+
+
+def _machine() -> dict[str, str]:
+    return {key: key for key in ("cpu", "memory", "os", "python", "broker", "load")}
