@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+from pathlib import Path
 
 import pika
 import pika.exceptions
@@ -220,3 +223,39 @@ def test_beacons_are_recorded_and_those_the_broker_discarded_say_so(bus: Bus) ->
     assert (passed.exchange, passed.robot_id, passed.problem) == ("rec-guide.beacon", "rec-guide", None)
     assert (discarded.exchange, discarded.robot_id) == ("rec-guide.beacon", "rec-guide")
     assert discarded.problem == "discarded by the broker: no 'type' header; no 'codename' header"
+
+
+def _children(pid: int) -> list[int]:
+    tasks = Path(f"/proc/{pid}/task")
+    return [int(child) for task in tasks.iterdir() for child in (task / "children").read_text().split()]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("rec-explorer", kind=RobotKind.EXPLORER))
+    worker = bus.spawn_worker()
+    try:
+        wait_for(lambda: len(_children(worker.pid)) == 1, timeout=30, what="the recorder's process")
+        [first] = _children(worker.pid)
+        explorer.publish(EventType.STATUS, status(70))
+        wait_for(lambda: len(bus.recorded("status")) == 1, timeout=60, what="the status recorded")
+
+        os.kill(first, signal.SIGKILL)
+        wait_for(lambda: _children(worker.pid) not in ([], [first]), timeout=30, what="a new recorder")
+        [second] = _children(worker.pid)
+        explorer.publish(EventType.STATUS, status(60))
+        wait_for(lambda: len(bus.recorded("status")) == 2, timeout=60, what="recording again")
+        assert bus.count(EventType.STATUS.value) == 2, "the workers went on meanwhile"
+
+        worker.kill()  # SIGKILL: the worker cannot stop its child itself
+        worker.wait(30)
+        wait_for(lambda: not _alive(second), timeout=30, what="the recorder ending with its worker")
+    finally:
+        if worker.poll() is None:
+            worker.kill()

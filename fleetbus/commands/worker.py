@@ -12,7 +12,7 @@ import typer
 
 from fleetbus.config import MAX_INGEST_SHARDS
 from fleetbus.context import endpoint, settings
-from workers.recorder.runner import run_recorder
+from workers.recorder.process import run_recorder_process
 from workers.runner import run_worker
 from workers.signals import stop_on_signals
 
@@ -44,7 +44,8 @@ async def run_together(*runs: Run) -> None:
 
 def worker(
     recorder: Annotated[
-        bool, typer.Option("--recorder/--no-recorder", help="also record every message (`fleetbus recorder`)")
+        bool,
+        typer.Option("--recorder/--no-recorder", help="also record everything (a recorder child process)"),
     ] = True,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="log every batch")] = False,
     shards: Annotated[
@@ -66,5 +67,5 @@ def worker(
         config = replace(config, ingest_shards=shards)
     runs: list[Run] = [lambda stop: run_worker(config, broker, stop)]
     if recorder:
-        runs.append(lambda stop: run_recorder(config, broker, stop=stop))
+        runs.append(lambda stop: run_recorder_process(stop, verbose))
     asyncio.run(run_together(*runs))
