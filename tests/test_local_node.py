@@ -125,11 +125,18 @@ def test_listens_only_on_loopback(node: LocalNode) -> None:
     assert {port for _, port in listening_addresses(epmds[0])} == {info.ports["epmd"]}
 
 
+def _declare(url: str, queue: str) -> None:
+    connection = pika.BlockingConnection(pika.URLParameters(url))
+    try:
+        connection.channel().queue_declare(queue, durable=True)
+    finally:
+        connection.close()
+
+
 def _publish(url: str, queue: str, bodies: list[bytes]) -> None:
     connection = pika.BlockingConnection(pika.URLParameters(url))
     try:
         channel = connection.channel()
-        channel.queue_declare(queue, durable=True)
         channel.confirm_delivery()
         for body in bodies:
             channel.basic_publish(
@@ -171,10 +178,17 @@ def _drain(url: str, queue: str) -> list[bytes]:
 
 
 def test_kill_then_up_keeps_durable_persistent_messages(node: LocalNode) -> None:
-    before = node.status()
-    assert before.amqp_url is not None and before.pid is not None
+    url = node.status().amqp_url
+    assert url is not None
+    _declare(url, "kill-test")
+    # A queue declared seconds before a SIGKILL can be lost with its messages: RabbitMQ 3.10 writes
+    # its metadata (Mnesia's log) lazily; seen once in a full suite run ("Recovering 0 queues"
+    # after the kill). A clean restart writes it; what is tested is that confirmed messages survive.
+    node.down()
+    before = node.up()
+    assert before.amqp_url == url and before.pid is not None
     bodies = [f"message {i}".encode() for i in range(300)]
-    _publish(before.amqp_url, "kill-test", bodies)
+    _publish(url, "kill-test", bodies)
 
     node.kill()
     assert not pid_alive(before.pid)

@@ -12,7 +12,7 @@ import typer
 
 from fleetbus.config import MAX_INGEST_SHARDS
 from fleetbus.context import endpoint, settings
-from workers.recorder.process import run_recorder_process
+from workers.recorder.process import declare_recording, run_recorder_process
 from workers.runner import run_worker
 from workers.signals import stop_on_signals
 
@@ -67,5 +67,6 @@ def worker(
         config = replace(config, ingest_shards=shards)
     runs: list[Run] = [lambda stop: run_worker(config, broker, stop)]
     if recorder:
+        asyncio.run(declare_recording(broker.amqp_url))
         runs.append(lambda stop: run_recorder_process(stop, verbose))
     asyncio.run(run_together(*runs))
