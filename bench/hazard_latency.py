@@ -2,10 +2,9 @@
 
     .venv/bin/python -m bench.hazard_latency [--runs 3] [--quick]
 
-The suite runs it four ways: ``hazard`` (`fleetbus worker --no-recorder` under the telemetry;
-the targets are on it), ``hazard-idle`` (no telemetry: the floor), ``hazard-recorder``
-(`fleetbus worker` as it starts by default, the recorder in its process, under the telemetry) and
-``hazard-recorder-apart`` (the recorder as `fleetbus recorder run`, a process of its own).
+The suite runs it three ways: ``hazard`` (`fleetbus worker --no-recorder` under the telemetry;
+the targets are on it), ``hazard-idle`` (no telemetry: the floor) and ``hazard-recorder``
+(`fleetbus worker` as it starts by default, with its recorder child process, under the telemetry).
 
 An explorer publishes hazards (``robot.publish``, as robot code does: outbox, broker confirm) at
 HAZARD_RATE a second while four other robots publish RATE telemetry events a second in a
@@ -24,14 +23,13 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from contextlib import nullcontext
 from datetime import datetime, timezone
 from types import TracebackType
 from typing import Any
 
 import pika
 
-from bench.processes import recorder_process, worker_process
+from bench.processes import worker_process
 from bench.raw import declare_queue, ingest_queue_arguments
 from bench.results import percentile
 from bench.scenario import Context, Figures
@@ -147,16 +145,14 @@ def measure(
     count: int,
     rate: float = RATE,
     worker_args: tuple[str, ...] = (),
-    recorder: bool = False,
 ) -> Figures:
-    """``count`` hazards under ``rate`` telemetry events a second; `fleetbus worker WORKER_ARGS`,
-    and with ``recorder`` `fleetbus recorder run` beside it."""
+    """``count`` hazards under ``rate`` telemetry events a second; `fleetbus worker WORKER_ARGS`."""
     with context.bus() as bus:
         explorer = bus.robot(bus.add("bench-explorer", kind=RobotKind.EXPLORER))
         warden = bus.robot(bus.add("bench-warden", kind=RobotKind.WARDEN))
         loaders = [bus.add(f"bench-telemetry{i}").amqp_url for i in range(LOADERS)]
         declare_queue(bus.admin_url, ingest_queue_arguments(), PING_QUEUE)
-        with worker_process(bus, *worker_args), recorder_process(bus) if recorder else nullcontext():
+        with worker_process(bus, *worker_args):
             warden.publish(EventType.LOCALISATION, {"localised": True})
             wait_for(lambda: all(w.localised for w in bus.with_store(lambda s: s.robots("warden"))))
             context.show(f"{rate:,.0f} telemetry events/s starting")
@@ -211,16 +207,11 @@ def figures_idle(context: Context) -> Figures:
 
 
 def figures_with_recorder(context: Context) -> Figures:
-    """Under the load, with `fleetbus worker` as it starts by default: the recorder in its process."""
+    """Under the load, with `fleetbus worker` as it starts by default: with its recorder child."""
     return measure(context, context.size(200, 100), RATE)
-
-
-def figures_recorder_apart(context: Context) -> Figures:
-    """Under the load, `fleetbus worker --no-recorder` and `fleetbus recorder run` side by side."""
-    return measure(context, context.size(200, 100), RATE, ("--no-recorder",), recorder=True)
 
 
 if __name__ == "__main__":
     from bench.suite import main
 
-    sys.exit(main(["--only", "hazard,hazard-idle,hazard-recorder,hazard-recorder-apart", *sys.argv[1:]]))
+    sys.exit(main(["--only", "hazard,hazard-idle,hazard-recorder", *sys.argv[1:]]))

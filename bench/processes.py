@@ -17,7 +17,7 @@ import pika
 import pika.exceptions
 
 from bench.profile import record
-from schemas.routing import INGEST_QUEUE, RECORDER_QUEUE
+from schemas.routing import INGEST_QUEUE
 from tests.support import Bus, wait_for
 
 
@@ -97,9 +97,3 @@ def worker_process(bus: Bus, *args: str) -> FleetbusProcess:
     """`fleetbus worker ARGS` on the bus's virtual host and store, consuming the ingest queue."""
     log = bus.settings.data_dir / "worker.log"
     return FleetbusProcess(["worker", *args], bus.worker_env(), log, bus.admin_url, INGEST_QUEUE)
-
-
-def recorder_process(bus: Bus) -> FleetbusProcess:
-    """`fleetbus recorder run` on the bus's virtual host and data folder, consuming its queue."""
-    log = bus.settings.data_dir / "recorder.log"
-    return FleetbusProcess(["recorder", "run"], bus.worker_env(), log, bus.admin_url, RECORDER_QUEUE)

@@ -31,8 +31,7 @@ SCENARIOS: tuple[Scenario, ...] = (
         ),
     ),
     Scenario("hazard-idle", "the same with no telemetry beside", hazard_latency.figures_idle),
-    Scenario("hazard-recorder", "as hazard, recorder in the worker", hazard_latency.figures_with_recorder),
-    Scenario("hazard-recorder-apart", "as hazard, recorder apart", hazard_latency.figures_recorder_apart),
+    Scenario("hazard-recorder", "as hazard, with the recorder child", hazard_latency.figures_with_recorder),
     Scenario(
         "map",
         "a 4000 x 4000 PGM (16 MB) from the explorer's publish to a warden's identical copy",
