@@ -42,6 +42,13 @@ class Outcome:
     """Message ids the broker could not route (mandatory), with its reply: sending again will not help."""
 
 
+@dataclass(frozen=True)
+class Window:
+    """Messages written together, awaiting their confirms: delivery tag -> message id."""
+
+    tags: dict[int, str]
+
+
 class PipelinedConfirms:
     def __init__(self, connection: BlockingConnection, channel: BlockingChannel, timeout: float) -> None:
         self._connection = connection
@@ -114,11 +121,18 @@ class PipelinedConfirms:
         in doubt), :class:`BrokerUnavailable` when the connection broke and :class:`PublishTimeout`
         when the confirms did not come in time.
         """
-        batch: dict[int, str] = {}
+        return self.wait(self.write(messages), timeout)
+
+    def write(self, messages: Sequence[Outgoing]) -> Window:
+        """Publish without waiting: the frames go out at the next pump (any :meth:`wait`).
+
+        Several windows may be written before the first is waited for; raises like :meth:`send`.
+        """
+        window = Window({})
         try:
             for message in messages:
                 # registered before the write: the ack can arrive while basic_publish flushes
-                batch[self._next_tag] = message.properties.message_id or ""
+                window.tags[self._next_tag] = message.properties.message_id or ""
                 self._unconfirmed.add(self._next_tag)
                 self._next_tag += 1
                 # On the channel underneath: the blocking facade writes to the socket after every
@@ -130,10 +144,15 @@ class PipelinedConfirms:
             raise PublishRefused(f"the broker closed the channel: {self._closed_reason or error}") from error
         except pika.exceptions.AMQPError as error:
             raise BrokerUnavailable(f"connection lost while publishing: {error!r}") from error
-        self._pump_until(lambda: not (self._unconfirmed & batch.keys()), timeout, "publisher confirm")
-        nacked = {batch[tag] for tag in self._nacked & batch.keys()}
-        self._nacked -= batch.keys()
-        returned = {mid: self._returned.pop(mid) for mid in list(batch.values()) if mid in self._returned}
+        return window
+
+    def wait(self, window: Window, timeout: float) -> Outcome:
+        """Wait until the broker answered every message of ``window``; say which it did not take."""
+        tags = window.tags
+        self._pump_until(lambda: not (self._unconfirmed & tags.keys()), timeout, "publisher confirm")
+        nacked = {tags[tag] for tag in self._nacked & tags.keys()}
+        self._nacked -= tags.keys()
+        returned = {mid: self._returned.pop(mid) for mid in list(tags.values()) if mid in self._returned}
         return Outcome(nacked, returned)
 
     def publish(self, messages: Sequence[Outgoing], timeout: float) -> None:

@@ -336,18 +336,22 @@ class Outbox:
     # ------------------------------------------------------------------ draining
 
     def take(self, limit: int) -> list[Entry]:
-        """The oldest ``limit`` entries, marked in flight until :meth:`settle`."""
+        """The oldest ``limit`` entries not in flight yet, marked in flight until :meth:`settle`.
+
+        A sender may take the next window while the broker still confirms the last one.
+        """
         with self._lock:
             entries: list[Entry] = []
             for segment in self._segments:
                 for doc in self._docs(segment):
                     if len(entries) == limit:
                         break
-                    entries.append(self._entry(segment, doc))
+                    if (segment.number, doc.doc_id) not in self._in_flight:
+                        entries.append(self._entry(segment, doc))
                 self._release(segment)
                 if len(entries) == limit:
                     break
-            self._in_flight = {entry.position for entry in entries}
+            self._in_flight |= {entry.position for entry in entries}
             return entries
 
     def _entry(self, segment: _Segment, doc: Any) -> Entry:
@@ -361,14 +365,21 @@ class Outbox:
             position=(segment.number, doc.doc_id),
         )
 
-    def settle(self, confirmed: Iterable[Entry], refused: Mapping[str, str] | None = None) -> None:
+    def settle(
+        self,
+        confirmed: Iterable[Entry],
+        refused: Mapping[str, str] | None = None,
+        window: Iterable[Entry] | None = None,
+    ) -> None:
         """Remove confirmed entries and move refused ones (message id -> reason) aside.
 
-        Entries taken but neither confirmed nor refused stay, in their place, for the next take.
+        ``window`` is the whole take they came from (default: all in flight). Entries of it neither
+        confirmed nor refused (nacked) stay, in their place, for the next take.
         """
         refused = refused or {}
         with self._lock:
             taken = list(confirmed)
+            done = None if window is None else {entry.position for entry in window}
             by_segment: dict[int, set[int]] = {}
             refused_docs: list[dict[str, Any]] = []
             now = datetime.now(timezone.utc).isoformat()
@@ -392,7 +403,7 @@ class Outbox:
                 ids = by_segment.get(segment.number)
                 if ids:
                     self._remove(segment, [doc for doc in self._docs(segment) if doc.doc_id in ids])
-            self._in_flight = set()
+            self._in_flight = set() if done is None else self._in_flight - done
 
     def release(self) -> None:
         """Nothing of the last take was settled (the connection broke): it waits again, and counts

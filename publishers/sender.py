@@ -13,13 +13,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import pika
 import pika.exceptions
 
-from publishers.confirms import Outgoing, PipelinedConfirms
+from publishers.confirms import Outgoing, PipelinedConfirms, Window
 from publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
 from publishers.outbox import Entry, Outbox
 
@@ -27,6 +28,8 @@ log = logging.getLogger("fleetbus.robot.sender")
 
 #: Largest window written before waiting for its confirms; bounds memory and resend work.
 PUBLISH_WINDOW = 1000
+#: Windows written before the oldest one's confirms are awaited.
+WINDOWS_IN_FLIGHT = 2
 #: How often an idle sender lets pika answer heartbeats.
 IDLE_TICK = 1.0
 
@@ -185,13 +188,11 @@ class Sender:
                     if job is not None:
                         self._send_express(job)
                         continue
-                    entries = self._outbox.take(PUBLISH_WINDOW)
-                    if entries:
-                        self._send(entries)
+                    drained = self._drain()
                 finally:
                     with self._condition:
                         self._busy = False
-                if not entries:
+                if not drained:
                     self._idle_wait()
             except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
                 self._outbox.release()
@@ -254,20 +255,40 @@ class Sender:
         self._confirms = PipelinedConfirms(self._connection, channel, self._confirm_timeout)
         return self._confirms
 
-    def _send(self, entries: list[Entry]) -> None:
+    def _drain(self) -> bool:
+        """Send what waits, window after window, until the outbox has nothing more; False if it had
+        nothing. The next window is written while the broker confirms the last one, so the outbox's
+        disk work overlaps the broker's."""
         assert self._confirms is not None
-        messages = [self._to_outgoing(entry) for entry in entries]
+        confirms = self._confirms
+        outstanding: deque[tuple[list[Entry], list[Outgoing], Window]] = deque()
+        drained = False
         try:
-            outcome = self._confirms.send(messages, self._confirm_timeout)
+            while True:
+                if len(outstanding) < WINDOWS_IN_FLIGHT:
+                    entries = self._outbox.take(PUBLISH_WINDOW)
+                    if entries:
+                        messages = [self._to_outgoing(entry) for entry in entries]
+                        outstanding.append((entries, messages, confirms.write(messages)))
+                        drained = True
+                        continue
+                if not outstanding:
+                    return drained
+                entries, messages, window = outstanding[0]
+                outcome = confirms.wait(window, self._confirm_timeout)
+                outstanding.popleft()
+                refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
+                confirmed = [e for e in entries if e.message_id not in outcome.nacked]
+                if outcome.nacked:
+                    log.warning("broker nacked %d messages; they stay in the outbox", len(outcome.nacked))
+                self._settle(confirmed, refused, entries)
         except PublishRefused:
-            # The broker closed the channel on one of them: find which, one at a time.
-            self._settle_one_by_one(entries, messages)
-            return
-        refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
-        confirmed = [e for e in entries if e.message_id not in outcome.nacked]
-        if outcome.nacked:
-            log.warning("broker nacked %d messages; they stay in the outbox", len(outcome.nacked))
-        self._settle(confirmed, refused)
+            # The broker closed the channel on one of them: every window written is in doubt. Send
+            # the oldest again one message at a time to find which; the rest go again after it.
+            self._outbox.release()
+            first = outstanding[0][0] if outstanding else self._outbox.take(PUBLISH_WINDOW)
+            self._settle_one_by_one(first, [self._to_outgoing(entry) for entry in first])
+            return True
 
     def _send_express(self, job: ExpressJob) -> None:
         """Send before the outbox write is done; settle once it is (the confirm may come first)."""
@@ -307,8 +328,10 @@ class Sender:
             self._settle([entry], refused)
         self._outbox.release()
 
-    def _settle(self, confirmed: list[Entry], refused: dict[str, str]) -> None:
-        self._outbox.settle(confirmed, refused)
+    def _settle(
+        self, confirmed: list[Entry], refused: dict[str, str], window: list[Entry] | None = None
+    ) -> None:
+        self._outbox.settle(confirmed, refused, window)
         self.sent += len(confirmed) - len(refused)
         ids = {entry.message_id for entry in confirmed}
         with self._condition:

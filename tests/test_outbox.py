@@ -52,6 +52,19 @@ def test_settle_removes_confirmed_moves_refused_and_keeps_the_rest(tmp_path: Pat
     assert outbox.pending() == 0 and not list(tmp_path.glob("seg-*.json"))
 
 
+def test_windows_in_flight_are_taken_once_and_a_nacked_entry_is_taken_again(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path, segment_events=4)
+    outbox.append(events("hazard", 0, 10))
+    first, second = outbox.take(4), outbox.take(4)
+    assert [e.seq for e in first] == [0, 1, 2, 3] and [e.seq for e in second] == [4, 5, 6, 7]
+    outbox.settle([e for e in first if e.seq != 1], window=first)  # the broker nacked seq 1
+    assert [e.seq for e in outbox.take(4)] == [1, 8, 9], "seq 1 again; the second window still away"
+    outbox.settle(second, window=second)
+    assert seqs(outbox) == [1, 8, 9]
+    outbox.release()
+    assert [e.seq for e in outbox.take(10)] == [1, 8, 9], "after a broken connection, all again"
+
+
 def test_telemetry_drops_its_oldest_and_counts_them(tmp_path: Path) -> None:
     policies = {
         "status": TypePolicy(Overflow.DROP_OLDEST, 5),
