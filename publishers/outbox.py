@@ -203,9 +203,12 @@ class Outbox:
         return segment.db
 
     def _release(self, segment: _Segment) -> None:
-        """Forget a segment's cached contents unless it is the newest (appends) or oldest (drains)."""
-        if segment.db is not None and (
-            not self._segments or segment not in (self._segments[0], self._segments[-1])
+        """Forget a segment's cached contents unless it is the newest (appends), the oldest
+        (drains) or has entries in flight (its settle comes soon)."""
+        if (
+            segment.db is not None
+            and (not self._segments or segment not in (self._segments[0], self._segments[-1]))
+            and not any(number == segment.number for number, _ in self._in_flight)
         ):
             segment.db.close()
             segment.db = None
@@ -342,16 +345,22 @@ class Outbox:
         """
         with self._lock:
             entries: list[Entry] = []
+            flying = Counter(number for number, _ in self._in_flight)
+            read: list[_Segment] = []
             for segment in self._segments:
+                if len(entries) == limit:
+                    break
+                if flying[segment.number] >= segment.size:
+                    continue  # all of it is being sent already
+                read.append(segment)
                 for doc in self._docs(segment):
                     if len(entries) == limit:
                         break
                     if (segment.number, doc.doc_id) not in self._in_flight:
                         entries.append(self._entry(segment, doc))
-                self._release(segment)
-                if len(entries) == limit:
-                    break
             self._in_flight |= {entry.position for entry in entries}
+            for segment in read:
+                self._release(segment)
             return entries
 
     def _entry(self, segment: _Segment, doc: Any) -> Entry:
