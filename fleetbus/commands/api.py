@@ -14,16 +14,14 @@ import sys
 from pathlib import Path
 from typing import Annotated
 
-import httpx
 import typer
 
-from api.app import create_app
-from api.errors import ServiceRefusal
-from api.service import open_service
 from broker.accounts import save_secret
 from fleetbus.context import console, endpoint, fail, settings
 from schemas.roles import UserRole
 
+# FastAPI, the service and httpx are imported by the commands that use them: every `fleetbus`
+# command loads this module, and `fleetbus recorder run` must stay small (20 MB less resident).
 app = typer.Typer(help="The HTTP API of the service layer (users, missions, mounts).")
 DEFAULT_API = "http://127.0.0.1:8000"
 
@@ -38,6 +36,8 @@ def serve(
     if ctx.invoked_subcommand is not None:
         return
     import uvicorn
+
+    from api.app import create_app
 
     ep = endpoint()
     console.print(f"fleetbus API on http://{host}:{port}/ (docs at /docs); broker {ep.management_url}")
@@ -54,6 +54,9 @@ def create_admin(
     ] = False,
 ) -> None:
     """Create an admin on this server (the safe way to make the first one: no default password)."""
+    from api.errors import ServiceRefusal
+    from api.service import open_service
+
     if password_stdin:
         password = sys.stdin.readline().rstrip("\n")
     else:
@@ -76,6 +79,8 @@ def create_admin(
 @app.command("openapi")
 def openapi(out: Annotated[Path, typer.Argument(help="file to write")] = Path("openapi.json")) -> None:
     """Write the OpenAPI document (no broker needed)."""
+    from api.app import create_app
+
     document = create_app(settings(), "amqp://localhost/", "http://localhost:15672/").openapi()
     out.write_text(json.dumps(document, indent=2) + "\n")
     console.print(f"wrote {out} ({len(document['paths'])} paths)")
@@ -88,6 +93,8 @@ def login(
     password_stdin: Annotated[bool, typer.Option("--password-stdin")] = False,
 ) -> None:
     """Log in; print the token and keep the broker URL in FLEETBUS_DATA_DIR/accounts/NAME.url."""
+    import httpx
+
     password = (
         sys.stdin.readline().rstrip("\n") if password_stdin else typer.prompt("password", hide_input=True)
     )
