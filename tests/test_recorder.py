@@ -12,6 +12,7 @@ import pika.exceptions
 import pytest
 
 from broker.accounts import RECORDER_USER, url_for
+from broker.local_node import pid_alive
 from schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
@@ -230,13 +231,6 @@ def _children(pid: int) -> list[int]:
     return [int(child) for task in tasks.iterdir() for child in (task / "children").read_text().split()]
 
 
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
 def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(bus: Bus) -> None:
     explorer = bus.robot(bus.add("rec-explorer", kind=RobotKind.EXPLORER))
     worker = bus.spawn_worker()
@@ -255,7 +249,7 @@ def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(b
 
         worker.kill()  # SIGKILL: the worker cannot stop its child itself
         worker.wait(30)
-        wait_for(lambda: not _alive(second), timeout=30, what="the recorder ending with its worker")
+        wait_for(lambda: not pid_alive(second), timeout=30, what="the recorder ending with its worker")
     finally:
         if worker.poll() is None:
             worker.kill()

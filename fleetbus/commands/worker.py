@@ -12,7 +12,8 @@ import typer
 
 from fleetbus.config import MAX_INGEST_SHARDS
 from fleetbus.context import endpoint, settings
-from workers.recorder.process import declare_recording, run_recorder_process
+from workers.recorder.process import run_recorder_process
+from workers.recorder.runner import declare_recording
 from workers.runner import run_worker
 from workers.signals import stop_on_signals
 

@@ -17,7 +17,6 @@ import signal
 import sys
 import time
 
-from broker.topology import core_topology, declare_with_url, recorder_topology
 from workers.backoff import Backoff
 
 log = logging.getLogger("fleetbus.recorder")
@@ -33,12 +32,6 @@ def die_with_parent() -> None:
     if sys.platform.startswith("linux"):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-
-
-async def declare_recording(admin_url: str) -> None:
-    """The recorder's queue and bindings, before the workers consume: whatever is published from
-    then on is kept for the recorder, even while its process is still starting (or restarting)."""
-    await declare_with_url(admin_url, [core_topology(), recorder_topology()])
 
 
 def recorder_command(verbose: bool) -> list[str]:

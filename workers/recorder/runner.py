@@ -52,6 +52,13 @@ def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions
     return RecorderOptions(**{**options.__dict__, **overrides})  # type: ignore[arg-type]
 
 
+async def declare_recording(admin_url: str) -> None:
+    """The recorder's queue and its bindings (as the administrator). `fleetbus worker` declares
+    them before it consumes, so whatever is published from then on waits for its recorder child,
+    even while that process is still starting (or restarting)."""
+    await declare_with_url(admin_url, [core_topology(), recorder_topology()])
+
+
 def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         return ensure_recorder_account(endpoint.amqp_url, api, settings.accounts_dir)
@@ -67,7 +74,7 @@ async def start_recorder(
     is recorded under (its check-ins), as it does for the event log."""
     # as the administrator: the account, then the queue and its bindings (the account may not)
     url = await asyncio.to_thread(recorder_url, settings, endpoint)
-    await declare_with_url(endpoint.amqp_url, [core_topology(), recorder_topology()])
+    await declare_recording(endpoint.amqp_url)
     store = open_recording_store(settings)
     await store.open()
     names = TypeNames(await store.recorded_types(), options.max_types)
