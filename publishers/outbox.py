@@ -338,10 +338,12 @@ class Outbox:
 
     # ------------------------------------------------------------------ draining
 
-    def take(self, limit: int) -> list[Entry]:
+    def take(self, limit: int, whole_segments: bool = False) -> list[Entry]:
         """The oldest ``limit`` entries not in flight yet, marked in flight until :meth:`settle`.
 
-        A sender may take the next window while the broker still confirms the last one.
+        A sender may take the next window while the broker still confirms the last one. With
+        ``whole_segments`` the take stops before a segment it could only take part of (unless that
+        is the first): settling it then deletes segment files without reading them again.
         """
         with self._lock:
             entries: list[Entry] = []
@@ -350,8 +352,11 @@ class Outbox:
             for segment in self._segments:
                 if len(entries) == limit:
                     break
-                if flying[segment.number] >= segment.size:
+                waiting = segment.size - flying[segment.number]
+                if waiting <= 0:
                     continue  # all of it is being sent already
+                if whole_segments and entries and len(entries) + waiting > limit:
+                    break
                 read.append(segment)
                 for doc in self._docs(segment):
                     if len(entries) == limit:
@@ -410,7 +415,13 @@ class Outbox:
             self._note_removed(taken)
             for segment in list(self._segments):
                 ids = by_segment.get(segment.number)
-                if ids:
+                if not ids:
+                    continue
+                if len(ids) == segment.size and all((segment.number, i) in self._in_flight for i in ids):
+                    # every event it holds is confirmed (in flight, nothing else removed them):
+                    # delete it without reading it again
+                    self._delete_segment(segment, [e for e in taken if e.position[0] == segment.number])
+                else:
                     self._remove(segment, [doc for doc in self._docs(segment) if doc.doc_id in ids])
             self._in_flight = set() if done is None else self._in_flight - done
 
@@ -423,15 +434,25 @@ class Outbox:
             for event_type in types:
                 self._enforce_drop_limit(event_type)
 
+    def _delete_segment(self, segment: _Segment, entries: Sequence[Entry]) -> None:
+        """Delete a segment all of whose ``entries`` are leaving, and their blobs."""
+        self._unlink_segment(segment)
+        for entry in entries:
+            if len(entry.body) > self._blob_bytes:
+                (self.folder / f"{BLOB_PREFIX}{entry.message_id}.json").unlink(missing_ok=True)
+
+    def _unlink_segment(self, segment: _Segment) -> None:
+        if segment.db is not None:
+            segment.db.close()
+            segment.db = None
+        segment.path.unlink()
+        self._segments.remove(segment)
+
     def _remove(self, segment: _Segment, docs: Sequence[Any]) -> None:
         if not docs:
             return
         if len(docs) == segment.size:
-            if segment.db is not None:
-                segment.db.close()
-                segment.db = None
-            segment.path.unlink()
-            self._segments.remove(segment)
+            self._unlink_segment(segment)
         else:
             self._open(segment).table("events").remove(doc_ids=[doc.doc_id for doc in docs])
             for doc in docs:

@@ -266,7 +266,7 @@ class Sender:
         try:
             while True:
                 if len(outstanding) < WINDOWS_IN_FLIGHT:
-                    entries = self._outbox.take(PUBLISH_WINDOW)
+                    entries = self._outbox.take(PUBLISH_WINDOW, whole_segments=True)
                     if entries:
                         messages = [self._to_outgoing(entry) for entry in entries]
                         outstanding.append((entries, messages, confirms.write(messages)))

@@ -65,6 +65,25 @@ def test_windows_in_flight_are_taken_once_and_a_nacked_entry_is_taken_again(tmp_
     assert [e.seq for e in outbox.take(10)] == [1, 8, 9], "after a broken connection, all again"
 
 
+def test_whole_segment_takes_are_deleted_on_settle_without_being_read_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    outbox = Outbox(tmp_path, segment_events=4, blob_bytes=600)
+    big = build_event("hazard", "explorer1", 0, {**hazard(), "description": "x" * 500})
+    outbox.append([big, *events("hazard", 1, 11)])
+    first = outbox.take(6, whole_segments=True)
+    assert [e.seq for e in first] == [0, 1, 2, 3], "stops before a segment it could take only part of"
+    second = outbox.take(6, whole_segments=True)
+    assert [e.seq for e in second] == [4, 5, 6, 7]
+    monkeypatch.setattr(outbox, "_docs", lambda segment: pytest.fail("a wholly settled segment was read"))
+    outbox.settle(second, window=second)
+    outbox.settle(first, window=first)
+    monkeypatch.undo()
+    assert seqs(outbox) == [8, 9, 10, 11]
+    assert len(list(tmp_path.glob("seg-*.json"))) == 1 and not list(tmp_path.glob("blob-*.json"))
+    assert [e.seq for e in outbox.take(2, whole_segments=True)] == [8, 9], "a first segment, in part"
+
+
 def test_telemetry_drops_its_oldest_and_counts_them(tmp_path: Path) -> None:
     policies = {
         "status": TypePolicy(Overflow.DROP_OLDEST, 5),
