@@ -146,6 +146,13 @@ class PipelinedConfirms:
             raise BrokerUnavailable(f"connection lost while publishing: {error!r}") from error
         return window
 
+    def flush(self) -> None:
+        """Put what :meth:`write` queued on the wire now, without waiting for anything."""
+        try:
+            self._connection.process_data_events(0)
+        except pika.exceptions.AMQPError as error:
+            raise BrokerUnavailable(f"connection lost while publishing: {error!r}") from error
+
     def wait(self, window: Window, timeout: float) -> Outcome:
         """Wait until the broker answered every message of ``window``; say which it did not take."""
         tags = window.tags

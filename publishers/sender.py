@@ -48,8 +48,15 @@ class ExpressJob:
 
     def __init__(self, entries: list[Entry]) -> None:
         self.entries = entries
+        self._sent = threading.Event()
         self._written = threading.Event()
         self._positioned: list[Entry] | None = None
+
+    def sent(self) -> None:
+        self._sent.set()
+
+    def wait_sent(self, timeout: float) -> None:
+        self._sent.wait(timeout)
 
     def stored(self, entries: list[Entry] | None) -> None:
         self._positioned = entries
@@ -293,9 +300,14 @@ class Sender:
     def _send_express(self, job: ExpressJob) -> None:
         """Send before the outbox write is done; settle once it is (the confirm may come first)."""
         assert self._confirms is not None
-        messages = [self._to_outgoing(entry) for entry in job.entries]
+        confirms = self._confirms
         try:
-            outcome = self._confirms.send(messages, self._confirm_timeout)
+            try:
+                window = confirms.write([self._to_outgoing(entry) for entry in job.entries])
+                confirms.flush()
+            finally:
+                job.sent()  # the publisher may write them to the outbox now
+            outcome = confirms.wait(window, self._confirm_timeout)
         except PublishRefused:
             # the entries wait in the outbox like any others; the normal path finds the culprit
             job.wait_stored(self._confirm_timeout)
