@@ -21,10 +21,10 @@ from aio_pika.abc import AbstractExchange
 
 from schemas.envelope import EVENT_ADAPTER
 from schemas.notifications import Notification
-from schemas.routing import EventType, RobotKind, Topic
+from schemas.routing import EventType, Topic
 from workers.mutex import LocalMutex, Mutex
 from workers.notifier import publish_notification
-from workers.store.hazards import DEFAULT_MISSION, Hazard
+from workers.store.hazards import DEFAULT_MISSION, Hazard, HeldHazards, NewHazard
 from workers.store.interface import Store
 from workers.validation import Accepted
 
@@ -58,42 +58,40 @@ class HazardCoordinator:
         if not relevant:
             return 0
         async with self._serial.hold():
+            hazards: list[NewHazard] = []
             for item in relevant:
                 event = item.event
                 if event.type is EventType.LOCALISATION:
                     await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
                 else:
-                    await self._store.add_hazard(
-                        item.record.mission_id or DEFAULT_MISSION,
-                        event.robot_id,
-                        event.seq,
-                        EVENT_ADAPTER.dump_python(event, mode="json"),
-                        item.record.received_at,
-                        held=True,
+                    hazards.append(
+                        NewHazard(
+                            item.record.mission_id or DEFAULT_MISSION,
+                            event.robot_id,
+                            event.seq,
+                            EVENT_ADAPTER.dump_python(event, mode="json"),
+                            item.record.received_at,
+                        )
                     )
-            return await self._release()
-
-    async def gate_open(self) -> bool:
-        wardens = await self._store.robots(RobotKind.WARDEN.value)
-        return all(warden.localised for warden in wardens)
+            # registering, reading the held list and the gate: one store call on the hazard's way
+            return await self._announce(await self._store.hold_hazards(hazards))
 
     async def release_if_ready(self) -> int:
         """Announce the held hazards if every warden is localised (after a restart, say)."""
         async with self._serial.hold():
-            return await self._release()
+            return await self._announce(await self._store.hold_hazards(()))
 
-    async def _release(self) -> int:
-        held = await self._store.held_hazards()
-        if not held:
+    async def _announce(self, held: HeldHazards) -> int:
+        if not held.hazards:
             return 0
-        if not await self.gate_open():
-            log.info("holding %d hazards until every warden is localised", len(held))
+        if not held.wardens_localised:
+            log.info("holding %d hazards until every warden is localised", len(held.hazards))
             return 0
         now = datetime.now(timezone.utc)
-        for hazard in held:
+        for hazard in held.hazards:
             await publish_notification(self._exchange, self.notification(hazard, now), self._service_user)
-        await self._store.mark_announced(held, now)
-        return len(held)
+        await self._store.mark_announced(held.hazards, now)
+        return len(held.hazards)
 
     def notification(self, hazard: Hazard, now: datetime) -> Notification:
         """The announcement; ``late`` when it reaches the wardens long after the explorer sent it

@@ -8,7 +8,7 @@ from datetime import datetime, timedelta, timezone
 import pytest
 
 from workers.store.beacons import Beacon
-from workers.store.hazards import HazardRefused, HazardState
+from workers.store.hazards import HazardRefused, HazardState, NewHazard
 from workers.store.interface import Store
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
@@ -35,6 +35,25 @@ async def test_held_hazards_come_out_in_detection_order(store: Store) -> None:
     announced = await store.get_hazard("m1", 1)
     assert announced is not None and announced.state is HazardState.ANNOUNCED
     assert announced.announced_at == T0 + timedelta(seconds=5)
+
+
+async def test_holding_hazards_registers_them_once_and_tells_the_gate(store: Store) -> None:
+    await store.register_robot("warden1", "warden")
+    await store.register_robot("warden2", "warden")
+    await store.set_localised("warden1", True, T0)
+    first = NewHazard("m1", "explorer1", 10, BODY, T0)
+    held = await store.hold_hazards([first, NewHazard("m2", "explorer1", 11, BODY, T0)])
+    assert [(h.mission_id, h.hazard_id, h.state) for h in held.hazards] == [
+        ("m1", 1, HazardState.HELD),
+        ("m2", 1, HazardState.HELD),
+    ]
+    assert not held.wardens_localised, "warden2 is not localised"
+    again = await store.hold_hazards([first])
+    assert again.hazards == held.hazards, "the same event again is not a second hazard"
+    await store.set_localised("warden2", True, T0)
+    assert (await store.hold_hazards([])).wardens_localised
+    await store.mark_announced(held.hazards[:1], T0)
+    assert [h.mission_id for h in (await store.hold_hazards([])).hazards] == ["m2"]
 
 
 async def test_claim_reach_release_and_refusals(store: Store) -> None:

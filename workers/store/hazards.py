@@ -8,11 +8,13 @@ told, then ``claimed`` by one warden, ``reached``, and finally ``cleared``.
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
 from typing import Any
 
+from schemas.routing import RobotKind
 from workers.store.base import StoreError
 
 DEFAULT_MISSION = "default"
@@ -83,6 +85,25 @@ REACH = Transition("reached", HazardState.CLAIMED, HazardState.REACHED, True, "r
 CLEAR = Transition("cleared", HazardState.REACHED, HazardState.CLEARED, True, "cleared_at")
 
 
+@dataclass(frozen=True)
+class NewHazard:
+    """A hazard event to register as held (see :meth:`CoordinationStore.hold_hazards`)."""
+
+    mission_id: str
+    robot_id: str
+    seq: int
+    event: dict[str, Any]
+    received_at: datetime
+
+
+@dataclass(frozen=True)
+class HeldHazards:
+    hazards: list[Hazard]
+    """Every held hazard, in the order they were detected (id order)."""
+    wardens_localised: bool
+    """Whether every warden of the team reports itself localised: the gate is open."""
+
+
 class HazardRefused(StoreError):
     """A claim, release or arrival the hazard's state does not allow; the message says why."""
 
@@ -117,6 +138,18 @@ class CoordinationStore(abc.ABC):
     @abc.abstractmethod
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
         """Held hazards in the order they were detected (id order)."""
+
+    async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
+        """Register ``new`` as held (idempotent, as :meth:`add_hazard`), then say what is held and
+        whether the gate is open. Adapters that can do it in one transaction override this: it is
+        on every hazard's way to the wardens."""
+        for hazard in new:
+            await self.add_hazard(
+                hazard.mission_id, hazard.robot_id, hazard.seq, hazard.event, hazard.received_at, held=True
+            )
+        held = await self.held_hazards()
+        wardens = await self.robots(RobotKind.WARDEN.value)
+        return HeldHazards(held, all(warden.localised for warden in wardens))
 
     @abc.abstractmethod
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:

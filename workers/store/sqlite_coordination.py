@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
+from schemas.routing import RobotKind
 from workers.store.base import from_micros, to_micros
 from workers.store.hazards import (
     CoordinationStore,
     Hazard,
     HazardState,
+    HeldHazards,
+    NewHazard,
     RobotState,
     Transition,
     refuse_transition,
@@ -20,6 +23,8 @@ from workers.store.hazards import (
 from workers.store.sqlite_database import in_transaction
 
 T = TypeVar("T")
+
+HELD_SQL = "SELECT * FROM hazards WHERE state = 'held'"
 
 HAZARD_SCHEMA = """
 CREATE TABLE IF NOT EXISTS robots (
@@ -132,42 +137,32 @@ class SQLiteCoordination(CoordinationStore):
         received_at: datetime,
         held: bool,
     ) -> Hazard:
-        def add(db: sqlite3.Connection) -> Hazard:
-            def work() -> Hazard:
-                row = db.execute(
-                    "SELECT * FROM hazards WHERE robot_id = ? AND seq = ?", (robot_id, seq)
-                ).fetchone()
-                if row:
-                    return _hazard(row)
-                (next_id,) = db.execute(
-                    "INSERT INTO hazard_counters (mission_id, last_id) VALUES (?, 1) "
-                    "ON CONFLICT (mission_id) DO UPDATE SET last_id = last_id + 1 RETURNING last_id",
-                    (mission_id,),
-                ).fetchone()
-                state = HazardState.HELD if held else HazardState.ANNOUNCED
-                db.execute(
-                    "INSERT INTO hazards (mission_id, hazard_id, robot_id, seq, event, state, received_at) "
-                    "VALUES (?, ?, ?, ?, ?, ?, ?)",
-                    (
-                        mission_id,
-                        next_id,
-                        robot_id,
-                        seq,
-                        json.dumps(event),
-                        state.value,
-                        to_micros(received_at),
-                    ),
-                )
-                found = _one(db, mission_id, next_id)
-                assert found is not None
-                return found
+        new = NewHazard(mission_id, robot_id, seq, event, received_at)
+        return await self._run(lambda db: in_transaction(db, lambda: _add_hazard(db, new, held)))
+
+    async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
+        def held(db: sqlite3.Connection) -> HeldHazards:
+            hazards = [_hazard(row) for row in db.execute(HELD_SQL + " ORDER BY mission_id, hazard_id")]
+            (waiting,) = db.execute(
+                "SELECT COUNT(*) FROM robots WHERE kind = ? AND localised = 0", (RobotKind.WARDEN.value,)
+            ).fetchone()
+            return HeldHazards(hazards, waiting == 0)
+
+        def hold(db: sqlite3.Connection) -> HeldHazards:
+            if not new:
+                return held(db)
+
+            def work() -> HeldHazards:
+                for hazard in new:
+                    _add_hazard(db, hazard, held=True)
+                return held(db)
 
             return in_transaction(db, work)
 
-        return await self._run(add)
+        return await self._run(hold)
 
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
-        sql, params = "SELECT * FROM hazards WHERE state = 'held'", ()
+        sql, params = HELD_SQL, ()
         if mission_id is not None:
             sql, params = sql + " AND mission_id = ?", (mission_id,)
         rows = await self._run(
@@ -228,3 +223,34 @@ class SQLiteCoordination(CoordinationStore):
             return in_transaction(db, work)
 
         return await self._run(change)
+
+
+def _add_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazard:
+    """Register ``new`` (inside the caller's transaction); the same event again finds the first."""
+    row = db.execute(
+        "SELECT * FROM hazards WHERE robot_id = ? AND seq = ?", (new.robot_id, new.seq)
+    ).fetchone()
+    if row:
+        return _hazard(row)
+    (next_id,) = db.execute(
+        "INSERT INTO hazard_counters (mission_id, last_id) VALUES (?, 1) "
+        "ON CONFLICT (mission_id) DO UPDATE SET last_id = last_id + 1 RETURNING last_id",
+        (new.mission_id,),
+    ).fetchone()
+    state = HazardState.HELD if held else HazardState.ANNOUNCED
+    db.execute(
+        "INSERT INTO hazards (mission_id, hazard_id, robot_id, seq, event, state, received_at) "
+        "VALUES (?, ?, ?, ?, ?, ?, ?)",
+        (
+            new.mission_id,
+            next_id,
+            new.robot_id,
+            new.seq,
+            json.dumps(new.event),
+            state.value,
+            to_micros(new.received_at),
+        ),
+    )
+    found = _one(db, new.mission_id, next_id)
+    assert found is not None
+    return found
