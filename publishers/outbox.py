@@ -305,10 +305,10 @@ class Outbox:
             "message_id": str(event.message_id),
             "sent_at": event.sent_at.isoformat(),
         }
-        if len(body) > self._blob_bytes:
-            name = f"{BLOB_PREFIX}{event.message_id}.json"
-            write_atomically(self.folder / name, body, self._durable)
-            doc["blob"] = name
+        blob = self._blob_path(str(event.message_id), body)
+        if blob is not None:
+            write_atomically(blob, body, self._durable)
+            doc["blob"] = blob.name
         else:
             doc["body"] = body.decode()
         return doc
@@ -405,11 +405,11 @@ class Outbox:
         with self._lock:
             taken = list(confirmed)
             done = None if window is None else {entry.position for entry in window}
-            by_segment: dict[int, set[int]] = {}
+            by_segment: dict[int, list[Entry]] = {}
             refused_docs: list[dict[str, Any]] = []
             now = datetime.now(timezone.utc).isoformat()
             for entry in taken:
-                by_segment.setdefault(entry.position[0], set()).add(entry.position[1])
+                by_segment.setdefault(entry.position[0], []).append(entry)
                 if entry.message_id in refused:
                     refused_docs.append(
                         {
@@ -425,13 +425,14 @@ class Outbox:
                 self._refused.table("refused").insert_multiple(refused_docs)
             self._note_removed(taken)
             for segment in list(self._segments):
-                ids = by_segment.get(segment.number)
-                if not ids:
+                leaving = by_segment.get(segment.number)
+                if not leaving:
                     continue
-                if len(ids) == segment.size and all((segment.number, i) in self._in_flight for i in ids):
+                ids = {entry.position[1] for entry in leaving}
+                if len(ids) == segment.size and all(entry.position in self._in_flight for entry in leaving):
                     # every event it holds is confirmed (in flight, nothing else removed them):
                     # delete it without reading it again
-                    self._delete_segment(segment, [e for e in taken if e.position[0] == segment.number])
+                    self._delete_segment(segment, leaving)
                 else:
                     self._remove(segment, [doc for doc in self._docs(segment) if doc.doc_id in ids])
             self._in_flight = set() if done is None else self._in_flight - done
@@ -445,12 +446,17 @@ class Outbox:
             for event_type in types:
                 self._enforce_drop_limit(event_type)
 
+    def _blob_path(self, message_id: str, body: bytes) -> Path | None:
+        """Where a body too large to wait inside a segment waits instead; None for the others."""
+        return self.folder / f"{BLOB_PREFIX}{message_id}.json" if len(body) > self._blob_bytes else None
+
     def _delete_segment(self, segment: _Segment, entries: Sequence[Entry]) -> None:
         """Delete a segment all of whose ``entries`` are leaving, and their blobs."""
         self._unlink_segment(segment)
         for entry in entries:
-            if len(entry.body) > self._blob_bytes:
-                (self.folder / f"{BLOB_PREFIX}{entry.message_id}.json").unlink(missing_ok=True)
+            blob = self._blob_path(entry.message_id, entry.body)
+            if blob is not None:
+                blob.unlink(missing_ok=True)
 
     def _unlink_segment(self, segment: _Segment) -> None:
         if segment.db is not None:

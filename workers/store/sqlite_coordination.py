@@ -24,8 +24,6 @@ from workers.store.sqlite_database import in_transaction
 
 T = TypeVar("T")
 
-HELD_SQL = "SELECT * FROM hazards WHERE state = 'held'"
-
 HAZARD_SCHEMA = """
 CREATE TABLE IF NOT EXISTS robots (
     name       TEXT PRIMARY KEY,
@@ -142,7 +140,7 @@ class SQLiteCoordination(CoordinationStore):
 
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
         def held(db: sqlite3.Connection) -> HeldHazards:
-            hazards = [_hazard(row) for row in db.execute(HELD_SQL + " ORDER BY mission_id, hazard_id")]
+            hazards = _held_hazards(db)
             (waiting,) = db.execute(
                 "SELECT COUNT(*) FROM robots WHERE kind = ? AND localised = 0", (RobotKind.WARDEN.value,)
             ).fetchone()
@@ -162,13 +160,7 @@ class SQLiteCoordination(CoordinationStore):
         return await self._run(hold)
 
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
-        sql, params = HELD_SQL, ()
-        if mission_id is not None:
-            sql, params = sql + " AND mission_id = ?", (mission_id,)
-        rows = await self._run(
-            lambda db: db.execute(sql + " ORDER BY mission_id, hazard_id", params).fetchall()
-        )
-        return [_hazard(row) for row in rows]
+        return await self._run(lambda db: _held_hazards(db, mission_id))
 
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
         keys = [(to_micros(at), h.mission_id, h.hazard_id) for h in hazards]
@@ -254,3 +246,11 @@ def _add_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazard:
     found = _one(db, new.mission_id, next_id)
     assert found is not None
     return found
+
+
+def _held_hazards(db: sqlite3.Connection, mission_id: str | None = None) -> list[Hazard]:
+    """Held hazards (of one mission, or all), in the order they were detected."""
+    sql, params = "SELECT * FROM hazards WHERE state = 'held'", ()
+    if mission_id is not None:
+        sql, params = sql + " AND mission_id = ?", (mission_id,)
+    return [_hazard(row) for row in db.execute(sql + " ORDER BY mission_id, hazard_id", params)]
