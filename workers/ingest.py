@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Protocol, TypeVar
@@ -21,6 +21,7 @@ import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
+from schemas.routing import EventType
 from workers.backoff import Backoff
 from workers.batches import BatchInbox
 from workers.dead_letters import dead_letter
@@ -50,23 +51,8 @@ class BatchCheck(Protocol):
         ...
 
 
-class BatchEnricher(Protocol):
-    """Adds to the records of checked items before they are written (the mission stamp)."""
-
-    async def enrich(self, accepted: Sequence[Accepted]) -> list[Accepted]: ...
-
-
 class Stopping(Exception):
     """The worker is stopping while the store is down: leave the batch unacked."""
-
-
-@dataclass
-class LedgerUpdate:
-    """What a batch tells the sequence ledger: the numbers stored and the duplicates seen."""
-
-    at: datetime
-    seen: dict[str, list[int]] = field(default_factory=dict)
-    duplicates: list[Duplicate] = field(default_factory=list)
 
 
 @dataclass
@@ -90,7 +76,7 @@ class IngestConsumer:
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
         services: Sequence[BatchService] = (),
-        enrichers: Sequence[BatchEnricher] = (),
+        urgent: Collection[EventType] = (),
         batch_size: int = 256,
         linger: float = 0.0,
         stats: IngestStats | None = None,
@@ -100,7 +86,7 @@ class IngestConsumer:
         self._store = store
         self._checks = checks
         self._services = services
-        self._enrichers = enrichers
+        self._urgent = frozenset(urgent)
         self._dead_letter_exchange = dead_letter_exchange
         self._max_bytes = max_message_bytes
         self._inbox = BatchInbox(batch_size, linger)
@@ -175,27 +161,32 @@ class IngestConsumer:
             for index in sorted(refused):
                 await self._reject(candidates[index][0], refused[index])
             candidates = [pair for index, pair in enumerate(candidates) if index not in refused]
-        for enricher in self._enrichers:
-            items = [item for _, item in candidates]
-            enriched = await self._retrying(lambda enricher=enricher, items=items: enricher.enrich(items))
-            candidates = [(message, item) for (message, _), item in zip(candidates, enriched, strict=True)]
         if candidates:
+            # stamped with their missions, written, and seen by the sequence ledger: one store call
+            at = datetime.now(timezone.utc)
             records = [item.record for _, item in candidates]
-            results = await self._retrying(lambda: self._store.write_events(records))
-            accepted, ledger = await self._sort_out(candidates, results)
+            urgent = any(item.event.type in self._urgent for _, item in candidates)
+            stored = await self._retrying(lambda: self._store.store_batch(records, at, urgent=urgent))
+            candidates = [
+                (message, Accepted(item.event, record))
+                for (message, item), record in zip(candidates, stored.records, strict=True)
+            ]
+            accepted, duplicates = await self._sort_out(candidates, stored.results, at)
             for service in self._services:
                 self.stats.notified += await self._retrying(lambda service=service: service.handle(accepted))
             # bookkeeping after the services, so that it does not delay notifications
-            await self._retrying(lambda: self._store.record_duplicates(ledger.duplicates))
-            self.stats.duplicates += len(ledger.duplicates)  # counted once the ledger holds them
-            await self._retrying(lambda: self._store.observe_sequences(ledger.seen, ledger.at))
+            await self._retrying(lambda: self._store.record_duplicates(duplicates))
+            self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
         await batch[-1].ack(multiple=True)
 
     async def _sort_out(
-        self, candidates: list[tuple[AbstractIncomingMessage, Accepted]], results: Sequence[WriteResult]
-    ) -> tuple[list[Accepted], LedgerUpdate]:
-        """Count what was stored, dead-letter reused numbers; say what the ledger must record."""
-        ledger = LedgerUpdate(datetime.now(timezone.utc))
+        self,
+        candidates: list[tuple[AbstractIncomingMessage, Accepted]],
+        results: Sequence[WriteResult],
+        at: datetime,
+    ) -> tuple[list[Accepted], list[Duplicate]]:
+        """Count what was stored, dead-letter reused numbers; return the rest and the duplicates."""
+        duplicates: list[Duplicate] = []
         accepted: list[Accepted] = []
         for (message, item), result in zip(candidates, results, strict=True):
             record = item.record
@@ -207,16 +198,13 @@ class IngestConsumer:
                 await self._reject(message, Rejected(RejectReason.SEQUENCE_REUSED, detail))
                 continue
             accepted.append(item)
-            ledger.seen.setdefault(record.robot_id, []).append(record.seq)
             if result.inserted:
                 self.stats.stored += 1
             else:
-                ledger.duplicates.append(
-                    Duplicate(
-                        record.robot_id, record.seq, record.message_id, ledger.at, bool(message.redelivered)
-                    )
+                duplicates.append(
+                    Duplicate(record.robot_id, record.seq, record.message_id, at, bool(message.redelivered))
                 )
-        return accepted, ledger
+        return accepted, duplicates
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
         """Run a store or service step until it succeeds; raise Stopping if asked to stop meanwhile.

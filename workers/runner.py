@@ -27,10 +27,9 @@ from schemas.routing import (
 )
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
-from workers.coordination import HazardCoordinator
+from workers.coordination import GATED, HazardCoordinator
 from workers.ingest import BROKER_ERRORS, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
-from workers.missions import MissionStamp
 from workers.mutex import LocalMutex, Mutex, StoreMutex
 from workers.rpc import RpcServer
 from workers.services import hazard_services
@@ -127,7 +126,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
                 coordinator,
                 BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
             ],
-            enrichers=[MissionStamp(store)],
+            urgent=GATED,  # the wardens wait for hazards; the gate opens on localisation
             batch_size=PREFETCH,
             stats=stats,
         )

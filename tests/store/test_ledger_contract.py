@@ -7,6 +7,7 @@ from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
 from tests.store.test_contract import record
+from workers.store.base import EventQuery
 from workers.store.interface import Store
 from workers.store.ledger import Duplicate, Gap, apply_seqs
 
@@ -74,3 +75,29 @@ def test_the_ledger_does_not_depend_on_the_order_it_sees_numbers_in() -> None:
             high_water, gaps = change.high_water, change.gaps
         outcomes.add((high_water, tuple((g.first, g.last) for g in gaps)))
     assert outcomes == {(12, ((1, 1), (4, 6), (8, 8), (10, 11)))}
+
+
+async def test_a_stored_batch_is_stamped_written_and_observed_in_one_step(store: Store) -> None:
+    await store.mount("explorer1", "alice", "m-1", T0)
+    await store.check_in("alice", "m-1", T0)
+    first = record(seq=1)
+    await store.write_events([first])
+    reused = replace(first, message_id="another-message")
+    batch = [record(seq=0), reused, record("warden1", seq=4)]
+
+    stored = await store.store_batch(batch, T1)
+
+    assert [r.mission_id for r in stored.records] == ["m-1", "m-1", None]
+    assert [(r.inserted, r.stored_message_id) for r in stored.results] == [
+        (True, None),
+        (False, first.message_id),
+        (True, None),
+    ]
+    found = await store.find_events(EventQuery(mission_id="m-1"))
+    assert [(r.robot_id, r.seq) for r in found] == [("explorer1", 0)], "the first record of seq 1 is kept"
+    # seq 1 was stored before without the ledger's knowledge; the reused number is not observed
+    assert await store.high_water("explorer1") == 0 and await store.high_water("warden1") == 4
+    assert spans(await store.gaps()) == [("warden1", 0, 3)]
+    again = await store.store_batch(batch, T1)
+    assert [r.inserted for r in again.results] == [False, False, False]
+    assert await store.count_events() == 3 and spans(await store.gaps()) == [("warden1", 0, 3)]

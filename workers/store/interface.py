@@ -3,7 +3,11 @@ layer's users, missions and channels, and the workers' leases, in one database."
 
 from __future__ import annotations
 
-from workers.store.base import EventStore
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from datetime import datetime
+
+from workers.store.base import EventRecord, EventStore, WriteResult
 from workers.store.beacons import BeaconRegistry
 from workers.store.channels import ChannelStore
 from workers.store.discards import DiscardLog
@@ -29,3 +33,48 @@ class Store(
 ):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""
+
+    async def store_batch(
+        self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
+    ) -> StoredBatch:
+        """A worker's batch, recorded: each record stamped with the mission its robot is recorded
+        under now (a record that has one keeps it), written (:meth:`write_events`), and the sequence
+        numbers it holds observed by the ledger (:meth:`observe_sequences`, at ``at``).
+
+        The ledger sees a number once the store holds that event: inserted now, or stored before
+        under the same message id. A reused number (another message id) is not the robot's event,
+        so it is not observed. Adapters that can do all of it in one transaction should (SQLite
+        does); this default makes the three calls in turn, each idempotent. ``urgent``: someone
+        waits on an event of the batch (a hazard): an adapter may trade throughput for latency.
+        """
+        missions = await self.recording_missions({record.robot_id for record in records})
+        stamped = stamp_missions(records, missions)
+        results = await self.write_events(stamped)
+        await self.observe_sequences(held_sequences(stamped, results), at)
+        return StoredBatch(stamped, results)
+
+
+@dataclass(frozen=True)
+class StoredBatch:
+    records: list[EventRecord]
+    """The batch's records as written: with their mission stamps."""
+    results: list[WriteResult]
+    """One per record, in order (see :meth:`EventStore.write_events`)."""
+
+
+def stamp_missions(records: Sequence[EventRecord], missions: dict[str, str]) -> list[EventRecord]:
+    return [
+        replace(record, mission_id=missions[record.robot_id])
+        if record.mission_id is None and record.robot_id in missions
+        else record
+        for record in records
+    ]
+
+
+def held_sequences(records: Sequence[EventRecord], results: Sequence[WriteResult]) -> dict[str, list[int]]:
+    """By robot, the numbers whose events the store holds after a write (not the reused ones)."""
+    held: dict[str, list[int]] = {}
+    for record, result in zip(records, results, strict=True):
+        if result.inserted or result.stored_message_id == record.message_id:
+            held.setdefault(record.robot_id, []).append(record.seq)
+    return held

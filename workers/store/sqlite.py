@@ -1,7 +1,8 @@
 """The embedded default store: SQLite in WAL mode, one durable transaction per batch.
 
-All SQLite work runs on one thread owned by the store (:mod:`workers.store.sqlite_database`);
-each commit is durable before ``write_events`` returns, which is what the worker's ack waits for.
+Calls run on the caller's thread or the store's own (:mod:`workers.store.sqlite_database`); each
+commit is durable before ``write_events`` or ``store_batch`` returns, which is what the worker's
+ack waits for. ``store_batch`` stamps, writes and updates the sequence ledger in one transaction.
 """
 
 from __future__ import annotations
@@ -19,14 +20,14 @@ from workers.store.base import (
     from_micros,
     to_micros,
 )
-from workers.store.interface import Store
+from workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
-from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels
+from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
-from workers.store.sqlite_database import SQLiteDatabase, in_transaction
+from workers.store.sqlite_database import SMALL_BATCH, SQLiteDatabase, in_transaction
 from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
-from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger
+from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
 from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
@@ -79,6 +80,21 @@ def _row(record: EventRecord) -> tuple[Any, ...]:
     )
 
 
+def _write(db: sqlite3.Connection, records: Sequence[EventRecord]) -> list[WriteResult]:
+    """Within the caller's transaction: insert each record unless its key is taken."""
+    results: list[WriteResult] = []
+    for record in records:
+        row = _row(record)
+        if db.execute(INSERT, row).rowcount == 1:
+            results.append(WriteResult(inserted=True))
+        else:
+            stored = db.execute(
+                "SELECT message_id FROM events WHERE robot_id = ? AND seq = ?", (row[0], row[1])
+            ).fetchone()
+            results.append(WriteResult(inserted=False, stored_message_id=stored[0]))
+    return results
+
+
 def _record(row: sqlite3.Row) -> EventRecord:
     return EventRecord(
         robot_id=row["robot_id"],
@@ -120,20 +136,28 @@ class SQLiteEventStore(
             db.executescript(schema)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
-        rows = [_row(record) for record in records]
+        return await self._run(lambda db: in_transaction(db, lambda: _write(db, records)))
 
-        def result(db: sqlite3.Connection, row: tuple[Any, ...]) -> WriteResult:
-            if db.execute(INSERT, row).rowcount == 1:
-                return WriteResult(inserted=True)
-            stored = db.execute(
-                "SELECT message_id FROM events WHERE robot_id = ? AND seq = ?", (row[0], row[1])
-            ).fetchone()
-            return WriteResult(inserted=False, stored_message_id=stored[0])
+    async def store_batch(
+        self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
+    ) -> StoredBatch:
+        """One transaction: the mission lookup, the write and the ledger (one commit, one fsync).
 
-        def write(db: sqlite3.Connection) -> list[WriteResult]:
-            return in_transaction(db, lambda: [result(db, row) for row in rows])
+        An urgent small batch is written without the hand-over to the store's thread when it can
+        be. Bulk batches always take the thread: the event loop keeps receiving while SQLite
+        writes, which is what lets the batches grow under load (written on the loop, the drain
+        of a backlog fell from about 7,000 to 4,900 events a second in ``python -m bench.ingest``).
+        """
 
-        return await self._run(write)
+        def work(db: sqlite3.Connection) -> StoredBatch:
+            stamped = stamp_missions(records, recording_missions(db, {r.robot_id for r in records}))
+            results = _write(db, stamped)
+            observe(db, held_sequences(stamped, results), at)
+            return StoredBatch(stamped, results)
+
+        return await self._run(
+            lambda db: in_transaction(db, lambda: work(db)), small=urgent and len(records) <= SMALL_BATCH
+        )
 
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
         where, params = _where(query.type, query.robot_id, query.since, query.until, query.mission_id)

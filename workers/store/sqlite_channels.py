@@ -46,6 +46,20 @@ def _mount(row: sqlite3.Row) -> Mount:
     return Mount(row["robot"], row["operator"], row["mission_id"], from_micros(row["mounted_at"]))
 
 
+def recording_missions(db: sqlite3.Connection, robots: Collection[str]) -> dict[str, str]:
+    """For each of ``robots`` being recorded now: its mission (a robot mounted by a checked-in operator)."""
+    names = sorted(set(robots))
+    if not names:
+        return {}
+    marks = ",".join("?" * len(names))
+    rows = db.execute(
+        "SELECT m.robot, m.mission_id FROM mounts m JOIN check_ins c "
+        f"ON c.operator = m.operator AND c.mission_id = m.mission_id WHERE m.robot IN ({marks})",
+        names,
+    )
+    return {row["robot"]: row["mission_id"] for row in rows}
+
+
 def _check_in(row: sqlite3.Row) -> CheckIn:
     return CheckIn(row["operator"], row["mission_id"], from_micros(row["checked_in_at"]))
 
@@ -156,18 +170,7 @@ class SQLiteChannels(ChannelStore):
         return [_check_in(row) for row in rows]
 
     async def recording_missions(self, robots: Collection[str]) -> dict[str, str]:
-        names = sorted(set(robots))
-        if not names:
-            return {}
-        marks = ",".join("?" * len(names))
-        rows = await self._run(
-            lambda db: db.execute(
-                "SELECT m.robot, m.mission_id FROM mounts m JOIN check_ins c "
-                f"ON c.operator = m.operator AND c.mission_id = m.mission_id WHERE m.robot IN ({marks})",
-                names,
-            ).fetchall()
-        )
-        return {row["robot"]: row["mission_id"] for row in rows}
+        return await self._run(lambda db: recording_missions(db, robots))
 
     async def record_change(self, change: ChannelChange) -> None:
         await self._run(

@@ -108,7 +108,8 @@ class SQLiteCoordination(CoordinationStore):
                 "SET localised = excluded.localised, updated_at = excluded.updated_at "
                 "WHERE robots.updated_at IS NULL OR robots.updated_at <= excluded.updated_at",
                 (name, int(localised), to_micros(at)),
-            )
+            ),
+            small=True,
         )
 
     async def robots(self, kind: str | None = None) -> list[RobotState]:
@@ -157,7 +158,7 @@ class SQLiteCoordination(CoordinationStore):
 
             return in_transaction(db, work)
 
-        return await self._run(hold)
+        return await self._run(hold, small=True)
 
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
         return await self._run(lambda db: _held_hazards(db, mission_id))
@@ -175,7 +176,7 @@ class SQLiteCoordination(CoordinationStore):
                 ),
             )
 
-        await self._run(mark)
+        await self._run(mark, small=True)
 
     async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None:
         return await self._run(lambda db: _one(db, mission_id, hazard_id))

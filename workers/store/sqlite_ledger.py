@@ -38,6 +38,13 @@ def _gap(row: sqlite3.Row) -> Gap:
     return Gap(row["robot_id"], row["first_seq"], row["last_seq"], from_micros(row["detected_at"]))
 
 
+def observe(db: sqlite3.Connection, seen: Mapping[str, Sequence[int]], at: datetime) -> None:
+    """Within the caller's transaction."""
+    for robot_id, seqs in seen.items():
+        if seqs:
+            _observe(db, robot_id, seqs, at)
+
+
 def _observe(db: sqlite3.Connection, robot_id: str, seqs: Sequence[int], at: datetime) -> None:
     row = db.execute("SELECT high_water FROM robot_sequences WHERE robot_id = ?", (robot_id,)).fetchone()
     high_water = row[0] if row else None
@@ -74,11 +81,7 @@ class SQLiteLedger(SequenceLedger):
         work = {robot: list(seqs) for robot, seqs in seen.items() if seqs}
         if not work:
             return
-
-        def observe(db: sqlite3.Connection) -> None:
-            in_transaction(db, lambda: [_observe(db, robot, seqs, at) for robot, seqs in work.items()])
-
-        await self._run(observe)
+        await self._run(lambda db: in_transaction(db, lambda: observe(db, work, at)))
 
     async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None:
         rows = [
