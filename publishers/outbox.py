@@ -222,6 +222,12 @@ class Outbox:
     def _docs(self, segment: _Segment) -> list[Any]:
         return sorted(self._open(segment).table("events").all(), key=lambda doc: doc.doc_id)
 
+    def _raw_docs(self, segment: _Segment) -> list[tuple[int, dict[str, Any]]]:
+        """The segment's events as stored, by position: for reading only. Without TinyDB's copy of
+        each into a Document, which was 7 % of the sender's time in a drain."""
+        stored = (self._open(segment).storage.read() or {}).get("events", {})
+        return sorted((int(doc_id), doc) for doc_id, doc in stored.items())
+
     def close(self) -> None:
         with self._lock:
             for segment in self._segments:
@@ -369,17 +375,17 @@ class Outbox:
                 if whole_segments and entries and len(entries) + waiting > limit:
                     break
                 read.append(segment)
-                for doc in self._docs(segment):
+                for doc_id, doc in self._raw_docs(segment):
                     if len(entries) == limit:
                         break
-                    if (segment.number, doc.doc_id) not in self._in_flight:
-                        entries.append(self._entry(segment, doc))
+                    if (segment.number, doc_id) not in self._in_flight:
+                        entries.append(self._entry(segment, doc_id, doc))
             self._in_flight |= {entry.position for entry in entries}
             for segment in read:
                 self._release(segment)
             return entries
 
-    def _entry(self, segment: _Segment, doc: Any) -> Entry:
+    def _entry(self, segment: _Segment, doc_id: int, doc: dict[str, Any]) -> Entry:
         body = (self.folder / doc["blob"]).read_bytes() if "blob" in doc else doc["body"].encode()
         return Entry(
             seq=doc["seq"],
@@ -387,7 +393,7 @@ class Outbox:
             message_id=doc["message_id"],
             sent_at=_parse_time(doc["sent_at"]),
             body=body,
-            position=(segment.number, doc.doc_id),
+            position=(segment.number, doc_id),
         )
 
     def settle(
@@ -526,10 +532,10 @@ class Outbox:
         with self._lock:
             out: list[Entry] = []
             for segment in self._segments:
-                for doc in self._docs(segment):
+                for doc_id, doc in self._raw_docs(segment):
                     if limit is not None and len(out) == limit:
                         return out
-                    out.append(self._entry(segment, doc))
+                    out.append(self._entry(segment, doc_id, doc))
                 self._release(segment)
             return out
 
