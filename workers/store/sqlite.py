@@ -24,7 +24,7 @@ from workers.store.interface import Store, StoredBatch, held_sequences, stamp_mi
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
-from workers.store.sqlite_database import SMALL_BATCH, SQLiteDatabase, in_transaction
+from workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
 from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
@@ -33,6 +33,9 @@ from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
 from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
 T = TypeVar("T")
+
+#: An urgent batch of up to this many events may be written on the caller's thread (``store_batch``).
+SMALL_BATCH = 16
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS events (

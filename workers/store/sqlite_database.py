@@ -20,9 +20,6 @@ from workers.store.base import StoreUnavailable
 
 T = TypeVar("T")
 
-#: A batch up to this many events is written on the caller's thread when it can be (see ``_run``).
-SMALL_BATCH = 16
-
 TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
 
 
