@@ -8,9 +8,10 @@ the targets are on it), ``hazard-idle`` (no telemetry: the floor) and ``hazard-r
 
 An explorer publishes hazards (``robot.publish``, as robot code does: outbox, broker confirm) at
 HAZARD_RATE a second while four other robots publish RATE telemetry events a second in a
-process of their own, and `fleetbus worker` runs in another. A warden, localised beforehand so
-the gate is open, takes its notifications. Explorer and warden live in this process and both
-read ``time.monotonic()``, so no clock skew enters the figures.
+process of their own, and `fleetbus worker` runs in another. The warden, localised beforehand so
+the gate is open, takes its notifications in a robot process of its own (:mod:`bench.warden`),
+as a warden does; the explorer lives in this process. Both read ``time.monotonic()``, one clock
+for every process of the machine, so no clock skew enters the figures.
 
 Between two hazards a raw message goes through a queue declared like the ingest queue to a
 consumer of this process (pika both ends): one hop through the same broker under the same load,
@@ -34,8 +35,8 @@ from bench.raw import declare_queue, ingest_queue_arguments
 from bench.results import percentile
 from bench.scenario import Context, Figures
 from bench.telemetry import TelemetryLoad
-from publishers.client import RobotClient
-from schemas.routing import EventType, RobotKind, Topic
+from bench.warden import WardenProcess
+from schemas.routing import EventType, RobotKind
 from tests.support import wait_for
 
 HAZARD_RATE = 20
@@ -95,31 +96,6 @@ class Arrivals:
         self._thread.join(30)
 
 
-class WardenReceiver:
-    """The warden's notifications, as robot code takes them; hazards are numbered by description.
-
-    ``stages[i]`` splits hazard i's way with the times the product stamps (wall clock, one machine):
-    the robot's ``sent_at``, the worker's ``received_at`` and ``notified_at``, and the receipt.
-    """
-
-    def __init__(self, warden: RobotClient) -> None:
-        self._warden = warden
-        self.stages: dict[int, tuple[float, float, float]] = {}
-
-    def __call__(self, arrived: Callable[[int], bool]) -> None:
-        for note in self._warden.notifications(timeout=0.5):
-            now = time.time()
-            if note.topic is not Topic.HAZARD:
-                continue
-            i = int(note.event.body.description.split()[-1])
-            sent, received, notified = (
-                t.timestamp() for t in (note.event.sent_at, note.received_at, note.notified_at)
-            )
-            self.stages[i] = (received - sent, notified - received, now - notified)
-            if not arrived(i):
-                return
-
-
 def ping_receiver(admin_url: str) -> Callable[[Callable[[int], bool]], None]:
     def receive(arrived: Callable[[int], bool]) -> None:
         connection = pika.BlockingConnection(pika.URLParameters(admin_url))
@@ -149,11 +125,10 @@ def measure(
     """``count`` hazards under ``rate`` telemetry events a second; `fleetbus worker WORKER_ARGS`."""
     with context.bus() as bus:
         explorer = bus.robot(bus.add("bench-explorer", kind=RobotKind.EXPLORER))
-        warden = bus.robot(bus.add("bench-warden", kind=RobotKind.WARDEN))
+        warden_url = bus.add("bench-warden", kind=RobotKind.WARDEN).amqp_url
         loaders = [bus.add(f"bench-telemetry{i}").amqp_url for i in range(LOADERS)]
         declare_queue(bus.admin_url, ingest_queue_arguments(), PING_QUEUE)
-        with worker_process(bus, *worker_args):
-            warden.publish(EventType.LOCALISATION, {"localised": True})
+        with worker_process(bus, *worker_args), WardenProcess(bus, warden_url) as warden:
             wait_for(lambda: all(w.localised for w in bus.with_store(lambda s: s.robots("warden"))))
             context.show(f"{rate:,.0f} telemetry events/s starting")
             ping = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
@@ -163,7 +138,6 @@ def measure(
             stamped: list[float] = []  # from the publish call to the event's sent_at: building it
             with (
                 TelemetryLoad(bus, loaders, rate) as load,
-                Arrivals(receiver := WardenReceiver(warden), "warden") as hazards,
                 Arrivals(ping_receiver(bus.admin_url), "ping") as pings,
             ):
                 context.show(f"{count} hazards at {HAZARD_RATE}/s under {rate:,.0f} telemetry events/s")
@@ -179,10 +153,10 @@ def measure(
                     time.sleep(max(0.0, start + (i + 0.5) / HAZARD_RATE - time.monotonic()))
                     pinged[i] = time.monotonic()
                     channel.basic_publish("", PING_QUEUE, str(i).encode(), PERSISTENT)
-                hazards.wait(count, 60)
+                warden.wait(count, 60)
                 pings.wait(count, 60)
             ping.close()
-    hazard_ms = [1000 * (hazards.at[i] - sent[i]) for i in sent]
+    hazard_ms = [1000 * (warden.at[i] - sent[i]) for i in sent]
     ping_ms = [1000 * (pings.at[i] - pinged[i]) for i in pinged]
     return {
         "hazard p50 ms": percentile(hazard_ms, 50),
@@ -191,7 +165,7 @@ def measure(
         "explorer's publish p50 ms": percentile([1000 * seconds for seconds in confirmed], 50),
         "building the event p50 ms": percentile([1000 * seconds for seconds in stamped], 50),
         **{
-            f"{stage} p50 ms": percentile([1000 * times[k] for times in receiver.stages.values()], 50)
+            f"{stage} p50 ms": percentile([1000 * times[k] for times in warden.stages.values()], 50)
             for k, stage in enumerate(STAGES)
         },
         "raw hop p50 ms": percentile(ping_ms, 50),
