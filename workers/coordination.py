@@ -24,7 +24,7 @@ from schemas.notifications import Notification
 from schemas.routing import EventType, Topic
 from workers.mutex import LocalMutex, Mutex
 from workers.notifier import publish_notification
-from workers.store.hazards import DEFAULT_MISSION, Hazard, HeldHazards, NewHazard
+from workers.store.hazards import Hazard, HeldHazards, NewHazard
 from workers.store.interface import Store
 from workers.validation import Accepted
 
@@ -64,16 +64,9 @@ class HazardCoordinator:
                 if event.type is EventType.LOCALISATION:
                     await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
                 else:
-                    hazards.append(
-                        NewHazard(
-                            item.record.mission_id or DEFAULT_MISSION,
-                            event.robot_id,
-                            event.seq,
-                            EVENT_ADAPTER.dump_python(event, mode="json"),
-                            item.record.received_at,
-                        )
-                    )
-            # registering, reading the held list and the gate: one store call on the hazard's way
+                    hazards.append(NewHazard.of(item.record))
+            # registering (SQLite did it as it stored the batch), reading the held list and the
+            # gate: one store call on the hazard's way
             return await self._announce(await self._store.hold_hazards(hazards))
 
     async def release_if_ready(self) -> int:

@@ -3,7 +3,9 @@
 The hazard service registers hazards and announces the held ones in one critical section: with
 several workers active, two announcing at once would send a hazard twice or out of order, and a
 hazard registered between another worker's read of the held list and its announcement would be
-overtaken by later ones. :class:`LocalMutex` suffices while one worker consumes the only shard;
+overtaken by later ones (SQLite registers a batch's hazards as it stores the batch, outside this
+section: its ids are committed in order, see ``SQLiteEventStore.store_batch``). :class:`LocalMutex`
+suffices while one worker consumes the only shard;
 :class:`StoreMutex` holds a lease in the store all workers share.
 """
 

@@ -14,8 +14,11 @@ from datetime import datetime
 from enum import Enum
 from typing import Any
 
+from pydantic import TypeAdapter
+
+from schemas.envelope import SCHEMA_VERSION
 from schemas.routing import RobotKind
-from workers.store.base import StoreError
+from workers.store.base import EventRecord, StoreError
 
 DEFAULT_MISSION = "default"
 
@@ -85,6 +88,9 @@ REACH = Transition("reached", HazardState.CLAIMED, HazardState.REACHED, True, "r
 CLEAR = Transition("cleared", HazardState.REACHED, HazardState.CLEARED, True, "cleared_at")
 
 
+_TIMESTAMP: TypeAdapter[datetime] = TypeAdapter(datetime)
+
+
 @dataclass(frozen=True)
 class NewHazard:
     """A hazard event to register as held (see :meth:`CoordinationStore.hold_hazards`)."""
@@ -94,6 +100,24 @@ class NewHazard:
     seq: int
     event: dict[str, Any]
     received_at: datetime
+
+    @classmethod
+    def of(cls, record: EventRecord) -> NewHazard:
+        """The hazard a stored hazard event registers, in its mission (the default one when its
+        robot is on none); ``event`` is the event as the robot sent it, in JSON types, rebuilt from
+        the record exactly as pydantic dumps it, so the store can register it by itself."""
+        event = {
+            "message_id": record.message_id,
+            "robot_id": record.robot_id,
+            "seq": record.seq,
+            "sent_at": _TIMESTAMP.dump_python(record.sent_at, mode="json"),
+            "schema_version": SCHEMA_VERSION,
+            "type": record.type,
+            "body": record.body,
+        }
+        return cls(
+            record.mission_id or DEFAULT_MISSION, record.robot_id, record.seq, event, record.received_at
+        )
 
 
 @dataclass(frozen=True)

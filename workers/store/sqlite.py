@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
+from schemas.routing import EventType
 from workers.store.base import (
     EventQuery,
     EventRecord,
@@ -20,10 +21,11 @@ from workers.store.base import (
     from_micros,
     to_micros,
 )
+from workers.store.hazards import NewHazard
 from workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
-from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
+from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
 from workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
@@ -144,7 +146,11 @@ class SQLiteEventStore(
     async def store_batch(
         self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
     ) -> StoredBatch:
-        """One transaction: the mission lookup, the write and the ledger (one commit, one fsync).
+        """One transaction: the mission lookup, the write, the ledger, and the batch's hazard events
+        registered as held (one commit, one fsync). The hazard service's ``hold_hazards`` then finds
+        them registered and only reads. Registering here, outside the service's critical section,
+        keeps the announcements in detection order even with several workers: SQLite has one
+        writer at a time, so a mission's hazard ids are committed in the order they are given.
 
         An urgent small batch is written without the hand-over to the store's thread when it can
         be. Bulk batches always take the thread: the event loop keeps receiving while SQLite
@@ -155,7 +161,11 @@ class SQLiteEventStore(
         def work(db: sqlite3.Connection) -> StoredBatch:
             stamped = stamp_missions(records, recording_missions(db, {r.robot_id for r in records}))
             results = _write(db, stamped)
-            observe(db, held_sequences(stamped, results), at)
+            held = held_sequences(stamped, results)
+            observe(db, held, at)
+            for record in stamped:
+                if record.type == EventType.HAZARD.value and record.seq in held.get(record.robot_id, ()):
+                    register_hazard(db, NewHazard.of(record), held=True)
             return StoredBatch(stamped, results)
 
         return await self._run(

@@ -137,7 +137,7 @@ class SQLiteCoordination(CoordinationStore):
         held: bool,
     ) -> Hazard:
         new = NewHazard(mission_id, robot_id, seq, event, received_at)
-        return await self._run(lambda db: in_transaction(db, lambda: _add_hazard(db, new, held)))
+        return await self._run(lambda db: in_transaction(db, lambda: register_hazard(db, new, held)))
 
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
         def held(db: sqlite3.Connection) -> HeldHazards:
@@ -148,12 +148,12 @@ class SQLiteCoordination(CoordinationStore):
             return HeldHazards(hazards, waiting == 0)
 
         def hold(db: sqlite3.Connection) -> HeldHazards:
-            if not new:
+            if all(_registered(db, hazard) for hazard in new):  # as store_batch does: only read
                 return held(db)
 
             def work() -> HeldHazards:
                 for hazard in new:
-                    _add_hazard(db, hazard, held=True)
+                    register_hazard(db, hazard, held=True)
                 return held(db)
 
             return in_transaction(db, work)
@@ -218,7 +218,7 @@ class SQLiteCoordination(CoordinationStore):
         return await self._run(change)
 
 
-def _add_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazard:
+def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazard:
     """Register ``new`` (inside the caller's transaction); the same event again finds the first."""
     row = db.execute(
         "SELECT * FROM hazards WHERE robot_id = ? AND seq = ?", (new.robot_id, new.seq)
@@ -247,6 +247,15 @@ def _add_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazard:
     found = _one(db, new.mission_id, next_id)
     assert found is not None
     return found
+
+
+def _registered(db: sqlite3.Connection, hazard: NewHazard) -> bool:
+    return (
+        db.execute(
+            "SELECT 1 FROM hazards WHERE robot_id = ? AND seq = ?", (hazard.robot_id, hazard.seq)
+        ).fetchone()
+        is not None
+    )
 
 
 def _held_hazards(db: sqlite3.Connection, mission_id: str | None = None) -> list[Hazard]:

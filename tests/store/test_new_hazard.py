@@ -1,0 +1,43 @@
+"""A hazard registered from its stored record carries the event exactly as pydantic dumps it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import datetime, timedelta, timezone
+
+import pytest
+
+from schemas.envelope import EVENT_ADAPTER
+from tests.factories import hazard
+from workers.store.base import EventRecord
+from workers.store.hazards import DEFAULT_MISSION, NewHazard
+from workers.validation import record_body
+
+OFFSETS = [timezone.utc, timezone(timedelta(hours=2)), timezone(timedelta(hours=-5, minutes=-30))]
+
+
+@pytest.mark.parametrize("microsecond", [0, 5, 123456])
+@pytest.mark.parametrize("zone", OFFSETS, ids=str)
+def test_the_event_rebuilt_from_the_record_is_the_event_as_dumped(microsecond: int, zone: timezone) -> None:
+    sent_at = datetime(2026, 11, 23, 14, 0, 0, microsecond, tzinfo=zone)
+    event = EVENT_ADAPTER.validate_python(
+        {"robot_id": "explorer1", "seq": 7, "sent_at": sent_at, "type": "hazard", "body": hazard()}
+    )
+    received_at = datetime.now(timezone.utc)
+    record = EventRecord(
+        robot_id=event.robot_id,
+        seq=event.seq,
+        type=event.type.value,
+        message_id=str(event.message_id),
+        sent_at=event.sent_at,
+        received_at=received_at,
+        body=record_body(event),
+        user_id="explorer1",
+        exchange="explorer1.events",
+        routing_key="explorer1.hazard",
+    )
+    new = NewHazard.of(record)
+    assert new.event == EVENT_ADAPTER.dump_python(event, mode="json")
+    assert list(new.event) == list(EVENT_ADAPTER.dump_python(event, mode="json"))
+    assert (new.mission_id, new.seq, new.received_at) == (DEFAULT_MISSION, 7, received_at)
+    assert NewHazard.of(replace(record, mission_id="m1")).mission_id == "m1"
