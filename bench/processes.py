@@ -18,7 +18,7 @@ import pika.exceptions
 
 from bench.profile import record
 from schemas.routing import INGEST_QUEUE
-from tests.support import Bus, wait_for
+from tests.support import Bus, read_line, wait_for
 
 
 def consumers(admin_url: str, queue: str) -> int:
@@ -97,3 +97,18 @@ def worker_process(bus: Bus, *args: str) -> FleetbusProcess:
     """`fleetbus worker ARGS` on the bus's virtual host and store, consuming the ingest queue."""
     log = bus.settings.data_dir / "worker.log"
     return FleetbusProcess(["worker", *args], bus.worker_env(), log, bus.admin_url, INGEST_QUEUE)
+
+
+def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.Popen[str]:
+    """A helper process of a measurement, talking on its standard input and output (its errors go
+    to ``log``); returned once it printed a line starting with ``ready``, killed if it never does."""
+    with log.open("ab") as errors:
+        process = subprocess.Popen(
+            command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, text=True
+        )
+    try:
+        read_line(process, ready, timeout=60)
+    except BaseException:
+        process.kill()
+        raise
+    return process

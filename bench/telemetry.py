@@ -13,7 +13,6 @@ its standard input closes, then prints one JSON line: ``{"published": N, "second
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 import threading
 import time
@@ -21,8 +20,9 @@ from pathlib import Path
 from types import TracebackType
 
 from bench.ingest import status_items
+from bench.processes import spawn_until_ready
 from publishers.client import RobotClient
-from tests.support import Bus, read_line
+from tests.support import Bus
 
 TICKS = 50
 
@@ -91,15 +91,7 @@ class TelemetryLoad:
         """The rate achieved, once stopped."""
 
     def __enter__(self) -> TelemetryLoad:
-        with self._log.open("ab") as log:
-            self._process = subprocess.Popen(
-                self._command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True
-            )
-        try:
-            read_line(self._process, "publishing", timeout=60)
-        except BaseException:
-            self._process.kill()
-            raise
+        self._process = spawn_until_ready(self._command, self._log, "publishing")
         return self
 
     def __exit__(

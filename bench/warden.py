@@ -18,16 +18,16 @@ interpreter lock while the explorer writes its outbox and settles its confirms.
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 from types import TracebackType
 
+from bench.processes import spawn_until_ready
 from publishers.client import RobotClient
 from schemas.routing import EventType, Topic
-from tests.support import Bus, read_line, wait_for
+from tests.support import Bus, wait_for
 
 
 def listen(warden: RobotClient, stop: threading.Event) -> None:
@@ -78,15 +78,7 @@ class WardenProcess:
         self._reader = threading.Thread(target=self._read, name="warden-reader", daemon=True)
 
     def __enter__(self) -> WardenProcess:
-        with self._log.open("ab") as log:
-            self._process = subprocess.Popen(
-                self._command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True
-            )
-        try:
-            read_line(self._process, "listening", timeout=60)
-        except BaseException:
-            self._process.kill()
-            raise
+        self._process = spawn_until_ready(self._command, self._log, "listening")
         self._reader.start()
         return self
 
