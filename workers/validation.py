@@ -87,7 +87,14 @@ def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rej
             RejectReason.WRONG_EXCHANGE,
             f"{event.type.value} events are published to {expected_exchange!r}, not {message.exchange!r}",
         )
-    record = EventRecord(
+    return Accepted(event, event_record(event, received_at, user_id, message.exchange or "", routing_key))
+
+
+def event_record(
+    event: Event, received_at: datetime, user_id: str, exchange: str, routing_key: str
+) -> EventRecord:
+    """What is stored of a valid event: its envelope, its body as stored, and how it came."""
+    return EventRecord(
         robot_id=event.robot_id,
         seq=event.seq,
         type=event.type.value,
@@ -96,7 +103,6 @@ def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rej
         received_at=received_at,
         body=record_body(event),
         user_id=user_id,
-        exchange=message.exchange or "",
+        exchange=exchange,
         routing_key=routing_key,
     )
-    return Accepted(event, record)

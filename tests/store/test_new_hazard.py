@@ -9,9 +9,8 @@ import pytest
 
 from schemas.envelope import EVENT_ADAPTER
 from tests.factories import hazard
-from workers.store.base import EventRecord
 from workers.store.hazards import DEFAULT_MISSION, NewHazard
-from workers.validation import record_body
+from workers.validation import event_record
 
 OFFSETS = [timezone.utc, timezone(timedelta(hours=2)), timezone(timedelta(hours=-5, minutes=-30))]
 
@@ -24,18 +23,7 @@ def test_the_event_rebuilt_from_the_record_is_the_event_as_dumped(microsecond: i
         {"robot_id": "explorer1", "seq": 7, "sent_at": sent_at, "type": "hazard", "body": hazard()}
     )
     received_at = datetime.now(timezone.utc)
-    record = EventRecord(
-        robot_id=event.robot_id,
-        seq=event.seq,
-        type=event.type.value,
-        message_id=str(event.message_id),
-        sent_at=event.sent_at,
-        received_at=received_at,
-        body=record_body(event),
-        user_id="explorer1",
-        exchange="explorer1.events",
-        routing_key="explorer1.hazard",
-    )
+    record = event_record(event, received_at, "explorer1", "explorer1.events", "explorer1.hazard")
     new = NewHazard.of(record)
     assert new.event == EVENT_ADAPTER.dump_python(event, mode="json")
     assert list(new.event) == list(EVENT_ADAPTER.dump_python(event, mode="json"))

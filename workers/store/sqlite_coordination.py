@@ -148,7 +148,7 @@ class SQLiteCoordination(CoordinationStore):
             return HeldHazards(hazards, waiting == 0)
 
         def hold(db: sqlite3.Connection) -> HeldHazards:
-            if all(_registered(db, hazard) for hazard in new):  # as store_batch does: only read
+            if all(_registered(db, hazard) is not None for hazard in new):  # as store_batch does: only read
                 return held(db)
 
             def work() -> HeldHazards:
@@ -220,9 +220,7 @@ class SQLiteCoordination(CoordinationStore):
 
 def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazard:
     """Register ``new`` (inside the caller's transaction); the same event again finds the first."""
-    row = db.execute(
-        "SELECT * FROM hazards WHERE robot_id = ? AND seq = ?", (new.robot_id, new.seq)
-    ).fetchone()
+    row = _registered(db, new)
     if row:
         return _hazard(row)
     (next_id,) = db.execute(
@@ -249,13 +247,12 @@ def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazar
     return found
 
 
-def _registered(db: sqlite3.Connection, hazard: NewHazard) -> bool:
-    return (
-        db.execute(
-            "SELECT 1 FROM hazards WHERE robot_id = ? AND seq = ?", (hazard.robot_id, hazard.seq)
-        ).fetchone()
-        is not None
-    )
+def _registered(db: sqlite3.Connection, hazard: NewHazard) -> sqlite3.Row | None:
+    """The hazard registered for ``hazard``'s event, if any."""
+    row: sqlite3.Row | None = db.execute(
+        "SELECT * FROM hazards WHERE robot_id = ? AND seq = ?", (hazard.robot_id, hazard.seq)
+    ).fetchone()
+    return row
 
 
 def _held_hazards(db: sqlite3.Connection, mission_id: str | None = None) -> list[Hazard]:
