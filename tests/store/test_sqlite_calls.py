@@ -1,6 +1,6 @@
-"""Where SQLite calls run: urgent small ones on the caller's thread when the database is free, the
-rest (and any that finds another process writing) on the store's thread, which waits for the lock;
-and what a stored batch does in its one transaction."""
+"""Where SQLite calls run: urgent small ones on the caller's thread, on a connection of their own
+that never waits for the write lock; the rest (and any that finds another process writing) on the
+store's thread, which waits for it; and what a stored batch does in its one transaction."""
 
 from __future__ import annotations
 
@@ -13,6 +13,25 @@ from pathlib import Path
 from tests.store.test_contract import T0, record
 from workers.store.hazards import NewHazard
 from workers.store.sqlite import SQLiteEventStore
+from workers.store.sqlite_database import in_transaction
+
+
+async def hold_store_thread(
+    store: SQLiteEventStore, write: bool
+) -> tuple[asyncio.Future[None], threading.Event]:
+    """A call that keeps the store's thread (inside a write transaction if ``write``) until released;
+    returns once it runs."""
+    running, release = threading.Event(), threading.Event()
+
+    def hold(db: sqlite3.Connection) -> None:
+        running.set()
+        release.wait(30)
+
+    call = asyncio.ensure_future(
+        store._run(lambda db: in_transaction(db, lambda: hold(db)) if write else hold(db))
+    )
+    assert await asyncio.to_thread(running.wait, 30)
+    return call, release
 
 
 async def test_an_urgent_batch_finding_the_database_locked_waits_off_the_event_loop(tmp_path: Path) -> None:
@@ -85,3 +104,24 @@ async def test_a_reused_sequence_number_registers_no_hazard(tmp_path: Path) -> N
         stored = await store.store_batch([reused], T0, urgent=True)
         assert not stored.results[0].inserted
         assert await store.held_hazards() == []
+
+
+async def test_an_urgent_write_waits_for_the_bulk_write_in_hand_not_for_the_queue(tmp_path: Path) -> None:
+    async with SQLiteEventStore(tmp_path / "store.sqlite3") as store:
+        bulk, release_bulk = await hold_store_thread(store, write=True)  # a bulk batch being written
+        # a read on the way (the wardens' gate, the held list) does not wait for the writer
+        assert (await asyncio.wait_for(store.hold_hazards([]), 5)).hazards == []
+        urgent = asyncio.create_task(store.store_batch([record(seq=0)], T0, urgent=True))
+        release_queued = threading.Event()
+        queued = asyncio.ensure_future(store._run(lambda db: release_queued.wait(30)))
+        for _ in range(20):
+            await asyncio.sleep(0)
+        assert not urgent.done(), "SQLite has one writer: the urgent write waits for the bulk one"
+        release_bulk.set()
+        await bulk
+        # the store's thread went on to the queued call, which keeps it; the urgent write is not
+        # queued behind that: it is written on the caller's thread once the write lock is free
+        stored = await asyncio.wait_for(urgent, 5)
+        assert stored.results[0].inserted and not queued.done()
+        release_queued.set()
+        await queued

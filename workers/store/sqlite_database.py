@@ -1,5 +1,5 @@
-"""One SQLite file and one connection, used by one thread at a time: small calls run on the caller's
-thread when the database is free, the rest on a thread the store owns, off the event loop.
+"""One SQLite file and two connections: the store's thread runs the calls that may wait, off the
+event loop; small urgent calls run on the caller's thread, on a connection that never waits.
 
 ``synchronous=FULL`` in WAL mode makes each commit durable before the call returns, which is
 what a worker's ack waits for. A failed call never leaves its transaction open, and a locked or
@@ -21,10 +21,16 @@ from workers.store.base import StoreUnavailable
 T = TypeVar("T")
 
 TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
+#: How often a small call tries again on the caller's thread after waiting for the store's thread.
+INLINE_TRIES = 3
 
 
 class _Busy(Exception):
     """Another connection holds the write lock (raised only where no wait was allowed)."""
+
+
+class _Taken(Exception):
+    """The caller's-thread connection is in use by another thread."""
 
 
 def _is_busy(error: sqlite3.OperationalError) -> bool:
@@ -42,6 +48,11 @@ def in_transaction(db: sqlite3.Connection, work: Callable[[], T]) -> T:
     return result
 
 
+def _wake(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
+
+
 class SQLiteDatabase:
     """Subclasses create their tables in :meth:`_prepare`."""
 
@@ -50,49 +61,87 @@ class SQLiteDatabase:
         self._busy_timeout = busy_timeout
         self._executor: ThreadPoolExecutor | None = None
         self._db: sqlite3.Connection | None = None
-        # the connection is used by one thread at a time: the caller's, or the store's own
-        self._in_use = threading.Lock()
+        """The store's thread's connection: waits up to the busy timeout for the write lock."""
+        self._inline: sqlite3.Connection | None = None
+        """The callers' connection (busy timeout 0), used by one thread at a time."""
+        self._inline_in_use = threading.Lock()
+        # the store's thread's calls, counted as they end, and the callers waiting for one to end
+        self._signals = threading.Lock()
+        self._thread_busy = False
+        self._thread_calls_ended = 0
+        self._waiting: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]] = []
 
     def _prepare(self, db: sqlite3.Connection) -> None:
         """Create tables and indexes on a new connection; idempotent."""
 
     async def _run(self, work: Callable[[sqlite3.Connection], T], *, small: bool = False) -> T:
-        """Run ``work`` on the connection: on the calling thread when that is safe and cheap, else on
+        """Run ``work``: a ``small`` call on the calling thread when that is safe and cheap, else on
         the store's thread.
 
         Handing a call to the store's thread and back costs more than a small call itself on two
         shared cores, and a hazard's way to the wardens makes several. So a ``small`` call runs
-        right here when the connection is free and no other process holds the write lock. It never
-        waits for that lock here (the connection's ``busy_timeout`` is 0 outside the store's
-        thread): a locked database sends the call to the store's thread, where it waits as long as
-        it may. Large calls (a batch under load) go to the store's thread, so that the event loop
-        keeps receiving meanwhile.
+        right here, on a connection of its own: its reads never wait (WAL), and its writes never
+        wait here for the write lock (busy timeout 0). When the store's thread holds that lock (a
+        bulk batch), the call waits, without blocking the event loop, for that one transaction to
+        end and tries again: not for the whole queue of the store's thread. When another process
+        holds it, the call goes to the store's thread, which waits as long as it may. Large calls
+        (a batch under load) go to the store's thread, so that the event loop keeps receiving.
         """
         if self._executor is None:
             raise RuntimeError("the store is not open")
-        if small and self._db is not None and self._in_use.acquire(blocking=False):
-            try:
-                return self._attempt(self._db, work)
-            except _Busy:
-                pass  # another process writes: wait for it on the store's thread
-            finally:
-                self._in_use.release()
+        if small:
+            for _ in range(INLINE_TRIES):
+                ended = self._thread_calls_ended
+                try:
+                    return self._run_inline(work)
+                except _Taken:
+                    break  # another thread's caller: take the store's thread
+                except _Busy:
+                    if self._thread_calls_ended != ended:
+                        continue  # the store's thread just let go: at once again
+                    if not self._thread_busy:
+                        break  # another process writes: wait for it on the store's thread
+                    await self._thread_call_ended(ended)
         return await asyncio.get_running_loop().run_in_executor(self._executor, self._call, work)
+
+    def _run_inline(self, work: Callable[[sqlite3.Connection], T]) -> T:
+        if not self._inline_in_use.acquire(blocking=False):
+            raise _Taken
+        try:
+            if self._inline is None:
+                raise RuntimeError("the store is closed")
+            return self._attempt(self._inline, work)
+        finally:
+            self._inline_in_use.release()
+
+    async def _thread_call_ended(self, ended: int) -> None:
+        """Return once the store's thread has ended a call since it had ended ``ended`` of them."""
+        loop = asyncio.get_running_loop()
+        future = loop.create_future()
+        with self._signals:
+            if self._thread_calls_ended != ended:
+                return
+            self._waiting.append((loop, future))
+        await future
 
     def _call(self, work: Callable[[sqlite3.Connection], T]) -> T:
         """On the store's thread: wait for the write lock up to the busy timeout."""
-        with self._in_use:
+        self._thread_busy = True
+        try:
             if self._db is None:
-                self._db = self._connect()
-            db = self._db
-            db.execute(f"PRAGMA busy_timeout = {int(self._busy_timeout * 1000)}")
+                self._db = self._connect(timeout=self._busy_timeout)
+                self._prepare(self._db)
             try:
-                return self._attempt(db, work)
+                return self._attempt(self._db, work)
             except _Busy as busy:
                 raise self._unavailable(busy.__cause__) from busy.__cause__
-            finally:
-                if self._db is not None:  # not closed by the work
-                    db.execute("PRAGMA busy_timeout = 0")
+        finally:
+            self._thread_busy = False
+            with self._signals:
+                self._thread_calls_ended += 1
+                waiting, self._waiting = self._waiting, []
+            for loop, future in waiting:
+                loop.call_soon_threadsafe(_wake, future)
 
     def _attempt(self, db: sqlite3.Connection, work: Callable[[sqlite3.Connection], T]) -> T:
         try:
@@ -111,21 +160,29 @@ class SQLiteDatabase:
     def _unavailable(self, error: BaseException | None) -> StoreUnavailable:
         return StoreUnavailable(f"SQLite {self.path}: {error}")
 
-    def _connect(self) -> sqlite3.Connection:
+    def _connect(self, timeout: float) -> sqlite3.Connection:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        db = sqlite3.connect(
-            self.path, timeout=self._busy_timeout, isolation_level=None, check_same_thread=False
-        )
+        db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None, check_same_thread=False)
         db.row_factory = sqlite3.Row
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA synchronous=FULL")
-        self._prepare(db)
         return db
 
     async def open(self) -> None:
         if self._executor is None:
             self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fleetbus-sqlite")
-        await self._run(lambda db: None)
+        await self._run(lambda db: None)  # the store's connection, and the tables
+
+        def connect_inline() -> None:
+            db = self._connect(timeout=self._busy_timeout)
+            db.execute("PRAGMA busy_timeout = 0")
+            with self._inline_in_use:
+                if self._inline is None:
+                    self._inline, db = db, None
+            if db is not None:  # opened twice
+                db.close()
+
+        await asyncio.get_running_loop().run_in_executor(self._executor, connect_inline)
 
     async def close(self) -> None:
         if self._executor is None:
@@ -139,3 +196,7 @@ class SQLiteDatabase:
             await self._run(shut)
         self._executor.shutdown(wait=True)
         self._executor = None
+        with self._inline_in_use:
+            if self._inline is not None:
+                self._inline.close()
+                self._inline = None
