@@ -21,8 +21,13 @@ make the broker refuse any key that does not start with the publisher's own name
 The service owns everything that starts with ``fleetbus.``::
 
     fleetbus.ingest         topic exchange; every ``<robot>.events`` is bound into it with ``#``
-    fleetbus.ingest.shards  topic exchange fed by fleetbus.ingest; each robot's key ``<robot>.#`` is
-                            bound to one ingest shard (made when its account is provisioned)
+    fleetbus.ingest.lanes   topic exchange fed by fleetbus.ingest with ``#``: hazards and
+                            localisations (``*.hazard``, ``*.localisation``) go to the express queue;
+                            everything else to its alternate exchange, fleetbus.ingest.shards
+    fleetbus.ingest.express classic queue of the express lane (single active consumer), read by the
+                            worker that holds shard 0: a hazard never waits behind the bulk
+    fleetbus.ingest.shards  topic exchange; each robot's key ``<robot>.#`` is bound to one ingest
+                            shard (made when its account is provisioned)
     fleetbus.ingest.unassigned  fanout exchange, the alternate exchange of fleetbus.ingest.shards:
                             whatever no robot binding matches goes to shard 0
     fleetbus.ingest.events  quorum queue of ingest shard 0 (single active consumer); shards 1, 2...
@@ -47,6 +52,8 @@ from enum import Enum
 SERVICE_PREFIX = "fleetbus"
 INGEST_EXCHANGE = "fleetbus.ingest"
 INGEST_QUEUE = "fleetbus.ingest.events"
+LANES_EXCHANGE = "fleetbus.ingest.lanes"
+EXPRESS_QUEUE = "fleetbus.ingest.express"
 SHARD_EXCHANGE = "fleetbus.ingest.shards"
 UNASSIGNED_EXCHANGE = "fleetbus.ingest.unassigned"
 NOTIFY_EXCHANGE = "fleetbus.notify"
@@ -83,6 +90,11 @@ class EventType(str, Enum):
     LOCALISATION = "localisation"
     BEACON = "beacon"
     BEHAVIOUR = "behaviour"
+
+
+#: The express lane's types: the hazards the wardens wait for, and the localisations that open their
+#: gate. They skip the shards, so none of them waits behind a robot's telemetry, maps or resync.
+EXPRESS_TYPES = (EventType.HAZARD, EventType.LOCALISATION)
 
 
 class Topic(str, Enum):
@@ -183,6 +195,11 @@ def shard_of_queue(queue: str) -> int | None:
     if prefix == INGEST_QUEUE and number.isdigit() and number == str(int(number)) and int(number) > 0:
         return int(number)
     return None
+
+
+def express_binding_key(event_type: EventType | str) -> str:
+    """The key that takes every robot's events of ``event_type`` into the express lane."""
+    return f"*.{EventType(event_type).value}"
 
 
 def shard_binding_key(robot: str) -> str:

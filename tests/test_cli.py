@@ -69,6 +69,7 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
         "fleetbus.beacon.discarded",
         "fleetbus.dead-letters",
         "fleetbus.ingest.events",
+        "fleetbus.ingest.express",
         "fleetbus.recorder",
     }
     text = json.dumps(asyncapi)

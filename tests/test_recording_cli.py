@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from broker.accounts import RECORDER_USER, SERVICE_USER
-from schemas.routing import INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
+from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 from tests.test_cli import fleetbus
@@ -158,9 +158,9 @@ def test_trace_shows_where_a_message_came_from_and_who_received_it(bus: Bus, sce
     )
     assert traced["stored"]["seq"] == detected.seq
     routes = {r["queue"]: r for r in origin["routes"]}
-    assert set(routes) == {INGEST_QUEUE, RECORDER_QUEUE}
-    assert routes[INGEST_QUEUE]["via"] == ["cli-herb.events", "fleetbus.ingest", "fleetbus.ingest.shards"]
-    assert [c["user"] for c in routes[INGEST_QUEUE]["consumers"]] == [SERVICE_USER]
+    assert set(routes) == {EXPRESS_QUEUE, RECORDER_QUEUE}, "a hazard takes the express lane"
+    assert routes[EXPRESS_QUEUE]["via"] == ["cli-herb.events", "fleetbus.ingest", "fleetbus.ingest.lanes"]
+    assert [c["user"] for c in routes[EXPRESS_QUEUE]["consumers"]] == [SERVICE_USER]
     assert [c["user"] for c in routes[RECORDER_QUEUE]["consumers"]] == [RECORDER_USER]
     [note] = traced["caused"]
     assert note["__recorded"]["routing_key"] == "notify.hazard"

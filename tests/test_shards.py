@@ -16,6 +16,7 @@ from broker.topology import BindingSpec, Topology, core_topology, declare_with_u
 from schemas.routing import (
     INGEST_EXCHANGE,
     INGEST_QUEUE,
+    LANES_EXCHANGE,
     SHARD_EXCHANGE,
     RobotKind,
     beacon_headers,
@@ -63,9 +64,15 @@ def test_a_robot_bound_to_no_shard_goes_to_shard_0_and_trace_shows_the_way(bus: 
     wait_for(lambda: _queued(bus, 2) == [1, 0], what="the unassigned robot's event in shard 0")
     [route] = RouteMap.from_management(bus.api, bus.vhost).routes("robot-b.events", "robot-b.status")
     assert route.queue == INGEST_QUEUE
-    assert route.via == ("robot-b.events", INGEST_EXCHANGE, SHARD_EXCHANGE, "fleetbus.ingest.unassigned")
+    assert route.via == (
+        "robot-b.events",
+        INGEST_EXCHANGE,
+        LANES_EXCHANGE,
+        SHARD_EXCHANGE,
+        "fleetbus.ingest.unassigned",
+    )
     [bound] = RouteMap.from_management(bus.api, bus.vhost).routes("robot-a.events", "robot-a.status")
-    assert bound.via == ("robot-a.events", INGEST_EXCHANGE, SHARD_EXCHANGE)
+    assert bound.via == ("robot-a.events", INGEST_EXCHANGE, LANES_EXCHANGE, SHARD_EXCHANGE)
 
 
 def test_a_beacon_under_another_robots_name_goes_to_that_robots_shard(bus: Bus) -> None:

@@ -22,6 +22,7 @@ from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMess
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from schemas.routing import EventType
+from workers.attempts import AttemptLimit
 from workers.backoff import Backoff
 from workers.batches import BatchInbox
 from workers.dead_letters import dead_letter
@@ -80,6 +81,7 @@ class IngestConsumer:
         batch_size: int = 256,
         linger: float = 0.0,
         stats: IngestStats | None = None,
+        attempts: AttemptLimit | None = None,
     ) -> None:
         self._channel = channel
         self._queue = queue
@@ -92,6 +94,8 @@ class IngestConsumer:
         self._inbox = BatchInbox(batch_size, linger)
         self._stopping = asyncio.Event()
         self._consumer_tag: str | None = None
+        self._attempts = attempts
+        """A classic queue's delivery limit, kept here (a quorum queue keeps its own)."""
         # one worker's shard consumers share their counters
         self.stats = stats if stats is not None else IngestStats()
 
@@ -102,7 +106,7 @@ class IngestConsumer:
             batch = await self._inbox.next_batch(self._stopping)
             if batch:
                 try:
-                    await self._process(batch)
+                    await self._handle(batch)
                 except Stopping:
                     log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                     return
@@ -147,6 +151,21 @@ class IngestConsumer:
             verdict.detail,
         )
 
+    async def _handle(self, batch: list[AbstractIncomingMessage]) -> None:
+        limit = self._attempts
+        if limit is None or not any(message.redelivered for message in batch):
+            await self._process(batch)
+            return
+        # after a crash: one at a time, each counted before it is begun (workers.attempts)
+        for message in batch:
+            refused = await self._retrying(lambda message=message: limit.admit(message))
+            if refused is None:
+                await self._process([message])
+            else:
+                await self._reject(message, refused)
+                await message.ack(multiple=True)
+            await self._retrying(lambda message=message: limit.handled([message]))
+
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
         candidates: list[tuple[AbstractIncomingMessage, Accepted]] = []
         for message in batch:
@@ -173,7 +192,9 @@ class IngestConsumer:
             ]
             accepted, duplicates = await self._sort_out(candidates, stored.results, at)
             for service in self._services:
-                self.stats.notified += await self._retrying(lambda service=service: service.handle(accepted))
+                # awaited before adding: another consumer sharing the stats may count meanwhile
+                notified = await self._retrying(lambda service=service: service.handle(accepted))
+                self.stats.notified += notified
             # bookkeeping after the services, so that it does not delay notifications
             await self._retrying(lambda: self._store.record_duplicates(duplicates))
             self.stats.duplicates += len(duplicates)  # counted once the ledger holds them

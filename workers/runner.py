@@ -16,19 +16,21 @@ from broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.shards import read_shard_map
-from broker.topology import core_topology, declare
+from broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import (
     BEACON_DISCARD_QUEUE,
     DEAD_LETTER_EXCHANGE,
+    EXPRESS_QUEUE,
     NOTIFY_EXCHANGE,
     RPC_QUEUE,
     ingest_shard_queue,
 )
+from workers.attempts import AttemptLimit
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
 from workers.coordination import GATED, HazardCoordinator
-from workers.ingest import BROKER_ERRORS, IngestConsumer, IngestStats
+from workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
 from workers.mutex import LocalMutex, Mutex, StoreMutex
 from workers.rpc import RpcServer
@@ -41,6 +43,8 @@ from workers.telemetry import BatteryWatch
 log = logging.getLogger("fleetbus.worker")
 
 PREFETCH = 512
+#: Hazards and localisations in hand at once on the express lane: few, and each waits for its write.
+EXPRESS_PREFETCH = 16
 
 
 @dataclass
@@ -55,17 +59,13 @@ class WorkerContext:
 
 
 @dataclass
-class ShardConsumer:
-    """One shard consumed on a channel of its own, so it can be let go without touching the others."""
+class QueueConsumer:
+    """One ingest queue consumed on a channel of its own, so it can be let go without touching the others."""
 
-    shard: int
+    queue: str
     channel: AbstractChannel
     consumer: IngestConsumer
     task: asyncio.Task[None]
-
-    @property
-    def done(self) -> asyncio.Future[None]:
-        return self.task
 
     async def stop(self) -> None:
         await self.consumer.stop()
@@ -73,6 +73,30 @@ class ShardConsumer:
         # what was received but not acked (the store down at SIGTERM) goes back to the queue
         with contextlib.suppress(*BROKER_ERRORS):
             await self.channel.close()
+
+
+@dataclass
+class ShardConsumer:
+    """A shard's queue; the holder of shard 0 also takes the express lane, so the two move together
+    (one worker runs the hazard service unless the shards are shared, when a lock in the store
+    serialises it)."""
+
+    shard: int
+    queues: list[QueueConsumer]
+    done: asyncio.Future[None] = field(init=False)
+    """Completes when one of its queues stopped being consumed by itself."""
+
+    def __post_init__(self) -> None:
+        self.done = asyncio.ensure_future(_first_to_end([queue.task for queue in self.queues]))
+
+    async def stop(self) -> None:
+        await asyncio.gather(*(queue.stop() for queue in self.queues))
+
+
+async def _first_to_end(tasks: list[asyncio.Task[None]]) -> None:
+    done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    for task in done:
+        task.result()  # its error, if it failed
 
 
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
@@ -105,35 +129,49 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
     stats = IngestStats()
     serial = hazard_mutex(settings, store)
 
-    async def consume_shard(shard: int) -> ShardConsumer:
+    async def consume(queue_name: str, prefetch: int, express: bool) -> QueueConsumer:
         channel = await connection.channel(publisher_confirms=True)
-        await channel.set_qos(prefetch_count=PREFETCH)
+        await channel.set_qos(prefetch_count=prefetch)
         # fetched (not just named) so the robust channel re-consumes it after a broker restart
-        queue = await channel.get_queue(ingest_shard_queue(shard))
+        queue = await channel.get_queue(queue_name)
         notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
         coordinator = HazardCoordinator(
             store, notify_exchange, SERVICE_USER, timedelta(seconds=settings.late_after_s), serial
         )
+        # a shard still runs the hazard service: hazards queued there before the express lane existed
+        services: list[BatchService] = [coordinator]
+        checks: list[BatchCheck] = []
+        if not express:
+            checks = [KnownRobotsOnly(store), MapCheck(store)]
+            services = [
+                MapService(store, notify_exchange, SERVICE_USER),
+                coordinator,
+                BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
+            ]
         consumer = IngestConsumer(
             channel,
             queue,
             store,
             await channel.get_exchange(DEAD_LETTER_EXCHANGE),
             max_message_bytes=settings.max_message_bytes,
-            checks=[KnownRobotsOnly(store), MapCheck(store)],
-            services=[
-                MapService(store, notify_exchange, SERVICE_USER),
-                coordinator,
-                BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
-            ],
+            checks=checks,
+            services=services,
             urgent=GATED,  # the wardens wait for hazards; the gate opens on localisation
-            batch_size=PREFETCH,
+            batch_size=prefetch,
             stats=stats,
+            # the express queue is classic: the worker keeps its delivery limit
+            attempts=AttemptLimit(store, INGEST_DELIVERY_LIMIT) if express else None,
         )
         await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
-        task = asyncio.create_task(consumer.run(), name=f"fleetbus-shard-{shard}")
-        log.info("consuming shard %d (%s)", shard, ingest_shard_queue(shard))
-        return ShardConsumer(shard, channel, consumer, task)
+        task = asyncio.create_task(consumer.run(), name=f"fleetbus-{queue_name}")
+        log.info("consuming %s", queue_name)
+        return QueueConsumer(queue_name, channel, consumer, task)
+
+    async def consume_shard(shard: int) -> ShardConsumer:
+        queues = [await consume(ingest_shard_queue(shard), PREFETCH, express=False)]
+        if shard == 0:
+            queues.append(await consume(EXPRESS_QUEUE, EXPRESS_PREFETCH, express=True))
+        return ShardConsumer(shard, queues)
 
     shards = ShardPool(store, settings.ingest_shards, consume_shard)
     await shards.start()

@@ -25,6 +25,7 @@ class RejectReason(str, Enum):
     BAD_MAP = "bad-map"
     WRONG_EXCHANGE = "wrong-exchange"
     SEQUENCE_REUSED = "sequence-reused"
+    DELIVERY_LIMIT = "delivery-limit"
 
 
 @dataclass(frozen=True)

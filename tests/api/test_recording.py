@@ -82,7 +82,7 @@ def test_timeline_trace_and_evaluation_over_http(scene: tuple[Api, dict[str, Any
     [origin] = traced["records"]
     assert (origin["record"]["user_id"], origin["record"]["routing_key"]) == ("http-herb", "http-herb.hazard")
     assert traced["stored_seq"] == detected.seq
-    assert {r["queue"] for r in origin["routes"]} == {"fleetbus.ingest.events", "fleetbus.recorder"}
+    assert {r["queue"] for r in origin["routes"]} == {"fleetbus.ingest.express", "fleetbus.recorder"}
     assert "http-warden.inbox" in {r["queue"] for r in traced["caused"][0]["routes"]}
     assert api.call("super1", "GET", "/recording/trace/nothing-like-it").status_code == 404
     [grab] = get(api, "planner1", "/recording/evaluation", since="2000-01-01T00:00:00")

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
+from tests.store.conftest import fresh_database
+from tests.store.second import second_connection
 from tests.store.test_contract import record
 from workers.store.base import EventQuery
 from workers.store.interface import Store
 from workers.store.ledger import Duplicate, Gap, apply_seqs
+from workers.store.mongo import MongoEventStore
 
 T0 = datetime(2026, 11, 23, 8, 0, tzinfo=timezone.utc)
 T1 = T0 + timedelta(seconds=1)
@@ -101,3 +105,45 @@ async def test_a_stored_batch_is_stamped_written_and_observed_in_one_step(store:
     again = await store.store_batch(batch, T1)
     assert [r.inserted for r in again.results] == [False, False, False]
     assert await store.count_events() == 3 and spans(await store.gaps()) == [("warden1", 0, 3)]
+
+
+async def test_two_lanes_observing_one_robot_at_once_leave_the_ledger_one_lane_would(store: Store) -> None:
+    """The express lane and a shard observe the same robot's numbers concurrently, from two
+    connections (two worker processes when the shards are shared): no update may be lost."""
+    other = second_connection(store)
+    await other.open()
+    try:
+        express = [[seq] for seq in range(5, 200, 10)]  # a hazard every tenth number
+        bulk = [[seq for seq in range(start, start + 10) if seq % 10 != 5] for start in range(0, 200, 10)]
+
+        async def observe(observer: Store, batches: list[list[int]]) -> None:
+            for seqs in batches:
+                await observer.observe_sequences({"explorer1": seqs}, T0)
+
+        await asyncio.gather(observe(store, bulk), observe(other, express))
+        assert await store.gaps() == [], "every number below the mark was observed"
+        assert await store.high_water("explorer1") == 199
+    finally:
+        await other.close()
+
+
+async def test_mongodb_gaps_kept_one_document_each_are_read_and_moved_into_the_robots(
+    mongodb_url: str,
+) -> None:
+    """The layout before the ledger's one document per robot: its gaps still count, then move."""
+    async with (
+        fresh_database(mongodb_url) as database,
+        MongoEventStore(mongodb_url, database=database) as store,
+    ):
+        await store._collection("robot_sequences").insert_one({"_id": "explorer1", "high_water": 9})
+        await store._collection("sequence_gaps").insert_many(
+            [
+                {"_id": "explorer1:3", "robot_id": "explorer1", "first": 3, "last": 4, "detected_at_us": 0},
+                {"_id": "explorer1:7", "robot_id": "explorer1", "first": 7, "last": 7, "detected_at_us": 0},
+            ]
+        )
+        assert spans(await store.gaps()) == [("explorer1", 3, 4), ("explorer1", 7, 7)]
+        await store.observe_sequences({"explorer1": [4, 12]}, T0)
+        assert spans(await store.gaps()) == [("explorer1", 3, 3), ("explorer1", 7, 7), ("explorer1", 10, 11)]
+        assert await store._collection("sequence_gaps").count_documents({}) == 0, "moved"
+        assert await store.high_water("explorer1") == 12

@@ -1,5 +1,5 @@
 """What a fleetbus store is: events, sequence ledger, coordination, beacons, maps, the service
-layer's users, missions and channels, and the workers' leases, in one database."""
+layer's users, missions and channels, and the workers' leases and attempt counts, in one database."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 
+from workers.store.attempts import AttemptLog
 from workers.store.base import EventRecord, EventStore, WriteResult
 from workers.store.beacons import BeaconRegistry
 from workers.store.channels import ChannelStore
@@ -30,6 +31,7 @@ class Store(
     ChannelStore,
     DiscardLog,
     LeaseStore,
+    AttemptLog,
 ):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""

@@ -22,6 +22,7 @@ from workers.store.base import (
     to_micros,
 )
 from workers.store.interface import Store
+from workers.store.mongo_attempts import MongoAttempts
 from workers.store.mongo_channels import MongoChannels
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
 from workers.store.mongo_database import DUPLICATE_KEY, UNAVAILABLE, MongoDatabase, translate_unavailable
@@ -88,6 +89,7 @@ class MongoEventStore(
     MongoChannels,
     MongoDiscards,
     MongoLeases,
+    MongoAttempts,
     Store,
 ):
     name = "mongodb"

@@ -1,9 +1,14 @@
 """The sequence ledger (gaps, duplicates) on MongoDB, mixed into :class:`MongoEventStore`.
 
-MongoDB gives no multi-document transaction on a standalone server, so the steps are ordered
-to be safe if the worker dies between any two of them (the batch is then observed again):
-new gap pieces are written before the gaps they replace are shrunk or deleted, and the
-high-water mark moves last.
+One document per robot holds its high-water mark and its gaps, with a version: an observation
+reads it, works out the change, and writes it back only if the version is still the one it read
+(else it reads again). One document is written atomically without a transaction, so the express
+lane and a shard (two worker processes when the shards are shared) can observe the same robot at
+once without losing an update, and a worker that dies mid-way leaves the ledger as it was.
+
+Before this layout, each gap was a document of ``sequence_gaps`` and the robot's document held
+only its mark: such a robot's gaps are read from there, and moved into its document the first
+time it is observed again.
 """
 
 from __future__ import annotations
@@ -13,17 +18,18 @@ from datetime import datetime
 from typing import Any
 
 from pymongo import ASCENDING, DESCENDING
+from pymongo.errors import DuplicateKeyError
 
 from workers.store.base import from_micros, to_micros
 from workers.store.ledger import Duplicate, Gap, SequenceLedger, apply_seqs
 
 
-def gap_id(robot_id: str, first: int) -> str:
-    return f"{robot_id}:{first}"
+def _gap(robot_id: str, doc: dict[str, Any]) -> Gap:
+    return Gap(robot_id, doc["first"], doc["last"], from_micros(doc["detected_at_us"]))
 
 
-def _gap(doc: dict[str, Any]) -> Gap:
-    return Gap(doc["robot_id"], doc["first"], doc["last"], from_micros(doc["detected_at_us"]))
+def _stored(gap: Gap) -> dict[str, Any]:
+    return {"first": gap.first, "last": gap.last, "detected_at_us": to_micros(gap.detected_at)}
 
 
 class MongoLedger(SequenceLedger):
@@ -32,9 +38,6 @@ class MongoLedger(SequenceLedger):
     _collection: Callable[[str], Any]
 
     async def create_ledger_indexes(self) -> None:
-        await self._collection("sequence_gaps").create_index(
-            [("robot_id", ASCENDING), ("first", ASCENDING), ("last", ASCENDING)]
-        )
         await self._collection("duplicates").create_index(
             [("robot_id", ASCENDING), ("seen_at_us", DESCENDING)]
         )
@@ -44,43 +47,51 @@ class MongoLedger(SequenceLedger):
         return doc["high_water"] if doc else None
 
     async def observe_sequences(self, seen: Mapping[str, Sequence[int]], at: datetime) -> None:
-        gaps = self._collection("sequence_gaps")
         for robot_id, seqs in seen.items():
-            if not seqs:
-                continue
-            high_water = await self.high_water(robot_id)
-            low = min(seqs)
-            touched: list[Gap] = []
-            if high_water is not None and low <= high_water:
-                cursor = gaps.find(
-                    {
-                        "robot_id": robot_id,
-                        "last": {"$gte": low},
-                        "first": {"$lte": min(max(seqs), high_water)},
-                    }
-                )
-                touched = [_gap(doc) async for doc in cursor]
-            change = apply_seqs(robot_id, high_water, touched, seqs, at)
-            old_keys = {gap.first for gap in change.touched}
-            new_keys = {gap.first for gap in change.gaps}
-            for gap in sorted(change.gaps, key=lambda g: g.first in old_keys):  # new keys first
-                await gaps.replace_one(
-                    {"_id": gap_id(robot_id, gap.first)},
-                    {
-                        "robot_id": robot_id,
-                        "first": gap.first,
-                        "last": gap.last,
-                        "detected_at": gap.detected_at,
-                        "detected_at_us": to_micros(gap.detected_at),
-                    },
-                    upsert=True,
-                )
-            gone = [gap_id(robot_id, first) for first in old_keys - new_keys]
-            if gone:
-                await gaps.delete_many({"_id": {"$in": gone}})
-            await self._collection("robot_sequences").update_one(
-                {"_id": robot_id}, {"$max": {"high_water": change.high_water}}, upsert=True
-            )
+            if seqs:
+                while not await self._observe(robot_id, seqs, at):
+                    pass  # another observer changed the robot's ledger meanwhile: again, from it
+
+    async def _observe(self, robot_id: str, seqs: Sequence[int], at: datetime) -> bool:
+        """One attempt; False if another observer wrote the robot's document first."""
+        robots = self._collection("robot_sequences")
+        doc = await robots.find_one({"_id": robot_id})
+        high_water = doc["high_water"] if doc else None
+        legacy = doc is not None and "version" not in doc
+        gaps = (
+            await self._legacy_gaps(robot_id)
+            if legacy
+            else [_gap(robot_id, g) for g in (doc or {}).get("gaps", [])]
+        )
+        low, high = min(seqs), max(seqs)
+        touched = [
+            g for g in gaps if high_water is not None and g.last >= low and g.first <= min(high, high_water)
+        ]
+        change = apply_seqs(robot_id, high_water, touched, seqs, at)
+        kept = [g for g in gaps if g not in touched]
+        after = {
+            "high_water": change.high_water,
+            "gaps": [_stored(g) for g in sorted([*kept, *change.gaps], key=lambda g: g.first)],
+        }
+        if doc is None:
+            try:
+                await robots.insert_one({"_id": robot_id, **after, "version": 1})
+            except DuplicateKeyError:
+                return False
+            return True
+        version = {"$exists": False} if legacy else doc["version"]
+        written = await robots.update_one(
+            {"_id": robot_id, "version": version}, {"$set": after, "$inc": {"version": 1}}
+        )
+        if written.matched_count == 0:
+            return False
+        if legacy:
+            await self._collection("sequence_gaps").delete_many({"robot_id": robot_id})
+        return True
+
+    async def _legacy_gaps(self, robot_id: str) -> list[Gap]:
+        cursor = self._collection("sequence_gaps").find({"robot_id": robot_id})
+        return [_gap(robot_id, doc) async for doc in cursor]
 
     async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None:
         if duplicates:
@@ -99,12 +110,13 @@ class MongoLedger(SequenceLedger):
             )
 
     async def gaps(self, robot_id: str | None = None) -> list[Gap]:
-        cursor = (
-            self._collection("sequence_gaps")
-            .find({"robot_id": robot_id} if robot_id else {})
-            .sort([("robot_id", ASCENDING), ("first", ASCENDING)])
-        )
-        return [_gap(doc) async for doc in cursor]
+        found: list[Gap] = []
+        async for doc in self._collection("robot_sequences").find({"_id": robot_id} if robot_id else {}):
+            if "version" in doc:
+                found.extend(_gap(doc["_id"], gap) for gap in doc.get("gaps", []))
+            else:
+                found.extend(await self._legacy_gaps(doc["_id"]))
+        return sorted(found, key=lambda gap: (gap.robot_id, gap.first))
 
     async def duplicates(self, robot_id: str | None = None, limit: int | None = None) -> list[Duplicate]:
         cursor = (

@@ -23,6 +23,7 @@ from workers.store.base import (
 )
 from workers.store.hazards import NewHazard
 from workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
+from workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
@@ -127,6 +128,7 @@ class SQLiteEventStore(
     SQLiteChannels,
     SQLiteDiscards,
     SQLiteLeases,
+    SQLiteAttempts,
     Store,
 ):
     name = "sqlite"
@@ -137,7 +139,14 @@ class SQLiteEventStore(
         db.executescript(BEACON_SCHEMA)
         db.executescript(MAP_SCHEMA)
         db.executescript(LEDGER_SCHEMA)
-        for schema in (USER_SCHEMA, MISSION_SCHEMA, CHANNEL_SCHEMA, DISCARD_SCHEMA, LEASE_SCHEMA):
+        for schema in (
+            USER_SCHEMA,
+            MISSION_SCHEMA,
+            CHANNEL_SCHEMA,
+            DISCARD_SCHEMA,
+            LEASE_SCHEMA,
+            ATTEMPT_SCHEMA,
+        ):
             db.executescript(schema)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:

@@ -1,0 +1,220 @@
+"""The express lane: hazards and localisations have a queue of their own, handled beside the bulk.
+
+A bulk batch is held for real: a status event with a low battery makes the worker warn the
+operators, and a queue bound to ``notify.battery`` that refuses every message (``x-max-length``
+0, ``reject-publish``) makes the broker nack the warning, so the worker keeps that batch in hand
+and retries it, as it would with an operator's inbox full or a queue recovering after a restart.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+
+import aio_pika
+import aio_pika.abc
+import pika
+import pytest
+
+from broker.dead_letter_queue import peek_dead_letters
+from broker.topology import BindingSpec, Topology, core_topology, declare_with_url
+from schemas.routing import (
+    DEAD_LETTER_EXCHANGE,
+    EXPRESS_QUEUE,
+    INGEST_EXCHANGE,
+    INGEST_QUEUE,
+    NOTIFY_EXCHANGE,
+    SHARD_EXCHANGE,
+    RobotKind,
+    notification_routing_key,
+)
+from tests.factories import hazard, status
+from tests.support import Bus, wait_for
+from workers.attempts import AttemptLimit
+from workers.ingest import IngestConsumer
+from workers.store import open_store
+from workers.validation import Accepted, Rejected
+
+REFUSING_QUEUE = "test.refuses-battery-warnings"
+
+
+@contextmanager
+def battery_warnings_refused(bus: Bus) -> Iterator[None]:
+    """While it lasts, the broker nacks every battery warning the worker publishes."""
+    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    try:
+        channel = connection.channel()
+        channel.queue_declare(REFUSING_QUEUE, arguments={"x-max-length": 0, "x-overflow": "reject-publish"})
+        channel.queue_bind(REFUSING_QUEUE, NOTIFY_EXCHANGE, notification_routing_key("battery"))
+        yield
+        channel.queue_delete(REFUSING_QUEUE)
+    finally:
+        connection.close()
+
+
+def in_queue(bus: Bus, name: str = INGEST_QUEUE) -> tuple[int, int]:
+    """Ready and unacked messages of a queue, as the management API reports them."""
+    queue = bus.api.get_queue(bus.vhost, name)
+    return queue.get("messages_ready", 0), queue.get("messages_unacknowledged", 0)
+
+
+def localised(bus: Bus) -> bool:
+    return all(robot.localised for robot in bus.with_store(lambda store: store.robots("warden")))
+
+
+def test_a_hazard_reaches_the_wardens_while_a_bulk_batch_is_stuck(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with bus.worker() as worker:
+        warden.publish("localisation", {"localised": True})
+        wait_for(lambda: localised(bus), what="warden1 localised")
+        with battery_warnings_refused(bus):
+            explorer.publish("status", status(battery=5.0))
+            assert worker.context is not None
+            stats = worker.context.stats
+            wait_for(lambda: stats.store_retries >= 2, what="the status batch retrying its battery warning")
+
+            sent = explorer.publish("hazard", hazard(0))
+            [note] = warden.receive(1, timeout=30)
+            assert note.event == sent and note.hazard_id == 1, "announced while the status batch is stuck"
+            assert stats.store_retries >= 2 and stats.notified == 1, "the status batch is still in hand"
+            wait_for(lambda: in_queue(bus) == (0, 1), what="the status in hand, unacked")
+            wait_for(lambda: in_queue(bus, EXPRESS_QUEUE) == (0, 0), what="the hazard acked")
+        # the warning goes through at the next retry
+        wait_for(lambda: in_queue(bus) == (0, 0), what="the status acked")
+        assert stats.notified == 2 and stats.duplicates == 0
+    assert sorted(r.type for r in bus.find()) == ["hazard", "localisation", "status"], "each stored once"
+
+
+def test_worker_killed_with_a_hazard_done_beside_a_stuck_batch(bus: Bus) -> None:
+    """Nothing lost, nothing doubled: the hazard was acked on its own queue, the status comes again."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    worker = bus.spawn_worker()
+    try:
+        warden.publish("localisation", {"localised": True})
+        wait_for(lambda: localised(bus), what="warden1 localised")
+        with battery_warnings_refused(bus):
+            low = explorer.publish("status", status(battery=5.0))
+            wait_for(lambda: bus.count("status") == 1, what="the status stored, its warning refused")
+            sent = explorer.publish("hazard", hazard(0))
+            [note] = warden.receive(1, timeout=30)
+            assert note.event == sent
+            wait_for(lambda: in_queue(bus) == (0, 1), what="the status unacked")
+            wait_for(lambda: in_queue(bus, EXPRESS_QUEUE) == (0, 0), what="the hazard acked")
+            worker.send_signal(signal.SIGKILL)
+            worker.wait(30)
+        worker = bus.spawn_worker()
+        wait_for(lambda: in_queue(bus) == (0, 0), timeout=60, what="the status handled again and acked")
+    finally:
+        worker.send_signal(signal.SIGTERM)
+        worker.wait(60)
+    assert bus.count("status") == bus.count("hazard") == 1, "stored once each"
+    duplicates = bus.with_store(lambda store: store.duplicates("explorer1"))
+    assert [(d.seq, d.redelivered) for d in duplicates] == [(low.seq, True)]
+    assert warden.receive(1, timeout=0.5) == [], "the hazard was marked announced: not sent twice"
+    assert bus.gaps() == []
+
+
+class Crashed(Exception):
+    """What kills the worker in the middle of a message (here: a check that fails unexpectedly)."""
+
+
+class CrashesOn:
+    """A batch check that dies on one message id, every time, before anything is stored."""
+
+    def __init__(self, message_id: str) -> None:
+        self.message_id = message_id
+        self.attempts = 0
+
+    async def check(self, accepted: Sequence[Accepted]) -> dict[int, Rejected]:
+        if any(item.event.message_id == self.message_id for item in accepted):
+            self.attempts += 1
+            raise Crashed(self.message_id)
+        return {}
+
+
+async def express_consumer(
+    bus: Bus, check: CrashesOn
+) -> tuple[aio_pika.abc.AbstractConnection, IngestConsumer]:
+    """The express lane's consumer as the worker makes it, with ``check`` and a limit of LIMIT."""
+    connection = await aio_pika.connect(bus.admin_url)
+    channel = await connection.channel(publisher_confirms=True)
+    await channel.set_qos(prefetch_count=16)
+    store = open_store(bus.settings)
+    await store.open()
+    consumer = IngestConsumer(
+        channel,
+        await channel.get_queue(EXPRESS_QUEUE),
+        store,
+        await channel.get_exchange(DEAD_LETTER_EXCHANGE),
+        max_message_bytes=bus.settings.max_message_bytes,
+        checks=[check],
+        attempts=AttemptLimit(store, LIMIT),
+    )
+    connection.close_callbacks.add(lambda *_: asyncio.ensure_future(store.close()))
+    return connection, consumer
+
+
+LIMIT = 3
+
+
+def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    asyncio.run(declare_with_url(bus.admin_url, [core_topology()]))
+    poison = explorer.publish("hazard", hazard(0))
+    check = CrashesOn(poison.message_id)
+
+    async def crash() -> None:
+        connection, consumer = await express_consumer(bus, check)
+        with pytest.raises(Crashed):
+            await asyncio.wait_for(consumer.run(), 30)
+        await connection.close()  # as the dead worker's did: the broker redelivers
+
+    for _ in range(1 + LIMIT):  # the first delivery, and LIMIT redeliveries: each one dies
+        asyncio.run(crash())
+    assert check.attempts == 1 + LIMIT
+
+    async def go_on() -> None:
+        connection, consumer = await express_consumer(bus, check)
+        lane = asyncio.create_task(consumer.run())
+        try:
+            await asyncio.to_thread(explorer.publish, "hazard", hazard(1))
+            await asyncio.to_thread(wait_for, lambda: bus.count("hazard") == 1, 30, "the next hazard stored")
+        finally:
+            await consumer.stop()
+            await lane
+            await connection.close()
+
+    asyncio.run(go_on())
+    assert check.attempts == 1 + LIMIT, "not begun again"
+    [letter] = peek_dead_letters(bus.admin_url)
+    assert (letter.message_id, letter.reason) == (str(poison.message_id), "delivery-limit")
+    assert f"{1 + LIMIT} times" in letter.detail
+    assert [r.seq for r in bus.find()] == [poison.seq + 1], "the poison was never stored; the next was"
+    assert in_queue(bus, EXPRESS_QUEUE) == (0, 0)
+
+
+def test_each_type_takes_its_lane_once_also_on_a_broker_set_up_before_the_lanes(bus: Bus) -> None:
+    before = Topology(bindings=(BindingSpec(INGEST_EXCHANGE, SHARD_EXCHANGE, "#", to_exchange=True),))
+    asyncio.run(declare_with_url(bus.admin_url, [core_topology()]))
+    asyncio.run(declare_with_url(bus.admin_url, [before]))
+    assert "#" in shard_feeds(bus)
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))  # declares this version's topology
+    assert shard_feeds(bus) == [], "the shards are fed through the lanes exchange only"
+    explorer.publish_many(
+        [("status", status()), ("hazard", hazard(0)), ("localisation", {"localised": True})]
+    )
+    wait_for(lambda: bus.ready_messages(EXPRESS_QUEUE) == 2, what="the hazard and the localisation")
+    assert bus.ready_messages(INGEST_QUEUE) == 1, "the status in its shard; the others once, not there too"
+
+
+def shard_feeds(bus: Bus) -> list[str]:
+    """The keys binding the ingest exchange straight to the shard exchange."""
+    return [
+        b["routing_key"]
+        for b in bus.api.exchange_bindings(bus.vhost, INGEST_EXCHANGE)
+        if b["destination"] == SHARD_EXCHANGE
+    ]

@@ -1,0 +1,22 @@
+"""How often the worker began to handle a redelivered message: a delivery limit for a classic queue.
+
+A quorum queue counts deliveries itself (``x-delivery-limit``); a classic queue only flags a
+redelivery, so the worker keeps the count (:mod:`workers.attempts`). Keys are the worker's own
+(publisher and message id); a count is forgotten once its message was handled.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from datetime import datetime
+
+
+class AttemptLog(abc.ABC):
+    @abc.abstractmethod
+    async def count_attempt(self, key: str, at: datetime) -> int:
+        """Count one more attempt at ``key``, durably; return the attempts counted so far (1 first)."""
+
+    @abc.abstractmethod
+    async def forget_attempts(self, keys: Sequence[str]) -> None:
+        """Drop the counts of ``keys`` (their messages were handled); unknown keys are ignored."""
