@@ -7,6 +7,7 @@ service manages them here; queues, exchanges and bindings are declared over AMQP
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from typing import Any
 from urllib.parse import quote, urlsplit
 
@@ -122,6 +123,18 @@ class ManagementAPI:
         self, vhost: str, source: str, destination: str, routing_key: str, *, to_exchange: bool = False
     ) -> None:
         """Remove every binding between the two with this routing key (whatever its arguments)."""
+        self.unbind_keys(vhost, source, destination, (routing_key,), to_exchange=to_exchange)
+
+    def unbind_keys(
+        self,
+        vhost: str,
+        source: str,
+        destination: str,
+        routing_keys: Collection[str],
+        *,
+        to_exchange: bool = False,
+    ) -> None:
+        """Remove every binding between the two with one of these routing keys; absent ones are fine."""
         kind = "e" if to_exchange else "q"
         path = f"bindings/{_q(vhost)}/e/{_q(source)}/{kind}/{_q(destination)}"
         response = self._client.get(path)
@@ -130,7 +143,7 @@ class ManagementAPI:
         if response.status_code >= 400:
             raise ManagementError(f"GET /api/{path} -> {response.status_code}: {response.text.strip()}")
         for binding in response.json():
-            if binding["routing_key"] == routing_key:
+            if binding["routing_key"] in routing_keys:
                 self._request("DELETE", f"{path}/{_q(binding['properties_key'])}")
 
     # observation

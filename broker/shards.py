@@ -1,8 +1,13 @@
 """Which ingest shard each robot's messages go to: bindings on ``fleetbus.ingest.shards``.
 
-A robot is bound to exactly one shard with the key ``<robot>.#``, when its account is provisioned,
-on the shard that has the fewest robots (ties: the lowest number). The assignment is the broker's
-own bindings, so the management UI shows it and nothing else can disagree with it.
+A robot is bound to exactly one shard, with one key per type it sends there (``<robot>.status``,
+``<robot>.map`` ...: every type but the express lane's hazards and localisations), when its account
+is provisioned, on the shard that has the fewest robots (ties: the lowest number). The assignment
+is the broker's own bindings, so the management UI shows it and nothing else can disagree with it.
+
+Before the express lane a robot was bound with ``<robot>.#``, which would also take its hazards
+to its shard, beside the express lane's copy: :func:`complete_shard_bindings` gives such robots
+their keys and takes the wildcard away, before the express lane's bindings are declared.
 
 Why by name, and why bindings rather than a hash:
 
@@ -29,10 +34,12 @@ from broker.management import ManagementAPI
 from schemas.routing import (
     BEACON_EXCHANGE,
     SHARD_EXCHANGE,
+    SHARD_TYPES,
     beacon_exchange,
     ingest_shard_queue,
-    shard_binding_key,
+    shard_binding_keys,
     shard_of_queue,
+    wildcard_shard_key,
 )
 
 BEACON_SUFFIX = beacon_exchange("")  # ".beacon"
@@ -48,6 +55,9 @@ class ShardMap:
     """Each bound robot's shards: one, unless a move was interrupted."""
     unassigned: tuple[str, ...] = ()
     """Robot accounts with no shard binding: their messages go to shard 0 by the alternate exchange."""
+    incomplete: tuple[str, ...] = ()
+    """Bound robots whose keys are not one per shard type: bound before the express lane, or a
+    binding lost; :func:`complete_shard_bindings` mends those on one shard."""
 
     def shard_of(self, robot: str) -> int | None:
         """The shard ``robot``'s messages go to (shard 0 for an unassigned robot); None: several."""
@@ -76,22 +86,32 @@ class ShardMap:
         )
 
 
+SHARD_KEY_ENDS = frozenset(t.value for t in SHARD_TYPES) | {"#"}
+
+
 def _robot_of(binding_key: str) -> str | None:
+    """The robot a shard binding key is for: ``<robot>.<shard type>``, or ``<robot>.#`` of old."""
     robot, _, rest = binding_key.partition(".")
-    return robot if rest == "#" and robot else None
+    return robot if robot and rest in SHARD_KEY_ENDS else None
 
 
 def read_shard_map(api: ManagementAPI, vhost: str, shards: int) -> ShardMap:
-    bound: dict[str, list[int]] = {}
+    keys: dict[str, dict[int, set[str]]] = {}
     for binding in api.exchange_bindings(vhost, SHARD_EXCHANGE):
         shard = shard_of_queue(binding.get("destination", ""))
-        robot = _robot_of(binding.get("routing_key", ""))
+        key = binding.get("routing_key", "")
+        robot = _robot_of(key)
         if binding.get("destination_type") == "queue" and shard is not None and robot is not None:
-            bound.setdefault(robot, []).append(shard)
+            keys.setdefault(robot, {}).setdefault(shard, set()).add(key)
     return ShardMap(
         shards,
-        {robot: tuple(sorted(found)) for robot, found in sorted(bound.items())},
-        tuple(sorted(_robot_accounts(api, vhost) - bound.keys())),
+        {robot: tuple(sorted(by_shard)) for robot, by_shard in sorted(keys.items())},
+        tuple(sorted(_robot_accounts(api, vhost) - keys.keys())),
+        tuple(
+            robot
+            for robot, by_shard in sorted(keys.items())
+            if any(found != set(shard_binding_keys(robot)) for found in by_shard.values())
+        ),
     )
 
 
@@ -104,6 +124,19 @@ def _robot_accounts(api: ManagementAPI, vhost: str) -> set[str]:
     }
 
 
+def _bind(api: ManagementAPI, vhost: str, robot: str, shard: int) -> None:
+    for key in shard_binding_keys(robot):
+        api.bind(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), key)
+
+
+def _unbind(api: ManagementAPI, vhost: str, robot: str, shard: int, *, keep_keys: bool = False) -> None:
+    """Take ``robot``'s keys off ``shard``: all of them, or (``keep_keys``) only the wildcard of old."""
+    keys = [wildcard_shard_key(robot)]
+    if not keep_keys:
+        keys += shard_binding_keys(robot)
+    api.unbind_keys(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), keys)
+
+
 def assign_shard(api: ManagementAPI, vhost: str, robot: str, shards: int) -> int:
     """The robot's shard: the one it is bound to, else the least loaded, bound now."""
     current = read_shard_map(api, vhost, shards)
@@ -111,14 +144,29 @@ def assign_shard(api: ManagementAPI, vhost: str, robot: str, shards: int) -> int
     if bound:
         return bound[0]
     shard = current.least_loaded()
-    api.bind(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), shard_binding_key(robot))
+    _bind(api, vhost, robot, shard)
     return shard
+
+
+def complete_shard_bindings(api: ManagementAPI, vhost: str, shards: int) -> list[str]:
+    """Give each robot bound to one shard every key of its types there, then take its ``<robot>.#``
+    of old away (never routed to no queue meanwhile); return the robots mended. Robots bound to
+    several shards are left to ``fleetbus shards rebalance``."""
+    current = read_shard_map(api, vhost, shards)
+    mended = []
+    for robot in current.incomplete:
+        bound = current.bindings[robot]
+        if len(bound) == 1:
+            _bind(api, vhost, robot, bound[0])
+            _unbind(api, vhost, robot, bound[0], keep_keys=True)
+            mended.append(robot)
+    return mended
 
 
 def unassign_shard(api: ManagementAPI, vhost: str, robot: str) -> None:
     """Remove every shard binding of ``robot`` (its account is being deleted)."""
     for shard in read_shard_map(api, vhost, 1).bindings.get(robot, ()):
-        api.unbind(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), shard_binding_key(robot))
+        _unbind(api, vhost, robot, shard)
 
 
 @dataclass(frozen=True, order=True)
@@ -169,8 +217,6 @@ def rebalance_plan(current: ShardMap) -> list[Move]:
 
 def apply_move(api: ManagementAPI, vhost: str, move: Move) -> None:
     """Bind the robot to its new shard first, then unbind the others: never routed to no shard."""
-    key = shard_binding_key(move.robot)
-    api.bind(vhost, SHARD_EXCHANGE, ingest_shard_queue(move.target), key)
+    _bind(api, vhost, move.robot, move.target)
     for shard in move.bound:
-        if shard != move.target:
-            api.unbind(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), key)
+        _unbind(api, vhost, move.robot, shard, keep_keys=shard == move.target)

@@ -28,7 +28,6 @@ from schemas.routing import (
     EXPRESS_TYPES,
     INGEST_EXCHANGE,
     INGEST_QUEUE,
-    LANES_EXCHANGE,
     NOTIFY_EXCHANGE,
     RECORDED_EXCHANGES,
     RECORDER_QUEUE,
@@ -122,17 +121,16 @@ EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {"x-queue-type": "classic", "x-single-
 def core_topology(shards: int = 1) -> Topology:
     """The service's exchanges and queues, with ``shards`` ingest shard queues.
 
-    Robots' events go through ``fleetbus.ingest.lanes``: hazards and localisations to the express
-    queue, the rest (by the alternate exchange) to ``fleetbus.ingest.shards``, where each robot is
-    bound to one shard by its name (:mod:`broker.shards`); a message no robot binding matches goes
-    to shard 0 by that exchange's alternate exchange, so nothing is ever routed to no queue.
+    Robots' events reach ``fleetbus.ingest.shards``, which routes every robot's hazards and
+    localisations to the express queue, and each robot's other types to its one shard (bound by
+    its name, :mod:`broker.shards`); a message neither matches goes to shard 0 by the exchange's
+    alternate exchange, so nothing is ever routed to no queue.
     """
     if shards < 1:
         raise ValueError(f"the ingest needs at least one shard, not {shards}")
     return Topology(
         exchanges=(
             ExchangeSpec(INGEST_EXCHANGE, ExchangeType.TOPIC),
-            ExchangeSpec(LANES_EXCHANGE, ExchangeType.TOPIC, {"alternate-exchange": SHARD_EXCHANGE}),
             ExchangeSpec(SHARD_EXCHANGE, ExchangeType.TOPIC, {"alternate-exchange": UNASSIGNED_EXCHANGE}),
             ExchangeSpec(UNASSIGNED_EXCHANGE, ExchangeType.FANOUT),
             ExchangeSpec(NOTIFY_EXCHANGE, ExchangeType.TOPIC),
@@ -153,20 +151,16 @@ def core_topology(shards: int = 1) -> Topology:
             QueueSpec(BEACON_DISCARD_QUEUE, {"x-queue-type": "classic"}),
         ),
         bindings=(
-            BindingSpec(INGEST_EXCHANGE, LANES_EXCHANGE, "#", to_exchange=True),
-            *(BindingSpec(LANES_EXCHANGE, EXPRESS_QUEUE, express_binding_key(t)) for t in EXPRESS_TYPES),
+            BindingSpec(INGEST_EXCHANGE, SHARD_EXCHANGE, "#", to_exchange=True),
+            *(BindingSpec(SHARD_EXCHANGE, EXPRESS_QUEUE, express_binding_key(t)) for t in EXPRESS_TYPES),
             BindingSpec(UNASSIGNED_EXCHANGE, INGEST_QUEUE, ""),
             BindingSpec(RPC_EXCHANGE, RPC_QUEUE, "#"),
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
             BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
         ),
-        obsolete=(
-            # before shards, the ingest queue was bound to the ingest exchange directly
-            BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),
-            # before the express lane, the ingest exchange fed the shards directly
-            BindingSpec(INGEST_EXCHANGE, SHARD_EXCHANGE, "#", to_exchange=True),
-        ),
+        # before shards, the ingest queue was bound to the ingest exchange directly
+        obsolete=(BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),),
     )
 
 
@@ -265,14 +259,8 @@ async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> N
     # removed only now: the new path carries every message before the old one is taken away
     for topology in topologies:
         for binding in topology.obsolete:
-            if binding.to_exchange:
-                destination = exchanges.get(binding.destination) or await channel.get_exchange(
-                    binding.destination
-                )
-                await destination.unbind(binding.source, routing_key=binding.routing_key)
-            else:
-                queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
-                await queue.unbind(binding.source, routing_key=binding.routing_key)
+            queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
+            await queue.unbind(binding.source, routing_key=binding.routing_key)
 
 
 async def declare_with_url(amqp_url: str, topologies: Iterable[Topology]) -> None:

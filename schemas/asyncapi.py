@@ -27,7 +27,6 @@ from schemas.routing import (
     EXPRESS_TYPES,
     INGEST_EXCHANGE,
     INGEST_QUEUE,
-    LANES_EXCHANGE,
     NOTIFY_EXCHANGE,
     REASON_HEADER,
     RECORDED_EXCHANGES,
@@ -115,11 +114,11 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
             INGEST_QUEUE: {
                 "description": f"The ingest shards the workers consume: {INGEST_QUEUE} (shard 0), "
                 f"{INGEST_QUEUE}.1, .2 ... (FLEETBUS_INGEST_SHARDS). {INGEST_EXCHANGE} feeds the topic "
-                f"exchange {LANES_EXCHANGE}; what its express bindings do not take goes on, by its "
-                f"alternate exchange, to {SHARD_EXCHANGE}, where each robot is bound to one shard with "
-                "the key {robot}.# when its account is made, so all of one robot's events of these types "
-                f"keep their order in one quorum queue with a single active consumer. A message no robot "
-                f"binding matches goes to shard 0 through the alternate exchange {UNASSIGNED_EXCHANGE}. "
+                f"exchange {SHARD_EXCHANGE}, where each robot is bound to one shard with the keys "
+                "{robot}.{type}, one for each of these types, when its account is made, so all of one "
+                "robot's events of these types keep their order in one quorum queue with a single active "
+                f"consumer. A message no binding matches goes to shard 0 through the alternate exchange "
+                f"{UNASSIGNED_EXCHANGE}. "
                 "Only the service's workers read them; several workers share the shards.",
                 "subscribe": {
                     "operationId": "ingestEvents",
@@ -141,7 +140,7 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
             EXPRESS_QUEUE: {
                 "description": "The express lane: every robot's "
                 + " and ".join(t.value for t in EXPRESS_TYPES)
-                + f" events, bound from {LANES_EXCHANGE} with *.<type>, so that none waits behind a "
+                + f" events, bound from {SHARD_EXCHANGE} with *.<type>, so that none waits behind a "
                 "robot's telemetry, maps or resync. A classic queue with a single active consumer, read "
                 "by the worker that holds shard 0; one robot's events in it keep their order.",
                 "subscribe": {

@@ -21,13 +21,12 @@ make the broker refuse any key that does not start with the publisher's own name
 The service owns everything that starts with ``fleetbus.``::
 
     fleetbus.ingest         topic exchange; every ``<robot>.events`` is bound into it with ``#``
-    fleetbus.ingest.lanes   topic exchange fed by fleetbus.ingest with ``#``: hazards and
-                            localisations (``*.hazard``, ``*.localisation``) go to the express queue;
-                            everything else to its alternate exchange, fleetbus.ingest.shards
+    fleetbus.ingest.shards  topic exchange fed by fleetbus.ingest with ``#``. Hazards and
+                            localisations (``*.hazard``, ``*.localisation``) are bound to the express
+                            queue; each robot's other types (``<robot>.status``, ``<robot>.map``...)
+                            to one ingest shard (made when its account is provisioned)
     fleetbus.ingest.express classic queue of the express lane (single active consumer), read by the
                             worker that holds shard 0: a hazard never waits behind the bulk
-    fleetbus.ingest.shards  topic exchange; each robot's key ``<robot>.#`` is bound to one ingest
-                            shard (made when its account is provisioned)
     fleetbus.ingest.unassigned  fanout exchange, the alternate exchange of fleetbus.ingest.shards:
                             whatever no robot binding matches goes to shard 0
     fleetbus.ingest.events  quorum queue of ingest shard 0 (single active consumer); shards 1, 2...
@@ -52,7 +51,6 @@ from enum import Enum
 SERVICE_PREFIX = "fleetbus"
 INGEST_EXCHANGE = "fleetbus.ingest"
 INGEST_QUEUE = "fleetbus.ingest.events"
-LANES_EXCHANGE = "fleetbus.ingest.lanes"
 EXPRESS_QUEUE = "fleetbus.ingest.express"
 SHARD_EXCHANGE = "fleetbus.ingest.shards"
 UNASSIGNED_EXCHANGE = "fleetbus.ingest.unassigned"
@@ -95,6 +93,8 @@ class EventType(str, Enum):
 #: The express lane's types: the hazards the wardens wait for, and the localisations that open their
 #: gate. They skip the shards, so none of them waits behind a robot's telemetry, maps or resync.
 EXPRESS_TYPES = (EventType.HAZARD, EventType.LOCALISATION)
+#: The types each robot's shard binding keys name: all but the express lane's.
+SHARD_TYPES = tuple(t for t in EventType if t not in EXPRESS_TYPES)
 
 
 class Topic(str, Enum):
@@ -202,8 +202,18 @@ def express_binding_key(event_type: EventType | str) -> str:
     return f"*.{EventType(event_type).value}"
 
 
-def shard_binding_key(robot: str) -> str:
-    """The binding key that sends every message of ``robot`` (any type, beacons too) to its shard."""
+def shard_binding_keys(robot: str) -> tuple[str, ...]:
+    """The keys that bind ``robot``'s events of every type but the express lane's to its shard.
+
+    One key per type rather than ``<robot>.#``, so that the split into the express lane costs no
+    exchange hop of its own: the shard exchange routes hazards to the express queue and the rest
+    to the robots' shards in one lookup.
+    """
+    return tuple(event_routing_key(robot, t) for t in SHARD_TYPES)
+
+
+def wildcard_shard_key(robot: str) -> str:
+    """How a robot was bound to its shard before the express lane: every type, ``<robot>.#``."""
     return f"{robot}.#"
 
 

@@ -159,7 +159,7 @@ def test_trace_shows_where_a_message_came_from_and_who_received_it(bus: Bus, sce
     assert traced["stored"]["seq"] == detected.seq
     routes = {r["queue"]: r for r in origin["routes"]}
     assert set(routes) == {EXPRESS_QUEUE, RECORDER_QUEUE}, "a hazard takes the express lane"
-    assert routes[EXPRESS_QUEUE]["via"] == ["cli-herb.events", "fleetbus.ingest", "fleetbus.ingest.lanes"]
+    assert routes[EXPRESS_QUEUE]["via"] == ["cli-herb.events", "fleetbus.ingest", "fleetbus.ingest.shards"]
     assert [c["user"] for c in routes[EXPRESS_QUEUE]["consumers"]] == [SERVICE_USER]
     assert [c["user"] for c in routes[RECORDER_QUEUE]["consumers"]] == [RECORDER_USER]
     [note] = traced["caused"]

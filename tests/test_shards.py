@@ -14,14 +14,14 @@ from broker.routes import RouteMap
 from broker.shards import Move, ShardMap, apply_move, read_shard_map, rebalance_plan
 from broker.topology import BindingSpec, Topology, core_topology, declare_with_url
 from schemas.routing import (
+    EXPRESS_QUEUE,
     INGEST_EXCHANGE,
     INGEST_QUEUE,
-    LANES_EXCHANGE,
     SHARD_EXCHANGE,
     RobotKind,
     beacon_headers,
     ingest_shard_queue,
-    shard_binding_key,
+    shard_binding_keys,
 )
 from tests.factories import status
 from tests.support import Bus, assert_stored_once_in_order, wait_for
@@ -56,7 +56,7 @@ def test_a_robot_bound_to_no_shard_goes_to_shard_0_and_trace_shows_the_way(bus: 
     bus.add("robot-a")
     second = bus.robot(bus.add("robot-b"))
     assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (1,)}
-    bus.api.unbind(bus.vhost, SHARD_EXCHANGE, ingest_shard_queue(1), shard_binding_key("robot-b"))
+    bus.api.unbind_keys(bus.vhost, SHARD_EXCHANGE, ingest_shard_queue(1), shard_binding_keys("robot-b"))
     shard_map = read_shard_map(bus.api, bus.vhost, 2)
     assert shard_map.unassigned == ("robot-b",) and shard_map.shard_of("robot-b") == 0
 
@@ -64,15 +64,11 @@ def test_a_robot_bound_to_no_shard_goes_to_shard_0_and_trace_shows_the_way(bus: 
     wait_for(lambda: _queued(bus, 2) == [1, 0], what="the unassigned robot's event in shard 0")
     [route] = RouteMap.from_management(bus.api, bus.vhost).routes("robot-b.events", "robot-b.status")
     assert route.queue == INGEST_QUEUE
-    assert route.via == (
-        "robot-b.events",
-        INGEST_EXCHANGE,
-        LANES_EXCHANGE,
-        SHARD_EXCHANGE,
-        "fleetbus.ingest.unassigned",
-    )
+    assert route.via == ("robot-b.events", INGEST_EXCHANGE, SHARD_EXCHANGE, "fleetbus.ingest.unassigned")
     [bound] = RouteMap.from_management(bus.api, bus.vhost).routes("robot-a.events", "robot-a.status")
-    assert bound.via == ("robot-a.events", INGEST_EXCHANGE, LANES_EXCHANGE, SHARD_EXCHANGE)
+    assert bound.via == ("robot-a.events", INGEST_EXCHANGE, SHARD_EXCHANGE), "no hop more for the lanes"
+    [hazard] = RouteMap.from_management(bus.api, bus.vhost).routes("robot-a.events", "robot-a.hazard")
+    assert (hazard.queue, hazard.via) == (EXPRESS_QUEUE, ("robot-a.events", INGEST_EXCHANGE, SHARD_EXCHANGE))
 
 
 def test_a_beacon_under_another_robots_name_goes_to_that_robots_shard(bus: Bus) -> None:
@@ -146,7 +142,10 @@ def test_a_move_binds_the_new_shard_before_it_unbinds_the_old(bus: Bus) -> None:
     bus.add("robot-a")
     bus.add("robot-b")
     apply_move(bus.api, bus.vhost, Move("robot-b", (1,), 0))
-    assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (0,)}
+    moved = read_shard_map(bus.api, bus.vhost, 2)
+    assert moved.bindings == {"robot-a": (0,), "robot-b": (0,)} and moved.incomplete == ()
+    on_zero = {b["routing_key"] for b in bus.api.exchange_bindings(bus.vhost, SHARD_EXCHANGE)}
+    assert set(shard_binding_keys("robot-b")) <= on_zero, "every key of robot-b's types moved"
 
 
 def _management_count(bus: Bus, shard: int) -> int:
@@ -167,6 +166,7 @@ def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
         (0, 4, None),
         (1, 0, None),
     ]
+    assert (listed["express"]["queue"], listed["express"]["worker"]) == (EXPRESS_QUEUE, None)
     dry = fleetbus(bus, "shards", "rebalance", "--dry-run")
     assert dry.returncode == 0 and "2 moves (dry run: none made)" in dry.stdout
     assert "robot-d: shard 0 -> 1" in dry.stdout
@@ -186,6 +186,8 @@ def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
         wait_for(lambda: bus.count() == 40, what="the events after the move stored")
         table = fleetbus(bus, "shards")
         assert worker.context is not None and worker.context.shards.holder in table.stdout
+        [express] = [line for line in table.stdout.splitlines() if EXPRESS_QUEUE in line]
+        assert worker.context.shards.holder[:20] in express, "the express lane beside shard 0"
         assert "2 ingest shards, 1 live workers" in table.stdout
     for name in robots:
         assert_stored_once_in_order(bus, name, sent[name])

@@ -15,7 +15,7 @@ from aio_pika.abc import AbstractChannel, AbstractRobustConnection
 from broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
-from broker.shards import read_shard_map
+from broker.shards import complete_shard_bindings, read_shard_map
 from broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import (
@@ -102,7 +102,12 @@ async def _first_to_end(tasks: list[asyncio.Task[None]]) -> None:
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         url = ensure_service_account(endpoint.amqp_url, api, settings.accounts_dir)
-        stray = read_shard_map(api, vhost_of(endpoint.amqp_url), settings.ingest_shards).stray()
+        vhost = vhost_of(endpoint.amqp_url)
+        # before the express lane is declared: no robot may have its hazards routed to both
+        mended = complete_shard_bindings(api, vhost, settings.ingest_shards)
+        stray = read_shard_map(api, vhost, settings.ingest_shards).stray()
+    if mended:
+        log.info("robots bound with <robot>.# now bound per type (the express lane): %s", ", ".join(mended))
     if stray:
         log.warning(
             "robots bound to a shard beyond FLEETBUS_INGEST_SHARDS=%d, or to several: %s; "

@@ -13,10 +13,10 @@ from rich.table import Table
 
 from broker.accounts import vhost_of
 from broker.management import ManagementAPI
-from broker.shards import ShardMap, apply_move, read_shard_map, rebalance_plan
+from broker.shards import ShardMap, apply_move, complete_shard_bindings, read_shard_map, rebalance_plan
 from broker.topology import core_topology, declare_with_url
 from fleetbus.context import admin_api, console, endpoint, fail, settings, shorten
-from schemas.routing import ingest_shard_queue
+from schemas.routing import EXPRESS_QUEUE, EXPRESS_TYPES, ingest_shard_queue
 from workers.shards import SHARD_PREFIX, WORKER_PREFIX
 from workers.store import run_with_store
 from workers.store.leases import Lease
@@ -80,6 +80,15 @@ def shards(
     with admin_api(ep) as api:
         shard_map = read_shard_map(api, vhost, config.ingest_shards)
         states = _states(api, vhost, shard_map, leases)
+        ready, unacked = _queue_counts(api, vhost, EXPRESS_QUEUE)
+    # the worker that holds shard 0 consumes the express lane beside it
+    express = {
+        "queue": EXPRESS_QUEUE,
+        "types": [t.value for t in EXPRESS_TYPES],
+        "ready": ready,
+        "unacked": unacked,
+        "worker": next((state.worker for state in states if state.shard == 0), None),
+    }
     now = datetime.now(timezone.utc)
     workers = sorted(
         lease.holder for lease in leases if lease.name.startswith(WORKER_PREFIX) and lease.live(now)
@@ -89,8 +98,10 @@ def shards(
             "shards": config.ingest_shards,
             "workers": workers,
             "states": [state.as_dict() for state in states],
+            "express": express,
             "unassigned": list(shard_map.unassigned),
             "stray": shard_map.stray(),
+            "incomplete": list(shard_map.incomplete),
         }
         console.print_json(json.dumps(document))
         return
@@ -114,11 +125,26 @@ def shards(
             "?" if state.unacked is None else f"{state.unacked:,}",
             state.worker or idle,
         )
+    table.add_section()
+    table.add_row(
+        "express",
+        EXPRESS_QUEUE,
+        "all",
+        f"every robot's {' and '.join(express['types'])}",
+        "?" if ready is None else f"{ready:,}",
+        "?" if unacked is None else f"{unacked:,}",
+        express["worker"] or "[red]no worker[/]",
+    )
     console.print(table)
     if shard_map.unassigned:
         console.print(f"bound to no shard, so in shard 0: {', '.join(shard_map.unassigned)}", highlight=False)
     if shard_map.stray():
         console.print(f"[yellow]to move[/] (`fleetbus shards rebalance`): {', '.join(shard_map.stray())}")
+    if shard_map.incomplete:
+        console.print(
+            "[yellow]not bound per type[/] (the next worker to start mends it): "
+            + ", ".join(shard_map.incomplete)
+        )
 
 
 @app.command("rebalance")
@@ -135,8 +161,10 @@ def rebalance(
     """
     config, ep = settings(), endpoint()
     vhost = vhost_of(ep.amqp_url)
-    asyncio.run(declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards)]))  # every target exists
     with admin_api(ep) as api:
+        # robots bound the way of old first, as a worker does, then every target exists
+        complete_shard_bindings(api, vhost, config.ingest_shards)
+        asyncio.run(declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards)]))
         shard_map = read_shard_map(api, vhost, config.ingest_shards)
         moves = rebalance_plan(shard_map)
         if not moves:
