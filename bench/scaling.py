@@ -51,8 +51,8 @@ from rich.progress import Progress
 from rich.table import Table
 
 from bench.ingest import event_size, status_items
+from bench.proc import cpu_seconds
 from bench.raw import raw_consume, raw_publish
-from bench.recorder import cpu_seconds
 from bench.results import medians, save, spread
 from broker.accounts import Account, Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint, resolve_broker

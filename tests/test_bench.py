@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import io
 import json
 import math
@@ -203,3 +204,11 @@ def test_a_profile_is_summed_up_by_package_per_thread(tmp_path: Path) -> None:
 
 def _machine() -> dict[str, str]:
     return {key: key for key in ("cpu", "memory", "os", "python", "broker", "load")}
+
+
+@pytest.mark.parametrize(
+    "module", sorted(path.stem for path in (PROJECT_ROOT / "bench").glob("*.py") if path.stem != "__main__")
+)
+def test_every_benchmark_module_imports(module: str) -> None:
+    """Modules run only by hand (``python -m bench.scaling``) break silently otherwise."""
+    importlib.import_module(f"bench.{module}")
