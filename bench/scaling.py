@@ -20,7 +20,8 @@ Each run, in a fresh virtual host and data folder:
   takeover         two workers share the shards; one is stopped (SIGTERM), or killed (SIGKILL):
                    seconds until the other holds every shard
 
-Every scenario checks that the store ends with exactly --events events (none lost, none doubled).
+Every scenario checks that the store ends with exactly --events events (none lost, none doubled),
+each robot's stored in the order it published them.
 
 From the benchmark suite: ``bench.scaling.run(events=..., runs=...)`` returns the same results as
 a dict (``runs``, ``medians``, ``spreads``, the options); ``main()`` prints them and writes
@@ -63,6 +64,7 @@ from fleetbus.config import Settings, load_settings
 from publishers.client import RobotClient
 from workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
 from workers.store import Store, open_store
+from workers.store.base import EventQuery, EventRecord
 
 VHOST = "fleetbus-bench-scaling"
 POLL_SECONDS = 0.05
@@ -139,6 +141,21 @@ class Probe:
 
     def stored(self) -> int:
         return self._loop.run_until_complete(self._store.count_events())
+
+    def verify(self, total: int, what: str) -> None:
+        """Exactly ``total`` events stored (the store's robot and sequence key refuses doubles), and
+        each robot's stored in the order it published them."""
+        stored = self.stored()
+        if stored != total:
+            raise AssertionError(f"{what} stored {stored} events, not {total}")
+        records = self._loop.run_until_complete(self._store.find_events(EventQuery()))
+        by_robot: dict[str, list[EventRecord]] = {}
+        for record in records:
+            by_robot.setdefault(record.robot_id, []).append(record)
+        for robot, mine in sorted(by_robot.items()):
+            arrival = [record.received_at for record in sorted(mine, key=lambda record: record.seq)]
+            if arrival != sorted(arrival):
+                raise AssertionError(f"{what}: a later event of {robot} was stored before an earlier one")
 
     def holders(self, prefix: str = SHARD_PREFIX) -> Counter[str]:
         now = datetime.now(timezone.utc)
@@ -314,11 +331,9 @@ def drain(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, worker
                 worker_cpu = sum(cpu_seconds(pid) - cpu[pid] for pid in pids)
                 broker_cpu = cpu_seconds(team.broker_pid) - broker if team.broker_pid else float("nan")
                 wait_until(lambda: probe.stored() >= total, 600, "every event stored", group)
-            stored = probe.stored()
+            probe.verify(total, f"drain with {workers} workers")
         finally:
             probe.close()
-    if stored != total:
-        raise AssertionError(f"drain with {workers} workers stored {stored} events, not {total}")
     return {
         f"drain_{workers}w": (last - first) / window,
         f"drain_{workers}w_worker_cpu": 100 * worker_cpu / window,
@@ -338,11 +353,9 @@ def ingest(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options, worke
                 started = team.publish_all(options.events)
                 wait_until(lambda: probe.stored() >= total, 600, "every event stored", group)
                 elapsed = time.perf_counter() - started
-            stored = probe.stored()
+            probe.verify(total, f"ingest with {workers} workers")
         finally:
             probe.close()
-    if stored != total:
-        raise AssertionError(f"ingest with {workers} workers stored {stored} events, not {total}")
     return {f"ingest_{workers}w": total / elapsed}
 
 

@@ -7,6 +7,7 @@ import io
 import json
 import math
 from collections.abc import Iterator
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,7 @@ from pymongo import MongoClient
 from rich.console import Console
 from rich.progress import Progress
 
-from bench import ingest
+from bench import ingest, scaling
 from bench.profile import PROJECT_ROOT, busiest
 from bench.registry import SCENARIOS, by_name
 from bench.report import Outcome, as_json, markdown, verdicts
@@ -22,6 +23,8 @@ from bench.scenario import Context, Figures, Scenario, Skip, Target
 from bench.suite import main, run, select
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
+from tests.store.test_contract import record
+from tests.support import Bus
 
 RAW = Scenario("raw", "raw", lambda context: {"consume msg/s": 1000.0})
 
@@ -212,3 +215,23 @@ def _machine() -> dict[str, str]:
 def test_every_benchmark_module_imports(module: str) -> None:
     """Modules run only by hand (``python -m bench.scaling``) break silently otherwise."""
     importlib.import_module(f"bench.{module}")
+
+
+def test_the_scaling_probe_refuses_a_count_or_an_order_that_is_off(bus: Bus) -> None:
+    """What ``bench.scaling`` checks after every run: exactly the events published, each robot's
+    stored in the order it published them (a later number never stored before an earlier one)."""
+    t0 = datetime(2026, 11, 24, 8, 0, tzinfo=timezone.utc)
+    in_order = [record("robot1", seq, "status", t0 + timedelta(seconds=seq)) for seq in range(3)]
+    bus.with_store(lambda store: store.write_events(in_order))
+    probe = scaling.Probe(bus.settings)
+    try:
+        probe.verify(3, "in order")
+        with pytest.raises(AssertionError, match="stored 3 events, not 4"):
+            probe.verify(4, "one missing")
+        overtaking = record("robot2", 1, "status", t0)  # stored before robot2's seq 0
+        earlier = record("robot2", 0, "status", t0 + timedelta(seconds=1))  # but arriving after it
+        bus.with_store(lambda store: store.write_events([overtaking, earlier]))
+        with pytest.raises(AssertionError, match="of robot2 was stored before an earlier one"):
+            probe.verify(5, "overtaken")
+    finally:
+        probe.close()
