@@ -1,6 +1,6 @@
 """Ingest with 1, 2 and 4 worker processes on one machine, beside the raw broker rate of the same run.
 
-    .venv/bin/python -m bench.scaling [--events 40000] [--robots 8] [--shards 4] [--workers 1 2 4] [--runs 3]
+    .venv/bin/python -m bench.scaling [--events 80000] [--robots 8] [--shards 4] [--workers 1 2 4] [--runs 3]
 
 Each run, in a fresh virtual host and data folder:
 
@@ -405,7 +405,7 @@ def one_run(
 
 
 def run(
-    events: int = 40_000,
+    events: int = 80_000,
     robots: int = 8,
     shards: int = 4,
     workers: Sequence[int] = (1, 2, 4),
@@ -475,7 +475,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--events", type=int, default=40_000)
+    parser.add_argument("--events", type=int, default=80_000)
     parser.add_argument("--robots", type=int, default=8)
     parser.add_argument("--shards", type=int, default=4)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
