@@ -130,7 +130,7 @@ def shards(
         "express",
         EXPRESS_QUEUE,
         "all",
-        f"every robot's {' and '.join(express['types'])}",
+        ", ".join(express["types"]),
         "?" if ready is None else f"{ready:,}",
         "?" if unacked is None else f"{unacked:,}",
         express["worker"] or "[red]no worker[/]",
