@@ -170,6 +170,8 @@ def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
     dry = fleetbus(bus, "shards", "rebalance", "--dry-run")
     assert dry.returncode == 0 and "2 moves (dry run: none made)" in dry.stdout
     assert "robot-d: shard 0 -> 1" in dry.stdout
+    queues = {queue["name"] for queue in bus.api.list_queues(bus.vhost)}
+    assert ingest_shard_queue(1) not in queues, "a dry run declares nothing"
     wait_for(lambda: _management_count(bus, 0) == 20, what="the management API to count 20 waiting")
     refused = fleetbus(bus, "shards", "rebalance")
     assert refused.returncode == 1 and "shard 0 holds 20" in refused.stderr

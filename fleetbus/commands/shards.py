@@ -162,9 +162,10 @@ def rebalance(
     config, ep = settings(), endpoint()
     vhost = vhost_of(ep.amqp_url)
     with admin_api(ep) as api:
-        # robots bound the way of old first, as a worker does, then every target exists
-        complete_shard_bindings(api, vhost, config.ingest_shards)
-        asyncio.run(declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards)]))
+        if not dry_run:  # a dry run changes nothing on the broker
+            # robots bound the way of old first, as a worker does, then every target exists
+            complete_shard_bindings(api, vhost, config.ingest_shards)
+            asyncio.run(declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards)]))
         shard_map = read_shard_map(api, vhost, config.ingest_shards)
         moves = rebalance_plan(shard_map)
         if not moves:
