@@ -58,11 +58,7 @@ class MongoLedger(SequenceLedger):
         doc = await robots.find_one({"_id": robot_id})
         high_water = doc["high_water"] if doc else None
         legacy = doc is not None and "version" not in doc
-        gaps = (
-            await self._legacy_gaps(robot_id)
-            if legacy
-            else [_gap(robot_id, g) for g in (doc or {}).get("gaps", [])]
-        )
+        gaps = await self._gaps_of(robot_id, doc)
         low, high = min(seqs), max(seqs)
         touched = [
             g for g in gaps if high_water is not None and g.last >= low and g.first <= min(high, high_water)
@@ -89,9 +85,13 @@ class MongoLedger(SequenceLedger):
             await self._collection("sequence_gaps").delete_many({"robot_id": robot_id})
         return True
 
-    async def _legacy_gaps(self, robot_id: str) -> list[Gap]:
-        cursor = self._collection("sequence_gaps").find({"robot_id": robot_id})
-        return [_gap(robot_id, doc) async for doc in cursor]
+    async def _gaps_of(self, robot_id: str, doc: dict[str, Any] | None) -> list[Gap]:
+        """The robot's gaps: in its document, or (a document without a version, from before this
+        layout) one document each in ``sequence_gaps``."""
+        if doc is not None and "version" not in doc:
+            cursor = self._collection("sequence_gaps").find({"robot_id": robot_id})
+            return [_gap(robot_id, gap) async for gap in cursor]
+        return [_gap(robot_id, gap) for gap in (doc or {}).get("gaps", [])]
 
     async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None:
         if duplicates:
@@ -112,10 +112,7 @@ class MongoLedger(SequenceLedger):
     async def gaps(self, robot_id: str | None = None) -> list[Gap]:
         found: list[Gap] = []
         async for doc in self._collection("robot_sequences").find({"_id": robot_id} if robot_id else {}):
-            if "version" in doc:
-                found.extend(_gap(doc["_id"], gap) for gap in doc.get("gaps", []))
-            else:
-                found.extend(await self._legacy_gaps(doc["_id"]))
+            found.extend(await self._gaps_of(doc["_id"], doc))
         return sorted(found, key=lambda gap: (gap.robot_id, gap.first))
 
     async def duplicates(self, robot_id: str | None = None, limit: int | None = None) -> list[Duplicate]:
