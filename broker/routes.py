@@ -16,11 +16,19 @@ from typing import Any
 from broker.management import ManagementAPI
 from broker.topics import topic_matches
 
+UNREPORTED = "user not reported by the broker yet"
+
 
 @dataclass(frozen=True)
 class Consumer:
-    user: str
-    connection: str
+    user: str | None
+    """The consuming connection's login; None while the management API has not reported it (it
+    lists a consumer before its channel's statistics, which can lag by seconds)."""
+    connection: str | None
+
+    @property
+    def label(self) -> str:
+        return self.user if self.user is not None else f"a consumer ({UNREPORTED})"
 
 
 @dataclass(frozen=True)
@@ -72,7 +80,7 @@ class RouteMap:
         for consumer in api.list_consumers(vhost):
             details: dict[str, Any] = consumer.get("channel_details") or {}
             consumers.setdefault(consumer["queue"]["name"], []).append(
-                Consumer(details.get("user", "?"), details.get("connection_name", "?"))
+                Consumer(details.get("user"), details.get("connection_name"))
             )
         return cls(exchanges, bindings, consumers, alternates)
 

@@ -11,7 +11,9 @@ from typing import Any
 import pytest
 
 from broker.accounts import RECORDER_USER, SERVICE_USER
-from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
+from broker.routes import Consumer, RouteMap
+from fleetbus.commands.trace import _consumers
+from schemas.routing import EXPRESS_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 from tests.test_cli import fleetbus
@@ -140,11 +142,16 @@ def test_a_robots_timeline_merges_every_type_in_order(bus: Bus, scene: dict[str,
 def test_trace_shows_where_a_message_came_from_and_who_received_it(bus: Bus, scene: dict[str, Any]) -> None:
     detected = scene["hazard"]
 
-    def consuming() -> bool:
-        listed = {consumer["queue"]["name"] for consumer in bus.api.list_consumers(bus.vhost)}
-        return listed >= {INGEST_QUEUE, RECORDER_QUEUE}
+    def consumers_reported() -> bool:
+        """The management API lists a consumer before its channel's details (its user), seconds apart."""
+        reported = {
+            consumer["queue"]["name"]
+            for consumer in bus.api.list_consumers(bus.vhost)
+            if (consumer.get("channel_details") or {}).get("user")
+        }
+        return reported >= {EXPRESS_QUEUE, RECORDER_QUEUE}
 
-    wait_for(consuming, what="the management API to list the consumers (its statistics lag seconds)")
+    wait_for(consumers_reported, what="the management API to report the consumers' users")
     result = fleetbus(bus, "trace", str(detected.message_id), "--json")
     table = fleetbus(bus, "trace", str(detected.message_id))
     assert result.returncode == 0 and "no broker" not in result.stderr, result.stderr
@@ -188,3 +195,29 @@ def test_performance_evaluation_per_behaviour(bus: Bus, scene: dict[str, Any], t
     assert only_herb == []
     table = fleetbus(bus, "evaluate")
     assert "25.0%" in table.stdout and "9.750" in table.stdout
+
+
+def test_trace_says_plainly_when_the_broker_has_not_reported_a_consumers_user() -> None:
+    """The management API lists a consumer seconds before its channel's details: no bare '?'."""
+    listed = {"channel_details": [], "queue": {"name": RECORDER_QUEUE}}
+    reported = {
+        "channel_details": {"user": RECORDER_USER, "connection_name": "c1"},
+        "queue": {"name": RECORDER_QUEUE},
+    }
+
+    class Listing:
+        def list_exchanges(self, vhost: str) -> list[dict[str, Any]]:
+            return [{"name": "fleetbus.ingest", "type": "topic"}]
+
+        def list_bindings(self, vhost: str) -> list[dict[str, Any]]:
+            binding = {"source": "fleetbus.ingest", "destination": RECORDER_QUEUE}
+            return [{**binding, "destination_type": "queue", "routing_key": "#"}]
+
+        def __init__(self, consumers: list[dict[str, Any]]) -> None:
+            self.list_consumers = lambda vhost: consumers
+
+    [route] = RouteMap.from_management(Listing([listed]), "/").routes("fleetbus.ingest", "r.hazard")  # type: ignore[arg-type]
+    assert route.consumers == (Consumer(None, None),)
+    assert _consumers(route) == "a consumer (user not reported by the broker yet)"
+    [route] = RouteMap.from_management(Listing([reported]), "/").routes("fleetbus.ingest", "r.hazard")  # type: ignore[arg-type]
+    assert _consumers(route) == RECORDER_USER

@@ -13,7 +13,7 @@ from datetime import datetime, timedelta, timezone
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Query
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 from api.auth import ServiceDep, require_role
 from schemas.identity import validate_name
@@ -92,7 +92,10 @@ class TimelineOut(BaseModel):
 class RouteOut(BaseModel):
     queue: str
     via: list[str]
-    consumers: list[str]
+    consumers: list[str] = Field(description="the consuming accounts the broker has reported")
+    consumers_unreported: int = Field(
+        0, description="consumers whose account the broker's statistics have not reported yet (seconds)"
+    )
 
 
 class TracedOut(BaseModel):
@@ -216,7 +219,12 @@ async def trace_message(message_id: str, user: Analyst, svc: ServiceDep) -> Trac
 
     def traced(record: RecordedMessage) -> TracedOut:
         routes = [
-            RouteOut(queue=r.queue, via=list(r.via), consumers=sorted({c.user for c in r.consumers}))
+            RouteOut(
+                queue=r.queue,
+                via=list(r.via),
+                consumers=sorted({c.user for c in r.consumers if c.user is not None}),
+                consumers_unreported=sum(c.user is None for c in r.consumers),
+            )
             for r in result.routes.get(record.key, [])
         ]
         return TracedOut(record=RecordOut.of(record), routes=routes)

@@ -19,7 +19,7 @@ from workers.store.recordings import RecordedMessage, RecordingStore
 
 def _consumers(route: Route) -> str:
     """The consuming accounts (``--json`` also gives their connections)."""
-    return ", ".join(sorted({c.user for c in route.consumers})) or "none now"
+    return ", ".join(sorted({c.label for c in route.consumers})) or "none now"
 
 
 def _outcome(result: Trace, record: RecordedMessage, route: Route) -> str:
