@@ -53,7 +53,7 @@ class GaveUp(Exception):
         self.waited = waited
         self.attempts = attempts
         self.error = error
-        super().__init__(f"{what} did not succeed in {waited:.0f} s ({attempts} attempts; last: {error})")
+        super().__init__(f"{what} did not succeed in {waited:.1f} s ({attempts} attempts; last: {error})")
 
 
 class Stopped(Exception):
