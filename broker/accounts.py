@@ -151,14 +151,24 @@ def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, na
     the old secret. Processes starting at once (several workers) take turns: the first re-keys,
     the others read what it saved, so none is left holding a password that was just replaced.
     """
-    secret_file = credentials_dir / f"{name}.password"
     with _exclusive(credentials_dir / f".{name}.lock"):
-        password = secret_file.read_text().strip() if secret_file.exists() else None
+        password = kept_password(credentials_dir, name)
         if password is None or not can_login(url_for(admin_url, name, password)):
             password = secrets.token_urlsafe(24)
             api.put_user(name, password, ROLE_TAGS[role])
-            save_secret(secret_file, password)
+            save_secret(kept_password_file(credentials_dir, name), password)
     return url_for(admin_url, name, password)
+
+
+def kept_password_file(credentials_dir: Path, name: str) -> Path:
+    """Where ``fleetbus setup`` keeps a service account's password (mode 0600)."""
+    return credentials_dir / f"{name}.password"
+
+
+def kept_password(credentials_dir: Path, name: str) -> str | None:
+    """The password ``fleetbus setup`` kept for a service account; None when there is none."""
+    path = kept_password_file(credentials_dir, name)
+    return path.read_text().strip() if path.exists() else None
 
 
 @contextlib.contextmanager
