@@ -221,6 +221,21 @@ def save_secret(path: Path, secret: str) -> None:
         handle.write(secret + "\n")
 
 
+def save_secret_once(path: Path, secret: str) -> None:
+    """Write ``path`` (mode 0600) unless it exists; never a half-written file. Processes racing
+    to make it all keep the first: each writes a file of its own whole, then links it into
+    place, which fails for all but one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    draft = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+    save_secret(draft, secret)
+    try:
+        os.link(draft, path)
+    except FileExistsError:
+        pass  # another process was first: its secret is the one
+    finally:
+        draft.unlink()
+
+
 def delete_account(admin_url: str, api: ManagementAPI, name: str) -> None:
     """Remove the account and its ingest shard binding; its exchange and inbox stay."""
     validate_name(name)
