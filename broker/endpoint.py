@@ -143,7 +143,7 @@ def external_endpoint(settings: Settings) -> BrokerEndpoint | None:
 
 def service_account_url(settings: Settings, account: str = SERVICE_USER, start: bool = True) -> str:
     """The URL a service process (the worker as ``fleetbus``, the recorder as ``fleetbus-recorder``)
-    logs in with, once that login works. It never holds the administrator's credentials.
+    logs in with, once that login works. It logs in as no other account.
 
     The broker is ``FLEETBUS_SERVICE_URL``'s, else ``FLEETBUS_AMQP_URL``'s, else the one the
     fallback chain finds (or starts, with ``start``). The password is ``FLEETBUS_SERVICE_URL``'s
@@ -164,7 +164,7 @@ def service_account_url(settings: Settings, account: str = SERVICE_USER, start: 
     url = url_for(base, account, password)
     wait_for_login(
         url,
-        f"the broker, as {account},",
+        f"the broker as {account}",
         settings.broker_wait_s,
         refused_hint=": run `fleetbus setup` with the administrator's credentials (it makes the account)",
     )
