@@ -1,4 +1,4 @@
-# The fleetbus image (compose.yaml's `worker` and `api` services).
+# The fleetbus image (compose.yaml's `setup`, `worker` and `api` services).
 FROM python:3.12-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -10,8 +10,8 @@ WORKDIR /app
 COPY . .
 RUN pip install . \
     && useradd --system --create-home --uid 10001 fleetbus \
-    && mkdir -p /data \
-    && chown fleetbus /data
+    && mkdir -p /data/accounts \
+    && chown -R fleetbus /data
 
 USER fleetbus
 # service credentials and local state (a named volume in compose.yaml)

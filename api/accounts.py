@@ -110,7 +110,7 @@ class Accounts:
         user = User(
             name=name,
             role=role,
-            password_hash=self._secrets.passwords.hash(password) if password is not None else None,
+            password_hash=await self._secrets.passwords.hash(password) if password is not None else None,
             broker_secret=self._secrets.box.seal(broker_password),
             kind=kind.value if kind else None,
             created_at=now,
@@ -152,7 +152,7 @@ class Accounts:
             raise BadRequest(problem)
         await self.get(name)
         return await self._store.update_user(
-            name, datetime.now(timezone.utc), password_hash=self._secrets.passwords.hash(password)
+            name, datetime.now(timezone.utc), password_hash=await self._secrets.passwords.hash(password)
         )
 
     async def remove(self, name: str, by: str) -> None:
@@ -167,7 +167,10 @@ class Accounts:
 
     async def login(self, name: str, password: str) -> Login:
         user = await self._store.get_user(name)
-        if not self._secrets.passwords.verify(user.password_hash if user else None, password) or user is None:
+        if (
+            not await self._secrets.passwords.verify(user.password_hash if user else None, password)
+            or user is None
+        ):
             raise WrongCredentials("wrong user name or password")
         if user.role is UserRole.INACTIVE:
             raise Forbidden(f"user {name} is inactive: an admin must give it a role first")

@@ -1,4 +1,4 @@
-"""The refusals log: every 401 and 403 the service answers, and why, on ``fleetbus.api.security``."""
+"""The refusals log: every 401, 403 and 429 the service answers, and why, on ``fleetbus.api.security``."""
 
 from __future__ import annotations
 
@@ -9,9 +9,13 @@ from fastapi import Request
 log = logging.getLogger("fleetbus.api.security")
 
 
+def client_address(request: Request) -> str:
+    """The caller's address (uvicorn takes it from X-Forwarded-For only behind a trusted proxy)."""
+    return request.client.host if request.client else "?"
+
+
 def where(request: Request) -> str:
-    client = request.client.host if request.client else "?"
-    return f"{request.method} {request.url.path} from {client}"
+    return f"{request.method} {request.url.path} from {client_address(request)}"
 
 
 def refused(request: Request, status: int, who: str, why: str) -> None:

@@ -1,6 +1,7 @@
 """Passwords, tokens and the one stored secret, each with a well-kept library.
 
-- Passwords: argon2id (argon2-cffi), salted; only the hash is stored.
+- Passwords: argon2id (argon2-cffi), salted; only the hash is stored. Hashing and checking run
+  on threads of their own, a bounded number at once, never on the event loop.
 - Tokens: JWT (PyJWT, HS256) with ``sub``, ``iat`` and ``exp``; an expired, tampered or foreign
   token is refused. The caller's role is read from the store on every request, never trusted
   from the token, so a role change or removal takes effect at once.
@@ -10,8 +11,10 @@
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import secrets
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
@@ -22,7 +25,7 @@ from cryptography.fernet import Fernet, InvalidToken
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
-from broker.accounts import save_secret
+from broker.accounts import save_secret_once
 from fleetbus.config import Settings
 
 TOKEN_ALGORITHM = "HS256"
@@ -31,12 +34,13 @@ MIN_PASSWORD_LENGTH = 10
 
 
 def master_secret(settings: Settings) -> bytes:
-    """``FLEETBUS_API_SECRET``, else a random secret kept in ``data_dir/api/secret`` (mode 0600)."""
+    """``FLEETBUS_API_SECRET``, else a random secret kept in ``data_dir/api/secret`` (mode 0600).
+    API processes starting at once all end with the first one written (see :func:`save_secret_once`)."""
     if settings.api_secret:
         return settings.api_secret.encode()
     path = settings.api_dir / "secret"
     if not path.exists():
-        save_secret(path, secrets.token_urlsafe(48))
+        save_secret_once(path, secrets.token_urlsafe(48))
     return path.read_text().strip().encode()
 
 
@@ -46,19 +50,32 @@ def derive_key(secret: bytes, purpose: str) -> bytes:
 
 
 class Passwords:
-    def __init__(self) -> None:
+    """argon2id, computed on ``concurrency`` threads of its own. A hash costs tens of milliseconds
+    of CPU (argon2 releases the GIL): on the event loop, a burst of logins would hold up every
+    other request; on unbounded threads, it would take every core."""
+
+    def __init__(self, concurrency: int = 1) -> None:
         self._hasher = PasswordHasher()
+        self._threads = ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="fleetbus-argon2")
         # verifying against this when the user does not exist takes as long as a real check
         self._dummy = self._hasher.hash(secrets.token_urlsafe(16))
 
-    def hash(self, password: str) -> str:
-        return self._hasher.hash(password)
+    async def hash(self, password: str) -> str:
+        return await asyncio.get_running_loop().run_in_executor(self._threads, self._hasher.hash, password)
 
-    def verify(self, password_hash: str | None, password: str) -> bool:
+    async def verify(self, password_hash: str | None, password: str) -> bool:
+        return await asyncio.get_running_loop().run_in_executor(
+            self._threads, self._verify, password_hash, password
+        )
+
+    def _verify(self, password_hash: str | None, password: str) -> bool:
         try:
             return self._hasher.verify(password_hash or self._dummy, password) and password_hash is not None
         except (VerificationError, InvalidHashError):
             return False
+
+    def close(self) -> None:
+        self._threads.shutdown(wait=False, cancel_futures=True)
 
 
 def password_problem(password: str) -> str | None:
@@ -144,7 +161,7 @@ class Secrets:
     def for_settings(cls, settings: Settings) -> Secrets:
         secret = master_secret(settings)
         return cls(
-            Passwords(),
+            Passwords(settings.api_hash_threads),
             Tokens(derive_key(secret, "fleetbus api tokens"), timedelta(minutes=settings.token_minutes)),
             SecretBox(derive_key(secret, "fleetbus broker passwords")),
         )

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 from api.accounts import Accounts
 from api.channels import Channels
+from api.login_limits import LoginLimits
 from api.missions import Missions
 from api.security import Secrets
 from broker.accounts import vhost_of
@@ -31,6 +32,7 @@ class Service:
     recording: RecordingStore
     management: ManagementAPI
     vhost: str
+    login_limits: LoginLimits
 
     async def route_map(self) -> RouteMap:
         """The broker's exchanges, bindings and consumers now (the management API, off the loop)."""
@@ -58,8 +60,10 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
             recording=recording,
             management=management,
             vhost=vhost_of(admin_url),
+            login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
         )
     finally:
+        secrets_.passwords.close()
         management.close()
         await recording.close()
         await store.close()

@@ -96,7 +96,7 @@ class FleetbusProcess:
 def worker_process(bus: Bus, *args: str) -> FleetbusProcess:
     """`fleetbus worker ARGS` on the bus's virtual host and store, consuming the ingest queue."""
     log = bus.settings.data_dir / "worker.log"
-    return FleetbusProcess(["worker", *args], bus.worker_env(), log, bus.admin_url, INGEST_QUEUE)
+    return FleetbusProcess(["worker", *args], bus.service_env(), log, bus.admin_url, INGEST_QUEUE)
 
 
 def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.Popen[str]:

@@ -43,10 +43,12 @@ from broker.accounts import Account, Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
+from broker.urls import without_password
 from fleetbus.config import Settings, load_settings
 from publishers.confirms import Outgoing, PipelinedConfirms
 from schemas.routing import RECORDER_QUEUE, events_exchange
 from tests.support import wait_for
+from workers.setup import set_up_service
 from workers.store.sqlite_recordings import SQLiteRecordingStore
 
 VHOST = "fleetbus-bench-recorder"
@@ -111,14 +113,16 @@ def recorded(settings: Settings) -> int:
 
 
 def recorder_process(settings: Settings, endpoint: BrokerEndpoint, admin_url: str) -> FleetbusProcess:
-    """``python -m fleetbus recorder run`` against the run's vhost and data folder."""
+    """``python -m fleetbus recorder run`` against the run's vhost and data folder, as
+    ``fleetbus-recorder`` alone (``fleetbus setup`` first, as the administrator)."""
+    service = asyncio.run(set_up_service(settings, replace(endpoint, amqp_url=admin_url)))
     env = {
         **os.environ,
-        "FLEETBUS_AMQP_URL": admin_url,
-        "FLEETBUS_MANAGEMENT_URL": endpoint.management_url,
+        "FLEETBUS_SERVICE_URL": without_password(service.service_url),
         "FLEETBUS_DATA_DIR": str(settings.data_dir),
     }
-    env.pop("FLEETBUS_MONGODB_URL", None)
+    for unused in ("FLEETBUS_AMQP_URL", "FLEETBUS_MANAGEMENT_URL", "FLEETBUS_MONGODB_URL"):
+        env.pop(unused, None)
     log = settings.data_dir / "recorder.log"
     return FleetbusProcess(["recorder", "run"], env, log, admin_url, RECORDER_QUEUE)
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bench import hazard_latency, ingest, map_transfer, outbox, raw, recorder, worker_memory
+from bench import api_logins, hazard_latency, ingest, map_transfer, outbox, raw, recorder, worker_memory
 from bench.scenario import Scenario, Target
 
 #: Ingest against the raw broker's consume rate of the same run.
@@ -46,6 +46,12 @@ SCENARIOS: tuple[Scenario, ...] = (
             Target("recorder CPU %", 10, at_most=True, unit=" %"),
             Target("recorder RSS MB, peak", 80, at_most=True, unit=" MB"),
         ),
+    ),
+    Scenario(
+        "api-logins",
+        f"`fleetbus api`: GET /users/me while {api_logins.LOGINS} clients log in at once",
+        api_logins.figures,
+        (Target(f"GET p99 ms, {api_logins.LOGINS} logging in", 50, at_most=True, unit=" ms"),),
     ),
     Scenario(
         "memory",

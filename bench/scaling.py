@@ -60,8 +60,10 @@ from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
+from broker.urls import without_password
 from fleetbus.config import Settings, load_settings
 from publishers.client import RobotClient
+from workers.setup import set_up_service
 from workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
 from workers.store import Store, open_store
 from workers.store.base import EventQuery, EventRecord
@@ -184,13 +186,14 @@ class Fleet:
     settings: Settings
     accounts: list[Account]
     broker_pid: int | None
+    service_url: str
+    """The workers' account (``fleetbus setup`` made it; its password is kept in the data folder)."""
 
     def env(self) -> dict[str, str]:
+        """A worker's environment: the service account alone, no administrator."""
         env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
-        assert self.settings.amqp_url and self.settings.management_url
         env.update(
-            FLEETBUS_AMQP_URL=self.settings.amqp_url,
-            FLEETBUS_MANAGEMENT_URL=self.settings.management_url,
+            FLEETBUS_SERVICE_URL=without_password(self.service_url),
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
             FLEETBUS_INGEST_SHARDS=str(self.settings.ingest_shards),
         )
@@ -239,8 +242,9 @@ def fleet(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options) -> Ite
             for n in range(options.robots)
         ]
         broker_pid = LocalNode(load_settings().broker_dir).pid() if endpoint.kind == "private" else None
+        service = asyncio.run(set_up_service(settings, replace(endpoint, amqp_url=admin_url)))
         try:
-            yield Fleet(settings, accounts, broker_pid)
+            yield Fleet(settings, accounts, broker_pid, service.service_url)
         finally:
             for account in accounts:
                 api.delete_user(account.name)

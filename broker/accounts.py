@@ -151,14 +151,24 @@ def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, na
     the old secret. Processes starting at once (several workers) take turns: the first re-keys,
     the others read what it saved, so none is left holding a password that was just replaced.
     """
-    secret_file = credentials_dir / f"{name}.password"
     with _exclusive(credentials_dir / f".{name}.lock"):
-        password = secret_file.read_text().strip() if secret_file.exists() else None
+        password = kept_password(credentials_dir, name)
         if password is None or not can_login(url_for(admin_url, name, password)):
             password = secrets.token_urlsafe(24)
             api.put_user(name, password, ROLE_TAGS[role])
-            save_secret(secret_file, password)
+            save_secret(kept_password_file(credentials_dir, name), password)
     return url_for(admin_url, name, password)
+
+
+def kept_password_file(credentials_dir: Path, name: str) -> Path:
+    """Where ``fleetbus setup`` keeps a service account's password (mode 0600)."""
+    return credentials_dir / f"{name}.password"
+
+
+def kept_password(credentials_dir: Path, name: str) -> str | None:
+    """The password ``fleetbus setup`` kept for a service account; None when there is none."""
+    path = kept_password_file(credentials_dir, name)
+    return path.read_text().strip() if path.exists() else None
 
 
 @contextlib.contextmanager
@@ -209,6 +219,21 @@ def save_secret(path: Path, secret: str) -> None:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as handle:
         handle.write(secret + "\n")
+
+
+def save_secret_once(path: Path, secret: str) -> None:
+    """Write ``path`` (mode 0600) unless it exists; never a half-written file. Processes racing
+    to make it all keep the first: each writes a file of its own whole, then links it into
+    place, which fails for all but one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    draft = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+    save_secret(draft, secret)
+    try:
+        os.link(draft, path)
+    except FileExistsError:
+        pass  # another process was first: its secret is the one
+    finally:
+        draft.unlink()
 
 
 def delete_account(admin_url: str, api: ManagementAPI, name: str) -> None:

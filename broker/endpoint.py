@@ -1,12 +1,16 @@
 """Which RabbitMQ fleetbus talks to, decided in one place.
 
-In order:
+A broker that is configured is the only one used: ``FLEETBUS_AMQP_URL`` (``settings.amqp_url``),
+or for the worker and the recorder ``FLEETBUS_SERVICE_URL``. When it does not answer, the command
+waits with backoff for ``FLEETBUS_BROKER_WAIT_S`` and then fails; it never starts or picks
+another broker, which would split the fleet between two (robots on one, workers on the other).
 
-1. ``FLEETBUS_AMQP_URL`` (``settings.amqp_url``) when an AMQP login with it works;
-2. else, when a Docker engine answers, the ``rabbitmq`` service of ``compose.yaml``
+Only when nothing is configured does fleetbus look, in order, for
+
+1. the ``rabbitmq`` service of ``compose.yaml``, when a Docker engine answers
    (``docker compose up -d rabbitmq``; administrator ``fleetbus-admin`` with the password in
    ``FLEETBUS_BROKER_PASSWORD``, generated and kept in the data folder when unset);
-3. else the private node of :mod:`broker.local_node` under ``settings.broker_dir``.
+2. else the private node of :mod:`broker.local_node` under ``settings.broker_dir``.
 """
 
 from __future__ import annotations
@@ -22,16 +26,21 @@ from pathlib import Path
 from typing import Literal
 from urllib.parse import quote, unquote, urlsplit
 
+from broker.accounts import SERVICE_USER, kept_password, url_for
 from broker.local_node import (
     ADMIN_USER,
     RABBITMQ_SERVER,
     SETUP_HINT,
     LocalNode,
     LocalNodeError,
+    NoAnswer,
     amqp_login,
+    check_amqp_login,
     management_answers,
     write_private_file,
 )
+from broker.retry import Backoff, GaveUp, retrying
+from broker.urls import mask_password
 from fleetbus.config import Settings
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -41,6 +50,8 @@ DOCKER_AMQP_PORT = 5672
 DOCKER_MANAGEMENT_PORT = 15672
 PASSWORD_VARIABLE = "FLEETBUS_BROKER_PASSWORD"
 PROBE_TIMEOUT = 4.0
+#: Waiting for a configured broker: first retry after half a second, then at most every 5 s.
+BROKER_BACKOFF = Backoff(initial=0.5, maximum=5.0, jitter=0.5)
 
 log = logging.getLogger("fleetbus.broker")
 
@@ -76,21 +87,88 @@ def _credentials(amqp_url: str) -> tuple[str, str]:
     return unquote(parts.username or ""), unquote(parts.password or "")
 
 
-def external_endpoint(settings: Settings) -> BrokerEndpoint | None:
-    """The broker of ``FLEETBUS_AMQP_URL`` when it accepts the login, None when nothing answers.
+def wait_for_login(url: str, what: str, wait_s: float, refused_hint: str = "") -> None:
+    """Return once an AMQP login at ``url`` works. Nothing answering is retried with backoff for
+    ``wait_s`` seconds, each retry logged with the URL (password masked); then, or at once when
+    the broker refuses the credentials, :class:`BrokerUnavailable` says so."""
+    shown = f"{what} ({mask_password(url)})"
+    deadline = time.monotonic() + wait_s
 
-    A broker that answers but refuses the credentials is an error, not a reason to fall back.
+    def login() -> bool:
+        timeout = min(PROBE_TIMEOUT, max(0.5, deadline - time.monotonic()))
+        return check_amqp_login(url, timeout=timeout)
+
+    try:
+        accepted = retrying(shown, on=NoAnswer, deadline=wait_s, backoff=BROKER_BACKOFF, logger=log)(login)
+    except GaveUp as error:
+        raise BrokerUnavailable(
+            f"{shown} did not answer in {error.waited:.0f} s ({error.error}). A configured broker is "
+            f"never replaced by another one: check that it runs and can be reached, or wait longer "
+            f"with FLEETBUS_BROKER_WAIT_S (now {wait_s:g})"
+        ) from None
+    if not accepted:
+        raise BrokerUnavailable(f"{shown} refused its credentials{refused_hint}")
+
+
+def configured_broker(settings: Settings) -> str | None:
+    """The setting that names the broker (``FLEETBUS_AMQP_URL`` ...), None when nothing does."""
+    for name, value in (
+        ("FLEETBUS_AMQP_URL", settings.amqp_url),
+        ("FLEETBUS_SERVICE_URL", settings.service_url),
+        ("FLEETBUS_MANAGEMENT_URL", settings.management_url),
+    ):
+        if value:
+            return name
+    return None
+
+
+def external_endpoint(settings: Settings) -> BrokerEndpoint | None:
+    """The configured broker, once its administrator's login works; None when none is configured.
+
+    A configured broker that does not answer within ``FLEETBUS_BROKER_WAIT_S``, or refuses the
+    credentials, is an error: never a reason to use another broker.
     """
+    configured = configured_broker(settings)
+    if configured is None:
+        return None
     if not settings.amqp_url:
-        return None
-    login = amqp_login(settings.amqp_url, timeout=PROBE_TIMEOUT)
-    if login is False:
-        raise BrokerUnavailable("the broker of FLEETBUS_AMQP_URL refused its credentials")
-    if login is None:
-        log.info("FLEETBUS_AMQP_URL does not answer; looking for another broker")
-        return None
+        raise BrokerUnavailable(
+            f"{configured} is set but FLEETBUS_AMQP_URL is not: this command needs the broker's "
+            "administrator URL in FLEETBUS_AMQP_URL (another broker is not looked for when one is configured)"
+        )
+    wait_for_login(settings.amqp_url, "the broker of FLEETBUS_AMQP_URL", settings.broker_wait_s)
     management_url = settings.management_url or derive_management_url(settings.amqp_url)
     return BrokerEndpoint(settings.amqp_url, management_url, "external")
+
+
+def service_account_url(settings: Settings, account: str = SERVICE_USER, start: bool = True) -> str:
+    """The URL a service process (the worker as ``fleetbus``, the recorder as ``fleetbus-recorder``)
+    logs in with, once that login works. It logs in as no other account.
+
+    The broker is ``FLEETBUS_SERVICE_URL``'s, else ``FLEETBUS_AMQP_URL``'s, else the one the
+    fallback chain finds (or starts, with ``start``). The password is ``FLEETBUS_SERVICE_URL``'s
+    for ``fleetbus`` when it has one, else the one ``fleetbus setup`` kept in the data folder.
+    """
+    base = settings.service_url or settings.amqp_url
+    if base is None:
+        base = resolve_broker(settings, start=start).amqp_url
+    given = urlsplit(settings.service_url).password if settings.service_url else None
+    password = (
+        unquote(given) if given and account == SERVICE_USER else kept_password(settings.accounts_dir, account)
+    )
+    if password is None:
+        raise BrokerUnavailable(
+            f"no password for the {account} account: run `fleetbus setup` with the administrator's "
+            f"credentials once (it keeps it in {settings.accounts_dir}), or put it in FLEETBUS_SERVICE_URL"
+        )
+    url = url_for(base, account, password)
+    wait_for_login(
+        url,
+        f"the broker as {account}",
+        settings.broker_wait_s,
+        refused_hint=": run `fleetbus setup` with the administrator's credentials (it makes the account)",
+    )
+    return url
 
 
 # --------------------------------------------------------------------------- Docker
@@ -190,7 +268,7 @@ def compose_up(settings: Settings, timeout: float = 180.0) -> BrokerEndpoint:
 def private_endpoint(settings: Settings, start: bool = True) -> BrokerEndpoint:
     if not RABBITMQ_SERVER.exists():
         raise BrokerUnavailable(
-            f"no broker: FLEETBUS_AMQP_URL is unset or does not answer, no Docker engine answers, "
+            f"no broker: FLEETBUS_AMQP_URL is unset, no Docker engine answers, "
             f"and RabbitMQ is not installed ({RABBITMQ_SERVER} is missing): {SETUP_HINT}"
         )
     node = LocalNode(settings.broker_dir)
@@ -205,8 +283,8 @@ def private_endpoint(settings: Settings, start: bool = True) -> BrokerEndpoint:
 
 
 def resolve_broker(settings: Settings, start: bool = True) -> BrokerEndpoint:
-    """The broker to use (see the module docstring); with ``start=False`` nothing is started and
-    a broker that does not run is an error."""
+    """The broker to use, as administrator (see the module docstring); with ``start=False``
+    nothing is started and a broker that does not run is an error."""
     endpoint = external_endpoint(settings)
     if endpoint is not None:
         return endpoint

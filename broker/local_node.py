@@ -271,9 +271,23 @@ def _quiet_pika() -> Iterator[None]:
         logger.setLevel(level)
 
 
-def amqp_login(url: str, timeout: float = 3.0) -> bool | None:
-    """Try an AMQP login: True when it works, False when the credentials are refused, None when
-    nothing usable answers (connection refused, timeout, broker still starting)."""
+class NoAnswer(Exception):
+    """Nothing usable answers at an AMQP URL (refused, timed out, still starting); the message says what."""
+
+
+def _reason(error: BaseException) -> str:
+    """The innermost cause of a failed connection (pika wraps it in one or two exceptions)."""
+    while True:
+        inner = getattr(error, "exception", None) or (error.args[-1] if error.args else None)
+        if not isinstance(inner, BaseException):
+            break
+        error = inner
+    return f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+
+
+def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
+    """Try an AMQP login: True when it works, False when the credentials are refused; raise
+    :class:`NoAnswer` when nothing usable answers (connection refused, timeout, broker starting)."""
     import pika
     import pika.exceptions
 
@@ -290,9 +304,17 @@ def amqp_login(url: str, timeout: float = 3.0) -> bool | None:
             return False
         except pika.exceptions.ProbableAccessDeniedError:
             return True  # the login worked; only the virtual host is refused
-        except (pika.exceptions.AMQPError, OSError):
-            return None
+        except (pika.exceptions.AMQPError, OSError) as error:
+            raise NoAnswer(_reason(error)) from None
     return True
+
+
+def amqp_login(url: str, timeout: float = 3.0) -> bool | None:
+    """:func:`check_amqp_login`, with None when nothing usable answers."""
+    try:
+        return check_amqp_login(url, timeout)
+    except NoAnswer:
+        return None
 
 
 def management_answers(management_url: str, username: str, password: str, timeout: float = 3.0) -> bool:

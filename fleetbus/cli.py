@@ -18,6 +18,7 @@ from fleetbus.commands import (
     recorder,
     replay,
     schemas_export,
+    setup,
     shards,
     stats,
     tail,
@@ -41,6 +42,7 @@ app.add_typer(recorder.app, name="recorder")
 app.add_typer(api.app, name="api")
 app.add_typer(shards.app, name="shards")
 app.command("worker")(worker.worker)
+app.command("setup")(setup.setup)
 app.command("publish")(events.publish)
 app.command("query")(events.query)
 app.command("dlq")(dlq.dlq)

@@ -7,6 +7,7 @@ says which variable means what.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +18,10 @@ DEFAULT_RECORDER_KEEP = "*=1GB"
 DEFAULT_TOKEN_MINUTES = 60.0
 DEFAULT_LATE_AFTER_S = 5.0
 DEFAULT_INGEST_SHARDS = 1
+DEFAULT_BROKER_WAIT_S = 60.0
+DEFAULT_API_HASH_THREADS = 1
+DEFAULT_API_ACCOUNT_FAILURES = "5 per 5 minutes"
+DEFAULT_API_ADDRESS_FAILURES = "20 per 5 minutes"
 MAX_INGEST_SHARDS = 64
 
 
@@ -54,6 +59,17 @@ class Settings:
     """A notification that reaches its robots this long after the event was sent is flagged late."""
     ingest_shards: int = DEFAULT_INGEST_SHARDS
     """Ingest shard queues; each robot's events go through one, and the workers share them."""
+    service_url: str | None = None
+    """Where the worker and the recorder log in, as the ``fleetbus`` service account (the password,
+    when the URL has none, is the one ``fleetbus setup`` keeps in ``accounts_dir``)."""
+    broker_wait_s: float = DEFAULT_BROKER_WAIT_S
+    """How long a command waits, with backoff, for a configured broker that does not answer."""
+    api_hash_threads: int = DEFAULT_API_HASH_THREADS
+    """Password hashes the API computes at once (each on a thread, off the event loop)."""
+    api_account_failures: str = DEFAULT_API_ACCOUNT_FAILURES
+    """Failed logins to one account from one address before it gets 429 (``limits`` notation)."""
+    api_address_failures: str = DEFAULT_API_ADDRESS_FAILURES
+    """Failed logins from one address, to any account, before it gets 429."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -81,7 +97,7 @@ class Settings:
         return self.data_dir / "api"
 
 
-def load_settings(environ: dict[str, str] | None = None) -> Settings:
+def load_settings(environ: Mapping[str, str] | None = None) -> Settings:
     env = os.environ if environ is None else environ
     return Settings(
         data_dir=Path(env.get("FLEETBUS_DATA_DIR") or DEFAULT_DATA_DIR).resolve(),
@@ -97,7 +113,39 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         token_minutes=float(env.get("FLEETBUS_API_TOKEN_MINUTES") or DEFAULT_TOKEN_MINUTES),
         late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
         ingest_shards=_shards(env.get("FLEETBUS_INGEST_SHARDS")),
+        service_url=env.get("FLEETBUS_SERVICE_URL") or None,
+        broker_wait_s=_positive("FLEETBUS_BROKER_WAIT_S", env, DEFAULT_BROKER_WAIT_S, float),
+        api_hash_threads=int(_positive("FLEETBUS_API_HASH_THREADS", env, DEFAULT_API_HASH_THREADS, int)),
+        api_account_failures=_rate("FLEETBUS_API_ACCOUNT_FAILURES", env, DEFAULT_API_ACCOUNT_FAILURES),
+        api_address_failures=_rate("FLEETBUS_API_ADDRESS_FAILURES", env, DEFAULT_API_ADDRESS_FAILURES),
     )
+
+
+def _positive(name: str, env: Mapping[str, str], default: float, kind: type[float] | type[int]) -> float:
+    value = env.get(name)
+    if not value:
+        return default
+    try:
+        number = kind(value)
+    except ValueError:
+        number = 0
+    if number <= 0:
+        raise ValueError(f"{name} must be a positive {'whole ' if kind is int else ''}number, not {value!r}")
+    return number
+
+
+def _rate(name: str, env: Mapping[str, str], default: str) -> str:
+    """A rate such as ``5 per 5 minutes`` or ``20/hour`` (the ``limits`` library's notation)."""
+    from limits import parse
+
+    value = env.get(name) or default
+    try:
+        parse(value)
+    except ValueError:
+        raise ValueError(
+            f"{name} must be a rate such as '5 per 5 minutes' or '20/hour', not {value!r}"
+        ) from None
+    return value
 
 
 def _shards(value: str | None) -> int:

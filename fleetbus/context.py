@@ -14,8 +14,8 @@ import typer
 import yaml
 from rich.console import Console
 
-from broker.accounts import vhost_of
-from broker.endpoint import BrokerEndpoint, derive_management_url, resolve_broker
+from broker.accounts import SERVICE_USER, vhost_of
+from broker.endpoint import BrokerEndpoint, derive_management_url, resolve_broker, service_account_url
 from broker.management import ManagementAPI
 from broker.routes import RouteMap
 from fleetbus.config import Settings, load_settings
@@ -44,6 +44,15 @@ def endpoint(start: bool = True) -> BrokerEndpoint:
     try:
         return resolve_broker(settings(), start=start)
     except Exception as error:  # any failure to find a broker ends the command with its reason
+        fail(f"no broker: {error}")
+
+
+def service_account(account: str = SERVICE_USER) -> str:
+    """The URL the worker (``fleetbus``) or the recorder (``fleetbus-recorder``) logs in with:
+    never the administrator's."""
+    try:
+        return service_account_url(settings(), account)
+    except Exception as error:  # any failure to find the broker ends the command with its reason
         fail(f"no broker: {error}")
 
 

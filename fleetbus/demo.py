@@ -31,6 +31,7 @@ from publishers.client import RobotClient
 from publishers.rpc import ServiceRefused
 from schemas.routing import EventType, RobotKind
 from workers.recorder.thread import RecorderThread
+from workers.setup import set_up_service
 from workers.store import open_recording_store, run_with_store
 from workers.store.base import EventQuery
 from workers.store.beacons import Beacon
@@ -280,8 +281,11 @@ def run_demo(
         try:
             for client in clients.values():
                 client.connect()
-            demo_endpoint = replace(endpoint, amqp_url=admin_url)
-            with WorkerThread(demo_settings, demo_endpoint), RecorderThread(demo_settings, demo_endpoint):
+            service = asyncio.run(set_up_service(demo_settings, replace(endpoint, amqp_url=admin_url)))
+            with (
+                WorkerThread(demo_settings, service.service_url),
+                RecorderThread(demo_settings, service.recorder_url),
+            ):
                 scenario = Scenario(demo_settings, clients, report)
                 for description, act in (
                     ("localisation gate", scenario.localisation_gate),

@@ -22,6 +22,7 @@ import pika
 from broker.accounts import Account, Role, fresh_vhost, provision_account
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
+from broker.urls import without_password
 from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient, outbox_folder
@@ -32,6 +33,7 @@ from tests.link import NetworkLink
 from workers.recorder.consumer import MissionLookup
 from workers.recorder.runner import recorder_options
 from workers.recorder.thread import RecorderThread
+from workers.setup import ServiceAccounts, set_up_service
 from workers.store import Store, open_recording_store, run_with_store
 from workers.store.base import EventQuery, EventRecord
 from workers.store.ledger import Gap
@@ -75,6 +77,15 @@ class Bus:
 
     accounts: list[str] = field(default_factory=list)
     clients: list[RobotClient] = field(default_factory=list)
+    _service: ServiceAccounts | None = None
+
+    def service_accounts(self) -> ServiceAccounts:
+        """``fleetbus setup`` on the test's virtual host (once): the accounts the worker and the
+        recorder run with, their passwords kept in the test's data directory."""
+        if self._service is None:
+            admin = replace(self.endpoint, amqp_url=self.admin_url)
+            self._service = asyncio.run(set_up_service(self.settings, admin))
+        return self._service
 
     def add(self, name: str, role: Role = Role.ROBOT, kind: RobotKind | None = None) -> Account:
         """A new account; users are broker-wide, so one left by an aborted run is re-keyed."""
@@ -123,7 +134,7 @@ class Bus:
 
     @contextmanager
     def worker(self) -> Iterator[WorkerThread]:
-        thread = WorkerThread(self.settings, replace(self.endpoint, amqp_url=self.admin_url)).start()
+        thread = WorkerThread(self.settings, self.service_accounts().service_url).start()
         try:
             yield thread
         finally:
@@ -132,9 +143,10 @@ class Bus:
     @contextmanager
     def recorder(self, missions: MissionLookup | None = None, **options: Any) -> Iterator[RecorderThread]:
         """The recorder, with these :class:`RecorderOptions` over the settings' ones."""
-        endpoint = replace(self.endpoint, amqp_url=self.admin_url)
         options_ = recorder_options(self.settings, **options)
-        thread = RecorderThread(self.settings, endpoint, options_, missions).start()
+        thread = RecorderThread(
+            self.settings, self.service_accounts().recorder_url, options_, missions
+        ).start()
         try:
             yield thread
         finally:
@@ -161,16 +173,31 @@ class Bus:
             connection.close()
 
     def worker_env(self) -> dict[str, str]:
-        env = dict(os.environ)
+        """The environment of a `fleetbus` command on the test's slice, as the administrator."""
+        env = self._env()
+        env.update(FLEETBUS_AMQP_URL=self.admin_url, FLEETBUS_MANAGEMENT_URL=self.endpoint.management_url)
+        return env
+
+    def service_env(self) -> dict[str, str]:
+        """The environment of `fleetbus worker` or `recorder run`: the service account's URL without
+        its password (kept in the data directory by :meth:`service_accounts`), no administrator."""
+        env = self._env()
+        env["FLEETBUS_SERVICE_URL"] = without_password(self.service_accounts().service_url)
+        return env
+
+    def _env(self) -> dict[str, str]:
+        broker = (
+            "FLEETBUS_AMQP_URL",
+            "FLEETBUS_MANAGEMENT_URL",
+            "FLEETBUS_SERVICE_URL",
+            "FLEETBUS_MONGODB_URL",
+        )
+        env = {key: value for key, value in os.environ.items() if key not in broker}
         env.update(
-            FLEETBUS_AMQP_URL=self.admin_url,
-            FLEETBUS_MANAGEMENT_URL=self.endpoint.management_url,
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
             FLEETBUS_INGEST_SHARDS=str(self.settings.ingest_shards),
         )
-        if self.settings.mongodb_url is None:
-            env.pop("FLEETBUS_MONGODB_URL", None)
-        else:  # the test's own database, not the server's default one
+        if self.settings.mongodb_url is not None:  # the test's own database, not the server's default one
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
         return env
 
@@ -179,7 +206,7 @@ class Bus:
         log = open(self.settings.data_dir / f"worker-{uuid.uuid4().hex[:6]}.log", "wb")
         return subprocess.Popen(
             [sys.executable, "-m", "fleetbus", "worker", *options],
-            env=self.worker_env(),
+            env=self.service_env(),
             stdout=log,
             stderr=subprocess.STDOUT,
         )

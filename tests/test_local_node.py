@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import os
 import re
 import stat
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -224,12 +227,47 @@ def test_resolve_broker_prefers_a_working_amqp_url(node: LocalNode, node_setting
         resolve_broker(replace(node_settings, amqp_url=wrong), start=False)
 
 
-@pytest.mark.skipif(docker_engine_answers(), reason="a Docker engine answers: resolve_broker would use it")
-def test_resolve_broker_falls_back_to_the_private_node(node: LocalNode, node_settings: Settings) -> None:
+def test_a_configured_broker_that_does_not_answer_is_an_error_never_a_fallback(
+    node: LocalNode, node_settings: Settings, tmp_path: Path
+) -> None:
+    """The private node runs, and is not used in place of the configured broker; nor is a new one
+    started for a data folder that has none."""
     dead = f"amqp://someone:secret@127.0.0.1:{node.status().ports['stream']}/"  # nothing listens there
-    endpoint = resolve_broker(replace(node_settings, amqp_url=dead), start=False)
+    for data_dir in (node_settings.data_dir, tmp_path):
+        settings = replace(node_settings, data_dir=data_dir, amqp_url=dead, broker_wait_s=1.5)
+        started = time.monotonic()
+        with pytest.raises(
+            BrokerUnavailable, match=r"someone:\*\*\*\*@127.0.0.1:\d+/\) did not answer"
+        ) as raised:
+            resolve_broker(settings, start=True)
+        assert 1.5 <= time.monotonic() - started < 15
+        assert "secret" not in str(raised.value)
+    assert not (tmp_path / "broker").exists(), "a private node was made for the configured broker"
+
+
+@pytest.mark.skipif(docker_engine_answers(), reason="a Docker engine answers: resolve_broker would use it")
+def test_with_nothing_configured_the_private_node_is_used(node: LocalNode, node_settings: Settings) -> None:
+    endpoint = resolve_broker(replace(node_settings, amqp_url=None), start=False)
     assert endpoint.kind == "private"
     assert endpoint.amqp_url == node.status().amqp_url
+
+
+def test_broker_status_masks_the_password_unless_asked(node: LocalNode, node_settings: Settings) -> None:
+    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="200")
+    password = admin(node)[1]
+
+    def status(*options: str) -> str:
+        command = [sys.executable, "-m", "fleetbus", "broker", "status", *options]
+        result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+        assert result.returncode == 0, result.stderr
+        return result.stdout
+
+    masked = status()
+    assert password not in masked
+    assert f"amqp://{ADMIN_USER}:****@127.0.0.1:{node.status().ports['amqp']}/" in masked
+    assert str(node.admin_file) in masked, "it says where the password is kept"
+    assert node.status().amqp_url in status("--show-password")
 
 
 def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> None:

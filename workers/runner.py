@@ -100,6 +100,7 @@ async def _first_to_end(tasks: list[asyncio.Task[None]]) -> None:
 
 
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
+    """As the administrator (:mod:`workers.setup`): the ``fleetbus`` account; returns its URL."""
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         url = ensure_service_account(endpoint.amqp_url, api, settings.accounts_dir)
         vhost = vhost_of(endpoint.amqp_url)
@@ -123,8 +124,8 @@ def hazard_mutex(settings: Settings, store: Store) -> Mutex:
     return LocalMutex() if settings.ingest_shards == 1 else StoreMutex(store, "hazards")
 
 
-async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerContext:
-    url = await asyncio.to_thread(service_url, settings, endpoint)
+async def start_worker(settings: Settings, url: str) -> WorkerContext:
+    """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`workers.setup`)."""
     store = open_store(settings)
     await store.open()
     connection = await aio_pika.connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
@@ -197,14 +198,14 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
 
 async def run_worker(
     settings: Settings,
-    endpoint: BrokerEndpoint,
+    url: str,
     stop: asyncio.Event | None = None,
     on_started: Callable[[WorkerContext], None] | None = None,
 ) -> None:
     """Run until ``stop`` is set, or SIGTERM/SIGINT when run as the main program."""
     stop = stop or asyncio.Event()
     stop_on_signals(stop)
-    context = await start_worker(settings, endpoint)
+    context = await start_worker(settings, url)
     log.info(
         "worker %s shares %d ingest shards, consuming %s (store: %s)",
         context.shards.holder,

@@ -12,7 +12,6 @@ from collections.abc import Awaitable, Callable
 from types import TracebackType
 from typing import Any, Generic, TypeVar
 
-from broker.endpoint import BrokerEndpoint
 from fleetbus.config import Settings
 from workers.ingest import IngestStats
 from workers.runner import WorkerContext, run_worker
@@ -77,9 +76,10 @@ class LoopThread(Generic[C]):
 
 
 class WorkerThread(LoopThread[WorkerContext]):
-    def __init__(self, settings: Settings, endpoint: BrokerEndpoint) -> None:
+    def __init__(self, settings: Settings, url: str) -> None:
+        """The worker logging in with ``url``, the ``fleetbus`` account's (:mod:`workers.setup`)."""
         super().__init__(
-            lambda stop, started: run_worker(settings, endpoint, stop, on_started=started), "fleetbus-worker"
+            lambda stop, started: run_worker(settings, url, stop, on_started=started), "fleetbus-worker"
         )
 
     def stats(self) -> IngestStats:

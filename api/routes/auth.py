@@ -11,6 +11,7 @@ from api import audit
 from api.accounts import WrongCredentials
 from api.auth import ServiceDep
 from api.errors import Forbidden
+from api.login_limits import TooManyFailures
 from api.models import BrokerOut, TokenOut, UserOut
 
 router = APIRouter(prefix="/auth", tags=["auth"])
@@ -21,15 +22,27 @@ async def login(
     request: Request, form: Annotated[OAuth2PasswordRequestForm, Depends()], svc: ServiceDep
 ) -> TokenOut:
     """Log in with user name and password (an OAuth2 password form). The token expires; the reply
-    also hands over the user's broker account, whose password the service generated."""
+    also hands over the user's broker account, whose password the service generated. Too many
+    failed logins to an account from one address, or from one address to any, get 429 with
+    Retry-After until the oldest of them is old enough."""
+    address = audit.client_address(request)
+    try:
+        svc.login_limits.check(form.username, address)
+    except TooManyFailures as error:
+        audit.refused(request, 429, form.username, error.detail)
+        raise HTTPException(
+            429, detail=error.detail, headers={"Retry-After": str(error.retry_after)}
+        ) from None
     try:
         login = await svc.accounts.login(form.username, form.password)
     except WrongCredentials as error:
+        svc.login_limits.failed(form.username, address)
         audit.refused(request, 401, form.username, str(error))
         raise HTTPException(401, detail=str(error), headers={"WWW-Authenticate": "Bearer"}) from None
     except Forbidden as error:
         audit.refused(request, 403, form.username, error.detail)
         raise HTTPException(403, detail=error.detail) from None
+    svc.login_limits.succeeded(form.username, address)
     return TokenOut(
         access_token=login.token.value,
         expires_at=login.token.expires_at,

@@ -26,7 +26,7 @@ async def me(user: Anyone) -> UserOut:
 
 @router.put("/users/me/password", status_code=204)
 async def change_my_password(body: PasswordChange, user: Anyone, svc: ServiceDep) -> Response:
-    if not svc.secrets.passwords.verify(user.password_hash, body.current_password):
+    if not await svc.secrets.passwords.verify(user.password_hash, body.current_password):
         raise BadRequest("the current password is wrong")
     await svc.accounts.set_password(user.name, body.new_password)
     return Response(status_code=204)

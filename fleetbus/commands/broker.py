@@ -1,9 +1,10 @@
 """``fleetbus broker up | down | status``: the broker the other commands use.
 
-``up`` reports the broker of ``FLEETBUS_AMQP_URL`` when it answers; otherwise it starts the
-``rabbitmq`` service of ``compose.yaml`` (when a Docker engine answers) or the project's private
-node under ``.fleetbus/broker/``. ``down`` stops the private node; ``status`` exits 1 when no
-broker runs.
+``up`` waits for the broker of ``FLEETBUS_AMQP_URL`` when it is set (and fails when it does not
+answer); otherwise it starts the ``rabbitmq`` service of ``compose.yaml`` (when a Docker engine
+answers) or the project's private node under ``.fleetbus/broker/``. Then it runs ``fleetbus
+setup``. ``down`` stops the private node; ``status`` exits 1 when no broker runs. URLs are shown
+with their passwords masked unless ``--show-password`` is given.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from broker.endpoint import (
     resolve_broker,
 )
 from broker.local_node import LocalNode, LocalNodeError
+from fleetbus.commands.setup import ShowPassword, set_up, show_url
 from fleetbus.context import console, fail, settings
 
 app = typer.Typer(
@@ -37,10 +39,10 @@ KIND_LABEL = {
 }
 
 
-def _show(endpoint: BrokerEndpoint, extra: dict[str, str] | None = None) -> None:
+def _show(endpoint: BrokerEndpoint, extra: dict[str, str] | None = None, show_password: bool = False) -> None:
     """One ``key  value`` line each, never wrapped, so that the URLs can be copied."""
     rows = {"broker": KIND_LABEL[endpoint.kind], **(extra or {})}
-    rows["AMQP URL"] = endpoint.amqp_url
+    rows["AMQP URL"] = show_url(endpoint.amqp_url, show_password)
     rows["management URL"] = endpoint.management_url
     for key, value in rows.items():
         console.print(f"[bold]{key:<15}[/] {value}", soft_wrap=True, highlight=False)
@@ -53,36 +55,36 @@ def _node_extra(node: LocalNode) -> dict[str, str]:
 
 @app.command()
 def up(
-    timeout: Annotated[float, typer.Option(help="seconds to wait for the broker")] = 90.0,
+    timeout: Annotated[float, typer.Option(help="seconds to wait for the broker to start")] = 90.0,
+    show_password: ShowPassword = False,
 ) -> None:
-    """Make sure a broker runs (start one if needed) and print its URLs."""
+    """Make sure a broker runs (start one if none is configured), set up the service accounts
+    (`fleetbus setup`), and print the broker's URLs."""
     current = settings()
     started = time.monotonic()
+    extra: dict[str, str] | None = None
     try:
-        endpoint = external_endpoint(current)
-        if endpoint is None:
-            if current.amqp_url:
-                console.print("[yellow]FLEETBUS_AMQP_URL does not answer; using another broker[/]")
-            if docker_engine_answers():
-                with console.status("starting RabbitMQ with docker compose…"):
-                    endpoint = compose_up(current)
-            else:
-                node = LocalNode(current.broker_dir)
-                already = node.pid() is not None
-                with console.status("starting the private RabbitMQ node…"):
-                    info = node.up(timeout=timeout)
-                assert info.amqp_url is not None and info.management_url is not None
-                endpoint = BrokerEndpoint(info.amqp_url, info.management_url, "private")
-                console.print(
-                    "[green]already running[/]"
-                    if already
-                    else f"[green]started[/] in {time.monotonic() - started:.1f} s"
-                )
-                _show(endpoint, _node_extra(node))
-                return
+        endpoint = external_endpoint(current)  # configured: waited for, never replaced
+        if endpoint is None and docker_engine_answers():
+            with console.status("starting RabbitMQ with docker compose…"):
+                endpoint = compose_up(current)
+        elif endpoint is None:
+            node = LocalNode(current.broker_dir)
+            already = node.pid() is not None
+            with console.status("starting the private RabbitMQ node…"):
+                info = node.up(timeout=timeout)
+            assert info.amqp_url is not None and info.management_url is not None
+            endpoint = BrokerEndpoint(info.amqp_url, info.management_url, "private")
+            console.print(
+                "[green]already running[/]"
+                if already
+                else f"[green]started[/] in {time.monotonic() - started:.1f} s"
+            )
+            extra = _node_extra(node)
     except (BrokerUnavailable, LocalNodeError) as error:
         fail(str(error))
-    _show(endpoint)
+    _show(endpoint, extra, show_password)
+    set_up(endpoint, show_password)
 
 
 @app.command()
@@ -111,14 +113,21 @@ def down(
 
 
 @app.command()
-def status() -> None:
-    """Print the broker's URLs; exit 1 when none runs."""
+def status(show_password: ShowPassword = False) -> None:
+    """Print the broker's URLs (the password masked); exit 1 when none runs."""
     current = settings()
     try:
         endpoint = resolve_broker(current, start=False)
     except (BrokerUnavailable, LocalNodeError) as error:
-        console.print(f"[red]not running[/]: {error}")
+        console.print(f"[red]not running[/]: {error}", highlight=False)
         raise typer.Exit(1) from None
     extra = _node_extra(LocalNode(current.broker_dir)) if endpoint.kind == "private" else None
     console.print("[green]running[/]")
-    _show(endpoint, extra)
+    _show(endpoint, extra, show_password)
+    if not show_password:
+        where = {
+            "private": f"{LocalNode(current.broker_dir).admin_file}",
+            "docker": f"FLEETBUS_BROKER_PASSWORD, else the file {current.broker_dir / 'docker-password'}",
+            "external": "FLEETBUS_AMQP_URL",
+        }[endpoint.kind]
+        console.print(f"the administrator's password: --show-password, or {where}", highlight=False)

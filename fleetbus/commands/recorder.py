@@ -9,8 +9,9 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from broker.accounts import RECORDER_USER
 from fleetbus.commands.worker import configure_logging
-from fleetbus.context import clock, console, endpoint, fail, settings, with_recording
+from fleetbus.context import clock, console, fail, service_account, settings, with_recording
 from workers.recorder.capture import KNOWN_TYPES
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import parse_retention, policy_for
@@ -33,7 +34,10 @@ def run(
     sample_every: Annotated[float, typer.Option(help="seconds between database size samples")] = 60.0,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
-    """Record every message on the bus until SIGTERM or Ctrl-C (`fleetbus worker` does it too)."""
+    """Record every message on the bus until SIGTERM or Ctrl-C (`fleetbus worker` does it too).
+
+    Runs as the `fleetbus-recorder` account only, which may read its one queue: `fleetbus setup`
+    makes the account and the queue."""
     config = settings()
     try:
         overrides: dict[str, object] = {"sample_interval": sample_every}
@@ -47,7 +51,7 @@ def run(
     except ValueError as error:
         fail(str(error), code=2)
     configure_logging(verbose)
-    asyncio.run(run_recorder(config, endpoint(), options))
+    asyncio.run(run_recorder(config, service_account(RECORDER_USER), options))
 
 
 @app.command()

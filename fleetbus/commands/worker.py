@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from fleetbus.config import MAX_INGEST_SHARDS
-from fleetbus.context import endpoint, settings
+from fleetbus.context import service_account, settings
 from workers.recorder.process import run_recorder_process
 from workers.recorder.runner import declare_recording
 from workers.runner import run_worker
@@ -60,14 +60,15 @@ def worker(
 ) -> None:
     """Validate, store and fan out every event, and record everything; stop cleanly on SIGTERM or Ctrl-C.
 
-    Run several to share the ingest: each takes its share of the shards.
+    Runs as the `fleetbus` account only (the recorder as `fleetbus-recorder`): run `fleetbus setup`
+    as the administrator once first. Run several to share the ingest: each takes its share of the shards.
     """
     configure_logging(verbose)
-    config, broker = settings(), endpoint()
+    config, url = settings(), service_account()
     if shards is not None:
         config = replace(config, ingest_shards=shards)
-    runs: list[Run] = [lambda stop: run_worker(config, broker, stop)]
+    runs: list[Run] = [lambda stop: run_worker(config, url, stop)]
     if recorder:
-        asyncio.run(declare_recording(broker.amqp_url))
+        asyncio.run(declare_recording(url))
         runs.append(lambda stop: run_recorder_process(stop, verbose))
     asyncio.run(run_together(*runs))

@@ -3,7 +3,6 @@ served by uvicorn over real HTTP, a login from the shell that keeps the broker U
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -14,15 +13,10 @@ import pytest
 from typer.testing import CliRunner
 
 from fleetbus.cli import app
+from tests.api.server import free_port
 from tests.support import Bus, wait_for
 
 PASSWORD = "first admin password"
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 @pytest.fixture

@@ -52,29 +52,30 @@ def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions
     return RecorderOptions(**{**options.__dict__, **overrides})  # type: ignore[arg-type]
 
 
-async def declare_recording(admin_url: str) -> None:
-    """The recorder's queue and its bindings (as the administrator). `fleetbus worker` declares
-    them before it consumes, so whatever is published from then on waits for its recorder child,
-    even while that process is still starting (or restarting)."""
-    await declare_with_url(admin_url, [core_topology(), recorder_topology()])
+async def declare_recording(url: str) -> None:
+    """The recorder's queue and its bindings (as the administrator, or the ``fleetbus`` account:
+    they are the service's). `fleetbus worker` declares them before it consumes, so whatever is
+    published from then on waits for its recorder child, even while that process is still
+    starting (or restarting)."""
+    await declare_with_url(url, [core_topology(), recorder_topology()])
 
 
 def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
+    """As the administrator (:mod:`workers.setup`): the ``fleetbus-recorder`` account; its URL."""
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         return ensure_recorder_account(endpoint.amqp_url, api, settings.accounts_dir)
 
 
 async def start_recorder(
     settings: Settings,
-    endpoint: BrokerEndpoint,
+    url: str,
     options: RecorderOptions,
     missions: MissionLookup | None = None,
 ) -> RecorderContext:
-    """Ready to consume. Without ``missions``, the service's store says which mission each robot
-    is recorded under (its check-ins), as it does for the event log."""
-    # as the administrator: the account, then the queue and its bindings (the account may not)
-    url = await asyncio.to_thread(recorder_url, settings, endpoint)
-    await declare_recording(endpoint.amqp_url)
+    """Ready to consume, as the ``fleetbus-recorder`` account of ``url`` alone: its queue and
+    bindings exist already (:mod:`workers.setup`, or the worker declared them). Without
+    ``missions``, the service's store says which mission each robot is recorded under (its
+    check-ins), as it does for the event log."""
     store = open_recording_store(settings)
     await store.open()
     names = TypeNames(await store.recorded_types(), options.max_types)
@@ -97,7 +98,7 @@ async def start_recorder(
 
 async def run_recorder(
     settings: Settings,
-    endpoint: BrokerEndpoint,
+    url: str,
     options: RecorderOptions | None = None,
     stop: asyncio.Event | None = None,
     on_started: Callable[[RecorderContext], None] | None = None,
@@ -107,7 +108,7 @@ async def run_recorder(
     stamps each robot's messages with the mission it is recorded under."""
     stop = stop or asyncio.Event()
     stop_on_signals(stop)
-    context = await start_recorder(settings, endpoint, options or recorder_options(settings), missions)
+    context = await start_recorder(settings, url, options or recorder_options(settings), missions)
     log.info("recorder consuming %s (store: %s)", RECORDER_QUEUE, context.store.name)
     if on_started is not None:
         on_started(context)

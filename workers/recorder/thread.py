@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from broker.endpoint import BrokerEndpoint
 from fleetbus.config import Settings
 from workers.recorder.consumer import MissionLookup, RecorderOptions, RecorderStats
 from workers.recorder.runner import RecorderContext, run_recorder
@@ -13,12 +12,12 @@ class RecorderThread(LoopThread[RecorderContext]):
     def __init__(
         self,
         settings: Settings,
-        endpoint: BrokerEndpoint,
+        url: str,
         options: RecorderOptions | None = None,
         missions: MissionLookup | None = None,
     ) -> None:
         super().__init__(
-            lambda stop, started: run_recorder(settings, endpoint, options, stop, started, missions),
+            lambda stop, started: run_recorder(settings, url, options, stop, started, missions),
             "fleetbus-recorder",
         )
 

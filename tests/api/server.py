@@ -1,0 +1,59 @@
+"""`fleetbus api` served by uvicorn in a process of its own, over real HTTP (no TestClient)."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import httpx
+
+from tests.support import Bus, wait_for
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@contextmanager
+def api_server(bus: Bus, admin: str, password: str, **settings: str) -> Iterator[str]:
+    """`fleetbus api` served by uvicorn in its own process on the bus (as administrator), with
+    ``settings`` (``FLEETBUS_...``) and the admin ``admin``; yields its base URL."""
+    env = {**bus.worker_env(), **settings}
+    env.pop("FLEETBUS_API_SECRET", None)  # the secret the server keeps itself
+    fleetbus = [sys.executable, "-m", "fleetbus", "api"]
+    bus.api.delete_user(admin)  # broker users are broker-wide: one left by an aborted run
+    made = subprocess.run(
+        [*fleetbus, "create-admin", admin, "--password-stdin"],
+        input=password + "\n",
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert made.returncode == 0, made.stderr
+    port = free_port()
+    log = open(bus.settings.data_dir / f"api-{port}.log", "wb")
+    server = subprocess.Popen([*fleetbus, "--port", str(port)], env=env, stdout=log, stderr=subprocess.STDOUT)
+    base = f"http://127.0.0.1:{port}"
+
+    def healthy() -> bool:
+        if server.poll() is not None:
+            raise AssertionError(f"`fleetbus api` exited with {server.returncode}: see {log.name}")
+        try:
+            return httpx.get(f"{base}/health", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    try:
+        wait_for(healthy, timeout=60, what="the API answering")
+        yield base
+    finally:
+        server.terminate()
+        server.wait(30)
+        log.close()
+        bus.api.delete_user(admin)

@@ -1,0 +1,68 @@
+"""compose.yaml, read (no Docker engine runs here): who holds which credential.
+
+MongoDB has authentication, with a root user from the environment that no fleetbus process
+uses, and an application user that may read and write fleetbus's database only; the worker holds
+the service accounts alone, which the one-shot `setup` service makes as the administrator.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import yaml
+
+from broker.accounts import SERVICE_USER
+
+ROOT = Path(__file__).resolve().parent.parent
+SERVICES: dict[str, Any] = yaml.safe_load((ROOT / "compose.yaml").read_text())["services"]
+
+
+def required_variable(value: str) -> str:
+    """The variable a ``${NAME:?message}`` reference requires (compose refuses to start without it)."""
+    match = re.fullmatch(r"\$\{(\w+):\?[^}]*\}", value)
+    assert match, f"{value!r} does not require a variable"
+    return match[1]
+
+
+def test_mongodb_has_a_root_user_from_the_environment_and_runs_the_user_script() -> None:
+    mongo = SERVICES["mongo"]
+    environment = mongo["environment"]
+    assert environment["MONGO_INITDB_ROOT_USERNAME"] == "root"
+    assert required_variable(environment["MONGO_INITDB_ROOT_PASSWORD"]) == "FLEETBUS_MONGODB_ROOT_PASSWORD"
+    assert required_variable(environment["FLEETBUS_MONGODB_PASSWORD"]) == "FLEETBUS_MONGODB_PASSWORD"
+    mounts = {volume.split(":")[1]: volume.split(":")[0] for volume in mongo["volumes"]}
+    assert (ROOT / mounts["/docker-entrypoint-initdb.d"] / "fleetbus-user.js").exists()
+
+
+def test_the_application_user_may_read_and_write_fleetbus_database_only() -> None:
+    script = (ROOT / "mongo-init" / "fleetbus-user.js").read_text()
+    assert 'db.getSiblingDB("fleetbus").createUser(' in script
+    assert re.search(r'user:\s*"fleetbus"', script)
+    assert "process.env.FLEETBUS_MONGODB_PASSWORD" in script
+    roles = re.findall(r"\{\s*role:\s*\"(\w+)\",\s*db:\s*\"(\w+)\"\s*\}", script)
+    assert roles == [("readWrite", "fleetbus")], "one role, on fleetbus's database"
+
+
+def test_every_fleetbus_process_logs_in_to_mongodb_as_the_application_user() -> None:
+    users = {}
+    for name, service in SERVICES.items():
+        url = (service.get("environment") or {}).get("FLEETBUS_MONGODB_URL")
+        if url:
+            parts = urlsplit(url.replace("${FLEETBUS_MONGODB_PASSWORD:?set FLEETBUS_MONGODB_PASSWORD}", "pw"))
+            users[name] = (parts.username, parts.path)
+    assert users == {"worker": ("fleetbus", "/fleetbus"), "api": ("fleetbus", "/fleetbus")}
+
+
+def test_the_worker_holds_the_service_accounts_alone() -> None:
+    worker, setup = SERVICES["worker"], SERVICES["setup"]
+    assert "FLEETBUS_BROKER_PASSWORD" not in yaml.safe_dump(worker), "the administrator's password"
+    assert "FLEETBUS_AMQP_URL" not in worker["environment"]
+    service_url = urlsplit(worker["environment"]["FLEETBUS_SERVICE_URL"])
+    assert service_url.username == SERVICE_USER and service_url.password is None
+    assert "service-credentials:/data/accounts:ro" in worker["volumes"]
+    assert worker["depends_on"]["setup"] == {"condition": "service_completed_successfully"}
+    assert setup["command"] == ["fleetbus", "setup"] and "FLEETBUS_AMQP_URL" in setup["environment"]
+    assert "service-credentials:/data/accounts" in setup["volumes"]

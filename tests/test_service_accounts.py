@@ -1,0 +1,80 @@
+"""Least privilege per process: `fleetbus setup` is the administrator's step, run once; the worker
+and its recorder then run with the `fleetbus` and `fleetbus-recorder` accounts alone."""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+from dataclasses import replace
+from urllib.parse import urlsplit
+
+from broker.accounts import RECORDER_USER, SERVICE_USER, kept_password_file
+from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RECORDER_QUEUE, RobotKind
+from tests.factories import hazard
+from tests.support import Bus, wait_for
+from workers.setup import set_up_service
+
+
+def test_the_worker_runs_with_the_service_account_alone(bus: Bus) -> None:
+    accounts = bus.service_accounts()  # `fleetbus setup`, as the administrator
+    admin_password = urlsplit(bus.admin_url).password
+    assert admin_password
+    for account in (SERVICE_USER, RECORDER_USER):
+        assert kept_password_file(bus.settings.accounts_dir, account).stat().st_mode & 0o077 == 0
+    explorer = bus.add("sa-explorer", kind=RobotKind.EXPLORER)
+
+    env = bus.service_env()
+    assert "FLEETBUS_AMQP_URL" not in env and "FLEETBUS_MANAGEMENT_URL" not in env
+    assert not [name for name, value in env.items() if admin_password in value]
+    assert urlsplit(env["FLEETBUS_SERVICE_URL"]).password is None, "the password comes from the kept file"
+    worker = bus.spawn_worker()  # with its recorder child
+    try:
+
+        def consumers() -> dict[str, str]:
+            return {
+                consumer["queue"]["name"]: consumer["channel_details"]["user"]
+                for consumer in bus.api.list_consumers(bus.vhost)
+                if (consumer.get("channel_details") or {}).get("user")
+            }
+
+        wait_for(
+            lambda: (
+                worker.poll() is None and consumers().keys() >= {INGEST_QUEUE, EXPRESS_QUEUE, RECORDER_QUEUE}
+            ),
+            60,
+            "the worker and its recorder to consume",
+        )
+        assert worker.poll() is None, "the worker ended"
+        assert consumers() == {
+            INGEST_QUEUE: SERVICE_USER,
+            EXPRESS_QUEUE: SERVICE_USER,
+            "fleetbus.rpc.requests": SERVICE_USER,
+            "fleetbus.beacon.discarded": SERVICE_USER,
+            RECORDER_QUEUE: RECORDER_USER,
+        }
+        robot = bus.robot(explorer)
+        robot.publish("hazard", hazard())
+        wait_for(lambda: bus.count("hazard") == 1, what="the hazard to be stored")
+        wait_for(lambda: len(bus.recorded("hazard")) == 1, what="the hazard to be recorded")
+
+        users = {c["user"] for c in bus.api.list_connections() if c.get("vhost") == bus.vhost}
+        assert {SERVICE_USER, RECORDER_USER} <= users <= {SERVICE_USER, RECORDER_USER, "sa-explorer"}, users
+        assert accounts.service_url.startswith(f"amqp://{SERVICE_USER}:")
+    finally:
+        worker.send_signal(signal.SIGTERM)
+        assert worker.wait(60) == 0
+
+
+def test_setup_is_idempotent_and_keeps_the_recorder_least_privileged(bus: Bus) -> None:
+    first = bus.service_accounts()
+    again = asyncio.run(set_up_service(bus.settings, replace(bus.endpoint, amqp_url=bus.admin_url)))
+    assert again == first, "the kept passwords stay valid: a second setup re-keys nothing"
+    assert bus.api.get_permissions(bus.vhost, RECORDER_USER) == {
+        "user": RECORDER_USER,
+        "vhost": bus.vhost,
+        "configure": "^$",
+        "write": "^$",
+        "read": f"^{RECORDER_QUEUE.replace('.', chr(92) + '.')}$",
+    }
+    tags = bus.api.get_user(RECORDER_USER)
+    assert tags is not None and not tags.get("tags"), "no management UI for the recorder"

@@ -1,0 +1,35 @@
+"""The administrator's step before the worker and the recorder run with their own accounts alone.
+
+``fleetbus setup`` (and ``fleetbus broker up``) run it once per broker and virtual host; it is
+idempotent, so running it again changes nothing that is in place. It makes the ``fleetbus`` and
+``fleetbus-recorder`` accounts (their passwords kept in ``$FLEETBUS_DATA_DIR/accounts/``, mode
+0600), the service's exchanges and queues for ``FLEETBUS_INGEST_SHARDS`` shards, and the
+recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not declare.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+
+from broker.endpoint import BrokerEndpoint
+from broker.topology import core_topology, declare_with_url, recorder_topology
+from fleetbus.config import Settings
+from workers.recorder.runner import recorder_url
+from workers.runner import service_url
+
+
+@dataclass(frozen=True)
+class ServiceAccounts:
+    service_url: str
+    """The workers' account, ``fleetbus``: confined to ``fleetbus.*``."""
+    recorder_url: str
+    """The recorder's, ``fleetbus-recorder``: reads its one queue, nothing else."""
+
+
+async def set_up_service(settings: Settings, admin: BrokerEndpoint) -> ServiceAccounts:
+    """As the administrator of ``admin``: the service accounts, the topology and the bindings."""
+    service = await asyncio.to_thread(service_url, settings, admin)
+    recorder = await asyncio.to_thread(recorder_url, settings, admin)
+    await declare_with_url(admin.amqp_url, [core_topology(settings.ingest_shards), recorder_topology()])
+    return ServiceAccounts(service, recorder)
