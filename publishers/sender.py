@@ -69,7 +69,11 @@ class ExpressJob:
 
 @dataclass
 class Waiter:
-    """A caller waiting for some of its events to be settled (confirmed or refused)."""
+    """A caller waiting for some of its events to be settled (confirmed or refused).
+
+    Registered (:meth:`Sender.watch`) before the events are written to the outbox, so that a
+    settle coming sooner than the caller's wait is not missed.
+    """
 
     pending: set[str]
     refused: dict[str, str] = field(default_factory=dict)
@@ -92,6 +96,10 @@ class Sender:
         self._condition = threading.Condition()
         self._stopping = False
         self._connected = False
+        self._failures = 0
+        """Connection attempts that failed and connections lost since the start: the sender is cut
+        off when it is not connected and this is not 0 (before that, its first attempt is under way)."""
+        self._retry_now = False
         self._work = False
         self._waiters: list[Waiter] = []
         self._express: ExpressJob | None = None
@@ -143,39 +151,73 @@ class Sender:
                 self._connected
             )
 
-    def wait_settled(self, message_ids: Sequence[str], timeout: float) -> dict[str, str] | None:
-        """Wait while connected until these events are confirmed or refused.
-
-        Returns the refused ones (message id -> reason), or None if the sender lost the broker
-        (or ``timeout`` passed) first: then the events simply wait in the outbox.
-        """
+    def watch(self, message_ids: Sequence[str]) -> Waiter:
+        """Start following these events' settles (before they are written; see :class:`Waiter`)."""
         waiter = Waiter(set(message_ids))
         with self._condition:
-            if not self._connected:
-                return None
             self._waiters.append(waiter)
-            try:
-                done = self._condition.wait_for(
-                    lambda: not waiter.pending or not self._connected or self._stopping, timeout
-                )
-            finally:
+        return waiter
+
+    def unwatch(self, waiter: Waiter) -> None:
+        with self._condition:
+            if waiter in self._waiters:
                 self._waiters.remove(waiter)
-            return waiter.refused if done and not waiter.pending else None
+
+    def wait_settled(
+        self, waiter: Waiter, confirm_timeout: float, connect_timeout: float
+    ) -> dict[str, str] | None:
+        """Wait until the watched events are confirmed or refused, while the broker is reachable.
+
+        Before the sender's first connection attempt has ended, wait for it (``connect_timeout`` at
+        most); once it is connected, wait ``confirm_timeout`` at most for the broker's answers. Once
+        the sender is cut off (an attempt failed, or the connection was lost), return at once.
+        Returns the refused ones (message id -> reason), or None if the events were not all
+        settled: then they simply wait in the outbox.
+        """
+        try:
+            with self._condition:
+                if not self._connected and not self._failures:
+                    self._condition.wait_for(
+                        lambda: self._connected or self._failures or self._stopping, connect_timeout
+                    )
+                if not self._connected:
+                    return None
+                done = self._condition.wait_for(
+                    lambda: not waiter.pending or not self._connected or self._stopping, confirm_timeout
+                )
+                return waiter.refused if done and not waiter.pending else None
+        finally:
+            self.unwatch(waiter)
 
     def wait_drained(self, timeout: float) -> bool:
         """Wait until the outbox is empty; False if ``timeout`` passed first."""
+        return self._wait_empty(timeout, give_up=lambda: False)
+
+    def deliver(self, timeout: float) -> bool:
+        """Try to deliver what waits before the robot stops: wait until the outbox is empty, for at
+        most ``timeout``. A sender that is cut off tries to connect at once (not after its backoff),
+        and the wait ends as soon as that attempt fails, or the connection is lost: then the
+        broker is away, and what waits goes out with the robot's next run. False if anything waits."""
+        with self._condition:
+            failures = self._failures
+            if not self._connected:
+                self._retry_now = True
+                self._condition.notify_all()
+        return self._wait_empty(timeout, give_up=lambda: self._failures > failures and not self._connected)
+
+    def _wait_empty(self, timeout: float, give_up: Callable[[], bool]) -> bool:
         deadline = time.monotonic() + timeout
         while True:
             with self._condition:
-                settled = self._settled
+                settled, failures = self._settled, self._failures
             # the outbox is asked outside the condition: publishers take the outbox's lock first
             if not self._outbox.pending():
                 return True
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return False
             with self._condition:
-                if self._settled == settled:
+                if remaining <= 0 or give_up():
+                    return False
+                if self._settled == settled and self._failures == failures:
                     self._condition.wait(min(remaining, IDLE_TICK))
 
     # ------------------------------------------------------------------ the thread
@@ -205,7 +247,9 @@ class Sender:
                 self._outbox.release()
                 self._disconnect(repr(error))
                 with self._condition:
-                    self._condition.wait_for(lambda: self._stopping, delay)  # backoff, cut short by stop
+                    # backoff, cut short by stop or by a robot about to stop (deliver)
+                    self._condition.wait_for(lambda: self._stopping or self._retry_now, delay)
+                    self._retry_now = False
                 delay = min(delay * 2, 5.0)
             except Exception as error:  # never let the sender die silently
                 log.exception("robot sender failed; retrying")
@@ -248,6 +292,7 @@ class Sender:
             self._connected = False
             if error:
                 self.last_error = error
+                self._failures += 1
             self._condition.notify_all()
         if connection is not None and connection.is_open:
             try:

@@ -102,7 +102,7 @@ class Bus:
 
     def close_robots(self) -> None:
         for client in self.clients:
-            client.close()
+            client.close(flush_timeout=0)  # what a test left waiting stays; the test is over
 
     def spawn_robot(self, url: str, *args: str) -> subprocess.Popen[str]:
         """A robot as its own process (``tests.robot_process``), to be killed for real."""
