@@ -31,6 +31,7 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
+from publishers.backoff import reconnect_delay
 from publishers.confirms import Outgoing
 from publishers.errors import BrokerUnavailable, PublishRefused
 from publishers.maps import FetchedMap, fetch_map, map_events
@@ -87,6 +88,9 @@ class RobotClient:
     ``publish`` after the start wait for the broker. ``confirm_timeout``: how long ``publish``
     waits for the broker's answers once connected. ``close_timeout``: how long :meth:`close`
     (leaving the ``with`` block) tries to deliver what still waits in the outbox.
+    ``max_reconnect_delay``: the cap of the waits between connection attempts (and between tries
+    of what the broker nacked), which are drawn at random below an exponentially growing bound
+    (:mod:`publishers.backoff`) so that a team does not reconnect in lockstep.
     """
 
     def __init__(
@@ -97,6 +101,7 @@ class RobotClient:
         connect_timeout: float = 30.0,
         confirm_timeout: float = 10.0,
         close_timeout: float = 5.0,
+        max_reconnect_delay: float = 5.0,
         outbox_policies: Mapping[str, TypePolicy] = DEFAULT_POLICIES,
         durable: bool = True,
     ) -> None:
@@ -108,6 +113,7 @@ class RobotClient:
         self._connect_timeout = connect_timeout
         self._confirm_timeout = confirm_timeout
         self._close_timeout = close_timeout
+        self._max_reconnect_delay = max_reconnect_delay
         folder = robot_folder(state_dir, self.robot_id)
         self._lock = StateLock(folder)
         self._lock.acquire()
@@ -122,6 +128,7 @@ class RobotClient:
             self._parameters,
             lambda entry: outgoing(self.robot_id, entry),
             confirm_timeout=confirm_timeout,
+            max_reconnect_delay=max_reconnect_delay,
             name=f"fleetbus-sender-{self.robot_id}",
         )
         self._started = False
@@ -348,7 +355,7 @@ class RobotClient:
             return self._connection
         self._rpc = None
         deadline = time.monotonic() + self._connect_timeout
-        delay = 0.2
+        attempt = 0
         while True:
             try:
                 self._connection = pika.BlockingConnection(self._parameters)
@@ -356,13 +363,14 @@ class RobotClient:
             except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
                 raise
             except pika.exceptions.AMQPConnectionError as error:
+                delay = reconnect_delay(attempt, self._max_reconnect_delay)
+                attempt += 1
                 if time.monotonic() + delay > deadline:
                     raise BrokerUnavailable(
                         f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} "
                         f"within {self._connect_timeout:g} s: {error!r}"
                     ) from error
-                time.sleep(delay)  # backoff between connection attempts
-                delay = min(delay * 2, 5.0)
+                time.sleep(delay)  # the caller's own thread waits for its connection
 
     def _open_consumer_channel(self) -> BlockingChannel:
         """A new channel, reconnecting first when the connection is gone (the broker restarted)."""
