@@ -38,10 +38,10 @@ from publishers.maps import FetchedMap, fetch_map, map_events
 from publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
 from publishers.rpc import RpcChannel
 from publishers.sender import Sender
-from publishers.sequence import SequenceCounter, legacy_floor
+from publishers.sequence import SequenceCounter
 from publishers.state_lock import StateLock
 from schemas.bodies import MapMetadata
-from schemas.envelope import Event, build_event, validate_body
+from schemas.envelope import Event, build_event, new_epoch, validate_body
 from schemas.identity import validate_name
 from schemas.notifications import Notification
 from schemas.routing import EventType, beacon_headers, event_routing_key, inbox_queue, publish_exchange
@@ -106,6 +106,9 @@ class RobotClient:
         durable: bool = True,
     ) -> None:
         self.robot_id = validate_name(unquote(urlsplit(amqp_url).username or ""))
+        self.epoch = new_epoch()
+        """This client's epoch: its events are numbered 0, 1, 2, ... in it (:mod:`publishers.sequence`)."""
+        self._sequence = SequenceCounter()
         self._parameters = pika.URLParameters(amqp_url)
         self._parameters.heartbeat = 30
         self._parameters.connection_attempts = 1
@@ -119,7 +122,6 @@ class RobotClient:
         self._lock.acquire()
         try:
             self.outbox = Outbox(folder / "outbox", outbox_policies, durable=durable)
-            self._sequence = SequenceCounter(max(self.outbox.next_seq(), legacy_floor(folder / "state.json")))
         except BaseException:
             self._lock.release()
             raise
@@ -213,10 +215,13 @@ class RobotClient:
 
     # publishing
     def build(self, items: Sequence[tuple[EventType | str, Any]]) -> list[Event]:
-        """Validate bodies, then give them consecutive sequence numbers (none wasted on bad input)."""
+        """Validate bodies, then give them this client's epoch and consecutive sequence numbers in it
+        (none wasted on bad input)."""
         bodies = [(event_type, validate_body(event_type, body)) for event_type, body in items]
         first = self._sequence.reserve(len(bodies)) if bodies else 0
-        return [build_event(t, self.robot_id, first + i, body) for i, (t, body) in enumerate(bodies)]
+        return [
+            build_event(t, self.robot_id, self.epoch, first + i, body) for i, (t, body) in enumerate(bodies)
+        ]
 
     def publish(self, event_type: EventType | str, body: Any, *, wait: bool = True) -> Event:
         return self.publish_many([(event_type, body)], wait=wait)[0]
@@ -232,7 +237,7 @@ class RobotClient:
         return events
 
     def enqueue(self, events: Sequence[Event], *, wait: bool = True) -> None:
-        """Put already built events in the outbox (a resend keeps its sequence number: no second record).
+        """Put already built events in the outbox (a resend keeps its epoch and number: no second record).
 
         With ``wait``, return once the broker confirmed them; right after the start, the sender's
         first connection attempt is awaited first (``connect_timeout`` at most). Return at once

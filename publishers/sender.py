@@ -3,8 +3,8 @@
 It owns its own pika connection (pika connections belong to one thread), connects with backoff
 while the broker is away, sends the oldest waiting events as one pipelined window, and removes
 them from the outbox only once the broker confirmed them. A window whose confirms were lost with
-the connection is sent again after reconnecting; the server's (robot, seq) key makes the second
-copy harmless.
+the connection is sent again after reconnecting; the server's (robot, epoch, seq) key makes the
+second copy harmless.
 
 What goes wrong is one of two kinds, told apart here:
 
@@ -452,8 +452,9 @@ class Sender:
         for entry in entries:
             if entry.message_id in refused:
                 log.error(
-                    "the broker refused %s seq %d (%s); it is set aside, not sent again: %s",
+                    "the broker refused %s %s/%d (%s); it is set aside, not sent again: %s",
                     entry.type,
+                    entry.epoch,
                     entry.seq,
                     entry.message_id,
                     refused[entry.message_id],

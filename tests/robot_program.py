@@ -5,9 +5,10 @@
 
 Publishes N hazards one ``publish`` at a time (as robot code does), then M status events in
 ``publish_many`` batches of 100, and leaves the ``with`` block, which delivers what still waits
-for at most the close timeout. It prints ``ready`` before publishing (with ``--wait-for-go`` it
-then waits for a line on stdin, so that several programs can start publishing at once),
-``published N`` once its publishes returned, and ``closed`` once the block is left.
+for at most the close timeout. It prints ``ready EPOCH`` (its client's epoch) before publishing
+(with ``--wait-for-go`` it then waits for a line on stdin, so that several programs can start
+publishing at once), ``published N`` once its publishes returned, and ``closed`` once the block
+is left.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def main() -> None:
     args = parser.parse_args()
     options = {} if args.close_timeout is None else {"close_timeout": args.close_timeout}
     with RobotClient(args.url, state_dir=args.state_dir, **options) as robot:
-        print("ready", flush=True)
+        print(f"ready {robot.epoch}", flush=True)
         if args.wait_for_go:
             sys.stdin.readline()
         for i in range(args.hazards):
