@@ -16,6 +16,7 @@ from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
+from tests.link import NetworkLink
 from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
@@ -87,3 +88,12 @@ async def stored_killable_bus(request: pytest.FixtureRequest, killable_bus: Bus)
     """The killable node's bus with each store."""
     async for each in with_each_store(request, killable_bus):
         yield each
+
+
+@pytest.fixture
+def link_for(bus: Bus) -> Iterator[list[NetworkLink]]:
+    """The network links a test makes (``tests.support.network_link``), stopped after it."""
+    links: list[NetworkLink] = []
+    yield links
+    for link in links:
+        link.stop()

@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
+from urllib.parse import urlsplit
 
 import pika
 
@@ -208,6 +209,14 @@ class Bus:
             return connection.channel().queue_declare(queue, passive=True).method.message_count
         finally:
             connection.close()
+
+
+def network_link(links: list[NetworkLink], account: Account) -> NetworkLink:
+    """A link from robots to the broker of ``account`` that the test can break (kept in ``links``,
+    the ``link_for`` fixture, to be stopped after the test)."""
+    link = NetworkLink(urlsplit(account.amqp_url).port or 5672).start()
+    links.append(link)
+    return link
 
 
 @contextmanager

@@ -9,14 +9,12 @@ from __future__ import annotations
 import json
 import signal
 import time
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
 import pytest
 
-from broker.accounts import Account
 from broker.dead_letter_queue import peek_dead_letters
 from publishers.outbox import Overflow, TypePolicy
 from schemas.envelope import build_event, encode_event
@@ -24,26 +22,20 @@ from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink
 from tests.store.mongodb import MONGOECO_PYTHON, NO_MONGODB, MongoecoServer
-from tests.support import Bus, Publishing, assert_stored_once_in_order, keys, read_line, wait_for
+from tests.support import (
+    Bus,
+    Publishing,
+    assert_stored_once_in_order,
+    keys,
+    network_link,
+    read_line,
+    wait_for,
+)
 from tests.test_cli import fleetbus
 from workers.store.base import EventQuery
 
 #: The issue's outage: the workers stay stopped this long while the robots keep publishing.
 WORKER_OUTAGE_S = 60.0
-
-
-@pytest.fixture
-def link_for(bus: Bus) -> Iterator[list[NetworkLink]]:
-    links: list[NetworkLink] = []
-    yield links
-    for link in links:
-        link.stop()
-
-
-def network_link(links: list[NetworkLink], account: Account) -> NetworkLink:
-    link = NetworkLink(urlsplit(account.amqp_url).port or 5672).start()
-    links.append(link)
-    return link
 
 
 @pytest.mark.slow

@@ -13,36 +13,20 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from itertools import pairwise
-from urllib.parse import urlsplit
 
 import pika
 import pytest
 
-from broker.accounts import Account
 from broker.local_node import LocalNode
 from publishers.client import RobotClient
 from publishers.errors import PublishRefused
 from schemas.routing import INGEST_EXCHANGE, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink
-from tests.support import Bus, wait_for
+from tests.support import Bus, network_link, wait_for
 
 REFUSING_QUEUE = "test.refuses-everything"
 COPIES_QUEUE = "test.copies"
-
-
-@pytest.fixture
-def links() -> Iterator[list[NetworkLink]]:
-    made: list[NetworkLink] = []
-    yield made
-    for link in made:
-        link.stop()
-
-
-def linked(links: list[NetworkLink], account: Account) -> NetworkLink:
-    link = NetworkLink(urlsplit(account.amqp_url).port or 5672).start()
-    links.append(link)
-    return link
 
 
 def reconnected(robot: RobotClient, link: NetworkLink) -> None:
@@ -85,12 +69,12 @@ def test_an_unroutable_event_is_set_aside_and_the_next_one_goes_through(bus: Bus
 
 
 def test_an_event_refused_access_is_set_aside_and_connection_losses_refuse_nothing(
-    bus: Bus, links: list[NetworkLink]
+    bus: Bus, link_for: list[NetworkLink]
 ) -> None:
     """The broker caches a channel's permission checks, so each change is seen on a new connection:
     the link breaks the robot's connection, which must never make an event refused."""
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
-    link = linked(links, account)
+    link = network_link(link_for, account)
     explorer = bus.robot(account, via=link)
     granted = bus.api.get_permissions(bus.vhost, "explorer1")
     assert granted is not None
@@ -136,7 +120,7 @@ def test_a_nacked_event_is_kept_and_tried_again_after_a_capped_jittered_wait(bus
 
 @pytest.mark.parametrize("robots", [3])
 def test_a_team_reconnects_after_a_broker_kill_at_jittered_capped_times(
-    killable_bus: Bus, killable_node: LocalNode, links: list[NetworkLink], robots: int
+    killable_bus: Bus, killable_node: LocalNode, link_for: list[NetworkLink], robots: int
 ) -> None:
     """While the broker is dead, each robot's attempts reach its link (which cannot forward them):
     the waits between them vary (full jitter, not a fixed schedule the whole team shares) and stay
@@ -146,7 +130,7 @@ def test_a_team_reconnects_after_a_broker_kill_at_jittered_capped_times(
     accounts = [bus.add(f"explorer{i}", kind=RobotKind.EXPLORER) for i in range(robots)]
     team = []
     for account in accounts:
-        link = linked(links, account)
+        link = network_link(link_for, account)
         team.append((bus.robot(account, via=link, max_reconnect_delay=cap), link))
     with bus.worker():
         killable_node.kill()

@@ -13,14 +13,21 @@ import sys
 import time
 import uuid
 from pathlib import Path
-from urllib.parse import urlsplit
 
 from broker.dead_letter_queue import peek_dead_letters
 from broker.local_node import LocalNode
 from publishers.client import RobotClient, robot_folder
 from schemas.routing import RobotKind
 from tests.link import NetworkLink
-from tests.support import PROJECT_ROOT, Bus, EventKey, assert_stored_once_in_order, read_line, wait_for
+from tests.support import (
+    PROJECT_ROOT,
+    Bus,
+    EventKey,
+    assert_stored_once_in_order,
+    network_link,
+    read_line,
+    wait_for,
+)
 from workers.store.hazards import DEFAULT_MISSION, HazardState
 
 
@@ -76,26 +83,25 @@ def test_three_short_robot_programs_each_deliver_their_hazard(stored_bus: Bus) -
             wait_for(lambda run=run: bus.count("hazard") == run, what=f"the hazard of run {run} stored")
 
 
-def test_a_robot_program_started_without_the_broker_neither_blocks_nor_loses_its_hazards(bus: Bus) -> None:
+def test_a_robot_program_started_without_the_broker_neither_blocks_nor_loses_its_hazards(
+    bus: Bus, link_for: list[NetworkLink]
+) -> None:
     """The first publish waits for the first connection attempt only; once it failed, the others
     return at once, and leaving the block gives up as soon as its one more attempt fails (not
     after its close timeout). The hazards go with the next run that reaches the broker."""
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
-    link = NetworkLink(urlsplit(account.amqp_url).port or 5672).start()
-    try:
-        link.cut()  # the robot starts without a way to the broker
-        started = time.monotonic()
-        run_program(bus, link.url(account.amqp_url), "--hazards", "3", "--close-timeout", "60")
-        took = time.monotonic() - started
-        assert took < 20, f"the program took {took:.1f} s: a publish or the close waited for the broker"
-        assert waiting(bus, "explorer1") == 3, "the three hazards wait on disk"
-        link.restore()
-        with bus.worker():
-            run_program(bus, link.url(account.amqp_url))  # publishes nothing; its close delivers
-            assert waiting(bus, "explorer1") == 0
-            wait_for(lambda: bus.count("hazard") == 3, what="the three hazards stored")
-    finally:
-        link.stop()
+    link = network_link(link_for, account)
+    link.cut()  # the robot starts without a way to the broker
+    started = time.monotonic()
+    run_program(bus, link.url(account.amqp_url), "--hazards", "3", "--close-timeout", "60")
+    took = time.monotonic() - started
+    assert took < 20, f"the program took {took:.1f} s: a publish or the close waited for the broker"
+    assert waiting(bus, "explorer1") == 3, "the three hazards wait on disk"
+    link.restore()
+    with bus.worker():
+        run_program(bus, link.url(account.amqp_url))  # publishes nothing; its close delivers
+        assert waiting(bus, "explorer1") == 0
+        wait_for(lambda: bus.count("hazard") == 3, what="the three hazards stored")
 
 
 def localised_warden(bus: Bus) -> RobotClient:
