@@ -8,8 +8,9 @@ with RobotClient(url, state_dir=...) as robot:    # the URL's user is the robot'
 
 Every event goes through the robot's outbox (its personal TinyDB database, on disk) and a sender
 thread drains the outbox to the broker in order. ``publish`` waits for the broker's confirm while
-the broker is reachable, and returns at once once the sender is cut off: the event waits in the
-outbox and goes out, in order, when the broker is back, also after the robot process restarted.
+the broker is reachable; once the sender is cut off it returns as soon as the event is on disk:
+the event waits in the outbox and goes out, in order, when the broker is back, also after the
+robot process restarted.
 Right after the client started, the sender's first connection attempt is still under way:
 ``publish`` waits for it (``connect_timeout`` at most) before it decides either way. Leaving the
 ``with`` block delivers what still waits, for ``close_timeout`` at most.
