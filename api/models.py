@@ -245,6 +245,7 @@ class EventOut(BaseModel):
 
     message_id: str
     robot_id: str
+    epoch: str
     seq: int
     type: str
     sent_at: datetime

@@ -45,7 +45,7 @@ from broker.dead_letter_queue import peek_dead_letters
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
-from schemas.envelope import build_event, encode_event
+from schemas.envelope import build_event, encode_event, new_epoch
 from schemas.routing import INGEST_QUEUE, EventType
 from tests.support import Bus, fresh_bus, wait_for
 from workers.store.base import EventQuery
@@ -67,7 +67,7 @@ def status_body(waypoint: str = "wp-") -> dict[str, Any]:
 
 
 def _size(body: dict[str, Any]) -> int:
-    return len(encode_event(build_event(EventType.STATUS, ROBOT, 10_000, body)))
+    return len(encode_event(build_event(EventType.STATUS, ROBOT, new_epoch(), 10_000, body)))
 
 
 def status_items(count: int, size: int = SIZE) -> list[tuple[EventType, dict[str, Any]]]:

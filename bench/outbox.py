@@ -34,7 +34,7 @@ from broker.management import ManagementAPI
 from fleetbus.config import load_settings
 from publishers.client import RobotClient
 from publishers.outbox import Outbox, Overflow, TypePolicy
-from schemas.envelope import build_event
+from schemas.envelope import build_event, new_epoch
 
 ROBOT = "bench-outbox"
 WAITING = (0, 10_000, 50_000)
@@ -46,14 +46,15 @@ KEEP_ALL = {"status": TypePolicy(Overflow.KEEP, 10_000_000)}
 def append_times(waiting: int, appends: int) -> list[float]:
     """Seconds per single-event append into an outbox already holding ``waiting`` events."""
     (event_type, body) = status_items(1)[0]
+    epoch = new_epoch()
     with tempfile.TemporaryDirectory() as folder:
         outbox = Outbox(Path(folder), KEEP_ALL)
         for start in range(0, waiting, 1000):
             n = min(1000, waiting - start)
-            outbox.append([build_event(event_type, "bench", start + i, body) for i in range(n)])
+            outbox.append([build_event(event_type, "bench", epoch, start + i, body) for i in range(n)])
         times = []
         for i in range(appends):
-            event = build_event(event_type, "bench", waiting + i, body)
+            event = build_event(event_type, "bench", epoch, waiting + i, body)
             started = time.perf_counter()
             outbox.append([event])
             times.append(time.perf_counter() - started)

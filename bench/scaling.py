@@ -145,19 +145,21 @@ class Probe:
         return self._loop.run_until_complete(self._store.count_events())
 
     def verify(self, total: int, what: str) -> None:
-        """Exactly ``total`` events stored (the store's robot and sequence key refuses doubles), and
-        each robot's stored in the order it published them."""
+        """Exactly ``total`` events stored (the store's (robot, epoch, seq) key refuses doubles), and
+        each robot's stored in the order it published them (its numbering in its client's epoch)."""
         stored = self.stored()
         if stored != total:
             raise AssertionError(f"{what} stored {stored} events, not {total}")
         records = self._loop.run_until_complete(self._store.find_events(EventQuery()))
-        by_robot: dict[str, list[EventRecord]] = {}
+        by_numbering: dict[tuple[str, str], list[EventRecord]] = {}
         for record in records:
-            by_robot.setdefault(record.robot_id, []).append(record)
-        for robot, mine in sorted(by_robot.items()):
+            by_numbering.setdefault((record.robot_id, record.epoch), []).append(record)
+        for (robot, epoch), mine in sorted(by_numbering.items()):
             arrival = [record.received_at for record in sorted(mine, key=lambda record: record.seq)]
             if arrival != sorted(arrival):
-                raise AssertionError(f"{what}: a later event of {robot} was stored before an earlier one")
+                raise AssertionError(
+                    f"{what}: a later event of {robot} (epoch {epoch}) was stored before an earlier one"
+                )
 
     def holders(self, prefix: str = SHARD_PREFIX) -> Counter[str]:
         now = datetime.now(timezone.utc)

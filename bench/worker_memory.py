@@ -30,7 +30,7 @@ from bench.scenario import Context, Figures
 from publishers.client import outgoing
 from publishers.confirms import PipelinedConfirms
 from publishers.outbox import Entry
-from schemas.envelope import build_event, encode_event, parse_event
+from schemas.envelope import build_event, encode_event, new_epoch, parse_event
 from schemas.routing import INGEST_QUEUE, EventType
 from tests.support import Bus, wait_for
 
@@ -38,11 +38,11 @@ ROBOT = "bench-memory"
 SAMPLE_EVERY = 0.5
 
 
-def event_renderer(robot: str) -> Callable[[int, str], bytes]:
-    """Status events as JSON for any (seq, message id), from one event pydantic encoded."""
+def event_renderer(robot: str, epoch: str) -> Callable[[int, str], bytes]:
+    """Status events of ``epoch`` as JSON for any (seq, message id), from one event pydantic encoded."""
     marker_id, marker_seq = uuid.UUID(int=0), 987_654_321_987
     event_type, body = status_items(1)[0]
-    sample = encode_event(build_event(event_type, robot, marker_seq, body, message_id=marker_id))
+    sample = encode_event(build_event(event_type, robot, epoch, marker_seq, body, message_id=marker_id))
     head, rest = sample.split(str(marker_id).encode())
     middle, tail = rest.split(str(marker_seq).encode())
 
@@ -56,7 +56,8 @@ def event_renderer(robot: str) -> Callable[[int, str], bytes]:
 
 def prefill(url: str, robot: str, count: int, show: Callable[[str], None]) -> float:
     """Publish ``count`` events as ``robot`` (pipelined confirms); events a second."""
-    render = event_renderer(robot)
+    epoch = new_epoch()  # one run of a robot, as a client's start makes
+    render = event_renderer(robot, epoch)
     sent_at = datetime.now(timezone.utc)
     connection = pika.BlockingConnection(pika.URLParameters(url))
     try:
@@ -67,7 +68,7 @@ def prefill(url: str, robot: str, count: int, show: Callable[[str], None]) -> fl
             for seq in range(start, min(count, start + WINDOW)):
                 message_id = str(uuid.uuid4())
                 entry = Entry(
-                    seq, EventType.STATUS.value, message_id, sent_at, render(seq, message_id), (0, 0)
+                    epoch, seq, EventType.STATUS.value, message_id, sent_at, render(seq, message_id), (0, 0)
                 )
                 window.append(outgoing(robot, entry))
             confirms.publish(window, 120)

@@ -8,8 +8,12 @@ with RobotClient(url, state_dir=...) as robot:    # the URL's user is the robot'
 
 Every event goes through the robot's outbox (its personal TinyDB database, on disk) and a sender
 thread drains the outbox to the broker in order. ``publish`` waits for the broker's confirm while
-the broker is reachable, and returns at once while it is not: the event waits in the outbox and
-goes out, in order, when the broker is back, also after the robot process restarted.
+the broker is reachable; once the sender is cut off it returns as soon as the event is on disk:
+the event waits in the outbox and goes out, in order, when the broker is back, also after the
+robot process restarted.
+Right after the client started, the sender's first connection attempt is still under way:
+``publish`` waits for it (``connect_timeout`` at most) before it decides either way. Leaving the
+``with`` block delivers what still waits, for ``close_timeout`` at most.
 """
 
 from __future__ import annotations
@@ -28,16 +32,17 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
+from publishers.backoff import reconnect_delay
 from publishers.confirms import Outgoing
 from publishers.errors import BrokerUnavailable, PublishRefused
 from publishers.maps import FetchedMap, fetch_map, map_events
 from publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
 from publishers.rpc import RpcChannel
 from publishers.sender import Sender
-from publishers.sequence import SequenceCounter, legacy_floor
+from publishers.sequence import SequenceCounter
 from publishers.state_lock import StateLock
 from schemas.bodies import MapMetadata
-from schemas.envelope import Event, build_event, validate_body
+from schemas.envelope import Event, build_event, new_epoch, validate_body
 from schemas.identity import validate_name
 from schemas.notifications import Notification
 from schemas.routing import EventType, beacon_headers, event_routing_key, inbox_queue, publish_exchange
@@ -78,6 +83,17 @@ def outgoing(robot_id: str, entry: Entry) -> Outgoing:
 
 
 class RobotClient:
+    """A robot's connection to fleetbus; one per robot process (its personal database is locked).
+
+    ``connect_timeout``: how long :meth:`connect`, a service call's connection, and the first
+    ``publish`` after the start wait for the broker. ``confirm_timeout``: how long ``publish``
+    waits for the broker's answers once connected. ``close_timeout``: how long :meth:`close`
+    (leaving the ``with`` block) tries to deliver what still waits in the outbox.
+    ``max_reconnect_delay``: the cap of the waits between connection attempts (and between tries
+    of what the broker nacked), which are drawn at random below an exponentially growing bound
+    (:mod:`publishers.backoff`) so that a team does not reconnect in lockstep.
+    """
+
     def __init__(
         self,
         amqp_url: str,
@@ -85,22 +101,28 @@ class RobotClient:
         state_dir: Path,
         connect_timeout: float = 30.0,
         confirm_timeout: float = 10.0,
+        close_timeout: float = 5.0,
+        max_reconnect_delay: float = 5.0,
         outbox_policies: Mapping[str, TypePolicy] = DEFAULT_POLICIES,
         durable: bool = True,
     ) -> None:
         self.robot_id = validate_name(unquote(urlsplit(amqp_url).username or ""))
+        self.epoch = new_epoch()
+        """This client's epoch: its events are numbered 0, 1, 2, ... in it (:mod:`publishers.sequence`)."""
+        self._sequence = SequenceCounter()
         self._parameters = pika.URLParameters(amqp_url)
         self._parameters.heartbeat = 30
         self._parameters.connection_attempts = 1
         self._parameters.socket_timeout = 5
         self._connect_timeout = connect_timeout
         self._confirm_timeout = confirm_timeout
+        self._close_timeout = close_timeout
+        self._max_reconnect_delay = max_reconnect_delay
         folder = robot_folder(state_dir, self.robot_id)
         self._lock = StateLock(folder)
         self._lock.acquire()
         try:
             self.outbox = Outbox(folder / "outbox", outbox_policies, durable=durable)
-            self._sequence = SequenceCounter(max(self.outbox.next_seq(), legacy_floor(folder / "state.json")))
         except BaseException:
             self._lock.release()
             raise
@@ -109,6 +131,7 @@ class RobotClient:
             self._parameters,
             lambda entry: outgoing(self.robot_id, entry),
             confirm_timeout=confirm_timeout,
+            max_reconnect_delay=max_reconnect_delay,
             name=f"fleetbus-sender-{self.robot_id}",
         )
         self._started = False
@@ -149,24 +172,36 @@ class RobotClient:
         self.start()
         return self._sender.wait_drained(timeout)
 
-    def close(self, flush_timeout: float = 0.0) -> None:
-        """Stop; events not yet confirmed stay in the outbox for the next run."""
+    def close(self, flush_timeout: float | None = None) -> None:
+        """Deliver what waits in the outbox, for ``flush_timeout`` at most (default: the client's
+        ``close_timeout``), then stop. The delivery ends early when the broker is away: a sender
+        that is cut off tries once more at once, and its failure ends the wait. Events not yet
+        confirmed stay in the outbox for the next run."""
         if self._closed:
             return
         self._closed = True
-        if flush_timeout > 0 and self._started and self.connected:
-            self.flush(flush_timeout)
-        if self._connection is not None and self._connection.is_open:
-            try:
-                self._connection.close()
-            except pika.exceptions.AMQPError:
-                pass  # already broken
-        self._connection = None
-        self._rpc = None
-        if self._started:
-            self._sender.stop()
-        self.outbox.close()
-        self._lock.release()
+        try:
+            timeout = self._close_timeout if flush_timeout is None else flush_timeout
+            if timeout > 0 and self._started and self.outbox.pending():
+                if not self._sender.deliver(timeout):
+                    log.warning(
+                        "%d events wait in %s's outbox for the next run: %s",
+                        self.outbox.pending(),
+                        self.robot_id,
+                        self._sender.last_error or f"not confirmed within {timeout:g} s",
+                    )
+        finally:
+            if self._connection is not None and self._connection.is_open:
+                try:
+                    self._connection.close()
+                except pika.exceptions.AMQPError:
+                    pass  # already broken
+            self._connection = None
+            self._rpc = None
+            if self._started:
+                self._sender.stop()
+            self.outbox.close()
+            self._lock.release()
 
     def __enter__(self) -> RobotClient:
         self.start()
@@ -175,14 +210,19 @@ class RobotClient:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close(flush_timeout=5.0 if exc is None else 0.0)
+        """Leaving the block delivers what waits, for ``close_timeout`` at most, however it is
+        left: an exception in robot code does not undo the events it published before."""
+        self.close()
 
     # publishing
     def build(self, items: Sequence[tuple[EventType | str, Any]]) -> list[Event]:
-        """Validate bodies, then give them consecutive sequence numbers (none wasted on bad input)."""
+        """Validate bodies, then give them this client's epoch and consecutive sequence numbers in it
+        (none wasted on bad input)."""
         bodies = [(event_type, validate_body(event_type, body)) for event_type, body in items]
         first = self._sequence.reserve(len(bodies)) if bodies else 0
-        return [build_event(t, self.robot_id, first + i, body) for i, (t, body) in enumerate(bodies)]
+        return [
+            build_event(t, self.robot_id, self.epoch, first + i, body) for i, (t, body) in enumerate(bodies)
+        ]
 
     def publish(self, event_type: EventType | str, body: Any, *, wait: bool = True) -> Event:
         return self.publish_many([(event_type, body)], wait=wait)[0]
@@ -198,17 +238,26 @@ class RobotClient:
         return events
 
     def enqueue(self, events: Sequence[Event], *, wait: bool = True) -> None:
-        """Put already built events in the outbox (a resend keeps its sequence number: no second record).
+        """Put already built events in the outbox (a resend keeps its epoch and number: no second record).
 
-        With ``wait``, return once the broker confirmed them, or at once if it is unreachable, or
-        after ``confirm_timeout`` at most; they go out when it is back.
+        With ``wait``, return once the broker confirmed them; right after the start, the sender's
+        first connection attempt is awaited first (``connect_timeout`` at most). Return at once
+        when the sender is cut off (that attempt failed, or the connection was lost since), and
+        after ``confirm_timeout`` at most while connected: the events then wait in the outbox and
+        go out when the broker is back. Without ``wait``, return once they are in the outbox.
         """
         self.start()
-        self.outbox.append(events, express=self._sender.offer_express)
+        waiter = self._sender.watch([str(e.message_id) for e in events]) if wait else None
+        try:
+            self.outbox.append(events, express=self._sender.offer_express)
+        except BaseException:
+            if waiter is not None:
+                self._sender.unwatch(waiter)
+            raise
         self._sender.wake()
-        if not wait:
+        if waiter is None:
             return
-        refused = self._sender.wait_settled([str(e.message_id) for e in events], self._confirm_timeout)
+        refused = self._sender.wait_settled(waiter, self._confirm_timeout, self._connect_timeout)
         if refused:
             raise PublishRefused("; ".join(f"{mid}: {reason}" for mid, reason in refused.items()))
 
@@ -312,7 +361,7 @@ class RobotClient:
             return self._connection
         self._rpc = None
         deadline = time.monotonic() + self._connect_timeout
-        delay = 0.2
+        attempt = 0
         while True:
             try:
                 self._connection = pika.BlockingConnection(self._parameters)
@@ -320,13 +369,14 @@ class RobotClient:
             except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
                 raise
             except pika.exceptions.AMQPConnectionError as error:
+                delay = reconnect_delay(attempt, self._max_reconnect_delay)
+                attempt += 1
                 if time.monotonic() + delay > deadline:
                     raise BrokerUnavailable(
                         f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} "
                         f"within {self._connect_timeout:g} s: {error!r}"
                     ) from error
-                time.sleep(delay)  # backoff between connection attempts
-                delay = min(delay * 2, 5.0)
+                time.sleep(delay)  # the caller's own thread waits for its connection
 
     def _open_consumer_channel(self) -> BlockingChannel:
         """A new channel, reconnecting first when the connection is gone (the broker restarted)."""

@@ -59,6 +59,9 @@ class PipelinedConfirms:
         self._nacked: set[int] = set()
         self._returned: dict[str, str] = {}
         self._closed_reason: str | None = None
+        self._refused = False
+        """The broker itself closed the channel (on a message it refused), rather than the
+        connection going away under it."""
         selected: list[object] = []
         self._impl.add_on_close_callback(self._on_close)
         self._impl.add_on_return_callback(self._on_return)
@@ -100,15 +103,23 @@ class PipelinedConfirms:
         self._wake()
 
     def _on_close(self, _channel: object, reason: Exception) -> None:
+        # pika closes the channels of a connection that is lost or closed with the connection's
+        # error as their reason: only a Channel.Close from the broker is an answer to a message
+        self._refused = isinstance(reason, pika.exceptions.ChannelClosedByBroker)
         self._closed_reason = str(reason)
         if self._connection.is_open:
             self._wake()
+
+    def _closed_error(self) -> Exception:
+        if self._refused:
+            return PublishRefused(f"the broker closed the channel: {self._closed_reason}")
+        return BrokerUnavailable(f"the channel closed with its connection: {self._closed_reason}")
 
     def _pump_until(self, done: Callable[[], bool], timeout: float, what: str) -> None:
         deadline = time.monotonic() + timeout
         while not done():
             if self._closed_reason is not None:
-                raise PublishRefused(f"the broker closed the channel: {self._closed_reason}")
+                raise self._closed_error()
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise PublishTimeout(f"no {what} from the broker within {timeout:.0f} s")
@@ -121,8 +132,8 @@ class PipelinedConfirms:
         """Publish all messages, then wait until the broker answered each; say which it did not take.
 
         Raises :class:`PublishRefused` when the broker closed the channel (the whole batch is then
-        in doubt), :class:`BrokerUnavailable` when the connection broke and :class:`PublishTimeout`
-        when the confirms did not come in time.
+        in doubt), :class:`BrokerUnavailable` when the connection broke (also when it closed the
+        channel with it) and :class:`PublishTimeout` when the confirms did not come in time.
         """
         return self.wait(self.write(messages), timeout)
 
@@ -143,8 +154,10 @@ class PipelinedConfirms:
                 self._impl.basic_publish(
                     message.exchange, message.routing_key, message.body, message.properties, mandatory=True
                 )
-        except pika.exceptions.ChannelClosed as error:
-            raise PublishRefused(f"the broker closed the channel: {self._closed_reason or error}") from error
+        except pika.exceptions.AMQPChannelError as error:
+            if self._closed_reason is None:
+                raise BrokerUnavailable(f"the channel is gone: {error!r}") from error
+            raise self._closed_error() from error
         except pika.exceptions.AMQPError as error:
             raise BrokerUnavailable(f"connection lost while publishing: {error!r}") from error
         return window

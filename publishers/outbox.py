@@ -90,6 +90,7 @@ class OutboxFull(Exception):
 class Entry:
     """One waiting event, as it goes on the wire."""
 
+    epoch: str
     seq: int
     type: str
     message_id: str
@@ -101,6 +102,7 @@ class Entry:
 
 @dataclass(frozen=True)
 class RefusedEntry:
+    epoch: str
     seq: int
     type: str
     message_id: str
@@ -131,7 +133,9 @@ class _Segment:
 
 
 def _entry_of(event: Event, body: bytes, position: tuple[int, int]) -> Entry:
-    return Entry(event.seq, event.type.value, str(event.message_id), event.sent_at, body, position)
+    return Entry(
+        event.epoch, event.seq, event.type.value, str(event.message_id), event.sent_at, body, position
+    )
 
 
 def _policy(policies: Mapping[str, TypePolicy], event_type: str) -> TypePolicy:
@@ -306,6 +310,7 @@ class Outbox:
 
     def _doc(self, event: Event, body: bytes) -> dict[str, Any]:
         doc: dict[str, Any] = {
+            "epoch": event.epoch,
             "seq": event.seq,
             "type": event.type.value,
             "message_id": str(event.message_id),
@@ -347,7 +352,6 @@ class Outbox:
                 for doc in self._docs(segment)
                 if doc["type"] == event_type and (segment.number, doc.doc_id) not in self._in_flight
             ][: excess - dropped]
-            self._note_removed(doomed)
             self._remove(segment, doomed)
             dropped += len(doomed)
         if dropped:
@@ -388,6 +392,7 @@ class Outbox:
     def _entry(self, segment: _Segment, doc_id: int, doc: dict[str, Any]) -> Entry:
         body = (self.folder / doc["blob"]).read_bytes() if "blob" in doc else doc["body"].encode()
         return Entry(
+            epoch=doc["epoch"],
             seq=doc["seq"],
             type=doc["type"],
             message_id=doc["message_id"],
@@ -419,6 +424,7 @@ class Outbox:
                 if entry.message_id in refused:
                     refused_docs.append(
                         {
+                            "epoch": entry.epoch,
                             "seq": entry.seq,
                             "type": entry.type,
                             "message_id": entry.message_id,
@@ -429,7 +435,6 @@ class Outbox:
                     )
             if refused_docs:
                 self._refused.table("refused").insert_multiple(refused_docs)
-            self._note_removed(taken)
             for segment in list(self._segments):
                 leaving = by_segment.get(segment.number)
                 if not leaving:
@@ -498,35 +503,6 @@ class Outbox:
     def pending(self) -> int:
         return sum(self.counts().values())
 
-    def max_seq(self) -> int | None:
-        with self._lock:
-            if not self._segments:
-                return None
-            docs = self._docs(self._segments[-1])
-            self._release(self._segments[-1])
-            return max((doc["seq"] for doc in docs), default=None)
-
-    def next_seq(self) -> int:
-        """The lowest sequence number never given to an event this outbox held.
-
-        The robot's numbers are kept here rather than in a file of their own, so that a publish
-        costs one durable write, not two: the newest waiting event has the highest number handed
-        out, and before any event leaves the outbox its number is recorded as ``removed_through``.
-        """
-        with self._lock:
-            newest = self.max_seq()
-            doc = self._meta.table("sequence").get(doc_id=1)
-            removed = doc["removed_through"] if doc else -1
-            return max(-1 if newest is None else newest, removed) + 1
-
-    def _note_removed(self, items: Iterable[Entry] | Iterable[Any]) -> None:
-        """Record the highest number about to leave the outbox, before it leaves (see next_seq)."""
-        highest = max((item.seq if isinstance(item, Entry) else item["seq"] for item in items), default=-1)
-        table = self._meta.table("sequence")
-        doc = table.get(doc_id=1)
-        if highest > (doc["removed_through"] if doc else -1):
-            table.upsert(Document({"removed_through": highest}, doc_id=1))
-
     def entries(self, limit: int | None = None) -> list[Entry]:
         """Waiting entries, oldest first (without marking them in flight)."""
         with self._lock:
@@ -543,6 +519,7 @@ class Outbox:
         with self._lock:
             return [
                 RefusedEntry(
+                    epoch=doc["epoch"],
                     seq=doc["seq"],
                     type=doc["type"],
                     message_id=doc["message_id"],

@@ -3,9 +3,21 @@
 It owns its own pika connection (pika connections belong to one thread), connects with backoff
 while the broker is away, sends the oldest waiting events as one pipelined window, and removes
 them from the outbox only once the broker confirmed them. A window whose confirms were lost with
-the connection is sent again after reconnecting; the server's (robot, seq) key makes the second
-copy harmless. A message the broker refuses for good (access refused, unroutable) is moved to the
-outbox's refused list with the reason, so it cannot block the events behind it.
+the connection is sent again after reconnecting; the server's (robot, epoch, seq) key makes the
+second copy harmless.
+
+What goes wrong is one of two kinds, told apart here:
+
+- **Refused**: the broker answered, and said no to this message: it closed the channel on it
+  (access refused, a forged user id) or returned it as unroutable. Sending it again would get
+  the same answer, so it is moved to the outbox's refused list with the reason, logged, and
+  reported to the ``publish`` that waits for it; the events behind it carry on.
+- **Outage**: the connection could not be made, broke, or the confirms did not come in time;
+  or the broker nacked the message. A nack is RabbitMQ saying a queue cannot take it now (an
+  internal error of the queue, or a queue that is full with ``reject-publish``), which says
+  nothing about the message itself. The events stay in the outbox, in their place, and are sent
+  again after a wait drawn by :func:`publishers.backoff.reconnect_delay`: exponential, with full
+  jitter, capped at ``max_reconnect_delay``. A connection loss never marks a message refused.
 """
 
 from __future__ import annotations
@@ -20,7 +32,8 @@ from dataclasses import dataclass, field
 import pika
 import pika.exceptions
 
-from publishers.confirms import Outgoing, PipelinedConfirms, Window
+from publishers.backoff import reconnect_delay
+from publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
 from publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
 from publishers.outbox import Entry, Outbox
 
@@ -41,6 +54,14 @@ def _abort(connection: pika.BlockingConnection) -> None:
     if transport is not None:
         transport.abort()
     connection.process_data_events(0)
+
+
+class Nacked(Exception):
+    """The broker nacked some events: they stay in the outbox and go again after a wait."""
+
+    def __init__(self, count: int) -> None:
+        super().__init__(f"the broker nacked {count} messages (a queue could not take them now)")
+        self.count = count
 
 
 class ExpressJob:
@@ -69,10 +90,16 @@ class ExpressJob:
 
 @dataclass
 class Waiter:
-    """A caller waiting for some of its events to be settled (confirmed or refused)."""
+    """A caller waiting for some of its events to be settled (confirmed or refused).
+
+    Registered (:meth:`Sender.watch`) before the events are written to the outbox, so that a
+    settle coming sooner than the caller's wait is not missed.
+    """
 
     pending: set[str]
     refused: dict[str, str] = field(default_factory=dict)
+    deferred: bool = False
+    """The broker nacked one of them: it waits in the outbox for the next try."""
 
 
 class Sender:
@@ -83,15 +110,21 @@ class Sender:
         to_outgoing: Callable[[Entry], Outgoing],
         *,
         confirm_timeout: float,
+        max_reconnect_delay: float,
         name: str,
     ) -> None:
         self._outbox = outbox
         self._parameters = parameters
         self._to_outgoing = to_outgoing
         self._confirm_timeout = confirm_timeout
+        self._max_delay = max_reconnect_delay
         self._condition = threading.Condition()
         self._stopping = False
         self._connected = False
+        self._failures = 0
+        """Connection attempts that failed and connections lost since the start: the sender is cut
+        off when it is not connected and this is not 0 (before that, its first attempt is under way)."""
+        self._retry_now = False
         self._work = False
         self._waiters: list[Waiter] = []
         self._express: ExpressJob | None = None
@@ -143,50 +176,85 @@ class Sender:
                 self._connected
             )
 
-    def wait_settled(self, message_ids: Sequence[str], timeout: float) -> dict[str, str] | None:
-        """Wait while connected until these events are confirmed or refused.
-
-        Returns the refused ones (message id -> reason), or None if the sender lost the broker
-        (or ``timeout`` passed) first: then the events simply wait in the outbox.
-        """
+    def watch(self, message_ids: Sequence[str]) -> Waiter:
+        """Start following these events' settles (before they are written; see :class:`Waiter`)."""
         waiter = Waiter(set(message_ids))
         with self._condition:
-            if not self._connected:
-                return None
             self._waiters.append(waiter)
-            try:
-                done = self._condition.wait_for(
-                    lambda: not waiter.pending or not self._connected or self._stopping, timeout
-                )
-            finally:
+        return waiter
+
+    def unwatch(self, waiter: Waiter) -> None:
+        with self._condition:
+            if waiter in self._waiters:
                 self._waiters.remove(waiter)
-            return waiter.refused if done and not waiter.pending else None
+
+    def wait_settled(
+        self, waiter: Waiter, confirm_timeout: float, connect_timeout: float
+    ) -> dict[str, str] | None:
+        """Wait until the watched events are confirmed or refused, while the broker is reachable.
+
+        Before the sender's first connection attempt has ended, wait for it (``connect_timeout`` at
+        most); once it is connected, wait ``confirm_timeout`` at most for the broker's answers. Once
+        the sender is cut off (an attempt failed, or the connection was lost), return at once.
+        Returns the refused ones (message id -> reason), or None if the events were not all
+        settled: then they simply wait in the outbox.
+        """
+        try:
+            with self._condition:
+                if not self._connected and not self._failures:
+                    self._condition.wait_for(
+                        lambda: self._connected or self._failures or self._stopping, connect_timeout
+                    )
+                if not self._connected:
+                    return None
+                done = self._condition.wait_for(
+                    lambda: not waiter.pending or waiter.deferred or not self._connected or self._stopping,
+                    confirm_timeout,
+                )
+                return waiter.refused if done and not waiter.pending else None
+        finally:
+            self.unwatch(waiter)
 
     def wait_drained(self, timeout: float) -> bool:
         """Wait until the outbox is empty; False if ``timeout`` passed first."""
+        return self._wait_empty(timeout, give_up=lambda: False)
+
+    def deliver(self, timeout: float) -> bool:
+        """Try to deliver what waits before the robot stops: wait until the outbox is empty, for at
+        most ``timeout``. A sender that is cut off tries to connect at once (not after its backoff),
+        and the wait ends as soon as that attempt fails, or the connection is lost: then the
+        broker is away, and what waits goes out with the robot's next run. False if anything waits."""
+        with self._condition:
+            failures = self._failures
+            if not self._connected:
+                self._retry_now = True
+                self._condition.notify_all()
+        return self._wait_empty(timeout, give_up=lambda: self._failures > failures and not self._connected)
+
+    def _wait_empty(self, timeout: float, give_up: Callable[[], bool]) -> bool:
         deadline = time.monotonic() + timeout
         while True:
             with self._condition:
-                settled = self._settled
+                settled, failures = self._settled, self._failures
             # the outbox is asked outside the condition: publishers take the outbox's lock first
             if not self._outbox.pending():
                 return True
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return False
             with self._condition:
-                if self._settled == settled:
+                if remaining <= 0 or give_up():
+                    return False
+                if self._settled == settled and self._failures == failures:
                     self._condition.wait(min(remaining, IDLE_TICK))
 
     # ------------------------------------------------------------------ the thread
 
     def _run(self) -> None:
-        delay = 0.1
+        failures = 0  # connection attempts failed and connections lost in a row
+        nacks = 0  # tries in a row on which the broker nacked something
         while not self._stopping:
             try:
                 if self._connection is None:
                     self._connect()  # at once, not on the first event: publish() needs to know
-                    delay = 0.1
                     continue
                 with self._condition:
                     job, self._express = self._express, None
@@ -201,19 +269,43 @@ class Sender:
                         self._busy = False
                 if not drained:
                     self._idle_wait()
+                failures = nacks = 0  # the connection works, and the broker takes what it is sent
+            except Nacked as nacked:
+                delay = reconnect_delay(nacks, self._max_delay)
+                nacks += 1
+                log.warning("%s; they stay in the outbox, next try in %.1f s", nacked, delay)
+                self._pause(delay)
             except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
                 self._outbox.release()
                 self._disconnect(repr(error))
-                with self._condition:
-                    self._condition.wait_for(lambda: self._stopping, delay)  # backoff, cut short by stop
-                delay = min(delay * 2, 5.0)
+                self._backoff(reconnect_delay(failures, self._max_delay))
+                failures += 1
             except Exception as error:  # never let the sender die silently
                 log.exception("robot sender failed; retrying")
                 self._outbox.release()
                 self._disconnect(repr(error))
-                with self._condition:
-                    self._condition.wait_for(lambda: self._stopping, 1.0)
+                self._backoff(1.0)
         self._disconnect(None)
+
+    def _backoff(self, delay: float) -> None:
+        """Wait before the next connection attempt; cut short by stop, or by a robot about to stop
+        that wants one more try (:meth:`deliver`)."""
+        with self._condition:
+            self._condition.wait_for(lambda: self._stopping or self._retry_now, delay)
+            self._retry_now = False
+
+    def _pause(self, delay: float) -> None:
+        """Wait while connected (after a nack), letting pika answer heartbeats; cut short by stop."""
+        deadline = time.monotonic() + delay
+        while True:
+            remaining = deadline - time.monotonic()
+            with self._condition:
+                if remaining <= 0 or self._condition.wait_for(
+                    lambda: self._stopping, min(remaining, IDLE_TICK)
+                ):
+                    return
+            if self._connection is not None:
+                self._connection.process_data_events(0)
 
     def _idle_wait(self) -> None:
         """Sleep until woken or a tick passes, then let pika answer heartbeats."""
@@ -248,6 +340,7 @@ class Sender:
             self._connected = False
             if error:
                 self.last_error = error
+                self._failures += 1
             self._condition.notify_all()
         if connection is not None and connection.is_open:
             try:
@@ -267,14 +360,16 @@ class Sender:
     def _drain(self) -> bool:
         """Send what waits, window after window, until the outbox has nothing more; False if it had
         nothing. The next window is written while the broker confirms the last one, so the outbox's
-        disk work overlaps the broker's."""
+        disk work overlaps the broker's. Raises :class:`Nacked` once the windows in flight are
+        settled if the broker nacked any of them."""
         assert self._confirms is not None
         confirms = self._confirms
         outstanding: deque[tuple[list[Entry], list[Outgoing], Window]] = deque()
         drained = False
+        nacked = 0
         try:
             while True:
-                if len(outstanding) < WINDOWS_IN_FLIGHT:
+                if len(outstanding) < WINDOWS_IN_FLIGHT and not nacked:
                     entries = self._outbox.take(PUBLISH_WINDOW, whole_segments=True)
                     if entries:
                         messages = [self._to_outgoing(entry) for entry in entries]
@@ -282,15 +377,13 @@ class Sender:
                         drained = True
                         continue
                 if not outstanding:
+                    if nacked:
+                        raise Nacked(nacked)
                     return drained
                 entries, messages, window = outstanding[0]
                 outcome = confirms.wait(window, self._confirm_timeout)
                 outstanding.popleft()
-                refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
-                confirmed = [e for e in entries if e.message_id not in outcome.nacked]
-                if outcome.nacked:
-                    log.warning("broker nacked %d messages; they stay in the outbox", len(outcome.nacked))
-                self._settle(confirmed, refused, entries)
+                nacked += self._settle_outcome(entries, outcome, entries)
         except PublishRefused:
             # The broker closed the channel on one of them: every window written is in doubt. Send
             # the oldest again one message at a time to find which; the rest go again after it.
@@ -321,29 +414,62 @@ class Sender:
             log.error("the outbox could not store %d events the broker took", len(job.entries))
             self._outbox.release()
             return
-        refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
-        self._settle([e for e in positioned if e.message_id not in outcome.nacked], refused)
+        nacked = self._settle_outcome(positioned, outcome)
         self._outbox.release()
+        if nacked:
+            raise Nacked(nacked)
 
     def _settle_one_by_one(self, entries: list[Entry], messages: list[Outgoing]) -> None:
-        for entry, message in zip(entries, messages, strict=True):
-            confirms = self._confirms
-            if confirms is None or confirms.closed:
-                confirms = self._fresh_channel()
-            try:
-                outcome = confirms.send([message], self._confirm_timeout)
-            except PublishRefused as error:
-                log.error("broker refused %s seq %d: %s", entry.type, entry.seq, error)
-                self._settle([entry], {entry.message_id: str(error)})
-                continue
-            if outcome.nacked:
-                break  # transient: it and the ones after it stay, in order
-            refused = {mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()}
-            self._settle([entry], refused)
-        self._outbox.release()
+        try:
+            for entry, message in zip(entries, messages, strict=True):
+                confirms = self._confirms
+                if confirms is None or confirms.closed:
+                    confirms = self._fresh_channel()
+                try:
+                    outcome = confirms.send([message], self._confirm_timeout)
+                except PublishRefused as error:
+                    self._settle_outcome([entry], Outcome(set(), {}), refused={entry.message_id: str(error)})
+                    continue
+                if self._settle_outcome([entry], outcome):
+                    raise Nacked(1)  # it and the ones after it stay, in order
+        finally:
+            self._outbox.release()
+
+    def _settle_outcome(
+        self,
+        entries: list[Entry],
+        outcome: Outcome,
+        window: list[Entry] | None = None,
+        refused: dict[str, str] | None = None,
+    ) -> int:
+        """Settle what the broker answered for ``entries``: confirmed ones leave the outbox, refused
+        ones (returned as unroutable, or in ``refused``) move to its refused list, nacked ones stay
+        for the next try. Returns how many were nacked."""
+        refused = {
+            **(refused or {}),
+            **{mid: f"unroutable ({reason})" for mid, reason in outcome.returned.items()},
+        }
+        for entry in entries:
+            if entry.message_id in refused:
+                log.error(
+                    "the broker refused %s %s/%d (%s); it is set aside, not sent again: %s",
+                    entry.type,
+                    entry.epoch,
+                    entry.seq,
+                    entry.message_id,
+                    refused[entry.message_id],
+                )
+        self._settle(
+            [e for e in entries if e.message_id not in outcome.nacked], refused, window, outcome.nacked
+        )
+        return len(outcome.nacked)
 
     def _settle(
-        self, confirmed: list[Entry], refused: dict[str, str], window: list[Entry] | None = None
+        self,
+        confirmed: list[Entry],
+        refused: dict[str, str],
+        window: list[Entry] | None = None,
+        nacked: set[str] | frozenset[str] = frozenset(),
     ) -> None:
         self._outbox.settle(confirmed, refused, window)
         self.sent += len(confirmed) - len(refused)
@@ -352,5 +478,7 @@ class Sender:
             for waiter in self._waiters:
                 waiter.refused.update({m: why for m, why in refused.items() if m in waiter.pending})
                 waiter.pending -= ids
+                if waiter.pending & nacked:
+                    waiter.deferred = True
             self._settled += 1
             self._condition.notify_all()

@@ -1,7 +1,14 @@
-"""The envelope every event travels in, and parsing of raw message bodies."""
+"""The envelope every event travels in, and parsing of raw message bodies.
+
+An event is known by (robot, epoch, seq). Every start of a robot's client mints a new epoch
+(:func:`new_epoch`) and numbers its events 0, 1, 2, ... within it, so a robot whose personal
+database was lost, or two processes with the same account, never reuse a number, and a resend
+(built once, kept in the outbox with its epoch and number) is still an exact duplicate.
+"""
 
 from __future__ import annotations
 
+import secrets
 import uuid
 from datetime import datetime, timezone
 from typing import Annotated, Any, Literal, Union
@@ -28,7 +35,17 @@ from schemas.bodies import (
 from schemas.identity import RobotId
 from schemas.routing import EventType
 
-SCHEMA_VERSION = 1
+#: 2: the envelope carries the ``epoch`` its sequence number belongs to (version 1 had none).
+SCHEMA_VERSION = 2
+#: UTC time to the millisecond, then 32 random bits: ``20261124T205601123Z-9f3a2c1b``. Epochs of one
+#: robot sort as text in the order they began (by the robot's clock).
+EPOCH_PATTERN = r"^[0-9]{8}T[0-9]{9}Z-[0-9a-f]{8}$"
+
+
+def new_epoch(now: datetime | None = None) -> str:
+    """A new epoch, in the form of :data:`EPOCH_PATTERN`: ``now`` (default: the clock) and random bits."""
+    moment = (now or datetime.now(timezone.utc)).astimezone(timezone.utc)
+    return f"{moment:%Y%m%dT%H%M%S}{moment.microsecond // 1000:03d}Z-{secrets.token_hex(4)}"
 
 
 class _EnvelopeBase(BaseModel):
@@ -36,9 +53,13 @@ class _EnvelopeBase(BaseModel):
 
     message_id: uuid.UUID = Field(default_factory=uuid.uuid4)
     robot_id: RobotId
-    seq: NonNegativeInt = Field(description="per-robot sequence number; it only grows")
+    epoch: str = Field(
+        pattern=EPOCH_PATTERN,
+        description="the start of the robot's client that numbered this event (UTC time, random bits)",
+    )
+    seq: NonNegativeInt = Field(description="the event's number within its epoch: 0, 1, 2, ...")
     sent_at: AwareDatetime = Field(default_factory=lambda: datetime.now(timezone.utc))
-    schema_version: Literal[1] = SCHEMA_VERSION
+    schema_version: Literal[2] = SCHEMA_VERSION
 
 
 class HazardEvent(_EnvelopeBase):
@@ -138,9 +159,11 @@ def validate_body(event_type: EventType | str, data: Any) -> BaseModel:
         raise SchemaError(describe_validation_error(error, prefix="body.")) from None
 
 
-def build_event(event_type: EventType | str, robot_id: str, seq: int, body: Any, **envelope: Any) -> Event:
+def build_event(
+    event_type: EventType | str, robot_id: str, epoch: str, seq: int, body: Any, **envelope: Any
+) -> Event:
     model = EVENT_MODELS[EventType(event_type)]
-    return model(robot_id=robot_id, seq=seq, body=validate_body(event_type, body), **envelope)  # type: ignore[return-value]
+    return model(robot_id=robot_id, epoch=epoch, seq=seq, body=validate_body(event_type, body), **envelope)  # type: ignore[return-value]
 
 
 def encode_event(event: BaseModel) -> bytes:

@@ -16,6 +16,7 @@ from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from fleetbus.config import load_settings
+from tests.link import NetworkLink
 from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
@@ -39,9 +40,9 @@ def bus(endpoint: BrokerEndpoint, management: ManagementAPI, tmp_path: Path) -> 
         yield test_bus
 
 
-@pytest.fixture(params=["sqlite", "mongodb"])
-async def stored_bus(request: pytest.FixtureRequest, bus: Bus) -> AsyncIterator[Bus]:
-    """The test's bus with each store: the embedded SQLite, or a MongoDB database of its own."""
+async def with_each_store(request: pytest.FixtureRequest, bus: Bus) -> AsyncIterator[Bus]:
+    """``bus`` with the store ``request.param`` names: the embedded SQLite, or a MongoDB database
+    of its own."""
     if request.param == "mongodb":
         url: str = request.getfixturevalue("mongodb_url")
         async with fresh_database(url) as database:
@@ -49,6 +50,13 @@ async def stored_bus(request: pytest.FixtureRequest, bus: Bus) -> AsyncIterator[
             yield bus
         return
     yield bus
+
+
+@pytest.fixture(params=["sqlite", "mongodb"])
+async def stored_bus(request: pytest.FixtureRequest, bus: Bus) -> AsyncIterator[Bus]:
+    """The test's bus with each store: the embedded SQLite, or a MongoDB database of its own."""
+    async for each in with_each_store(request, bus):
+        yield each
 
 
 @pytest.fixture(scope="session")
@@ -73,3 +81,19 @@ def killable_bus(killable_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
         fresh_bus(endpoint, api, tmp_path) as test_bus,
     ):
         yield test_bus
+
+
+@pytest.fixture(params=["sqlite", "mongodb"])
+async def stored_killable_bus(request: pytest.FixtureRequest, killable_bus: Bus) -> AsyncIterator[Bus]:
+    """The killable node's bus with each store."""
+    async for each in with_each_store(request, killable_bus):
+        yield each
+
+
+@pytest.fixture
+def link_for(bus: Bus) -> Iterator[list[NetworkLink]]:
+    """The network links a test makes (``tests.support.network_link``), stopped after it."""
+    links: list[NetworkLink] = []
+    yield links
+    for link in links:
+        link.stop()

@@ -6,6 +6,7 @@
     link.restore()                       # it can connect again
     link.mute_replies()                  # the broker's answers (confirms) are lost on the way back
     link.drop_connections()              # the open connections break; the link stays up
+    link.attempts                        # when each connection attempt reached the link
 
 It breaks the robot's connection the way a field network does, while the broker, the workers
 and every other robot carry on.
@@ -17,6 +18,7 @@ import contextlib
 import selectors
 import socket
 import threading
+import time
 from urllib.parse import urlsplit, urlunsplit
 
 
@@ -32,6 +34,9 @@ class NetworkLink:
         self._selector = selectors.DefaultSelector()
         self._thread = threading.Thread(target=self._pump, name="network-link", daemon=True)
         self.connections = 0
+        self.attempts: list[float] = []
+        """``time.monotonic()`` of each connection the link accepted, also those it could not
+        forward (the broker is down)."""
 
     def start(self) -> NetworkLink:
         self._listen()
@@ -108,6 +113,7 @@ class NetworkLink:
             client, _ = listener.accept()
         except OSError:
             return
+        self.attempts.append(time.monotonic())
         try:
             server = socket.create_connection(self._target, timeout=5)
         except OSError:

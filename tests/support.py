@@ -11,11 +11,12 @@ import threading
 import time
 import uuid
 from collections import Counter
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
+from urllib.parse import urlsplit
 
 import pika
 
@@ -27,6 +28,7 @@ from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient, outbox_folder
 from publishers.outbox import Outbox
+from schemas.envelope import Event
 from schemas.routing import EXPRESS_TYPES, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink
@@ -113,7 +115,7 @@ class Bus:
 
     def close_robots(self) -> None:
         for client in self.clients:
-            client.close()
+            client.close(flush_timeout=0)  # what a test left waiting stays; the test is over
 
     def spawn_robot(self, url: str, *args: str) -> subprocess.Popen[str]:
         """A robot as its own process (``tests.robot_process``), to be killed for real."""
@@ -236,6 +238,14 @@ class Bus:
             connection.close()
 
 
+def network_link(links: list[NetworkLink], account: Account) -> NetworkLink:
+    """A link from robots to the broker of ``account`` that the test can break (kept in ``links``,
+    the ``link_for`` fixture, to be stopped after the test)."""
+    link = NetworkLink(urlsplit(account.amqp_url).port or 5672).start()
+    links.append(link)
+    return link
+
+
 @contextmanager
 def fresh_bus(
     endpoint: BrokerEndpoint, api: ManagementAPI, data_dir: Path, prefix: str = "test"
@@ -259,8 +269,9 @@ def fresh_bus(
         api.delete_vhost(vhost)
 
 
-def read_line(process: subprocess.Popen[str], expected: str, timeout: float = 60.0) -> None:
-    """Wait until ``process`` prints a line starting with ``expected``; fail if it ends or time runs out."""
+def read_line(process: subprocess.Popen[str], expected: str, timeout: float = 60.0) -> str:
+    """Wait until ``process`` prints a line starting with ``expected`` (returned); fail if it ends or
+    time runs out."""
     assert process.stdout is not None
     deadline = time.monotonic() + timeout
     with selectors.DefaultSelector() as selector:
@@ -272,20 +283,37 @@ def read_line(process: subprocess.Popen[str], expected: str, timeout: float = 60
             if selector.select(remaining):
                 line = process.stdout.readline()
                 if line.startswith(expected):
-                    return
+                    return line
                 if not line:
                     raise AssertionError(f"the process ended ({process.wait()}) before printing {expected!r}")
 
 
-def assert_stored_once_in_order(bus: Bus, robot: str, sent: list[int]) -> None:
-    """The store holds each of ``sent`` exactly once, and received them in sequence order within
-    each lane (hazards and localisations take the express lane: they may overtake the robot's
-    other events)."""
-    records = sorted(bus.find(EventQuery(robot_id=robot)), key=lambda record: record.seq)
-    assert [r.seq for r in records] == sorted(sent), f"{robot}: every event once, nothing else"
-    for lane, express in (("express", True), ("shard", False)):
-        arrival = [r.received_at for r in records if (r.type in EXPRESS_TYPE_NAMES) is express]
-        assert arrival == sorted(arrival), f"{robot}: a later {lane} event was stored before an earlier one"
+#: An event as the store keys it within its robot: (epoch, seq). Sorted, the epochs of one robot
+#: come in the order its client starts began, each one's events in the order numbered.
+EventKey = tuple[str, int]
+
+
+def keys(events: Iterable[Event]) -> list[EventKey]:
+    return [(event.epoch, event.seq) for event in events]
+
+
+def assert_stored_once_in_order(bus: Bus, robot: str, sent: Sequence[EventKey]) -> None:
+    """The store holds each of ``sent`` (epoch, seq) exactly once, and received each epoch's
+    events in sequence order within each lane (hazards and localisations take the express lane:
+    they may overtake the robot's other events). Order holds per (robot, epoch): two clients with
+    the robot's account at once number apart."""
+    records = sorted(bus.find(EventQuery(robot_id=robot)), key=lambda record: (record.epoch, record.seq))
+    assert [(r.epoch, r.seq) for r in records] == sorted(sent), f"{robot}: every event once, nothing else"
+    for epoch in {r.epoch for r in records}:
+        for lane, express in (("express", True), ("shard", False)):
+            arrival = [
+                r.received_at
+                for r in records
+                if r.epoch == epoch and (r.type in EXPRESS_TYPE_NAMES) is express
+            ]
+            assert arrival == sorted(arrival), (
+                f"{robot}: a later {lane} event of epoch {epoch} was stored before an earlier one"
+            )
 
 
 class Publishing:
@@ -293,12 +321,12 @@ class Publishing:
 
     Every ``period`` seconds it publishes a status event, and a hazard every ``hazard_every``-th
     time, with ``publish`` as robot code calls it: confirmed while the broker answers, queued in
-    the outbox at once while it does not. ``sent`` holds every sequence number it was given.
+    the outbox at once while it does not. ``sent`` holds every (epoch, seq) it was given.
     """
 
     def __init__(self, robot: RobotClient, period: float = 0.02, hazard_every: int = 10) -> None:
         self.robot = robot
-        self.sent: list[int] = []
+        self.sent: list[EventKey] = []
         self.error: BaseException | None = None
         self._period = period
         self._hazard_every = hazard_every
@@ -314,12 +342,13 @@ class Publishing:
             while not self._stop.is_set():
                 n = len(self.sent)
                 item = ("hazard", hazard(n)) if n % self._hazard_every == 0 else ("status", status(80))
-                self.sent.append(self.robot.publish(*item).seq)
+                event = self.robot.publish(*item)
+                self.sent.append((event.epoch, event.seq))
                 self._stop.wait(self._period)  # the robot's publishing rate
         except BaseException as error:  # reported by stop()
             self.error = error
 
-    def stop(self) -> list[int]:
+    def stop(self) -> list[EventKey]:
         self._stop.set()
         self._thread.join(30)
         if self.error is not None:

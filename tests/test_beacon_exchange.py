@@ -9,10 +9,13 @@ import pytest
 from broker.dead_letter_queue import peek_dead_letters
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import PublishRefused
-from schemas.envelope import build_event, encode_event
+from schemas.envelope import build_event, encode_event, new_epoch
 from schemas.routing import RobotKind
 from tests.support import Bus, wait_for
 from workers.store.discards import Discard
+
+#: The run of a hand-made client that publishes the raw sightings below.
+EPOCH = new_epoch()
 
 
 def sighting(beacon_id: str = "b1", rssi: int = -60) -> dict:
@@ -20,7 +23,7 @@ def sighting(beacon_id: str = "b1", rssi: int = -60) -> dict:
 
 
 def publish_raw(url: str, exchange: str, seq: int, headers: dict | None, robot: str = "guide1") -> None:
-    event = build_event("beacon", robot, seq, sighting())
+    event = build_event("beacon", robot, EPOCH, seq, sighting())
     connection = pika.BlockingConnection(pika.URLParameters(url))
     try:
         confirms = PipelinedConfirms(connection, connection.channel(), timeout=10)

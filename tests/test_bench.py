@@ -23,7 +23,7 @@ from bench.scenario import Context, Figures, Scenario, Skip, Target
 from bench.suite import main, run, select
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
-from tests.store.test_contract import record
+from tests.store.test_contract import LATER, record
 from tests.support import Bus
 
 RAW = Scenario("raw", "raw", lambda context: {"consume msg/s": 1000.0})
@@ -228,10 +228,13 @@ def test_the_scaling_probe_refuses_a_count_or_an_order_that_is_off(bus: Bus) -> 
         probe.verify(3, "in order")
         with pytest.raises(AssertionError, match="stored 3 events, not 4"):
             probe.verify(4, "one missing")
+        another_run = record("robot1", 0, "status", t0, epoch=LATER)  # numbers apart from the first
+        bus.with_store(lambda store: store.write_events([another_run]))
+        probe.verify(4, "two runs of one robot")
         overtaking = record("robot2", 1, "status", t0)  # stored before robot2's seq 0
         earlier = record("robot2", 0, "status", t0 + timedelta(seconds=1))  # but arriving after it
         bus.with_store(lambda store: store.write_events([overtaking, earlier]))
-        with pytest.raises(AssertionError, match="of robot2 was stored before an earlier one"):
-            probe.verify(5, "overtaken")
+        with pytest.raises(AssertionError, match=r"of robot2 \(epoch \S+\) was stored before an earlier"):
+            probe.verify(6, "overtaken")
     finally:
         probe.close()

@@ -15,9 +15,13 @@ import yaml
 from broker.dead_letter_queue import peek_dead_letters
 from publishers.maps import map_events
 from schemas.bodies import MAP_CHUNK_BYTES
+from schemas.envelope import new_epoch
 from schemas.routing import RobotKind
 from tests.factories import small_map
 from tests.support import Bus, wait_for
+
+#: The run of a hand-made client that publishes the raw events below.
+EPOCH = new_epoch()
 
 TABLE2 = {
     "resolution": 0.11,
@@ -91,6 +95,7 @@ def _publish_raw(url: str, events: list) -> None:
         envelope = {
             "message_id": str(uuid.uuid4()),
             "robot_id": robot,
+            "epoch": EPOCH,
             "seq": seq,
             "sent_at": "2021-06-01T18:25:26Z",
             "type": event_type,

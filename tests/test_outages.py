@@ -7,44 +7,35 @@ the network or are killed, a confirm is lost on the way back, MongoDB goes away.
 from __future__ import annotations
 
 import json
-import shutil
 import signal
 import time
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
 import pytest
 
-from broker.accounts import Account
 from broker.dead_letter_queue import peek_dead_letters
-from publishers.client import robot_folder
 from publishers.outbox import Overflow, TypePolicy
+from schemas.envelope import build_event, encode_event
 from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink
 from tests.store.mongodb import MONGOECO_PYTHON, NO_MONGODB, MongoecoServer
-from tests.support import Bus, Publishing, assert_stored_once_in_order, read_line, wait_for
+from tests.support import (
+    Bus,
+    Publishing,
+    assert_stored_once_in_order,
+    keys,
+    network_link,
+    read_line,
+    wait_for,
+)
 from tests.test_cli import fleetbus
 from workers.store.base import EventQuery
 
 #: The issue's outage: the workers stay stopped this long while the robots keep publishing.
 WORKER_OUTAGE_S = 60.0
-
-
-@pytest.fixture
-def link_for(bus: Bus) -> Iterator[list[NetworkLink]]:
-    links: list[NetworkLink] = []
-    yield links
-    for link in links:
-        link.stop()
-
-
-def network_link(links: list[NetworkLink], account: Account) -> NetworkLink:
-    link = NetworkLink(urlsplit(account.amqp_url).port or 5672).start()
-    links.append(link)
-    return link
 
 
 @pytest.mark.slow
@@ -92,6 +83,7 @@ def test_robot_process_killed_with_1000_events_in_its_outbox(bus: Bus, link_for:
         robot.wait(30)
         outbox = bus.outbox("explorer1")
         assert outbox.pending() == 1000, "all 1000 wait on disk after the kill"
+        waiting = [(entry.epoch, entry.seq) for entry in outbox.entries()]
         outbox.close()
         assert bus.count() == 0
 
@@ -103,7 +95,8 @@ def test_robot_process_killed_with_1000_events_in_its_outbox(bus: Bus, link_for:
             robot.terminate()
             robot.wait(30)
         wait_for(lambda: bus.count() == 1000, timeout=60, what="the 1000 events in the store")
-    assert_stored_once_in_order(bus, "explorer1", list(range(1000)))
+    assert [seq for _, seq in waiting] == list(range(1000)) and len({epoch for epoch, _ in waiting}) == 1
+    assert_stored_once_in_order(bus, "explorer1", waiting)  # sent by the next run as the first built them
 
 
 def test_a_lost_confirm_makes_a_resend_not_a_second_record(bus: Bus, link_for: list[NetworkLink]) -> None:
@@ -168,20 +161,22 @@ def test_telemetry_dropped_while_cut_off_shows_as_a_gap(bus: Bus, link_for: list
     assert [r.seq for r in bus.find(EventQuery(robot_id="explorer1"))] == list(range(20, 31))
 
 
-def test_a_reused_sequence_number_is_dead_lettered_and_the_stored_event_kept(bus: Bus) -> None:
+def test_a_number_reused_in_its_epoch_is_dead_lettered_and_the_stored_event_kept(bus: Bus) -> None:
+    """The same (robot, epoch, seq) with another message id. The robot client cannot send one (each
+    start numbers in an epoch of its own, and a resend is the message it built); a hand-made client,
+    or a bug, can: it is dead-lettered, naming both messages, and what is stored stays."""
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     explorer = bus.robot(account)
     with bus.worker():
         first = explorer.publish_many([("hazard", hazard(i, "Fire")) for i in range(3)])
         wait_for(lambda: bus.count() == 3, what="3 hazards")
-        explorer.close()
-        shutil.rmtree(robot_folder(bus.settings.robots_dir, "explorer1"))  # its personal database lost
-        again = bus.robot(account)
-        reused = again.publish("hazard", hazard(9, "Gas leak"))
-        assert reused.seq == 0
+        forged = build_event("hazard", "explorer1", explorer.epoch, 0, hazard(9, "Gas leak"))
+        bus.publish_raw(account, "explorer1.hazard", encode_event(forged), message_id=str(forged.message_id))
         letters = wait_for(lambda: peek_dead_letters(bus.admin_url), what="the reused number dead-lettered")
     [letter] = letters
-    assert letter.reason == "sequence-reused" and "reused sequence number 0" in letter.detail
+    assert letter.reason == "sequence-reused"
+    assert f"reused sequence number 0 of epoch {explorer.epoch}" in letter.detail
+    assert str(first[0].message_id) in letter.detail and str(forged.message_id) in letter.detail
     stored = bus.find(EventQuery(robot_id="explorer1"))
     assert [r.message_id for r in stored] == [str(e.message_id) for e in first], "nothing stored changed"
 
@@ -206,6 +201,6 @@ def test_mongodb_gone_while_events_arrive(bus: Bus, tmp_path: Path) -> None:
             assert bus.ready_messages(INGEST_QUEUE) == 0, "held unacked by the worker, not lost"
             server.start(port=port or 0, path=data)
             wait_for(lambda: bus.count() == 50, timeout=90, what="all 50 events once MongoDB is back")
-        assert_stored_once_in_order(bus, "explorer1", [e.seq for e in first + second])
+        assert_stored_once_in_order(bus, "explorer1", keys(first + second))
     finally:
         server.stop()

@@ -3,20 +3,23 @@
 from __future__ import annotations
 
 import json
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
 
 from publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy
-from publishers.sequence import SequenceCounter, legacy_floor
+from publishers.sequence import SequenceCounter
 from publishers.storage import AtomicJSONStorage
-from schemas.envelope import Event, build_event, parse_event
+from schemas.envelope import Event, build_event, new_epoch, parse_event
 from tests.factories import hazard, status
 
+EPOCH = new_epoch()
 
-def events(kind: str, first: int, count: int) -> list[Event]:
+
+def events(kind: str, first: int, count: int, epoch: str = EPOCH) -> list[Event]:
     body = hazard if kind == "hazard" else status
-    return [build_event(kind, "explorer1", first + i, body()) for i in range(count)]
+    return [build_event(kind, "explorer1", epoch, first + i, body()) for i in range(count)]
 
 
 def seqs(outbox: Outbox) -> list[int]:
@@ -35,7 +38,7 @@ def test_entries_wait_in_order_across_segments_and_survive_reopening(tmp_path: P
     assert seqs(reopened) == list(range(35))
     assert [parse_event(entry.body) for entry in reopened.entries()] == sent, "bodies byte for byte"
     assert reopened.counts() == {"hazard": 25, "status": 10}
-    assert reopened.max_seq() == 34
+    assert {entry.epoch for entry in reopened.entries()} == {EPOCH}
 
 
 def test_settle_removes_confirmed_moves_refused_and_keeps_the_rest(tmp_path: Path) -> None:
@@ -46,7 +49,7 @@ def test_settle_removes_confirmed_moves_refused_and_keeps_the_rest(tmp_path: Pat
     outbox.settle(window[:5], {window[2].message_id: "unroutable (312 NO_ROUTE)"})
     assert seqs(outbox) == [5, 6, 7, 8, 9], "the unsettled one stays first"
     [refused] = outbox.refused()
-    assert (refused.seq, refused.reason) == (2, "unroutable (312 NO_ROUTE)")
+    assert (refused.epoch, refused.seq, refused.reason) == (EPOCH, 2, "unroutable (312 NO_ROUTE)")
     assert len(list(tmp_path.glob("seg-*.json"))) == 2, "the emptied segment file is gone"
     outbox.settle(outbox.take(100))
     assert outbox.pending() == 0 and not list(tmp_path.glob("seg-*.json"))
@@ -69,7 +72,7 @@ def test_whole_segment_takes_are_deleted_on_settle_without_being_read_again(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     outbox = Outbox(tmp_path, segment_events=4, blob_bytes=600)
-    big = build_event("hazard", "explorer1", 0, {**hazard(), "description": "x" * 500})
+    big = build_event("hazard", "explorer1", EPOCH, 0, {**hazard(), "description": "x" * 500})
     outbox.append([big, *events("hazard", 1, 11)])
     first = outbox.take(6, whole_segments=True)
     assert [e.seq for e in first] == [0, 1, 2, 3], "stops before a segment it could take only part of"
@@ -119,7 +122,7 @@ def test_a_type_never_dropped_refuses_past_its_limit_and_takes_nothing(tmp_path:
 
 def test_large_bodies_wait_in_files_of_their_own(tmp_path: Path) -> None:
     outbox = Outbox(tmp_path, blob_bytes=600)
-    big = build_event("hazard", "explorer1", 0, {**hazard(), "description": "x" * 500})
+    big = build_event("hazard", "explorer1", EPOCH, 0, {**hazard(), "description": "x" * 500})
     outbox.append([big, *events("hazard", 1, 1)])
     blobs = list(tmp_path.glob("blob-*.json"))
     assert len(blobs) == 1
@@ -148,27 +151,31 @@ def test_the_storage_replaces_its_file_whole(tmp_path: Path) -> None:
     assert [path.name for path in tmp_path.iterdir()] == ["db.json"], "no temporary file left"
 
 
-def test_the_next_sequence_number_survives_reopening_however_the_outbox_emptied(tmp_path: Path) -> None:
-    outbox = Outbox(tmp_path, {"status": TypePolicy(Overflow.DROP_OLDEST, 2)})
-    assert outbox.next_seq() == 0
-    outbox.append(events("hazard", 0, 3))
-    assert outbox.next_seq() == 3, "the newest waiting event"
-    outbox.settle(outbox.take(3))
+def test_waiting_events_keep_the_epoch_and_number_they_were_built_with(tmp_path: Path) -> None:
+    """A later run numbers in an epoch of its own; what an earlier run left goes out as it was
+    built, so a resend of it is an exact duplicate."""
+    earlier, later = new_epoch(), new_epoch()
+    outbox = Outbox(tmp_path)
+    left = events("hazard", 0, 3, earlier)
+    outbox.append(left)
     outbox.close()
-    reopened = Outbox(tmp_path, {"status": TypePolicy(Overflow.DROP_OLDEST, 2)})
-    assert reopened.pending() == 0 and reopened.next_seq() == 3, "recorded before they left"
-    reopened.append(events("status", 7, 3))  # 7 dropped at once
-    window = reopened.take(2)
-    reopened.settle(window, {window[1].message_id: "unroutable"})
-    reopened.close()
-    assert Outbox(tmp_path).next_seq() == 10
+    reopened = Outbox(tmp_path)
+    reopened.append(events("hazard", 0, 2, later))
+    assert [(e.epoch, e.seq) for e in reopened.entries()] == [
+        (earlier, 0),
+        (earlier, 1),
+        (earlier, 2),
+        (later, 0),
+        (later, 1),
+    ]
+    assert [parse_event(e.body) for e in reopened.entries()[:3]] == left, "byte for byte, message ids too"
 
 
-def test_a_client_numbers_on_from_its_outbox_and_from_the_old_state_file(tmp_path: Path) -> None:
-    (tmp_path / "state.json").write_text('{"sequence": {"1": {"next": 42}}}')
-    assert legacy_floor(tmp_path / "state.json") == 42
-    assert legacy_floor(tmp_path / "missing.json") == 0
-    counter = SequenceCounter(5)
-    assert counter.reserve(3) == 5
-    counter.at_least(2)
-    assert counter.reserve() == 8
+def test_epochs_sort_in_the_order_they_began_and_numbers_count_from_0() -> None:
+    start = datetime(2026, 11, 24, 20, 56, 1, 123456, tzinfo=timezone.utc)
+    minted = [new_epoch(start + timedelta(milliseconds=i)) for i in (0, 1, 999, 1000)]
+    assert minted == sorted(minted) and minted[0].startswith("20261124T205601123Z-")
+    assert len({new_epoch(start) for _ in range(100)}) == 100, "one millisecond, distinct epochs"
+    counter = SequenceCounter()
+    assert counter.reserve(3) == 0
+    assert counter.reserve() == 3

@@ -24,7 +24,7 @@ from publishers.client import RobotClient
 from schemas.notifications import Notification
 from schemas.routing import RobotKind, Topic, inbox_queue
 from tests.factories import hazard, status
-from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
+from tests.support import Bus, EventKey, Publishing, assert_stored_once_in_order, keys, wait_for
 from workers.shards import share
 from workers.store.hazards import HazardState
 
@@ -65,10 +65,10 @@ def in_parallel(*jobs: threading.Thread) -> None:
         assert not job.is_alive()
 
 
-def publisher(robot: RobotClient, items: list, sent: list[int]) -> threading.Thread:
+def publisher(robot: RobotClient, items: list, sent: list[EventKey]) -> threading.Thread:
     def publish() -> None:
         for start in range(0, len(items), 10):  # in windows, as robot code does, to interleave robots
-            sent.extend(event.seq for event in robot.publish_many(items[start : start + 10]))
+            sent.extend(keys(robot.publish_many(items[start : start + 10])))
 
     return threading.Thread(target=publish)
 
@@ -118,7 +118,7 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
         "warden2": 3,
         "guide1": 0,
     }, "the gate's inputs and the hazards it holds go through different shards"
-    sent: dict[str, list[int]] = {name: [] for name in robots}
+    sent: dict[str, list[EventKey]] = {name: [] for name in robots}
 
     with worker_processes(bus, workers):
         # held: no warden is localised yet; the explorers' hazards wait in the store
@@ -133,7 +133,7 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
             )
         )
         wait_for(lambda: hazard_states(bus) == {HazardState.HELD: 16}, what="16 hazards held")
-        sent["warden1"] += [robots["warden1"].publish("localisation", {"localised": True}).seq]
+        sent["warden1"] += keys([robots["warden1"].publish("localisation", {"localised": True})])
         wait_for(
             lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.robots("warden"))}["warden1"],
             what="warden1 recorded as localised",

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from schemas import EventType, SchemaError, build_event, encode_event, parse_event, validate_body
-from schemas.envelope import NotJSONError
+from schemas.envelope import NotJSONError, new_epoch
 from schemas.export import json_schemas
 from schemas.identity import validate_name
 from schemas.routing import event_routing_key, split_event_routing_key
@@ -15,7 +15,7 @@ from tests.factories import TABLE1_TIME, hazard, small_map, status
 
 
 def test_hazard_round_trips_exactly() -> None:
-    event = build_event(EventType.HAZARD, "explorer1", 7, hazard())
+    event = build_event(EventType.HAZARD, "explorer1", new_epoch(), 7, hazard())
     again = parse_event(encode_event(event))
     assert again == event
     assert again.body.detected_at.isoformat() == TABLE1_TIME
@@ -24,7 +24,7 @@ def test_hazard_round_trips_exactly() -> None:
 
 def test_map_keeps_pgm_bytes_and_yaml_fields() -> None:
     data = small_map()
-    event = parse_event(encode_event(build_event("map", "explorer1", 0, data)))
+    event = parse_event(encode_event(build_event("map", "explorer1", new_epoch(), 0, data)))
     assert event.body.pgm.startswith(b"P5\n64 48\n255\n")
     assert event.body.metadata.origin == (2.1, 3.5, 0.0)
     assert event.body.metadata.free_thresh == 0.196
@@ -52,7 +52,7 @@ def test_not_json_is_its_own_error() -> None:
 
 
 def test_envelope_rejects_unknown_type() -> None:
-    raw = json.loads(encode_event(build_event("status", "explorer1", 0, status())))
+    raw = json.loads(encode_event(build_event("status", "explorer1", new_epoch(), 0, status())))
     raw["type"] = "teleport"
     with pytest.raises(SchemaError, match="type"):
         parse_event(json.dumps(raw))

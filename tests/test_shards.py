@@ -24,7 +24,7 @@ from schemas.routing import (
     shard_binding_keys,
 )
 from tests.factories import status
-from tests.support import Bus, assert_stored_once_in_order, wait_for
+from tests.support import Bus, assert_stored_once_in_order, keys, wait_for
 from tests.test_cli import fleetbus
 
 
@@ -155,10 +155,7 @@ def _management_count(bus: Bus, shard: int) -> int:
 
 def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
     robots = {name: bus.robot(bus.add(name)) for name in ("robot-a", "robot-b", "robot-c", "robot-d")}
-    sent = {
-        name: [e.seq for e in robot.publish_many([("status", status())] * 5)]
-        for name, robot in robots.items()
-    }
+    sent = {name: keys(robot.publish_many([("status", status())] * 5)) for name, robot in robots.items()}
     bus.settings = replace(bus.settings, ingest_shards=2)  # the workers and the commands from now on
 
     listed = json.loads(fleetbus(bus, "shards", "--json").stdout)
@@ -184,7 +181,7 @@ def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
         assert moved.returncode == 0, moved.stderr
         assert "moved 2 robots: [2, 2]" in moved.stdout
         for name, robot in robots.items():
-            sent[name] += [e.seq for e in robot.publish_many([("status", status())] * 5)]
+            sent[name] += keys(robot.publish_many([("status", status())] * 5))
         wait_for(lambda: bus.count() == 40, what="the events after the move stored")
         table = fleetbus(bus, "shards")
         assert worker.context is not None and worker.context.shards.holder in table.stdout

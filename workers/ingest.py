@@ -4,7 +4,7 @@ A batch is what arrived within a few milliseconds (at most the prefetch). Messag
 validation or a check are dead-lettered with their reason, the others are written in one
 transaction, the services (hazards, maps, battery) act on them and publish their notifications,
 and only then is the batch acked. A crash anywhere before the ack means redelivery; the store's
-(robot, seq) key and idempotent services turn it into a no-op.
+(robot, epoch, seq) key and idempotent services turn it into a no-op.
 """
 
 from __future__ import annotations
@@ -212,9 +212,11 @@ class IngestConsumer:
         for (message, item), result in zip(candidates, results, strict=True):
             record = item.record
             if not result.inserted and result.stored_message_id != record.message_id:
+                # Each client start numbers in an epoch of its own, so only a client that is not
+                # fleetbus's (or a bug) can send one number twice with two messages.
                 detail = (
-                    f"{record.robot_id} reused sequence number {record.seq}: message {record.message_id} "
-                    f"is not the stored {result.stored_message_id} (was its personal database reset?)"
+                    f"{record.robot_id} reused sequence number {record.seq} of epoch {record.epoch}: "
+                    f"message {record.message_id} is not the stored {result.stored_message_id}"
                 )
                 await self._reject(message, Rejected(RejectReason.SEQUENCE_REUSED, detail))
                 continue
@@ -223,7 +225,14 @@ class IngestConsumer:
                 self.stats.stored += 1
             else:
                 duplicates.append(
-                    Duplicate(record.robot_id, record.seq, record.message_id, at, bool(message.redelivered))
+                    Duplicate(
+                        record.robot_id,
+                        record.epoch,
+                        record.seq,
+                        record.message_id,
+                        at,
+                        bool(message.redelivered),
+                    )
                 )
         return accepted, duplicates
 

@@ -41,7 +41,7 @@ class MapCheck:
             if event.type is EventType.MAP_CHUNK:
                 in_batch.setdefault(str(event.body.map_id), {})[event.body.index] = event.body.data
             elif event.type is EventType.MAP and event.body.image is not None:
-                if await self._store.committed_map(event.robot_id, event.seq) is not None:
+                if await self._store.committed_map(event.robot_id, event.epoch, event.seq) is not None:
                     continue  # a redelivery of a map already committed
                 try:
                     await assemble(self._store, item, in_batch.get(str(event.body.image.map_id), {}))
@@ -85,9 +85,9 @@ class MapService:
             if event.type is EventType.MAP_CHUNK:
                 await self._store.stage_map_chunk(str(event.body.map_id), event.body.index, event.body.data)
             elif event.type is EventType.MAP:
-                version = await self._store.committed_map(event.robot_id, event.seq) or await self._commit(
-                    item
-                )
+                version = await self._store.committed_map(
+                    event.robot_id, event.epoch, event.seq
+                ) or await self._commit(item)
                 note = Notification(
                     topic=Topic.MAP,
                     event=event,
@@ -104,6 +104,7 @@ class MapService:
         image = await assemble(self._store, item)
         return await self._store.commit_map(
             event.robot_id,
+            event.epoch,
             event.seq,
             image,
             event.body.metadata.model_dump(mode="json"),

@@ -97,6 +97,7 @@ def event_record(
     """What is stored of a valid event: its envelope, its body as stored, and how it came."""
     return EventRecord(
         robot_id=event.robot_id,
+        epoch=event.epoch,
         seq=event.seq,
         type=event.type.value,
         message_id=str(event.message_id),

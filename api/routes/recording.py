@@ -106,6 +106,7 @@ class TracedOut(BaseModel):
 class TraceOut(BaseModel):
     message_id: str
     records: list[TracedOut]
+    stored_epoch: str | None
     stored_seq: int | None
     stored_at: datetime | None
     stored_mission_id: str | None
@@ -233,6 +234,7 @@ async def trace_message(message_id: str, user: Analyst, svc: ServiceDep) -> Trac
     return TraceOut(
         message_id=message_id,
         records=[traced(r) for r in result.records],
+        stored_epoch=stored.epoch if stored else None,
         stored_seq=stored.seq if stored else None,
         stored_at=stored.received_at if stored else None,
         stored_mission_id=stored.mission_id if stored else None,

@@ -58,15 +58,17 @@ def publish(
     except PublisherError as error:
         fail(str(error))
     finally:
-        client.close()
+        client.close(flush_timeout=0)  # it waited its TIMEOUT already
     if not confirmed:
         fail(
-            f"{event.type.value} seq {event.seq} waits in {robot}'s outbox: the broker did not confirm it "
-            f"within {timeout:g} s ({client.last_error or 'no answer'}); it goes out with the robot's next "
-            f"connection (see `fleetbus outbox {robot}`)",
+            f"{event.type.value} {event.epoch}/{event.seq} waits in {robot}'s outbox: the broker did not "
+            f"confirm it within {timeout:g} s ({client.last_error or 'no answer'}); it goes out with the "
+            f"robot's next connection (see `fleetbus outbox {robot}`)",
             code=3,
         )
-    console.print(f"published {event.type.value} {event.message_id} as {robot}, seq {event.seq}")
+    console.print(
+        f"published {event.type.value} {event.message_id} as {robot}, epoch {event.epoch} seq {event.seq}"
+    )
 
 
 def open_robot(robot: str, url: str | None, timeout: float) -> RobotClient:
@@ -172,10 +174,12 @@ def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None
             for gap in gaps:
                 typer.echo(json.dumps({**asdict(gap), "missing": gap.size}, default=datetime.isoformat))
             return
-        table = Table("robot", "missing seq", "events", "open since (UTC)", title=f"{len(gaps)} open gaps")
+        table = Table(
+            "robot", "epoch", "missing seq", "events", "open since (UTC)", title=f"{len(gaps)} open gaps"
+        )
         for gap in gaps:
             span = str(gap.first) if gap.first == gap.last else f"{gap.first}-{gap.last}"
-            table.add_row(gap.robot_id, span, str(gap.size), clock(gap.detected_at))
+            table.add_row(gap.robot_id, gap.epoch, span, str(gap.size), clock(gap.detected_at))
         console.print(table)
         return
     duplicates = run_with_store(settings(), lambda store: store.duplicates(robot, limit))
@@ -183,8 +187,10 @@ def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None
         for duplicate in duplicates:
             typer.echo(json.dumps(asdict(duplicate), default=datetime.isoformat))
         return
-    table = Table("robot", "seq", "message id", "seen at (UTC)", "why", title=f"{len(duplicates)} duplicates")
+    table = Table(
+        "robot", "epoch", "seq", "message id", "seen at (UTC)", "why", title=f"{len(duplicates)} duplicates"
+    )
     for d in duplicates:
         why = "redelivered by the broker" if d.redelivered else "sent again by the robot"
-        table.add_row(d.robot_id, str(d.seq), d.message_id, clock(d.seen_at), why)
+        table.add_row(d.robot_id, d.epoch, str(d.seq), d.message_id, clock(d.seen_at), why)
     console.print(table)

@@ -73,12 +73,18 @@ def outbox(
         )
     console.print(table)
     if oldest:
-        listing = Table("seq", "type", "sent at (UTC)", "message id", title=f"the oldest {len(oldest)}")
+        listing = Table(
+            "epoch", "seq", "type", "sent at (UTC)", "message id", title=f"the oldest {len(oldest)}"
+        )
         for entry in oldest:
-            listing.add_row(str(entry.seq), entry.type, entry.sent_at.isoformat()[:23], entry.message_id)
+            listing.add_row(
+                entry.epoch, str(entry.seq), entry.type, entry.sent_at.isoformat()[:23], entry.message_id
+            )
         console.print(listing)
     if refused:
-        refusals = Table("seq", "type", "refused at", "reason", title="refused by the broker, not resent")
+        refusals = Table(
+            "epoch", "seq", "type", "refused at", "reason", title="refused by the broker, not resent"
+        )
         for r in refused:
-            refusals.add_row(str(r.seq), r.type, r.refused_at.isoformat()[:19], r.reason)
+            refusals.add_row(r.epoch, str(r.seq), r.type, r.refused_at.isoformat()[:19], r.reason)
         console.print(refusals)

@@ -28,7 +28,8 @@ def _outcome(result: Trace, record: RecordedMessage, route: Route) -> str:
         return f"recorded at {clock(record.recorded_at)}"
     if shard_of_queue(route.queue) is not None:
         if result.stored is not None:
-            return f"stored at {clock(result.stored.received_at)} as seq {result.stored.seq}"
+            stored = result.stored
+            return f"stored at {clock(stored.received_at)} as epoch {stored.epoch} seq {stored.seq}"
         refused = result.refused
         if refused is not None:
             headers = refused.properties.get("headers") or {}
@@ -87,6 +88,7 @@ def _as_json(result: Trace) -> dict[str, Any]:
         "stored": {
             "received_at": result.stored.received_at.isoformat(),
             "mission_id": result.stored.mission_id,
+            "epoch": result.stored.epoch,
             "seq": result.stored.seq,
         }
         if result.stored

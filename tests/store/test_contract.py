@@ -15,16 +15,24 @@ from workers.store.mongo import MongoEventStore
 from workers.store.sqlite import SQLiteEventStore
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
+EPOCH = "20210601T182526564Z-0a1b2c3d"
+LATER = "20210601T190000000Z-4e5f6a7b"
 
 
 def record(
-    robot: str = "explorer1", seq: int = 0, type: str = "hazard", at: datetime = T0, **body: object
+    robot: str = "explorer1",
+    seq: int = 0,
+    type: str = "hazard",
+    at: datetime = T0,
+    epoch: str = EPOCH,
+    **body: object,
 ) -> EventRecord:
     return EventRecord(
         robot_id=robot,
+        epoch=epoch,
         seq=seq,
         type=type,
-        message_id=f"m-{robot}-{seq}",
+        message_id=f"m-{robot}-{epoch[-8:]}-{seq}",
         sent_at=at,
         received_at=at + timedelta(microseconds=1234),
         body=body or {"pose": {"x": 2.66, "y": 1.22}, "description": "Feu ☢", "nested": [1, {"a": None}]},
@@ -80,6 +88,20 @@ async def test_writes_are_idempotent_on_robot_and_sequence(store: EventStore) ->
     assert one.seq == 0
     stored_1 = next(r for r in await store.find_events(EventQuery()) if r.seq == 1)
     assert stored_1.body["description"] == "Feu ☢", "a duplicate never overwrites what is stored"
+
+
+async def test_a_number_is_one_event_per_epoch(store: EventStore) -> None:
+    """Each start of a robot's client numbers from 0 in an epoch of its own: the same number in two
+    epochs is two events; in one epoch with another message, the stored message is named."""
+    reused = replace(record(seq=0, epoch=LATER), message_id="m-other")
+    results = await store.write_events([record(seq=0), record(seq=0, epoch=LATER), reused])
+    assert [(r.inserted, r.stored_message_id) for r in results] == [
+        (True, None),
+        (True, None),
+        (False, record(seq=0, epoch=LATER).message_id),
+    ]
+    found = await store.find_events(EventQuery(robot_id="explorer1"))
+    assert sorted(r.key for r in found) == [("explorer1", EPOCH, 0), ("explorer1", LATER, 0)]
 
 
 async def test_queries_filter_and_order(store: EventStore) -> None:

@@ -13,21 +13,25 @@ from workers.store.interface import Store
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 BODY = {"pose": {"x": 2.66, "y": 1.22}, "description": "Fire"}
+EPOCH = "20210601T182526564Z-0a1b2c3d"
+LATER = "20210601T190000000Z-4e5f6a7b"
 
 
 async def test_ids_are_sequential_per_mission_and_idempotent(store: Store) -> None:
-    first = await store.add_hazard("m1", "explorer1", 10, BODY, T0, held=False)
-    second = await store.add_hazard("m1", "explorer1", 11, BODY, T0, held=False)
-    other = await store.add_hazard("m2", "explorer1", 12, BODY, T0, held=False)
-    again = await store.add_hazard("m1", "explorer1", 10, {"different": True}, T0, held=True)
-    assert (first.hazard_id, second.hazard_id, other.hazard_id) == (1, 2, 1)
+    first = await store.add_hazard("m1", "explorer1", EPOCH, 10, BODY, T0, held=False)
+    second = await store.add_hazard("m1", "explorer1", EPOCH, 11, BODY, T0, held=False)
+    other = await store.add_hazard("m2", "explorer1", EPOCH, 12, BODY, T0, held=False)
+    again = await store.add_hazard("m1", "explorer1", EPOCH, 10, {"different": True}, T0, held=True)
+    later = await store.add_hazard("m1", "explorer1", LATER, 10, BODY, T0, held=False)
+    assert (first.hazard_id, second.hazard_id, other.hazard_id, later.hazard_id) == (1, 2, 1, 3)
     assert again == first, "the same event registers the same hazard once"
+    assert (later.epoch, later.seq) == (LATER, 10), "the same number in another epoch is another event"
     assert first.event == BODY and first.state is HazardState.ANNOUNCED and first.received_at == T0
 
 
 async def test_held_hazards_come_out_in_detection_order(store: Store) -> None:
     for seq in range(3):
-        await store.add_hazard("m1", "explorer1", seq, {**BODY, "n": seq}, T0, held=True)
+        await store.add_hazard("m1", "explorer1", EPOCH, seq, {**BODY, "n": seq}, T0, held=True)
     held = await store.held_hazards("m1")
     assert [h.hazard_id for h in held] == [1, 2, 3]
     await store.mark_announced(held[:2], T0 + timedelta(seconds=5))
@@ -41,8 +45,8 @@ async def test_holding_hazards_registers_them_once_and_tells_the_gate(store: Sto
     await store.register_robot("warden1", "warden")
     await store.register_robot("warden2", "warden")
     await store.set_localised("warden1", True, T0)
-    first = NewHazard("m1", "explorer1", 10, BODY, T0)
-    held = await store.hold_hazards([first, NewHazard("m2", "explorer1", 11, BODY, T0)])
+    first = NewHazard("m1", "explorer1", EPOCH, 10, BODY, T0)
+    held = await store.hold_hazards([first, NewHazard("m2", "explorer1", EPOCH, 11, BODY, T0)])
     assert [(h.mission_id, h.hazard_id, h.state) for h in held.hazards] == [
         ("m1", 1, HazardState.HELD),
         ("m2", 1, HazardState.HELD),
@@ -57,8 +61,8 @@ async def test_holding_hazards_registers_them_once_and_tells_the_gate(store: Sto
 
 
 async def test_claim_reach_release_and_refusals(store: Store) -> None:
-    await store.add_hazard("m1", "explorer1", 0, BODY, T0, held=False)
-    await store.add_hazard("m1", "explorer1", 1, BODY, T0, held=True)
+    await store.add_hazard("m1", "explorer1", EPOCH, 0, BODY, T0, held=False)
+    await store.add_hazard("m1", "explorer1", EPOCH, 1, BODY, T0, held=True)
     claimed = await store.claim("m1", 1, "warden1", T0)
     assert (claimed.state, claimed.claimed_by) == (HazardState.CLAIMED, "warden1")
     with pytest.raises(HazardRefused, match="claimed by warden1"):
@@ -85,7 +89,7 @@ async def test_claim_reach_release_and_refusals(store: Store) -> None:
 
 
 async def test_two_claims_at_once_one_wins(store: Store) -> None:
-    await store.add_hazard("m1", "explorer1", 0, BODY, T0, held=False)
+    await store.add_hazard("m1", "explorer1", EPOCH, 0, BODY, T0, held=False)
     outcomes = await asyncio.gather(
         store.claim("m1", 1, "warden1", T0), store.claim("m1", 1, "warden2", T0), return_exceptions=True
     )

@@ -1,4 +1,5 @@
-"""The sequence ledger on every adapter: gaps open and close, duplicates are recorded, reused numbers seen."""
+"""The sequence ledger on every adapter: gaps open and close, duplicates are recorded, reused numbers
+seen; all of it per robot and epoch."""
 
 from __future__ import annotations
 
@@ -7,53 +8,68 @@ import itertools
 from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
-from tests.store.conftest import fresh_database
 from tests.store.second import second_connection
-from tests.store.test_contract import record
+from tests.store.test_contract import EPOCH, LATER, record
 from workers.store.base import EventQuery
 from workers.store.interface import Store
-from workers.store.ledger import Duplicate, Gap, apply_seqs
-from workers.store.mongo import MongoEventStore
+from workers.store.ledger import Duplicate, Gap, RobotEpoch, apply_seqs
 
 T0 = datetime(2026, 11, 23, 8, 0, tzinfo=timezone.utc)
 T1 = T0 + timedelta(seconds=1)
+EXPLORER = RobotEpoch("explorer1", EPOCH)
+EXPLORER_LATER = RobotEpoch("explorer1", LATER)
+WARDEN = RobotEpoch("warden1", EPOCH)
 
 
-def spans(gaps: list[Gap]) -> list[tuple[str, int, int]]:
-    return [(gap.robot_id, gap.first, gap.last) for gap in gaps]
+def spans(gaps: list[Gap]) -> list[tuple[str, str, int, int]]:
+    return [(gap.robot_id, gap.epoch, gap.first, gap.last) for gap in gaps]
 
 
 async def test_a_gap_opens_and_closes_piece_by_piece(store: Store) -> None:
-    await store.observe_sequences({"explorer1": [0, 1, 2]}, T0)
-    assert await store.gaps() == [] and await store.high_water("explorer1") == 2
-    await store.observe_sequences({"explorer1": [7, 8], "warden1": [3]}, T0)
-    assert spans(await store.gaps()) == [("explorer1", 3, 6), ("warden1", 0, 2)]
-    await store.observe_sequences({"explorer1": [5]}, T1)
-    assert spans(await store.gaps("explorer1")) == [("explorer1", 3, 4), ("explorer1", 6, 6)]
+    await store.observe_sequences({EXPLORER: [0, 1, 2]}, T0)
+    assert await store.gaps() == [] and await store.high_water("explorer1", EPOCH) == 2
+    await store.observe_sequences({EXPLORER: [7, 8], WARDEN: [3]}, T0)
+    assert spans(await store.gaps()) == [("explorer1", EPOCH, 3, 6), ("warden1", EPOCH, 0, 2)]
+    await store.observe_sequences({EXPLORER: [5]}, T1)
+    assert spans(await store.gaps("explorer1")) == [("explorer1", EPOCH, 3, 4), ("explorer1", EPOCH, 6, 6)]
     assert {gap.detected_at for gap in await store.gaps()} == {T0}, "pieces keep the time it opened"
-    await store.observe_sequences({"explorer1": [3, 4, 6, 9]}, T1)
-    assert spans(await store.gaps()) == [("warden1", 0, 2)]
-    assert await store.high_water("explorer1") == 9
+    await store.observe_sequences({EXPLORER: [3, 4, 6, 9]}, T1)
+    assert spans(await store.gaps()) == [("warden1", EPOCH, 0, 2)]
+    assert await store.high_water("explorer1", EPOCH) == 9
+
+
+async def test_each_epoch_of_a_robot_has_its_own_numbers(store: Store) -> None:
+    """A client started again counts from 0 in a new epoch: no gap, no reuse, across epochs."""
+    await store.observe_sequences({EXPLORER: [0, 1, 2, 3, 4]}, T0)
+    await store.observe_sequences({EXPLORER_LATER: [0, 1]}, T1)
+    assert await store.gaps() == []
+    assert await store.high_water("explorer1", EPOCH) == 4 and await store.high_water("explorer1", LATER) == 1
+    await store.observe_sequences({EXPLORER_LATER: [5], EXPLORER: [6]}, T1)
+    assert spans(await store.gaps("explorer1")) == [("explorer1", EPOCH, 5, 5), ("explorer1", LATER, 2, 4)]
 
 
 async def test_observing_again_changes_nothing(store: Store) -> None:
     for seqs in ([0, 4], [4, 0], [2], [2], [0, 4]):
-        await store.observe_sequences({"explorer1": seqs}, T0)
-    assert spans(await store.gaps()) == [("explorer1", 1, 1), ("explorer1", 3, 3)]
-    assert await store.high_water("explorer1") == 4
-    assert await store.high_water("nobody") is None
+        await store.observe_sequences({EXPLORER: seqs}, T0)
+    assert spans(await store.gaps()) == [("explorer1", EPOCH, 1, 1), ("explorer1", EPOCH, 3, 3)]
+    assert await store.high_water("explorer1", EPOCH) == 4
+    assert await store.high_water("explorer1", LATER) is None
+    assert await store.high_water("nobody", EPOCH) is None
 
 
 async def test_duplicates_are_recorded_newest_first(store: Store) -> None:
     await store.record_duplicates(
         [
-            Duplicate("explorer1", 3, "m-3", T0, redelivered=False),
-            Duplicate("explorer1", 4, "m-4", T1, redelivered=True),
-            Duplicate("warden1", 1, "w-1", T0, redelivered=False),
+            Duplicate("explorer1", EPOCH, 3, "m-3", T0, redelivered=False),
+            Duplicate("explorer1", LATER, 4, "m-4", T1, redelivered=True),
+            Duplicate("warden1", EPOCH, 1, "w-1", T0, redelivered=False),
         ]
     )
     found = await store.duplicates("explorer1")
-    assert [(d.seq, d.redelivered, d.seen_at) for d in found] == [(4, True, T1), (3, False, T0)]
+    assert [(d.epoch, d.seq, d.redelivered, d.seen_at) for d in found] == [
+        (LATER, 4, True, T1),
+        (EPOCH, 3, False, T0),
+    ]
     assert len(await store.duplicates()) == 3 and len(await store.duplicates(limit=1)) == 1
 
 
@@ -75,7 +91,7 @@ def test_the_ledger_does_not_depend_on_the_order_it_sees_numbers_in() -> None:
     for order in itertools.permutations(numbers):
         high_water, gaps = None, []
         for seq in order:
-            change = apply_seqs("r", high_water, gaps, [seq], T0)
+            change = apply_seqs(RobotEpoch("r", EPOCH), high_water, gaps, [seq], T0)
             high_water, gaps = change.high_water, change.gaps
         outcomes.add((high_water, tuple((g.first, g.last) for g in gaps)))
     assert outcomes == {(12, ((1, 1), (4, 6), (8, 8), (10, 11)))}
@@ -100,11 +116,11 @@ async def test_a_stored_batch_is_stamped_written_and_observed_in_one_step(store:
     found = await store.find_events(EventQuery(mission_id="m-1"))
     assert [(r.robot_id, r.seq) for r in found] == [("explorer1", 0)], "the first record of seq 1 is kept"
     # seq 1 was stored before without the ledger's knowledge; the reused number is not observed
-    assert await store.high_water("explorer1") == 0 and await store.high_water("warden1") == 4
-    assert spans(await store.gaps()) == [("warden1", 0, 3)]
+    assert await store.high_water("explorer1", EPOCH) == 0 and await store.high_water("warden1", EPOCH) == 4
+    assert spans(await store.gaps()) == [("warden1", EPOCH, 0, 3)]
     again = await store.store_batch(batch, T1)
     assert [r.inserted for r in again.results] == [False, False, False]
-    assert await store.count_events() == 3 and spans(await store.gaps()) == [("warden1", 0, 3)]
+    assert await store.count_events() == 3 and spans(await store.gaps()) == [("warden1", EPOCH, 0, 3)]
 
 
 async def test_two_lanes_observing_one_robot_at_once_leave_the_ledger_one_lane_would(store: Store) -> None:
@@ -118,32 +134,10 @@ async def test_two_lanes_observing_one_robot_at_once_leave_the_ledger_one_lane_w
 
         async def observe(observer: Store, batches: list[list[int]]) -> None:
             for seqs in batches:
-                await observer.observe_sequences({"explorer1": seqs}, T0)
+                await observer.observe_sequences({EXPLORER: seqs}, T0)
 
         await asyncio.gather(observe(store, bulk), observe(other, express))
         assert await store.gaps() == [], "every number below the mark was observed"
-        assert await store.high_water("explorer1") == 199
+        assert await store.high_water("explorer1", EPOCH) == 199
     finally:
         await other.close()
-
-
-async def test_mongodb_gaps_kept_one_document_each_are_read_and_moved_into_the_robots(
-    mongodb_url: str,
-) -> None:
-    """The layout before the ledger's one document per robot: its gaps still count, then move."""
-    async with (
-        fresh_database(mongodb_url) as database,
-        MongoEventStore(mongodb_url, database=database) as store,
-    ):
-        await store._collection("robot_sequences").insert_one({"_id": "explorer1", "high_water": 9})
-        await store._collection("sequence_gaps").insert_many(
-            [
-                {"_id": "explorer1:3", "robot_id": "explorer1", "first": 3, "last": 4, "detected_at_us": 0},
-                {"_id": "explorer1:7", "robot_id": "explorer1", "first": 7, "last": 7, "detected_at_us": 0},
-            ]
-        )
-        assert spans(await store.gaps()) == [("explorer1", 3, 4), ("explorer1", 7, 7)]
-        await store.observe_sequences({"explorer1": [4, 12]}, T0)
-        assert spans(await store.gaps()) == [("explorer1", 3, 3), ("explorer1", 7, 7), ("explorer1", 10, 11)]
-        assert await store._collection("sequence_gaps").count_documents({}) == 0, "moved"
-        assert await store.high_water("explorer1") == 12

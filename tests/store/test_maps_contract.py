@@ -8,6 +8,8 @@ from datetime import datetime, timezone
 from workers.store.interface import Store
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
+EPOCH = "20210601T182526564Z-0a1b2c3d"
+LATER = "20210601T190000000Z-4e5f6a7b"
 META = {
     "resolution": 0.11,
     "origin": [2.1, 3.5, 0.0],
@@ -32,15 +34,16 @@ async def test_versions_are_kept_and_read_back_exactly(store: Store) -> None:
     staged = await store.staged_map_chunks("m-1")
     assert b"".join(staged[i] for i in sorted(staged)) == image
 
-    first = await store.commit_map("explorer1", 5, image, META, T0, digest, 4096, "m-1")
+    first = await store.commit_map("explorer1", EPOCH, 5, image, META, T0, digest, 4096, "m-1")
     assert (first.version, first.size, first.chunks, first.sha256) == (1, len(image), 3, digest)
     assert await store.staged_map_chunks("m-1") == {}
-    again = await store.commit_map("explorer1", 5, image, META, T0, digest, 4096, None)
+    again = await store.commit_map("explorer1", EPOCH, 5, image, META, T0, digest, 4096, None)
     assert again == first, "the same event commits one version"
-    assert await store.committed_map("explorer1", 5) == first
-    assert await store.committed_map("explorer1", 6) is None
-    second = await store.commit_map("explorer1", 9, b"P5 small", META, T0, "0" * 64, 4096, None)
-    assert second.version == 2
+    assert await store.committed_map("explorer1", EPOCH, 5) == first
+    assert await store.committed_map("explorer1", EPOCH, 6) is None
+    assert await store.committed_map("explorer1", LATER, 5) is None, "the same number in another epoch"
+    second = await store.commit_map("explorer1", LATER, 5, b"P5 small", META, T0, "0" * 64, 4096, None)
+    assert second.version == 2 and (second.epoch, second.seq) == (LATER, 5)
     latest = await store.map_version()
     assert latest == second
     assert await read_back(store, 1) == image

@@ -10,7 +10,7 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
-from tests.store.test_contract import T0, record
+from tests.store.test_contract import EPOCH, T0, record
 from workers.store.hazards import NewHazard
 from workers.store.sqlite import SQLiteEventStore
 from workers.store.sqlite_database import in_transaction
@@ -73,7 +73,9 @@ async def test_calls_from_two_threads_never_share_the_connection_at_once(tmp_pat
         await asyncio.to_thread(lambda: [thread.join(60) for thread in threads])
         assert errors == []
         assert await store.count_events() == 300
-        assert await store.high_water("robot0") == 149 and await store.high_water("robot1") == 149
+        assert (
+            await store.high_water("robot0", EPOCH) == 149 and await store.high_water("robot1", EPOCH) == 149
+        )
         assert await store.gaps() == []
 
 

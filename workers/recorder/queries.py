@@ -39,7 +39,9 @@ from workers.store.recordings import (
 T = TypeVar("T")
 
 #: The top-level fields of a fleetbus event envelope; any other field of an event type is its body's.
-ENVELOPE_FIELDS = frozenset({"message_id", "robot_id", "seq", "sent_at", "schema_version", "type", "body"})
+ENVELOPE_FIELDS = frozenset(
+    {"message_id", "robot_id", "epoch", "seq", "sent_at", "schema_version", "type", "body"}
+)
 EVENT_TYPES = frozenset(t.value for t in EventType)
 #: Operators of a written condition, longest first so that ``<=`` is not read as ``<``.
 WRITTEN_OPS = (Op.NE, Op.LE, Op.GE, Op.EQ, Op.LT, Op.GT, Op.CONTAINS)

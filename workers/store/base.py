@@ -1,7 +1,8 @@
 """The storage interface every adapter implements, and the record it stores.
 
-Writes are idempotent on ``(robot_id, seq)``: the document-id strategy is that pair, so a
-redelivered or resent event never becomes a second record. ``write_events`` returns only once
+Writes are idempotent on ``(robot_id, epoch, seq)``, the event's key (:mod:`schemas.envelope`):
+the document-id strategy is that triple, so a redelivered or resent event never becomes a second
+record. ``write_events`` returns only once
 the batch is durable, which is what lets a worker ack after it.
 """
 
@@ -38,6 +39,7 @@ class EventRecord:
     """One stored event: the validated envelope plus what the broker told us about it."""
 
     robot_id: str
+    epoch: str
     seq: int
     type: str
     message_id: str
@@ -51,14 +53,14 @@ class EventRecord:
     mission_id: str | None = None
 
     @property
-    def key(self) -> tuple[str, int]:
-        return (self.robot_id, self.seq)
+    def key(self) -> tuple[str, str, int]:
+        return (self.robot_id, self.epoch, self.seq)
 
 
 @dataclass(frozen=True)
 class WriteResult:
     inserted: bool
-    """False when a record with the same (robot_id, seq) was already stored."""
+    """False when a record with the same (robot_id, epoch, seq) was already stored."""
     stored_message_id: str | None = None
     """When not inserted: the message id of the record already stored under that key. The same id
     means a resend or redelivery; another id means the robot reused a sequence number."""
@@ -101,7 +103,7 @@ class EventStore(abc.ABC):
 
     @abc.abstractmethod
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
-        """Events matching the query, ordered by ``sent_at`` then robot and sequence number."""
+        """Events matching the query, ordered by ``sent_at`` then robot, epoch and sequence number."""
 
     @abc.abstractmethod
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int: ...

@@ -36,6 +36,7 @@ class Hazard:
     mission_id: str
     hazard_id: int
     robot_id: str
+    epoch: str
     seq: int
     event: dict[str, Any]
     """The hazard event as the robot sent it (envelope and body, JSON types)."""
@@ -97,6 +98,7 @@ class NewHazard:
 
     mission_id: str
     robot_id: str
+    epoch: str
     seq: int
     event: dict[str, Any]
     received_at: datetime
@@ -109,6 +111,7 @@ class NewHazard:
         event = {
             "message_id": record.message_id,
             "robot_id": record.robot_id,
+            "epoch": record.epoch,
             "seq": record.seq,
             "sent_at": _TIMESTAMP.dump_python(record.sent_at, mode="json"),
             "schema_version": SCHEMA_VERSION,
@@ -116,7 +119,12 @@ class NewHazard:
             "body": record.body,
         }
         return cls(
-            record.mission_id or DEFAULT_MISSION, record.robot_id, record.seq, event, record.received_at
+            record.mission_id or DEFAULT_MISSION,
+            record.robot_id,
+            record.epoch,
+            record.seq,
+            event,
+            record.received_at,
         )
 
 
@@ -149,12 +157,13 @@ class CoordinationStore(abc.ABC):
         self,
         mission_id: str,
         robot_id: str,
+        epoch: str,
         seq: int,
         event: dict[str, Any],
         received_at: datetime,
         held: bool,
     ) -> Hazard:
-        """Register the hazard of event (robot_id, seq) with the mission's next id.
+        """Register the hazard of event (robot_id, epoch, seq) with the mission's next id.
 
         Idempotent: the same event again returns the hazard registered the first time.
         """
@@ -169,7 +178,13 @@ class CoordinationStore(abc.ABC):
         on every hazard's way to the wardens."""
         for hazard in new:
             await self.add_hazard(
-                hazard.mission_id, hazard.robot_id, hazard.seq, hazard.event, hazard.received_at, held=True
+                hazard.mission_id,
+                hazard.robot_id,
+                hazard.epoch,
+                hazard.seq,
+                hazard.event,
+                hazard.received_at,
+                held=True,
             )
         held = await self.held_hazards()
         wardens = await self.robots(RobotKind.WARDEN.value)

@@ -14,7 +14,7 @@ from workers.store.channels import ChannelStore
 from workers.store.discards import DiscardLog
 from workers.store.hazards import CoordinationStore
 from workers.store.leases import LeaseStore
-from workers.store.ledger import SequenceLedger
+from workers.store.ledger import RobotEpoch, SequenceLedger
 from workers.store.maps import MapStore
 from workers.store.missions import MissionStore
 from workers.store.users import UserStore
@@ -77,10 +77,12 @@ def stamp_missions(records: Sequence[EventRecord], missions: dict[str, str]) -> 
     ]
 
 
-def held_sequences(records: Sequence[EventRecord], results: Sequence[WriteResult]) -> dict[str, list[int]]:
-    """By robot, the numbers whose events the store holds after a write (not the reused ones)."""
-    held: dict[str, list[int]] = {}
+def held_sequences(
+    records: Sequence[EventRecord], results: Sequence[WriteResult]
+) -> dict[RobotEpoch, list[int]]:
+    """By robot and epoch, the numbers whose events the store holds after a write (not the reused ones)."""
+    held: dict[RobotEpoch, list[int]] = {}
     for record, result in zip(records, results, strict=True):
         if result.inserted or result.stored_message_id == record.message_id:
-            held.setdefault(record.robot_id, []).append(record.seq)
+            held.setdefault(RobotEpoch(record.robot_id, record.epoch), []).append(record.seq)
     return held

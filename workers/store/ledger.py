@@ -1,13 +1,15 @@
 """What the server knows of each robot's sequence numbers: gaps, and duplicates it was sent.
 
-Every robot numbers its events 0, 1, 2, ... The ledger keeps, per robot, the highest number
-stored (the high-water mark) and the ranges below it that the store does not hold (gaps). A
-gap opens when a number arrives beyond the next one expected and closes, piece by piece, when
-the missing events arrive later. Observing a number twice changes nothing, so a redelivered
-batch can be observed again safely; the result does not depend on the order of observation.
+Every start of a robot's client numbers its events 0, 1, 2, ... within an epoch of its own
+(:mod:`schemas.envelope`). The ledger keeps, per robot and epoch, the highest number stored (the
+high-water mark) and the ranges below it that the store does not hold (gaps). A gap opens when a
+number arrives beyond the next one expected and closes, piece by piece, when the missing events
+arrive later. Observing a number twice changes nothing, so a redelivered batch can be observed
+again safely; the result does not depend on the order of observation.
 
-A duplicate is an event the store already held under the same (robot, seq) and message id: a
-robot that resent after a lost confirm, or a redelivery after a worker crash (``redelivered``).
+A duplicate is an event the store already held under the same (robot, epoch, seq) and message
+id: a robot that resent after a lost confirm, or a redelivery after a worker crash
+(``redelivered``).
 """
 
 from __future__ import annotations
@@ -16,11 +18,20 @@ import abc
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
+from typing import NamedTuple
+
+
+class RobotEpoch(NamedTuple):
+    """One numbering: a robot, and the epoch of the client start that numbered the events."""
+
+    robot_id: str
+    epoch: str
 
 
 @dataclass(frozen=True)
 class Gap:
     robot_id: str
+    epoch: str
     first: int
     last: int
     detected_at: datetime
@@ -33,6 +44,7 @@ class Gap:
 @dataclass(frozen=True)
 class Duplicate:
     robot_id: str
+    epoch: str
     seq: int
     message_id: str
     seen_at: datetime
@@ -49,15 +61,16 @@ class LedgerChange:
 
 
 def apply_seqs(
-    robot_id: str, high_water: int | None, touched: Sequence[Gap], seqs: Iterable[int], at: datetime
+    numbering: RobotEpoch, high_water: int | None, touched: Sequence[Gap], seqs: Iterable[int], at: datetime
 ) -> LedgerChange:
-    """The ledger after observing ``seqs``, given the gaps that contain any of them (``touched``)."""
+    """One numbering's ledger after observing ``seqs``, given the gaps that contain any of them
+    (``touched``)."""
     hw = -1 if high_water is None else high_water
     gaps = sorted(touched, key=lambda gap: gap.first)
     for seq in sorted(set(seqs)):
         if seq > hw:
             if seq > hw + 1:
-                gaps.append(Gap(robot_id, hw + 1, seq - 1, at))
+                gaps.append(Gap(*numbering, hw + 1, seq - 1, at))
             hw = seq
             continue
         for index, gap in enumerate(gaps):
@@ -74,20 +87,20 @@ def apply_seqs(
 
 class SequenceLedger(abc.ABC):
     @abc.abstractmethod
-    async def observe_sequences(self, seen: Mapping[str, Sequence[int]], at: datetime) -> None:
-        """Record that these robots' events are stored; open and close gaps accordingly (idempotent)."""
+    async def observe_sequences(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
+        """Record that these numbers' events are stored; open and close gaps accordingly (idempotent)."""
 
     @abc.abstractmethod
     async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None: ...
 
     @abc.abstractmethod
     async def gaps(self, robot_id: str | None = None) -> list[Gap]:
-        """Open gaps, by robot then first missing number."""
+        """Open gaps, by robot, epoch, then first missing number."""
 
     @abc.abstractmethod
     async def duplicates(self, robot_id: str | None = None, limit: int | None = None) -> list[Duplicate]:
         """Duplicates seen, newest first."""
 
     @abc.abstractmethod
-    async def high_water(self, robot_id: str) -> int | None:
-        """The highest sequence number stored for the robot, None before its first event."""
+    async def high_water(self, robot_id: str, epoch: str) -> int | None:
+        """The highest sequence number stored for the robot in ``epoch``, None before its first event."""

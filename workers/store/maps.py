@@ -19,6 +19,7 @@ from workers.store.base import StoreError
 class MapVersion:
     version: int
     robot_id: str
+    epoch: str
     seq: int
     metadata: dict[str, Any]
     created_at: datetime
@@ -49,6 +50,7 @@ class MapStore(abc.ABC):
     async def commit_map(
         self,
         robot_id: str,
+        epoch: str,
         seq: int,
         image: bytes,
         metadata: dict[str, Any],
@@ -57,11 +59,12 @@ class MapStore(abc.ABC):
         chunk_size: int,
         staged_map_id: str | None,
     ) -> MapVersion:
-        """Store ``image`` as the next version (idempotent on robot and seq); drop the staged chunks."""
+        """Store ``image`` as the next version (idempotent on the map event's robot, epoch and seq);
+        drop the staged chunks."""
 
     @abc.abstractmethod
-    async def committed_map(self, robot_id: str, seq: int) -> MapVersion | None:
-        """The version the map event (robot_id, seq) committed, if it did."""
+    async def committed_map(self, robot_id: str, epoch: str, seq: int) -> MapVersion | None:
+        """The version the map event (robot_id, epoch, seq) committed, if it did."""
 
     @abc.abstractmethod
     async def map_version(self, version: int | None = None) -> MapVersion | None:

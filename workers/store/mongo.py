@@ -1,7 +1,7 @@
 """The production store: MongoDB through pymongo's ``AsyncMongoClient``.
 
-Document ids follow a small strategy (``<robot>:<seq>``), so MongoDB's own ``_id`` uniqueness
-makes writes idempotent. Times are kept twice: as BSON dates for people querying MongoDB, and as
+Document ids follow a small strategy (``<robot>:<epoch>:<seq>``), so MongoDB's own ``_id``
+uniqueness makes writes idempotent. Times are kept twice: as BSON dates for people querying MongoDB, and as
 integer microseconds, which round-trip exactly (BSON dates stop at milliseconds).
 """
 
@@ -35,17 +35,18 @@ from workers.store.mongo_users import MongoUsers
 
 
 class RobotSequenceId:
-    """Document-id strategy: one document per (robot, sequence number)."""
+    """Document-id strategy: one document per (robot, epoch, sequence number)."""
 
     @staticmethod
-    def of(robot_id: str, seq: int) -> str:
-        return f"{robot_id}:{seq}"
+    def of(robot_id: str, epoch: str, seq: int) -> str:
+        return f"{robot_id}:{epoch}:{seq}"
 
 
 def to_document(record: EventRecord) -> dict[str, Any]:
     return {
-        "_id": RobotSequenceId.of(record.robot_id, record.seq),
+        "_id": RobotSequenceId.of(record.robot_id, record.epoch, record.seq),
         "robot_id": record.robot_id,
+        "epoch": record.epoch,
         "seq": record.seq,
         "type": record.type,
         "message_id": record.message_id,
@@ -64,6 +65,7 @@ def to_document(record: EventRecord) -> dict[str, Any]:
 def from_document(doc: dict[str, Any]) -> EventRecord:
     return EventRecord(
         robot_id=doc["robot_id"],
+        epoch=doc["epoch"],
         seq=doc["seq"],
         type=doc["type"],
         message_id=doc["message_id"],
@@ -109,7 +111,7 @@ class MongoEventStore(
             await self.create_coordination_indexes()
             await self.create_ledger_indexes()
             await self._collection("maps").create_index(
-                [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
+                [("robot_id", ASCENDING), ("epoch", ASCENDING), ("seq", ASCENDING)], unique=True
             )
             await self._collection("map_staging").create_index([("map_id", ASCENDING)])
             await self.create_mission_indexes()
@@ -177,7 +179,9 @@ class MongoEventStore(
         cursor = (
             self._events()
             .find(self._filter(query.type, query.robot_id, query))
-            .sort([("sent_at_us", direction), ("robot_id", direction), ("seq", direction)])
+            .sort(
+                [("sent_at_us", direction), ("robot_id", direction), ("epoch", direction), ("seq", direction)]
+            )
         )
         if query.limit is not None:
             cursor = cursor.limit(query.limit)

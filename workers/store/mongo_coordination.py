@@ -32,6 +32,7 @@ def _hazard(doc: dict[str, Any]) -> Hazard:
         mission_id=doc["mission_id"],
         hazard_id=doc["hazard_id"],
         robot_id=doc["robot_id"],
+        epoch=doc["epoch"],
         seq=doc["seq"],
         event=doc["event"],
         state=HazardState(doc["state"]),
@@ -51,7 +52,7 @@ class MongoCoordination(CoordinationStore):
 
     async def create_coordination_indexes(self) -> None:
         await self._collection("hazards").create_index(
-            [("robot_id", ASCENDING), ("seq", ASCENDING)], unique=True
+            [("robot_id", ASCENDING), ("epoch", ASCENDING), ("seq", ASCENDING)], unique=True
         )
         await self._collection("hazards").create_index(
             [("state", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
@@ -100,13 +101,15 @@ class MongoCoordination(CoordinationStore):
         self,
         mission_id: str,
         robot_id: str,
+        epoch: str,
         seq: int,
         event: dict[str, Any],
         received_at: datetime,
         held: bool,
     ) -> Hazard:
         hazards = self._collection("hazards")
-        existing = await hazards.find_one({"robot_id": robot_id, "seq": seq})
+        source = {"robot_id": robot_id, "epoch": epoch, "seq": seq}
+        existing = await hazards.find_one(source)
         if existing:
             return _hazard(existing)
         counter = await self._collection("hazard_counters").find_one_and_update(
@@ -117,8 +120,7 @@ class MongoCoordination(CoordinationStore):
             "_id": hazard_id_of(mission_id, next_id),
             "mission_id": mission_id,
             "hazard_id": next_id,
-            "robot_id": robot_id,
-            "seq": seq,
+            **source,
             "event": event,
             "state": (HazardState.HELD if held else HazardState.ANNOUNCED).value,
             "received_at": received_at,
@@ -129,7 +131,7 @@ class MongoCoordination(CoordinationStore):
         try:
             await hazards.insert_one(doc)
         except DuplicateKeyError:  # another worker registered this event first; its id stands
-            existing = await hazards.find_one({"robot_id": robot_id, "seq": seq})
+            existing = await hazards.find_one(source)
             return _hazard(existing)
         return _hazard(doc)
 

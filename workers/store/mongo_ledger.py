@@ -1,14 +1,11 @@
 """The sequence ledger (gaps, duplicates) on MongoDB, mixed into :class:`MongoEventStore`.
 
-One document per robot holds its high-water mark and its gaps, with a version: an observation
-reads it, works out the change, and writes it back only if the version is still the one it read
-(else it reads again). One document is written atomically without a transaction, so the express
-lane and a shard (two worker processes when the shards are shared) can observe the same robot at
-once without losing an update, and a worker that dies mid-way leaves the ledger as it was.
-
-Before this layout, each gap was a document of ``sequence_gaps`` and the robot's document held
-only its mark: such a robot's gaps are read from there, and moved into its document the first
-time it is observed again.
+One document per robot and epoch (``_id`` ``<robot>:<epoch>``) holds its high-water mark and its
+gaps, with a version: an observation reads it, works out the change, and writes it back only if
+the version is still the one it read (else it reads again). One document is written atomically
+without a transaction, so the express lane and a shard (two worker processes when the shards are
+shared) can observe the same numbering at once without losing an update, and a worker that dies
+mid-way leaves the ledger as it was.
 """
 
 from __future__ import annotations
@@ -21,11 +18,20 @@ from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import DuplicateKeyError
 
 from workers.store.base import from_micros, to_micros
-from workers.store.ledger import Duplicate, Gap, SequenceLedger, apply_seqs
+from workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
 
 
-def _gap(robot_id: str, doc: dict[str, Any]) -> Gap:
-    return Gap(robot_id, doc["first"], doc["last"], from_micros(doc["detected_at_us"]))
+def numbering_id(numbering: RobotEpoch) -> str:
+    return f"{numbering.robot_id}:{numbering.epoch}"
+
+
+def _gap(numbering: RobotEpoch, doc: dict[str, Any]) -> Gap:
+    return Gap(*numbering, doc["first"], doc["last"], from_micros(doc["detected_at_us"]))
+
+
+def _gaps_of(doc: dict[str, Any]) -> list[Gap]:
+    numbering = RobotEpoch(doc["robot_id"], doc["epoch"])
+    return [_gap(numbering, gap) for gap in doc.get("gaps", [])]
 
 
 def _stored(gap: Gap) -> dict[str, Any]:
@@ -38,32 +44,36 @@ class MongoLedger(SequenceLedger):
     _collection: Callable[[str], Any]
 
     async def create_ledger_indexes(self) -> None:
+        await self._collection("robot_sequences").create_index(
+            [("robot_id", ASCENDING), ("epoch", ASCENDING)]
+        )
         await self._collection("duplicates").create_index(
             [("robot_id", ASCENDING), ("seen_at_us", DESCENDING)]
         )
 
-    async def high_water(self, robot_id: str) -> int | None:
-        doc = await self._collection("robot_sequences").find_one({"_id": robot_id})
+    async def high_water(self, robot_id: str, epoch: str) -> int | None:
+        doc = await self._collection("robot_sequences").find_one(
+            {"_id": numbering_id(RobotEpoch(robot_id, epoch))}
+        )
         return doc["high_water"] if doc else None
 
-    async def observe_sequences(self, seen: Mapping[str, Sequence[int]], at: datetime) -> None:
-        for robot_id, seqs in seen.items():
+    async def observe_sequences(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
+        for numbering, seqs in seen.items():
             if seqs:
-                while not await self._observe(robot_id, seqs, at):
-                    pass  # another observer changed the robot's ledger meanwhile: again, from it
+                while not await self._observe(RobotEpoch(*numbering), seqs, at):
+                    pass  # another observer changed this numbering's ledger meanwhile: again, from it
 
-    async def _observe(self, robot_id: str, seqs: Sequence[int], at: datetime) -> bool:
-        """One attempt; False if another observer wrote the robot's document first."""
+    async def _observe(self, numbering: RobotEpoch, seqs: Sequence[int], at: datetime) -> bool:
+        """One attempt; False if another observer wrote the numbering's document first."""
         robots = self._collection("robot_sequences")
-        doc = await robots.find_one({"_id": robot_id})
+        doc = await robots.find_one({"_id": numbering_id(numbering)})
         high_water = doc["high_water"] if doc else None
-        legacy = doc is not None and "version" not in doc
-        gaps = await self._gaps_of(robot_id, doc)
+        gaps = _gaps_of(doc) if doc else []
         low, high = min(seqs), max(seqs)
         touched = [
             g for g in gaps if high_water is not None and g.last >= low and g.first <= min(high, high_water)
         ]
-        change = apply_seqs(robot_id, high_water, touched, seqs, at)
+        change = apply_seqs(numbering, high_water, touched, seqs, at)
         kept = [g for g in gaps if g not in touched]
         after = {
             "high_water": change.high_water,
@@ -71,27 +81,16 @@ class MongoLedger(SequenceLedger):
         }
         if doc is None:
             try:
-                await robots.insert_one({"_id": robot_id, **after, "version": 1})
+                await robots.insert_one(
+                    {"_id": numbering_id(numbering), **numbering._asdict(), **after, "version": 1}
+                )
             except DuplicateKeyError:
                 return False
             return True
-        version = {"$exists": False} if legacy else doc["version"]
         written = await robots.update_one(
-            {"_id": robot_id, "version": version}, {"$set": after, "$inc": {"version": 1}}
+            {"_id": doc["_id"], "version": doc["version"]}, {"$set": after, "$inc": {"version": 1}}
         )
-        if written.matched_count == 0:
-            return False
-        if legacy:
-            await self._collection("sequence_gaps").delete_many({"robot_id": robot_id})
-        return True
-
-    async def _gaps_of(self, robot_id: str, doc: dict[str, Any] | None) -> list[Gap]:
-        """The robot's gaps: in its document, or (a document without a version, from before this
-        layout) one document each in ``sequence_gaps``."""
-        if doc is not None and "version" not in doc:
-            cursor = self._collection("sequence_gaps").find({"robot_id": robot_id})
-            return [_gap(robot_id, gap) async for gap in cursor]
-        return [_gap(robot_id, gap) for gap in (doc or {}).get("gaps", [])]
+        return written.matched_count == 1
 
     async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None:
         if duplicates:
@@ -99,6 +98,7 @@ class MongoLedger(SequenceLedger):
                 [
                     {
                         "robot_id": d.robot_id,
+                        "epoch": d.epoch,
                         "seq": d.seq,
                         "message_id": d.message_id,
                         "seen_at": d.seen_at,
@@ -111,21 +111,33 @@ class MongoLedger(SequenceLedger):
 
     async def gaps(self, robot_id: str | None = None) -> list[Gap]:
         found: list[Gap] = []
-        async for doc in self._collection("robot_sequences").find({"_id": robot_id} if robot_id else {}):
-            found.extend(await self._gaps_of(doc["_id"], doc))
-        return sorted(found, key=lambda gap: (gap.robot_id, gap.first))
+        async for doc in self._collection("robot_sequences").find({"robot_id": robot_id} if robot_id else {}):
+            found.extend(_gaps_of(doc))
+        return sorted(found, key=lambda gap: (gap.robot_id, gap.epoch, gap.first))
 
     async def duplicates(self, robot_id: str | None = None, limit: int | None = None) -> list[Duplicate]:
         cursor = (
             self._collection("duplicates")
             .find({"robot_id": robot_id} if robot_id else {})
-            .sort([("seen_at_us", DESCENDING), ("robot_id", ASCENDING), ("seq", DESCENDING)])
+            .sort(
+                [
+                    ("seen_at_us", DESCENDING),
+                    ("robot_id", ASCENDING),
+                    ("epoch", DESCENDING),
+                    ("seq", DESCENDING),
+                ]
+            )
         )
         if limit is not None:
             cursor = cursor.limit(limit)
         return [
             Duplicate(
-                d["robot_id"], d["seq"], d["message_id"], from_micros(d["seen_at_us"]), d["redelivered"]
+                d["robot_id"],
+                d["epoch"],
+                d["seq"],
+                d["message_id"],
+                from_micros(d["seen_at_us"]),
+                d["redelivered"],
             )
             async for d in cursor
         ]

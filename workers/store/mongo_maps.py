@@ -21,6 +21,7 @@ def _map_version(doc: dict[str, Any]) -> MapVersion:
     return MapVersion(
         version=doc["_id"],
         robot_id=doc["robot_id"],
+        epoch=doc["epoch"],
         seq=doc["seq"],
         metadata=doc["metadata"],
         created_at=from_micros(doc["created_at_us"]),
@@ -53,6 +54,7 @@ class MongoMaps(MapStore):
     async def commit_map(
         self,
         robot_id: str,
+        epoch: str,
         seq: int,
         image: bytes,
         metadata: dict[str, Any],
@@ -62,7 +64,8 @@ class MongoMaps(MapStore):
         staged_map_id: str | None,
     ) -> MapVersion:
         maps = self._collection("maps")
-        existing = await maps.find_one({"robot_id": robot_id, "seq": seq})
+        event = {"robot_id": robot_id, "epoch": epoch, "seq": seq}
+        existing = await maps.find_one(event)
         if existing is None:
             counter = await self._collection("map_counter").find_one_and_update(
                 {"_id": "maps"}, {"$inc": {"last": 1}}, upsert=True, return_document=ReturnDocument.AFTER
@@ -74,8 +77,7 @@ class MongoMaps(MapStore):
             )
             existing = {
                 "_id": version,
-                "robot_id": robot_id,
-                "seq": seq,
+                **event,
                 "metadata": metadata,
                 "created_at": created_at,
                 "created_at_us": to_micros(created_at),
@@ -88,13 +90,13 @@ class MongoMaps(MapStore):
                 await maps.insert_one(existing)
             except DuplicateKeyError:  # another worker committed this event first
                 await bucket.delete(version)
-                existing = await maps.find_one({"robot_id": robot_id, "seq": seq})
+                existing = await maps.find_one(event)
         if staged_map_id is not None:
             await self._collection("map_staging").delete_many({"map_id": staged_map_id})
         return _map_version(existing)
 
-    async def committed_map(self, robot_id: str, seq: int) -> MapVersion | None:
-        doc = await self._collection("maps").find_one({"robot_id": robot_id, "seq": seq})
+    async def committed_map(self, robot_id: str, epoch: str, seq: int) -> MapVersion | None:
+        doc = await self._collection("maps").find_one({"robot_id": robot_id, "epoch": epoch, "seq": seq})
         return _map_version(doc) if doc else None
 
     async def map_version(self, version: int | None = None) -> MapVersion | None:

@@ -23,6 +23,7 @@ from workers.store.base import (
 )
 from workers.store.hazards import NewHazard
 from workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
+from workers.store.ledger import RobotEpoch
 from workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
 from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
@@ -43,6 +44,7 @@ SMALL_BATCH = 16
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS events (
     robot_id    TEXT    NOT NULL,
+    epoch       TEXT    NOT NULL,
     seq         INTEGER NOT NULL,
     type        TEXT    NOT NULL,
     message_id  TEXT    NOT NULL,
@@ -53,7 +55,7 @@ CREATE TABLE IF NOT EXISTS events (
     exchange    TEXT    NOT NULL,
     routing_key TEXT    NOT NULL,
     mission_id  TEXT,
-    PRIMARY KEY (robot_id, seq)
+    PRIMARY KEY (robot_id, epoch, seq)
 ) WITHOUT ROWID;
 CREATE INDEX IF NOT EXISTS events_type_time ON events (type, sent_at);
 CREATE INDEX IF NOT EXISTS events_robot_time ON events (robot_id, sent_at);
@@ -61,18 +63,21 @@ CREATE INDEX IF NOT EXISTS events_time ON events (sent_at);
 CREATE INDEX IF NOT EXISTS events_message_id ON events (message_id);
 """
 COLUMNS = (
-    "robot_id, seq, type, message_id, sent_at, received_at, body, user_id, exchange, routing_key, mission_id"
+    "robot_id, epoch, seq, type, message_id, sent_at, received_at, body, user_id, exchange, routing_key, "
+    "mission_id"
 )
 # Unlike INSERT OR IGNORE, this skips only an existing key: a NOT NULL violation still raises
 # instead of being reported as a duplicate.
 INSERT = (
-    f"INSERT INTO events ({COLUMNS}) VALUES ({','.join('?' * 11)}) ON CONFLICT (robot_id, seq) DO NOTHING"
+    f"INSERT INTO events ({COLUMNS}) VALUES ({','.join('?' * 12)}) "
+    "ON CONFLICT (robot_id, epoch, seq) DO NOTHING"
 )
 
 
 def _row(record: EventRecord) -> tuple[Any, ...]:
     return (
         record.robot_id,
+        record.epoch,
         record.seq,
         record.type,
         record.message_id,
@@ -95,7 +100,7 @@ def _write(db: sqlite3.Connection, records: Sequence[EventRecord]) -> list[Write
             results.append(WriteResult(inserted=True))
         else:
             stored = db.execute(
-                "SELECT message_id FROM events WHERE robot_id = ? AND seq = ?", (row[0], row[1])
+                "SELECT message_id FROM events WHERE robot_id = ? AND epoch = ? AND seq = ?", row[:3]
             ).fetchone()
             results.append(WriteResult(inserted=False, stored_message_id=stored[0]))
     return results
@@ -104,6 +109,7 @@ def _write(db: sqlite3.Connection, records: Sequence[EventRecord]) -> list[Write
 def _record(row: sqlite3.Row) -> EventRecord:
     return EventRecord(
         robot_id=row["robot_id"],
+        epoch=row["epoch"],
         seq=row["seq"],
         type=row["type"],
         message_id=row["message_id"],
@@ -173,7 +179,9 @@ class SQLiteEventStore(
             held = held_sequences(stamped, results)
             observe(db, held, at)
             for record in stamped:
-                if record.type == EventType.HAZARD.value and record.seq in held.get(record.robot_id, ()):
+                if record.type == EventType.HAZARD.value and record.seq in held.get(
+                    RobotEpoch(record.robot_id, record.epoch), ()
+                ):
                     register_hazard(db, NewHazard.of(record), held=True)
             return StoredBatch(stamped, results)
 
@@ -184,7 +192,8 @@ class SQLiteEventStore(
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
         where, params = _where(query.type, query.robot_id, query.since, query.until, query.mission_id)
         order = "DESC" if query.newest_first else "ASC"
-        sql = f"SELECT * FROM events{where} ORDER BY sent_at {order}, robot_id {order}, seq {order}"
+        keys = ", ".join(f"{column} {order}" for column in ("sent_at", "robot_id", "epoch", "seq"))
+        sql = f"SELECT * FROM events{where} ORDER BY {keys}"
         if query.limit is not None:
             sql += f" LIMIT {int(query.limit)}"
         return await self._run(lambda db: [_record(row) for row in db.execute(sql, params)])

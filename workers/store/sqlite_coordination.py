@@ -39,6 +39,7 @@ CREATE TABLE IF NOT EXISTS hazards (
     mission_id   TEXT    NOT NULL,
     hazard_id    INTEGER NOT NULL,
     robot_id     TEXT    NOT NULL,
+    epoch        TEXT    NOT NULL,
     seq          INTEGER NOT NULL,
     event         TEXT    NOT NULL,
     state        TEXT    NOT NULL,
@@ -49,7 +50,7 @@ CREATE TABLE IF NOT EXISTS hazards (
     reached_at   INTEGER,
     cleared_at   INTEGER,
     PRIMARY KEY (mission_id, hazard_id),
-    UNIQUE (robot_id, seq)
+    UNIQUE (robot_id, epoch, seq)
 );
 CREATE INDEX IF NOT EXISTS hazards_state ON hazards (state, mission_id, hazard_id);
 """
@@ -67,6 +68,7 @@ def _hazard(row: sqlite3.Row) -> Hazard:
         mission_id=row["mission_id"],
         hazard_id=row["hazard_id"],
         robot_id=row["robot_id"],
+        epoch=row["epoch"],
         seq=row["seq"],
         event=json.loads(row["event"]),
         state=HazardState(row["state"]),
@@ -131,12 +133,13 @@ class SQLiteCoordination(CoordinationStore):
         self,
         mission_id: str,
         robot_id: str,
+        epoch: str,
         seq: int,
         event: dict[str, Any],
         received_at: datetime,
         held: bool,
     ) -> Hazard:
-        new = NewHazard(mission_id, robot_id, seq, event, received_at)
+        new = NewHazard(mission_id, robot_id, epoch, seq, event, received_at)
         return await self._run(lambda db: in_transaction(db, lambda: register_hazard(db, new, held)))
 
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
@@ -230,12 +233,13 @@ def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazar
     ).fetchone()
     state = HazardState.HELD if held else HazardState.ANNOUNCED
     db.execute(
-        "INSERT INTO hazards (mission_id, hazard_id, robot_id, seq, event, state, received_at) "
-        "VALUES (?, ?, ?, ?, ?, ?, ?)",
+        "INSERT INTO hazards (mission_id, hazard_id, robot_id, epoch, seq, event, state, received_at) "
+        "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
         (
             new.mission_id,
             next_id,
             new.robot_id,
+            new.epoch,
             new.seq,
             json.dumps(new.event),
             state.value,
@@ -250,7 +254,8 @@ def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazar
 def _registered(db: sqlite3.Connection, hazard: NewHazard) -> sqlite3.Row | None:
     """The hazard registered for ``hazard``'s event, if any."""
     row: sqlite3.Row | None = db.execute(
-        "SELECT * FROM hazards WHERE robot_id = ? AND seq = ?", (hazard.robot_id, hazard.seq)
+        "SELECT * FROM hazards WHERE robot_id = ? AND epoch = ? AND seq = ?",
+        (hazard.robot_id, hazard.epoch, hazard.seq),
     ).fetchone()
     return row
 

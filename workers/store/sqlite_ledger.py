@@ -1,4 +1,7 @@
-"""The sequence ledger (gaps, duplicates) on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""The sequence ledger (gaps, duplicates) on SQLite, mixed into :class:`SQLiteEventStore`.
+
+One row per robot and epoch holds the high-water mark, one per open gap its range.
+"""
 
 from __future__ import annotations
 
@@ -8,23 +11,27 @@ from datetime import datetime
 from typing import Any
 
 from workers.store.base import from_micros, to_micros
-from workers.store.ledger import Duplicate, Gap, SequenceLedger, apply_seqs
+from workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
 from workers.store.sqlite_database import in_transaction
 
 LEDGER_SCHEMA = """
 CREATE TABLE IF NOT EXISTS robot_sequences (
-    robot_id   TEXT PRIMARY KEY,
-    high_water INTEGER NOT NULL
+    robot_id   TEXT    NOT NULL,
+    epoch      TEXT    NOT NULL,
+    high_water INTEGER NOT NULL,
+    PRIMARY KEY (robot_id, epoch)
 ) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS sequence_gaps (
     robot_id    TEXT    NOT NULL,
+    epoch       TEXT    NOT NULL,
     first_seq   INTEGER NOT NULL,
     last_seq    INTEGER NOT NULL,
     detected_at INTEGER NOT NULL,
-    PRIMARY KEY (robot_id, first_seq)
+    PRIMARY KEY (robot_id, epoch, first_seq)
 ) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS duplicates (
     robot_id    TEXT    NOT NULL,
+    epoch       TEXT    NOT NULL,
     seq         INTEGER NOT NULL,
     message_id  TEXT    NOT NULL,
     seen_at     INTEGER NOT NULL,
@@ -35,18 +42,22 @@ CREATE INDEX IF NOT EXISTS duplicates_robot_time ON duplicates (robot_id, seen_a
 
 
 def _gap(row: sqlite3.Row) -> Gap:
-    return Gap(row["robot_id"], row["first_seq"], row["last_seq"], from_micros(row["detected_at"]))
+    return Gap(
+        row["robot_id"], row["epoch"], row["first_seq"], row["last_seq"], from_micros(row["detected_at"])
+    )
 
 
-def observe(db: sqlite3.Connection, seen: Mapping[str, Sequence[int]], at: datetime) -> None:
+def observe(db: sqlite3.Connection, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
     """Within the caller's transaction."""
-    for robot_id, seqs in seen.items():
+    for numbering, seqs in seen.items():
         if seqs:
-            _observe(db, robot_id, seqs, at)
+            _observe(db, RobotEpoch(*numbering), seqs, at)
 
 
-def _observe(db: sqlite3.Connection, robot_id: str, seqs: Sequence[int], at: datetime) -> None:
-    row = db.execute("SELECT high_water FROM robot_sequences WHERE robot_id = ?", (robot_id,)).fetchone()
+def _observe(db: sqlite3.Connection, numbering: RobotEpoch, seqs: Sequence[int], at: datetime) -> None:
+    row = db.execute(
+        "SELECT high_water FROM robot_sequences WHERE robot_id = ? AND epoch = ?", numbering
+    ).fetchone()
     high_water = row[0] if row else None
     low = min(seqs)
     touched: list[Gap] = []
@@ -54,38 +65,41 @@ def _observe(db: sqlite3.Connection, robot_id: str, seqs: Sequence[int], at: dat
         touched = [
             _gap(r)
             for r in db.execute(
-                "SELECT * FROM sequence_gaps WHERE robot_id = ? AND last_seq >= ? AND first_seq <= ?",
-                (robot_id, low, min(max(seqs), high_water)),
+                "SELECT * FROM sequence_gaps "
+                "WHERE robot_id = ? AND epoch = ? AND last_seq >= ? AND first_seq <= ?",
+                (*numbering, low, min(max(seqs), high_water)),
             )
         ]
-    change = apply_seqs(robot_id, high_water, touched, seqs, at)
+    change = apply_seqs(numbering, high_water, touched, seqs, at)
     db.executemany(
-        "DELETE FROM sequence_gaps WHERE robot_id = ? AND first_seq = ?",
-        [(gap.robot_id, gap.first) for gap in change.touched],
+        "DELETE FROM sequence_gaps WHERE robot_id = ? AND epoch = ? AND first_seq = ?",
+        [(gap.robot_id, gap.epoch, gap.first) for gap in change.touched],
     )
     db.executemany(
-        "INSERT INTO sequence_gaps (robot_id, first_seq, last_seq, detected_at) VALUES (?, ?, ?, ?)",
-        [(gap.robot_id, gap.first, gap.last, to_micros(gap.detected_at)) for gap in change.gaps],
+        "INSERT INTO sequence_gaps (robot_id, epoch, first_seq, last_seq, detected_at) "
+        "VALUES (?, ?, ?, ?, ?)",
+        [(gap.robot_id, gap.epoch, gap.first, gap.last, to_micros(gap.detected_at)) for gap in change.gaps],
     )
     db.execute(
-        "INSERT INTO robot_sequences (robot_id, high_water) VALUES (?, ?) "
-        "ON CONFLICT (robot_id) DO UPDATE SET high_water = max(high_water, excluded.high_water)",
-        (robot_id, change.high_water),
+        "INSERT INTO robot_sequences (robot_id, epoch, high_water) VALUES (?, ?, ?) "
+        "ON CONFLICT (robot_id, epoch) DO UPDATE SET high_water = max(high_water, excluded.high_water)",
+        (*numbering, change.high_water),
     )
 
 
 class SQLiteLedger(SequenceLedger):
     _run: Callable[..., Any]
 
-    async def observe_sequences(self, seen: Mapping[str, Sequence[int]], at: datetime) -> None:
-        work = {robot: list(seqs) for robot, seqs in seen.items() if seqs}
+    async def observe_sequences(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
+        work = {numbering: list(seqs) for numbering, seqs in seen.items() if seqs}
         if not work:
             return
         await self._run(lambda db: in_transaction(db, lambda: observe(db, work, at)))
 
     async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None:
         rows = [
-            (d.robot_id, d.seq, d.message_id, to_micros(d.seen_at), int(d.redelivered)) for d in duplicates
+            (d.robot_id, d.epoch, d.seq, d.message_id, to_micros(d.seen_at), int(d.redelivered))
+            for d in duplicates
         ]
         if not rows:
             return
@@ -94,8 +108,8 @@ class SQLiteLedger(SequenceLedger):
             in_transaction(
                 db,
                 lambda: db.executemany(
-                    "INSERT INTO duplicates (robot_id, seq, message_id, seen_at, redelivered) "
-                    "VALUES (?, ?, ?, ?, ?)",
+                    "INSERT INTO duplicates (robot_id, epoch, seq, message_id, seen_at, redelivered) "
+                    "VALUES (?, ?, ?, ?, ?, ?)",
                     rows,
                 ),
             )
@@ -104,18 +118,19 @@ class SQLiteLedger(SequenceLedger):
 
     async def gaps(self, robot_id: str | None = None) -> list[Gap]:
         where, params = (" WHERE robot_id = ?", (robot_id,)) if robot_id else ("", ())
-        sql = f"SELECT * FROM sequence_gaps{where} ORDER BY robot_id, first_seq"
+        sql = f"SELECT * FROM sequence_gaps{where} ORDER BY robot_id, epoch, first_seq"
         return await self._run(lambda db: [_gap(row) for row in db.execute(sql, params)])
 
     async def duplicates(self, robot_id: str | None = None, limit: int | None = None) -> list[Duplicate]:
         where, params = (" WHERE robot_id = ?", (robot_id,)) if robot_id else ("", ())
-        sql = f"SELECT * FROM duplicates{where} ORDER BY seen_at DESC, robot_id, seq DESC"
+        sql = f"SELECT * FROM duplicates{where} ORDER BY seen_at DESC, robot_id, epoch DESC, seq DESC"
         if limit is not None:
             sql += f" LIMIT {int(limit)}"
         return await self._run(
             lambda db: [
                 Duplicate(
                     row["robot_id"],
+                    row["epoch"],
                     row["seq"],
                     row["message_id"],
                     from_micros(row["seen_at"]),
@@ -125,10 +140,10 @@ class SQLiteLedger(SequenceLedger):
             ]
         )
 
-    async def high_water(self, robot_id: str) -> int | None:
+    async def high_water(self, robot_id: str, epoch: str) -> int | None:
         row = await self._run(
             lambda db: db.execute(
-                "SELECT high_water FROM robot_sequences WHERE robot_id = ?", (robot_id,)
+                "SELECT high_water FROM robot_sequences WHERE robot_id = ? AND epoch = ?", (robot_id, epoch)
             ).fetchone()
         )
         return row[0] if row else None

@@ -22,6 +22,7 @@ CREATE TABLE IF NOT EXISTS map_staging (
 CREATE TABLE IF NOT EXISTS maps (
     version    INTEGER PRIMARY KEY AUTOINCREMENT,
     robot_id   TEXT    NOT NULL,
+    epoch      TEXT    NOT NULL,
     seq        INTEGER NOT NULL,
     metadata   TEXT    NOT NULL,
     created_at INTEGER NOT NULL,
@@ -29,7 +30,7 @@ CREATE TABLE IF NOT EXISTS maps (
     sha256     TEXT    NOT NULL,
     chunk_size INTEGER NOT NULL,
     chunks     INTEGER NOT NULL,
-    UNIQUE (robot_id, seq)
+    UNIQUE (robot_id, epoch, seq)
 );
 CREATE TABLE IF NOT EXISTS map_blobs (
     version INTEGER NOT NULL,
@@ -44,6 +45,7 @@ def _map_version(row: sqlite3.Row) -> MapVersion:
     return MapVersion(
         version=row["version"],
         robot_id=row["robot_id"],
+        epoch=row["epoch"],
         seq=row["seq"],
         metadata=json.loads(row["metadata"]),
         created_at=from_micros(row["created_at"]),
@@ -74,6 +76,7 @@ class SQLiteMaps(MapStore):
     async def commit_map(
         self,
         robot_id: str,
+        epoch: str,
         seq: int,
         image: bytes,
         metadata: dict[str, Any],
@@ -87,15 +90,16 @@ class SQLiteMaps(MapStore):
         def commit(db: sqlite3.Connection) -> MapVersion:
             def work() -> MapVersion:
                 row = db.execute(
-                    "SELECT * FROM maps WHERE robot_id = ? AND seq = ?", (robot_id, seq)
+                    "SELECT * FROM maps WHERE robot_id = ? AND epoch = ? AND seq = ?", (robot_id, epoch, seq)
                 ).fetchone()
                 if row is None:
                     cursor = db.execute(
                         "INSERT INTO maps "
-                        "(robot_id, seq, metadata, created_at, size, sha256, chunk_size, chunks) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                        "(robot_id, epoch, seq, metadata, created_at, size, sha256, chunk_size, chunks) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
                         (
                             robot_id,
+                            epoch,
                             seq,
                             json.dumps(metadata),
                             to_micros(created_at),
@@ -118,10 +122,10 @@ class SQLiteMaps(MapStore):
 
         return await self._run(commit)
 
-    async def committed_map(self, robot_id: str, seq: int) -> MapVersion | None:
+    async def committed_map(self, robot_id: str, epoch: str, seq: int) -> MapVersion | None:
         row = await self._run(
             lambda db: db.execute(
-                "SELECT * FROM maps WHERE robot_id = ? AND seq = ?", (robot_id, seq)
+                "SELECT * FROM maps WHERE robot_id = ? AND epoch = ? AND seq = ?", (robot_id, epoch, seq)
             ).fetchone()
         )
         return _map_version(row) if row else None

@@ -1,0 +1,153 @@
+"""The robot's sender tells a message the broker refused from a broker it cannot reach, for real.
+
+Refused (the broker answered no to this message: access refused, unroutable): set aside in the
+outbox's refused list with the reason, raised from the ``publish`` that waits, never sent again,
+and the events behind it carry on. Outage (no connection, a lost one, a nack: a queue that
+cannot take messages now): the event stays in the outbox and goes again after a jittered,
+capped wait; nothing is ever marked refused for it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from itertools import pairwise
+
+import pika
+import pytest
+
+from broker.local_node import LocalNode
+from publishers.client import RobotClient
+from publishers.errors import PublishRefused
+from schemas.routing import INGEST_EXCHANGE, RobotKind
+from tests.factories import hazard, status
+from tests.link import NetworkLink
+from tests.support import Bus, network_link, wait_for
+
+REFUSING_QUEUE = "test.refuses-everything"
+COPIES_QUEUE = "test.copies"
+
+
+def reconnected(robot: RobotClient, link: NetworkLink) -> None:
+    """Break the robot's connection, and wait until its sender made a new one through the link."""
+    before = link.connections
+    link.drop_connections()
+    wait_for(lambda: link.connections > before and robot.connected, what="the robot to reconnect")
+
+
+@contextmanager
+def every_publish_nacked(bus: Bus, robot: str) -> Iterator[None]:
+    """While it lasts, a queue bound to the robot's exchange refuses everything (``x-max-length`` 0,
+    ``reject-publish``), so the broker nacks each of the robot's publishes; another queue keeps a
+    copy of each, which counts the robot's tries."""
+    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    try:
+        channel = connection.channel()
+        channel.queue_declare(REFUSING_QUEUE, arguments={"x-max-length": 0, "x-overflow": "reject-publish"})
+        channel.queue_declare(COPIES_QUEUE)
+        for queue in (REFUSING_QUEUE, COPIES_QUEUE):
+            channel.queue_bind(queue, f"{robot}.events", "#")
+        yield
+        channel.queue_delete(REFUSING_QUEUE)
+    finally:
+        connection.close()
+
+
+def test_an_unroutable_event_is_set_aside_and_the_next_one_goes_through(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    with bus.worker():
+        bus.api.unbind(bus.vhost, "explorer1.events", INGEST_EXCHANGE, "#", to_exchange=True)
+        with pytest.raises(PublishRefused, match=r"unroutable .*NO_ROUTE"):
+            explorer.publish("hazard", hazard(0, "Fire"))
+        bus.api.bind(bus.vhost, "explorer1.events", INGEST_EXCHANGE, "#", to_exchange=True)
+        kept = explorer.publish("hazard", hazard(1, "Gas leak"))
+        wait_for(lambda: bus.count("hazard") == 1, what="the second hazard stored")
+    [refused] = explorer.outbox.refused()
+    assert "NO_ROUTE" in refused.reason and explorer.outbox.pending() == 0, "set aside, not resent"
+    assert [r.message_id for r in bus.find()] == [str(kept.message_id)]
+
+
+def test_an_event_refused_access_is_set_aside_and_connection_losses_refuse_nothing(
+    bus: Bus, link_for: list[NetworkLink]
+) -> None:
+    """The broker caches a channel's permission checks, so each change is seen on a new connection:
+    the link breaks the robot's connection, which must never make an event refused."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    explorer = bus.robot(account, via=link)
+    granted = bus.api.get_permissions(bus.vhost, "explorer1")
+    assert granted is not None
+    with bus.worker():
+        first = explorer.publish("hazard", hazard(0, "Fire"))
+        bus.api.put_permissions(bus.vhost, "explorer1", granted["configure"], "^$", granted["read"])
+        reconnected(explorer, link)
+        with pytest.raises(PublishRefused, match="ACCESS_REFUSED"):
+            explorer.publish("hazard", hazard(1, "Gas leak"))
+        bus.api.put_permissions(
+            bus.vhost, "explorer1", granted["configure"], granted["write"], granted["read"]
+        )
+        reconnected(explorer, link)
+        last = explorer.publish("hazard", hazard(2, "Smoke"))
+        wait_for(lambda: bus.count("hazard") == 2, what="the first and the last hazard stored")
+    [refused] = explorer.outbox.refused()
+    assert refused.type == "hazard" and "403" in refused.reason, "only the refused one, once"
+    assert explorer.outbox.pending() == 0
+    assert sorted(r.message_id for r in bus.find()) == sorted(str(e.message_id) for e in (first, last))
+
+
+def test_a_nacked_event_is_kept_and_tried_again_after_a_capped_jittered_wait(bus: Bus) -> None:
+    """A nack says a queue cannot take the message now, not that the message is wrong: it is not
+    refused. (The sender used to send it again at once, as fast as the broker answered: 3,714
+    tries in 3 s here, and ``publish`` waited out its whole confirm timeout.)"""
+    explorer = bus.robot(
+        bus.add("explorer1", kind=RobotKind.EXPLORER), confirm_timeout=60, max_reconnect_delay=0.5
+    )
+    with every_publish_nacked(bus, "explorer1"):
+        started = time.monotonic()
+        explorer.publish("status", status(80))
+        assert time.monotonic() - started < 30, "publish returned once the broker nacked it"
+        assert explorer.outbox.pending() == 1 and explorer.outbox.refused() == []
+        wait_for(lambda: bus.ready_messages(COPIES_QUEUE) >= 4, what="the robot to try again")
+        window_starts, tries_before = time.monotonic(), bus.ready_messages(COPIES_QUEUE)
+        wait_for(lambda: time.monotonic() - window_starts >= 3.0, what="3 s of nacks")
+        tries = bus.ready_messages(COPIES_QUEUE) - tries_before
+        assert tries <= 40, f"{tries} tries in 3 s: the sender did not wait between them"
+        assert explorer.outbox.pending() == 1 and explorer.outbox.refused() == [], "still kept"
+    assert explorer.flush(30), "taken once the queue takes messages again"
+    assert explorer.outbox.refused() == []
+
+
+@pytest.mark.parametrize("robots", [3])
+def test_a_team_reconnects_after_a_broker_kill_at_jittered_capped_times(
+    killable_bus: Bus, killable_node: LocalNode, link_for: list[NetworkLink], robots: int
+) -> None:
+    """While the broker is dead, each robot's attempts reach its link (which cannot forward them):
+    the waits between them vary (full jitter, not a fixed schedule the whole team shares) and stay
+    under the cap. Once the broker is back, every robot reconnects and nothing was refused."""
+    bus = killable_bus
+    cap = 1.0
+    accounts = [bus.add(f"explorer{i}", kind=RobotKind.EXPLORER) for i in range(robots)]
+    team = []
+    for account in accounts:
+        link = network_link(link_for, account)
+        team.append((bus.robot(account, via=link, max_reconnect_delay=cap), link))
+    with bus.worker():
+        killable_node.kill()
+        published = [robot.publish("hazard", hazard(i)) for i, (robot, _) in enumerate(team)]
+        wait_for(
+            lambda: all(len(link.attempts) >= 14 for _, link in team),
+            timeout=60,
+            what="a dozen attempts from each robot while the broker is dead",
+        )
+        waits = [[b - a for a, b in pairwise(link.attempts[4:14])] for _, link in team]
+        killable_node.up()
+        for robot, _ in team:
+            assert robot.flush(60), f"{robot.robot_id} did not deliver after the restart"
+        wait_for(lambda: bus.count("hazard") == robots, timeout=60, what="every robot's hazard stored")
+    for robot_waits in waits:
+        # past the fourth attempt the bound is the cap: each wait is drawn between 0 and 1 s
+        assert max(robot_waits) < cap + 1.0, f"a wait of {max(robot_waits):.2f} s: the cap is {cap} s"
+        assert max(robot_waits) - min(robot_waits) > 0.2 * cap, f"waits that do not vary: {robot_waits}"
+    assert all(robot.outbox.refused() == [] for robot, _ in team), "an outage refuses nothing"
+    assert sorted(r.message_id for r in bus.find()) == sorted(str(e.message_id) for e in published)
