@@ -212,11 +212,6 @@ def shard_binding_keys(robot: str) -> tuple[str, ...]:
     return tuple(event_routing_key(robot, t) for t in SHARD_TYPES)
 
 
-def wildcard_shard_key(robot: str) -> str:
-    """How a robot was bound to its shard before the express lane: every type, ``<robot>.#``."""
-    return f"{robot}.#"
-
-
 def notification_routing_key(topic: Topic | str) -> str:
     return f"notify.{Topic(topic).value}"
 

@@ -19,19 +19,14 @@ import pika
 import pytest
 
 from broker.dead_letter_queue import peek_dead_letters
-from broker.shards import read_shard_map
 from broker.topology import core_topology, declare_with_url
 from schemas.routing import (
     DEAD_LETTER_EXCHANGE,
     EXPRESS_QUEUE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
-    SHARD_EXCHANGE,
     RobotKind,
-    ingest_shard_queue,
     notification_routing_key,
-    shard_binding_keys,
-    wildcard_shard_key,
 )
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
@@ -198,49 +193,3 @@ def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> 
     assert f"{1 + LIMIT} times" in letter.detail
     assert [r.seq for r in bus.find()] == [poison.seq + 1], "the poison was never stored; the next was"
     assert in_queue(bus, EXPRESS_QUEUE) == (0, 0)
-
-
-def bound_the_old_way(bus: Bus, robot: str) -> None:
-    """Bind ``robot`` to its shard as before the express lane: ``<robot>.#``, every type."""
-    [shard] = read_shard_map(bus.api, bus.vhost, 1).bindings[robot]
-    queue = ingest_shard_queue(shard)
-    bus.api.bind(bus.vhost, SHARD_EXCHANGE, queue, wildcard_shard_key(robot))
-    bus.api.unbind_keys(bus.vhost, SHARD_EXCHANGE, queue, shard_binding_keys(robot))
-    assert read_shard_map(bus.api, bus.vhost, 1).incomplete == (robot,)
-
-
-def shard_keys(bus: Bus, robot: str) -> list[str]:
-    """``robot``'s binding keys on the shard exchange."""
-    return sorted(
-        b["routing_key"]
-        for b in bus.api.exchange_bindings(bus.vhost, SHARD_EXCHANGE)
-        if b["routing_key"].startswith(f"{robot}.")
-    )
-
-
-def test_a_robot_bound_before_the_express_lane_is_bound_per_type_by_the_next_account(bus: Bus) -> None:
-    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
-    bound_the_old_way(bus, "explorer1")
-    bus.add("explorer2", kind=RobotKind.EXPLORER)  # provisioning declares this version's topology
-    assert shard_keys(bus, "explorer1") == sorted(shard_binding_keys("explorer1")), "no explorer1.# left"
-    assert read_shard_map(bus.api, bus.vhost, 1).incomplete == ()
-    explorer.publish_many(
-        [("status", status()), ("hazard", hazard(0)), ("localisation", {"localised": True})]
-    )
-    wait_for(lambda: bus.ready_messages(EXPRESS_QUEUE) == 2, what="the hazard and the localisation")
-    assert bus.ready_messages(INGEST_QUEUE) == 1, "the status in its shard; the others once, not there too"
-
-
-def test_a_worker_starting_binds_robots_per_type_before_hazards_could_take_two_lanes(bus: Bus) -> None:
-    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
-    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
-    bound_the_old_way(bus, "explorer1")
-    with bus.worker():
-        assert shard_keys(bus, "explorer1") == sorted(shard_binding_keys("explorer1"))
-        warden.publish("localisation", {"localised": True})
-        sent = explorer.publish_many([("status", status()), ("hazard", hazard(0)), ("status", status())])
-        [note] = warden.receive(1, timeout=30)
-        assert note.event == sent[1]
-        wait_for(lambda: bus.count() == 4, what="every event stored")
-    assert bus.with_store(lambda store: store.duplicates()) == [], "nothing came twice"
-    assert warden.receive(1, timeout=0.5) == [], "the hazard announced once"

@@ -6,9 +6,10 @@ notification is published (confirmed) before the hazard is marked announced, so 
 between announces it again rather than never. The held list lives in the store, so a restart
 loses nothing.
 
-Registering hazards and announcing the held ones happen in one critical section (``serial``):
-with several workers, each on its own shards, two announcing at once would send hazards twice or
-out of order, and a hazard registered while another worker announces would be overtaken.
+The service runs only on the express lane, whose queue has a single active consumer: of all the
+workers, one registers hazards and announces them at a time, with no lock. A worker handing the
+lane over finishes its batch before the next one gets the queue (``IngestConsumer(exclusive=True)``);
+one that dies leaves its unacked messages to the next, which handles them again (idempotent).
 """
 
 from __future__ import annotations
@@ -22,7 +23,6 @@ from aio_pika.abc import AbstractExchange
 from schemas.envelope import EVENT_ADAPTER
 from schemas.notifications import Notification
 from schemas.routing import EventType, Topic
-from workers.mutex import LocalMutex, Mutex
 from workers.notifier import publish_notification
 from workers.store.hazards import Hazard, HeldHazards, NewHazard
 from workers.store.interface import Store
@@ -44,35 +44,27 @@ class HazardCoordinator:
         notify_exchange: AbstractExchange,
         service_user: str,
         late_after: timedelta = LATE_AFTER,
-        serial: Mutex | None = None,
     ) -> None:
         self._store = store
         self._exchange = notify_exchange
         self._service_user = service_user
         self._late_after = late_after
-        self._serial = serial or LocalMutex()
 
     async def handle(self, accepted: Sequence[Accepted]) -> int:
         """Apply a stored batch (also redelivered ones: every step is idempotent); return announcements."""
         relevant = [item for item in accepted if item.event.type in GATED]
         if not relevant:
             return 0
-        async with self._serial.hold():
-            hazards: list[NewHazard] = []
-            for item in relevant:
-                event = item.event
-                if event.type is EventType.LOCALISATION:
-                    await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
-                else:
-                    hazards.append(NewHazard.of(item.record))
-            # registering (SQLite did it as it stored the batch), reading the held list and the
-            # gate: one store call on the hazard's way
-            return await self._announce(await self._store.hold_hazards(hazards))
-
-    async def release_if_ready(self) -> int:
-        """Announce the held hazards if every warden is localised (after a restart, say)."""
-        async with self._serial.hold():
-            return await self._announce(await self._store.hold_hazards(()))
+        hazards: list[NewHazard] = []
+        for item in relevant:
+            event = item.event
+            if event.type is EventType.LOCALISATION:
+                await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
+            else:
+                hazards.append(NewHazard.of(item.record))
+        # registering (SQLite did it as it stored the batch), reading the held list and the
+        # gate: one store call on the hazard's way
+        return await self._announce(await self._store.hold_hazards(hazards))
 
     async def _announce(self, held: HeldHazards) -> int:
         if not held.hazards:
