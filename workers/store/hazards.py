@@ -1,8 +1,9 @@
-"""The hazard registry and the robots' localisation states, kept by the coordination service.
+"""The hazard registry and the team (robots, their localisation and service), kept by the
+coordination service.
 
 Hazards get an id sequential within their mission, assigned atomically by the store. A hazard
-is ``held`` while some warden of the team is not localised, ``announced`` once the wardens were
-told, then ``claimed`` by one warden, ``reached``, and finally ``cleared``.
+is ``held`` until the gate opens (:mod:`workers.team`) and a warden's inbox took it, ``announced``
+once the wardens were told, then ``claimed`` by one warden, ``reached``, and finally ``cleared``.
 """
 
 from __future__ import annotations
@@ -46,6 +47,9 @@ class Hazard:
     claimed_at: datetime | None = None
     reached_at: datetime | None = None
     cleared_at: datetime | None = None
+    held_reason: str | None = None
+    """While held with the gate open: why the last announcement did not count (no warden's inbox
+    took it). The gate's own reasons are the team's state, read when asked (:mod:`workers.team`)."""
 
     def as_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
@@ -61,6 +65,15 @@ class RobotState:
     kind: str | None
     localised: bool
     updated_at: datetime | None
+    """When its localisation state was last reported."""
+    in_service: bool = True
+    """False while an operator has taken it out of service: it neither blocks the hazard gate nor
+    receives announcements."""
+    service_changed_by: str | None = None
+    """Who last took it out of service or put it back, and when (the audit record)."""
+    service_changed_at: datetime | None = None
+    catch_up: bool = False
+    """Put back in service since the hazard service last sent it the open hazards it missed."""
 
 
 @dataclass(frozen=True)
@@ -124,8 +137,8 @@ class NewHazard:
 class HeldHazards:
     hazards: list[Hazard]
     """Every held hazard, in the order they were detected (id order)."""
-    wardens_localised: bool
-    """Whether every warden of the team reports itself localised: the gate is open."""
+    wardens: list[RobotState]
+    """Every warden of the team, in service or not: the gate's inputs (:func:`workers.team.gate`)."""
 
 
 class HazardRefused(StoreError):
@@ -143,6 +156,19 @@ class CoordinationStore(abc.ABC):
 
     @abc.abstractmethod
     async def robots(self, kind: str | None = None) -> list[RobotState]: ...
+
+    @abc.abstractmethod
+    async def set_in_service(self, name: str, in_service: bool, by: str, at: datetime) -> RobotState | None:
+        """Take a robot out of service or put it back, recording who and when; put back, it is
+        owed a catch-up (:attr:`RobotState.catch_up`). None: no such robot in the team."""
+
+    @abc.abstractmethod
+    async def caught_up(self, name: str) -> None:
+        """The hazard service sent ``name`` the open hazards it missed: clear its catch-up."""
+
+    @abc.abstractmethod
+    async def remove_robot(self, name: str) -> bool:
+        """Take a robot out of the team (its account is removed); False when it was not in it."""
 
     @abc.abstractmethod
     async def add_hazard(
@@ -172,19 +198,22 @@ class CoordinationStore(abc.ABC):
                 hazard.mission_id, hazard.robot_id, hazard.seq, hazard.event, hazard.received_at, held=True
             )
         held = await self.held_hazards()
-        wardens = await self.robots(RobotKind.WARDEN.value)
-        return HeldHazards(held, all(warden.localised for warden in wardens))
+        return HeldHazards(held, await self.robots(RobotKind.WARDEN.value))
 
     @abc.abstractmethod
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
         """Move these hazards from held to announced (others are left as they are)."""
 
     @abc.abstractmethod
+    async def note_held(self, hazards: list[Hazard], reason: str) -> None:
+        """Record why these hazards, still held, were not announced (:attr:`Hazard.held_reason`)."""
+
+    @abc.abstractmethod
     async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None: ...
 
     @abc.abstractmethod
-    async def open_hazards(self, mission_id: str) -> list[Hazard]:
-        """Hazards not cleared, in id order."""
+    async def open_hazards(self, mission_id: str | None) -> list[Hazard]:
+        """Hazards not cleared, in id order (``None``: of every mission, by mission then id)."""
 
     @abc.abstractmethod
     async def apply_transition(
