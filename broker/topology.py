@@ -24,6 +24,7 @@ from schemas.routing import (
     BEACON_MATCH,
     DEAD_LETTER_EXCHANGE,
     DEAD_LETTER_QUEUE,
+    DELIVERED_BY_NAME,
     EXPRESS_QUEUE,
     EXPRESS_TYPES,
     INGEST_EXCHANGE,
@@ -192,7 +193,9 @@ def inbox_bindings(owner: str, kind: RobotKind | None, operator: bool) -> list[s
         return [ALL_TOPICS_BINDING]
     if kind is None:
         return []
-    return [notification_routing_key(topic) for topic in SUBSCRIPTIONS[kind]]
+    return [
+        notification_routing_key(topic) for topic in SUBSCRIPTIONS[kind] if topic not in DELIVERED_BY_NAME
+    ]
 
 
 def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | None = None) -> Topology:

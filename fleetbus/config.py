@@ -10,12 +10,15 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from schemas.notifications import LATE_AFTER_S
+
 DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
 DEFAULT_RECORDER_KEEP = "*=1GB"
 DEFAULT_TOKEN_MINUTES = 60.0
-DEFAULT_LATE_AFTER_S = 5.0
+DEFAULT_LATE_AFTER_S = LATE_AFTER_S
+DEFAULT_STALE_AFTER_S = 60.0
 DEFAULT_INGEST_SHARDS = 1
 MAX_INGEST_SHARDS = 64
 
@@ -54,6 +57,8 @@ class Settings:
     """A notification that reaches its robots this long after the event was sent is flagged late."""
     ingest_shards: int = DEFAULT_INGEST_SHARDS
     """Ingest shard queues; each robot's events go through one, and the workers share them."""
+    stale_after_s: float = DEFAULT_STALE_AFTER_S
+    """A robot silent this long (no event of any type) is shown stale in ``fleetbus team``."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -97,6 +102,7 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
         token_minutes=float(env.get("FLEETBUS_API_TOKEN_MINUTES") or DEFAULT_TOKEN_MINUTES),
         late_after_s=float(env.get("FLEETBUS_LATE_AFTER_S") or DEFAULT_LATE_AFTER_S),
         ingest_shards=_shards(env.get("FLEETBUS_INGEST_SHARDS")),
+        stale_after_s=float(env.get("FLEETBUS_STALE_AFTER_S") or DEFAULT_STALE_AFTER_S),
     )
 
 

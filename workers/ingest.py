@@ -52,6 +52,16 @@ class BatchCheck(Protocol):
         ...
 
 
+class ControlMessages(Protocol):
+    """Messages on a queue that are not robots' events but instructions from the service itself."""
+
+    def accepts(self, message: AbstractIncomingMessage) -> bool: ...
+
+    async def handle(self, messages: Sequence[AbstractIncomingMessage]) -> int:
+        """Act on them (after the batch's events; idempotent); return notifications published."""
+        ...
+
+
 class Stopping(Exception):
     """The worker is stopping while the store is down: leave the batch unacked."""
 
@@ -83,6 +93,7 @@ class IngestConsumer:
         stats: IngestStats | None = None,
         attempts: AttemptLimit | None = None,
         exclusive: bool = False,
+        control: ControlMessages | None = None,
     ) -> None:
         self._channel = channel
         self._queue = queue
@@ -97,6 +108,7 @@ class IngestConsumer:
         self._consumer_tag: str | None = None
         self._attempts = attempts
         """A classic queue's delivery limit, kept here (a quorum queue keeps its own)."""
+        self._control = control
         self._exclusive = exclusive
         """The queue's work must never overlap with the next consumer's (its single active consumer
         is the only lock): on stop, this consumer finishes the batch in hand and leaves the rest
@@ -174,8 +186,12 @@ class IngestConsumer:
             await self._retrying(lambda message=message: limit.handled([message]))
 
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
+        control = self._control
+        instructions = [message for message in batch if control is not None and control.accepts(message)]
         candidates: list[tuple[AbstractIncomingMessage, Accepted]] = []
         for message in batch:
+            if message in instructions:
+                continue
             verdict = classify(message, self._max_bytes)
             if isinstance(verdict, Rejected):
                 await self._reject(message, verdict)
@@ -205,6 +221,8 @@ class IngestConsumer:
             # bookkeeping after the services, so that it does not delay notifications
             await self._retrying(lambda: self._store.record_duplicates(duplicates))
             self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
+        if control is not None and instructions:
+            self.stats.notified += await self._retrying(lambda: control.handle(instructions))
         await batch[-1].ack(multiple=True)
 
     async def _sort_out(

@@ -29,7 +29,7 @@ from schemas.routing import (
 from workers.attempts import AttemptLimit
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
-from workers.coordination import GATED, HazardCoordinator
+from workers.coordination import GATED, HazardCoordinator, TeamChanges
 from workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
 from workers.rpc import RpcServer
@@ -128,13 +128,18 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
         # fetched (not just named) so the robust channel re-consumes it after a broker restart
         queue = await channel.get_queue(queue_name)
         notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
-        # the hazard service runs on the express lane only: its single active consumer is the one
-        # party that registers hazards and announces them, so it needs no lock across workers
-        services: list[BatchService] = [
-            HazardCoordinator(store, notify_exchange, SERVICE_USER, timedelta(seconds=settings.late_after_s))
-        ]
         checks: list[BatchCheck] = []
-        if not express:
+        control: TeamChanges | None = None
+        if express:
+            # the hazard service runs on the express lane only: its single active consumer is the
+            # one party that registers hazards and announces them, so it needs no lock across workers
+            late_after = timedelta(seconds=settings.late_after_s)
+            coordinator = HazardCoordinator(
+                store, notify_exchange, channel.default_exchange, SERVICE_USER, late_after
+            )
+            services: list[BatchService] = [coordinator]
+            control = TeamChanges(coordinator)
+        else:
             checks = [KnownRobotsOnly(store), MapCheck(store)]
             services = [
                 MapService(store, notify_exchange, SERVICE_USER),
@@ -155,6 +160,7 @@ async def start_worker(settings: Settings, endpoint: BrokerEndpoint) -> WorkerCo
             attempts=AttemptLimit(store, INGEST_DELIVERY_LIMIT) if express else None,
             # on stop, the next worker gets the express lane only once this batch is done
             exclusive=express,
+            control=control,
         )
         task = asyncio.create_task(consumer.run(), name=f"fleetbus-{queue_name}")
         log.info("consuming %s", queue_name)

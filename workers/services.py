@@ -72,6 +72,7 @@ def hazard_services(store: Store) -> dict[str, Handler]:
                 "name": r.name,
                 "localised": r.localised,
                 "updated_at": r.updated_at.isoformat() if r.updated_at else None,
+                "in_service": r.in_service,
             }
             for r in await store.robots(RobotKind.WARDEN.value)
         ]
