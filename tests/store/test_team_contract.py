@@ -8,7 +8,7 @@ from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
 from tests.store.test_contract import record
-from workers.store.hazards import HazardState
+from workers.store.hazards import CLAIM_WHILE_OPEN, HazardState
 from workers.store.interface import Store
 from workers.team import NO_WARDEN, gate, read_team, why_closed
 
@@ -115,3 +115,16 @@ async def test_the_team_says_when_each_robot_was_last_heard_from_and_who_is_stal
         ("warden1", False),
     ], "warden1 is out of service"
     assert team["warden1"].as_dict()["service_changed_by"] == "ops1"
+
+
+async def test_a_hazard_claimed_on_its_way_keeps_its_claim_when_marked_announced(store: Store) -> None:
+    first = await store.add_hazard("m1", "explorer1", 0, BODY, T0, held=True)
+    claimed = await store.apply_transition("m1", 1, "warden1", CLAIM_WHILE_OPEN, T0 + timedelta(seconds=1))
+    assert (claimed.state, claimed.claimed_by, claimed.announced_at) == (HazardState.CLAIMED, "warden1", None)
+    await store.mark_announced([first], T0)
+    marked = await store.get_hazard("m1", 1)
+    assert marked is not None and (marked.state, marked.claimed_by, marked.announced_at) == (
+        HazardState.CLAIMED,
+        "warden1",
+        T0,
+    )

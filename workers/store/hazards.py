@@ -81,7 +81,8 @@ class Transition:
     """One step of a hazard's life: from which state, to which, and who may take it."""
 
     action: str
-    source: HazardState
+    sources: tuple[HazardState, ...]
+    """The states it may be taken from."""
     target: HazardState
     claimer_only: bool
     """Only the warden holding the claim may take this step."""
@@ -95,10 +96,15 @@ class Transition:
         return hazard.state is self.target and hazard.claimed_by == warden
 
 
-CLAIM = Transition("claimed", HazardState.ANNOUNCED, HazardState.CLAIMED, False, "claimed_at")
-RELEASE = Transition("released", HazardState.CLAIMED, HazardState.ANNOUNCED, True, None)
-REACH = Transition("reached", HazardState.CLAIMED, HazardState.REACHED, True, "reached_at")
-CLEAR = Transition("cleared", HazardState.REACHED, HazardState.CLEARED, True, "cleared_at")
+_S = HazardState
+CLAIM = Transition("claimed", (_S.ANNOUNCED,), _S.CLAIMED, False, "claimed_at")
+#: A claim while the gate is open, of a hazard announced or still held: its announcement may be on
+#: its way (a hazard is marked announced once a warden's inbox took it, and that warden may claim it
+#: first). One atomic step from either state, so the mark in between cannot make it fail.
+CLAIM_WHILE_OPEN = Transition("claimed", (_S.ANNOUNCED, _S.HELD), _S.CLAIMED, False, "claimed_at")
+RELEASE = Transition("released", (_S.CLAIMED,), _S.ANNOUNCED, True, None)
+REACH = Transition("reached", (_S.CLAIMED,), _S.REACHED, True, "reached_at")
+CLEAR = Transition("cleared", (_S.REACHED,), _S.CLEARED, True, "cleared_at")
 
 
 _TIMESTAMP: TypeAdapter[datetime] = TypeAdapter(datetime)
@@ -202,7 +208,8 @@ class CoordinationStore(abc.ABC):
 
     @abc.abstractmethod
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
-        """Move these hazards from held to announced (others are left as they are)."""
+        """Move these hazards from held to announced; one a warden claimed meanwhile keeps its state
+        and gets its announcement time."""
 
     @abc.abstractmethod
     async def note_held(self, hazards: list[Hazard], reason: str) -> None:

@@ -6,7 +6,7 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from pymongo import ASCENDING, ReturnDocument
+from pymongo import ASCENDING, DESCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
 from workers.store.base import from_micros, to_micros
@@ -76,6 +76,7 @@ class MongoCoordination(CoordinationStore):
         await self._collection("hazards").create_index(
             [("state", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
         )
+        await self._collection("hazards").create_index([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
 
     async def register_robot(self, name: str, kind: str | None) -> None:
         await self._collection("robots").update_one(
@@ -144,33 +145,33 @@ class MongoCoordination(CoordinationStore):
         held: bool,
     ) -> Hazard:
         hazards = self._collection("hazards")
-        existing = await hazards.find_one({"robot_id": robot_id, "seq": seq})
-        if existing:
-            return _hazard(existing)
-        counter = await self._collection("hazard_counters").find_one_and_update(
-            {"_id": mission_id}, {"$inc": {"last_id": 1}}, upsert=True, return_document=ReturnDocument.AFTER
-        )
-        next_id = counter["last_id"]
-        doc = {
-            "_id": hazard_id_of(mission_id, next_id),
-            "mission_id": mission_id,
-            "hazard_id": next_id,
-            "robot_id": robot_id,
-            "seq": seq,
-            "event": event,
-            "state": (HazardState.HELD if held else HazardState.ANNOUNCED).value,
-            "received_at": received_at,
-            "received_at_us": to_micros(received_at),
-            "claimed_by": None,
-            "held_reason": None,
-            **{f"{name}_us": None for name in TIMES},
-        }
-        try:
-            await hazards.insert_one(doc)
-        except DuplicateKeyError:  # another worker registered this event first; its id stands
+        while True:
             existing = await hazards.find_one({"robot_id": robot_id, "seq": seq})
-            return _hazard(existing)
-        return _hazard(doc)
+            if existing:
+                return _hazard(existing)
+            # the next id is taken by inserting the hazard under it: one write, so a worker that
+            # dies between choosing and writing leaves no id unused (a counter would skip one)
+            last = await hazards.find_one({"mission_id": mission_id}, sort=[("hazard_id", DESCENDING)])
+            next_id = (last["hazard_id"] if last else 0) + 1
+            doc = {
+                "_id": hazard_id_of(mission_id, next_id),
+                "mission_id": mission_id,
+                "hazard_id": next_id,
+                "robot_id": robot_id,
+                "seq": seq,
+                "event": event,
+                "state": (HazardState.HELD if held else HazardState.ANNOUNCED).value,
+                "received_at": received_at,
+                "received_at_us": to_micros(received_at),
+                "claimed_by": None,
+                "held_reason": None,
+                **{f"{name}_us": None for name in TIMES},
+            }
+            try:
+                await hazards.insert_one(doc)
+                return _hazard(doc)
+            except DuplicateKeyError:  # the id, or this event, taken meanwhile: look again
+                continue
 
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
         query: dict[str, Any] = {"state": HazardState.HELD.value}
@@ -185,15 +186,14 @@ class MongoCoordination(CoordinationStore):
 
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
         ids = [hazard_id_of(h.mission_id, h.hazard_id) for h in hazards]
-        await self._collection("hazards").update_many(
+        collection, stamp = self._collection("hazards"), to_micros(at)
+        await collection.update_many(
             {"_id": {"$in": ids}, "state": HazardState.HELD.value},
-            {
-                "$set": {
-                    "state": HazardState.ANNOUNCED.value,
-                    "announced_at_us": to_micros(at),
-                    "held_reason": None,
-                }
-            },
+            {"$set": {"state": HazardState.ANNOUNCED.value, "announced_at_us": stamp, "held_reason": None}},
+        )
+        # one claimed by the first warden to get it, before this mark
+        await collection.update_many(
+            {"_id": {"$in": ids}, "announced_at_us": None}, {"$set": {"announced_at_us": stamp}}
         )
 
     async def note_held(self, hazards: list[Hazard], reason: str) -> None:
@@ -222,7 +222,7 @@ class MongoCoordination(CoordinationStore):
     ) -> Hazard:
         condition: dict[str, Any] = {
             "_id": hazard_id_of(mission_id, hazard_id),
-            "state": transition.source.value,
+            "state": {"$in": [source.value for source in transition.sources]},
         }
         if transition.claimer_only:
             condition["claimed_by"] = warden

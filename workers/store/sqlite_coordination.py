@@ -207,8 +207,9 @@ class SQLiteCoordination(CoordinationStore):
             in_transaction(
                 db,
                 lambda: db.executemany(
-                    "UPDATE hazards SET state = 'announced', announced_at = ?, held_reason = NULL "
-                    "WHERE mission_id = ? AND hazard_id = ? AND state = 'held'",
+                    "UPDATE hazards SET state = CASE state WHEN 'held' THEN 'announced' ELSE state END, "
+                    "announced_at = COALESCE(announced_at, ?), held_reason = NULL "
+                    "WHERE mission_id = ? AND hazard_id = ?",
                     keys,
                 ),
             )
@@ -251,10 +252,17 @@ class SQLiteCoordination(CoordinationStore):
             changes, values = f"{transition.stamp} = ?", (to_micros(at),)
         else:
             changes, values = f"claimed_by = ?, {transition.stamp} = ?", (warden, to_micros(at))
-        condition = "state = ? AND mission_id = ? AND hazard_id = ?" + (
+        sources = ", ".join("?" for _ in transition.sources)
+        condition = f"state IN ({sources}) AND mission_id = ? AND hazard_id = ?" + (
             " AND claimed_by = ?" if transition.claimer_only else ""
         )
-        params = (transition.target.value, *values, transition.source.value, mission_id, hazard_id)
+        params = (
+            transition.target.value,
+            *values,
+            *(source.value for source in transition.sources),
+            mission_id,
+            hazard_id,
+        )
         params += (warden,) if transition.claimer_only else ()
 
         def change(db: sqlite3.Connection) -> Hazard:
