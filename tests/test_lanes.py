@@ -20,6 +20,7 @@ import pytest
 
 from broker.dead_letter_queue import peek_dead_letters
 from broker.topology import core_topology, declare_with_url
+from schemas.envelope import Event
 from schemas.routing import (
     DEAD_LETTER_EXCHANGE,
     EXPRESS_QUEUE,
@@ -193,3 +194,86 @@ def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> 
     assert f"{1 + LIMIT} times" in letter.detail
     assert [r.seq for r in bus.find()] == [poison.seq + 1], "the poison was never stored; the next was"
     assert in_queue(bus, EXPRESS_QUEUE) == (0, 0)
+
+
+class Handled:
+    """A batch service that writes down, in one shared log, which consumer handled which event;
+    ``hold`` keeps the consumer's first batch in hand until released."""
+
+    def __init__(self, name: str, log: list[str], hold: asyncio.Event | None = None) -> None:
+        self.name, self.log, self.hold = name, log, hold
+        self.in_hand = asyncio.Event()
+
+    async def handle(self, accepted: Sequence[Accepted]) -> int:
+        self.log.extend(f"{self.name}:{item.event.seq}" for item in accepted)
+        if self.hold is not None:
+            self.in_hand.set()
+            await self.hold.wait()
+            self.hold = None
+            self.log.append(f"{self.name} done")
+        return 0
+
+
+def test_a_worker_handing_the_express_lane_over_finishes_its_batch_before_the_next_gets_any(
+    bus: Bus,
+) -> None:
+    """The express lane's single active consumer is the hazard service's only lock: a consumer that
+    stops keeps the lane until its batch is done (no cancel first), so the next one starts after it.
+    Events published while it finishes still come to it, and go to the next once its channel closes."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    first = explorer.publish_many([("hazard", hazard(0)), ("hazard", hazard(1))])
+
+    async def hand_over() -> tuple[list[str], list[Event]]:
+        connection = await aio_pika.connect(bus.admin_url)
+        store = open_store(bus.settings)
+        await store.open()
+        log: list[str] = []
+        release = asyncio.Event()
+
+        async def consumer(service: Handled) -> tuple[aio_pika.abc.AbstractChannel, IngestConsumer]:
+            channel = await connection.channel(publisher_confirms=True)
+            await channel.set_qos(prefetch_count=16)
+            lane = IngestConsumer(
+                channel,
+                await channel.get_queue(EXPRESS_QUEUE),
+                store,
+                await channel.get_exchange(DEAD_LETTER_EXCHANGE),
+                max_message_bytes=bus.settings.max_message_bytes,
+                services=[service],
+                batch_size=1,
+                exclusive=True,
+            )
+            return channel, lane
+
+        try:
+            leaving = Handled("leaving", log, hold=release)
+            leaving_channel, leaving_lane = await consumer(leaving)
+            leaving_run = asyncio.create_task(leaving_lane.run())
+            await asyncio.wait_for(leaving.in_hand.wait(), 30)  # the active consumer, one batch in hand
+            next_channel, next_lane = await consumer(Handled("next", log))
+            next_run = asyncio.create_task(next_lane.run())
+            await leaving_lane.stop()
+            later = await asyncio.to_thread(
+                explorer.publish_many, [("hazard", hazard(2)), ("hazard", hazard(3))]
+            )
+            # both taken by a consumer (the one leaving: still the lane's only active consumer)
+            await asyncio.to_thread(wait_for, lambda: bus.ready_messages(EXPRESS_QUEUE) == 0, 30, "delivered")
+            release.set()
+            await asyncio.wait_for(leaving_run, 30)
+            await leaving_channel.close()  # what it received and did not handle goes back, in order
+            handled = len(first) + len(later) + 1  # each event once, and the one leaving said done
+            await asyncio.to_thread(wait_for, lambda: len(log) >= handled, 30, "every event handled")
+            await next_lane.stop()
+            await asyncio.wait_for(next_run, 30)
+            await next_channel.close()
+            return log, later
+        finally:
+            await connection.close()
+            await store.close()
+
+    log, later = asyncio.run(hand_over())
+    assert log == [
+        f"leaving:{first[0].seq}",
+        "leaving done",
+        *(f"next:{event.seq}" for event in [first[1], *later]),
+    ], "the next consumer began only once the one leaving was done, and took the rest in order"
