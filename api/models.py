@@ -305,18 +305,7 @@ class TeamMemberOut(BaseModel):
 
     @classmethod
     def of(cls, member: TeamMember) -> TeamMemberOut:
-        robot = member.robot
-        return cls(
-            name=robot.name,
-            kind=robot.kind,
-            localised=robot.localised,
-            last_seen=member.last_seen,
-            stale=member.stale,
-            in_service=robot.in_service,
-            counts_for_gate=member.counts_for_gate,
-            service_changed_by=robot.service_changed_by,
-            service_changed_at=robot.service_changed_at,
-        )
+        return cls.model_validate(member.as_dict())
 
 
 class GateOut(BaseModel):

@@ -12,6 +12,7 @@ import asyncio
 import signal
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import Any
 
 import aio_pika
 import aio_pika.abc
@@ -33,7 +34,7 @@ from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 from workers.attempts import AttemptLimit
 from workers.ingest import IngestConsumer
-from workers.store import open_store
+from workers.store import Store, open_store
 from workers.validation import Accepted, Rejected
 
 REFUSING_QUEUE = "test.refuses-battery-warnings"
@@ -135,23 +136,32 @@ class CrashesOn:
         return {}
 
 
-async def express_consumer(
-    bus: Bus, check: CrashesOn
-) -> tuple[aio_pika.abc.AbstractConnection, IngestConsumer]:
-    """The express lane's consumer as the worker makes it, with ``check`` and a limit of LIMIT."""
-    connection = await aio_pika.connect(bus.admin_url)
+async def on_express_lane(
+    bus: Bus, connection: aio_pika.abc.AbstractConnection, store: Store, **options: Any
+) -> tuple[aio_pika.abc.AbstractChannel, IngestConsumer]:
+    """A consumer of the express lane on a channel of its own, as the worker makes it, with ``options``."""
     channel = await connection.channel(publisher_confirms=True)
     await channel.set_qos(prefetch_count=16)
-    store = open_store(bus.settings)
-    await store.open()
     consumer = IngestConsumer(
         channel,
         await channel.get_queue(EXPRESS_QUEUE),
         store,
         await channel.get_exchange(DEAD_LETTER_EXCHANGE),
         max_message_bytes=bus.settings.max_message_bytes,
-        checks=[check],
-        attempts=AttemptLimit(store, LIMIT),
+        **options,
+    )
+    return channel, consumer
+
+
+async def express_consumer(
+    bus: Bus, check: CrashesOn
+) -> tuple[aio_pika.abc.AbstractConnection, IngestConsumer]:
+    """The express lane's consumer, with ``check`` and a limit of LIMIT."""
+    connection = await aio_pika.connect(bus.admin_url)
+    store = open_store(bus.settings)
+    await store.open()
+    _, consumer = await on_express_lane(
+        bus, connection, store, checks=[check], attempts=AttemptLimit(store, LIMIT)
     )
     connection.close_callbacks.add(lambda *_: asyncio.ensure_future(store.close()))
     return connection, consumer
@@ -231,19 +241,9 @@ def test_a_worker_handing_the_express_lane_over_finishes_its_batch_before_the_ne
         release = asyncio.Event()
 
         async def consumer(service: Handled) -> tuple[aio_pika.abc.AbstractChannel, IngestConsumer]:
-            channel = await connection.channel(publisher_confirms=True)
-            await channel.set_qos(prefetch_count=16)
-            lane = IngestConsumer(
-                channel,
-                await channel.get_queue(EXPRESS_QUEUE),
-                store,
-                await channel.get_exchange(DEAD_LETTER_EXCHANGE),
-                max_message_bytes=bus.settings.max_message_bytes,
-                services=[service],
-                batch_size=1,
-                exclusive=True,
+            return await on_express_lane(
+                bus, connection, store, services=[service], batch_size=1, exclusive=True
             )
-            return channel, lane
 
         try:
             leaving = Handled("leaving", log, hold=release)

@@ -4,9 +4,7 @@ taking a warden out of the team in the same operation."""
 
 from __future__ import annotations
 
-import uuid
 from collections.abc import Iterator
-from dataclasses import replace
 
 import pytest
 
@@ -14,20 +12,15 @@ from broker.accounts import Account, Role
 from publishers.client import RobotClient
 from schemas.roles import UserRole
 from schemas.routing import RobotKind
-from tests.api.support import Api, running_api
-from tests.api.test_channels import dropped_afterwards, robot_url
+from tests.api.support import Api, running_api_on_each_store
+from tests.api.test_channels import robot_url
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])
 def api(request: pytest.FixtureRequest, bus: Bus) -> Iterator[Api]:
-    database = None
-    if request.param == "mongodb":
-        database = f"test_{uuid.uuid4().hex[:12]}"
-        url = request.getfixturevalue("mongodb_url")
-        bus.settings = replace(bus.settings, mongodb_url=f"{url.rstrip('/')}/{database}")
-    with dropped_afterwards(bus.settings.mongodb_url, database), running_api(bus) as running:
+    with running_api_on_each_store(request, bus) as running:
         running.user("admin1", UserRole.ADMIN)
         running.user("super1", UserRole.SUPERVISOR)
         running.user("oper1", UserRole.OPERATOR)
