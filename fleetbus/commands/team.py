@@ -64,11 +64,11 @@ def team(
 
 
 def _service(member: TeamMember) -> str:
+    """``yes`` or ``no``, with who last changed it and when (the audit record)."""
     robot = member.robot
-    text = "yes" if robot.in_service else "[red]out[/]"
+    text = "yes" if robot.in_service else "[red]no[/]"
     if robot.service_changed_at is not None:
-        change = "in" if robot.in_service else "out"
-        text += f" ({change} by {robot.service_changed_by}, {clock(robot.service_changed_at)})"
+        text += f" ({robot.service_changed_by}, {clock(robot.service_changed_at)[:19]})"
     return text
 
 
