@@ -35,7 +35,7 @@ from schemas.team import TEAM_CHANGE_TYPE, TeamChange
 from workers.notifier import deliver_to_inbox, publish_notification
 from workers.store.hazards import Hazard, HazardState, HeldHazards, NewHazard, RobotState
 from workers.store.interface import Store
-from workers.team import Gate, gate
+from workers.team import gate, why_closed
 from workers.validation import Accepted
 
 log = logging.getLogger("fleetbus.hazards")
@@ -88,7 +88,7 @@ class HazardCoordinator:
         if not held.hazards:
             return sent
         if not state.open:
-            log.info("holding %d hazards: the gate is closed (%s)", len(held.hazards), _closed(state))
+            log.info("holding %d hazards: %s", len(held.hazards), why_closed(state))
             return sent
         now = datetime.now(timezone.utc)
         for index, hazard in enumerate(held.hazards):
@@ -154,12 +154,6 @@ class HazardCoordinator:
             hazard_state=state.value,
             late=now - event.sent_at > self._late_after,
         )
-
-
-def _closed(state: Gate) -> str:
-    if not state.wardens:
-        return "no warden in service"
-    return f"waiting for {', '.join(state.waiting_for)}"
 
 
 class TeamChanges:

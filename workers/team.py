@@ -50,7 +50,7 @@ class Gate:
 def gate(team: Sequence[RobotState]) -> Gate:
     """The gate for ``team`` (any robots: only wardens matter)."""
     wardens = [robot for robot in team if robot.kind == RobotKind.WARDEN.value]
-    serving = [robot for robot in wardens if robot.in_service]
+    serving = [robot for robot in wardens if counts_for_gate(robot)]
     return Gate(
         [robot.name for robot in serving],
         [robot.name for robot in serving if not robot.localised],
@@ -72,14 +72,19 @@ def ago(moment: datetime | None, now: datetime) -> str:
     return f"{seconds // 86_400} days ago"
 
 
-def why_closed(state: Gate, last_seen: Mapping[str, datetime | None], now: datetime) -> str | None:
-    """Why the gate holds hazards, or None when it is open."""
+def why_closed(
+    state: Gate, last_seen: Mapping[str, datetime | None] | None = None, now: datetime | None = None
+) -> str | None:
+    """Why the gate holds hazards, or None when it is open; with ``last_seen`` (and ``now``), when
+    each warden it waits for was last heard from."""
     if state.open:
         return None
     if not state.wardens:
         if state.out_of_service:
             return f"no warden in service ({', '.join(state.out_of_service)} out of service)"
         return NO_WARDEN
+    if last_seen is None or now is None:
+        return f"waiting for {', '.join(state.waiting_for)}: not localised"
     return "; ".join(
         f"waiting for {name}: not localised, last seen {ago(last_seen.get(name), now)}"
         for name in state.waiting_for
