@@ -15,8 +15,10 @@ from workers.store import Store, run_with_store
 from workers.team import TeamMember, TeamRefused, ago, change_service, gate, read_team, why_closed
 
 app = typer.Typer(
-    help="The team the hazard gate follows: its robots, who counts for the gate, wardens out of "
-    "service and back.",
+    help="The team the hazard gate follows. Alone: every robot with its kind, localised or not, "
+    "last seen (any event), stale (silent longer than FLEETBUS_STALE_AFTER_S), in service (who "
+    "changed that, when) and whether it counts for the gate; then the gate: open, or why it holds "
+    "hazards. `out` and `in` take a warden out of service and put it back.",
     invoke_without_command=True,
 )
 
