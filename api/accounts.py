@@ -19,11 +19,13 @@ from api.security import Secrets, Token, password_problem
 from broker.account_roles import ROLE_TAGS, Role
 from broker.accounts import configure_account, delete_account, revoke_account, url_for, vhost_of
 from broker.management import ManagementAPI, ManagementError
+from broker.team_changes import HazardServiceNotTold
 from schemas.identity import validate_name
 from schemas.roles import UserRole
 from schemas.routing import RobotKind
 from workers.store.interface import Store
 from workers.store.users import User, UserExists
+from workers.team import leave_team
 
 log = logging.getLogger("fleetbus.api.accounts")
 
@@ -164,6 +166,10 @@ class Accounts:
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
         await self._store.remove_user(name)
         log.info("user %s removed by %s", name, by)
+        try:  # a warden removed no longer holds the hazard gate
+            await leave_team(self._store, self._admin_url, name, by)
+        except HazardServiceNotTold as error:
+            raise Unavailable(f"user {name} removed and taken out of the team, but {error}") from error
 
     async def login(self, name: str, password: str) -> Login:
         user = await self._store.get_user(name)

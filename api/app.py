@@ -19,7 +19,7 @@ from fastapi.routing import APIRoute
 from api import audit
 from api.auth import RoleCheck
 from api.errors import ServiceRefusal
-from api.routes import auth, beacons, channels, missions, recording, users
+from api.routes import auth, beacons, channels, missions, recording, team, users
 from api.service import open_service
 from fleetbus.config import Settings
 from schemas.roles import UserRole
@@ -73,6 +73,7 @@ def create_app(settings: Settings, admin_url: str, management_url: str) -> FastA
         channels.router,
         beacons.router,
         recording.router,
+        team.router,
     ):
         app.include_router(document_roles(router))
 

@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from api.accounts import BrokerCredentials
 from api.channels import BindingReport, CheckOut
+from api.team import TeamView
 from schemas.missions import MissionPlan, MissionState
 from schemas.roles import UserRole
 from schemas.routing import RobotKind
@@ -18,6 +19,7 @@ from workers.store.channels import ChannelChange, CheckIn, Mount
 from workers.store.discards import Discard, DiscardCount
 from workers.store.missions import Mission, StateChange
 from workers.store.users import User
+from workers.team import TeamMember
 
 
 class _In(BaseModel):
@@ -289,3 +291,39 @@ class DiscardOut(BaseModel):
 class DiscardsOut(BaseModel):
     counts: list[DiscardCountOut]
     recent: list[DiscardOut]
+
+
+class TeamMemberOut(BaseModel):
+    name: str
+    kind: str | None
+    localised: bool
+    last_seen: datetime | None = Field(description="when its newest event (any type) arrived; null: never")
+    stale: bool = Field(description="silent longer than FLEETBUS_STALE_AFTER_S")
+    in_service: bool
+    counts_for_gate: bool = Field(description="a warden in service: the hazard gate waits for it")
+    service_changed_by: str | None = Field(description="who last took it out of service or put it back")
+    service_changed_at: datetime | None
+
+    @classmethod
+    def of(cls, member: TeamMember) -> TeamMemberOut:
+        return cls.model_validate(member.as_dict())
+
+
+class GateOut(BaseModel):
+    open: bool
+    announces_to: list[str] = Field(description="the wardens in service: who announcements go to")
+    closed_because: str | None
+
+
+class TeamOut(BaseModel):
+    robots: list[TeamMemberOut]
+    gate: GateOut
+
+    @classmethod
+    def of(cls, view: TeamView) -> TeamOut:
+        return cls(
+            robots=[TeamMemberOut.of(member) for member in view.members],
+            gate=GateOut(
+                open=view.gate.open, announces_to=view.gate.wardens, closed_because=view.closed_because
+            ),
+        )

@@ -6,12 +6,14 @@ import asyncio
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from datetime import timedelta
 
 from api.accounts import Accounts
 from api.channels import Channels
 from api.login_limits import LoginLimits
 from api.missions import Missions
 from api.security import Secrets
+from api.team import Team
 from broker.accounts import vhost_of
 from broker.management import ManagementAPI
 from broker.routes import RouteMap
@@ -29,6 +31,7 @@ class Service:
     accounts: Accounts
     missions: Missions
     channels: Channels
+    team: Team
     recording: RecordingStore
     management: ManagementAPI
     vhost: str
@@ -57,6 +60,7 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
             accounts=Accounts(store, secrets_, management, admin_url, settings.ingest_shards),
             missions=missions,
             channels=Channels(store, management, vhost_of(admin_url), missions),
+            team=Team(store, admin_url, timedelta(seconds=settings.stale_after_s)),
             recording=recording,
             management=management,
             vhost=vhost_of(admin_url),

@@ -23,7 +23,7 @@ import pika.exceptions
 
 from broker.account_roles import ROLE_TAGS, Role
 from broker.management import ManagementAPI
-from broker.shards import assign_shard, complete_shard_bindings, unassign_shard
+from broker.shards import assign_shard, unassign_shard
 from broker.topology import account_topology, core_topology, declare_with_url
 from schemas.identity import validate_name
 from schemas.routing import (
@@ -130,8 +130,6 @@ async def configure_account(
     pattern = owner_pattern(name).replace(name, "{username}")
     for exchange in (events_exchange(name), requests_exchange(name)):
         api.put_topic_permissions(vhost, name, exchange, write=pattern, read=pattern)
-    # robots bound the way of old first, so that none has its hazards in its shard and express lane
-    complete_shard_bindings(api, vhost, shards)
     await declare_with_url(admin_url, [core_topology(shards), account_topology(name, role, kind=kind)])
     if role is Role.ROBOT:
         assign_shard(api, vhost, name, shards)

@@ -5,10 +5,6 @@ A robot is bound to exactly one shard, with one key per type it sends there (``<
 is provisioned, on the shard that has the fewest robots (ties: the lowest number). The assignment
 is the broker's own bindings, so the management UI shows it and nothing else can disagree with it.
 
-Before the express lane a robot was bound with ``<robot>.#``, which would also take its hazards
-to its shard, beside the express lane's copy: :func:`complete_shard_bindings` gives such robots
-their keys and takes the wildcard away, before the express lane's bindings are declared.
-
 Why by name, and why bindings rather than a hash:
 
 - The routing key's first word is the only robot identity on a message that a robot cannot
@@ -39,7 +35,6 @@ from schemas.routing import (
     ingest_shard_queue,
     shard_binding_keys,
     shard_of_queue,
-    wildcard_shard_key,
 )
 
 BEACON_SUFFIX = beacon_exchange("")  # ".beacon"
@@ -55,9 +50,6 @@ class ShardMap:
     """Each bound robot's shards: one, unless a move was interrupted."""
     unassigned: tuple[str, ...] = ()
     """Robot accounts with no shard binding: their messages go to shard 0 by the alternate exchange."""
-    incomplete: tuple[str, ...] = ()
-    """Bound robots whose keys are not one per shard type: bound before the express lane, or a
-    binding lost; :func:`complete_shard_bindings` mends those on one shard."""
 
     def shard_of(self, robot: str) -> int | None:
         """The shard ``robot``'s messages go to (shard 0 for an unassigned robot); None: several."""
@@ -86,32 +78,26 @@ class ShardMap:
         )
 
 
-SHARD_KEY_ENDS = frozenset(t.value for t in SHARD_TYPES) | {"#"}
+SHARD_KEY_ENDS = frozenset(t.value for t in SHARD_TYPES)
 
 
 def _robot_of(binding_key: str) -> str | None:
-    """The robot a shard binding key is for: ``<robot>.<shard type>``, or ``<robot>.#`` of old."""
+    """The robot a shard binding key is for: ``<robot>.<shard type>``."""
     robot, _, rest = binding_key.partition(".")
     return robot if robot and rest in SHARD_KEY_ENDS else None
 
 
 def read_shard_map(api: ManagementAPI, vhost: str, shards: int) -> ShardMap:
-    keys: dict[str, dict[int, set[str]]] = {}
+    bound: dict[str, set[int]] = {}
     for binding in api.exchange_bindings(vhost, SHARD_EXCHANGE):
         shard = shard_of_queue(binding.get("destination", ""))
-        key = binding.get("routing_key", "")
-        robot = _robot_of(key)
+        robot = _robot_of(binding.get("routing_key", ""))
         if binding.get("destination_type") == "queue" and shard is not None and robot is not None:
-            keys.setdefault(robot, {}).setdefault(shard, set()).add(key)
+            bound.setdefault(robot, set()).add(shard)
     return ShardMap(
         shards,
-        {robot: tuple(sorted(by_shard)) for robot, by_shard in sorted(keys.items())},
-        tuple(sorted(_robot_accounts(api, vhost) - keys.keys())),
-        tuple(
-            robot
-            for robot, by_shard in sorted(keys.items())
-            if any(found != set(shard_binding_keys(robot)) for found in by_shard.values())
-        ),
+        {robot: tuple(sorted(found)) for robot, found in sorted(bound.items())},
+        tuple(sorted(_robot_accounts(api, vhost) - bound.keys())),
     )
 
 
@@ -129,12 +115,8 @@ def _bind(api: ManagementAPI, vhost: str, robot: str, shard: int) -> None:
         api.bind(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), key)
 
 
-def _unbind(api: ManagementAPI, vhost: str, robot: str, shard: int, *, keep_keys: bool = False) -> None:
-    """Take ``robot``'s keys off ``shard``: all of them, or (``keep_keys``) only the wildcard of old."""
-    keys = [wildcard_shard_key(robot)]
-    if not keep_keys:
-        keys += shard_binding_keys(robot)
-    api.unbind_keys(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), keys)
+def _unbind(api: ManagementAPI, vhost: str, robot: str, shard: int) -> None:
+    api.unbind_keys(vhost, SHARD_EXCHANGE, ingest_shard_queue(shard), list(shard_binding_keys(robot)))
 
 
 def assign_shard(api: ManagementAPI, vhost: str, robot: str, shards: int) -> int:
@@ -146,21 +128,6 @@ def assign_shard(api: ManagementAPI, vhost: str, robot: str, shards: int) -> int
     shard = current.least_loaded()
     _bind(api, vhost, robot, shard)
     return shard
-
-
-def complete_shard_bindings(api: ManagementAPI, vhost: str, shards: int) -> list[str]:
-    """Give each robot bound to one shard every key of its types there, then take its ``<robot>.#``
-    of old away (never routed to no queue meanwhile); return the robots mended. Robots bound to
-    several shards are left to ``fleetbus shards rebalance``."""
-    current = read_shard_map(api, vhost, shards)
-    mended = []
-    for robot in current.incomplete:
-        bound = current.bindings[robot]
-        if len(bound) == 1:
-            _bind(api, vhost, robot, bound[0])
-            _unbind(api, vhost, robot, bound[0], keep_keys=True)
-            mended.append(robot)
-    return mended
 
 
 def unassign_shard(api: ManagementAPI, vhost: str, robot: str) -> None:
@@ -219,4 +186,5 @@ def apply_move(api: ManagementAPI, vhost: str, move: Move) -> None:
     """Bind the robot to its new shard first, then unbind the others: never routed to no shard."""
     _bind(api, vhost, move.robot, move.target)
     for shard in move.bound:
-        _unbind(api, vhost, move.robot, shard, keep_keys=shard == move.target)
+        if shard != move.target:
+            _unbind(api, vhost, move.robot, shard)

@@ -24,6 +24,7 @@ from schemas.routing import (
     BEACON_MATCH,
     DEAD_LETTER_EXCHANGE,
     DEAD_LETTER_QUEUE,
+    DELIVERED_BY_NAME,
     EXPRESS_QUEUE,
     EXPRESS_TYPES,
     INGEST_EXCHANGE,
@@ -98,8 +99,6 @@ class Topology:
     exchanges: Sequence[ExchangeSpec] = ()
     queues: Sequence[QueueSpec] = ()
     bindings: Sequence[BindingSpec] = ()
-    obsolete: Sequence[BindingSpec] = ()
-    """Bindings an older version made, removed once the others are in place."""
 
 
 #: The arguments of every ingest shard's queue (shard 0 is the ingest queue of a single worker).
@@ -159,8 +158,6 @@ def core_topology(shards: int = 1) -> Topology:
             BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
         ),
-        # before shards, the ingest queue was bound to the ingest exchange directly
-        obsolete=(BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),),
     )
 
 
@@ -196,7 +193,9 @@ def inbox_bindings(owner: str, kind: RobotKind | None, operator: bool) -> list[s
         return [ALL_TOPICS_BINDING]
     if kind is None:
         return []
-    return [notification_routing_key(topic) for topic in SUBSCRIPTIONS[kind]]
+    return [
+        notification_routing_key(topic) for topic in SUBSCRIPTIONS[kind] if topic not in DELIVERED_BY_NAME
+    ]
 
 
 def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | None = None) -> Topology:
@@ -256,11 +255,6 @@ async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> N
             else:
                 queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
                 await queue.bind(source, routing_key=binding.routing_key, arguments=binding.arguments or None)
-    # removed only now: the new path carries every message before the old one is taken away
-    for topology in topologies:
-        for binding in topology.obsolete:
-            queue = queues.get(binding.destination) or await channel.get_queue(binding.destination)
-            await queue.unbind(binding.source, routing_key=binding.routing_key)
 
 
 async def declare_with_url(amqp_url: str, topologies: Iterable[Topology]) -> None:

@@ -22,6 +22,7 @@ from fleetbus.commands import (
     shards,
     stats,
     tail,
+    team,
     timeline,
     trace,
     users,
@@ -41,6 +42,7 @@ app.add_typer(maps.app, name="map")
 app.add_typer(recorder.app, name="recorder")
 app.add_typer(api.app, name="api")
 app.add_typer(shards.app, name="shards")
+app.add_typer(team.app, name="team")
 app.command("worker")(worker.worker)
 app.command("setup")(setup.setup)
 app.command("publish")(events.publish)

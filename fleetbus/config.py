@@ -11,12 +11,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from schemas.notifications import LATE_AFTER_S
+
 DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
 DEFAULT_BATTERY_LOW_PERCENT = 20.0
 DEFAULT_RECORDER_KEEP = "*=1GB"
 DEFAULT_TOKEN_MINUTES = 60.0
-DEFAULT_LATE_AFTER_S = 5.0
+DEFAULT_LATE_AFTER_S = LATE_AFTER_S
+DEFAULT_STALE_AFTER_S = 60.0
 DEFAULT_INGEST_SHARDS = 1
 DEFAULT_BROKER_WAIT_S = 60.0
 DEFAULT_API_HASH_THREADS = 1
@@ -70,6 +73,8 @@ class Settings:
     """Failed logins to one account from one address before it gets 429 (``limits`` notation)."""
     api_address_failures: str = DEFAULT_API_ADDRESS_FAILURES
     """Failed logins from one address, to any account, before it gets 429."""
+    stale_after_s: float = DEFAULT_STALE_AFTER_S
+    """A robot silent this long (no event of any type) is shown stale in ``fleetbus team``."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -118,6 +123,7 @@ def load_settings(environ: Mapping[str, str] | None = None) -> Settings:
         api_hash_threads=int(_positive("FLEETBUS_API_HASH_THREADS", env, DEFAULT_API_HASH_THREADS, int)),
         api_account_failures=_rate("FLEETBUS_API_ACCOUNT_FAILURES", env, DEFAULT_API_ACCOUNT_FAILURES),
         api_address_failures=_rate("FLEETBUS_API_ADDRESS_FAILURES", env, DEFAULT_API_ADDRESS_FAILURES),
+        stale_after_s=float(env.get("FLEETBUS_STALE_AFTER_S") or DEFAULT_STALE_AFTER_S),
     )
 
 

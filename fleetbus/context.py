@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import getpass
 import json
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
@@ -38,6 +39,11 @@ def fail(message: str, code: int = 1) -> NoReturn:
 
 def settings() -> Settings:
     return load_settings()
+
+
+def actor(by: str | None) -> str:
+    """Who makes a change from the command line, for the record: ``--by``, else the login."""
+    return by or f"{getpass.getuser()} (command line)"
 
 
 def endpoint(start: bool = True) -> BrokerEndpoint:

@@ -22,7 +22,7 @@ import logging
 import time
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from datetime import datetime
+from datetime import datetime, timezone
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -34,7 +34,7 @@ from pika.adapters.blocking_connection import BlockingChannel
 
 from publishers.backoff import reconnect_delay
 from publishers.confirms import Outgoing
-from publishers.errors import BrokerUnavailable, PublishRefused
+from publishers.errors import BrokerUnavailable, PublisherError, PublishRefused
 from publishers.maps import FetchedMap, fetch_map, map_events
 from publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
 from publishers.rpc import RpcChannel
@@ -42,10 +42,10 @@ from publishers.sender import Sender
 from publishers.sequence import SequenceCounter
 from publishers.state_lock import StateLock
 from schemas.bodies import MapMetadata
-from schemas.envelope import Event, build_event, new_epoch, validate_body
+from schemas.envelope import EVENT_ADAPTER, Event, build_event, new_epoch, validate_body
 from schemas.identity import validate_name
-from schemas.notifications import Notification
-from schemas.routing import EventType, beacon_headers, event_routing_key, inbox_queue, publish_exchange
+from schemas.notifications import LATE_AFTER_S, Notification
+from schemas.routing import EventType, Topic, beacon_headers, event_routing_key, inbox_queue, publish_exchange
 
 log = logging.getLogger("fleetbus.robot")
 
@@ -60,6 +60,20 @@ def robot_folder(state_dir: Path, robot_id: str) -> Path:
 
 def outbox_folder(state_dir: Path, robot_id: str) -> Path:
     return robot_folder(state_dir, robot_id) / "outbox"
+
+
+def missed_hazard(hazard: dict[str, Any], now: datetime) -> Notification:
+    """A hazard from ``hazard.open`` as the notification its warden missed."""
+    event = EVENT_ADAPTER.validate_python(hazard["event"])
+    return Notification(
+        topic=Topic.HAZARD,
+        event=event,
+        received_at=hazard["received_at"],
+        notified_at=now,
+        hazard_id=hazard["hazard_id"],
+        hazard_state=hazard["state"],
+        late=(now - event.sent_at).total_seconds() > LATE_AFTER_S,
+    )
 
 
 def outgoing(robot_id: str, entry: Entry) -> Outgoing:
@@ -139,6 +153,8 @@ class RobotClient:
         self._connection: pika.BlockingConnection | None = None
         self._rpc: RpcChannel | None = None
         self._seen_notes: OrderedDict[str, None] = OrderedDict()
+        self._resynced_on: pika.BlockingConnection | None = None
+        """The connection on which this client last rebuilt its list of open hazards."""
 
     # connection
     def start(self) -> None:
@@ -321,19 +337,24 @@ class RobotClient:
         one that was being handled when the robot process died is delivered again. The service
         sends at least once (it announces again when it cannot be sure a broker took the first
         announcement); a notification this client has already handed out is acked and skipped.
+
+        A warden in service first gets the open hazards it missed: on its first call and after
+        every reconnect, the client asks the service (``hazard.open``) and hands out, in order,
+        each announced hazard it has not handed out yet (its inbox lost or purged, or filled
+        while it was away), with its state (``hazard_state``: claimed by another warden, say).
         """
         channel = self._open_consumer_channel()
-        channel.basic_qos(prefetch_count=prefetch)
         try:
-            for method, properties, body in channel.consume(
-                inbox_queue(self.robot_id), inactivity_timeout=timeout
-            ):
+            yield from self._missed_hazards()
+            channel.basic_qos(prefetch_count=prefetch)
+            for method, _, body in channel.consume(inbox_queue(self.robot_id), inactivity_timeout=timeout):
                 if method is None:
                     return
                 try:
-                    if self._seen_before(properties.message_id):
+                    note = Notification.model_validate_json(body)
+                    if self._seen_before(note):
                         continue
-                    yield Notification.model_validate_json(body)
+                    yield note
                 finally:  # the caller asked for the next one, or stopped iterating
                     if channel.is_open:
                         channel.basic_ack(method.delivery_tag)
@@ -342,12 +363,34 @@ class RobotClient:
                 channel.cancel()
                 channel.close()
 
-    def _seen_before(self, message_id: str | None) -> bool:
-        if not message_id:
-            return False
-        if message_id in self._seen_notes:
+    def _missed_hazards(self) -> Iterator[Notification]:
+        """Once per connection, for a warden in service: the open hazards not handed out yet."""
+        connection = self._connection
+        if connection is None or connection is self._resynced_on:
+            return
+        try:
+            me = next((w for w in self.wardens() if w["name"] == self.robot_id), None)
+            hazards = self.open_hazards() if me is not None and me.get("in_service", True) else []
+        except PublisherError as error:
+            log.warning(
+                "could not rebuild the list of open hazards (%s); trying again at the next call", error
+            )
+            return
+        now = datetime.now(timezone.utc)
+        for hazard in hazards:
+            if hazard["state"] == "held":  # not announced yet: it comes through the inbox
+                continue
+            note = missed_hazard(hazard, now)
+            if not self._seen_before(note):
+                yield note
+        self._resynced_on = connection  # only once all were handed out: a caller may stop early
+
+    def _seen_before(self, note: Notification) -> bool:
+        """Whether this client handed out ``note`` already (an announcement's copies, a resync)."""
+        key = f"{note.topic.value}:{note.event.message_id}"
+        if key in self._seen_notes:
             return True
-        self._seen_notes[message_id] = None
+        self._seen_notes[key] = None
         if len(self._seen_notes) > SEEN_NOTIFICATIONS:
             self._seen_notes.popitem(last=False)
         return False

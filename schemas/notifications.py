@@ -7,6 +7,10 @@ from pydantic import AwareDatetime, BaseModel, ConfigDict
 from schemas.envelope import Event
 from schemas.routing import Topic
 
+#: A notification that reaches its robots this long after the event was sent is ``late`` (the
+#: default of ``FLEETBUS_LATE_AFTER_S``; a robot client rebuilding its list uses it too).
+LATE_AFTER_S = 5.0
+
 
 class Notification(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -19,6 +23,10 @@ class Notification(BaseModel):
     notified_at: AwareDatetime
     hazard_id: int | None = None
     """For hazards: the id the service gave it, sequential within its mission."""
+    hazard_state: str | None = None
+    """For hazards: ``announced`` when it is first announced; ``claimed`` or ``reached`` (by
+    another warden, say) when a warden that missed it gets it later: put back in service, or its
+    client rebuilding its list after a (re)connect."""
     map_version: int | None = None
     """For maps: the stored version to fetch with the ``map.latest`` / ``map.chunk`` services."""
     late: bool = False

@@ -25,8 +25,10 @@ ROLE_PURPOSE: dict[UserRole, str] = {
     UserRole.ADMIN: "creates users, sets their roles, sees every account and mission",
     UserRole.CLIENT: "requests missions (use case, geofence, points of interest) and accepts their results",
     UserRole.PLANNER: "plans missions: itinerary, risk assessment; files them",
-    UserRole.SUPERVISOR: "approves, starts, interrupts and closes missions; may force an unmount",
-    UserRole.OPERATOR: "mounts robots, checks in to missions, follows and commands mounted robots",
+    UserRole.SUPERVISOR: "approves, starts, interrupts and closes missions; may force an unmount; "
+    "takes wardens out of service and back",
+    UserRole.OPERATOR: "mounts robots, checks in to missions, follows and commands mounted robots; "
+    "takes wardens out of service and back",
     UserRole.ROBOT: "publishes its data; logs in only to fetch its broker credentials",
     UserRole.GUEST: "reads the mission list",
     UserRole.INACTIVE: "nothing (the role of every new account)",

@@ -117,6 +117,11 @@ SUBSCRIPTIONS: dict[RobotKind, tuple[Topic, ...]] = {
     RobotKind.WARDEN: (Topic.HAZARD, Topic.MAP),
     RobotKind.GUIDE: (Topic.MAP,),
 }
+#: Topics the service delivers to each subscriber's inbox by name (the default exchange), not
+#: through a binding: hazard announcements go to the wardens in service only, and the broker
+#: returns a copy no inbox took, so the service knows a warden got it. Their copy on
+#: ``fleetbus.notify`` (for operators and the recorder) names the wardens in ``ANNOUNCED_TO_HEADER``.
+DELIVERED_BY_NAME = (Topic.HAZARD,)
 ALL_TOPICS_BINDING = "notify.#"
 
 
@@ -212,11 +217,6 @@ def shard_binding_keys(robot: str) -> tuple[str, ...]:
     return tuple(event_routing_key(robot, t) for t in SHARD_TYPES)
 
 
-def wildcard_shard_key(robot: str) -> str:
-    """How a robot was bound to its shard before the express lane: every type, ``<robot>.#``."""
-    return f"{robot}.#"
-
-
 def notification_routing_key(topic: Topic | str) -> str:
     return f"notify.{Topic(topic).value}"
 
@@ -229,3 +229,5 @@ def owner_pattern(owner: str) -> str:
 #: Headers the workers put on a dead-lettered message: a reason code and a readable detail.
 REASON_HEADER = "x-fleetbus-reason"
 DETAIL_HEADER = "x-fleetbus-detail"
+#: On a hazard announcement's copy on ``fleetbus.notify``: the wardens whose inboxes took it.
+ANNOUNCED_TO_HEADER = "x-fleetbus-announced-to"

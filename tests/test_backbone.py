@@ -132,8 +132,10 @@ def test_worker_killed_mid_stream_ends_with_exactly_2000(bus: Bus) -> None:
 
 def test_operator_receives_every_notification_topic(bus: Bus) -> None:
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     operator = bus.robot(bus.add("ops1", role=Role.OPERATOR))
     with bus.worker():
+        warden.publish("localisation", {"localised": True})  # the gate opens: hazards are announced
         explorer.publish("hazard", hazard())
         [note] = operator.receive(1, timeout=15)
     assert note.event.robot_id == "explorer1"

@@ -12,6 +12,7 @@ import asyncio
 import signal
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import Any
 
 import aio_pika
 import aio_pika.abc
@@ -19,25 +20,21 @@ import pika
 import pytest
 
 from broker.dead_letter_queue import peek_dead_letters
-from broker.shards import read_shard_map
 from broker.topology import core_topology, declare_with_url
+from schemas.envelope import Event
 from schemas.routing import (
     DEAD_LETTER_EXCHANGE,
     EXPRESS_QUEUE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
-    SHARD_EXCHANGE,
     RobotKind,
-    ingest_shard_queue,
     notification_routing_key,
-    shard_binding_keys,
-    wildcard_shard_key,
 )
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 from workers.attempts import AttemptLimit
 from workers.ingest import IngestConsumer
-from workers.store import open_store
+from workers.store import Store, open_store
 from workers.validation import Accepted, Rejected
 
 REFUSING_QUEUE = "test.refuses-battery-warnings"
@@ -139,23 +136,32 @@ class CrashesOn:
         return {}
 
 
-async def express_consumer(
-    bus: Bus, check: CrashesOn
-) -> tuple[aio_pika.abc.AbstractConnection, IngestConsumer]:
-    """The express lane's consumer as the worker makes it, with ``check`` and a limit of LIMIT."""
-    connection = await aio_pika.connect(bus.admin_url)
+async def on_express_lane(
+    bus: Bus, connection: aio_pika.abc.AbstractConnection, store: Store, **options: Any
+) -> tuple[aio_pika.abc.AbstractChannel, IngestConsumer]:
+    """A consumer of the express lane on a channel of its own, as the worker makes it, with ``options``."""
     channel = await connection.channel(publisher_confirms=True)
     await channel.set_qos(prefetch_count=16)
-    store = open_store(bus.settings)
-    await store.open()
     consumer = IngestConsumer(
         channel,
         await channel.get_queue(EXPRESS_QUEUE),
         store,
         await channel.get_exchange(DEAD_LETTER_EXCHANGE),
         max_message_bytes=bus.settings.max_message_bytes,
-        checks=[check],
-        attempts=AttemptLimit(store, LIMIT),
+        **options,
+    )
+    return channel, consumer
+
+
+async def express_consumer(
+    bus: Bus, check: CrashesOn
+) -> tuple[aio_pika.abc.AbstractConnection, IngestConsumer]:
+    """The express lane's consumer, with ``check`` and a limit of LIMIT."""
+    connection = await aio_pika.connect(bus.admin_url)
+    store = open_store(bus.settings)
+    await store.open()
+    _, consumer = await on_express_lane(
+        bus, connection, store, checks=[check], attempts=AttemptLimit(store, LIMIT)
     )
     connection.close_callbacks.add(lambda *_: asyncio.ensure_future(store.close()))
     return connection, consumer
@@ -201,47 +207,74 @@ def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> 
     assert bus.ready_messages(EXPRESS_QUEUE) == 0
 
 
-def bound_the_old_way(bus: Bus, robot: str) -> None:
-    """Bind ``robot`` to its shard as before the express lane: ``<robot>.#``, every type."""
-    [shard] = read_shard_map(bus.api, bus.vhost, 1).bindings[robot]
-    queue = ingest_shard_queue(shard)
-    bus.api.bind(bus.vhost, SHARD_EXCHANGE, queue, wildcard_shard_key(robot))
-    bus.api.unbind_keys(bus.vhost, SHARD_EXCHANGE, queue, shard_binding_keys(robot))
-    assert read_shard_map(bus.api, bus.vhost, 1).incomplete == (robot,)
+class Handled:
+    """A batch service that writes down, in one shared log, which consumer handled which event;
+    ``hold`` keeps the consumer's first batch in hand until released."""
+
+    def __init__(self, name: str, log: list[str], hold: asyncio.Event | None = None) -> None:
+        self.name, self.log, self.hold = name, log, hold
+        self.in_hand = asyncio.Event()
+
+    async def handle(self, accepted: Sequence[Accepted]) -> int:
+        self.log.extend(f"{self.name}:{item.event.seq}" for item in accepted)
+        if self.hold is not None:
+            self.in_hand.set()
+            await self.hold.wait()
+            self.hold = None
+            self.log.append(f"{self.name} done")
+        return 0
 
 
-def shard_keys(bus: Bus, robot: str) -> list[str]:
-    """``robot``'s binding keys on the shard exchange."""
-    return sorted(
-        b["routing_key"]
-        for b in bus.api.exchange_bindings(bus.vhost, SHARD_EXCHANGE)
-        if b["routing_key"].startswith(f"{robot}.")
-    )
-
-
-def test_a_robot_bound_before_the_express_lane_is_bound_per_type_by_the_next_account(bus: Bus) -> None:
+def test_a_worker_handing_the_express_lane_over_finishes_its_batch_before_the_next_gets_any(
+    bus: Bus,
+) -> None:
+    """The express lane's single active consumer is the hazard service's only lock: a consumer that
+    stops keeps the lane until its batch is done (no cancel first), so the next one starts after it.
+    Events published while it finishes still come to it, and go to the next once its channel closes."""
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
-    bound_the_old_way(bus, "explorer1")
-    bus.add("explorer2", kind=RobotKind.EXPLORER)  # provisioning declares this version's topology
-    assert shard_keys(bus, "explorer1") == sorted(shard_binding_keys("explorer1")), "no explorer1.# left"
-    assert read_shard_map(bus.api, bus.vhost, 1).incomplete == ()
-    explorer.publish_many(
-        [("status", status()), ("hazard", hazard(0)), ("localisation", {"localised": True})]
-    )
-    wait_for(lambda: bus.ready_messages(EXPRESS_QUEUE) == 2, what="the hazard and the localisation")
-    assert bus.ready_messages(INGEST_QUEUE) == 1, "the status in its shard; the others once, not there too"
+    first = explorer.publish_many([("hazard", hazard(0)), ("hazard", hazard(1))])
 
+    async def hand_over() -> tuple[list[str], list[Event]]:
+        connection = await aio_pika.connect(bus.admin_url)
+        store = open_store(bus.settings)
+        await store.open()
+        log: list[str] = []
+        release = asyncio.Event()
 
-def test_a_worker_starting_binds_robots_per_type_before_hazards_could_take_two_lanes(bus: Bus) -> None:
-    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
-    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
-    bound_the_old_way(bus, "explorer1")
-    with bus.worker():
-        assert shard_keys(bus, "explorer1") == sorted(shard_binding_keys("explorer1"))
-        warden.publish("localisation", {"localised": True})
-        sent = explorer.publish_many([("status", status()), ("hazard", hazard(0)), ("status", status())])
-        [note] = warden.receive(1, timeout=30)
-        assert note.event == sent[1]
-        wait_for(lambda: bus.count() == 4, what="every event stored")
-    assert bus.with_store(lambda store: store.duplicates()) == [], "nothing came twice"
-    assert warden.receive(1, timeout=0.5) == [], "the hazard announced once"
+        async def consumer(service: Handled) -> tuple[aio_pika.abc.AbstractChannel, IngestConsumer]:
+            return await on_express_lane(
+                bus, connection, store, services=[service], batch_size=1, exclusive=True
+            )
+
+        try:
+            leaving = Handled("leaving", log, hold=release)
+            leaving_channel, leaving_lane = await consumer(leaving)
+            leaving_run = asyncio.create_task(leaving_lane.run())
+            await asyncio.wait_for(leaving.in_hand.wait(), 30)  # the active consumer, one batch in hand
+            next_channel, next_lane = await consumer(Handled("next", log))
+            next_run = asyncio.create_task(next_lane.run())
+            await leaving_lane.stop()
+            later = await asyncio.to_thread(
+                explorer.publish_many, [("hazard", hazard(2)), ("hazard", hazard(3))]
+            )
+            # both taken by a consumer (the one leaving: still the lane's only active consumer)
+            await asyncio.to_thread(wait_for, lambda: bus.ready_messages(EXPRESS_QUEUE) == 0, 30, "delivered")
+            release.set()
+            await asyncio.wait_for(leaving_run, 30)
+            await leaving_channel.close()  # what it received and did not handle goes back, in order
+            handled = len(first) + len(later) + 1  # each event once, and the one leaving said done
+            await asyncio.to_thread(wait_for, lambda: len(log) >= handled, 30, "every event handled")
+            await next_lane.stop()
+            await asyncio.wait_for(next_run, 30)
+            await next_channel.close()
+            return log, later
+        finally:
+            await connection.close()
+            await store.close()
+
+    log, later = asyncio.run(hand_over())
+    assert log == [
+        f"leaving:{first[0].seq}",
+        "leaving done",
+        *(f"next:{event.seq}" for event in [first[1], *later]),
+    ], "the next consumer began only once the one leaving was done, and took the rest in order"

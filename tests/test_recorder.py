@@ -30,7 +30,9 @@ TF = {
 def test_every_message_is_recorded_as_received_with_its_provenance(stored_bus: Bus) -> None:
     bus = stored_bus
     explorer = bus.add("rec-explorer", kind=RobotKind.EXPLORER)
-    with bus.worker(), bus.recorder(), bus.robot(explorer) as robot:
+    warden = bus.add("rec-warden", kind=RobotKind.WARDEN)  # hazards are announced to a warden or held
+    with bus.worker(), bus.recorder(), bus.robot(explorer) as robot, bus.robot(warden) as guard:
+        guard.publish(EventType.LOCALISATION, {"localised": True})
         sent = robot.publish(EventType.HAZARD, hazard())
         robot.publish(EventType.STATUS, status())
         bus.publish_raw(explorer, "rec-explorer.tf", json.dumps(TF).encode(), message_id="tf-1")
@@ -63,6 +65,7 @@ def test_every_message_is_recorded_as_received_with_its_provenance(stored_bus: B
     [note] = bus.recorded("notification")
     assert note.user_id == "fleetbus" and note.routing_key == "notify.hazard"
     assert note.message_id == f"{sent.message_id}:hazard" and note.document["hazard_id"] == 1
+    assert note.properties["headers"]["x-fleetbus-announced-to"] == ["rec-warden"], "who took it"
 
     refused = {r.routing_key: r for r in bus.recorded("dead_letter")}
     assert set(refused) == {"rec-explorer.tf", "rec-explorer.camera.raw"}

@@ -11,7 +11,7 @@ import subprocess
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 
@@ -21,11 +21,14 @@ import pytest
 from broker.accounts import Account, Role
 from broker.shards import read_shard_map
 from publishers.client import RobotClient
+from publishers.errors import BrokerUnavailable
+from publishers.rpc import ServiceRefused, ServiceTimeout
 from schemas.notifications import Notification
 from schemas.routing import RobotKind, Topic, inbox_queue
 from tests.factories import hazard, status
 from tests.support import Bus, EventKey, Publishing, assert_stored_once_in_order, keys, wait_for
-from workers.shards import share
+from workers.runner import EXPRESS_PREFETCH
+from workers.shards import shard_lease, share
 from workers.store.hazards import HazardState
 
 SHARDS = 4
@@ -177,8 +180,8 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
             assert seqs == sorted(seqs) and len(seqs) == 28, (
                 f"{warden}: {explorer}'s hazards in detection order"
             )
-        first_16 = {(n.event.robot_id, n.event.seq) for n in received[:16]}
-        assert first_16 == {(h.robot_id, h.seq) for h in hazards.values() if h.hazard_id <= 16}, (
+        first_16 = {(n.event.robot_id, n.event.epoch, n.event.seq) for n in received[:16]}
+        assert first_16 == {(h.robot_id, h.epoch, h.seq) for h in hazards.values() if h.hazard_id <= 16}, (
             "held ones first"
         )
     battery = Counter(n.event.robot_id for n in warnings if n.topic is Topic.BATTERY)
@@ -243,3 +246,190 @@ def test_a_worker_killed_while_others_run_loses_and_doubles_nothing(bus: Bus) ->
     assert bus.gaps() == []
     ids = _hazard_ids(received)
     assert ids == sorted(set(ids)) and len(ids) == hazards, "every hazard announced, once each, in order"
+
+
+class ClaimingWarden(threading.Thread):
+    """A warden that claims every hazard the moment its inbox hands it over, as the other does: for
+    each hazard, two claims race through whichever workers answer requests.
+
+    It reads its inbox itself (every copy the broker delivered, repeats included, with the time
+    each arrived) and claims through its robot client, again after a claim lost to a worker's death.
+    It stops once it has had ``expected`` hazards (set when the explorers have stopped).
+    """
+
+    def __init__(self, account: Account, robot: RobotClient) -> None:
+        super().__init__(name=f"claiming-{account.name}", daemon=True)
+        self.account, self.robot = account, robot
+        self.expected: int | None = None
+        self.copies: list[tuple[int, float]] = []
+        """Every hazard id delivered to its inbox, with ``time.monotonic()`` at arrival."""
+        self.won: set[int] = set()
+        self.lost: set[int] = set()
+        self.error: BaseException | None = None
+
+    def first_seen(self) -> list[int]:
+        """Hazard ids in the order they first arrived: what its program is handed."""
+        return list(dict.fromkeys(hazard_id for hazard_id, _ in self.copies))
+
+    def run(self) -> None:
+        try:
+            connection = pika.BlockingConnection(pika.URLParameters(self.account.amqp_url))
+            channel = connection.channel()
+            channel.basic_qos(prefetch_count=64)
+            inbox = channel.consume(inbox_queue(self.account.name), inactivity_timeout=1)
+            last = time.monotonic()
+            while self.expected is None or len(self.won | self.lost) < self.expected:
+                method, _, body = next(inbox)
+                if method is None:
+                    assert time.monotonic() - last < 120, f"{self.account.name}: nothing for 120 s"
+                    continue
+                last = time.monotonic()
+                hazard_id = Notification.model_validate_json(body).hazard_id
+                assert hazard_id is not None
+                self.copies.append((hazard_id, last))
+                if hazard_id not in self.won | self.lost:
+                    self._claim(hazard_id)
+                channel.basic_ack(method.delivery_tag)
+            connection.close()
+        except BaseException as error:  # reported by the test
+            self.error = error
+
+    def _claim(self, hazard_id: int) -> None:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                self.robot.claim_hazard(hazard_id, timeout=3)
+                self.won.add(hazard_id)
+                return
+            except ServiceRefused:
+                self.lost.add(hazard_id)
+                return
+            except (ServiceTimeout, BrokerUnavailable):  # its request went to the worker just killed
+                assert time.monotonic() < deadline, f"claim of hazard {hazard_id} never answered"
+
+
+class HazardStream(threading.Thread):
+    """An explorer detecting hazards in windows of 10 until stopped (and at least ``least`` of
+    them), never more than ``AHEAD`` beyond what ``handed_out()`` says the wardens have: the stream
+    goes on at the service's pace, whatever the store, and is still going when the test acts."""
+
+    AHEAD = 40
+
+    def __init__(self, robot: RobotClient, least: int, handed_out: Callable[[], int]) -> None:
+        super().__init__(name=f"hazards-{robot.robot_id}", daemon=True)
+        self.robot, self.least, self.handed_out = robot, least, handed_out
+        self.sent = 0
+        self.stopping = threading.Event()
+        self.error: BaseException | None = None
+
+    def run(self) -> None:
+        try:
+            while not (self.stopping.is_set() and self.sent >= self.least):
+                if self.sent - self.handed_out() > self.AHEAD:
+                    self.stopping.wait(0.01)
+                    continue
+                self.robot.publish_many([("hazard", hazard(self.sent + n)) for n in range(10)])
+                self.sent += 10
+        except BaseException as error:  # reported by the test
+            self.error = error
+
+    def stop(self) -> int:
+        self.stopping.set()
+        self.join(120)
+        assert not self.is_alive() and self.error is None, self.error
+        return self.sent
+
+
+def express_holder(bus: Bus, workers: list[subprocess.Popen[bytes]]) -> subprocess.Popen[bytes]:
+    """The worker process holding shard 0, which consumes the express lane beside it."""
+
+    def holder() -> subprocess.Popen[bytes] | None:
+        now = time.time()
+        for lease in bus.with_store(lambda store: store.leases(shard_lease(0))):
+            pid = int(lease.holder.split(":")[1])
+            if lease.expires_at.timestamp() > now:
+                return next((w for w in workers if w.pid == pid and w.poll() is None), None)
+        return None
+
+    return wait_for(holder, timeout=60, what="a live worker holding shard 0 and the express lane")
+
+
+@pytest.mark.parametrize(
+    ("store", "hazards"), [("sqlite", 2000), ("mongodb", 300)], ids=["sqlite-2000", "mongodb-300"]
+)
+def test_the_express_lanes_single_active_consumer_is_all_the_hazard_service_needs(
+    bus: Bus, store: str, hazards: int, request: pytest.FixtureRequest
+) -> None:
+    """Two workers, a stream of hazards two wardens both claim, the active consumer killed with
+    SIGKILL, a new worker started, and the next active consumer stopped with SIGTERM while hazards
+    keep coming: every hazard id once, every claim won once, every hazard handed to each warden
+    once, in order. Only the kill may announce again (at least once), never more than the batch
+    in hand; the hand-over, where a worker finishes its batch before the next gets the lane, not."""
+    if store == "mongodb":
+        url: str = request.getfixturevalue("mongodb_url")
+        database = f"excl_{bus.vhost.replace('-', '_')}"
+        bus.settings = replace(bus.settings, mongodb_url=f"{url.rstrip('/')}/{database}")
+    bus.settings = replace(bus.settings, ingest_shards=SHARDS)
+    explorers = [bus.robot(bus.add(name, kind=RobotKind.EXPLORER)) for name in ("explorer1", "explorer2")]
+    wardens = [
+        ClaimingWarden(account, bus.robot(account))
+        for account in (bus.add(name, kind=RobotKind.WARDEN) for name in ("warden1", "warden2"))
+    ]
+
+    def seen_by_both(count: int) -> bool:
+        return all(len(warden.first_seen()) >= count for warden in wardens)
+
+    with worker_processes(bus, 2) as workers:
+        for warden in wardens:
+            warden.robot.publish("localisation", {"localised": True})
+            warden.start()
+        # each explorer's share of what both wardens have been handed
+        streams = [
+            HazardStream(robot, hazards // 2, lambda: min(len(w.first_seen()) for w in wardens) // 2)
+            for robot in explorers
+        ]
+        for stream in streams:
+            stream.start()
+        wait_for(lambda: seen_by_both(hazards // 4), timeout=120, what="a quarter of the hazards handed out")
+        victim = express_holder(bus, workers)
+        victim.kill()
+        killed_at = time.monotonic()
+        assert victim.wait(10) == -9
+        survivor = express_holder(bus, workers)
+        replacement = bus.spawn_worker("--no-recorder")
+        workers.append(replacement)
+        wait_for(
+            lambda: sorted(bus.shard_holders().values()) == [2, 2], timeout=90, what="the new worker's share"
+        )
+        assert express_holder(bus, workers) is survivor, "shard 0 stays where it is"
+        wait_for(lambda: seen_by_both(hazards // 2), timeout=120, what="half the hazards handed out")
+        handed_over_at = time.monotonic()
+        survivor.terminate()  # while the explorers go on
+        assert survivor.wait(60) == 0, "SIGTERM stops a worker cleanly"
+        assert express_holder(bus, workers) is replacement
+        total = sum(stream.stop() for stream in streams)
+        for warden in wardens:
+            warden.expected = total
+        for warden in wardens:
+            warden.join(180)
+            assert not warden.is_alive() and warden.error is None, warden.error
+
+    assert total >= hazards
+    registered = bus.with_store(lambda store: store.open_hazards("default"))
+    assert sorted(h.hazard_id for h in registered) == list(range(1, total + 1)), "every hazard id once"
+    assert len({(h.robot_id, h.epoch, h.seq) for h in registered}) == total
+    assert all(h.state is HazardState.CLAIMED for h in registered)
+    winners = {h.hazard_id: h.claimed_by for h in registered}
+    for warden in wardens:
+        assert warden.won | warden.lost == set(winners)
+        assert warden.won == {i for i, by in winners.items() if by == warden.account.name}, "no double claim"
+    for warden in wardens:
+        assert warden.first_seen() == list(range(1, total + 1)), "each hazard handed out, in FIFO order"
+        arrivals: dict[int, list[float]] = {hazard_id: [] for hazard_id in winners}
+        for hazard_id, at in warden.copies:
+            arrivals[hazard_id].append(at)
+        again = {hazard_id: at[1:] for hazard_id, at in arrivals.items() if len(at) > 1}
+        assert all(killed_at <= t < handed_over_at for times in again.values() for t in times), (
+            f"{warden.account.name}: announced again only after the kill, never at the hand-over: {again}"
+        )
+        assert len(again) <= EXPRESS_PREFETCH, f"at most the killed worker's batch again: {sorted(again)}"

@@ -1,31 +1,41 @@
 """The hazard service: ids, the localisation gate, and FIFO announcements to the wardens.
 
-Every hazard is registered as held. After each batch, when every warden of the team reports
-itself localised, the held hazards are announced in the order they were detected: each
-notification is published (confirmed) before the hazard is marked announced, so a crash in
-between announces it again rather than never. The held list lives in the store, so a restart
-loses nothing.
+Every hazard is registered as held. After each batch, when the gate is open (:mod:`workers.team`:
+at least one warden in service, and every warden in service localised), the held hazards are
+announced in the order they were detected, one at a time: a copy to each warden in service, by
+its inbox's name and ``mandatory`` (the broker returns a copy that reached no queue), then one
+on ``fleetbus.notify`` for operators and the recorder, naming the wardens that took it. A hazard is
+marked announced only once some warden's inbox took it (confirmed); if none did, it and those
+after it stay held, with the reason. A crash in between announces it again rather than never.
+The held list lives in the store, so a restart loses nothing.
 
-Registering hazards and announcing the held ones happen in one critical section (``serial``):
-with several workers, each on its own shards, two announcing at once would send hazards twice or
-out of order, and a hazard registered while another worker announces would be overtaken.
+A warden put back in service is owed the open hazards it missed: they go to it first, in order,
+before anything newer. Team changes arrive on the express lane too (:class:`TeamChanges`).
+
+The service runs only on the express lane, whose queue has a single active consumer: of all the
+workers, one registers hazards and announces them at a time, with no lock. A worker handing the
+lane over finishes its batch before the next one gets the queue (``IngestConsumer(exclusive=True)``);
+one that dies leaves its unacked messages to the next, which handles them again (idempotent).
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
 
-from aio_pika.abc import AbstractExchange
+from aio_pika.abc import AbstractExchange, AbstractIncomingMessage
+from pydantic import ValidationError
 
 from schemas.envelope import EVENT_ADAPTER
 from schemas.notifications import Notification
-from schemas.routing import EventType, Topic
-from workers.mutex import LocalMutex, Mutex
-from workers.notifier import publish_notification
-from workers.store.hazards import Hazard, HeldHazards, NewHazard
+from schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
+from schemas.team import TEAM_CHANGE_TYPE, TeamChange
+from workers.notifier import deliver_to_inbox, publish_notification
+from workers.store.hazards import Hazard, HazardState, HeldHazards, NewHazard, RobotState
 from workers.store.interface import Store
+from workers.team import gate, why_closed
 from workers.validation import Accepted
 
 log = logging.getLogger("fleetbus.hazards")
@@ -42,51 +52,96 @@ class HazardCoordinator:
         self,
         store: Store,
         notify_exchange: AbstractExchange,
+        default_exchange: AbstractExchange,
         service_user: str,
         late_after: timedelta = LATE_AFTER,
-        serial: Mutex | None = None,
     ) -> None:
         self._store = store
         self._exchange = notify_exchange
+        self._inboxes = default_exchange
         self._service_user = service_user
         self._late_after = late_after
-        self._serial = serial or LocalMutex()
 
     async def handle(self, accepted: Sequence[Accepted]) -> int:
         """Apply a stored batch (also redelivered ones: every step is idempotent); return announcements."""
         relevant = [item for item in accepted if item.event.type in GATED]
         if not relevant:
             return 0
-        async with self._serial.hold():
-            hazards: list[NewHazard] = []
-            for item in relevant:
-                event = item.event
-                if event.type is EventType.LOCALISATION:
-                    await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
-                else:
-                    hazards.append(NewHazard.of(item.record))
-            # registering (SQLite did it as it stored the batch), reading the held list and the
-            # gate: one store call on the hazard's way
-            return await self._announce(await self._store.hold_hazards(hazards))
+        hazards: list[NewHazard] = []
+        for item in relevant:
+            event = item.event
+            if event.type is EventType.LOCALISATION:
+                await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
+            else:
+                hazards.append(NewHazard.of(item.record))
+        # registering (SQLite did it as it stored the batch), reading the held list and the
+        # gate: one store call on the hazard's way
+        return await self._announce(await self._store.hold_hazards(hazards))
 
-    async def release_if_ready(self) -> int:
-        """Announce the held hazards if every warden is localised (after a restart, say)."""
-        async with self._serial.hold():
-            return await self._announce(await self._store.hold_hazards(()))
+    async def reconsider(self) -> int:
+        """After a team change: catch up wardens put back in service, announce if the gate opened."""
+        return await self._announce(await self._store.hold_hazards(()))
 
     async def _announce(self, held: HeldHazards) -> int:
+        state = gate(held.wardens)
+        sent = await self._catch_up([w for w in held.wardens if w.catch_up and w.in_service])
         if not held.hazards:
-            return 0
-        if not held.wardens_localised:
-            log.info("holding %d hazards until every warden is localised", len(held.hazards))
-            return 0
+            return sent
+        if not state.open:
+            log.info("holding %d hazards: %s", len(held.hazards), why_closed(state))
+            return sent
         now = datetime.now(timezone.utc)
-        for hazard in held.hazards:
-            await publish_notification(self._exchange, self.notification(hazard, now), self._service_user)
+        for index, hazard in enumerate(held.hazards):
+            if not await self._deliver(hazard, state.wardens, now):
+                reason = (
+                    f"the announcement at {now:%H:%M:%S} UTC reached no warden: the broker returned it, "
+                    f"no inbox for {', '.join(state.wardens)}"
+                )
+                log.warning("hazard %s:%d stays held: %s", hazard.mission_id, hazard.hazard_id, reason)
+                await self._store.mark_announced(held.hazards[:index], now)
+                await self._store.note_held(held.hazards[index:], reason)
+                return sent + index
         await self._store.mark_announced(held.hazards, now)
-        return len(held.hazards)
+        return sent + len(held.hazards)
 
-    def notification(self, hazard: Hazard, now: datetime) -> Notification:
+    async def _deliver(
+        self, hazard: Hazard, wardens: list[str], now: datetime, state: HazardState = HazardState.ANNOUNCED
+    ) -> list[str]:
+        """Send ``hazard`` to each of ``wardens``' inboxes at once, then (if any took it) its copy for
+        the operators and the recorder; return the wardens whose inbox took it."""
+        note = self.notification(hazard, now, state)
+        took = await asyncio.gather(
+            *(deliver_to_inbox(self._inboxes, note, warden, self._service_user) for warden in wardens)
+        )
+        reached = [warden for warden, ok in zip(wardens, took, strict=True) if ok]
+        if reached:
+            headers = {ANNOUNCED_TO_HEADER: reached}
+            await publish_notification(self._exchange, note, self._service_user, headers)
+        return reached
+
+    async def _catch_up(self, wardens: list[RobotState]) -> int:
+        """Send each warden put back in service the open hazards announced meanwhile, in order."""
+        sent = 0
+        if not wardens:
+            return sent
+        now = datetime.now(timezone.utc)
+        missed = [h for h in await self._store.open_hazards(None) if h.state is not HazardState.HELD]
+        for warden in wardens:
+            for hazard in missed:
+                note = self.notification(hazard, now, hazard.state)
+                if not await deliver_to_inbox(self._inboxes, note, warden.name, self._service_user):
+                    log.warning(
+                        "%s is back in service but has no inbox (%s)", warden.name, inbox_queue(warden.name)
+                    )
+                    break
+                sent += 1
+            await self._store.caught_up(warden.name)
+            log.info("%s back in service: sent it %d open hazards", warden.name, len(missed))
+        return sent
+
+    def notification(
+        self, hazard: Hazard, now: datetime, state: HazardState = HazardState.ANNOUNCED
+    ) -> Notification:
         """The announcement; ``late`` when it reaches the wardens long after the explorer sent it
         (its robot was cut off, the workers were down, or the wardens were not localised yet)."""
         event = EVENT_ADAPTER.validate_python(hazard.event)
@@ -96,5 +151,29 @@ class HazardCoordinator:
             received_at=hazard.received_at,
             notified_at=now,
             hazard_id=hazard.hazard_id,
+            hazard_state=state.value,
             late=now - event.sent_at > self._late_after,
         )
+
+
+class TeamChanges:
+    """The express lane's control messages: the team changes of :mod:`broker.team_changes`."""
+
+    def __init__(self, coordinator: HazardCoordinator) -> None:
+        self._coordinator = coordinator
+
+    def accepts(self, message: AbstractIncomingMessage) -> bool:
+        # the default exchange: no robot may publish there (a robot's events come by its own exchange)
+        return message.exchange == "" and message.type == TEAM_CHANGE_TYPE
+
+    async def handle(self, messages: Sequence[AbstractIncomingMessage]) -> int:
+        for message in messages:
+            try:
+                change = TeamChange.model_validate_json(message.body)
+                log.info("team change: %s %s (by %s)", change.robot, change.change.value, change.by)
+            except ValidationError as error:
+                log.warning(
+                    "a team change that does not parse (%s); the team is read again all the same", error
+                )
+        # what changed is in the store already: one look covers every change of the batch
+        return await self._coordinator.reconsider()

@@ -52,6 +52,16 @@ class BatchCheck(Protocol):
         ...
 
 
+class ControlMessages(Protocol):
+    """Messages on a queue that are not robots' events but instructions from the service itself."""
+
+    def accepts(self, message: AbstractIncomingMessage) -> bool: ...
+
+    async def handle(self, messages: Sequence[AbstractIncomingMessage]) -> int:
+        """Act on them (after the batch's events; idempotent); return notifications published."""
+        ...
+
+
 class Stopping(Exception):
     """The worker is stopping while the store is down: leave the batch unacked."""
 
@@ -82,6 +92,8 @@ class IngestConsumer:
         linger: float = 0.0,
         stats: IngestStats | None = None,
         attempts: AttemptLimit | None = None,
+        exclusive: bool = False,
+        control: ControlMessages | None = None,
     ) -> None:
         self._channel = channel
         self._queue = queue
@@ -96,13 +108,19 @@ class IngestConsumer:
         self._consumer_tag: str | None = None
         self._attempts = attempts
         """A classic queue's delivery limit, kept here (a quorum queue keeps its own)."""
+        self._control = control
+        self._exclusive = exclusive
+        """The queue's work must never overlap with the next consumer's (its single active consumer
+        is the only lock): on stop, this consumer finishes the batch in hand and leaves the rest
+        unacked for the channel's close to give back. Cancelling first would let the broker hand the
+        queue to the next consumer while this batch is still being handled."""
         # one worker's shard consumers share their counters
         self.stats = stats if stats is not None else IngestStats()
 
     async def run(self) -> None:
         """Consume until :meth:`stop`; then finish what was received and return."""
         self._consumer_tag = await self._queue.consume(self._inbox.put, no_ack=False)
-        while not (self._stopping.is_set() and self._inbox.empty()):
+        while not (self._stopping.is_set() and (self._exclusive or self._inbox.empty())):
             batch = await self._inbox.next_batch(self._stopping)
             if batch:
                 try:
@@ -133,8 +151,9 @@ class IngestConsumer:
             await batch[-1].nack(multiple=True, requeue=True)
 
     async def stop(self) -> None:
-        """Stop taking new messages; :meth:`run` returns once the ones received are handled."""
-        if self._consumer_tag is not None and not self._channel.is_closed:
+        """Stop taking new messages; :meth:`run` returns once the ones received are handled (an
+        ``exclusive`` consumer: once the batch in hand is; closing its channel gives the rest back)."""
+        if self._consumer_tag is not None and not self._channel.is_closed and not self._exclusive:
             with contextlib.suppress(AMQPError, aiormq.exceptions.AMQPError, ChannelInvalidStateError):
                 await self._queue.cancel(self._consumer_tag)
         self._stopping.set()
@@ -167,8 +186,12 @@ class IngestConsumer:
             await self._retrying(lambda message=message: limit.handled([message]))
 
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
+        control = self._control
+        instructions = [message for message in batch if control is not None and control.accepts(message)]
         candidates: list[tuple[AbstractIncomingMessage, Accepted]] = []
         for message in batch:
+            if message in instructions:
+                continue
             verdict = classify(message, self._max_bytes)
             if isinstance(verdict, Rejected):
                 await self._reject(message, verdict)
@@ -198,6 +221,8 @@ class IngestConsumer:
             # bookkeeping after the services, so that it does not delay notifications
             await self._retrying(lambda: self._store.record_duplicates(duplicates))
             self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
+        if control is not None and instructions:
+            self.stats.notified += await self._retrying(lambda: control.handle(instructions))
         await batch[-1].ack(multiple=True)
 
     async def _sort_out(

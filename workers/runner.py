@@ -15,7 +15,7 @@ from aio_pika.abc import AbstractChannel, AbstractRobustConnection
 from broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
-from broker.shards import complete_shard_bindings, read_shard_map
+from broker.shards import read_shard_map
 from broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import (
@@ -29,10 +29,9 @@ from schemas.routing import (
 from workers.attempts import AttemptLimit
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
-from workers.coordination import GATED, HazardCoordinator
+from workers.coordination import GATED, HazardCoordinator, TeamChanges
 from workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
-from workers.mutex import LocalMutex, Mutex, StoreMutex
 from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.shards import ShardPool
@@ -77,9 +76,8 @@ class QueueConsumer:
 
 @dataclass
 class ShardConsumer:
-    """A shard's queue; the holder of shard 0 also takes the express lane, so the two move together
-    (one worker runs the hazard service unless the shards are shared, when a lock in the store
-    serialises it)."""
+    """A shard's queue; the holder of shard 0 also takes the express lane, so the two move together.
+    The express lane's single active consumer is the only one to run the hazard service."""
 
     shard: int
     queues: list[QueueConsumer]
@@ -104,11 +102,7 @@ def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         url = ensure_service_account(endpoint.amqp_url, api, settings.accounts_dir)
         vhost = vhost_of(endpoint.amqp_url)
-        # before the express lane is declared: no robot may have its hazards routed to both
-        mended = complete_shard_bindings(api, vhost, settings.ingest_shards)
         stray = read_shard_map(api, vhost, settings.ingest_shards).stray()
-    if mended:
-        log.info("robots bound with <robot>.# now bound per type (the express lane): %s", ", ".join(mended))
     if stray:
         log.warning(
             "robots bound to a shard beyond FLEETBUS_INGEST_SHARDS=%d, or to several: %s; "
@@ -117,11 +111,6 @@ def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
             ", ".join(stray),
         )
     return url
-
-
-def hazard_mutex(settings: Settings, store: Store) -> Mutex:
-    """One worker consuming the only shard needs no lock in the store; shared shards do."""
-    return LocalMutex() if settings.ingest_shards == 1 else StoreMutex(store, "hazards")
 
 
 async def start_worker(settings: Settings, url: str) -> WorkerContext:
@@ -133,7 +122,6 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     await declare(setup, [core_topology(settings.ingest_shards)])
     await setup.close()
     stats = IngestStats()
-    serial = hazard_mutex(settings, store)
 
     async def consume(queue_name: str, prefetch: int, express: bool) -> QueueConsumer:
         channel = await connection.channel(publisher_confirms=True)
@@ -141,17 +129,21 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
         # fetched (not just named) so the robust channel re-consumes it after a broker restart
         queue = await channel.get_queue(queue_name)
         notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
-        coordinator = HazardCoordinator(
-            store, notify_exchange, SERVICE_USER, timedelta(seconds=settings.late_after_s), serial
-        )
-        # a shard still runs the hazard service: hazards queued there before the express lane existed
-        services: list[BatchService] = [coordinator]
         checks: list[BatchCheck] = []
-        if not express:
+        control: TeamChanges | None = None
+        if express:
+            # the hazard service runs on the express lane only: its single active consumer is the
+            # one party that registers hazards and announces them, so it needs no lock across workers
+            late_after = timedelta(seconds=settings.late_after_s)
+            coordinator = HazardCoordinator(
+                store, notify_exchange, channel.default_exchange, SERVICE_USER, late_after
+            )
+            services: list[BatchService] = [coordinator]
+            control = TeamChanges(coordinator)
+        else:
             checks = [KnownRobotsOnly(store), MapCheck(store)]
             services = [
                 MapService(store, notify_exchange, SERVICE_USER),
-                coordinator,
                 BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
             ]
         consumer = IngestConsumer(
@@ -167,8 +159,10 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             stats=stats,
             # the express queue is classic: the worker keeps its delivery limit
             attempts=AttemptLimit(store, INGEST_DELIVERY_LIMIT) if express else None,
+            # on stop, the next worker gets the express lane only once this batch is done
+            exclusive=express,
+            control=control,
         )
-        await coordinator.release_if_ready()  # hazards held before a restart, if the gate is open now
         task = asyncio.create_task(consumer.run(), name=f"fleetbus-{queue_name}")
         log.info("consuming %s", queue_name)
         return QueueConsumer(queue_name, channel, consumer, task)

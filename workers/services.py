@@ -7,8 +7,9 @@ from typing import Any
 
 from schemas.routing import RobotKind
 from workers.rpc import Handler, ServiceError
-from workers.store.hazards import DEFAULT_MISSION, HazardRefused
+from workers.store.hazards import CLAIM_WHILE_OPEN, DEFAULT_MISSION, Hazard, HazardRefused
 from workers.store.interface import Store
+from workers.team import gate
 
 
 def _hazard_id(params: dict[str, Any]) -> int:
@@ -35,6 +36,16 @@ def hazard_services(store: Store) -> dict[str, Handler]:
     async def open_hazards(caller: str, params: dict[str, Any]) -> Any:
         return [h.as_dict() for h in await store.open_hazards(await _mission(caller, params))]
 
+    async def claim_announced(mission: str, hazard_id: int, caller: str, now: datetime) -> Hazard:
+        """A claim; of a hazard still held, too, when the gate is open: its announcement reached the
+        caller's inbox before the service could mark it announced."""
+        try:
+            return await store.claim(mission, hazard_id, caller, now)
+        except HazardRefused:
+            if not gate(await store.robots(RobotKind.WARDEN.value)).open:
+                raise
+            return await store.apply_transition(mission, hazard_id, caller, CLAIM_WHILE_OPEN, now)
+
     async def transition(action: str, caller: str, params: dict[str, Any]) -> Any:
         mission, hazard_id, now = (
             await _mission(caller, params),
@@ -43,7 +54,7 @@ def hazard_services(store: Store) -> dict[str, Handler]:
         )
         try:
             if action == "claim":
-                hazard = await store.claim(mission, hazard_id, caller, now)
+                hazard = await claim_announced(mission, hazard_id, caller, now)
             elif action == "release":
                 hazard = await store.release(mission, hazard_id, caller, now)
             elif action == "reached":
@@ -72,6 +83,7 @@ def hazard_services(store: Store) -> dict[str, Handler]:
                 "name": r.name,
                 "localised": r.localised,
                 "updated_at": r.updated_at.isoformat() if r.updated_at else None,
+                "in_service": r.in_service,
             }
             for r in await store.robots(RobotKind.WARDEN.value)
         ]

@@ -1,32 +1,53 @@
-"""``fleetbus hazards``: every hazard of a mission and where it stands."""
+"""``fleetbus hazards``: every hazard of a mission, where it stands, and why a held one waits."""
 
 from __future__ import annotations
 
 import json
+from datetime import datetime, timezone
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
 from fleetbus.context import console, settings
-from workers.store import run_with_store
+from workers.store import Hazard, HazardState, Store, run_with_store
 from workers.store.hazards import DEFAULT_MISSION
+from workers.team import gate, last_seen, why_held
+
+
+async def _open_and_why(store: Store, mission: str) -> list[tuple[Hazard, str]]:
+    """The mission's open hazards, each with why it is held ("" once announced)."""
+    found = await store.open_hazards(mission)
+    if not any(hazard.state is HazardState.HELD for hazard in found):
+        return [(hazard, "") for hazard in found]
+    team = await store.robots()
+    seen = {robot.name: await last_seen(store, robot.name) for robot in team}
+    state, now = gate(team), datetime.now(timezone.utc)
+    return [(hazard, why_held(hazard, state, seen, now)) for hazard in found]
 
 
 def hazards(
     mission: Annotated[str, typer.Option(help="the mission")] = DEFAULT_MISSION,
     as_json: Annotated[bool, typer.Option("--json")] = False,
 ) -> None:
-    """Hazards not cleared yet, in the order detected: held, announced, claimed or reached."""
-    found = run_with_store(settings(), lambda store: store.open_hazards(mission))
+    """Hazards not cleared yet, in the order detected: held (and why), announced, claimed or reached."""
+    found = run_with_store(settings(), lambda store: _open_and_why(store, mission))
     if as_json:
-        for hazard in found:
-            typer.echo(json.dumps(hazard.as_dict()))
+        for hazard, why in found:
+            typer.echo(json.dumps({**hazard.as_dict(), "held_because": why or None}))
         return
     table = Table(
-        "id", "state", "description", "where", "detected at", "by", "claimed by", title=f"mission {mission}"
+        "id",
+        "state",
+        "description",
+        "where",
+        "detected at",
+        "by",
+        "claimed by",
+        "held because",
+        title=f"mission {mission}",
     )
-    for hazard in found:
+    for hazard, why in found:
         body = hazard.event["body"]
         table.add_row(
             str(hazard.hazard_id),
@@ -36,5 +57,6 @@ def hazards(
             body["detected_at"][:23],
             hazard.robot_id,
             hazard.claimed_by or "",
+            why,
         )
     console.print(table)

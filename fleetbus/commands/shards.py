@@ -13,7 +13,7 @@ from rich.table import Table
 
 from broker.accounts import vhost_of
 from broker.management import ManagementAPI
-from broker.shards import ShardMap, apply_move, complete_shard_bindings, read_shard_map, rebalance_plan
+from broker.shards import ShardMap, apply_move, read_shard_map, rebalance_plan
 from broker.topology import core_topology, declare_with_url
 from fleetbus.context import admin_api, console, endpoint, fail, settings, shorten
 from schemas.routing import EXPRESS_QUEUE, EXPRESS_TYPES, ingest_shard_queue
@@ -101,7 +101,6 @@ def shards(
             "express": express,
             "unassigned": list(shard_map.unassigned),
             "stray": shard_map.stray(),
-            "incomplete": list(shard_map.incomplete),
         }
         console.print_json(json.dumps(document))
         return
@@ -140,11 +139,6 @@ def shards(
         console.print(f"bound to no shard, so in shard 0: {', '.join(shard_map.unassigned)}", highlight=False)
     if shard_map.stray():
         console.print(f"[yellow]to move[/] (`fleetbus shards rebalance`): {', '.join(shard_map.stray())}")
-    if shard_map.incomplete:
-        console.print(
-            "[yellow]not bound per type[/] (the next worker to start mends it): "
-            + ", ".join(shard_map.incomplete)
-        )
 
 
 @app.command("rebalance")
@@ -163,8 +157,7 @@ def rebalance(
     vhost = vhost_of(ep.amqp_url)
     with admin_api(ep) as api:
         if not dry_run:  # a dry run changes nothing on the broker
-            # robots bound the way of old first, as a worker does, then every target exists
-            complete_shard_bindings(api, vhost, config.ingest_shards)
+            # every target shard's queue exists before robots are bound to it
             asyncio.run(declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards)]))
         shard_map = read_shard_map(api, vhost, config.ingest_shards)
         moves = rebalance_plan(shard_map)

@@ -37,7 +37,8 @@ def timeline(
     """Fault analysis: every message ROBOT sent or was sent, all types merged in time order.
 
     Sent: its events, its requests, and the service's refusals of them. Received: the
-    notifications its inbox is bound to (asked of the broker now).
+    notifications its inbox is bound to (asked of the broker now), and the hazard announcements
+    delivered to it by name (a warden in service).
     """
     try:
         validate_name(robot)
@@ -75,7 +76,8 @@ def timeline(
         )
     console.print(table)
     console.print(
-        f"[dim]→ sent by {robot}, ← sent to it (inbox bound to {', '.join(inbound) or 'nothing'})[/]"
+        f"[dim]→ sent by {robot}, ← sent to it (inbox bound to {', '.join(inbound) or 'nothing'}; "
+        "hazard announcements delivered to it by name)[/]"
     )
     if result.truncated:
         console.print(f"[dim]more than {limit}: use --limit or a narrower window[/]")

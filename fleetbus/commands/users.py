@@ -9,9 +9,12 @@ import typer
 from rich.table import Table
 
 from broker.accounts import AccountExists, Role, delete_account, provision_account, save_secret
-from fleetbus.context import admin_api, console, endpoint, fail, settings
+from broker.team_changes import HazardServiceNotTold
+from fleetbus.context import actor, admin_api, console, endpoint, fail, settings
 from fleetbus.registry import register_robot
 from schemas.routing import RobotKind
+from workers.store import run_with_store
+from workers.team import leave_team
 
 app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
 
@@ -46,8 +49,14 @@ def add(
 
 
 @app.command("remove")
-def remove(name: str) -> None:
-    """Delete an account (its exchange and inbox stay, with whatever they hold)."""
+def remove(
+    name: str,
+    by: Annotated[
+        str | None, typer.Option(help="who removes it, for the record (default: your login)")
+    ] = None,
+) -> None:
+    """Delete an account and take it out of the hazard gate's team (its exchange and inbox stay,
+    with whatever they hold); a warden removed no longer holds the gate."""
     ep = endpoint()
     with admin_api(ep) as api:
         try:
@@ -55,7 +64,12 @@ def remove(name: str) -> None:
         except ValueError as error:
             fail(str(error))
     (settings().accounts_dir / f"{name}.url").unlink(missing_ok=True)
-    console.print(f"removed {name}")
+    who = actor(by)
+    try:
+        left = run_with_store(settings(), lambda store: leave_team(store, ep.amqp_url, name, who))
+    except HazardServiceNotTold as error:
+        fail(f"removed {name} and took it out of the team, but {error}")
+    console.print(f"removed {name}" + (" and took it out of the team" if left else ""))
 
 
 @app.command("list")

@@ -6,13 +6,16 @@ what is being tested goes through HTTP.
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any, TypeVar
 
+import pytest
 from fastapi.testclient import TestClient
+from pymongo import MongoClient
 
 from api.app import create_app
 from api.service import Service
@@ -111,3 +114,21 @@ def running_api(bus: Bus, settings: Settings | None = None) -> Iterator[Api]:
         finally:
             for user in api.run(service.store.users):
                 bus.api.delete_user(user.name)
+
+
+@contextmanager
+def running_api_on_each_store(request: pytest.FixtureRequest, bus: Bus) -> Iterator[Api]:
+    """The app on ``bus`` with the store the test is parametrised with: SQLite, or ("mongodb") a
+    MongoDB database of its own, dropped afterwards (the worker shares it)."""
+    database = None
+    if request.param == "mongodb":
+        database = f"test_{uuid.uuid4().hex[:12]}"
+        url = request.getfixturevalue("mongodb_url")
+        bus.settings = replace(bus.settings, mongodb_url=f"{url.rstrip('/')}/{database}")
+    try:
+        with running_api(bus) as running:
+            yield running
+    finally:
+        if bus.settings.mongodb_url and database:
+            with MongoClient(bus.settings.mongodb_url, serverSelectionTimeoutMS=5000) as client:
+                client.drop_database(database)

@@ -8,13 +8,10 @@ import logging
 import threading
 import uuid
 from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import replace
 
 import pika
 import pika.exceptions
 import pytest
-from pymongo import MongoClient
 
 from broker.accounts import Account, Role
 from broker.mounts import QueueBinding, mount_bindings_on_broker
@@ -23,7 +20,7 @@ from publishers.errors import PublishRefused
 from schemas.missions import MissionState
 from schemas.roles import UserRole
 from schemas.routing import RobotKind
-from tests.api.support import READY_PLAN, Api, running_api
+from tests.api.support import READY_PLAN, Api, running_api_on_each_store
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 from workers.store.base import EventQuery
@@ -34,12 +31,7 @@ S = MissionState
 @pytest.fixture(params=["sqlite", "mongodb"])
 def api(request: pytest.FixtureRequest, bus: Bus) -> Iterator[Api]:
     """The team on the test's broker slice; the store is SQLite or MongoDB (the worker shares it)."""
-    database = None
-    if request.param == "mongodb":
-        database = f"test_{uuid.uuid4().hex[:12]}"
-        url = request.getfixturevalue("mongodb_url")
-        bus.settings = replace(bus.settings, mongodb_url=f"{url.rstrip('/')}/{database}")
-    with dropped_afterwards(bus.settings.mongodb_url, database), running_api(bus) as running:
+    with running_api_on_each_store(request, bus) as running:
         running.user("admin1", UserRole.ADMIN)
         running.user("client1", UserRole.CLIENT)
         running.user("super1", UserRole.SUPERVISOR)
@@ -53,16 +45,6 @@ def api(request: pytest.FixtureRequest, bus: Bus) -> Iterator[Api]:
         )
         assert created.status_code == 201, created.text
         yield running
-
-
-@contextmanager
-def dropped_afterwards(url: str | None, database: str | None) -> Iterator[None]:
-    try:
-        yield
-    finally:
-        if url and database:
-            with MongoClient(url, serverSelectionTimeoutMS=5000) as client:
-                client.drop_database(database)
 
 
 def robot_url(api: Api, name: str) -> str:

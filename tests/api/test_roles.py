@@ -152,6 +152,23 @@ def recorded_message(api: Api, role: UserRole) -> Call:
     return Call("GET", f"/recording/trace/{record.message_id}")
 
 
+def warden_service(action: str) -> Callable[[Api, UserRole], Call]:
+    """A warden registered for this case, to take out of service (or, taken out, to put back)."""
+
+    def prepare(api: Api, role: UserRole) -> Call:
+        name, store = f"warden-{action}-{role.value}", api.service.store
+        api.run(lambda: store.register_robot(name, RobotKind.WARDEN.value))
+        if action == "in":
+            api.run(lambda: store.set_in_service(name, False, "test", datetime.now(timezone.utc)))
+        before = api.run(lambda: store.robots())
+
+        return Call(
+            "POST", f"/team/{name}/{action}", unchanged=lambda: api.run(lambda: store.robots()) == before
+        )
+
+    return prepare
+
+
 READERS = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 ANALYSTS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 CASES = [
@@ -283,6 +300,9 @@ CASES = [
     Case("GET", "/recording/trace/{message_id}", ANALYSTS, 200, recorded_message),
     Case("GET", "/recording/evaluation", ANALYSTS | {R.PLANNER}, 200, fixed("GET", "/recording/evaluation")),
     Case("GET", "/recording/growth", ANALYSTS | {R.PLANNER}, 200, fixed("GET", "/recording/growth")),
+    Case("GET", "/team", frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR}), 200, fixed("GET", "/team")),
+    Case("POST", "/team/{robot}/out", frozenset({R.SUPERVISOR, R.OPERATOR}), 200, warden_service("out")),
+    Case("POST", "/team/{robot}/in", frozenset({R.SUPERVISOR, R.OPERATOR}), 200, warden_service("in")),
 ]
 
 

@@ -10,6 +10,7 @@ import pytest
 from workers.store.beacons import Beacon
 from workers.store.hazards import HazardRefused, HazardState, NewHazard
 from workers.store.interface import Store
+from workers.team import gate
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 BODY = {"pose": {"x": 2.66, "y": 1.22}, "description": "Fire"}
@@ -51,11 +52,12 @@ async def test_holding_hazards_registers_them_once_and_tells_the_gate(store: Sto
         ("m1", 1, HazardState.HELD),
         ("m2", 1, HazardState.HELD),
     ]
-    assert not held.wardens_localised, "warden2 is not localised"
+    assert [w.name for w in held.wardens] == ["warden1", "warden2"]
+    assert not gate(held.wardens).open, "warden2 is not localised"
     again = await store.hold_hazards([first])
     assert again.hazards == held.hazards, "the same event again is not a second hazard"
     await store.set_localised("warden2", True, T0)
-    assert (await store.hold_hazards([])).wardens_localised
+    assert gate((await store.hold_hazards([])).wardens).open
     await store.mark_announced(held.hazards[:1], T0)
     assert [h.mission_id for h in (await store.hold_hazards([])).hazards] == ["m2"]
 

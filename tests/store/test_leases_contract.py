@@ -37,12 +37,12 @@ async def test_a_holder_known_dead_is_replaced_at_once(store: Store) -> None:
 
 
 async def test_only_the_holder_releases(store: Store) -> None:
-    await store.acquire_lease("lock:hazards", "w1", T0 + TTL, T0)
-    await store.release_lease("lock:hazards", "w2")
-    assert [lease.holder for lease in await store.leases("lock:")] == ["w1"]
-    await store.release_lease("lock:hazards", "w1")
-    assert await store.leases("lock:") == []
-    assert await store.acquire_lease("lock:hazards", "w2", T0 + TTL, T0), "free again"
+    await store.acquire_lease("shard:0", "w1", T0 + TTL, T0)
+    await store.release_lease("shard:0", "w2")
+    assert [lease.holder for lease in await store.leases("shard:")] == ["w1"]
+    await store.release_lease("shard:0", "w1")
+    assert await store.leases("shard:") == []
+    assert await store.acquire_lease("shard:0", "w2", T0 + TTL, T0), "free again"
 
 
 async def test_leases_are_listed_by_prefix_in_name_order(store: Store) -> None:

@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 
 from broker.routes import Route, RouteMap
 from broker.topics import topic_matches
-from schemas.routing import EventType, Topic
+from schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
 from workers.recorder.capture import DEAD_LETTER, NOTIFICATION
 from workers.store.base import EventQuery, EventRecord, EventStore
 from workers.store.recordings import (
@@ -164,16 +164,23 @@ async def timeline(
 ) -> Timeline:
     """Every type merged in recording order: what ``robot_id`` published (events, requests, and the
     dead letters of what the service refused) and the notifications whose routing keys match the
-    ``inbound`` patterns (the bindings of the robot's inbox)."""
+    ``inbound`` patterns (the bindings of the robot's inbox) or that were delivered to its inbox by
+    name (a hazard announcement, whose recorded copy names the wardens that took it)."""
     streams: list[Iterable[TimelineEntry]] = []
-    for type in await store.recorded_types():
+    types = await store.recorded_types()
+    for type in types:
         sent = await store.find_recorded(
             RecordQuery(type, robot_id=robot_id, since=since, until=until, limit=limit + 1)
         )
         streams.append(TimelineEntry(record, True) for record in sent)
-    if inbound:
+    if NOTIFICATION in types:
         notes = await store.find_recorded(RecordQuery(NOTIFICATION, since=since, until=until))
-        received = [n for n in notes if any(topic_matches(pattern, n.routing_key) for pattern in inbound)]
+        received = [
+            n
+            for n in notes
+            if robot_id in announced_to(n)
+            or any(topic_matches(pattern, n.routing_key) for pattern in inbound)
+        ]
         streams.append(TimelineEntry(record, False) for record in received[: limit + 1])
     merged = in_time_order(streams, lambda entry: entry.record)
     return Timeline(robot_id, merged[:limit], len(merged) > limit)
@@ -242,8 +249,19 @@ async def trace(
     if route_map is not None:
         for record in [*records, *result.caused]:
             if record.type != DEAD_LETTER:
-                result.routes[record.key] = route_map.routes(record.exchange, record.routing_key)
+                result.routes[record.key] = route_map.routes(record.exchange, record.routing_key) + [
+                    route
+                    for robot in announced_to(record)
+                    for route in route_map.routes("", inbox_queue(robot))
+                ]
     return result
+
+
+def announced_to(record: RecordedMessage) -> list[str]:
+    """The wardens a recorded hazard announcement was delivered to by name (its copy's header)."""
+    headers = record.properties.get("headers") or {}
+    robots = headers.get(ANNOUNCED_TO_HEADER) or []
+    return [str(robot) for robot in robots] if isinstance(robots, list) else []
 
 
 async def stored_copy(events: EventStore, record: RecordedMessage) -> EventRecord | None:

@@ -1,8 +1,9 @@
-"""The hazard registry and the robots' localisation states, kept by the coordination service.
+"""The hazard registry and the team (robots, their localisation and service), kept by the
+coordination service.
 
 Hazards get an id sequential within their mission, assigned atomically by the store. A hazard
-is ``held`` while some warden of the team is not localised, ``announced`` once the wardens were
-told, then ``claimed`` by one warden, ``reached``, and finally ``cleared``.
+is ``held`` until the gate opens (:mod:`workers.team`) and a warden's inbox took it, ``announced``
+once the wardens were told, then ``claimed`` by one warden, ``reached``, and finally ``cleared``.
 """
 
 from __future__ import annotations
@@ -47,6 +48,9 @@ class Hazard:
     claimed_at: datetime | None = None
     reached_at: datetime | None = None
     cleared_at: datetime | None = None
+    held_reason: str | None = None
+    """While held with the gate open: why the last announcement did not count (no warden's inbox
+    took it). The gate's own reasons are the team's state, read when asked (:mod:`workers.team`)."""
 
     def as_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
@@ -62,6 +66,15 @@ class RobotState:
     kind: str | None
     localised: bool
     updated_at: datetime | None
+    """When its localisation state was last reported."""
+    in_service: bool = True
+    """False while an operator has taken it out of service: it neither blocks the hazard gate nor
+    receives announcements."""
+    service_changed_by: str | None = None
+    """Who last took it out of service or put it back, and when (the audit record)."""
+    service_changed_at: datetime | None = None
+    catch_up: bool = False
+    """Put back in service since the hazard service last sent it the open hazards it missed."""
 
 
 @dataclass(frozen=True)
@@ -69,7 +82,8 @@ class Transition:
     """One step of a hazard's life: from which state, to which, and who may take it."""
 
     action: str
-    source: HazardState
+    sources: tuple[HazardState, ...]
+    """The states it may be taken from."""
     target: HazardState
     claimer_only: bool
     """Only the warden holding the claim may take this step."""
@@ -83,10 +97,15 @@ class Transition:
         return hazard.state is self.target and hazard.claimed_by == warden
 
 
-CLAIM = Transition("claimed", HazardState.ANNOUNCED, HazardState.CLAIMED, False, "claimed_at")
-RELEASE = Transition("released", HazardState.CLAIMED, HazardState.ANNOUNCED, True, None)
-REACH = Transition("reached", HazardState.CLAIMED, HazardState.REACHED, True, "reached_at")
-CLEAR = Transition("cleared", HazardState.REACHED, HazardState.CLEARED, True, "cleared_at")
+_S = HazardState
+CLAIM = Transition("claimed", (_S.ANNOUNCED,), _S.CLAIMED, False, "claimed_at")
+#: A claim while the gate is open, of a hazard announced or still held: its announcement may be on
+#: its way (a hazard is marked announced once a warden's inbox took it, and that warden may claim it
+#: first). One atomic step from either state, so the mark in between cannot make it fail.
+CLAIM_WHILE_OPEN = Transition("claimed", (_S.ANNOUNCED, _S.HELD), _S.CLAIMED, False, "claimed_at")
+RELEASE = Transition("released", (_S.CLAIMED,), _S.ANNOUNCED, True, None)
+REACH = Transition("reached", (_S.CLAIMED,), _S.REACHED, True, "reached_at")
+CLEAR = Transition("cleared", (_S.REACHED,), _S.CLEARED, True, "cleared_at")
 
 
 _TIMESTAMP: TypeAdapter[datetime] = TypeAdapter(datetime)
@@ -132,8 +151,8 @@ class NewHazard:
 class HeldHazards:
     hazards: list[Hazard]
     """Every held hazard, in the order they were detected (id order)."""
-    wardens_localised: bool
-    """Whether every warden of the team reports itself localised: the gate is open."""
+    wardens: list[RobotState]
+    """Every warden of the team, in service or not: the gate's inputs (:func:`workers.team.gate`)."""
 
 
 class HazardRefused(StoreError):
@@ -151,6 +170,19 @@ class CoordinationStore(abc.ABC):
 
     @abc.abstractmethod
     async def robots(self, kind: str | None = None) -> list[RobotState]: ...
+
+    @abc.abstractmethod
+    async def set_in_service(self, name: str, in_service: bool, by: str, at: datetime) -> RobotState | None:
+        """Take a robot out of service or put it back, recording who and when; put back, it is
+        owed a catch-up (:attr:`RobotState.catch_up`). None: no such robot in the team."""
+
+    @abc.abstractmethod
+    async def caught_up(self, name: str) -> None:
+        """The hazard service sent ``name`` the open hazards it missed: clear its catch-up."""
+
+    @abc.abstractmethod
+    async def remove_robot(self, name: str) -> bool:
+        """Take a robot out of the team (its account is removed); False when it was not in it."""
 
     @abc.abstractmethod
     async def add_hazard(
@@ -187,19 +219,23 @@ class CoordinationStore(abc.ABC):
                 held=True,
             )
         held = await self.held_hazards()
-        wardens = await self.robots(RobotKind.WARDEN.value)
-        return HeldHazards(held, all(warden.localised for warden in wardens))
+        return HeldHazards(held, await self.robots(RobotKind.WARDEN.value))
 
     @abc.abstractmethod
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
-        """Move these hazards from held to announced (others are left as they are)."""
+        """Move these hazards from held to announced; one a warden claimed meanwhile keeps its state
+        and gets its announcement time."""
+
+    @abc.abstractmethod
+    async def note_held(self, hazards: list[Hazard], reason: str) -> None:
+        """Record why these hazards, still held, were not announced (:attr:`Hazard.held_reason`)."""
 
     @abc.abstractmethod
     async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None: ...
 
     @abc.abstractmethod
-    async def open_hazards(self, mission_id: str) -> list[Hazard]:
-        """Hazards not cleared, in id order."""
+    async def open_hazards(self, mission_id: str | None) -> list[Hazard]:
+        """Hazards not cleared, in id order (``None``: of every mission, by mission then id)."""
 
     @abc.abstractmethod
     async def apply_transition(

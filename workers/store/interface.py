@@ -50,8 +50,9 @@ class Store(
         waits on an event of the batch (a hazard): an adapter may trade throughput for latency.
         An adapter whose hazard ids are committed in the order they are given may also register
         the batch's hazard events as held in the same transaction (SQLite does; :meth:`hold_hazards`
-        is idempotent and then only reads); this default leaves registering to the hazard service's
-        critical section, where MongoDB's counter and insert, two operations, cannot be overtaken.
+        is idempotent and then only reads); this default leaves registering to the hazard service,
+        the express lane's one active consumer, so MongoDB's choice of the next id and its insert,
+        two operations, cannot be overtaken.
         """
         missions = await self.recording_missions({record.robot_id for record in records})
         stamped = stamp_missions(records, missions)

@@ -1,8 +1,7 @@
 """Leases: a name held by one holder until a time, taken over only once it has expired.
 
-Worker processes share the ingest shards and the hazard announcements through leases in the
-store they all use: ``shard:<n>`` says which worker consumes a shard, ``worker:<id>`` that a
-worker is alive, ``lock:<name>`` who is inside a critical section. A holder renews its lease by
+Worker processes share the ingest shards through leases in the store they all use: ``shard:<n>``
+says which worker consumes a shard, ``worker:<id>`` that a worker is alive. A holder renews its lease by
 acquiring it again before it expires; a holder that died stops renewing, and its lease is free
 once its time has passed. Every acquisition is one atomic conditional write, so of two workers
 asking at once exactly one gets a free lease.

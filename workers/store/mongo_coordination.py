@@ -6,7 +6,7 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from pymongo import ASCENDING, ReturnDocument
+from pymongo import ASCENDING, DESCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
 from workers.store.base import from_micros, to_micros
@@ -21,6 +21,8 @@ from workers.store.hazards import (
 )
 
 TIMES = ("announced_at", "claimed_at", "reached_at", "cleared_at")
+#: What a robot's document starts with: in the team, in service, nothing owed.
+NEW_ROBOT = {"in_service": True, "service_changed_by": None, "service_changed_at_us": None, "catch_up": False}
 
 
 def hazard_id_of(mission_id: str, hazard_id: int) -> str:
@@ -38,10 +40,28 @@ def _hazard(doc: dict[str, Any]) -> Hazard:
         state=HazardState(doc["state"]),
         received_at=from_micros(doc["received_at_us"]),
         claimed_by=doc.get("claimed_by"),
+        held_reason=doc.get("held_reason"),
         **{
             name: from_micros(doc[f"{name}_us"]) if doc.get(f"{name}_us") is not None else None
             for name in TIMES
         },
+    )
+
+
+def _robot(doc: dict[str, Any]) -> RobotState:
+    def moment(name: str) -> datetime | None:
+        stamp = doc.get(name)
+        return from_micros(stamp) if stamp else None
+
+    return RobotState(
+        doc["_id"],
+        doc.get("kind"),
+        bool(doc.get("localised")),
+        moment("updated_at_us"),
+        in_service=doc.get("in_service", True),
+        service_changed_by=doc.get("service_changed_by"),
+        service_changed_at=moment("service_changed_at_us"),
+        catch_up=bool(doc.get("catch_up")),
     )
 
 
@@ -57,11 +77,15 @@ class MongoCoordination(CoordinationStore):
         await self._collection("hazards").create_index(
             [("state", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
         )
+        await self._collection("hazards").create_index([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
 
     async def register_robot(self, name: str, kind: str | None) -> None:
         await self._collection("robots").update_one(
             {"_id": name},
-            {"$set": {"kind": kind}, "$setOnInsert": {"localised": False, "updated_at_us": None}},
+            {
+                "$set": {"kind": kind},
+                "$setOnInsert": {"localised": False, "updated_at_us": None, **NEW_ROBOT},
+            },
             upsert=True,
         )
 
@@ -72,7 +96,7 @@ class MongoCoordination(CoordinationStore):
         if current is None:
             try:
                 await robots.insert_one(
-                    {"_id": name, "kind": None, "localised": localised, "updated_at_us": stamp}
+                    {"_id": name, "kind": None, "localised": localised, "updated_at_us": stamp, **NEW_ROBOT}
                 )
                 return
             except DuplicateKeyError:
@@ -84,18 +108,33 @@ class MongoCoordination(CoordinationStore):
 
     async def robots(self, kind: str | None = None) -> list[RobotState]:
         query = {} if kind is None else {"kind": kind}
-        found = []
-        async for doc in self._collection("robots").find(query).sort("_id", ASCENDING):
-            stamp = doc.get("updated_at_us")
-            found.append(
-                RobotState(
-                    doc["_id"],
-                    doc.get("kind"),
-                    bool(doc.get("localised")),
-                    from_micros(stamp) if stamp else None,
-                )
+        return [_robot(doc) async for doc in self._collection("robots").find(query).sort("_id", ASCENDING)]
+
+    async def set_in_service(self, name: str, in_service: bool, by: str, at: datetime) -> RobotState | None:
+        change: dict[str, Any] = {
+            "in_service": in_service,
+            "service_changed_by": by,
+            "service_changed_at_us": to_micros(at),
+        }
+        robots = self._collection("robots")
+        if not in_service:
+            doc = await robots.find_one_and_update(
+                {"_id": name}, {"$set": {**change, "catch_up": False}}, return_document=ReturnDocument.AFTER
             )
-        return found
+            return _robot(doc) if doc else None
+        # owed a catch-up only when put back from out of service (one atomic update each way)
+        await robots.update_one({"_id": name, "in_service": False}, {"$set": {**change, "catch_up": True}})
+        doc = await robots.find_one_and_update(
+            {"_id": name}, {"$set": change}, return_document=ReturnDocument.AFTER
+        )
+        return _robot(doc) if doc else None
+
+    async def caught_up(self, name: str) -> None:
+        await self._collection("robots").update_one({"_id": name}, {"$set": {"catch_up": False}})
+
+    async def remove_robot(self, name: str) -> bool:
+        result = await self._collection("robots").delete_one({"_id": name})
+        return bool(result.deleted_count)
 
     async def add_hazard(
         self,
@@ -109,31 +148,32 @@ class MongoCoordination(CoordinationStore):
     ) -> Hazard:
         hazards = self._collection("hazards")
         source = {"robot_id": robot_id, "epoch": epoch, "seq": seq}
-        existing = await hazards.find_one(source)
-        if existing:
-            return _hazard(existing)
-        counter = await self._collection("hazard_counters").find_one_and_update(
-            {"_id": mission_id}, {"$inc": {"last_id": 1}}, upsert=True, return_document=ReturnDocument.AFTER
-        )
-        next_id = counter["last_id"]
-        doc = {
-            "_id": hazard_id_of(mission_id, next_id),
-            "mission_id": mission_id,
-            "hazard_id": next_id,
-            **source,
-            "event": event,
-            "state": (HazardState.HELD if held else HazardState.ANNOUNCED).value,
-            "received_at": received_at,
-            "received_at_us": to_micros(received_at),
-            "claimed_by": None,
-            **{f"{name}_us": None for name in TIMES},
-        }
-        try:
-            await hazards.insert_one(doc)
-        except DuplicateKeyError:  # another worker registered this event first; its id stands
+        while True:
             existing = await hazards.find_one(source)
-            return _hazard(existing)
-        return _hazard(doc)
+            if existing:
+                return _hazard(existing)
+            # the next id is taken by inserting the hazard under it: one write, so a worker that
+            # dies between choosing and writing leaves no id unused (a counter would skip one)
+            last = await hazards.find_one({"mission_id": mission_id}, sort=[("hazard_id", DESCENDING)])
+            next_id = (last["hazard_id"] if last else 0) + 1
+            doc = {
+                "_id": hazard_id_of(mission_id, next_id),
+                "mission_id": mission_id,
+                "hazard_id": next_id,
+                **source,
+                "event": event,
+                "state": (HazardState.HELD if held else HazardState.ANNOUNCED).value,
+                "received_at": received_at,
+                "received_at_us": to_micros(received_at),
+                "claimed_by": None,
+                "held_reason": None,
+                **{f"{name}_us": None for name in TIMES},
+            }
+            try:
+                await hazards.insert_one(doc)
+                return _hazard(doc)
+            except DuplicateKeyError:  # the id, or this event, taken meanwhile: look again
+                continue
 
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
         query: dict[str, Any] = {"state": HazardState.HELD.value}
@@ -148,20 +188,34 @@ class MongoCoordination(CoordinationStore):
 
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
         ids = [hazard_id_of(h.mission_id, h.hazard_id) for h in hazards]
-        await self._collection("hazards").update_many(
+        collection, stamp = self._collection("hazards"), to_micros(at)
+        await collection.update_many(
             {"_id": {"$in": ids}, "state": HazardState.HELD.value},
-            {"$set": {"state": HazardState.ANNOUNCED.value, "announced_at_us": to_micros(at)}},
+            {"$set": {"state": HazardState.ANNOUNCED.value, "announced_at_us": stamp, "held_reason": None}},
+        )
+        # one claimed by the first warden to get it, before this mark
+        await collection.update_many(
+            {"_id": {"$in": ids}, "announced_at_us": None}, {"$set": {"announced_at_us": stamp}}
+        )
+
+    async def note_held(self, hazards: list[Hazard], reason: str) -> None:
+        ids = [hazard_id_of(h.mission_id, h.hazard_id) for h in hazards]
+        await self._collection("hazards").update_many(
+            {"_id": {"$in": ids}, "state": HazardState.HELD.value}, {"$set": {"held_reason": reason}}
         )
 
     async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None:
         doc = await self._collection("hazards").find_one({"_id": hazard_id_of(mission_id, hazard_id)})
         return _hazard(doc) if doc else None
 
-    async def open_hazards(self, mission_id: str) -> list[Hazard]:
+    async def open_hazards(self, mission_id: str | None) -> list[Hazard]:
+        query: dict[str, Any] = {"state": {"$ne": HazardState.CLEARED.value}}
+        if mission_id is not None:
+            query["mission_id"] = mission_id
         cursor = (
             self._collection("hazards")
-            .find({"mission_id": mission_id, "state": {"$ne": HazardState.CLEARED.value}})
-            .sort("hazard_id", ASCENDING)
+            .find(query)
+            .sort([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
         )
         return [_hazard(doc) async for doc in cursor]
 
@@ -170,7 +224,7 @@ class MongoCoordination(CoordinationStore):
     ) -> Hazard:
         condition: dict[str, Any] = {
             "_id": hazard_id_of(mission_id, hazard_id),
-            "state": transition.source.value,
+            "state": {"$in": [source.value for source in transition.sources]},
         }
         if transition.claimer_only:
             condition["claimed_by"] = warden

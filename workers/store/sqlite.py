@@ -163,9 +163,8 @@ class SQLiteEventStore(
     ) -> StoredBatch:
         """One transaction: the mission lookup, the write, the ledger, and the batch's hazard events
         registered as held (one commit, one fsync). The hazard service's ``hold_hazards`` then finds
-        them registered and only reads. Registering here, outside the service's critical section,
-        keeps the announcements in detection order even with several workers: SQLite has one
-        writer at a time, so a mission's hazard ids are committed in the order they are given.
+        them registered and only reads. SQLite has one writer at a time, so a mission's hazard ids
+        are committed in the order they are given.
 
         An urgent small batch is written without the hand-over to the store's thread when it can
         be. Bulk batches always take the thread: the event loop keeps receiving while SQLite

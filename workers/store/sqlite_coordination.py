@@ -26,10 +26,14 @@ T = TypeVar("T")
 
 HAZARD_SCHEMA = """
 CREATE TABLE IF NOT EXISTS robots (
-    name       TEXT PRIMARY KEY,
-    kind       TEXT,
-    localised  INTEGER NOT NULL DEFAULT 0,
-    updated_at INTEGER
+    name               TEXT PRIMARY KEY,
+    kind               TEXT,
+    localised          INTEGER NOT NULL DEFAULT 0,
+    updated_at         INTEGER,
+    in_service         INTEGER NOT NULL DEFAULT 1,
+    service_changed_by TEXT,
+    service_changed_at INTEGER,
+    catch_up           INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS hazard_counters (
     mission_id TEXT PRIMARY KEY,
@@ -49,6 +53,7 @@ CREATE TABLE IF NOT EXISTS hazards (
     claimed_at   INTEGER,
     reached_at   INTEGER,
     cleared_at   INTEGER,
+    held_reason  TEXT,
     PRIMARY KEY (mission_id, hazard_id),
     UNIQUE (robot_id, epoch, seq)
 );
@@ -78,7 +83,28 @@ def _hazard(row: sqlite3.Row) -> Hazard:
         claimed_at=moment("claimed_at"),
         reached_at=moment("reached_at"),
         cleared_at=moment("cleared_at"),
+        held_reason=row["held_reason"],
     )
+
+
+def _robot(row: sqlite3.Row) -> RobotState:
+    return RobotState(
+        row["name"],
+        row["kind"],
+        bool(row["localised"]),
+        from_micros(row["updated_at"]) if row["updated_at"] else None,
+        in_service=bool(row["in_service"]),
+        service_changed_by=row["service_changed_by"],
+        service_changed_at=from_micros(row["service_changed_at"]) if row["service_changed_at"] else None,
+        catch_up=bool(row["catch_up"]),
+    )
+
+
+def _robots(db: sqlite3.Connection, kind: str | None = None) -> list[RobotState]:
+    sql, params = "SELECT * FROM robots", ()
+    if kind is not None:
+        sql, params = sql + " WHERE kind = ?", (kind,)
+    return [_robot(row) for row in db.execute(sql + " ORDER BY name", params)]
 
 
 def _one(db: sqlite3.Connection, mission_id: str, hazard_id: int) -> Hazard | None:
@@ -115,19 +141,34 @@ class SQLiteCoordination(CoordinationStore):
         )
 
     async def robots(self, kind: str | None = None) -> list[RobotState]:
-        sql, params = "SELECT * FROM robots", ()
-        if kind is not None:
-            sql, params = sql + " WHERE kind = ?", (kind,)
-        rows = await self._run(lambda db: db.execute(sql + " ORDER BY name", params).fetchall())
-        return [
-            RobotState(
-                r["name"],
-                r["kind"],
-                bool(r["localised"]),
-                from_micros(r["updated_at"]) if r["updated_at"] else None,
-            )
-            for r in rows
-        ]
+        return await self._run(lambda db: _robots(db, kind))
+
+    async def set_in_service(self, name: str, in_service: bool, by: str, at: datetime) -> RobotState | None:
+        def change(db: sqlite3.Connection) -> RobotState | None:
+            def work() -> RobotState | None:
+                # owed a catch-up when put back from out of service; nothing owed while out
+                db.execute(
+                    "UPDATE robots SET catch_up = CASE WHEN ? THEN catch_up OR NOT in_service ELSE 0 END, "
+                    "in_service = ?, service_changed_by = ?, service_changed_at = ? WHERE name = ?",
+                    (int(in_service), int(in_service), by, to_micros(at), name),
+                )
+                row = db.execute("SELECT * FROM robots WHERE name = ?", (name,)).fetchone()
+                return _robot(row) if row else None
+
+            return in_transaction(db, work)
+
+        return await self._run(change)
+
+    async def caught_up(self, name: str) -> None:
+        await self._run(
+            lambda db: db.execute("UPDATE robots SET catch_up = 0 WHERE name = ?", (name,)), small=True
+        )
+
+    async def remove_robot(self, name: str) -> bool:
+        removed: int = await self._run(
+            lambda db: db.execute("DELETE FROM robots WHERE name = ?", (name,)).rowcount
+        )
+        return removed > 0
 
     async def add_hazard(
         self,
@@ -144,11 +185,7 @@ class SQLiteCoordination(CoordinationStore):
 
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
         def held(db: sqlite3.Connection) -> HeldHazards:
-            hazards = _held_hazards(db)
-            (waiting,) = db.execute(
-                "SELECT COUNT(*) FROM robots WHERE kind = ? AND localised = 0", (RobotKind.WARDEN.value,)
-            ).fetchone()
-            return HeldHazards(hazards, waiting == 0)
+            return HeldHazards(_held_hazards(db), _robots(db, RobotKind.WARDEN.value))
 
         def hold(db: sqlite3.Connection) -> HeldHazards:
             if all(_registered(db, hazard) is not None for hazard in new):  # as store_batch does: only read
@@ -173,23 +210,39 @@ class SQLiteCoordination(CoordinationStore):
             in_transaction(
                 db,
                 lambda: db.executemany(
-                    "UPDATE hazards SET state = 'announced', announced_at = ? "
-                    "WHERE mission_id = ? AND hazard_id = ? AND state = 'held'",
+                    "UPDATE hazards SET state = CASE state WHEN 'held' THEN 'announced' ELSE state END, "
+                    "announced_at = COALESCE(announced_at, ?), held_reason = NULL "
+                    "WHERE mission_id = ? AND hazard_id = ?",
                     keys,
                 ),
             )
 
         await self._run(mark, small=True)
 
+    async def note_held(self, hazards: list[Hazard], reason: str) -> None:
+        keys = [(reason, h.mission_id, h.hazard_id) for h in hazards]
+
+        def note(db: sqlite3.Connection) -> None:
+            in_transaction(
+                db,
+                lambda: db.executemany(
+                    "UPDATE hazards SET held_reason = ? "
+                    "WHERE mission_id = ? AND hazard_id = ? AND state = 'held'",
+                    keys,
+                ),
+            )
+
+        await self._run(note, small=True)
+
     async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None:
         return await self._run(lambda db: _one(db, mission_id, hazard_id))
 
-    async def open_hazards(self, mission_id: str) -> list[Hazard]:
+    async def open_hazards(self, mission_id: str | None) -> list[Hazard]:
+        sql, params = "SELECT * FROM hazards WHERE state != 'cleared'", ()
+        if mission_id is not None:
+            sql, params = sql + " AND mission_id = ?", (mission_id,)
         rows = await self._run(
-            lambda db: db.execute(
-                "SELECT * FROM hazards WHERE mission_id = ? AND state != 'cleared' ORDER BY hazard_id",
-                (mission_id,),
-            ).fetchall()
+            lambda db: db.execute(sql + " ORDER BY mission_id, hazard_id", params).fetchall()
         )
         return [_hazard(row) for row in rows]
 
@@ -202,10 +255,17 @@ class SQLiteCoordination(CoordinationStore):
             changes, values = f"{transition.stamp} = ?", (to_micros(at),)
         else:
             changes, values = f"claimed_by = ?, {transition.stamp} = ?", (warden, to_micros(at))
-        condition = "state = ? AND mission_id = ? AND hazard_id = ?" + (
+        sources = ", ".join("?" for _ in transition.sources)
+        condition = f"state IN ({sources}) AND mission_id = ? AND hazard_id = ?" + (
             " AND claimed_by = ?" if transition.claimer_only else ""
         )
-        params = (transition.target.value, *values, transition.source.value, mission_id, hazard_id)
+        params = (
+            transition.target.value,
+            *values,
+            *(source.value for source in transition.sources),
+            mission_id,
+            hazard_id,
+        )
         params += (warden,) if transition.claimer_only else ()
 
         def change(db: sqlite3.Connection) -> Hazard:

@@ -1,0 +1,40 @@
+"""The team the hazard gate follows: every robot, and wardens taken out of service and back."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends
+
+from api.auth import ServiceDep, require_role
+from api.models import TeamMemberOut, TeamOut
+from schemas.roles import UserRole
+from workers.store.users import User
+
+router = APIRouter(tags=["team"])
+R = UserRole
+Watcher = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR, R.OPERATOR))]
+#: Who may take a warden out of service: the roles that run missions and their robots.
+Dispatcher = Annotated[User, Depends(require_role(R.SUPERVISOR, R.OPERATOR))]
+
+
+@router.get("/team", response_model=TeamOut)
+async def team(user: Watcher, svc: ServiceDep) -> TeamOut:
+    """Every robot of the team (kind, localised, last seen, stale, in service, counts for the gate)
+    and the hazard gate: open, or why it holds hazards."""
+    return TeamOut.of(await svc.team.view())
+
+
+@router.post("/team/{robot}/out", response_model=TeamMemberOut)
+async def take_out(robot: str, user: Dispatcher, svc: ServiceDep) -> TeamMemberOut:
+    """Take a warden out of service: it no longer holds the hazard gate and is sent no hazards.
+    Recorded with who did it and when."""
+    await svc.team.set_in_service(robot, False, user.name)
+    return TeamMemberOut.of(await svc.team.member(robot))
+
+
+@router.post("/team/{robot}/in", response_model=TeamMemberOut)
+async def put_back(robot: str, user: Dispatcher, svc: ServiceDep) -> TeamMemberOut:
+    """Put a warden back in service: it is sent the open hazards it missed, then counts for the gate."""
+    await svc.team.set_in_service(robot, True, user.name)
+    return TeamMemberOut.of(await svc.team.member(robot))

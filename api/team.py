@@ -1,0 +1,54 @@
+"""The team the hazard gate follows, as the HTTP API shows and changes it (:mod:`workers.team`)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
+
+from api.errors import BadRequest, NotFound, Unavailable
+from broker.team_changes import HazardServiceNotTold
+from workers.store.hazards import RobotState
+from workers.store.interface import Store
+from workers.team import Gate, NotAWarden, NotInTeam, TeamMember, change_service, gate, read_team, why_closed
+
+log = logging.getLogger("fleetbus.api.team")
+
+
+@dataclass(frozen=True)
+class TeamView:
+    members: list[TeamMember]
+    gate: Gate
+    closed_because: str | None
+
+
+class Team:
+    def __init__(self, store: Store, admin_url: str, stale_after: timedelta) -> None:
+        self._store = store
+        self._admin_url = admin_url
+        self._stale_after = stale_after
+
+    async def view(self) -> TeamView:
+        now = datetime.now(timezone.utc)
+        members = await read_team(self._store, now, self._stale_after)
+        state = gate([member.robot for member in members])
+        return TeamView(members, state, why_closed(state, {m.robot.name: m.last_seen for m in members}, now))
+
+    async def member(self, name: str) -> TeamMember:
+        found = next((m for m in (await self.view()).members if m.robot.name == name), None)
+        if found is None:
+            raise NotFound(f"{name} is not in the team")
+        return found
+
+    async def set_in_service(self, name: str, in_service: bool, by: str) -> RobotState:
+        """Take a warden out of service or put it back, recorded with ``by``; the hazard service is told."""
+        try:
+            robot = await change_service(self._store, self._admin_url, name, in_service, by)
+        except NotInTeam as refused:
+            raise NotFound(str(refused)) from None
+        except NotAWarden as refused:
+            raise BadRequest(str(refused)) from None
+        except HazardServiceNotTold as error:
+            raise Unavailable(str(error)) from error
+        log.info("%s %s by %s", name, "back in service" if in_service else "taken out of service", by)
+        return robot
