@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
-from tests.store.test_contract import record
+from tests.store.test_contract import EPOCH, record
 from workers.store.hazards import CLAIM_WHILE_OPEN, HazardState
 from workers.store.interface import Store
 from workers.team import NO_WARDEN, gate, read_team, why_closed
@@ -64,8 +64,8 @@ async def test_a_removed_robot_leaves_the_team(store: Store) -> None:
 
 async def test_a_hazard_no_warden_took_stays_held_with_the_reason_until_announced(store: Store) -> None:
     for seq in range(3):
-        await store.add_hazard("m1", "explorer1", seq, BODY, T0, held=True)
-    announced = await store.add_hazard("m1", "explorer1", 9, BODY, T0, held=False)
+        await store.add_hazard("m1", "explorer1", EPOCH, seq, BODY, T0, held=True)
+    announced = await store.add_hazard("m1", "explorer1", EPOCH, 9, BODY, T0, held=False)
     held = await store.held_hazards()
     await store.note_held([*held[1:], announced], "no inbox for warden1")
     assert [(h.hazard_id, h.held_reason) for h in await store.held_hazards()] == [
@@ -80,10 +80,10 @@ async def test_a_hazard_no_warden_took_stays_held_with_the_reason_until_announce
 
 
 async def test_open_hazards_of_every_mission_in_mission_then_id_order(store: Store) -> None:
-    await store.add_hazard("m2", "explorer1", 0, BODY, T0, held=False)
-    await store.add_hazard("m1", "explorer1", 1, BODY, T0, held=True)
-    await store.add_hazard("m1", "explorer1", 2, BODY, T0, held=False)
-    await store.add_hazard("m2", "explorer1", 3, BODY, T0, held=False)
+    await store.add_hazard("m2", "explorer1", EPOCH, 0, BODY, T0, held=False)
+    await store.add_hazard("m1", "explorer1", EPOCH, 1, BODY, T0, held=True)
+    await store.add_hazard("m1", "explorer1", EPOCH, 2, BODY, T0, held=False)
+    await store.add_hazard("m2", "explorer1", EPOCH, 3, BODY, T0, held=False)
     assert [(h.mission_id, h.hazard_id) for h in await store.open_hazards(None)] == [
         ("m1", 1),
         ("m1", 2),
@@ -118,7 +118,7 @@ async def test_the_team_says_when_each_robot_was_last_heard_from_and_who_is_stal
 
 
 async def test_a_hazard_claimed_on_its_way_keeps_its_claim_when_marked_announced(store: Store) -> None:
-    first = await store.add_hazard("m1", "explorer1", 0, BODY, T0, held=True)
+    first = await store.add_hazard("m1", "explorer1", EPOCH, 0, BODY, T0, held=True)
     claimed = await store.apply_transition("m1", 1, "warden1", CLAIM_WHILE_OPEN, T0 + timedelta(seconds=1))
     assert (claimed.state, claimed.claimed_by, claimed.announced_at) == (HazardState.CLAIMED, "warden1", None)
     await store.mark_announced([first], T0)
