@@ -21,9 +21,9 @@ import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
+from broker.retry import Stopped, async_retrying, run_retrying
 from schemas.routing import EventType
 from workers.attempts import AttemptLimit
-from workers.backoff import Backoff
 from workers.batches import BatchInbox
 from workers.dead_letters import dead_letter
 from workers.store.base import StoreUnavailable, WriteResult
@@ -50,10 +50,6 @@ class BatchCheck(Protocol):
     async def check(self, accepted: Sequence[Accepted]) -> dict[int, Rejected]:
         """The refused items, by their index in ``accepted``."""
         ...
-
-
-class Stopping(Exception):
-    """The worker is stopping while the store is down: leave the batch unacked."""
 
 
 @dataclass
@@ -107,7 +103,7 @@ class IngestConsumer:
             if batch:
                 try:
                     await self._handle(batch)
-                except Stopping:
+                except Stopped:
                     log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                     return
                 except BROKER_ERRORS as error:
@@ -228,21 +224,21 @@ class IngestConsumer:
         return accepted, duplicates
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
-        """Run a store or service step until it succeeds; raise Stopping if asked to stop meanwhile.
+        """Run a store or service step until it succeeds; raise Stopped if asked to stop meanwhile.
 
         Transient: the store unreachable, or the broker nacking a notification (a queue it routes
         to is still recovering after a broker restart). Every step is idempotent, so a retry after
         a partial success repeats at most a notification, never a record.
         """
-        backoff = Backoff()
-        while True:
-            try:
-                return await operation()
-            except (StoreUnavailable, aiormq.exceptions.DeliveryError) as error:
-                if self._stopping.is_set():
-                    raise Stopping from error
-                self.stats.store_retries += 1
-                delay = backoff.next_delay()
-                log.warning("%s; retry %d in %.1f s", error, backoff.attempts, delay)
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(self._stopping.wait(), delay)
+
+        def counted(_: object) -> None:
+            self.stats.store_retries += 1
+
+        retrying = async_retrying(
+            "the store and the notifications",
+            on=(StoreUnavailable, aiormq.exceptions.DeliveryError),
+            stop=self._stopping,
+            logger=log,
+            on_retry=counted,
+        )
+        return await run_retrying(retrying, operation)

@@ -20,12 +20,12 @@ import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
+from broker.retry import Stopped, async_retrying, run_retrying
 from fleetbus.config import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
 from workers.batches import BatchInbox
 from workers.recorder.capture import DEFAULT_MAX_TYPES, OTHER, TypeNames, capture
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import Retention, RetentionSweeper, parse_retention
-from workers.retry import Stopping, until_available
 from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
 
@@ -106,7 +106,7 @@ class RecorderConsumer:
                 continue
             try:
                 await self._process(batch)
-            except Stopping:
+            except Stopped:
                 log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                 return
             except CONNECTION_LOST as error:
@@ -200,10 +200,13 @@ class RecorderConsumer:
             return await self._write([fallback])
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
-        def counted() -> None:
+        def counted(_: object) -> None:
             self.stats.store_retries += 1
 
-        return await until_available(operation, self._stopping, log, counted)
+        retrying = async_retrying(
+            "the recording store", on=StoreUnavailable, stop=self._stopping, logger=log, on_retry=counted
+        )
+        return await run_retrying(retrying, operation)
 
     async def _sample(self) -> None:
         with contextlib.suppress(StoreUnavailable):
