@@ -115,7 +115,12 @@ INGEST_QUEUE_ARGUMENTS: dict[str, Any] = {
 #: The express lane's queue. Classic: it hands a hazard to the worker about 0.5 ms sooner than a
 #: quorum queue (no Raft commit first) and keeps every persistent message across a SIGKILL on one
 #: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`workers.attempts`).
-EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {"x-queue-type": "classic", "x-single-active-consumer": True}
+#: Its dead-letter exchange takes what the worker rejects (``basic.nack``), as the shards' do.
+EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
+    "x-queue-type": "classic",
+    "x-single-active-consumer": True,
+    "x-dead-letter-exchange": DEAD_LETTER_EXCHANGE,
+}
 
 
 def core_topology(shards: int = 1) -> Topology:

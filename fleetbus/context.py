@@ -19,8 +19,7 @@ from broker.endpoint import BrokerEndpoint, derive_management_url, resolve_broke
 from broker.management import ManagementAPI
 from broker.routes import RouteMap
 from fleetbus.config import Settings, load_settings
-from schemas.routing import DETAIL_HEADER, REASON_HEADER
-from workers.recorder.capture import DEAD_LETTER, NOTIFICATION
+from workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
 from workers.recorder.queries import EVENT_TYPES
 from workers.store import open_recording_store
 from workers.store.recordings import RecordedMessage, RecordingStore
@@ -93,9 +92,9 @@ def _compact(value: Any) -> str:
 def summarize(record: RecordedMessage, width: int) -> str:
     """One line of what a recorded message says, for tables."""
     doc = record.document
-    headers = record.properties.get("headers") or {}
     if record.type == DEAD_LETTER:
-        text = f"refused ({headers.get(REASON_HEADER, 'by the broker')}): {headers.get(DETAIL_HEADER, '')}"
+        reason, detail = refusal(record) or ("by the broker", "")
+        text = f"refused ({reason}): {detail}"
     elif not record.body_kept:
         text = f"({record.size} bytes, not kept)"
     elif record.raw is not None:

@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 import pika
 
 from broker.accounts import Account, Role, fresh_vhost, provision_account
+from broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.urls import without_password
@@ -201,11 +202,13 @@ class Bus:
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
         return env
 
-    def spawn_worker(self, *options: str) -> subprocess.Popen[bytes]:
-        """The worker as its own process (``python -m fleetbus worker``), to be killed for real."""
+    def spawn_worker(self, *options: str, module: str = "fleetbus") -> subprocess.Popen[bytes]:
+        """The worker as its own process (``python -m fleetbus worker``), to be killed for real;
+        ``module`` runs another entry point (``tests.faulty_worker``) with the same options."""
         log = open(self.settings.data_dir / f"worker-{uuid.uuid4().hex[:6]}.log", "wb")
+        command = [sys.executable, "-m", module, *(["worker"] if module == "fleetbus" else []), *options]
         return subprocess.Popen(
-            [sys.executable, "-m", "fleetbus", "worker", *options],
+            command,
             env=self.service_env(),
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -226,6 +229,12 @@ class Bus:
         leases = self.with_store(lambda store: store.leases("shard:"))
         now = time.time()
         return Counter(lease.holder for lease in leases if lease.expires_at.timestamp() > now)
+
+    def dead_letters(self) -> list[DeadLetter]:
+        """The dead-letter queue as `fleetbus dlq` lists it: each letter with the reason the store kept."""
+        return peek_dead_letters(
+            self.admin_url, reasons=lambda keys: self.with_store(lambda s: s.rejections(keys))
+        )
 
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""

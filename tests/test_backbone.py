@@ -9,7 +9,6 @@ from dataclasses import replace
 import pika
 
 from broker.accounts import Role
-from broker.dead_letter_queue import peek_dead_letters
 from schemas.routing import RobotKind
 from tests.factories import TABLE1_TIME, hazard, status
 from tests.support import Bus, wait_for
@@ -74,7 +73,7 @@ def test_bad_input_is_dead_lettered_with_reasons_and_good_input_is_unaffected(bu
             _publish_raw(account.amqp_url, routing_key, body, "explorer1")
         explorer.publish_many([("hazard", hazard(i)) for i in range(100, 200)])
         wait_for(lambda: bus.count() == 200, what="200 stored events")
-        letters = wait_for(lambda: (found := peek_dead_letters(bus.admin_url)) and len(found) == 4 and found)
+        letters = wait_for(lambda: (found := bus.dead_letters()) and len(found) == 4 and found)
     assert sorted(letter.reason for letter in letters) == sorted(reason for _, _, reason in bad)
     for letter in letters:
         assert letter.user_id == "explorer1"
@@ -82,7 +81,7 @@ def test_bad_input_is_dead_lettered_with_reasons_and_good_input_is_unaffected(bu
     schema_letter = next(letter for letter in letters if letter.reason == "schema")
     assert "body.pose: Field required" in schema_letter.detail
     assert [r.seq for r in bus.find()] == list(range(200))
-    assert peek_dead_letters(bus.admin_url) == letters, "listing does not consume"
+    assert bus.dead_letters() == letters, "listing does not consume"
 
 
 def test_worker_keeps_running_after_poison_and_later_events_flow(bus: Bus) -> None:

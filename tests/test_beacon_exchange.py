@@ -6,7 +6,6 @@ from __future__ import annotations
 import pika
 import pytest
 
-from broker.dead_letter_queue import peek_dead_letters
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import PublishRefused
 from schemas.envelope import build_event, encode_event
@@ -69,7 +68,7 @@ def test_a_beacon_sent_to_the_events_exchange_is_dead_lettered(bus: Bus) -> None
     account = bus.add("guide1", kind=RobotKind.GUIDE)
     with bus.worker():
         publish_raw(account.amqp_url, "guide1.events", 5, {"type": "beacon", "codename": "guide1"})
-        [letter] = wait_for(lambda: peek_dead_letters(bus.admin_url), what="the sighting dead-lettered")
+        [letter] = wait_for(lambda: bus.dead_letters(), what="the sighting dead-lettered")
     assert letter.reason == "wrong-exchange"
     assert "beacon events are published to 'guide1.beacon', not 'guide1.events'" in letter.detail
     assert bus.count("beacon") == 0

@@ -18,11 +18,9 @@ import aio_pika.abc
 import pika
 import pytest
 
-from broker.dead_letter_queue import peek_dead_letters
 from broker.shards import read_shard_map
 from broker.topology import core_topology, declare_with_url
 from schemas.routing import (
-    DEAD_LETTER_EXCHANGE,
     EXPRESS_QUEUE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
@@ -121,8 +119,9 @@ def test_worker_killed_with_a_hazard_done_beside_a_stuck_batch(bus: Bus) -> None
     assert bus.gaps() == []
 
 
-class Crashed(Exception):
-    """What kills the worker in the middle of a message (here: a check that fails unexpectedly)."""
+class Crashed(BaseException):
+    """What kills the worker in the middle of a message (an error would be dead-lettered as
+    ``internal-error``; a BaseException ends the consumer as a crash would)."""
 
 
 class CrashesOn:
@@ -152,7 +151,6 @@ async def express_consumer(
         channel,
         await channel.get_queue(EXPRESS_QUEUE),
         store,
-        await channel.get_exchange(DEAD_LETTER_EXCHANGE),
         max_message_bytes=bus.settings.max_message_bytes,
         checks=[check],
         attempts=AttemptLimit(store, LIMIT),
@@ -193,7 +191,7 @@ def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> 
 
     asyncio.run(go_on())
     assert check.attempts == 1 + LIMIT, "not begun again"
-    [letter] = peek_dead_letters(bus.admin_url)
+    [letter] = bus.dead_letters()
     assert (letter.message_id, letter.reason) == (str(poison.message_id), "delivery-limit")
     assert f"{1 + LIMIT} times" in letter.detail
     assert [r.seq for r in bus.find()] == [poison.seq + 1], "the poison was never stored; the next was"

@@ -12,7 +12,6 @@ import uuid
 import pika
 import yaml
 
-from broker.dead_letter_queue import peek_dead_letters
 from publishers.maps import map_events
 from schemas.bodies import MAP_CHUNK_BYTES
 from schemas.routing import RobotKind
@@ -127,7 +126,7 @@ def test_bad_maps_are_refused_and_stored_maps_do_not_change(bus: Bus) -> None:
                 ("map", "explorer1", 105, wrong_sum),
             ],
         )
-        letters = wait_for(lambda: (found := peek_dead_letters(bus.admin_url)) and len(found) == 4 and found)
+        letters = wait_for(lambda: (found := bus.dead_letters()) and len(found) == 4 and found)
         assert warden.receive(1, timeout=1) == []
         latest = warden.fetch_map()
     assert sorted(letter.reason for letter in letters) == ["bad-map", "bad-map", "schema", "schema"]

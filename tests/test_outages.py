@@ -18,7 +18,6 @@ from urllib.parse import urlsplit
 import pytest
 
 from broker.accounts import Account
-from broker.dead_letter_queue import peek_dead_letters
 from publishers.client import robot_folder
 from publishers.outbox import Overflow, TypePolicy
 from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
@@ -179,7 +178,7 @@ def test_a_reused_sequence_number_is_dead_lettered_and_the_stored_event_kept(bus
         again = bus.robot(account)
         reused = again.publish("hazard", hazard(9, "Gas leak"))
         assert reused.seq == 0
-        letters = wait_for(lambda: peek_dead_letters(bus.admin_url), what="the reused number dead-lettered")
+        letters = wait_for(lambda: bus.dead_letters(), what="the reused number dead-lettered")
     [letter] = letters
     assert letter.reason == "sequence-reused" and "reused sequence number 0" in letter.detail
     stored = bus.find(EventQuery(robot_id="explorer1"))

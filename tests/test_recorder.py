@@ -16,6 +16,7 @@ from broker.local_node import pid_alive
 from schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
+from workers.recorder.capture import refusal
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import parse_retention
 from workers.store.recordings import Condition, Op
@@ -68,7 +69,11 @@ def test_every_message_is_recorded_as_received_with_its_provenance(stored_bus: B
     assert set(refused) == {"rec-explorer.tf", "rec-explorer.camera.raw"}
     letter = refused["rec-explorer.tf"]
     assert letter.robot_id == "rec-explorer" and letter.document == TF
-    assert letter.properties["headers"]["x-fleetbus-reason"] == "unknown-type"
+    assert refusal(letter) == (
+        "unknown-type",
+        "routing key 'rec-explorer.tf' names unknown type 'tf'; known: "
+        + ", ".join(t.value for t in EventType),
+    ), "the worker's reason, from the store: the broker moved the message unchanged"
     assert len(bus.recorded("status")) == 1
 
 

@@ -18,14 +18,14 @@ from datetime import datetime, timezone
 from typing import Protocol, TypeVar
 
 import aiormq.exceptions
-from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMessage, AbstractQueue
+from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from broker.retry import Stopped, async_retrying, run_retrying
 from schemas.routing import EventType
 from workers.attempts import AttemptLimit
 from workers.batches import BatchInbox
-from workers.dead_letters import dead_letter
+from workers.dead_letters import move_to_dead_letters, rejection_of
 from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.interface import Store
 from workers.store.ledger import Duplicate
@@ -57,6 +57,9 @@ class IngestStats:
     stored: int = 0
     duplicates: int = 0
     rejected: int = 0
+    internal_errors: int = 0
+    """Messages set aside because handling them raised an unexpected error (a bug): dead-lettered
+    as ``internal-error``, each with its traceback in the log."""
     notified: int = 0
     store_retries: int = 0
     by_reason: dict[str, int] = field(default_factory=dict)
@@ -68,7 +71,6 @@ class IngestConsumer:
         channel: AbstractChannel,
         queue: AbstractQueue,
         store: Store,
-        dead_letter_exchange: AbstractExchange,
         *,
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
@@ -85,7 +87,6 @@ class IngestConsumer:
         self._checks = checks
         self._services = services
         self._urgent = frozenset(urgent)
-        self._dead_letter_exchange = dead_letter_exchange
         self._max_bytes = max_message_bytes
         self._inbox = BatchInbox(batch_size, linger)
         self._stopping = asyncio.Event()
@@ -113,6 +114,28 @@ class IngestConsumer:
                         len(batch),
                     )
                     await self._give_back(batch)
+                except Exception:
+                    log.exception(
+                        "unexpected error handling a batch of %d; taking them one by one", len(batch)
+                    )
+                    await self._isolate(batch)
+
+    async def _isolate(self, batch: list[AbstractIncomingMessage]) -> None:
+        """After an unexpected error: each message of the batch on its own, and the one that raises
+        again dead-lettered as ``internal-error`` (a bug in the worker, not the robot's fault), so
+        that one message cannot stop its queue."""
+        for message in batch:
+            if message.processed:  # dead-lettered, or acked with an earlier one
+                continue
+            try:
+                await self._handle([message])
+            except (Stopped, *BROKER_ERRORS):
+                raise
+            except Exception as error:
+                log.exception("unexpected error handling %s from %s", message.message_id, message.user_id)
+                self.stats.internal_errors += 1
+                detail = f"the worker failed on it: {type(error).__name__}: {error}"
+                await self._reject(message, Rejected(RejectReason.INTERNAL_ERROR, detail))
 
     async def _give_back(self, batch: list[AbstractIncomingMessage]) -> None:
         """Return an unfinished batch for redelivery.
@@ -125,8 +148,10 @@ class IngestConsumer:
             return
         with contextlib.suppress(asyncio.TimeoutError):
             await asyncio.wait_for(self._stopping.wait(), 1.0)
-        with contextlib.suppress(*BROKER_ERRORS):
-            await batch[-1].nack(multiple=True, requeue=True)
+        last = _last_unsettled(batch)
+        if last is not None:
+            with contextlib.suppress(*BROKER_ERRORS):
+                await last.nack(multiple=True, requeue=True)
 
     async def stop(self) -> None:
         """Stop taking new messages; :meth:`run` returns once the ones received are handled."""
@@ -136,7 +161,10 @@ class IngestConsumer:
         self._stopping.set()
 
     async def _reject(self, message: AbstractIncomingMessage, verdict: Rejected) -> None:
-        await dead_letter(self._dead_letter_exchange, message, verdict)
+        """Dead-letter it with its reason: recorded first (idempotent), then moved by the broker."""
+        rejection = rejection_of(message, verdict)
+        await self._retrying(lambda: self._store.record_rejections([rejection]))
+        await move_to_dead_letters(message)
         self.stats.rejected += 1
         self.stats.by_reason[verdict.reason.value] = self.stats.by_reason.get(verdict.reason.value, 0) + 1
         log.warning(
@@ -159,7 +187,6 @@ class IngestConsumer:
                 await self._process([message])
             else:
                 await self._reject(message, refused)
-                await message.ack(multiple=True)
             await self._retrying(lambda message=message: limit.handled([message]))
 
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
@@ -194,7 +221,9 @@ class IngestConsumer:
             # bookkeeping after the services, so that it does not delay notifications
             await self._retrying(lambda: self._store.record_duplicates(duplicates))
             self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
-        await batch[-1].ack(multiple=True)
+        last = _last_unsettled(batch)
+        if last is not None:
+            await last.ack(multiple=True)
 
     async def _sort_out(
         self,
@@ -242,3 +271,9 @@ class IngestConsumer:
             on_retry=counted,
         )
         return await run_retrying(retrying, operation)
+
+
+def _last_unsettled(batch: list[AbstractIncomingMessage]) -> AbstractIncomingMessage | None:
+    """The last message of the batch not dead-lettered: acking (or nacking) it with ``multiple``
+    settles every earlier one still open; a dead-lettered one is settled already."""
+    return next((message for message in reversed(batch) if not message.processed), None)

@@ -20,7 +20,6 @@ from broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import (
     BEACON_DISCARD_QUEUE,
-    DEAD_LETTER_EXCHANGE,
     EXPRESS_QUEUE,
     NOTIFY_EXCHANGE,
     RPC_QUEUE,
@@ -158,7 +157,6 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             channel,
             queue,
             store,
-            await channel.get_exchange(DEAD_LETTER_EXCHANGE),
             max_message_bytes=settings.max_message_bytes,
             checks=checks,
             services=services,

@@ -20,19 +20,23 @@ import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
+from broker.dead_letter_queue import moved_letter_key
 from broker.retry import Stopped, async_retrying, run_retrying
 from fleetbus.config import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
 from workers.batches import BatchInbox
-from workers.recorder.capture import DEFAULT_MAX_TYPES, OTHER, TypeNames, capture
+from workers.recorder.capture import DEAD_LETTER, DEFAULT_MAX_TYPES, OTHER, REJECTION, TypeNames, capture
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import Retention, RetentionSweeper, parse_retention
 from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
+from workers.store.rejections import Rejection
 
 log = logging.getLogger("fleetbus.recorder")
 T = TypeVar("T")
 MissionLookup = Callable[[set[str]], Awaitable[dict[str, str]]]
 """The mission each of these robots is being recorded under now (robots under none left out)."""
+RejectionLookup = Callable[[list[str]], Awaitable[Mapping[str, Rejection]]]
+"""Why the workers refused these dead letters (``Store.rejections``)."""
 CONNECTION_LOST = (AMQPError, aiormq.exceptions.AMQPError, ChannelInvalidStateError, ConnectionError)
 
 
@@ -73,8 +77,10 @@ class RecorderConsumer:
         options: RecorderOptions,
         names: TypeNames,
         missions: MissionLookup | None = None,
+        rejections: RejectionLookup | None = None,
     ) -> None:
         self._channel = channel
+        self._rejections = rejections
         self._queue = queue
         self._store = store
         self._options = options
@@ -144,11 +150,17 @@ class RecorderConsumer:
 
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
         records = []
+        letters: dict[int, str] = {}
         for message in batch:
             if self._options.filter.keeps(message.routing_key or ""):
                 records.append(self._capture(message))
+                key = moved_letter_key(message.headers, message.user_id, message.message_id, message.body)
+                if key is not None and records[-1].type == DEAD_LETTER:
+                    letters[len(records) - 1] = key
             else:
                 self.stats.filtered += 1
+        if letters and self._rejections is not None:
+            records = await self._with_reasons(records, letters)
         if records and self._missions is not None:
             records = await self._stamp_missions(records)
         if records:
@@ -161,6 +173,21 @@ class RecorderConsumer:
                     self.stats.duplicates += 1
             self._since_sample += sum(result.inserted for result in results)
         await batch[-1].ack(multiple=True)
+
+    async def _with_reasons(
+        self, records: list[RecordedMessage], letters: dict[int, str]
+    ) -> list[RecordedMessage]:
+        """Dead letters the broker moved carry no reason: the one the worker kept is added."""
+        assert self._rejections is not None
+        lookup = self._rejections
+        kept = await self._retrying(lambda: lookup(list(letters.values())))
+        for index, key in letters.items():
+            if key in kept:
+                reason = {"reason": kept[key].reason, "detail": kept[key].detail}
+                records[index] = replace(
+                    records[index], properties={**records[index].properties, REJECTION: reason}
+                )
+        return records
 
     async def _stamp_missions(self, records: list[RecordedMessage]) -> list[RecordedMessage]:
         """Each robot's message carries the mission the robot is recorded under, as the event log's do."""

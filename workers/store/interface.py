@@ -17,6 +17,7 @@ from workers.store.leases import LeaseStore
 from workers.store.ledger import SequenceLedger
 from workers.store.maps import MapStore
 from workers.store.missions import MissionStore
+from workers.store.rejections import RejectionLog
 from workers.store.users import UserStore
 
 
@@ -32,6 +33,7 @@ class Store(
     DiscardLog,
     LeaseStore,
     AttemptLog,
+    RejectionLog,
 ):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""

@@ -31,6 +31,7 @@ from workers.store.mongo_leases import MongoLeases
 from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
 from workers.store.mongo_missions import MongoMissions
+from workers.store.mongo_rejections import MongoRejections
 from workers.store.mongo_users import MongoUsers
 
 
@@ -90,6 +91,7 @@ class MongoEventStore(
     MongoDiscards,
     MongoLeases,
     MongoAttempts,
+    MongoRejections,
     Store,
 ):
     name = "mongodb"

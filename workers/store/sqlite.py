@@ -33,6 +33,7 @@ from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
 from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
+from workers.store.sqlite_rejections import REJECTION_SCHEMA, SQLiteRejections
 from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
 T = TypeVar("T")
@@ -129,6 +130,7 @@ class SQLiteEventStore(
     SQLiteDiscards,
     SQLiteLeases,
     SQLiteAttempts,
+    SQLiteRejections,
     Store,
 ):
     name = "sqlite"
@@ -146,6 +148,7 @@ class SQLiteEventStore(
             DISCARD_SCHEMA,
             LEASE_SCHEMA,
             ATTEMPT_SCHEMA,
+            REJECTION_SCHEMA,
         ):
             db.executescript(schema)
 
