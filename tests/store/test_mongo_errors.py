@@ -59,7 +59,7 @@ async def test_an_election_reaches_the_worker_as_store_unavailable() -> None:
         async def write(self) -> None:
             raise self.error
 
-    with pytest.raises(StoreUnavailable, match="db.example:27017/fleetbus: not primary"):
+    with pytest.raises(StoreUnavailable, match=r"db\.example:27017/fleetbus: not primary"):
         await Electing(NotPrimaryError("not primary", {"code": 10107})).write()
     with pytest.raises(OperationFailure, match="not authorized"):
         await Electing(OperationFailure("not authorized", code=13)).write()
