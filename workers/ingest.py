@@ -20,6 +20,7 @@ from typing import Protocol, TypeVar
 import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
+from tenacity import RetryCallState
 
 from broker.retry import Stopped, async_retrying, run_retrying
 from schemas.routing import EventType
@@ -63,6 +64,19 @@ class IngestStats:
     notified: int = 0
     store_retries: int = 0
     by_reason: dict[str, int] = field(default_factory=dict)
+    waiting_for: str | None = None
+    """What a consumer is retrying now (a transient failure), shown in its status."""
+    waiting_since: datetime | None = None
+    last_error: str | None = None
+
+    def retrying(self, what: str, error: BaseException | None) -> None:
+        self.store_retries += 1
+        if self.waiting_for is None:
+            self.waiting_since = datetime.now(timezone.utc)
+        self.waiting_for, self.last_error = what, f"{type(error).__name__}: {error}" if error else None
+
+    def recovered(self) -> None:
+        self.waiting_for = self.waiting_since = self.last_error = None
 
 
 class IngestConsumer:
@@ -260,17 +274,22 @@ class IngestConsumer:
         a partial success repeats at most a notification, never a record.
         """
 
-        def counted(_: object) -> None:
-            self.stats.store_retries += 1
+        what = "the store and the notifications"
+
+        def counted(state: RetryCallState) -> None:
+            self.stats.retrying(what, state.outcome.exception() if state.outcome else None)
 
         retrying = async_retrying(
-            "the store and the notifications",
+            what,
             on=(StoreUnavailable, aiormq.exceptions.DeliveryError),
             stop=self._stopping,
             logger=log,
             on_retry=counted,
         )
-        return await run_retrying(retrying, operation)
+        result = await run_retrying(retrying, operation)
+        if self.stats.waiting_for is not None:
+            self.stats.recovered()
+        return result
 
 
 def _last_unsettled(batch: list[AbstractIncomingMessage]) -> AbstractIncomingMessage | None:

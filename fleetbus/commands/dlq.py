@@ -8,9 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from broker.dead_letter_queue import peek_dead_letters
-from fleetbus.context import console, endpoint, settings
-from workers.store import run_with_store
+from fleetbus.context import console, dead_letters
 
 
 def dlq(
@@ -18,12 +16,7 @@ def dlq(
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
     """List the dead-letter queue without removing anything from it."""
-    config = settings()
-    letters = peek_dead_letters(
-        endpoint().amqp_url,
-        limit,
-        reasons=lambda keys: run_with_store(config, lambda store: store.rejections(keys)),
-    )
+    letters = dead_letters(limit)
     if as_json:
         for letter in letters:
             typer.echo(json.dumps(letter.as_dict()))

@@ -18,6 +18,7 @@ from workers.store.ledger import SequenceLedger
 from workers.store.maps import MapStore
 from workers.store.missions import MissionStore
 from workers.store.rejections import RejectionLog
+from workers.store.statuses import StatusBoard
 from workers.store.users import UserStore
 
 
@@ -34,6 +35,7 @@ class Store(
     LeaseStore,
     AttemptLog,
     RejectionLog,
+    StatusBoard,
 ):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""

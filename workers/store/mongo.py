@@ -37,6 +37,7 @@ from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
 from workers.store.mongo_missions import MongoMissions
 from workers.store.mongo_rejections import MongoRejections
+from workers.store.mongo_statuses import MongoStatuses
 from workers.store.mongo_users import MongoUsers
 
 
@@ -97,6 +98,7 @@ class MongoEventStore(
     MongoLeases,
     MongoAttempts,
     MongoRejections,
+    MongoStatuses,
     Store,
 ):
     name = "mongodb"
