@@ -19,7 +19,7 @@ from typing import Any, Protocol
 
 import pika
 
-from schemas.routing import DEAD_LETTER_QUEUE, DETAIL_HEADER, REASON_HEADER
+from schemas.routing import DEAD_LETTER_QUEUE, DETAIL_HEADER, REASON_HEADER, RECORDER_QUEUE
 
 
 @dataclass(frozen=True)
@@ -91,6 +91,9 @@ def _describe(
     rejected_at = headers.get("x-rejected-at")
     if kept is not None:  # rejected by a worker, moved here by the broker
         reason, detail, rejected_at = kept.reason, kept.detail, kept.rejected_at.isoformat()
+    elif reason is None and deaths and _text(deaths[0].get("queue", "")) == RECORDER_QUEUE:
+        reason = "unstorable" if _text(deaths[0].get("reason", "")) == "rejected" else deaths[0].get("reason")
+        detail = f"the recorder could not keep it ({_text(reason)}; the recorder's log says more)"
     elif reason is None and deaths:  # dead-lettered by the broker itself, e.g. delivery limit
         reason = _text(deaths[0].get("reason", "unknown"))
         detail = f"dead-lettered by the broker from queue {_text(deaths[0].get('queue', '?'))}"

@@ -8,6 +8,7 @@ re-declaration whose arguments differ).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +31,7 @@ from schemas.routing import (
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
     RECORDED_EXCHANGES,
+    RECORDER_DEAD_LETTER_EXCHANGE,
     RECORDER_QUEUE,
     RPC_EXCHANGE,
     RPC_QUEUE,
@@ -174,6 +176,25 @@ def core_topology(shards: int = 1) -> Topology:
 RECORDER_BACKLOG_BYTES = 1024**3
 
 
+@dataclass(frozen=True)
+class PolicySpec:
+    name: str
+    pattern: str
+    definition: dict[str, Any]
+    priority: int = 0
+
+
+#: The recorder queue's dead-letter exchange, as a policy: it can be added to the queue that is
+#: there (never empty while robots publish), which a new queue argument could not (RabbitMQ refuses
+#: to declare a queue again with other arguments). Messages its backlog limit drops go there too.
+RECORDER_POLICY = PolicySpec(
+    "fleetbus-recorder",
+    f"^{re.escape(RECORDER_QUEUE)}$",
+    {"dead-letter-exchange": RECORDER_DEAD_LETTER_EXCHANGE},
+    priority=1,
+)
+
+
 def recorder_topology() -> Topology:
     """The recorder's queue, bound to every exchange of the service with ``#``.
 
@@ -182,6 +203,7 @@ def recorder_topology() -> Topology:
     and reading it takes no permission beyond this one queue (README, "The recorder").
     """
     return Topology(
+        exchanges=(ExchangeSpec(RECORDER_DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),),
         queues=(
             QueueSpec(
                 RECORDER_QUEUE,
@@ -192,7 +214,10 @@ def recorder_topology() -> Topology:
                 },
             ),
         ),
-        bindings=tuple(BindingSpec(exchange, RECORDER_QUEUE, "#") for exchange in RECORDED_EXCHANGES),
+        bindings=(
+            *(BindingSpec(exchange, RECORDER_QUEUE, "#") for exchange in RECORDED_EXCHANGES),
+            BindingSpec(RECORDER_DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
+        ),
     )
 
 

@@ -42,6 +42,8 @@ The service owns everything that starts with ``fleetbus.``::
     fleetbus.dead-letters   classic durable queue of rejected messages, with their reasons
     fleetbus.recorder       classic durable queue of a copy of everything on ingest, notify, rpc, dlx and
                             the beacon discards, read only by the recorder's account ``fleetbus-recorder``
+    fleetbus.recorder.dlx   fanout exchange into fleetbus.dead-letters, the recorder queue's dead-letter
+                            exchange (a policy ``fleetbus setup`` sets): what the recorder cannot store
 """
 
 from __future__ import annotations
@@ -69,6 +71,9 @@ BEACON_MATCH = {"x-match": "all", BEACON_TYPE_HEADER: BEACON_TYPE, BEACON_CODENA
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
 RECORDER_QUEUE = "fleetbus.recorder"
+#: The recorder queue's dead-letter exchange (fanout, into fleetbus.dead-letters): not fleetbus.dlx,
+#: which the recorder records, so that a message the recorder cannot store never comes back to it.
+RECORDER_DEAD_LETTER_EXCHANGE = "fleetbus.recorder.dlx"
 #: Every exchange the service's traffic passes (robots' events, notifications, requests, dead
 #: letters): the recorder's queue is bound to each with ``#``.
 RECORDED_EXCHANGES = (

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+from collections.abc import Sequence
 from pathlib import Path
 
 import pika
@@ -16,10 +17,13 @@ from broker.local_node import pid_alive
 from schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
+from tests.test_cli import fleetbus
 from workers.recorder.capture import refusal
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import parse_retention
-from workers.store.recordings import Condition, Op
+from workers.store import open_recording_store
+from workers.store.base import WriteResult
+from workers.store.recordings import Condition, Op, RecordedMessage, RecordingStore
 
 TF = {
     "frame": "/kinect/depth",
@@ -153,6 +157,39 @@ def test_a_body_the_database_cannot_hold_is_kept_raw_and_recording_goes_on(store
         assert odd.raw == huge and "MongoDB" in (odd.problem or "")
     else:
         assert odd.document == {"big": 123456789012345678901234567890}
+
+
+def test_what_the_store_refuses_even_raw_is_dead_lettered_with_its_reason_and_counted(
+    stored_bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    bus = stored_bus
+    robot = bus.add("rec-odd")
+    store_class = type(open_recording_store(bus.settings))
+    write = store_class.write_recorded
+
+    async def refusing(self: RecordingStore, records: Sequence[RecordedMessage]) -> list[WriteResult]:
+        if any(record.routing_key == "rec-odd.poison" for record in records):
+            raise ValueError("the database refuses this one, whatever its form")
+        return await write(self, records)
+
+    monkeypatch.setattr(store_class, "write_recorded", refusing)
+    with bus.recorder() as recorder:
+        bus.publish_raw(robot, "rec-odd.tf", b'{"before": true}')
+        bus.publish_raw(robot, "rec-odd.poison", b'{"odd": true}', message_id="poison-1")
+        bus.publish_raw(robot, "rec-odd.tf", b'{"after": true}')
+        [letter] = wait_for(lambda: bus.dead_letters(), what="the unstorable message dead-lettered")
+        wait_for(lambda: recorder.stats().recorded == 2, what="the others recorded")
+        assert recorder.stats().unstorable == 1
+    assert (letter.message_id, letter.reason, letter.routing_key) == (
+        "poison-1",
+        "unstorable",
+        "rec-odd.poison",
+    )
+    assert "the database refuses this one" in letter.detail
+    assert [r.document for r in bus.recorded("tf")] == [{"before": True}, {"after": True}]
+    shown = fleetbus(bus, "stats", "--since", "10m")
+    assert shown.returncode == 0, shown.stderr
+    assert "dead letters: 1 (unstorable 1)" in shown.stdout
 
 
 def test_field_conditions_reach_recorded_documents(bus: Bus) -> None:

@@ -15,18 +15,23 @@ from aio_pika.abc import AbstractIncomingMessage
 
 from broker.dead_letter_queue import dead_letter_key
 from workers.store.rejections import Rejection
-from workers.validation import Rejected
 
 MAX_DETAIL = 4000
 
 
-def rejection_of(message: AbstractIncomingMessage, verdict: Rejected) -> Rejection:
+def rejection_of(message: AbstractIncomingMessage, reason: str, detail: str) -> Rejection:
     key = dead_letter_key(
         message.user_id, message.exchange or "", message.routing_key or "", message.message_id, message.body
     )
-    return Rejection(key, verdict.reason.value, verdict.detail[:MAX_DETAIL], datetime.now(timezone.utc))
+    return Rejection(key, reason, detail[:MAX_DETAIL], datetime.now(timezone.utc))
 
 
 async def move_to_dead_letters(message: AbstractIncomingMessage) -> None:
     """The broker moves it to the queue's dead-letter exchange (its reason already recorded)."""
     await message.nack(requeue=False)
+
+
+def last_unsettled(batch: list[AbstractIncomingMessage]) -> AbstractIncomingMessage | None:
+    """The last message of the batch not dead-lettered: acking (or nacking) it with ``multiple``
+    settles every earlier one still open; a dead-lettered one is settled already."""
+    return next((message for message in reversed(batch) if not message.processed), None)

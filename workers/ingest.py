@@ -26,7 +26,7 @@ from broker.retry import Stopped, async_retrying, run_retrying
 from schemas.routing import EventType
 from workers.attempts import AttemptLimit
 from workers.batches import BatchInbox
-from workers.dead_letters import move_to_dead_letters, rejection_of
+from workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
 from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.interface import Store
 from workers.store.ledger import Duplicate
@@ -162,7 +162,7 @@ class IngestConsumer:
             return
         with contextlib.suppress(asyncio.TimeoutError):
             await asyncio.wait_for(self._stopping.wait(), 1.0)
-        last = _last_unsettled(batch)
+        last = last_unsettled(batch)
         if last is not None:
             with contextlib.suppress(*BROKER_ERRORS):
                 await last.nack(multiple=True, requeue=True)
@@ -176,7 +176,7 @@ class IngestConsumer:
 
     async def _reject(self, message: AbstractIncomingMessage, verdict: Rejected) -> None:
         """Dead-letter it with its reason: recorded first (idempotent), then moved by the broker."""
-        rejection = rejection_of(message, verdict)
+        rejection = rejection_of(message, verdict.reason.value, verdict.detail)
         await self._retrying(lambda: self._store.record_rejections([rejection]))
         await move_to_dead_letters(message)
         self.stats.rejected += 1
@@ -235,7 +235,7 @@ class IngestConsumer:
             # bookkeeping after the services, so that it does not delay notifications
             await self._retrying(lambda: self._store.record_duplicates(duplicates))
             self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
-        last = _last_unsettled(batch)
+        last = last_unsettled(batch)
         if last is not None:
             await last.ack(multiple=True)
 
@@ -290,9 +290,3 @@ class IngestConsumer:
         if self.stats.waiting_for is not None:
             self.stats.recovered()
         return result
-
-
-def _last_unsettled(batch: list[AbstractIncomingMessage]) -> AbstractIncomingMessage | None:
-    """The last message of the batch not dead-lettered: acking (or nacking) it with ``multiple``
-    settles every earlier one still open; a dead-lettered one is settled already."""
-    return next((message for message in reversed(batch) if not message.processed), None)

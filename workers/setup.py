@@ -17,7 +17,14 @@ import aio_pika
 from broker.accounts import vhost_of
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
-from broker.topology import EXPRESS_QUEUE_ARGUMENTS, core_topology, declare_with_url, recorder_topology
+from broker.topology import (
+    EXPRESS_QUEUE_ARGUMENTS,
+    RECORDER_POLICY,
+    PolicySpec,
+    core_topology,
+    declare_with_url,
+    recorder_topology,
+)
 from fleetbus.config import Settings
 from schemas.routing import EXPRESS_QUEUE
 from workers.recorder.runner import recorder_url
@@ -37,8 +44,16 @@ async def set_up_service(settings: Settings, admin: BrokerEndpoint) -> ServiceAc
     service = await asyncio.to_thread(service_url, settings, admin)
     recorder = await asyncio.to_thread(recorder_url, settings, admin)
     await replace_outdated_express_queue(admin)
+    await asyncio.to_thread(put_policies, admin, [RECORDER_POLICY])
     await declare_with_url(admin.amqp_url, [core_topology(settings.ingest_shards), recorder_topology()])
     return ServiceAccounts(service, recorder)
+
+
+def put_policies(admin: BrokerEndpoint, policies: list[PolicySpec]) -> None:
+    with ManagementAPI.from_urls(admin.management_url, admin.amqp_url) as api:
+        vhost = vhost_of(admin.amqp_url)
+        for policy in policies:
+            api.put_policy(vhost, policy.name, policy.pattern, policy.definition, policy.priority)
 
 
 class OutdatedQueue(Exception):

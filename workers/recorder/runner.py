@@ -91,10 +91,9 @@ async def start_recorder(
     await channel.set_qos(prefetch_count=options.batch_size)
     # fetched (not just named) so the robust channel consumes it again after a broker restart
     queue = await channel.get_queue(RECORDER_QUEUE)
-    rejections = events.rejections if events is not None else None
     return RecorderContext(
         connection,
-        RecorderConsumer(channel, queue, store, options, names, missions, rejections),
+        RecorderConsumer(channel, queue, store, options, names, missions, events),
         store,
         events,
     )
