@@ -182,6 +182,13 @@ class ManagementAPI:
     def list_exchanges(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"exchanges/{_q(vhost)}")
 
+    def get_exchange(self, vhost: str, name: str) -> dict[str, Any] | None:
+        response = self._client.get(f"exchanges/{_q(vhost)}/{_q(name)}")
+        return response.json() if response.status_code == 200 else None
+
+    def delete_exchange(self, vhost: str, name: str) -> None:
+        self._request("DELETE", f"exchanges/{_q(vhost)}/{_q(name)}")
+
     def list_consumers(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"consumers/{_q(vhost)}")
 

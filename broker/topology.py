@@ -19,6 +19,7 @@ from aio_pika.abc import AbstractChannel, ExchangeType
 from broker.account_roles import Role
 from schemas.routing import (
     ALL_TOPICS_BINDING,
+    BEACON_CHECK_EXCHANGE,
     BEACON_DISCARD_EXCHANGE,
     BEACON_DISCARD_QUEUE,
     BEACON_EXCHANGE,
@@ -145,6 +146,9 @@ def core_topology(shards: int = 1) -> Topology:
             ExchangeSpec(DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),
             ExchangeSpec(BEACON_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(BEACON_DISCARD_EXCHANGE, ExchangeType.FANOUT),
+            ExchangeSpec(
+                BEACON_CHECK_EXCHANGE, ExchangeType.HEADERS, {"alternate-exchange": BEACON_DISCARD_EXCHANGE}
+            ),
         ),
         queues=(
             *(QueueSpec(ingest_shard_queue(shard), INGEST_QUEUE_ARGUMENTS) for shard in range(shards)),
@@ -164,6 +168,7 @@ def core_topology(shards: int = 1) -> Topology:
             BindingSpec(RPC_EXCHANGE, RPC_QUEUE, "#"),
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
             BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
+            BindingSpec(BEACON_CHECK_EXCHANGE, BEACON_EXCHANGE, "", to_exchange=True, arguments=BEACON_MATCH),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
         ),
         # before shards, the ingest queue was bound to the ingest exchange directly
@@ -245,11 +250,11 @@ def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | N
         *(BindingSpec(NOTIFY_EXCHANGE, inbox, key) for key in inbox_bindings(owner, kind, operator)),
     ]
     if role is Role.ROBOT:
+        # a topic exchange, so that topic permissions hold its keys to <robot>.*: a robot cannot send
+        # a beacon into another robot's lane (a headers exchange's keys are not checked)
         beacons = beacon_exchange(owner)
-        exchanges.append(
-            ExchangeSpec(beacons, ExchangeType.HEADERS, {"alternate-exchange": BEACON_DISCARD_EXCHANGE})
-        )
-        bindings.append(BindingSpec(beacons, BEACON_EXCHANGE, "", to_exchange=True, arguments=BEACON_MATCH))
+        exchanges.append(ExchangeSpec(beacons, ExchangeType.TOPIC))
+        bindings.append(BindingSpec(beacons, BEACON_CHECK_EXCHANGE, "#", to_exchange=True))
         queues.append(
             QueueSpec(commands_queue(owner), {"x-queue-type": "classic", "x-message-ttl": COMMAND_TTL_MS})
         )

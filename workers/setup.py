@@ -10,11 +10,12 @@ recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not
 from __future__ import annotations
 
 import asyncio
+import logging
 from dataclasses import dataclass
 
 import aio_pika
 
-from broker.accounts import vhost_of
+from broker.accounts import upgrade_beacon_exchanges, vhost_of
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.topology import (
@@ -29,6 +30,8 @@ from fleetbus.config import Settings
 from schemas.routing import EXPRESS_QUEUE
 from workers.recorder.runner import recorder_url
 from workers.runner import service_url
+
+log = logging.getLogger("fleetbus.setup")
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,10 @@ async def set_up_service(settings: Settings, admin: BrokerEndpoint) -> ServiceAc
     await replace_outdated_express_queue(admin)
     await asyncio.to_thread(put_policies, admin, [RECORDER_POLICY])
     await declare_with_url(admin.amqp_url, [core_topology(settings.ingest_shards), recorder_topology()])
+    with ManagementAPI.from_urls(admin.management_url, admin.amqp_url) as api:
+        upgraded = await upgrade_beacon_exchanges(admin.amqp_url, api)
+    if upgraded:
+        log.info("beacon exchanges now keyed by their robot's name: %s", ", ".join(upgraded))
     return ServiceAccounts(service, recorder)
 
 
