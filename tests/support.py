@@ -28,6 +28,7 @@ from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
 from publishers.client import RobotClient, outbox_folder
 from publishers.outbox import Outbox
+from schemas.notifications import Notification
 from schemas.routing import EXPRESS_TYPES, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink
@@ -60,6 +61,24 @@ def wait_for(
                 f"timed out after {timeout:.0f} s waiting for {what} (last value: {value!r})"
             )
         time.sleep(interval)
+
+
+def notifications_until(
+    robot: RobotClient, sentinel: Callable[[Notification], bool], timeout: float = 30.0
+) -> list[Notification]:
+    """What ``robot`` receives up to and including the first notification ``sentinel`` picks.
+
+    The sentinel is sent after whatever must not arrive, along the same path (an event of the
+    same lane, announced by the workers): the inbox is FIFO, so the notifications before it are
+    every one sent before it, and "nothing else arrived" is proven without a fixed wait."""
+    received: list[Notification] = []
+    deadline = time.monotonic() + timeout
+    while not received or not sentinel(received[-1]):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise AssertionError(f"no sentinel within {timeout:.0f} s; received {received!r}")
+        received.extend(robot.receive(1, timeout=left))
+    return received
 
 
 @dataclass

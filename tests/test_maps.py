@@ -16,7 +16,7 @@ from publishers.maps import map_events
 from schemas.bodies import MAP_CHUNK_BYTES
 from schemas.routing import RobotKind
 from tests.factories import small_map
-from tests.support import Bus, wait_for
+from tests.support import Bus, notifications_until, wait_for
 
 TABLE2 = {
     "resolution": 0.11,
@@ -127,8 +127,10 @@ def test_bad_maps_are_refused_and_stored_maps_do_not_change(bus: Bus) -> None:
             ],
         )
         letters = wait_for(lambda: (found := bus.dead_letters()) and len(found) == 4 and found)
-        assert warden.receive(1, timeout=1) == []
-        latest = warden.fetch_map()
+        explorer.publish_map(good, TABLE2)  # the sentinel: the next good map, through the same lane
+        after = notifications_until(warden, lambda note: note.map_version is not None)
+        assert [note.map_version for note in after] == [2], "no bad map announced, none became a version"
+        latest = warden.fetch_map(version=1)
     assert sorted(letter.reason for letter in letters) == ["bad-map", "bad-map", "schema", "schema"]
     details = " | ".join(letter.detail for letter in letters)
     for why in (
