@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,10 +18,11 @@ from broker.accounts import RECORDER_USER, url_for
 from broker.local_node import pid_alive
 from schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard, status
-from tests.support import Bus, wait_for
+from tests.support import PROJECT_ROOT, Bus, wait_for
 from tests.test_cli import fleetbus
 from workers.recorder.capture import refusal
 from workers.recorder.filters import RoutingFilter
+from workers.recorder.process import PARENT_ENV
 from workers.recorder.retention import parse_retention
 from workers.store import open_recording_store
 from workers.store.base import WriteResult
@@ -295,3 +298,33 @@ def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(b
     finally:
         if worker.poll() is None:
             worker.kill()
+
+
+def test_a_recorder_child_whose_worker_is_already_gone_ends_at_once() -> None:
+    """The child asks for its death signal itself (no ``preexec_fn`` in the threaded worker), and
+    checks its parent is still the worker that started it: one that died first leaves no orphan."""
+    started = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "from workers.recorder.process import die_with_parent as d; d(); print('alive')",
+        ],
+        env={**os.environ, PARENT_ENV: "1"},  # a parent that is not the one it has
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert started.returncode == 1 and "alive" not in started.stdout
+    assert "the worker 1 that started this recorder is gone" in started.stderr
+
+
+def test_no_process_of_the_project_forks_with_preexec_fn() -> None:
+    """``preexec_fn`` runs Python between fork and exec, unsafe in a process with threads."""
+    packages = ("api", "bench", "broker", "fleetbus", "publishers", "schemas", "workers")
+    found = [
+        str(path.relative_to(PROJECT_ROOT))
+        for package in packages
+        for path in (PROJECT_ROOT / package).rglob("*.py")
+        if "preexec_fn=" in path.read_text()
+    ]
+    assert found == []
