@@ -255,6 +255,16 @@ class Bus:
             self.admin_url, reasons=lambda keys: self.with_store(lambda s: s.rejections(keys))
         )
 
+    @contextmanager
+    def admin_channel(self) -> Iterator[Any]:
+        """A pika channel as the administrator of the test's virtual host."""
+        connection = pika.BlockingConnection(pika.URLParameters(self.admin_url))
+        try:
+            yield connection.channel()
+        finally:
+            if connection.is_open:
+                connection.close()
+
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""
         connection = pika.BlockingConnection(pika.URLParameters(self.admin_url))

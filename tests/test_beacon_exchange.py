@@ -112,18 +112,10 @@ def test_a_beacon_exchange_of_an_older_version_is_upgraded_and_then_refuses_forg
     bus.add("guide1", kind=RobotKind.GUIDE)
     # explorer1's beacon exchange as an older version made it: headers, keys unchecked
     bus.api.delete_exchange(bus.vhost, "explorer1.beacon")
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
-    try:
-        channel = connection.channel()
-        channel.exchange_declare(
-            "explorer1.beacon",
-            "headers",
-            durable=True,
-            arguments={"alternate-exchange": BEACON_DISCARD_EXCHANGE},
-        )
+    with bus.admin_channel() as channel:
+        discard = {"alternate-exchange": BEACON_DISCARD_EXCHANGE}
+        channel.exchange_declare("explorer1.beacon", "headers", durable=True, arguments=discard)
         channel.exchange_bind(BEACON_EXCHANGE, "explorer1.beacon", "", arguments=BEACON_MATCH)
-    finally:
-        connection.close()
     _publish_forged(explorer.amqp_url)  # accepted: the hole an older version had
 
     assert asyncio.run(upgrade_beacon_exchanges(bus.admin_url, bus.api)) == ["explorer1"]

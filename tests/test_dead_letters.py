@@ -99,26 +99,15 @@ def test_setup_replaces_an_express_queue_of_an_earlier_version_when_it_is_empty(
     version made without a dead-letter exchange is replaced by `fleetbus setup` while empty, and
     left, with a clear error, while it holds messages."""
     old = {"x-queue-type": "classic", "x-single-active-consumer": True}
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
-    try:
-        channel = connection.channel()
+    with bus.admin_channel() as channel:
         channel.queue_declare(EXPRESS_QUEUE, durable=True, arguments=old)
         channel.basic_publish("", EXPRESS_QUEUE, b"{}", pika.BasicProperties(delivery_mode=2))
-    finally:
-        connection.close()
     admin = replace(bus.endpoint, amqp_url=bus.admin_url)
     with pytest.raises(OutdatedQueue, match="holds 1 messages"):
         asyncio.run(replace_outdated_express_queue(admin))
-    _purge(bus)
+    with bus.admin_channel() as channel:
+        channel.queue_purge(EXPRESS_QUEUE)
     asyncio.run(replace_outdated_express_queue(admin))
     bus.service_accounts()  # fleetbus setup: declares it again, with its dead-letter exchange
     [queue] = [q for q in bus.api.list_queues(bus.vhost) if q["name"] == EXPRESS_QUEUE]
     assert queue["arguments"] == EXPRESS_QUEUE_ARGUMENTS
-
-
-def _purge(bus: Bus) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
-    try:
-        connection.channel().queue_purge(EXPRESS_QUEUE)
-    finally:
-        connection.close()

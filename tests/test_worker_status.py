@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import pika
-
 from schemas.routing import NOTIFY_EXCHANGE, EventType, RobotKind
 from tests.factories import status
 from tests.support import Bus, wait_for
@@ -17,13 +15,9 @@ BLOCKER = "test.blocker"
 def _block_notifications(bus: Bus) -> None:
     """A queue bound to every notification that refuses every message: the broker nacks each
     notification the worker publishes, a transient failure it retries."""
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
-    try:
-        channel = connection.channel()
+    with bus.admin_channel() as channel:
         channel.queue_declare(BLOCKER, arguments={"x-max-length": 0, "x-overflow": "reject-publish"})
         channel.queue_bind(BLOCKER, NOTIFY_EXCHANGE, "notify.#")
-    finally:
-        connection.close()
 
 
 def _statuses(bus: Bus) -> list[WorkerStatus]:
@@ -46,18 +40,11 @@ def test_a_worker_retrying_shows_what_it_waits_for_and_its_counts(stored_bus: Bu
         assert shown.returncode == 0, shown.stderr
         assert "waiting for" in shown.stdout and "the store and the notifications" in shown.stdout
 
-        _unblock(bus)
+        with bus.admin_channel() as channel:
+            channel.queue_delete(BLOCKER)
         [recovered] = wait_for(
             lambda: [s for s in _statuses(bus) if not s.waiting_for and s.counters.get("notified")],
             what="the worker's status once the notification went out",
         )
         assert recovered.name == waiting.name and recovered.counters["stored"] == 1
         assert bus.count(EventType.STATUS.value) == 1
-
-
-def _unblock(bus: Bus) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
-    try:
-        connection.channel().queue_delete(BLOCKER)
-    finally:
-        connection.close()
