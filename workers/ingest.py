@@ -117,7 +117,7 @@ class IngestConsumer:
             batch = await self._inbox.next_batch(self._stopping)
             if batch:
                 try:
-                    await self._handle(batch)
+                    await self._handle_or_isolate(batch)
                 except Stopped:
                     log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                     return
@@ -128,11 +128,15 @@ class IngestConsumer:
                         len(batch),
                     )
                     await self._give_back(batch)
-                except Exception:
-                    log.exception(
-                        "unexpected error handling a batch of %d; taking them one by one", len(batch)
-                    )
-                    await self._isolate(batch)
+
+    async def _handle_or_isolate(self, batch: list[AbstractIncomingMessage]) -> None:
+        try:
+            await self._handle(batch)
+        except (Stopped, *BROKER_ERRORS):
+            raise
+        except Exception:
+            log.exception("unexpected error handling a batch of %d; taking them one by one", len(batch))
+            await self._isolate(batch)
 
     async def _isolate(self, batch: list[AbstractIncomingMessage]) -> None:
         """After an unexpected error: each message of the batch on its own, and the one that raises
