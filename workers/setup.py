@@ -4,7 +4,9 @@
 idempotent, so running it again changes nothing that is in place. It makes the ``fleetbus`` and
 ``fleetbus-recorder`` accounts (their passwords kept in ``$FLEETBUS_DATA_DIR/accounts/``, mode
 0600), the service's exchanges and queues for ``FLEETBUS_INGEST_SHARDS`` shards, and the
-recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not declare.
+recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not declare, and its
+dead-letter policy. It brings up to date what an earlier version made: an express queue without a
+dead-letter exchange (replaced while empty), robots' beacon exchanges of the headers kind.
 """
 
 from __future__ import annotations

@@ -195,8 +195,8 @@ class RecorderConsumer:
         policy, README "The recorder"), its reason kept in the service's store when there is one."""
         if self._rejections is not None:
             rejection = rejection_of(message, UNSTORABLE, unstorable.detail)
-            log_of_rejections = self._rejections
-            await self._retrying(lambda: log_of_rejections.record_rejections([rejection]))
+            rejections = self._rejections
+            await self._retrying(lambda: rejections.record_rejections([rejection]))
         await move_to_dead_letters(message)
         self.stats.unstorable += 1
         log.error(
@@ -212,8 +212,8 @@ class RecorderConsumer:
     ) -> list[RecordedMessage]:
         """Dead letters the broker moved carry no reason: the one the worker kept is added."""
         assert self._rejections is not None
-        board = self._rejections
-        kept = await self._retrying(lambda: board.rejections(list(letters.values())))
+        rejections = self._rejections
+        kept = await self._retrying(lambda: rejections.rejections(list(letters.values())))
         for index, key in letters.items():
             if key in kept:
                 reason = {"reason": kept[key].reason, "detail": kept[key].detail}
