@@ -32,8 +32,10 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypeVar
+from typing import IO, TypeVar
 from urllib.parse import quote
+
+from broker.retry import Backoff, GaveUp, retrying
 
 RABBITMQ_BIN = Path("/usr/lib/rabbitmq/bin")
 RABBITMQ_SERVER = RABBITMQ_BIN / "rabbitmq-server"
@@ -188,6 +190,19 @@ def _wait_until(condition: Callable[[], T], timeout: float, interval: float = 0.
         if value or time.monotonic() >= deadline:
             return value
         time.sleep(interval)
+
+
+class _LockBusy(Exception):
+    """Another process holds the node's lock."""
+
+
+def _lock_now(handle: IO[str]) -> None:
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as error:
+        if error.errno in (errno.EAGAIN, errno.EACCES):
+            raise _LockBusy(str(error)) from error
+        raise
 
 
 def _signal(pid: int, sig: signal.Signals) -> None:
@@ -484,19 +499,19 @@ log.console = false
         """Serialise up/down between processes (a test run and `fleetbus broker up`, say)."""
         self.base_dir.mkdir(parents=True, exist_ok=True)
         with open(self.base_dir / ".lock", "w") as handle:
-            deadline = time.monotonic() + timeout
-            while True:
-                try:
-                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    break
-                except OSError as error:
-                    if error.errno not in (errno.EAGAIN, errno.EACCES):
-                        raise
-                    if time.monotonic() >= deadline:
-                        raise LocalNodeError(
-                            f"another process holds {self.base_dir / '.lock'} (starting or stopping the node)"
-                        ) from None
-                    time.sleep(0.1)
+            waiting = retrying(
+                f"the lock {self.base_dir / '.lock'} (another process starts or stops the node)",
+                on=_LockBusy,
+                deadline=timeout,
+                backoff=Backoff(initial=0.1, maximum=1.0, jitter=0.1),
+                logger=log,
+            )
+            try:
+                waiting(_lock_now, handle)
+            except GaveUp:
+                raise LocalNodeError(
+                    f"another process holds {self.base_dir / '.lock'} (starting or stopping the node)"
+                ) from None
             try:
                 yield
             finally:

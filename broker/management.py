@@ -90,6 +90,18 @@ class ManagementAPI:
         body = {"exchange": exchange, "write": write, "read": read}
         self._request("PUT", f"topic-permissions/{_q(vhost)}/{_q(user)}", json=body)
 
+    # policies
+    def put_policy(
+        self, vhost: str, name: str, pattern: str, definition: dict[str, Any], priority: int = 0
+    ) -> None:
+        """A policy on the queues whose names match ``pattern`` (idempotent: replaces one of that name)."""
+        body = {"pattern": pattern, "definition": definition, "apply-to": "queues", "priority": priority}
+        self._request("PUT", f"policies/{_q(vhost)}/{_q(name)}", json=body)
+
+    def get_policy(self, vhost: str, name: str) -> dict[str, Any] | None:
+        response = self._client.get(f"policies/{_q(vhost)}/{_q(name)}")
+        return response.json() if response.status_code == 200 else None
+
     # virtual hosts
     def put_vhost(self, vhost: str) -> None:
         self._request("PUT", f"vhosts/{_q(vhost)}")
@@ -169,6 +181,13 @@ class ManagementAPI:
 
     def list_exchanges(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"exchanges/{_q(vhost)}")
+
+    def get_exchange(self, vhost: str, name: str) -> dict[str, Any] | None:
+        response = self._client.get(f"exchanges/{_q(vhost)}/{_q(name)}")
+        return response.json() if response.status_code == 200 else None
+
+    def delete_exchange(self, vhost: str, name: str) -> None:
+        self._request("DELETE", f"exchanges/{_q(vhost)}/{_q(name)}")
 
     def list_consumers(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"consumers/{_q(vhost)}")

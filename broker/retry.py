@@ -22,14 +22,16 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from typing import TypeVar, cast
 
 from tenacity import AsyncRetrying, RetryCallState, Retrying, retry_if_exception_type, stop_any, stop_never
 from tenacity.stop import stop_after_delay, stop_base
 from tenacity.wait import wait_exponential, wait_random
 
 log = logging.getLogger("fleetbus.retry")
+T = TypeVar("T")
 
 Transient = type[BaseException] | tuple[type[BaseException], ...]
 OnRetry = Callable[[RetryCallState], None]
@@ -173,3 +175,13 @@ def async_retrying(
             await asyncio.wait_for(stop.wait(), seconds)
 
     return AsyncRetrying(sleep=sleep, **_options(what, on, deadline, backoff, stop, logger, on_retry))  # type: ignore[arg-type]
+
+
+async def run_retrying(retrying: AsyncRetrying, operation: Callable[[], Awaitable[T]]) -> T:
+    """Await ``operation()`` under ``retrying`` (an :func:`async_retrying`). tenacity awaits only
+    coroutine functions; a lambda that returns a coroutine would come back unawaited."""
+
+    async def attempt() -> T:
+        return await operation()
+
+    return cast(T, await retrying(attempt))

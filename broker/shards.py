@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 from broker.management import ManagementAPI
 from schemas.routing import (
+    BEACON_CHECK_EXCHANGE,
     BEACON_EXCHANGE,
     SHARD_EXCHANGE,
     SHARD_TYPES,
@@ -102,10 +103,12 @@ def read_shard_map(api: ManagementAPI, vhost: str, shards: int) -> ShardMap:
 
 
 def _robot_accounts(api: ManagementAPI, vhost: str) -> set[str]:
-    """Robot accounts: only a robot owns a beacon exchange, bound into ``fleetbus.beacon``."""
+    """Robot accounts: only a robot owns a beacon exchange, bound into ``fleetbus.beacon.check``
+    (into ``fleetbus.beacon`` before ``fleetbus setup`` upgraded it)."""
     return {
         b["source"].removesuffix(BEACON_SUFFIX)
-        for b in api.exchange_bindings(vhost, BEACON_EXCHANGE, side="destination")
+        for exchange in (BEACON_CHECK_EXCHANGE, BEACON_EXCHANGE)
+        for b in api.exchange_bindings(vhost, exchange, side="destination")
         if b.get("source", "").endswith(BEACON_SUFFIX)
     }
 

@@ -8,6 +8,7 @@ re-declaration whose arguments differ).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -18,6 +19,7 @@ from aio_pika.abc import AbstractChannel, ExchangeType
 from broker.account_roles import Role
 from schemas.routing import (
     ALL_TOPICS_BINDING,
+    BEACON_CHECK_EXCHANGE,
     BEACON_DISCARD_EXCHANGE,
     BEACON_DISCARD_QUEUE,
     BEACON_EXCHANGE,
@@ -31,6 +33,7 @@ from schemas.routing import (
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
     RECORDED_EXCHANGES,
+    RECORDER_DEAD_LETTER_EXCHANGE,
     RECORDER_QUEUE,
     RPC_EXCHANGE,
     RPC_QUEUE,
@@ -114,7 +117,12 @@ INGEST_QUEUE_ARGUMENTS: dict[str, Any] = {
 #: The express lane's queue. Classic: it hands a hazard to the worker about 0.5 ms sooner than a
 #: quorum queue (no Raft commit first) and keeps every persistent message across a SIGKILL on one
 #: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`workers.attempts`).
-EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {"x-queue-type": "classic", "x-single-active-consumer": True}
+#: Its dead-letter exchange takes what the worker rejects (``basic.nack``), as the shards' do.
+EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
+    "x-queue-type": "classic",
+    "x-single-active-consumer": True,
+    "x-dead-letter-exchange": DEAD_LETTER_EXCHANGE,
+}
 
 
 def core_topology(shards: int = 1) -> Topology:
@@ -137,6 +145,9 @@ def core_topology(shards: int = 1) -> Topology:
             ExchangeSpec(DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),
             ExchangeSpec(BEACON_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(BEACON_DISCARD_EXCHANGE, ExchangeType.FANOUT),
+            ExchangeSpec(
+                BEACON_CHECK_EXCHANGE, ExchangeType.HEADERS, {"alternate-exchange": BEACON_DISCARD_EXCHANGE}
+            ),
         ),
         queues=(
             *(QueueSpec(ingest_shard_queue(shard), INGEST_QUEUE_ARGUMENTS) for shard in range(shards)),
@@ -156,6 +167,7 @@ def core_topology(shards: int = 1) -> Topology:
             BindingSpec(RPC_EXCHANGE, RPC_QUEUE, "#"),
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
             BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
+            BindingSpec(BEACON_CHECK_EXCHANGE, BEACON_EXCHANGE, "", to_exchange=True, arguments=BEACON_MATCH),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
         ),
     )
@@ -166,6 +178,25 @@ def core_topology(shards: int = 1) -> Topology:
 RECORDER_BACKLOG_BYTES = 1024**3
 
 
+@dataclass(frozen=True)
+class PolicySpec:
+    name: str
+    pattern: str
+    definition: dict[str, Any]
+    priority: int = 0
+
+
+#: The recorder queue's dead-letter exchange, as a policy: it can be added to the queue that is
+#: there (never empty while robots publish), which a new queue argument could not (RabbitMQ refuses
+#: to declare a queue again with other arguments). Messages its backlog limit drops go there too.
+RECORDER_POLICY = PolicySpec(
+    "fleetbus-recorder",
+    f"^{re.escape(RECORDER_QUEUE)}$",
+    {"dead-letter-exchange": RECORDER_DEAD_LETTER_EXCHANGE},
+    priority=1,
+)
+
+
 def recorder_topology() -> Topology:
     """The recorder's queue, bound to every exchange of the service with ``#``.
 
@@ -174,6 +205,7 @@ def recorder_topology() -> Topology:
     and reading it takes no permission beyond this one queue (README, "The recorder").
     """
     return Topology(
+        exchanges=(ExchangeSpec(RECORDER_DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),),
         queues=(
             QueueSpec(
                 RECORDER_QUEUE,
@@ -184,7 +216,10 @@ def recorder_topology() -> Topology:
                 },
             ),
         ),
-        bindings=tuple(BindingSpec(exchange, RECORDER_QUEUE, "#") for exchange in RECORDED_EXCHANGES),
+        bindings=(
+            *(BindingSpec(exchange, RECORDER_QUEUE, "#") for exchange in RECORDED_EXCHANGES),
+            BindingSpec(RECORDER_DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
+        ),
     )
 
 
@@ -214,11 +249,11 @@ def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | N
         *(BindingSpec(NOTIFY_EXCHANGE, inbox, key) for key in inbox_bindings(owner, kind, operator)),
     ]
     if role is Role.ROBOT:
+        # a topic exchange, so that topic permissions hold its keys to <robot>.*: a robot cannot send
+        # a beacon into another robot's lane (a headers exchange's keys are not checked)
         beacons = beacon_exchange(owner)
-        exchanges.append(
-            ExchangeSpec(beacons, ExchangeType.HEADERS, {"alternate-exchange": BEACON_DISCARD_EXCHANGE})
-        )
-        bindings.append(BindingSpec(beacons, BEACON_EXCHANGE, "", to_exchange=True, arguments=BEACON_MATCH))
+        exchanges.append(ExchangeSpec(beacons, ExchangeType.TOPIC))
+        bindings.append(BindingSpec(beacons, BEACON_CHECK_EXCHANGE, "#", to_exchange=True))
         queues.append(
             QueueSpec(commands_queue(owner), {"x-queue-type": "classic", "x-message-ttl": COMMAND_TTL_MS})
         )

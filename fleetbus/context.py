@@ -16,14 +16,14 @@ import yaml
 from rich.console import Console
 
 from broker.accounts import SERVICE_USER, vhost_of
+from broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from broker.endpoint import BrokerEndpoint, derive_management_url, resolve_broker, service_account_url
 from broker.management import ManagementAPI
 from broker.routes import RouteMap
 from fleetbus.config import Settings, load_settings
-from schemas.routing import DETAIL_HEADER, REASON_HEADER
-from workers.recorder.capture import DEAD_LETTER, NOTIFICATION
+from workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
 from workers.recorder.queries import EVENT_TYPES
-from workers.store import open_recording_store
+from workers.store import open_recording_store, run_with_store
 from workers.store.recordings import RecordedMessage, RecordingStore
 
 T = TypeVar("T")
@@ -51,6 +51,16 @@ def endpoint(start: bool = True) -> BrokerEndpoint:
         return resolve_broker(settings(), start=start)
     except Exception as error:  # any failure to find a broker ends the command with its reason
         fail(f"no broker: {error}")
+
+
+def dead_letters(limit: int = 1000) -> list[DeadLetter]:
+    """The dead-letter queue, each letter with the reason the workers kept in the store."""
+    config = settings()
+    return peek_dead_letters(
+        endpoint().amqp_url,
+        limit,
+        reasons=lambda keys: run_with_store(config, lambda store: store.rejections(keys)),
+    )
 
 
 def service_account(account: str = SERVICE_USER) -> str:
@@ -99,9 +109,9 @@ def _compact(value: Any) -> str:
 def summarize(record: RecordedMessage, width: int) -> str:
     """One line of what a recorded message says, for tables."""
     doc = record.document
-    headers = record.properties.get("headers") or {}
     if record.type == DEAD_LETTER:
-        text = f"refused ({headers.get(REASON_HEADER, 'by the broker')}): {headers.get(DETAIL_HEADER, '')}"
+        reason, detail = refusal(record) or ("by the broker", "")
+        text = f"refused ({reason}): {detail}"
     elif not record.body_kept:
         text = f"({record.size} bytes, not kept)"
     elif record.raw is not None:

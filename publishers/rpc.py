@@ -26,7 +26,12 @@ class ServiceTimeout(PublisherError):
 
 
 class ServiceRefused(PublisherError):
-    """The service answered with an error; the message is its reason."""
+    """The service refused the request; the message is its reason (the caller's to fix)."""
+
+
+class ServiceFailed(PublisherError):
+    """The service failed on the request (a bug of its own, logged there under the reference the
+    message gives): not the request's fault; the same call may work once the service is fixed."""
 
 
 class RpcChannel:
@@ -71,6 +76,8 @@ class RpcChannel:
         except pika.exceptions.AMQPError as error:
             raise BrokerUnavailable(f"connection lost during {method!r}: {error!r}") from error
         reply = json.loads(self._replies.pop(correlation_id))
+        if not reply.get("ok") and reply.get("internal"):
+            raise ServiceFailed(f"{method}: {reply.get('error', 'failed')}")
         if not reply.get("ok"):
             raise ServiceRefused(f"{method}: {reply.get('error', 'refused')}")
         return reply.get("result")

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -22,20 +21,12 @@ from urllib.parse import unquote, urlsplit
 import aio_pika
 from aio_pika.abc import AbstractIncomingMessage
 
+from broker.topics import topic_matches
 from schemas.routing import stream_queue
 
 #: Stream offsets by time are found per chunk, so a replay may start a little early: messages
 #: stamped more than this before the requested time are left out.
 CHUNK_SLACK = timedelta(seconds=1)
-
-
-def topic_matches(pattern: str, routing_key: str) -> bool:
-    """AMQP topic matching: ``*`` is one dot-separated word, ``#`` zero or more."""
-    parts = []
-    for word in pattern.split("."):
-        parts.append(r"[^.]+" if word == "*" else r".*" if word == "#" else re.escape(word))
-    regex = r"\.".join(parts).replace(r".*\.", r"(?:.*\.)?").replace(r"\..*", r"(?:\..*)?")
-    return re.fullmatch(regex, routing_key) is not None
 
 
 @dataclass(frozen=True)

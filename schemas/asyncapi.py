@@ -183,10 +183,12 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
                 },
             },
             "{robot}.beacon": {
-                "description": "Beacons a robot publishes to its own headers exchange {robot}.beacon. Only a "
-                f"message with the headers {BEACON_TYPE_HEADER}: {BEACON_TYPE} and {BEACON_CODENAME_HEADER} "
-                f"passes on to {BEACON_EXCHANGE} (to the ingest and every operator's stream); the broker "
-                f"sends the rest to {BEACON_DISCARD_EXCHANGE}, and the workers count them.",
+                "description": "Beacons a robot publishes to its own topic exchange {robot}.beacon with the "
+                "key {robot}.beacon (the broker refuses any key that does not start with the robot's name). "
+                f"Only a message with the headers {BEACON_TYPE_HEADER}: {BEACON_TYPE} and "
+                f"{BEACON_CODENAME_HEADER} passes on to {BEACON_EXCHANGE} (to the ingest and every "
+                f"operator's stream); the broker sends the rest to {BEACON_DISCARD_EXCHANGE}, and the "
+                "workers count them.",
                 "parameters": {"robot": robot},
                 "publish": {
                     "operationId": "publishBeacon",
@@ -196,7 +198,7 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
                         "payload": refs[(EVENT_MODELS[EventType.BEACON], "validation")],
                     },
                 },
-                "bindings": _exchange("{robot}.beacon", "headers"),
+                "bindings": _exchange("{robot}.beacon", "topic"),
             },
             "{robot}.{command}": {
                 "description": "Commands an operator publishes to its exchange {operator}.commands "
@@ -242,8 +244,10 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
                 },
             },
             DEAD_LETTER_QUEUE: {
-                "description": f"Messages the workers refused, as received, with headers {REASON_HEADER} "
-                f"and {DETAIL_HEADER}; fed by the fanout exchange {DEAD_LETTER_EXCHANGE}.",
+                "description": "Messages the workers refused, as received: the broker moves each one here "
+                f"(basic.nack, the queue's dead-letter exchange {DEAD_LETTER_EXCHANGE}) with its x-death "
+                "header; why it was refused is kept in the service's store (`fleetbus dlq`). Letters of "
+                f"older versions carry {REASON_HEADER} and {DETAIL_HEADER}.",
                 "subscribe": {
                     "operationId": "readDeadLetters",
                     "message": {"name": "dead letter", "payload": {"type": "string"}},

@@ -6,9 +6,10 @@ Robots and users own every resource that starts with their name::
     <robot>.inbox       durable queue of the notifications the robot subscribed to
     <robot>.requests    topic exchange of the robot's service requests, keys ``<robot>.<method>``
 
-    <robot>.beacon      headers exchange of the robot's beacons: only messages with the headers
-                        ``type: beacon`` and ``codename`` pass on to fleetbus.beacon; the rest go
-                        to its alternate exchange, fleetbus.beacon.discard, and are counted
+    <robot>.beacon      topic exchange of the robot's beacons, keys ``<robot>.beacon``: topic
+                        permissions make the broker refuse any other key, so a robot's beacons
+                        reach its own lane only. It feeds fleetbus.beacon.check, which passes
+                        only messages with the headers ``type: beacon`` and ``codename``
     <robot>.commands    queue of the commands of the operator who mounted the robot
     <operator>.commands topic exchange an operator sends commands to, keys ``<robot>.<command>``;
                         mounting binds it to the robot's commands queue
@@ -34,14 +35,19 @@ The service owns everything that starts with ``fleetbus.``::
     fleetbus.notify         topic exchange of notifications, keys ``notify.<topic>``
     fleetbus.rpc            topic exchange of service requests; every ``<robot>.requests`` is bound into it
     fleetbus.rpc.requests   queue the service answers from (replies go by direct reply-to)
+    fleetbus.beacon.check   headers exchange every <robot>.beacon is bound into with ``#``: a message with
+                            the headers ``type: beacon`` and ``codename`` goes on to fleetbus.beacon;
+                            the rest go to its alternate exchange, fleetbus.beacon.discard, and are counted
     fleetbus.beacon         topic exchange of every robot's accepted beacons, bound into the ingest
                             and into every operator's stream
-    fleetbus.beacon.discard fanout exchange, the alternate exchange of every <robot>.beacon
+    fleetbus.beacon.discard fanout exchange, the alternate exchange of fleetbus.beacon.check
     fleetbus.beacon.discarded  queue of discarded beacon messages; the workers count them
     fleetbus.dlx            dead-letter exchange (fanout)
     fleetbus.dead-letters   classic durable queue of rejected messages, with their reasons
     fleetbus.recorder       classic durable queue of a copy of everything on ingest, notify, rpc, dlx and
                             the beacon discards, read only by the recorder's account ``fleetbus-recorder``
+    fleetbus.recorder.dlx   fanout exchange into fleetbus.dead-letters, the recorder queue's dead-letter
+                            exchange (a policy ``fleetbus setup`` sets): what the recorder cannot store
 """
 
 from __future__ import annotations
@@ -58,6 +64,7 @@ NOTIFY_EXCHANGE = "fleetbus.notify"
 RPC_EXCHANGE = "fleetbus.rpc"
 RPC_QUEUE = "fleetbus.rpc.requests"
 BEACON_EXCHANGE = "fleetbus.beacon"
+BEACON_CHECK_EXCHANGE = "fleetbus.beacon.check"
 BEACON_DISCARD_EXCHANGE = "fleetbus.beacon.discard"
 BEACON_DISCARD_QUEUE = "fleetbus.beacon.discarded"
 #: The headers a beacon message must carry (RabbitMQ matches a binding header without a value,
@@ -69,6 +76,9 @@ BEACON_MATCH = {"x-match": "all", BEACON_TYPE_HEADER: BEACON_TYPE, BEACON_CODENA
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
 RECORDER_QUEUE = "fleetbus.recorder"
+#: The recorder queue's dead-letter exchange (fanout, into fleetbus.dead-letters): not fleetbus.dlx,
+#: which the recorder records, so that a message the recorder cannot store never comes back to it.
+RECORDER_DEAD_LETTER_EXCHANGE = "fleetbus.recorder.dlx"
 #: Every exchange the service's traffic passes (robots' events, notifications, requests, dead
 #: letters): the recorder's queue is bound to each with ``#``.
 RECORDED_EXCHANGES = (

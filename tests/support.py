@@ -21,6 +21,7 @@ from urllib.parse import urlsplit
 import pika
 
 from broker.accounts import Account, Role, fresh_vhost, provision_account
+from broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.urls import without_password
@@ -29,6 +30,7 @@ from fleetbus.registry import register_robot
 from publishers.client import RobotClient, outbox_folder
 from publishers.outbox import Outbox
 from schemas.envelope import Event
+from schemas.notifications import Notification
 from schemas.routing import EXPRESS_TYPES, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink
@@ -61,6 +63,24 @@ def wait_for(
                 f"timed out after {timeout:.0f} s waiting for {what} (last value: {value!r})"
             )
         time.sleep(interval)
+
+
+def notifications_until(
+    robot: RobotClient, sentinel: Callable[[Notification], bool], timeout: float = 30.0
+) -> list[Notification]:
+    """What ``robot`` receives up to and including the first notification ``sentinel`` picks.
+
+    The sentinel is sent after whatever must not arrive, along the same path (an event of the
+    same lane, announced by the workers): the inbox is FIFO, so the notifications before it are
+    every one sent before it, and "nothing else arrived" is proven without a fixed wait."""
+    received: list[Notification] = []
+    deadline = time.monotonic() + timeout
+    while not received or not sentinel(received[-1]):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise AssertionError(f"no sentinel within {timeout:.0f} s; received {received!r}")
+        received.extend(robot.receive(1, timeout=left))
+    return received
 
 
 @dataclass
@@ -203,11 +223,13 @@ class Bus:
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
         return env
 
-    def spawn_worker(self, *options: str) -> subprocess.Popen[bytes]:
-        """The worker as its own process (``python -m fleetbus worker``), to be killed for real."""
+    def spawn_worker(self, *options: str, module: str = "fleetbus") -> subprocess.Popen[bytes]:
+        """The worker as its own process (``python -m fleetbus worker``), to be killed for real;
+        ``module`` runs another entry point (``tests.faulty_worker``) with the same options."""
         log = open(self.settings.data_dir / f"worker-{uuid.uuid4().hex[:6]}.log", "wb")
+        command = [sys.executable, "-m", module, *(["worker"] if module == "fleetbus" else []), *options]
         return subprocess.Popen(
-            [sys.executable, "-m", "fleetbus", "worker", *options],
+            command,
             env=self.service_env(),
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -228,6 +250,22 @@ class Bus:
         leases = self.with_store(lambda store: store.leases("shard:"))
         now = time.time()
         return Counter(lease.holder for lease in leases if lease.expires_at.timestamp() > now)
+
+    def dead_letters(self) -> list[DeadLetter]:
+        """The dead-letter queue as `fleetbus dlq` lists it: each letter with the reason the store kept."""
+        return peek_dead_letters(
+            self.admin_url, reasons=lambda keys: self.with_store(lambda s: s.rejections(keys))
+        )
+
+    @contextmanager
+    def admin_channel(self) -> Iterator[Any]:
+        """A pika channel as the administrator of the test's virtual host."""
+        connection = pika.BlockingConnection(pika.URLParameters(self.admin_url))
+        try:
+            yield connection.channel()
+        finally:
+            if connection.is_open:
+                connection.close()
 
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""

@@ -7,7 +7,6 @@ import asyncio
 import pytest
 
 from broker.accounts import Role, provision_account
-from broker.dead_letter_queue import peek_dead_letters
 from publishers.rpc import ServiceRefused
 from schemas.routing import RobotKind
 from tests.support import Bus, wait_for
@@ -64,9 +63,7 @@ def test_sighting_from_an_unknown_robot_is_dead_lettered(bus: Bus) -> None:
         intruder.publish("beacon", sighting("b1", -50))
         guide.publish("beacon", sighting("b1", -55))
         wait_for(lambda: bus.count("beacon") == 1, what="the guide's sighting stored")
-        [letter] = wait_for(
-            lambda: peek_dead_letters(bus.admin_url), what="the stranger's sighting dead-lettered"
-        )
+        [letter] = wait_for(lambda: bus.dead_letters(), what="the stranger's sighting dead-lettered")
     assert (letter.reason, letter.user_id) == ("unknown-robot", "stranger1")
     assert "not a registered robot" in letter.detail
     assert [r.robot_id for r in bus.find()] == ["guide1"]

@@ -38,13 +38,15 @@ def test_broker_killed_and_restarted_under_load(killable_bus: Bus, killable_node
     assert [r.seq for r in bus.find(EventQuery(type="status"))] == sent, "each once, in order"
 
 
-#: The issue's outage: the broker stays dead this long while the robots keep publishing.
-BROKER_OUTAGE_S = 30.0
+#: How long the broker stays dead while the robots keep publishing: a few seconds in the default
+#: suite, the issue's 30 s under ``slow``. What is proven (nothing reaches the store meanwhile, every
+#: outbox drains after, everything stored once and in order) does not depend on the length.
+BROKER_OUTAGES = [pytest.param(3.0, id="3s"), pytest.param(30.0, id="30s", marks=pytest.mark.slow)]
 
 
-@pytest.mark.slow
-def test_broker_killed_for_30_s_while_three_robots_publish(
-    killable_bus: Bus, killable_node: LocalNode
+@pytest.mark.parametrize("outage_s", BROKER_OUTAGES)
+def test_broker_killed_while_three_robots_publish(
+    killable_bus: Bus, killable_node: LocalNode, outage_s: float
 ) -> None:
     bus = killable_bus
     robots = [bus.robot(bus.add(f"explorer{i}", kind=RobotKind.EXPLORER)) for i in (1, 2, 3)]
@@ -52,12 +54,13 @@ def test_broker_killed_for_30_s_while_three_robots_publish(
         publishing = [Publishing(robot).start() for robot in robots]
         wait_for(lambda: bus.count() >= 150, what="traffic before the kill")
         killable_node.kill()
-        outage_ends = time.monotonic() + BROKER_OUTAGE_S
+        outage_ends = time.monotonic() + outage_s
         stored_at_kill = bus.count()
+        backlog = max(10, int(outage_s * 100 / 30))  # 50 a second each when unloaded; 100 in 30 s at least
         wait_for(
-            lambda: time.monotonic() >= outage_ends and all(r.outbox.pending() >= 100 for r in robots),
-            timeout=BROKER_OUTAGE_S + 30,
-            what=f"{BROKER_OUTAGE_S:g} s of outage with every robot still publishing into its outbox",
+            lambda: time.monotonic() >= outage_ends and all(r.outbox.pending() >= backlog for r in robots),
+            timeout=outage_s + 30,
+            what=f"{outage_s:g} s of outage with every robot still publishing into its outbox",
         )
         assert bus.count() == stored_at_kill, "nothing reached the store while the broker was dead"
         killable_node.up()

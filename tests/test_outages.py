@@ -15,7 +15,6 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from broker.dead_letter_queue import peek_dead_letters
 from publishers.outbox import Overflow, TypePolicy
 from schemas.envelope import build_event, encode_event
 from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
@@ -34,12 +33,14 @@ from tests.support import (
 from tests.test_cli import fleetbus
 from workers.store.base import EventQuery
 
-#: The issue's outage: the workers stay stopped this long while the robots keep publishing.
-WORKER_OUTAGE_S = 60.0
+#: How long the workers stay stopped while the robots keep publishing: a few seconds in the default
+#: suite, the issue's minute under ``slow``. What is proven (nothing stored meanwhile, the queues
+#: hold it all, everything stored once and in order after) does not depend on the length.
+WORKER_OUTAGES = [pytest.param(3.0, id="3s"), pytest.param(60.0, id="60s", marks=pytest.mark.slow)]
 
 
-@pytest.mark.slow
-def test_workers_stopped_for_a_minute_while_robots_publish(bus: Bus) -> None:
+@pytest.mark.parametrize("outage_s", WORKER_OUTAGES)
+def test_workers_stopped_while_robots_publish(bus: Bus, outage_s: float) -> None:
     robots = [bus.robot(bus.add(f"explorer{i}", kind=RobotKind.EXPLORER)) for i in (1, 2)]
     worker = bus.spawn_worker()
     try:
@@ -48,11 +49,11 @@ def test_workers_stopped_for_a_minute_while_robots_publish(bus: Bus) -> None:
         worker.send_signal(signal.SIGTERM)
         assert worker.wait(60) == 0, "the worker stops cleanly on SIGTERM"
         stored = bus.count()
-        outage_ends = time.monotonic() + WORKER_OUTAGE_S
+        outage_ends = time.monotonic() + outage_s
         wait_for(
             lambda: time.monotonic() >= outage_ends,
-            timeout=WORKER_OUTAGE_S + 10,
-            what=f"{WORKER_OUTAGE_S:g} s of robots publishing with no worker",
+            timeout=outage_s + 10,
+            what=f"{outage_s:g} s of robots publishing with no worker",
         )
         sent = {p.robot.robot_id: p.stop() for p in publishing}
         for robot in robots:
@@ -61,7 +62,7 @@ def test_workers_stopped_for_a_minute_while_robots_publish(bus: Bus) -> None:
         assert bus.count() == stored, "nothing was stored while no worker ran"
         waiting = bus.ready_messages(INGEST_QUEUE) + bus.ready_messages(EXPRESS_QUEUE)
         assert waiting == total - stored, "the queues hold every event since"
-        assert total - stored > 2000, "a minute of publishing from two robots"
+        assert total - stored > 2000 * outage_s / 60, "two robots publishing all along (2,000 a minute)"
         worker = bus.spawn_worker()
         wait_for(lambda: bus.count() == total, timeout=120, what=f"the worker to catch up to {total}")
     finally:
@@ -172,7 +173,7 @@ def test_a_number_reused_in_its_epoch_is_dead_lettered_and_the_stored_event_kept
         wait_for(lambda: bus.count() == 3, what="3 hazards")
         forged = build_event("hazard", "explorer1", explorer.epoch, 0, hazard(9, "Gas leak"))
         bus.publish_raw(account, "explorer1.hazard", encode_event(forged), message_id=str(forged.message_id))
-        letters = wait_for(lambda: peek_dead_letters(bus.admin_url), what="the reused number dead-lettered")
+        letters = wait_for(lambda: bus.dead_letters(), what="the reused number dead-lettered")
     [letter] = letters
     assert letter.reason == "sequence-reused"
     assert f"reused sequence number 0 of epoch {explorer.epoch}" in letter.detail

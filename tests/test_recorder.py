@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import pika
@@ -15,10 +18,15 @@ from broker.accounts import RECORDER_USER, url_for
 from broker.local_node import pid_alive
 from schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard, status
-from tests.support import Bus, wait_for
+from tests.support import PROJECT_ROOT, Bus, wait_for
+from tests.test_cli import fleetbus
+from workers.recorder.capture import refusal
 from workers.recorder.filters import RoutingFilter
+from workers.recorder.process import PARENT_ENV
 from workers.recorder.retention import parse_retention
-from workers.store.recordings import Condition, Op
+from workers.store import open_recording_store
+from workers.store.base import WriteResult
+from workers.store.recordings import Condition, Op, RecordedMessage, RecordingStore
 
 TF = {
     "frame": "/kinect/depth",
@@ -71,7 +79,11 @@ def test_every_message_is_recorded_as_received_with_its_provenance(stored_bus: B
     assert set(refused) == {"rec-explorer.tf", "rec-explorer.camera.raw"}
     letter = refused["rec-explorer.tf"]
     assert letter.robot_id == "rec-explorer" and letter.document == TF
-    assert letter.properties["headers"]["x-fleetbus-reason"] == "unknown-type"
+    assert refusal(letter) == (
+        "unknown-type",
+        "routing key 'rec-explorer.tf' names unknown type 'tf'; known: "
+        + ", ".join(t.value for t in EventType),
+    ), "the worker's reason, from the store: the broker moved the message unchanged"
     assert len(bus.recorded("status")) == 1
 
 
@@ -151,6 +163,39 @@ def test_a_body_the_database_cannot_hold_is_kept_raw_and_recording_goes_on(store
         assert odd.raw == huge and "MongoDB" in (odd.problem or "")
     else:
         assert odd.document == {"big": 123456789012345678901234567890}
+
+
+def test_what_the_store_refuses_even_raw_is_dead_lettered_with_its_reason_and_counted(
+    stored_bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    bus = stored_bus
+    robot = bus.add("rec-odd")
+    store_class = type(open_recording_store(bus.settings))
+    write = store_class.write_recorded
+
+    async def refusing(self: RecordingStore, records: Sequence[RecordedMessage]) -> list[WriteResult]:
+        if any(record.routing_key == "rec-odd.poison" for record in records):
+            raise ValueError("the database refuses this one, whatever its form")
+        return await write(self, records)
+
+    monkeypatch.setattr(store_class, "write_recorded", refusing)
+    with bus.recorder() as recorder:
+        bus.publish_raw(robot, "rec-odd.tf", b'{"before": true}')
+        bus.publish_raw(robot, "rec-odd.poison", b'{"odd": true}', message_id="poison-1")
+        bus.publish_raw(robot, "rec-odd.tf", b'{"after": true}')
+        [letter] = wait_for(lambda: bus.dead_letters(), what="the unstorable message dead-lettered")
+        wait_for(lambda: recorder.stats().recorded == 2, what="the others recorded")
+        assert recorder.stats().unstorable == 1
+    assert (letter.message_id, letter.reason, letter.routing_key) == (
+        "poison-1",
+        "unstorable",
+        "rec-odd.poison",
+    )
+    assert "the database refuses this one" in letter.detail
+    assert [r.document for r in bus.recorded("tf")] == [{"before": True}, {"after": True}]
+    shown = fleetbus(bus, "stats", "--since", "10m")
+    assert shown.returncode == 0, shown.stderr
+    assert "dead letters: 1 (unstorable 1)" in shown.stdout
 
 
 def test_field_conditions_reach_recorded_documents(bus: Bus) -> None:
@@ -256,3 +301,33 @@ def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(b
     finally:
         if worker.poll() is None:
             worker.kill()
+
+
+def test_a_recorder_child_whose_worker_is_already_gone_ends_at_once() -> None:
+    """The child asks for its death signal itself (no ``preexec_fn`` in the threaded worker), and
+    checks its parent is still the worker that started it: one that died first leaves no orphan."""
+    started = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "from workers.recorder.process import die_with_parent as d; d(); print('alive')",
+        ],
+        env={**os.environ, PARENT_ENV: "1"},  # a parent that is not the one it has
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert started.returncode == 1 and "alive" not in started.stdout
+    assert "the worker 1 that started this recorder is gone" in started.stderr
+
+
+def test_no_process_of_the_project_forks_with_preexec_fn() -> None:
+    """``preexec_fn`` runs Python between fork and exec, unsafe in a process with threads."""
+    packages = ("api", "bench", "broker", "fleetbus", "publishers", "schemas", "workers")
+    found = [
+        str(path.relative_to(PROJECT_ROOT))
+        for package in packages
+        for path in (PROJECT_ROOT / package).rglob("*.py")
+        if "preexec_fn=" in path.read_text()
+    ]
+    assert found == []

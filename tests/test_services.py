@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
+from typing import Any
 
 import pytest
 
-from publishers.rpc import ServiceRefused, ServiceTimeout
+import workers.runner
+from publishers.rpc import ServiceFailed, ServiceRefused, ServiceTimeout
 from schemas.routing import RobotKind
 from tests.factories import hazard
 from tests.support import Bus
@@ -85,3 +88,29 @@ def test_a_service_that_is_down_times_out_clearly(bus: Bus) -> None:
     with pytest.raises(ServiceTimeout, match="is `fleetbus worker` running"):
         explorer.hazard(1, timeout=1.0)
     assert time.monotonic() - started < 10
+
+
+def test_a_bug_in_a_service_is_an_internal_error_not_the_callers_fault(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    real = workers.runner.hazard_services
+
+    def with_a_bug(store: Any) -> dict[str, Any]:
+        async def broken(caller: str, params: dict[str, Any]) -> Any:
+            return {}["mission"]  # a KeyError, as a bug would raise one
+
+        return {**real(store), "hazard.open": broken}
+
+    monkeypatch.setattr(workers.runner, "hazard_services", with_a_bug)
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with bus.worker() as worker, caplog.at_level(logging.ERROR, logger="fleetbus.rpc"):
+        with pytest.raises(
+            ServiceFailed, match=r"failed on 'hazard.open'.*reference ([0-9a-f]{12})"
+        ) as failed:
+            warden.open_hazards()
+        with pytest.raises(ServiceRefused, match="no hazard 9"):
+            warden.hazard(9)  # the caller's fault stays the caller's
+        assert worker.context is not None and worker.context.rpc.internal_errors == 1
+    reference = str(failed.value).rsplit(" ", 1)[-1].rstrip(")")
+    [logged] = [r for r in caplog.records if reference in r.getMessage()]
+    assert logged.exc_info is not None and logged.exc_info[0] is KeyError, "logged with its traceback"

@@ -6,6 +6,8 @@ import json
 from dataclasses import replace
 
 import pika
+import pika.exceptions
+import pytest
 
 from broker.accounts import Role, delete_account
 from broker.routes import RouteMap
@@ -68,23 +70,32 @@ def test_a_robot_bound_to_no_shard_goes_to_shard_0_and_trace_shows_the_way(bus: 
     assert (hazard.queue, hazard.via) == (EXPRESS_QUEUE, ("robot-a.events", INGEST_EXCHANGE, SHARD_EXCHANGE))
 
 
-def test_a_beacon_under_another_robots_name_goes_to_that_robots_shard(bus: Bus) -> None:
-    """The beacon exchange is a headers exchange, whose keys the broker does not check: the message
-    lands in the named robot's shard, where the workers refuse it (``identity-mismatch``)."""
+def test_the_broker_refuses_a_beacon_under_another_robots_name(bus: Bus) -> None:
+    """A robot's beacon exchange is a topic exchange whose keys topic permissions hold to the
+    robot's own name: a beacon keyed for another robot is refused by the broker (the channel
+    closed with ACCESS_REFUSED) and reaches no shard, not that robot's lane."""
     bus.settings = replace(bus.settings, ingest_shards=2)
     forger = bus.add("robot-a")
     bus.add("robot-b")
+    assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (1,)}
+    properties = pika.BasicProperties(user_id="robot-a", delivery_mode=2, headers=beacon_headers("robot-a"))
+    body = json.dumps({}).encode()
     connection = pika.BlockingConnection(pika.URLParameters(forger.amqp_url))
     try:
         channel = connection.channel()
         channel.confirm_delivery()
-        properties = pika.BasicProperties(
-            user_id="robot-a", delivery_mode=2, headers=beacon_headers("robot-a")
-        )
-        channel.basic_publish("robot-a.beacon", "robot-b.beacon", json.dumps({}).encode(), properties)
+        with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:
+            channel.basic_publish("robot-a.beacon", "robot-b.beacon", body, properties)
+        assert refused.value.reply_code == 403
+        assert "ACCESS_REFUSED" in refused.value.reply_text and "robot-b.beacon" in refused.value.reply_text
+        # the sentinel: the same path under its own name is confirmed, so routed already (the
+        # broker routes a message before it confirms it); what reached the shards is all there is
+        channel = connection.channel()
+        channel.confirm_delivery()
+        channel.basic_publish("robot-a.beacon", "robot-a.beacon", body, properties)
     finally:
         connection.close()
-    wait_for(lambda: _queued(bus, 2) == [0, 1], what="the forged beacon in robot-b's shard")
+    assert _queued(bus, 2) == [1, 0], "the sentinel in robot-a's shard, nothing in robot-b's"
 
 
 def test_a_deleted_robot_leaves_its_shard(bus: Bus) -> None:

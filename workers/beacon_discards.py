@@ -15,12 +15,15 @@ from typing import Any
 
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 
+from broker.retry import GaveUp, Stopped, async_retrying, run_retrying
 from schemas.routing import BEACON_CODENAME_HEADER, BEACON_TYPE, BEACON_TYPE_HEADER
-from workers.backoff import Backoff
 from workers.store.base import StoreUnavailable
 from workers.store.discards import Discard, DiscardLog
 
 log = logging.getLogger("fleetbus.beacons")
+
+#: How long one discard waits for the store before it goes back to the queue.
+STORE_DEADLINE_S = 5.0
 
 
 def discard_reason(headers: dict[str, Any]) -> str:
@@ -57,28 +60,33 @@ class DiscardCounter:
         self._queue = queue
         self._store = store
         self._tag: str | None = None
+        self._stopping = asyncio.Event()
         self.counted = 0
 
     async def start(self) -> None:
         self._tag = await self._queue.consume(self._on_message)
 
     async def stop(self) -> None:
+        self._stopping.set()
         if self._tag is not None and not self._channel.is_closed:
             await self._queue.cancel(self._tag)
 
     async def _on_message(self, message: AbstractIncomingMessage) -> None:
         discard = to_discard(message, datetime.now(timezone.utc))
-        backoff = Backoff()
-        while True:
-            try:
-                self.counted += await self._store.record_discards([discard])
-                break
-            except StoreUnavailable as error:
-                if backoff.attempts >= 5:
-                    log.warning("store unavailable (%s); the discard will be redelivered", error)
-                    await message.nack(requeue=True)
-                    return
-                await asyncio.sleep(backoff.next_delay())
+        retrying = async_retrying(
+            "the store (a beacon discard)",
+            on=StoreUnavailable,
+            deadline=STORE_DEADLINE_S,
+            stop=self._stopping,
+            logger=log,
+        )
+        try:
+            self.counted += await run_retrying(retrying, lambda: self._store.record_discards([discard]))
+        except (GaveUp, Stopped) as error:
+            # handed back to the queue: counted once the store answers (its message id)
+            log.warning("%s; the discard will be redelivered", error)
+            await message.nack(requeue=True)
+            return
         log.warning(
             "discarded a beacon message on %s from %s: %s",
             discard.exchange,

@@ -1,38 +1,37 @@
-"""Send a rejected message to the dead-letter exchange, with why, and keep its origin."""
+"""Dead-letter a rejected message: record why in the store, then let the broker move it.
+
+``basic.nack`` without requeue makes the broker move the message to its queue's dead-letter
+exchange (``fleetbus.dlx``) in one step: it is in the dead-letter queue or still in its own
+queue, never both, whenever the worker dies. The reason cannot travel in that move, so it is
+recorded first, idempotently, under the key :mod:`broker.dead_letter_queue` finds it by
+(docs/decisions/0002-dead-letters.md).
+"""
 
 from __future__ import annotations
 
 from datetime import datetime, timezone
 
-import aio_pika
-from aio_pika.abc import AbstractExchange, AbstractIncomingMessage
+from aio_pika.abc import AbstractIncomingMessage
 
-from schemas.routing import DETAIL_HEADER, REASON_HEADER
-from workers.validation import Rejected
+from broker.dead_letter_queue import dead_letter_key
+from workers.store.rejections import Rejection
+
+MAX_DETAIL = 4000
 
 
-async def dead_letter(
-    exchange: AbstractExchange, message: AbstractIncomingMessage, rejection: Rejected
-) -> None:
-    """Publish (confirmed) a copy with reason headers; the caller acks the original after."""
-    headers = dict(message.headers or {})
-    headers.update(
-        {
-            REASON_HEADER: rejection.reason.value,
-            DETAIL_HEADER: rejection.detail[:4000],
-            "x-original-exchange": message.exchange or "",
-            "x-original-routing-key": message.routing_key or "",
-            "x-original-user-id": message.user_id or "",
-            "x-rejected-at": datetime.now(timezone.utc).isoformat(),
-        }
+def rejection_of(message: AbstractIncomingMessage, reason: str, detail: str) -> Rejection:
+    key = dead_letter_key(
+        message.user_id, message.exchange or "", message.routing_key or "", message.message_id, message.body
     )
-    copy = aio_pika.Message(
-        message.body,
-        headers=headers,
-        content_type=message.content_type,
-        message_id=message.message_id,
-        timestamp=message.timestamp,
-        type=message.type,
-        delivery_mode=aio_pika.DeliveryMode.PERSISTENT,
-    )
-    await exchange.publish(copy, routing_key=message.routing_key or "", mandatory=True)
+    return Rejection(key, reason, detail[:MAX_DETAIL], datetime.now(timezone.utc))
+
+
+async def move_to_dead_letters(message: AbstractIncomingMessage) -> None:
+    """The broker moves it to the queue's dead-letter exchange (its reason already recorded)."""
+    await message.nack(requeue=False)
+
+
+def last_unsettled(batch: list[AbstractIncomingMessage]) -> AbstractIncomingMessage | None:
+    """The last message of the batch not dead-lettered: acking (or nacking) it with ``multiple``
+    settles every earlier one still open; a dead-lettered one is settled already."""
+    return next((message for message in reversed(batch) if not message.processed), None)

@@ -18,14 +18,15 @@ from datetime import datetime, timezone
 from typing import Protocol, TypeVar
 
 import aiormq.exceptions
-from aio_pika.abc import AbstractChannel, AbstractExchange, AbstractIncomingMessage, AbstractQueue
+from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
+from tenacity import RetryCallState
 
+from broker.retry import Stopped, async_retrying, run_retrying
 from schemas.routing import EventType
 from workers.attempts import AttemptLimit
-from workers.backoff import Backoff
 from workers.batches import BatchInbox
-from workers.dead_letters import dead_letter
+from workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
 from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.interface import Store
 from workers.store.ledger import Duplicate
@@ -62,18 +63,30 @@ class ControlMessages(Protocol):
         ...
 
 
-class Stopping(Exception):
-    """The worker is stopping while the store is down: leave the batch unacked."""
-
-
 @dataclass
 class IngestStats:
     stored: int = 0
     duplicates: int = 0
     rejected: int = 0
+    internal_errors: int = 0
+    """Messages set aside because handling them raised an unexpected error (a bug): dead-lettered
+    as ``internal-error``, each with its traceback in the log."""
     notified: int = 0
     store_retries: int = 0
     by_reason: dict[str, int] = field(default_factory=dict)
+    waiting_for: str | None = None
+    """What a consumer is retrying now (a transient failure), shown in its status."""
+    waiting_since: datetime | None = None
+    last_error: str | None = None
+
+    def retrying(self, what: str, error: BaseException | None) -> None:
+        self.store_retries += 1
+        if self.waiting_for is None:
+            self.waiting_since = datetime.now(timezone.utc)
+        self.waiting_for, self.last_error = what, f"{type(error).__name__}: {error}" if error else None
+
+    def recovered(self) -> None:
+        self.waiting_for = self.waiting_since = self.last_error = None
 
 
 class IngestConsumer:
@@ -82,7 +95,6 @@ class IngestConsumer:
         channel: AbstractChannel,
         queue: AbstractQueue,
         store: Store,
-        dead_letter_exchange: AbstractExchange,
         *,
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
@@ -101,7 +113,6 @@ class IngestConsumer:
         self._checks = checks
         self._services = services
         self._urgent = frozenset(urgent)
-        self._dead_letter_exchange = dead_letter_exchange
         self._max_bytes = max_message_bytes
         self._inbox = BatchInbox(batch_size, linger)
         self._stopping = asyncio.Event()
@@ -124,8 +135,8 @@ class IngestConsumer:
             batch = await self._inbox.next_batch(self._stopping)
             if batch:
                 try:
-                    await self._handle(batch)
-                except Stopping:
+                    await self._handle_or_isolate(batch)
+                except Stopped:
                     log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                     return
                 except BROKER_ERRORS as error:
@@ -135,6 +146,32 @@ class IngestConsumer:
                         len(batch),
                     )
                     await self._give_back(batch)
+
+    async def _handle_or_isolate(self, batch: list[AbstractIncomingMessage]) -> None:
+        try:
+            await self._handle(batch)
+        except (Stopped, *BROKER_ERRORS):
+            raise
+        except Exception:
+            log.exception("unexpected error handling a batch of %d; taking them one by one", len(batch))
+            await self._isolate(batch)
+
+    async def _isolate(self, batch: list[AbstractIncomingMessage]) -> None:
+        """After an unexpected error: each message of the batch on its own, and the one that raises
+        again dead-lettered as ``internal-error`` (a bug in the worker, not the robot's fault), so
+        that one message cannot stop its queue."""
+        for message in batch:
+            if message.processed:  # dead-lettered, or acked with an earlier one
+                continue
+            try:
+                await self._handle([message])
+            except (Stopped, *BROKER_ERRORS):
+                raise
+            except Exception as error:
+                log.exception("unexpected error handling %s from %s", message.message_id, message.user_id)
+                self.stats.internal_errors += 1
+                detail = f"the worker failed on it: {type(error).__name__}: {error}"
+                await self._reject(message, Rejected(RejectReason.INTERNAL_ERROR, detail))
 
     async def _give_back(self, batch: list[AbstractIncomingMessage]) -> None:
         """Return an unfinished batch for redelivery.
@@ -147,8 +184,10 @@ class IngestConsumer:
             return
         with contextlib.suppress(asyncio.TimeoutError):
             await asyncio.wait_for(self._stopping.wait(), 1.0)
-        with contextlib.suppress(*BROKER_ERRORS):
-            await batch[-1].nack(multiple=True, requeue=True)
+        last = last_unsettled(batch)
+        if last is not None:
+            with contextlib.suppress(*BROKER_ERRORS):
+                await last.nack(multiple=True, requeue=True)
 
     async def stop(self) -> None:
         """Stop taking new messages; :meth:`run` returns once the ones received are handled (an
@@ -159,7 +198,10 @@ class IngestConsumer:
         self._stopping.set()
 
     async def _reject(self, message: AbstractIncomingMessage, verdict: Rejected) -> None:
-        await dead_letter(self._dead_letter_exchange, message, verdict)
+        """Dead-letter it with its reason: recorded first (idempotent), then moved by the broker."""
+        rejection = rejection_of(message, verdict.reason.value, verdict.detail)
+        await self._retrying(lambda: self._store.record_rejections([rejection]))
+        await move_to_dead_letters(message)
         self.stats.rejected += 1
         self.stats.by_reason[verdict.reason.value] = self.stats.by_reason.get(verdict.reason.value, 0) + 1
         log.warning(
@@ -182,7 +224,6 @@ class IngestConsumer:
                 await self._process([message])
             else:
                 await self._reject(message, refused)
-                await message.ack(multiple=True)
             await self._retrying(lambda message=message: limit.handled([message]))
 
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
@@ -223,7 +264,9 @@ class IngestConsumer:
             self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
         if control is not None and instructions:
             self.stats.notified += await self._retrying(lambda: control.handle(instructions))
-        await batch[-1].ack(multiple=True)
+        last = last_unsettled(batch)
+        if last is not None:
+            await last.ack(multiple=True)
 
     async def _sort_out(
         self,
@@ -262,21 +305,26 @@ class IngestConsumer:
         return accepted, duplicates
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
-        """Run a store or service step until it succeeds; raise Stopping if asked to stop meanwhile.
+        """Run a store or service step until it succeeds; raise Stopped if asked to stop meanwhile.
 
         Transient: the store unreachable, or the broker nacking a notification (a queue it routes
         to is still recovering after a broker restart). Every step is idempotent, so a retry after
         a partial success repeats at most a notification, never a record.
         """
-        backoff = Backoff()
-        while True:
-            try:
-                return await operation()
-            except (StoreUnavailable, aiormq.exceptions.DeliveryError) as error:
-                if self._stopping.is_set():
-                    raise Stopping from error
-                self.stats.store_retries += 1
-                delay = backoff.next_delay()
-                log.warning("%s; retry %d in %.1f s", error, backoff.attempts, delay)
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(self._stopping.wait(), delay)
+
+        what = "the store and the notifications"
+
+        def counted(state: RetryCallState) -> None:
+            self.stats.retrying(what, state.outcome.exception() if state.outcome else None)
+
+        retrying = async_retrying(
+            what,
+            on=(StoreUnavailable, aiormq.exceptions.DeliveryError),
+            stop=self._stopping,
+            logger=log,
+            on_retry=counted,
+        )
+        result = await run_retrying(retrying, operation)
+        if self.stats.waiting_for is not None:
+            self.stats.recovered()
+        return result

@@ -2,14 +2,17 @@
 
 A request is published by a robot to its own ``<robot>.requests`` exchange with the routing key
 ``<robot>.<method>``, ``reply_to = amq.rabbitmq.reply-to``, a correlation id and an expiration.
-The broker-validated ``user_id`` is the caller. Replies are JSON: ``{"ok": true, "result": ...}``
-or ``{"ok": false, "error": "..."}``.
+The broker-validated ``user_id`` is the caller. Replies are JSON: ``{"ok": true, "result": ...}``,
+``{"ok": false, "error": "..."}`` for a request the service refuses (the caller's to fix), or
+``{"ok": false, "error": "...", "internal": true}`` when the service failed on it (a bug: logged
+with its traceback and a reference the reply repeats, and counted; not the caller's fault).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import uuid
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -31,6 +34,8 @@ class RpcServer:
         self._queue = queue
         self._handlers = handlers
         self._tag: str | None = None
+        self.internal_errors = 0
+        """Requests a handler failed on unexpectedly (each logged with its traceback)."""
 
     async def start(self) -> None:
         self._tag = await self._queue.consume(self._on_request)
@@ -60,8 +65,18 @@ class RpcServer:
             return {"ok": True, "result": await handler(caller, params)}
         except json.JSONDecodeError as error:
             return {"ok": False, "error": f"parameters are not JSON: {error}"}
-        except (ServiceError, ValueError, KeyError, TypeError) as error:
-            return {"ok": False, "error": str(error).strip("'\"")}
+        except ServiceError as error:
+            return {"ok": False, "error": str(error)}
+        except Exception:
+            reference = uuid.uuid4().hex[:12]
+            self.internal_errors += 1
+            log.exception("service %r failed on a request from %s (reference %s)", method, caller, reference)
+            return {
+                "ok": False,
+                "internal": True,
+                "error": f"the service failed on {method!r}, not through your request's fault "
+                f"(reference {reference})",
+            }
 
     async def _on_request(self, message: AbstractIncomingMessage) -> None:
         async with message.process(requeue=False):

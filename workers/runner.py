@@ -20,7 +20,6 @@ from broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
 from fleetbus.config import Settings
 from schemas.routing import (
     BEACON_DISCARD_QUEUE,
-    DEAD_LETTER_EXCHANGE,
     EXPRESS_QUEUE,
     NOTIFY_EXCHANGE,
     RPC_QUEUE,
@@ -36,6 +35,7 @@ from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.shards import ShardPool
 from workers.signals import stop_on_signals
+from workers.status import report_status
 from workers.store import Store, open_store
 from workers.telemetry import BatteryWatch
 
@@ -150,7 +150,6 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             channel,
             queue,
             store,
-            await channel.get_exchange(DEAD_LETTER_EXCHANGE),
             max_message_bytes=settings.max_message_bytes,
             checks=checks,
             services=services,
@@ -211,16 +210,29 @@ async def run_worker(
         on_started(context)
     failing = asyncio.create_task(context.shards.wait_failed())
     stopping = asyncio.create_task(stop.wait())
+    reported = asyncio.Event()
+    reporting = asyncio.create_task(
+        report_status(
+            context.store,
+            context.shards.holder,
+            context.stats,
+            reported,
+            lambda: {"rpc_internal_errors": context.rpc.internal_errors},
+        )
+    )
     try:
         await asyncio.wait({failing, stopping}, return_when=asyncio.FIRST_COMPLETED)
         await context.rpc.stop()
         await context.discards.stop()
         await context.shards.stop()
+        reported.set()  # a last status, with the counts of the last batches
+        await reporting
         if failing.done() and (error := failing.result()) is not None:
             raise error
     finally:
         failing.cancel()
         stopping.cancel()
+        reporting.cancel()
         await context.connection.close()
         await context.store.close()
         log.info("worker stopped: %s", context.stats)

@@ -26,6 +26,8 @@ class RejectReason(str, Enum):
     WRONG_EXCHANGE = "wrong-exchange"
     SEQUENCE_REUSED = "sequence-reused"
     DELIVERY_LIMIT = "delivery-limit"
+    INTERNAL_ERROR = "internal-error"
+    """Not the message's fault: handling it raised an unexpected error (a bug, logged with its traceback)."""
 
 
 @dataclass(frozen=True)

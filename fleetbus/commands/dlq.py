@@ -8,8 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from broker.dead_letter_queue import peek_dead_letters
-from fleetbus.context import console, endpoint
+from fleetbus.context import console, dead_letters
 
 
 def dlq(
@@ -17,7 +16,7 @@ def dlq(
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
     """List the dead-letter queue without removing anything from it."""
-    letters = peek_dead_letters(endpoint().amqp_url, limit)
+    letters = dead_letters(limit)
     if as_json:
         for letter in letters:
             typer.echo(json.dumps(letter.as_dict()))

@@ -14,6 +14,7 @@ from fleetbus.commands.worker import configure_logging
 from fleetbus.context import clock, console, fail, service_account, settings, with_recording
 from workers.recorder.capture import KNOWN_TYPES
 from workers.recorder.filters import RoutingFilter
+from workers.recorder.process import die_with_parent
 from workers.recorder.retention import parse_retention, policy_for
 from workers.recorder.runner import recorder_options, run_recorder
 from workers.store.recordings import RecordingStore, TypeSummary
@@ -38,6 +39,7 @@ def run(
 
     Runs as the `fleetbus-recorder` account only, which may read its one queue: `fleetbus setup`
     makes the account and the queue."""
+    die_with_parent()  # when `fleetbus worker` started it
     config = settings()
     try:
         overrides: dict[str, object] = {"sample_interval": sample_every}

@@ -56,6 +56,8 @@ def set_up(admin: BrokerEndpoint, show_password: bool = False) -> None:
 
 def setup(show_password: ShowPassword = False) -> None:
     """Make the service accounts (fleetbus, fleetbus-recorder), the topology and the recorder's
-    bindings, as the broker's administrator (FLEETBUS_AMQP_URL, else the local broker). Run it once
-    per broker; running it again changes nothing that is in place. `fleetbus broker up` runs it too."""
+    bindings and its dead-letter policy, as the broker's administrator (FLEETBUS_AMQP_URL, else the
+    local broker). Run it once per broker and after each upgrade (it brings what an earlier version
+    made up to date: beacon exchanges, an empty express queue); running it again changes nothing
+    that is in place. `fleetbus broker up` runs it too."""
     set_up(endpoint(), show_password)

@@ -1,17 +1,21 @@
-"""``fleetbus stats``: how fast the recording grows (MB and inserts per minute), as a table and a plot."""
+"""``fleetbus stats``: how the workers fare (their counts, what they wait for), the dead letters by
+reason, and how fast the recording grows (MB and inserts per minute), as tables and a plot."""
 
 from __future__ import annotations
 
 import json
-from datetime import timedelta
+from collections import Counter
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from fleetbus.context import clock, console, errors, fail, parse_time, with_recording
+from fleetbus.context import clock, console, dead_letters, errors, fail, parse_time, settings, with_recording
 from workers.recorder.growth import Growth, growth
+from workers.store import StoreError, run_with_store
+from workers.store.statuses import WorkerStatus
 
 UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
 
@@ -35,15 +39,65 @@ def _view(item: Growth) -> dict[str, object]:
     }
 
 
+def _ago(moment: datetime | None, now: datetime) -> str:
+    return "" if moment is None else f"{(now - moment).total_seconds():.0f} s ago"
+
+
+def _workers() -> None:
+    """Each worker's latest status: what it handled and failed on, and what it is retrying now."""
+    try:
+        statuses: list[WorkerStatus] = run_with_store(settings(), lambda store: store.statuses())
+    except StoreError as error:
+        console.print(f"workers: the store did not answer ({error})")
+        return
+    if not statuses:
+        console.print("workers: none has reported yet (a worker writes its status every few seconds)")
+        return
+    now = datetime.now(timezone.utc)
+    table = Table(title="workers")
+    for column in ("worker", "seen", "stored", "dead-lettered", "internal errors", "retries", "waiting for"):
+        table.add_column(column, justify="left" if column in ("worker", "seen", "waiting for") else "right")
+    for status in statuses:
+        count = status.counters.get
+        waiting = (
+            f"{status.waiting_for} since {_ago(status.waiting_since, now)}: {status.last_error}"
+            if status.waiting_for
+            else ""
+        )
+        table.add_row(
+            status.name,
+            _ago(status.updated_at, now),
+            str(count("stored", 0)),
+            str(count("rejected", 0)),
+            str(count("internal_errors", 0) + count("rpc_internal_errors", 0)),
+            str(count("store_retries", 0)),
+            waiting,
+        )
+    console.print(table)
+
+
+def _dead_letters() -> None:
+    letters = dead_letters()
+    reasons = Counter(letter.reason for letter in letters)
+    shown = ", ".join(f"{reason} {count}" for reason, count in reasons.most_common())
+    console.print(
+        f"dead letters: {len(letters)}" + (f" ({shown}); `fleetbus dlq` lists them" if shown else "")
+    )
+
+
 def stats(
     since: Annotated[str, typer.Option(help="from this time (ISO 8601 or e.g. 6h ago)")] = "1h",
     every: Annotated[str, typer.Option(help="one row per this much time")] = "1m",
     plot: Annotated[Path | None, typer.Option(help="also write a PNG plot here")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
-    """Database growth (MB per minute) and inserts per minute over time, from the recorder's samples."""
+    """The workers' statuses and the dead letters by reason; then database growth (MB per minute)
+    and inserts per minute over time, from the recorder's samples (--json: the growth rows only)."""
     bucket = parse_every(every)
     start = parse_time(since)
+    if not as_json:
+        _workers()
+        _dead_letters()
     rows = growth(with_recording(lambda store: store.samples(start)), bucket)
     if as_json:
         for row in rows:

@@ -10,7 +10,8 @@ from rich.table import Table
 
 from broker.routes import Route
 from fleetbus.context import clock, console, fail, route_map, settings, with_recording
-from schemas.routing import DETAIL_HEADER, REASON_HEADER, RECORDER_QUEUE, shard_of_queue
+from schemas.routing import RECORDER_QUEUE, shard_of_queue
+from workers.recorder.capture import refusal
 from workers.recorder.queries import Trace, record_view
 from workers.recorder.queries import trace as trace_message
 from workers.store import open_store
@@ -32,8 +33,8 @@ def _outcome(result: Trace, record: RecordedMessage, route: Route) -> str:
             return f"stored at {clock(stored.received_at)} as epoch {stored.epoch} seq {stored.seq}"
         refused = result.refused
         if refused is not None:
-            headers = refused.properties.get("headers") or {}
-            return f"refused: {headers.get(REASON_HEADER, '?')}: {headers.get(DETAIL_HEADER, '')}"
+            reason, detail = refusal(refused) or ("?", "")
+            return f"refused: {reason}: {detail}"
     return ""
 
 

@@ -38,7 +38,9 @@ from schemas.routing import (
     BEACON_TYPE,
     BEACON_TYPE_HEADER,
     DEAD_LETTER_EXCHANGE,
+    DETAIL_HEADER,
     NOTIFY_EXCHANGE,
+    REASON_HEADER,
     EventType,
 )
 from workers.beacon_discards import discard_reason
@@ -47,6 +49,9 @@ from workers.store.recordings import TYPE_NAME, RecordedMessage
 NOTIFICATION = "notification"
 REQUEST = "request"
 DEAD_LETTER = "dead_letter"
+REJECTION = "rejection"
+"""Where a recorded dead letter keeps why a worker refused it (the store's record of it): the
+broker moved the message itself, unchanged, so its headers cannot say."""
 OTHER = "other"
 SERVICE_TYPES = (NOTIFICATION, REQUEST, DEAD_LETTER, OTHER)
 #: What ``fleetbus query`` shows besides recorded types: the workers' sequence ledger.
@@ -248,3 +253,16 @@ def capture(
         size=len(body),
         received=body,
     )
+
+
+def refusal(record: RecordedMessage) -> tuple[str, str] | None:
+    """Why a recorded dead letter was refused: ``(reason, detail)``; None when nothing says."""
+    if record.type != DEAD_LETTER:
+        return None
+    kept = record.properties.get(REJECTION)
+    if isinstance(kept, dict):
+        return str(kept.get("reason", "")), str(kept.get("detail", ""))
+    headers = record.properties.get("headers") or {}
+    if REASON_HEADER in headers:  # published with its reason by an earlier version
+        return str(headers[REASON_HEADER]), str(headers.get(DETAIL_HEADER, ""))
+    return None

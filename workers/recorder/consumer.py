@@ -20,14 +20,17 @@ import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
+from broker.dead_letter_queue import moved_letter_key
+from broker.retry import Stopped, async_retrying, run_retrying
 from fleetbus.config import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
 from workers.batches import BatchInbox
-from workers.recorder.capture import DEFAULT_MAX_TYPES, OTHER, TypeNames, capture
+from workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
+from workers.recorder.capture import DEAD_LETTER, DEFAULT_MAX_TYPES, OTHER, REJECTION, TypeNames, capture
 from workers.recorder.filters import RoutingFilter
 from workers.recorder.retention import Retention, RetentionSweeper, parse_retention
-from workers.retry import Stopping, until_available
 from workers.store.base import StoreUnavailable, WriteResult
 from workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
+from workers.store.rejections import RejectionLog
 
 log = logging.getLogger("fleetbus.recorder")
 T = TypeVar("T")
@@ -59,9 +62,20 @@ class RecorderStats:
     duplicates: int = 0
     filtered: int = 0
     unstorable: int = 0
+    """Messages not stored even raw: each dead-lettered (reason ``unstorable``) and logged."""
     store_retries: int = 0
     swept: int = 0
     by_type: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Unstorable:
+    """A record the store would not take, even raw (the message is dead-lettered)."""
+
+    detail: str
+
+
+UNSTORABLE = "unstorable"
 
 
 class RecorderConsumer:
@@ -73,8 +87,10 @@ class RecorderConsumer:
         options: RecorderOptions,
         names: TypeNames,
         missions: MissionLookup | None = None,
+        rejections: RejectionLog | None = None,
     ) -> None:
         self._channel = channel
+        self._rejections = rejections
         self._queue = queue
         self._store = store
         self._options = options
@@ -106,7 +122,7 @@ class RecorderConsumer:
                 continue
             try:
                 await self._process(batch)
-            except Stopping:
+            except Stopped:
                 log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                 return
             except CONNECTION_LOST as error:
@@ -143,24 +159,68 @@ class RecorderConsumer:
             )
 
     async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
-        records = []
+        records: list[RecordedMessage] = []
+        kept: list[AbstractIncomingMessage] = []
+        letters: dict[int, str] = {}
         for message in batch:
             if self._options.filter.keeps(message.routing_key or ""):
                 records.append(self._capture(message))
+                kept.append(message)
+                key = moved_letter_key(message.headers, message.user_id, message.message_id, message.body)
+                if key is not None and records[-1].type == DEAD_LETTER:
+                    letters[len(records) - 1] = key
             else:
                 self.stats.filtered += 1
+        if letters and self._rejections is not None:
+            records = await self._with_reasons(records, letters)
         if records and self._missions is not None:
             records = await self._stamp_missions(records)
         if records:
             results = await self._retrying(lambda: self._write(records))
-            for record, result in zip(records, results, strict=True):
-                if result.inserted:
+            for message, record, result in zip(kept, records, results, strict=True):
+                if isinstance(result, Unstorable):
+                    await self._dead_letter(message, result)
+                elif result.inserted:
                     self.stats.recorded += 1
                     self.stats.by_type[record.type] = self.stats.by_type.get(record.type, 0) + 1
+                    self._since_sample += 1
                 else:
                     self.stats.duplicates += 1
-            self._since_sample += sum(result.inserted for result in results)
-        await batch[-1].ack(multiple=True)
+        last = last_unsettled(batch)
+        if last is not None:
+            await last.ack(multiple=True)
+
+    async def _dead_letter(self, message: AbstractIncomingMessage, unstorable: Unstorable) -> None:
+        """What the store would not take even raw goes to the dead-letter queue (the queue's
+        policy, README "The recorder"), its reason kept in the service's store when there is one."""
+        if self._rejections is not None:
+            rejection = rejection_of(message, UNSTORABLE, unstorable.detail)
+            rejections = self._rejections
+            await self._retrying(lambda: rejections.record_rejections([rejection]))
+        await move_to_dead_letters(message)
+        self.stats.unstorable += 1
+        log.error(
+            "could not store %s from %s on %s even raw; dead-lettered: %s",
+            message.routing_key,
+            message.user_id,
+            message.exchange,
+            unstorable.detail,
+        )
+
+    async def _with_reasons(
+        self, records: list[RecordedMessage], letters: dict[int, str]
+    ) -> list[RecordedMessage]:
+        """Dead letters the broker moved carry no reason: the one the worker kept is added."""
+        assert self._rejections is not None
+        rejections = self._rejections
+        kept = await self._retrying(lambda: rejections.rejections(list(letters.values())))
+        for index, key in letters.items():
+            if key in kept:
+                reason = {"reason": kept[key].reason, "detail": kept[key].detail}
+                records[index] = replace(
+                    records[index], properties={**records[index].properties, REJECTION: reason}
+                )
+        return records
 
     async def _stamp_missions(self, records: list[RecordedMessage]) -> list[RecordedMessage]:
         """Each robot's message carries the mission the robot is recorded under, as the event log's do."""
@@ -175,9 +235,9 @@ class RecorderConsumer:
             for r in records
         ]
 
-    async def _write(self, records: list[RecordedMessage]) -> list[WriteResult]:
+    async def _write(self, records: list[RecordedMessage]) -> list[WriteResult | Unstorable]:
         """Write a batch; one the store refuses is written record by record, so that one bad
-        record cannot hold back the others (it is kept raw under ``other``, or logged and dropped)."""
+        record cannot hold back the others (it is kept raw under ``other``, or else dead-lettered)."""
         try:
             return await self._store.write_recorded(records)
         except StoreUnavailable:
@@ -188,9 +248,8 @@ class RecorderConsumer:
                 return [result for record in records for result in await self._write([record])]
             record = records[0]
             if record.type == OTHER and record.problem and "could not be stored" in record.problem:
-                log.exception("could not store %s on %s; dropped", record.routing_key, record.exchange)
-                self.stats.unstorable += 1
-                return [WriteResult(inserted=False)]
+                log.exception("could not store %s on %s even raw", record.routing_key, record.exchange)
+                return [Unstorable(f"the recording store refused it, even raw: {error!r}")]
             fallback = replace(
                 record.as_raw(
                     f"could not be stored as recorded ({error!r}); kept raw", record.body_bytes() or b""
@@ -200,10 +259,13 @@ class RecorderConsumer:
             return await self._write([fallback])
 
     async def _retrying(self, operation: Callable[[], Awaitable[T]]) -> T:
-        def counted() -> None:
+        def counted(_: object) -> None:
             self.stats.store_retries += 1
 
-        return await until_available(operation, self._stopping, log, counted)
+        retrying = async_retrying(
+            "the recording store", on=StoreUnavailable, stop=self._stopping, logger=log, on_retry=counted
+        )
+        return await run_retrying(retrying, operation)
 
     async def _sample(self) -> None:
         with contextlib.suppress(StoreUnavailable):

@@ -92,7 +92,10 @@ async def start_recorder(
     # fetched (not just named) so the robust channel consumes it again after a broker restart
     queue = await channel.get_queue(RECORDER_QUEUE)
     return RecorderContext(
-        connection, RecorderConsumer(channel, queue, store, options, names, missions), store, events
+        connection,
+        RecorderConsumer(channel, queue, store, options, names, missions, events),
+        store,
+        events,
     )
 
 

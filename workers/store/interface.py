@@ -17,6 +17,8 @@ from workers.store.leases import LeaseStore
 from workers.store.ledger import RobotEpoch, SequenceLedger
 from workers.store.maps import MapStore
 from workers.store.missions import MissionStore
+from workers.store.rejections import RejectionLog
+from workers.store.statuses import StatusBoard
 from workers.store.users import UserStore
 
 
@@ -32,6 +34,8 @@ class Store(
     DiscardLog,
     LeaseStore,
     AttemptLog,
+    RejectionLog,
+    StatusBoard,
 ):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""

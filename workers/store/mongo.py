@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from pymongo import ASCENDING, DESCENDING
-from pymongo.errors import BulkWriteError
+from pymongo.errors import BulkWriteError, PyMongoError
 
 from workers.store.base import (
     EventQuery,
@@ -25,12 +25,19 @@ from workers.store.interface import Store
 from workers.store.mongo_attempts import MongoAttempts
 from workers.store.mongo_channels import MongoChannels
 from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
-from workers.store.mongo_database import DUPLICATE_KEY, UNAVAILABLE, MongoDatabase, translate_unavailable
+from workers.store.mongo_database import (
+    DUPLICATE_KEY,
+    MongoDatabase,
+    raise_as_store_error,
+    translate_unavailable,
+)
 from workers.store.mongo_discards import MongoDiscards
 from workers.store.mongo_leases import MongoLeases
 from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
 from workers.store.mongo_missions import MongoMissions
+from workers.store.mongo_rejections import MongoRejections
+from workers.store.mongo_statuses import MongoStatuses
 from workers.store.mongo_users import MongoUsers
 
 
@@ -92,6 +99,8 @@ class MongoEventStore(
     MongoDiscards,
     MongoLeases,
     MongoAttempts,
+    MongoRejections,
+    MongoStatuses,
     Store,
 ):
     name = "mongodb"
@@ -116,8 +125,8 @@ class MongoEventStore(
             await self._collection("map_staging").create_index([("map_id", ASCENDING)])
             await self.create_mission_indexes()
             await self.create_channel_indexes()
-        except UNAVAILABLE as error:
-            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         if not records:
@@ -138,8 +147,8 @@ class MongoEventStore(
                     f"{error.details['writeConcernErrors']}"
                 ) from error
             duplicates = {e["index"] for e in errors}
-        except UNAVAILABLE as error:
-            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
         # a key repeated inside the batch: MongoDB inserts the first copy and reports the others
         stored: dict[str, str] = {}
         if duplicates:
@@ -147,8 +156,8 @@ class MongoEventStore(
             try:
                 cursor = self._events().find({"_id": {"$in": ids}}, {"message_id": 1})
                 stored = {doc["_id"]: doc["message_id"] async for doc in cursor}
-            except UNAVAILABLE as error:
-                raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+            except PyMongoError as error:
+                raise_as_store_error(error, self._safe_url())
         return [
             WriteResult(inserted=True)
             if index not in duplicates
@@ -187,11 +196,11 @@ class MongoEventStore(
             cursor = cursor.limit(query.limit)
         try:
             return [from_document(doc) async for doc in cursor]
-        except UNAVAILABLE as error:
-            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
 
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int:
         try:
             return await self._events().count_documents(self._filter(type, robot_id))
-        except UNAVAILABLE as error:
-            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())

@@ -10,17 +10,29 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Awaitable, Callable
-from typing import Any, TypeVar
+from typing import Any, NoReturn, TypeVar
 from urllib.parse import urlsplit
 
 from pymongo import AsyncMongoClient
-from pymongo.errors import AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError
+from pymongo.errors import (
+    AutoReconnect,
+    ConnectionFailure,
+    NetworkTimeout,
+    OperationFailure,
+    PyMongoError,
+    ServerSelectionTimeoutError,
+)
 from pymongo.write_concern import WriteConcern
 
 from workers.store.base import StoreUnavailable
 
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)
+#: Server errors that pass: a primary stepping down or shutting down, an election under way
+#: (NotWritablePrimary 10107, InterruptedDueToReplStateChange 11602...), a write concern not met in
+#: time (WriteConcernFailed 64). The same operation may succeed a moment later.
+TRANSIENT_CODES = frozenset({6, 7, 64, 89, 91, 189, 262, 9001, 10107, 11600, 11602, 13435, 13436})
+TRANSIENT_LABELS = ("RetryableWriteError", "TransientTransactionError")
 DEFAULT_DATABASE = "fleetbus"
 C = TypeVar("C", bound=type)
 
@@ -30,20 +42,36 @@ def database_name(url: str) -> str:
     return path or DEFAULT_DATABASE
 
 
+def is_transient(error: BaseException) -> bool:
+    """Whether a MongoDB error is one to retry (the store unavailable for now), not a refusal."""
+    if isinstance(error, UNAVAILABLE):
+        return True
+    if isinstance(error, PyMongoError) and any(error.has_error_label(label) for label in TRANSIENT_LABELS):
+        return True
+    return isinstance(error, OperationFailure) and error.code in TRANSIENT_CODES
+
+
+def raise_as_store_error(error: PyMongoError, where: str) -> NoReturn:
+    """Raise a transient error as StoreUnavailable (which the workers retry), any other as it is."""
+    if is_transient(error):
+        raise StoreUnavailable(f"MongoDB at {where}: {error}") from error
+    raise error
+
+
 def _unavailable_as_store_error(method: Callable[..., Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
     @functools.wraps(method)
     async def guarded(self: MongoDatabase, *args: Any, **kwargs: Any) -> Any:
         try:
             return await method(self, *args, **kwargs)
-        except UNAVAILABLE as error:
-            raise StoreUnavailable(f"MongoDB at {self._safe_url()}: {error}") from error
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
 
     return guarded
 
 
 def translate_unavailable(interface: type) -> Callable[[C], C]:
-    """Every operation of ``interface`` reports an unreachable server as StoreUnavailable, which
-    workers retry."""
+    """Every operation of ``interface`` reports an unreachable server or a transient server error
+    (:func:`is_transient`) as StoreUnavailable, which workers retry."""
 
     def decorate(cls: C) -> C:
         for name, _ in inspect.getmembers(interface, inspect.iscoroutinefunction):

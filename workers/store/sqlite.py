@@ -34,6 +34,8 @@ from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
 from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
+from workers.store.sqlite_rejections import REJECTION_SCHEMA, SQLiteRejections
+from workers.store.sqlite_statuses import STATUS_SCHEMA, SQLiteStatuses
 from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
 T = TypeVar("T")
@@ -135,6 +137,8 @@ class SQLiteEventStore(
     SQLiteDiscards,
     SQLiteLeases,
     SQLiteAttempts,
+    SQLiteRejections,
+    SQLiteStatuses,
     Store,
 ):
     name = "sqlite"
@@ -152,6 +156,8 @@ class SQLiteEventStore(
             DISCARD_SCHEMA,
             LEASE_SCHEMA,
             ATTEMPT_SCHEMA,
+            REJECTION_SCHEMA,
+            STATUS_SCHEMA,
         ):
             db.executescript(schema)
 

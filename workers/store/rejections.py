@@ -1,0 +1,33 @@
+"""Why each dead letter was refused: one record per rejected message, keyed by its fingerprint.
+
+The broker moves a rejected message to the dead-letter queue itself (``basic.nack`` without
+requeue), which cannot add headers; the worker records the reason here first, under the key
+:func:`broker.dead_letter_queue.dead_letter_key` computes from the message as it arrives in the
+queue. Recording is idempotent: a worker that dies before its nack records the same key again
+after the redelivery, and the first record stays.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from datetime import datetime
+
+
+@dataclass(frozen=True)
+class Rejection:
+    key: str
+    reason: str
+    detail: str
+    rejected_at: datetime
+
+
+class RejectionLog(abc.ABC):
+    @abc.abstractmethod
+    async def record_rejections(self, rejections: Sequence[Rejection]) -> None:
+        """Keep each rejection, durably; a key already kept is left as it is."""
+
+    @abc.abstractmethod
+    async def rejections(self, keys: Iterable[str]) -> dict[str, Rejection]:
+        """The rejections kept under ``keys`` (unknown keys left out)."""
