@@ -16,7 +16,7 @@ import pika
 import pytest
 
 from broker.topology import EXPRESS_QUEUE_ARGUMENTS
-from schemas.envelope import build_event, encode_event
+from schemas.envelope import build_event, encode_event, new_epoch
 from schemas.routing import EXPRESS_QUEUE, EventType, RobotKind
 from tests.factories import status
 from tests.support import Bus, wait_for
@@ -25,6 +25,7 @@ from workers.telemetry import BatteryWatch
 from workers.validation import Accepted
 
 BAD = 3
+EPOCH = new_epoch()
 
 
 def _publish_bad_and_good(bus: Bus) -> tuple[list[str], list[str]]:
@@ -37,7 +38,7 @@ def _publish_bad_and_good(bus: Bus) -> tuple[list[str], list[str]]:
             body = json.dumps({"robot_id": "explorer1", "seq": seq, "type": "status", "nope": 1}).encode()
             bad.append(message_id)
         else:
-            event = build_event(EventType.STATUS, "explorer1", seq, status(50.0 + seq))
+            event = build_event(EventType.STATUS, "explorer1", EPOCH, seq, status(50.0 + seq))
             body, message_id = encode_event(event), str(event.message_id)
             good.append(message_id)
         bus.publish_raw(account, "explorer1.status", body, message_id=message_id)
