@@ -29,10 +29,12 @@ from schemas.routing import (
 from workers.attempts import AttemptLimit
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
+from workers.bounds import bounds
 from workers.coordination import GATED, HazardCoordinator
 from workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
 from workers.mutex import LocalMutex, Mutex, StoreMutex
+from workers.pruning import Pruner
 from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.shards import ShardPool
@@ -54,6 +56,7 @@ class WorkerContext:
     rpc: RpcServer
     discards: DiscardCounter
     store: Store
+    pruner: Pruner
     stats: IngestStats = field(default_factory=IngestStats)
     """Counters of every shard this worker consumed."""
 
@@ -193,7 +196,9 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     await discard_channel.set_qos(prefetch_count=64)
     discards = DiscardCounter(discard_channel, await discard_channel.get_queue(BEACON_DISCARD_QUEUE), store)
     await discards.start()
-    return WorkerContext(connection, shards, rpc, discards, store, stats)
+    pruner = Pruner(store, bounds(settings), shards.holder)
+    pruner.start()
+    return WorkerContext(connection, shards, rpc, discards, store, pruner, stats)
 
 
 async def run_worker(
@@ -221,6 +226,7 @@ async def run_worker(
         await asyncio.wait({failing, stopping}, return_when=asyncio.FIRST_COMPLETED)
         await context.rpc.stop()
         await context.discards.stop()
+        await context.pruner.stop()
         await context.shards.stop()
         if failing.done() and (error := failing.result()) is not None:
             raise error

@@ -13,6 +13,7 @@ from workers.store.beacons import BeaconRegistry
 from workers.store.channels import ChannelStore
 from workers.store.discards import DiscardLog
 from workers.store.hazards import CoordinationStore
+from workers.store.housekeeping import Housekeeping
 from workers.store.leases import LeaseStore
 from workers.store.ledger import SequenceLedger
 from workers.store.maps import MapStore
@@ -32,6 +33,7 @@ class Store(
     DiscardLog,
     LeaseStore,
     AttemptLog,
+    Housekeeping,
 ):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""

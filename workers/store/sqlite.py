@@ -29,9 +29,10 @@ from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, record
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
 from workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
+from workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
 from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
 from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
-from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
+from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps, add_bound_columns
 from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
 from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
@@ -129,6 +130,7 @@ class SQLiteEventStore(
     SQLiteDiscards,
     SQLiteLeases,
     SQLiteAttempts,
+    SQLiteHousekeeping,
     Store,
 ):
     name = "sqlite"
@@ -146,8 +148,10 @@ class SQLiteEventStore(
             DISCARD_SCHEMA,
             LEASE_SCHEMA,
             ATTEMPT_SCHEMA,
+            HOUSEKEEPING_SCHEMA,
         ):
             db.executescript(schema)
+        add_bound_columns(db)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         return await self._run(lambda db: in_transaction(db, lambda: _write(db, records)))
