@@ -104,6 +104,16 @@ class ManagementAPI:
     def delete_vhost(self, vhost: str) -> None:
         self._request("DELETE", f"vhosts/{_q(vhost)}")
 
+    # policies (queue length bounds: they apply to existing queues, and change without redeclaring)
+    def put_policy(
+        self, vhost: str, name: str, pattern: str, definition: dict[str, Any], priority: int = 0
+    ) -> None:
+        body = {"pattern": pattern, "definition": definition, "priority": priority, "apply-to": "queues"}
+        self._request("PUT", f"policies/{_q(vhost)}/{_q(name)}", json=body)
+
+    def list_policies(self, vhost: str) -> list[dict[str, Any]]:
+        return self._request("GET", f"policies/{_q(vhost)}")
+
     # bindings (mount and unmount change them while the service runs)
     def bind(
         self,

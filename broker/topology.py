@@ -29,6 +29,8 @@ from schemas.routing import (
     INGEST_EXCHANGE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
+    OVERFLOW_EXCHANGE,
+    OVERFLOW_QUEUE,
     RECORDED_EXCHANGES,
     RECORDER_QUEUE,
     RPC_EXCHANGE,
@@ -112,6 +114,16 @@ INGEST_QUEUE_ARGUMENTS: dict[str, Any] = {
 }
 
 
+#: What full queues dropped, until the workers count it: itself bounded, the last stop (no
+#: dead-letter exchange), so a long absence of the workers loses counts, never robots' data.
+OVERFLOW_QUEUE_ARGUMENTS: dict[str, Any] = {
+    "x-queue-type": "classic",
+    "x-max-length": 100_000,
+    "x-max-length-bytes": 256 * 1024**2,
+    "x-overflow": "drop-head",
+}
+
+
 #: The express lane's queue. Classic: it hands a hazard to the worker about 0.5 ms sooner than a
 #: quorum queue (no Raft commit first) and keeps every persistent message across a SIGKILL on one
 #: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`workers.attempts`).
@@ -138,6 +150,7 @@ def core_topology(shards: int = 1) -> Topology:
             ExchangeSpec(DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),
             ExchangeSpec(BEACON_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(BEACON_DISCARD_EXCHANGE, ExchangeType.FANOUT),
+            ExchangeSpec(OVERFLOW_EXCHANGE, ExchangeType.FANOUT),
         ),
         queues=(
             *(QueueSpec(ingest_shard_queue(shard), INGEST_QUEUE_ARGUMENTS) for shard in range(shards)),
@@ -149,6 +162,8 @@ def core_topology(shards: int = 1) -> Topology:
             QueueSpec(RPC_QUEUE, {"x-queue-type": "classic"}),
             # Drained into the store's discard log by the workers, which is where they are counted.
             QueueSpec(BEACON_DISCARD_QUEUE, {"x-queue-type": "classic"}),
+            # What full queues dropped (broker/policies.py), drained into the store's counts.
+            QueueSpec(OVERFLOW_QUEUE, OVERFLOW_QUEUE_ARGUMENTS),
         ),
         bindings=(
             BindingSpec(INGEST_EXCHANGE, SHARD_EXCHANGE, "#", to_exchange=True),
@@ -158,6 +173,7 @@ def core_topology(shards: int = 1) -> Topology:
             BindingSpec(DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
             BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
+            BindingSpec(OVERFLOW_EXCHANGE, OVERFLOW_QUEUE, ""),
         ),
         # before shards, the ingest queue was bound to the ingest exchange directly
         obsolete=(BindingSpec(INGEST_EXCHANGE, INGEST_QUEUE, "#"),),
@@ -165,7 +181,8 @@ def core_topology(shards: int = 1) -> Topology:
 
 
 #: The recorder's backlog while it is not consuming: beyond this the oldest messages are dropped
-#: (the queue's default overflow), so a recorder that is gone can never stop the robots.
+#: (the queue's default overflow), so a recorder that is gone can never stop the robots; a policy
+#: (broker/policies.py) dead-letters them to be counted.
 RECORDER_BACKLOG_BYTES = 1024**3
 
 

@@ -69,6 +69,10 @@ BEACON_MATCH = {"x-match": "all", BEACON_TYPE_HEADER: BEACON_TYPE, BEACON_CODENA
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
 RECORDER_QUEUE = "fleetbus.recorder"
+#: Where the broker dead-letters what a full queue drops (the inboxes, the dead letters, the
+#: recorder's backlog), so that the workers can count it.
+OVERFLOW_EXCHANGE = "fleetbus.overflow"
+OVERFLOW_QUEUE = "fleetbus.overflow.dropped"
 #: Every exchange the service's traffic passes (robots' events, notifications, requests, dead
 #: letters): the recorder's queue is bound to each with ``#``.
 RECORDED_EXCHANGES = (

@@ -12,28 +12,13 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import timedelta
 
+from broker.policies import QueueLimit
 from fleetbus.config import Settings
 from workers.recorder.retention import Retention, parse_limit, parse_retention
 
 #: MongoDB refuses a 65th index on a collection; a recorded type has five of its own (``_id``,
 #: time, robot, message id, mission), and two processes may add one at the same moment.
 MAX_FIELD_INDEXES = 50
-
-
-@dataclass(frozen=True)
-class QueueLimit:
-    """A queue's length: the broker drops its oldest messages beyond either."""
-
-    messages: int | None = None
-    bytes: int | None = None
-
-    def describe(self) -> str:
-        parts = []
-        if self.messages is not None:
-            parts.append(f"{self.messages:,} messages")
-        if self.bytes is not None:
-            parts.append(f"{self.bytes / 1e6:g} MB")
-        return " or ".join(parts)
 
 
 @dataclass(frozen=True)

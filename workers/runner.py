@@ -23,6 +23,7 @@ from schemas.routing import (
     DEAD_LETTER_EXCHANGE,
     EXPRESS_QUEUE,
     NOTIFY_EXCHANGE,
+    OVERFLOW_QUEUE,
     RPC_QUEUE,
     ingest_shard_queue,
 )
@@ -34,6 +35,7 @@ from workers.coordination import GATED, HazardCoordinator
 from workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
 from workers.mutex import LocalMutex, Mutex, StoreMutex
+from workers.overflow import OverflowCounter
 from workers.pruning import Pruner
 from workers.rpc import RpcServer
 from workers.services import hazard_services
@@ -57,6 +59,7 @@ class WorkerContext:
     discards: DiscardCounter
     store: Store
     pruner: Pruner
+    overflow: OverflowCounter
     stats: IngestStats = field(default_factory=IngestStats)
     """Counters of every shard this worker consumed."""
 
@@ -198,7 +201,9 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     await discards.start()
     pruner = Pruner(store, bounds(settings), shards.holder)
     pruner.start()
-    return WorkerContext(connection, shards, rpc, discards, store, pruner, stats)
+    overflow = OverflowCounter(discard_channel, await discard_channel.get_queue(OVERFLOW_QUEUE), store)
+    await overflow.start()
+    return WorkerContext(connection, shards, rpc, discards, store, pruner, overflow, stats)
 
 
 async def run_worker(
@@ -227,6 +232,7 @@ async def run_worker(
         await context.rpc.stop()
         await context.discards.stop()
         await context.pruner.stop()
+        await context.overflow.stop()
         await context.shards.stop()
         if failing.done() and (error := failing.result()) is not None:
             raise error

@@ -4,7 +4,8 @@
 idempotent, so running it again changes nothing that is in place. It makes the ``fleetbus`` and
 ``fleetbus-recorder`` accounts (their passwords kept in ``$FLEETBUS_DATA_DIR/accounts/``, mode
 0600), the service's exchanges and queues for ``FLEETBUS_INGEST_SHARDS`` shards, and the
-recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not declare.
+recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not declare, and the
+policies that bound the inboxes and the dead-letter queue (:mod:`broker.policies`).
 """
 
 from __future__ import annotations
@@ -12,9 +13,13 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass
 
+from broker.accounts import vhost_of
 from broker.endpoint import BrokerEndpoint
+from broker.management import ManagementAPI
+from broker.policies import apply_policies, bound_policies
 from broker.topology import core_topology, declare_with_url, recorder_topology
 from fleetbus.config import Settings
+from workers.bounds import bounds
 from workers.recorder.runner import recorder_url
 from workers.runner import service_url
 
@@ -32,4 +37,11 @@ async def set_up_service(settings: Settings, admin: BrokerEndpoint) -> ServiceAc
     service = await asyncio.to_thread(service_url, settings, admin)
     recorder = await asyncio.to_thread(recorder_url, settings, admin)
     await declare_with_url(admin.amqp_url, [core_topology(settings.ingest_shards), recorder_topology()])
+    await asyncio.to_thread(set_queue_bounds, settings, admin)
     return ServiceAccounts(service, recorder)
+
+
+def set_queue_bounds(settings: Settings, admin: BrokerEndpoint) -> None:
+    limits = bounds(settings)
+    with ManagementAPI.from_urls(admin.management_url, admin.amqp_url) as api:
+        apply_policies(api, vhost_of(admin.amqp_url), bound_policies(limits.inbox, limits.dead_letters))
