@@ -230,6 +230,11 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
         filters = provenance_filter(query.robot_id, query.message_id, query.since, query.until)
         if query.mission_id is not None:
             filters.append({"mission_id": query.mission_id})
+        if query.after is not None:
+            at, key = to_micros(query.after[0]), query.after[1]
+            filters.append(
+                {"$or": [{"recorded_at_us": {"$gt": at}}, {"recorded_at_us": at, "_id": {"$gt": key}}]}
+            )
         filters.extend(condition_filter(condition) for condition in query.conditions)
         direction = DESCENDING if query.newest_first else ASCENDING
         cursor = (

@@ -186,6 +186,8 @@ def find_sql(query: RecordQuery) -> tuple[str, list[Any]]:
     filters = provenance_filters(query.robot_id, query.message_id, query.since, query.until)
     if query.mission_id is not None:
         filters.append(("mission_id = ?", [query.mission_id]))
+    if query.after is not None:  # a row value, which the (recorded_at, key) index serves
+        filters.append(("(recorded_at, key) > (?, ?)", [to_micros(query.after[0]), query.after[1]]))
     filters.extend(condition_sql(condition) for condition in query.conditions)
     clause, params = where(filters)
     order = "DESC" if query.newest_first else "ASC"
