@@ -13,6 +13,7 @@ from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 from tests.test_beacon_exchange import publish_raw as publish_beacon
 from tests.test_maps import TABLE2, pgm
+from tests.test_queue_bounds import fleetbus
 
 QUICK_ROUNDS = 0.2
 
@@ -80,6 +81,12 @@ def test_map_versions_keep_the_newest_and_the_fetched_and_unclaimed_chunks_expir
         assert warden.fetch_map().pgm == maps[-1]
     versions = bus.with_store(lambda store: store.map_versions())
     assert [v.version for v in versions] == [5, 4, 1], "the newest two, and the one being fetched"
+    listed = fleetbus(bus, "map", "list")
+    assert listed.returncode == 0, listed.stderr
+    rows = [line.split() for line in listed.stdout.splitlines() if "explorer1 #" in line]
+    assert [row[1] for row in rows] == ["5", "4", "1"]
+    pruned = fleetbus(bus, "map", "export", "--version", "2", "--out", str(bus.settings.data_dir / "map"))
+    assert pruned.returncode == 1 and "map version 2 was pruned" in pruned.stderr
 
 
 def test_the_event_of_an_open_hazard_stays_and_goes_once_it_is_cleared(stored_bus: Bus) -> None:
