@@ -60,7 +60,6 @@ class Pruner:
         self._pause_s = pause_s
         self._stop = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
-        self.rounds = 0
 
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="fleetbus-pruning")
@@ -87,28 +86,30 @@ class Pruner:
                 await asyncio.wait_for(self._stop.wait(), every)
 
     async def prune(self, now: datetime | None = None) -> Counts:
-        """One round; what it removed, by bound and subject (also added to the store's counts)."""
+        """One round; what it removed, by bound and subject (also added to the store's counts, even
+        when the round ends half way: what went is counted)."""
         now = now or datetime.now(timezone.utc)
         store, bounds = self._store, self._bounds
         counts: Counts = {}
-        for event_type in EventType:
-            policy = policy_for(bounds.events, event_type.value)
-            if policy is not None:
-                counts[("events", event_type.value)] = await self._apply(
-                    policy, now, lambda *a, t=event_type.value: store.prune_events(t, *a)
+        try:
+            for event_type in EventType:
+                policy = policy_for(bounds.events, event_type.value)
+                if policy is not None:
+                    counts[("events", event_type.value)] = await self._apply(
+                        policy, now, lambda *a, t=event_type.value: store.prune_events(t, *a)
+                    )
+            counts[("duplicates", "seen")] = await self._apply(bounds.duplicates, now, store.prune_duplicates)
+            counts[("discards", "beacon")] = await self._apply(bounds.discards, now, store.prune_discards)
+            counts.update(await self._prune_maps(now))
+            counts[("map-staging", "chunks")] = await self._expire_staged_chunks(now)
+        finally:
+            counts = {key: count for key, count in counts.items() if count}
+            if counts:
+                await store.count_bounded(counts, now)
+                log.info(
+                    "pruned %s",
+                    ", ".join(f"{n} {bound} ({subject})" for (bound, subject), n in sorted(counts.items())),
                 )
-        counts[("duplicates", "seen")] = await self._apply(bounds.duplicates, now, store.prune_duplicates)
-        counts[("discards", "beacon")] = await self._apply(bounds.discards, now, store.prune_discards)
-        counts.update(await self._prune_maps(now))
-        counts.update(await self._expire_staged_chunks(now))
-        counts = {key: count for key, count in counts.items() if count}
-        if counts:
-            await store.count_bounded(counts, now)
-            log.info(
-                "pruned %s",
-                ", ".join(f"{n} {bound} ({subject})" for (bound, subject), n in sorted(counts.items())),
-            )
-        self.rounds += 1
         return counts
 
     async def _apply(self, policy: Retention, now: datetime, prune: Prune) -> int:
@@ -125,20 +126,18 @@ class Pruner:
 
     async def _prune_maps(self, now: datetime) -> Counts:
         versions = await self._store.map_versions()
-        doomed = set(
-            versions_to_prune(
-                versions, await self._store.map_reads(), self._bounds.map_versions, now - MAP_FETCH_GRACE
-            )
-        )
+        robots = {version.version: version.robot_id for version in versions}
+        reads = await self._store.map_reads()
         counts: Counts = {}
-        for version in sorted(doomed):  # one version per write: an image may be large
-            if await self._store.delete_map_versions([version]):
-                robot = next(v.robot_id for v in versions if v.version == version)
-                counts[("map-versions", robot)] = counts.get(("map-versions", robot), 0) + 1
+        for number in versions_to_prune(versions, reads, self._bounds.map_versions, now - MAP_FETCH_GRACE):
+            # one version per write: an image may be large
+            if await self._store.delete_map_versions([number]):
+                key = ("map-versions", robots[number])
+                counts[key] = counts.get(key, 0) + 1
             await asyncio.sleep(self._pause_s)
         return counts
 
-    async def _expire_staged_chunks(self, now: datetime) -> Counts:
+    async def _expire_staged_chunks(self, now: datetime) -> int:
         before = now - self._bounds.map_staging_ttl
         chunks = 0
         while expired := await self._store.expire_staged_chunks(before, STAGED_MAPS_PER_BATCH):
@@ -153,4 +152,4 @@ class Pruner:
             if len(expired) < STAGED_MAPS_PER_BATCH:
                 break
             await asyncio.sleep(self._pause_s)
-        return {("map-staging", "chunks"): chunks}
+        return chunks
