@@ -46,7 +46,7 @@ class QueueLimit:
         if self.messages is not None:
             parts.append(f"{self.messages:,} messages")
         if self.bytes is not None:
-            parts.append(f"{self.bytes / 1e6:g} MB")
+            parts.append(f"{self.bytes / 1e9:g} GB" if self.bytes >= 1e9 else f"{self.bytes / 1e6:g} MB")
         return " or ".join(parts)
 
 
