@@ -3,8 +3,10 @@ chunks, and the running counts of what was removed."""
 
 from __future__ import annotations
 
+import sqlite3
 from dataclasses import replace
 from datetime import datetime, timedelta, timezone
+from pathlib import Path
 
 import pytest
 
@@ -15,6 +17,8 @@ from workers.store.hazards import NewHazard
 from workers.store.interface import Store
 from workers.store.ledger import Duplicate
 from workers.store.maps import MapVersion, versions_to_prune
+from workers.store.sqlite import SQLiteEventStore
+from workers.store.sqlite_recordings import SQLiteRecordingStore
 
 T0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
 META = {"resolution": 0.1, "origin": [0, 0, 0], "occupied_thresh": 0.65, "free_thresh": 0.2, "negate": 0}
@@ -126,3 +130,37 @@ def test_each_robot_keeps_its_newest_versions_and_those_being_fetched() -> None:
     versions = [version(n, "a") for n in range(1, 6)] + [version(6, "b")]
     reads = {1: T0, 2: T0 - timedelta(hours=1)}
     assert versions_to_prune(versions, reads, keep=2, read_since=T0 - timedelta(minutes=10)) == [2, 3]
+
+
+async def test_an_sqlite_store_made_before_the_bounds_gains_what_they_need(tmp_path: Path) -> None:
+    """The map tables and the recording's index list of an older version, opened by this one."""
+    old = sqlite3.connect(tmp_path / "store.sqlite3")
+    old.executescript(
+        "CREATE TABLE map_staging (map_id TEXT NOT NULL, idx INTEGER NOT NULL, data BLOB NOT NULL, "
+        "PRIMARY KEY (map_id, idx));"
+        "CREATE TABLE maps (version INTEGER PRIMARY KEY AUTOINCREMENT, robot_id TEXT NOT NULL, "
+        "seq INTEGER NOT NULL, metadata TEXT NOT NULL, created_at INTEGER NOT NULL, size INTEGER NOT NULL, "
+        "sha256 TEXT NOT NULL, chunk_size INTEGER NOT NULL, chunks INTEGER NOT NULL, UNIQUE (robot_id, seq));"
+        "INSERT INTO map_staging VALUES ('waiting', 0, x'00');"
+    )
+    old.commit()
+    old.close()
+    async with SQLiteEventStore(tmp_path / "store.sqlite3") as store:
+        now = datetime.now(timezone.utc)
+        assert await store.expire_staged_chunks(now - timedelta(minutes=1), 10) == {}, (
+            "staged before: from now"
+        )
+        assert await store.expire_staged_chunks(now + timedelta(minutes=1), 10) == {"waiting": 1}
+        version = await store.commit_map("explorer1", 1, b"P5 map", META, T0, "0" * 64, 4, None)
+        await store.note_map_read(version.version, T0)
+        assert await store.map_reads() == {version.version: T0}
+    recording = sqlite3.connect(tmp_path / "recording.sqlite3")
+    recording.execute(
+        "CREATE TABLE recording_field_indexes (type TEXT, name TEXT, paths TEXT, PRIMARY KEY (type, name))"
+    )
+    recording.commit()
+    recording.close()
+    async with SQLiteRecordingStore(tmp_path / "recording.sqlite3", max_field_indexes=1) as store:
+        await store.ensure_field_index("tf", ["a"])
+        await store.ensure_field_index("tf", ["b"])
+        assert await store.field_indexes("tf") == [("b",)]
