@@ -5,6 +5,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import pytest
+
+from fleetbus.config import load_settings
 from publishers.maps import map_events
 from schemas.bodies import MAP_INLINE_BYTES
 from schemas.envelope import encode_event
@@ -106,3 +109,23 @@ def test_the_event_of_an_open_hazard_stays_and_goes_once_it_is_cleared(stored_bu
     [left] = [record for record in bus.find() if record.type == "hazard"]
     assert left.seq == open_one.seq, "the open hazard's event stays, however old"
     assert bus.count("localisation") == 1, "a type without a bound is kept"
+
+
+@pytest.mark.parametrize(
+    ("variable", "value", "says"),
+    [
+        ("FLEETBUS_EVENTS_KEEP", "status=1GB", "not a size"),
+        ("FLEETBUS_EVENTS_KEEP", "status", "TYPE=LIMIT"),
+        ("FLEETBUS_DUPLICATES_KEEP", "soon", "an age"),
+        ("FLEETBUS_INBOX_MAX", "7d", "not '7d'"),
+        ("FLEETBUS_MAP_STAGING_TTL", "500", "an age"),
+        ("FLEETBUS_MAP_VERSIONS_KEEP", "0", "positive"),
+        ("FLEETBUS_FIELD_INDEXES_MAX", "60", "MongoDB allows 64"),
+    ],
+)
+def test_a_bound_that_does_not_parse_stops_at_start_naming_its_variable(
+    variable: str, value: str, says: str
+) -> None:
+    with pytest.raises(ValueError, match=variable) as refused:
+        load_settings({variable: value})
+    assert says in str(refused.value)
