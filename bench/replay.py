@@ -105,10 +105,13 @@ def replay_process(bus: Bus, count: int, show: Callable[[str], None]) -> dict[st
     started = time.monotonic()
     while process.poll() is None:
         try:
-            samples.append(rss_megabytes(process.pid))
-            peak = max(peak, peak_megabytes(process.pid))
+            resident, high = rss_megabytes(process.pid), peak_megabytes(process.pid)
         except (FileNotFoundError, ProcessLookupError):
             break  # it ended between the poll and the read
+        if not resident:
+            break  # ended: a process that has exited has no resident memory left to read
+        samples.append(resident)
+        peak = max(peak, high)
         show(f"replaying {count:,} messages: {samples[-1]:.0f} MB resident")
         time.sleep(SAMPLE_EVERY)  # the sampling interval of the measurement
     out, _ = process.communicate()
