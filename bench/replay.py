@@ -93,13 +93,15 @@ def declare_target(admin_url: str) -> None:
 def replay_process(bus: Bus, count: int, show: Callable[[str], None]) -> dict[str, float]:
     until = (T0 + timedelta(milliseconds=count)).isoformat()
     args = ["replay", "--to", EXCHANGE, "--since", T0.isoformat(), "--until", until, "--speed", "0", "--json"]
-    process = subprocess.Popen(
-        [sys.executable, "-m", "fleetbus", *args],
-        env=bus.worker_env(),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
+    # to a file: a report larger than a pipe's buffer would block the process before it ends
+    out_path = bus.settings.data_dir / "replay.json"
+    with out_path.open("w") as out:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "fleetbus", *args],
+            env=bus.worker_env(),
+            stdout=out,
+            stderr=subprocess.DEVNULL,
+        )
     samples: list[float] = []
     peak = 0.0
     started = time.monotonic()
@@ -114,11 +116,11 @@ def replay_process(bus: Bus, count: int, show: Callable[[str], None]) -> dict[st
         peak = max(peak, high)
         show(f"replaying {count:,} messages: {samples[-1]:.0f} MB resident")
         time.sleep(SAMPLE_EVERY)  # the sampling interval of the measurement
-    out, _ = process.communicate()
+    process.wait()
     elapsed = time.monotonic() - started
     if process.returncode != 0:
         raise RuntimeError(f"fleetbus replay exited with {process.returncode}")
-    report = json.loads(out.strip().splitlines()[-1])
+    report = json.loads(out_path.read_text().strip().splitlines()[-1])
     if report["published"] != count:
         raise AssertionError(f"replay published {report['published']:,} of {count:,} messages: {report}")
     return {
