@@ -48,6 +48,13 @@ async def test_events_are_pruned_by_reception_time_oldest_first_in_batches(store
     assert await store.prune_events("status", None, None, 10) == 0, "no limit, nothing goes"
 
 
+async def test_events_received_at_the_same_moment_still_go_a_batch_at_a_time(store: Store) -> None:
+    await store.write_events([received("r1", seq, "status", 0) for seq in range(7)])
+    assert await store.prune_events("status", T0 + timedelta(minutes=1), None, 3) == 3
+    assert await store.prune_events("status", T0 + timedelta(minutes=1), None, 3) == 3
+    assert await store.count_events("status") == 1
+
+
 async def test_the_event_of_a_hazard_not_yet_cleared_is_never_pruned(store: Store) -> None:
     events = [received("explorer1", seq, "hazard", seq) for seq in range(4)]
     await store.write_events(events)

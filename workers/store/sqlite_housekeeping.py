@@ -82,21 +82,22 @@ def _prune_events(
             cut = kept[0] if cut is None else max(cut, kept[0])
     if cut is None:
         return 0
-    where = f"type = :type AND {NOT_KEPT}"
     params: dict[str, Any] = {
         "type": type,
         "kept": json.dumps(_open_hazard_message_ids(db) if type == "hazard" else []),
         "before": cut,
-        "skip": limit - 1,
+        "limit": limit,
     }
-    # the reception time of the limit-th oldest prunable event bounds this batch
-    last = db.execute(
-        f"SELECT received_at FROM events WHERE {where} AND received_at < :before "
-        "ORDER BY received_at LIMIT 1 OFFSET :skip",
+    # the events table has no rowid: a batch is named by its message ids (indexed), not by the
+    # key, so that this does not depend on how an event is keyed, and events received at the same
+    # moment still go ``limit`` at a time
+    where = f"type = :type AND received_at < :before AND {NOT_KEPT}"
+    # the unary + keep SQLite from scanning the time index again: the batch's ids are looked up
+    return db.execute(
+        "DELETE FROM events WHERE +type = :type AND +received_at < :before AND message_id IN "
+        f"(SELECT message_id FROM events WHERE {where} ORDER BY received_at LIMIT :limit)",
         params,
-    ).fetchone()
-    params["upto"] = last[0] if last else cut - 1
-    return db.execute(f"DELETE FROM events WHERE {where} AND received_at <= :upto", params).rowcount
+    ).rowcount
 
 
 class SQLiteHousekeeping(Housekeeping):
