@@ -65,9 +65,12 @@ class Pruner:
         self._task = asyncio.create_task(self._run(), name="fleetbus-pruning")
 
     async def stop(self) -> None:
+        """End the round in hand after its current batch, and give the lease up for another worker."""
         self._stop.set()
         if self._task is not None:
             await asyncio.gather(self._task, return_exceptions=True)
+        with contextlib.suppress(StoreError):
+            await self._store.release_lease(LEASE, self._holder)
 
     async def _run(self) -> None:
         every = self._bounds.prune_every_s
