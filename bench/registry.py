@@ -2,7 +2,17 @@
 
 from __future__ import annotations
 
-from bench import api_logins, hazard_latency, ingest, map_transfer, outbox, raw, recorder, worker_memory
+from bench import (
+    api_logins,
+    hazard_latency,
+    ingest,
+    map_transfer,
+    outbox,
+    raw,
+    recorder,
+    replay,
+    worker_memory,
+)
 from bench.scenario import Scenario, Target
 
 #: Ingest against the raw broker's consume rate of the same run.
@@ -58,6 +68,13 @@ SCENARIOS: tuple[Scenario, ...] = (
         "the worker's resident memory over 1,000,000 events (growth from a tenth of them to the end)",
         worker_memory.figures,
         (Target("growth %", 10, at_most=True, unit=" %"),),
+        max_runs=1,
+    ),
+    Scenario(
+        "replay",
+        "`fleetbus replay --speed 0` of 1,000,000 recorded messages: its resident memory",
+        replay.figures,
+        (Target("replay RSS MB, peak", 150, at_most=True, unit=" MB"),),
         max_runs=1,
     ),
 )

@@ -24,7 +24,7 @@ import pika.exceptions
 from broker.account_roles import ROLE_TAGS, Role
 from broker.management import ManagementAPI
 from broker.shards import assign_shard, unassign_shard
-from broker.topology import Topology, account_topology, core_topology, declare_with_url
+from broker.topology import account_topology, core_topology, declare_with_url
 from schemas.identity import validate_name
 from schemas.routing import (
     RECORDER_QUEUE,
@@ -135,47 +135,11 @@ async def configure_account(
     keyed = [events_exchange(name), requests_exchange(name)]
     if role is Role.ROBOT:
         keyed.append(beacon_exchange(name))
-        replace_headers_beacon_exchange(api, vhost, name)
     for exchange in keyed:
         api.put_topic_permissions(vhost, name, exchange, write=TOPIC_PATTERN, read=TOPIC_PATTERN)
     await declare_with_url(admin_url, [core_topology(shards), account_topology(name, role, kind=kind)])
     if role is Role.ROBOT:
         assign_shard(api, vhost, name, shards)
-
-
-def replace_headers_beacon_exchange(api: ManagementAPI, vhost: str, robot: str) -> bool:
-    """A robot's beacon exchange from before it was a topic exchange (a headers exchange, whose
-    keys the broker does not check) is deleted, to be declared again; exchanges hold no messages.
-    Returns whether it was replaced."""
-    found = api.get_exchange(vhost, beacon_exchange(robot))
-    if found is None or found.get("type") == "topic":
-        return False
-    api.delete_exchange(vhost, beacon_exchange(robot))
-    return True
-
-
-async def upgrade_beacon_exchanges(admin_url: str, api: ManagementAPI) -> list[str]:
-    """Every robot whose beacon exchange is still a headers exchange gets the topic exchange, its
-    binding and its topic permission (``fleetbus setup`` runs it); returns those robots."""
-    vhost = vhost_of(admin_url)
-    robots = [
-        exchange["name"].removesuffix(".beacon")
-        for exchange in api.list_exchanges(vhost)
-        if exchange["name"].endswith(".beacon")
-        and exchange.get("type") == "headers"
-        and not exchange["name"].startswith(f"{SERVICE_PREFIX}.")
-    ]
-    for robot in robots:
-        replace_headers_beacon_exchange(api, vhost, robot)
-        owned = account_topology(robot, Role.ROBOT)
-        name = beacon_exchange(robot)
-        beacons = Topology(
-            exchanges=tuple(e for e in owned.exchanges if e.name == name),
-            bindings=tuple(b for b in owned.bindings if b.source == name),
-        )
-        await declare_with_url(admin_url, [beacons])
-        api.put_topic_permissions(vhost, robot, name, write=TOPIC_PATTERN, read=TOPIC_PATTERN)
-    return robots
 
 
 def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:

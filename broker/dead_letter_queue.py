@@ -19,7 +19,7 @@ from typing import Any, Protocol
 
 import pika
 
-from schemas.routing import DEAD_LETTER_QUEUE, DETAIL_HEADER, REASON_HEADER, RECORDER_QUEUE
+from schemas.routing import DEAD_LETTER_QUEUE, RECORDER_QUEUE
 
 
 @dataclass(frozen=True)
@@ -85,8 +85,8 @@ def _describe(
     properties: pika.BasicProperties, body: bytes, routing_key: str, kept: KeptReason | None
 ) -> DeadLetter:
     headers = properties.headers or {}
-    reason = headers.get(REASON_HEADER)
-    detail = headers.get(DETAIL_HEADER, "")
+    reason: object = None
+    detail = ""
     deaths = headers.get("x-death") or []
     rejected_at = headers.get("x-rejected-at")
     if kept is not None:  # rejected by a worker, moved here by the broker

@@ -116,6 +116,9 @@ class ManagementAPI:
     def delete_vhost(self, vhost: str) -> None:
         self._request("DELETE", f"vhosts/{_q(vhost)}")
 
+    def list_policies(self, vhost: str) -> list[dict[str, Any]]:
+        return self._request("GET", f"policies/{_q(vhost)}")
+
     # bindings (mount and unmount change them while the service runs)
     def bind(
         self,

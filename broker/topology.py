@@ -8,7 +8,6 @@ re-declaration whose arguments differ).
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,6 +31,8 @@ from schemas.routing import (
     INGEST_EXCHANGE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
+    OVERFLOW_EXCHANGE,
+    OVERFLOW_QUEUE,
     RECORDED_EXCHANGES,
     RECORDER_DEAD_LETTER_EXCHANGE,
     RECORDER_QUEUE,
@@ -114,6 +115,16 @@ INGEST_QUEUE_ARGUMENTS: dict[str, Any] = {
 }
 
 
+#: What full queues dropped, until the workers count it: itself bounded, the last stop (no
+#: dead-letter exchange), so a long absence of the workers loses counts, never robots' data.
+OVERFLOW_QUEUE_ARGUMENTS: dict[str, Any] = {
+    "x-queue-type": "classic",
+    "x-max-length": 100_000,
+    "x-max-length-bytes": 256 * 1024**2,
+    "x-overflow": "drop-head",
+}
+
+
 #: The express lane's queue. Classic: it hands a hazard to the worker about 0.5 ms sooner than a
 #: quorum queue (no Raft commit first) and keeps every persistent message across a SIGKILL on one
 #: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`workers.attempts`).
@@ -148,6 +159,7 @@ def core_topology(shards: int = 1) -> Topology:
             ExchangeSpec(
                 BEACON_CHECK_EXCHANGE, ExchangeType.HEADERS, {"alternate-exchange": BEACON_DISCARD_EXCHANGE}
             ),
+            ExchangeSpec(OVERFLOW_EXCHANGE, ExchangeType.FANOUT),
         ),
         queues=(
             *(QueueSpec(ingest_shard_queue(shard), INGEST_QUEUE_ARGUMENTS) for shard in range(shards)),
@@ -159,6 +171,8 @@ def core_topology(shards: int = 1) -> Topology:
             QueueSpec(RPC_QUEUE, {"x-queue-type": "classic"}),
             # Drained into the store's discard log by the workers, which is where they are counted.
             QueueSpec(BEACON_DISCARD_QUEUE, {"x-queue-type": "classic"}),
+            # What full queues dropped (broker/policies.py), drained into the store's counts.
+            QueueSpec(OVERFLOW_QUEUE, OVERFLOW_QUEUE_ARGUMENTS),
         ),
         bindings=(
             BindingSpec(INGEST_EXCHANGE, SHARD_EXCHANGE, "#", to_exchange=True),
@@ -169,32 +183,23 @@ def core_topology(shards: int = 1) -> Topology:
             BindingSpec(BEACON_EXCHANGE, INGEST_EXCHANGE, "#", to_exchange=True),
             BindingSpec(BEACON_CHECK_EXCHANGE, BEACON_EXCHANGE, "", to_exchange=True, arguments=BEACON_MATCH),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
+            BindingSpec(OVERFLOW_EXCHANGE, OVERFLOW_QUEUE, ""),
         ),
     )
 
 
-#: The recorder's backlog while it is not consuming: beyond this the oldest messages are dropped
-#: (the queue's default overflow), so a recorder that is gone can never stop the robots.
+#: The recorder's backlog while it is not consuming: beyond this the oldest messages are dropped,
+#: so a recorder that is gone can never stop the robots; they are dead-lettered to be counted.
 RECORDER_BACKLOG_BYTES = 1024**3
 
-
-@dataclass(frozen=True)
-class PolicySpec:
-    name: str
-    pattern: str
-    definition: dict[str, Any]
-    priority: int = 0
-
-
-#: The recorder queue's dead-letter exchange, as a policy: it can be added to the queue that is
-#: there (never empty while robots publish), which a new queue argument could not (RabbitMQ refuses
-#: to declare a queue again with other arguments). Messages its backlog limit drops go there too.
-RECORDER_POLICY = PolicySpec(
-    "fleetbus-recorder",
-    f"^{re.escape(RECORDER_QUEUE)}$",
-    {"dead-letter-exchange": RECORDER_DEAD_LETTER_EXCHANGE},
-    priority=1,
-)
+#: What the recorder rejected itself (a message it cannot store even raw) goes to the dead-letter
+#: queue, with its body, where `fleetbus dlq` shows it; anything else its queue dead-letters (the
+#: oldest messages of a full backlog) goes on, by the exchange's alternate, to be counted.
+RECORDER_UNSTORABLE = {
+    "x-match": "all-with-x",  # compares x- headers too (RabbitMQ 3.10 and later)
+    "x-first-death-queue": RECORDER_QUEUE,
+    "x-first-death-reason": "rejected",
+}
 
 
 def recorder_topology() -> Topology:
@@ -202,10 +207,16 @@ def recorder_topology() -> Topology:
 
     Bound rather than fed by RabbitMQ's firehose: the copies are persistent and covered by the
     robots' publisher confirms, the bindings survive a broker restart (the firehose does not),
-    and reading it takes no permission beyond this one queue (README, "The recorder").
+    and reading it takes no permission beyond this one queue (README, "The recorder"). Its own
+    dead-letter exchange, not fleetbus.dlx, which the recorder records: a message the recorder
+    cannot store must never come back to it.
     """
     return Topology(
-        exchanges=(ExchangeSpec(RECORDER_DEAD_LETTER_EXCHANGE, ExchangeType.FANOUT),),
+        exchanges=(
+            ExchangeSpec(
+                RECORDER_DEAD_LETTER_EXCHANGE, ExchangeType.HEADERS, {"alternate-exchange": OVERFLOW_EXCHANGE}
+            ),
+        ),
         queues=(
             QueueSpec(
                 RECORDER_QUEUE,
@@ -213,12 +224,13 @@ def recorder_topology() -> Topology:
                     "x-queue-type": "classic",
                     "x-single-active-consumer": True,
                     "x-max-length-bytes": RECORDER_BACKLOG_BYTES,
+                    "x-dead-letter-exchange": RECORDER_DEAD_LETTER_EXCHANGE,
                 },
             ),
         ),
         bindings=(
             *(BindingSpec(exchange, RECORDER_QUEUE, "#") for exchange in RECORDED_EXCHANGES),
-            BindingSpec(RECORDER_DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, ""),
+            BindingSpec(RECORDER_DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, "", arguments=RECORDER_UNSTORABLE),
         ),
     )
 

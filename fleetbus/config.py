@@ -10,6 +10,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from schemas.notifications import LATE_AFTER_S
 
@@ -26,6 +27,15 @@ DEFAULT_API_HASH_THREADS = 1
 DEFAULT_API_ACCOUNT_FAILURES = "5 per 5 minutes"
 DEFAULT_API_ADDRESS_FAILURES = "20 per 5 minutes"
 MAX_INGEST_SHARDS = 64
+DEFAULT_EVENTS_KEEP = "*=30d"
+DEFAULT_DUPLICATES_KEEP = "30d"
+DEFAULT_DISCARDS_KEEP = "30d"
+DEFAULT_MAP_VERSIONS_KEEP = 10
+DEFAULT_MAP_STAGING_TTL = "1h"
+DEFAULT_DEAD_LETTERS_MAX = "100000 1GB"
+DEFAULT_INBOX_MAX = "10000 100MB"
+DEFAULT_FIELD_INDEXES_MAX = 32
+DEFAULT_PRUNE_EVERY_S = 60.0
 
 
 def _words(value: str | None) -> tuple[str, ...]:
@@ -75,6 +85,24 @@ class Settings:
     """Failed logins from one address, to any account, before it gets 429."""
     stale_after_s: float = DEFAULT_STALE_AFTER_S
     """A robot silent this long (no event of any type) is shown stale in ``fleetbus team``."""
+    events_keep: tuple[str, ...] = (DEFAULT_EVENTS_KEEP,)
+    """The event log's retention per type, as ``recorder_keep`` but by age or number of records."""
+    duplicates_keep: str = DEFAULT_DUPLICATES_KEEP
+    """How long (``30d``) or how many (``100000``) of the duplicates register to keep."""
+    discards_keep: str = DEFAULT_DISCARDS_KEEP
+    """How long or how many of the beacon discard log to keep."""
+    map_versions_keep: int = DEFAULT_MAP_VERSIONS_KEEP
+    """Map versions kept per robot (the newest), besides any version a robot is fetching."""
+    map_staging_ttl: str = DEFAULT_MAP_STAGING_TTL
+    """Staged map chunks whose map event has not come this long after their last chunk are deleted."""
+    dead_letters_max: tuple[str, ...] = tuple(DEFAULT_DEAD_LETTERS_MAX.split())
+    """The dead-letter queue's length: a number of messages and/or a size; the oldest go first."""
+    inbox_max: tuple[str, ...] = tuple(DEFAULT_INBOX_MAX.split())
+    """Each inbox's length: a number of messages and/or a size; the oldest go first."""
+    field_indexes_max: int = DEFAULT_FIELD_INDEXES_MAX
+    """Field indexes the recording keeps per type for queries; the least recently used go first."""
+    prune_every_s: float = DEFAULT_PRUNE_EVERY_S
+    """Seconds between two rounds of the worker's background pruning."""
 
     @property
     def sqlite_path(self) -> Path:
@@ -104,7 +132,7 @@ class Settings:
 
 def load_settings(environ: Mapping[str, str] | None = None) -> Settings:
     env = os.environ if environ is None else environ
-    return Settings(
+    settings = Settings(
         data_dir=Path(env.get("FLEETBUS_DATA_DIR") or DEFAULT_DATA_DIR).resolve(),
         amqp_url=env.get("FLEETBUS_AMQP_URL") or None,
         management_url=env.get("FLEETBUS_MANAGEMENT_URL") or None,
@@ -124,7 +152,32 @@ def load_settings(environ: Mapping[str, str] | None = None) -> Settings:
         api_account_failures=_rate("FLEETBUS_API_ACCOUNT_FAILURES", env, DEFAULT_API_ACCOUNT_FAILURES),
         api_address_failures=_rate("FLEETBUS_API_ADDRESS_FAILURES", env, DEFAULT_API_ADDRESS_FAILURES),
         stale_after_s=float(env.get("FLEETBUS_STALE_AFTER_S") or DEFAULT_STALE_AFTER_S),
+        **_bounds(env),
     )
+    from workers.bounds import bounds  # the bounds' grammar lives with the rules that apply them
+
+    bounds(settings)  # a bound that does not parse stops the process now, naming its variable
+    return settings
+
+
+def _bounds(env: Mapping[str, str]) -> dict[str, Any]:
+    """The settings that bound what grows (checked by :func:`workers.bounds.bounds`)."""
+    return {
+        "events_keep": _words(env.get("FLEETBUS_EVENTS_KEEP")) or (DEFAULT_EVENTS_KEEP,),
+        "duplicates_keep": env.get("FLEETBUS_DUPLICATES_KEEP") or DEFAULT_DUPLICATES_KEEP,
+        "discards_keep": env.get("FLEETBUS_DISCARDS_KEEP") or DEFAULT_DISCARDS_KEEP,
+        "map_versions_keep": int(
+            _positive("FLEETBUS_MAP_VERSIONS_KEEP", env, DEFAULT_MAP_VERSIONS_KEEP, int)
+        ),
+        "map_staging_ttl": env.get("FLEETBUS_MAP_STAGING_TTL") or DEFAULT_MAP_STAGING_TTL,
+        "dead_letters_max": _words(env.get("FLEETBUS_DEAD_LETTERS_MAX"))
+        or tuple(DEFAULT_DEAD_LETTERS_MAX.split()),
+        "inbox_max": _words(env.get("FLEETBUS_INBOX_MAX")) or tuple(DEFAULT_INBOX_MAX.split()),
+        "field_indexes_max": int(
+            _positive("FLEETBUS_FIELD_INDEXES_MAX", env, DEFAULT_FIELD_INDEXES_MAX, int)
+        ),
+        "prune_every_s": _positive("FLEETBUS_PRUNE_EVERY_S", env, DEFAULT_PRUNE_EVERY_S, float),
+    }
 
 
 def _positive(name: str, env: Mapping[str, str], default: float, kind: type[float] | type[int]) -> float:

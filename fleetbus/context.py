@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import getpass
 import json
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
@@ -136,6 +136,33 @@ def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:
             return await operation(store)
 
     return asyncio.run(go())
+
+
+@contextmanager
+def recording_stream(open_stream: Callable[[RecordingStore], AsyncIterator[T]]) -> Iterator[Iterator[T]]:
+    """Open the recording and iterate ``open_stream(store)`` from synchronous code (pika's blocking
+    publishing, say), one item at a time on an event loop of its own; closed on leaving."""
+    loop = asyncio.new_event_loop()
+    store = open_recording_store(settings())
+    stream: AsyncIterator[T] | None = None
+    try:
+        loop.run_until_complete(store.open())
+        stream = open_stream(store)
+
+        def items() -> Iterator[T]:
+            assert stream is not None
+            while True:
+                try:
+                    yield loop.run_until_complete(anext(stream))
+                except StopAsyncIteration:
+                    return
+
+        yield items()
+    finally:
+        if stream is not None and hasattr(stream, "aclose"):
+            loop.run_until_complete(stream.aclose())
+        loop.run_until_complete(store.close())
+        loop.close()
 
 
 def route_map() -> RouteMap | None:

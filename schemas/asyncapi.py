@@ -22,13 +22,11 @@ from schemas.routing import (
     BEACON_TYPE_HEADER,
     DEAD_LETTER_EXCHANGE,
     DEAD_LETTER_QUEUE,
-    DETAIL_HEADER,
     EXPRESS_QUEUE,
     EXPRESS_TYPES,
     INGEST_EXCHANGE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
-    REASON_HEADER,
     RECORDED_EXCHANGES,
     RECORDER_QUEUE,
     SHARD_EXCHANGE,
@@ -246,8 +244,7 @@ def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
             DEAD_LETTER_QUEUE: {
                 "description": "Messages the workers refused, as received: the broker moves each one here "
                 f"(basic.nack, the queue's dead-letter exchange {DEAD_LETTER_EXCHANGE}) with its x-death "
-                "header; why it was refused is kept in the service's store (`fleetbus dlq`). Letters of "
-                f"older versions carry {REASON_HEADER} and {DETAIL_HEADER}.",
+                "header; why it was refused is kept in the service's store (`fleetbus dlq`).",
                 "subscribe": {
                     "operationId": "readDeadLetters",
                     "message": {"name": "dead letter", "payload": {"type": "string"}},

@@ -79,6 +79,10 @@ RECORDER_QUEUE = "fleetbus.recorder"
 #: The recorder queue's dead-letter exchange (fanout, into fleetbus.dead-letters): not fleetbus.dlx,
 #: which the recorder records, so that a message the recorder cannot store never comes back to it.
 RECORDER_DEAD_LETTER_EXCHANGE = "fleetbus.recorder.dlx"
+#: Where the broker dead-letters what a full queue drops (the inboxes, the dead letters, the
+#: recorder's backlog), so that the workers can count it.
+OVERFLOW_EXCHANGE = "fleetbus.overflow"
+OVERFLOW_QUEUE = "fleetbus.overflow.dropped"
 #: Every exchange the service's traffic passes (robots' events, notifications, requests, dead
 #: letters): the recorder's queue is bound to each with ``#``.
 RECORDED_EXCHANGES = (
@@ -236,8 +240,5 @@ def owner_pattern(owner: str) -> str:
     return f"^{owner}\\."
 
 
-#: Headers the workers put on a dead-lettered message: a reason code and a readable detail.
-REASON_HEADER = "x-fleetbus-reason"
-DETAIL_HEADER = "x-fleetbus-detail"
 #: On a hazard announcement's copy on ``fleetbus.notify``: the wardens whose inboxes took it.
 ANNOUNCED_TO_HEADER = "x-fleetbus-announced-to"

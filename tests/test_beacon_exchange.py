@@ -3,17 +3,14 @@ the broker discards the rest and the workers count them, by publisher, with the 
 
 from __future__ import annotations
 
-import asyncio
-
 import pika
 import pika.exceptions
 import pytest
 
-from broker.accounts import upgrade_beacon_exchanges
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import PublishRefused
 from schemas.envelope import build_event, encode_event, new_epoch
-from schemas.routing import BEACON_DISCARD_EXCHANGE, BEACON_EXCHANGE, BEACON_MATCH, RobotKind
+from schemas.routing import RobotKind
 from tests.support import Bus, wait_for
 from workers.store.discards import Discard
 
@@ -93,39 +90,3 @@ def test_a_robot_cannot_publish_to_another_robots_beacon_exchange(bus: Bus) -> N
         publish_raw(
             explorer.amqp_url, "fleetbus.beacon", 1, {"type": "beacon", "codename": "x"}, robot="explorer1"
         )
-
-
-def _publish_forged(url: str) -> None:
-    """explorer1 sends a beacon keyed for guide1 through its own beacon exchange."""
-    connection = pika.BlockingConnection(pika.URLParameters(url))
-    try:
-        channel = connection.channel()
-        channel.confirm_delivery()
-        properties = pika.BasicProperties(
-            user_id="explorer1", delivery_mode=2, headers={"type": "beacon", "codename": "explorer1"}
-        )
-        channel.basic_publish("explorer1.beacon", "guide1.beacon", b"{}", properties)
-    finally:
-        if connection.is_open:
-            connection.close()
-
-
-def test_a_beacon_exchange_of_an_older_version_is_upgraded_and_then_refuses_forged_keys(bus: Bus) -> None:
-    explorer = bus.add("explorer1", kind=RobotKind.EXPLORER)
-    bus.add("guide1", kind=RobotKind.GUIDE)
-    # explorer1's beacon exchange as an older version made it: headers, keys unchecked
-    bus.api.delete_exchange(bus.vhost, "explorer1.beacon")
-    with bus.admin_channel() as channel:
-        discard = {"alternate-exchange": BEACON_DISCARD_EXCHANGE}
-        channel.exchange_declare("explorer1.beacon", "headers", durable=True, arguments=discard)
-        channel.exchange_bind(BEACON_EXCHANGE, "explorer1.beacon", "", arguments=BEACON_MATCH)
-    _publish_forged(explorer.amqp_url)  # accepted: the hole an older version had
-
-    assert asyncio.run(upgrade_beacon_exchanges(bus.admin_url, bus.api)) == ["explorer1"]
-    assert asyncio.run(upgrade_beacon_exchanges(bus.admin_url, bus.api)) == [], "once"
-    with pytest.raises(pika.exceptions.ChannelClosedByBroker, match="ACCESS_REFUSED"):
-        _publish_forged(explorer.amqp_url)
-    guide = bus.robot(bus.add("explorer2", kind=RobotKind.EXPLORER))
-    with bus.worker():
-        guide.publish("beacon", sighting("b9"))  # the client's own beacons still go through
-        wait_for(lambda: bus.count("beacon", "explorer2") == 1, what="a beacon under its own name stored")

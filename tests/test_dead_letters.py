@@ -3,24 +3,19 @@ whenever the worker dies; a bug in the worker is its own class of error (``inter
 
 from __future__ import annotations
 
-import asyncio
 import json
 import logging
 import signal
 import uuid
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import replace
 
-import pika
 import pytest
 
-from broker.topology import EXPRESS_QUEUE_ARGUMENTS
 from schemas.envelope import build_event, encode_event, new_epoch
-from schemas.routing import EXPRESS_QUEUE, EventType, RobotKind
+from schemas.routing import EventType, RobotKind
 from tests.factories import status
 from tests.support import Bus, wait_for
-from workers.setup import OutdatedQueue, replace_outdated_express_queue
 from workers.telemetry import BatteryWatch
 from workers.validation import Accepted
 
@@ -93,22 +88,3 @@ def test_a_bug_in_a_service_dead_letters_that_message_as_an_internal_error_and_t
     assert any(record.exc_info and "battery watch" in str(record.exc_info[1]) for record in caplog.records), (
         "logged with its traceback"
     )
-
-
-def test_setup_replaces_an_express_queue_of_an_earlier_version_when_it_is_empty(bus: Bus) -> None:
-    """RabbitMQ will not declare a queue again with other arguments: the express queue an earlier
-    version made without a dead-letter exchange is replaced by `fleetbus setup` while empty, and
-    left, with a clear error, while it holds messages."""
-    old = {"x-queue-type": "classic", "x-single-active-consumer": True}
-    with bus.admin_channel() as channel:
-        channel.queue_declare(EXPRESS_QUEUE, durable=True, arguments=old)
-        channel.basic_publish("", EXPRESS_QUEUE, b"{}", pika.BasicProperties(delivery_mode=2))
-    admin = replace(bus.endpoint, amqp_url=bus.admin_url)
-    with pytest.raises(OutdatedQueue, match="holds 1 messages"):
-        asyncio.run(replace_outdated_express_queue(admin))
-    with bus.admin_channel() as channel:
-        channel.queue_purge(EXPRESS_QUEUE)
-    asyncio.run(replace_outdated_express_queue(admin))
-    bus.service_accounts()  # fleetbus setup: declares it again, with its dead-letter exchange
-    [queue] = [q for q in bus.api.list_queues(bus.vhost) if q["name"] == EXPRESS_QUEUE]
-    assert queue["arguments"] == EXPRESS_QUEUE_ARGUMENTS

@@ -50,6 +50,7 @@ def test_the_worker_runs_with_the_service_account_alone(bus: Bus) -> None:
             EXPRESS_QUEUE: SERVICE_USER,
             "fleetbus.rpc.requests": SERVICE_USER,
             "fleetbus.beacon.discarded": SERVICE_USER,
+            "fleetbus.overflow.dropped": SERVICE_USER,
             RECORDER_QUEUE: RECORDER_USER,
         }
         robot = bus.robot(explorer)

@@ -60,7 +60,10 @@ async def assemble(store: Store, item: Accepted, in_batch: dict[int, bytes] | No
     missing = sorted(set(range(image.chunks)) - chunks.keys())
     if missing:
         shown = ", ".join(map(str, missing[:10])) + (" ..." if len(missing) > 10 else "")
-        raise ValueError(f"map {image.map_id}: {len(missing)} of {image.chunks} chunks missing ({shown})")
+        raise ValueError(
+            f"map {image.map_id}: {len(missing)} of {image.chunks} chunks missing ({shown}); "
+            "chunks left without their map event expire after FLEETBUS_MAP_STAGING_TTL"
+        )
     data = b"".join(chunks[i] for i in range(image.chunks))
     if len(data) != image.size:
         raise ValueError(f"map {image.map_id}: {len(data)} bytes arrived, the map event says {image.size}")
@@ -115,6 +118,19 @@ class MapService:
         )
 
 
+async def missing_version(store: Store, version: int | None) -> str:
+    """Why there is no such version: none stored yet, pruned (older than what is kept), or never made."""
+    if version is None:
+        return "no map has been stored yet"
+    latest = await store.map_version()
+    if latest is not None and version < latest.version:
+        return (
+            f"map version {version} was pruned: each robot's newest maps are kept "
+            "(FLEETBUS_MAP_VERSIONS_KEEP); ask for the latest"
+        )
+    return f"no map version {version}"
+
+
 def map_services(store: Store) -> dict[str, Handler]:
     async def latest(caller: str, params: dict[str, Any]) -> Any:
         version = params.get("version")
@@ -122,9 +138,9 @@ def map_services(store: Store) -> dict[str, Handler]:
             raise ServiceError(f"version must be an integer, not {version!r}")
         found = await store.map_version(version)
         if found is None:
-            raise ServiceError(
-                "no map has been stored yet" if version is None else f"no map version {version}"
-            )
+            raise ServiceError(await missing_version(store, version))
+        # a fetch begins here: the version stays while the robot reads its chunks
+        await store.note_map_read(found.version, datetime.now(timezone.utc))
         return found.as_dict()
 
     async def chunk(caller: str, params: dict[str, Any]) -> Any:
@@ -132,7 +148,9 @@ def map_services(store: Store) -> dict[str, Handler]:
         if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in (version, index)):
             raise ServiceError("version and index must be non-negative integers")
         found = await store.map_version(version)
-        if found is None or index >= found.chunks:
+        if found is None:
+            raise ServiceError(await missing_version(store, version))
+        if index >= found.chunks:
             raise ServiceError(f"map version {version} has no chunk {index}")
         return {
             "version": version,

@@ -22,15 +22,19 @@ from schemas.routing import (
     BEACON_DISCARD_QUEUE,
     EXPRESS_QUEUE,
     NOTIFY_EXCHANGE,
+    OVERFLOW_QUEUE,
     RPC_QUEUE,
     ingest_shard_queue,
 )
 from workers.attempts import AttemptLimit
 from workers.beacon_discards import DiscardCounter
 from workers.beacons import KnownRobotsOnly, beacon_services
+from workers.bounds import bounds
 from workers.coordination import GATED, HazardCoordinator, TeamChanges
 from workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from workers.maps import MapCheck, MapService, map_services
+from workers.overflow import OverflowCounter
+from workers.pruning import Pruner
 from workers.rpc import RpcServer
 from workers.services import hazard_services
 from workers.shards import ShardPool
@@ -53,6 +57,8 @@ class WorkerContext:
     rpc: RpcServer
     discards: DiscardCounter
     store: Store
+    pruner: Pruner
+    overflow: OverflowCounter
     stats: IngestStats = field(default_factory=IngestStats)
     """Counters of every shard this worker consumed."""
 
@@ -186,7 +192,11 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     await discard_channel.set_qos(prefetch_count=64)
     discards = DiscardCounter(discard_channel, await discard_channel.get_queue(BEACON_DISCARD_QUEUE), store)
     await discards.start()
-    return WorkerContext(connection, shards, rpc, discards, store, stats)
+    pruner = Pruner(store, bounds(settings), shards.holder)
+    pruner.start()
+    overflow = OverflowCounter(discard_channel, await discard_channel.get_queue(OVERFLOW_QUEUE), store)
+    await overflow.start()
+    return WorkerContext(connection, shards, rpc, discards, store, pruner, overflow, stats)
 
 
 async def run_worker(
@@ -224,6 +234,8 @@ async def run_worker(
         await asyncio.wait({failing, stopping}, return_when=asyncio.FIRST_COMPLETED)
         await context.rpc.stop()
         await context.discards.stop()
+        await context.pruner.stop()
+        await context.overflow.stop()
         await context.shards.stop()
         reported.set()  # a last status, with the counts of the last batches
         await reporting

@@ -10,6 +10,7 @@ import yaml
 from rich.table import Table
 
 from fleetbus.context import console, fail, settings
+from workers.maps import missing_version
 from workers.store import run_with_store
 from workers.store.interface import Store
 from workers.store.maps import MapVersion
@@ -17,10 +18,11 @@ from workers.store.maps import MapVersion
 app = typer.Typer(help="The team's map, every version.", no_args_is_help=True)
 
 
-async def _read(store: Store, version: int | None) -> tuple[MapVersion, bytes] | None:
+async def _read(store: Store, version: int | None) -> tuple[MapVersion, bytes] | str:
+    """The version and its image, or why there is none."""
     found = await store.map_version(version)
     if found is None:
-        return None
+        return await missing_version(store, version)
     return found, b"".join([await store.map_chunk(found.version, i) for i in range(found.chunks)])
 
 
@@ -39,8 +41,8 @@ def export(
 ) -> None:
     """Write a stored map (the latest by default) to map.pgm and map.yaml."""
     found = run_with_store(settings(), lambda store: _read(store, version))
-    if found is None:
-        fail("no map has been stored yet" if version is None else f"no map version {version}")
+    if isinstance(found, str):
+        fail(found)
     info, pgm = found
     out.mkdir(parents=True, exist_ok=True)
     (out / "map.pgm").write_bytes(pgm)
@@ -52,19 +54,10 @@ def export(
 
 @app.command("list")
 def list_maps() -> None:
-    """Every stored version, newest first."""
-
-    async def versions(store: Store) -> list[MapVersion]:
-        latest = await store.map_version()
-        found = []
-        for number in range(latest.version if latest else 0, 0, -1):
-            version = await store.map_version(number)
-            if version is not None:
-                found.append(version)
-        return found
+    """Every stored version, newest first (each robot's newest FLEETBUS_MAP_VERSIONS_KEEP are kept)."""
 
     table = Table("version", "from", "created at", "bytes", "resolution", "origin")
-    for info in run_with_store(settings(), versions):
+    for info in run_with_store(settings(), lambda store: store.map_versions()):
         table.add_row(
             str(info.version),
             f"{info.robot_id} #{info.seq}",

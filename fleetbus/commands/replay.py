@@ -8,9 +8,9 @@ from typing import Annotated, Any
 import pika
 import pika.exceptions
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
-from fleetbus.context import console, endpoint, errors, fail, parse_time, with_recording
+from fleetbus.context import console, endpoint, errors, fail, parse_time, recording_stream
 from workers.recorder.queries import parse_condition, recorded_between
 from workers.recorder.replay import ReplayReport
 from workers.recorder.replay import replay as replay_records
@@ -68,28 +68,33 @@ def replay(
     as_json: Annotated[bool, typer.Option("--json", help="print the report as JSON")] = False,
 ) -> None:
     """Republish recorded messages of a window to an exchange, in order, with their original
-    spacing divided by --speed; the routing keys, bodies and headers are the recorded ones."""
+    spacing divided by --speed; the routing keys, bodies and headers are the recorded ones.
+    The window is read from the recording as it is sent, so its length does not matter."""
     types = message_types or []
     try:
         conditions = [parse_condition(text, types[0]) for text in where or []] if types else []
         if where and len(types) != 1:
             raise RecordingError("--where needs exactly one --type")
         start, end = parse_time(since), parse_time(until)
-        records = with_recording(
-            lambda store: recorded_between(
-                store, start, end, types=types, robot_id=robot, conditions=conditions
-            )
-        )
     except (RecordingError, ValueError) as error:
         fail(str(error), code=2)
     if speed < 0:
         fail("--speed must be 0 or more", code=2)
     publish = Publisher(url or endpoint().amqp_url, to, declare)
-    columns = (TextColumn("replaying"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    columns = (TextColumn("replaying: {task.completed:,.0f} messages"), TimeElapsedColumn())
     try:
-        with Progress(*columns, console=errors, transient=as_json) as progress:
-            task = progress.add_task("replay", total=len(records))
+        with (
+            recording_stream(
+                lambda store: recorded_between(
+                    store, start, end, types=types, robot_id=robot, conditions=conditions
+                )
+            ) as records,
+            Progress(*columns, console=errors, transient=as_json) as progress,
+        ):
+            task = progress.add_task("replay", total=None)
             report = replay_records(records, publish, speed, on_each=lambda r: progress.advance(task))
+    except RecordingError as error:
+        fail(str(error), code=2)
     finally:
         publish.close()
     if as_json:
@@ -99,8 +104,7 @@ def replay(
 
 
 def _summary(report: ReplayReport, exchange: str, speed: float) -> str:
-    span = report.planned[-1] if report.planned else 0.0
-    text = f"replayed {report.published} messages to {exchange} over {span:.1f} s (speed {speed:g})"
+    text = f"replayed {report.published} messages to {exchange} over {report.span_s:.1f} s (speed {speed:g})"
     if report.unroutable:
         text += f"; {report.unroutable} unroutable (no queue bound for their keys)"
     if report.skipped:

@@ -12,6 +12,7 @@ from broker.accounts import RECORDER_USER, SERVICE_USER, kept_password_file, vho
 from broker.endpoint import BrokerEndpoint
 from broker.urls import mask_password, without_password
 from fleetbus.context import console, endpoint, fail, settings
+from workers.bounds import bounds
 from workers.setup import set_up_service
 
 ShowPassword = Annotated[
@@ -33,9 +34,12 @@ def set_up(admin: BrokerEndpoint, show_password: bool = False) -> None:
         fail(f"setting up the service accounts failed: {error}")
     shards = f"{config.ingest_shards} ingest shard{'s' if config.ingest_shards > 1 else ''}"
     say = console.print
+    limits = bounds(config)
     say(
         f"set up in virtual host {vhost_of(admin.amqp_url)!r}: the service accounts, the topology "
-        f"({shards}), the recorder's queue and bindings",
+        f"({shards}), the recorder's queue and bindings; each inbox keeps {limits.inbox.describe()}, "
+        f"the dead-letter queue {limits.dead_letters.describe()} (FLEETBUS_INBOX_MAX, "
+        "FLEETBUS_DEAD_LETTERS_MAX)",
         soft_wrap=True,
         highlight=False,
     )
@@ -55,9 +59,9 @@ def set_up(admin: BrokerEndpoint, show_password: bool = False) -> None:
 
 
 def setup(show_password: ShowPassword = False) -> None:
-    """Make the service accounts (fleetbus, fleetbus-recorder), the topology and the recorder's
-    bindings and its dead-letter policy, as the broker's administrator (FLEETBUS_AMQP_URL, else the
-    local broker). Run it once per broker and after each upgrade (it brings what an earlier version
-    made up to date: beacon exchanges, an empty express queue); running it again changes nothing
-    that is in place. `fleetbus broker up` runs it too."""
+    """Make the service accounts (fleetbus, fleetbus-recorder), the topology, the recorder's
+    bindings and the policies that bound the inboxes and the dead-letter queue, as the broker's
+    administrator (FLEETBUS_AMQP_URL, else the local broker). Run it once per broker, and again
+    after changing FLEETBUS_INBOX_MAX or FLEETBUS_DEAD_LETTERS_MAX; running it again changes nothing
+    else that is in place. `fleetbus broker up` runs it too."""
     set_up(endpoint(), show_password)

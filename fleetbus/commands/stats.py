@@ -1,5 +1,6 @@
 """``fleetbus stats``: how the workers fare (their counts, what they wait for), the dead letters by
-reason, and how fast the recording grows (MB and inserts per minute), as tables and a plot."""
+reason, how fast the recording grows (MB and inserts per minute), as tables and a plot, and what
+each bound on growth removed (pruned records, messages full queues dropped)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from rich.table import Table
 from fleetbus.context import clock, console, dead_letters, errors, fail, parse_time, settings, with_recording
 from workers.recorder.growth import Growth, growth
 from workers.store import StoreError, run_with_store
+from workers.store.housekeeping import BoundCount
 from workers.store.statuses import WorkerStatus
 
 UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
@@ -91,17 +93,21 @@ def stats(
     plot: Annotated[Path | None, typer.Option(help="also write a PNG plot here")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
-    """The workers' statuses and the dead letters by reason; then database growth (MB per minute)
-    and inserts per minute over time, from the recorder's samples (--json: the growth rows only)."""
+    """The workers' statuses and the dead letters by reason; database growth (MB per minute) and
+    inserts per minute over time, from the recorder's samples; then what each bound removed since
+    the store began: records pruned, messages full queues dropped (--json: growth and bound rows)."""
     bucket = parse_every(every)
     start = parse_time(since)
     if not as_json:
         _workers()
         _dead_letters()
     rows = growth(with_recording(lambda store: store.samples(start)), bucket)
+    removed = run_with_store(settings(), lambda store: store.bound_counts())
     if as_json:
         for row in rows:
             typer.echo(json.dumps(_view(row)))
+        for count in removed:
+            typer.echo(json.dumps(count.as_dict()))
     elif not rows:
         console.print(
             f"no samples since {since}: the recorder samples the database every minute while it runs "
@@ -127,6 +133,8 @@ def stats(
             f"over {seconds / 60:.1f} min: {grown / 1e6 / seconds * 60:.3f} MB per minute, "
             f"{inserted / seconds * 60:.0f} inserts per minute"
         )
+    if not as_json:
+        console.print(_bounds_table(removed))
     if plot is not None:
         say = errors if as_json else console
         if rows:
@@ -141,3 +149,21 @@ def stats(
             say.print(f"wrote {plot}")
         else:
             say.print("nothing to plot")
+
+
+def _bounds_table(removed: list[BoundCount]) -> Table | str:
+    """Per bound and subject: what it removed, since when (see README, "Bounds")."""
+    if not removed:
+        return "no bound has removed anything yet"
+    table = Table(title="removed by the bounds on growth (README: Bounds)")
+    for column in ("bound", "what", "removed", "first (UTC)", "last (UTC)"):
+        table.add_column(column, justify="right" if column == "removed" else "left")
+    for count in removed:
+        table.add_row(
+            count.bound,
+            count.subject,
+            f"{count.count:,}",
+            clock(count.first_at)[:-4],
+            clock(count.last_at)[:-4],
+        )
+    return table

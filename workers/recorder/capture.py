@@ -38,9 +38,7 @@ from schemas.routing import (
     BEACON_TYPE,
     BEACON_TYPE_HEADER,
     DEAD_LETTER_EXCHANGE,
-    DETAIL_HEADER,
     NOTIFY_EXCHANGE,
-    REASON_HEADER,
     EventType,
 )
 from workers.beacon_discards import discard_reason
@@ -262,7 +260,4 @@ def refusal(record: RecordedMessage) -> tuple[str, str] | None:
     kept = record.properties.get(REJECTION)
     if isinstance(kept, dict):
         return str(kept.get("reason", "")), str(kept.get("detail", ""))
-    headers = record.properties.get("headers") or {}
-    if REASON_HEADER in headers:  # published with its reason by an earlier version
-        return str(headers[REASON_HEADER]), str(headers.get(DETAIL_HEADER, ""))
     return None

@@ -13,8 +13,8 @@ from __future__ import annotations
 import base64
 import heapq
 import json
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import AsyncIterator, Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
 from typing import Any, TypeVar
 
@@ -46,6 +46,8 @@ EVENT_TYPES = frozenset(t.value for t in EventType)
 #: Operators of a written condition, longest first so that ``<=`` is not read as ``<``.
 WRITTEN_OPS = (Op.NE, Op.LE, Op.GE, Op.EQ, Op.LT, Op.GT, Op.CONTAINS)
 BEHAVIOUR = EventType.BEHAVIOUR.value
+#: Records read at once per type when a window is streamed (replay).
+PAGE = 500
 
 
 def resolve_path(type: str, path: str) -> str:
@@ -123,19 +125,52 @@ async def recorded_between(
     types: Sequence[str] = (),
     robot_id: str | None = None,
     conditions: Sequence[Condition] = (),
-) -> list[RecordedMessage]:
+    page: int = PAGE,
+) -> AsyncIterator[RecordedMessage]:
     """Records of the window in recording order, of ``types`` (default: all but dead letters,
-    which are copies); ``conditions`` need exactly one type, whose fields they name."""
+    which are copies); ``conditions`` need exactly one type, whose fields they name.
+
+    Streamed: each type is read ``page`` records at a time and the pages merged as they are
+    read, so a window of any size takes the memory of one page per type.
+    """
     if conditions and len(types) != 1:
         raise RecordingError("field conditions apply to one type: name exactly one")
     chosen = list(types) or [t for t in await store.recorded_types() if t != DEAD_LETTER]
-    streams = [
-        await store.find_recorded(
-            RecordQuery(check_type_name(t), tuple(conditions), robot_id=robot_id, since=since, until=until)
+    queries = [
+        RecordQuery(
+            check_type_name(t), tuple(conditions), robot_id=robot_id, since=since, until=until, limit=page
         )
         for t in chosen
     ]
-    return in_time_order(streams, lambda record: record)
+    streams = [_paged(store, query) for query in queries]
+    heads: list[tuple[datetime, str, int, RecordedMessage]] = []
+    for index, stream in enumerate(streams):
+        await _push(heads, index, stream)
+    while heads:
+        _, _, index, record = heapq.heappop(heads)
+        yield record
+        await _push(heads, index, streams[index])
+
+
+async def _paged(store: RecordingStore, query: RecordQuery) -> AsyncIterator[RecordedMessage]:
+    """One type's records of the window, oldest first, a page at a time (keyset: after the last)."""
+    while True:
+        found = await store.find_recorded(query)
+        for record in found:
+            yield record
+        if query.limit is None or len(found) < query.limit:
+            return
+        query = replace(query, after=(found[-1].recorded_at, found[-1].key))
+
+
+async def _push(
+    heads: list[tuple[datetime, str, int, RecordedMessage]],
+    index: int,
+    stream: AsyncIterator[RecordedMessage],
+) -> None:
+    record = await anext(stream, None)
+    if record is not None:
+        heapq.heappush(heads, (record.recorded_at, record.key, index, record))
 
 
 @dataclass(frozen=True)

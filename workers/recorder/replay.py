@@ -14,8 +14,9 @@ where it came from goes in headers: ``x-replay-of-user-id``, ``x-replay-of-excha
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 from workers.store.recordings import RecordedMessage
@@ -41,19 +42,28 @@ class ReplayReport:
     unroutable: int = 0
     skipped: int = 0
     """Records whose body was not kept (too large when recorded)."""
-    planned: list[float] = field(default_factory=list)
-    """Seconds after the start at which each message was due."""
-    sent: list[float | None] = field(default_factory=list)
-    """Seconds after the start at which each message was published (None: skipped)."""
+    span_s: float = 0.0
+    """Seconds after the start at which the last message was due."""
+    earliest_s: float | None = None
+    """The least a message was published after it was due (never below 0: never early)."""
+    latest_s: float | None = None
+    """The most a message was published after it was due (the broker or the store held it up)."""
+
+    def sent(self, due: float, at: float) -> None:
+        late = at - due
+        self.earliest_s = late if self.earliest_s is None else min(self.earliest_s, late)
+        self.latest_s = late if self.latest_s is None else max(self.latest_s, late)
+
+
+def due(first: datetime, record: RecordedMessage, speed: float) -> float:
+    """Seconds after the start at which ``record`` is due, the first one having been recorded at ``first``."""
+    if speed < 0:
+        raise ValueError("speed must be 0 (as fast as possible) or more")
+    return 0.0 if speed == 0 else (record.recorded_at - first).total_seconds() / speed
 
 
 def schedule(records: Sequence[RecordedMessage], speed: float) -> list[float]:
-    if not records:
-        return []
-    if speed < 0:
-        raise ValueError("speed must be 0 (as fast as possible) or more")
-    first = records[0].recorded_at
-    return [0.0 if speed == 0 else (r.recorded_at - first).total_seconds() / speed for r in records]
+    return [due(records[0].recorded_at, record, speed) for record in records] if records else []
 
 
 def replay_properties(record: RecordedMessage) -> dict[str, Any]:
@@ -71,7 +81,7 @@ def replay_properties(record: RecordedMessage) -> dict[str, Any]:
 
 
 def replay(
-    records: Sequence[RecordedMessage],
+    records: Iterable[RecordedMessage],
     publish: Publish,
     speed: float = 1.0,
     *,
@@ -79,18 +89,24 @@ def replay(
     sleep: Callable[[float], None] = time.sleep,
     on_each: Callable[[RecordedMessage], None] = lambda record: None,
 ) -> ReplayReport:
-    report = ReplayReport(planned=schedule(records, speed))
+    """Publish ``records`` (in recording order) on their schedule; they are read as they go out,
+    so a window of any length is replayed in the memory of what its iterator holds."""
+    if speed < 0:
+        raise ValueError("speed must be 0 (as fast as possible) or more")
+    report = ReplayReport()
     start = clock()
-    for record, due in zip(records, report.planned, strict=True):
-        wait = start + due - clock()
+    first: datetime | None = None
+    for record in records:
+        first = first or record.recorded_at
+        report.span_s = when = due(first, record, speed)
+        wait = start + when - clock()
         if wait > 0:
             sleep(wait)
         body = record.body_bytes()
         if body is None:
             report.skipped += 1
-            report.sent.append(None)
         else:
-            report.sent.append(clock() - start)
+            report.sent(when, clock() - start)
             if publish(record, body, replay_properties(record)):
                 report.published += 1
             else:

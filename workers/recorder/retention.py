@@ -18,6 +18,7 @@ ANY_TYPE = "*"
 AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
 SIZE_UNITS = {"B": 1, "KB": 1000, "MB": 1000**2, "GB": 1000**3, "KIB": 1024, "MIB": 1024**2, "GIB": 1024**3}
 SPEC = re.compile(r"^(?P<type>\*|[a-z][a-z0-9_]{0,39})=(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
+LIMIT = re.compile(r"^(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
 SWEEP_CHUNK = 1000
 
 
@@ -66,17 +67,26 @@ def parse_retention(specs: Iterable[str]) -> dict[str, Retention]:
                 f"retention {spec!r}: write TYPE=LIMIT with LIMIT an age (30s, 10m, 12h, 7d), a size "
                 "(500KB, 200MB, 1GB) or a number of records; TYPE may be * for every other type"
             )
-        amount, unit = float(match["amount"]), match["unit"]
-        if unit in AGE_UNITS:
-            policy = Retention(max_age=timedelta(seconds=amount * AGE_UNITS[unit]))
-        elif unit.upper() in SIZE_UNITS:
-            policy = Retention(max_bytes=int(amount * SIZE_UNITS[unit.upper()]))
-        elif not unit and amount.is_integer():
-            policy = Retention(max_records=int(amount))
-        else:
-            raise ValueError(f"retention {spec!r}: unknown unit {unit!r}; use s, m, h, d, KB, MB, GB or none")
+        policy = parse_limit(f"{match['amount']}{match['unit']}", what=f"retention {spec!r}")
         policies[match["type"]] = policies.get(match["type"], Retention()).merged(policy)
     return policies
+
+
+def parse_limit(text: str, what: str = "limit") -> Retention:
+    """One limit without a type: an age (``30d``), a size (``1GB``) or a number of records (``100000``)."""
+    match = LIMIT.fullmatch(text.strip())
+    if not match:
+        raise ValueError(
+            f"{what}: write an age (30s, 10m, 12h, 7d), a size (500KB, 1GB) or a number, not {text!r}"
+        )
+    amount, unit = float(match["amount"]), match["unit"]
+    if unit in AGE_UNITS:
+        return Retention(max_age=timedelta(seconds=amount * AGE_UNITS[unit]))
+    if unit.upper() in SIZE_UNITS:
+        return Retention(max_bytes=int(amount * SIZE_UNITS[unit.upper()]))
+    if not unit and amount.is_integer():
+        return Retention(max_records=int(amount))
+    raise ValueError(f"{what}: unknown unit {unit!r}; use s, m, h, d, KB, MB, GB or none")
 
 
 def policy_for(policies: Mapping[str, Retention], type: str) -> Retention | None:

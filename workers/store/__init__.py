@@ -60,7 +60,7 @@ def open_recording_store(settings: Settings) -> RecordingStore:
     if settings.mongodb_url:
         from workers.store.mongo_recordings import MongoRecordingStore
 
-        return MongoRecordingStore(settings.mongodb_url)
+        return MongoRecordingStore(settings.mongodb_url, max_field_indexes=settings.field_indexes_max)
     from workers.store.sqlite_recordings import SQLiteRecordingStore
 
-    return SQLiteRecordingStore(settings.recording_path)
+    return SQLiteRecordingStore(settings.recording_path, max_field_indexes=settings.field_indexes_max)

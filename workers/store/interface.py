@@ -13,6 +13,7 @@ from workers.store.beacons import BeaconRegistry
 from workers.store.channels import ChannelStore
 from workers.store.discards import DiscardLog
 from workers.store.hazards import CoordinationStore
+from workers.store.housekeeping import Housekeeping
 from workers.store.leases import LeaseStore
 from workers.store.ledger import RobotEpoch, SequenceLedger
 from workers.store.maps import MapStore
@@ -36,6 +37,7 @@ class Store(
     AttemptLog,
     RejectionLog,
     StatusBoard,
+    Housekeeping,
 ):
     """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
     :class:`~workers.store.mongo.MongoEventStore`."""

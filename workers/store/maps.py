@@ -3,11 +3,16 @@
 Large images arrive as chunks, which wait in a staging area until the ``map`` event that names
 them commits a new version: on SQLite into a blob table, on MongoDB into GridFS. Readers fetch a
 version's image chunk by chunk, so no message or reply ever carries the whole file.
+
+Both grow with time and are bounded (:func:`versions_to_prune`, :meth:`MapStore.expire_staged_chunks`):
+each robot's newest versions are kept, and so is any version a robot began to fetch lately;
+staged chunks whose map event never came expire.
 """
 
 from __future__ import annotations
 
 import abc
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
@@ -73,3 +78,39 @@ class MapStore(abc.ABC):
     @abc.abstractmethod
     async def map_chunk(self, version: int, index: int) -> bytes:
         """One chunk of a version's image (``chunk_size`` bytes, the last one shorter)."""
+
+    @abc.abstractmethod
+    async def map_versions(self) -> list[MapVersion]:
+        """Every stored version, newest first."""
+
+    @abc.abstractmethod
+    async def note_map_read(self, version: int, at: datetime) -> None:
+        """A robot began to fetch ``version`` (``map.latest``): it is referenced for a while."""
+
+    @abc.abstractmethod
+    async def map_reads(self) -> dict[int, datetime]:
+        """When each version was last begun to be fetched (versions never fetched are absent)."""
+
+    @abc.abstractmethod
+    async def delete_map_versions(self, versions: Sequence[int]) -> int:
+        """Delete these versions and their images; how many were there."""
+
+    @abc.abstractmethod
+    async def expire_staged_chunks(self, before: datetime, limit: int) -> dict[str, int]:
+        """Delete the staged chunks of up to ``limit`` maps whose last chunk was staged before
+        ``before`` (their map event never came); chunks deleted, by map id."""
+
+
+def versions_to_prune(
+    versions: Sequence[MapVersion], reads: Mapping[int, datetime], keep: int, read_since: datetime
+) -> list[int]:
+    """The versions beyond each robot's ``keep`` newest that no robot began to fetch since
+    ``read_since``, oldest first."""
+    seen: dict[str, int] = {}
+    doomed = []
+    for version in sorted(versions, key=lambda v: v.version, reverse=True):
+        seen[version.robot_id] = seen.get(version.robot_id, 0) + 1
+        read = reads.get(version.version)
+        if seen[version.robot_id] > keep and (read is None or read < read_since):
+            doomed.append(version.version)
+    return sorted(doomed)

@@ -32,6 +32,7 @@ from workers.store.mongo_database import (
     translate_unavailable,
 )
 from workers.store.mongo_discards import MongoDiscards
+from workers.store.mongo_housekeeping import MongoHousekeeping
 from workers.store.mongo_leases import MongoLeases
 from workers.store.mongo_ledger import MongoLedger
 from workers.store.mongo_maps import MongoMaps
@@ -101,6 +102,7 @@ class MongoEventStore(
     MongoAttempts,
     MongoRejections,
     MongoStatuses,
+    MongoHousekeeping,
     Store,
 ):
     name = "mongodb"
@@ -119,10 +121,8 @@ class MongoEventStore(
             await events.create_index([("message_id", ASCENDING)])
             await self.create_coordination_indexes()
             await self.create_ledger_indexes()
-            await self._collection("maps").create_index(
-                [("robot_id", ASCENDING), ("epoch", ASCENDING), ("seq", ASCENDING)], unique=True
-            )
-            await self._collection("map_staging").create_index([("map_id", ASCENDING)])
+            await self.create_map_indexes()
+            await self.create_housekeeping_indexes()
             await self.create_mission_indexes()
             await self.create_channel_indexes()
         except PyMongoError as error:

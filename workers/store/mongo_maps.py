@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from datetime import datetime
+from collections.abc import Callable, Sequence
+from datetime import datetime, timezone
 from typing import Any
 
 from bson import Binary
 from gridfs import AsyncGridFSBucket
-from pymongo import DESCENDING, ReturnDocument
+from gridfs.errors import NoFile
+from pymongo import ASCENDING, DESCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
 from workers.store.base import from_micros, to_micros
@@ -38,10 +39,17 @@ class MongoMaps(MapStore):
     _collection: Callable[[str], Any]
     _database: Callable[[], Any]
 
+    async def create_map_indexes(self) -> None:
+        await self._collection("maps").create_index(
+            [("robot_id", ASCENDING), ("epoch", ASCENDING), ("seq", ASCENDING)], unique=True
+        )
+        await self._collection("map_staging").create_index([("map_id", ASCENDING)])
+
     async def stage_map_chunk(self, map_id: str, index: int, data: bytes) -> None:
+        now = to_micros(datetime.now(timezone.utc))
         await self._collection("map_staging").update_one(
             {"_id": f"{map_id}:{index}"},
-            {"$setOnInsert": {"map_id": map_id, "index": index, "data": Binary(data)}},
+            {"$setOnInsert": {"map_id": map_id, "index": index, "data": Binary(data), "staged_at_us": now}},
             upsert=True,
         )
 
@@ -112,3 +120,39 @@ class MongoMaps(MapStore):
         if doc is None:
             raise MapRejected(f"map version {version} has no chunk {index}")
         return bytes(doc["data"])
+
+    async def map_versions(self) -> list[MapVersion]:
+        cursor = self._collection("maps").find({}).sort("_id", DESCENDING)
+        return [_map_version(doc) async for doc in cursor]
+
+    async def note_map_read(self, version: int, at: datetime) -> None:
+        await self._collection("maps").update_one({"_id": version}, {"$set": {"read_at_us": to_micros(at)}})
+
+    async def map_reads(self) -> dict[int, datetime]:
+        cursor = self._collection("maps").find({"read_at_us": {"$exists": True}}, {"read_at_us": 1})
+        return {doc["_id"]: from_micros(doc["read_at_us"]) async for doc in cursor}
+
+    async def delete_map_versions(self, versions: Sequence[int]) -> int:
+        bucket = AsyncGridFSBucket(self._database(), bucket_name=BUCKET)
+        deleted = 0
+        for version in versions:
+            # the image first: a round stopped in between leaves a description, which the next
+            # round finds and deletes, never an image nothing points at
+            try:
+                await bucket.delete(version)
+            except NoFile:  # that earlier round deleted it
+                pass
+            deleted += (await self._collection("maps").delete_one({"_id": version})).deleted_count
+        return deleted
+
+    async def expire_staged_chunks(self, before: datetime, limit: int) -> dict[str, int]:
+        staging = self._collection("map_staging")
+        pipeline = [
+            {"$group": {"_id": "$map_id", "last": {"$max": "$staged_at_us"}, "chunks": {"$sum": 1}}},
+            {"$match": {"last": {"$lt": to_micros(before)}}},
+            {"$limit": int(limit)},
+        ]
+        stale = {doc["_id"]: doc["chunks"] async for doc in await staging.aggregate(pipeline)}
+        if stale:
+            await staging.delete_many({"map_id": {"$in": list(stale)}})
+        return stale

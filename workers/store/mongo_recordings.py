@@ -8,9 +8,10 @@ beyond 64 bits, too deep, too large) is stored raw with the reason instead of fa
 
 from __future__ import annotations
 
+import logging
 import re
 from collections.abc import Sequence
-from datetime import datetime
+from datetime import datetime, timezone
 from typing import Any
 
 import bson
@@ -18,8 +19,9 @@ from bson.binary import Binary
 from bson.errors import InvalidDocument
 from bson.raw_bson import RawBSONDocument
 from pymongo import ASCENDING, DESCENDING
-from pymongo.errors import BulkWriteError
+from pymongo.errors import BulkWriteError, OperationFailure
 
+from fleetbus.config import DEFAULT_FIELD_INDEXES_MAX
 from workers.store.base import StoreUnavailable, WriteResult, from_micros, to_micros
 from workers.store.mongo_database import DUPLICATE_KEY, MongoDatabase, translate_unavailable
 from workers.store.recordings import (
@@ -36,8 +38,11 @@ from workers.store.recordings import (
     check_type_name,
 )
 
+log = logging.getLogger("fleetbus.recording")
 COLLECTION_PREFIX = "recorded."
 SAMPLES = "recorder.samples"
+#: When each field index was last used by a query (the least recently used goes first).
+FIELD_INDEX_USE = "recorder.field_indexes"
 FIELD_INDEX_PREFIX = "f:"
 #: Below MongoDB's 16 MiB document limit, with room for the provenance.
 MAX_DOCUMENT_BYTES = 16 * 1024 * 1024 - 64 * 1024
@@ -156,9 +161,16 @@ def from_document(type: str, doc: dict[str, Any]) -> RecordedMessage:
 class MongoRecordingStore(MongoDatabase, RecordingStore):
     name = "mongodb"
 
-    def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
+    def __init__(
+        self,
+        url: str,
+        database: str | None = None,
+        server_selection_timeout: float = 5.0,
+        max_field_indexes: int = DEFAULT_FIELD_INDEXES_MAX,
+    ) -> None:
         super().__init__(url, database, server_selection_timeout)
         self._indexed: set[str] = set()
+        self.max_field_indexes = max_field_indexes
 
     async def open(self) -> None:
         self._connect()
@@ -218,6 +230,11 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
         filters = provenance_filter(query.robot_id, query.message_id, query.since, query.until)
         if query.mission_id is not None:
             filters.append({"mission_id": query.mission_id})
+        if query.after is not None:
+            at, key = to_micros(query.after[0]), query.after[1]
+            filters.append(
+                {"$or": [{"recorded_at_us": {"$gt": at}}, {"recorded_at_us": at, "_id": {"$gt": key}}]}
+            )
         filters.extend(condition_filter(condition) for condition in query.conditions)
         direction = DESCENDING if query.newest_first else ASCENDING
         cursor = (
@@ -255,8 +272,27 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
 
     async def ensure_field_index(self, type: str, paths: Sequence[str]) -> None:
         keys = [(field(path), ASCENDING) for path in paths] + [("recorded_at_us", ASCENDING)]
+        name = FIELD_INDEX_PREFIX + ",".join(paths)
         await self._ensure_collection(type)
-        await self._recorded(type).create_index(keys, name=FIELD_INDEX_PREFIX + ",".join(paths))
+        recorded, uses = self._recorded(type), self._collection(FIELD_INDEX_USE)
+        now = to_micros(datetime.now(timezone.utc))
+        held = [n for n in await recorded.index_information() if n.startswith(FIELD_INDEX_PREFIX)]
+        if name not in held:
+            # a new shape: make room by dropping the least recently used
+            used = {doc["name"]: doc["used_at_us"] async for doc in uses.find({"type": type})}
+            by_use = sorted(held, key=lambda n: (used.get(n, 0), n))
+            for old in by_use[: max(0, len(held) - self.max_field_indexes + 1)]:
+                await recorded.drop_index(old)
+                await uses.delete_one({"_id": f"{type}|{old}"})
+                log.info("%s: dropped the least recently used field index %s", type, old)
+            try:
+                await recorded.create_index(keys, name=name)
+            except OperationFailure as error:  # e.g. another process filled the last slots: query unindexed
+                log.warning("%s: no field index on %s (%s); the query runs without one", type, paths, error)
+                return
+        await uses.update_one(
+            {"_id": f"{type}|{name}"}, {"$set": {"type": type, "name": name, "used_at_us": now}}, upsert=True
+        )
 
     async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
         indexes = await self._recorded(type).index_information()

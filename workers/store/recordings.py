@@ -152,6 +152,9 @@ class RecordQuery:
     limit: int | None = None
     newest_first: bool = False
     mission_id: str | None = None
+    after: tuple[datetime, str] | None = None
+    """Only records after this ``(recorded_at, key)`` in recording order: the next page of a
+    window read oldest first, ``limit`` records at a time."""
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, record
 from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
 from workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
+from workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
 from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
 from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
 from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
@@ -139,6 +140,7 @@ class SQLiteEventStore(
     SQLiteAttempts,
     SQLiteRejections,
     SQLiteStatuses,
+    SQLiteHousekeeping,
     Store,
 ):
     name = "sqlite"
@@ -158,6 +160,7 @@ class SQLiteEventStore(
             ATTEMPT_SCHEMA,
             REJECTION_SCHEMA,
             STATUS_SCHEMA,
+            HOUSEKEEPING_SCHEMA,
         ):
             db.executescript(schema)
 

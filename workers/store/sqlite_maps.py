@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Callable
-from datetime import datetime
+from collections.abc import Callable, Sequence
+from datetime import datetime, timezone
 from typing import Any
 
 from workers.store.base import from_micros, to_micros
@@ -14,9 +14,10 @@ from workers.store.sqlite_database import in_transaction
 
 MAP_SCHEMA = """
 CREATE TABLE IF NOT EXISTS map_staging (
-    map_id TEXT    NOT NULL,
-    idx    INTEGER NOT NULL,
-    data   BLOB    NOT NULL,
+    map_id    TEXT    NOT NULL,
+    idx       INTEGER NOT NULL,
+    data      BLOB    NOT NULL,
+    staged_at INTEGER,
     PRIMARY KEY (map_id, idx)
 );
 CREATE TABLE IF NOT EXISTS maps (
@@ -30,6 +31,7 @@ CREATE TABLE IF NOT EXISTS maps (
     sha256     TEXT    NOT NULL,
     chunk_size INTEGER NOT NULL,
     chunks     INTEGER NOT NULL,
+    read_at    INTEGER,
     UNIQUE (robot_id, epoch, seq)
 );
 CREATE TABLE IF NOT EXISTS map_blobs (
@@ -60,10 +62,11 @@ class SQLiteMaps(MapStore):
     _run: Callable[..., Any]
 
     async def stage_map_chunk(self, map_id: str, index: int, data: bytes) -> None:
+        now = to_micros(datetime.now(timezone.utc))
         await self._run(
             lambda db: db.execute(
-                "INSERT OR IGNORE INTO map_staging (map_id, idx, data) VALUES (?, ?, ?)",
-                (map_id, index, data),
+                "INSERT OR IGNORE INTO map_staging (map_id, idx, data, staged_at) VALUES (?, ?, ?, ?)",
+                (map_id, index, data, now),
             )
         )
 
@@ -147,3 +150,45 @@ class SQLiteMaps(MapStore):
         if row is None:
             raise MapRejected(f"map version {version} has no chunk {index}")
         return bytes(row["data"])
+
+    async def map_versions(self) -> list[MapVersion]:
+        rows = await self._run(lambda db: db.execute("SELECT * FROM maps ORDER BY version DESC").fetchall())
+        return [_map_version(row) for row in rows]
+
+    async def note_map_read(self, version: int, at: datetime) -> None:
+        await self._run(
+            lambda db: db.execute("UPDATE maps SET read_at = ? WHERE version = ?", (to_micros(at), version))
+        )
+
+    async def map_reads(self) -> dict[int, datetime]:
+        rows = await self._run(
+            lambda db: db.execute("SELECT version, read_at FROM maps WHERE read_at IS NOT NULL").fetchall()
+        )
+        return {row[0]: from_micros(row[1]) for row in rows}
+
+    async def delete_map_versions(self, versions: Sequence[int]) -> int:
+        chosen = [(version,) for version in versions]
+
+        def delete(db: sqlite3.Connection) -> int:
+            def work() -> int:
+                db.executemany("DELETE FROM map_blobs WHERE version = ?", chosen)
+                return sum(db.execute("DELETE FROM maps WHERE version = ?", row).rowcount for row in chosen)
+
+            return in_transaction(db, work)
+
+        return await self._run(delete) if chosen else 0
+
+    async def expire_staged_chunks(self, before: datetime, limit: int) -> dict[str, int]:
+        def expire(db: sqlite3.Connection) -> dict[str, int]:
+            def work() -> dict[str, int]:
+                stale = db.execute(
+                    "SELECT map_id, count(*) FROM map_staging "
+                    "GROUP BY map_id HAVING max(staged_at) < ? LIMIT ?",
+                    (to_micros(before), int(limit)),
+                ).fetchall()
+                db.executemany("DELETE FROM map_staging WHERE map_id = ?", [(row[0],) for row in stale])
+                return {row[0]: row[1] for row in stale}
+
+            return in_transaction(db, work)
+
+        return await self._run(expire)

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import sqlite3
 from collections.abc import Iterable, Sequence
-from datetime import datetime
+from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any
 
+from fleetbus.config import DEFAULT_FIELD_INDEXES_MAX
 from workers.store.base import WriteResult, from_micros, to_micros
 from workers.store.recordings import (
     Condition,
@@ -52,9 +55,10 @@ COLUMNS = (
 )
 META_SCHEMA = """
 CREATE TABLE IF NOT EXISTS recording_field_indexes (
-    type  TEXT NOT NULL,
-    name  TEXT NOT NULL,
-    paths TEXT NOT NULL,
+    type    TEXT    NOT NULL,
+    name    TEXT    NOT NULL,
+    paths   TEXT    NOT NULL,
+    used_at INTEGER NOT NULL DEFAULT 0,
     PRIMARY KEY (type, name)
 );
 CREATE TABLE IF NOT EXISTS recorder_samples (
@@ -66,6 +70,7 @@ CREATE TABLE IF NOT EXISTS recorder_samples (
 );
 CREATE INDEX IF NOT EXISTS recorder_samples_time ON recorder_samples (sampled_at);
 """
+log = logging.getLogger("fleetbus.recording")
 NUMBER_TYPES = "IN ('integer', 'real')"
 SQL_OPS = {Op.LT: "<", Op.LE: "<=", Op.GT: ">", Op.GE: ">="}
 DELETE_CHUNK = 500
@@ -181,6 +186,8 @@ def find_sql(query: RecordQuery) -> tuple[str, list[Any]]:
     filters = provenance_filters(query.robot_id, query.message_id, query.since, query.until)
     if query.mission_id is not None:
         filters.append(("mission_id = ?", [query.mission_id]))
+    if query.after is not None:  # a row value, which the (recorded_at, key) index serves
+        filters.append(("(recorded_at, key) > (?, ?)", [to_micros(query.after[0]), query.after[1]]))
     filters.extend(condition_sql(condition) for condition in query.conditions)
     clause, params = where(filters)
     order = "DESC" if query.newest_first else "ASC"
@@ -243,6 +250,10 @@ def _sqrt(value: float | None) -> float | None:
 
 class SQLiteRecordingStore(SQLiteDatabase, RecordingStore):
     name = "sqlite"
+
+    def __init__(self, path: Path, max_field_indexes: int = DEFAULT_FIELD_INDEXES_MAX) -> None:
+        super().__init__(path)
+        self.max_field_indexes = max_field_indexes
 
     def _prepare(self, db: sqlite3.Connection) -> None:
         db.executescript(META_SCHEMA)
@@ -324,18 +335,43 @@ class SQLiteRecordingStore(SQLiteDatabase, RecordingStore):
         name = (
             f"{TABLE_PREFIX}{check_type_name(type)}__f_{hashlib.sha1(repr(paths).encode()).hexdigest()[:12]}"
         )
+        now = to_micros(datetime.now(timezone.utc))
 
-        def ensure(db: sqlite3.Connection) -> None:
+        def ensure(db: sqlite3.Connection) -> list[str]:
             if not self._exists(db, type):
                 db.executescript(table_schema(type))
+            used = db.execute(
+                "UPDATE recording_field_indexes SET used_at = ? WHERE type = ? AND name = ?",
+                (now, type, name),
+            )
+            if used.rowcount:
+                return []
+            # a new shape: make room by dropping the least recently used
+            held = db.execute(
+                "SELECT name, paths FROM recording_field_indexes WHERE type = ? ORDER BY used_at, name",
+                (type,),
+            ).fetchall()
+            dropped = held[: max(0, len(held) - self.max_field_indexes + 1)]
+            for old_name, _ in dropped:
+                db.execute(f'DROP INDEX IF EXISTS "{old_name}"')
+                db.execute(
+                    "DELETE FROM recording_field_indexes WHERE type = ? AND name = ?", (type, old_name)
+                )
             db.execute(f'CREATE INDEX IF NOT EXISTS "{name}" ON {table(type)} ({columns})')
             db.execute(
-                "INSERT INTO recording_field_indexes (type, name, paths) VALUES (?, ?, ?) "
-                "ON CONFLICT (type, name) DO NOTHING",
-                (type, name, _dumps(paths)),
+                "INSERT INTO recording_field_indexes (type, name, paths, used_at) VALUES (?, ?, ?, ?) "
+                "ON CONFLICT (type, name) DO UPDATE SET used_at = excluded.used_at",
+                (type, name, _dumps(paths), now),
             )
+            return [old_paths for _, old_paths in dropped]
 
-        await self._run(ensure)
+        for old_paths in await self._run(ensure):
+            log.info(
+                "%s: dropped the least recently used field index %s (%d kept)",
+                type,
+                old_paths,
+                self.max_field_indexes,
+            )
 
     async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
         rows = await self._run(

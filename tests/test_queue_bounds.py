@@ -1,0 +1,83 @@
+"""The inboxes and the dead-letter queue are bounded by broker policies: when full they drop their
+oldest messages, and every drop is counted in the store, against the real broker and both stores."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+
+from broker.dead_letter_queue import peek_dead_letters
+from schemas.routing import DEAD_LETTER_QUEUE, RobotKind, inbox_queue
+from tests.factories import hazard
+from tests.support import Bus, wait_for
+
+LOCALISED = {"localised": True, "pose": {"x": 0.0, "y": 0.0}}
+
+
+def overflow_counts(bus: Bus) -> dict[str, int]:
+    counts = bus.with_store(lambda store: store.bound_counts())
+    return {c.subject: c.count for c in counts if c.bound == "overflow"}
+
+
+def bounded_by(bus: Bus, queue: str, policy: str) -> bool:
+    """The broker applies ``policy`` to ``queue`` (the management API shows it within seconds)."""
+    return bus.api.get_queue(bus.vhost, queue).get("policy") == policy
+
+
+def fleetbus(bus: Bus, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "fleetbus", *args],
+        env=bus.worker_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_a_full_inbox_drops_its_oldest_notifications_counts_them_and_the_warden_resyncs(
+    stored_bus: Bus,
+) -> None:
+    bus = stored_bus
+    bus.settings = replace(bus.settings, inbox_max=("3",))
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    bus.service_accounts()  # `fleetbus setup`: the policies
+    wait_for(lambda: bounded_by(bus, inbox_queue("warden1"), "fleetbus-inboxes"), what="the inbox policy")
+    with bus.worker():
+        warden.publish("localisation", LOCALISED)
+        for i in range(5):
+            explorer.publish("hazard", hazard(i))
+        wait_for(lambda: overflow_counts(bus).get("warden1.inbox maxlen") == 2, what="two drops counted")
+        notes = warden.receive(3, timeout=30)
+        assert [note.hazard_id for note in notes] == [3, 4, 5], "the newest three stay"
+        # the robot's resync after an outage finds every open hazard, the dropped ones too
+        assert [h["hazard_id"] for h in warden.call("hazard.open")] == [1, 2, 3, 4, 5]
+    shown = fleetbus(bus, "stats", "--json")
+    assert shown.returncode == 0, shown.stderr
+    bounds = [json.loads(line) for line in shown.stdout.splitlines() if '"bound"' in line]
+    assert {"bound": "overflow", "subject": "warden1.inbox maxlen", "count": 2} in [
+        {k: b[k] for k in ("bound", "subject", "count")} for b in bounds
+    ]
+
+
+def test_a_full_dead_letter_queue_keeps_the_newest_refusals_and_counts_the_dropped(stored_bus: Bus) -> None:
+    bus = stored_bus
+    bus.settings = replace(bus.settings, dead_letters_max=("3",))
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.service_accounts()
+    wait_for(
+        lambda: bounded_by(bus, DEAD_LETTER_QUEUE, "fleetbus-dead-letters"), what="the dead-letter policy"
+    )
+    with bus.worker() as worker:
+        for n in range(5):
+            bus.publish_raw(account, "explorer1.hazard", b"not json %d" % n, message_id=f"bad-{n}")
+        wait_for(lambda: worker.stats().rejected == 5, what="five refused")
+        wait_for(
+            lambda: overflow_counts(bus).get("fleetbus.dead-letters maxlen") == 2, what="two drops counted"
+        )
+    assert [letter.message_id for letter in peek_dead_letters(bus.admin_url)] == ["bad-2", "bad-3", "bad-4"]
+    listed = fleetbus(bus, "dlq")
+    assert listed.returncode == 0, listed.stderr
+    assert "3 dead letters" in listed.stdout and "2 older ones were dropped" in listed.stdout

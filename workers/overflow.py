@@ -1,0 +1,86 @@
+"""Count what full queues dropped: drain ``fleetbus.overflow.dropped`` into the store's bound counts.
+
+A bound queue (an inbox, the dead letters, the recorder's backlog: :mod:`broker.policies`)
+dead-letters its oldest message when it is full. The broker says which queue dropped it and why
+in the message's ``x-death`` header, newest death first; this consumer adds each batch to the
+counts under ``overflow`` and ``<queue> <reason>`` (``warden1.inbox maxlen``), logs it, and acks
+the batch only once the counts are durable.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import Counter
+from datetime import datetime, timezone
+from typing import Any
+
+from aio_pika.abc import AbstractChannel, AbstractQueue
+
+from broker.retry import Stopped, async_retrying, run_retrying
+from workers.batches import BatchInbox
+from workers.store.base import StoreUnavailable
+from workers.store.housekeeping import Housekeeping
+
+log = logging.getLogger("fleetbus.overflow")
+BOUND = "overflow"
+
+
+def _text(value: Any) -> str:
+    return value.decode(errors="replace") if isinstance(value, bytes) else str(value)
+
+
+def dropped_from(headers: dict[str, Any] | None) -> str:
+    """``<queue> <reason>`` of the message's latest death (the broker puts it first)."""
+    deaths = (headers or {}).get("x-death") or []
+    if not deaths:
+        return "unknown"
+    latest = deaths[0]
+    return f"{_text(latest.get('queue', '?'))} {_text(latest.get('reason', '?'))}"
+
+
+class OverflowCounter:
+    def __init__(self, channel: AbstractChannel, queue: AbstractQueue, store: Housekeeping) -> None:
+        self._channel = channel
+        self._queue = queue
+        self._store = store
+        self._inbox = BatchInbox(batch_size=256, linger=0.05)
+        self._stopping = asyncio.Event()
+        self._tag: str | None = None
+        self._task: asyncio.Task[None] | None = None
+        self.counted = 0
+
+    async def start(self) -> None:
+        self._tag = await self._queue.consume(self._inbox.put)
+        self._task = asyncio.create_task(self._run(), name="fleetbus-overflow")
+
+    async def stop(self) -> None:
+        if self._tag is not None and not self._channel.is_closed:
+            with contextlib.suppress(Exception):
+                await self._queue.cancel(self._tag)
+        self._stopping.set()
+        if self._task is not None:
+            await asyncio.gather(self._task, return_exceptions=True)
+
+    async def _run(self) -> None:
+        while not self._stopping.is_set():
+            batch = await self._inbox.next_batch(self._stopping)
+            if not batch:
+                continue
+            counts = Counter(dropped_from(message.headers) for message in batch)
+            added = {(BOUND, subject): n for subject, n in counts.items()}
+            retrying = async_retrying(
+                "the store (overflow counts)", on=StoreUnavailable, stop=self._stopping, logger=log
+            )
+            try:
+                await run_retrying(
+                    retrying,
+                    lambda added=added: self._store.count_bounded(added, datetime.now(timezone.utc)),
+                )
+            except Stopped:
+                return  # unacked: the broker gives them to the next worker
+            await batch[-1].ack(multiple=True)
+            self.counted += len(batch)
+            for subject, n in sorted(counts.items()):
+                log.warning("a full queue dropped its %d oldest: %s", n, subject)
