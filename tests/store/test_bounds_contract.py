@@ -8,7 +8,7 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from tests.store.test_contract import record
+from tests.store.test_contract import EPOCH, record
 from workers.store.base import EventQuery
 from workers.store.discards import Discard
 from workers.store.hazards import NewHazard
@@ -73,9 +73,11 @@ async def test_duplicates_and_discards_are_pruned_by_age_and_by_count(store: Sto
     # one batch's duplicates share their time: the count goes by the store's own order
     same_time = T0 + timedelta(minutes=10)
     await store.record_duplicates(
-        [Duplicate("r1", seq, f"m{seq}", T0 + timedelta(minutes=seq), False) for seq in range(3)]
+        [Duplicate("r1", EPOCH, seq, f"m{seq}", T0 + timedelta(minutes=seq), False) for seq in range(3)]
     )
-    await store.record_duplicates([Duplicate("r1", seq, f"m{seq}", same_time, True) for seq in range(3, 6)])
+    await store.record_duplicates(
+        [Duplicate("r1", EPOCH, seq, f"m{seq}", same_time, True) for seq in range(3, 6)]
+    )
     assert await store.prune_duplicates(T0 + timedelta(minutes=2), None, 10) == 2
     assert await store.prune_duplicates(None, 2, 1) == 1, "a batch is at most its limit"
     assert await store.prune_duplicates(None, 2, 10) == 1
@@ -93,7 +95,7 @@ async def test_duplicates_and_discards_are_pruned_by_age_and_by_count(store: Sto
 
 async def test_map_versions_can_be_listed_marked_read_and_deleted(store: Store) -> None:
     for seq in range(3):
-        await store.commit_map("explorer1", seq, b"P5 map %d" % seq, META, T0, "0" * 64, 4, None)
+        await store.commit_map("explorer1", EPOCH, seq, b"P5 map %d" % seq, META, T0, "0" * 64, 4, None)
     assert [v.version for v in await store.map_versions()] == [3, 2, 1]
     await store.note_map_read(1, T0 + timedelta(minutes=1))
     assert await store.map_reads() == {1: T0 + timedelta(minutes=1)}
@@ -104,7 +106,7 @@ async def test_map_versions_can_be_listed_marked_read_and_deleted(store: Store) 
     with pytest.raises(Exception, match="no chunk"):
         await store.map_chunk(1, 0)
     assert (await store.map_version()).version == 3
-    fourth = await store.commit_map("explorer1", 9, b"P5 next", META, T0, "0" * 64, 4, None)
+    fourth = await store.commit_map("explorer1", EPOCH, 9, b"P5 next", META, T0, "0" * 64, 4, None)
     assert fourth.version == 4, "a pruned version's number is never given again"
 
 
@@ -128,7 +130,7 @@ async def test_bound_counts_add_up(store: Store) -> None:
 
 def test_each_robot_keeps_its_newest_versions_and_those_being_fetched() -> None:
     def version(number: int, robot: str) -> MapVersion:
-        return MapVersion(number, robot, number, {}, T0, 1, "", 1, 1)
+        return MapVersion(number, robot, EPOCH, number, {}, T0, 1, "", 1, 1)
 
     versions = [version(n, "a") for n in range(1, 6)] + [version(6, "b")]
     reads = {1: T0, 2: T0 - timedelta(hours=1)}
