@@ -21,7 +21,7 @@ from api.auth import RoleCheck
 from api.errors import ServiceRefusal
 from api.routes import auth, beacons, channels, missions, recording, team, users
 from api.service import open_service
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from schemas.roles import UserRole
 from workers.store.base import StoreUnavailable
 

@@ -26,7 +26,7 @@ from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from broker.accounts import save_secret_once
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 
 TOKEN_ALGORITHM = "HS256"
 TOKEN_ISSUER = "fleetbus"
@@ -37,7 +37,7 @@ def master_secret(settings: Settings) -> bytes:
     """``FLEETBUS_API_SECRET``, else a random secret kept in ``data_dir/api/secret`` (mode 0600).
     API processes starting at once all end with the first one written (see :func:`save_secret_once`)."""
     if settings.api_secret:
-        return settings.api_secret.encode()
+        return settings.api_secret.get_secret_value().encode()
     path = settings.api_dir / "secret"
     if not path.exists():
         save_secret_once(path, secrets.token_urlsafe(48))
@@ -162,6 +162,6 @@ class Secrets:
         secret = master_secret(settings)
         return cls(
             Passwords(settings.api_hash_threads),
-            Tokens(derive_key(secret, "fleetbus api tokens"), timedelta(minutes=settings.token_minutes)),
+            Tokens(derive_key(secret, "fleetbus api tokens"), timedelta(minutes=settings.api_token_minutes)),
             SecretBox(derive_key(secret, "fleetbus broker passwords")),
         )

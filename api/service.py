@@ -17,7 +17,7 @@ from api.team import Team
 from broker.accounts import vhost_of
 from broker.management import ManagementAPI
 from broker.routes import RouteMap
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from workers.store import open_recording_store, open_store
 from workers.store.interface import Store
 from workers.store.recordings import RecordingStore

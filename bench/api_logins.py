@@ -99,7 +99,7 @@ def figures(context: Context) -> Figures:
 def main() -> None:
     from broker.endpoint import resolve_broker
     from broker.management import ManagementAPI
-    from fleetbus.config import load_settings
+    from fleetbus.settings import load_settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gets", type=int, default=300)

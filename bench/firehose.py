@@ -34,7 +34,7 @@ from broker.accounts import fresh_vhost
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from publishers.confirms import Outgoing, PipelinedConfirms
 
 VHOST = "fleetbus-bench-firehose"

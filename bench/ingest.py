@@ -44,7 +44,7 @@ from broker.accounts import fresh_vhost
 from broker.dead_letter_queue import peek_dead_letters
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.management import ManagementAPI
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from schemas.envelope import build_event, encode_event, new_epoch
 from schemas.routing import INGEST_QUEUE, EventType
 from tests.support import Bus, fresh_bus, wait_for

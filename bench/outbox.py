@@ -31,7 +31,7 @@ from bench.scenario import Context, Figures
 from broker.accounts import Role, fresh_vhost, provision_account
 from broker.endpoint import resolve_broker
 from broker.management import ManagementAPI
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from publishers.client import RobotClient
 from publishers.outbox import Outbox, Overflow, TypePolicy
 from schemas.envelope import build_event, new_epoch

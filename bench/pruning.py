@@ -22,7 +22,7 @@ from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from tests.store.test_contract import record
 from workers.bounds import bounds
 from workers.pruning import Pruner

@@ -44,7 +44,7 @@ from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from broker.urls import without_password
-from fleetbus.config import Settings, load_settings
+from fleetbus.settings import Settings, load_settings
 from publishers.confirms import Outgoing, PipelinedConfirms
 from schemas.routing import RECORDER_QUEUE, events_exchange
 from tests.support import wait_for
@@ -137,7 +137,7 @@ def one_run(
     result["raw consume msg/s"] = asyncio.run(raw_consume(admin_url, 10_000))
     broker_pid = LocalNode(load_settings().broker_dir).pid() if endpoint.kind == "private" else None
     with tempfile.TemporaryDirectory() as tmp:
-        settings = replace(load_settings(), data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None)
+        settings = load_settings().updated(data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None)
         account = asyncio.run(provision_account(admin_url, api, ROBOT, Role.ROBOT, rotate=True))
         with recorder_process(settings, endpoint, admin_url) as recorder:
             pids = {"recorder": recorder.pid, **({"broker": broker_pid} if broker_pid else {})}

@@ -148,7 +148,7 @@ def main() -> None:
     options = parser.parse_args()
     from broker.endpoint import resolve_broker
     from broker.management import ManagementAPI
-    from fleetbus.config import load_settings
+    from fleetbus.settings import load_settings
 
     endpoint = resolve_broker(load_settings(), start=True)
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:

@@ -61,7 +61,7 @@ from broker.local_node import LocalNode
 from broker.management import ManagementAPI
 from broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from broker.urls import without_password
-from fleetbus.config import Settings, load_settings
+from fleetbus.settings import Settings, load_settings
 from publishers.client import RobotClient
 from workers.setup import set_up_service
 from workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
@@ -227,8 +227,7 @@ def fleet(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options) -> Ite
     admin_url = fresh_vhost(api, endpoint.amqp_url, VHOST)
     with tempfile.TemporaryDirectory() as tmp:
         database = f"bench_scaling_{int(time.time())}"
-        settings = replace(
-            load_settings(),
+        settings = load_settings().updated(
             data_dir=Path(tmp),
             amqp_url=admin_url,
             management_url=endpoint.management_url,

@@ -7,7 +7,7 @@ import tempfile
 import uuid
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from broker.accounts import fresh_vhost
@@ -53,7 +53,7 @@ class Context:
             fresh_bus(self.endpoint, self.api, Path(folder), prefix="bench") as bus,
         ):
             if mongodb_url is not None:
-                bus.settings = replace(bus.settings, mongodb_url=mongodb_url)
+                bus.settings = bus.settings.updated(mongodb_url=mongodb_url)
             yield bus
 
 

@@ -18,7 +18,6 @@ import tempfile
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -30,7 +29,7 @@ from api.app import create_app
 from broker.accounts import fresh_vhost
 from broker.endpoint import resolve_broker
 from broker.management import ManagementAPI
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from schemas.missions import MissionState
 from schemas.roles import UserRole
 from schemas.routing import RobotKind
@@ -64,7 +63,7 @@ def main() -> None:
         tempfile.TemporaryDirectory() as tmp,
     ):
         admin_url = fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST)
-        settings = replace(load_settings(), data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None)
+        settings = load_settings().updated(data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None)
         app = create_app(settings, admin_url, endpoint.management_url)
         try:
             with TestClient(app) as client:

@@ -31,7 +31,7 @@ from bench.report import Outcome, as_json, load_average, machine, markdown, tabl
 from bench.scenario import Context, Scenario, Skip
 from broker.endpoint import resolve_broker
 from broker.management import ManagementAPI
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 
 console = Console()
 

@@ -41,7 +41,7 @@ from broker.local_node import (
 )
 from broker.retry import Backoff, GaveUp, retrying
 from broker.urls import mask_password
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 COMPOSE_FILE = PROJECT_ROOT / "compose.yaml"
@@ -193,9 +193,8 @@ def docker_engine_answers(timeout: float = 5.0) -> bool:
 
 def docker_password(settings: Settings) -> str:
     """``FLEETBUS_BROKER_PASSWORD``, else one generated once and kept in the data folder."""
-    password = os.environ.get(PASSWORD_VARIABLE)
-    if password:
-        return password
+    if settings.broker_password:
+        return settings.broker_password.get_secret_value()
     path = settings.broker_dir / "docker-password"
     if path.exists():
         return path.read_text().strip()

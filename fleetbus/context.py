@@ -20,7 +20,7 @@ from broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from broker.endpoint import BrokerEndpoint, derive_management_url, resolve_broker, service_account_url
 from broker.management import ManagementAPI
 from broker.routes import RouteMap
-from fleetbus.config import Settings, load_settings
+from fleetbus.settings import Settings, load_settings
 from workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
 from workers.recorder.queries import EVENT_TYPES
 from workers.store import open_recording_store, run_with_store
@@ -38,7 +38,11 @@ def fail(message: str, code: int = 1) -> NoReturn:
 
 
 def settings() -> Settings:
-    return load_settings()
+    """The settings; one that does not parse ends the command, naming its variable."""
+    try:
+        return load_settings()
+    except ValueError as error:
+        fail(str(error), code=2)
 
 
 def actor(by: str | None) -> str:

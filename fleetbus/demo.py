@@ -25,8 +25,8 @@ from broker.accounts import Role, fresh_vhost, provision_account
 from broker.dead_letter_queue import peek_dead_letters
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
-from fleetbus.config import Settings
 from fleetbus.registry import register_robot
+from fleetbus.settings import Settings
 from publishers.client import RobotClient
 from publishers.rpc import ServiceRefused
 from schemas.routing import EventType, RobotKind
@@ -250,7 +250,7 @@ def run_demo(
     report = DemoReport()
     started = time.monotonic()
     # the demo's own embedded store, new each run, whatever store the team uses
-    demo_settings = replace(settings, data_dir=settings.data_dir / "demo", mongodb_url=None)
+    demo_settings = settings.updated(data_dir=settings.data_dir / "demo", mongodb_url=None)
     shutil.rmtree(demo_settings.data_dir, ignore_errors=True)
     demo_settings.data_dir.mkdir(parents=True)
     with (
@@ -259,7 +259,7 @@ def run_demo(
     ):
         task = progress.add_task("setting up the team", total=7)
         admin_url = fresh_vhost(api, endpoint.amqp_url, DEMO_VHOST)
-        demo_settings = replace(demo_settings, amqp_url=admin_url, management_url=endpoint.management_url)
+        demo_settings = demo_settings.updated(amqp_url=admin_url, management_url=endpoint.management_url)
         accounts = {
             name: asyncio.run(
                 provision_account(

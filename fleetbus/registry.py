@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from schemas.routing import RobotKind
 from workers.store import run_with_store
 

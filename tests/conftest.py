@@ -7,7 +7,6 @@ server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/
 from __future__ import annotations
 
 from collections.abc import AsyncIterator, Iterator
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -15,7 +14,7 @@ import pytest
 from broker.endpoint import BrokerEndpoint, resolve_broker
 from broker.local_node import LocalNode
 from broker.management import ManagementAPI
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from tests.link import NetworkLink
 from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
@@ -46,7 +45,7 @@ async def with_each_store(request: pytest.FixtureRequest, bus: Bus) -> AsyncIter
     if request.param == "mongodb":
         url: str = request.getfixturevalue("mongodb_url")
         async with fresh_database(url) as database:
-            bus.settings = replace(bus.settings, mongodb_url=url.rstrip("/") + "/" + database)
+            bus.settings = bus.settings.updated(mongodb_url=url.rstrip("/") + "/" + database)
             yield bus
         return
     yield bus

@@ -25,8 +25,8 @@ from broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.urls import without_password
-from fleetbus.config import Settings, load_settings
 from fleetbus.registry import register_robot
+from fleetbus.settings import Settings, load_settings
 from publishers.client import RobotClient, outbox_folder
 from publishers.outbox import Outbox
 from schemas.envelope import Event
@@ -291,8 +291,7 @@ def fresh_bus(
     """A new virtual host and data directory on ``endpoint``; accounts and vhost removed after."""
     vhost = f"{prefix}-{uuid.uuid4().hex[:10]}"
     admin_url = fresh_vhost(api, endpoint.amqp_url, vhost)
-    settings = replace(
-        load_settings(),
+    settings = load_settings().updated(
         data_dir=data_dir,
         amqp_url=admin_url,
         management_url=endpoint.management_url,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sqlite3
 import threading
-from dataclasses import replace
 
 import pika
 
@@ -61,7 +60,7 @@ def _publish_raw(url: str, routing_key: str, body: bytes, user_id: str | None) -
 
 
 def test_bad_input_is_dead_lettered_with_reasons_and_good_input_is_unaffected(bus: Bus) -> None:
-    bus.settings = replace(bus.settings, max_message_bytes=8 * 1024)
+    bus.settings = bus.settings.updated(max_message_bytes=8 * 1024)
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     explorer = bus.robot(account)
     bad = [
@@ -144,8 +143,8 @@ def test_operator_receives_every_notification_topic(bus: Bus) -> None:
 
 
 def test_ingest_into_mongodb(bus: Bus, mongodb_url: str) -> None:
-    bus.settings = replace(
-        bus.settings, mongodb_url=f"{mongodb_url.rstrip('/')}/fleetbus_{bus.vhost.replace('-', '_')}"
+    bus.settings = bus.settings.updated(
+        mongodb_url=f"{mongodb_url.rstrip('/')}/fleetbus_{bus.vhost.replace('-', '_')}"
     )
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))

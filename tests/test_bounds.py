@@ -3,11 +3,9 @@ the event log, the duplicates register, the beacon discards, map versions and st
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import pytest
 
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from publishers.maps import map_events
 from schemas.bodies import MAP_INLINE_BYTES
 from schemas.envelope import encode_event
@@ -28,8 +26,7 @@ def counted(bus: Bus) -> dict[tuple[str, str], int]:
 
 def test_the_event_log_duplicates_and_discards_keep_to_their_bounds(stored_bus: Bus) -> None:
     bus = stored_bus
-    bus.settings = replace(
-        bus.settings,
+    bus.settings = bus.settings.updated(
         events_keep=("status=3", "*=30d"),
         duplicates_keep="2",
         discards_keep="1",
@@ -61,9 +58,7 @@ def test_the_event_log_duplicates_and_discards_keep_to_their_bounds(stored_bus: 
 
 def test_map_versions_keep_the_newest_and_the_fetched_and_unclaimed_chunks_expire(stored_bus: Bus) -> None:
     bus = stored_bus
-    bus.settings = replace(
-        bus.settings, map_versions_keep=2, map_staging_ttl="1s", prune_every_s=QUICK_ROUNDS
-    )
+    bus.settings = bus.settings.updated(map_versions_keep=2, map_staging_ttl="1s", prune_every_s=QUICK_ROUNDS)
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     maps = [pgm(40 + n, 30) for n in range(5)]
@@ -94,7 +89,7 @@ def test_map_versions_keep_the_newest_and_the_fetched_and_unclaimed_chunks_expir
 
 def test_the_event_of_an_open_hazard_stays_and_goes_once_it_is_cleared(stored_bus: Bus) -> None:
     bus = stored_bus
-    bus.settings = replace(bus.settings, events_keep=("hazard=1s",), prune_every_s=QUICK_ROUNDS)
+    bus.settings = bus.settings.updated(events_keep=("hazard=1s",), prune_every_s=QUICK_ROUNDS)
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     with bus.worker():

@@ -6,7 +6,6 @@ These tests run on a private node of their own (``killable_node``), not the suit
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from datetime import timedelta
 
 import pytest
@@ -94,7 +93,7 @@ def test_tables_6_and_7_hazards_detected_while_the_server_is_down(
     the server did not respond reaches the warden once it responds, late, with its detection time.
     """
     bus = killable_bus
-    bus.settings = replace(bus.settings, late_after_s=1.0)  # the outage below lasts longer than this
+    bus.settings = bus.settings.updated(late_after_s=1.0)  # the outage below lasts longer than this
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     table7: list[tuple[str, int, int]] = []

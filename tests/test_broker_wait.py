@@ -18,7 +18,7 @@ import pytest
 
 from broker.accounts import RECORDER_USER, SERVICE_USER, save_secret
 from broker.local_node import LocalNode
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from tests.support import PROJECT_ROOT
 
 WAIT_S = 3.0

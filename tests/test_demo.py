@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from rich.console import Console
 
 from broker.endpoint import BrokerEndpoint
-from fleetbus.config import load_settings
 from fleetbus.demo import WARDENS, run_demo
+from fleetbus.settings import load_settings
 
 
 def test_demo_scenario(endpoint: BrokerEndpoint, tmp_path: Path) -> None:
-    settings = replace(load_settings(), data_dir=tmp_path)
+    settings = load_settings().updated(data_dir=tmp_path)
     report = run_demo(
         settings,
         endpoint,

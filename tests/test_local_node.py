@@ -15,7 +15,6 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -33,7 +32,7 @@ from broker.local_node import (
     pid_alive,
     pids_listening_on,
 )
-from fleetbus.config import Settings, load_settings
+from fleetbus.settings import Settings, load_settings
 from tests.support import wait_for
 
 pytestmark = pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed")
@@ -211,20 +210,20 @@ def test_resolve_broker_prefers_a_working_amqp_url(node: LocalNode, node_setting
     info = node.status()
     assert info.amqp_url is not None and info.management_url is not None
     external = resolve_broker(
-        replace(node_settings, amqp_url=info.amqp_url, management_url=info.management_url), start=False
+        node_settings.updated(amqp_url=info.amqp_url, management_url=info.management_url), start=False
     )
     assert (external.kind, external.amqp_url, external.management_url) == (
         "external",
         info.amqp_url,
         info.management_url,
     )
-    derived = resolve_broker(replace(node_settings, amqp_url=info.amqp_url, management_url=None), start=False)
+    derived = resolve_broker(node_settings.updated(amqp_url=info.amqp_url, management_url=None), start=False)
     assert derived.management_url == "http://127.0.0.1:15672/"
 
     parts = urlsplit(info.amqp_url)
     wrong = info.amqp_url.replace(f":{parts.password}@", ":not-the-password@")
     with pytest.raises(BrokerUnavailable, match="refused"):
-        resolve_broker(replace(node_settings, amqp_url=wrong), start=False)
+        resolve_broker(node_settings.updated(amqp_url=wrong), start=False)
 
 
 def test_a_configured_broker_that_does_not_answer_is_an_error_never_a_fallback(
@@ -234,7 +233,7 @@ def test_a_configured_broker_that_does_not_answer_is_an_error_never_a_fallback(
     started for a data folder that has none."""
     dead = f"amqp://someone:secret@127.0.0.1:{node.status().ports['stream']}/"  # nothing listens there
     for data_dir in (node_settings.data_dir, tmp_path):
-        settings = replace(node_settings, data_dir=data_dir, amqp_url=dead, broker_wait_s=1.5)
+        settings = node_settings.updated(data_dir=data_dir, amqp_url=dead, broker_wait_s=1.5)
         started = time.monotonic()
         with pytest.raises(
             BrokerUnavailable, match=r"someone:\*\*\*\*@127.0.0.1:\d+/\) did not answer"
@@ -247,7 +246,7 @@ def test_a_configured_broker_that_does_not_answer_is_an_error_never_a_fallback(
 
 @pytest.mark.skipif(docker_engine_answers(), reason="a Docker engine answers: resolve_broker would use it")
 def test_with_nothing_configured_the_private_node_is_used(node: LocalNode, node_settings: Settings) -> None:
-    endpoint = resolve_broker(replace(node_settings, amqp_url=None), start=False)
+    endpoint = resolve_broker(node_settings.updated(amqp_url=None), start=False)
     assert endpoint.kind == "private"
     assert endpoint.amqp_url == node.status().amqp_url
 
@@ -289,4 +288,4 @@ def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> Non
     assert time.monotonic() - started < 5
     if not docker_engine_answers():
         with pytest.raises(BrokerUnavailable, match="not running"):
-            resolve_broker(replace(node_settings, amqp_url=None), start=False)
+            resolve_broker(node_settings.updated(amqp_url=None), start=False)

@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import signal
 import time
-from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -190,7 +189,7 @@ def test_mongodb_gone_while_events_arrive(bus: Bus, tmp_path: Path) -> None:
     data = tmp_path / "mongo.db"
     url = server.start(path=data)
     port = urlsplit(url).port
-    bus.settings = replace(bus.settings, mongodb_url=f"{url}fleetbus")
+    bus.settings = bus.settings.updated(mongodb_url=f"{url}fleetbus")
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     try:
         with bus.worker() as worker:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from dataclasses import replace
 
 from broker.dead_letter_queue import peek_dead_letters
 from schemas.notifications import Notification
@@ -50,7 +49,7 @@ def test_a_full_inbox_drops_its_oldest_notifications_counts_them_and_the_warden_
     stored_bus: Bus,
 ) -> None:
     bus = stored_bus
-    bus.settings = replace(bus.settings, inbox_max=("3",))
+    bus.settings = bus.settings.updated(inbox_max=("3",))
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     bus.service_accounts()  # `fleetbus setup`: the policies
@@ -74,7 +73,7 @@ def test_a_full_inbox_drops_its_oldest_notifications_counts_them_and_the_warden_
 
 def test_a_full_dead_letter_queue_keeps_the_newest_refusals_and_counts_the_dropped(stored_bus: Bus) -> None:
     bus = stored_bus
-    bus.settings = replace(bus.settings, dead_letters_max=("3",))
+    bus.settings = bus.settings.updated(dead_letters_max=("3",))
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     bus.service_accounts()
     wait_for(

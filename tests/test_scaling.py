@@ -13,7 +13,6 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import replace
 
 import pika
 import pytest
@@ -107,10 +106,10 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
 ) -> None:
     if store == "mongodb":
         url: str = request.getfixturevalue("mongodb_url")
-        bus.settings = replace(
-            bus.settings, mongodb_url=f"{url.rstrip('/')}/scale_{bus.vhost.replace('-', '_')}"
+        bus.settings = bus.settings.updated(
+            mongodb_url=f"{url.rstrip('/')}/scale_{bus.vhost.replace('-', '_')}"
         )
-    bus.settings = replace(bus.settings, ingest_shards=SHARDS)
+    bus.settings = bus.settings.updated(ingest_shards=SHARDS)
     team = [
         ("explorer1", RobotKind.EXPLORER),
         ("warden1", RobotKind.WARDEN),
@@ -239,7 +238,7 @@ def inbox(account: Account, count: int, timeout: float) -> list[Notification]:
 
 
 def test_a_worker_killed_while_others_run_loses_and_doubles_nothing(bus: Bus) -> None:
-    bus.settings = replace(bus.settings, ingest_shards=SHARDS)
+    bus.settings = bus.settings.updated(ingest_shards=SHARDS)
     names = ["robot1", "robot2", "robot3", "robot4"]
     robots = [bus.robot(bus.add(name, kind=RobotKind.EXPLORER)) for name in names]
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
@@ -396,8 +395,8 @@ def test_the_express_lanes_single_active_consumer_is_all_the_hazard_service_need
     if store == "mongodb":
         url: str = request.getfixturevalue("mongodb_url")
         database = f"excl_{bus.vhost.replace('-', '_')}"
-        bus.settings = replace(bus.settings, mongodb_url=f"{url.rstrip('/')}/{database}")
-    bus.settings = replace(bus.settings, ingest_shards=SHARDS)
+        bus.settings = bus.settings.updated(mongodb_url=f"{url.rstrip('/')}/{database}")
+    bus.settings = bus.settings.updated(ingest_shards=SHARDS)
     explorers = [bus.robot(bus.add(name, kind=RobotKind.EXPLORER)) for name in ("explorer1", "explorer2")]
     wardens = [
         ClaimingWarden(account, bus.robot(account))

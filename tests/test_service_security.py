@@ -16,7 +16,7 @@ from pika.adapters.blocking_connection import BlockingChannel
 from broker.accounts import Role
 from broker.local_node import LocalNode
 from broker.mounts import bind_all, mount_bindings, unbind_all
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from publishers.confirms import Outgoing, PipelinedConfirms
 from publishers.errors import PublishRefused
 from schemas.routing import RobotKind

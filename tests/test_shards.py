@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 
 import pika
 import pika.exceptions
@@ -32,7 +31,7 @@ def _queued(bus: Bus, shards: int) -> list[int]:
 
 
 def test_robots_are_spread_evenly_and_each_robots_messages_reach_only_its_shard(bus: Bus) -> None:
-    bus.settings = replace(bus.settings, ingest_shards=4)
+    bus.settings = bus.settings.updated(ingest_shards=4)
     names = [f"robot{n}" for n in range(8)]
     robots = {name: bus.robot(bus.add(name, kind=RobotKind.EXPLORER)) for name in names}
     bus.add("ops1", role=Role.OPERATOR)
@@ -51,7 +50,7 @@ def test_robots_are_spread_evenly_and_each_robots_messages_reach_only_its_shard(
 
 
 def test_a_robot_bound_to_no_shard_goes_to_shard_0_and_trace_shows_the_way(bus: Bus) -> None:
-    bus.settings = replace(bus.settings, ingest_shards=2)
+    bus.settings = bus.settings.updated(ingest_shards=2)
     bus.add("robot-a")
     second = bus.robot(bus.add("robot-b"))
     assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (1,)}
@@ -74,7 +73,7 @@ def test_the_broker_refuses_a_beacon_under_another_robots_name(bus: Bus) -> None
     """A robot's beacon exchange is a topic exchange whose keys topic permissions hold to the
     robot's own name: a beacon keyed for another robot is refused by the broker (the channel
     closed with ACCESS_REFUSED) and reaches no shard, not that robot's lane."""
-    bus.settings = replace(bus.settings, ingest_shards=2)
+    bus.settings = bus.settings.updated(ingest_shards=2)
     forger = bus.add("robot-a")
     bus.add("robot-b")
     assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (1,)}
@@ -99,7 +98,7 @@ def test_the_broker_refuses_a_beacon_under_another_robots_name(bus: Bus) -> None
 
 
 def test_a_deleted_robot_leaves_its_shard(bus: Bus) -> None:
-    bus.settings = replace(bus.settings, ingest_shards=2)
+    bus.settings = bus.settings.updated(ingest_shards=2)
     bus.add("robot-a")
     bus.add("robot-b")
     delete_account(bus.admin_url, bus.api, "robot-b")
@@ -126,7 +125,7 @@ def test_rebalance_places_every_robot_once_and_evens_the_load() -> None:
 
 
 def test_a_move_binds_the_new_shard_before_it_unbinds_the_old(bus: Bus) -> None:
-    bus.settings = replace(bus.settings, ingest_shards=2)
+    bus.settings = bus.settings.updated(ingest_shards=2)
     bus.add("robot-a")
     bus.add("robot-b")
     apply_move(bus.api, bus.vhost, Move("robot-b", (1,), 0))
@@ -144,7 +143,7 @@ def _management_count(bus: Bus, shard: int) -> int:
 def test_more_shards_then_rebalance_from_the_command_line(bus: Bus) -> None:
     robots = {name: bus.robot(bus.add(name)) for name in ("robot-a", "robot-b", "robot-c", "robot-d")}
     sent = {name: keys(robot.publish_many([("status", status())] * 5)) for name, robot in robots.items()}
-    bus.settings = replace(bus.settings, ingest_shards=2)  # the workers and the commands from now on
+    bus.settings = bus.settings.updated(ingest_shards=2)  # the workers and the commands from now on
 
     listed = json.loads(fleetbus(bus, "shards", "--json").stdout)
     assert [(s["shard"], len(s["robots"]), s["worker"]) for s in listed["states"]] == [

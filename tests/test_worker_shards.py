@@ -3,14 +3,12 @@ processes, killed for real, in ``test_scaling.py``)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 from tests.support import Bus, wait_for
 from workers.shards import share
 
 
 def test_each_worker_takes_its_share_and_a_stopped_workers_shards_move_at_once(bus: Bus) -> None:
-    bus.settings = replace(bus.settings, ingest_shards=4)
+    bus.settings = bus.settings.updated(ingest_shards=4)
     with bus.worker() as first:
         assert first.context is not None and sorted(first.context.shards.held) == [0, 1, 2, 3]
         with bus.worker() as second:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from datetime import timedelta
 
 from broker.policies import QueueLimit
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from workers.recorder.retention import Retention, parse_limit, parse_retention
 
 #: MongoDB refuses a 65th index on a collection; a recorded type has five of its own (``_id``,

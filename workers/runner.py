@@ -17,7 +17,7 @@ from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.shards import read_shard_map
 from broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from schemas.routing import (
     BEACON_DISCARD_QUEUE,
     EXPRESS_QUEUE,

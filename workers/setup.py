@@ -19,7 +19,7 @@ from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.policies import apply_policies, bound_policies
 from broker.topology import core_topology, declare_with_url, recorder_topology
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from workers.bounds import bounds
 from workers.recorder.runner import recorder_url
 from workers.runner import service_url

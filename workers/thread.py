@@ -12,7 +12,7 @@ from collections.abc import Awaitable, Callable
 from types import TracebackType
 from typing import Any, Generic, TypeVar
 
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from workers.ingest import IngestStats
 from workers.runner import WorkerContext, run_worker
 

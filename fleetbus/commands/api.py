@@ -23,7 +23,6 @@ from schemas.roles import UserRole
 # FastAPI, the service and httpx are imported by the commands that use them: every `fleetbus`
 # command loads this module, and `fleetbus recorder run` must stay small (20 MB less resident).
 app = typer.Typer(help="The HTTP API of the service layer (users, missions, mounts).")
-DEFAULT_API = "http://127.0.0.1:8000"
 
 
 @app.callback(invoke_without_command=True)
@@ -89,12 +88,16 @@ def openapi(out: Annotated[Path, typer.Argument(help="file to write")] = Path("o
 @app.command("login")
 def login(
     name: str,
-    api: Annotated[str, typer.Option(envvar="FLEETBUS_API_URL", help="the API's base URL")] = DEFAULT_API,
+    api: Annotated[
+        str | None,
+        typer.Option(help="the API's base URL (default: FLEETBUS_API_URL, else http://127.0.0.1:8000)"),
+    ] = None,
     password_stdin: Annotated[bool, typer.Option("--password-stdin")] = False,
 ) -> None:
     """Log in; print the token and keep the broker URL in FLEETBUS_DATA_DIR/accounts/NAME.url."""
     import httpx
 
+    api = api or settings().api_url
     password = (
         sys.stdin.readline().rstrip("\n") if password_stdin else typer.prompt("password", hide_input=True)
     )

@@ -24,6 +24,7 @@ from workers.store.recordings import RecordedMessage, RecordingError, RecordingS
 
 
 def robot_url(robot: str, url: str | None) -> str:
+    url = url or settings().robot_url
     if url:
         return url
     saved = settings().accounts_dir / f"{robot}.url"
@@ -36,7 +37,12 @@ def publish(
     robot: str,
     event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
     data: Annotated[str, typer.Argument(help="JSON, or @file.json / @file.yaml")],
-    url: Annotated[str | None, typer.Option(envvar="FLEETBUS_ROBOT_URL", help="the robot's AMQP URL")] = None,
+    url: Annotated[
+        str | None,
+        typer.Option(
+            help="the robot's AMQP URL (default: FLEETBUS_ROBOT_URL, else the one `users add` kept)"
+        ),
+    ] = None,
     timeout: Annotated[float, typer.Option(help="seconds to wait for the broker's confirm")] = 10.0,
 ) -> None:
     """Publish one event as ROBOT, through its outbox; it returns once the broker confirmed it.

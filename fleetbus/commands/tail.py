@@ -21,6 +21,7 @@ from publishers.tail import Seen, follow
 
 
 def user_url(user: str | None, url: str | None) -> str:
+    url = url or settings().user_url
     if url:
         return url
     if user:
@@ -42,7 +43,7 @@ def tail(
     user: Annotated[
         str | None, typer.Option(help="follow as this user (credentials kept by `api login`)")
     ] = None,
-    url: Annotated[str | None, typer.Option(envvar="FLEETBUS_USER_URL", help="your broker URL")] = None,
+    url: Annotated[str | None, typer.Option(help="your broker URL (default: FLEETBUS_USER_URL)")] = None,
     since: Annotated[
         str | None, typer.Option(help="replay from this time first (ISO 8601 or e.g. 10m)")
     ] = None,

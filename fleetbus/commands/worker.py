@@ -5,13 +5,12 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Awaitable, Callable
-from dataclasses import replace
 from typing import Annotated
 
 import typer
 
-from fleetbus.config import MAX_INGEST_SHARDS
 from fleetbus.context import service_account, settings
+from fleetbus.settings import MAX_INGEST_SHARDS
 from workers.recorder.process import run_recorder_process
 from workers.recorder.runner import declare_recording
 from workers.runner import run_worker
@@ -66,7 +65,7 @@ def worker(
     configure_logging(verbose)
     config, url = settings(), service_account()
     if shards is not None:
-        config = replace(config, ingest_shards=shards)
+        config = config.updated(ingest_shards=shards)
     runs: list[Run] = [lambda stop: run_worker(config, url, stop)]
     if recorder:
         asyncio.run(declare_recording(url))

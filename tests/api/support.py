@@ -9,7 +9,7 @@ from __future__ import annotations
 import uuid
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, TypeVar
 
@@ -19,7 +19,7 @@ from pymongo import MongoClient
 
 from api.app import create_app
 from api.service import Service
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from schemas.missions import MissionState
 from schemas.roles import UserRole
 from schemas.routing import RobotKind
@@ -124,7 +124,7 @@ def running_api_on_each_store(request: pytest.FixtureRequest, bus: Bus) -> Itera
     if request.param == "mongodb":
         database = f"test_{uuid.uuid4().hex[:12]}"
         url = request.getfixturevalue("mongodb_url")
-        bus.settings = replace(bus.settings, mongodb_url=f"{url.rstrip('/')}/{database}")
+        bus.settings = bus.settings.updated(mongodb_url=f"{url.rstrip('/')}/{database}")
     try:
         with running_api(bus) as running:
             yield running

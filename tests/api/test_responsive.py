@@ -17,7 +17,7 @@ import pytest
 from argon2 import PasswordHasher
 
 from api.security import master_secret
-from fleetbus.config import load_settings
+from fleetbus.settings import load_settings
 from tests.api.server import api_server
 from tests.support import Bus, wait_for
 

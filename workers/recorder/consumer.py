@@ -22,7 +22,7 @@ from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from broker.dead_letter_queue import moved_letter_key
 from broker.retry import Stopped, async_retrying, run_retrying
-from fleetbus.config import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
+from fleetbus.settings import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
 from workers.batches import BatchInbox
 from workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
 from workers.recorder.capture import DEAD_LETTER, DEFAULT_MAX_TYPES, OTHER, REJECTION, TypeNames, capture

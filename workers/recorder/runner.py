@@ -14,7 +14,7 @@ from broker.accounts import ensure_recorder_account
 from broker.endpoint import BrokerEndpoint
 from broker.management import ManagementAPI
 from broker.topology import core_topology, declare_with_url, recorder_topology
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from schemas.routing import RECORDER_QUEUE
 from workers.recorder.capture import TypeNames
 from workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from workers.recorder.consumer import MissionLookup, RecorderOptions, RecorderStats
 from workers.recorder.runner import RecorderContext, run_recorder
 from workers.thread import LoopThread

@@ -6,7 +6,7 @@ import asyncio
 from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
-from fleetbus.config import Settings
+from fleetbus.settings import Settings
 from workers.store.base import EventQuery, EventRecord, EventStore, StoreError, StoreUnavailable, WriteResult
 from workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
 from workers.store.interface import Store
