@@ -8,7 +8,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 
 WORKDIR /app
 COPY . .
-RUN pip install . \
+# the server, the API and MongoDB, at the versions CI tested (requirements.lock)
+RUN pip install -c requirements.lock ".[server,api,mongodb]" \
     && useradd --system --create-home --uid 10001 fleetbus \
     && mkdir -p /data/accounts \
     && chown -R fleetbus /data

@@ -14,18 +14,18 @@ import secrets
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
-from api.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
-from api.security import Secrets, Token, password_problem
-from broker.account_roles import ROLE_TAGS, Role
-from broker.accounts import configure_account, delete_account, revoke_account, url_for, vhost_of
-from broker.management import ManagementAPI, ManagementError
-from broker.team_changes import HazardServiceNotTold
-from schemas.identity import validate_name
-from schemas.roles import UserRole
-from schemas.routing import RobotKind
-from workers.store.interface import Store
-from workers.store.users import User, UserExists
-from workers.team import leave_team
+from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
+from fleetbus.api.security import Secrets, Token, password_problem
+from fleetbus.broker.account_roles import ROLE_TAGS, Role
+from fleetbus.broker.accounts import configure_account, delete_account, revoke_account, url_for, vhost_of
+from fleetbus.broker.management import ManagementAPI, ManagementError
+from fleetbus.broker.team_changes import HazardServiceNotTold
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.users import User, UserExists
+from fleetbus.workers.team import leave_team
 
 log = logging.getLogger("fleetbus.api.accounts")
 

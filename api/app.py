@@ -16,14 +16,14 @@ from fastapi.dependencies.models import Dependant
 from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
 
-from api import audit
-from api.auth import RoleCheck
-from api.errors import ServiceRefusal
-from api.routes import auth, beacons, channels, missions, recording, team, users
-from api.service import open_service
+from fleetbus.api import audit
+from fleetbus.api.auth import RoleCheck
+from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.routes import auth, beacons, channels, missions, recording, team, users
+from fleetbus.api.service import open_service
+from fleetbus.schemas.roles import UserRole
 from fleetbus.settings import Settings
-from schemas.roles import UserRole
-from workers.store.base import StoreUnavailable
+from fleetbus.workers.store.base import StoreUnavailable
 
 
 def _role_checks(dependant: Dependant) -> Iterator[RoleCheck]:

@@ -15,11 +15,11 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request
 from fastapi.security import OAuth2PasswordBearer
 
-from api import audit
-from api.security import TokenRefused
-from api.service import Service
-from schemas.roles import UserRole
-from workers.store.users import User
+from fleetbus.api import audit
+from fleetbus.api.security import TokenRefused
+from fleetbus.api.service import Service
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.users import User
 
 bearer = OAuth2PasswordBearer(tokenUrl="/auth/token", auto_error=False)
 

@@ -14,17 +14,23 @@ import logging
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
-from api.errors import Conflict, Forbidden, NotFound, Unavailable
-from api.missions import Missions
-from broker.management import ManagementAPI, ManagementError
-from broker.mounts import QueueBinding, bind_all, mount_bindings, mount_bindings_on_broker, unbind_all
-from schemas.missions import MissionState
-from schemas.roles import UserRole
-from schemas.use_cases import CHECK_IN_STATES, InvalidTransition, machine_for
-from workers.store.channels import Booked, ChannelAction, ChannelChange, CheckIn, Mount
-from workers.store.interface import Store
-from workers.store.missions import Mission
-from workers.store.users import User
+from fleetbus.api.errors import Conflict, Forbidden, NotFound, Unavailable
+from fleetbus.api.missions import Missions
+from fleetbus.broker.management import ManagementAPI, ManagementError
+from fleetbus.broker.mounts import (
+    QueueBinding,
+    bind_all,
+    mount_bindings,
+    mount_bindings_on_broker,
+    unbind_all,
+)
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.use_cases import CHECK_IN_STATES, InvalidTransition, machine_for
+from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, CheckIn, Mount
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.missions import Mission
+from fleetbus.workers.store.users import User
 
 log = logging.getLogger("fleetbus.api.channels")
 

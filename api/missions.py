@@ -9,13 +9,13 @@ from __future__ import annotations
 
 from datetime import datetime, timezone
 
-from api.errors import BadRequest, Conflict, Forbidden, NotFound
-from schemas.missions import MissionPlan, MissionState
-from schemas.roles import UserRole
-from schemas.use_cases import InvalidTransition, RoleNotAllowed, machine_for, readiness
-from workers.store.interface import Store
-from workers.store.missions import Mission, MissionConflict
-from workers.store.users import User
+from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
+from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.use_cases import InvalidTransition, RoleNotAllowed, machine_for, readiness
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.missions import Mission, MissionConflict
+from fleetbus.workers.store.users import User
 
 #: Who sees every mission; a client sees its own.
 SEE_ALL = frozenset(

@@ -7,19 +7,19 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from api.accounts import BrokerCredentials
-from api.channels import BindingReport, CheckOut
-from api.team import TeamView
-from schemas.missions import MissionPlan, MissionState
-from schemas.roles import UserRole
-from schemas.routing import RobotKind
-from schemas.use_cases import MissionMachine, machine_for
-from workers.store.base import EventRecord
-from workers.store.channels import ChannelChange, CheckIn, Mount
-from workers.store.discards import Discard, DiscardCount
-from workers.store.missions import Mission, StateChange
-from workers.store.users import User
-from workers.team import TeamMember
+from fleetbus.api.accounts import BrokerCredentials
+from fleetbus.api.channels import BindingReport, CheckOut
+from fleetbus.api.team import TeamView
+from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.use_cases import MissionMachine, machine_for
+from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.channels import ChannelChange, CheckIn, Mount
+from fleetbus.workers.store.discards import Discard, DiscardCount
+from fleetbus.workers.store.missions import Mission, StateChange
+from fleetbus.workers.store.users import User
+from fleetbus.workers.team import TeamMember
 
 
 class _In(BaseModel):

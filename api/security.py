@@ -25,7 +25,7 @@ from cryptography.fernet import Fernet, InvalidToken
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
-from broker.accounts import save_secret_once
+from fleetbus.broker.accounts import save_secret_once
 from fleetbus.settings import Settings
 
 TOKEN_ALGORITHM = "HS256"

@@ -8,19 +8,19 @@ from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import timedelta
 
-from api.accounts import Accounts
-from api.channels import Channels
-from api.login_limits import LoginLimits
-from api.missions import Missions
-from api.security import Secrets
-from api.team import Team
-from broker.accounts import vhost_of
-from broker.management import ManagementAPI
-from broker.routes import RouteMap
+from fleetbus.api.accounts import Accounts
+from fleetbus.api.channels import Channels
+from fleetbus.api.login_limits import LoginLimits
+from fleetbus.api.missions import Missions
+from fleetbus.api.security import Secrets
+from fleetbus.api.team import Team
+from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
-from workers.store import open_recording_store, open_store
-from workers.store.interface import Store
-from workers.store.recordings import RecordingStore
+from fleetbus.workers.store import open_recording_store, open_store
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.recordings import RecordingStore
 
 
 @dataclass

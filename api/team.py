@@ -1,4 +1,4 @@
-"""The team the hazard gate follows, as the HTTP API shows and changes it (:mod:`workers.team`)."""
+"""The team the hazard gate follows, as the HTTP API shows and changes it (:mod:`fleetbus.workers.team`)."""
 
 from __future__ import annotations
 
@@ -6,11 +6,20 @@ import logging
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
-from api.errors import BadRequest, NotFound, Unavailable
-from broker.team_changes import HazardServiceNotTold
-from workers.store.hazards import RobotState
-from workers.store.interface import Store
-from workers.team import Gate, NotAWarden, NotInTeam, TeamMember, change_service, gate, read_team, why_closed
+from fleetbus.api.errors import BadRequest, NotFound, Unavailable
+from fleetbus.broker.team_changes import HazardServiceNotTold
+from fleetbus.workers.store.hazards import RobotState
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.team import (
+    Gate,
+    NotAWarden,
+    NotInTeam,
+    TeamMember,
+    change_service,
+    gate,
+    read_team,
+    why_closed,
+)
 
 log = logging.getLogger("fleetbus.api.team")
 

@@ -97,8 +97,8 @@ def figures(context: Context) -> Figures:
 
 
 def main() -> None:
-    from broker.endpoint import resolve_broker
-    from broker.management import ManagementAPI
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.dev.fallback import resolve_broker
     from fleetbus.settings import load_settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

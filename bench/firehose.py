@@ -30,12 +30,13 @@ from rich.table import Table
 
 from bench.proc import cpu_seconds
 from bench.results import medians, save, spread
-from broker.accounts import fresh_vhost
-from broker.endpoint import BrokerEndpoint, resolve_broker
-from broker.local_node import LocalNode
-from broker.management import ManagementAPI
+from fleetbus.broker.accounts import fresh_vhost
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.settings import load_settings
-from publishers.confirms import Outgoing, PipelinedConfirms
 
 VHOST = "fleetbus-bench-firehose"
 EXCHANGE, QUEUE, COPY, TRACE = "bench.events", "bench.main", "bench.copy", "bench.trace"

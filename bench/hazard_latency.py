@@ -36,7 +36,7 @@ from bench.results import percentile
 from bench.scenario import Context, Figures
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
-from schemas.routing import EventType, RobotKind
+from fleetbus.schemas.routing import EventType, RobotKind
 from tests.support import wait_for
 
 HAZARD_RATE = 20

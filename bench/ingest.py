@@ -40,15 +40,16 @@ from bench.processes import worker_process
 from bench.raw import SIZE, raw_rates
 from bench.results import medians, save, spread
 from bench.scenario import Context, Figures, Skip
-from broker.accounts import fresh_vhost
-from broker.dead_letter_queue import peek_dead_letters
-from broker.endpoint import BrokerEndpoint, resolve_broker
-from broker.management import ManagementAPI
+from fleetbus.broker.accounts import fresh_vhost
+from fleetbus.broker.dead_letter_queue import peek_dead_letters
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
+from fleetbus.schemas.routing import INGEST_QUEUE, EventType
 from fleetbus.settings import load_settings
-from schemas.envelope import build_event, encode_event, new_epoch
-from schemas.routing import INGEST_QUEUE, EventType
+from fleetbus.workers.store.base import EventQuery
 from tests.support import Bus, fresh_bus, wait_for
-from workers.store.base import EventQuery
 
 BENCH_VHOST = "fleetbus-bench"
 ROBOT = "bench-ingest"

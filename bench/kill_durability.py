@@ -26,7 +26,7 @@ import pika.exceptions
 from rich.console import Console
 from rich.table import Table
 
-from broker.local_node import LocalNode
+from fleetbus.dev.local_node import LocalNode
 
 QUEUES = {"quorum": {"x-queue-type": "quorum"}, "classic": {"x-queue-type": "classic"}}
 

@@ -28,13 +28,13 @@ from bench.ingest import BENCH_VHOST, status_items
 from bench.raw import SIZE, declare_queue, ingest_queue_arguments, raw_publish
 from bench.results import percentile
 from bench.scenario import Context, Figures
-from broker.accounts import Role, fresh_vhost, provision_account
-from broker.endpoint import resolve_broker
-from broker.management import ManagementAPI
+from fleetbus.broker.accounts import Role, fresh_vhost, provision_account
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.outbox import Outbox, Overflow, TypePolicy
+from fleetbus.schemas.envelope import build_event, new_epoch
 from fleetbus.settings import load_settings
-from publishers.client import RobotClient
-from publishers.outbox import Outbox, Overflow, TypePolicy
-from schemas.envelope import build_event, new_epoch
 
 ROBOT = "bench-outbox"
 WAITING = (0, 10_000, 50_000)

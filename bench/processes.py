@@ -17,7 +17,7 @@ import pika
 import pika.exceptions
 
 from bench.profile import record
-from schemas.routing import INGEST_QUEUE
+from fleetbus.schemas.routing import INGEST_QUEUE
 from tests.support import Bus, read_line, wait_for
 
 

@@ -23,11 +23,11 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from fleetbus.settings import load_settings
+from fleetbus.workers.bounds import bounds
+from fleetbus.workers.pruning import Pruner
+from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.sqlite import SQLiteEventStore
 from tests.store.test_contract import record
-from workers.bounds import bounds
-from workers.pruning import Pruner
-from workers.store.base import EventRecord
-from workers.store.sqlite import SQLiteEventStore
 
 HAZARD_EVERY_S = 0.02
 BULK_EVERY_S = 0.25

@@ -15,8 +15,8 @@ import aio_pika
 import pika
 
 from bench.scenario import Context, Figures
-from broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
-from publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 
 RAW_QUEUE = "bench.raw"
 SIZE = 512

@@ -39,17 +39,18 @@ from bench.processes import FleetbusProcess
 from bench.raw import declare_queue, raw_consume, raw_publish
 from bench.results import medians, save, spread
 from bench.scenario import Context, Figures
-from broker.accounts import Account, Role, fresh_vhost, provision_account
-from broker.endpoint import BrokerEndpoint, resolve_broker
-from broker.local_node import LocalNode
-from broker.management import ManagementAPI
-from broker.urls import without_password
+from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_account
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.urls import without_password
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.schemas.routing import RECORDER_QUEUE, events_exchange
 from fleetbus.settings import Settings, load_settings
-from publishers.confirms import Outgoing, PipelinedConfirms
-from schemas.routing import RECORDER_QUEUE, events_exchange
+from fleetbus.workers.setup import set_up_service
+from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
 from tests.support import wait_for
-from workers.setup import set_up_service
-from workers.store.sqlite_recordings import SQLiteRecordingStore
 
 VHOST = "fleetbus-bench-recorder"
 ROBOT = "bench-recorder"

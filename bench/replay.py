@@ -27,10 +27,10 @@ import pika
 from bench.proc import rss_megabytes
 from bench.scenario import Context, Figures
 from bench.worker_memory import SAMPLE_EVERY, peak_megabytes
+from fleetbus.workers.store import open_recording_store
+from fleetbus.workers.store.recordings import RecordedMessage
 from tests.factories import status
 from tests.support import Bus
-from workers.store import open_recording_store
-from workers.store.recordings import RecordedMessage
 
 EXCHANGE = "bench.replay"
 ROBOT = "bench-replay"
@@ -146,8 +146,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--messages", type=int, default=1_000_000)
     options = parser.parse_args()
-    from broker.endpoint import resolve_broker
-    from broker.management import ManagementAPI
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.dev.fallback import resolve_broker
     from fleetbus.settings import load_settings
 
     endpoint = resolve_broker(load_settings(), start=True)

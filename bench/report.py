@@ -12,8 +12,8 @@ from typing import Any
 from rich.table import Table
 
 from bench.scenario import Figures, Scenario, Target
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
 
 
 @dataclass

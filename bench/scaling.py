@@ -55,18 +55,19 @@ from bench.ingest import event_size, status_items
 from bench.proc import cpu_seconds
 from bench.raw import raw_consume, raw_publish
 from bench.results import medians, save, spread
-from broker.accounts import Account, Role, fresh_vhost, provision_account
-from broker.endpoint import BrokerEndpoint, resolve_broker
-from broker.local_node import LocalNode
-from broker.management import ManagementAPI
-from broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
-from broker.urls import without_password
+from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_account
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
+from fleetbus.broker.urls import without_password
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.client import RobotClient
 from fleetbus.settings import Settings, load_settings
-from publishers.client import RobotClient
-from workers.setup import set_up_service
-from workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
-from workers.store import Store, open_store
-from workers.store.base import EventQuery, EventRecord
+from fleetbus.workers.setup import set_up_service
+from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
+from fleetbus.workers.store import Store, open_store
+from fleetbus.workers.store.base import EventQuery, EventRecord
 
 VHOST = "fleetbus-bench-scaling"
 POLL_SECONDS = 0.05

@@ -10,9 +10,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from broker.accounts import fresh_vhost
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
+from fleetbus.broker.accounts import fresh_vhost
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
 from tests.support import Bus, fresh_bus
 
 Figures = dict[str, float]

@@ -25,14 +25,14 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from api.app import create_app
-from broker.accounts import fresh_vhost
-from broker.endpoint import resolve_broker
-from broker.management import ManagementAPI
+from fleetbus.api.app import create_app
+from fleetbus.broker.accounts import fresh_vhost
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import load_settings
-from schemas.missions import MissionState
-from schemas.roles import UserRole
-from schemas.routing import RobotKind
 
 BENCH_VHOST = "fleetbus-bench-api"
 PASSWORD = "bench password 1"

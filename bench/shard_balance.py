@@ -35,13 +35,14 @@ from rich.console import Console
 from rich.table import Table
 
 from bench.results import save
-from broker.accounts import fresh_vhost
-from broker.endpoint import BrokerEndpoint, resolve_broker
-from broker.local_node import RABBITMQCTL, LocalNode
-from broker.management import ManagementAPI
+from fleetbus.broker.accounts import fresh_vhost
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.dev.local_node import RABBITMQCTL, LocalNode
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.schemas.routing import EventType
 from fleetbus.settings import load_settings
-from publishers.confirms import Outgoing, PipelinedConfirms
-from schemas.routing import EventType
 
 VHOST = "fleetbus-bench-balance"
 EXCHANGE = "bench.hash"

@@ -21,7 +21,7 @@ from types import TracebackType
 
 from bench.ingest import status_items
 from bench.processes import spawn_until_ready
-from publishers.client import RobotClient
+from fleetbus.publishers.client import RobotClient
 from tests.support import Bus
 
 TICKS = 50

@@ -25,8 +25,8 @@ from pathlib import Path
 from types import TracebackType
 
 from bench.processes import spawn_until_ready
-from publishers.client import RobotClient
-from schemas.routing import EventType, Topic
+from fleetbus.publishers.client import RobotClient
+from fleetbus.schemas.routing import EventType, Topic
 from tests.support import Bus, wait_for
 
 

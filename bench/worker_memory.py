@@ -27,11 +27,11 @@ from bench.proc import rss_megabytes
 from bench.processes import worker_process
 from bench.raw import WINDOW
 from bench.scenario import Context, Figures
-from publishers.client import outgoing
-from publishers.confirms import PipelinedConfirms
-from publishers.outbox import Entry
-from schemas.envelope import build_event, encode_event, new_epoch, parse_event
-from schemas.routing import INGEST_QUEUE, EventType
+from fleetbus.publishers.client import outgoing
+from fleetbus.publishers.confirms import PipelinedConfirms
+from fleetbus.publishers.outbox import Entry
+from fleetbus.schemas.envelope import build_event, encode_event, new_epoch, parse_event
+from fleetbus.schemas.routing import INGEST_QUEUE, EventType
 from tests.support import Bus, wait_for
 
 ROBOT = "bench-memory"

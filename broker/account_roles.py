@@ -1,4 +1,5 @@
-"""What a broker account is for; it decides the resources the account owns (see ``broker.topology``)."""
+"""What a broker account is for; it decides the resources the account owns
+(see ``fleetbus.broker.topology``)."""
 
 from __future__ import annotations
 

@@ -21,12 +21,12 @@ from urllib.parse import quote, unquote, urlsplit, urlunsplit
 import pika
 import pika.exceptions
 
-from broker.account_roles import ROLE_TAGS, Role
-from broker.management import ManagementAPI
-from broker.shards import assign_shard, unassign_shard
-from broker.topology import account_topology, core_topology, declare_with_url
-from schemas.identity import validate_name
-from schemas.routing import (
+from fleetbus.broker.account_roles import ROLE_TAGS, Role
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.shards import assign_shard, unassign_shard
+from fleetbus.broker.topology import account_topology, core_topology, declare_with_url
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.routing import (
     RECORDER_QUEUE,
     SERVICE_PREFIX,
     RobotKind,

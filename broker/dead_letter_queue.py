@@ -19,7 +19,7 @@ from typing import Any, Protocol
 
 import pika
 
-from schemas.routing import DEAD_LETTER_QUEUE, RECORDER_QUEUE
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RECORDER_QUEUE
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Accounts, permissions, topic permissions and virtual hosts have no AMQP operations, so the
 service manages them here; queues, exchanges and bindings are declared over AMQP by
-:mod:`broker.topology`.
+:mod:`fleetbus.broker.topology`.
 """
 
 from __future__ import annotations

@@ -16,8 +16,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from broker.management import ManagementAPI
-from schemas.routing import commands_exchange, commands_queue, events_exchange, stream_queue
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.schemas.routing import commands_exchange, commands_queue, events_exchange, stream_queue
 
 
 @dataclass(frozen=True, order=True)

@@ -25,12 +25,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from broker.management import ManagementAPI
-from schemas.routing import DEAD_LETTER_QUEUE, OVERFLOW_EXCHANGE
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, OVERFLOW_EXCHANGE
 
 #: Above 0, RabbitMQ's default, so that a catch-all policy of the operator's does not hide these.
 PRIORITY = 10
-#: Every account's inbox (account names: :data:`schemas.identity.NAME_PATTERN`).
+#: Every account's inbox (account names: :data:`fleetbus.schemas.identity.NAME_PATTERN`).
 INBOX_PATTERN = r"^[a-z][a-z0-9_-]{1,31}\.inbox$"
 
 

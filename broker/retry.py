@@ -150,7 +150,7 @@ def retrying(
     """Retry while ``on`` is raised: until it succeeds, ``deadline`` seconds pass (:class:`GaveUp`)
     or ``stop`` is set (:class:`Stopped`, with a wait in progress cut short). Any other error
     is raised at once. ``what`` names what is waited for in the log and errors (mask passwords:
-    :func:`broker.urls.mask_password`); ``on_retry`` is called before each wait (to count them)."""
+    :func:`fleetbus.broker.urls.mask_password`); ``on_retry`` is called before each wait (to count them)."""
     sleep = stop.wait if stop is not None else time.sleep
     return Retrying(sleep=sleep, **_options(what, on, deadline, backoff, stop, logger, on_retry))  # type: ignore[arg-type]
 

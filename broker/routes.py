@@ -13,8 +13,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from broker.management import ManagementAPI
-from broker.topics import topic_matches
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.topics import topic_matches
 
 UNREPORTED = "user not reported by the broker yet"
 

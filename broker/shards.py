@@ -26,8 +26,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from broker.management import ManagementAPI
-from schemas.routing import (
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.schemas.routing import (
     BEACON_CHECK_EXCHANGE,
     BEACON_EXCHANGE,
     SHARD_EXCHANGE,

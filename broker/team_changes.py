@@ -13,8 +13,8 @@ import uuid
 import pika
 import pika.exceptions
 
-from schemas.routing import EXPRESS_QUEUE
-from schemas.team import TEAM_CHANGE_TYPE, TeamChange
+from fleetbus.schemas.routing import EXPRESS_QUEUE
+from fleetbus.schemas.team import TEAM_CHANGE_TYPE, TeamChange
 
 
 class HazardServiceNotTold(RuntimeError):

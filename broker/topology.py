@@ -15,8 +15,8 @@ from typing import Any
 import aio_pika
 from aio_pika.abc import AbstractChannel, ExchangeType
 
-from broker.account_roles import Role
-from schemas.routing import (
+from fleetbus.broker.account_roles import Role
+from fleetbus.schemas.routing import (
     ALL_TOPICS_BINDING,
     BEACON_CHECK_EXCHANGE,
     BEACON_DISCARD_EXCHANGE,
@@ -127,7 +127,7 @@ OVERFLOW_QUEUE_ARGUMENTS: dict[str, Any] = {
 
 #: The express lane's queue. Classic: it hands a hazard to the worker about 0.5 ms sooner than a
 #: quorum queue (no Raft commit first) and keeps every persistent message across a SIGKILL on one
-#: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`workers.attempts`).
+#: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`fleetbus.workers.attempts`).
 #: Its dead-letter exchange takes what the worker rejects (``basic.nack``), as the shards' do.
 EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
     "x-queue-type": "classic",
@@ -141,7 +141,7 @@ def core_topology(shards: int = 1) -> Topology:
 
     Robots' events reach ``fleetbus.ingest.shards``, which routes every robot's hazards and
     localisations to the express queue, and each robot's other types to its one shard (bound by
-    its name, :mod:`broker.shards`); a message neither matches goes to shard 0 by the exchange's
+    its name, :mod:`fleetbus.broker.shards`); a message neither matches goes to shard 0 by the exchange's
     alternate exchange, so nothing is ever routed to no queue.
     """
     if shards < 1:

@@ -20,7 +20,7 @@ from pydantic import BeforeValidator, Field, SecretStr, ValidationError, Validat
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
-from schemas.notifications import LATE_AFTER_S
+from fleetbus.schemas.notifications import LATE_AFTER_S
 
 ENV_PREFIX = "FLEETBUS_"
 DEFAULT_DATA_DIR = ".fleetbus"
@@ -308,7 +308,7 @@ def load_settings(environ: Mapping[str, str] | None = None) -> Settings:
             )
     except ValidationError as error:
         raise ValueError(_explain(error)) from None
-    from workers.bounds import bounds  # the bounds' grammar lives with the rules that apply them
+    from fleetbus.workers.bounds import bounds  # the bounds' grammar lives with the rules that apply them
 
     bounds(settings)  # a bound that does not parse stops the process now, naming its variable
     return settings

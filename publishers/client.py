@@ -32,20 +32,27 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
-from publishers.backoff import reconnect_delay
-from publishers.confirms import Outgoing
-from publishers.errors import BrokerUnavailable, PublisherError, PublishRefused
-from publishers.maps import FetchedMap, fetch_map, map_events
-from publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
-from publishers.rpc import RpcChannel
-from publishers.sender import Sender
-from publishers.sequence import SequenceCounter
-from publishers.state_lock import StateLock
-from schemas.bodies import MapMetadata
-from schemas.envelope import EVENT_ADAPTER, Event, build_event, new_epoch, validate_body
-from schemas.identity import validate_name
-from schemas.notifications import LATE_AFTER_S, Notification
-from schemas.routing import EventType, Topic, beacon_headers, event_routing_key, inbox_queue, publish_exchange
+from fleetbus.publishers.backoff import reconnect_delay
+from fleetbus.publishers.confirms import Outgoing
+from fleetbus.publishers.errors import BrokerUnavailable, PublisherError, PublishRefused
+from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
+from fleetbus.publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
+from fleetbus.publishers.rpc import RpcChannel
+from fleetbus.publishers.sender import Sender
+from fleetbus.publishers.sequence import SequenceCounter
+from fleetbus.publishers.state_lock import StateLock
+from fleetbus.schemas.bodies import MapMetadata
+from fleetbus.schemas.envelope import EVENT_ADAPTER, Event, build_event, new_epoch, validate_body
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.notifications import LATE_AFTER_S, Notification
+from fleetbus.schemas.routing import (
+    EventType,
+    Topic,
+    beacon_headers,
+    event_routing_key,
+    inbox_queue,
+    publish_exchange,
+)
 
 log = logging.getLogger("fleetbus.robot")
 
@@ -105,14 +112,14 @@ class RobotClient:
     (leaving the ``with`` block) tries to deliver what still waits in the outbox.
     ``max_reconnect_delay``: the cap of the waits between connection attempts (and between tries
     of what the broker nacked), which are drawn at random below an exponentially growing bound
-    (:mod:`publishers.backoff`) so that a team does not reconnect in lockstep.
+    (:mod:`fleetbus.publishers.backoff`) so that a team does not reconnect in lockstep.
     """
 
     def __init__(
         self,
         amqp_url: str,
         *,
-        state_dir: Path,
+        state_dir: Path | str,
         connect_timeout: float = 30.0,
         confirm_timeout: float = 10.0,
         close_timeout: float = 5.0,
@@ -122,7 +129,8 @@ class RobotClient:
     ) -> None:
         self.robot_id = validate_name(unquote(urlsplit(amqp_url).username or ""))
         self.epoch = new_epoch()
-        """This client's epoch: its events are numbered 0, 1, 2, ... in it (:mod:`publishers.sequence`)."""
+        """This client's epoch: its events are numbered 0, 1, 2, ... in it
+        (:mod:`fleetbus.publishers.sequence`)."""
         self._sequence = SequenceCounter()
         self._parameters = pika.URLParameters(amqp_url)
         self._parameters.heartbeat = 30
@@ -132,7 +140,7 @@ class RobotClient:
         self._confirm_timeout = confirm_timeout
         self._close_timeout = close_timeout
         self._max_reconnect_delay = max_reconnect_delay
-        folder = robot_folder(state_dir, self.robot_id)
+        folder = robot_folder(Path(state_dir), self.robot_id)
         self._lock = StateLock(folder)
         self._lock.acquire()
         try:

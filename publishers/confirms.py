@@ -17,7 +17,7 @@ import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel, BlockingConnection
 from pika.spec import Basic
 
-from publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
+from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
 
 _SLICE = 0.05
 

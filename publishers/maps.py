@@ -9,9 +9,9 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, Protocol
 
-from schemas.bodies import MAP_CHUNK_BYTES, MAP_INLINE_BYTES, MapMetadata
-from schemas.pgm import check_pgm
-from schemas.routing import EventType
+from fleetbus.schemas.bodies import MAP_CHUNK_BYTES, MAP_INLINE_BYTES, MapMetadata
+from fleetbus.schemas.pgm import check_pgm
+from fleetbus.schemas.routing import EventType
 
 
 def map_events(

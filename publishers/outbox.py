@@ -30,9 +30,9 @@ from typing import Any, Protocol
 from tinydb import TinyDB
 from tinydb.table import Document
 
-from publishers.storage import AtomicJSONStorage, write_atomically
-from schemas.envelope import Event, encode_event
-from schemas.routing import EventType
+from fleetbus.publishers.storage import AtomicJSONStorage, write_atomically
+from fleetbus.schemas.envelope import Event, encode_event
+from fleetbus.schemas.routing import EventType
 
 SEGMENT_NAME = re.compile(r"^seg-(\d{12})\.json$")
 BLOB_PREFIX = "blob-"

@@ -15,8 +15,8 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel, BlockingConnection
 
-from publishers.errors import BrokerUnavailable, PublisherError
-from schemas.routing import request_routing_key, requests_exchange
+from fleetbus.publishers.errors import BrokerUnavailable, PublisherError
+from fleetbus.schemas.routing import request_routing_key, requests_exchange
 
 REPLY_TO = "amq.rabbitmq.reply-to"
 

@@ -16,7 +16,7 @@ What goes wrong is one of two kinds, told apart here:
   or the broker nacked the message. A nack is RabbitMQ saying a queue cannot take it now (an
   internal error of the queue, or a queue that is full with ``reject-publish``), which says
   nothing about the message itself. The events stay in the outbox, in their place, and are sent
-  again after a wait drawn by :func:`publishers.backoff.reconnect_delay`: exponential, with full
+  again after a wait drawn by :func:`fleetbus.publishers.backoff.reconnect_delay`: exponential, with full
   jitter, capped at ``max_reconnect_delay``. A connection loss never marks a message refused.
 """
 
@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 import pika
 import pika.exceptions
 
-from publishers.backoff import reconnect_delay
-from publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
-from publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
-from publishers.outbox import Entry, Outbox
+from fleetbus.publishers.backoff import reconnect_delay
+from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
+from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
+from fleetbus.publishers.outbox import Entry, Outbox
 
 log = logging.getLogger("fleetbus.robot.sender")
 

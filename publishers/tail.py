@@ -21,8 +21,8 @@ from urllib.parse import unquote, urlsplit
 import aio_pika
 from aio_pika.abc import AbstractIncomingMessage
 
-from broker.topics import topic_matches
-from schemas.routing import stream_queue
+from fleetbus.broker.topics import topic_matches
+from fleetbus.schemas.routing import stream_queue
 
 #: Stream offsets by time are found per chunk, so a replay may start a little early: messages
 #: stamped more than this before the requested time are left out.

@@ -1,6 +1,6 @@
 """pydantic models of every message on the fleetbus bus, and the routing convention."""
 
-from schemas.bodies import (
+from fleetbus.schemas.bodies import (
     BeaconSighting,
     BehaviourOutcome,
     HazardDetected,
@@ -11,7 +11,7 @@ from schemas.bodies import (
     Quaternion,
     RobotStatus,
 )
-from schemas.envelope import (
+from fleetbus.schemas.envelope import (
     BODY_MODELS,
     EVENT_MODELS,
     Event,
@@ -21,9 +21,9 @@ from schemas.envelope import (
     parse_event,
     validate_body,
 )
-from schemas.identity import RobotId, validate_name
-from schemas.notifications import Notification
-from schemas.routing import EventType, RobotKind, Topic
+from fleetbus.schemas.identity import RobotId, validate_name
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import EventType, RobotKind, Topic
 
 __all__ = [
     "BODY_MODELS",

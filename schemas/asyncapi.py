@@ -10,10 +10,10 @@ from typing import Any
 
 from pydantic.json_schema import models_json_schema
 
-from schemas.envelope import EVENT_MODELS
-from schemas.identity import NAME_PATTERN
-from schemas.notifications import Notification
-from schemas.routing import (
+from fleetbus.schemas.envelope import EVENT_MODELS
+from fleetbus.schemas.identity import NAME_PATTERN
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import (
     BEACON_CODENAME_HEADER,
     BEACON_DISCARD_EXCHANGE,
     BEACON_DISCARD_QUEUE,

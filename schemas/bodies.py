@@ -16,7 +16,7 @@ from pydantic import (
     model_validator,
 )
 
-from schemas.pgm import check_pgm
+from fleetbus.schemas.pgm import check_pgm
 
 
 class Strict(BaseModel):

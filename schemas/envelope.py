@@ -23,7 +23,7 @@ from pydantic import (
     ValidationError,
 )
 
-from schemas.bodies import (
+from fleetbus.schemas.bodies import (
     BeaconSighting,
     BehaviourOutcome,
     HazardDetected,
@@ -32,8 +32,8 @@ from schemas.bodies import (
     MapUpdate,
     RobotStatus,
 )
-from schemas.identity import RobotId
-from schemas.routing import EventType
+from fleetbus.schemas.identity import RobotId
+from fleetbus.schemas.routing import EventType
 
 #: 2: the envelope carries the ``epoch`` its sequence number belongs to (version 1 had none).
 SCHEMA_VERSION = 2

@@ -6,8 +6,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from schemas.asyncapi import asyncapi_document
-from schemas.envelope import EVENT_ADAPTER, EVENT_MODELS
+from fleetbus.schemas.asyncapi import asyncapi_document
+from fleetbus.schemas.envelope import EVENT_ADAPTER, EVENT_MODELS
 
 
 def json_schemas() -> dict[str, dict[str, Any]]:

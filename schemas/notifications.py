@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict
 
-from schemas.envelope import Event
-from schemas.routing import Topic
+from fleetbus.schemas.envelope import Event
+from fleetbus.schemas.routing import Topic
 
 #: A notification that reaches its robots this long after the event was sent is ``late`` (the
 #: default of ``FLEETBUS_LATE_AFTER_S``; a robot client rebuilding its list uses it too).

@@ -1,7 +1,7 @@
 """The roles of the service layer's users, and what each is for.
 
 A new account is ``inactive`` and may do nothing until an admin gives it a role. The HTTP API
-checks the caller's role on every endpoint (``api.auth.require_role``); the broker account each
+checks the caller's role on every endpoint (``fleetbus.api.auth.require_role``); the broker account each
 user also gets is confined to its own name whatever the role.
 """
 

@@ -6,7 +6,7 @@ from enum import Enum
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict
 
-from schemas.identity import RobotId
+from fleetbus.schemas.identity import RobotId
 
 #: The AMQP ``type`` of a team change, put on the express lane by the default exchange (which no
 #: robot may write to: only the administrator and the service's own account can).

@@ -12,8 +12,8 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from schemas.missions import MissionPlan, MissionState
-from schemas.roles import UserRole
+from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import UserRole
 
 S = MissionState
 R = UserRole

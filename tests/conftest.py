@@ -11,9 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from broker.endpoint import BrokerEndpoint, resolve_broker
-from broker.local_node import LocalNode
-from broker.management import ManagementAPI
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.dev.local_node import LocalNode
 from fleetbus.settings import load_settings
 from tests.link import NetworkLink
 from tests.store.conftest import fresh_database

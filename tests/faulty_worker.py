@@ -15,7 +15,7 @@ import sys
 from typing import Any
 
 from fleetbus.cli import app
-from workers.ingest import IngestConsumer
+from fleetbus.workers.ingest import IngestConsumer
 
 _reject = IngestConsumer._reject
 

@@ -15,7 +15,7 @@ import sys
 import threading
 from pathlib import Path
 
-from publishers.client import RobotClient
+from fleetbus.publishers.client import RobotClient
 from tests.factories import status
 
 

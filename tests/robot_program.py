@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from publishers.client import RobotClient
+from fleetbus.publishers.client import RobotClient
 from tests.factories import hazard, status
 
 

@@ -20,29 +20,29 @@ from urllib.parse import urlsplit
 
 import pika
 
-from broker.accounts import Account, Role, fresh_vhost, provision_account
-from broker.dead_letter_queue import DeadLetter, peek_dead_letters
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
-from broker.urls import without_password
-from fleetbus.registry import register_robot
+from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_account
+from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.urls import without_password
+from fleetbus.cli.registry import register_robot
+from fleetbus.dev.recorder_thread import RecorderThread
+from fleetbus.dev.worker_thread import WorkerThread
+from fleetbus.publishers.client import RobotClient, outbox_folder
+from fleetbus.publishers.outbox import Outbox
+from fleetbus.schemas.envelope import Event
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import EXPRESS_TYPES, RobotKind
 from fleetbus.settings import Settings, load_settings
-from publishers.client import RobotClient, outbox_folder
-from publishers.outbox import Outbox
-from schemas.envelope import Event
-from schemas.notifications import Notification
-from schemas.routing import EXPRESS_TYPES, RobotKind
+from fleetbus.workers.recorder.consumer import MissionLookup
+from fleetbus.workers.recorder.runner import recorder_options
+from fleetbus.workers.setup import ServiceAccounts, set_up_service
+from fleetbus.workers.store import Store, open_recording_store, run_with_store
+from fleetbus.workers.store.base import EventQuery, EventRecord
+from fleetbus.workers.store.ledger import Gap
+from fleetbus.workers.store.recordings import RecordedMessage, RecordQuery
 from tests.factories import hazard, status
 from tests.link import NetworkLink
-from workers.recorder.consumer import MissionLookup
-from workers.recorder.runner import recorder_options
-from workers.recorder.thread import RecorderThread
-from workers.setup import ServiceAccounts, set_up_service
-from workers.store import Store, open_recording_store, run_with_store
-from workers.store.base import EventQuery, EventRecord
-from workers.store.ledger import Gap
-from workers.store.recordings import RecordedMessage, RecordQuery
-from workers.thread import WorkerThread
 
 T = TypeVar("T")
 EXPRESS_TYPE_NAMES = frozenset(event_type.value for event_type in EXPRESS_TYPES)

@@ -7,11 +7,11 @@ import threading
 
 import pika
 
-from broker.accounts import Role
-from schemas.routing import RobotKind
+from fleetbus.broker.accounts import Role
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventQuery
 from tests.factories import TABLE1_TIME, hazard, status
 from tests.support import Bus, notifications_until, wait_for
-from workers.store.base import EventQuery
 
 
 def test_200_hazards_reach_both_wardens_and_are_stored_once_in_order(bus: Bus) -> None:

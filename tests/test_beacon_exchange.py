@@ -7,12 +7,12 @@ import pika
 import pika.exceptions
 import pytest
 
-from publishers.confirms import Outgoing, PipelinedConfirms
-from publishers.errors import PublishRefused
-from schemas.envelope import build_event, encode_event, new_epoch
-from schemas.routing import RobotKind
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.errors import PublishRefused
+from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.discards import Discard
 from tests.support import Bus, wait_for
-from workers.store.discards import Discard
 
 #: The run of a hand-made client that publishes the raw sightings below.
 EPOCH = new_epoch()

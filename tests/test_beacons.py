@@ -6,11 +6,11 @@ import asyncio
 
 import pytest
 
-from broker.accounts import Role, provision_account
-from publishers.rpc import ServiceRefused
-from schemas.routing import RobotKind
+from fleetbus.broker.accounts import Role, provision_account
+from fleetbus.publishers.rpc import ServiceRefused
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.beacons import Beacon
 from tests.support import Bus, wait_for
-from workers.store.beacons import Beacon
 
 
 def sighting(beacon_id: str, rssi: int, x: float = 0.0) -> dict:

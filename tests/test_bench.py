@@ -21,8 +21,8 @@ from bench.registry import SCENARIOS, by_name
 from bench.report import Outcome, as_json, markdown, verdicts
 from bench.scenario import Context, Figures, Scenario, Skip, Target
 from bench.suite import main, run, select
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
 from tests.store.test_contract import LATER, record
 from tests.support import Bus
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import pytest
 
+from fleetbus.publishers.maps import map_events
+from fleetbus.schemas.bodies import MAP_INLINE_BYTES
+from fleetbus.schemas.envelope import encode_event
+from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import load_settings
-from publishers.maps import map_events
-from schemas.bodies import MAP_INLINE_BYTES
-from schemas.envelope import encode_event
-from schemas.routing import RobotKind
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 from tests.test_beacon_exchange import publish_raw as publish_beacon

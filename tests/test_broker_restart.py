@@ -10,12 +10,12 @@ from datetime import timedelta
 
 import pytest
 
-from broker.local_node import LocalNode
-from publishers.client import RobotClient
-from schemas.routing import RobotKind
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.client import RobotClient
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventQuery
 from tests.factories import hazard, status
 from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
-from workers.store.base import EventQuery
 
 
 def test_broker_killed_and_restarted_under_load(killable_bus: Bus, killable_node: LocalNode) -> None:

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from broker.accounts import RECORDER_USER, SERVICE_USER, save_secret
-from broker.local_node import LocalNode
+from fleetbus.broker.accounts import RECORDER_USER, SERVICE_USER, save_secret
+from fleetbus.dev.local_node import LocalNode
 from fleetbus.settings import load_settings
 from tests.support import PROJECT_ROOT
 

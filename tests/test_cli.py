@@ -11,7 +11,7 @@ from pathlib import Path
 
 import yaml
 
-from schemas.routing import EventType
+from fleetbus.schemas.routing import EventType
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 

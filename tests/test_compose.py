@@ -14,7 +14,7 @@ from urllib.parse import urlsplit
 
 import yaml
 
-from broker.accounts import SERVICE_USER
+from fleetbus.broker.accounts import SERVICE_USER
 
 ROOT = Path(__file__).resolve().parent.parent
 SERVICES: dict[str, Any] = yaml.safe_load((ROOT / "compose.yaml").read_text())["services"]

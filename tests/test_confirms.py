@@ -7,8 +7,8 @@ import time
 import pika
 import pytest
 
-from publishers import confirms
-from publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers import confirms
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from tests.support import Bus
 
 SLICE = 60.0

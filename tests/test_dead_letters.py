@@ -12,12 +12,12 @@ from collections.abc import Sequence
 
 import pytest
 
-from schemas.envelope import build_event, encode_event, new_epoch
-from schemas.routing import EventType, RobotKind
+from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
+from fleetbus.schemas.routing import EventType, RobotKind
+from fleetbus.workers.telemetry import BatteryWatch
+from fleetbus.workers.validation import Accepted
 from tests.factories import status
 from tests.support import Bus, wait_for
-from workers.telemetry import BatteryWatch
-from workers.validation import Accepted
 
 BAD = 3
 EPOCH = new_epoch()

@@ -6,8 +6,8 @@ from pathlib import Path
 
 from rich.console import Console
 
-from broker.endpoint import BrokerEndpoint
-from fleetbus.demo import WARDENS, run_demo
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.dev.demo import WARDENS, run_demo
 from fleetbus.settings import load_settings
 
 

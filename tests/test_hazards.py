@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from schemas.routing import RobotKind
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.hazards import HazardState
 from tests.factories import hazard
 from tests.support import Bus, notifications_until, wait_for
-from workers.store.hazards import HazardState
 
 
 def held_and_announced(bus: Bus) -> tuple[int, int]:

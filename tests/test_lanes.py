@@ -19,21 +19,21 @@ import aio_pika.abc
 import pika
 import pytest
 
-from broker.topology import core_topology, declare_with_url
-from schemas.envelope import Event
-from schemas.routing import (
+from fleetbus.broker.topology import core_topology, declare_with_url
+from fleetbus.schemas.envelope import Event
+from fleetbus.schemas.routing import (
     EXPRESS_QUEUE,
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
     RobotKind,
     notification_routing_key,
 )
+from fleetbus.workers.attempts import AttemptLimit
+from fleetbus.workers.ingest import IngestConsumer
+from fleetbus.workers.store import Store, open_store
+from fleetbus.workers.validation import Accepted, Rejected
 from tests.factories import hazard, status
 from tests.support import Bus, notifications_until, wait_for
-from workers.attempts import AttemptLimit
-from workers.ingest import IngestConsumer
-from workers.store import Store, open_store
-from workers.validation import Accepted, Rejected
 
 REFUSING_QUEUE = "test.refuses-battery-warnings"
 

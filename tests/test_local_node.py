@@ -22,8 +22,9 @@ import httpx
 import pika
 import pytest
 
-from broker.endpoint import BrokerUnavailable, docker_engine_answers, resolve_broker
-from broker.local_node import (
+from fleetbus.broker.endpoint import BrokerUnavailable
+from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
+from fleetbus.dev.local_node import (
     ADMIN_USER,
     RABBITMQ_SERVER,
     LocalNode,

@@ -12,10 +12,10 @@ import uuid
 import pika
 import yaml
 
-from publishers.maps import map_events
-from schemas.bodies import MAP_CHUNK_BYTES
-from schemas.envelope import new_epoch
-from schemas.routing import RobotKind
+from fleetbus.publishers.maps import map_events
+from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
+from fleetbus.schemas.envelope import new_epoch
+from fleetbus.schemas.routing import RobotKind
 from tests.factories import small_map
 from tests.support import Bus, notifications_until, wait_for
 

@@ -14,9 +14,10 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from publishers.outbox import Overflow, TypePolicy
-from schemas.envelope import build_event, encode_event
-from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
+from fleetbus.publishers.outbox import Overflow, TypePolicy
+from fleetbus.schemas.envelope import build_event, encode_event
+from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
+from fleetbus.workers.store.base import EventQuery
 from tests.factories import hazard, status
 from tests.link import NetworkLink
 from tests.store.mongodb import MONGOECO_PYTHON, NO_MONGODB, MongoecoServer
@@ -30,7 +31,6 @@ from tests.support import (
     wait_for,
 )
 from tests.test_cli import fleetbus
-from workers.store.base import EventQuery
 
 #: How long the workers stay stopped while the robots keep publishing: a few seconds in the default
 #: suite, the issue's minute under ``slow``. What is proven (nothing stored meanwhile, the queues

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy
-from publishers.sequence import SequenceCounter
-from publishers.storage import AtomicJSONStorage
-from schemas.envelope import Event, build_event, new_epoch, parse_event
+from fleetbus.publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy
+from fleetbus.publishers.sequence import SequenceCounter
+from fleetbus.publishers.storage import AtomicJSONStorage
+from fleetbus.schemas.envelope import Event, build_event, new_epoch, parse_event
 from tests.factories import hazard, status
 
 EPOCH = new_epoch()

@@ -7,9 +7,9 @@ import json
 import subprocess
 import sys
 
-from broker.dead_letter_queue import peek_dead_letters
-from schemas.notifications import Notification
-from schemas.routing import DEAD_LETTER_QUEUE, RobotKind, inbox_queue
+from fleetbus.broker.dead_letter_queue import peek_dead_letters
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RobotKind, inbox_queue
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 

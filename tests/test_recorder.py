@@ -14,19 +14,19 @@ import pika
 import pika.exceptions
 import pytest
 
-from broker.accounts import RECORDER_USER, url_for
-from broker.local_node import pid_alive
-from schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
+from fleetbus.broker.accounts import RECORDER_USER, url_for
+from fleetbus.dev.local_node import pid_alive
+from fleetbus.schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
+from fleetbus.workers.recorder.capture import refusal
+from fleetbus.workers.recorder.filters import RoutingFilter
+from fleetbus.workers.recorder.process import PARENT_ENV
+from fleetbus.workers.recorder.retention import parse_retention
+from fleetbus.workers.store import open_recording_store
+from fleetbus.workers.store.base import WriteResult
+from fleetbus.workers.store.recordings import Condition, Op, RecordedMessage, RecordingStore
 from tests.factories import hazard, status
 from tests.support import PROJECT_ROOT, Bus, wait_for
 from tests.test_cli import fleetbus
-from workers.recorder.capture import refusal
-from workers.recorder.filters import RoutingFilter
-from workers.recorder.process import PARENT_ENV
-from workers.recorder.retention import parse_retention
-from workers.store import open_recording_store
-from workers.store.base import WriteResult
-from workers.store.recordings import Condition, Op, RecordedMessage, RecordingStore
 
 TF = {
     "frame": "/kinect/depth",

@@ -10,10 +10,10 @@ from typing import Any
 
 import pytest
 
-from broker.accounts import RECORDER_USER, SERVICE_USER
-from broker.routes import Consumer, RouteMap
-from fleetbus.commands.trace import _consumers
-from schemas.routing import EXPRESS_QUEUE, RECORDER_QUEUE, EventType, RobotKind
+from fleetbus.broker.accounts import RECORDER_USER, SERVICE_USER
+from fleetbus.broker.routes import Consumer, RouteMap
+from fleetbus.cli.commands.trace import _consumers
+from fleetbus.schemas.routing import EXPRESS_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 from tests.test_cli import fleetbus

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from schemas.routing import EventType
+from fleetbus.schemas.routing import EventType
+from fleetbus.workers.recorder.growth import growth
+from fleetbus.workers.store.recordings import StorageSample
 from tests.factories import status
 from tests.support import Bus, wait_for
 from tests.test_cli import fleetbus
-from workers.recorder.growth import growth
-from workers.store.recordings import StorageSample
 
 T0 = datetime(2021, 6, 1, 18, 0, tzinfo=timezone.utc)
 

@@ -17,10 +17,10 @@ from itertools import pairwise
 import pika
 import pytest
 
-from broker.local_node import LocalNode
-from publishers.client import RobotClient
-from publishers.errors import PublishRefused
-from schemas.routing import INGEST_EXCHANGE, RobotKind
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.errors import PublishRefused
+from fleetbus.schemas.routing import INGEST_EXCHANGE, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink
 from tests.support import Bus, network_link, wait_for

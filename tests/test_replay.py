@@ -11,13 +11,13 @@ from typing import Any
 import pika
 import pytest
 
-from schemas.routing import EventType
+from fleetbus.schemas.routing import EventType
+from fleetbus.workers.recorder.replay import schedule
+from fleetbus.workers.store import open_recording_store
+from fleetbus.workers.store.recordings import RecordedMessage
 from tests.factories import status
 from tests.support import Bus, wait_for
 from tests.test_cli import fleetbus
-from workers.recorder.replay import schedule
-from workers.store import open_recording_store
-from workers.store.recordings import RecordedMessage
 
 EXCHANGE, QUEUE = "replay.test", "replay.out"
 

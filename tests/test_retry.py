@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from broker.retry import Backoff, GaveUp, Stopped, async_retrying, retrying
+from fleetbus.broker.retry import Backoff, GaveUp, Stopped, async_retrying, retrying
 
 FAST = Backoff(initial=0.01, maximum=0.05, jitter=0.01)
 

@@ -14,10 +14,11 @@ import time
 import uuid
 from pathlib import Path
 
-from broker.dead_letter_queue import peek_dead_letters
-from broker.local_node import LocalNode
-from publishers.client import RobotClient, robot_folder
-from schemas.routing import RobotKind
+from fleetbus.broker.dead_letter_queue import peek_dead_letters
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.client import RobotClient, robot_folder
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.hazards import DEFAULT_MISSION, HazardState
 from tests.link import NetworkLink
 from tests.support import (
     PROJECT_ROOT,
@@ -28,7 +29,6 @@ from tests.support import (
     read_line,
     wait_for,
 )
-from workers.store.hazards import DEFAULT_MISSION, HazardState
 
 
 def start_program(bus: Bus, url: str, *args: str, state_dir: Path | None = None) -> subprocess.Popen[str]:

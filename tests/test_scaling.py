@@ -17,13 +17,16 @@ from contextlib import contextmanager
 import pika
 import pytest
 
-from broker.accounts import Account, Role
-from broker.shards import read_shard_map
-from publishers.client import RobotClient
-from publishers.errors import BrokerUnavailable
-from publishers.rpc import ServiceRefused, ServiceTimeout
-from schemas.notifications import Notification
-from schemas.routing import RobotKind, Topic, inbox_queue
+from fleetbus.broker.accounts import Account, Role
+from fleetbus.broker.shards import read_shard_map
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.errors import BrokerUnavailable
+from fleetbus.publishers.rpc import ServiceRefused, ServiceTimeout
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import RobotKind, Topic, inbox_queue
+from fleetbus.workers.runner import EXPRESS_PREFETCH
+from fleetbus.workers.shards import shard_lease, share
+from fleetbus.workers.store.hazards import HazardState
 from tests.factories import hazard, status
 from tests.support import (
     Bus,
@@ -34,9 +37,6 @@ from tests.support import (
     notifications_until,
     wait_for,
 )
-from workers.runner import EXPRESS_PREFETCH
-from workers.shards import shard_lease, share
-from workers.store.hazards import HazardState
 
 SHARDS = 4
 

@@ -6,11 +6,11 @@ import json
 
 import pytest
 
-from schemas import EventType, SchemaError, build_event, encode_event, parse_event, validate_body
-from schemas.envelope import NotJSONError, new_epoch
-from schemas.export import json_schemas
-from schemas.identity import validate_name
-from schemas.routing import event_routing_key, split_event_routing_key
+from fleetbus.schemas import EventType, SchemaError, build_event, encode_event, parse_event, validate_body
+from fleetbus.schemas.envelope import NotJSONError, new_epoch
+from fleetbus.schemas.export import json_schemas
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.routing import event_routing_key, split_event_routing_key
 from tests.factories import TABLE1_TIME, hazard, small_map, status
 
 

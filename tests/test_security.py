@@ -9,9 +9,9 @@ import pika.exceptions
 import pytest
 import yaml
 
-from publishers.confirms import Outgoing, PipelinedConfirms
-from publishers.errors import PublishRefused
-from schemas.routing import RobotKind
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.errors import PublishRefused
+from fleetbus.schemas.routing import RobotKind
 from tests.support import Bus
 
 

@@ -8,11 +8,11 @@ import signal
 from dataclasses import replace
 from urllib.parse import urlsplit
 
-from broker.accounts import RECORDER_USER, SERVICE_USER, kept_password_file
-from schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RECORDER_QUEUE, RobotKind
+from fleetbus.broker.accounts import RECORDER_USER, SERVICE_USER, kept_password_file
+from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RECORDER_QUEUE, RobotKind
+from fleetbus.workers.setup import set_up_service
 from tests.factories import hazard
 from tests.support import Bus, wait_for
-from workers.setup import set_up_service
 
 
 def test_the_worker_runs_with_the_service_account_alone(bus: Bus) -> None:

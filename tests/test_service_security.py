@@ -13,13 +13,13 @@ import pika.exceptions
 import pytest
 from pika.adapters.blocking_connection import BlockingChannel
 
-from broker.accounts import Role
-from broker.local_node import LocalNode
-from broker.mounts import bind_all, mount_bindings, unbind_all
+from fleetbus.broker.accounts import Role
+from fleetbus.broker.mounts import bind_all, mount_bindings, unbind_all
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.errors import PublishRefused
+from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import load_settings
-from publishers.confirms import Outgoing, PipelinedConfirms
-from publishers.errors import PublishRefused
-from schemas.routing import RobotKind
 from tests.support import Bus, wait_for
 
 Attempt = Callable[[BlockingChannel], object]

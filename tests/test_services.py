@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-import workers.runner
-from publishers.rpc import ServiceFailed, ServiceRefused, ServiceTimeout
-from schemas.routing import RobotKind
+import fleetbus.workers.runner
+from fleetbus.publishers.rpc import ServiceFailed, ServiceRefused, ServiceTimeout
+from fleetbus.schemas.routing import RobotKind
 from tests.factories import hazard
 from tests.support import Bus
 
@@ -93,7 +93,7 @@ def test_a_service_that_is_down_times_out_clearly(bus: Bus) -> None:
 def test_a_bug_in_a_service_is_an_internal_error_not_the_callers_fault(
     bus: Bus, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    real = workers.runner.hazard_services
+    real = fleetbus.workers.runner.hazard_services
 
     def with_a_bug(store: Any) -> dict[str, Any]:
         async def broken(caller: str, params: dict[str, Any]) -> Any:
@@ -101,7 +101,7 @@ def test_a_bug_in_a_service_is_an_internal_error_not_the_callers_fault(
 
         return {**real(store), "hazard.open": broken}
 
-    monkeypatch.setattr(workers.runner, "hazard_services", with_a_bug)
+    monkeypatch.setattr(fleetbus.workers.runner, "hazard_services", with_a_bug)
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     with bus.worker() as worker, caplog.at_level(logging.ERROR, logger="fleetbus.rpc"):
         with pytest.raises(

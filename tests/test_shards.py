@@ -8,10 +8,10 @@ import pika
 import pika.exceptions
 import pytest
 
-from broker.accounts import Role, delete_account
-from broker.routes import RouteMap
-from broker.shards import Move, ShardMap, apply_move, read_shard_map, rebalance_plan
-from schemas.routing import (
+from fleetbus.broker.accounts import Role, delete_account
+from fleetbus.broker.routes import RouteMap
+from fleetbus.broker.shards import Move, ShardMap, apply_move, read_shard_map, rebalance_plan
+from fleetbus.schemas.routing import (
     EXPRESS_QUEUE,
     INGEST_EXCHANGE,
     INGEST_QUEUE,

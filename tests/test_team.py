@@ -15,9 +15,9 @@ from urllib.parse import urlsplit
 import pika
 import pytest
 
-from broker.accounts import Role
-from broker.topology import account_topology, declare_with_url
-from schemas.routing import RobotKind, inbox_queue
+from fleetbus.broker.accounts import Role
+from fleetbus.broker.topology import account_topology, declare_with_url
+from fleetbus.schemas.routing import RobotKind, inbox_queue
 from tests.factories import hazard
 from tests.link import NetworkLink
 from tests.support import Bus, wait_for

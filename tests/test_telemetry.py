@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from datetime import datetime, timezone
 
-from broker.accounts import Role
-from schemas.routing import RobotKind
+from fleetbus.broker.accounts import Role
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventQuery
 from tests.factories import status
 from tests.support import Bus, wait_for
-from workers.store.base import EventQuery
 
 
 def test_battery_crossing_below_threshold_notifies_operators_once_per_drop(bus: Bus) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pika
 import pytest
 
-from broker.topics import topic_matches
+from fleetbus.broker.topics import topic_matches
 from tests.support import Bus
 
 
@@ -93,7 +93,7 @@ def test_the_matcher_routes_as_rabbitmq_does_on_every_pattern_and_key(bus: Bus) 
 
 @pytest.mark.parametrize(("pattern", "key"), [("x.#.#", "x"), ("a..b", "a..b"), ("#", ""), ("a.", "a.")])
 def test_the_tail_uses_the_one_matcher(pattern: str, key: str) -> None:
-    import publishers.tail
+    import fleetbus.publishers.tail
 
-    assert publishers.tail.topic_matches is topic_matches
+    assert fleetbus.publishers.tail.topic_matches is topic_matches
     assert topic_matches(pattern, key)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from pydantic import ValidationError
 
-from schemas.missions import Geofence, MissionPlan, MissionState, Point
-from schemas.roles import UserRole
-from schemas.use_cases import STEPS, USE_CASES, TransitionRefused, machine_for, readiness
+from fleetbus.schemas.missions import Geofence, MissionPlan, MissionState, Point
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.use_cases import STEPS, USE_CASES, TransitionRefused, machine_for, readiness
 
 S = MissionState
 SQUARE = {"polygon": [{"x": 0, "y": 0}, {"x": 10, "y": 0}, {"x": 10, "y": 10}, {"x": 0, "y": 10}]}

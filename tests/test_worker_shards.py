@@ -3,8 +3,8 @@ processes, killed for real, in ``test_scaling.py``)."""
 
 from __future__ import annotations
 
+from fleetbus.workers.shards import share
 from tests.support import Bus, wait_for
-from workers.shards import share
 
 
 def test_each_worker_takes_its_share_and_a_stopped_workers_shards_move_at_once(bus: Bus) -> None:

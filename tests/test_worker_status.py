@@ -3,11 +3,11 @@
 
 from __future__ import annotations
 
-from schemas.routing import NOTIFY_EXCHANGE, EventType, RobotKind
+from fleetbus.schemas.routing import NOTIFY_EXCHANGE, EventType, RobotKind
+from fleetbus.workers.store.statuses import WorkerStatus
 from tests.factories import status
 from tests.support import Bus, wait_for
 from tests.test_cli import fleetbus
-from workers.store.statuses import WorkerStatus
 
 BLOCKER = "test.blocker"
 

@@ -19,8 +19,8 @@ from datetime import datetime, timezone
 
 from aio_pika.abc import AbstractIncomingMessage
 
-from workers.store.attempts import AttemptLog
-from workers.validation import Rejected, RejectReason
+from fleetbus.workers.store.attempts import AttemptLog
+from fleetbus.workers.validation import Rejected, RejectReason
 
 
 def attempt_key(message: AbstractIncomingMessage) -> str:

@@ -15,10 +15,10 @@ from typing import Any
 
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 
-from broker.retry import GaveUp, Stopped, async_retrying, run_retrying
-from schemas.routing import BEACON_CODENAME_HEADER, BEACON_TYPE, BEACON_TYPE_HEADER
-from workers.store.base import StoreUnavailable
-from workers.store.discards import Discard, DiscardLog
+from fleetbus.broker.retry import GaveUp, Stopped, async_retrying, run_retrying
+from fleetbus.schemas.routing import BEACON_CODENAME_HEADER, BEACON_TYPE, BEACON_TYPE_HEADER
+from fleetbus.workers.store.base import StoreUnavailable
+from fleetbus.workers.store.discards import Discard, DiscardLog
 
 log = logging.getLogger("fleetbus.beacons")
 

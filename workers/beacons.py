@@ -11,11 +11,11 @@ from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
-from schemas.routing import EventType
-from workers.rpc import Handler, ServiceError
-from workers.store.base import EventQuery
-from workers.store.interface import Store
-from workers.validation import Accepted, Rejected, RejectReason
+from fleetbus.schemas.routing import EventType
+from fleetbus.workers.rpc import Handler, ServiceError
+from fleetbus.workers.store.base import EventQuery
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.validation import Accepted, Rejected, RejectReason
 
 DEFAULT_WINDOW = timedelta(minutes=10)
 

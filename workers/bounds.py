@@ -1,6 +1,6 @@
 """The bounds on everything that grows with time or traffic, read from the settings.
 
-Every limit is written in the recorder's retention grammar (:mod:`workers.recorder.retention`):
+Every limit is written in the recorder's retention grammar (:mod:`fleetbus.workers.recorder.retention`):
 an age (``30d``), a size (``1GB``) or a number (``100000``). Each bound takes the kinds of limit
 it can hold to, and refuses the others with the variable's name, so that a typo stops the
 process at start rather than leaving something unbounded.
@@ -12,9 +12,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import timedelta
 
-from broker.policies import QueueLimit
+from fleetbus.broker.policies import QueueLimit
 from fleetbus.settings import Settings
-from workers.recorder.retention import Retention, parse_limit, parse_retention
+from fleetbus.workers.recorder.retention import Retention, parse_limit, parse_retention
 
 #: MongoDB refuses a 65th index on a collection; a recorded type has five of its own (``_id``,
 #: time, robot, message id, mission), and two processes may add one at the same moment.

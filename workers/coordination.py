@@ -1,6 +1,6 @@
 """The hazard service: ids, the localisation gate, and FIFO announcements to the wardens.
 
-Every hazard is registered as held. After each batch, when the gate is open (:mod:`workers.team`:
+Every hazard is registered as held. After each batch, when the gate is open (:mod:`fleetbus.workers.team`:
 at least one warden in service, and every warden in service localised), the held hazards are
 announced in the order they were detected, one at a time: a copy to each warden in service, by
 its inbox's name and ``mandatory`` (the broker returns a copy that reached no queue), then one
@@ -28,15 +28,15 @@ from datetime import datetime, timedelta, timezone
 from aio_pika.abc import AbstractExchange, AbstractIncomingMessage
 from pydantic import ValidationError
 
-from schemas.envelope import EVENT_ADAPTER
-from schemas.notifications import Notification
-from schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
-from schemas.team import TEAM_CHANGE_TYPE, TeamChange
-from workers.notifier import deliver_to_inbox, publish_notification
-from workers.store.hazards import Hazard, HazardState, HeldHazards, NewHazard, RobotState
-from workers.store.interface import Store
-from workers.team import gate, why_closed
-from workers.validation import Accepted
+from fleetbus.schemas.envelope import EVENT_ADAPTER
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
+from fleetbus.schemas.team import TEAM_CHANGE_TYPE, TeamChange
+from fleetbus.workers.notifier import deliver_to_inbox, publish_notification
+from fleetbus.workers.store.hazards import Hazard, HazardState, HeldHazards, NewHazard, RobotState
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.team import gate, why_closed
+from fleetbus.workers.validation import Accepted
 
 log = logging.getLogger("fleetbus.hazards")
 
@@ -157,7 +157,7 @@ class HazardCoordinator:
 
 
 class TeamChanges:
-    """The express lane's control messages: the team changes of :mod:`broker.team_changes`."""
+    """The express lane's control messages: the team changes of :mod:`fleetbus.broker.team_changes`."""
 
     def __init__(self, coordinator: HazardCoordinator) -> None:
         self._coordinator = coordinator

@@ -3,7 +3,7 @@
 ``basic.nack`` without requeue makes the broker move the message to its queue's dead-letter
 exchange (``fleetbus.dlx``) in one step: it is in the dead-letter queue or still in its own
 queue, never both, whenever the worker dies. The reason cannot travel in that move, so it is
-recorded first, idempotently, under the key :mod:`broker.dead_letter_queue` finds it by
+recorded first, idempotently, under the key :mod:`fleetbus.broker.dead_letter_queue` finds it by
 (docs/decisions/0002-dead-letters.md).
 """
 
@@ -13,8 +13,8 @@ from datetime import datetime, timezone
 
 from aio_pika.abc import AbstractIncomingMessage
 
-from broker.dead_letter_queue import dead_letter_key
-from workers.store.rejections import Rejection
+from fleetbus.broker.dead_letter_queue import dead_letter_key
+from fleetbus.workers.store.rejections import Rejection
 
 MAX_DETAIL = 4000
 

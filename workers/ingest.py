@@ -22,15 +22,15 @@ from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 from tenacity import RetryCallState
 
-from broker.retry import Stopped, async_retrying, run_retrying
-from schemas.routing import EventType
-from workers.attempts import AttemptLimit
-from workers.batches import BatchInbox
-from workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
-from workers.store.base import StoreUnavailable, WriteResult
-from workers.store.interface import Store
-from workers.store.ledger import Duplicate
-from workers.validation import Accepted, Rejected, RejectReason, classify
+from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
+from fleetbus.schemas.routing import EventType
+from fleetbus.workers.attempts import AttemptLimit
+from fleetbus.workers.batches import BatchInbox
+from fleetbus.workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
+from fleetbus.workers.store.base import StoreUnavailable, WriteResult
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.ledger import Duplicate
+from fleetbus.workers.validation import Accepted, Rejected, RejectReason, classify
 
 log = logging.getLogger("fleetbus.ingest")
 T = TypeVar("T")

@@ -16,15 +16,15 @@ from typing import Any
 
 from aio_pika.abc import AbstractExchange
 
-from schemas.bodies import MAP_CHUNK_BYTES
-from schemas.notifications import Notification
-from schemas.pgm import check_pgm
-from schemas.routing import EventType, Topic
-from workers.notifier import publish_notification
-from workers.rpc import Handler, ServiceError
-from workers.store.interface import Store
-from workers.store.maps import MapVersion
-from workers.validation import Accepted, Rejected, RejectReason
+from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.pgm import check_pgm
+from fleetbus.schemas.routing import EventType, Topic
+from fleetbus.workers.notifier import publish_notification
+from fleetbus.workers.rpc import Handler, ServiceError
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.maps import MapVersion
+from fleetbus.workers.validation import Accepted, Rejected, RejectReason
 
 
 class MapCheck:

@@ -14,8 +14,8 @@ import aio_pika
 import aiormq.abc
 from aio_pika.abc import AbstractExchange
 
-from schemas.notifications import Notification
-from schemas.routing import inbox_queue, notification_routing_key
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import inbox_queue, notification_routing_key
 
 
 def _message(

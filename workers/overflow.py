@@ -1,6 +1,6 @@
 """Count what full queues dropped: drain ``fleetbus.overflow.dropped`` into the store's bound counts.
 
-A bound queue (an inbox, the dead letters, the recorder's backlog: :mod:`broker.policies`)
+A bound queue (an inbox, the dead letters, the recorder's backlog: :mod:`fleetbus.broker.policies`)
 dead-letters its oldest message when it is full. The broker says which queue dropped it and why
 in the message's ``x-death`` header, newest death first; this consumer adds each batch to the
 counts under ``overflow`` and ``<queue> <reason>`` (``warden1.inbox maxlen``), logs it, and acks
@@ -18,10 +18,10 @@ from typing import Any
 
 from aio_pika.abc import AbstractChannel, AbstractQueue
 
-from broker.retry import Stopped, async_retrying, run_retrying
-from workers.batches import BatchInbox
-from workers.store.base import StoreUnavailable
-from workers.store.housekeeping import Housekeeping
+from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
+from fleetbus.workers.batches import BatchInbox
+from fleetbus.workers.store.base import StoreUnavailable
+from fleetbus.workers.store.housekeeping import Housekeeping
 
 log = logging.getLogger("fleetbus.overflow")
 BOUND = "overflow"

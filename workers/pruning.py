@@ -1,5 +1,5 @@
 """The worker's background pruning: the event log, the duplicates register, the beacon discards,
-map versions and staged map chunks, each held to its bound (:mod:`workers.bounds`).
+map versions and staged map chunks, each held to its bound (:mod:`fleetbus.workers.bounds`).
 
 A round runs every ``FLEETBUS_PRUNE_EVERY_S`` seconds, in one worker at a time (a lease in the
 store), as a task beside the consumers. It deletes in small batches, each its own short write,
@@ -20,12 +20,12 @@ import logging
 from collections.abc import Awaitable, Callable
 from datetime import datetime, timedelta, timezone
 
-from schemas.routing import EventType
-from workers.bounds import Bounds
-from workers.recorder.retention import Retention, policy_for
-from workers.store.base import StoreError
-from workers.store.interface import Store
-from workers.store.maps import versions_to_prune
+from fleetbus.schemas.routing import EventType
+from fleetbus.workers.bounds import Bounds
+from fleetbus.workers.recorder.retention import Retention, policy_for
+from fleetbus.workers.store.base import StoreError
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.maps import versions_to_prune
 
 log = logging.getLogger("fleetbus.pruning")
 

@@ -12,13 +12,12 @@ from datetime import timedelta
 import aio_pika
 from aio_pika.abc import AbstractChannel, AbstractRobustConnection
 
-from broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
-from broker.shards import read_shard_map
-from broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
-from fleetbus.settings import Settings
-from schemas.routing import (
+from fleetbus.broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.shards import read_shard_map
+from fleetbus.broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
+from fleetbus.schemas.routing import (
     BEACON_DISCARD_QUEUE,
     EXPRESS_QUEUE,
     NOTIFY_EXCHANGE,
@@ -26,22 +25,23 @@ from schemas.routing import (
     RPC_QUEUE,
     ingest_shard_queue,
 )
-from workers.attempts import AttemptLimit
-from workers.beacon_discards import DiscardCounter
-from workers.beacons import KnownRobotsOnly, beacon_services
-from workers.bounds import bounds
-from workers.coordination import GATED, HazardCoordinator, TeamChanges
-from workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
-from workers.maps import MapCheck, MapService, map_services
-from workers.overflow import OverflowCounter
-from workers.pruning import Pruner
-from workers.rpc import RpcServer
-from workers.services import hazard_services
-from workers.shards import ShardPool
-from workers.signals import stop_on_signals
-from workers.status import report_status
-from workers.store import Store, open_store
-from workers.telemetry import BatteryWatch
+from fleetbus.settings import Settings
+from fleetbus.workers.attempts import AttemptLimit
+from fleetbus.workers.beacon_discards import DiscardCounter
+from fleetbus.workers.beacons import KnownRobotsOnly, beacon_services
+from fleetbus.workers.bounds import bounds
+from fleetbus.workers.coordination import GATED, HazardCoordinator, TeamChanges
+from fleetbus.workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
+from fleetbus.workers.maps import MapCheck, MapService, map_services
+from fleetbus.workers.overflow import OverflowCounter
+from fleetbus.workers.pruning import Pruner
+from fleetbus.workers.rpc import RpcServer
+from fleetbus.workers.services import hazard_services
+from fleetbus.workers.shards import ShardPool
+from fleetbus.workers.signals import stop_on_signals
+from fleetbus.workers.status import report_status
+from fleetbus.workers.store import Store, open_store
+from fleetbus.workers.telemetry import BatteryWatch
 
 log = logging.getLogger("fleetbus.worker")
 
@@ -104,7 +104,7 @@ async def _first_to_end(tasks: list[asyncio.Task[None]]) -> None:
 
 
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
-    """As the administrator (:mod:`workers.setup`): the ``fleetbus`` account; returns its URL."""
+    """As the administrator (:mod:`fleetbus.workers.setup`): the ``fleetbus`` account; returns its URL."""
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         url = ensure_service_account(endpoint.amqp_url, api, settings.accounts_dir)
         vhost = vhost_of(endpoint.amqp_url)
@@ -120,7 +120,7 @@ def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
 
 
 async def start_worker(settings: Settings, url: str) -> WorkerContext:
-    """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`workers.setup`)."""
+    """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`fleetbus.workers.setup`)."""
     store = open_store(settings)
     await store.open()
     connection = await aio_pika.connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})

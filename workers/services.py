@@ -5,11 +5,11 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Any
 
-from schemas.routing import RobotKind
-from workers.rpc import Handler, ServiceError
-from workers.store.hazards import CLAIM_WHILE_OPEN, DEFAULT_MISSION, Hazard, HazardRefused
-from workers.store.interface import Store
-from workers.team import gate
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.rpc import Handler, ServiceError
+from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN, DEFAULT_MISSION, Hazard, HazardRefused
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.team import gate
 
 
 def _hazard_id(params: dict[str, Any]) -> int:

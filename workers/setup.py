@@ -5,7 +5,7 @@ idempotent, so running it again changes nothing that is in place. It makes the `
 ``fleetbus-recorder`` accounts (their passwords kept in ``$FLEETBUS_DATA_DIR/accounts/``, mode
 0600), the service's exchanges and queues for ``FLEETBUS_INGEST_SHARDS`` shards, and the
 recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not declare, and the
-policies that bound the inboxes and the dead-letter queue (:mod:`broker.policies`).
+policies that bound the inboxes and the dead-letter queue (:mod:`fleetbus.broker.policies`).
 """
 
 from __future__ import annotations
@@ -14,15 +14,15 @@ import asyncio
 import logging
 from dataclasses import dataclass
 
-from broker.accounts import vhost_of
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
-from broker.policies import apply_policies, bound_policies
-from broker.topology import core_topology, declare_with_url, recorder_topology
+from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.policies import apply_policies, bound_policies
+from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
 from fleetbus.settings import Settings
-from workers.bounds import bounds
-from workers.recorder.runner import recorder_url
-from workers.runner import service_url
+from fleetbus.workers.bounds import bounds
+from fleetbus.workers.recorder.runner import recorder_url
+from fleetbus.workers.runner import service_url
 
 log = logging.getLogger("fleetbus.setup")
 

@@ -26,9 +26,9 @@ from collections.abc import Awaitable, Callable
 from datetime import datetime, timedelta, timezone
 from typing import Protocol
 
-from workers.identity import known_dead, new_holder, retire
-from workers.store.base import StoreUnavailable
-from workers.store.leases import Lease, LeaseStore
+from fleetbus.workers.identity import known_dead, new_holder, retire
+from fleetbus.workers.store.base import StoreUnavailable
+from fleetbus.workers.store.leases import Lease, LeaseStore
 
 log = logging.getLogger("fleetbus.shards")
 

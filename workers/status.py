@@ -1,6 +1,6 @@
 """A worker's status in the store every few seconds: its counters, and what it waits for.
 
-Transient failures are retried where they happen (:mod:`broker.retry`, a log line each); this
+Transient failures are retried where they happen (:mod:`fleetbus.broker.retry`, a log line each); this
 makes them visible where an operator looks, ``fleetbus stats``, beside the counts of what was
 stored, dead-lettered and failed on. A status that stops changing says the worker, or its way to
 the store, is gone.
@@ -14,9 +14,9 @@ import logging
 from collections.abc import Callable
 from datetime import datetime, timezone
 
-from workers.ingest import IngestStats
-from workers.store.base import StoreUnavailable
-from workers.store.statuses import StatusBoard, WorkerStatus
+from fleetbus.workers.ingest import IngestStats
+from fleetbus.workers.store.base import StoreUnavailable
+from fleetbus.workers.store.statuses import StatusBoard, WorkerStatus
 
 log = logging.getLogger("fleetbus.worker")
 

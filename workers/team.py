@@ -19,12 +19,12 @@ from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
-from broker.team_changes import tell_hazard_service
-from schemas.routing import RobotKind
-from schemas.team import TeamChange, TeamChangeKind
-from workers.store.base import EventQuery
-from workers.store.hazards import Hazard, HazardState, RobotState
-from workers.store.interface import Store
+from fleetbus.broker.team_changes import tell_hazard_service
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.team import TeamChange, TeamChangeKind
+from fleetbus.workers.store.base import EventQuery
+from fleetbus.workers.store.hazards import Hazard, HazardState, RobotState
+from fleetbus.workers.store.interface import Store
 
 NO_WARDEN = "no warden in the team"
 

@@ -12,12 +12,12 @@ from datetime import datetime, timezone
 
 from aio_pika.abc import AbstractExchange
 
-from schemas.notifications import Notification
-from schemas.routing import EventType, Topic
-from workers.notifier import publish_notification
-from workers.store.base import EventQuery
-from workers.store.interface import Store
-from workers.validation import Accepted
+from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import EventType, Topic
+from fleetbus.workers.notifier import publish_notification
+from fleetbus.workers.store.base import EventQuery
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.validation import Accepted
 
 
 class BatteryWatch:

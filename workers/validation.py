@@ -9,9 +9,9 @@ from typing import Any
 
 from aio_pika.abc import AbstractIncomingMessage
 
-from schemas.envelope import Event, NotJSONError, SchemaError, parse_event
-from schemas.routing import EventType, publish_exchange, split_event_routing_key
-from workers.store.base import EventRecord
+from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, parse_event
+from fleetbus.schemas.routing import EventType, publish_exchange, split_event_routing_key
+from fleetbus.workers.store.base import EventRecord
 
 
 class RejectReason(str, Enum):

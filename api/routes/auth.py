@@ -7,12 +7,12 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.security import OAuth2PasswordRequestForm
 
-from api import audit
-from api.accounts import WrongCredentials
-from api.auth import ServiceDep
-from api.errors import Forbidden
-from api.login_limits import TooManyFailures
-from api.models import BrokerOut, TokenOut, UserOut
+from fleetbus.api import audit
+from fleetbus.api.accounts import WrongCredentials
+from fleetbus.api.auth import ServiceDep
+from fleetbus.api.errors import Forbidden
+from fleetbus.api.login_limits import TooManyFailures
+from fleetbus.api.models import BrokerOut, TokenOut, UserOut
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 

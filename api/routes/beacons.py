@@ -6,10 +6,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from api.auth import ServiceDep, require_role
-from api.models import DiscardCountOut, DiscardOut, DiscardsOut
-from schemas.roles import UserRole
-from workers.store.users import User
+from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.models import DiscardCountOut, DiscardOut, DiscardsOut
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["beacons"])
 Watcher = Annotated[User, Depends(require_role(UserRole.OPERATOR, UserRole.SUPERVISOR, UserRole.ADMIN))]

@@ -6,10 +6,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from api.auth import ServiceDep, require_role
-from api.models import BindingReportOut, ChannelChangeOut, MountIn, MountOut
-from schemas.roles import UserRole
-from workers.store.users import User
+from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.models import BindingReportOut, ChannelChangeOut, MountIn, MountOut
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["channels"])
 R = UserRole

@@ -6,8 +6,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from api.auth import ServiceDep, require_role
-from api.models import (
+from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.models import (
     CheckInOut,
     CheckOutOut,
     EventOut,
@@ -19,11 +19,11 @@ from api.models import (
     TransitionIn,
     UseCaseOut,
 )
-from schemas.missions import MissionPlan, MissionState
-from schemas.roles import ACTIVE_ROLES, UserRole
-from schemas.use_cases import USE_CASES
-from workers.store.base import EventQuery
-from workers.store.users import User
+from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
+from fleetbus.schemas.use_cases import USE_CASES
+from fleetbus.workers.store.base import EventQuery
+from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["missions"])
 R = UserRole

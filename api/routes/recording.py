@@ -1,6 +1,6 @@
 """The recording over HTTP: queries on any type, a robot's timeline, a message's trace, the
 performance evaluation and the recording's growth. Each calls the plain functions of
-:mod:`workers.recorder.queries` (the command line calls the same ones).
+:mod:`fleetbus.workers.recorder.queries` (the command line calls the same ones).
 
 Fault analysis reads every robot's traffic: administrators, supervisors and operators. The
 evaluation and the growth are figures, not traffic: planners may read them too.
@@ -15,15 +15,15 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query
 from pydantic import BaseModel, Field
 
-from api.auth import ServiceDep, require_role
-from schemas.identity import validate_name
-from schemas.roles import UserRole as R
-from schemas.routing import NOTIFY_EXCHANGE, inbox_queue
-from workers.recorder.capture import KNOWN_TYPES
-from workers.recorder.growth import growth
-from workers.recorder.queries import evaluate, find, parse_condition, timeline, trace
-from workers.store.recordings import OutcomeStats, RecordedMessage, RecordingError
-from workers.store.users import User
+from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.roles import UserRole as R
+from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
+from fleetbus.workers.recorder.capture import KNOWN_TYPES
+from fleetbus.workers.recorder.growth import growth
+from fleetbus.workers.recorder.queries import evaluate, find, parse_condition, timeline, trace
+from fleetbus.workers.store.recordings import OutcomeStats, RecordedMessage, RecordingError
+from fleetbus.workers.store.users import User
 
 router = APIRouter(prefix="/recording", tags=["recording"])
 Analyst = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR, R.OPERATOR))]

@@ -6,10 +6,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends
 
-from api.auth import ServiceDep, require_role
-from api.models import TeamMemberOut, TeamOut
-from schemas.roles import UserRole
-from workers.store.users import User
+from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.models import TeamMemberOut, TeamOut
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["team"])
 R = UserRole

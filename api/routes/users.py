@@ -6,11 +6,11 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Response
 
-from api.auth import ServiceDep, require_role
-from api.errors import BadRequest, Forbidden
-from api.models import PasswordChange, PasswordSet, RoleChange, UserCreate, UserOut
-from schemas.roles import ACTIVE_ROLES, UserRole
-from workers.store.users import User
+from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.errors import BadRequest, Forbidden
+from fleetbus.api.models import PasswordChange, PasswordSet, RoleChange, UserCreate, UserOut
+from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
+from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["users"])
 R = UserRole

@@ -17,15 +17,15 @@ import pytest
 from fastapi.testclient import TestClient
 from pymongo import MongoClient
 
-from api.app import create_app
-from api.service import Service
+from fleetbus.api.app import create_app
+from fleetbus.api.service import Service
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.use_cases import machine_for
 from fleetbus.settings import Settings
-from schemas.missions import MissionState
-from schemas.roles import UserRole
-from schemas.routing import RobotKind
-from schemas.use_cases import machine_for
+from fleetbus.workers.store.missions import Mission
 from tests.support import Bus
-from workers.store.missions import Mission
 
 T = TypeVar("T")
 PASSWORD = "correct horse battery"

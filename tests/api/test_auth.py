@@ -13,8 +13,8 @@ import pika
 import pika.exceptions
 import pytest
 
-from broker.accounts import can_login
-from schemas.roles import UserRole
+from fleetbus.broker.accounts import can_login
+from fleetbus.schemas.roles import UserRole
 from tests.api.support import PASSWORD, Api, running_api
 from tests.support import Bus
 

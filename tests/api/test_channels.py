@@ -13,17 +13,17 @@ import pika
 import pika.exceptions
 import pytest
 
-from broker.accounts import Account, Role
-from broker.mounts import QueueBinding, mount_bindings_on_broker
-from publishers.confirms import Outgoing, PipelinedConfirms
-from publishers.errors import PublishRefused
-from schemas.missions import MissionState
-from schemas.roles import UserRole
-from schemas.routing import RobotKind
+from fleetbus.broker.accounts import Account, Role
+from fleetbus.broker.mounts import QueueBinding, mount_bindings_on_broker
+from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.errors import PublishRefused
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventQuery
 from tests.api.support import READY_PLAN, Api, running_api_on_each_store
 from tests.factories import hazard
 from tests.support import Bus, wait_for
-from workers.store.base import EventQuery
 
 S = MissionState
 

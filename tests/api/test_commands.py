@@ -42,7 +42,7 @@ def test_create_admin_serve_and_log_in_from_the_shell(bus: Bus, env: dict[str, s
     assert short.exit_code == 1 and "at least 10 characters" in short.output
 
     port = free_port()
-    log = open(bus.settings.data_dir / "api.log", "wb")
+    log = open(bus.settings.data_dir / "fleetbus.api.log", "wb")
     server = subprocess.Popen(
         [sys.executable, "-m", "fleetbus", "api", "--port", str(port)],
         env=env,

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from schemas.roles import UserRole
+from fleetbus.schemas.roles import UserRole
 from tests.api.support import READY_PLAN, SQUARE, Api, running_api
 from tests.support import Bus
 

@@ -10,8 +10,8 @@ from urllib.parse import urlencode
 
 import pytest
 
-from schemas.roles import UserRole
-from schemas.routing import EventType, RobotKind
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import EventType, RobotKind
 from tests.api.support import Api, running_api
 from tests.factories import hazard
 from tests.support import Bus, wait_for

@@ -13,14 +13,14 @@ from typing import Any
 
 import pytest
 
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
-from schemas.missions import MissionState
-from schemas.roles import ACTIVE_ROLES, UserRole
-from schemas.routing import RobotKind
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.recordings import RecordedMessage
 from tests.api.support import PASSWORD, READY_PLAN, Api, running_api
 from tests.support import fresh_bus
-from workers.store.recordings import RecordedMessage
 
 R, S = UserRole, MissionState
 USERS = {

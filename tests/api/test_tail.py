@@ -10,12 +10,12 @@ from datetime import datetime, timedelta, timezone
 
 from typer.testing import CliRunner
 
-from broker.accounts import Account, Role
+from fleetbus.broker.accounts import Account, Role
 from fleetbus.cli import app
-from publishers.tail import Seen, follow
-from schemas.missions import MissionState
-from schemas.roles import UserRole
-from schemas.routing import RobotKind
+from fleetbus.publishers.tail import Seen, follow
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
 from tests.api.support import Api, running_api
 from tests.factories import hazard, status
 from tests.support import Bus

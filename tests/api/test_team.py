@@ -8,10 +8,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from broker.accounts import Account, Role
-from publishers.client import RobotClient
-from schemas.roles import UserRole
-from schemas.routing import RobotKind
+from fleetbus.broker.accounts import Account, Role
+from fleetbus.publishers.client import RobotClient
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
 from tests.api.support import Api, running_api_on_each_store
 from tests.api.test_channels import robot_url
 from tests.factories import hazard

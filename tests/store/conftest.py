@@ -10,13 +10,13 @@ from pathlib import Path
 import pytest
 from pymongo import AsyncMongoClient
 
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.mongo import MongoEventStore
+from fleetbus.workers.store.mongo_recordings import MongoRecordingStore
+from fleetbus.workers.store.recordings import RecordingStore
+from fleetbus.workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
 from tests.store.mongodb import mongodb_url  # noqa: F401  (re-exported fixture)
-from workers.store.interface import Store
-from workers.store.mongo import MongoEventStore
-from workers.store.mongo_recordings import MongoRecordingStore
-from workers.store.recordings import RecordingStore
-from workers.store.sqlite import SQLiteEventStore
-from workers.store.sqlite_recordings import SQLiteRecordingStore
 
 
 @asynccontextmanager

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from workers.store.interface import Store
-from workers.store.mongo import MongoEventStore
-from workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.mongo import MongoEventStore
+from fleetbus.workers.store.sqlite import SQLiteEventStore
 
 
 def second_connection(store: Store) -> Store:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta, timezone
 
+from fleetbus.workers.store.interface import Store
 from tests.store.second import second_connection
-from workers.store.interface import Store
 
 T0 = datetime(2026, 11, 24, 8, 0, 0, tzinfo=timezone.utc)
 

@@ -8,13 +8,13 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
+from fleetbus.workers.store.base import EventQuery
+from fleetbus.workers.store.discards import Discard
+from fleetbus.workers.store.hazards import NewHazard
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.ledger import Duplicate
+from fleetbus.workers.store.maps import MapVersion, versions_to_prune
 from tests.store.test_contract import EPOCH, record
-from workers.store.base import EventQuery
-from workers.store.discards import Discard
-from workers.store.hazards import NewHazard
-from workers.store.interface import Store
-from workers.store.ledger import Duplicate
-from workers.store.maps import MapVersion, versions_to_prune
 
 T0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
 META = {"resolution": 0.1, "origin": [0, 0, 0], "occupied_thresh": 0.65, "free_thresh": 0.2, "negate": 0}

@@ -7,10 +7,10 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
+from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, CheckIn, Mount
+from fleetbus.workers.store.discards import Discard
+from fleetbus.workers.store.interface import Store
 from tests.store.second import second_connection
-from workers.store.channels import Booked, ChannelAction, ChannelChange, CheckIn, Mount
-from workers.store.discards import Discard
-from workers.store.interface import Store
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 

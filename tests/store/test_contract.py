@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from workers.store.base import EventQuery, EventRecord, EventStore, StoreUnavailable
-from workers.store.mongo import MongoEventStore
-from workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.base import EventQuery, EventRecord, EventStore, StoreUnavailable
+from fleetbus.workers.store.mongo import MongoEventStore
+from fleetbus.workers.store.sqlite import SQLiteEventStore
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 EPOCH = "20210601T182526564Z-0a1b2c3d"

@@ -7,10 +7,10 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from workers.store.beacons import Beacon
-from workers.store.hazards import HazardRefused, HazardState, NewHazard
-from workers.store.interface import Store
-from workers.team import gate
+from fleetbus.workers.store.beacons import Beacon
+from fleetbus.workers.store.hazards import HazardRefused, HazardState, NewHazard
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.team import gate
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 BODY = {"pose": {"x": 2.66, "y": 1.22}, "description": "Fire"}

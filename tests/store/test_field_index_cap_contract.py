@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
+from fleetbus.workers.recorder.queries import find, parse_condition
+from fleetbus.workers.store.mongo_recordings import MongoRecordingStore
+from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
+from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
 from tests.store.conftest import fresh_database
-from workers.recorder.queries import find, parse_condition
-from workers.store.mongo_recordings import MongoRecordingStore
-from workers.store.recordings import RecordedMessage, RecordingStore
-from workers.store.sqlite_recordings import SQLiteRecordingStore
 
 T0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
 

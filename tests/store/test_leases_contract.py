@@ -5,9 +5,9 @@ from __future__ import annotations
 import asyncio
 from datetime import datetime, timedelta, timezone
 
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.leases import Lease
 from tests.store.second import second_connection
-from workers.store.interface import Store
-from workers.store.leases import Lease
 
 T0 = datetime(2026, 11, 24, 8, 0, 0, tzinfo=timezone.utc)
 TTL = timedelta(seconds=5)

@@ -8,11 +8,11 @@ import itertools
 from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
+from fleetbus.workers.store.base import EventQuery
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.ledger import Duplicate, Gap, RobotEpoch, apply_seqs
 from tests.store.second import second_connection
 from tests.store.test_contract import EPOCH, LATER, record
-from workers.store.base import EventQuery
-from workers.store.interface import Store
-from workers.store.ledger import Duplicate, Gap, RobotEpoch, apply_seqs
 
 T0 = datetime(2026, 11, 23, 8, 0, tzinfo=timezone.utc)
 T1 = T0 + timedelta(seconds=1)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 from datetime import datetime, timezone
 
-from workers.store.interface import Store
+from fleetbus.workers.store.interface import Store
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 EPOCH = "20210601T182526564Z-0a1b2c3d"

@@ -7,10 +7,10 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from schemas.missions import MissionState
+from fleetbus.schemas.missions import MissionState
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.missions import MissionConflict
 from tests.store.second import second_connection
-from workers.store.interface import Store
-from workers.store.missions import MissionConflict
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 PLAN = {"geofence": {"frame_id": "map", "polygon": [{"x": 0, "y": 0}, {"x": 10, "y": 0}, {"x": 0, "y": 10}]}}

@@ -12,8 +12,8 @@ from pymongo.errors import (
     WriteConcernError,
 )
 
-from workers.store.base import StoreUnavailable
-from workers.store.mongo_database import MongoDatabase, is_transient, translate_unavailable
+from fleetbus.workers.store.base import StoreUnavailable
+from fleetbus.workers.store.mongo_database import MongoDatabase, is_transient, translate_unavailable
 
 
 @pytest.mark.parametrize(

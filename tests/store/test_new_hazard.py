@@ -7,10 +7,10 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from schemas.envelope import EVENT_ADAPTER
+from fleetbus.schemas.envelope import EVENT_ADAPTER
+from fleetbus.workers.store.hazards import DEFAULT_MISSION, NewHazard
+from fleetbus.workers.validation import event_record
 from tests.factories import hazard
-from workers.store.hazards import DEFAULT_MISSION, NewHazard
-from workers.validation import event_record
 
 EPOCH = "20261123T140000000Z-0a1b2c3d"
 OFFSETS = [timezone.utc, timezone(timedelta(hours=2)), timezone(timedelta(hours=-5, minutes=-30))]

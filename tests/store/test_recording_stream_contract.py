@@ -6,8 +6,8 @@ from __future__ import annotations
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
-from workers.recorder.queries import recorded_between
-from workers.store.recordings import RecordedMessage, RecordingStore, RecordQuery
+from fleetbus.workers.recorder.queries import recorded_between
+from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore, RecordQuery
 
 T0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
 

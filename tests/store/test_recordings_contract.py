@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from workers.store.recordings import (
+from fleetbus.workers.store.recordings import (
     Condition,
     Op,
     OutcomeFields,

@@ -10,10 +10,10 @@ import threading
 from dataclasses import replace
 from pathlib import Path
 
+from fleetbus.workers.store.hazards import NewHazard
+from fleetbus.workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.sqlite_database import in_transaction
 from tests.store.test_contract import EPOCH, T0, record
-from workers.store.hazards import NewHazard
-from workers.store.sqlite import SQLiteEventStore
-from workers.store.sqlite_database import in_transaction
 
 
 async def hold_store_thread(

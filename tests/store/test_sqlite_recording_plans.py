@@ -5,9 +5,9 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
+from fleetbus.workers.store.recordings import Condition, Op, RecordQuery
+from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore, find_sql
 from tests.store.test_recordings_contract import T0, rec
-from workers.store.recordings import Condition, Op, RecordQuery
-from workers.store.sqlite_recordings import SQLiteRecordingStore, find_sql
 
 
 def plan(path: Path, query: RecordQuery) -> str:

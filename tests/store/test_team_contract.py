@@ -7,10 +7,10 @@ from __future__ import annotations
 from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
+from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN, HazardState
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.team import NO_WARDEN, gate, read_team, why_closed
 from tests.store.test_contract import EPOCH, record
-from workers.store.hazards import CLAIM_WHILE_OPEN, HazardState
-from workers.store.interface import Store
-from workers.team import NO_WARDEN, gate, read_team, why_closed
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 BODY = {"pose": {"x": 2.66, "y": 1.22}, "description": "Fire"}

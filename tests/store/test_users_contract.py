@@ -7,9 +7,9 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from schemas.roles import UserRole
-from workers.store.interface import Store
-from workers.store.users import NoSuchUser, User, UserExists
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.users import NoSuchUser, User, UserExists
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 

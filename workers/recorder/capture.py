@@ -33,7 +33,7 @@ from typing import Any
 
 from aio_pika.abc import AbstractIncomingMessage
 
-from schemas.routing import (
+from fleetbus.schemas.routing import (
     BEACON_CODENAME_HEADER,
     BEACON_TYPE,
     BEACON_TYPE_HEADER,
@@ -41,8 +41,8 @@ from schemas.routing import (
     NOTIFY_EXCHANGE,
     EventType,
 )
-from workers.beacon_discards import discard_reason
-from workers.store.recordings import TYPE_NAME, RecordedMessage
+from fleetbus.workers.beacon_discards import discard_reason
+from fleetbus.workers.store.recordings import TYPE_NAME, RecordedMessage
 
 NOTIFICATION = "notification"
 REQUEST = "request"

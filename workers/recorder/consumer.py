@@ -20,17 +20,24 @@ import aiormq.exceptions
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
-from broker.dead_letter_queue import moved_letter_key
-from broker.retry import Stopped, async_retrying, run_retrying
+from fleetbus.broker.dead_letter_queue import moved_letter_key
+from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
 from fleetbus.settings import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
-from workers.batches import BatchInbox
-from workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
-from workers.recorder.capture import DEAD_LETTER, DEFAULT_MAX_TYPES, OTHER, REJECTION, TypeNames, capture
-from workers.recorder.filters import RoutingFilter
-from workers.recorder.retention import Retention, RetentionSweeper, parse_retention
-from workers.store.base import StoreUnavailable, WriteResult
-from workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
-from workers.store.rejections import RejectionLog
+from fleetbus.workers.batches import BatchInbox
+from fleetbus.workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
+from fleetbus.workers.recorder.capture import (
+    DEAD_LETTER,
+    DEFAULT_MAX_TYPES,
+    OTHER,
+    REJECTION,
+    TypeNames,
+    capture,
+)
+from fleetbus.workers.recorder.filters import RoutingFilter
+from fleetbus.workers.recorder.retention import Retention, RetentionSweeper, parse_retention
+from fleetbus.workers.store.base import StoreUnavailable, WriteResult
+from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
+from fleetbus.workers.store.rejections import RejectionLog
 
 log = logging.getLogger("fleetbus.recorder")
 T = TypeVar("T")

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
-from workers.store.recordings import StorageSample
+from fleetbus.workers.store.recordings import StorageSample
 
 EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
 

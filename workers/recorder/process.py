@@ -23,7 +23,7 @@ import signal
 import sys
 import time
 
-from broker.retry import Backoff, Stopped, async_retrying
+from fleetbus.broker.retry import Backoff, Stopped, async_retrying
 
 log = logging.getLogger("fleetbus.recorder")
 

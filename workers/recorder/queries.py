@@ -18,12 +18,12 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
 from typing import Any, TypeVar
 
-from broker.routes import Route, RouteMap
-from broker.topics import topic_matches
-from schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
-from workers.recorder.capture import DEAD_LETTER, NOTIFICATION
-from workers.store.base import EventQuery, EventRecord, EventStore
-from workers.store.recordings import (
+from fleetbus.broker.routes import Route, RouteMap
+from fleetbus.broker.topics import topic_matches
+from fleetbus.schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
+from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION
+from fleetbus.workers.store.base import EventQuery, EventRecord, EventStore
+from fleetbus.workers.store.recordings import (
     Condition,
     Op,
     OutcomeFields,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from workers.store.recordings import RecordedMessage
+from fleetbus.workers.store.recordings import RecordedMessage
 
 #: Properties a replay carries over; reply_to and expiration would point at callers long gone.
 KEPT_PROPERTIES = (

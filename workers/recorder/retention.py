@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 
-from workers.store.recordings import RecordingStore
+from fleetbus.workers.store.recordings import RecordingStore
 
 ANY_TYPE = "*"
 AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}

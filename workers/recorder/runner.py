@@ -10,19 +10,19 @@ from dataclasses import dataclass
 import aio_pika
 from aio_pika.abc import AbstractRobustConnection
 
-from broker.accounts import ensure_recorder_account
-from broker.endpoint import BrokerEndpoint
-from broker.management import ManagementAPI
-from broker.topology import core_topology, declare_with_url, recorder_topology
+from fleetbus.broker.accounts import ensure_recorder_account
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
+from fleetbus.schemas.routing import RECORDER_QUEUE
 from fleetbus.settings import Settings
-from schemas.routing import RECORDER_QUEUE
-from workers.recorder.capture import TypeNames
-from workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
-from workers.recorder.filters import RoutingFilter
-from workers.recorder.retention import parse_retention
-from workers.signals import stop_on_signals
-from workers.store import Store, open_recording_store, open_store
-from workers.store.recordings import RecordingStore
+from fleetbus.workers.recorder.capture import TypeNames
+from fleetbus.workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
+from fleetbus.workers.recorder.filters import RoutingFilter
+from fleetbus.workers.recorder.retention import parse_retention
+from fleetbus.workers.signals import stop_on_signals
+from fleetbus.workers.store import Store, open_recording_store, open_store
+from fleetbus.workers.store.recordings import RecordingStore
 
 log = logging.getLogger("fleetbus.recorder")
 
@@ -61,7 +61,7 @@ async def declare_recording(url: str) -> None:
 
 
 def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
-    """As the administrator (:mod:`workers.setup`): the ``fleetbus-recorder`` account; its URL."""
+    """As the administrator (:mod:`fleetbus.workers.setup`): the ``fleetbus-recorder`` account; its URL."""
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         return ensure_recorder_account(endpoint.amqp_url, api, settings.accounts_dir)
 
@@ -73,7 +73,7 @@ async def start_recorder(
     missions: MissionLookup | None = None,
 ) -> RecorderContext:
     """Ready to consume, as the ``fleetbus-recorder`` account of ``url`` alone: its queue and
-    bindings exist already (:mod:`workers.setup`, or the worker declared them). Without
+    bindings exist already (:mod:`fleetbus.workers.setup`, or the worker declared them). Without
     ``missions``, the service's store says which mission each robot is recorded under (its
     check-ins), as it does for the event log."""
     store = open_recording_store(settings)

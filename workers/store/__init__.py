@@ -7,10 +7,17 @@ from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
 from fleetbus.settings import Settings
-from workers.store.base import EventQuery, EventRecord, EventStore, StoreError, StoreUnavailable, WriteResult
-from workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
-from workers.store.interface import Store
-from workers.store.recordings import RecordingStore
+from fleetbus.workers.store.base import (
+    EventQuery,
+    EventRecord,
+    EventStore,
+    StoreError,
+    StoreUnavailable,
+    WriteResult,
+)
+from fleetbus.workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.recordings import RecordingStore
 
 T = TypeVar("T")
 
@@ -46,10 +53,10 @@ def run_with_store(settings: Settings, operation: Callable[[Store], Awaitable[T]
 def open_store(settings: Settings) -> Store:
     """The store the settings select (MongoDB when ``mongodb_url`` is set), not yet opened."""
     if settings.mongodb_url:
-        from workers.store.mongo import MongoEventStore
+        from fleetbus.workers.store.mongo import MongoEventStore
 
         return MongoEventStore(settings.mongodb_url)
-    from workers.store.sqlite import SQLiteEventStore
+    from fleetbus.workers.store.sqlite import SQLiteEventStore
 
     return SQLiteEventStore(settings.sqlite_path)
 
@@ -58,9 +65,9 @@ def open_recording_store(settings: Settings) -> RecordingStore:
     """The recorder's store: MongoDB collections ``recorded.<type>`` when ``mongodb_url`` is set,
     else a SQLite file of its own next to the event log; not yet opened."""
     if settings.mongodb_url:
-        from workers.store.mongo_recordings import MongoRecordingStore
+        from fleetbus.workers.store.mongo_recordings import MongoRecordingStore
 
         return MongoRecordingStore(settings.mongodb_url, max_field_indexes=settings.field_indexes_max)
-    from workers.store.sqlite_recordings import SQLiteRecordingStore
+    from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
 
     return SQLiteRecordingStore(settings.recording_path, max_field_indexes=settings.field_indexes_max)

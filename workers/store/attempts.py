@@ -1,7 +1,7 @@
 """How often the worker began to handle a redelivered message: a delivery limit for a classic queue.
 
 A quorum queue counts deliveries itself (``x-delivery-limit``); a classic queue only flags a
-redelivery, so the worker keeps the count (:mod:`workers.attempts`). Keys are the worker's own
+redelivery, so the worker keeps the count (:mod:`fleetbus.workers.attempts`). Keys are the worker's own
 (publisher and message id); a count is forgotten once its message was handled.
 """
 

@@ -1,6 +1,6 @@
 """The storage interface every adapter implements, and the record it stores.
 
-Writes are idempotent on ``(robot_id, epoch, seq)``, the event's key (:mod:`schemas.envelope`):
+Writes are idempotent on ``(robot_id, epoch, seq)``, the event's key (:mod:`fleetbus.schemas.envelope`):
 the document-id strategy is that triple, so a redelivered or resent event never becomes a second
 record. ``write_events`` returns only once
 the batch is durable, which is what lets a worker ack after it.

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
 
-from workers.store.base import StoreError
+from fleetbus.workers.store.base import StoreError
 
 
 class ChannelAction(str, Enum):

@@ -2,7 +2,7 @@
 coordination service.
 
 Hazards get an id sequential within their mission, assigned atomically by the store. A hazard
-is ``held`` until the gate opens (:mod:`workers.team`) and a warden's inbox took it, ``announced``
+is ``held`` until the gate opens (:mod:`fleetbus.workers.team`) and a warden's inbox took it, ``announced``
 once the wardens were told, then ``claimed`` by one warden, ``reached``, and finally ``cleared``.
 """
 
@@ -17,9 +17,9 @@ from typing import Any
 
 from pydantic import TypeAdapter
 
-from schemas.envelope import SCHEMA_VERSION
-from schemas.routing import RobotKind
-from workers.store.base import EventRecord, StoreError
+from fleetbus.schemas.envelope import SCHEMA_VERSION
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventRecord, StoreError
 
 DEFAULT_MISSION = "default"
 
@@ -50,7 +50,7 @@ class Hazard:
     cleared_at: datetime | None = None
     held_reason: str | None = None
     """While held with the gate open: why the last announcement did not count (no warden's inbox
-    took it). The gate's own reasons are the team's state, read when asked (:mod:`workers.team`)."""
+    took it). The gate's own reasons are the team's state, read when asked (:mod:`fleetbus.workers.team`)."""
 
     def as_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
@@ -152,7 +152,7 @@ class HeldHazards:
     hazards: list[Hazard]
     """Every held hazard, in the order they were detected (id order)."""
     wardens: list[RobotState]
-    """Every warden of the team, in service or not: the gate's inputs (:func:`workers.team.gate`)."""
+    """Every warden of the team, in service or not: the gate's inputs (:func:`fleetbus.workers.team.gate`)."""
 
 
 class HazardRefused(StoreError):

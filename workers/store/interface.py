@@ -7,20 +7,20 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 
-from workers.store.attempts import AttemptLog
-from workers.store.base import EventRecord, EventStore, WriteResult
-from workers.store.beacons import BeaconRegistry
-from workers.store.channels import ChannelStore
-from workers.store.discards import DiscardLog
-from workers.store.hazards import CoordinationStore
-from workers.store.housekeeping import Housekeeping
-from workers.store.leases import LeaseStore
-from workers.store.ledger import RobotEpoch, SequenceLedger
-from workers.store.maps import MapStore
-from workers.store.missions import MissionStore
-from workers.store.rejections import RejectionLog
-from workers.store.statuses import StatusBoard
-from workers.store.users import UserStore
+from fleetbus.workers.store.attempts import AttemptLog
+from fleetbus.workers.store.base import EventRecord, EventStore, WriteResult
+from fleetbus.workers.store.beacons import BeaconRegistry
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.discards import DiscardLog
+from fleetbus.workers.store.hazards import CoordinationStore
+from fleetbus.workers.store.housekeeping import Housekeeping
+from fleetbus.workers.store.leases import LeaseStore
+from fleetbus.workers.store.ledger import RobotEpoch, SequenceLedger
+from fleetbus.workers.store.maps import MapStore
+from fleetbus.workers.store.missions import MissionStore
+from fleetbus.workers.store.rejections import RejectionLog
+from fleetbus.workers.store.statuses import StatusBoard
+from fleetbus.workers.store.users import UserStore
 
 
 class Store(

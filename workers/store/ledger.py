@@ -1,7 +1,7 @@
 """What the server knows of each robot's sequence numbers: gaps, and duplicates it was sent.
 
 Every start of a robot's client numbers its events 0, 1, 2, ... within an epoch of its own
-(:mod:`schemas.envelope`). The ledger keeps, per robot and epoch, the highest number stored (the
+(:mod:`fleetbus.schemas.envelope`). The ledger keeps, per robot and epoch, the highest number stored (the
 high-water mark) and the ranges below it that the store does not hold (gaps). A gap opens when a
 number arrives beyond the next one expected and closes, piece by piece, when the missing events
 arrive later. Observing a number twice changes nothing, so a redelivered batch can be observed

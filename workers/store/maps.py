@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from workers.store.base import StoreError
+from fleetbus.workers.store.base import StoreError
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from schemas.missions import MissionState
-from workers.store.base import StoreError
+from fleetbus.schemas.missions import MissionState
+from fleetbus.workers.store.base import StoreError
 
 MISSION_PREFIX = "m-"
 
@@ -32,7 +32,7 @@ class Mission:
     """The client who requested it."""
     state: MissionState
     plan: dict[str, Any]
-    """A :class:`schemas.missions.MissionPlan` as JSON."""
+    """A :class:`fleetbus.schemas.missions.MissionPlan` as JSON."""
     created_at: datetime
     updated_at: datetime
 

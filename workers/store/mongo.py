@@ -13,7 +13,7 @@ from typing import Any
 from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import BulkWriteError, PyMongoError
 
-from workers.store.base import (
+from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
     StoreUnavailable,
@@ -21,25 +21,25 @@ from workers.store.base import (
     from_micros,
     to_micros,
 )
-from workers.store.interface import Store
-from workers.store.mongo_attempts import MongoAttempts
-from workers.store.mongo_channels import MongoChannels
-from workers.store.mongo_coordination import MongoBeacons, MongoCoordination
-from workers.store.mongo_database import (
+from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.mongo_attempts import MongoAttempts
+from fleetbus.workers.store.mongo_channels import MongoChannels
+from fleetbus.workers.store.mongo_coordination import MongoBeacons, MongoCoordination
+from fleetbus.workers.store.mongo_database import (
     DUPLICATE_KEY,
     MongoDatabase,
     raise_as_store_error,
     translate_unavailable,
 )
-from workers.store.mongo_discards import MongoDiscards
-from workers.store.mongo_housekeeping import MongoHousekeeping
-from workers.store.mongo_leases import MongoLeases
-from workers.store.mongo_ledger import MongoLedger
-from workers.store.mongo_maps import MongoMaps
-from workers.store.mongo_missions import MongoMissions
-from workers.store.mongo_rejections import MongoRejections
-from workers.store.mongo_statuses import MongoStatuses
-from workers.store.mongo_users import MongoUsers
+from fleetbus.workers.store.mongo_discards import MongoDiscards
+from fleetbus.workers.store.mongo_housekeeping import MongoHousekeeping
+from fleetbus.workers.store.mongo_leases import MongoLeases
+from fleetbus.workers.store.mongo_ledger import MongoLedger
+from fleetbus.workers.store.mongo_maps import MongoMaps
+from fleetbus.workers.store.mongo_missions import MongoMissions
+from fleetbus.workers.store.mongo_rejections import MongoRejections
+from fleetbus.workers.store.mongo_statuses import MongoStatuses
+from fleetbus.workers.store.mongo_users import MongoUsers
 
 
 class RobotSequenceId:

@@ -8,7 +8,7 @@ from typing import Any
 
 from pymongo import ReturnDocument
 
-from workers.store.attempts import AttemptLog
+from fleetbus.workers.store.attempts import AttemptLog
 
 
 class MongoAttempts(AttemptLog):

@@ -16,8 +16,8 @@ from typing import Any
 from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import DuplicateKeyError
 
-from workers.store.base import from_micros, to_micros
-from workers.store.channels import Booked, ChannelAction, ChannelChange, ChannelStore, CheckIn, Mount
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, ChannelStore, CheckIn, Mount
 
 CHECK_IN_HOLD = "check-in"
 

@@ -9,9 +9,9 @@ from typing import Any
 from pymongo import ASCENDING, DESCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
-from workers.store.base import from_micros, to_micros
-from workers.store.beacons import Beacon, BeaconRegistry
-from workers.store.hazards import (
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
+from fleetbus.workers.store.hazards import (
     CoordinationStore,
     Hazard,
     HazardState,

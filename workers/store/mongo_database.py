@@ -24,7 +24,7 @@ from pymongo.errors import (
 )
 from pymongo.write_concern import WriteConcern
 
-from workers.store.base import StoreUnavailable
+from fleetbus.workers.store.base import StoreUnavailable
 
 DUPLICATE_KEY = 11000
 UNAVAILABLE = (AutoReconnect, ConnectionFailure, NetworkTimeout, ServerSelectionTimeoutError)

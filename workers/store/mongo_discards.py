@@ -9,8 +9,8 @@ from bson import ObjectId
 from pymongo import DESCENDING
 from pymongo.errors import BulkWriteError
 
-from workers.store.base import from_micros, to_micros
-from workers.store.discards import Discard, DiscardCount, DiscardLog
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.discards import Discard, DiscardCount, DiscardLog
 
 DUPLICATE_KEY = 11000
 

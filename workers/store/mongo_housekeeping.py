@@ -12,9 +12,9 @@ from typing import Any
 
 from pymongo import ASCENDING, DESCENDING
 
-from workers.store.base import from_micros, to_micros
-from workers.store.hazards import HazardState
-from workers.store.housekeeping import BoundCount, Housekeeping
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.hazards import HazardState
+from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
 
 
 class MongoHousekeeping(Housekeeping):

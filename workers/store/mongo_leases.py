@@ -14,8 +14,8 @@ from typing import Any
 from pymongo import ASCENDING
 from pymongo.errors import DuplicateKeyError
 
-from workers.store.base import from_micros, to_micros
-from workers.store.leases import Lease, LeaseStore
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.leases import Lease, LeaseStore
 
 
 class MongoLeases(LeaseStore):

@@ -17,8 +17,8 @@ from typing import Any
 from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import DuplicateKeyError
 
-from workers.store.base import from_micros, to_micros
-from workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
 
 
 def numbering_id(numbering: RobotEpoch) -> str:

@@ -12,8 +12,8 @@ from gridfs.errors import NoFile
 from pymongo import ASCENDING, DESCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
-from workers.store.base import from_micros, to_micros
-from workers.store.maps import MapRejected, MapStore, MapVersion
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.maps import MapRejected, MapStore, MapVersion
 
 BUCKET = "maps"
 

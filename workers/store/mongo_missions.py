@@ -12,9 +12,9 @@ from typing import Any
 
 from pymongo import ASCENDING, ReturnDocument
 
-from schemas.missions import MissionState
-from workers.store.base import from_micros, to_micros
-from workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
+from fleetbus.schemas.missions import MissionState
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
 
 
 def _mission(doc: dict[str, Any]) -> Mission:

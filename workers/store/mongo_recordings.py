@@ -22,9 +22,9 @@ from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import BulkWriteError, OperationFailure
 
 from fleetbus.settings import DEFAULT_FIELD_INDEXES_MAX
-from workers.store.base import StoreUnavailable, WriteResult, from_micros, to_micros
-from workers.store.mongo_database import DUPLICATE_KEY, MongoDatabase, translate_unavailable
-from workers.store.recordings import (
+from fleetbus.workers.store.base import StoreUnavailable, WriteResult, from_micros, to_micros
+from fleetbus.workers.store.mongo_database import DUPLICATE_KEY, MongoDatabase, translate_unavailable
+from fleetbus.workers.store.recordings import (
     Condition,
     Op,
     OutcomeFields,

@@ -7,7 +7,7 @@ from typing import Any
 
 from pymongo import UpdateOne
 
-from workers.store.rejections import Rejection, RejectionLog
+from fleetbus.workers.store.rejections import Rejection, RejectionLog
 
 
 class MongoRejections(RejectionLog):

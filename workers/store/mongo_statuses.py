@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from workers.store.statuses import StatusBoard, WorkerStatus
+from fleetbus.workers.store.statuses import StatusBoard, WorkerStatus
 
 
 class MongoStatuses(StatusBoard):

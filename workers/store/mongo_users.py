@@ -9,9 +9,9 @@ from typing import Any
 from pymongo import ASCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
-from schemas.roles import UserRole
-from workers.store.base import from_micros, to_micros
-from workers.store.users import NoSuchUser, User, UserExists, UserStore
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.users import NoSuchUser, User, UserExists, UserStore
 
 
 def _user(doc: dict[str, Any]) -> User:

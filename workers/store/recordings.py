@@ -19,7 +19,7 @@ from datetime import datetime
 from enum import Enum
 from typing import Any, Union
 
-from workers.store.base import WriteResult
+from fleetbus.workers.store.base import WriteResult
 
 Scalar = Union[str, int, float, bool, None]  # noqa: UP007  (a runtime alias; Python 3.10 reads it)
 

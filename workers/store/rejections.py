@@ -2,7 +2,7 @@
 
 The broker moves a rejected message to the dead-letter queue itself (``basic.nack`` without
 requeue), which cannot add headers; the worker records the reason here first, under the key
-:func:`broker.dead_letter_queue.dead_letter_key` computes from the message as it arrives in the
+:func:`fleetbus.broker.dead_letter_queue.dead_letter_key` computes from the message as it arrives in the
 queue. Recording is idempotent: a worker that dies before its nack records the same key again
 after the redelivery, and the first record stays.
 """

@@ -1,6 +1,6 @@
 """The embedded default store: SQLite in WAL mode, one durable transaction per batch.
 
-Calls run on the caller's thread or the store's own (:mod:`workers.store.sqlite_database`); each
+Calls run on the caller's thread or the store's own (:mod:`fleetbus.workers.store.sqlite_database`); each
 commit is durable before ``write_events`` or ``store_batch`` returns, which is what the worker's
 ack waits for. ``store_batch`` stamps, writes and updates the sequence ledger in one transaction.
 """
@@ -13,31 +13,31 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
-from schemas.routing import EventType
-from workers.store.base import (
+from fleetbus.schemas.routing import EventType
+from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
     WriteResult,
     from_micros,
     to_micros,
 )
-from workers.store.hazards import NewHazard
-from workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
-from workers.store.ledger import RobotEpoch
-from workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
-from workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
-from workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
-from workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
-from workers.store.sqlite_database import SQLiteDatabase, in_transaction
-from workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
-from workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
-from workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
-from workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
-from workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
-from workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
-from workers.store.sqlite_rejections import REJECTION_SCHEMA, SQLiteRejections
-from workers.store.sqlite_statuses import STATUS_SCHEMA, SQLiteStatuses
-from workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
+from fleetbus.workers.store.hazards import NewHazard
+from fleetbus.workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
+from fleetbus.workers.store.ledger import RobotEpoch
+from fleetbus.workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
+from fleetbus.workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
+from fleetbus.workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
+from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
+from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transaction
+from fleetbus.workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
+from fleetbus.workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
+from fleetbus.workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
+from fleetbus.workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
+from fleetbus.workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
+from fleetbus.workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
+from fleetbus.workers.store.sqlite_rejections import REJECTION_SCHEMA, SQLiteRejections
+from fleetbus.workers.store.sqlite_statuses import STATUS_SCHEMA, SQLiteStatuses
+from fleetbus.workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
 T = TypeVar("T")
 

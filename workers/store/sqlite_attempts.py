@@ -7,9 +7,9 @@ from collections.abc import Callable, Sequence
 from datetime import datetime
 from typing import Any
 
-from workers.store.attempts import AttemptLog
-from workers.store.base import to_micros
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.attempts import AttemptLog
+from fleetbus.workers.store.base import to_micros
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 ATTEMPT_SCHEMA = """
 CREATE TABLE IF NOT EXISTS delivery_attempts (

@@ -7,9 +7,9 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.beacons import Beacon, BeaconRegistry
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 BEACON_SCHEMA = """
 CREATE TABLE IF NOT EXISTS beacons (

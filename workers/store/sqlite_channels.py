@@ -11,9 +11,9 @@ from collections.abc import Callable, Collection
 from datetime import datetime
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.channels import Booked, ChannelAction, ChannelChange, ChannelStore, CheckIn, Mount
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, ChannelStore, CheckIn, Mount
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 CHANNEL_SCHEMA = """
 CREATE TABLE IF NOT EXISTS mounts (

@@ -8,9 +8,9 @@ from collections.abc import Callable, Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
-from schemas.routing import RobotKind
-from workers.store.base import from_micros, to_micros
-from workers.store.hazards import (
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.hazards import (
     CoordinationStore,
     Hazard,
     HazardState,
@@ -20,7 +20,7 @@ from workers.store.hazards import (
     Transition,
     refuse_transition,
 )
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 T = TypeVar("T")
 

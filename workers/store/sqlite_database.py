@@ -16,7 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TypeVar
 
-from workers.store.base import StoreUnavailable
+from fleetbus.workers.store.base import StoreUnavailable
 
 T = TypeVar("T")
 

@@ -7,9 +7,9 @@ import sqlite3
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.discards import Discard, DiscardCount, DiscardLog
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.discards import Discard, DiscardCount, DiscardLog
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 DISCARD_SCHEMA = """
 CREATE TABLE IF NOT EXISTS beacon_discards (

@@ -12,10 +12,10 @@ from collections.abc import Callable, Mapping
 from datetime import datetime
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.hazards import HazardState
-from workers.store.housekeeping import BoundCount, Housekeeping
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.hazards import HazardState
+from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 HOUSEKEEPING_SCHEMA = """
 CREATE INDEX IF NOT EXISTS events_type_received ON events (type, received_at);

@@ -11,9 +11,9 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.leases import Lease, LeaseStore
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.leases import Lease, LeaseStore
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 LEASE_SCHEMA = """
 CREATE TABLE IF NOT EXISTS leases (

@@ -10,9 +10,9 @@ from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 LEDGER_SCHEMA = """
 CREATE TABLE IF NOT EXISTS robot_sequences (

@@ -8,9 +8,9 @@ from collections.abc import Callable, Sequence
 from datetime import datetime, timezone
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.maps import MapRejected, MapStore, MapVersion
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.maps import MapRejected, MapStore, MapVersion
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 MAP_SCHEMA = """
 CREATE TABLE IF NOT EXISTS map_staging (

@@ -8,10 +8,10 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from schemas.missions import MissionState
-from workers.store.base import from_micros, to_micros
-from workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
-from workers.store.sqlite_database import in_transaction
+from fleetbus.schemas.missions import MissionState
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 MISSION_SCHEMA = """
 CREATE TABLE IF NOT EXISTS missions (

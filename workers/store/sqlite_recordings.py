@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from fleetbus.settings import DEFAULT_FIELD_INDEXES_MAX
-from workers.store.base import WriteResult, from_micros, to_micros
-from workers.store.recordings import (
+from fleetbus.workers.store.base import WriteResult, from_micros, to_micros
+from fleetbus.workers.store.recordings import (
     Condition,
     Op,
     OutcomeFields,
@@ -32,7 +32,7 @@ from workers.store.recordings import (
     check_path,
     check_type_name,
 )
-from workers.store.sqlite_database import SQLiteDatabase, in_transaction
+from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transaction
 
 TABLE_PREFIX = "rec_"
 COLUMNS = (

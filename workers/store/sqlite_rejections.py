@@ -6,9 +6,9 @@ import sqlite3
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.rejections import Rejection, RejectionLog
-from workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.rejections import Rejection, RejectionLog
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 REJECTION_SCHEMA = """
 CREATE TABLE IF NOT EXISTS rejections (

@@ -7,9 +7,9 @@ import sqlite3
 from collections.abc import Callable
 from typing import Any
 
-from workers.store.base import from_micros, to_micros
-from workers.store.sqlite_database import in_transaction
-from workers.store.statuses import StatusBoard, WorkerStatus
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.statuses import StatusBoard, WorkerStatus
 
 STATUS_SCHEMA = """
 CREATE TABLE IF NOT EXISTS worker_status (

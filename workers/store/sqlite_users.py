@@ -7,10 +7,10 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from schemas.roles import UserRole
-from workers.store.base import from_micros, to_micros
-from workers.store.sqlite_database import in_transaction
-from workers.store.users import NoSuchUser, User, UserExists, UserStore
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.users import NoSuchUser, User, UserExists, UserStore
 
 USER_SCHEMA = """
 CREATE TABLE IF NOT EXISTS users (

@@ -1,6 +1,6 @@
 """Each worker's last word on how it fares: its counters, and what it is waiting for if anything.
 
-A worker writes its status every few seconds (:mod:`workers.status`); ``fleetbus stats`` shows
+A worker writes its status every few seconds (:mod:`fleetbus.workers.status`); ``fleetbus stats`` shows
 them. A status that stopped changing says the worker, or its way to the store, is gone.
 """
 

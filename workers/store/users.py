@@ -1,7 +1,7 @@
 """The service layer's users: name, role, password hash and the broker password it hands over.
 
 Passwords are stored only as argon2 hashes; the broker password is stored encrypted by the
-service (``api.security.SecretBox``), because the login reply has to hand it back.
+service (``fleetbus.api.security.SecretBox``), because the login reply has to hand it back.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import abc
 from dataclasses import dataclass
 from datetime import datetime
 
-from schemas.roles import UserRole
-from workers.store.base import StoreError
+from fleetbus.schemas.roles import UserRole
+from fleetbus.workers.store.base import StoreError
 
 
 @dataclass(frozen=True)

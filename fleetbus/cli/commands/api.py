@@ -1,0 +1,114 @@
+"""``fleetbus api``: serve the HTTP API; make the first admin; write the OpenAPI document; log in.
+
+fleetbus api [--host 127.0.0.1] [--port 8000]   # serve (uvicorn) until Ctrl-C
+fleetbus api create-admin NAME                  # the first admin, password typed twice
+fleetbus api openapi openapi.json
+fleetbus api login NAME [--api http://127.0.0.1:8000]   # keeps the broker URL for `tail`
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from fleetbus.broker.accounts import save_secret
+from fleetbus.cli.context import console, endpoint, fail, settings
+from fleetbus.schemas.roles import UserRole
+
+# FastAPI, the service and httpx are imported by the commands that use them: every `fleetbus`
+# command loads this module, and `fleetbus recorder run` must stay small (20 MB less resident).
+app = typer.Typer(help="The HTTP API of the service layer (users, missions, mounts).")
+
+
+@app.callback(invoke_without_command=True)
+def serve(
+    ctx: typer.Context,
+    host: Annotated[str, typer.Option(help="address to listen on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="port to listen on")] = 8000,
+) -> None:
+    """Serve the API with uvicorn (OpenAPI at /docs), until Ctrl-C."""
+    if ctx.invoked_subcommand is not None:
+        return
+    import uvicorn
+
+    from fleetbus.api.app import create_app
+
+    ep = endpoint()
+    console.print(f"fleetbus API on http://{host}:{port}/ (docs at /docs); broker {ep.management_url}")
+    uvicorn.run(
+        create_app(settings(), ep.amqp_url, ep.management_url), host=host, port=port, log_level="info"
+    )
+
+
+@app.command("create-admin")
+def create_admin(
+    name: str,
+    password_stdin: Annotated[
+        bool, typer.Option("--password-stdin", help="read the password from standard input (scripts)")
+    ] = False,
+) -> None:
+    """Create an admin on this server (the safe way to make the first one: no default password)."""
+    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.api.service import open_service
+
+    if password_stdin:
+        password = sys.stdin.readline().rstrip("\n")
+    else:
+        password = typer.prompt("password", hide_input=True, confirmation_prompt=True)
+    ep = endpoint()
+
+    async def create() -> None:
+        async with open_service(settings(), ep.amqp_url, ep.management_url) as service:
+            await service.accounts.create(
+                name, password, UserRole.ADMIN, None, by="fleetbus api create-admin"
+            )
+
+    try:
+        asyncio.run(create())
+    except ServiceRefusal as refusal:
+        fail(refusal.detail)
+    console.print(f"created admin [bold]{name}[/]; log in at POST /auth/token")
+
+
+@app.command("openapi")
+def openapi(out: Annotated[Path, typer.Argument(help="file to write")] = Path("openapi.json")) -> None:
+    """Write the OpenAPI document (no broker needed)."""
+    from fleetbus.api.app import create_app
+
+    document = create_app(settings(), "amqp://localhost/", "http://localhost:15672/").openapi()
+    out.write_text(json.dumps(document, indent=2) + "\n")
+    console.print(f"wrote {out} ({len(document['paths'])} paths)")
+
+
+@app.command("login")
+def login(
+    name: str,
+    api: Annotated[
+        str | None,
+        typer.Option(help="the API's base URL (default: FLEETBUS_API_URL, else http://127.0.0.1:8000)"),
+    ] = None,
+    password_stdin: Annotated[bool, typer.Option("--password-stdin")] = False,
+) -> None:
+    """Log in; print the token and keep the broker URL in FLEETBUS_DATA_DIR/accounts/NAME.url."""
+    import httpx
+
+    api = api or settings().api_url
+    password = (
+        sys.stdin.readline().rstrip("\n") if password_stdin else typer.prompt("password", hide_input=True)
+    )
+    try:
+        response = httpx.post(f"{api.rstrip('/')}/auth/token", data={"username": name, "password": password})
+    except httpx.HTTPError as error:
+        fail(f"cannot reach the API at {api}: {error}")
+    if response.status_code != 200:
+        fail(f"{response.status_code}: {response.json().get('detail', response.text)}")
+    reply = response.json()
+    save_secret(settings().accounts_dir / f"{name}.url", reply["broker"]["amqp_url"])
+    console.print(f"logged in as {name} ({reply['user']['role']}) until {reply['expires_at']}")
+    console.print(f"broker URL kept in {settings().accounts_dir / f'{name}.url'} (for `fleetbus tail`)")
+    console.print(f"token: {reply['access_token']}", soft_wrap=True, highlight=False)

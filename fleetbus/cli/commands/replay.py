@@ -1,0 +1,112 @@
+"""``fleetbus replay``: republish the recorded messages of a time window to an exchange."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any
+
+import pika
+import pika.exceptions
+import typer
+from rich.progress import Progress, TextColumn, TimeElapsedColumn
+
+from fleetbus.cli.context import console, endpoint, errors, fail, parse_time, recording_stream
+from fleetbus.workers.recorder.queries import parse_condition, recorded_between
+from fleetbus.workers.recorder.replay import ReplayReport
+from fleetbus.workers.recorder.replay import replay as replay_records
+from fleetbus.workers.store.recordings import RecordedMessage, RecordingError
+
+
+class Publisher:
+    """pika with publisher confirms and ``mandatory``: an unroutable message is counted, not lost."""
+
+    def __init__(self, url: str, exchange: str, declare: bool) -> None:
+        self._connection = pika.BlockingConnection(pika.URLParameters(url))
+        self._channel = self._connection.channel()
+        self._exchange = exchange
+        try:
+            self._channel.exchange_declare(exchange, "topic", durable=True, passive=not declare)
+        except pika.exceptions.ChannelClosedByBroker as error:
+            self._connection.close()
+            hint = " (add --declare to create it as a topic exchange)" if error.reply_code == 404 else ""
+            fail(f"exchange {exchange!r}: {error.reply_text}{hint}")
+        self._channel.confirm_delivery()
+
+    def __call__(self, record: RecordedMessage, body: bytes, properties: dict[str, Any]) -> bool:
+        try:
+            self._channel.basic_publish(
+                self._exchange, record.routing_key, body, pika.BasicProperties(**properties), mandatory=True
+            )
+        except pika.exceptions.UnroutableError:
+            return False
+        return True
+
+    def close(self) -> None:
+        if self._connection.is_open:
+            self._connection.close()
+
+
+def replay(
+    to: Annotated[str, typer.Option("--to", help="the exchange to publish to")],
+    since: Annotated[str, typer.Option(help="recorded from this time (ISO 8601 or e.g. 10m ago)")],
+    until: Annotated[str | None, typer.Option(help="recorded before this time (default: now)")] = None,
+    message_types: Annotated[
+        list[str] | None,
+        typer.Option("--type", help="only this type (repeatable; default: all but dead letters)"),
+    ] = None,
+    robot: Annotated[str | None, typer.Option(help="only this robot's messages")] = None,
+    where: Annotated[
+        list[str] | None, typer.Option("--where", "-w", help="FIELD=VALUE…, with one --type")
+    ] = None,
+    speed: Annotated[float, typer.Option(help="2 = twice as fast, 0 = as fast as possible")] = 1.0,
+    declare: Annotated[
+        bool, typer.Option("--declare", help="create the exchange (topic) if missing")
+    ] = False,
+    url: Annotated[
+        str | None, typer.Option(help="AMQP URL to publish with (default: the administrator's)")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print the report as JSON")] = False,
+) -> None:
+    """Republish recorded messages of a window to an exchange, in order, with their original
+    spacing divided by --speed; the routing keys, bodies and headers are the recorded ones.
+    The window is read from the recording as it is sent, so its length does not matter."""
+    types = message_types or []
+    try:
+        conditions = [parse_condition(text, types[0]) for text in where or []] if types else []
+        if where and len(types) != 1:
+            raise RecordingError("--where needs exactly one --type")
+        start, end = parse_time(since), parse_time(until)
+    except (RecordingError, ValueError) as error:
+        fail(str(error), code=2)
+    if speed < 0:
+        fail("--speed must be 0 or more", code=2)
+    publish = Publisher(url or endpoint().amqp_url, to, declare)
+    columns = (TextColumn("replaying: {task.completed:,.0f} messages"), TimeElapsedColumn())
+    try:
+        with (
+            recording_stream(
+                lambda store: recorded_between(
+                    store, start, end, types=types, robot_id=robot, conditions=conditions
+                )
+            ) as records,
+            Progress(*columns, console=errors, transient=as_json) as progress,
+        ):
+            task = progress.add_task("replay", total=None)
+            report = replay_records(records, publish, speed, on_each=lambda r: progress.advance(task))
+    except RecordingError as error:
+        fail(str(error), code=2)
+    finally:
+        publish.close()
+    if as_json:
+        typer.echo(json.dumps(report.__dict__))
+        return
+    console.print(_summary(report, to, speed))
+
+
+def _summary(report: ReplayReport, exchange: str, speed: float) -> str:
+    text = f"replayed {report.published} messages to {exchange} over {report.span_s:.1f} s (speed {speed:g})"
+    if report.unroutable:
+        text += f"; {report.unroutable} unroutable (no queue bound for their keys)"
+    if report.skipped:
+        text += f"; {report.skipped} skipped (body not kept)"
+    return text

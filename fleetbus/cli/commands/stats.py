@@ -1,0 +1,178 @@
+"""``fleetbus stats``: how the workers fare (their counts, what they wait for), the dead letters by
+reason, how fast the recording grows (MB and inserts per minute), as tables and a plot, and what
+each bound on growth removed (pruned records, messages full queues dropped)."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from fleetbus.cli.context import (
+    clock,
+    console,
+    dead_letters,
+    errors,
+    fail,
+    parse_time,
+    settings,
+    with_recording,
+)
+from fleetbus.workers.recorder.growth import Growth, growth
+from fleetbus.workers.store import StoreError, run_with_store
+from fleetbus.workers.store.housekeeping import BoundCount
+from fleetbus.workers.store.statuses import WorkerStatus
+
+UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+
+
+def parse_every(text: str) -> timedelta:
+    if text[-1:] in UNITS and text[:-1].isdigit() and int(text[:-1]) > 0:
+        return timedelta(seconds=int(text[:-1]) * UNITS[text[-1]])
+    fail(f"--every {text!r}: write a duration like 1m, 10m or 1h", code=2)
+
+
+def _view(item: Growth) -> dict[str, object]:
+    return {
+        "start": item.start.isoformat(),
+        "end": item.end.isoformat(),
+        "seconds": item.seconds,
+        "database_bytes": item.database_bytes,
+        "grown_bytes": item.grown_bytes,
+        "inserted": item.inserted,
+        "megabytes_per_minute": item.megabytes_per_minute,
+        "inserts_per_minute": item.inserts_per_minute,
+    }
+
+
+def _ago(moment: datetime | None, now: datetime) -> str:
+    return "" if moment is None else f"{(now - moment).total_seconds():.0f} s ago"
+
+
+def _workers() -> None:
+    """Each worker's latest status: what it handled and failed on, and what it is retrying now."""
+    try:
+        statuses: list[WorkerStatus] = run_with_store(settings(), lambda store: store.statuses())
+    except StoreError as error:
+        console.print(f"workers: the store did not answer ({error})")
+        return
+    if not statuses:
+        console.print("workers: none has reported yet (a worker writes its status every few seconds)")
+        return
+    now = datetime.now(timezone.utc)
+    table = Table(title="workers")
+    for column in ("worker", "seen", "stored", "dead-lettered", "internal errors", "retries", "waiting for"):
+        table.add_column(column, justify="left" if column in ("worker", "seen", "waiting for") else "right")
+    for status in statuses:
+        count = status.counters.get
+        waiting = (
+            f"{status.waiting_for} since {_ago(status.waiting_since, now)}: {status.last_error}"
+            if status.waiting_for
+            else ""
+        )
+        table.add_row(
+            status.name,
+            _ago(status.updated_at, now),
+            str(count("stored", 0)),
+            str(count("rejected", 0)),
+            str(count("internal_errors", 0) + count("rpc_internal_errors", 0)),
+            str(count("store_retries", 0)),
+            waiting,
+        )
+    console.print(table)
+
+
+def _dead_letters() -> None:
+    letters = dead_letters()
+    reasons = Counter(letter.reason for letter in letters)
+    shown = ", ".join(f"{reason} {count}" for reason, count in reasons.most_common())
+    console.print(
+        f"dead letters: {len(letters)}" + (f" ({shown}); `fleetbus dlq` lists them" if shown else "")
+    )
+
+
+def stats(
+    since: Annotated[str, typer.Option(help="from this time (ISO 8601 or e.g. 6h ago)")] = "1h",
+    every: Annotated[str, typer.Option(help="one row per this much time")] = "1m",
+    plot: Annotated[Path | None, typer.Option(help="also write a PNG plot here")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
+) -> None:
+    """The workers' statuses and the dead letters by reason; database growth (MB per minute) and
+    inserts per minute over time, from the recorder's samples; then what each bound removed since
+    the store began: records pruned, messages full queues dropped (--json: growth and bound rows)."""
+    bucket = parse_every(every)
+    start = parse_time(since)
+    if not as_json:
+        _workers()
+        _dead_letters()
+    rows = growth(with_recording(lambda store: store.samples(start)), bucket)
+    removed = run_with_store(settings(), lambda store: store.bound_counts())
+    if as_json:
+        for row in rows:
+            typer.echo(json.dumps(_view(row)))
+        for count in removed:
+            typer.echo(json.dumps(count.as_dict()))
+    elif not rows:
+        console.print(
+            f"no samples since {since}: the recorder samples the database every minute while it runs "
+            "(`fleetbus recorder run --sample-every SECONDS`)"
+        )
+    else:
+        table = Table(title=f"recording growth since {since}, per {every}")
+        for column in ("until (UTC)", "database MB", "MB per minute", "inserts per minute", "inserted"):
+            table.add_column(column, justify="left" if column.startswith("until") else "right")
+        for row in rows:
+            table.add_row(
+                clock(row.end)[:-4],
+                f"{row.database_bytes / 1e6:.2f}",
+                f"{row.megabytes_per_minute:.3f}",
+                f"{row.inserts_per_minute:.0f}",
+                str(row.inserted),
+            )
+        seconds = sum(row.seconds for row in rows)
+        inserted = sum(row.inserted for row in rows)
+        grown = sum(row.grown_bytes for row in rows)
+        console.print(table)
+        console.print(
+            f"over {seconds / 60:.1f} min: {grown / 1e6 / seconds * 60:.3f} MB per minute, "
+            f"{inserted / seconds * 60:.0f} inserts per minute"
+        )
+    if not as_json:
+        console.print(_bounds_table(removed))
+    if plot is not None:
+        say = errors if as_json else console
+        if rows:
+            from fleetbus.cli.plots import plot_growth  # matplotlib loads in a second: only when asked
+
+            plot_growth(
+                [row.end for row in rows],
+                [row.megabytes_per_minute for row in rows],
+                [row.inserts_per_minute for row in rows],
+                plot,
+            )
+            say.print(f"wrote {plot}")
+        else:
+            say.print("nothing to plot")
+
+
+def _bounds_table(removed: list[BoundCount]) -> Table | str:
+    """Per bound and subject: what it removed, since when (see README, "Bounds")."""
+    if not removed:
+        return "no bound has removed anything yet"
+    table = Table(title="removed by the bounds on growth (README: Bounds)")
+    for column in ("bound", "what", "removed", "first (UTC)", "last (UTC)"):
+        table.add_column(column, justify="right" if column == "removed" else "left")
+    for count in removed:
+        table.add_row(
+            count.bound,
+            count.subject,
+            f"{count.count:,}",
+            clock(count.first_at)[:-4],
+            clock(count.last_at)[:-4],
+        )
+    return table

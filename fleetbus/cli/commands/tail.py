@@ -1,0 +1,75 @@
+"""``fleetbus tail PATTERN``: follow your stream, each message with its origin.
+
+fleetbus tail                         # everything, live, as the user of FLEETBUS_USER_URL
+fleetbus tail 'explorer1.*' --user ops1 --since 10m   # history first, then live
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from datetime import timezone
+from typing import Annotated
+
+import aiormq.exceptions
+import typer
+from rich.markup import escape
+
+from fleetbus.cli.commands.events import parse_time
+from fleetbus.cli.context import console, fail, settings
+from fleetbus.publishers.tail import Seen, follow
+
+
+def user_url(user: str | None, url: str | None) -> str:
+    url = url or settings().user_url
+    if url:
+        return url
+    if user:
+        saved = settings().accounts_dir / f"{user}.url"
+        if saved.exists():
+            return saved.read_text().strip()
+        fail(f"no credentials for {user!r}: `fleetbus api login {user}` keeps them, or pass --url")
+    fail("who is following? use --user NAME (after `fleetbus api login NAME`), --url or FLEETBUS_USER_URL")
+
+
+def line(seen: Seen) -> str:
+    clock = seen.timestamp.astimezone(timezone.utc).strftime("%H:%M:%S") if seen.timestamp else "--:--:--"
+    origin = f"[bold]{escape(seen.user_id or '?')}[/] via {escape(seen.exchange or '(default)')}"
+    return f"{clock} {origin} [cyan]{escape(seen.routing_key)}[/] {escape(seen.summary())}"
+
+
+def tail(
+    pattern: Annotated[str, typer.Argument(help="routing keys to show: '*' one word, '#' any")] = "#",
+    user: Annotated[
+        str | None, typer.Option(help="follow as this user (credentials kept by `api login`)")
+    ] = None,
+    url: Annotated[str | None, typer.Option(help="your broker URL (default: FLEETBUS_USER_URL)")] = None,
+    since: Annotated[
+        str | None, typer.Option(help="replay from this time first (ISO 8601 or e.g. 10m)")
+    ] = None,
+    count: Annotated[int | None, typer.Option(help="stop after this many messages")] = None,
+    idle: Annotated[float | None, typer.Option(help="stop after this many seconds without one")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="one JSON object per line")] = False,
+) -> None:
+    """Follow live messages from your stream (<user>.stream): the beacons, and the robots you mounted."""
+    amqp_url = user_url(user, url)
+    start = parse_time(since)
+
+    def show(seen: Seen) -> None:
+        if as_json:
+            print(json.dumps(seen.as_dict()), flush=True)
+        else:
+            console.print(line(seen), soft_wrap=True, highlight=False)
+
+    if not as_json:
+        console.print(
+            f"following {pattern!r}" + (f" since {start.isoformat()}" if start else "") + " (Ctrl-C stops)"
+        )
+    try:
+        asyncio.run(follow(amqp_url, pattern, since=start, on_message=show, count=count, idle_timeout=idle))
+    except KeyboardInterrupt:
+        pass
+    except aiormq.exceptions.ChannelNotFoundEntity as error:
+        fail(f"no stream to follow: {error} (only operators and supervisors have one)")
+    except (aiormq.exceptions.AMQPError, ConnectionError) as error:
+        fail(f"the broker refused or failed: {error!r}")

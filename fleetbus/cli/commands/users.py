@@ -1,0 +1,85 @@
+"""``fleetbus users add | remove | list``: broker accounts confined to their own names."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from fleetbus.broker.accounts import AccountExists, Role, delete_account, provision_account, save_secret
+from fleetbus.broker.team_changes import HazardServiceNotTold
+from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
+from fleetbus.cli.registry import register_robot
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store import run_with_store
+from fleetbus.workers.team import leave_team
+
+app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
+
+
+@app.command("add")
+def add(
+    name: str,
+    role: Annotated[Role, typer.Option(help="what the account is for")] = Role.ROBOT,
+    kind: Annotated[RobotKind | None, typer.Option(help="robot kind; decides its notifications")] = None,
+    rotate: Annotated[bool, typer.Option(help="give an existing account a new password")] = False,
+    save: Annotated[
+        bool, typer.Option(help="keep the URL in FLEETBUS_DATA_DIR/accounts for `publish`")
+    ] = True,
+) -> None:
+    """Create an account with a random password; its URL is printed once."""
+    ep, config = endpoint(), settings()
+    with admin_api(ep) as api:
+        try:
+            account = asyncio.run(
+                provision_account(
+                    ep.amqp_url, api, name, role, kind, rotate=rotate, shards=config.ingest_shards
+                )
+            )
+        except (AccountExists, ValueError) as error:
+            fail(str(error))
+    if role is Role.ROBOT:
+        register_robot(config, name, kind)
+    if save:
+        save_secret(config.accounts_dir / f"{name}.url", account.amqp_url)
+    console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")
+    console.print(account.amqp_url, soft_wrap=True, highlight=False)
+
+
+@app.command("remove")
+def remove(
+    name: str,
+    by: Annotated[
+        str | None, typer.Option(help="who removes it, for the record (default: your login)")
+    ] = None,
+) -> None:
+    """Delete an account and take it out of the hazard gate's team (its exchange and inbox stay,
+    with whatever they hold); a warden removed no longer holds the gate."""
+    ep = endpoint()
+    with admin_api(ep) as api:
+        try:
+            delete_account(ep.amqp_url, api, name)
+        except ValueError as error:
+            fail(str(error))
+    (settings().accounts_dir / f"{name}.url").unlink(missing_ok=True)
+    who = actor(by)
+    try:
+        left = run_with_store(settings(), lambda store: leave_team(store, ep.amqp_url, name, who))
+    except HazardServiceNotTold as error:
+        fail(f"removed {name} and took it out of the team, but {error}")
+    console.print(f"removed {name}" + (" and took it out of the team" if left else ""))
+
+
+@app.command("list")
+def list_users() -> None:
+    """The broker's accounts and their tags."""
+    ep = endpoint()
+    with admin_api(ep) as api:
+        users = api.list_users()
+    table = Table("user", "tags")
+    for user in sorted(users, key=lambda u: u["name"]):
+        tags = user.get("tags") or []
+        table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags))
+    console.print(table)

@@ -1,0 +1,206 @@
+"""What the commands share: settings, the resolved broker, clean error exits."""
+
+from __future__ import annotations
+
+import asyncio
+import getpass
+import json
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
+from contextlib import contextmanager
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, NoReturn, TypeVar
+
+import typer
+import yaml
+from rich.console import Console
+
+from fleetbus.broker.accounts import SERVICE_USER, vhost_of
+from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
+from fleetbus.broker.endpoint import BrokerEndpoint, derive_management_url, service_account_url
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.routes import RouteMap
+from fleetbus.dev.fallback import resolve_broker
+from fleetbus.settings import Settings, load_settings
+from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
+from fleetbus.workers.recorder.queries import EVENT_TYPES
+from fleetbus.workers.store import open_recording_store, run_with_store
+from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
+
+T = TypeVar("T")
+
+console = Console()
+errors = Console(stderr=True)
+
+
+def fail(message: str, code: int = 1) -> NoReturn:
+    errors.print(f"[bold red]error:[/] {message}", highlight=False)
+    raise typer.Exit(code)
+
+
+def settings() -> Settings:
+    """The settings; one that does not parse ends the command, naming its variable."""
+    try:
+        return load_settings()
+    except ValueError as error:
+        fail(str(error), code=2)
+
+
+def actor(by: str | None) -> str:
+    """Who makes a change from the command line, for the record: ``--by``, else the login."""
+    return by or f"{getpass.getuser()} (command line)"
+
+
+def endpoint(start: bool = True) -> BrokerEndpoint:
+    try:
+        return resolve_broker(settings(), start=start)
+    except Exception as error:  # any failure to find a broker ends the command with its reason
+        fail(f"no broker: {error}")
+
+
+def dead_letters(limit: int = 1000) -> list[DeadLetter]:
+    """The dead-letter queue, each letter with the reason the workers kept in the store."""
+    config = settings()
+    return peek_dead_letters(
+        endpoint().amqp_url,
+        limit,
+        reasons=lambda keys: run_with_store(config, lambda store: store.rejections(keys)),
+    )
+
+
+def service_account(account: str = SERVICE_USER) -> str:
+    """The URL the worker (``fleetbus``) or the recorder (``fleetbus-recorder``) logs in with:
+    never the administrator's."""
+    try:
+        current = settings()
+        return service_account_url(current, account, lambda: resolve_broker(current).amqp_url)
+    except Exception as error:  # any failure to find the broker ends the command with its reason
+        fail(f"no broker: {error}")
+
+
+@contextmanager
+def admin_api(ep: BrokerEndpoint) -> Iterator[ManagementAPI]:
+    with ManagementAPI.from_urls(ep.management_url, ep.amqp_url) as api:
+        yield api
+
+
+def parse_time(value: str | None) -> datetime | None:
+    """ISO 8601, or a duration back from now: ``90s``, ``10m``, ``2h``, ``1d``."""
+    if value is None:
+        return None
+    units = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+    if value[-1:] in units and value[:-1].replace(".", "", 1).isdigit():
+        return datetime.fromtimestamp(
+            datetime.now(timezone.utc).timestamp() - float(value[:-1]) * units[value[-1]], timezone.utc
+        )
+    try:
+        parsed = datetime.fromisoformat(value)
+    except ValueError:
+        fail(f"cannot read time {value!r}: use ISO 8601 or a duration like 10m")
+    return parsed if parsed.tzinfo else parsed.replace(tzinfo=timezone.utc)
+
+
+def clock(moment: datetime) -> str:
+    return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+
+def shorten(text: str, width: int) -> str:
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def _compact(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"), ensure_ascii=False)
+
+
+def summarize(record: RecordedMessage, width: int) -> str:
+    """One line of what a recorded message says, for tables."""
+    doc = record.document
+    if record.type == DEAD_LETTER:
+        reason, detail = refusal(record) or ("by the broker", "")
+        text = f"refused ({reason}): {detail}"
+    elif not record.body_kept:
+        text = f"({record.size} bytes, not kept)"
+    elif record.raw is not None:
+        text = f"({record.size} bytes, not JSON)"
+    elif record.type == NOTIFICATION and isinstance(doc, dict) and isinstance(doc.get("event"), dict):
+        event = doc["event"]
+        extra = {k: v for k, v in doc.items() if k in ("hazard_id", "map_version", "late") and v}
+        text = f"{doc.get('topic')}: {event.get('robot_id')} seq {event.get('seq')} "
+        text += _compact(extra) if extra else ""
+    elif isinstance(doc, dict) and record.type in EVENT_TYPES and "body" in doc:
+        text = _compact(doc["body"])
+    else:
+        text = _compact(doc)
+    return shorten(text.strip(), width)
+
+
+def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:
+    """Open the recording the settings select, run one operation, close it."""
+
+    async def go() -> T:
+        async with open_recording_store(settings()) as store:
+            return await operation(store)
+
+    return asyncio.run(go())
+
+
+@contextmanager
+def recording_stream(open_stream: Callable[[RecordingStore], AsyncIterator[T]]) -> Iterator[Iterator[T]]:
+    """Open the recording and iterate ``open_stream(store)`` from synchronous code (pika's blocking
+    publishing, say), one item at a time on an event loop of its own; closed on leaving."""
+    loop = asyncio.new_event_loop()
+    store = open_recording_store(settings())
+    stream: AsyncIterator[T] | None = None
+    try:
+        loop.run_until_complete(store.open())
+        stream = open_stream(store)
+
+        def items() -> Iterator[T]:
+            assert stream is not None
+            while True:
+                try:
+                    yield loop.run_until_complete(anext(stream))
+                except StopAsyncIteration:
+                    return
+
+        yield items()
+    finally:
+        if stream is not None and hasattr(stream, "aclose"):
+            loop.run_until_complete(stream.aclose())
+        loop.run_until_complete(store.close())
+        loop.close()
+
+
+def route_map() -> RouteMap | None:
+    """The broker's exchanges, bindings and consumers now; None (with a warning) when it does not answer."""
+    config = settings()
+    try:
+        if config.amqp_url:  # only its management API is asked: no AMQP login to probe first
+            management_url = config.management_url or derive_management_url(config.amqp_url)
+            ep = BrokerEndpoint(config.amqp_url, management_url, "external")
+        else:
+            ep = resolve_broker(config, start=False)
+        with admin_api(ep) as api:
+            return RouteMap.from_management(api, vhost_of(ep.amqp_url))
+    except Exception as error:  # the recording still answers without the broker
+        errors.print(f"[yellow]note:[/] no broker to ask for routes and consumers ({error})", highlight=False)
+        return None
+
+
+def load_data(argument: str) -> Any:
+    """DATA on the command line: inline JSON, or ``@file.json`` / ``@file.yaml``."""
+    if argument.startswith("@"):
+        path = Path(argument[1:])
+        if not path.exists():
+            fail(f"{path}: no such file")
+        text = path.read_text()
+        if path.suffix.lower() in (".yaml", ".yml"):
+            try:
+                return yaml.safe_load(text)
+            except yaml.YAMLError as error:
+                fail(f"{path} is not valid YAML: {error}")
+        argument = text
+    try:
+        return json.loads(argument)
+    except json.JSONDecodeError as error:
+        fail(f"DATA is not valid JSON ({error}); pass JSON or @file.json / @file.yaml")

@@ -1,0 +1,11 @@
+"""Tell the store which robots form the team, and of which kind (the hazard gate counts wardens)."""
+
+from __future__ import annotations
+
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.settings import Settings
+from fleetbus.workers.store import run_with_store
+
+
+def register_robot(settings: Settings, name: str, kind: RobotKind | None) -> None:
+    run_with_store(settings, lambda store: store.register_robot(name, kind.value if kind else None))

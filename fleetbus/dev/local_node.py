@@ -1,0 +1,712 @@
+"""A private RabbitMQ node that lives entirely in one folder (``.fleetbus/broker/`` by default).
+
+Everything the node touches is inside ``base_dir``: its database (mnesia), logs, Erlang cookie
+(``HOME=base_dir``), pid file, ``rabbitmq.conf``, ``enabled_plugins`` and a ``rabbitmq-env.conf``
+that shadows the system one. It binds to 127.0.0.1 only, on ports picked once and kept in
+``node.json``, and its node name is derived from the folder, so several checkouts (or a test's
+temporary folder) each get their own node next to each other and next to a system RabbitMQ.
+
+There is no ``guest`` account: the first boot creates ``fleetbus-admin`` with a random password
+kept in ``admin.json`` (mode 0600).
+
+All of the node's environment is built by :meth:`LocalNode.env`; the server and every CLI call
+(:meth:`LocalNode.rabbitmqctl`) use it, which is what makes them find each other.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import random
+import re
+import secrets
+import signal
+import socket
+import subprocess
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, TypeVar
+from urllib.parse import quote
+
+from fleetbus.broker.probe import (
+    amqp_login,
+    management_answers,
+    write_private_file,
+)
+from fleetbus.broker.retry import Backoff, GaveUp, retrying
+
+RABBITMQ_BIN = Path("/usr/lib/rabbitmq/bin")
+RABBITMQ_SERVER = RABBITMQ_BIN / "rabbitmq-server"
+RABBITMQCTL = RABBITMQ_BIN / "rabbitmqctl"
+ADMIN_USER = "fleetbus-admin"
+HOST = "127.0.0.1"
+PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream")
+PLUGINS = ("rabbitmq_management",)
+
+#: Erlang run by ``rabbitmqctl eval``: trigger an election in every quorum queue whose Ra
+#: server does not know a leader; print their names.
+_LEADERLESS_QUORUM_QUEUES = """
+Leaderless = [Q || Q <- rabbit_amqqueue:list(),
+                   amqqueue:get_type(Q) =:= rabbit_quorum_queue,
+                   case ra:members(amqqueue:get_pid(Q), 2000) of {ok, _, _} -> false; _ -> true end],
+[ra:trigger_election(amqqueue:get_pid(Q)) || Q <- Leaderless],
+io:format("~p~n", [[rabbit_misc:rs(amqqueue:get_name(Q)) || Q <- Leaderless]]).
+"""
+SETUP_HINT = "run scripts/setup (it installs Debian's rabbitmq-server)"
+
+log = logging.getLogger("fleetbus.broker")
+T = TypeVar("T")
+
+
+class LocalNodeError(RuntimeError):
+    """The private node could not be started, reached or stopped; the message says why."""
+
+
+@dataclass(frozen=True)
+class NodeInfo:
+    running: bool
+    pid: int | None
+    node_name: str
+    base_dir: Path
+    amqp_url: str | None
+    """Administrator URL, ``amqp://fleetbus-admin:<pw>@127.0.0.1:<port>/``; None before the first up."""
+    management_url: str | None
+    """``http://127.0.0.1:<port>/``; None before the first up."""
+    ports: dict[str, int] = field(default_factory=dict)
+    log_file: Path | None = None
+
+
+# --------------------------------------------------------------------------- processes (/proc)
+
+
+def pid_alive(pid: int | None) -> bool:
+    """Whether ``pid`` is a live process (zombies count as gone: nobody may reap them here)."""
+    if not pid or pid <= 0:
+        return False
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    except OSError:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True
+        return True
+    state = stat.rpartition(")")[2].split()[0]
+    return state not in ("Z", "X")
+
+
+def _comm(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return ""
+
+
+def _environ(pid: int) -> dict[str, str] | None:
+    try:
+        raw = Path(f"/proc/{pid}/environ").read_bytes()
+    except OSError:
+        return None
+    env: dict[str, str] = {}
+    for item in raw.split(b"\0"):
+        key, sep, value = item.partition(b"=")
+        if sep:
+            env[key.decode(errors="replace")] = value.decode(errors="replace")
+    return env
+
+
+def _all_pids() -> Iterator[int]:
+    for entry in os.scandir("/proc"):
+        if entry.name.isdigit():
+            yield int(entry.name)
+
+
+def _socket_inodes(pid: int) -> set[str]:
+    inodes: set[str] = set()
+    try:
+        fds = os.listdir(f"/proc/{pid}/fd")
+    except OSError:
+        return inodes
+    for fd in fds:
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    return inodes
+
+
+def _decode_address(text: str) -> tuple[str, int]:
+    address, port = text.split(":")
+    raw = bytes.fromhex(address)
+    if len(raw) == 4:
+        host = socket.inet_ntop(socket.AF_INET, raw[::-1])
+    else:  # four little-endian 32-bit words
+        words = b"".join(raw[i : i + 4][::-1] for i in range(0, 16, 4))
+        host = socket.inet_ntop(socket.AF_INET6, words)
+    return host, int(port, 16)
+
+
+def _listening_table() -> dict[str, tuple[str, int]]:
+    """inode -> (address, port) of every listening TCP socket on the machine."""
+    table: dict[str, tuple[str, int]] = {}
+    for name in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            lines = Path(name).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            if len(fields) > 9 and fields[3] == "0A":  # TCP_LISTEN
+                table[fields[9]] = _decode_address(fields[1])
+    return table
+
+
+def listening_addresses(pid: int) -> list[tuple[str, int]]:
+    """The ``(address, port)`` pairs process ``pid`` listens on (TCP, IPv4 and IPv6)."""
+    table = _listening_table()
+    return sorted(table[inode] for inode in _socket_inodes(pid) if inode in table)
+
+
+def pids_listening_on(port: int) -> list[int]:
+    """Processes with a TCP socket listening on ``port`` (any address)."""
+    inodes = {inode for inode, (_, p) in _listening_table().items() if p == port}
+    if not inodes:
+        return []
+    return [pid for pid in _all_pids() if _socket_inodes(pid) & inodes]
+
+
+def _wait_until(condition: Callable[[], T], timeout: float, interval: float = 0.1) -> T | None:
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value or time.monotonic() >= deadline:
+            return value
+        time.sleep(interval)
+
+
+class _LockBusy(Exception):
+    """Another process holds the node's lock."""
+
+
+def _lock_now(handle: IO[str]) -> None:
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as error:
+        if error.errno in (errno.EAGAIN, errno.EACCES):
+            raise _LockBusy(str(error)) from error
+        raise
+
+
+def _signal(pid: int, sig: signal.Signals) -> None:
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, sig)
+
+
+# --------------------------------------------------------------------------- ports and secrets
+
+
+def _port_free(port: int) -> bool:
+    """Whether a listener could bind ``127.0.0.1:port`` now (as Erlang does, with SO_REUSEADDR)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((HOST, port))
+        except OSError:
+            return False
+    return True
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        low, high = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return int(low), int(high)
+    except (OSError, ValueError):
+        return 32768, 60999
+
+
+def choose_free_ports(count: int) -> list[int]:
+    """``count`` distinct free ports below the ephemeral range, so that no outgoing connection's
+    source port takes one of them while the node is down."""
+    low, high = _ephemeral_range()
+    candidates = list(range(20000, low)) if low > 21000 else list(range(high + 1, 65000))
+    random.SystemRandom().shuffle(candidates)
+    chosen = [port for port in candidates[:500] if _port_free(port)][:count]
+    if len(chosen) < count:
+        raise LocalNodeError("could not find free TCP ports on 127.0.0.1 for the private RabbitMQ node")
+    return chosen
+
+
+def _write_if_changed(path: Path, text: str) -> None:
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+
+
+def _tail(path: Path, lines: int = 30) -> str:
+    try:
+        with path.open("rb") as handle:
+            handle.seek(0, os.SEEK_END)
+            handle.seek(max(0, handle.tell() - 64 * 1024))
+            text = handle.read().decode(errors="replace")
+    except OSError:
+        return ""
+    return "\n".join(text.splitlines()[-lines:])
+
+
+# --------------------------------------------------------------------------- the node
+
+
+class LocalNode:
+    """A private RabbitMQ node under ``base_dir``; see the module docstring."""
+
+    def __init__(self, base_dir: Path | str) -> None:
+        self.base_dir = Path(base_dir).expanduser().resolve()
+        digest = hashlib.sha1(str(self.base_dir).encode()).hexdigest()[:10]
+        self.node_name = f"fleetbus-{digest}@localhost"
+        self._proc: subprocess.Popen[bytes] | None = None
+
+    # paths
+    @property
+    def node_file(self) -> Path:
+        return self.base_dir / "node.json"
+
+    @property
+    def admin_file(self) -> Path:
+        return self.base_dir / "admin.json"
+
+    @property
+    def pid_file(self) -> Path:
+        return self.base_dir / "rabbitmq.pid"
+
+    @property
+    def log_dir(self) -> Path:
+        return self.base_dir / "log"
+
+    @property
+    def console_log(self) -> Path:
+        """stdout and stderr of ``rabbitmq-server`` (start-up banner, crashes before logging starts)."""
+        return self.log_dir / "console.log"
+
+    @property
+    def node_log(self) -> Path:
+        return self.log_dir / f"{self.node_name}.log"
+
+    def __repr__(self) -> str:
+        return f"LocalNode({str(self.base_dir)!r})"
+
+    # persistent state
+    def ports(self, create: bool = False) -> dict[str, int] | None:
+        """The node's ports from ``node.json``; with ``create``, chosen and saved when missing."""
+        if self.node_file.exists():
+            data = json.loads(self.node_file.read_text())
+            ports = {name: int(data["ports"][name]) for name in PORT_NAMES if name in data.get("ports", {})}
+            if len(ports) == len(PORT_NAMES):
+                return ports
+        if not create:
+            return None
+        ports = dict(zip(PORT_NAMES, choose_free_ports(len(PORT_NAMES)), strict=True))
+        self.base_dir.mkdir(parents=True, exist_ok=True)
+        _write_if_changed(
+            self.node_file, json.dumps({"node_name": self.node_name, "ports": ports}, indent=2) + "\n"
+        )
+        return ports
+
+    def admin_credentials(self, create: bool = False) -> tuple[str, str] | None:
+        if self.admin_file.exists():
+            data = json.loads(self.admin_file.read_text())
+            return data["username"], data["password"]
+        if not create:
+            return None
+        password = secrets.token_urlsafe(24)
+        self.base_dir.mkdir(parents=True, exist_ok=True)
+        write_private_file(self.admin_file, json.dumps({"username": ADMIN_USER, "password": password}) + "\n")
+        return ADMIN_USER, password
+
+    def _urls(self) -> tuple[str | None, str | None]:
+        ports, creds = self.ports(), self.admin_credentials()
+        if ports is None or creds is None:
+            return None, None
+        user, password = (quote(part, safe="") for part in creds)
+        return (
+            f"amqp://{user}:{password}@{HOST}:{ports['amqp']}/",
+            f"http://{HOST}:{ports['management']}/",
+        )
+
+    def env(self) -> dict[str, str]:
+        """The whole environment of the server and of its CLI tools: the one place that makes the
+        node private. Inherited ``RABBITMQ_*`` and ``ERL_*`` variables are dropped."""
+        ports = self.ports(create=True)
+        assert ports is not None
+        base = self.base_dir
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("RABBITMQ_", "ERL_"))}
+        env.update(
+            HOME=str(base),
+            LANG="C.UTF-8",
+            LC_ALL="C.UTF-8",
+            RABBITMQ_CONF_ENV_FILE=str(base / "rabbitmq-env.conf"),
+            RABBITMQ_CONFIG_FILE=str(base / "rabbitmq.conf"),
+            RABBITMQ_CONFIG_FILES=str(base / "conf.d"),
+            RABBITMQ_ADVANCED_CONFIG_FILE=str(base / "advanced.config"),
+            RABBITMQ_ENABLED_PLUGINS_FILE=str(base / "enabled_plugins"),
+            RABBITMQ_NODENAME=self.node_name,
+            RABBITMQ_NODE_IP_ADDRESS=HOST,
+            RABBITMQ_NODE_PORT=str(ports["amqp"]),
+            RABBITMQ_DIST_PORT=str(ports["dist"]),
+            ERL_EPMD_PORT=str(ports["epmd"]),
+            ERL_EPMD_ADDRESS=HOST,
+            RABBITMQ_MNESIA_BASE=str(base / "mnesia"),
+            RABBITMQ_LOG_BASE=str(self.log_dir),
+            RABBITMQ_PID_FILE=str(self.pid_file),
+            RABBITMQ_PLUGINS_EXPAND_DIR=str(base / "plugins-expand"),
+            RABBITMQ_SERVER_ADDITIONAL_ERL_ARGS="-kernel inet_dist_use_interface {127,0,0,1}",
+            # the CLI tools are Erlang nodes too: loopback only, any free port
+            RABBITMQ_CTL_ERL_ARGS="-kernel inet_dist_use_interface {127,0,0,1}",
+            RABBITMQ_CTL_DIST_PORT_MIN="0",
+            RABBITMQ_CTL_DIST_PORT_MAX="0",
+        )
+        return env
+
+    def _write_config(self) -> None:
+        ports = self.ports(create=True)
+        creds = self.admin_credentials(create=True)
+        assert ports is not None and creds is not None
+        user, password = creds
+        base = self.base_dir
+        for folder in (base, self.log_dir, base / "mnesia", base / "conf.d", base / "plugins-expand"):
+            folder.mkdir(parents=True, exist_ok=True)
+        _write_if_changed(
+            base / "rabbitmq-env.conf",
+            "# Shadows /etc/rabbitmq/rabbitmq-env.conf: fleetbus sets everything in the environment.\n",
+        )
+        _write_if_changed(base / "enabled_plugins", "[" + ",".join(PLUGINS) + "].\n")
+        conf = f"""\
+# Written by fleetbus (broker/local_node.py) on every start; edits are overwritten.
+management.tcp.ip = {HOST}
+management.tcp.port = {ports["management"]}
+stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
+default_vhost = /
+default_user = {user}
+default_pass = {password}
+default_user_tags.administrator = true
+default_permissions.configure = .*
+default_permissions.read = .*
+default_permissions.write = .*
+loopback_users = none
+log.file.level = info
+log.console = false
+"""
+        conf_file = base / "rabbitmq.conf"
+        if not conf_file.exists() or conf_file.read_text() != conf:
+            write_private_file(conf_file, conf)
+        cookie = base / ".erlang.cookie"
+        if not cookie.exists():
+            write_private_file(cookie, secrets.token_hex(20).upper(), mode=0o400)
+
+    @contextlib.contextmanager
+    def _lock(self, timeout: float) -> Iterator[None]:
+        """Serialise up/down between processes (a test run and `fleetbus broker up`, say)."""
+        self.base_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.base_dir / ".lock", "w") as handle:
+            waiting = retrying(
+                f"the lock {self.base_dir / '.lock'} (another process starts or stops the node)",
+                on=_LockBusy,
+                deadline=timeout,
+                backoff=Backoff(initial=0.1, maximum=1.0, jitter=0.1),
+                logger=log,
+            )
+            try:
+                waiting(_lock_now, handle)
+            except GaveUp:
+                raise LocalNodeError(
+                    f"another process holds {self.base_dir / '.lock'} (starting or stopping the node)"
+                ) from None
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+    # processes
+    def _is_our_beam(self, pid: int, require_env: bool = False) -> bool:
+        """``pid`` is this node's server VM: a beam with our node name that is not a CLI tool
+        (rabbitmqctl runs in a beam with the same environment, started through escript)."""
+        if not pid_alive(pid) or not _comm(pid).startswith("beam"):
+            return False
+        with contextlib.suppress(OSError):
+            if b"escript" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return False
+        env = _environ(pid)
+        if env is None:
+            return not require_env
+        return env.get("RABBITMQ_NODENAME") == self.node_name
+
+    def pid(self) -> int | None:
+        """PID of the node's Erlang VM (beam) when it runs, else None."""
+        with contextlib.suppress(OSError, ValueError):
+            pid = int(self.pid_file.read_text().strip())
+            if self._is_our_beam(pid):
+                return pid
+        # no (or a stale) pid file: the node may still run, e.g. while it is starting
+        for pid in _all_pids():
+            if self._is_our_beam(pid, require_env=True):
+                return pid
+        return None
+
+    def epmd_pids(self) -> list[int]:
+        ports = self.ports()
+        if ports is None:
+            return []
+        return [pid for pid in pids_listening_on(ports["epmd"]) if _comm(pid) == "epmd"]
+
+    def status(self) -> NodeInfo:
+        pid = self.pid()
+        amqp_url, management_url = self._urls()
+        return NodeInfo(
+            running=pid is not None,
+            pid=pid,
+            node_name=self.node_name,
+            base_dir=self.base_dir,
+            amqp_url=amqp_url,
+            management_url=management_url,
+            ports=self.ports() or {},
+            log_file=self.node_log,
+        )
+
+    def ready(self, timeout: float = 3.0) -> bool:
+        """Whether the administrator can log in over AMQP and the management API answers."""
+        amqp_url, management_url = self._urls()
+        creds = self.admin_credentials()
+        if amqp_url is None or management_url is None or creds is None:
+            return False
+        return bool(amqp_login(amqp_url, timeout)) and management_answers(management_url, *creds, timeout)
+
+    def rabbitmqctl(
+        self, *args: str, timeout: float = 60.0, check: bool = True
+    ) -> subprocess.CompletedProcess[str]:
+        """Run ``rabbitmqctl ARGS`` against this node; raises LocalNodeError when it fails and ``check``."""
+        self._require_installation()
+        try:
+            result = subprocess.run(
+                [str(RABBITMQCTL), *args],
+                env=self.env(),
+                cwd=self.base_dir,
+                stdin=subprocess.DEVNULL,
+                capture_output=True,
+                text=True,
+                timeout=timeout,
+            )
+        except subprocess.TimeoutExpired as error:
+            raise LocalNodeError(f"rabbitmqctl {' '.join(args)} did not finish in {timeout:.0f} s") from error
+        if check and result.returncode != 0:
+            raise LocalNodeError(
+                f"rabbitmqctl {' '.join(args)} failed ({result.returncode}): "
+                f"{(result.stderr or result.stdout).strip()}"
+            )
+        return result
+
+    @staticmethod
+    def _require_installation() -> None:
+        if not RABBITMQ_SERVER.exists() or not RABBITMQCTL.exists():
+            raise LocalNodeError(f"RabbitMQ is not installed ({RABBITMQ_SERVER} is missing): {SETUP_HINT}")
+
+    def _startup_failure(self, message: str) -> LocalNodeError:
+        parts = [message]
+        for path in (self.console_log, self.node_log):
+            tail = _tail(path)
+            if tail:
+                parts.append(f"--- last lines of {path} ---\n{tail}")
+        return LocalNodeError("\n".join(parts))
+
+    def _check_ports(self, ports: dict[str, int]) -> None:
+        """Before a start: every port but epmd's must be free (ours may take a moment to go)."""
+        names = [name for name in PORT_NAMES if name != "epmd"]
+
+        def busy() -> list[str]:
+            return [f"{name} {ports[name]}" for name in names if not _port_free(ports[name])]
+
+        if _wait_until(lambda: not busy(), timeout=10, interval=0.2):
+            return
+        taken = busy()
+        if taken:
+            raise LocalNodeError(
+                f"ports of the private node are taken by another program ({', '.join(taken)}); "
+                f"stop it, or delete {self.node_file} to choose new ports"
+            )
+
+    def up(self, timeout: float = 90.0) -> NodeInfo:
+        """Start the node unless it runs; return once the admin can log in (AMQP and HTTP)."""
+        self._require_installation()
+        deadline = time.monotonic() + timeout
+        with self._lock(timeout):
+            self._write_config()
+            pid = self.pid()
+            started = pid is None
+            if started:
+                self._start()
+            self._wait_ready(deadline, started)
+            if started:
+                self._drop_guest()
+                self.heal_quorum_queues(deadline)
+        return self.status()
+
+    def heal_quorum_queues(self, deadline: float) -> int:
+        """Elect a leader for every quorum queue that came back from a crash without one.
+
+        RabbitMQ 3.10 can restart a single-node quorum queue with no leader (it answers
+        ``INTERNAL_ERROR`` to consumers and its messages look gone; rabbitmq-server #10070),
+        mostly one created moments before the crash. Its messages are still on disk: an election
+        brings them back. Returns how many queues needed one.
+        """
+        healed: set[str] = set()
+        while True:
+            result = self.rabbitmqctl("eval", _LEADERLESS_QUORUM_QUEUES, check=False, timeout=60)
+            names = re.findall(r'"([^"]+)"', result.stdout) if result.returncode == 0 else []
+            if not names:
+                if healed:
+                    log.warning("elected leaders for %d leaderless quorum queues: %s", len(healed), healed)
+                return len(healed)
+            healed.update(names)
+            if time.monotonic() >= deadline:
+                log.error("quorum queues still without a leader: %s", names)
+                return len(healed)
+            time.sleep(0.5)  # elections run in the background; then check again
+
+    def _start(self) -> None:
+        ports = self.ports(create=True)
+        assert ports is not None
+        self._check_ports(ports)
+        with contextlib.suppress(FileNotFoundError):
+            self.pid_file.unlink()  # stale after a kill -9
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log.info("starting the private RabbitMQ node %s in %s", self.node_name, self.base_dir)
+        with open(self.console_log, "wb") as console:
+            self._proc = subprocess.Popen(
+                [str(RABBITMQ_SERVER)],
+                env=self.env(),
+                cwd=self.base_dir,
+                stdin=subprocess.DEVNULL,
+                stdout=console,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+
+    def _wait_ready(self, deadline: float, started: bool) -> None:
+        creds = self.admin_credentials()
+        amqp_url, management_url = self._urls()
+        assert creds is not None and amqp_url is not None and management_url is not None
+        repaired = False
+        amqp_ok = False
+        while True:
+            if self._proc is not None and self._proc.poll() is not None and self.pid() is None:
+                self._proc = None
+                raise self._startup_failure("the private RabbitMQ node exited while starting")
+            if not started and self.pid() is None:
+                raise self._startup_failure("the private RabbitMQ node stopped while we waited for it")
+            remaining = deadline - time.monotonic()
+            if not amqp_ok:
+                login = amqp_login(amqp_url, timeout=max(0.5, min(3.0, remaining)))
+                if login is False and not repaired:
+                    # admin.json and the database disagree (admin.json lost or replaced)
+                    self._repair_admin(*creds)
+                    repaired = True
+                    continue
+                amqp_ok = bool(login)
+            if amqp_ok and management_answers(management_url, *creds, timeout=max(0.5, min(3.0, remaining))):
+                return
+            if time.monotonic() >= deadline:
+                if started:
+                    self._force_stop()
+                raise self._startup_failure(
+                    "the private RabbitMQ node did not accept the administrator's login in time"
+                    + (" (it was stopped again)" if started else "")
+                )
+            time.sleep(0.2)
+
+    def _repair_admin(self, user: str, password: str) -> None:
+        log.warning("resetting the password of %s on the private node from %s", user, self.admin_file)
+        listing = self.rabbitmqctl("list_users", "--silent", "--no-table-headers", check=False).stdout
+        if user not in {line.split("\t")[0].strip() for line in listing.splitlines()}:
+            self.rabbitmqctl("add_user", user, password)
+        else:
+            self.rabbitmqctl("change_password", user, password)
+        self.rabbitmqctl("set_user_tags", user, "administrator")
+        self.rabbitmqctl("set_permissions", "-p", "/", user, ".*", ".*", ".*")
+
+    def _drop_guest(self) -> None:
+        """Belt and braces: a database made before fleetbus set default_user may have guest."""
+        import httpx
+
+        _, management_url = self._urls()
+        creds = self.admin_credentials()
+        assert management_url is not None and creds is not None
+        with contextlib.suppress(httpx.HTTPError):
+            url = management_url.rstrip("/") + "/api/users/guest"
+            if httpx.get(url, auth=creds, timeout=5).status_code == 200:
+                log.warning("deleting the guest account of the private node")
+                httpx.delete(url, auth=creds, timeout=5)
+
+    def _reap(self) -> None:
+        if self._proc is not None:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self._proc.wait(timeout=5)
+            if self._proc.poll() is not None:
+                self._proc = None
+
+    def _force_stop(self) -> None:
+        pid = self.pid()
+        if pid is not None:
+            _signal(pid, signal.SIGKILL)
+            if not _wait_until(lambda: not pid_alive(pid), timeout=30):
+                raise LocalNodeError(f"the node's process {pid} survived SIGKILL")
+        if self._proc is not None and self._proc.poll() is None:
+            _signal(self._proc.pid, signal.SIGKILL)
+        self._reap()
+
+    def kill(self) -> None:
+        """SIGKILL the node's VM (fault injection) and wait until it is gone; epmd stays."""
+        pid = self.pid()
+        if pid is None:
+            return
+        _signal(pid, signal.SIGKILL)
+        if not _wait_until(lambda: not pid_alive(pid), timeout=30, interval=0.05):
+            raise LocalNodeError(f"the node's process {pid} survived SIGKILL")
+        self._reap()
+
+    def down(self, timeout: float = 60.0) -> None:
+        """Stop the node (``rabbitmqctl shutdown``, SIGKILL if that fails) and its private epmd."""
+        deadline = time.monotonic() + timeout
+        with self._lock(timeout):
+            pid = self.pid()
+            if pid is not None:
+                try:
+                    self.rabbitmqctl("shutdown", timeout=max(5.0, deadline - time.monotonic() - 5))
+                except LocalNodeError as error:
+                    log.warning("rabbitmqctl shutdown failed (%s); killing the node", error)
+                if not _wait_until(
+                    lambda: not pid_alive(pid), timeout=max(1.0, deadline - time.monotonic() - 5)
+                ):
+                    self._force_stop()
+            self._reap()
+            with contextlib.suppress(FileNotFoundError):
+                self.pid_file.unlink()
+            self._stop_epmd(deadline)
+
+    def _stop_epmd(self, deadline: float) -> None:
+        for pid in self.epmd_pids():
+            _signal(pid, signal.SIGTERM)
+            if not _wait_until(
+                lambda pid=pid: not pid_alive(pid), timeout=max(1.0, deadline - time.monotonic())
+            ):
+                _signal(pid, signal.SIGKILL)
+                _wait_until(lambda pid=pid: not pid_alive(pid), timeout=5)
