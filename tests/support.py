@@ -38,7 +38,7 @@ from fleetbus.workers.recorder.consumer import MissionLookup
 from fleetbus.workers.recorder.runner import recorder_options
 from fleetbus.workers.setup import ServiceAccounts, set_up_service
 from fleetbus.workers.store import Store, open_recording_store, run_with_store
-from fleetbus.workers.store.base import EventQuery, EventRecord
+from fleetbus.workers.store.base import EventQuery, EventRecord, StoreUnavailable
 from fleetbus.workers.store.ledger import Gap
 from fleetbus.workers.store.recordings import RecordedMessage, RecordQuery
 from tests.factories import hazard, status
@@ -235,9 +235,19 @@ class Bus:
             stderr=subprocess.STDOUT,
         )
 
-    def with_store(self, operation: Callable[[Store], Awaitable[T]]) -> T:
-        """Run one operation on a fresh connection to the test's store (what an operator would see)."""
-        return run_with_store(self.settings, operation)
+    def with_store(self, operation: Callable[[Store], Awaitable[T]], patience: float = 60.0) -> T:
+        """Run one operation on a fresh connection to the test's store (what an operator would see).
+
+        A store that does not answer a new connection in time (mongoeco's single-threaded server
+        behind a busy worker on a loaded machine) is tried again until ``patience`` runs out: the
+        workers retry it too (:class:`StoreUnavailable` is transient)."""
+        deadline = time.monotonic() + patience
+        while True:
+            try:
+                return run_with_store(self.settings, operation)
+            except StoreUnavailable:
+                if time.monotonic() > deadline:
+                    raise
 
     def find(self, query: EventQuery | None = None) -> list[EventRecord]:
         return self.with_store(lambda store: store.find_events(query or EventQuery()))
