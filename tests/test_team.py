@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import json
 from collections.abc import Iterator
+from datetime import datetime, timezone
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -17,7 +18,9 @@ import pytest
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.topology import account_topology, declare_with_url
+from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import RobotKind, inbox_queue
+from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN
 from tests.factories import hazard
 from tests.link import NetworkLink
 from tests.support import Bus, wait_for
@@ -169,6 +172,60 @@ def test_an_announcement_no_wardens_inbox_took_stays_held_and_says_why(stored_bu
         assert note.event == sent and note.hazard_id == 1
         wait_for(lambda: states(bus) == ["announced"], what="marked announced")
     assert held_because(bus) == [None]
+
+
+Seen = list[tuple[int | None, str | None]]
+
+
+def inbox_until(bus: Bus, robot: str, sentinel: str, timeout: float = 30) -> Seen:
+    """(hazard id, state) of each notification in ``robot``'s inbox, read as it arrives up to the
+    one announcing event ``sentinel``: the inbox itself, without the client's rebuild on start."""
+    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    got: Seen = []
+    try:
+        channel = connection.channel()
+        for method, _, body in channel.consume(inbox_queue(robot), inactivity_timeout=timeout):
+            assert method is not None, f"{robot}: nothing for {timeout} s after {got}"
+            channel.basic_ack(method.delivery_tag)
+            note = Notification.model_validate_json(body)
+            got.append((note.hazard_id, note.hazard_state))
+            if note.event.message_id == sentinel:
+                return got
+    finally:
+        connection.close()
+    raise AssertionError(f"{robot}: the inbox consumer was cancelled after {got}")
+
+
+def test_a_hazard_claimed_before_its_announcement_was_marked_still_reaches_every_warden(
+    stored_bus: Bus,
+) -> None:
+    """A worker that dies between one warden's copy and the mark leaves a hazard that warden may
+    already have claimed: the next announces it again, claimed, so that the other wardens' inboxes
+    get it too (a warden already running rebuilds nothing: it has not reconnected)."""
+    bus = stored_bus
+    explorer = bus.robot(bus.add("explorer1", kind=EXPLORER))
+    wardens = [bus.robot(bus.add(name, kind=WARDEN)) for name in ("warden1", "warden2")]
+    with bus.worker():
+        wardens[0].publish("localisation", {"localised": True})
+        explorer.publish("hazard", hazard(0))
+        explorer.publish("localisation", {"localised": True})
+        wait_for(lambda: handled(bus, "explorer1", True), what="the hazard registered, held for warden2")
+    # what a worker killed after warden1's copy left: warden1 claimed, the mark never came
+    bus.with_store(
+        lambda store: store.apply_transition(
+            "default", 1, "warden1", CLAIM_WHILE_OPEN, datetime.now(timezone.utc)
+        )
+    )
+    assert states(bus) == ["claimed"]
+    with bus.worker():
+        wardens[1].publish("localisation", {"localised": True})
+        later = explorer.publish("hazard", hazard(1))
+        assert [inbox_until(bus, name, later.message_id) for name in ("warden1", "warden2")] == [
+            [(1, "claimed"), (2, "announced")],
+            [(1, "claimed"), (2, "announced")],
+        ], "hazard 1 announced again once, claimed, before the next"
+    assert states(bus) == ["claimed", "announced"]
+    assert bus.with_store(lambda store: store.unannounced_hazards()) == []
 
 
 @pytest.fixture

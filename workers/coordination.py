@@ -92,7 +92,9 @@ class HazardCoordinator:
             return sent
         now = datetime.now(timezone.utc)
         for index, hazard in enumerate(held.hazards):
-            if not await self._deliver(hazard, state.wardens, now):
+            # held, or claimed on its way (a worker died between a warden's copy and the mark)
+            as_state = HazardState.ANNOUNCED if hazard.state is HazardState.HELD else hazard.state
+            if not await self._deliver(hazard, state.wardens, now, as_state):
                 reason = (
                     f"the announcement at {now:%H:%M:%S} UTC reached no warden: the broker returned it, "
                     f"no inbox for {', '.join(state.wardens)}"

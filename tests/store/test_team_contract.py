@@ -121,7 +121,12 @@ async def test_a_hazard_claimed_on_its_way_keeps_its_claim_when_marked_announced
     first = await store.add_hazard("m1", "explorer1", EPOCH, 0, BODY, T0, held=True)
     claimed = await store.apply_transition("m1", 1, "warden1", CLAIM_WHILE_OPEN, T0 + timedelta(seconds=1))
     assert (claimed.state, claimed.claimed_by, claimed.announced_at) == (HazardState.CLAIMED, "warden1", None)
+    waiting = await store.hold_hazards(())
+    assert [(h.hazard_id, h.state) for h in waiting.hazards] == [(1, HazardState.CLAIMED)], (
+        "until marked, the other wardens may not have their copy: it is announced again, claimed"
+    )
     await store.mark_announced([first], T0)
+    assert (await store.hold_hazards(())).hazards == []
     marked = await store.get_hazard("m1", 1)
     assert marked is not None and (marked.state, marked.claimed_by, marked.announced_at) == (
         HazardState.CLAIMED,

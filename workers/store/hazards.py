@@ -150,7 +150,9 @@ class NewHazard:
 @dataclass(frozen=True)
 class HeldHazards:
     hazards: list[Hazard]
-    """Every held hazard, in the order they were detected (id order)."""
+    """Every hazard no warden's inbox has confirmed yet, in the order they were detected (id
+    order): the held ones, and one a warden claimed on its way when the worker announcing it died
+    before marking it (the other wardens may not have their copy: it goes again, claimed)."""
     wardens: list[RobotState]
     """Every warden of the team, in service or not: the gate's inputs (:func:`fleetbus.workers.team.gate`)."""
 
@@ -204,6 +206,11 @@ class CoordinationStore(abc.ABC):
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
         """Held hazards in the order they were detected (id order)."""
 
+    @abc.abstractmethod
+    async def unannounced_hazards(self) -> list[Hazard]:
+        """Hazards not marked announced yet, whatever their state (:attr:`HeldHazards.hazards`),
+        by mission then id."""
+
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
         """Register ``new`` as held (idempotent, as :meth:`add_hazard`), then say what is held and
         whether the gate is open. Adapters that can do it in one transaction override this: it is
@@ -218,8 +225,8 @@ class CoordinationStore(abc.ABC):
                 hazard.received_at,
                 held=True,
             )
-        held = await self.held_hazards()
-        return HeldHazards(held, await self.robots(RobotKind.WARDEN.value))
+        waiting = await self.unannounced_hazards()
+        return HeldHazards(waiting, await self.robots(RobotKind.WARDEN.value))
 
     @abc.abstractmethod
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:

@@ -78,6 +78,9 @@ class MongoCoordination(CoordinationStore):
             [("state", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
         )
         await self._collection("hazards").create_index([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
+        await self._collection("hazards").create_index(
+            [("announced_at_us", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
+        )
 
     async def register_robot(self, name: str, kind: str | None) -> None:
         await self._collection("robots").update_one(
@@ -168,6 +171,7 @@ class MongoCoordination(CoordinationStore):
                 "claimed_by": None,
                 "held_reason": None,
                 **{f"{name}_us": None for name in TIMES},
+                "announced_at_us": None if held else to_micros(received_at),
             }
             try:
                 await hazards.insert_one(doc)
@@ -182,6 +186,14 @@ class MongoCoordination(CoordinationStore):
         cursor = (
             self._collection("hazards")
             .find(query)
+            .sort([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
+        )
+        return [_hazard(doc) async for doc in cursor]
+
+    async def unannounced_hazards(self) -> list[Hazard]:
+        cursor = (
+            self._collection("hazards")
+            .find({"announced_at_us": None})
             .sort([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
         )
         return [_hazard(doc) async for doc in cursor]

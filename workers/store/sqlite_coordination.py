@@ -58,6 +58,7 @@ CREATE TABLE IF NOT EXISTS hazards (
     UNIQUE (robot_id, epoch, seq)
 );
 CREATE INDEX IF NOT EXISTS hazards_state ON hazards (state, mission_id, hazard_id);
+CREATE INDEX IF NOT EXISTS hazards_unannounced ON hazards (mission_id, hazard_id) WHERE announced_at IS NULL;
 """
 
 
@@ -185,7 +186,7 @@ class SQLiteCoordination(CoordinationStore):
 
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
         def held(db: sqlite3.Connection) -> HeldHazards:
-            return HeldHazards(_held_hazards(db), _robots(db, RobotKind.WARDEN.value))
+            return HeldHazards(_unannounced(db), _robots(db, RobotKind.WARDEN.value))
 
         def hold(db: sqlite3.Connection) -> HeldHazards:
             if all(_registered(db, hazard) is not None for hazard in new):  # as store_batch does: only read
@@ -202,6 +203,9 @@ class SQLiteCoordination(CoordinationStore):
 
     async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
         return await self._run(lambda db: _held_hazards(db, mission_id))
+
+    async def unannounced_hazards(self) -> list[Hazard]:
+        return await self._run(_unannounced)
 
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
         keys = [(to_micros(at), h.mission_id, h.hazard_id) for h in hazards]
@@ -293,8 +297,8 @@ def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazar
     ).fetchone()
     state = HazardState.HELD if held else HazardState.ANNOUNCED
     db.execute(
-        "INSERT INTO hazards (mission_id, hazard_id, robot_id, epoch, seq, event, state, received_at) "
-        "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+        "INSERT INTO hazards (mission_id, hazard_id, robot_id, epoch, seq, event, state, received_at, "
+        "announced_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
         (
             new.mission_id,
             next_id,
@@ -304,6 +308,7 @@ def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazar
             json.dumps(new.event),
             state.value,
             to_micros(new.received_at),
+            None if held else to_micros(new.received_at),
         ),
     )
     found = _one(db, new.mission_id, next_id)
@@ -318,6 +323,13 @@ def _registered(db: sqlite3.Connection, hazard: NewHazard) -> sqlite3.Row | None
         (hazard.robot_id, hazard.epoch, hazard.seq),
     ).fetchone()
     return row
+
+
+def _unannounced(db: sqlite3.Connection) -> list[Hazard]:
+    """Hazards no warden's inbox has confirmed yet, by mission then id (held ones, and one claimed
+    on its way before the worker announcing it could mark it)."""
+    sql = "SELECT * FROM hazards WHERE announced_at IS NULL ORDER BY mission_id, hazard_id"
+    return [_hazard(row) for row in db.execute(sql)]
 
 
 def _held_hazards(db: sqlite3.Connection, mission_id: str | None = None) -> list[Hazard]:
