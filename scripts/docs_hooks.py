@@ -59,8 +59,7 @@ def cli_page() -> str:
     return (
         "# Command line reference\n\n"
         "Every command of the `fleetbus` console script, with its arguments and options, as "
-        "`fleetbus COMMAND --help` prints them. The guides say when to use which.\n"
-        + body
+        "`fleetbus COMMAND --help` prints them. The guides say when to use which.\n" + body
     )
 
 
@@ -80,7 +79,7 @@ def http_api_page() -> str:
 
     rendered = OpenAPIV3DocumentationHandler(openapi_document(), style="MKDOCS").write()
     rendered = rendered.split("-->", 1)[1] if rendered.lstrip().startswith("<!--") else rendered
-    title, _, rest = rendered.lstrip().partition("\n")
+    rest = rendered.lstrip().partition("\n")[2]  # its own title; the page has one of its own
     return (
         "# HTTP API reference\n\n"
         "Every route of `fleetbus api`, from the OpenAPI document the service serves at "

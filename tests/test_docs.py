@@ -44,7 +44,9 @@ def test_the_asyncapi_document_is_valid_against_the_official_schema_of_its_versi
     assert _errors(asyncapi_validator, document) == []
 
 
-def test_the_validation_finds_what_asyncapi_refuses(asyncapi_validator: jsonschema.protocols.Validator) -> None:
+def test_the_validation_finds_what_asyncapi_refuses(
+    asyncapi_validator: jsonschema.protocols.Validator,
+) -> None:
     """pydantic writes OpenAPI's discriminator object; AsyncAPI 2.6 wants the property name alone."""
     document = copy.deepcopy(asyncapi_document())
     event = document["components"]["schemas"]["Notification"]["properties"]["event"]
