@@ -44,9 +44,24 @@ def _exchange(name: str, kind: str) -> dict[str, Any]:
     }
 
 
+def _asyncapi_discriminators(schema: Any) -> Any:
+    """``schema`` with pydantic's OpenAPI discriminators (``{"propertyName": ..., "mapping": ...}``) as
+    AsyncAPI 2.6 writes them: the property's name alone (the ``oneOf`` beside it still lists each model)."""
+    if isinstance(schema, list):
+        return [_asyncapi_discriminators(item) for item in schema]
+    if not isinstance(schema, dict):
+        return schema
+    converted = {key: _asyncapi_discriminators(value) for key, value in schema.items()}
+    discriminator = schema.get("discriminator")
+    if isinstance(discriminator, dict) and "propertyName" in discriminator:
+        converted["discriminator"] = discriminator["propertyName"]
+    return converted
+
+
 def asyncapi_document(version: str = "0.1.0") -> dict[str, Any]:
     models = [*EVENT_MODELS.values(), Notification]
     refs, definitions = models_json_schema([(m, "validation") for m in models], ref_template=REF)
+    definitions = _asyncapi_discriminators(definitions)
     messages: dict[str, Any] = {
         f"{event_type.value}_event": {
             "name": f"{event_type.value} event",

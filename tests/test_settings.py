@@ -1,4 +1,4 @@
-"""The settings model: one field per variable, each described; the README's table is generated from it."""
+"""The settings model: one field per variable, each described; the docs' table is generated from it."""
 
 from __future__ import annotations
 
@@ -8,13 +8,14 @@ import pytest
 
 from fleetbus.settings import Settings, load_settings, settings_table, variable, with_settings_table
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+SETTINGS_PAGE = Path(__file__).resolve().parent.parent / "docs" / "reference" / "settings.md"
 
 
-def test_the_readmes_settings_table_is_the_generated_one() -> None:
-    text = README.read_text()
+def test_the_docs_settings_table_is_the_generated_one() -> None:
+    text = SETTINGS_PAGE.read_text()
     assert with_settings_table(text) == text, (
-        "README.md's settings table is not the model's: `python -m fleetbus.settings --update README.md`"
+        "docs/reference/settings.md's table is not the model's: "
+        "`python -m fleetbus.settings --update docs/reference/settings.md`"
     )
 
 
