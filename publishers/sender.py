@@ -44,9 +44,9 @@ log = logging.getLogger("fleetbus.robot.sender")
 PUBLISH_WINDOW = 4 * SEGMENT_EVENTS
 #: Windows written before the oldest one's confirms are awaited. The broker confirms a quorum
 #: queue's messages once they are committed, in batches: with two windows of 768 it idled between
-#: them and a drain ran at about 0.55 of raw pika publishing; 4 of 1,024 (at most 4,096 events,
-#: about 3 MB, in flight and sent again after a lost connection) reach about 0.7
-#: (``python -m bench.outbox``).
+#: them. 4 of 1,024 (at most 4,096 events, about 3 MB, in flight and sent again after a lost
+#: connection) drain at 0.60-0.73 of raw pika publishing where two reached 0.50-0.61; on a
+#: saturated machine both are CPU-bound, alike (``python -m bench.outbox --windows 1000x2,1024x4``).
 WINDOWS_IN_FLIGHT = 4
 #: How often an idle sender lets pika answer heartbeats.
 IDLE_TICK = 1.0
