@@ -1,12 +1,15 @@
 """The robot's outbox: append time as it fills, and how fast it drains after an outage.
 
     .venv/bin/python -m bench.outbox [--waiting 0,10000,50000] [--appends 300] [--drain 10000] [--runs 3]
+                                     [--windows 1000x2,1024x4]
 
 append   one event appended (and fsynced) to an outbox that already holds N waiting events;
          median and 99th percentile over ``--appends`` appends, for each N
 drain    ``--drain`` events wait in a robot's outbox (the broker was away); the robot starts and
          the time until the broker confirmed them all gives the drain rate, next to the raw broker
-         publish rate (pika, pipelined confirms, same message size) measured in the same run
+         publish rate (pika, pipelined confirms, same message size) measured in the same run;
+         with ``--windows``, one drain per sender setting (events per window x windows in flight,
+         e.g. the old 1000x2 against today's) in each run, in random order with the raw publish
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
+import random
 import statistics
 import tempfile
 import time
@@ -26,11 +31,12 @@ from rich.table import Table
 
 from bench.ingest import BENCH_VHOST, status_items
 from bench.raw import SIZE, declare_queue, ingest_queue_arguments, raw_publish
-from bench.results import percentile
+from bench.results import percentile, save
 from bench.scenario import Context, Figures
 from fleetbus.broker.accounts import Role, fresh_vhost, provision_account
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.fallback import resolve_broker
+from fleetbus.publishers import sender
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.outbox import Outbox, Overflow, TypePolicy
 from fleetbus.schemas.envelope import build_event, new_epoch
@@ -93,6 +99,35 @@ def figures(context: Context) -> Figures:
     return result
 
 
+def parse_windows(text: str) -> dict[str, tuple[int, int]]:
+    """``1000x2,1024x4`` -> {name: (events per window, windows in flight)}."""
+    settings = {}
+    for item in text.split(","):
+        window, _, in_flight = item.partition("x")
+        settings[item] = (int(window), int(in_flight))
+    return settings
+
+
+def compare_windows(
+    admin_url: str, robot_url: str, count: int, windows: dict[str, tuple[int, int]]
+) -> dict[str, float]:
+    """The raw publish and one drain per sender setting, in random order: msg/s of each."""
+    today = (sender.PUBLISH_WINDOW, sender.WINDOWS_IN_FLIGHT)
+    order = ["raw publish", *windows]
+    random.shuffle(order)
+    rates = {}
+    try:
+        for name in order:
+            if name == "raw publish":
+                rates[name] = raw_publish(admin_url, count, SIZE)
+                continue
+            sender.PUBLISH_WINDOW, sender.WINDOWS_IN_FLIGHT = windows[name]
+            rates[name] = drain_rate(robot_url, count)
+    finally:
+        sender.PUBLISH_WINDOW, sender.WINDOWS_IN_FLIGHT = today
+    return rates
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -102,7 +137,14 @@ def main() -> None:
     parser.add_argument("--drain", type=int, default=10000)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--out", type=Path, default=Path("bench/results"))
+    parser.add_argument(
+        "--windows",
+        help="compare drains with these sender settings, WINDOWxIN_FLIGHT[,...] (no append figures)",
+    )
     args = parser.parse_args()
+    if args.windows:
+        windows_main(args.windows, args.drain, args.runs, args.out)
+        return
     fills = [int(n) for n in args.waiting.split(",")]
     endpoint = resolve_broker(load_settings(), start=True)
     appends: dict[int, list[float]] = {n: [] for n in fills}
@@ -150,6 +192,45 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"outbox-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}.json"
     path.write_text(json.dumps(summary, indent=2))
+    console.print(f"wrote {path}")
+
+
+def windows_main(text: str, count: int, runs_wanted: int, out: Path) -> None:
+    windows = parse_windows(text)
+    endpoint = resolve_broker(load_settings(), start=True)
+    runs: list[dict[str, float]] = []
+    loads: list[float] = []
+    with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
+        for _ in range(runs_wanted):
+            admin_url = fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST)
+            declare_queue(admin_url, ingest_queue_arguments())
+            account = asyncio.run(provision_account(admin_url, api, ROBOT, Role.ROBOT, rotate=True))
+            runs.append(compare_windows(admin_url, account.amqp_url, count, windows))
+            loads.append(os.getloadavg()[0])
+            api.delete_user(ROBOT)
+            api.delete_vhost(BENCH_VHOST)
+    raw = [run["raw publish"] for run in runs]
+    table = Table(
+        title=f"drain of {count:,} waiting events, {runs_wanted} runs; "
+        f"load average after each: {', '.join(f'{load:.1f}' for load in loads)}"
+    )
+    for column in ("sender setting", "median msg/s", "spread", "median / raw median", "median of ratios"):
+        table.add_column(column, justify="left" if column == "sender setting" else "right")
+    summary: dict[str, object] = {"runs": runs, "load": loads, "ratios": {}}
+    for name in ["raw publish", *windows]:
+        rates = [run[name] for run in runs]
+        ratio = statistics.median(rates) / statistics.median(raw)
+        per_run = statistics.median(run[name] / run["raw publish"] for run in runs)
+        summary["ratios"][name] = {"of medians": ratio, "median of ratios": per_run}  # type: ignore[index]
+        table.add_row(
+            name,
+            f"{statistics.median(rates):,.0f}",
+            f"{min(rates):,.0f}-{max(rates):,.0f}",
+            f"{ratio:.2f}",
+            f"{per_run:.2f}",
+        )
+    console.print(table)
+    path = save(out, "outbox-windows", summary)
     console.print(f"wrote {path}")
 
 

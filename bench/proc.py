@@ -16,9 +16,10 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime
 
 
-def rss_megabytes(pid: int) -> float:
+def rss_megabytes(pid: int, field: str = "VmRSS") -> float:
+    """Resident memory now (``VmRSS``), or its peak since the process started (``VmHWM``)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith(f"{field}:"):
             return int(line.split()[1]) / 1024
     return 0.0
 

@@ -23,10 +23,12 @@ own that matches these queues must carry these keys too, or have a lower priorit
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from fleetbus.broker.management import ManagementAPI
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, OVERFLOW_EXCHANGE
+
+if TYPE_CHECKING:  # every process that loads the settings imports this module: httpx is 6 MB
+    from fleetbus.broker.management import ManagementAPI
 
 #: Above 0, RabbitMQ's default, so that a catch-all policy of the operator's does not hide these.
 PRIORITY = 10

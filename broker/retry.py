@@ -1,7 +1,8 @@
-"""The project's one retry policy for transient failures, on tenacity.
+"""The project's one retry helper for transient failures, on tenacity.
 
-Exponential backoff with jitter, each wait capped; an optional deadline after which the last
-error is raised as :class:`GaveUp`; an optional stop flag (a ``threading.Event`` for
+Waits follow the one backoff policy, :class:`fleetbus.publishers.backoff.Backoff` (exponential,
+capped, with jitter; the robot's client uses it without tenacity); an optional deadline after
+which the last error is raised as :class:`GaveUp`; an optional stop flag (a ``threading.Event`` for
 :func:`retrying`, an ``asyncio.Event`` for :func:`async_retrying`) that cuts a wait short and
 ends the retries with :class:`Stopped`. Each retry logs one line saying what it waits for, the
 error, and when it tries again.
@@ -23,12 +24,12 @@ import logging
 import threading
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
 from typing import TypeVar, cast
 
 from tenacity import AsyncRetrying, RetryCallState, Retrying, retry_if_exception_type, stop_any, stop_never
 from tenacity.stop import stop_after_delay, stop_base
-from tenacity.wait import wait_exponential, wait_random
+
+from fleetbus.publishers.backoff import Backoff
 
 log = logging.getLogger("fleetbus.retry")
 T = TypeVar("T")
@@ -36,15 +37,8 @@ T = TypeVar("T")
 Transient = type[BaseException] | tuple[type[BaseException], ...]
 OnRetry = Callable[[RetryCallState], None]
 
-
-@dataclass(frozen=True)
-class Backoff:
-    """How long to wait before each retry: ``initial`` doubling up to ``maximum``, plus up to
-    ``jitter`` seconds at random (so that many clients do not retry in step)."""
-
-    initial: float = 0.1
-    maximum: float = 5.0
-    jitter: float = 0.1
+__all__ = ["Backoff", "GaveUp", "Stopped", "async_retrying", "retrying", "run_retrying"]
+DEFAULT_BACKOFF = Backoff()
 
 
 class GaveUp(Exception):
@@ -73,17 +67,15 @@ class _Flag(stop_base):
 
 
 class _Wait:
-    """tenacity's exponential wait with jitter, never past the deadline (so the last attempt is
-    made right at it, not skipped)."""
+    """A tenacity wait drawn from the backoff policy, never past the deadline (so the last attempt
+    is made right at it, not skipped)."""
 
     def __init__(self, backoff: Backoff, deadline: float | None) -> None:
-        self._wait = wait_exponential(multiplier=backoff.initial, max=backoff.maximum) + wait_random(
-            0, backoff.jitter
-        )
+        self._backoff = backoff
         self._deadline = deadline
 
     def __call__(self, retry_state: RetryCallState) -> float:
-        delay = self._wait(retry_state)
+        delay = self._backoff.delay(retry_state.attempt_number - 1)
         if self._deadline is not None:
             delay = min(delay, max(0.0, self._deadline - (retry_state.seconds_since_start or 0.0)))
         return delay
@@ -142,7 +134,7 @@ def retrying(
     *,
     on: Transient,
     deadline: float | None = None,
-    backoff: Backoff = Backoff(),
+    backoff: Backoff = DEFAULT_BACKOFF,
     stop: threading.Event | None = None,
     logger: logging.Logger = log,
     on_retry: OnRetry | None = None,
@@ -160,7 +152,7 @@ def async_retrying(
     *,
     on: Transient,
     deadline: float | None = None,
-    backoff: Backoff = Backoff(),
+    backoff: Backoff = DEFAULT_BACKOFF,
     stop: asyncio.Event | None = None,
     logger: logging.Logger = log,
     on_retry: OnRetry | None = None,

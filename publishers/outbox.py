@@ -50,6 +50,8 @@ class TypePolicy:
     """Most entries of this type that may wait."""
 
 
+#: Events a segment file holds at most (by default): each append rewrites the newest segment.
+SEGMENT_EVENTS = 256
 #: Publishes of at most this many events may be sent while they are being written (latency);
 #: larger ones are bulk and go the ordinary way, from the outbox.
 EXPRESS_MAX = 16
@@ -153,7 +155,7 @@ class Outbox:
         policies: Mapping[str, TypePolicy] = DEFAULT_POLICIES,
         *,
         durable: bool = True,
-        segment_events: int = 256,
+        segment_events: int = SEGMENT_EVENTS,
         segment_bytes: int = 1 << 20,
         blob_bytes: int = 64 << 10,
         read_only: bool = False,

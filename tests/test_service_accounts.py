@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 from urllib.parse import urlsplit
 
 from fleetbus.broker.accounts import RECORDER_USER, SERVICE_USER, kept_password_file
@@ -64,6 +67,41 @@ def test_the_worker_runs_with_the_service_account_alone(bus: Bus) -> None:
     finally:
         worker.send_signal(signal.SIGTERM)
         assert worker.wait(60) == 0
+
+
+def test_the_recording_process_is_the_commands_own_and_shows_no_password(bus: Bus) -> None:
+    """`fleetbus recorder run` execs the recording process without the command line: the same
+    process records (a SIGTERM from whoever started it reaches it), and the account's password
+    is in neither its arguments nor its environment."""
+    password = urlsplit(bus.service_accounts().recorder_url).password
+    assert password
+    explorer = bus.add("sa-recorded", kind=RobotKind.EXPLORER)
+    with open(bus.settings.data_dir / "recorder.log", "wb") as log:
+        recorder = subprocess.Popen(
+            [sys.executable, "-m", "fleetbus", "recorder", "run"],
+            env=bus.service_env(),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        wait_for(
+            lambda: (
+                recorder.poll() is not None
+                or any(c["queue"]["name"] == RECORDER_QUEUE for c in bus.api.list_consumers(bus.vhost))
+            ),
+            60,
+            "the recorder to consume",
+        )
+        assert recorder.poll() is None, "the recorder ended"
+        arguments = Path(f"/proc/{recorder.pid}/cmdline").read_bytes().split(b"\0")
+        assert arguments[1:3] == [b"-m", b"fleetbus.workers.recorder"], arguments
+        environment = Path(f"/proc/{recorder.pid}/environ").read_bytes()
+        assert password.encode() not in b" ".join(arguments) + environment
+        bus.robot(explorer).publish("hazard", hazard())
+        wait_for(lambda: len(bus.recorded("hazard")) == 1, what="the hazard to be recorded")
+    finally:
+        recorder.send_signal(signal.SIGTERM)
+        assert recorder.wait(60) == 0
 
 
 def test_setup_is_idempotent_and_keeps_the_recorder_least_privileged(bus: Bus) -> None:

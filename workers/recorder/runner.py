@@ -6,14 +6,11 @@ import asyncio
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import aio_pika
 from aio_pika.abc import AbstractRobustConnection
 
-from fleetbus.broker.accounts import ensure_recorder_account
-from fleetbus.broker.endpoint import BrokerEndpoint
-from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
 from fleetbus.schemas.routing import RECORDER_QUEUE
 from fleetbus.settings import Settings
 from fleetbus.workers.recorder.capture import TypeNames
@@ -23,6 +20,9 @@ from fleetbus.workers.recorder.retention import parse_retention
 from fleetbus.workers.signals import stop_on_signals
 from fleetbus.workers.store import Store, open_recording_store, open_store
 from fleetbus.workers.store.recordings import RecordingStore
+
+if TYPE_CHECKING:
+    from fleetbus.broker.endpoint import BrokerEndpoint
 
 log = logging.getLogger("fleetbus.recorder")
 
@@ -57,11 +57,17 @@ async def declare_recording(url: str) -> None:
     they are the service's). `fleetbus worker` declares them before it consumes, so whatever is
     published from then on waits for its recorder child, even while that process is still
     starting (or restarting)."""
+    # imported here, as in recorder_url: the recording process itself needs neither (its memory)
+    from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
+
     await declare_with_url(url, [core_topology(), recorder_topology()])
 
 
 def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
     """As the administrator (:mod:`fleetbus.workers.setup`): the ``fleetbus-recorder`` account; its URL."""
+    from fleetbus.broker.accounts import ensure_recorder_account
+    from fleetbus.broker.management import ManagementAPI
+
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
         return ensure_recorder_account(endpoint.amqp_url, api, settings.accounts_dir)
 

@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
+from dataclasses import replace
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
 from fleetbus.broker.accounts import RECORDER_USER
-from fleetbus.cli.commands.worker import configure_logging
 from fleetbus.cli.context import clock, console, fail, service_account, settings, with_recording
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
-from fleetbus.workers.recorder.filters import RoutingFilter
+from fleetbus.workers.recorder.launch import Launch, exec_recorder
 from fleetbus.workers.recorder.process import die_with_parent
 from fleetbus.workers.recorder.retention import parse_retention, policy_for
-from fleetbus.workers.recorder.runner import recorder_options, run_recorder
 from fleetbus.workers.store.recordings import RecordingStore, TypeSummary
 
 app = typer.Typer(help="The recorder of every message on the bus.", no_args_is_help=True)
@@ -39,21 +37,21 @@ def run(
 
     Runs as the `fleetbus-recorder` account only, which may read its one queue: `fleetbus setup`
     makes the account and the queue."""
-    die_with_parent()  # when `fleetbus worker` started it
-    config = settings()
+    die_with_parent()  # when `fleetbus worker` started it (the death signal outlives the exec)
+    launch = Launch(
+        url="",
+        include=include or [],
+        exclude=exclude or [],
+        keep=keep or [],
+        sample_interval=sample_every,
+        verbose=verbose,
+    )
     try:
-        overrides: dict[str, object] = {"sample_interval": sample_every}
-        if include or exclude:
-            overrides["filter"] = RoutingFilter(
-                tuple(include or config.recorder_include), tuple(exclude or config.recorder_exclude)
-            )
-        if keep:
-            overrides["retention"] = parse_retention(keep)
-        options = recorder_options(config, **overrides)
+        launch.options(settings())
     except ValueError as error:
         fail(str(error), code=2)
-    configure_logging(verbose)
-    asyncio.run(run_recorder(config, service_account(RECORDER_USER), options))
+    # the same process goes on recording without the command line's imports
+    exec_recorder(replace(launch, url=service_account(RECORDER_USER)))
 
 
 @app.command()

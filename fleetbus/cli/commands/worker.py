@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import logging
 from collections.abc import Awaitable, Callable
 from typing import Annotated
 
@@ -11,21 +10,13 @@ import typer
 
 from fleetbus.cli.context import service_account, settings
 from fleetbus.settings import MAX_INGEST_SHARDS
+from fleetbus.workers.logs import configure_logging
 from fleetbus.workers.recorder.process import run_recorder_process
 from fleetbus.workers.recorder.runner import declare_recording
 from fleetbus.workers.runner import run_worker
 from fleetbus.workers.signals import stop_on_signals
 
 Run = Callable[[asyncio.Event], Awaitable[None]]
-
-
-def configure_logging(verbose: bool) -> None:
-    logging.basicConfig(
-        level=logging.DEBUG if verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
-    for noisy in ("aiormq", "aio_pika", "httpx", "pika"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
 async def run_together(*runs: Run) -> None:
