@@ -1,11 +1,21 @@
 """Fixtures: the broker the README's command starts, a fresh virtual host per test, and MongoDB.
 
 MongoDB runs use ``FLEETBUS_MONGODB_URL`` when set, else mongoeco's MongoDB wire-protocol
-server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/setup makes).
+server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/setup makes),
+one per pytest-xdist worker.
+
+In parallel (``pytest -n N``, as ``scripts/test`` runs it), each xdist worker has a broker node
+of its own: broker users are node-wide, and every test names its robots alike (``explorer1``)
+and re-keys the service accounts (``fleetbus``) in its fresh data directory, so two tests at once
+on one node would replace each other's passwords and delete each other's users. The first worker
+(or a run in one process) uses the node ``fleetbus broker up`` started; the others each start a
+private node in their temporary folder and stop it at the end. The tests that kill a broker run
+on one worker, one after the other, on a node of their own (``killable_node``).
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
@@ -22,10 +32,47 @@ from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture,
 from tests.support import Bus, fresh_bus
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The tests that kill a broker node share one (``killable_node``): under ``--dist loadgroup``
+    they run on one worker, so one killable node starts, not one per worker."""
+    for item in items:
+        if "killable_node" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("killable_node"))
+
+
 @pytest.fixture(scope="session")
-def endpoint() -> BrokerEndpoint:
-    """The same code path as `fleetbus broker up`: FLEETBUS_AMQP_URL, Docker, or the private node."""
-    return resolve_broker(load_settings(), start=True)
+def broker_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode | None]:
+    """The private node this process's tests use (see the module docstring); None when the broker
+    is a configured one (``FLEETBUS_AMQP_URL``) or Docker's."""
+    settings = load_settings()
+    shared = resolve_broker(settings, start=True)  # the same code path as `fleetbus broker up`
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    if worker == "gw0":
+        yield LocalNode(settings.broker_dir) if shared.kind == "private" else None
+        return
+    if shared.kind != "private":
+        pytest.exit(
+            f"the {shared.kind} broker is one node for every xdist worker, and broker users are "
+            "node-wide: run the suite in one process (-n 0)",
+            returncode=4,
+        )
+    node = LocalNode(tmp_path_factory.mktemp("broker") / "broker")
+    node.up()
+    try:
+        yield node
+    finally:
+        node.kill()  # a throwaway node: no need for a clean shutdown's seconds
+        node.down()  # its epmd
+
+
+@pytest.fixture(scope="session")
+def endpoint(broker_node: LocalNode | None) -> BrokerEndpoint:
+    """The broker as administrator: the private node of this process, or the configured one."""
+    if broker_node is None:
+        return resolve_broker(load_settings(), start=True)
+    info = broker_node.status()
+    assert info.amqp_url and info.management_url
+    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
 
 
 @pytest.fixture(scope="session")
