@@ -31,10 +31,18 @@ from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
 
+#: Modules of tests that take tens of seconds each (worker processes killed and restarted, outages,
+#: every bench scenario): they start first, so that no xdist worker begins one when the rest is done.
+LONG_MODULES = frozenset(
+    {"test_scaling.py", "test_bench.py", "test_outages.py", "test_shards.py", "test_robot_runs.py"}
+)
+
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The tests that kill a broker node share one (``killable_node``): under ``--dist loadgroup``
+    """The longest tests first (the ``slow`` outages, then ``LONG_MODULES``), each module's in its
+    order. The tests that kill a broker node share one (``killable_node``): under ``--dist loadgroup``
     they run on one worker, so one killable node starts, not one per worker."""
+    items.sort(key=lambda item: (item.get_closest_marker("slow") is None, item.path.name not in LONG_MODULES))
     for item in items:
         if "killable_node" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.xdist_group("killable_node"))
