@@ -9,8 +9,8 @@ of its own: broker users are node-wide, and every test names its robots alike (`
 and re-keys the service accounts (``fleetbus``) in its fresh data directory, so two tests at once
 on one node would replace each other's passwords and delete each other's users. The first worker
 (or a run in one process) uses the node ``fleetbus broker up`` started; the others each start a
-private node in their temporary folder and stop it at the end. The tests that kill a broker run
-on one worker, one after the other, on a node of their own (``killable_node``).
+private node in their temporary folder and stop it at the end. The tests that kill a broker do it
+on a node of their own (``killable_node``, one per worker that runs any).
 """
 
 from __future__ import annotations
@@ -37,15 +37,32 @@ LONG_MODULES = frozenset(
     {"test_scaling.py", "test_bench.py", "test_outages.py", "test_shards.py", "test_robot_runs.py"}
 )
 
+#: Modules whose tests share a module-scoped node or app, and need their order (the local node's
+#: last test stops it): one xdist worker runs each of them whole.
+ONE_WORKER_MODULES = frozenset(
+    {"tests/test_local_node.py", "tests/test_packaging.py", "tests/api/test_roles.py"}
+)
+
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The longest tests first (the ``slow`` outages, then ``LONG_MODULES``), each module's in its
-    order. The tests that kill a broker node share one (``killable_node``): under ``--dist loadgroup``
-    they run on one worker, so one killable node starts, not one per worker."""
+    order."""
     items.sort(key=lambda item: (item.get_closest_marker("slow") is None, item.path.name not in LONG_MODULES))
-    for item in items:
-        if "killable_node" in getattr(item, "fixturenames", ()):
-            item.add_marker(pytest.mark.xdist_group("killable_node"))
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """Test by test to whichever worker is free, but each of ``ONE_WORKER_MODULES`` whole to one.
+
+    (xdist's own ``xdist_group`` mark does not work with pytest 9.2: xdist 3.8 tags the group onto
+    ``item._nodeid``, which pytest no longer reads.)"""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModulesWhole(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if module in ONE_WORKER_MODULES else nodeid
+
+    return ModulesWhole(config, log)
 
 
 @pytest.fixture(scope="session")
@@ -135,7 +152,10 @@ def killable_bus(killable_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
         ManagementAPI.from_urls(info.management_url, info.amqp_url) as api,
         fresh_bus(endpoint, api, tmp_path) as test_bus,
     ):
-        yield test_bus
+        try:
+            yield test_bus
+        finally:
+            killable_node.up()  # a test that failed while the node was down: its vhost is removed
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])

@@ -36,10 +36,7 @@ from fleetbus.dev.local_node import (
 from fleetbus.settings import Settings, load_settings
 from tests.support import wait_for
 
-pytestmark = [
-    pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed"),
-    pytest.mark.xdist_group("local_node"),  # one worker runs the module, in order, on its one node
-]
+pytestmark = pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed")
 
 
 @pytest.fixture(scope="module")

@@ -19,9 +19,6 @@ from tests.support import Bus, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: One worker builds the wheel and the venv for the module (under pytest-xdist's --dist loadgroup).
-pytestmark = pytest.mark.xdist_group("packaging")
-
 #: What the base install may bring: the four named dependencies and what they need themselves.
 BASE = {"pika", "tinydb", "pydantic", "pyyaml"}
 THEIRS = {"pydantic-core", "annotated-types", "typing-extensions", "typing-inspection"}

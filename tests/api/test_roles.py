@@ -22,9 +22,6 @@ from fleetbus.workers.store.recordings import RecordedMessage
 from tests.api.support import PASSWORD, READY_PLAN, Api, running_api
 from tests.support import fresh_bus
 
-#: One worker runs the table, on the module's one app (under pytest-xdist's --dist loadgroup).
-pytestmark = pytest.mark.xdist_group("roles")
-
 R, S = UserRole, MissionState
 USERS = {
     R.ADMIN: "admin1",
