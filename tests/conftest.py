@@ -1,11 +1,21 @@
 """Fixtures: the broker the README's command starts, a fresh virtual host per test, and MongoDB.
 
 MongoDB runs use ``FLEETBUS_MONGODB_URL`` when set, else mongoeco's MongoDB wire-protocol
-server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/setup makes).
+server started here under Python 3.13 (the venv ``.venv-mongoeco`` that scripts/setup makes),
+one per pytest-xdist worker.
+
+In parallel (``pytest -n N``, as ``scripts/test`` runs it), each xdist worker has a broker node
+of its own: broker users are node-wide, and every test names its robots alike (``explorer1``)
+and re-keys the service accounts (``fleetbus``) in its fresh data directory, so two tests at once
+on one node would replace each other's passwords and delete each other's users. The first worker
+(or a run in one process) uses the node ``fleetbus broker up`` started; the others each start a
+private node in their temporary folder and stop it at the end. The tests that kill a broker do it
+on a node of their own (``killable_node``, one per worker that runs any).
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
@@ -21,11 +31,73 @@ from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
 
+#: Modules of tests that take tens of seconds each (worker processes killed and restarted, outages,
+#: every bench scenario): they start first, so that no xdist worker begins one when the rest is done.
+LONG_MODULES = frozenset(
+    {"test_scaling.py", "test_bench.py", "test_outages.py", "test_shards.py", "test_robot_runs.py"}
+)
+
+#: Modules whose tests share a module-scoped node or app, and need their order (the local node's
+#: last test stops it): one xdist worker runs each of them whole.
+ONE_WORKER_MODULES = frozenset(
+    {"tests/test_local_node.py", "tests/test_packaging.py", "tests/api/test_roles.py"}
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The longest tests first (the ``slow`` outages, then ``LONG_MODULES``), each module's in its
+    order."""
+    items.sort(key=lambda item: (item.get_closest_marker("slow") is None, item.path.name not in LONG_MODULES))
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """Test by test to whichever worker is free, but each of ``ONE_WORKER_MODULES`` whole to one.
+
+    (xdist's own ``xdist_group`` mark does not work with pytest 9.2: xdist 3.8 tags the group onto
+    ``item._nodeid``, which pytest no longer reads.)"""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModulesWhole(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if module in ONE_WORKER_MODULES else nodeid
+
+    return ModulesWhole(config, log)
+
 
 @pytest.fixture(scope="session")
-def endpoint() -> BrokerEndpoint:
-    """The same code path as `fleetbus broker up`: FLEETBUS_AMQP_URL, Docker, or the private node."""
-    return resolve_broker(load_settings(), start=True)
+def broker_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode | None]:
+    """The private node this process's tests use (see the module docstring); None when the broker
+    is a configured one (``FLEETBUS_AMQP_URL``) or Docker's."""
+    settings = load_settings()
+    shared = resolve_broker(settings, start=True)  # the same code path as `fleetbus broker up`
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    if worker == "gw0":
+        yield LocalNode(settings.broker_dir) if shared.kind == "private" else None
+        return
+    if shared.kind != "private":
+        pytest.exit(
+            f"the {shared.kind} broker is one node for every xdist worker, and broker users are "
+            "node-wide: run the suite in one process (-n 0)",
+            returncode=4,
+        )
+    node = LocalNode(tmp_path_factory.mktemp("broker") / "broker")
+    node.up()
+    try:
+        yield node
+    finally:
+        node.kill()  # a throwaway node: no need for a clean shutdown's seconds
+        node.down()  # its epmd
+
+
+@pytest.fixture(scope="session")
+def endpoint(broker_node: LocalNode | None) -> BrokerEndpoint:
+    """The broker as administrator: the private node of this process, or the configured one."""
+    if broker_node is None:
+        return resolve_broker(load_settings(), start=True)
+    info = broker_node.status()
+    assert info.amqp_url and info.management_url
+    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
 
 
 @pytest.fixture(scope="session")
@@ -80,7 +152,10 @@ def killable_bus(killable_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
         ManagementAPI.from_urls(info.management_url, info.amqp_url) as api,
         fresh_bus(endpoint, api, tmp_path) as test_bus,
     ):
-        yield test_bus
+        try:
+            yield test_bus
+        finally:
+            killable_node.up()  # a test that failed while the node was down: its vhost is removed
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])

@@ -19,7 +19,6 @@ from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.schemas.routing import RobotKind
-from fleetbus.settings import load_settings
 from tests.support import Bus, wait_for
 
 Attempt = Callable[[BlockingChannel], object]
@@ -95,21 +94,20 @@ def test_a_user_cannot_declare_or_bind_another_users_queue(bus: Bus) -> None:
     connection.close()
 
 
-def test_the_broker_logs_each_refusal(bus: Bus) -> None:
-    if bus.endpoint.kind != "private":
+def test_the_broker_logs_each_refusal(bus: Bus, broker_node: LocalNode | None) -> None:
+    if broker_node is None:
         pytest.skip("the broker's log is read from the private node's folder; this broker's log is elsewhere")
     operator = bus.add("oper1", Role.OPERATOR)
     bus.add("explorer1", kind=RobotKind.EXPLORER)
     refused(operator.amqp_url, lambda ch: ch.basic_get("explorer1.commands"))
     refused(operator.amqp_url, lambda ch: ch.queue_bind("oper1.stream", "explorer1.events", "#"))
-    node = LocalNode(load_settings().broker_dir)  # the node the session's broker fixture started
     expected = [
         f"access to queue 'explorer1.commands' in vhost '{bus.vhost}' refused for user 'oper1'",
         f"access to exchange 'explorer1.events' in vhost '{bus.vhost}' refused for user 'oper1'",
     ]
 
     def logged() -> bool:
-        text = node.node_log.read_text(errors="replace")
+        text = broker_node.node_log.read_text(errors="replace")
         return all(line in text for line in expected)
 
-    wait_for(logged, timeout=10, what=f"the refusals in {node.node_log}")
+    wait_for(logged, timeout=10, what=f"the refusals in {broker_node.node_log}")
