@@ -91,7 +91,7 @@ async def measure(folder: Path, old: int, seconds: float) -> dict[str, object]:
         await seed(store, old)
         numbers = Numbers()
         quiet = await load(store, seconds, numbers)
-        pruner = Pruner(store, bounds(load_settings({})), "bench")
+        pruner = Pruner(store, store, store, bounds(load_settings({})), "bench")  # every repository: one file
         started = time.monotonic()
         pruning = asyncio.create_task(pruner.prune())
         ended: list[float] = []

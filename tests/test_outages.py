@@ -112,7 +112,7 @@ def test_a_lost_confirm_makes_a_resend_not_a_second_record(bus: Bus, link_for: l
         link.drop_connections()  # the robot notices, reconnects and sends its window again
         assert explorer.flush(60)
         wait_for(lambda: worker.stats().duplicates == 20, what="the 20 resent copies recognised")
-        duplicates = bus.with_store(lambda store: store.duplicates("explorer1"))
+        duplicates = bus.with_store(lambda store: store.events.duplicates("explorer1"))
     assert bus.count() == 20
     assert sorted(d.seq for d in duplicates) == [e.seq for e in sent]
     assert not any(d.redelivered for d in duplicates), "sent again by the robot, not redelivered"

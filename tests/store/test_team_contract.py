@@ -105,7 +105,7 @@ async def test_the_team_says_when_each_robot_was_last_heard_from_and_who_is_stal
             record("warden1", 0, "localisation", at=now - timedelta(minutes=5)),
         ]
     )
-    team = {member.robot.name: member for member in await read_team(store, now, timedelta(minutes=1))}
+    team = {member.robot.name: member for member in await read_team(store, store, now, timedelta(minutes=1))}
     assert team["explorer1"].last_seen == now - timedelta(seconds=20) + timedelta(microseconds=1234)
     assert (team["explorer1"].stale, team["warden1"].stale, team["guide1"].stale) == (False, True, True)
     assert team["guide1"].last_seen is None, "never heard from"

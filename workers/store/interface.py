@@ -1,5 +1,6 @@
-"""What a fleetbus store is: events, sequence ledger, coordination, beacons, maps, the service
-layer's users, missions and channels, and the workers' leases and attempt counts, in one database."""
+"""A backend's store: every repository (:mod:`fleetbus.workers.store.repositories`) over one
+database. Consumers never receive it whole: :class:`~fleetbus.workers.store.repositories.Repositories`
+hands each the repositories it uses."""
 
 from __future__ import annotations
 
@@ -8,27 +9,27 @@ from dataclasses import dataclass, replace
 from datetime import datetime
 
 from fleetbus.workers.store.attempts import AttemptLog
-from fleetbus.workers.store.base import EventRecord, EventStore, WriteResult
+from fleetbus.workers.store.base import EventRecord, WriteResult
 from fleetbus.workers.store.beacons import BeaconRegistry
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.discards import DiscardLog
 from fleetbus.workers.store.hazards import CoordinationStore
 from fleetbus.workers.store.housekeeping import Housekeeping
 from fleetbus.workers.store.leases import LeaseStore
-from fleetbus.workers.store.ledger import RobotEpoch, SequenceLedger
+from fleetbus.workers.store.ledger import RobotEpoch
 from fleetbus.workers.store.maps import MapStore
 from fleetbus.workers.store.missions import MissionStore
 from fleetbus.workers.store.rejections import RejectionLog
+from fleetbus.workers.store.repositories import EventLog
 from fleetbus.workers.store.statuses import StatusBoard
 from fleetbus.workers.store.users import UserStore
 
 
 class Store(
-    EventStore,
+    EventLog,
     CoordinationStore,
     BeaconRegistry,
     MapStore,
-    SequenceLedger,
     UserStore,
     MissionStore,
     ChannelStore,
