@@ -179,6 +179,10 @@ def test_a_number_reused_in_its_epoch_is_dead_lettered_and_the_stored_event_kept
     assert str(first[0].message_id) in letter.detail and str(forged.message_id) in letter.detail
     stored = bus.find(EventQuery(robot_id="explorer1"))
     assert [r.message_id for r in stored] == [str(e.message_id) for e in first], "nothing stored changed"
+    hazards = bus.with_store(lambda repos: repos.hazards.open_hazards(None))
+    assert [h.event["message_id"] for h in hazards] == [str(e.message_id) for e in first], (
+        "the reused number registered no hazard"
+    )
 
 
 @pytest.mark.skipif(not MONGOECO_PYTHON.exists(), reason=NO_MONGODB)

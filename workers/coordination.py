@@ -80,8 +80,8 @@ class HazardCoordinator:
                 await self._hazards.set_localised(event.robot_id, event.body.localised, event.sent_at)
             else:
                 hazards.append(NewHazard.of(item.record))
-        # registering (SQLite did it as it stored the batch), reading the held list and the
-        # gate: one store call on the hazard's way
+        # registering (the one place a hazard is registered, on every backend), reading the held
+        # list and the gate: one store call on the hazard's way
         return await self._announce(await self._hazards.hold_hazards(hazards))
 
     async def reconsider(self) -> int:

@@ -11,6 +11,7 @@ from fleetbus.workers.store.beacons import Beacon
 from fleetbus.workers.store.hazards import HazardRefused, HazardState, NewHazard
 from fleetbus.workers.store.interface import Store
 from fleetbus.workers.team import gate
+from tests.store.test_contract import record
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
 BODY = {"pose": {"x": 2.66, "y": 1.22}, "description": "Fire"}
@@ -40,6 +41,20 @@ async def test_held_hazards_come_out_in_detection_order(store: Store) -> None:
     announced = await store.get_hazard("m1", 1)
     assert announced is not None and announced.state is HazardState.ANNOUNCED
     assert announced.announced_at == T0 + timedelta(seconds=5)
+
+
+async def test_a_hazard_is_registered_by_holding_it_never_by_storing_its_event(store: Store) -> None:
+    """One place says how a hazard is registered, the same on every backend: the hazard service's
+    ``hold_hazards``; storing a batch (``store_batch``) registers none."""
+    stored = await store.store_batch([record(seq=2, type="status"), record(seq=3)], T0, urgent=True)
+    assert all(result.inserted for result in stored.results)
+    assert await store.held_hazards() == [] and await store.open_hazards(None) == []
+    hazard = NewHazard.of(stored.records[1])
+    [held] = (await store.hold_hazards([hazard])).hazards
+    assert (held.robot_id, held.seq, held.hazard_id, held.state) == ("explorer1", 3, 1, HazardState.HELD)
+    assert held.event == hazard.event
+    await store.store_batch(stored.records, T0, urgent=True)  # redelivered: stored before, nothing new
+    assert (await store.hold_hazards([hazard])).hazards == [held]
 
 
 async def test_holding_hazards_registers_them_once_and_tells_the_gate(store: Store) -> None:

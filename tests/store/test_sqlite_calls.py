@@ -79,16 +79,13 @@ async def test_calls_from_two_threads_never_share_the_connection_at_once(tmp_pat
         assert await store.gaps() == []
 
 
-async def test_a_stored_hazard_is_registered_in_the_same_transaction_and_holding_it_only_reads(
-    tmp_path: Path,
-) -> None:
+async def test_holding_a_registered_hazard_again_only_reads(tmp_path: Path) -> None:
     path = tmp_path / "store.sqlite3"
     async with SQLiteEventStore(path, busy_timeout=30) as store:
         hazard = record(seq=3)
         stored = await store.store_batch([record(seq=2, type="status"), hazard], T0, urgent=True)
-        [held] = await store.held_hazards()
+        [held] = (await store.hold_hazards([NewHazard.of(stored.records[1])])).hazards
         assert (held.robot_id, held.seq, held.hazard_id) == (hazard.robot_id, 3, 1)
-        assert held.event == NewHazard.of(stored.records[1]).event
         locker = sqlite3.connect(path, isolation_level=None)
         locker.execute("BEGIN IMMEDIATE")  # another process writing: a write would wait for it
         try:

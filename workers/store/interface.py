@@ -55,11 +55,8 @@ class Store(
         so it is not observed. Adapters that can do all of it in one transaction should (SQLite
         does); this default makes the three calls in turn, each idempotent. ``urgent``: someone
         waits on an event of the batch (a hazard): an adapter may trade throughput for latency.
-        An adapter whose hazard ids are committed in the order they are given may also register
-        the batch's hazard events as held in the same transaction (SQLite does; :meth:`hold_hazards`
-        is idempotent and then only reads); this default leaves registering to the hazard service,
-        the express lane's one active consumer, so MongoDB's choice of the next id and its insert,
-        two operations, cannot be overtaken.
+        Storing a batch registers no hazard on any backend: the hazard service does, in
+        :meth:`~fleetbus.workers.store.hazards.CoordinationStore.hold_hazards`.
         """
         missions = await self.recording_missions({record.robot_id for record in records})
         stamped = stamp_missions(records, missions)

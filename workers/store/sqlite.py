@@ -13,7 +13,6 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
-from fleetbus.schemas.routing import EventType
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
@@ -21,13 +20,11 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
-from fleetbus.workers.store.hazards import NewHazard
 from fleetbus.workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
-from fleetbus.workers.store.ledger import RobotEpoch
 from fleetbus.workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
 from fleetbus.workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from fleetbus.workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
-from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
+from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
 from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from fleetbus.workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from fleetbus.workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
@@ -170,10 +167,8 @@ class SQLiteEventStore(
     async def store_batch(
         self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
     ) -> StoredBatch:
-        """One transaction: the mission lookup, the write, the ledger, and the batch's hazard events
-        registered as held (one commit, one fsync). The hazard service's ``hold_hazards`` then finds
-        them registered and only reads. SQLite has one writer at a time, so a mission's hazard ids
-        are committed in the order they are given.
+        """One transaction: the mission lookup, the write and the ledger (one commit, one fsync).
+        Hazards are registered by the hazard service (``hold_hazards``), as on every backend.
 
         An urgent small batch is written without the hand-over to the store's thread when it can
         be. Bulk batches always take the thread: the event loop keeps receiving while SQLite
@@ -184,13 +179,7 @@ class SQLiteEventStore(
         def work(db: sqlite3.Connection) -> StoredBatch:
             stamped = stamp_missions(records, recording_missions(db, {r.robot_id for r in records}))
             results = _write(db, stamped)
-            held = held_sequences(stamped, results)
-            observe(db, held, at)
-            for record in stamped:
-                if record.type == EventType.HAZARD.value and record.seq in held.get(
-                    RobotEpoch(record.robot_id, record.epoch), ()
-                ):
-                    register_hazard(db, NewHazard.of(record), held=True)
+            observe(db, held_sequences(stamped, results), at)
             return StoredBatch(stamped, results)
 
         return await self._run(
