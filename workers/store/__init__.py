@@ -13,7 +13,6 @@ from fleetbus.workers.store.base import (
     WriteResult,
 )
 from fleetbus.workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
-from fleetbus.workers.store.interface import Store
 from fleetbus.workers.store.recordings import RecordingStore
 from fleetbus.workers.store.repositories import (
     EventLog,
@@ -34,7 +33,6 @@ __all__ = [
     "RecordingStore",
     "Repositories",
     "RobotState",
-    "Store",
     "StoreError",
     "StoreUnavailable",
     "WriteResult",

@@ -1,6 +1,4 @@
-"""A backend's store: every repository (:mod:`fleetbus.workers.store.repositories`) over one
-database. Consumers never receive it whole: :class:`~fleetbus.workers.store.repositories.Repositories`
-hands each the repositories it uses."""
+"""How a worker's batch is stored: stamped with its missions, written, seen by the ledger."""
 
 from __future__ import annotations
 
@@ -8,61 +6,23 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 
-from fleetbus.workers.store.attempts import AttemptLog
 from fleetbus.workers.store.base import EventRecord, WriteResult
-from fleetbus.workers.store.beacons import BeaconRegistry
 from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.discards import DiscardLog
-from fleetbus.workers.store.hazards import CoordinationStore
-from fleetbus.workers.store.housekeeping import Housekeeping
-from fleetbus.workers.store.leases import LeaseStore
 from fleetbus.workers.store.ledger import RobotEpoch
-from fleetbus.workers.store.maps import MapStore
-from fleetbus.workers.store.missions import MissionStore
-from fleetbus.workers.store.rejections import RejectionLog
 from fleetbus.workers.store.repositories import EventLog
-from fleetbus.workers.store.statuses import StatusBoard
-from fleetbus.workers.store.users import UserStore
 
 
-class Store(
-    EventLog,
-    CoordinationStore,
-    BeaconRegistry,
-    MapStore,
-    UserStore,
-    MissionStore,
-    ChannelStore,
-    DiscardLog,
-    LeaseStore,
-    AttemptLog,
-    RejectionLog,
-    StatusBoard,
-    Housekeeping,
-):
-    """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
-    :class:`~workers.store.mongo.MongoEventStore`."""
-
-    async def store_batch(
-        self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
-    ) -> StoredBatch:
-        """A worker's batch, recorded: each record stamped with the mission its robot is recorded
-        under now (a record that has one keeps it), written (:meth:`write_events`), and the sequence
-        numbers it holds observed by the ledger (:meth:`observe_sequences`, at ``at``).
-
-        The ledger sees a number once the store holds that event: inserted now, or stored before
-        under the same message id. A reused number (another message id) is not the robot's event,
-        so it is not observed. Adapters that can do all of it in one transaction should (SQLite
-        does); this default makes the three calls in turn, each idempotent. ``urgent``: someone
-        waits on an event of the batch (a hazard): an adapter may trade throughput for latency.
-        Storing a batch registers no hazard on any backend: the hazard service does, in
-        :meth:`~fleetbus.workers.store.hazards.CoordinationStore.hold_hazards`.
-        """
-        missions = await self.recording_missions({record.robot_id for record in records})
-        stamped = stamp_missions(records, missions)
-        results = await self.write_events(stamped)
-        await self.observe_sequences(held_sequences(stamped, results), at)
-        return StoredBatch(stamped, results)
+async def store_in_turn(
+    log: EventLog, channels: ChannelStore, records: Sequence[EventRecord], at: datetime
+) -> StoredBatch:
+    """:meth:`EventLog.store_batch` in three calls, each idempotent, for a backend that cannot make
+    them one transaction: the missions the channels record the batch's robots under, the write,
+    the ledger."""
+    missions = await channels.recording_missions({record.robot_id for record in records})
+    stamped = stamp_missions(records, missions)
+    results = await log.write_events(stamped)
+    await log.observe_sequences(held_sequences(stamped, results), at)
+    return StoredBatch(stamped, results)
 
 
 @dataclass(frozen=True)

@@ -1,15 +1,17 @@
 """The store's repositories, one per concern, and the composition root that builds them.
 
 A consumer receives the repositories it uses and nothing else, the way a nameko service gets one
-dependency provider per need: the ingest consumer the event log, the rejections and the attempt
-counts; the hazard service the hazards and team; the API's accounts the users, the team and the
-channels; the pruner the housekeeping, the leases and the maps... (the decision record
+dependency provider per need: the ingest consumer the event log and the rejections; the hazard
+service the hazards and team; the API's accounts the users, the team and the channels; the pruner
+the housekeeping, the leases and the maps... (the decision record
 ``docs/decisions/0003-store-repositories.md`` lists them all).
 
-Every repository of one :class:`Repositories` lives in the same database (one SQLite file, or
-one MongoDB database), so that a batch can be stamped with its missions and written with the
-sequence ledger in one transaction where the backend has them. :func:`open_repositories` is the
-one place that picks the backend (MongoDB when ``mongodb_url`` is set, else SQLite).
+Each backend implements each repository once (``sqlite_<concern>.py``, ``mongo_<concern>.py``);
+its composition root (:func:`~fleetbus.workers.store.sqlite.sqlite_repositories`,
+:func:`~fleetbus.workers.store.mongo.mongo_repositories`) builds them all over one database (one
+SQLite file, or one MongoDB client), so that a batch can be stamped with its missions and written
+with the sequence ledger in one transaction where the backend has them. :func:`repositories_for`
+is the one place that picks the backend (MongoDB when ``mongodb_url`` is set, else SQLite).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import abc
 import asyncio
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from typing import TYPE_CHECKING, TypeVar
 
@@ -39,21 +41,34 @@ from fleetbus.workers.store.statuses import StatusBoard
 from fleetbus.workers.store.users import UserStore
 
 if TYPE_CHECKING:
-    from fleetbus.workers.store.interface import Store, StoredBatch
+    from fleetbus.workers.store.interface import StoredBatch
 
 T = TypeVar("T")
 
 
 class EventLog(EventStore, SequenceLedger):
-    """The event log and its sequence ledger: the system of record for validated events (the
-    recorder's recording is the record of the bus's traffic; see the decision record)."""
+    """The event log and its sequence ledger: the system of record for validated events, what the
+    service accepted and acts on, written before the ingest acks. The recorder's recording
+    (:class:`~fleetbus.workers.store.recordings.RecordingStore`) is the system of record for the
+    bus's traffic, every message as received; an event is in both, on purpose
+    (``docs/decisions/0003-store-repositories.md``)."""
 
     @abc.abstractmethod
     async def store_batch(
         self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
     ) -> StoredBatch:
-        """A worker's batch, stamped with its missions, written and seen by the ledger
-        (:meth:`fleetbus.workers.store.interface.Store.store_batch`)."""
+        """A worker's batch, recorded: each record stamped with the mission its robot is recorded
+        under now (a record that has one keeps it), written (:meth:`write_events`), and the sequence
+        numbers it holds observed by the ledger (:meth:`observe_sequences`, at ``at``).
+
+        The ledger sees a number once the store holds that event: inserted now, or stored before
+        under the same message id. A reused number (another message id) is not the robot's event,
+        so it is not observed. SQLite does all of it in one transaction; MongoDB makes the three
+        calls in turn, each idempotent (:func:`~fleetbus.workers.store.interface.store_in_turn`).
+        ``urgent``: someone waits on an event of the batch (a hazard): a backend may trade
+        throughput for latency. Storing a batch registers no hazard on any backend: the hazard
+        service does, in :meth:`~fleetbus.workers.store.hazards.CoordinationStore.hold_hazards`.
+        """
 
 
 @dataclass(frozen=True)
@@ -77,35 +92,17 @@ class Repositories:
     leases: LeaseStore
     statuses: StatusBoard
     housekeeping: Housekeeping
-    _database: Store
-
-    @classmethod
-    def of(cls, database: Store) -> Repositories:
-        """Each repository as the backend implements it over ``database``."""
-        return cls(
-            name=database.name,
-            events=database,
-            hazards=database,
-            beacons=database,
-            maps=database,
-            missions=database,
-            channels=database,
-            users=database,
-            discards=database,
-            rejections=database,
-            attempts=database,
-            leases=database,
-            statuses=database,
-            housekeeping=database,
-            _database=database,
-        )
+    opener: Callable[[], Awaitable[None]] = field(repr=False)
+    """Connects and creates the tables or indexes (idempotent)."""
+    closer: Callable[[], Awaitable[None]] = field(repr=False)
+    again: Callable[[], Repositories] = field(repr=False)
+    """Another connection to the same database, not yet opened (what a second process would have)."""
 
     async def open(self) -> None:
-        """Connect and create the tables or indexes; idempotent."""
-        await self._database.open()
+        await self.opener()
 
     async def close(self) -> None:
-        await self._database.close()
+        await self.closer()
 
     async def __aenter__(self) -> Repositories:
         await self.open()
@@ -118,12 +115,12 @@ class Repositories:
 def repositories_for(settings: Settings) -> Repositories:
     """The repositories the settings select (MongoDB when ``mongodb_url`` is set), not yet opened."""
     if settings.mongodb_url:
-        from fleetbus.workers.store.mongo import MongoEventStore
+        from fleetbus.workers.store.mongo import mongo_repositories
 
-        return Repositories.of(MongoEventStore(settings.mongodb_url))
-    from fleetbus.workers.store.sqlite import SQLiteEventStore
+        return mongo_repositories(settings.mongodb_url)
+    from fleetbus.workers.store.sqlite import sqlite_repositories
 
-    return Repositories.of(SQLiteEventStore(settings.sqlite_path))
+    return sqlite_repositories(settings.sqlite_path)
 
 
 @asynccontextmanager

@@ -1,4 +1,5 @@
-"""The embedded default store: SQLite in WAL mode, one durable transaction per batch.
+"""The embedded default store: SQLite in WAL mode, one durable transaction per batch; every
+repository over one file (:func:`sqlite_repositories`).
 
 Calls run on the caller's thread or the store's own (:mod:`fleetbus.workers.store.sqlite_database`); each
 commit is durable before ``write_events`` or ``store_batch`` returns, which is what the worker's
@@ -11,6 +12,7 @@ import json
 import sqlite3
 from collections.abc import Sequence
 from datetime import datetime
+from pathlib import Path
 from typing import Any, TypeVar
 
 from fleetbus.workers.store.base import (
@@ -20,7 +22,8 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
-from fleetbus.workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
+from fleetbus.workers.store.interface import StoredBatch, held_sequences, stamp_missions
+from fleetbus.workers.store.repositories import EventLog, Repositories
 from fleetbus.workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
 from fleetbus.workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from fleetbus.workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
@@ -123,32 +126,16 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(
-    SQLiteDatabase,
-    SQLiteCoordination,
-    SQLiteBeacons,
-    SQLiteMaps,
-    SQLiteLedger,
-    SQLiteUsers,
-    SQLiteMissions,
-    SQLiteChannels,
-    SQLiteDiscards,
-    SQLiteLeases,
-    SQLiteAttempts,
-    SQLiteRejections,
-    SQLiteStatuses,
-    SQLiteHousekeeping,
-    Store,
-):
-    name = "sqlite"
+class SQLiteFile(SQLiteDatabase):
+    """The file every repository of one :class:`Repositories` shares, with all their tables."""
 
     def _prepare(self, db: sqlite3.Connection) -> None:
-        db.executescript(SCHEMA)
-        db.executescript(HAZARD_SCHEMA)
-        db.executescript(BEACON_SCHEMA)
-        db.executescript(MAP_SCHEMA)
-        db.executescript(LEDGER_SCHEMA)
         for schema in (
+            SCHEMA,
+            HAZARD_SCHEMA,
+            BEACON_SCHEMA,
+            MAP_SCHEMA,
+            LEDGER_SCHEMA,
             USER_SCHEMA,
             MISSION_SCHEMA,
             CHANNEL_SCHEMA,
@@ -160,6 +147,34 @@ class SQLiteEventStore(
             HOUSEKEEPING_SCHEMA,
         ):
             db.executescript(schema)
+
+
+def sqlite_repositories(path: Path, busy_timeout: float = 2.0) -> Repositories:
+    """Every repository over one SQLite file, not yet opened."""
+    file = SQLiteFile(path, busy_timeout)
+    return Repositories(
+        name="sqlite",
+        events=SQLiteEventLog(file),
+        hazards=SQLiteCoordination(file),
+        beacons=SQLiteBeacons(file),
+        maps=SQLiteMaps(file),
+        missions=SQLiteMissions(file),
+        channels=SQLiteChannels(file),
+        users=SQLiteUsers(file),
+        discards=SQLiteDiscards(file),
+        rejections=SQLiteRejections(file),
+        attempts=SQLiteAttempts(file),
+        leases=SQLiteLeases(file),
+        statuses=SQLiteStatuses(file),
+        housekeeping=SQLiteHousekeeping(file),
+        opener=file.open,
+        closer=file.close,
+        again=lambda: sqlite_repositories(path, busy_timeout),
+    )
+
+
+class SQLiteEventLog(SQLiteLedger, EventLog):
+    """The event log and its sequence ledger; the system of record for validated events."""
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         return await self._run(lambda db: in_transaction(db, lambda: _write(db, records)))
