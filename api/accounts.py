@@ -23,8 +23,9 @@ from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
-from fleetbus.workers.store.interface import Store
-from fleetbus.workers.store.users import User, UserExists
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.hazards import CoordinationStore
+from fleetbus.workers.store.users import User, UserExists, UserStore
 from fleetbus.workers.team import leave_team
 
 log = logging.getLogger("fleetbus.api.accounts")
@@ -58,9 +59,18 @@ class Login:
 
 class Accounts:
     def __init__(
-        self, store: Store, secrets_: Secrets, management: ManagementAPI, admin_url: str, shards: int = 1
+        self,
+        users: UserStore,
+        team: CoordinationStore,
+        channels: ChannelStore,
+        secrets_: Secrets,
+        management: ManagementAPI,
+        admin_url: str,
+        shards: int = 1,
     ) -> None:
-        self._store = store
+        self._users = users
+        self._team = team
+        self._channels = channels
         self._shards = shards
         self._secrets = secrets_
         self._management = management
@@ -105,7 +115,7 @@ class Accounts:
         if password is not None and (problem := password_problem(password)):
             raise BadRequest(problem)
         if await asyncio.to_thread(self._management.get_user, name) is not None:
-            if await self._store.get_user(name) is None:
+            if await self._users.get_user(name) is None:
                 raise Conflict(f"a broker account named {name!r} exists outside the service; remove it first")
         now = datetime.now(timezone.utc)
         broker_password = secrets.token_urlsafe(24)
@@ -120,22 +130,22 @@ class Accounts:
             updated_at=now,
         )
         try:
-            await self._store.add_user(user)
+            await self._users.add_user(user)
         except UserExists:
             raise Conflict(f"user {name!r} exists") from None
         try:
             await self._broker(name, role, user.kind, password=broker_password)
         except Unavailable:
-            await self._store.remove_user(name)
+            await self._users.remove_user(name)
             await asyncio.to_thread(self._management.delete_user, name)
             raise
         if role is UserRole.ROBOT:
-            await self._store.register_robot(name, user.kind)
+            await self._team.register_robot(name, user.kind)
         log.info("user %s created by %s with role %s", name, by, role.value)
         return user
 
     async def get(self, name: str) -> User:
-        user = await self._store.get_user(name)
+        user = await self._users.get_user(name)
         if user is None:
             raise NotFound(f"no user {name!r}")
         return user
@@ -145,7 +155,7 @@ class Accounts:
         if user.kind is not None and role is not UserRole.ROBOT and role is not UserRole.INACTIVE:
             raise BadRequest(f"{name} is a robot ({user.kind}); it can be a robot or inactive")
         await self._broker(name, role, user.kind)
-        changed = await self._store.update_user(name, datetime.now(timezone.utc), role=role)
+        changed = await self._users.update_user(name, datetime.now(timezone.utc), role=role)
         log.info("user %s: role %s -> %s, by %s", name, user.role.value, role.value, by)
         return changed
 
@@ -153,26 +163,26 @@ class Accounts:
         if problem := password_problem(password):
             raise BadRequest(problem)
         await self.get(name)
-        return await self._store.update_user(
+        return await self._users.update_user(
             name, datetime.now(timezone.utc), password_hash=await self._secrets.passwords.hash(password)
         )
 
     async def remove(self, name: str, by: str) -> None:
         await self.get(name)
-        mounts = await self._store.mounts(operator=name) + await self._store.mounts(robot=name)
-        if mounts or await self._store.check_ins(operator=name):
+        mounts = await self._channels.mounts(operator=name) + await self._channels.mounts(robot=name)
+        if mounts or await self._channels.check_ins(operator=name):
             held = ", ".join(f"{m.robot} mounted by {m.operator} for {m.mission_id}" for m in mounts)
             raise Conflict(f"{name} is in use ({held or 'checked in'}); unmount and check out first")
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
-        await self._store.remove_user(name)
+        await self._users.remove_user(name)
         log.info("user %s removed by %s", name, by)
         try:  # a warden removed no longer holds the hazard gate
-            await leave_team(self._store, self._admin_url, name, by)
+            await leave_team(self._team, self._admin_url, name, by)
         except HazardServiceNotTold as error:
             raise Unavailable(f"user {name} removed and taken out of the team, but {error}") from error
 
     async def login(self, name: str, password: str) -> Login:
-        user = await self._store.get_user(name)
+        user = await self._users.get_user(name)
         if (
             not await self._secrets.passwords.verify(user.password_hash if user else None, password)
             or user is None

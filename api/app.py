@@ -79,7 +79,7 @@ def create_app(settings: Settings, admin_url: str, management_url: str) -> FastA
 
     @app.get("/health", tags=["health"])
     async def health() -> dict[str, Any]:
-        return {"ok": True, "store": app.state.service.store.name}
+        return {"ok": True, "store": app.state.service.repositories.name}
 
     @app.exception_handler(ServiceRefusal)
     async def refusal(request: Request, error: ServiceRefusal) -> JSONResponse:

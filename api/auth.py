@@ -19,7 +19,12 @@ from fleetbus.api import audit
 from fleetbus.api.security import TokenRefused
 from fleetbus.api.service import Service
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.users import User
+from fleetbus.workers.store import Repositories
+from fleetbus.workers.store.base import EventStore
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.discards import DiscardLog
+from fleetbus.workers.store.missions import MissionStore
+from fleetbus.workers.store.users import User, UserStore
 
 bearer = OAuth2PasswordBearer(tokenUrl="/auth/token", auto_error=False)
 
@@ -31,13 +36,45 @@ def service(request: Request) -> Service:
 ServiceDep = Annotated[Service, Depends(service)]
 
 
+def repositories(request: Request) -> Repositories:
+    """The service's repositories; a route takes the one it reads through the aliases below."""
+    return service(request).repositories
+
+
+def _users(request: Request) -> UserStore:
+    return repositories(request).users
+
+
+def _channels(request: Request) -> ChannelStore:
+    return repositories(request).channels
+
+
+def _missions(request: Request) -> MissionStore:
+    return repositories(request).missions
+
+
+def _events(request: Request) -> EventStore:
+    return repositories(request).events
+
+
+def _discards(request: Request) -> DiscardLog:
+    return repositories(request).discards
+
+
+UsersDep = Annotated[UserStore, Depends(_users)]
+ChannelsDep = Annotated[ChannelStore, Depends(_channels)]
+MissionsDep = Annotated[MissionStore, Depends(_missions)]
+EventsDep = Annotated[EventStore, Depends(_events)]
+DiscardsDep = Annotated[DiscardLog, Depends(_discards)]
+
+
 def unauthorized(request: Request, why: str, who: str = "(anonymous)") -> HTTPException:
     audit.refused(request, 401, who, why)
     return HTTPException(401, detail=why, headers={"WWW-Authenticate": "Bearer"})
 
 
 async def current_user(
-    request: Request, svc: ServiceDep, token: Annotated[str | None, Depends(bearer)]
+    request: Request, svc: ServiceDep, users: UsersDep, token: Annotated[str | None, Depends(bearer)]
 ) -> User:
     if not token:
         raise unauthorized(
@@ -47,7 +84,7 @@ async def current_user(
         name = svc.secrets.tokens.subject(token)
     except TokenRefused as refused:
         raise unauthorized(request, str(refused)) from None
-    user = await svc.store.get_user(name)
+    user = await users.get_user(name)
     if user is None:
         raise unauthorized(request, f"user {name!r} no longer exists", who=name)
     request.state.user = user  # for the refusal log of later checks

@@ -27,10 +27,9 @@ from fleetbus.broker.mounts import (
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.use_cases import CHECK_IN_STATES, InvalidTransition, machine_for
-from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, CheckIn, Mount
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, ChannelStore, CheckIn, Mount
 from fleetbus.workers.store.missions import Mission
-from fleetbus.workers.store.users import User
+from fleetbus.workers.store.users import User, UserStore
 
 log = logging.getLogger("fleetbus.api.channels")
 
@@ -61,8 +60,16 @@ class CheckOut:
 
 
 class Channels:
-    def __init__(self, store: Store, management: ManagementAPI, vhost: str, missions: Missions) -> None:
-        self._store = store
+    def __init__(
+        self,
+        channels: ChannelStore,
+        users: UserStore,
+        management: ManagementAPI,
+        vhost: str,
+        missions: Missions,
+    ) -> None:
+        self._channels = channels
+        self._users = users
         self._management = management
         self._vhost = vhost
         self._missions = missions
@@ -81,7 +88,7 @@ class Channels:
         change = ChannelChange(
             datetime.now(timezone.utc), actor.name, action, mission_id, operator, robot, detail
         )
-        await self._store.record_change(change)
+        await self._channels.record_change(change)
         log.info(
             "%s by %s: robot %s, operator %s, mission %s %s",
             action.value,
@@ -99,7 +106,7 @@ class Channels:
             raise Unavailable(f"the broker failed to {work}: {error}") from error
 
     async def mount(self, operator: User, robot: str, mission_id: str) -> Mount:
-        target = await self._store.get_user(robot)
+        target = await self._users.get_user(robot)
         if target is None or target.role is not UserRole.ROBOT:
             raise NotFound(f"no robot {robot!r}")
         mission = await self._missions.get(operator, mission_id)
@@ -111,20 +118,22 @@ class Channels:
             )
         async with self._lock:
             try:
-                mount = await self._store.mount(robot, operator.name, mission_id, datetime.now(timezone.utc))
+                mount = await self._channels.mount(
+                    robot, operator.name, mission_id, datetime.now(timezone.utc)
+                )
             except Booked as booked:
                 raise Conflict(str(booked)) from None
             try:
                 await self._broker(f"mount {robot}", mount_bindings(robot, operator.name), bind=True)
             except Unavailable:
-                await self._store.unmount(robot, operator.name)
+                await self._channels.unmount(robot, operator.name)
                 raise
             await self._record(operator, ChannelAction.MOUNT, mission_id, operator.name, robot)
         return mount
 
     async def unmount(self, user: User, robot: str) -> Mount:
         """An operator unmounts its own robot; a supervisor may unmount anyone's (a forced unmount)."""
-        current = await self._store.mounts(robot=robot)
+        current = await self._channels.mounts(robot=robot)
         if not current:
             raise NotFound(f"robot {robot} is not mounted")
         force = user.role is UserRole.SUPERVISOR
@@ -133,7 +142,7 @@ class Channels:
                 f"robot {robot} is mounted by {current[0].operator}; only they or a supervisor can unmount it"
             )
         async with self._lock:
-            removed = await self._store.unmount(robot, None if force else user.name)
+            removed = await self._channels.unmount(robot, None if force else user.name)
             if removed is None:
                 raise NotFound(f"robot {robot} is not mounted")
             await self._broker(f"unmount {robot}", mount_bindings(robot, removed.operator), bind=False)
@@ -148,10 +157,10 @@ class Channels:
                 f"mission {mission_id} is {mission.state.value}; operators check in while it is in_progress"
             )
         try:
-            check_in = await self._store.check_in(operator.name, mission_id, datetime.now(timezone.utc))
+            check_in = await self._channels.check_in(operator.name, mission_id, datetime.now(timezone.utc))
         except Booked as booked:
             raise Conflict(str(booked)) from None
-        robots = [m.robot for m in await self._store.mounts(operator=operator.name, mission_id=mission_id)]
+        robots = [m.robot for m in await self._channels.mounts(operator=operator.name, mission_id=mission_id)]
         await self._record(
             operator, ChannelAction.CHECK_IN, mission_id, operator.name, None, f"recording {robots}"
         )
@@ -159,10 +168,10 @@ class Channels:
 
     async def check_out(self, operator: User, mission_id: str) -> CheckOut:
         mission = await self._missions.get(operator, mission_id)
-        if not await self._store.check_out(operator.name, mission_id):
+        if not await self._channels.check_out(operator.name, mission_id):
             raise Conflict(f"{operator.name} is not checked in to mission {mission_id}")
         await self._record(operator, ChannelAction.CHECK_OUT, mission_id, operator.name, None)
-        left = await self._store.check_ins(mission_id=mission_id)
+        left = await self._channels.check_ins(mission_id=mission_id)
         if not left:
             mission = await self._end_operations(mission)
         return CheckOut(operator.name, mission, len(left))
@@ -181,7 +190,7 @@ class Channels:
             return await self._missions.get_any(mission.mission_id)
 
     async def verify(self) -> BindingReport:
-        expected = [b for m in await self._store.mounts() for b in mount_bindings(m.robot, m.operator)]
+        expected = [b for m in await self._channels.mounts() for b in mount_bindings(m.robot, m.operator)]
         actual = await asyncio.to_thread(mount_bindings_on_broker, self._management, self._vhost)
         return BindingReport(sorted(expected), sorted(actual))
 

@@ -13,8 +13,8 @@ from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.use_cases import InvalidTransition, RoleNotAllowed, machine_for, readiness
-from fleetbus.workers.store.interface import Store
-from fleetbus.workers.store.missions import Mission, MissionConflict
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore
 from fleetbus.workers.store.users import User
 
 #: Who sees every mission; a client sees its own.
@@ -25,20 +25,21 @@ SERVICE_ACTOR = "fleetbus"
 
 
 class Missions:
-    def __init__(self, store: Store) -> None:
-        self._store = store
+    def __init__(self, missions: MissionStore, channels: ChannelStore) -> None:
+        self._missions = missions
+        self._channels = channels
 
     async def create(self, user: User, use_case: str, title: str, plan: MissionPlan) -> Mission:
         try:
             machine_for(use_case)
         except InvalidTransition as error:
             raise BadRequest(str(error)) from None
-        return await self._store.create_mission(
+        return await self._missions.create_mission(
             use_case, title, user.name, plan.model_dump(mode="json"), datetime.now(timezone.utc)
         )
 
     async def get(self, user: User, mission_id: str) -> Mission:
-        mission = await self._store.get_mission(mission_id)
+        mission = await self._missions.get_mission(mission_id)
         if mission is None:
             raise NotFound(f"no mission {mission_id!r}")
         if user.role not in SEE_ALL and mission.owner != user.name:
@@ -46,21 +47,21 @@ class Missions:
         return mission
 
     async def get_any(self, mission_id: str) -> Mission:
-        mission = await self._store.get_mission(mission_id)
+        mission = await self._missions.get_mission(mission_id)
         if mission is None:
             raise NotFound(f"no mission {mission_id!r}")
         return mission
 
     async def visible(self, user: User, state: MissionState | None = None) -> list[Mission]:
         owner = None if user.role in SEE_ALL else user.name
-        return await self._store.missions(owner=owner, state=state)
+        return await self._missions.missions(owner=owner, state=state)
 
     async def edit_plan(self, user: User, mission_id: str, plan: MissionPlan) -> Mission:
         mission = await self.get(user, mission_id)
         if user.role is UserRole.CLIENT and mission.owner != user.name:
             raise Forbidden(f"mission {mission_id} belongs to another client")
         try:
-            return await self._store.update_plan(
+            return await self._missions.update_plan(
                 mission_id, plan.model_dump(mode="json"), MissionState.PLANNING, datetime.now(timezone.utc)
             )
         except MissionConflict as conflict:
@@ -71,7 +72,7 @@ class Missions:
         self, user: User | None, mission_id: str, target: MissionState, note: str = ""
     ) -> Mission:
         """Take one step; ``user`` ``None`` is the service itself (the last operator checked out)."""
-        mission = await self._store.get_mission(mission_id)
+        mission = await self._missions.get_mission(mission_id)
         if mission is None:
             raise NotFound(f"no mission {mission_id!r}")
         if user is not None and user.role is UserRole.CLIENT and mission.owner != user.name:
@@ -87,12 +88,12 @@ class Missions:
         if missing:
             raise Conflict(f"mission {mission_id} cannot become {target.value}: {'; '.join(missing)}")
         if target is MissionState.CLOSED:
-            mounted = await self._store.mounts(mission_id=mission_id)
+            mounted = await self._channels.mounts(mission_id=mission_id)
             if mounted:
                 robots = ", ".join(f"{m.robot} (by {m.operator})" for m in mounted)
                 raise Conflict(f"mission {mission_id} still has robots mounted: {robots}; unmount them first")
         try:
-            return await self._store.transition_mission(
+            return await self._missions.transition_mission(
                 mission_id,
                 mission.state,
                 target,

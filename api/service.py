@@ -18,15 +18,15 @@ from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
-from fleetbus.workers.store import open_recording_store, open_store
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store import Repositories, open_recording_store, repositories_for
 from fleetbus.workers.store.recordings import RecordingStore
 
 
 @dataclass
 class Service:
     settings: Settings
-    store: Store
+    repositories: Repositories
+    """The repositories the routes read directly (users, channels, missions, events, discards)."""
     secrets: Secrets
     accounts: Accounts
     missions: Missions
@@ -44,23 +44,38 @@ class Service:
 
 @asynccontextmanager
 async def open_service(settings: Settings, admin_url: str, management_url: str) -> AsyncIterator[Service]:
-    """The store, the broker's management API (as administrator) and the services on top."""
+    """The repositories, the broker's management API (as administrator) and the services on top."""
     secrets_ = Secrets.for_settings(settings)
-    store = open_store(settings)
-    await store.open()
+    repositories = repositories_for(settings)
+    await repositories.open()
     recording = open_recording_store(settings)
     await recording.open()
     management = ManagementAPI.from_urls(management_url, admin_url)
     try:
-        missions = Missions(store)
+        missions = Missions(repositories.missions, repositories.channels)
         yield Service(
             settings=settings,
-            store=store,
+            repositories=repositories,
             secrets=secrets_,
-            accounts=Accounts(store, secrets_, management, admin_url, settings.ingest_shards),
+            accounts=Accounts(
+                repositories.users,
+                repositories.hazards,
+                repositories.channels,
+                secrets_,
+                management,
+                admin_url,
+                settings.ingest_shards,
+            ),
             missions=missions,
-            channels=Channels(store, management, vhost_of(admin_url), missions),
-            team=Team(store, admin_url, timedelta(seconds=settings.stale_after_s)),
+            channels=Channels(
+                repositories.channels, repositories.users, management, vhost_of(admin_url), missions
+            ),
+            team=Team(
+                repositories.hazards,
+                repositories.events,
+                admin_url,
+                timedelta(seconds=settings.stale_after_s),
+            ),
             recording=recording,
             management=management,
             vhost=vhost_of(admin_url),
@@ -70,4 +85,4 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
         secrets_.passwords.close()
         management.close()
         await recording.close()
-        await store.close()
+        await repositories.close()

@@ -8,8 +8,8 @@ from datetime import datetime, timedelta, timezone
 
 from fleetbus.api.errors import BadRequest, NotFound, Unavailable
 from fleetbus.broker.team_changes import HazardServiceNotTold
-from fleetbus.workers.store.hazards import RobotState
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.base import EventStore
+from fleetbus.workers.store.hazards import CoordinationStore, RobotState
 from fleetbus.workers.team import (
     Gate,
     NotAWarden,
@@ -32,14 +32,17 @@ class TeamView:
 
 
 class Team:
-    def __init__(self, store: Store, admin_url: str, stale_after: timedelta) -> None:
-        self._store = store
+    def __init__(
+        self, team: CoordinationStore, events: EventStore, admin_url: str, stale_after: timedelta
+    ) -> None:
+        self._team = team
+        self._events = events
         self._admin_url = admin_url
         self._stale_after = stale_after
 
     async def view(self) -> TeamView:
         now = datetime.now(timezone.utc)
-        members = await read_team(self._store, now, self._stale_after)
+        members = await read_team(self._team, self._events, now, self._stale_after)
         state = gate([member.robot for member in members])
         return TeamView(members, state, why_closed(state, {m.robot.name: m.last_seen for m in members}, now))
 
@@ -52,7 +55,7 @@ class Team:
     async def set_in_service(self, name: str, in_service: bool, by: str) -> RobotState:
         """Take a warden out of service or put it back, recorded with ``by``; the hazard service is told."""
         try:
-            robot = await change_service(self._store, self._admin_url, name, in_service, by)
+            robot = await change_service(self._team, self._admin_url, name, in_service, by)
         except NotInTeam as refused:
             raise NotFound(str(refused)) from None
         except NotAWarden as refused:

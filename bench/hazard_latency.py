@@ -129,7 +129,7 @@ def measure(
         loaders = [bus.add(f"bench-telemetry{i}").amqp_url for i in range(LOADERS)]
         declare_queue(bus.admin_url, ingest_queue_arguments(), PING_QUEUE)
         with worker_process(bus, *worker_args), WardenProcess(bus, warden_url) as warden:
-            wait_for(lambda: all(w.localised for w in bus.with_store(lambda s: s.robots("warden"))))
+            wait_for(lambda: all(w.localised for w in bus.with_store(lambda r: r.hazards.robots("warden"))))
             context.show(f"{rate:,.0f} telemetry events/s starting")
             ping = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
             sent: dict[int, float] = {}

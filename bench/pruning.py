@@ -26,7 +26,8 @@ from fleetbus.settings import load_settings
 from fleetbus.workers.bounds import bounds
 from fleetbus.workers.pruning import Pruner
 from fleetbus.workers.store.base import EventRecord
-from fleetbus.workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.repositories import EventLog
+from fleetbus.workers.store.sqlite import sqlite_repositories
 from tests.store.test_contract import record
 
 HAZARD_EVERY_S = 0.02
@@ -47,13 +48,13 @@ def events(robot: str, seqs: range, type: str, received: datetime) -> list[Event
     return [replace(record(robot, seq, type, received), received_at=received) for seq in seqs]
 
 
-async def seed(store: SQLiteEventStore, count: int) -> None:
+async def seed(store: EventLog, count: int) -> None:
     old = datetime.now(timezone.utc) - timedelta(days=40)
     for start in range(0, count, 5000):
         await store.write_events(events("old", range(start, min(count, start + 5000)), "status", old))
 
 
-async def load(store: SQLiteEventStore, seconds: float, numbers: Numbers) -> list[float]:
+async def load(store: EventLog, seconds: float, numbers: Numbers) -> list[float]:
     """The ingest's writes for ``seconds``; each hazard write's milliseconds."""
     latencies: list[float] = []
     stop = time.monotonic() + seconds
@@ -87,11 +88,18 @@ def summary(latencies: list[float]) -> dict[str, float]:
 
 
 async def measure(folder: Path, old: int, seconds: float) -> dict[str, object]:
-    async with SQLiteEventStore(folder / "store.sqlite3") as store:
+    async with sqlite_repositories(folder / "store.sqlite3") as repositories:
+        store = repositories.events
         await seed(store, old)
         numbers = Numbers()
         quiet = await load(store, seconds, numbers)
-        pruner = Pruner(store, bounds(load_settings({})), "bench")
+        pruner = Pruner(
+            repositories.housekeeping,
+            repositories.leases,
+            repositories.maps,
+            bounds(load_settings({})),
+            "bench",
+        )
         started = time.monotonic()
         pruning = asyncio.create_task(pruner.prune())
         ended: list[float] = []

@@ -66,7 +66,7 @@ from fleetbus.publishers.client import RobotClient
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.setup import set_up_service
 from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
-from fleetbus.workers.store import Store, open_store
+from fleetbus.workers.store import Repositories, repositories_for
 from fleetbus.workers.store.base import EventQuery, EventRecord
 
 VHOST = "fleetbus-bench-scaling"
@@ -139,11 +139,11 @@ class Probe:
 
     def __init__(self, settings: Settings) -> None:
         self._loop = asyncio.new_event_loop()
-        self._store: Store = open_store(settings)
-        self._loop.run_until_complete(self._store.open())
+        self._repositories: Repositories = repositories_for(settings)
+        self._loop.run_until_complete(self._repositories.open())
 
     def stored(self) -> int:
-        return self._loop.run_until_complete(self._store.count_events())
+        return self._loop.run_until_complete(self._repositories.events.count_events())
 
     def verify(self, total: int, what: str) -> None:
         """Exactly ``total`` events stored (the store's (robot, epoch, seq) key refuses doubles), and
@@ -151,7 +151,7 @@ class Probe:
         stored = self.stored()
         if stored != total:
             raise AssertionError(f"{what} stored {stored} events, not {total}")
-        records = self._loop.run_until_complete(self._store.find_events(EventQuery()))
+        records = self._loop.run_until_complete(self._repositories.events.find_events(EventQuery()))
         by_numbering: dict[tuple[str, str], list[EventRecord]] = {}
         for record in records:
             by_numbering.setdefault((record.robot_id, record.epoch), []).append(record)
@@ -164,23 +164,25 @@ class Probe:
 
     def holders(self, prefix: str = SHARD_PREFIX) -> Counter[str]:
         now = datetime.now(timezone.utc)
-        leases = self._loop.run_until_complete(self._store.leases(prefix))
+        leases = self._loop.run_until_complete(self._repositories.leases.leases(prefix))
         return Counter(lease.holder for lease in leases if lease.live(now))
 
     def close_gate(self, shards: int) -> None:
         """Hold every shard's lease as the bench, so starting workers wait for one another."""
         now = datetime.now(timezone.utc)
         for shard in range(shards):
-            done = self._store.acquire_lease(shard_lease(shard), GATE, now + timedelta(minutes=5), now)
+            done = self._repositories.leases.acquire_lease(
+                shard_lease(shard), GATE, now + timedelta(minutes=5), now
+            )
             assert self._loop.run_until_complete(done)
 
     def open_gate(self, shards: int) -> None:
         """Let every shard go at once: the waiting workers each take their share at their next beat."""
         for shard in range(shards):
-            self._loop.run_until_complete(self._store.release_lease(shard_lease(shard), GATE))
+            self._loop.run_until_complete(self._repositories.leases.release_lease(shard_lease(shard), GATE))
 
     def close(self) -> None:
-        self._loop.run_until_complete(self._store.close())
+        self._loop.run_until_complete(self._repositories.close())
         self._loop.close()
 
 

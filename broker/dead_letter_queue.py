@@ -45,7 +45,7 @@ class KeptReason(Protocol):
 
 
 ReasonLookup = Callable[[list[str]], Mapping[str, KeptReason]]
-"""The reasons kept for these dead-letter keys (``Store.rejections``)."""
+"""The reasons kept for these dead-letter keys (``RejectionLog.rejections``)."""
 
 
 def dead_letter_key(

@@ -37,7 +37,7 @@ from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.recorder.consumer import MissionLookup
 from fleetbus.workers.recorder.runner import recorder_options
 from fleetbus.workers.setup import ServiceAccounts, set_up_service
-from fleetbus.workers.store import Store, open_recording_store, run_with_store
+from fleetbus.workers.store import Repositories, open_recording_store, run_with_repositories
 from fleetbus.workers.store.base import EventQuery, EventRecord, StoreUnavailable
 from fleetbus.workers.store.ledger import Gap
 from fleetbus.workers.store.recordings import RecordedMessage, RecordQuery
@@ -152,7 +152,7 @@ class Bus:
         return Outbox(outbox_folder(self.settings.robots_dir, robot), read_only=True)
 
     def gaps(self, robot: str | None = None) -> list[Gap]:
-        return self.with_store(lambda store: store.gaps(robot))
+        return self.with_store(lambda store: store.events.gaps(robot))
 
     @contextmanager
     def worker(self) -> Iterator[WorkerThread]:
@@ -235,7 +235,7 @@ class Bus:
             stderr=subprocess.STDOUT,
         )
 
-    def with_store(self, operation: Callable[[Store], Awaitable[T]], patience: float = 60.0) -> T:
+    def with_store(self, operation: Callable[[Repositories], Awaitable[T]], patience: float = 60.0) -> T:
         """Run one operation on a fresh connection to the test's store (what an operator would see).
 
         A store that does not answer a new connection in time (mongoeco's single-threaded server
@@ -244,27 +244,27 @@ class Bus:
         deadline = time.monotonic() + patience
         while True:
             try:
-                return run_with_store(self.settings, operation)
+                return run_with_repositories(self.settings, operation)
             except StoreUnavailable:
                 if time.monotonic() > deadline:
                     raise
 
     def find(self, query: EventQuery | None = None) -> list[EventRecord]:
-        return self.with_store(lambda store: store.find_events(query or EventQuery()))
+        return self.with_store(lambda store: store.events.find_events(query or EventQuery()))
 
     def count(self, type: str | None = None, robot_id: str | None = None) -> int:
-        return self.with_store(lambda store: store.count_events(type, robot_id))
+        return self.with_store(lambda store: store.events.count_events(type, robot_id))
 
     def shard_holders(self) -> Counter[str]:
         """How many ingest shards each worker holds an unexpired lease on, by worker."""
-        leases = self.with_store(lambda store: store.leases("shard:"))
+        leases = self.with_store(lambda store: store.leases.leases("shard:"))
         now = time.time()
         return Counter(lease.holder for lease in leases if lease.expires_at.timestamp() > now)
 
     def dead_letters(self) -> list[DeadLetter]:
         """The dead-letter queue as `fleetbus dlq` lists it: each letter with the reason the store kept."""
         return peek_dead_letters(
-            self.admin_url, reasons=lambda keys: self.with_store(lambda s: s.rejections(keys))
+            self.admin_url, reasons=lambda keys: self.with_store(lambda s: s.rejections.rejections(keys))
         )
 
     @contextmanager

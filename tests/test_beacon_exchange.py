@@ -37,7 +37,7 @@ def publish_raw(url: str, exchange: str, seq: int, headers: dict | None, robot: 
 
 
 def recorded_discards(bus: Bus, count: int) -> list[Discard] | None:
-    found = bus.with_store(lambda store: store.recent_discards(2 * count))
+    found = bus.with_store(lambda store: store.discards.recent_discards(2 * count))
     return found if len(found) == count else None
 
 
@@ -62,7 +62,7 @@ def test_beacons_without_the_headers_are_discarded_and_counted(bus: Bus) -> None
     assert {(d.exchange, d.user_id, d.routing_key) for d in discards} == {
         ("guide1.beacon", "guide1", "guide1.beacon")
     }
-    [count] = bus.with_store(lambda s: s.discard_counts())
+    [count] = bus.with_store(lambda s: s.discards.discard_counts())
     assert (count.exchange, count.count) == ("guide1.beacon", 4)
     stored = bus.find()
     assert {r.seq for r in stored} == {200, 0} and {r.exchange for r in stored} == {"guide1.beacon"}

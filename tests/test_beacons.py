@@ -19,7 +19,7 @@ def sighting(beacon_id: str, rssi: int, x: float = 0.0) -> dict:
 
 def test_sightings_stranded_people_and_the_guides_goal(bus: Bus) -> None:
     bus.with_store(
-        lambda s: s.put_beacons([Beacon("b1", 1.0, 2.0, "room 101"), Beacon("b2", 8.0, 3.0, "lab")])
+        lambda s: s.beacons.put_beacons([Beacon("b1", 1.0, 2.0, "room 101"), Beacon("b2", 8.0, 3.0, "lab")])
     )
     guide = bus.robot(bus.add("guide1", kind=RobotKind.GUIDE))
     with bus.worker():

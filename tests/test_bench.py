@@ -226,18 +226,18 @@ def test_the_scaling_probe_refuses_a_count_or_an_order_that_is_off(bus: Bus) -> 
     stored in the order it published them (a later number never stored before an earlier one)."""
     t0 = datetime(2026, 11, 24, 8, 0, tzinfo=timezone.utc)
     in_order = [record("robot1", seq, "status", t0 + timedelta(seconds=seq)) for seq in range(3)]
-    bus.with_store(lambda store: store.write_events(in_order))
+    bus.with_store(lambda store: store.events.write_events(in_order))
     probe = scaling.Probe(bus.settings)
     try:
         probe.verify(3, "in order")
         with pytest.raises(AssertionError, match="stored 3 events, not 4"):
             probe.verify(4, "one missing")
         another_run = record("robot1", 0, "status", t0, epoch=LATER)  # numbers apart from the first
-        bus.with_store(lambda store: store.write_events([another_run]))
+        bus.with_store(lambda store: store.events.write_events([another_run]))
         probe.verify(4, "two runs of one robot")
         overtaking = record("robot2", 1, "status", t0)  # stored before robot2's seq 0
         earlier = record("robot2", 0, "status", t0 + timedelta(seconds=1))  # but arriving after it
-        bus.with_store(lambda store: store.write_events([overtaking, earlier]))
+        bus.with_store(lambda store: store.events.write_events([overtaking, earlier]))
         with pytest.raises(AssertionError, match=r"of robot2 \(epoch \S+\) was stored before an earlier"):
             probe.verify(6, "overtaken")
     finally:

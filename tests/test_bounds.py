@@ -21,7 +21,9 @@ QUICK_ROUNDS = 0.2
 
 def counted(bus: Bus) -> dict[tuple[str, str], int]:
     """The bound counts an operator reads (``fleetbus stats``)."""
-    return {(c.bound, c.subject): c.count for c in bus.with_store(lambda store: store.bound_counts())}
+    return {
+        (c.bound, c.subject): c.count for c in bus.with_store(lambda store: store.housekeeping.bound_counts())
+    }
 
 
 def test_the_event_log_duplicates_and_discards_keep_to_their_bounds(stored_bus: Bus) -> None:
@@ -52,8 +54,8 @@ def test_the_event_log_duplicates_and_discards_keep_to_their_bounds(stored_bus: 
         wait_for(lambda: counted(bus).get(("events", "status")) == 3, what="the oldest statuses pruned")
     kept = sorted(r.seq for r in bus.find() if r.type == "status")
     assert kept == [e.seq for e in sent[-3:]], "the newest three statuses stay"
-    assert len(bus.with_store(lambda store: store.duplicates())) == 2
-    assert len(bus.with_store(lambda store: store.recent_discards())) == 1
+    assert len(bus.with_store(lambda store: store.events.duplicates())) == 2
+    assert len(bus.with_store(lambda store: store.discards.recent_discards())) == 1
 
 
 def test_map_versions_keep_the_newest_and_the_fetched_and_unclaimed_chunks_expire(stored_bus: Bus) -> None:
@@ -77,7 +79,7 @@ def test_map_versions_keep_the_newest_and_the_fetched_and_unclaimed_chunks_expir
         explorer.publish_many(large[-1:])  # too late: its chunks are gone
         wait_for(lambda: bus.ready_messages("fleetbus.dead-letters") == 1, what="the late map refused")
         assert warden.fetch_map().pgm == maps[-1]
-    versions = bus.with_store(lambda store: store.map_versions())
+    versions = bus.with_store(lambda store: store.maps.map_versions())
     assert [v.version for v in versions] == [5, 4, 1], "the newest two, and the one being fetched"
     listed = fleetbus(bus, "map", "list")
     assert listed.returncode == 0, listed.stderr

@@ -9,7 +9,7 @@ from tests.support import Bus, notifications_until, wait_for
 
 
 def held_and_announced(bus: Bus) -> tuple[int, int]:
-    hazards = bus.with_store(lambda store: store.open_hazards("default"))
+    hazards = bus.with_store(lambda store: store.hazards.open_hazards("default"))
     held = sum(h.state is HazardState.HELD for h in hazards)
     return held, len(hazards) - held
 
@@ -26,7 +26,9 @@ def test_hazards_are_held_until_every_warden_is_localised_tables_3_4_5(bus: Bus)
         # Table 4: one warden localised, the other not: still held
         wardens["warden1"].publish("localisation", {"localised": True})
         wait_for(
-            lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.robots("warden"))}["warden1"],
+            lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.hazards.robots("warden"))}[
+                "warden1"
+            ],
             what="warden1 recorded as localised",
         )
         assert held_and_announced(bus) == (2, 0)
@@ -55,7 +57,9 @@ def test_a_warden_that_loses_localisation_holds_new_hazards_again(bus: Bus) -> N
         explorer.publish("hazard", hazard(0))
         [first] = warden.receive(1, timeout=30)
         warden.publish("localisation", {"localised": False})
-        wait_for(lambda: not bus.with_store(lambda s: s.robots("warden"))[0].localised, what="warden1 lost")
+        wait_for(
+            lambda: not bus.with_store(lambda s: s.hazards.robots("warden"))[0].localised, what="warden1 lost"
+        )
         explorer.publish("hazard", hazard(1))
         wait_for(lambda: held_and_announced(bus) == (1, 1), what="the second hazard held")
         warden.publish("localisation", {"localised": True})

@@ -30,7 +30,7 @@ from fleetbus.schemas.routing import (
 )
 from fleetbus.workers.attempts import AttemptLimit
 from fleetbus.workers.ingest import IngestConsumer
-from fleetbus.workers.store import Store, open_store
+from fleetbus.workers.store import Repositories, repositories_for
 from fleetbus.workers.validation import Accepted, Rejected
 from tests.factories import hazard, status
 from tests.support import Bus, notifications_until, wait_for
@@ -59,7 +59,7 @@ def in_queue(bus: Bus, name: str = INGEST_QUEUE) -> tuple[int, int]:
 
 
 def localised(bus: Bus) -> bool:
-    return all(robot.localised for robot in bus.with_store(lambda store: store.robots("warden")))
+    return all(robot.localised for robot in bus.with_store(lambda store: store.hazards.robots("warden")))
 
 
 def test_a_hazard_reaches_the_wardens_while_a_bulk_batch_is_stuck(bus: Bus) -> None:
@@ -113,7 +113,7 @@ def test_worker_killed_with_a_hazard_done_beside_a_stuck_batch(bus: Bus) -> None
         worker.send_signal(signal.SIGTERM)
         worker.wait(60)
     assert bus.count("status") == 1 and bus.count("hazard") == 2, "stored once each"
-    duplicates = bus.with_store(lambda store: store.duplicates("explorer1"))
+    duplicates = bus.with_store(lambda store: store.events.duplicates("explorer1"))
     assert [(d.seq, d.redelivered) for d in duplicates] == [(low.seq, True)]
     assert bus.gaps() == []
 
@@ -138,7 +138,7 @@ class CrashesOn:
 
 
 async def on_express_lane(
-    bus: Bus, connection: aio_pika.abc.AbstractConnection, store: Store, **options: Any
+    bus: Bus, connection: aio_pika.abc.AbstractConnection, store: Repositories, **options: Any
 ) -> tuple[aio_pika.abc.AbstractChannel, IngestConsumer]:
     """A consumer of the express lane on a channel of its own, as the worker makes it, with ``options``."""
     channel = await connection.channel(publisher_confirms=True)
@@ -146,7 +146,8 @@ async def on_express_lane(
     consumer = IngestConsumer(
         channel,
         await channel.get_queue(EXPRESS_QUEUE),
-        store,
+        store.events,
+        store.rejections,
         max_message_bytes=bus.settings.max_message_bytes,
         **options,
     )
@@ -158,10 +159,10 @@ async def express_consumer(
 ) -> tuple[aio_pika.abc.AbstractConnection, IngestConsumer]:
     """The express lane's consumer, with ``check`` and a limit of LIMIT."""
     connection = await aio_pika.connect(bus.admin_url)
-    store = open_store(bus.settings)
+    store = repositories_for(bus.settings)
     await store.open()
     _, consumer = await on_express_lane(
-        bus, connection, store, checks=[check], attempts=AttemptLimit(store, LIMIT)
+        bus, connection, store, checks=[check], attempts=AttemptLimit(store.attempts, LIMIT)
     )
     connection.close_callbacks.add(lambda *_: asyncio.ensure_future(store.close()))
     return connection, consumer
@@ -236,7 +237,7 @@ def test_a_worker_handing_the_express_lane_over_finishes_its_batch_before_the_ne
 
     async def hand_over() -> tuple[list[str], list[Event]]:
         connection = await aio_pika.connect(bus.admin_url)
-        store = open_store(bus.settings)
+        store = repositories_for(bus.settings)
         await store.open()
         log: list[str] = []
         release = asyncio.Event()

@@ -112,7 +112,7 @@ def test_a_lost_confirm_makes_a_resend_not_a_second_record(bus: Bus, link_for: l
         link.drop_connections()  # the robot notices, reconnects and sends its window again
         assert explorer.flush(60)
         wait_for(lambda: worker.stats().duplicates == 20, what="the 20 resent copies recognised")
-        duplicates = bus.with_store(lambda store: store.duplicates("explorer1"))
+        duplicates = bus.with_store(lambda store: store.events.duplicates("explorer1"))
     assert bus.count() == 20
     assert sorted(d.seq for d in duplicates) == [e.seq for e in sent]
     assert not any(d.redelivered for d in duplicates), "sent again by the robot, not redelivered"
@@ -179,6 +179,10 @@ def test_a_number_reused_in_its_epoch_is_dead_lettered_and_the_stored_event_kept
     assert str(first[0].message_id) in letter.detail and str(forged.message_id) in letter.detail
     stored = bus.find(EventQuery(robot_id="explorer1"))
     assert [r.message_id for r in stored] == [str(e.message_id) for e in first], "nothing stored changed"
+    hazards = bus.with_store(lambda repos: repos.hazards.open_hazards(None))
+    assert [h.event["message_id"] for h in hazards] == [str(e.message_id) for e in first], (
+        "the reused number registered no hazard"
+    )
 
 
 @pytest.mark.skipif(not MONGOECO_PYTHON.exists(), reason=NO_MONGODB)

@@ -17,7 +17,7 @@ LOCALISED = {"localised": True, "pose": {"x": 0.0, "y": 0.0}}
 
 
 def overflow_counts(bus: Bus) -> dict[str, int]:
-    counts = bus.with_store(lambda store: store.bound_counts())
+    counts = bus.with_store(lambda store: store.housekeeping.bound_counts())
     return {c.subject: c.count for c in counts if c.bound == "overflow"}
 
 

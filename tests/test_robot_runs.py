@@ -109,7 +109,7 @@ def localised_warden(bus: Bus) -> RobotClient:
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     warden.publish("localisation", {"localised": True})
     wait_for(
-        lambda: all(r.localised for r in bus.with_store(lambda store: store.robots("warden"))),
+        lambda: all(r.localised for r in bus.with_store(lambda store: store.hazards.robots("warden"))),
         what="warden1 localised",
     )
     return warden
@@ -123,7 +123,7 @@ def assert_hazards_delivered(bus: Bus, warden: RobotClient, runs: dict[str, int]
     wait_for(lambda: bus.count("hazard") == total, timeout=60, what=f"{total} hazards stored")
     notes = warden.receive(total, timeout=60)
     assert sorted((n.event.epoch, n.event.seq) for n in notes) == sorted(sent), "each announced once"
-    hazards = bus.with_store(lambda store: store.open_hazards(DEFAULT_MISSION))
+    hazards = bus.with_store(lambda store: store.hazards.open_hazards(DEFAULT_MISSION))
     assert [h.hazard_id for h in hazards] == list(range(1, total + 1))
     assert {h.state for h in hazards} == {HazardState.ANNOUNCED}
     assert peek_dead_letters(bus.admin_url) == [], "nothing dead-lettered (no sequence-reused)"
@@ -196,4 +196,4 @@ def test_two_processes_with_one_robot_account_publish_at_once(stored_bus: Bus, t
     assert len(set(epochs)) == 2
     assert peek_dead_letters(bus.admin_url) == [], "nothing dead-lettered (no sequence-reused)"
     assert_stored_once_in_order(bus, "explorer1", [(epoch, seq) for epoch in epochs for seq in range(1000)])
-    assert bus.gaps() == [] and bus.with_store(lambda store: store.duplicates()) == []
+    assert bus.gaps() == [] and bus.with_store(lambda store: store.events.duplicates()) == []

@@ -64,7 +64,7 @@ def worker_processes(bus: Bus, count: int) -> Iterator[list[subprocess.Popen[byt
 
 
 def hazard_states(bus: Bus) -> Counter[HazardState]:
-    return Counter(h.state for h in bus.with_store(lambda store: store.open_hazards("default")))
+    return Counter(h.state for h in bus.with_store(lambda store: store.hazards.open_hazards("default")))
 
 
 def in_parallel(*jobs: threading.Thread) -> None:
@@ -145,7 +145,9 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
         wait_for(lambda: hazard_states(bus) == {HazardState.HELD: 16}, what="16 hazards held")
         sent["warden1"] += keys([robots["warden1"].publish("localisation", {"localised": True})])
         wait_for(
-            lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.robots("warden"))}["warden1"],
+            lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.hazards.robots("warden"))}[
+                "warden1"
+            ],
             what="warden1 recorded as localised",
         )
         assert hazard_states(bus) == {HazardState.HELD: 16}, "one warden localised: still held"
@@ -191,7 +193,7 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
                 lambda name=name: bus.count(robot_id=name) == len(sent[name]), what=f"{name}'s events stored"
             )
 
-    hazards = {h.hazard_id: h for h in bus.with_store(lambda store: store.open_hazards("default"))}
+    hazards = {h.hazard_id: h for h in bus.with_store(lambda store: store.hazards.open_hazards("default"))}
     assert len(hazards) == 57 and all(h.state is HazardState.ANNOUNCED for h in hazards.values())
     for warden, received in notes.items():
         ids = [note.hazard_id for note in received]
@@ -211,7 +213,7 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
     )
     for name in robots:
         assert_stored_once_in_order(bus, name, sent[name])
-    assert bus.gaps() == [] and bus.with_store(lambda store: store.duplicates()) == []
+    assert bus.gaps() == [] and bus.with_store(lambda store: store.events.duplicates()) == []
 
 
 def _hazard_ids(notes: list[Notification]) -> list[int | None]:
@@ -372,7 +374,7 @@ def express_holder(bus: Bus, workers: list[subprocess.Popen[bytes]]) -> subproce
 
     def holder() -> subprocess.Popen[bytes] | None:
         now = time.time()
-        for lease in bus.with_store(lambda store: store.leases(shard_lease(0))):
+        for lease in bus.with_store(lambda store: store.leases.leases(shard_lease(0))):
             pid = int(lease.holder.split(":")[1])
             if lease.expires_at.timestamp() > now:
                 return next((w for w in workers if w.pid == pid and w.poll() is None), None)
@@ -442,7 +444,7 @@ def test_the_express_lanes_single_active_consumer_is_all_the_hazard_service_need
             assert not warden.is_alive() and warden.error is None, warden.error
 
     assert total >= hazards
-    registered = bus.with_store(lambda store: store.open_hazards("default"))
+    registered = bus.with_store(lambda store: store.hazards.open_hazards("default"))
     assert sorted(h.hazard_id for h in registered) == list(range(1, total + 1)), "every hazard id once"
     assert len({(h.robot_id, h.epoch, h.seq) for h in registered}) == total
     assert all(h.state is HazardState.CLAIMED for h in registered)

@@ -95,11 +95,11 @@ def test_a_bug_in_a_service_is_an_internal_error_not_the_callers_fault(
 ) -> None:
     real = fleetbus.workers.runner.hazard_services
 
-    def with_a_bug(store: Any) -> dict[str, Any]:
+    def with_a_bug(hazards: Any, channels: Any) -> dict[str, Any]:
         async def broken(caller: str, params: dict[str, Any]) -> Any:
             return {}["mission"]  # a KeyError, as a bug would raise one
 
-        return {**real(store), "hazard.open": broken}
+        return {**real(hazards, channels), "hazard.open": broken}
 
     monkeypatch.setattr(fleetbus.workers.runner, "hazard_services", with_a_bug)
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))

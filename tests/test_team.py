@@ -31,7 +31,7 @@ WARDEN, EXPLORER = RobotKind.WARDEN, RobotKind.EXPLORER
 
 def states(bus: Bus) -> list[str]:
     """Each open hazard's state, in id order."""
-    return [h.state.value for h in bus.with_store(lambda store: store.open_hazards("default"))]
+    return [h.state.value for h in bus.with_store(lambda store: store.hazards.open_hazards("default"))]
 
 
 def held_because(bus: Bus) -> list[str | None]:
@@ -44,7 +44,9 @@ def held_because(bus: Bus) -> list[str | None]:
 def handled(bus: Bus, robot: str, localised: bool) -> bool:
     """Whether the hazard service recorded ``robot``'s latest localisation: every express event it
     published before that one has been handled too (one queue, one consumer, in order)."""
-    return any(r.name == robot and r.localised is localised for r in bus.with_store(lambda s: s.robots()))
+    return any(
+        r.name == robot and r.localised is localised for r in bus.with_store(lambda s: s.hazards.robots())
+    )
 
 
 def team(bus: Bus) -> dict[str, Any]:
@@ -81,7 +83,7 @@ def test_removing_a_warden_that_never_localised_releases_the_held_hazards(stored
         notes = warden1.receive(2, timeout=30)
         assert [n.hazard_id for n in notes] == [1, 2] and [n.event for n in notes] == sent
         wait_for(lambda: states(bus) == ["announced", "announced"], what="both marked announced")
-    assert [r.name for r in bus.with_store(lambda store: store.robots(WARDEN.value))] == ["warden1"]
+    assert [r.name for r in bus.with_store(lambda store: store.hazards.robots(WARDEN.value))] == ["warden1"]
 
 
 def test_with_no_warden_hazards_wait_for_the_first_to_join_and_localise(stored_bus: Bus) -> None:
@@ -212,7 +214,7 @@ def test_a_hazard_claimed_before_its_announcement_was_marked_still_reaches_every
         wait_for(lambda: handled(bus, "explorer1", True), what="the hazard registered, held for warden2")
     # what a worker killed after warden1's copy left: warden1 claimed, the mark never came
     bus.with_store(
-        lambda store: store.apply_transition(
+        lambda store: store.hazards.apply_transition(
             "default", 1, "warden1", CLAIM_WHILE_OPEN, datetime.now(timezone.utc)
         )
     )
@@ -225,7 +227,7 @@ def test_a_hazard_claimed_before_its_announcement_was_marked_still_reaches_every
             [(1, "claimed"), (2, "announced")],
         ], "hazard 1 announced again once, claimed, before the next"
     assert states(bus) == ["claimed", "announced"]
-    assert bus.with_store(lambda store: store.unannounced_hazards()) == []
+    assert bus.with_store(lambda store: store.hazards.unannounced_hazards()) == []
 
 
 @pytest.fixture

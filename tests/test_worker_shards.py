@@ -19,7 +19,9 @@ def test_each_worker_takes_its_share_and_a_stopped_workers_shards_move_at_once(b
             assert set(first.context.shards.held).isdisjoint(second.context.shards.held)
         wait_for(lambda: len(first.context.shards.held) == 4, timeout=10, what="the first takes all back")
         assert list(bus.shard_holders().values()) == [4]
-    assert bus.with_store(lambda store: store.leases()) == [], "a stopped worker leaves no lease behind"
+    assert bus.with_store(lambda store: store.leases.leases()) == [], (
+        "a stopped worker leaves no lease behind"
+    )
 
 
 def test_shares_differ_by_one_at_most_and_cover_every_shard() -> None:

@@ -21,7 +21,7 @@ def _block_notifications(bus: Bus) -> None:
 
 
 def _statuses(bus: Bus) -> list[WorkerStatus]:
-    return bus.with_store(lambda store: store.statuses())
+    return bus.with_store(lambda store: store.statuses.statuses())
 
 
 def test_a_worker_retrying_shows_what_it_waits_for_and_its_counts(stored_bus: Bus) -> None:

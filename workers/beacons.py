@@ -13,8 +13,9 @@ from typing import Any
 
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.rpc import Handler, ServiceError
-from fleetbus.workers.store.base import EventQuery
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.base import EventQuery, EventStore
+from fleetbus.workers.store.beacons import BeaconRegistry
+from fleetbus.workers.store.hazards import CoordinationStore
 from fleetbus.workers.validation import Accepted, Rejected, RejectReason
 
 DEFAULT_WINDOW = timedelta(minutes=10)
@@ -23,14 +24,14 @@ DEFAULT_WINDOW = timedelta(minutes=10)
 class KnownRobotsOnly:
     """Refuses beacon sightings from robots the team does not know (not registered with the store)."""
 
-    def __init__(self, store: Store) -> None:
-        self._store = store
+    def __init__(self, team: CoordinationStore) -> None:
+        self._team = team
 
     async def check(self, accepted: Sequence[Accepted]) -> dict[int, Rejected]:
         sightings = [i for i, item in enumerate(accepted) if item.event.type is EventType.BEACON]
         if not sightings:
             return {}
-        known = {robot.name for robot in await self._store.robots()}
+        known = {robot.name for robot in await self._team.robots()}
         return {
             i: Rejected(
                 RejectReason.UNKNOWN_ROBOT,
@@ -42,11 +43,11 @@ class KnownRobotsOnly:
         }
 
 
-async def stranded(store: Store, since: datetime) -> list[dict[str, Any]]:
+async def stranded(beacons: BeaconRegistry, events: EventStore, since: datetime) -> list[dict[str, Any]]:
     """Beacons heard since ``since``: where (registry and robot pose), when, by whom; first heard first."""
-    registry = {beacon.beacon_id: beacon for beacon in await store.beacons()}
+    registry = {beacon.beacon_id: beacon for beacon in await beacons.beacons()}
     seen: dict[str, dict[str, Any]] = {}
-    for record in await store.find_events(EventQuery(type=EventType.BEACON.value, since=since)):
+    for record in await events.find_events(EventQuery(type=EventType.BEACON.value, since=since)):
         beacon_id = record.body["beacon_id"]
         beacon = registry.get(beacon_id)
         entry = seen.setdefault(
@@ -70,7 +71,7 @@ async def stranded(store: Store, since: datetime) -> list[dict[str, Any]]:
     return list(seen.values())
 
 
-def beacon_services(store: Store) -> dict[str, Handler]:
+def beacon_services(beacons: BeaconRegistry, events: EventStore) -> dict[str, Handler]:
     def window(params: dict[str, Any]) -> datetime:
         minutes = params.get("minutes", DEFAULT_WINDOW.total_seconds() / 60)
         if not isinstance(minutes, (int, float)) or minutes <= 0:
@@ -84,22 +85,22 @@ def beacon_services(store: Store) -> dict[str, Handler]:
         return value
 
     async def info(caller: str, params: dict[str, Any]) -> Any:
-        beacon = await store.get_beacon(beacon_id(params))
+        beacon = await beacons.get_beacon(beacon_id(params))
         if beacon is None:
             raise ServiceError(f"no beacon {params['beacon_id']!r} in the registry")
         return beacon.as_dict()
 
     async def stranded_people(caller: str, params: dict[str, Any]) -> Any:
-        return await stranded(store, window(params))
+        return await stranded(beacons, events, window(params))
 
     async def goal(caller: str, params: dict[str, Any]) -> Any:
-        for entry in await stranded(store, window(params)):
+        for entry in await stranded(beacons, events, window(params)):
             if entry["location"] is not None and entry["visited_at"] is None:
                 return entry
         return None
 
     async def visited(caller: str, params: dict[str, Any]) -> Any:
-        beacon = await store.mark_visited(beacon_id(params), datetime.now(timezone.utc))
+        beacon = await beacons.mark_visited(beacon_id(params), datetime.now(timezone.utc))
         if beacon is None:
             raise ServiceError(f"no beacon {params['beacon_id']!r} in the registry")
         return beacon.as_dict()

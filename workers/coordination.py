@@ -33,8 +33,14 @@ from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
 from fleetbus.schemas.team import TEAM_CHANGE_TYPE, TeamChange
 from fleetbus.workers.notifier import deliver_to_inbox, publish_notification
-from fleetbus.workers.store.hazards import Hazard, HazardState, HeldHazards, NewHazard, RobotState
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.hazards import (
+    CoordinationStore,
+    Hazard,
+    HazardState,
+    HeldHazards,
+    NewHazard,
+    RobotState,
+)
 from fleetbus.workers.team import gate, why_closed
 from fleetbus.workers.validation import Accepted
 
@@ -50,13 +56,13 @@ LATE_AFTER = timedelta(seconds=5)
 class HazardCoordinator:
     def __init__(
         self,
-        store: Store,
+        hazards: CoordinationStore,
         notify_exchange: AbstractExchange,
         default_exchange: AbstractExchange,
         service_user: str,
         late_after: timedelta = LATE_AFTER,
     ) -> None:
-        self._store = store
+        self._hazards = hazards
         self._exchange = notify_exchange
         self._inboxes = default_exchange
         self._service_user = service_user
@@ -71,16 +77,16 @@ class HazardCoordinator:
         for item in relevant:
             event = item.event
             if event.type is EventType.LOCALISATION:
-                await self._store.set_localised(event.robot_id, event.body.localised, event.sent_at)
+                await self._hazards.set_localised(event.robot_id, event.body.localised, event.sent_at)
             else:
                 hazards.append(NewHazard.of(item.record))
-        # registering (SQLite did it as it stored the batch), reading the held list and the
-        # gate: one store call on the hazard's way
-        return await self._announce(await self._store.hold_hazards(hazards))
+        # registering (the one place a hazard is registered, on every backend), reading the held
+        # list and the gate: one store call on the hazard's way
+        return await self._announce(await self._hazards.hold_hazards(hazards))
 
     async def reconsider(self) -> int:
         """After a team change: catch up wardens put back in service, announce if the gate opened."""
-        return await self._announce(await self._store.hold_hazards(()))
+        return await self._announce(await self._hazards.hold_hazards(()))
 
     async def _announce(self, held: HeldHazards) -> int:
         state = gate(held.wardens)
@@ -100,10 +106,10 @@ class HazardCoordinator:
                     f"no inbox for {', '.join(state.wardens)}"
                 )
                 log.warning("hazard %s:%d stays held: %s", hazard.mission_id, hazard.hazard_id, reason)
-                await self._store.mark_announced(held.hazards[:index], now)
-                await self._store.note_held(held.hazards[index:], reason)
+                await self._hazards.mark_announced(held.hazards[:index], now)
+                await self._hazards.note_held(held.hazards[index:], reason)
                 return sent + index
-        await self._store.mark_announced(held.hazards, now)
+        await self._hazards.mark_announced(held.hazards, now)
         return sent + len(held.hazards)
 
     async def _deliver(
@@ -127,7 +133,7 @@ class HazardCoordinator:
         if not wardens:
             return sent
         now = datetime.now(timezone.utc)
-        missed = [h for h in await self._store.open_hazards(None) if h.state is not HazardState.HELD]
+        missed = [h for h in await self._hazards.open_hazards(None) if h.state is not HazardState.HELD]
         for warden in wardens:
             for hazard in missed:
                 note = self.notification(hazard, now, hazard.state)
@@ -137,7 +143,7 @@ class HazardCoordinator:
                     )
                     break
                 sent += 1
-            await self._store.caught_up(warden.name)
+            await self._hazards.caught_up(warden.name)
             log.info("%s back in service: sent it %d open hazards", warden.name, len(missed))
         return sent
 

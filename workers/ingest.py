@@ -28,8 +28,9 @@ from fleetbus.workers.attempts import AttemptLimit
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
 from fleetbus.workers.store.base import StoreUnavailable, WriteResult
-from fleetbus.workers.store.interface import Store
 from fleetbus.workers.store.ledger import Duplicate
+from fleetbus.workers.store.rejections import RejectionLog
+from fleetbus.workers.store.repositories import EventLog
 from fleetbus.workers.validation import Accepted, Rejected, RejectReason, classify
 
 log = logging.getLogger("fleetbus.ingest")
@@ -94,7 +95,8 @@ class IngestConsumer:
         self,
         channel: AbstractChannel,
         queue: AbstractQueue,
-        store: Store,
+        events: EventLog,
+        rejections: RejectionLog,
         *,
         max_message_bytes: int,
         checks: Sequence[BatchCheck] = (),
@@ -109,7 +111,8 @@ class IngestConsumer:
     ) -> None:
         self._channel = channel
         self._queue = queue
-        self._store = store
+        self._events = events
+        self._rejections = rejections
         self._checks = checks
         self._services = services
         self._urgent = frozenset(urgent)
@@ -200,7 +203,7 @@ class IngestConsumer:
     async def _reject(self, message: AbstractIncomingMessage, verdict: Rejected) -> None:
         """Dead-letter it with its reason: recorded first (idempotent), then moved by the broker."""
         rejection = rejection_of(message, verdict.reason.value, verdict.detail)
-        await self._retrying(lambda: self._store.record_rejections([rejection]))
+        await self._retrying(lambda: self._rejections.record_rejections([rejection]))
         await move_to_dead_letters(message)
         self.stats.rejected += 1
         self.stats.by_reason[verdict.reason.value] = self.stats.by_reason.get(verdict.reason.value, 0) + 1
@@ -249,7 +252,7 @@ class IngestConsumer:
             at = datetime.now(timezone.utc)
             records = [item.record for _, item in candidates]
             urgent = any(item.event.type in self._urgent for _, item in candidates)
-            stored = await self._retrying(lambda: self._store.store_batch(records, at, urgent=urgent))
+            stored = await self._retrying(lambda: self._events.store_batch(records, at, urgent=urgent))
             candidates = [
                 (message, Accepted(item.event, record))
                 for (message, item), record in zip(candidates, stored.records, strict=True)
@@ -260,7 +263,7 @@ class IngestConsumer:
                 notified = await self._retrying(lambda service=service: service.handle(accepted))
                 self.stats.notified += notified
             # bookkeeping after the services, so that it does not delay notifications
-            await self._retrying(lambda: self._store.record_duplicates(duplicates))
+            await self._retrying(lambda: self._events.record_duplicates(duplicates))
             self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
         if control is not None and instructions:
             self.stats.notified += await self._retrying(lambda: control.handle(instructions))

@@ -22,16 +22,15 @@ from fleetbus.schemas.pgm import check_pgm
 from fleetbus.schemas.routing import EventType, Topic
 from fleetbus.workers.notifier import publish_notification
 from fleetbus.workers.rpc import Handler, ServiceError
-from fleetbus.workers.store.interface import Store
-from fleetbus.workers.store.maps import MapVersion
+from fleetbus.workers.store.maps import MapStore, MapVersion
 from fleetbus.workers.validation import Accepted, Rejected, RejectReason
 
 
 class MapCheck:
     """Refuses map events whose image is incomplete, corrupt or not a PGM (before anything is stored)."""
 
-    def __init__(self, store: Store) -> None:
-        self._store = store
+    def __init__(self, maps: MapStore) -> None:
+        self._maps = maps
 
     async def check(self, accepted: Sequence[Accepted]) -> dict[int, Rejected]:
         in_batch: dict[str, dict[int, bytes]] = {}
@@ -41,22 +40,22 @@ class MapCheck:
             if event.type is EventType.MAP_CHUNK:
                 in_batch.setdefault(str(event.body.map_id), {})[event.body.index] = event.body.data
             elif event.type is EventType.MAP and event.body.image is not None:
-                if await self._store.committed_map(event.robot_id, event.epoch, event.seq) is not None:
+                if await self._maps.committed_map(event.robot_id, event.epoch, event.seq) is not None:
                     continue  # a redelivery of a map already committed
                 try:
-                    await assemble(self._store, item, in_batch.get(str(event.body.image.map_id), {}))
+                    await assemble(self._maps, item, in_batch.get(str(event.body.image.map_id), {}))
                 except ValueError as error:
                     refused[index] = Rejected(RejectReason.BAD_MAP, str(error))
         return refused
 
 
-async def assemble(store: Store, item: Accepted, in_batch: dict[int, bytes] | None = None) -> bytes:
+async def assemble(maps: MapStore, item: Accepted, in_batch: dict[int, bytes] | None = None) -> bytes:
     """The map event's whole image, checked; ValueError says what is wrong."""
     body = item.event.body
     if body.pgm is not None:
         return body.pgm
     image = body.image
-    chunks = {**await store.staged_map_chunks(str(image.map_id)), **(in_batch or {})}
+    chunks = {**await maps.staged_map_chunks(str(image.map_id)), **(in_batch or {})}
     missing = sorted(set(range(image.chunks)) - chunks.keys())
     if missing:
         shown = ", ".join(map(str, missing[:10])) + (" ..." if len(missing) > 10 else "")
@@ -76,8 +75,8 @@ async def assemble(store: Store, item: Accepted, in_batch: dict[int, bytes] | No
 class MapService:
     """After a batch is stored: stage chunks, commit maps, notify the robots of each new version."""
 
-    def __init__(self, store: Store, notify_exchange: AbstractExchange, service_user: str) -> None:
-        self._store = store
+    def __init__(self, maps: MapStore, notify_exchange: AbstractExchange, service_user: str) -> None:
+        self._maps = maps
         self._exchange = notify_exchange
         self._service_user = service_user
 
@@ -86,9 +85,9 @@ class MapService:
         for item in accepted:
             event = item.event
             if event.type is EventType.MAP_CHUNK:
-                await self._store.stage_map_chunk(str(event.body.map_id), event.body.index, event.body.data)
+                await self._maps.stage_map_chunk(str(event.body.map_id), event.body.index, event.body.data)
             elif event.type is EventType.MAP:
-                version = await self._store.committed_map(
+                version = await self._maps.committed_map(
                     event.robot_id, event.epoch, event.seq
                 ) or await self._commit(item)
                 note = Notification(
@@ -104,8 +103,8 @@ class MapService:
 
     async def _commit(self, item: Accepted) -> MapVersion:
         event = item.event
-        image = await assemble(self._store, item)
-        return await self._store.commit_map(
+        image = await assemble(self._maps, item)
+        return await self._maps.commit_map(
             event.robot_id,
             event.epoch,
             event.seq,
@@ -118,11 +117,11 @@ class MapService:
         )
 
 
-async def missing_version(store: Store, version: int | None) -> str:
+async def missing_version(maps: MapStore, version: int | None) -> str:
     """Why there is no such version: none stored yet, pruned (older than what is kept), or never made."""
     if version is None:
         return "no map has been stored yet"
-    latest = await store.map_version()
+    latest = await maps.map_version()
     if latest is not None and version < latest.version:
         return (
             f"map version {version} was pruned: each robot's newest maps are kept "
@@ -131,31 +130,31 @@ async def missing_version(store: Store, version: int | None) -> str:
     return f"no map version {version}"
 
 
-def map_services(store: Store) -> dict[str, Handler]:
+def map_services(maps: MapStore) -> dict[str, Handler]:
     async def latest(caller: str, params: dict[str, Any]) -> Any:
         version = params.get("version")
         if version is not None and (not isinstance(version, int) or isinstance(version, bool)):
             raise ServiceError(f"version must be an integer, not {version!r}")
-        found = await store.map_version(version)
+        found = await maps.map_version(version)
         if found is None:
-            raise ServiceError(await missing_version(store, version))
+            raise ServiceError(await missing_version(maps, version))
         # a fetch begins here: the version stays while the robot reads its chunks
-        await store.note_map_read(found.version, datetime.now(timezone.utc))
+        await maps.note_map_read(found.version, datetime.now(timezone.utc))
         return found.as_dict()
 
     async def chunk(caller: str, params: dict[str, Any]) -> Any:
         version, index = params.get("version"), params.get("index")
         if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in (version, index)):
             raise ServiceError("version and index must be non-negative integers")
-        found = await store.map_version(version)
+        found = await maps.map_version(version)
         if found is None:
-            raise ServiceError(await missing_version(store, version))
+            raise ServiceError(await missing_version(maps, version))
         if index >= found.chunks:
             raise ServiceError(f"map version {version} has no chunk {index}")
         return {
             "version": version,
             "index": index,
-            "data": base64.b64encode(await store.map_chunk(version, index)).decode(),
+            "data": base64.b64encode(await maps.map_chunk(version, index)).decode(),
         }
 
     return {"map.latest": latest, "map.chunk": chunk}

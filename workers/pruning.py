@@ -24,8 +24,9 @@ from fleetbus.schemas.routing import EventType
 from fleetbus.workers.bounds import Bounds
 from fleetbus.workers.recorder.retention import Retention, policy_for
 from fleetbus.workers.store.base import StoreError
-from fleetbus.workers.store.interface import Store
-from fleetbus.workers.store.maps import versions_to_prune
+from fleetbus.workers.store.housekeeping import Housekeeping
+from fleetbus.workers.store.leases import LeaseStore
+from fleetbus.workers.store.maps import MapStore, versions_to_prune
 
 log = logging.getLogger("fleetbus.pruning")
 
@@ -46,14 +47,18 @@ Prune = Callable[[datetime | None, int | None, int], Awaitable[int]]
 class Pruner:
     def __init__(
         self,
-        store: Store,
+        housekeeping: Housekeeping,
+        leases: LeaseStore,
+        maps: MapStore,
         bounds: Bounds,
         holder: str,
         *,
         batch: int = BATCH,
         pause_s: float = PAUSE_S,
     ) -> None:
-        self._store = store
+        self._housekeeping = housekeeping
+        self._leases = leases
+        self._maps = maps
         self._bounds = bounds
         self._holder = holder
         self._batch = batch
@@ -70,14 +75,14 @@ class Pruner:
         if self._task is not None:
             await asyncio.gather(self._task, return_exceptions=True)
         with contextlib.suppress(StoreError):
-            await self._store.release_lease(LEASE, self._holder)
+            await self._leases.release_lease(LEASE, self._holder)
 
     async def _run(self) -> None:
         every = self._bounds.prune_every_s
         while not self._stop.is_set():
             now = datetime.now(timezone.utc)
             try:
-                if await self._store.acquire_lease(
+                if await self._leases.acquire_lease(
                     LEASE, self._holder, now + timedelta(seconds=3 * every), now
                 ):
                     await self.prune(now)
@@ -92,23 +97,27 @@ class Pruner:
         """One round; what it removed, by bound and subject (also added to the store's counts, even
         when the round ends half way: what went is counted)."""
         now = now or datetime.now(timezone.utc)
-        store, bounds = self._store, self._bounds
+        housekeeping, bounds = self._housekeeping, self._bounds
         counts: Counts = {}
         try:
             for event_type in EventType:
                 policy = policy_for(bounds.events, event_type.value)
                 if policy is not None:
                     counts[("events", event_type.value)] = await self._apply(
-                        policy, now, lambda *a, t=event_type.value: store.prune_events(t, *a)
+                        policy, now, lambda *a, t=event_type.value: housekeeping.prune_events(t, *a)
                     )
-            counts[("duplicates", "seen")] = await self._apply(bounds.duplicates, now, store.prune_duplicates)
-            counts[("discards", "beacon")] = await self._apply(bounds.discards, now, store.prune_discards)
+            counts[("duplicates", "seen")] = await self._apply(
+                bounds.duplicates, now, housekeeping.prune_duplicates
+            )
+            counts[("discards", "beacon")] = await self._apply(
+                bounds.discards, now, housekeeping.prune_discards
+            )
             counts.update(await self._prune_maps(now))
             counts[("map-staging", "chunks")] = await self._expire_staged_chunks(now)
         finally:
             counts = {key: count for key, count in counts.items() if count}
             if counts:
-                await store.count_bounded(counts, now)
+                await housekeeping.count_bounded(counts, now)
                 log.info(
                     "pruned %s",
                     ", ".join(f"{n} {bound} ({subject})" for (bound, subject), n in sorted(counts.items())),
@@ -128,13 +137,13 @@ class Pruner:
             await asyncio.sleep(self._pause_s)
 
     async def _prune_maps(self, now: datetime) -> Counts:
-        versions = await self._store.map_versions()
+        versions = await self._maps.map_versions()
         robots = {version.version: version.robot_id for version in versions}
-        reads = await self._store.map_reads()
+        reads = await self._maps.map_reads()
         counts: Counts = {}
         for number in versions_to_prune(versions, reads, self._bounds.map_versions, now - MAP_FETCH_GRACE):
             # one version per write: an image may be large
-            if await self._store.delete_map_versions([number]):
+            if await self._maps.delete_map_versions([number]):
                 key = ("map-versions", robots[number])
                 counts[key] = counts.get(key, 0) + 1
             await asyncio.sleep(self._pause_s)
@@ -143,7 +152,7 @@ class Pruner:
     async def _expire_staged_chunks(self, now: datetime) -> int:
         before = now - self._bounds.map_staging_ttl
         chunks = 0
-        while expired := await self._store.expire_staged_chunks(before, STAGED_MAPS_PER_BATCH):
+        while expired := await self._maps.expire_staged_chunks(before, STAGED_MAPS_PER_BATCH):
             for map_id, count in sorted(expired.items()):
                 log.warning(
                     "map %s: %d staged chunks expired, no map event named them within %s",

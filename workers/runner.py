@@ -40,7 +40,7 @@ from fleetbus.workers.services import hazard_services
 from fleetbus.workers.shards import ShardPool
 from fleetbus.workers.signals import stop_on_signals
 from fleetbus.workers.status import report_status
-from fleetbus.workers.store import Store, open_store
+from fleetbus.workers.store import Repositories, repositories_for
 from fleetbus.workers.telemetry import BatteryWatch
 
 log = logging.getLogger("fleetbus.worker")
@@ -56,7 +56,7 @@ class WorkerContext:
     shards: ShardPool
     rpc: RpcServer
     discards: DiscardCounter
-    store: Store
+    repositories: Repositories
     pruner: Pruner
     overflow: OverflowCounter
     stats: IngestStats = field(default_factory=IngestStats)
@@ -121,8 +121,8 @@ def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
 
 async def start_worker(settings: Settings, url: str) -> WorkerContext:
     """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`fleetbus.workers.setup`)."""
-    store = open_store(settings)
-    await store.open()
+    repositories = repositories_for(settings)
+    await repositories.open()
     connection = await aio_pika.connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
     setup = await connection.channel()
     await declare(setup, [core_topology(settings.ingest_shards)])
@@ -142,20 +142,23 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             # one party that registers hazards and announces them, so it needs no lock across workers
             late_after = timedelta(seconds=settings.late_after_s)
             coordinator = HazardCoordinator(
-                store, notify_exchange, channel.default_exchange, SERVICE_USER, late_after
+                repositories.hazards, notify_exchange, channel.default_exchange, SERVICE_USER, late_after
             )
             services: list[BatchService] = [coordinator]
             control = TeamChanges(coordinator)
         else:
-            checks = [KnownRobotsOnly(store), MapCheck(store)]
+            checks = [KnownRobotsOnly(repositories.hazards), MapCheck(repositories.maps)]
             services = [
-                MapService(store, notify_exchange, SERVICE_USER),
-                BatteryWatch(store, notify_exchange, SERVICE_USER, settings.battery_low_percent),
+                MapService(repositories.maps, notify_exchange, SERVICE_USER),
+                BatteryWatch(
+                    repositories.events, notify_exchange, SERVICE_USER, settings.battery_low_percent
+                ),
             ]
         consumer = IngestConsumer(
             channel,
             queue,
-            store,
+            repositories.events,
+            repositories.rejections,
             max_message_bytes=settings.max_message_bytes,
             checks=checks,
             services=services,
@@ -163,7 +166,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             batch_size=prefetch,
             stats=stats,
             # the express queue is classic: the worker keeps its delivery limit
-            attempts=AttemptLimit(store, INGEST_DELIVERY_LIMIT) if express else None,
+            attempts=AttemptLimit(repositories.attempts, INGEST_DELIVERY_LIMIT) if express else None,
             # on stop, the next worker gets the express lane only once this batch is done
             exclusive=express,
             control=control,
@@ -178,25 +181,35 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             queues.append(await consume(EXPRESS_QUEUE, EXPRESS_PREFETCH, express=True))
         return ShardConsumer(shard, queues)
 
-    shards = ShardPool(store, settings.ingest_shards, consume_shard)
+    shards = ShardPool(repositories.leases, settings.ingest_shards, consume_shard)
     await shards.start()
     rpc_channel = await connection.channel()
     await rpc_channel.set_qos(prefetch_count=32)
     rpc = RpcServer(
         rpc_channel,
         await rpc_channel.get_queue(RPC_QUEUE),
-        {**hazard_services(store), **beacon_services(store), **map_services(store)},
+        {
+            **hazard_services(repositories.hazards, repositories.channels),
+            **beacon_services(repositories.beacons, repositories.events),
+            **map_services(repositories.maps),
+        },
     )
     await rpc.start()
     discard_channel = await connection.channel()
     await discard_channel.set_qos(prefetch_count=64)
-    discards = DiscardCounter(discard_channel, await discard_channel.get_queue(BEACON_DISCARD_QUEUE), store)
+    discards = DiscardCounter(
+        discard_channel, await discard_channel.get_queue(BEACON_DISCARD_QUEUE), repositories.discards
+    )
     await discards.start()
-    pruner = Pruner(store, bounds(settings), shards.holder)
+    pruner = Pruner(
+        repositories.housekeeping, repositories.leases, repositories.maps, bounds(settings), shards.holder
+    )
     pruner.start()
-    overflow = OverflowCounter(discard_channel, await discard_channel.get_queue(OVERFLOW_QUEUE), store)
+    overflow = OverflowCounter(
+        discard_channel, await discard_channel.get_queue(OVERFLOW_QUEUE), repositories.housekeeping
+    )
     await overflow.start()
-    return WorkerContext(connection, shards, rpc, discards, store, pruner, overflow, stats)
+    return WorkerContext(connection, shards, rpc, discards, repositories, pruner, overflow, stats)
 
 
 async def run_worker(
@@ -214,7 +227,7 @@ async def run_worker(
         context.shards.holder,
         context.shards.shards,
         sorted(context.shards.held) or "none yet",
-        context.store.name,
+        context.repositories.name,
     )
     if on_started is not None:
         on_started(context)
@@ -223,7 +236,7 @@ async def run_worker(
     reported = asyncio.Event()
     reporting = asyncio.create_task(
         report_status(
-            context.store,
+            context.repositories.statuses,
             context.shards.holder,
             context.stats,
             reported,
@@ -246,5 +259,5 @@ async def run_worker(
         stopping.cancel()
         reporting.cancel()
         await context.connection.close()
-        await context.store.close()
+        await context.repositories.close()
         log.info("worker stopped: %s", context.stats)

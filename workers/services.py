@@ -7,8 +7,14 @@ from typing import Any
 
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.rpc import Handler, ServiceError
-from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN, DEFAULT_MISSION, Hazard, HazardRefused
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.hazards import (
+    CLAIM_WHILE_OPEN,
+    DEFAULT_MISSION,
+    CoordinationStore,
+    Hazard,
+    HazardRefused,
+)
 from fleetbus.workers.team import gate
 
 
@@ -19,32 +25,32 @@ def _hazard_id(params: dict[str, Any]) -> int:
     return value
 
 
-def hazard_services(store: Store) -> dict[str, Handler]:
+def hazard_services(hazards: CoordinationStore, channels: ChannelStore) -> dict[str, Handler]:
     async def _mission(caller: str, params: dict[str, Any]) -> str:
         """The mission asked for, else the one the caller is being recorded under, else the default."""
         if params.get("mission_id"):
             return str(params["mission_id"])
-        return (await store.recording_missions([caller])).get(caller, DEFAULT_MISSION)
+        return (await channels.recording_missions([caller])).get(caller, DEFAULT_MISSION)
 
     async def get(caller: str, params: dict[str, Any]) -> Any:
         mission = await _mission(caller, params)
-        hazard = await store.get_hazard(mission, _hazard_id(params))
+        hazard = await hazards.get_hazard(mission, _hazard_id(params))
         if hazard is None:
             raise ServiceError(f"no hazard {params['hazard_id']} in mission {mission!r}")
         return hazard.as_dict()
 
     async def open_hazards(caller: str, params: dict[str, Any]) -> Any:
-        return [h.as_dict() for h in await store.open_hazards(await _mission(caller, params))]
+        return [h.as_dict() for h in await hazards.open_hazards(await _mission(caller, params))]
 
     async def claim_announced(mission: str, hazard_id: int, caller: str, now: datetime) -> Hazard:
         """A claim; of a hazard still held, too, when the gate is open: its announcement reached the
         caller's inbox before the service could mark it announced."""
         try:
-            return await store.claim(mission, hazard_id, caller, now)
+            return await hazards.claim(mission, hazard_id, caller, now)
         except HazardRefused:
-            if not gate(await store.robots(RobotKind.WARDEN.value)).open:
+            if not gate(await hazards.robots(RobotKind.WARDEN.value)).open:
                 raise
-            return await store.apply_transition(mission, hazard_id, caller, CLAIM_WHILE_OPEN, now)
+            return await hazards.apply_transition(mission, hazard_id, caller, CLAIM_WHILE_OPEN, now)
 
     async def transition(action: str, caller: str, params: dict[str, Any]) -> Any:
         mission, hazard_id, now = (
@@ -56,11 +62,11 @@ def hazard_services(store: Store) -> dict[str, Handler]:
             if action == "claim":
                 hazard = await claim_announced(mission, hazard_id, caller, now)
             elif action == "release":
-                hazard = await store.release(mission, hazard_id, caller, now)
+                hazard = await hazards.release(mission, hazard_id, caller, now)
             elif action == "reached":
-                hazard = await store.mark_reached(mission, hazard_id, caller, now)
+                hazard = await hazards.mark_reached(mission, hazard_id, caller, now)
             else:
-                hazard = await store.mark_cleared(mission, hazard_id, caller, now)
+                hazard = await hazards.mark_cleared(mission, hazard_id, caller, now)
         except HazardRefused as refused:
             raise ServiceError(str(refused)) from None
         return hazard.as_dict()
@@ -85,7 +91,7 @@ def hazard_services(store: Store) -> dict[str, Handler]:
                 "updated_at": r.updated_at.isoformat() if r.updated_at else None,
                 "in_service": r.in_service,
             }
-            for r in await store.robots(RobotKind.WARDEN.value)
+            for r in await hazards.robots(RobotKind.WARDEN.value)
         ]
 
     return {

@@ -22,9 +22,8 @@ from typing import Any
 from fleetbus.broker.team_changes import tell_hazard_service
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.schemas.team import TeamChange, TeamChangeKind
-from fleetbus.workers.store.base import EventQuery
-from fleetbus.workers.store.hazards import Hazard, HazardState, RobotState
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.base import EventQuery, EventStore
+from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState
 
 NO_WARDEN = "no warden in the team"
 
@@ -128,17 +127,19 @@ class TeamMember:
         }
 
 
-async def last_seen(store: Store, name: str) -> datetime | None:
+async def last_seen(events: EventStore, name: str) -> datetime | None:
     """When the newest event ``name`` sent arrived (the events' (robot, sent_at) index)."""
-    newest = await store.find_events(EventQuery(robot_id=name, limit=1, newest_first=True))
+    newest = await events.find_events(EventQuery(robot_id=name, limit=1, newest_first=True))
     return newest[0].received_at if newest else None
 
 
-async def read_team(store: Store, now: datetime, stale_after: timedelta) -> list[TeamMember]:
+async def read_team(
+    team: CoordinationStore, events: EventStore, now: datetime, stale_after: timedelta
+) -> list[TeamMember]:
     """Every robot of the team, by name, with when it was last heard from."""
     members = []
-    for robot in await store.robots():
-        seen = await last_seen(store, robot.name)
+    for robot in await team.robots():
+        seen = await last_seen(events, robot.name)
         members.append(TeamMember(robot, seen, seen is None or now - seen > stale_after))
     return members
 
@@ -155,27 +156,31 @@ class NotAWarden(TeamRefused):
     pass
 
 
-async def set_in_service(store: Store, name: str, in_service: bool, by: str, at: datetime) -> RobotState:
+async def set_in_service(
+    team: CoordinationStore, name: str, in_service: bool, by: str, at: datetime
+) -> RobotState:
     """Take a warden out of service, or put it back; refused for a robot not in the team or not a
     warden (only wardens count for the gate and receive announcements)."""
-    known = {robot.name: robot for robot in await store.robots()}
+    known = {robot.name: robot for robot in await team.robots()}
     robot = known.get(name)
     if robot is None:
         raise NotInTeam(f"{name} is not in the team (known: {', '.join(sorted(known)) or 'none'})")
     if robot.kind != RobotKind.WARDEN.value:
         raise NotAWarden(f"{name} is {_a(robot.kind)}: only wardens are taken out of service")
-    changed = await store.set_in_service(name, in_service, by, at)
+    changed = await team.set_in_service(name, in_service, by, at)
     if changed is None:  # removed meanwhile
         raise NotInTeam(f"{name} is not in the team")
     return changed
 
 
-async def change_service(store: Store, admin_url: str, name: str, in_service: bool, by: str) -> RobotState:
+async def change_service(
+    team: CoordinationStore, admin_url: str, name: str, in_service: bool, by: str
+) -> RobotState:
     """Take a warden out of service or put it back (recorded with ``by`` and the time), then tell
     the hazard service: without the warden the gate may open; put back, it is owed what it missed.
     Raises :class:`TeamRefused`, or ``HazardServiceNotTold`` (the change is stored; repeat it)."""
     at = datetime.now(timezone.utc)
-    robot = await set_in_service(store, name, in_service, by, at)
+    robot = await set_in_service(team, name, in_service, by, at)
     change = TeamChange(
         robot=name, change=TeamChangeKind.IN if in_service else TeamChangeKind.OUT, by=by, at=at
     )
@@ -183,11 +188,11 @@ async def change_service(store: Store, admin_url: str, name: str, in_service: bo
     return robot
 
 
-async def leave_team(store: Store, admin_url: str, name: str, by: str) -> bool:
+async def leave_team(team: CoordinationStore, admin_url: str, name: str, by: str) -> bool:
     """Take a robot whose account is removed out of the team; a warden's leaving is told to the
     hazard service (the gate may open without it). False: it was not in the team."""
-    robot = next((r for r in await store.robots() if r.name == name), None)
-    if robot is None or not await store.remove_robot(name):
+    robot = next((r for r in await team.robots() if r.name == name), None)
+    if robot is None or not await team.remove_robot(name):
         return False
     if robot.kind == RobotKind.WARDEN.value:
         change = TeamChange(robot=name, change=TeamChangeKind.REMOVED, by=by, at=datetime.now(timezone.utc))

@@ -15,22 +15,21 @@ from aio_pika.abc import AbstractExchange
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import EventType, Topic
 from fleetbus.workers.notifier import publish_notification
-from fleetbus.workers.store.base import EventQuery
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.base import EventQuery, EventStore
 from fleetbus.workers.validation import Accepted
 
 
 class BatteryWatch:
     def __init__(
-        self, store: Store, notify_exchange: AbstractExchange, service_user: str, threshold: float
+        self, events: EventStore, notify_exchange: AbstractExchange, service_user: str, threshold: float
     ) -> None:
-        self._store = store
+        self._events = events
         self._exchange = notify_exchange
         self._service_user = service_user
         self.threshold = threshold
 
     async def _was_low_before(self, item: Accepted) -> bool:
-        previous = await self._store.find_events(
+        previous = await self._events.find_events(
             EventQuery(
                 type=EventType.STATUS.value,
                 robot_id=item.event.robot_id,

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.auth import ChannelsDep, EventsDep, MissionsDep, ServiceDep, require_role
 from fleetbus.api.models import (
     CheckInOut,
     CheckOutOut,
@@ -55,13 +55,15 @@ async def list_missions(user: Reader, svc: ServiceDep, state: MissionState | Non
 
 
 @router.get("/missions/{mission_id}", response_model=MissionDetail)
-async def get_mission(mission_id: str, user: Reader, svc: ServiceDep) -> MissionDetail:
+async def get_mission(
+    mission_id: str, user: Reader, svc: ServiceDep, channels: ChannelsDep, missions: MissionsDep
+) -> MissionDetail:
     mission = await svc.missions.get(user, mission_id)
     return MissionDetail(
         **MissionOut.of(mission).model_dump(),
-        mounts=[MountOut.of(m) for m in await svc.store.mounts(mission_id=mission_id)],
-        checked_in=[CheckInOut.of(c) for c in await svc.store.check_ins(mission_id=mission_id)],
-        history=[StateChangeOut.of(c) for c in await svc.store.mission_history(mission_id)],
+        mounts=[MountOut.of(m) for m in await channels.mounts(mission_id=mission_id)],
+        checked_in=[CheckInOut.of(c) for c in await channels.check_ins(mission_id=mission_id)],
+        history=[StateChangeOut.of(c) for c in await missions.mission_history(mission_id)],
     )
 
 
@@ -82,12 +84,13 @@ async def mission_events(
     mission_id: str,
     user: DataReader,
     svc: ServiceDep,
+    events: EventsDep,
     type: str | None = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
 ) -> list[EventOut]:
     """The events recorded under the mission, each with its provenance."""
     await svc.missions.get(user, mission_id)
-    records = await svc.store.find_events(EventQuery(type=type, mission_id=mission_id, limit=limit))
+    records = await events.find_events(EventQuery(type=type, mission_id=mission_id, limit=limit))
     return [EventOut.of(r) for r in records]
 
 

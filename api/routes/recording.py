@@ -15,7 +15,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query
 from pydantic import BaseModel, Field
 
-from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.auth import EventsDep, ServiceDep, require_role
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole as R
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
@@ -211,10 +211,10 @@ async def robot_timeline(
 
 
 @router.get("/trace/{message_id}", response_model=TraceOut)
-async def trace_message(message_id: str, user: Analyst, svc: ServiceDep) -> TraceOut:
+async def trace_message(message_id: str, user: Analyst, svc: ServiceDep, events: EventsDep) -> TraceOut:
     """Where a message came from (broker-validated user, exchange, routing key, mission, times), what
     the service made of it, the queues that receive it and their consumers now, what it caused."""
-    result = await trace(svc.recording, message_id, events=svc.store, route_map=await svc.route_map())
+    result = await trace(svc.recording, message_id, events=events, route_map=await svc.route_map())
     if not result.records:
         raise HTTPException(404, detail=f"message {message_id!r} was never recorded")
 

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Response
 
-from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.auth import ServiceDep, UsersDep, require_role
 from fleetbus.api.errors import BadRequest, Forbidden
 from fleetbus.api.models import PasswordChange, PasswordSet, RoleChange, UserCreate, UserOut
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
@@ -33,13 +33,13 @@ async def change_my_password(body: PasswordChange, user: Anyone, svc: ServiceDep
 
 
 @router.get("/users", response_model=list[UserOut])
-async def list_users(user: AdminOrSupervisor, svc: ServiceDep, role: UserRole | None = None) -> list[UserOut]:
+async def list_users(user: AdminOrSupervisor, users: UsersDep, role: UserRole | None = None) -> list[UserOut]:
     """Every user for an admin; the robots for a supervisor."""
     if user.role is R.SUPERVISOR:
         if role not in (None, R.ROBOT):
             raise Forbidden("a supervisor sees robots only")
         role = R.ROBOT
-    return [UserOut.of(u) for u in await svc.store.users(role)]
+    return [UserOut.of(u) for u in await users.users(role)]
 
 
 @router.post("/users", response_model=UserOut, status_code=201)

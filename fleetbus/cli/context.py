@@ -24,7 +24,7 @@ from fleetbus.dev.fallback import resolve_broker
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
 from fleetbus.workers.recorder.queries import EVENT_TYPES
-from fleetbus.workers.store import open_recording_store, run_with_store
+from fleetbus.workers.store import open_recording_store, run_with_repositories
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 
 T = TypeVar("T")
@@ -64,7 +64,7 @@ def dead_letters(limit: int = 1000) -> list[DeadLetter]:
     return peek_dead_letters(
         endpoint().amqp_url,
         limit,
-        reasons=lambda keys: run_with_store(config, lambda store: store.rejections(keys)),
+        reasons=lambda keys: run_with_repositories(config, lambda repos: repos.rejections.rejections(keys)),
     )
 
 

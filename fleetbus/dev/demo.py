@@ -33,7 +33,7 @@ from fleetbus.publishers.rpc import ServiceRefused
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.settings import Settings
 from fleetbus.workers.setup import set_up_service
-from fleetbus.workers.store import open_recording_store, run_with_store
+from fleetbus.workers.store import open_recording_store, run_with_repositories
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.beacons import Beacon
 from fleetbus.workers.store.hazards import HazardState
@@ -122,7 +122,7 @@ class Scenario:
         self.report.ok &= ok
 
     def held_announced(self) -> tuple[int, int]:
-        hazards = run_with_store(self.settings, lambda store: store.open_hazards("default"))
+        hazards = run_with_repositories(self.settings, lambda repos: repos.hazards.open_hazards("default"))
         held = sum(h.state is HazardState.HELD for h in hazards)
         return held, len(hazards) - held
 
@@ -145,7 +145,13 @@ class Scenario:
             "2 hazards detected before the wardens localised", f"held {counts[0]}, announced {counts[1]}"
         )
         self.robots[WARDENS[0]].publish(EventType.LOCALISATION, {"localised": True})
-        wait(lambda: run_with_store(self.settings, lambda s: s.robots("warden"))[0].localised)
+        wait(
+            lambda: (
+                run_with_repositories(self.settings, lambda repos: repos.hazards.robots("warden"))[
+                    0
+                ].localised
+            )
+        )
         held, announced = self.held_announced()
         self.step(f"{WARDENS[0]} localised, {WARDENS[1]} not yet", f"held {held}, announced {announced}")
         self.robots[WARDENS[1]].publish(EventType.LOCALISATION, {"localised": True})
@@ -200,7 +206,7 @@ class Scenario:
         )
 
     def beacons(self) -> None:
-        run_with_store(self.settings, lambda store: store.put_beacons(BEACONS))
+        run_with_repositories(self.settings, lambda repos: repos.beacons.put_beacons(BEACONS))
         guide = self.robots[GUIDE]
         guide.publish_many(
             [
@@ -210,7 +216,10 @@ class Scenario:
         )
         wait(
             lambda: (
-                run_with_store(self.settings, lambda s: s.count_events(EventType.BEACON.value, GUIDE)) >= 2
+                run_with_repositories(
+                    self.settings, lambda repos: repos.events.count_events(EventType.BEACON.value, GUIDE)
+                )
+                >= 2
             )
         )
         stranded = [entry["label"] for entry in guide.stranded(minutes=5)]
@@ -222,8 +231,8 @@ class Scenario:
 
 
 def count_stored(settings: Settings, since: datetime) -> dict[str, int]:
-    records = run_with_store(
-        settings, lambda store: store.find_events(EventQuery(since=since, robot_id=EXPLORER))
+    records = run_with_repositories(
+        settings, lambda repos: repos.events.find_events(EventQuery(since=since, robot_id=EXPLORER))
     )
     counts: dict[str, int] = {}
     for record in records:
@@ -270,9 +279,9 @@ def run_demo(
         }
         for name, kind in TEAM:
             register_robot(demo_settings, name, kind)
-            run_with_store(
+            run_with_repositories(
                 demo_settings,
-                lambda store, name=name: store.set_localised(name, False, datetime.now(timezone.utc)),
+                lambda repos, name=name: repos.hazards.set_localised(name, False, datetime.now(timezone.utc)),
             )
         clients = {
             name: RobotClient(account.amqp_url, state_dir=demo_settings.robots_dir)

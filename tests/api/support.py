@@ -87,15 +87,17 @@ class Api:
         owner: str = "client1",
     ) -> Mission:
         """A mission with a ready plan, walked to ``state`` directly in the store."""
-        store, now = self.service.store, datetime.now(timezone.utc)
-        mission = self.run(lambda: store.create_mission(use_case, f"{use_case} test", owner, READY_PLAN, now))
+        store, now = self.service.repositories, datetime.now(timezone.utc)
+        mission = self.run(
+            lambda: store.missions.create_mission(use_case, f"{use_case} test", owner, READY_PLAN, now)
+        )
         machine, mission_id = machine_for(use_case), mission.mission_id
         for target in PATHS[use_case]:
             if mission.state is state:
                 break
             source = machine.step(mission.state, target, None).source
             mission = self.run(
-                lambda s=source, t=target: store.transition_mission(mission_id, s, t, "test", now)
+                lambda s=source, t=target: store.missions.transition_mission(mission_id, s, t, "test", now)
             )
         assert mission.state is state, f"{use_case} has no path to {state.value} here"
         return mission
@@ -112,7 +114,7 @@ def running_api(bus: Bus, settings: Settings | None = None) -> Iterator[Api]:
         try:
             yield api
         finally:
-            for user in api.run(service.store.users):
+            for user in api.run(service.repositories.users.users):
                 bus.api.delete_user(user.name)
 
 

@@ -57,7 +57,7 @@ def test_passwords_are_stored_as_argon2_hashes_and_broker_passwords_encrypted(ap
     broker_password = api.client.post("/auth/token", data={"username": "alice", "password": PASSWORD}).json()[
         "broker"
     ]["password"]
-    stored = api.run(lambda: api.service.store.get_user("alice"))
+    stored = api.run(lambda: api.service.repositories.users.get_user("alice"))
     assert stored is not None and stored.password_hash is not None and stored.broker_secret is not None
     assert stored.password_hash.startswith("$argon2id$") and PASSWORD not in stored.password_hash
     assert broker_password not in stored.broker_secret
@@ -125,7 +125,7 @@ def test_a_guest_calling_an_admin_endpoint_gets_403_and_is_logged(
         403,
         {"detail": "role guest may not do this; it needs admin"},
     )
-    assert api.run(lambda: api.service.store.get_user("mallory")) is None
+    assert api.run(lambda: api.service.repositories.users.get_user("mallory")) is None
     assert api.bus.api.get_user("mallory") is None, "no broker account made either"
     assert refusals(caplog) == [
         "refused 403: POST /users from testclient as visitor (guest): "
@@ -141,7 +141,7 @@ def test_a_new_account_is_inactive_may_not_log_in_and_has_no_broker_access(api: 
         403,
         {"detail": "user newbie is inactive: an admin must give it a role first"},
     )
-    stored = api.run(lambda: api.service.store.get_user("newbie"))
+    stored = api.run(lambda: api.service.repositories.users.get_user("newbie"))
     assert stored is not None
     url = api.service.accounts.broker_credentials(stored).amqp_url
     with pytest.raises(pika.exceptions.ProbableAccessDeniedError):
@@ -185,4 +185,4 @@ def test_users_cannot_be_created_twice_or_with_bad_names_or_short_passwords(api:
     for body, status, detail in cases:
         reply = api.call("admin1", "POST", "/users", json=body)
         assert reply.status_code == status and detail in reply.json()["detail"], (body, reply.text)
-    assert [u.name for u in api.run(api.service.store.users)] == ["admin1", "alice"]
+    assert [u.name for u in api.run(api.service.repositories.users.users)] == ["admin1", "alice"]

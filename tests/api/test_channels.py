@@ -48,7 +48,7 @@ def api(request: pytest.FixtureRequest, bus: Bus) -> Iterator[Api]:
 
 
 def robot_url(api: Api, name: str) -> str:
-    user = api.run(lambda: api.service.store.get_user(name))
+    user = api.run(lambda: api.service.repositories.users.get_user(name))
     assert user is not None
     return api.service.accounts.broker_credentials(user).amqp_url
 
@@ -127,10 +127,11 @@ def test_events_are_recorded_under_the_mission_only_while_checked_in(api: Api) -
     assert {(h["user_id"], h["exchange"], h["routing_key"]) for h in hazards.values()} == {
         ("explorer1", "explorer1.events", "explorer1.hazard")
     }
-    numbered = api.run(lambda: api.service.store.open_hazards(mission_id))
+    numbered = api.run(lambda: api.service.repositories.hazards.open_hazards(mission_id))
     assert [(h.hazard_id, h.seq) for h in numbered] == [(1, 2), (2, 3), (3, 4)], "hazard ids per mission"
     actions = [
-        (c.actor, c.action.value) for c in api.run(lambda: api.service.store.channel_changes(mission_id))
+        (c.actor, c.action.value)
+        for c in api.run(lambda: api.service.repositories.channels.channel_changes(mission_id))
     ]
     assert actions == [("oper1", "mount"), ("oper1", "check-in"), ("oper1", "check-out")]
     report = api.call("super1", "GET", "/channels/bindings").json()
@@ -238,7 +239,9 @@ def test_commands_reach_only_a_mounted_robot_and_a_supervisor_can_force_an_unmou
     with pytest.raises(PublishRefused, match="unroutable"):
         send_command(operator_url, "oper1", "explorer1", "go")
     [change] = [
-        c for c in api.run(lambda: api.service.store.channel_changes(mission_id)) if c.actor == "super1"
+        c
+        for c in api.run(lambda: api.service.repositories.channels.channel_changes(mission_id))
+        if c.actor == "super1"
     ]
     assert (change.action.value, change.operator, change.robot) == ("force-unmount", "oper1", "explorer1")
 
@@ -260,7 +263,7 @@ def test_the_broker_bindings_are_checked_against_the_service_and_repaired(api: A
         QueueBinding("explorer1.events", "oper1.stream", "#"),
         QueueBinding("oper1.commands", "explorer1.commands", "explorer1.#"),
     }
-    last = api.run(lambda: api.service.store.channel_changes(limit=1))[0]
+    last = api.run(lambda: api.service.repositories.channels.channel_changes(limit=1))[0]
     assert last.action.value == "repair" and "oper2.stream" in last.detail
 
 

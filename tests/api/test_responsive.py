@@ -116,7 +116,9 @@ def test_an_authenticated_get_answers_while_a_password_is_being_checked(bus: Bus
         made = http.post("/users", json=body, headers={"Authorization": f"Bearer {token}"})
         assert made.status_code == 201, made.text
         bus.with_store(
-            lambda store: store.update_user("slowpoke", datetime.now(timezone.utc), password_hash=slow_hash)
+            lambda store: store.users.update_user(
+                "slowpoke", datetime.now(timezone.utc), password_hash=slow_hash
+            )
         )
         logged_in, got = asyncio.run(_log_in_then_get(base, "slowpoke", token))
     assert got < logged_in, "the GET waited for the password check of the login sent before it"

@@ -72,12 +72,12 @@ def throwaway(api: Api, role: UserRole) -> str:
 def user_change(method: str, suffix: str, json: Any) -> Callable[[Api, UserRole], Call]:
     def prepare(api: Api, role: UserRole) -> Call:
         name = throwaway(api, role)
-        before = api.run(lambda: api.service.store.get_user(name))
+        before = api.run(lambda: api.service.repositories.users.get_user(name))
         return Call(
             method,
             f"/users/{name}{suffix}",
             json,
-            lambda: api.run(lambda: api.service.store.get_user(name)) == before,
+            lambda: api.run(lambda: api.service.repositories.users.get_user(name)) == before,
         )
 
     return prepare
@@ -93,24 +93,24 @@ def step_for(api: Api, role: UserRole) -> Call:
     }
     source, target = steps.get(role, (S.PLANNING, S.FILED))
     mission = api.mission(source)
-    state = lambda: api.run(lambda: api.service.store.get_mission(mission.mission_id)).state  # noqa: E731
+    state = lambda: api.run(lambda: api.service.repositories.missions.get_mission(mission.mission_id)).state  # noqa: E731
     return Call(
         "POST", f"/missions/{mission.mission_id}/transitions", {"to": target.value}, lambda: state() is source
     )
 
 
 def user_of(api: Api, name: str) -> Any:
-    return api.run(lambda: api.service.store.get_user(name))
+    return api.run(lambda: api.service.repositories.users.get_user(name))
 
 
 def release_operator(api: Api) -> None:
     """Free oper1 and robot1 for the next case: unmount, check out."""
-    store = api.service.store
+    store = api.service.repositories
     supervisor = user_of(api, "super1")
-    for mount in api.run(lambda: store.mounts(robot="robot1")):
+    for mount in api.run(lambda: store.channels.mounts(robot="robot1")):
         api.run(lambda m=mount: api.service.channels.unmount(supervisor, m.robot))
-    for check_in in api.run(lambda: store.check_ins(operator="oper1")):
-        api.run(lambda c=check_in: store.check_out("oper1", c.mission_id))
+    for check_in in api.run(lambda: store.channels.check_ins(operator="oper1")):
+        api.run(lambda c=check_in: store.channels.check_out("oper1", c.mission_id))
 
 
 def mounted_robot(api: Api, role: UserRole) -> Call:
@@ -119,7 +119,7 @@ def mounted_robot(api: Api, role: UserRole) -> Call:
     return Call(
         "DELETE",
         "/mounts/robot1",
-        unchanged=lambda: bool(api.run(lambda: api.service.store.mounts(robot="robot1"))),
+        unchanged=lambda: bool(api.run(lambda: api.service.repositories.channels.mounts(robot="robot1"))),
     )
 
 
@@ -156,14 +156,16 @@ def warden_service(action: str) -> Callable[[Api, UserRole], Call]:
     """A warden registered for this case, to take out of service (or, taken out, to put back)."""
 
     def prepare(api: Api, role: UserRole) -> Call:
-        name, store = f"warden-{action}-{role.value}", api.service.store
-        api.run(lambda: store.register_robot(name, RobotKind.WARDEN.value))
+        name, store = f"warden-{action}-{role.value}", api.service.repositories
+        api.run(lambda: store.hazards.register_robot(name, RobotKind.WARDEN.value))
         if action == "in":
-            api.run(lambda: store.set_in_service(name, False, "test", datetime.now(timezone.utc)))
-        before = api.run(lambda: store.robots())
+            api.run(lambda: store.hazards.set_in_service(name, False, "test", datetime.now(timezone.utc)))
+        before = api.run(lambda: store.hazards.robots())
 
         return Call(
-            "POST", f"/team/{name}/{action}", unchanged=lambda: api.run(lambda: store.robots()) == before
+            "POST",
+            f"/team/{name}/{action}",
+            unchanged=lambda: api.run(lambda: store.hazards.robots()) == before,
         )
 
     return prepare
@@ -190,7 +192,7 @@ CASES = [
             "POST",
             "/users",
             {"name": f"made-by-{role.value}", "role": "client"},
-            lambda: api.run(lambda: api.service.store.get_user(f"made-by-{role.value}")) is None,
+            lambda: api.run(lambda: api.service.repositories.users.get_user(f"made-by-{role.value}")) is None,
         ),
     ),
     Case("GET", "/users/{name}", frozenset({R.ADMIN, R.SUPERVISOR}), 200, fixed("GET", "/users/robot1")),

@@ -22,7 +22,7 @@ from tests.support import Bus
 
 
 def url_of(api: Api, name: str) -> str:
-    user = api.run(lambda: api.service.store.get_user(name))
+    user = api.run(lambda: api.service.repositories.users.get_user(name))
     assert user is not None
     return api.service.accounts.broker_credentials(user).amqp_url
 

@@ -38,7 +38,7 @@ def robot(api: Api, name: str) -> RobotClient:
 
 
 def held(api: Api) -> list[str]:
-    return [h.state.value for h in api.run(lambda: api.service.store.open_hazards("default"))]
+    return [h.state.value for h in api.run(lambda: api.service.repositories.hazards.open_hazards("default"))]
 
 
 def test_an_operator_takes_a_warden_out_of_service_and_back_on_record(api: Api) -> None:

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 from pymongo import AsyncMongoClient
 
-from fleetbus.workers.store.interface import Store
-from fleetbus.workers.store.mongo import MongoEventStore
+from fleetbus.workers.store.mongo import mongo_repositories
 from fleetbus.workers.store.mongo_recordings import MongoRecordingStore
 from fleetbus.workers.store.recordings import RecordingStore
-from fleetbus.workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.repositories import Repositories
+from fleetbus.workers.store.sqlite import sqlite_repositories
 from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
 from tests.store.mongodb import mongodb_url  # noqa: F401  (re-exported fixture)
 
@@ -34,14 +34,15 @@ async def fresh_database(url: str) -> AsyncIterator[str]:
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])
-async def store(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Store]:
+async def store(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Repositories]:
+    """Every repository on each backend, over a fresh database."""
     if request.param == "sqlite":
-        async with SQLiteEventStore(tmp_path / "store.sqlite3") as adapter:
-            yield adapter
+        async with sqlite_repositories(tmp_path / "store.sqlite3") as repositories:
+            yield repositories
         return
     url: str = request.getfixturevalue("mongodb_url")
-    async with fresh_database(url) as database, MongoEventStore(url, database=database) as adapter:
-        yield adapter
+    async with fresh_database(url) as database, mongo_repositories(url, database=database) as repositories:
+        yield repositories
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])

@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-from fleetbus.workers.store.interface import Store
-from fleetbus.workers.store.mongo import MongoEventStore
-from fleetbus.workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.repositories import Repositories
 
 
-def second_connection(store: Store) -> Store:
+def second_connection(store: Repositories) -> Repositories:
     """Not yet opened; use ``async with``."""
-    if isinstance(store, SQLiteEventStore):
-        return SQLiteEventStore(store.path)
-    assert isinstance(store, MongoEventStore)
-    return MongoEventStore(store.url, database=store._database_name)
+    return store.again()

@@ -11,9 +11,9 @@ import pytest
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.discards import Discard
 from fleetbus.workers.store.hazards import NewHazard
-from fleetbus.workers.store.interface import Store
 from fleetbus.workers.store.ledger import Duplicate
 from fleetbus.workers.store.maps import MapVersion, versions_to_prune
+from fleetbus.workers.store.repositories import Repositories
 from tests.store.test_contract import EPOCH, record
 
 T0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
@@ -27,103 +27,105 @@ def received(robot: str, seq: int, type: str, minutes: int):
     )
 
 
-async def test_events_are_pruned_by_reception_time_oldest_first_in_batches(store: Store) -> None:
-    await store.write_events([received("r1", seq, "status", seq) for seq in range(7)])
-    await store.write_events([received("r1", 100, "behaviour", 0)])
+async def test_events_are_pruned_by_reception_time_oldest_first_in_batches(store: Repositories) -> None:
+    await store.events.write_events([received("r1", seq, "status", seq) for seq in range(7)])
+    await store.events.write_events([received("r1", 100, "behaviour", 0)])
     before = T0 + timedelta(minutes=5)  # seq 0-4 are older
-    assert await store.prune_events("status", before, None, 2) == 2, "a batch is at most its limit"
-    left = [r.seq for r in await store.find_events(EventQuery(type="status"))]
+    assert await store.housekeeping.prune_events("status", before, None, 2) == 2, (
+        "a batch is at most its limit"
+    )
+    left = [r.seq for r in await store.events.find_events(EventQuery(type="status"))]
     assert left == [2, 3, 4, 5, 6], "the oldest went first"
-    assert await store.prune_events("status", before, None, 10) == 3
-    assert await store.prune_events("status", before, None, 10) == 0
-    assert sorted(r.seq for r in await store.find_events(EventQuery())) == [5, 6, 100], (
+    assert await store.housekeeping.prune_events("status", before, None, 10) == 3
+    assert await store.housekeeping.prune_events("status", before, None, 10) == 0
+    assert sorted(r.seq for r in await store.events.find_events(EventQuery())) == [5, 6, 100], (
         "other types untouched"
     )
-    assert await store.prune_events("status", None, 1, 10) == 1, "beyond the newest one"
-    assert [r.seq for r in await store.find_events(EventQuery(type="status"))] == [6]
-    assert await store.prune_events("status", None, None, 10) == 0, "no limit, nothing goes"
+    assert await store.housekeeping.prune_events("status", None, 1, 10) == 1, "beyond the newest one"
+    assert [r.seq for r in await store.events.find_events(EventQuery(type="status"))] == [6]
+    assert await store.housekeeping.prune_events("status", None, None, 10) == 0, "no limit, nothing goes"
 
 
-async def test_events_received_at_the_same_moment_still_go_a_batch_at_a_time(store: Store) -> None:
-    await store.write_events([received("r1", seq, "status", 0) for seq in range(7)])
-    assert await store.prune_events("status", T0 + timedelta(minutes=1), None, 3) == 3
-    assert await store.prune_events("status", T0 + timedelta(minutes=1), None, 3) == 3
-    assert await store.count_events("status") == 1
+async def test_events_received_at_the_same_moment_still_go_a_batch_at_a_time(store: Repositories) -> None:
+    await store.events.write_events([received("r1", seq, "status", 0) for seq in range(7)])
+    assert await store.housekeeping.prune_events("status", T0 + timedelta(minutes=1), None, 3) == 3
+    assert await store.housekeeping.prune_events("status", T0 + timedelta(minutes=1), None, 3) == 3
+    assert await store.events.count_events("status") == 1
 
 
-async def test_the_event_of_a_hazard_not_yet_cleared_is_never_pruned(store: Store) -> None:
+async def test_the_event_of_a_hazard_not_yet_cleared_is_never_pruned(store: Repositories) -> None:
     events = [received("explorer1", seq, "hazard", seq) for seq in range(4)]
-    await store.write_events(events)
-    await store.hold_hazards([NewHazard.of(event) for event in events[:3]])
-    held = await store.held_hazards()
-    await store.mark_announced(held, T0)
+    await store.events.write_events(events)
+    await store.hazards.hold_hazards([NewHazard.of(event) for event in events[:3]])
+    held = await store.hazards.held_hazards()
+    await store.hazards.mark_announced(held, T0)
     first, second = held[0], held[1]
-    for step in (store.claim, store.mark_reached, store.mark_cleared):
+    for step in (store.hazards.claim, store.hazards.mark_reached, store.hazards.mark_cleared):
         await step(first.mission_id, first.hazard_id, "warden1", T0)
     # hazard 1 is cleared, 2 and 3 are open, seq 3 never became a hazard: only 1 and 3 may go
     later = T0 + timedelta(days=1)
-    assert await store.prune_events("hazard", later, None, 1) == 1
-    assert await store.prune_events("hazard", later, None, 10) == 1
-    assert await store.prune_events("hazard", later, None, 10) == 0
-    left = {r.seq for r in await store.find_events(EventQuery(type="hazard"))}
+    assert await store.housekeeping.prune_events("hazard", later, None, 1) == 1
+    assert await store.housekeeping.prune_events("hazard", later, None, 10) == 1
+    assert await store.housekeeping.prune_events("hazard", later, None, 10) == 0
+    left = {r.seq for r in await store.events.find_events(EventQuery(type="hazard"))}
     assert left == {second.seq, held[2].seq} == {1, 2}
 
 
-async def test_duplicates_and_discards_are_pruned_by_age_and_by_count(store: Store) -> None:
+async def test_duplicates_and_discards_are_pruned_by_age_and_by_count(store: Repositories) -> None:
     # one batch's duplicates share their time: the count goes by the store's own order
     same_time = T0 + timedelta(minutes=10)
-    await store.record_duplicates(
+    await store.events.record_duplicates(
         [Duplicate("r1", EPOCH, seq, f"m{seq}", T0 + timedelta(minutes=seq), False) for seq in range(3)]
     )
-    await store.record_duplicates(
+    await store.events.record_duplicates(
         [Duplicate("r1", EPOCH, seq, f"m{seq}", same_time, True) for seq in range(3, 6)]
     )
-    assert await store.prune_duplicates(T0 + timedelta(minutes=2), None, 10) == 2
-    assert await store.prune_duplicates(None, 2, 1) == 1, "a batch is at most its limit"
-    assert await store.prune_duplicates(None, 2, 10) == 1
-    assert sorted(d.seq for d in await store.duplicates()) == [4, 5], "the last two recorded stay"
-    await store.record_discards(
+    assert await store.housekeeping.prune_duplicates(T0 + timedelta(minutes=2), None, 10) == 2
+    assert await store.housekeeping.prune_duplicates(None, 2, 1) == 1, "a batch is at most its limit"
+    assert await store.housekeeping.prune_duplicates(None, 2, 10) == 1
+    assert sorted(d.seq for d in await store.events.duplicates()) == [4, 5], "the last two recorded stay"
+    await store.discards.record_discards(
         [
             Discard("r1.beacon", "r1.x", "r1", f"d{i}", "no header", T0 + timedelta(minutes=i))
             for i in range(4)
         ]
     )
-    assert await store.prune_discards(T0 + timedelta(minutes=1), None, 10) == 1
-    assert await store.prune_discards(None, 2, 10) == 1
-    assert [d.message_id for d in await store.recent_discards()] == ["d3", "d2"]
+    assert await store.housekeeping.prune_discards(T0 + timedelta(minutes=1), None, 10) == 1
+    assert await store.housekeeping.prune_discards(None, 2, 10) == 1
+    assert [d.message_id for d in await store.discards.recent_discards()] == ["d3", "d2"]
 
 
-async def test_map_versions_can_be_listed_marked_read_and_deleted(store: Store) -> None:
+async def test_map_versions_can_be_listed_marked_read_and_deleted(store: Repositories) -> None:
     for seq in range(3):
-        await store.commit_map("explorer1", EPOCH, seq, b"P5 map %d" % seq, META, T0, "0" * 64, 4, None)
-    assert [v.version for v in await store.map_versions()] == [3, 2, 1]
-    await store.note_map_read(1, T0 + timedelta(minutes=1))
-    assert await store.map_reads() == {1: T0 + timedelta(minutes=1)}
-    assert await store.delete_map_versions([1, 2]) == 2
-    assert await store.delete_map_versions([1]) == 0
-    assert [v.version for v in await store.map_versions()] == [3]
-    assert await store.map_version(1) is None
+        await store.maps.commit_map("explorer1", EPOCH, seq, b"P5 map %d" % seq, META, T0, "0" * 64, 4, None)
+    assert [v.version for v in await store.maps.map_versions()] == [3, 2, 1]
+    await store.maps.note_map_read(1, T0 + timedelta(minutes=1))
+    assert await store.maps.map_reads() == {1: T0 + timedelta(minutes=1)}
+    assert await store.maps.delete_map_versions([1, 2]) == 2
+    assert await store.maps.delete_map_versions([1]) == 0
+    assert [v.version for v in await store.maps.map_versions()] == [3]
+    assert await store.maps.map_version(1) is None
     with pytest.raises(Exception, match="no chunk"):
-        await store.map_chunk(1, 0)
-    assert (await store.map_version()).version == 3
-    fourth = await store.commit_map("explorer1", EPOCH, 9, b"P5 next", META, T0, "0" * 64, 4, None)
+        await store.maps.map_chunk(1, 0)
+    assert (await store.maps.map_version()).version == 3
+    fourth = await store.maps.commit_map("explorer1", EPOCH, 9, b"P5 next", META, T0, "0" * 64, 4, None)
     assert fourth.version == 4, "a pruned version's number is never given again"
 
 
-async def test_staged_chunks_expire_by_map_after_their_last_chunk(store: Store) -> None:
-    await store.stage_map_chunk("old", 0, b"a")
-    await store.stage_map_chunk("old", 1, b"b")
+async def test_staged_chunks_expire_by_map_after_their_last_chunk(store: Repositories) -> None:
+    await store.maps.stage_map_chunk("old", 0, b"a")
+    await store.maps.stage_map_chunk("old", 1, b"b")
     now = datetime.now(timezone.utc)
-    assert await store.expire_staged_chunks(now - timedelta(hours=1), 10) == {}, "staged just now"
-    assert await store.expire_staged_chunks(now + timedelta(seconds=5), 10) == {"old": 2}
-    assert await store.staged_map_chunks("old") == {}
-    assert await store.expire_staged_chunks(now + timedelta(seconds=5), 10) == {}
+    assert await store.maps.expire_staged_chunks(now - timedelta(hours=1), 10) == {}, "staged just now"
+    assert await store.maps.expire_staged_chunks(now + timedelta(seconds=5), 10) == {"old": 2}
+    assert await store.maps.staged_map_chunks("old") == {}
+    assert await store.maps.expire_staged_chunks(now + timedelta(seconds=5), 10) == {}
 
 
-async def test_bound_counts_add_up(store: Store) -> None:
-    await store.count_bounded({("events", "status"): 3, ("overflow", "w1.inbox maxlen"): 0}, T0)
-    await store.count_bounded({("events", "status"): 2}, T0 + timedelta(minutes=1))
-    [count] = await store.bound_counts()
+async def test_bound_counts_add_up(store: Repositories) -> None:
+    await store.housekeeping.count_bounded({("events", "status"): 3, ("overflow", "w1.inbox maxlen"): 0}, T0)
+    await store.housekeeping.count_bounded({("events", "status"): 2}, T0 + timedelta(minutes=1))
+    [count] = await store.housekeeping.bound_counts()
     assert (count.bound, count.subject, count.count) == ("events", "status", 5)
     assert (count.first_at, count.last_at) == (T0, T0 + timedelta(minutes=1))
 

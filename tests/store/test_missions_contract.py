@@ -8,8 +8,8 @@ from datetime import datetime, timedelta, timezone
 import pytest
 
 from fleetbus.schemas.missions import MissionState
-from fleetbus.workers.store.interface import Store
 from fleetbus.workers.store.missions import MissionConflict
+from fleetbus.workers.store.repositories import Repositories
 from tests.store.second import second_connection
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
@@ -17,69 +17,69 @@ PLAN = {"geofence": {"frame_id": "map", "polygon": [{"x": 0, "y": 0}, {"x": 10, 
 S = MissionState
 
 
-async def test_missions_are_numbered_and_round_trip(store: Store) -> None:
-    first = await store.create_mission("survey", "Quay wall", "client1", PLAN, T0)
-    second = await store.create_mission("hazard-response", "Fire", "client2", {}, T0)
+async def test_missions_are_numbered_and_round_trip(store: Repositories) -> None:
+    first = await store.missions.create_mission("survey", "Quay wall", "client1", PLAN, T0)
+    second = await store.missions.create_mission("hazard-response", "Fire", "client2", {}, T0)
     assert (first.mission_id, first.number, second.mission_id) == ("m-1", 1, "m-2")
     assert first.state is S.PLANNING and first.plan == PLAN and first.created_at == T0
-    assert await store.get_mission("m-1") == first
-    assert await store.get_mission("m-9") is None
-    assert [m.mission_id for m in await store.missions()] == ["m-1", "m-2"]
-    assert [m.mission_id for m in await store.missions(owner="client2")] == ["m-2"]
+    assert await store.missions.get_mission("m-1") == first
+    assert await store.missions.get_mission("m-9") is None
+    assert [m.mission_id for m in await store.missions.missions()] == ["m-1", "m-2"]
+    assert [m.mission_id for m in await store.missions.missions(owner="client2")] == ["m-2"]
 
 
-async def test_the_tenth_mission_sorts_after_the_ninth(store: Store) -> None:
+async def test_the_tenth_mission_sorts_after_the_ninth(store: Repositories) -> None:
     for i in range(10):
-        await store.create_mission("survey", f"mission {i}", "client1", {}, T0)
-    assert [m.number for m in await store.missions()] == list(range(1, 11))
+        await store.missions.create_mission("survey", f"mission {i}", "client1", {}, T0)
+    assert [m.number for m in await store.missions.missions()] == list(range(1, 11))
 
 
-async def test_plans_change_only_in_the_expected_state(store: Store) -> None:
-    mission = await store.create_mission("survey", "Quay wall", "client1", {}, T0)
+async def test_plans_change_only_in_the_expected_state(store: Repositories) -> None:
+    mission = await store.missions.create_mission("survey", "Quay wall", "client1", {}, T0)
     later = T0 + timedelta(seconds=1)
-    updated = await store.update_plan(mission.mission_id, PLAN, S.PLANNING, later)
+    updated = await store.missions.update_plan(mission.mission_id, PLAN, S.PLANNING, later)
     assert updated.plan == PLAN and updated.updated_at == later
-    await store.transition_mission(mission.mission_id, S.PLANNING, S.IN_PROGRESS, "super1", later)
+    await store.missions.transition_mission(mission.mission_id, S.PLANNING, S.IN_PROGRESS, "super1", later)
     with pytest.raises(MissionConflict, match="is in_progress") as refused:
-        await store.update_plan(mission.mission_id, {}, S.PLANNING, later)
+        await store.missions.update_plan(mission.mission_id, {}, S.PLANNING, later)
     assert refused.value.current is not None and refused.value.current.plan == PLAN
 
 
-async def test_a_transition_from_the_wrong_state_changes_nothing(store: Store) -> None:
-    mission = await store.create_mission("survey", "Quay wall", "client1", {}, T0)
+async def test_a_transition_from_the_wrong_state_changes_nothing(store: Repositories) -> None:
+    mission = await store.missions.create_mission("survey", "Quay wall", "client1", {}, T0)
     with pytest.raises(MissionConflict) as refused:
-        await store.transition_mission(mission.mission_id, S.IN_PROGRESS, S.REVIEWING, "super1", T0)
+        await store.missions.transition_mission(mission.mission_id, S.IN_PROGRESS, S.REVIEWING, "super1", T0)
     assert refused.value.current == mission
     with pytest.raises(MissionConflict, match="no mission 'm-404'"):
-        await store.transition_mission("m-404", S.PLANNING, S.IN_PROGRESS, "super1", T0)
-    assert await store.get_mission(mission.mission_id) == mission
-    assert len(await store.mission_history(mission.mission_id)) == 1
+        await store.missions.transition_mission("m-404", S.PLANNING, S.IN_PROGRESS, "super1", T0)
+    assert await store.missions.get_mission(mission.mission_id) == mission
+    assert len(await store.missions.mission_history(mission.mission_id)) == 1
 
 
-async def test_of_two_concurrent_transitions_one_wins(store: Store) -> None:
-    mission = await store.create_mission("hazard-response", "Fire", "client1", {}, T0)
+async def test_of_two_concurrent_transitions_one_wins(store: Repositories) -> None:
+    mission = await store.missions.create_mission("hazard-response", "Fire", "client1", {}, T0)
     async with second_connection(store) as other:
         results = await asyncio.gather(
-            store.transition_mission(mission.mission_id, S.PLANNING, S.FILED, "planner1", T0),
-            other.transition_mission(mission.mission_id, S.PLANNING, S.CLOSED, "client1", T0),
+            store.missions.transition_mission(mission.mission_id, S.PLANNING, S.FILED, "planner1", T0),
+            other.missions.transition_mission(mission.mission_id, S.PLANNING, S.CLOSED, "client1", T0),
             return_exceptions=True,
         )
     winners = [r for r in results if not isinstance(r, BaseException)]
     losers = [r for r in results if isinstance(r, MissionConflict)]
     assert len(winners) == 1 and len(losers) == 1, results
     assert losers[0].current is not None and losers[0].current.state is winners[0].state
-    history = await store.mission_history(mission.mission_id)
+    history = await store.missions.mission_history(mission.mission_id)
     assert [(h.source, h.target) for h in history] == [(None, S.PLANNING), (S.PLANNING, winners[0].state)]
 
 
-async def test_history_records_who_and_when(store: Store) -> None:
-    mission = await store.create_mission("survey", "Quay wall", "client1", {}, T0)
+async def test_history_records_who_and_when(store: Repositories) -> None:
+    mission = await store.missions.create_mission("survey", "Quay wall", "client1", {}, T0)
     steps = [(S.PLANNING, S.IN_PROGRESS, "super1"), (S.IN_PROGRESS, S.REVIEWING, "fleetbus")]
     for i, (source, target, by) in enumerate(steps, start=1):
-        await store.transition_mission(
+        await store.missions.transition_mission(
             mission.mission_id, source, target, by, T0 + timedelta(minutes=i), f"n{i}"
         )
-    history = await store.mission_history(mission.mission_id)
+    history = await store.missions.mission_history(mission.mission_id)
     assert [(h.source, h.target, h.by, h.at, h.note) for h in history] == [
         (None, S.PLANNING, "client1", T0, "created"),
         (S.PLANNING, S.IN_PROGRESS, "super1", T0 + timedelta(minutes=1), "n1"),

@@ -11,14 +11,13 @@ from dataclasses import replace
 from pathlib import Path
 
 from fleetbus.workers.store.hazards import NewHazard
-from fleetbus.workers.store.sqlite import SQLiteEventStore
+from fleetbus.workers.store.repositories import Repositories
+from fleetbus.workers.store.sqlite import sqlite_repositories
 from fleetbus.workers.store.sqlite_database import in_transaction
 from tests.store.test_contract import EPOCH, T0, record
 
 
-async def hold_store_thread(
-    store: SQLiteEventStore, write: bool
-) -> tuple[asyncio.Future[None], threading.Event]:
+async def hold_store_thread(store: Repositories, write: bool) -> tuple[asyncio.Future[None], threading.Event]:
     """A call that keeps the store's thread (inside a write transaction if ``write``) until released;
     returns once it runs."""
     running, release = threading.Event(), threading.Event()
@@ -28,7 +27,7 @@ async def hold_store_thread(
         release.wait(30)
 
     call = asyncio.ensure_future(
-        store._run(lambda db: in_transaction(db, lambda: hold(db)) if write else hold(db))
+        store.events._run(lambda db: in_transaction(db, lambda: hold(db)) if write else hold(db))
     )
     assert await asyncio.to_thread(running.wait, 30)
     return call, release
@@ -36,11 +35,11 @@ async def hold_store_thread(
 
 async def test_an_urgent_batch_finding_the_database_locked_waits_off_the_event_loop(tmp_path: Path) -> None:
     path = tmp_path / "store.sqlite3"
-    async with SQLiteEventStore(path, busy_timeout=30) as store:
+    async with sqlite_repositories(path, busy_timeout=30) as store:
         locker = sqlite3.connect(path, isolation_level=None)
         locker.execute("BEGIN IMMEDIATE")  # another process writing
         try:
-            write = asyncio.create_task(store.store_batch([record(seq=0)], T0, urgent=True))
+            write = asyncio.create_task(store.events.store_batch([record(seq=0)], T0, urgent=True))
             await asyncio.sleep(0)  # the task's first step: the attempt here, then the hand-over
             # neither failed at once on the lock nor blocked this loop until the busy timeout
             assert not write.done()
@@ -48,19 +47,19 @@ async def test_an_urgent_batch_finding_the_database_locked_waits_off_the_event_l
             locker.execute("COMMIT")
             locker.close()
         stored = await asyncio.wait_for(write, 30)
-        assert stored.results[0].inserted and await store.count_events() == 1
+        assert stored.results[0].inserted and await store.events.count_events() == 1
 
 
 async def test_calls_from_two_threads_never_share_the_connection_at_once(tmp_path: Path) -> None:
-    async with SQLiteEventStore(tmp_path / "store.sqlite3") as store:
+    async with sqlite_repositories(tmp_path / "store.sqlite3") as store:
         errors: list[BaseException] = []
 
         def robot(name: str) -> None:
             async def writes() -> None:
                 for seq in range(150):
-                    stored = await store.store_batch([record(name, seq)], T0, urgent=True)
+                    stored = await store.events.store_batch([record(name, seq)], T0, urgent=True)
                     assert stored.results[0].inserted
-                    await store.set_localised(name, seq % 2 == 0, T0)
+                    await store.hazards.set_localised(name, seq % 2 == 0, T0)
 
             try:
                 asyncio.run(writes())
@@ -72,27 +71,25 @@ async def test_calls_from_two_threads_never_share_the_connection_at_once(tmp_pat
             thread.start()
         await asyncio.to_thread(lambda: [thread.join(60) for thread in threads])
         assert errors == []
-        assert await store.count_events() == 300
+        assert await store.events.count_events() == 300
         assert (
-            await store.high_water("robot0", EPOCH) == 149 and await store.high_water("robot1", EPOCH) == 149
+            await store.events.high_water("robot0", EPOCH) == 149
+            and await store.events.high_water("robot1", EPOCH) == 149
         )
-        assert await store.gaps() == []
+        assert await store.events.gaps() == []
 
 
-async def test_a_stored_hazard_is_registered_in_the_same_transaction_and_holding_it_only_reads(
-    tmp_path: Path,
-) -> None:
+async def test_holding_a_registered_hazard_again_only_reads(tmp_path: Path) -> None:
     path = tmp_path / "store.sqlite3"
-    async with SQLiteEventStore(path, busy_timeout=30) as store:
+    async with sqlite_repositories(path, busy_timeout=30) as store:
         hazard = record(seq=3)
-        stored = await store.store_batch([record(seq=2, type="status"), hazard], T0, urgent=True)
-        [held] = await store.held_hazards()
+        stored = await store.events.store_batch([record(seq=2, type="status"), hazard], T0, urgent=True)
+        [held] = (await store.hazards.hold_hazards([NewHazard.of(stored.records[1])])).hazards
         assert (held.robot_id, held.seq, held.hazard_id) == (hazard.robot_id, 3, 1)
-        assert held.event == NewHazard.of(stored.records[1]).event
         locker = sqlite3.connect(path, isolation_level=None)
         locker.execute("BEGIN IMMEDIATE")  # another process writing: a write would wait for it
         try:
-            again = await asyncio.wait_for(store.hold_hazards([NewHazard.of(stored.records[1])]), 5)
+            again = await asyncio.wait_for(store.hazards.hold_hazards([NewHazard.of(stored.records[1])]), 5)
         finally:
             locker.execute("COMMIT")
             locker.close()
@@ -100,22 +97,22 @@ async def test_a_stored_hazard_is_registered_in_the_same_transaction_and_holding
 
 
 async def test_a_reused_sequence_number_registers_no_hazard(tmp_path: Path) -> None:
-    async with SQLiteEventStore(tmp_path / "store.sqlite3") as store:
-        await store.store_batch([record(seq=0, type="status")], T0)
+    async with sqlite_repositories(tmp_path / "store.sqlite3") as store:
+        await store.events.store_batch([record(seq=0, type="status")], T0)
         reused = replace(record(seq=0), message_id="another")
-        stored = await store.store_batch([reused], T0, urgent=True)
+        stored = await store.events.store_batch([reused], T0, urgent=True)
         assert not stored.results[0].inserted
-        assert await store.held_hazards() == []
+        assert await store.hazards.held_hazards() == []
 
 
 async def test_an_urgent_write_waits_for_the_bulk_write_in_hand_not_for_the_queue(tmp_path: Path) -> None:
-    async with SQLiteEventStore(tmp_path / "store.sqlite3") as store:
+    async with sqlite_repositories(tmp_path / "store.sqlite3") as store:
         bulk, release_bulk = await hold_store_thread(store, write=True)  # a bulk batch being written
         # a read on the way (the wardens' gate, the held list) does not wait for the writer
-        assert (await asyncio.wait_for(store.hold_hazards([]), 5)).hazards == []
-        urgent = asyncio.create_task(store.store_batch([record(seq=0)], T0, urgent=True))
+        assert (await asyncio.wait_for(store.hazards.hold_hazards([]), 5)).hazards == []
+        urgent = asyncio.create_task(store.events.store_batch([record(seq=0)], T0, urgent=True))
         release_queued = threading.Event()
-        queued = asyncio.ensure_future(store._run(lambda db: release_queued.wait(30)))
+        queued = asyncio.ensure_future(store.events._run(lambda db: release_queued.wait(30)))
         for _ in range(20):
             await asyncio.sleep(0)
         assert not urgent.done(), "SQLite has one writer: the urgent write waits for the bulk one"

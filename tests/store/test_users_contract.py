@@ -8,7 +8,7 @@ from datetime import datetime, timedelta, timezone
 import pytest
 
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.repositories import Repositories
 from fleetbus.workers.store.users import NoSuchUser, User, UserExists
 
 T0 = datetime(2021, 6, 1, 18, 25, 26, 564500, tzinfo=timezone.utc)
@@ -28,41 +28,43 @@ def user(name: str = "alice", role: UserRole = UserRole.INACTIVE, **changes: obj
     return replace(base, **changes)  # type: ignore[arg-type]
 
 
-async def test_a_user_round_trips_and_names_are_unique(store: Store) -> None:
+async def test_a_user_round_trips_and_names_are_unique(store: Repositories) -> None:
     original = user(kind="warden", role=UserRole.ROBOT)
-    await store.add_user(original)
-    assert await store.get_user("alice") == original
+    await store.users.add_user(original)
+    assert await store.users.get_user("alice") == original
     with pytest.raises(UserExists, match="alice"):
-        await store.add_user(user(role=UserRole.ADMIN))
-    assert (await store.get_user("alice")) == original, "a refused add changes nothing"
-    assert await store.get_user("bob") is None
+        await store.users.add_user(user(role=UserRole.ADMIN))
+    assert (await store.users.get_user("alice")) == original, "a refused add changes nothing"
+    assert await store.users.get_user("bob") is None
 
 
-async def test_users_list_by_name_and_role(store: Store) -> None:
+async def test_users_list_by_name_and_role(store: Repositories) -> None:
     for name, role in (("carol", UserRole.OPERATOR), ("alice", UserRole.ADMIN), ("bob", UserRole.OPERATOR)):
-        await store.add_user(user(name, role))
-    assert [u.name for u in await store.users()] == ["alice", "bob", "carol"]
-    assert [u.name for u in await store.users(UserRole.OPERATOR)] == ["bob", "carol"]
-    assert await store.users(UserRole.GUEST) == []
+        await store.users.add_user(user(name, role))
+    assert [u.name for u in await store.users.users()] == ["alice", "bob", "carol"]
+    assert [u.name for u in await store.users.users(UserRole.OPERATOR)] == ["bob", "carol"]
+    assert await store.users.users(UserRole.GUEST) == []
 
 
-async def test_update_changes_only_the_given_fields(store: Store) -> None:
-    await store.add_user(user())
+async def test_update_changes_only_the_given_fields(store: Repositories) -> None:
+    await store.users.add_user(user())
     later = T0 + timedelta(minutes=5)
-    changed = await store.update_user("alice", later, role=UserRole.PLANNER)
+    changed = await store.users.update_user("alice", later, role=UserRole.PLANNER)
     assert changed == user(role=UserRole.PLANNER, updated_at=later)
-    rekeyed = await store.update_user("alice", later, password_hash="new-hash", broker_secret="new-secret")
+    rekeyed = await store.users.update_user(
+        "alice", later, password_hash="new-hash", broker_secret="new-secret"
+    )
     assert (rekeyed.role, rekeyed.password_hash, rekeyed.broker_secret) == (
         UserRole.PLANNER,
         "new-hash",
         "new-secret",
     )
     with pytest.raises(NoSuchUser, match="nobody"):
-        await store.update_user("nobody", later, role=UserRole.ADMIN)
+        await store.users.update_user("nobody", later, role=UserRole.ADMIN)
 
 
-async def test_remove_user(store: Store) -> None:
-    await store.add_user(user())
-    assert await store.remove_user("alice") is True
-    assert await store.remove_user("alice") is False
-    assert await store.get_user("alice") is None
+async def test_remove_user(store: Repositories) -> None:
+    await store.users.add_user(user())
+    assert await store.users.remove_user("alice") is True
+    assert await store.users.remove_user("alice") is False
+    assert await store.users.get_user("alice") is None

@@ -18,7 +18,7 @@ from fleetbus.workers.recorder.consumer import MissionLookup, RecorderConsumer, 
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import parse_retention
 from fleetbus.workers.signals import stop_on_signals
-from fleetbus.workers.store import Store, open_recording_store, open_store
+from fleetbus.workers.store import Repositories, open_recording_store, repositories_for
 from fleetbus.workers.store.recordings import RecordingStore
 
 if TYPE_CHECKING:
@@ -32,14 +32,15 @@ class RecorderContext:
     connection: AbstractRobustConnection
     consumer: RecorderConsumer
     store: RecordingStore
-    events: Store | None = None
-    """The service's store, when the recorder asks it which mission each robot is recorded under."""
+    repositories: Repositories | None = None
+    """The service's repositories, when the recorder asks them which mission each robot is recorded
+    under (the channels) and why a dead letter was refused (the rejections)."""
 
     async def close(self) -> None:
         await self.connection.close()
         await self.store.close()
-        if self.events is not None:
-            await self.events.close()
+        if self.repositories is not None:
+            await self.repositories.close()
 
 
 def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions:
@@ -85,11 +86,11 @@ async def start_recorder(
     store = open_recording_store(settings)
     await store.open()
     names = TypeNames(await store.recorded_types(), options.max_types)
-    events: Store | None = None
+    repositories: Repositories | None = None
     if missions is None:
-        events = open_store(settings)
-        await events.open()
-        missions = events.recording_missions
+        repositories = repositories_for(settings)
+        await repositories.open()
+        missions = repositories.channels.recording_missions
     connection = await aio_pika.connect_robust(
         url, client_properties={"connection_name": "fleetbus-recorder"}
     )
@@ -99,9 +100,11 @@ async def start_recorder(
     queue = await channel.get_queue(RECORDER_QUEUE)
     return RecorderContext(
         connection,
-        RecorderConsumer(channel, queue, store, options, names, missions, events),
+        RecorderConsumer(
+            channel, queue, store, options, names, missions, repositories.rejections if repositories else None
+        ),
         store,
-        events,
+        repositories,
     )
 
 

@@ -1,10 +1,7 @@
-"""Event storage: one interface, an embedded SQLite default and MongoDB for production."""
+"""Event storage: narrow repositories (:mod:`fleetbus.workers.store.repositories`), each
+implemented on the embedded SQLite default and on MongoDB for production."""
 
 from __future__ import annotations
-
-import asyncio
-from collections.abc import Awaitable, Callable
-from typing import TypeVar
 
 from fleetbus.settings import Settings
 from fleetbus.workers.store.base import (
@@ -16,12 +13,17 @@ from fleetbus.workers.store.base import (
     WriteResult,
 )
 from fleetbus.workers.store.hazards import Hazard, HazardRefused, HazardState, RobotState
-from fleetbus.workers.store.interface import Store
 from fleetbus.workers.store.recordings import RecordingStore
-
-T = TypeVar("T")
+from fleetbus.workers.store.repositories import (
+    EventLog,
+    Repositories,
+    open_repositories,
+    repositories_for,
+    run_with_repositories,
+)
 
 __all__ = [
+    "EventLog",
     "EventQuery",
     "EventRecord",
     "EventStore",
@@ -29,36 +31,16 @@ __all__ = [
     "HazardRefused",
     "HazardState",
     "RecordingStore",
+    "Repositories",
     "RobotState",
-    "Store",
     "StoreError",
     "StoreUnavailable",
     "WriteResult",
     "open_recording_store",
-    "open_store",
-    "run_with_store",
+    "open_repositories",
+    "repositories_for",
+    "run_with_repositories",
 ]
-
-
-def run_with_store(settings: Settings, operation: Callable[[Store], Awaitable[T]]) -> T:
-    """For synchronous callers (commands, tests): open the store, run one operation, close it."""
-
-    async def go() -> T:
-        async with open_store(settings) as store:
-            return await operation(store)
-
-    return asyncio.run(go())
-
-
-def open_store(settings: Settings) -> Store:
-    """The store the settings select (MongoDB when ``mongodb_url`` is set), not yet opened."""
-    if settings.mongodb_url:
-        from fleetbus.workers.store.mongo import MongoEventStore
-
-        return MongoEventStore(settings.mongodb_url)
-    from fleetbus.workers.store.sqlite import SQLiteEventStore
-
-    return SQLiteEventStore(settings.sqlite_path)
 
 
 def open_recording_store(settings: Settings) -> RecordingStore:

@@ -82,16 +82,8 @@ class EventQuery:
 
 
 class EventStore(abc.ABC):
-    """Async storage of events. Implementations: SQLite (embedded default) and MongoDB."""
-
-    name: str
-
-    @abc.abstractmethod
-    async def open(self) -> None:
-        """Connect and create tables or indexes; idempotent."""
-
-    @abc.abstractmethod
-    async def close(self) -> None: ...
+    """Async storage of events: the reads and writes of the event log
+    (:class:`~fleetbus.workers.store.repositories.EventLog`)."""
 
     @abc.abstractmethod
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
@@ -107,10 +99,3 @@ class EventStore(abc.ABC):
 
     @abc.abstractmethod
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int: ...
-
-    async def __aenter__(self) -> EventStore:
-        await self.open()
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.close()

@@ -213,8 +213,13 @@ class CoordinationStore(abc.ABC):
 
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
         """Register ``new`` as held (idempotent, as :meth:`add_hazard`), then say what is held and
-        whether the gate is open. Adapters that can do it in one transaction override this: it is
-        on every hazard's way to the wardens."""
+        whether the gate is open.
+
+        The one place a hazard is registered, on every backend: called by the hazard service
+        alone, which runs on the express lane's single active consumer, so a mission's ids are
+        given in the order its hazards were stored (storing a batch registers none). Adapters
+        that can do it in one transaction override this: it is on every hazard's way to the
+        wardens."""
         for hazard in new:
             await self.add_hazard(
                 hazard.mission_id,

@@ -1,5 +1,4 @@
-"""What a fleetbus store is: events, sequence ledger, coordination, beacons, maps, the service
-layer's users, missions and channels, and the workers' leases and attempt counts, in one database."""
+"""How a worker's batch is stored: stamped with its missions, written, seen by the ledger."""
 
 from __future__ import annotations
 
@@ -7,64 +6,23 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 
-from fleetbus.workers.store.attempts import AttemptLog
-from fleetbus.workers.store.base import EventRecord, EventStore, WriteResult
-from fleetbus.workers.store.beacons import BeaconRegistry
+from fleetbus.workers.store.base import EventRecord, WriteResult
 from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.discards import DiscardLog
-from fleetbus.workers.store.hazards import CoordinationStore
-from fleetbus.workers.store.housekeeping import Housekeeping
-from fleetbus.workers.store.leases import LeaseStore
-from fleetbus.workers.store.ledger import RobotEpoch, SequenceLedger
-from fleetbus.workers.store.maps import MapStore
-from fleetbus.workers.store.missions import MissionStore
-from fleetbus.workers.store.rejections import RejectionLog
-from fleetbus.workers.store.statuses import StatusBoard
-from fleetbus.workers.store.users import UserStore
+from fleetbus.workers.store.ledger import RobotEpoch
+from fleetbus.workers.store.repositories import EventLog
 
 
-class Store(
-    EventStore,
-    CoordinationStore,
-    BeaconRegistry,
-    MapStore,
-    SequenceLedger,
-    UserStore,
-    MissionStore,
-    ChannelStore,
-    DiscardLog,
-    LeaseStore,
-    AttemptLog,
-    RejectionLog,
-    StatusBoard,
-    Housekeeping,
-):
-    """Implemented by :class:`~workers.store.sqlite.SQLiteEventStore` and
-    :class:`~workers.store.mongo.MongoEventStore`."""
-
-    async def store_batch(
-        self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
-    ) -> StoredBatch:
-        """A worker's batch, recorded: each record stamped with the mission its robot is recorded
-        under now (a record that has one keeps it), written (:meth:`write_events`), and the sequence
-        numbers it holds observed by the ledger (:meth:`observe_sequences`, at ``at``).
-
-        The ledger sees a number once the store holds that event: inserted now, or stored before
-        under the same message id. A reused number (another message id) is not the robot's event,
-        so it is not observed. Adapters that can do all of it in one transaction should (SQLite
-        does); this default makes the three calls in turn, each idempotent. ``urgent``: someone
-        waits on an event of the batch (a hazard): an adapter may trade throughput for latency.
-        An adapter whose hazard ids are committed in the order they are given may also register
-        the batch's hazard events as held in the same transaction (SQLite does; :meth:`hold_hazards`
-        is idempotent and then only reads); this default leaves registering to the hazard service,
-        the express lane's one active consumer, so MongoDB's choice of the next id and its insert,
-        two operations, cannot be overtaken.
-        """
-        missions = await self.recording_missions({record.robot_id for record in records})
-        stamped = stamp_missions(records, missions)
-        results = await self.write_events(stamped)
-        await self.observe_sequences(held_sequences(stamped, results), at)
-        return StoredBatch(stamped, results)
+async def store_in_turn(
+    log: EventLog, channels: ChannelStore, records: Sequence[EventRecord], at: datetime
+) -> StoredBatch:
+    """:meth:`EventLog.store_batch` in three calls, each idempotent, for a backend that cannot make
+    them one transaction: the missions the channels record the batch's robots under, the write,
+    the ledger."""
+    missions = await channels.recording_missions({record.robot_id for record in records})
+    stamped = stamp_missions(records, missions)
+    results = await log.write_events(stamped)
+    await log.observe_sequences(held_sequences(stamped, results), at)
+    return StoredBatch(stamped, results)
 
 
 @dataclass(frozen=True)

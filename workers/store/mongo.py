@@ -1,13 +1,15 @@
 """The production store: MongoDB through pymongo's ``AsyncMongoClient``.
 
-Document ids follow a small strategy (``<robot>:<epoch>:<seq>``), so MongoDB's own ``_id``
-uniqueness makes writes idempotent. Times are kept twice: as BSON dates for people querying MongoDB, and as
-integer microseconds, which round-trip exactly (BSON dates stop at milliseconds).
+Every repository over one database (:func:`mongo_repositories`). Document ids follow a small
+strategy (``<robot>:<epoch>:<seq>``), so MongoDB's own ``_id`` uniqueness makes writes
+idempotent. Times are kept twice: as BSON dates for people querying MongoDB, and as integer
+microseconds, which round-trip exactly (BSON dates stop at milliseconds).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from datetime import datetime
 from typing import Any
 
 from pymongo import ASCENDING, DESCENDING
@@ -21,7 +23,8 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
-from fleetbus.workers.store.interface import Store
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.interface import StoredBatch, store_in_turn
 from fleetbus.workers.store.mongo_attempts import MongoAttempts
 from fleetbus.workers.store.mongo_channels import MongoChannels
 from fleetbus.workers.store.mongo_coordination import MongoBeacons, MongoCoordination
@@ -40,6 +43,7 @@ from fleetbus.workers.store.mongo_missions import MongoMissions
 from fleetbus.workers.store.mongo_rejections import MongoRejections
 from fleetbus.workers.store.mongo_statuses import MongoStatuses
 from fleetbus.workers.store.mongo_users import MongoUsers
+from fleetbus.workers.store.repositories import EventLog, Repositories
 
 
 class RobotSequenceId:
@@ -87,46 +91,76 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
     )
 
 
-@translate_unavailable(Store)
-class MongoEventStore(
-    MongoDatabase,
-    MongoCoordination,
-    MongoBeacons,
-    MongoMaps,
-    MongoLedger,
-    MongoUsers,
-    MongoMissions,
-    MongoChannels,
-    MongoDiscards,
-    MongoLeases,
-    MongoAttempts,
-    MongoRejections,
-    MongoStatuses,
-    MongoHousekeeping,
-    Store,
-):
-    name = "mongodb"
+def mongo_repositories(
+    url: str, database: str | None = None, server_selection_timeout: float = 5.0
+) -> Repositories:
+    """Every repository over one MongoDB database (one client), not yet opened."""
+    shared = MongoDatabase(url, database, server_selection_timeout)
+    channels = MongoChannels(shared)
+    events = MongoEventLog(shared, channels)
+    hazards = MongoCoordination(shared)
+    maps = MongoMaps(shared)
+    missions = MongoMissions(shared)
+    housekeeping = MongoHousekeeping(shared)
+
+    async def open() -> None:
+        shared._connect()
+        try:
+            await events.create_event_indexes()
+            await events.create_ledger_indexes()
+            await hazards.create_coordination_indexes()
+            await maps.create_map_indexes()
+            await housekeeping.create_housekeeping_indexes()
+            await missions.create_mission_indexes()
+            await channels.create_channel_indexes()
+        except PyMongoError as error:
+            raise_as_store_error(error, shared._safe_url())
+
+    return Repositories(
+        name="mongodb",
+        events=events,
+        hazards=hazards,
+        beacons=MongoBeacons(shared),
+        maps=maps,
+        missions=missions,
+        channels=channels,
+        users=MongoUsers(shared),
+        discards=MongoDiscards(shared),
+        rejections=MongoRejections(shared),
+        attempts=MongoAttempts(shared),
+        leases=MongoLeases(shared),
+        statuses=MongoStatuses(shared),
+        housekeeping=housekeeping,
+        opener=open,
+        closer=shared.close,
+        again=lambda: mongo_repositories(url, shared._database_name, server_selection_timeout),
+    )
+
+
+@translate_unavailable(EventLog)
+class MongoEventLog(MongoLedger, EventLog):
+    """The event log and its sequence ledger; the system of record for validated events. A batch
+    is stamped with the missions the channels record its robots under (:func:`store_in_turn`)."""
+
+    def __init__(self, database: MongoDatabase, channels: ChannelStore) -> None:
+        super().__init__(database)
+        self._channels = channels
 
     def _events(self) -> Any:
         """The event log: every validated event, one collection (the recording keeps one per type)."""
         return self._collection("events")
 
-    async def open(self) -> None:
-        self._connect()
-        try:
-            events = self._events()
-            await events.create_index([("type", ASCENDING), ("sent_at_us", ASCENDING)])
-            await events.create_index([("robot_id", ASCENDING), ("sent_at_us", ASCENDING)])
-            await events.create_index([("sent_at_us", ASCENDING)])
-            await events.create_index([("message_id", ASCENDING)])
-            await self.create_coordination_indexes()
-            await self.create_ledger_indexes()
-            await self.create_map_indexes()
-            await self.create_housekeeping_indexes()
-            await self.create_mission_indexes()
-            await self.create_channel_indexes()
-        except PyMongoError as error:
-            raise_as_store_error(error, self._safe_url())
+    async def create_event_indexes(self) -> None:
+        events = self._events()
+        await events.create_index([("type", ASCENDING), ("sent_at_us", ASCENDING)])
+        await events.create_index([("robot_id", ASCENDING), ("sent_at_us", ASCENDING)])
+        await events.create_index([("sent_at_us", ASCENDING)])
+        await events.create_index([("message_id", ASCENDING)])
+
+    async def store_batch(
+        self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
+    ) -> StoredBatch:
+        return await store_in_turn(self, self._channels, records, at)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         if not records:

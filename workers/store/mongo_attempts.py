@@ -1,19 +1,18 @@
-"""The attempt counts on MongoDB, mixed into :class:`MongoEventStore`."""
+"""The attempt counts on MongoDB, one repository of `mongo_repositories`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from datetime import datetime
-from typing import Any
 
 from pymongo import ReturnDocument
 
 from fleetbus.workers.store.attempts import AttemptLog
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 
-class MongoAttempts(AttemptLog):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(AttemptLog)
+class MongoAttempts(OnMongo, AttemptLog):
     async def count_attempt(self, key: str, at: datetime) -> int:
         document = await self._collection("delivery_attempts").find_one_and_update(
             {"_id": key},

@@ -1,4 +1,4 @@
-"""Mounts, check-ins and the channel change log on MongoDB, mixed into :class:`MongoEventStore`.
+"""Mounts, check-ins and the channel change log on MongoDB, one repository of `mongo_repositories`.
 
 Without multi-document transactions, booking rests on unique ``_id`` values: a mount is the
 document ``_id = robot`` (a second operator's insert fails), and an operator's booking is the
@@ -9,7 +9,7 @@ lists what holds it (``mount:<robot>``, ``check-in``) and is deleted when nothin
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
+from collections.abc import Collection
 from datetime import datetime
 from typing import Any
 
@@ -18,6 +18,7 @@ from pymongo.errors import DuplicateKeyError
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, ChannelStore, CheckIn, Mount
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 CHECK_IN_HOLD = "check-in"
 
@@ -34,9 +35,8 @@ def _check_in(doc: dict[str, Any]) -> CheckIn:
     return CheckIn(doc["_id"], doc["mission_id"], from_micros(doc["checked_in_at_us"]))
 
 
-class MongoChannels(ChannelStore):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(ChannelStore)
+class MongoChannels(OnMongo, ChannelStore):
     async def create_channel_indexes(self) -> None:
         await self._collection("mounts").create_index([("operator", ASCENDING)])
         await self._collection("channel_changes").create_index(

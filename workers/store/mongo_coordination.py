@@ -1,8 +1,7 @@
-"""The coordination and beacon collections on MongoDB, mixed into :class:`MongoEventStore`."""
+"""The coordination (hazards and team) and beacon repositories on MongoDB."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
@@ -19,6 +18,7 @@ from fleetbus.workers.store.hazards import (
     Transition,
     refuse_transition,
 )
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 TIMES = ("announced_at", "claimed_at", "reached_at", "cleared_at")
 #: What a robot's document starts with: in the team, in service, nothing owed.
@@ -65,11 +65,8 @@ def _robot(doc: dict[str, Any]) -> RobotState:
     )
 
 
-class MongoCoordination(CoordinationStore):
-    """Needs the host class's ``_collection(name)``."""
-
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(CoordinationStore)
+class MongoCoordination(OnMongo, CoordinationStore):
     async def create_coordination_indexes(self) -> None:
         await self._collection("hazards").create_index(
             [("robot_id", ASCENDING), ("epoch", ASCENDING), ("seq", ASCENDING)], unique=True
@@ -259,9 +256,8 @@ def _beacon(doc: dict[str, Any]) -> Beacon:
     return Beacon(doc["_id"], doc["x"], doc["y"], doc["label"], from_micros(visited) if visited else None)
 
 
-class MongoBeacons(BeaconRegistry):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(BeaconRegistry)
+class MongoBeacons(OnMongo, BeaconRegistry):
     async def put_beacons(self, beacons: list[Beacon]) -> None:
         for beacon in beacons:
             await self._collection("beacons").update_one(

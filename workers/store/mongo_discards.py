@@ -1,8 +1,8 @@
-"""The beacon discard log on MongoDB, mixed into :class:`MongoEventStore`."""
+"""The beacon discard log on MongoDB, one repository of `mongo_repositories`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from bson import ObjectId
@@ -11,6 +11,7 @@ from pymongo.errors import BulkWriteError
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.discards import Discard, DiscardCount, DiscardLog
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 DUPLICATE_KEY = 11000
 
@@ -31,9 +32,8 @@ def _document(discard: Discard) -> dict[str, Any]:
     }
 
 
-class MongoDiscards(DiscardLog):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(DiscardLog)
+class MongoDiscards(OnMongo, DiscardLog):
     async def record_discards(self, discards: Sequence[Discard]) -> int:
         if not discards:
             return 0

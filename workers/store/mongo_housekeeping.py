@@ -1,4 +1,4 @@
-"""Pruning and the bound counts on MongoDB, mixed into :class:`MongoEventStore`.
+"""Pruning and the bound counts on MongoDB, one repository of `mongo_repositories`.
 
 A batch is the ids of the oldest prunable documents, then one ``delete_many`` of those ids: the
 ids are read back, never made up, so this does not depend on how an event's id is composed.
@@ -6,7 +6,7 @@ ids are read back, never made up, so this does not depend on how an event's id i
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from datetime import datetime
 from typing import Any
 
@@ -15,13 +15,11 @@ from pymongo import ASCENDING, DESCENDING
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.hazards import HazardState
 from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 
-class MongoHousekeeping(Housekeeping):
-    """Needs the host class's ``_collection(name)``."""
-
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(Housekeeping)
+class MongoHousekeeping(OnMongo, Housekeeping):
     async def create_housekeeping_indexes(self) -> None:
         await self._collection("events").create_index([("type", ASCENDING), ("received_at_us", ASCENDING)])
         await self._collection("duplicates").create_index([("seen_at_us", ASCENDING)])

@@ -1,4 +1,4 @@
-"""Leases on MongoDB, mixed into :class:`MongoEventStore`.
+"""Leases on MongoDB, one repository of `mongo_repositories`.
 
 An acquisition is an upsert on the lease's ``_id`` filtered by "free to take": when someone
 else holds a live lease the filter matches nothing, the upsert tries to insert a second document
@@ -7,7 +7,6 @@ with the same ``_id``, and the unique index refuses it.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
@@ -16,11 +15,11 @@ from pymongo.errors import DuplicateKeyError
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.leases import Lease, LeaseStore
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 
-class MongoLeases(LeaseStore):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(LeaseStore)
+class MongoLeases(OnMongo, LeaseStore):
     async def acquire_lease(
         self, name: str, holder: str, until: datetime, now: datetime, replacing: str | None = None
     ) -> bool:

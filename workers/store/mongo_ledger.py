@@ -1,4 +1,4 @@
-"""The sequence ledger (gaps, duplicates) on MongoDB, mixed into :class:`MongoEventStore`.
+"""The sequence ledger (gaps, duplicates) on MongoDB, one repository of `mongo_repositories`.
 
 One document per robot and epoch (``_id`` ``<robot>:<epoch>``) holds its high-water mark and its
 gaps, with a version: an observation reads it, works out the change, and writes it back only if
@@ -10,7 +10,7 @@ mid-way leaves the ledger as it was.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from datetime import datetime
 from typing import Any
 
@@ -19,6 +19,7 @@ from pymongo.errors import DuplicateKeyError
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 
 def numbering_id(numbering: RobotEpoch) -> str:
@@ -38,11 +39,8 @@ def _stored(gap: Gap) -> dict[str, Any]:
     return {"first": gap.first, "last": gap.last, "detected_at_us": to_micros(gap.detected_at)}
 
 
-class MongoLedger(SequenceLedger):
-    """Needs the host class's ``_collection(name)``."""
-
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(SequenceLedger)
+class MongoLedger(OnMongo, SequenceLedger):
     async def create_ledger_indexes(self) -> None:
         await self._collection("robot_sequences").create_index(
             [("robot_id", ASCENDING), ("epoch", ASCENDING)]

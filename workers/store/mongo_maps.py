@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from datetime import datetime, timezone
 from typing import Any
 
@@ -14,6 +14,7 @@ from pymongo.errors import DuplicateKeyError
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.maps import MapRejected, MapStore, MapVersion
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 BUCKET = "maps"
 
@@ -33,12 +34,8 @@ def _map_version(doc: dict[str, Any]) -> MapVersion:
     )
 
 
-class MongoMaps(MapStore):
-    """Needs the host class's ``_collection(name)`` and ``_database()``."""
-
-    _collection: Callable[[str], Any]
-    _database: Callable[[], Any]
-
+@translate_unavailable(MapStore)
+class MongoMaps(OnMongo, MapStore):
     async def create_map_indexes(self) -> None:
         await self._collection("maps").create_index(
             [("robot_id", ASCENDING), ("epoch", ASCENDING), ("seq", ASCENDING)], unique=True

@@ -1,4 +1,4 @@
-"""Missions on MongoDB, mixed into :class:`MongoEventStore`.
+"""Missions on MongoDB, one repository of `mongo_repositories`.
 
 A state change is one ``find_one_and_update`` filtered on the expected state, and the history
 entry is pushed in the same update, so the change and its record are one atomic write.
@@ -6,7 +6,6 @@ entry is pushed in the same update, so the change and its record are one atomic 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
@@ -15,6 +14,7 @@ from pymongo import ASCENDING, ReturnDocument
 from fleetbus.schemas.missions import MissionState
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 
 def _mission(doc: dict[str, Any]) -> Mission:
@@ -43,9 +43,8 @@ def _history_entry(
     }
 
 
-class MongoMissions(MissionStore):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(MissionStore)
+class MongoMissions(OnMongo, MissionStore):
     async def create_mission_indexes(self) -> None:
         missions = self._collection("missions")
         await missions.create_index([("number", ASCENDING)], unique=True)

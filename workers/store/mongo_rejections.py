@@ -1,18 +1,17 @@
-"""The rejections of dead letters on MongoDB, mixed into :class:`MongoEventStore`."""
+"""The rejections of dead letters on MongoDB, one repository of `mongo_repositories`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any
+from collections.abc import Iterable, Sequence
 
 from pymongo import UpdateOne
 
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 from fleetbus.workers.store.rejections import Rejection, RejectionLog
 
 
-class MongoRejections(RejectionLog):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(RejectionLog)
+class MongoRejections(OnMongo, RejectionLog):
     async def record_rejections(self, rejections: Sequence[Rejection]) -> None:
         if rejections:
             await self._collection("rejections").bulk_write(

@@ -1,16 +1,13 @@
-"""The workers' statuses on MongoDB, mixed into :class:`MongoEventStore`."""
+"""The workers' statuses on MongoDB, one repository of `mongo_repositories`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 from fleetbus.workers.store.statuses import StatusBoard, WorkerStatus
 
 
-class MongoStatuses(StatusBoard):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(StatusBoard)
+class MongoStatuses(OnMongo, StatusBoard):
     async def put_status(self, status: WorkerStatus) -> None:
         document = {**status.__dict__}
         document.pop("name")

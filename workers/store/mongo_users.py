@@ -1,8 +1,7 @@
-"""Users on MongoDB (one document per user, ``_id`` = name), mixed into :class:`MongoEventStore`."""
+"""Users on MongoDB (one document per user, ``_id`` = name), one repository of `mongo_repositories`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
@@ -11,6 +10,7 @@ from pymongo.errors import DuplicateKeyError
 
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 from fleetbus.workers.store.users import NoSuchUser, User, UserExists, UserStore
 
 
@@ -27,9 +27,8 @@ def _user(doc: dict[str, Any]) -> User:
     )
 
 
-class MongoUsers(UserStore):
-    _collection: Callable[[str], Any]
-
+@translate_unavailable(UserStore)
+class MongoUsers(OnMongo, UserStore):
     async def add_user(self, user: User) -> None:
         try:
             await self._collection("users").insert_one(

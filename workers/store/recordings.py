@@ -1,8 +1,12 @@
 """The recording: every message seen on the bus, one collection (or table) per message type.
 
-This is the recorder's storage, apart from the event log the services use: it keeps what was
-received, as received, including types no schema knows. Each record carries when it was
-recorded and where it came from (the broker-validated ``user_id``, exchange, routing key).
+This is the recorder's storage, apart from the event log the services use, and the system of
+record for the bus's traffic: what was received, as received (properties, headers, a body that
+is not JSON as bytes), accepted or not, including types no schema knows. The event log
+(:class:`~fleetbus.workers.store.repositories.EventLog`) is the system of record for validated
+events; both are kept (``docs/decisions/0003-store-repositories.md`` says why). Each record
+carries when it was recorded and where it came from (the broker-validated ``user_id``, exchange,
+routing key).
 
 Queries name fields of the stored document by dotted paths (``body.name``, ``frame``) and
 compare them with JSON scalars; both adapters give the same answers (``tests/store``).

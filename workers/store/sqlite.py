@@ -1,4 +1,5 @@
-"""The embedded default store: SQLite in WAL mode, one durable transaction per batch.
+"""The embedded default store: SQLite in WAL mode, one durable transaction per batch; every
+repository over one file (:func:`sqlite_repositories`).
 
 Calls run on the caller's thread or the store's own (:mod:`fleetbus.workers.store.sqlite_database`); each
 commit is durable before ``write_events`` or ``store_batch`` returns, which is what the worker's
@@ -11,9 +12,9 @@ import json
 import sqlite3
 from collections.abc import Sequence
 from datetime import datetime
+from pathlib import Path
 from typing import Any, TypeVar
 
-from fleetbus.schemas.routing import EventType
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
@@ -21,13 +22,12 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
-from fleetbus.workers.store.hazards import NewHazard
-from fleetbus.workers.store.interface import Store, StoredBatch, held_sequences, stamp_missions
-from fleetbus.workers.store.ledger import RobotEpoch
+from fleetbus.workers.store.interface import StoredBatch, held_sequences, stamp_missions
+from fleetbus.workers.store.repositories import EventLog, Repositories
 from fleetbus.workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
 from fleetbus.workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from fleetbus.workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
-from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, register_hazard
+from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
 from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from fleetbus.workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from fleetbus.workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
@@ -126,32 +126,16 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteEventStore(
-    SQLiteDatabase,
-    SQLiteCoordination,
-    SQLiteBeacons,
-    SQLiteMaps,
-    SQLiteLedger,
-    SQLiteUsers,
-    SQLiteMissions,
-    SQLiteChannels,
-    SQLiteDiscards,
-    SQLiteLeases,
-    SQLiteAttempts,
-    SQLiteRejections,
-    SQLiteStatuses,
-    SQLiteHousekeeping,
-    Store,
-):
-    name = "sqlite"
+class SQLiteFile(SQLiteDatabase):
+    """The file every repository of one :class:`Repositories` shares, with all their tables."""
 
     def _prepare(self, db: sqlite3.Connection) -> None:
-        db.executescript(SCHEMA)
-        db.executescript(HAZARD_SCHEMA)
-        db.executescript(BEACON_SCHEMA)
-        db.executescript(MAP_SCHEMA)
-        db.executescript(LEDGER_SCHEMA)
         for schema in (
+            SCHEMA,
+            HAZARD_SCHEMA,
+            BEACON_SCHEMA,
+            MAP_SCHEMA,
+            LEDGER_SCHEMA,
             USER_SCHEMA,
             MISSION_SCHEMA,
             CHANNEL_SCHEMA,
@@ -164,16 +148,42 @@ class SQLiteEventStore(
         ):
             db.executescript(schema)
 
+
+def sqlite_repositories(path: Path, busy_timeout: float = 2.0) -> Repositories:
+    """Every repository over one SQLite file, not yet opened."""
+    file = SQLiteFile(path, busy_timeout)
+    return Repositories(
+        name="sqlite",
+        events=SQLiteEventLog(file),
+        hazards=SQLiteCoordination(file),
+        beacons=SQLiteBeacons(file),
+        maps=SQLiteMaps(file),
+        missions=SQLiteMissions(file),
+        channels=SQLiteChannels(file),
+        users=SQLiteUsers(file),
+        discards=SQLiteDiscards(file),
+        rejections=SQLiteRejections(file),
+        attempts=SQLiteAttempts(file),
+        leases=SQLiteLeases(file),
+        statuses=SQLiteStatuses(file),
+        housekeeping=SQLiteHousekeeping(file),
+        opener=file.open,
+        closer=file.close,
+        again=lambda: sqlite_repositories(path, busy_timeout),
+    )
+
+
+class SQLiteEventLog(SQLiteLedger, EventLog):
+    """The event log and its sequence ledger; the system of record for validated events."""
+
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
         return await self._run(lambda db: in_transaction(db, lambda: _write(db, records)))
 
     async def store_batch(
         self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
     ) -> StoredBatch:
-        """One transaction: the mission lookup, the write, the ledger, and the batch's hazard events
-        registered as held (one commit, one fsync). The hazard service's ``hold_hazards`` then finds
-        them registered and only reads. SQLite has one writer at a time, so a mission's hazard ids
-        are committed in the order they are given.
+        """One transaction: the mission lookup, the write and the ledger (one commit, one fsync).
+        Hazards are registered by the hazard service (``hold_hazards``), as on every backend.
 
         An urgent small batch is written without the hand-over to the store's thread when it can
         be. Bulk batches always take the thread: the event loop keeps receiving while SQLite
@@ -184,13 +194,7 @@ class SQLiteEventStore(
         def work(db: sqlite3.Connection) -> StoredBatch:
             stamped = stamp_missions(records, recording_missions(db, {r.robot_id for r in records}))
             results = _write(db, stamped)
-            held = held_sequences(stamped, results)
-            observe(db, held, at)
-            for record in stamped:
-                if record.type == EventType.HAZARD.value and record.seq in held.get(
-                    RobotEpoch(record.robot_id, record.epoch), ()
-                ):
-                    register_hazard(db, NewHazard.of(record), held=True)
+            observe(db, held_sequences(stamped, results), at)
             return StoredBatch(stamped, results)
 
         return await self._run(

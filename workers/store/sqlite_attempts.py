@@ -1,15 +1,14 @@
-"""The attempt counts on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""The attempt counts on SQLite, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from datetime import datetime
-from typing import Any
 
 from fleetbus.workers.store.attempts import AttemptLog
 from fleetbus.workers.store.base import to_micros
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 ATTEMPT_SCHEMA = """
 CREATE TABLE IF NOT EXISTS delivery_attempts (
@@ -20,9 +19,7 @@ CREATE TABLE IF NOT EXISTS delivery_attempts (
 """
 
 
-class SQLiteAttempts(AttemptLog):
-    _run: Callable[..., Any]
-
+class SQLiteAttempts(OnSQLite, AttemptLog):
     async def count_attempt(self, key: str, at: datetime) -> int:
         def count(db: sqlite3.Connection) -> int:
             (attempts,) = db.execute(

@@ -1,15 +1,13 @@
-"""The beacon registry on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""The beacon registry on SQLite, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable
 from datetime import datetime
-from typing import Any
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 BEACON_SCHEMA = """
 CREATE TABLE IF NOT EXISTS beacons (
@@ -29,9 +27,7 @@ def _beacon(row: sqlite3.Row) -> Beacon:
     )
 
 
-class SQLiteBeacons(BeaconRegistry):
-    _run: Callable[..., Any]
-
+class SQLiteBeacons(OnSQLite, BeaconRegistry):
     async def put_beacons(self, beacons: list[Beacon]) -> None:
         rows = [(b.beacon_id, b.x, b.y, b.label) for b in beacons]
 

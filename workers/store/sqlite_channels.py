@@ -1,4 +1,4 @@
-"""Mounts, check-ins and the channel change log on SQLite, mixed into :class:`SQLiteEventStore`.
+"""Mounts, check-ins and the channel change log on SQLite, one repository of `sqlite_repositories`.
 
 Each booking runs in one ``BEGIN IMMEDIATE`` transaction: the checks and the insert cannot be
 interleaved with another writer's.
@@ -7,13 +7,12 @@ interleaved with another writer's.
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable, Collection
+from collections.abc import Collection
 from datetime import datetime
-from typing import Any
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.channels import Booked, ChannelAction, ChannelChange, ChannelStore, CheckIn, Mount
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 CHANNEL_SCHEMA = """
 CREATE TABLE IF NOT EXISTS mounts (
@@ -80,9 +79,7 @@ def _refuse_other_mission(db: sqlite3.Connection, operator: str, mission_id: str
         raise Booked(f"operator {operator} is booked by mission {booked}")
 
 
-class SQLiteChannels(ChannelStore):
-    _run: Callable[..., Any]
-
+class SQLiteChannels(OnSQLite, ChannelStore):
     async def mount(self, robot: str, operator: str, mission_id: str, at: datetime) -> Mount:
         def book(db: sqlite3.Connection) -> Mount:
             def work() -> Mount:

@@ -1,10 +1,10 @@
-"""The coordination tables (robots, hazards) on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""The coordination tables (robots, hazards) on SQLite, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
@@ -20,7 +20,7 @@ from fleetbus.workers.store.hazards import (
     Transition,
     refuse_transition,
 )
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 T = TypeVar("T")
 
@@ -115,11 +115,7 @@ def _one(db: sqlite3.Connection, mission_id: str, hazard_id: int) -> Hazard | No
     return _hazard(row) if row else None
 
 
-class SQLiteCoordination(CoordinationStore):
-    """Needs the host class's ``_run(work)``, which runs ``work(connection)`` on the store's thread."""
-
-    _run: Callable[..., Any]
-
+class SQLiteCoordination(OnSQLite, CoordinationStore):
     async def register_robot(self, name: str, kind: str | None) -> None:
         await self._run(
             lambda db: db.execute(

@@ -1,15 +1,14 @@
-"""The beacon discard log on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""The beacon discard log on SQLite, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Sequence
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.discards import Discard, DiscardCount, DiscardLog
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 DISCARD_SCHEMA = """
 CREATE TABLE IF NOT EXISTS beacon_discards (
@@ -39,9 +38,7 @@ def _discard(row: sqlite3.Row) -> Discard:
     )
 
 
-class SQLiteDiscards(DiscardLog):
-    _run: Callable[..., Any]
-
+class SQLiteDiscards(OnSQLite, DiscardLog):
     async def record_discards(self, discards: Sequence[Discard]) -> int:
         rows = [
             (

@@ -1,4 +1,4 @@
-"""Pruning and the bound counts on SQLite, mixed into :class:`SQLiteEventStore`.
+"""Pruning and the bound counts on SQLite, one repository of `sqlite_repositories`.
 
 Each call is one short transaction on the store's thread, so a worker's batch waits for at most
 one of them, never for a whole round of pruning.
@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from datetime import datetime
 from typing import Any
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.hazards import HazardState
 from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 HOUSEKEEPING_SCHEMA = """
 CREATE INDEX IF NOT EXISTS events_type_received ON events (type, received_at);
@@ -100,9 +100,7 @@ def _prune_events(
     ).rowcount
 
 
-class SQLiteHousekeeping(Housekeeping):
-    _run: Callable[..., Any]
-
+class SQLiteHousekeeping(OnSQLite, Housekeeping):
     async def prune_events(self, type: str, before: datetime | None, keep: int | None, limit: int) -> int:
         return await self._run(
             lambda db: in_transaction(db, lambda: _prune_events(db, type, before, keep, limit))

@@ -1,4 +1,4 @@
-"""Leases on SQLite, mixed into :class:`SQLiteEventStore`.
+"""Leases on SQLite, one repository of `sqlite_repositories`.
 
 An acquisition is one upsert whose update only applies when the lease is free to take, so
 SQLite's single writer decides between two workers asking at once.
@@ -7,13 +7,11 @@ SQLite's single writer decides between two workers asking at once.
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable
 from datetime import datetime
-from typing import Any
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.leases import Lease, LeaseStore
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 LEASE_SCHEMA = """
 CREATE TABLE IF NOT EXISTS leases (
@@ -30,9 +28,7 @@ ACQUIRE = (
 )
 
 
-class SQLiteLeases(LeaseStore):
-    _run: Callable[..., Any]
-
+class SQLiteLeases(OnSQLite, LeaseStore):
     async def acquire_lease(
         self, name: str, holder: str, until: datetime, now: datetime, replacing: str | None = None
     ) -> bool:

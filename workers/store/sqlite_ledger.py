@@ -1,4 +1,4 @@
-"""The sequence ledger (gaps, duplicates) on SQLite, mixed into :class:`SQLiteEventStore`.
+"""The sequence ledger (gaps, duplicates) on SQLite, one repository of `sqlite_repositories`.
 
 One row per robot and epoch holds the high-water mark, one per open gap its range.
 """
@@ -6,13 +6,12 @@ One row per robot and epoch holds the high-water mark, one per open gap its rang
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from datetime import datetime
-from typing import Any
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 LEDGER_SCHEMA = """
 CREATE TABLE IF NOT EXISTS robot_sequences (
@@ -87,9 +86,7 @@ def _observe(db: sqlite3.Connection, numbering: RobotEpoch, seqs: Sequence[int],
     )
 
 
-class SQLiteLedger(SequenceLedger):
-    _run: Callable[..., Any]
-
+class SQLiteLedger(OnSQLite, SequenceLedger):
     async def observe_sequences(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
         work = {numbering: list(seqs) for numbering, seqs in seen.items() if seqs}
         if not work:

@@ -1,16 +1,16 @@
-"""Map versions on SQLite: staged chunks and a blob table, mixed into :class:`SQLiteEventStore`."""
+"""Map versions on SQLite: staged chunks and a blob table, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.maps import MapRejected, MapStore, MapVersion
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 MAP_SCHEMA = """
 CREATE TABLE IF NOT EXISTS map_staging (
@@ -58,9 +58,7 @@ def _map_version(row: sqlite3.Row) -> MapVersion:
     )
 
 
-class SQLiteMaps(MapStore):
-    _run: Callable[..., Any]
-
+class SQLiteMaps(OnSQLite, MapStore):
     async def stage_map_chunk(self, map_id: str, index: int, data: bytes) -> None:
         now = to_micros(datetime.now(timezone.utc))
         await self._run(

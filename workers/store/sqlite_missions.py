@@ -1,4 +1,4 @@
-"""Missions on SQLite, mixed into :class:`SQLiteEventStore`; changes are conditional UPDATEs."""
+"""Missions on SQLite, one repository of `sqlite_repositories`; changes are conditional UPDATEs."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import Any
 from fleetbus.schemas.missions import MissionState
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 MISSION_SCHEMA = """
 CREATE TABLE IF NOT EXISTS missions (
@@ -73,9 +73,7 @@ def _history(db: sqlite3.Connection, change: StateChange) -> None:
     )
 
 
-class SQLiteMissions(MissionStore):
-    _run: Callable[..., Any]
-
+class SQLiteMissions(OnSQLite, MissionStore):
     async def create_mission(
         self, use_case: str, title: str, owner: str, plan: dict[str, Any], at: datetime
     ) -> Mission:

@@ -1,14 +1,13 @@
-"""The rejections of dead letters on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""The rejections of dead letters on SQLite, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any
+from collections.abc import Iterable, Sequence
 
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.rejections import Rejection, RejectionLog
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 REJECTION_SCHEMA = """
 CREATE TABLE IF NOT EXISTS rejections (
@@ -20,9 +19,7 @@ CREATE TABLE IF NOT EXISTS rejections (
 """
 
 
-class SQLiteRejections(RejectionLog):
-    _run: Callable[..., Any]
-
+class SQLiteRejections(OnSQLite, RejectionLog):
     async def record_rejections(self, rejections: Sequence[Rejection]) -> None:
         if not rejections:
             return

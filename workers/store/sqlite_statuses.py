@@ -1,14 +1,12 @@
-"""The workers' statuses on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""The workers' statuses on SQLite, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Callable
-from typing import Any
 
 from fleetbus.workers.store.base import from_micros, to_micros
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 from fleetbus.workers.store.statuses import StatusBoard, WorkerStatus
 
 STATUS_SCHEMA = """
@@ -23,9 +21,7 @@ CREATE TABLE IF NOT EXISTS worker_status (
 """
 
 
-class SQLiteStatuses(StatusBoard):
-    _run: Callable[..., Any]
-
+class SQLiteStatuses(OnSQLite, StatusBoard):
     async def put_status(self, status: WorkerStatus) -> None:
         row = (
             status.name,

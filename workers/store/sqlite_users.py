@@ -1,15 +1,13 @@
-"""Users on SQLite, mixed into :class:`SQLiteEventStore`."""
+"""Users on SQLite, one repository of `sqlite_repositories`."""
 
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable
 from datetime import datetime
-from typing import Any
 
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.base import from_micros, to_micros
-from fleetbus.workers.store.sqlite_database import in_transaction
+from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 from fleetbus.workers.store.users import NoSuchUser, User, UserExists, UserStore
 
 USER_SCHEMA = """
@@ -44,9 +42,7 @@ def _get(db: sqlite3.Connection, name: str) -> User | None:
     return _user(row) if row else None
 
 
-class SQLiteUsers(UserStore):
-    _run: Callable[..., Any]
-
+class SQLiteUsers(OnSQLite, UserStore):
     async def add_user(self, user: User) -> None:
         row = (
             user.name,

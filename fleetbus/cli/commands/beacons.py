@@ -13,16 +13,15 @@ from rich.table import Table
 
 from fleetbus.cli.context import console, fail, parse_time, settings
 from fleetbus.workers.beacons import stranded
-from fleetbus.workers.store import run_with_store
+from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.beacons import Beacon
-from fleetbus.workers.store.interface import Store
 
 T = TypeVar("T")
 app = typer.Typer(help="BLE beacons: the registry and the people likely stranded.", no_args_is_help=True)
 
 
-def _with_store(operation: Callable[[Store], Awaitable[T]]) -> T:
-    return run_with_store(settings(), operation)
+def _with_repositories(operation: Callable[[Repositories], Awaitable[T]]) -> T:
+    return run_with_repositories(settings(), operation)
 
 
 def parse_beacons(path: Path) -> list[Beacon]:
@@ -49,10 +48,7 @@ def load(path: Path) -> None:
     """Add or update beacons from a YAML or JSON list of {id, x, y, label}."""
     beacons = parse_beacons(path)
 
-    async def put(store: Store) -> None:
-        await store.put_beacons(beacons)
-
-    _with_store(put)
+    _with_repositories(lambda repos: repos.beacons.put_beacons(beacons))
     console.print(f"{len(beacons)} beacons in the registry")
 
 
@@ -60,7 +56,7 @@ def load(path: Path) -> None:
 def list_beacons() -> None:
     """The registry."""
     table = Table("beacon", "x", "y", "label", "visited at")
-    for beacon in _with_store(lambda store: store.beacons()):
+    for beacon in _with_repositories(lambda repos: repos.beacons.beacons()):
         table.add_row(
             beacon.beacon_id, f"{beacon.x:g}", f"{beacon.y:g}", beacon.label, str(beacon.visited_at or "")
         )
@@ -75,7 +71,7 @@ def stranded_people(
     """Beacons heard recently: where people are likely stranded, and when they were last heard."""
     start = parse_time(since)
     assert start is not None
-    entries = _with_store(lambda store: stranded(store, start))
+    entries = _with_repositories(lambda repos: stranded(repos.beacons, repos.events, start))
     if as_json:
         typer.echo(json.dumps(entries, indent=2))
         return

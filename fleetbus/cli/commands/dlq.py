@@ -12,7 +12,7 @@ from fleetbus.cli.context import console, dead_letters, settings
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 from fleetbus.workers.bounds import bounds
 from fleetbus.workers.overflow import BOUND
-from fleetbus.workers.store import run_with_store
+from fleetbus.workers.store import run_with_repositories
 
 
 def dlq(
@@ -47,5 +47,5 @@ def dlq(
 def dropped_dead_letters() -> int:
     """What the full queue dropped, as the workers counted it."""
     subject = f"{DEAD_LETTER_QUEUE} maxlen"
-    counts = run_with_store(settings(), lambda store: store.bound_counts())
+    counts = run_with_repositories(settings(), lambda repos: repos.housekeeping.bound_counts())
     return sum(c.count for c in counts if c.bound == BOUND and c.subject == subject)

@@ -28,7 +28,7 @@ from fleetbus.schemas.envelope import SchemaError, validate_body
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.capture import LEDGER_VIEWS
 from fleetbus.workers.recorder.queries import find, parse_condition, record_view
-from fleetbus.workers.store import run_with_store
+from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
 
 
@@ -184,7 +184,7 @@ def query(
 def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None:
     """Open gaps in the robots' sequence numbers, or the duplicates the workers recognised."""
     if view == "gaps":
-        gaps = run_with_store(settings(), lambda store: store.gaps(robot))
+        gaps = run_with_repositories(settings(), lambda repos: repos.events.gaps(robot))
         if as_json:
             for gap in gaps:
                 typer.echo(json.dumps({**asdict(gap), "missing": gap.size}, default=datetime.isoformat))
@@ -197,7 +197,7 @@ def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None
             table.add_row(gap.robot_id, gap.epoch, span, str(gap.size), clock(gap.detected_at))
         console.print(table)
         return
-    duplicates = run_with_store(settings(), lambda store: store.duplicates(robot, limit))
+    duplicates = run_with_repositories(settings(), lambda repos: repos.events.duplicates(robot, limit))
     if as_json:
         for duplicate in duplicates:
             typer.echo(json.dumps(asdict(duplicate), default=datetime.isoformat))

@@ -10,18 +10,18 @@ import typer
 from rich.table import Table
 
 from fleetbus.cli.context import console, settings
-from fleetbus.workers.store import Hazard, HazardState, Store, run_with_store
+from fleetbus.workers.store import Hazard, HazardState, Repositories, run_with_repositories
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
 from fleetbus.workers.team import gate, last_seen, why_held
 
 
-async def _open_and_why(store: Store, mission: str) -> list[tuple[Hazard, str]]:
+async def _open_and_why(repos: Repositories, mission: str) -> list[tuple[Hazard, str]]:
     """The mission's open hazards, each with why it is held ("" once announced)."""
-    found = await store.open_hazards(mission)
+    found = await repos.hazards.open_hazards(mission)
     if not any(hazard.state is HazardState.HELD for hazard in found):
         return [(hazard, "") for hazard in found]
-    team = await store.robots()
-    seen = {robot.name: await last_seen(store, robot.name) for robot in team}
+    team = await repos.hazards.robots()
+    seen = {robot.name: await last_seen(repos.events, robot.name) for robot in team}
     state, now = gate(team), datetime.now(timezone.utc)
     return [(hazard, why_held(hazard, state, seen, now)) for hazard in found]
 
@@ -31,7 +31,7 @@ def hazards(
     as_json: Annotated[bool, typer.Option("--json")] = False,
 ) -> None:
     """Hazards not cleared yet, in the order detected: held (and why), announced, claimed or reached."""
-    found = run_with_store(settings(), lambda store: _open_and_why(store, mission))
+    found = run_with_repositories(settings(), lambda repos: _open_and_why(repos, mission))
     if as_json:
         for hazard, why in found:
             typer.echo(json.dumps({**hazard.as_dict(), "held_because": why or None}))

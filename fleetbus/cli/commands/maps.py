@@ -11,19 +11,18 @@ from rich.table import Table
 
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.workers.maps import missing_version
-from fleetbus.workers.store import run_with_store
-from fleetbus.workers.store.interface import Store
-from fleetbus.workers.store.maps import MapVersion
+from fleetbus.workers.store import run_with_repositories
+from fleetbus.workers.store.maps import MapStore, MapVersion
 
 app = typer.Typer(help="The team's map, every version.", no_args_is_help=True)
 
 
-async def _read(store: Store, version: int | None) -> tuple[MapVersion, bytes] | str:
+async def _read(maps: MapStore, version: int | None) -> tuple[MapVersion, bytes] | str:
     """The version and its image, or why there is none."""
-    found = await store.map_version(version)
+    found = await maps.map_version(version)
     if found is None:
-        return await missing_version(store, version)
-    return found, b"".join([await store.map_chunk(found.version, i) for i in range(found.chunks)])
+        return await missing_version(maps, version)
+    return found, b"".join([await maps.map_chunk(found.version, i) for i in range(found.chunks)])
 
 
 def map_yaml(metadata: dict, image_name: str) -> str:
@@ -40,7 +39,7 @@ def export(
     version: Annotated[int | None, typer.Option(help="a version; default the latest")] = None,
 ) -> None:
     """Write a stored map (the latest by default) to map.pgm and map.yaml."""
-    found = run_with_store(settings(), lambda store: _read(store, version))
+    found = run_with_repositories(settings(), lambda repos: _read(repos.maps, version))
     if isinstance(found, str):
         fail(found)
     info, pgm = found
@@ -57,7 +56,7 @@ def list_maps() -> None:
     """Every stored version, newest first (each robot's newest FLEETBUS_MAP_VERSIONS_KEEP are kept)."""
 
     table = Table("version", "from", "created at", "bytes", "resolution", "origin")
-    for info in run_with_store(settings(), lambda store: store.map_versions()):
+    for info in run_with_repositories(settings(), lambda repos: repos.maps.map_versions()):
         table.add_row(
             str(info.version),
             f"{info.robot_id} #{info.seq}",

@@ -18,7 +18,7 @@ from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings, shorten
 from fleetbus.schemas.routing import EXPRESS_QUEUE, EXPRESS_TYPES, ingest_shard_queue
 from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX
-from fleetbus.workers.store import run_with_store
+from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.leases import Lease
 
 app = typer.Typer(
@@ -63,7 +63,7 @@ def _states(api: ManagementAPI, vhost: str, shard_map: ShardMap, leases: list[Le
 
 
 def _leases() -> list[Lease]:
-    return run_with_store(settings(), lambda store: store.leases())
+    return run_with_repositories(settings(), lambda repos: repos.leases.leases())
 
 
 @app.callback()

@@ -24,7 +24,7 @@ from fleetbus.cli.context import (
     with_recording,
 )
 from fleetbus.workers.recorder.growth import Growth, growth
-from fleetbus.workers.store import StoreError, run_with_store
+from fleetbus.workers.store import StoreError, run_with_repositories
 from fleetbus.workers.store.housekeeping import BoundCount
 from fleetbus.workers.store.statuses import WorkerStatus
 
@@ -57,7 +57,9 @@ def _ago(moment: datetime | None, now: datetime) -> str:
 def _workers() -> None:
     """Each worker's latest status: what it handled and failed on, and what it is retrying now."""
     try:
-        statuses: list[WorkerStatus] = run_with_store(settings(), lambda store: store.statuses())
+        statuses: list[WorkerStatus] = run_with_repositories(
+            settings(), lambda repos: repos.statuses.statuses()
+        )
     except StoreError as error:
         console.print(f"workers: the store did not answer ({error})")
         return
@@ -111,7 +113,7 @@ def stats(
         _workers()
         _dead_letters()
     rows = growth(with_recording(lambda store: store.samples(start)), bucket)
-    removed = run_with_store(settings(), lambda store: store.bound_counts())
+    removed = run_with_repositories(settings(), lambda repos: repos.housekeeping.bound_counts())
     if as_json:
         for row in rows:
             typer.echo(json.dumps(_view(row)))

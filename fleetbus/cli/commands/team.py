@@ -11,7 +11,7 @@ from rich.table import Table
 
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.cli.context import actor, clock, console, endpoint, fail, settings
-from fleetbus.workers.store import Store, run_with_store
+from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.team import TeamMember, TeamRefused, ago, change_service, gate, read_team, why_closed
 
 app = typer.Typer(
@@ -35,8 +35,9 @@ def team(
         return
     config = settings()
     now = datetime.now(timezone.utc)
-    members = run_with_store(
-        config, lambda store: read_team(store, now, timedelta(seconds=config.stale_after_s))
+    members = run_with_repositories(
+        config,
+        lambda repos: read_team(repos.hazards, repos.events, now, timedelta(seconds=config.stale_after_s)),
     )
     state = gate([member.robot for member in members])
     closed = why_closed(state, {m.robot.name: m.last_seen for m in members}, now)
@@ -78,11 +79,11 @@ def _change(name: str, in_service: bool, by: str | None) -> None:
     who = actor(by)
     admin_url = endpoint().amqp_url
 
-    async def work(store: Store) -> None:
-        await change_service(store, admin_url, name, in_service, who)
+    async def work(repos: Repositories) -> None:
+        await change_service(repos.hazards, admin_url, name, in_service, who)
 
     try:
-        run_with_store(settings(), work)
+        run_with_repositories(settings(), work)
     except TeamRefused as refused:
         fail(str(refused))
     except HazardServiceNotTold as error:

@@ -23,16 +23,14 @@ from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, RobotKind, inbox_queue
 from fleetbus.workers.recorder.queries import record_view
 from fleetbus.workers.recorder.queries import timeline as build_timeline
-from fleetbus.workers.store import Store, run_with_store
+from fleetbus.workers.store import run_with_repositories
 
 
 def registered_subscriptions(robot: str) -> list[str]:
     """Without a broker to ask: the topics the team registry says a robot of its kind follows."""
 
-    async def kind_of(store: Store) -> str | None:
-        return next((r.kind for r in await store.robots() if r.name == robot), None)
-
-    kind = run_with_store(settings(), kind_of)
+    robots = run_with_repositories(settings(), lambda repos: repos.hazards.robots())
+    kind = next((r.kind for r in robots if r.name == robot), None)
     return inbox_bindings(robot, RobotKind(kind) if kind else None, operator=False)
 
 

@@ -14,7 +14,7 @@ from fleetbus.schemas.routing import RECORDER_QUEUE, shard_of_queue
 from fleetbus.workers.recorder.capture import refusal
 from fleetbus.workers.recorder.queries import Trace, record_view
 from fleetbus.workers.recorder.queries import trace as trace_message
-from fleetbus.workers.store import open_store
+from fleetbus.workers.store import open_repositories
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 
 
@@ -107,8 +107,8 @@ def trace(
     routes = route_map()
 
     async def run(store: RecordingStore) -> Trace:
-        async with open_store(settings()) as events:
-            return await trace_message(store, message_id, events=events, route_map=routes)
+        async with open_repositories(settings()) as repos:
+            return await trace_message(store, message_id, events=repos.events, route_map=routes)
 
     result = with_recording(run)
     origin = result.origin

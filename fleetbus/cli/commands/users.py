@@ -13,7 +13,7 @@ from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
 from fleetbus.cli.registry import register_robot
 from fleetbus.schemas.routing import RobotKind
-from fleetbus.workers.store import run_with_store
+from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.team import leave_team
 
 app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
@@ -66,7 +66,9 @@ def remove(
     (settings().accounts_dir / f"{name}.url").unlink(missing_ok=True)
     who = actor(by)
     try:
-        left = run_with_store(settings(), lambda store: leave_team(store, ep.amqp_url, name, who))
+        left = run_with_repositories(
+            settings(), lambda repos: leave_team(repos.hazards, ep.amqp_url, name, who)
+        )
     except HazardServiceNotTold as error:
         fail(f"removed {name} and took it out of the team, but {error}")
     console.print(f"removed {name}" + (" and took it out of the team" if left else ""))

@@ -1,0 +1,140 @@
+"""The store's repositories, one per concern, and the composition root that builds them.
+
+A consumer receives the repositories it uses and nothing else, the way a nameko service gets one
+dependency provider per need: the ingest consumer the event log and the rejections; the hazard
+service the hazards and team; the API's accounts the users, the team and the channels; the pruner
+the housekeeping, the leases and the maps... (the decision record
+``docs/decisions/0003-store-repositories.md`` lists them all).
+
+Each backend implements each repository once (``sqlite_<concern>.py``, ``mongo_<concern>.py``);
+its composition root (:func:`~fleetbus.workers.store.sqlite.sqlite_repositories`,
+:func:`~fleetbus.workers.store.mongo.mongo_repositories`) builds them all over one database (one
+SQLite file, or one MongoDB client), so that a batch can be stamped with its missions and written
+with the sequence ledger in one transaction where the backend has them. :func:`repositories_for`
+is the one place that picks the backend (MongoDB when ``mongodb_url`` is set, else SQLite).
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
+from contextlib import asynccontextmanager
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import TYPE_CHECKING, TypeVar
+
+from fleetbus.settings import Settings
+from fleetbus.workers.store.attempts import AttemptLog
+from fleetbus.workers.store.base import EventRecord, EventStore
+from fleetbus.workers.store.beacons import BeaconRegistry
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.discards import DiscardLog
+from fleetbus.workers.store.hazards import CoordinationStore
+from fleetbus.workers.store.housekeeping import Housekeeping
+from fleetbus.workers.store.leases import LeaseStore
+from fleetbus.workers.store.ledger import SequenceLedger
+from fleetbus.workers.store.maps import MapStore
+from fleetbus.workers.store.missions import MissionStore
+from fleetbus.workers.store.rejections import RejectionLog
+from fleetbus.workers.store.statuses import StatusBoard
+from fleetbus.workers.store.users import UserStore
+
+if TYPE_CHECKING:
+    from fleetbus.workers.store.interface import StoredBatch
+
+T = TypeVar("T")
+
+
+class EventLog(EventStore, SequenceLedger):
+    """The event log and its sequence ledger: the system of record for validated events, what the
+    service accepted and acts on, written before the ingest acks. The recorder's recording
+    (:class:`~fleetbus.workers.store.recordings.RecordingStore`) is the system of record for the
+    bus's traffic, every message as received; an event is in both, on purpose
+    (``docs/decisions/0003-store-repositories.md``)."""
+
+    @abc.abstractmethod
+    async def store_batch(
+        self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
+    ) -> StoredBatch:
+        """A worker's batch, recorded: each record stamped with the mission its robot is recorded
+        under now (a record that has one keeps it), written (:meth:`write_events`), and the sequence
+        numbers it holds observed by the ledger (:meth:`observe_sequences`, at ``at``).
+
+        The ledger sees a number once the store holds that event: inserted now, or stored before
+        under the same message id. A reused number (another message id) is not the robot's event,
+        so it is not observed. SQLite does all of it in one transaction; MongoDB makes the three
+        calls in turn, each idempotent (:func:`~fleetbus.workers.store.interface.store_in_turn`).
+        ``urgent``: someone waits on an event of the batch (a hazard): a backend may trade
+        throughput for latency. Storing a batch registers no hazard on any backend: the hazard
+        service does, in :meth:`~fleetbus.workers.store.hazards.CoordinationStore.hold_hazards`.
+        """
+
+
+@dataclass(frozen=True)
+class Repositories:
+    """The repositories of one database; open and close them together (``async with``)."""
+
+    name: str
+    """The backend: ``sqlite`` or ``mongodb``."""
+    events: EventLog
+    hazards: CoordinationStore
+    """Hazards and the team (robots, their kind, localisation and service)."""
+    beacons: BeaconRegistry
+    maps: MapStore
+    missions: MissionStore
+    channels: ChannelStore
+    """Who is mounted on and checked in to which mission."""
+    users: UserStore
+    discards: DiscardLog
+    rejections: RejectionLog
+    attempts: AttemptLog
+    leases: LeaseStore
+    statuses: StatusBoard
+    housekeeping: Housekeeping
+    opener: Callable[[], Awaitable[None]] = field(repr=False)
+    """Connects and creates the tables or indexes (idempotent)."""
+    closer: Callable[[], Awaitable[None]] = field(repr=False)
+    again: Callable[[], Repositories] = field(repr=False)
+    """Another connection to the same database, not yet opened (what a second process would have)."""
+
+    async def open(self) -> None:
+        await self.opener()
+
+    async def close(self) -> None:
+        await self.closer()
+
+    async def __aenter__(self) -> Repositories:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+
+def repositories_for(settings: Settings) -> Repositories:
+    """The repositories the settings select (MongoDB when ``mongodb_url`` is set), not yet opened."""
+    if settings.mongodb_url:
+        from fleetbus.workers.store.mongo import mongo_repositories
+
+        return mongo_repositories(settings.mongodb_url)
+    from fleetbus.workers.store.sqlite import sqlite_repositories
+
+    return sqlite_repositories(settings.sqlite_path)
+
+
+@asynccontextmanager
+async def open_repositories(settings: Settings) -> AsyncIterator[Repositories]:
+    """The settings' repositories, open for the block."""
+    async with repositories_for(settings) as repositories:
+        yield repositories
+
+
+def run_with_repositories(settings: Settings, operation: Callable[[Repositories], Awaitable[T]]) -> T:
+    """For synchronous callers (commands, tests): open the repositories, run one operation, close them."""
+
+    async def go() -> T:
+        async with open_repositories(settings) as repositories:
+            return await operation(repositories)
+
+    return asyncio.run(go())
