@@ -4,7 +4,7 @@ This is the recorder's storage, apart from the event log the services use, and t
 record for the bus's traffic: what was received, as received (properties, headers, a body that
 is not JSON as bytes), accepted or not, including types no schema knows. The event log
 (:class:`~fleetbus.workers.store.repositories.EventLog`) is the system of record for validated
-events; both are kept (``docs/decisions/0003-store-repositories.md`` says why). Each record
+events; both are kept (``docs/decisions/0007-store-repositories.md`` says why). Each record
 carries when it was recorded and where it came from (the broker-validated ``user_id``, exchange,
 routing key).
 

@@ -4,7 +4,7 @@ A consumer receives the repositories it uses and nothing else, the way a nameko 
 dependency provider per need: the ingest consumer the event log and the rejections; the hazard
 service the hazards and team; the API's accounts the users, the team and the channels; the pruner
 the housekeeping, the leases and the maps... (the decision record
-``docs/decisions/0003-store-repositories.md`` lists them all).
+``docs/decisions/0007-store-repositories.md`` lists them all).
 
 Each backend implements each repository once (``sqlite_<concern>.py``, ``mongo_<concern>.py``);
 its composition root (:func:`~fleetbus.workers.store.sqlite.sqlite_repositories`,
@@ -51,7 +51,7 @@ class EventLog(EventStore, SequenceLedger):
     service accepted and acts on, written before the ingest acks. The recorder's recording
     (:class:`~fleetbus.workers.store.recordings.RecordingStore`) is the system of record for the
     bus's traffic, every message as received; an event is in both, on purpose
-    (``docs/decisions/0003-store-repositories.md``)."""
+    (``docs/decisions/0007-store-repositories.md``)."""
 
     @abc.abstractmethod
     async def store_batch(
