@@ -18,7 +18,7 @@ from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient, robot_folder
 from fleetbus.schemas.routing import RobotKind
-from fleetbus.workers.store.hazards import DEFAULT_MISSION, HazardState
+from fleetbus.workers.store.hazards import DEFAULT_MISSION, Hazard, HazardState
 from tests.link import NetworkLink
 from tests.support import (
     PROJECT_ROOT,
@@ -123,9 +123,16 @@ def assert_hazards_delivered(bus: Bus, warden: RobotClient, runs: dict[str, int]
     wait_for(lambda: bus.count("hazard") == total, timeout=60, what=f"{total} hazards stored")
     notes = warden.receive(total, timeout=60)
     assert sorted((n.event.epoch, n.event.seq) for n in notes) == sorted(sent), "each announced once"
-    hazards = bus.with_store(lambda store: store.hazards.open_hazards(DEFAULT_MISSION))
-    assert [h.hazard_id for h in hazards] == list(range(1, total + 1))
-    assert {h.state for h in hazards} == {HazardState.ANNOUNCED}
+
+    def open_hazards() -> list[Hazard]:
+        return bus.with_store(lambda store: store.hazards.open_hazards(DEFAULT_MISSION))
+
+    assert [h.hazard_id for h in open_hazards()] == list(range(1, total + 1))
+    # a hazard is marked announced once its copies were confirmed: just after the warden has it
+    wait_for(
+        lambda: {h.state for h in open_hazards()} == {HazardState.ANNOUNCED},
+        what="every hazard marked announced",
+    )
     assert peek_dead_letters(bus.admin_url) == [], "nothing dead-lettered (no sequence-reused)"
     assert_stored_once_in_order(bus, "explorer1", sent)
     assert bus.gaps() == []
