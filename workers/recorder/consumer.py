@@ -22,7 +22,7 @@ from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 
 from fleetbus.broker.dead_letter_queue import moved_letter_key
 from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
-from fleetbus.settings import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
+from fleetbus.defaults import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
 from fleetbus.workers.recorder.capture import (
