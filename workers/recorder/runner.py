@@ -8,14 +8,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import aio_pika
-from aio_pika.abc import AbstractRobustConnection
-
 from fleetbus.schemas.routing import RECORDER_QUEUE
 from fleetbus.workers.recorder.capture import TypeNames
 from fleetbus.workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import parse_retention
+from fleetbus.workers.recorder.source import RecorderQueue
 from fleetbus.workers.signals import stop_on_signals
 from fleetbus.workers.store import Repositories, StoreSettings, open_recording_store, repositories_for
 from fleetbus.workers.store.recordings import RecordingStore
@@ -29,7 +27,7 @@ log = logging.getLogger("fleetbus.recorder")
 
 @dataclass
 class RecorderContext:
-    connection: AbstractRobustConnection
+    connection: RecorderQueue
     consumer: RecorderConsumer
     store: RecordingStore
     repositories: Repositories | None = None
@@ -91,17 +89,12 @@ async def start_recorder(
         repositories = repositories_for(settings)
         await repositories.open()
         missions = repositories.channels.recording_missions
-    connection = await aio_pika.connect_robust(
-        url, client_properties={"connection_name": "fleetbus-recorder"}
-    )
-    channel = await connection.channel()
-    await channel.set_qos(prefetch_count=options.batch_size)
-    # fetched (not just named) so the robust channel consumes it again after a broker restart
-    queue = await channel.get_queue(RECORDER_QUEUE)
+    queue = RecorderQueue(url, RECORDER_QUEUE, options.batch_size, "fleetbus-recorder")
+    await queue.open()
     return RecorderContext(
-        connection,
+        queue,
         RecorderConsumer(
-            channel, queue, store, options, names, missions, repositories.rejections if repositories else None
+            queue, store, options, names, missions, repositories.rejections if repositories else None
         ),
         store,
         repositories,
