@@ -107,6 +107,7 @@ class RecorderQueue:
     async def cancel(self) -> None:
         """Take no more messages (those in hand can still be settled)."""
         channel, tag, self._consumer_tag = self._channel, self._consumer_tag, None
+        self._deliver = None  # and none again after a reconnection
         if channel is not None and channel.is_open and tag is not None:
             done = asyncio.get_running_loop().create_future()
             channel.basic_cancel(tag, callback=lambda _: done.done() or done.set_result(None))
@@ -122,9 +123,6 @@ class RecorderQueue:
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._lost.wait(), 5.0)
 
-    def _on_closed(self) -> None:
-        self._lost.set()
-
     async def _connect(self) -> None:
         loop = asyncio.get_running_loop()
         opened: asyncio.Future[AsyncioConnection] = loop.create_future()
@@ -138,11 +136,13 @@ class RecorderQueue:
                     error if isinstance(error, BaseException) else pika.exceptions.AMQPConnectionError(error)
                 )
 
-        def on_close(_: Any, error: BaseException) -> None:
+        def on_close(closed: Any, error: BaseException) -> None:
+            if closed is not self._connection:
+                return  # an earlier connection, closing late: the current one is not lost
             self._closed_by = error
             if not self._closing.is_set():
                 log.warning("broker connection closed: %r", error)
-            self._on_closed()
+            self._lost.set()
 
         AsyncioConnection(self._parameters, on_open, on_open_error, on_close, custom_ioloop=loop)
         self._lost.clear()
@@ -150,7 +150,7 @@ class RecorderQueue:
         channel_open: asyncio.Future[Channel] = loop.create_future()
         connection.channel(on_open_callback=lambda channel: channel_open.set_result(channel))
         self._channel = channel = await self._unless_lost(channel_open)
-        channel.add_on_close_callback(lambda _channel, error: self._on_channel_closed(error))
+        channel.add_on_close_callback(self._on_channel_closed)
         qos: asyncio.Future[None] = loop.create_future()
         channel.basic_qos(prefetch_count=self._prefetch, callback=lambda _: qos.set_result(None))
         await self._unless_lost(qos)
@@ -166,7 +166,9 @@ class RecorderQueue:
             raise ConnectionLost(f"the broker closed the channel: {self._closed_by!r}")
         return step.result()
 
-    def _on_channel_closed(self, error: BaseException) -> None:
+    def _on_channel_closed(self, closed: Channel, error: BaseException) -> None:
+        if closed is not self._channel:
+            return
         self._closed_by = error
         if not self._closing.is_set():
             log.warning("broker channel closed: %r", error)
@@ -209,6 +211,6 @@ class RecorderQueue:
 
     async def _reconnect(self) -> None:
         await self._connect()
-        if self._consumer_tag is not None or self._deliver is not None:
+        if self._deliver is not None:
             await self._start_consuming()
         log.info("consuming %s again", self._queue)
