@@ -20,15 +20,13 @@ from pydantic import BeforeValidator, Field, SecretStr, ValidationError, Validat
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
+from fleetbus.defaults import DEFAULT_FIELD_INDEXES_MAX, DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
 from fleetbus.schemas.notifications import LATE_AFTER_S
 
 ENV_PREFIX = "FLEETBUS_"
 DEFAULT_DATA_DIR = ".fleetbus"
-DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
-DEFAULT_RECORDER_KEEP = "*=1GB"
 DEFAULT_API_URL = "http://127.0.0.1:8000"
 MAX_INGEST_SHARDS = 64
-DEFAULT_FIELD_INDEXES_MAX = 32
 
 #: Variables only ``compose.yaml`` reads (no fleetbus process does), listed in the settings table.
 COMPOSE_ONLY = {

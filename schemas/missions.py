@@ -7,20 +7,13 @@ an itinerary stop that names a point of interest must name one that exists.
 
 from __future__ import annotations
 
-from enum import Enum
 from typing import Literal
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, model_validator
 
+from fleetbus.schemas.mission_states import MissionState
 
-class MissionState(str, Enum):
-    PLANNING = "planning"
-    FILED = "filed"
-    APPROVED = "approved"
-    IN_PROGRESS = "in_progress"
-    INTERRUPTED = "interrupted"
-    REVIEWING = "reviewing"
-    CLOSED = "closed"
+__all__ = ["MissionState"]
 
 
 class _Strict(BaseModel):

@@ -37,6 +37,27 @@ def test_broker_killed_and_restarted_under_load(killable_bus: Bus, killable_node
     assert [r.seq for r in bus.find(EventQuery(type="status"))] == sent, "each once, in order"
 
 
+def test_the_recorder_records_again_after_the_broker_restarts(
+    killable_bus: Bus, killable_node: LocalNode
+) -> None:
+    """The recorder's connection comes back by itself after a SIGKILL of the broker, and what it
+    held unacked then is redelivered and recorded once."""
+    bus = killable_bus
+    robot = bus.add("rec-restart")
+    with bus.recorder() as recorder:
+        for i in range(20):
+            bus.publish_raw(robot, "rec-restart.tf", b'{"i": %d}' % i, message_id=f"before-{i}")
+        wait_for(lambda: recorder.stats().recorded == 20, what="20 recorded before the kill")
+        killable_node.kill()
+        killable_node.up()
+        for i in range(20):
+            bus.publish_raw(robot, "rec-restart.tf", b'{"i": %d}' % i, message_id=f"after-{i}")
+        wait_for(lambda: recorder.stats().recorded == 40, timeout=120, what="20 more after the restart")
+    assert sorted(r.message_id or "" for r in bus.recorded("tf")) == sorted(
+        [f"before-{i}" for i in range(20)] + [f"after-{i}" for i in range(20)]
+    )
+
+
 #: How long the broker stays dead while the robots keep publishing: a few seconds in the default
 #: suite, the issue's 30 s under ``slow``. What is proven (nothing reaches the store meanwhile, every
 #: outbox drains after, everything stored once and in order) does not depend on the length.

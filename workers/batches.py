@@ -9,28 +9,32 @@ batch is being written). A ``linger`` waits that long for more, trading latency 
 from __future__ import annotations
 
 import asyncio
+from typing import Generic, TypeVar
 
-from aio_pika.abc import AbstractIncomingMessage
+#: A delivered message: aio-pika's, or the recorder's (:mod:`fleetbus.workers.recorder.source`).
+M = TypeVar("M")
 
 
-class BatchInbox:
+class BatchInbox(Generic[M]):
     def __init__(self, batch_size: int = 256, linger: float = 0.0) -> None:
-        self._queue: asyncio.Queue[AbstractIncomingMessage] = asyncio.Queue()
+        self._queue: asyncio.Queue[M] = asyncio.Queue()
         self._batch_size = batch_size
         self._linger = linger
 
-    async def put(self, message: AbstractIncomingMessage) -> None:
+    async def put(self, message: M) -> None:
         """The consumer callback (aio-pika wants a coroutine function)."""
+        self._queue.put_nowait(message)
+
+    def put_nowait(self, message: M) -> None:
+        """The consumer callback of a callback client (pika)."""
         self._queue.put_nowait(message)
 
     def empty(self) -> bool:
         return self._queue.empty()
 
-    async def next_batch(
-        self, stopping: asyncio.Event, idle: float | None = None
-    ) -> list[AbstractIncomingMessage]:
+    async def next_batch(self, stopping: asyncio.Event, idle: float | None = None) -> list[M]:
         """The next batch; empty when ``stopping`` is set or ``idle`` seconds pass with nothing."""
-        batch: list[AbstractIncomingMessage] = []
+        batch: list[M] = []
         get = asyncio.ensure_future(self._queue.get())
         stop = asyncio.ensure_future(stopping.wait())
         try:

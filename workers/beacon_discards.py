@@ -11,14 +11,15 @@ from __future__ import annotations
 import asyncio
 import logging
 from datetime import datetime, timezone
-from typing import Any
-
-from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
+from typing import TYPE_CHECKING, Any
 
 from fleetbus.broker.retry import GaveUp, Stopped, async_retrying, run_retrying
 from fleetbus.schemas.routing import BEACON_CODENAME_HEADER, BEACON_TYPE, BEACON_TYPE_HEADER
 from fleetbus.workers.store.base import StoreUnavailable
 from fleetbus.workers.store.discards import Discard, DiscardLog
+
+if TYPE_CHECKING:  # the recorder reads discard_reason without aio-pika (its memory)
+    from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 
 log = logging.getLogger("fleetbus.beacons")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fleetbus.dev.worker_thread import LoopThread
 from fleetbus.settings import Settings
 from fleetbus.workers.recorder.consumer import MissionLookup, RecorderOptions, RecorderStats
-from fleetbus.workers.recorder.runner import RecorderContext, run_recorder
+from fleetbus.workers.recorder.runner import RecorderContext, recorder_options, run_recorder
 
 
 class RecorderThread(LoopThread[RecorderContext]):
@@ -16,6 +16,7 @@ class RecorderThread(LoopThread[RecorderContext]):
         options: RecorderOptions | None = None,
         missions: MissionLookup | None = None,
     ) -> None:
+        options = options or recorder_options(settings)
         super().__init__(
             lambda stop, started: run_recorder(settings, url, options, stop, started, missions),
             "fleetbus-recorder",

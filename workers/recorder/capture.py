@@ -29,9 +29,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from decimal import Decimal
-from typing import Any
-
-from aio_pika.abc import AbstractIncomingMessage
+from typing import TYPE_CHECKING, Any
 
 from fleetbus.schemas.routing import (
     BEACON_CODENAME_HEADER,
@@ -43,6 +41,9 @@ from fleetbus.schemas.routing import (
 )
 from fleetbus.workers.beacon_discards import discard_reason
 from fleetbus.workers.store.recordings import TYPE_NAME, RecordedMessage
+
+if TYPE_CHECKING:
+    from fleetbus.workers.recorder.source import Delivery
 
 NOTIFICATION = "notification"
 REQUEST = "request"
@@ -187,7 +188,7 @@ def _envelope_time(document: Any) -> datetime | None:
     return moment if moment.tzinfo else None
 
 
-def properties_of(message: AbstractIncomingMessage) -> dict[str, Any]:
+def properties_of(message: Delivery) -> dict[str, Any]:
     """What replay and analysis need of the AMQP properties (``None`` ones left out)."""
     values = {
         "content_type": message.content_type,
@@ -207,7 +208,7 @@ def properties_of(message: AbstractIncomingMessage) -> dict[str, Any]:
 
 
 def capture(
-    message: AbstractIncomingMessage, names: TypeNames, max_bytes: int, now: datetime | None = None
+    message: Delivery, names: TypeNames, max_bytes: int, now: datetime | None = None
 ) -> RecordedMessage:
     """The record of a delivered message; never raises for what the message contains."""
     recorded_at = now or datetime.now(timezone.utc)

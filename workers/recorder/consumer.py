@@ -16,13 +16,11 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import TypeVar
 
-import aiormq.exceptions
-from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
-from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
+import pika.exceptions
 
 from fleetbus.broker.dead_letter_queue import moved_letter_key
 from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
-from fleetbus.settings import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
+from fleetbus.defaults import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
 from fleetbus.workers.recorder.capture import (
@@ -35,6 +33,7 @@ from fleetbus.workers.recorder.capture import (
 )
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import Retention, RetentionSweeper, parse_retention
+from fleetbus.workers.recorder.source import Delivery, RecorderQueue
 from fleetbus.workers.store.base import StoreUnavailable, WriteResult
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
 from fleetbus.workers.store.rejections import RejectionLog
@@ -43,7 +42,7 @@ log = logging.getLogger("fleetbus.recorder")
 T = TypeVar("T")
 MissionLookup = Callable[[set[str]], Awaitable[dict[str, str]]]
 """The mission each of these robots is being recorded under now (robots under none left out)."""
-CONNECTION_LOST = (AMQPError, aiormq.exceptions.AMQPError, ChannelInvalidStateError, ConnectionError)
+CONNECTION_LOST = (pika.exceptions.AMQPError, ConnectionError)
 
 
 @dataclass(frozen=True)
@@ -88,24 +87,21 @@ UNSTORABLE = "unstorable"
 class RecorderConsumer:
     def __init__(
         self,
-        channel: AbstractChannel,
-        queue: AbstractQueue,
+        queue: RecorderQueue,
         store: RecordingStore,
         options: RecorderOptions,
         names: TypeNames,
         missions: MissionLookup | None = None,
         rejections: RejectionLog | None = None,
     ) -> None:
-        self._channel = channel
         self._rejections = rejections
         self._queue = queue
         self._store = store
         self._options = options
         self._names = names
         self._missions = missions
-        self._inbox = BatchInbox(options.batch_size, options.linger)
+        self._inbox: BatchInbox[Delivery] = BatchInbox(options.batch_size, options.linger)
         self._stopping = asyncio.Event()
-        self._consumer_tag: str | None = None
         self._sweeper = RetentionSweeper(store, options.retention)
         self._run_id = uuid.uuid4().hex[:12]
         self._since_sample = 0
@@ -113,7 +109,7 @@ class RecorderConsumer:
 
     async def run(self) -> None:
         """Consume until :meth:`stop`; then finish what was received and return."""
-        self._consumer_tag = await self._queue.consume(self._inbox.put, no_ack=False)
+        await self._queue.consume(self._inbox.put_nowait)
         loop = asyncio.get_running_loop()
         next_sample = next_sweep = loop.time()
         while not (self._stopping.is_set() and self._inbox.empty()):
@@ -142,12 +138,11 @@ class RecorderConsumer:
 
     async def stop(self) -> None:
         """Stop taking new messages; :meth:`run` returns once the ones received are stored."""
-        if self._consumer_tag is not None and not self._channel.is_closed:
-            with contextlib.suppress(*CONNECTION_LOST):
-                await self._queue.cancel(self._consumer_tag)
+        with contextlib.suppress(*CONNECTION_LOST):
+            await self._queue.cancel()
         self._stopping.set()
 
-    def _capture(self, message: AbstractIncomingMessage) -> RecordedMessage:
+    def _capture(self, message: Delivery) -> RecordedMessage:
         try:
             return capture(message, self._names, self._options.max_message_bytes)
         except Exception as error:  # a bug here must not make the message a poison that stops recording
@@ -165,9 +160,9 @@ class RecorderConsumer:
                 size=len(message.body),
             )
 
-    async def _process(self, batch: list[AbstractIncomingMessage]) -> None:
+    async def _process(self, batch: list[Delivery]) -> None:
         records: list[RecordedMessage] = []
-        kept: list[AbstractIncomingMessage] = []
+        kept: list[Delivery] = []
         letters: dict[int, str] = {}
         for message in batch:
             if self._options.filter.keeps(message.routing_key or ""):
@@ -197,7 +192,7 @@ class RecorderConsumer:
         if last is not None:
             await last.ack(multiple=True)
 
-    async def _dead_letter(self, message: AbstractIncomingMessage, unstorable: Unstorable) -> None:
+    async def _dead_letter(self, message: Delivery, unstorable: Unstorable) -> None:
         """What the store would not take even raw goes to the dead-letter queue (the queue's
         policy, README "The recorder"), its reason kept in the service's store when there is one."""
         if self._rejections is not None:

@@ -9,6 +9,8 @@ only what recording needs. The process that records for hours never carries the 
 
 What the command resolved goes to the new image through an inherited pipe, as JSON: the URL holds
 the account's password, which must not appear in the process's arguments (``ps``) or environment.
+The settings go resolved, as plain values: the settings model (pydantic, pydantic-settings and the
+schemas it names: about 12 MB) stays out of the recording process.
 """
 
 from __future__ import annotations
@@ -20,45 +22,103 @@ import os
 import sys
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.logs import configure_logging
 from fleetbus.workers.recorder.consumer import RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import parse_retention
-from fleetbus.workers.recorder.runner import recorder_options, run_recorder
+from fleetbus.workers.recorder.runner import run_recorder
+
+if TYPE_CHECKING:
+    from fleetbus.settings import Settings
 
 #: A pipe's buffer on Linux; the launch is written whole before the ``exec``, so it must fit.
 PIPE_BUFFER = 65536
 
 
 @dataclass(frozen=True)
+class Stores:
+    """Where the recording process records, and where the service's store is (the missions robots
+    are recorded under, why a dead letter was refused): the settings' values, without the settings."""
+
+    mongodb_url: str | None
+    sqlite_path: Path
+    recording_path: Path
+    field_indexes_max: int
+
+    @classmethod
+    def of(cls, settings: Settings) -> Stores:
+        return cls(
+            settings.mongodb_url, settings.sqlite_path, settings.recording_path, settings.field_indexes_max
+        )
+
+
+@dataclass(frozen=True)
 class Launch:
-    """What ``fleetbus recorder run`` hands the recording process."""
+    """What ``fleetbus recorder run`` hands the recording process: its options and the settings
+    it needs, resolved (:meth:`resolve`)."""
 
     url: str
+    stores: Stores
     include: list[str] = field(default_factory=list)
     exclude: list[str] = field(default_factory=list)
     keep: list[str] = field(default_factory=list)
+    max_message_bytes: int = 0
     sample_interval: float = 60.0
     verbose: bool = False
 
-    def options(self, settings: Settings) -> RecorderOptions:
-        """The settings' options with these overrides; raises ValueError naming a bad one."""
-        overrides: dict[str, object] = {"sample_interval": self.sample_interval}
-        if self.include or self.exclude:
-            overrides["filter"] = RoutingFilter(
-                tuple(self.include or settings.recorder_include),
-                tuple(self.exclude or settings.recorder_exclude),
-            )
-        if self.keep:
-            overrides["retention"] = parse_retention(self.keep)
-        return recorder_options(settings, **overrides)
+    @classmethod
+    def resolve(
+        cls,
+        settings: Settings,
+        url: str,
+        include: Sequence[str] = (),
+        exclude: Sequence[str] = (),
+        keep: Sequence[str] = (),
+        sample_interval: float = 60.0,
+        verbose: bool = False,
+    ) -> Launch:
+        """The command line's options, the settings' (``FLEETBUS_RECORDER_*``) where it gives none;
+        raises ValueError naming a bad one."""
+        launch = cls(
+            url=url,
+            stores=Stores.of(settings),
+            include=list(include or settings.recorder_include),
+            exclude=list(exclude or settings.recorder_exclude),
+            keep=list(keep or settings.recorder_keep),
+            max_message_bytes=settings.max_message_bytes,
+            sample_interval=sample_interval,
+            verbose=verbose,
+        )
+        launch.options()
+        return launch
+
+    def options(self) -> RecorderOptions:
+        """The recorder's options; raises ValueError naming a bad one."""
+        return RecorderOptions(
+            filter=RoutingFilter(tuple(self.include), tuple(self.exclude)),
+            retention=parse_retention(self.keep),
+            max_message_bytes=self.max_message_bytes,
+            sample_interval=self.sample_interval,
+        )
+
+    def to_json(self) -> bytes:
+        return json.dumps(asdict(self), default=str).encode()
+
+    @classmethod
+    def from_json(cls, data: bytes) -> Launch:
+        fields: dict[str, Any] = json.loads(data)
+        stores = fields.pop("stores")
+        for name in ("sqlite_path", "recording_path"):
+            stores[name] = Path(stores[name])
+        return cls(stores=Stores(**stores), **fields)
 
 
 def exec_recorder(launch: Launch) -> None:
     """Replace this process with the recording process (does not return)."""
-    data = json.dumps(asdict(launch)).encode()
+    data = launch.to_json()
     if len(data) >= PIPE_BUFFER:
         raise ValueError(f"the recorder's options are too long ({len(data)} bytes)")
     reading, writing = os.pipe()
@@ -81,8 +141,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--launch-fd", type=int, required=True, help="the pipe the launch is read from")
     args = parser.parse_args(argv)
     with os.fdopen(args.launch_fd, "rb") as pipe:
-        launch = Launch(**json.loads(pipe.read()))
-    settings = load_settings()
-    options = launch.options(settings)
+        launch = Launch.from_json(pipe.read())
     configure_logging(launch.verbose)
-    asyncio.run(run_recorder(settings, launch.url, options))
+    asyncio.run(run_recorder(launch.stores, launch.url, launch.options()))

@@ -8,28 +8,26 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import aio_pika
-from aio_pika.abc import AbstractRobustConnection
-
 from fleetbus.schemas.routing import RECORDER_QUEUE
-from fleetbus.settings import Settings
 from fleetbus.workers.recorder.capture import TypeNames
 from fleetbus.workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import parse_retention
+from fleetbus.workers.recorder.source import RecorderQueue
 from fleetbus.workers.signals import stop_on_signals
-from fleetbus.workers.store import Repositories, open_recording_store, repositories_for
+from fleetbus.workers.store import Repositories, StoreSettings, open_recording_store, repositories_for
 from fleetbus.workers.store.recordings import RecordingStore
 
 if TYPE_CHECKING:
     from fleetbus.broker.endpoint import BrokerEndpoint
+    from fleetbus.settings import Settings
 
 log = logging.getLogger("fleetbus.recorder")
 
 
 @dataclass
 class RecorderContext:
-    connection: AbstractRobustConnection
+    connection: RecorderQueue
     consumer: RecorderConsumer
     store: RecordingStore
     repositories: Repositories | None = None
@@ -74,7 +72,7 @@ def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
 
 
 async def start_recorder(
-    settings: Settings,
+    settings: StoreSettings,
     url: str,
     options: RecorderOptions,
     missions: MissionLookup | None = None,
@@ -91,17 +89,12 @@ async def start_recorder(
         repositories = repositories_for(settings)
         await repositories.open()
         missions = repositories.channels.recording_missions
-    connection = await aio_pika.connect_robust(
-        url, client_properties={"connection_name": "fleetbus-recorder"}
-    )
-    channel = await connection.channel()
-    await channel.set_qos(prefetch_count=options.batch_size)
-    # fetched (not just named) so the robust channel consumes it again after a broker restart
-    queue = await channel.get_queue(RECORDER_QUEUE)
+    queue = RecorderQueue(url, RECORDER_QUEUE, options.batch_size, "fleetbus-recorder")
+    await queue.open()
     return RecorderContext(
-        connection,
+        queue,
         RecorderConsumer(
-            channel, queue, store, options, names, missions, repositories.rejections if repositories else None
+            queue, store, options, names, missions, repositories.rejections if repositories else None
         ),
         store,
         repositories,
@@ -109,9 +102,9 @@ async def start_recorder(
 
 
 async def run_recorder(
-    settings: Settings,
+    settings: StoreSettings,
     url: str,
-    options: RecorderOptions | None = None,
+    options: RecorderOptions,
     stop: asyncio.Event | None = None,
     on_started: Callable[[RecorderContext], None] | None = None,
     missions: MissionLookup | None = None,
@@ -120,7 +113,7 @@ async def run_recorder(
     stamps each robot's messages with the mission it is recorded under."""
     stop = stop or asyncio.Event()
     stop_on_signals(stop)
-    context = await start_recorder(settings, url, options or recorder_options(settings), missions)
+    context = await start_recorder(settings, url, options, missions)
     log.info("recorder consuming %s (store: %s)", RECORDER_QUEUE, context.store.name)
     if on_started is not None:
         on_started(context)

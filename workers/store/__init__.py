@@ -3,7 +3,6 @@ implemented on the embedded SQLite default and on MongoDB for production."""
 
 from __future__ import annotations
 
-from fleetbus.settings import Settings
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
@@ -17,6 +16,7 @@ from fleetbus.workers.store.recordings import RecordingStore
 from fleetbus.workers.store.repositories import (
     EventLog,
     Repositories,
+    StoreSettings,
     open_repositories,
     repositories_for,
     run_with_repositories,
@@ -34,6 +34,7 @@ __all__ = [
     "Repositories",
     "RobotState",
     "StoreError",
+    "StoreSettings",
     "StoreUnavailable",
     "WriteResult",
     "open_recording_store",
@@ -43,7 +44,7 @@ __all__ = [
 ]
 
 
-def open_recording_store(settings: Settings) -> RecordingStore:
+def open_recording_store(settings: StoreSettings) -> RecordingStore:
     """The recorder's store: MongoDB collections ``recorded.<type>`` when ``mongodb_url`` is set,
     else a SQLite file of its own next to the event log; not yet opened."""
     if settings.mongodb_url:

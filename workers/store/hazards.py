@@ -13,11 +13,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from enum import Enum
-from typing import Any
+from functools import cache
+from typing import TYPE_CHECKING, Any
 
-from pydantic import TypeAdapter
-
-from fleetbus.schemas.envelope import SCHEMA_VERSION
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord, StoreError
 
@@ -108,7 +106,17 @@ REACH = Transition("reached", (_S.CLAIMED,), _S.REACHED, True, "reached_at")
 CLEAR = Transition("cleared", (_S.REACHED,), _S.CLEARED, True, "cleared_at")
 
 
-_TIMESTAMP: TypeAdapter[datetime] = TypeAdapter(datetime)
+if TYPE_CHECKING:
+    from pydantic import TypeAdapter
+
+
+@cache
+def _timestamps() -> TypeAdapter[datetime]:
+    # imported when first needed: the store's package is also imported by the recording process,
+    # which keeps pydantic out of its memory
+    from pydantic import TypeAdapter
+
+    return TypeAdapter(datetime)
 
 
 @dataclass(frozen=True)
@@ -127,12 +135,14 @@ class NewHazard:
         """The hazard a stored hazard event registers, in its mission (the default one when its
         robot is on none); ``event`` is the event as the robot sent it, in JSON types, rebuilt from
         the record exactly as pydantic dumps it, so the store can register it by itself."""
+        from fleetbus.schemas.envelope import SCHEMA_VERSION
+
         event = {
             "message_id": record.message_id,
             "robot_id": record.robot_id,
             "epoch": record.epoch,
             "seq": record.seq,
-            "sent_at": _TIMESTAMP.dump_python(record.sent_at, mode="json"),
+            "sent_at": _timestamps().dump_python(record.sent_at, mode="json"),
             "schema_version": SCHEMA_VERSION,
             "type": record.type,
             "body": record.body,

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.mission_states import MissionState
 from fleetbus.workers.store.base import StoreError
 
 MISSION_PREFIX = "m-"

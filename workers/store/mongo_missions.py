@@ -11,7 +11,7 @@ from typing import Any
 
 from pymongo import ASCENDING, ReturnDocument
 
-from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.mission_states import MissionState
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
 from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable

@@ -21,7 +21,7 @@ from bson.raw_bson import RawBSONDocument
 from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import BulkWriteError, OperationFailure
 
-from fleetbus.settings import DEFAULT_FIELD_INDEXES_MAX
+from fleetbus.defaults import DEFAULT_FIELD_INDEXES_MAX
 from fleetbus.workers.store.base import StoreUnavailable, WriteResult, from_micros, to_micros
 from fleetbus.workers.store.mongo_database import DUPLICATE_KEY, MongoDatabase, translate_unavailable
 from fleetbus.workers.store.recordings import (

@@ -22,9 +22,9 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import TYPE_CHECKING, TypeVar
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
-from fleetbus.settings import Settings
 from fleetbus.workers.store.attempts import AttemptLog
 from fleetbus.workers.store.base import EventRecord, EventStore
 from fleetbus.workers.store.beacons import BeaconRegistry
@@ -112,7 +112,24 @@ class Repositories:
         await self.close()
 
 
-def repositories_for(settings: Settings) -> Repositories:
+class StoreSettings(Protocol):
+    """What opening the stores reads of the settings: :class:`fleetbus.settings.Settings` has it,
+    and so does what the recording process is handed (it keeps pydantic out of its memory)."""
+
+    @property
+    def mongodb_url(self) -> str | None: ...
+
+    @property
+    def sqlite_path(self) -> Path: ...
+
+    @property
+    def recording_path(self) -> Path: ...
+
+    @property
+    def field_indexes_max(self) -> int: ...
+
+
+def repositories_for(settings: StoreSettings) -> Repositories:
     """The repositories the settings select (MongoDB when ``mongodb_url`` is set), not yet opened."""
     if settings.mongodb_url:
         from fleetbus.workers.store.mongo import mongo_repositories
@@ -124,13 +141,13 @@ def repositories_for(settings: Settings) -> Repositories:
 
 
 @asynccontextmanager
-async def open_repositories(settings: Settings) -> AsyncIterator[Repositories]:
+async def open_repositories(settings: StoreSettings) -> AsyncIterator[Repositories]:
     """The settings' repositories, open for the block."""
     async with repositories_for(settings) as repositories:
         yield repositories
 
 
-def run_with_repositories(settings: Settings, operation: Callable[[Repositories], Awaitable[T]]) -> T:
+def run_with_repositories(settings: StoreSettings, operation: Callable[[Repositories], Awaitable[T]]) -> T:
     """For synchronous callers (commands, tests): open the repositories, run one operation, close them."""
 
     async def go() -> T:

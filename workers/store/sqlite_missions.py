@@ -8,7 +8,7 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.mission_states import MissionState
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore, StateChange, mission_id_of
 from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction

@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from fleetbus.settings import DEFAULT_FIELD_INDEXES_MAX
+from fleetbus.defaults import DEFAULT_FIELD_INDEXES_MAX
 from fleetbus.workers.store.base import WriteResult, from_micros, to_micros
 from fleetbus.workers.store.recordings import (
     Condition,

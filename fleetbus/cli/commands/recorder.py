@@ -38,16 +38,16 @@ def run(
     Runs as the `fleetbus-recorder` account only, which may read its one queue: `fleetbus setup`
     makes the account and the queue."""
     die_with_parent()  # when `fleetbus worker` started it (the death signal outlives the exec)
-    launch = Launch(
-        url="",
-        include=include or [],
-        exclude=exclude or [],
-        keep=keep or [],
-        sample_interval=sample_every,
-        verbose=verbose,
-    )
     try:
-        launch.options(settings())
+        launch = Launch.resolve(
+            settings(),
+            url="",
+            include=include or [],
+            exclude=exclude or [],
+            keep=keep or [],
+            sample_interval=sample_every,
+            verbose=verbose,
+        )
     except ValueError as error:
         fail(str(error), code=2)
     # the same process goes on recording without the command line's imports

@@ -1,0 +1,7 @@
+"""Defaults of settings that light processes use without the settings model (pydantic): the
+recording process gets its resolved settings from ``fleetbus recorder run`` and imports these only.
+:mod:`fleetbus.settings` is where each is a setting, with its variable and description."""
+
+DEFAULT_MAX_MESSAGE_BYTES = 1024 * 1024
+DEFAULT_RECORDER_KEEP = "*=1GB"
+DEFAULT_FIELD_INDEXES_MAX = 32
