@@ -21,7 +21,7 @@ from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
 def test_broker_killed_and_restarted_under_load(killable_bus: Bus, killable_node: LocalNode) -> None:
     """Events reach the store exactly once, in order, across a SIGKILL of the broker.
 
-    (Notifications across a broker kill are issue 4's subject; see its notes.)
+    (A notification across a broker kill: the Table 6 test below.)
     """
     bus = killable_bus
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER), connect_timeout=60)
@@ -59,7 +59,7 @@ def test_the_recorder_records_again_after_the_broker_restarts(
 
 
 #: How long the broker stays dead while the robots keep publishing: a few seconds in the default
-#: suite, the issue's 30 s under ``slow``. What is proven (nothing reaches the store meanwhile, every
+#: suite, the full 30 s under ``slow``. What is proven (nothing reaches the store meanwhile, every
 #: outbox drains after, everything stored once and in order) does not depend on the length.
 BROKER_OUTAGES = [pytest.param(3.0, id="3s"), pytest.param(30.0, id="30s", marks=pytest.mark.slow)]
 

@@ -33,7 +33,7 @@ from tests.support import (
 from tests.test_cli import fleetbus
 
 #: How long the workers stay stopped while the robots keep publishing: a few seconds in the default
-#: suite, the issue's minute under ``slow``. What is proven (nothing stored meanwhile, the queues
+#: suite, the full minute under ``slow``. What is proven (nothing stored meanwhile, the queues
 #: hold it all, everything stored once and in order after) does not depend on the length.
 WORKER_OUTAGES = [pytest.param(3.0, id="3s"), pytest.param(60.0, id="60s", marks=pytest.mark.slow)]
 
