@@ -24,6 +24,7 @@ from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_accou
 from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.retry import retrying
 from fleetbus.broker.urls import without_password
 from fleetbus.cli.registry import register_robot
 from fleetbus.dev.recorder_thread import RecorderThread
@@ -241,13 +242,8 @@ class Bus:
         A store that does not answer a new connection in time (mongoeco's single-threaded server
         behind a busy worker on a loaded machine) is tried again until ``patience`` runs out: the
         workers retry it too (:class:`StoreUnavailable` is transient)."""
-        deadline = time.monotonic() + patience
-        while True:
-            try:
-                return run_with_repositories(self.settings, operation)
-            except StoreUnavailable:
-                if time.monotonic() > deadline:
-                    raise
+        attempt = retrying("the test's store", on=StoreUnavailable, deadline=patience)
+        return attempt(run_with_repositories, self.settings, operation)
 
     def find(self, query: EventQuery | None = None) -> list[EventRecord]:
         return self.with_store(lambda store: store.events.find_events(query or EventQuery()))
