@@ -33,7 +33,7 @@ from fleetbus.publishers.client import RobotClient, outbox_folder
 from fleetbus.publishers.outbox import Outbox
 from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.notifications import Notification
-from fleetbus.schemas.routing import EXPRESS_TYPES, RobotKind
+from fleetbus.schemas.routing import EXPRESS_TYPES, RobotKind, inbox_queue
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.recorder.consumer import MissionLookup
 from fleetbus.workers.recorder.runner import recorder_options
@@ -64,6 +64,29 @@ def wait_for(
                 f"timed out after {timeout:.0f} s waiting for {what} (last value: {value!r})"
             )
         time.sleep(interval)
+
+
+def read_inbox(
+    amqp_url: str, robot: str, until: Callable[[list[Notification]], bool], timeout: float
+) -> list[Notification]:
+    """What the broker delivers to ``robot``'s inbox, repeats included, read with ``amqp_url``'s
+    login until ``until(received)`` holds or nothing comes for ``timeout`` s (the robot client
+    would skip a notification it handed out already, and rebuild on start: this reads the inbox
+    itself)."""
+    connection = pika.BlockingConnection(pika.URLParameters(amqp_url))
+    received: list[Notification] = []
+    try:
+        channel = connection.channel()
+        for method, _, body in channel.consume(inbox_queue(robot), inactivity_timeout=timeout):
+            if method is None:
+                break
+            received.append(Notification.model_validate_json(body))
+            channel.basic_ack(method.delivery_tag)
+            if until(received):
+                break
+    finally:
+        connection.close()
+    return received
 
 
 def notifications_until(

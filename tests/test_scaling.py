@@ -35,6 +35,7 @@ from tests.support import (
     assert_stored_once_in_order,
     keys,
     notifications_until,
+    read_inbox,
     wait_for,
 )
 
@@ -221,22 +222,9 @@ def _hazard_ids(notes: list[Notification]) -> list[int | None]:
 
 
 def inbox(account: Account, count: int, timeout: float) -> list[Notification]:
-    """What the broker delivered to the account's inbox, repeats included (the robot client skips
-    a notification it already handed out, which would hide a hazard announced twice)."""
-    connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
-    notes: list[Notification] = []
-    try:
-        channel = connection.channel()
-        for method, _, body in channel.consume(inbox_queue(account.name), inactivity_timeout=timeout):
-            if method is None:
-                break
-            notes.append(Notification.model_validate_json(body))
-            channel.basic_ack(method.delivery_tag)
-            if len(notes) == count:
-                break
-    finally:
-        connection.close()
-    return notes
+    """The first ``count`` notifications the broker delivered to the account's inbox, repeats
+    included (fewer when nothing more comes for ``timeout`` s)."""
+    return read_inbox(account.amqp_url, account.name, lambda notes: len(notes) == count, timeout)
 
 
 def test_a_worker_killed_while_others_run_loses_and_doubles_nothing(bus: Bus) -> None:

@@ -18,12 +18,11 @@ import pytest
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.topology import account_topology, declare_with_url
-from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import RobotKind, inbox_queue
 from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN
 from tests.factories import hazard
 from tests.link import NetworkLink
-from tests.support import Bus, wait_for
+from tests.support import Bus, read_inbox, wait_for
 from tests.test_cli import fleetbus
 
 WARDEN, EXPLORER = RobotKind.WARDEN, RobotKind.EXPLORER
@@ -176,26 +175,15 @@ def test_an_announcement_no_wardens_inbox_took_stays_held_and_says_why(stored_bu
     assert held_because(bus) == [None]
 
 
-Seen = list[tuple[int | None, str | None]]
-
-
-def inbox_until(bus: Bus, robot: str, sentinel: str, timeout: float = 30) -> Seen:
+def inbox_until(
+    bus: Bus, robot: str, sentinel: str, timeout: float = 30
+) -> list[tuple[int | None, str | None]]:
     """(hazard id, state) of each notification in ``robot``'s inbox, read as it arrives up to the
     one announcing event ``sentinel``: the inbox itself, without the client's rebuild on start."""
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
-    got: Seen = []
-    try:
-        channel = connection.channel()
-        for method, _, body in channel.consume(inbox_queue(robot), inactivity_timeout=timeout):
-            assert method is not None, f"{robot}: nothing for {timeout} s after {got}"
-            channel.basic_ack(method.delivery_tag)
-            note = Notification.model_validate_json(body)
-            got.append((note.hazard_id, note.hazard_state))
-            if note.event.message_id == sentinel:
-                return got
-    finally:
-        connection.close()
-    raise AssertionError(f"{robot}: the inbox consumer was cancelled after {got}")
+    notes = read_inbox(bus.admin_url, robot, lambda got: got[-1].event.message_id == sentinel, timeout)
+    seen = [(note.hazard_id, note.hazard_state) for note in notes]
+    assert notes and notes[-1].event.message_id == sentinel, f"{robot}: nothing for {timeout} s after {seen}"
+    return seen
 
 
 def test_a_hazard_claimed_before_its_announcement_was_marked_still_reaches_every_warden(
