@@ -23,6 +23,7 @@ from pathlib import Path
 from urllib.parse import quote
 
 from fleetbus.broker.endpoint import (
+    MANAGEMENT_PORT,
     BrokerEndpoint,
     BrokerUnavailable,
     endpoint_ready,
@@ -36,7 +37,6 @@ PROJECT_ROOT = Path(__file__).resolve().parents[2]
 COMPOSE_FILE = PROJECT_ROOT / "compose.yaml"
 COMPOSE_SERVICE = "rabbitmq"
 DOCKER_AMQP_PORT = 5672
-DOCKER_MANAGEMENT_PORT = 15672
 PASSWORD_VARIABLE = "FLEETBUS_BROKER_PASSWORD"
 
 log = logging.getLogger("fleetbus.broker")
@@ -76,7 +76,7 @@ def docker_endpoint(settings: Settings) -> BrokerEndpoint:
     password = docker_password(settings)
     return BrokerEndpoint(
         f"amqp://{ADMIN_USER}:{quote(password, safe='')}@127.0.0.1:{DOCKER_AMQP_PORT}/",
-        f"http://127.0.0.1:{DOCKER_MANAGEMENT_PORT}/",
+        f"http://127.0.0.1:{MANAGEMENT_PORT}/",
         "docker",
     )
 
