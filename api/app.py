@@ -18,6 +18,8 @@ from fastapi.routing import APIRoute
 
 from fleetbus.api import audit
 from fleetbus.api.auth import RoleCheck
+from fleetbus.api.console.feed import running_feed
+from fleetbus.api.console.router import install_console
 from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.routes import auth, beacons, channels, missions, recording, team, users
 from fleetbus.api.service import open_service
@@ -57,7 +59,9 @@ def create_app(settings: Settings, admin_url: str, management_url: str) -> FastA
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         async with open_service(settings, admin_url, management_url) as service:
             app.state.service = service
-            yield
+            async with running_feed(service.repositories.events, settings) as feed:
+                app.state.feed = feed
+                yield
 
     app = FastAPI(
         title="fleetbus service layer",
@@ -76,6 +80,8 @@ def create_app(settings: Settings, admin_url: str, management_url: str) -> FastA
         team.router,
     ):
         app.include_router(document_roles(router))
+
+    install_console(app)
 
     @app.get("/health", tags=["health"])
     async def health() -> dict[str, Any]:

@@ -23,6 +23,7 @@ from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.discards import DiscardLog
+from fleetbus.workers.store.hazards import CoordinationStore
 from fleetbus.workers.store.missions import MissionStore
 from fleetbus.workers.store.users import User, UserStore
 
@@ -61,11 +62,16 @@ def _discards(request: Request) -> DiscardLog:
     return repositories(request).discards
 
 
+def _hazards(request: Request) -> CoordinationStore:
+    return repositories(request).hazards
+
+
 UsersDep = Annotated[UserStore, Depends(_users)]
 ChannelsDep = Annotated[ChannelStore, Depends(_channels)]
 MissionsDep = Annotated[MissionStore, Depends(_missions)]
 EventsDep = Annotated[EventStore, Depends(_events)]
 DiscardsDep = Annotated[DiscardLog, Depends(_discards)]
+HazardsDep = Annotated[CoordinationStore, Depends(_hazards)]
 
 
 def unauthorized(request: Request, why: str, who: str = "(anonymous)") -> HTTPException:

@@ -205,6 +205,20 @@ class Settings(BaseSettings):
         "20 per 5 minutes", "failed logins from one address, to any accounts, before it gets 429 for all"
     )
     api_url: str = setting(DEFAULT_API_URL, "the API `fleetbus api login` talks to")
+    console_poll_s: Annotated[float, Positive] = setting(
+        0.1, "how often the console's live feed asks the store for new events (one reader per API process)"
+    )
+    console_tick_s: Annotated[float, Positive] = setting(
+        1.0, "how often open console pages refresh what they show of the team's state when no event came"
+    )
+    console_recent_events: Annotated[int, Positive] = setting(
+        200, "how many of the newest events the dashboard lists (older ones are in Messages)"
+    )
+    console_queue: Annotated[int, Positive] = setting(
+        64,
+        "batches of news a console page may fall behind before its stream is cut (the browser then "
+        "reconnects and catches up from the store); cuts are counted on the dashboard",
+    )
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )

@@ -198,3 +198,15 @@ async def test_unreachable_mongodb_is_unavailable() -> None:
             await store.events.count_events()
     finally:
         await store.close()
+
+
+async def test_events_received_since_follow_the_order_they_were_received(store: Repositories) -> None:
+    # sent out of order (a robot's outbox drains late): the feed follows received_at, not sent_at
+    late = replace(record(seq=1, at=T0 - timedelta(hours=1)), received_at=T0 + timedelta(seconds=2))
+    first = replace(record(seq=2), received_at=T0 + timedelta(seconds=1))
+    other = replace(record(robot="explorer2", seq=0), received_at=T0 + timedelta(seconds=1))
+    await store.events.write_events([late, first, other])
+    found = await store.events.events_received_since(T0 + timedelta(seconds=1), limit=10)
+    assert [r.key for r in found] == [first.key, other.key, late.key]
+    assert [r.key for r in await store.events.events_received_since(T0, limit=1)] == [first.key]
+    assert await store.events.events_received_since(T0 + timedelta(seconds=3), limit=10) == []

@@ -99,3 +99,8 @@ class EventStore(abc.ABC):
 
     @abc.abstractmethod
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int: ...
+
+    @abc.abstractmethod
+    async def events_received_since(self, since: datetime, limit: int) -> list[EventRecord]:
+        """The first ``limit`` events stored with ``received_at >= since``, in the order the workers
+        received them (then robot, epoch and sequence number): the console's live feed."""

@@ -156,6 +156,7 @@ class MongoEventLog(MongoLedger, EventLog):
         await events.create_index([("robot_id", ASCENDING), ("sent_at_us", ASCENDING)])
         await events.create_index([("sent_at_us", ASCENDING)])
         await events.create_index([("message_id", ASCENDING)])
+        await events.create_index([("received_at_us", ASCENDING)])
 
     async def store_batch(
         self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
@@ -228,6 +229,14 @@ class MongoEventLog(MongoLedger, EventLog):
         )
         if query.limit is not None:
             cursor = cursor.limit(query.limit)
+        try:
+            return [from_document(doc) async for doc in cursor]
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
+
+    async def events_received_since(self, since: datetime, limit: int) -> list[EventRecord]:
+        keys = [(name, ASCENDING) for name in ("received_at_us", "robot_id", "epoch", "seq")]
+        cursor = self._events().find({"received_at_us": {"$gte": to_micros(since)}}).sort(keys).limit(limit)
         try:
             return [from_document(doc) async for doc in cursor]
         except PyMongoError as error:

@@ -64,6 +64,7 @@ CREATE INDEX IF NOT EXISTS events_type_time ON events (type, sent_at);
 CREATE INDEX IF NOT EXISTS events_robot_time ON events (robot_id, sent_at);
 CREATE INDEX IF NOT EXISTS events_time ON events (sent_at);
 CREATE INDEX IF NOT EXISTS events_message_id ON events (message_id);
+CREATE INDEX IF NOT EXISTS events_received ON events (received_at);
 """
 COLUMNS = (
     "robot_id, epoch, seq, type, message_id, sent_at, received_at, body, user_id, exchange, routing_key, "
@@ -209,6 +210,12 @@ class SQLiteEventLog(SQLiteLedger, EventLog):
         if query.limit is not None:
             sql += f" LIMIT {int(query.limit)}"
         return await self._run(lambda db: [_record(row) for row in db.execute(sql, params)])
+
+    async def events_received_since(self, since: datetime, limit: int) -> list[EventRecord]:
+        sql = "SELECT * FROM events WHERE received_at >= ? ORDER BY received_at, robot_id, epoch, seq LIMIT ?"
+        return await self._run(
+            lambda db: [_record(row) for row in db.execute(sql, (to_micros(since), int(limit)))]
+        )
 
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int:
         where, params = _where(type, robot_id, None, None)

@@ -39,9 +39,15 @@ def serve(
     from fleetbus.api.app import create_app
 
     ep = endpoint()
-    console.print(f"fleetbus API on http://{host}:{port}/ (docs at /docs); broker {ep.management_url}")
+    console.print(
+        f"fleetbus API and console on http://{host}:{port}/ (API docs at /docs); broker {ep.management_url}"
+    )
     uvicorn.run(
-        create_app(settings(), ep.amqp_url, ep.management_url), host=host, port=port, log_level="info"
+        create_app(settings(), ep.amqp_url, ep.management_url),
+        host=host,
+        port=port,
+        log_level="info",
+        timeout_graceful_shutdown=5,  # open console pages stream until closed
     )
 
 

@@ -1,0 +1,162 @@
+"""The console's live feed: one reader of the store per API process, fanned out to every open page.
+
+The reader asks the store for the events received since its cursor every ``poll_s`` seconds and
+hands each batch to every subscriber. Pages never read the broker: what they show is what the
+store holds, so a browser that reconnects with the last event id it saw is sent, from the store,
+everything it missed.
+
+Workers write concurrently, so an event received a moment earlier may be committed a moment
+later than one already read. The reader therefore reads again from ``overlap`` before its cursor
+and skips the keys it already handed out (a bounded set). Fragments are keyed by the event, so a
+browser shown an event twice shows it once.
+
+A subscriber that does not keep up (its queue of ``queue_size`` batches is full) is dropped: its
+page's stream ends and the browser reconnects with its last event id. Drops are counted
+(:attr:`Feed.dropped`) and shown on the dashboard.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import OrderedDict
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta, timezone
+
+from fleetbus.settings import Settings
+from fleetbus.workers.store.base import EventRecord, EventStore, StoreError, from_micros, to_micros
+
+log = logging.getLogger("fleetbus.api.console")
+
+
+def cursor_of(moment: datetime) -> str:
+    """An SSE event id: the receive time, in microseconds since the epoch."""
+    return str(to_micros(moment))
+
+
+def moment_of(event_id: str | None) -> datetime | None:
+    """The receive time an SSE event id names; ``None`` for no id or one that is not ours."""
+    if not event_id or not event_id.isdigit():
+        return None
+    return from_micros(int(event_id))
+
+
+@dataclass(frozen=True)
+class Batch:
+    """New events (possibly none: a tick, on which pages refresh what they show of the state)."""
+
+    events: list[EventRecord]
+    cursor: str
+
+
+@dataclass(eq=False)
+class Subscription:
+    queue: asyncio.Queue[Batch | None]
+    dropped: bool = False
+
+
+@dataclass
+class Feed:
+    events: EventStore
+    poll_s: float = 0.1
+    tick_s: float = 1.0
+    overlap: timedelta = timedelta(seconds=5)
+    queue_size: int = 64
+    batch_limit: int = 1000
+    remembered: int = 20_000
+    """How many keys of recently handed-out events are kept to skip them when read again."""
+    dropped: int = 0
+    """Subscribers dropped for not keeping up since the process started."""
+    store_errors: int = 0
+    _cursor: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
+    _seen: OrderedDict[tuple[str, str, int], None] = field(default_factory=OrderedDict)
+    _subscribers: set[Subscription] = field(default_factory=set)
+
+    @property
+    def cursor(self) -> str:
+        return cursor_of(self._cursor)
+
+    @property
+    def subscribers(self) -> int:
+        return len(self._subscribers)
+
+    async def run(self) -> None:
+        """Read and hand out until cancelled. A store that does not answer is retried next poll."""
+        loop = asyncio.get_running_loop()
+        next_tick = loop.time() + self.tick_s
+        while True:
+            try:
+                fresh = await self._read()
+            except StoreError as error:
+                self.store_errors += 1
+                log.warning("console feed: the store did not answer (%s); trying again", error)
+                fresh = []
+            if fresh or loop.time() >= next_tick:
+                self._publish(Batch(fresh, self.cursor))
+                next_tick = loop.time() + self.tick_s
+            await asyncio.sleep(self.poll_s)
+
+    async def _read(self) -> list[EventRecord]:
+        fresh: list[EventRecord] = []
+        while True:
+            found = await self.events.events_received_since(self._cursor - self.overlap, self.batch_limit)
+            new = [record for record in found if record.key not in self._seen]
+            for record in new:
+                self._remember(record.key)
+                self._cursor = max(self._cursor, record.received_at)
+            fresh.extend(new)
+            if len(found) < self.batch_limit or not new:
+                return fresh
+
+    def _remember(self, key: tuple[str, str, int]) -> None:
+        self._seen[key] = None
+        while len(self._seen) > self.remembered:
+            self._seen.popitem(last=False)
+
+    def _publish(self, batch: Batch) -> None:
+        for subscription in list(self._subscribers):
+            if subscription.queue.qsize() >= self.queue_size:
+                self._drop(subscription)
+            else:
+                subscription.queue.put_nowait(batch)
+
+    def _drop(self, subscription: Subscription) -> None:
+        self._subscribers.discard(subscription)
+        subscription.dropped = True
+        self.dropped += 1
+        subscription.queue.put_nowait(None)
+        log.warning("console feed: a page did not keep up and was dropped (it reconnects)")
+
+    @contextlib.asynccontextmanager
+    async def subscribe(self) -> AsyncIterator[Subscription]:
+        # one slot kept for the end-of-stream marker a dropped subscriber is sent
+        subscription = Subscription(asyncio.Queue(self.queue_size + 1))
+        self._subscribers.add(subscription)
+        try:
+            yield subscription
+        finally:
+            self._subscribers.discard(subscription)
+
+    async def missed(self, since: datetime, limit: int) -> list[EventRecord]:
+        """What a page that saw everything up to ``since`` may have missed (from the store)."""
+        return await self.events.events_received_since(since - self.overlap, limit)
+
+
+@contextlib.asynccontextmanager
+async def running_feed(events: EventStore, settings: Settings) -> AsyncIterator[Feed]:
+    """The process's feed, reading the store until the app stops."""
+    feed = Feed(
+        events,
+        poll_s=settings.console_poll_s,
+        tick_s=settings.console_tick_s,
+        queue_size=settings.console_queue,
+    )
+    task = asyncio.create_task(feed.run(), name="console-feed")
+    try:
+        yield feed
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task

@@ -1,0 +1,104 @@
+"""A page's live stream: server-sent events carrying HTML fragments, each with an event id.
+
+A page names the :class:`LiveView` that renders its live parts. On connecting, the page is sent
+the view's snapshot and, when it says (``Last-Event-ID``) what it saw last, the events it missed,
+read from the store; then each batch of the :class:`~.feed.Feed`. Each fragment is one element
+with an ``id``: ``static/live.js`` replaces the element with that id, or, for a fragment with
+``data-into``, adds it to that list. So a fragment sent twice shows once, and a fragment that did
+not change since this page was last sent it is not sent again.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import re
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Protocol
+
+from fastapi import Request
+from sse_starlette import EventSourceResponse, ServerSentEvent
+
+from fleetbus.api.console.feed import Batch, Feed, moment_of
+from fleetbus.workers.store.base import EventRecord
+
+FRAGMENT_EVENT = "fragment"
+MISSED_LIMIT = 10_000
+"""At most this many missed events are replayed to a reconnecting page; the snapshot shows the rest."""
+_ID = re.compile(r'\bid="([^"]+)"')
+
+
+class LiveView(Protocol):
+    async def snapshot(self) -> list[str]:
+        """The fragments of the state the page shows (the team, the hazards...), now."""
+        ...
+
+    async def events(self, records: list[EventRecord]) -> list[str]:
+        """The fragments ``records`` add to the page (a row each, say); may be none."""
+        ...
+
+
+def _key(fragment: str) -> str:
+    found = _ID.search(fragment)
+    return found.group(1) if found else fragment
+
+
+def last_event_id(request: Request) -> str | None:
+    """What the browser saw last: the ``Last-Event-ID`` header its EventSource sends when it
+    reconnects by itself, or ``last_event_id`` in the query when ``live.js`` opens a new one."""
+    return request.headers.get("last-event-id") or request.query_params.get("last_event_id")
+
+
+async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncIterator[ServerSentEvent]:
+    sent: dict[str, str] = {}
+
+    def changed(fragments: list[str]) -> list[str]:
+        fresh = []
+        for fragment in fragments:
+            key, digest = _key(fragment), hashlib.blake2b(fragment.encode(), digest_size=16).hexdigest()
+            if sent.get(key) != digest:
+                sent[key] = digest
+                fresh.append(fragment)
+        return fresh
+
+    async with feed.subscribe() as subscription:
+        cursor = feed.cursor
+        first = await view.snapshot()
+        since = moment_of(last_event_id(request))
+        if since is not None:
+            first += await view.events(await feed.missed(since, MISSED_LIMIT))
+        yield ServerSentEvent(data="\n".join(changed(first)), event=FRAGMENT_EVENT, id=cursor)
+        while True:
+            batch: Batch | None = await subscription.queue.get()
+            if batch is None:  # dropped for falling behind: the browser reconnects and catches up
+                return
+            news = changed([*await view.events(batch.events), *await view.snapshot()])
+            if news:
+                yield ServerSentEvent(data="\n".join(news), event=FRAGMENT_EVENT, id=batch.cursor)
+
+
+def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResponse:
+    """The answer to a page's ``EventSource``: its fragments until the browser goes away."""
+    return EventSourceResponse(
+        _fragments(view, feed, request), ping=15, headers={"Cache-Control": "no-store"}
+    )
+
+
+class Shared:
+    """An async render shared by every open page: run at most once per ``interval`` seconds;
+    pages asking in between are given the last result. N dashboards cost one read of the store."""
+
+    def __init__(self, render: Callable[[], Awaitable[list[str]]], interval: float = 0.5) -> None:
+        self._render = render
+        self._interval = interval
+        self._lock = asyncio.Lock()
+        self._at = -float("inf")
+        self._value: list[str] = []
+
+    async def __call__(self) -> list[str]:
+        async with self._lock:
+            now = asyncio.get_running_loop().time()
+            if now - self._at >= self._interval:
+                self._value = await self._render()
+                self._at = now
+            return self._value

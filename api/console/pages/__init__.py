@@ -1,0 +1,11 @@
+"""The console's pages, a module each; ``router`` holds them all."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from fleetbus.api.console.pages import dashboard
+
+router = APIRouter()
+for page in (dashboard,):
+    router.include_router(page.router)

@@ -1,0 +1,41 @@
+"""Which pages the console has and who may open each: the one list the navigation and the
+access checks read."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from fleetbus.schemas.roles import UserRole as R
+
+
+@dataclass(frozen=True)
+class Page:
+    name: str
+    title: str
+    path: str
+    roles: frozenset[R]
+
+    def admits(self, role: R) -> bool:
+        return role in self.roles
+
+
+#: Who watches the team and its traffic.
+WATCHERS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
+#: Every role that may read missions.
+MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
+
+DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
+
+#: Every page, in the navigation's order.
+PAGES: tuple[Page, ...] = (DASHBOARD,)
+
+
+def pages_for(role: R) -> list[Page]:
+    """The pages ``role`` may open, in the navigation's order."""
+    return [page for page in PAGES if page.admits(role)]
+
+
+def home_for(role: R) -> Page | None:
+    """Where a user lands after logging in: the first page it may open."""
+    allowed = pages_for(role)
+    return allowed[0] if allowed else None

@@ -1,0 +1,37 @@
+"""Logging in, the one way: the limits on failed logins, the password check and the refusals log.
+The HTTP API's ``POST /auth/token`` and the console's login form both go through :func:`log_in`."""
+
+from __future__ import annotations
+
+from fastapi import HTTPException, Request
+
+from fleetbus.api import audit
+from fleetbus.api.accounts import Login, WrongCredentials
+from fleetbus.api.errors import Forbidden
+from fleetbus.api.login_limits import TooManyFailures
+from fleetbus.api.service import Service
+
+
+async def log_in(request: Request, svc: Service, name: str, password: str) -> Login:
+    """The login, or an :class:`HTTPException` saying why not: 429 with Retry-After when too many
+    logins failed (answered before the password is checked), 401 for a wrong name or password,
+    403 for an inactive account."""
+    address = audit.client_address(request)
+    try:
+        svc.login_limits.check(name, address)
+    except TooManyFailures as error:
+        audit.refused(request, 429, name, error.detail)
+        raise HTTPException(
+            429, detail=error.detail, headers={"Retry-After": str(error.retry_after)}
+        ) from None
+    try:
+        login = await svc.accounts.login(name, password)
+    except WrongCredentials as error:
+        svc.login_limits.failed(name, address)
+        audit.refused(request, 401, name, str(error))
+        raise HTTPException(401, detail=str(error), headers={"WWW-Authenticate": "Bearer"}) from None
+    except Forbidden as error:
+        audit.refused(request, 403, name, error.detail)
+        raise HTTPException(403, detail=error.detail) from None
+    svc.login_limits.succeeded(name, address)
+    return login

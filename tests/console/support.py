@@ -1,0 +1,181 @@
+"""The console in a real browser: `fleetbus api`'s app served by uvicorn over real HTTP (on a
+thread of the test process, so setup can use its services), driven by Debian's chromium,
+headless, through Selenium and chromedriver.
+
+Selenium rather than Playwright: Playwright's sync API keeps an asyncio loop running on the test's
+thread, and the test helpers that set up the broker run their own (``asyncio.run``)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import threading
+from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+import httpx
+import uvicorn
+from selenium import webdriver
+from selenium.common.exceptions import StaleElementReferenceException
+from selenium.webdriver.chrome.service import Service as DriverService
+from selenium.webdriver.common.by import By
+from selenium.webdriver.remote.webelement import WebElement
+
+from fleetbus.api.app import create_app
+from fleetbus.api.service import Service
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.settings import Settings
+from tests.api.server import free_port
+from tests.support import Bus, wait_for
+
+T = TypeVar("T")
+PASSWORD = "correct horse battery"
+
+
+def _executable(setting: str, *names: str) -> str:
+    found = os.environ.get(setting) or next(filter(None, map(shutil.which, names)), None)
+    if not found:
+        raise RuntimeError(f"no {names[0]} found: run scripts/setup, or set {setting}")
+    return found
+
+
+def start_chromium() -> webdriver.Chrome:
+    """Headless chromium (``FLEETBUS_CHROMIUM``, else ``chromium`` on PATH) through its chromedriver
+    (``FLEETBUS_CHROMEDRIVER``, else ``chromedriver``); scripts/setup installs both."""
+    options = webdriver.ChromeOptions()
+    options.binary_location = _executable("FLEETBUS_CHROMIUM", "chromium", "chromium-browser")
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1280,900"):
+        options.add_argument(argument)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    service = DriverService(executable_path=_executable("FLEETBUS_CHROMEDRIVER", "chromedriver"))
+    return webdriver.Chrome(options=options, service=service)
+
+
+class Browser:
+    """One headless chromium for a test process; each test gets it with no cookies and a blank page."""
+
+    def __init__(self, driver: webdriver.Chrome) -> None:
+        self.driver = driver
+
+    def reset(self) -> None:
+        self.driver.get("about:blank")
+        self.driver.delete_all_cookies()
+
+    def go(self, url: str) -> None:
+        self.driver.get(url)
+
+    def find(self, css: str) -> list[WebElement]:
+        return self.driver.find_elements(By.CSS_SELECTOR, css)
+
+    def text(self, css: str) -> str:
+        found = self.find(css)
+        return found[0].text if found else ""
+
+    def texts(self, css: str) -> list[str]:
+        try:
+            return [element.text for element in self.find(css)]
+        except StaleElementReferenceException:  # replaced by a live update while read: read again
+            return self.texts(css)
+
+    def until(self, condition: Callable[[], Any], what: str, timeout: float = 15) -> Any:
+        """Wait (with a deadline) until ``condition()`` is true; fail saying ``what`` was awaited."""
+
+        def holds() -> Any:
+            try:
+                return condition()
+            except StaleElementReferenceException:
+                return False
+
+        return wait_for(holds, timeout=timeout, what=what, interval=0.05)
+
+    def fill(self, css: str, value: str) -> None:
+        element = self.find(css)[0]
+        element.clear()
+        element.send_keys(value)
+
+    def click(self, css: str) -> None:
+        self.find(css)[0].click()
+
+    def console_errors(self) -> list[str]:
+        return [entry["message"] for entry in self.driver.get_log("browser") if entry["level"] == "SEVERE"]
+
+
+@dataclass
+class Console:
+    base: str
+    service: Service
+    bus: Bus
+    loop: asyncio.AbstractEventLoop
+
+    def run(self, work: Callable[[], Awaitable[T]]) -> T:
+        """Run a coroutine on the server's event loop (where its store connection lives)."""
+        return asyncio.run_coroutine_threadsafe(work(), self.loop).result(60)  # type: ignore[arg-type]
+
+    def user(self, name: str, role: UserRole, kind: RobotKind | None = None) -> str:
+        """A user made through the service (as an admin would), with its broker account."""
+        self.bus.api.delete_user(name)  # broker users are broker-wide: one left by an aborted run
+        self.run(lambda: self.service.accounts.create(name, PASSWORD, role, kind, by="test"))
+        return name
+
+    def url(self, path: str) -> str:
+        return self.base + path
+
+    def log_in(self, browser: Browser, name: str, password: str = PASSWORD) -> None:
+        browser.go(self.url("/console/login"))
+        browser.fill("input[name=username]", name)
+        browser.fill("input[name=password]", password)
+        browser.click("form button[type=submit]")
+        browser.until(lambda: name in browser.text(".who"), f"{name} logged in")
+
+    def wait_live(self, browser: Browser) -> None:
+        browser.until(
+            lambda: browser.find("#live-status")[0].get_attribute("data-state") == "live", "the page live"
+        )
+
+
+@contextmanager
+def running_console(bus: Bus, settings: Settings | None = None) -> Iterator[Console]:
+    """``fleetbus api`` (the HTTP API and the console) on ``bus``, served over HTTP on a free
+    port; the users it made are removed from the broker afterwards."""
+    app = create_app(settings or bus.settings, bus.admin_url, bus.endpoint.management_url)
+    port = free_port()
+    config = uvicorn.Config(
+        app, host="127.0.0.1", port=port, log_level="warning", timeout_graceful_shutdown=1
+    )
+    server = uvicorn.Server(config)
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_until_complete, args=(server.serve(),), daemon=True)
+    thread.start()
+    base = f"http://127.0.0.1:{port}"
+
+    def up() -> bool:
+        if not thread.is_alive():
+            raise AssertionError("the console's server stopped while starting")
+        try:
+            return httpx.get(f"{base}/health", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    wait_for(up, timeout=60, what="the console answering")
+    console = Console(base, app.state.service, bus, loop)
+    try:
+        yield console
+    finally:
+        for user in console.run(console.service.repositories.users.users):
+            bus.api.delete_user(user.name)
+        server.should_exit = True
+        thread.join(30)
+        left = asyncio.all_tasks(loop)
+        if left:
+            for task in left:
+                task.cancel()
+
+            async def settle() -> None:
+                await asyncio.gather(*left, return_exceptions=True)
+
+            loop.run_until_complete(settle())
+        loop.close()
