@@ -15,7 +15,7 @@ import pytest
 
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import hazard
-from tests.support import Bus, wait_for
+from tests.support import PROJECT_ROOT, Bus, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -113,3 +113,16 @@ def test_a_robot_publishes_through_the_base_install(base_install: Path, bus: Bus
         "fleetbus.cli",
     }
     assert not server_side & set(result["modules"]), "the robot client imported server code"
+
+
+def test_the_console_ships_its_templates_and_every_file_it_serves(wheel: Path) -> None:
+    names = set(zipfile.ZipFile(wheel).namelist())
+    console = PROJECT_ROOT / "api" / "console"
+    served = [
+        path.relative_to(PROJECT_ROOT)
+        for path in console.rglob("*")
+        if path.is_file() and "__pycache__" not in path.parts and path.suffix != ".py"
+    ]
+    assert served, "no console files found"
+    for path in served:
+        assert f"fleetbus/{path.as_posix()}" in names, f"{path} is not in the wheel"

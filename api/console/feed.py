@@ -8,7 +8,9 @@ everything it missed.
 Workers write concurrently, so an event received a moment earlier may be committed a moment
 later than one already read. The reader therefore reads again from ``overlap`` before its cursor
 and skips the keys it already handed out (a bounded set). Fragments are keyed by the event, so a
-browser shown an event twice shows it once.
+browser shown an event twice shows it once. An event whose write was held up for longer than
+``overlap`` (the store was down and the worker retried) is not streamed: pages show it when
+they are next loaded.
 
 A subscriber that does not keep up (its queue of ``queue_size`` batches is full) is dropped: its
 page's stream ends and the browser reconnects with its last event id. Drops are counted
@@ -62,7 +64,7 @@ class Feed:
     events: EventStore
     poll_s: float = 0.1
     tick_s: float = 1.0
-    overlap: timedelta = timedelta(seconds=5)
+    overlap: timedelta = timedelta(seconds=2)
     queue_size: int = 64
     batch_limit: int = 1000
     remembered: int = 20_000
@@ -100,15 +102,17 @@ class Feed:
 
     async def _read(self) -> list[EventRecord]:
         fresh: list[EventRecord] = []
+        since = self._cursor - self.overlap
         while True:
-            found = await self.events.events_received_since(self._cursor - self.overlap, self.batch_limit)
-            new = [record for record in found if record.key not in self._seen]
-            for record in new:
-                self._remember(record.key)
-                self._cursor = max(self._cursor, record.received_at)
-            fresh.extend(new)
-            if len(found) < self.batch_limit or not new:
+            found = await self.events.events_received_since(since, self.batch_limit)
+            for record in found:
+                if record.key not in self._seen:
+                    self._remember(record.key)
+                    self._cursor = max(self._cursor, record.received_at)
+                    fresh.append(record)
+            if len(found) < self.batch_limit or found[-1].received_at == since:
                 return fresh
+            since = found[-1].received_at  # a full page: read on from where it ended
 
     def _remember(self, key: tuple[str, str, int]) -> None:
         self._seen[key] = None
