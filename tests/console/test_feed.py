@@ -1,0 +1,100 @@
+"""The console's live feed on a real store (SQLite and MongoDB): what it hands out, and to whom."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator
+from datetime import datetime, timedelta, timezone
+
+from fleetbus.api.console.feed import Batch, Feed, Subscription
+from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.repositories import Repositories
+from tests.store.conftest import store  # noqa: F401  (every repository on each backend)
+
+EPOCH = "20210601T182526564Z-0a1b2c3d"
+DEADLINE_S = 15
+
+
+def received(seq: int, at: datetime, robot: str = "explorer1") -> EventRecord:
+    return EventRecord(
+        robot_id=robot,
+        epoch=EPOCH,
+        seq=seq,
+        type="status",
+        message_id=f"m-{robot}-{seq}",
+        sent_at=at,
+        received_at=at,
+        body={"battery_percent": 80.0},
+        user_id=robot,
+        exchange=f"{robot}.events",
+        routing_key=f"{robot}.status",
+    )
+
+
+@contextlib.asynccontextmanager
+async def running(feed: Feed) -> AsyncIterator[Feed]:
+    task = asyncio.create_task(feed.run())
+    try:
+        yield feed
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+Key = tuple[str, str, int]
+
+
+async def handed_out_until(subscription: Subscription, last: Key) -> list[Key]:
+    """The keys of every event handed to ``subscription`` up to and including ``last`` (a sentinel)."""
+    keys: list[Key] = []
+    async with asyncio.timeout(DEADLINE_S):
+        while last not in keys:
+            batch = await subscription.queue.get()
+            assert isinstance(batch, Batch), "the subscriber was not dropped"
+            keys += [record.key for record in batch.events]
+    return keys
+
+
+async def test_an_event_committed_after_a_later_one_is_handed_out_once(store: Repositories) -> None:  # noqa: F811
+    feed = Feed(store.events, poll_s=0.01, overlap=timedelta(seconds=5))
+    now = datetime.now(timezone.utc)
+    async with running(feed), feed.subscribe() as subscription:
+        await store.events.write_events([received(1, now)])
+        assert await handed_out_until(subscription, ("explorer1", EPOCH, 1)) == [("explorer1", EPOCH, 1)]
+        # received 2 s before the event handed out already, but committed only now (another
+        # worker's batch): within the overlap, so the next read finds it
+        await store.events.write_events([received(0, now - timedelta(seconds=2))])
+        await store.events.write_events([received(2, now + timedelta(milliseconds=1))])
+        later = await handed_out_until(subscription, ("explorer1", EPOCH, 2))
+    assert sorted(later) == [("explorer1", EPOCH, 0), ("explorer1", EPOCH, 2)]
+
+
+async def test_an_overlap_holding_more_than_a_read_is_read_page_by_page(store: Repositories) -> None:  # noqa: F811
+    feed = Feed(store.events, poll_s=0.01, overlap=timedelta(seconds=5), batch_limit=5)
+    now = datetime.now(timezone.utc)
+    async with running(feed), feed.subscribe() as subscription:
+        twelve = [received(seq, now + timedelta(milliseconds=seq)) for seq in range(12)]
+        await store.events.write_events(twelve)
+        first = await handed_out_until(subscription, ("explorer1", EPOCH, 11))
+        # every event so far is within the overlap, more than one read's worth: the next is found too
+        await store.events.write_events([received(12, now + timedelta(milliseconds=12))])
+        then = await handed_out_until(subscription, ("explorer1", EPOCH, 12))
+    assert first == [("explorer1", EPOCH, seq) for seq in range(12)]
+    assert then == [("explorer1", EPOCH, 12)]
+
+
+async def test_a_subscriber_that_falls_behind_is_dropped_and_counted(store: Repositories) -> None:  # noqa: F811
+    feed = Feed(store.events, poll_s=0.01, tick_s=0.01, queue_size=3)
+    async with running(feed), feed.subscribe() as keeping_up, feed.subscribe() as lagging:
+        async with asyncio.timeout(DEADLINE_S):
+            for _ in range(4):  # a batch (a tick) each: the fourth finds the lagging queue full
+                assert await keeping_up.queue.get() is not None
+        assert lagging.dropped and feed.dropped == 1 and feed.subscribers == 1
+        # the one that keeps up is still handed what comes
+        await store.events.write_events([received(0, datetime.now(timezone.utc))])
+        assert ("explorer1", EPOCH, 0) in await handed_out_until(keeping_up, ("explorer1", EPOCH, 0))
+    left = [lagging.queue.get_nowait() for _ in range(lagging.queue.qsize())]
+    assert len(left) == 4 and left[-1] is None, "its 3 batches behind, then the end of its stream"
+    assert not keeping_up.dropped
