@@ -2,9 +2,11 @@
 
 A page names the :class:`LiveView` that renders its live parts. On connecting, the page is sent
 the view's snapshot and, when it says (``Last-Event-ID``) what it saw last, the events it missed,
-read from the store; then each batch of the :class:`~.feed.Feed`. Each fragment is one element
-with an ``id``: ``static/live.js`` replaces the element with that id, or, for a fragment with
-``data-into``, adds it to that list. So a fragment sent twice shows once, and a fragment that did
+read from the store; then each batch of the :class:`~.feed.Feed`. An SSE event carries a JSON list
+of fragments. Each fragment is one element with an ``id``, parsed on its own (a table row mixed
+with other elements in one piece of HTML would be dropped by the browser's parser):
+``static/live.js`` replaces the element with that id, or, for a fragment with ``data-into``, adds
+it to that list. So a fragment sent twice shows once, and a fragment that did
 not change since this page was last sent it is not sent again.
 """
 
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
 import re
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Protocol
@@ -67,14 +70,14 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
         since = moment_of(last_event_id(request))
         if since is not None:
             first += await view.events(await feed.missed(since, MISSED_LIMIT))
-        yield ServerSentEvent(data="\n".join(changed(first)), event=FRAGMENT_EVENT, id=cursor)
+        yield ServerSentEvent(data=json.dumps(changed(first)), event=FRAGMENT_EVENT, id=cursor)
         while True:
             batch: Batch | None = await subscription.queue.get()
             if batch is None:  # dropped for falling behind: the browser reconnects and catches up
                 return
             news = changed([*await view.events(batch.events), *await view.snapshot()])
             if news:
-                yield ServerSentEvent(data="\n".join(news), event=FRAGMENT_EVENT, id=batch.cursor)
+                yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
 
 
 def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResponse:

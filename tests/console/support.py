@@ -124,8 +124,9 @@ class Console:
     def url(self, path: str) -> str:
         return self.base + path
 
-    def log_in(self, browser: Browser, name: str, password: str = PASSWORD) -> None:
-        browser.go(self.url("/console/login"))
+    def log_in(self, browser: Browser, name: str, password: str = PASSWORD, base: str | None = None) -> None:
+        """Log in as ``name`` at ``base`` (the console's own address unless a link's is given)."""
+        browser.go(f"{base or self.base}/console/login")
         browser.fill("input[name=username]", name)
         browser.fill("input[name=password]", password)
         browser.click("form button[type=submit]")

@@ -1,9 +1,10 @@
 // fleetbus console: keeps a page live from its server-sent event stream.
 //
 // The page's <main data-stream="URL" data-last-event-id="ID"> names its stream and what it
-// already shows. Each "fragment" event carries HTML elements with ids: an element replaces the
-// one with the same id, or, carrying data-into="LIST", is added at the top of that list (which
-// keeps at most its data-max rows). The browser's EventSource reconnects by itself, sending
+// already shows. Each "fragment" event carries a JSON list of fragments, each one HTML element
+// with an id, parsed on its own (a <tr> parsed after a <section> would be dropped): it replaces
+// the element with the same id, or, carrying data-into="LIST", is added at the top of that list
+// (which keeps at most its data-max rows). The browser's EventSource reconnects by itself, sending
 // Last-Event-ID; when it gives up, this opens a new one with the last id in the query, so a page
 // that was cut off is always sent what it missed.
 (function () {
@@ -37,10 +38,13 @@
     if (window.htmx) window.htmx.process(element);
   }
 
-  function apply(html) {
-    const template = document.createElement("template");
-    template.innerHTML = html;
-    for (const element of Array.from(template.content.children)) place(element);
+  function apply(fragments) {
+    for (const html of fragments) {
+      const template = document.createElement("template");
+      template.innerHTML = html;
+      const element = template.content.firstElementChild;
+      if (element) place(element);
+    }
   }
 
   function connect() {
@@ -53,7 +57,7 @@
     });
     source.addEventListener("fragment", function (event) {
       if (event.lastEventId) lastId = event.lastEventId;
-      apply(event.data);
+      apply(JSON.parse(event.data));
       main.dataset.lastEventId = lastId;
     });
     source.addEventListener("error", function () {
