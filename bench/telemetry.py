@@ -1,10 +1,11 @@
 """Background telemetry: robots publishing status events at a steady total rate, in a process of its own.
 
-    python -m bench.telemetry STATE_DIR RATE URL [URL ...]
+    python -m bench.telemetry STATE_DIR RATE [--pose] URL [URL ...]
 
 Each URL is a robot's account. Every robot publishes its share of RATE events a second with
 ``publish_many`` (robot code's call, confirmed), in small batches ``TICKS`` times a second on an
-absolute schedule. The process prints ``publishing`` once every robot is connected, runs until
+absolute schedule: status events, or with ``--pose`` a status and a localisation (its pose) in
+turn. The process prints ``publishing`` once every robot is connected, runs until
 its standard input closes, then prints one JSON line: ``{"published": N, "seconds": S}``.
 
 :class:`TelemetryLoad` runs it beside a measurement.
@@ -12,6 +13,7 @@ its standard input closes, then prints one JSON line: ``{"published": N, "second
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import threading
@@ -22,23 +24,31 @@ from types import TracebackType
 from bench.ingest import status_items
 from bench.processes import spawn_until_ready
 from fleetbus.publishers.client import RobotClient
+from fleetbus.schemas.routing import EventType
 from tests.support import Bus
 
 TICKS = 50
+POSE = (EventType.LOCALISATION, {"localised": True, "pose": {"x": 12.5, "y": -3.25}})
 
 
 def publish_steadily(
-    robot: RobotClient, rate: float, stop: threading.Event, counts: list[int], errors: list[BaseException]
+    robot: RobotClient,
+    rate: float,
+    stop: threading.Event,
+    counts: list[int],
+    errors: list[BaseException],
+    pose: bool = False,
 ) -> None:
-    """By time t, ``rate * t`` events published (and confirmed), a batch every 1/TICKS s."""
-    item = status_items(1)[0]
+    """By time t, ``rate * t`` events published (and confirmed), a batch every 1/TICKS s; with
+    ``pose``, a status and a localisation in turn."""
+    items = [status_items(1)[0], *([POSE] if pose else [])]
     started = time.monotonic()
     published = 0
     try:
         while not stop.is_set():
             due = int(rate * (time.monotonic() - started)) - published
             if due > 0:
-                robot.publish_many([item] * due)
+                robot.publish_many([items[(published + i) % len(items)] for i in range(due)])
                 published += due
                 counts.append(due)
             stop.wait(1 / TICKS)  # the schedule's tick; the count catches up with the clock
@@ -47,15 +57,22 @@ def publish_steadily(
 
 
 def main() -> None:
-    state_dir, rate, urls = Path(sys.argv[1]), float(sys.argv[2]), sys.argv[3:]
-    robots = [RobotClient(url, state_dir=state_dir) for url in urls]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("state_dir", type=Path)
+    parser.add_argument("rate", type=float, help="events a second, all robots together")
+    parser.add_argument("--pose", action="store_true", help="a status and a localisation in turn")
+    parser.add_argument("urls", nargs="+", help="the robots' AMQP URLs")
+    args = parser.parse_args()
+    robots = [RobotClient(url, state_dir=args.state_dir) for url in args.urls]
     for robot in robots:
         robot.connect()
     stop = threading.Event()
     counts: list[int] = []
     errors: list[BaseException] = []
     threads = [
-        threading.Thread(target=publish_steadily, args=(robot, rate / len(robots), stop, counts, errors))
+        threading.Thread(
+            target=publish_steadily, args=(robot, args.rate / len(robots), stop, counts, errors, args.pose)
+        )
         for robot in robots
     ]
     started = time.monotonic()
@@ -77,13 +94,14 @@ def main() -> None:
 class TelemetryLoad:
     """``python -m bench.telemetry`` for robots (their URLs) of ``bus``, while the ``with`` lasts."""
 
-    def __init__(self, bus: Bus, urls: list[str], rate: float) -> None:
+    def __init__(self, bus: Bus, urls: list[str], rate: float, pose: bool = False) -> None:
         self._command = [
             sys.executable,
             "-m",
             "bench.telemetry",
             str(bus.settings.robots_dir),
             str(rate),
+            *(["--pose"] if pose else []),
             *urls,
         ]
         self._log = bus.settings.data_dir / "telemetry.log"

@@ -23,6 +23,15 @@ def free_port() -> int:
 def api_server(bus: Bus, admin: str, password: str, **settings: str) -> Iterator[str]:
     """`fleetbus api` served by uvicorn in its own process on the bus (as administrator), with
     ``settings`` (``FLEETBUS_...``) and the admin ``admin``; yields its base URL."""
+    with api_process(bus, admin, password, **settings) as (base, _):
+        yield base
+
+
+@contextmanager
+def api_process(
+    bus: Bus, admin: str, password: str, **settings: str
+) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
+    """:func:`api_server`, yielding its base URL and its process (to read its memory, say)."""
     env = {**bus.worker_env(), **settings}
     env.pop("FLEETBUS_API_SECRET", None)  # the secret the server keeps itself
     fleetbus = [sys.executable, "-m", "fleetbus", "api"]
@@ -51,7 +60,7 @@ def api_server(bus: Bus, admin: str, password: str, **settings: str) -> Iterator
 
     try:
         wait_for(healthy, timeout=60, what="the API answering")
-        yield base
+        yield base, server
     finally:
         server.terminate()
         server.wait(30)

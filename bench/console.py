@@ -1,0 +1,395 @@
+"""The operator console under a team's traffic: how soon open dashboards show an event, the
+console's memory over many reconnections, and how fast its pages render on a large store.
+
+    .venv/bin/python -m bench.console [--robots 100] [--dashboards 20] [--seconds 60]
+        [--reconnects 1000] [--hazards 10000] [--messages 1000000] [--renders 50]
+
+Each part runs on a virtual host, data folder and SQLite store of its own, with every process as
+deployed: `fleetbus worker` and `fleetbus api` (which serves the console) each in a process of its
+own, the robots in another (``bench.telemetry``: each robot publishes a status and a localisation
+a second, confirmed, through the broker), and this process the operators: dashboards as httpx
+streams of the dashboard's server-sent events (not browsers), logged in as an administrator
+through the console's own form.
+
+  live        for --seconds, --dashboards open dashboards note when each event's row arrives. The
+              latency runs from the event's ``received_at`` (the worker's stamp, read back from the
+              store) to its row's arrival at a dashboard: median and p95 over every (dashboard,
+              event) pair (target: p95 under 200 ms), and rows that never arrived.
+  reconnects  the robots and dashboards going on, one more dashboard's stream opened --reconnects
+              times, each sending the Last-Event-ID of the one before (so each is replayed what it
+              missed from the store) and dropped after its first event; the console process's
+              resident memory (VmRSS) after each: first, last, highest.
+  renders     a store of its own seeded through the repositories (progress shown): --messages events
+              of the robots in the event log (--hazards of them hazards, registered in every state:
+              held, announced, claimed, reached, cleared), the same number of messages in the
+              recorder's recording; then each console page an administrator may open (``sitemap.PAGES``)
+              fetched --renders times: median and p95.
+
+Results go to ``bench/results/console-<UTC time>.json`` with the command and the load average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import re
+import statistics
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any
+
+import httpx
+from httpx_sse import aconnect_sse
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from bench.ingest import status_body
+from bench.proc import rss_megabytes
+from bench.processes import worker_process
+from bench.replay import write_recording
+from bench.report import load_average
+from bench.results import percentile, save
+from bench.scenario import Context, Figures
+from bench.telemetry import POSE, TelemetryLoad
+from fleetbus.api.console.live import FRAGMENT_EVENT
+from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD
+from fleetbus.api.console.sitemap import PAGES
+from fleetbus.schemas.envelope import new_epoch
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import EventType, RobotKind
+from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.hazards import NewHazard
+from fleetbus.workers.store.repositories import Repositories
+from tests.api.server import api_process
+from tests.factories import hazard
+
+ADMIN = "bench-console-admin"
+PASSWORD = "bench console password"
+STREAM = "/console/stream/dashboard"
+ROW = re.compile(r'\s*<tr id="(event-[^"]+)"')
+WARDEN_EVERY = 10
+"""One robot in ten is a warden (the hazards' claims and clearances are theirs)."""
+WRITE_BATCH = 10_000
+console = Console()
+
+
+def robot_name(i: int) -> str:
+    return f"bench-console{i}"
+
+
+def row_id(record: EventRecord) -> str:
+    """The id of the event's row on the dashboard (``dashboard/event.html``)."""
+    return f"event-{record.robot_id}-{record.epoch}-{record.seq}"
+
+
+async def logged_in(base: str, connections: int) -> httpx.AsyncClient:
+    """An httpx client with the administrator's console session (through the login form, CSRF
+    value included), for ``connections`` streams at once."""
+    limits = httpx.Limits(max_connections=connections, max_keepalive_connections=connections)
+    client = httpx.AsyncClient(base_url=base, timeout=httpx.Timeout(60, read=None), limits=limits)
+    await client.get("/console/login")
+    form = {"username": ADMIN, "password": PASSWORD, CSRF_FIELD: client.cookies[CSRF_COOKIE]}
+    reply = await client.post("/console/login", data=form)
+    assert reply.status_code == 303, f"logging in to the console: {reply.status_code} {reply.text[:200]}"
+    return client
+
+
+@dataclass
+class Dashboard:
+    """One open dashboard: when each event's row first arrived (``time.time()``)."""
+
+    arrivals: dict[str, float] = field(default_factory=dict)
+    cuts: int = 0
+    """Times its stream ended under it (the console cut it for falling behind); it reconnects."""
+    opened: asyncio.Event = field(default_factory=asyncio.Event)
+
+
+async def follow(client: httpx.AsyncClient, dashboard: Dashboard) -> None:
+    """Read the dashboard's stream until cancelled; reconnect, as live.js does, if it ends."""
+    last_id: str | None = None
+    while True:
+        headers = {"Last-Event-ID": last_id} if last_id else {}
+        try:
+            async with aconnect_sse(client, "GET", STREAM, headers=headers) as source:
+                source.response.raise_for_status()
+                async for event in source.aiter_sse():
+                    now = time.time()
+                    if event.event != FRAGMENT_EVENT:
+                        continue
+                    last_id = event.id or last_id
+                    dashboard.opened.set()
+                    for fragment in json.loads(event.data):
+                        if found := ROW.match(fragment):
+                            dashboard.arrivals.setdefault(found.group(1), now)
+        except httpx.HTTPError:
+            pass  # counted below, as a stream that ended
+        dashboard.cuts += 1
+
+
+async def reconnections(
+    client: httpx.AsyncClient, pid: int, count: int, show: Callable[[str], None]
+) -> list[float]:
+    """Open the dashboard's stream ``count`` times, each with the last event id of the one before,
+    until its first event; the console process's resident memory (MB) after each."""
+    resident: list[float] = []
+    last_id: str | None = None
+    for i in range(count):
+        headers = {"Last-Event-ID": last_id} if last_id else {}
+        async with aconnect_sse(client, "GET", STREAM, headers=headers) as source:
+            source.response.raise_for_status()
+            async for event in source.aiter_sse():
+                if event.event == FRAGMENT_EVENT:
+                    last_id = event.id
+                    break
+        resident.append(rss_megabytes(pid))
+        if i % 10 == 0:
+            show(f"reconnection {i + 1:,} of {count:,}: console {resident[-1]:.1f} MB resident")
+    return resident
+
+
+@dataclass
+class Watched:
+    dashboards: list[Dashboard]
+    start: float
+    end: float
+    resident: list[float]
+
+
+async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[str], None]) -> Watched:
+    """The dashboards open for ``args.seconds``, then the reconnections (the dashboards still open)."""
+    client = await logged_in(base, args.dashboards + 2)
+    dashboards = [Dashboard() for _ in range(args.dashboards)]
+    followers = [asyncio.create_task(follow(client, dashboard)) for dashboard in dashboards]
+    try:
+        async with asyncio.timeout(120):
+            for dashboard in dashboards:
+                await dashboard.opened.wait()
+        await asyncio.sleep(2)  # past the first batches after opening: the measurement's start
+        start = time.time()
+        show(f"{args.dashboards} dashboards open for {args.seconds:g} s")
+        await asyncio.sleep(args.seconds)
+        end = time.time()
+        await asyncio.sleep(3)  # the rows of the last events measured are on their way
+        resident = await reconnections(client, pid, args.reconnects, show)
+    finally:
+        for follower in followers:
+            follower.cancel()
+        await asyncio.gather(*followers, return_exceptions=True)
+        await client.aclose()
+    return Watched(dashboards, start, end, resident)
+
+
+def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
+    """The live and reconnects parts, on one team."""
+    with context.bus() as bus:
+        context.show(f"{args.robots} robot accounts")
+        urls = [bus.add(robot_name(i), kind=RobotKind.EXPLORER).amqp_url for i in range(args.robots)]
+        with (
+            worker_process(bus, "--no-recorder"),
+            api_process(bus, ADMIN, PASSWORD) as (base, api),
+            TelemetryLoad(bus, urls, 2 * args.robots, pose=True) as load,
+        ):
+            context.show(f"{args.robots} robots publishing")
+            watched = asyncio.run(watch(base, api.pid, args, context.show))
+        stored = bus.with_store(
+            lambda repos: repos.events.events_received_since(
+                datetime.fromtimestamp(watched.start, timezone.utc), 10_000_000
+            )
+        )
+    measured = [r for r in stored if r.received_at.timestamp() <= watched.end]
+    latencies: list[float] = []
+    missing = 0
+    for record in measured:
+        for dashboard in watched.dashboards:
+            arrived = dashboard.arrivals.get(row_id(record))
+            if arrived is None:
+                missing += 1
+            else:
+                latencies.append((arrived - record.received_at.timestamp()) * 1000)
+    resident = watched.resident
+    return {
+        "figures": {
+            "robots' events/s": load.rate,
+            "events measured": len(measured),
+            "event to dashboard median ms": statistics.median(latencies),
+            "event to dashboard p95 ms": percentile(latencies, 95),
+            "event to dashboard p99 ms": percentile(latencies, 99),
+            "event to dashboard max ms": max(latencies),
+            "rows never shown": missing,
+            "dashboard streams cut": sum(d.cuts for d in watched.dashboards),
+            "console RSS MB, first reconnection": resident[0],
+            "console RSS MB, last reconnection": resident[-1],
+            "console RSS MB, highest": max(resident),
+            "console RSS last ÷ first": resident[-1] / resident[0],
+        },
+        "console RSS MB every 10th reconnection": resident[::10],
+    }
+
+
+def seeded_events(robots: int, count: int, hazards: int, until: datetime) -> Iterator[list[EventRecord]]:
+    """``count`` events of ``robots`` robots, received 5 ms apart up to ``until``, in batches:
+    statuses and localisations in turn, with ``hazards`` hazards spread evenly among them."""
+    epochs = [new_epoch(until) for _ in range(robots)]
+    hazard_every = count // hazards if hazards else 0
+    start = until - timedelta(milliseconds=5 * count)
+    batch: list[EventRecord] = []
+    for i in range(count):
+        robot, seq = robot_name(i % robots), i // robots
+        at = start + timedelta(milliseconds=5 * i)
+        if hazard_every and i % hazard_every == 0 and i // hazard_every < hazards:
+            kind, body = (
+                EventType.HAZARD.value,
+                hazard(i, description=f"Smoke in corridor {i // hazard_every}"),
+            )
+        elif i % 2:
+            kind, body = POSE[0].value, POSE[1]
+        else:
+            kind, body = EventType.STATUS.value, status_body()
+        batch.append(
+            EventRecord(
+                robot_id=robot,
+                epoch=epochs[i % robots],
+                seq=seq,
+                type=kind,
+                message_id=f"00000000-0000-4000-9000-{i:012d}",
+                sent_at=at - timedelta(milliseconds=5),
+                received_at=at,
+                body=body,
+                user_id=robot,
+                exchange=f"{robot}.events",
+                routing_key=f"{robot}.{kind}",
+            )
+        )
+        if len(batch) == WRITE_BATCH:
+            yield batch
+            batch = []
+    if batch:
+        yield batch
+
+
+async def seed(
+    repos: Repositories, robots: int, count: int, hazards: int, show: Callable[[str], None]
+) -> None:
+    """The event log, the team and its hazards, straight through the repositories."""
+    for i in range(robots):
+        kind = RobotKind.WARDEN if i % WARDEN_EVERY == 0 else RobotKind.EXPLORER
+        await repos.hazards.register_robot(robot_name(i), kind.value)
+    now = datetime.now(timezone.utc)
+    written = 0
+    for batch in seeded_events(robots, count, hazards, now):
+        await repos.events.write_events(batch)
+        found = [NewHazard.of(record) for record in batch if record.type == EventType.HAZARD.value]
+        if found:
+            await repos.hazards.hold_hazards(found)
+        written += len(batch)
+        show(f"event log: {written:,} of {count:,} events")
+    held = await repos.hazards.held_hazards()
+    await repos.hazards.mark_announced([h for h in held if h.hazard_id % 5], now)
+    wardens = [robot_name(i) for i in range(0, robots, WARDEN_EVERY)]
+    for done, h in enumerate(held):
+        step, warden = h.hazard_id % 5, wardens[h.hazard_id % len(wardens)]
+        for action, from_step in ((repos.hazards.claim, 2), (repos.hazards.mark_reached, 3)):
+            if step >= from_step:
+                await action(h.mission_id, h.hazard_id, warden, now)
+        if step == 4:
+            await repos.hazards.mark_cleared(h.mission_id, h.hazard_id, warden, now)
+        if done % 500 == 0:
+            show(f"hazards: {done:,} of {len(held):,} taken to their state")
+
+
+async def page_times(base: str, renders: int, show: Callable[[str], None]) -> dict[str, list[float]]:
+    """Each page an administrator may open, fetched ``renders`` times (after one not counted): ms each."""
+    pages = [page for page in PAGES if page.admits(UserRole.ADMIN) and "{" not in page.path]
+    times: dict[str, list[float]] = {}
+    client = await logged_in(base, 1)
+    try:
+        for page in pages:
+            show(f"rendering {page.title}")
+            (await client.get(page.path)).raise_for_status()
+            times[page.name] = []
+            for _ in range(renders):
+                started = time.perf_counter()
+                reply = await client.get(page.path)
+                times[page.name].append((time.perf_counter() - started) * 1000)
+                assert reply.status_code == 200, f"{page.path}: {reply.status_code}"
+    finally:
+        await client.aclose()
+    return times
+
+
+def renders(context: Context, args: argparse.Namespace) -> dict[str, Any]:
+    with context.bus() as bus:
+        started = time.monotonic()
+        bus.with_store(lambda repos: seed(repos, args.robots, args.messages, args.hazards, context.show))
+        write_recording(bus, args.messages, context.show)
+        seeded_s = time.monotonic() - started
+        with api_process(bus, ADMIN, PASSWORD) as (base, _):
+            times = asyncio.run(page_times(base, args.renders, context.show))
+    figures: Figures = {"seeding s": seeded_s}
+    for name, each in times.items():
+        figures[f"{name} render median ms"] = statistics.median(each)
+        figures[f"{name} render p95 ms"] = percentile(each, 95)
+    return {"figures": figures, "pages": list(times)}
+
+
+def main() -> None:
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.dev.fallback import resolve_broker
+    from fleetbus.settings import load_settings
+
+    parser = argparse.ArgumentParser(
+        description="The operator console under a team's traffic (a few minutes; --help's end says how).",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 2)[2],
+    )
+    parser.add_argument("--robots", type=int, default=100, help="robots, each a status and a pose a second")
+    parser.add_argument("--dashboards", type=int, default=20, help="open dashboards (SSE streams)")
+    parser.add_argument("--seconds", type=float, default=60, help="how long the latency is measured")
+    parser.add_argument("--reconnects", type=int, default=1000, help="dashboard reconnections")
+    parser.add_argument("--hazards", type=int, default=10_000, help="hazards in the store for the renders")
+    parser.add_argument("--messages", type=int, default=1_000_000, help="events and recorded messages")
+    parser.add_argument("--renders", type=int, default=50, help="fetches of each page")
+    parser.add_argument("--skip", choices=("live", "renders"), help="leave out one part")
+    parser.add_argument("--out", type=Path, default=Path("bench/results"))
+    args = parser.parse_args()
+    endpoint = resolve_broker(load_settings(), start=True)
+    result: dict[str, Any] = {
+        "command": "python -m bench.console " + " ".join(sys.argv[1:]),
+        "load at the start": load_average(),
+    }
+    with (
+        ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
+        Progress(console=console, transient=True) as progress,
+    ):
+        task = progress.add_task("console", total=None)
+        context = Context(endpoint, api, show=lambda text: progress.update(task, description=text))
+        if args.skip != "live":
+            result["live"] = live(context, args)
+            result["load after live"] = load_average()
+        if args.skip != "renders":
+            result["renders"] = renders(context, args)
+            result["load after renders"] = load_average()
+    table = Table(
+        title=f"the console: {result['command']}; load average {result['load at the start']} at the start"
+    )
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for part in ("live", "renders"):
+        for name, value in result.get(part, {}).get("figures", {}).items():
+            table.add_row(name, f"{value:,.2f}" if isinstance(value, float) else f"{value:,}")
+    console.print(table)
+    if "renders" in result and "hazards" not in result["renders"]["pages"]:
+        console.print(
+            f"no hazards page in this console yet: rendered {', '.join(result['renders']['pages'])}"
+        )
+    console.print(f"wrote {save(args.out, 'console', result)}")
+
+
+if __name__ == "__main__":
+    main()
