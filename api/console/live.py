@@ -69,7 +69,7 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
         first = await view.snapshot()
         since = moment_of(last_event_id(request))
         if since is not None:
-            first += await view.events(await feed.missed(since, MISSED_LIMIT))
+            first = [*first, *await view.events(await feed.missed(since, MISSED_LIMIT))]
         yield ServerSentEvent(data=json.dumps(changed(first)), event=FRAGMENT_EVENT, id=cursor)
         while True:
             batch: Batch | None = await subscription.queue.get()
@@ -104,4 +104,4 @@ class Shared:
             if now - self._at >= self._interval:
                 self._value = await self._render()
                 self._at = now
-            return self._value
+            return list(self._value)  # a caller that adds to its copy changes no other page's

@@ -1,13 +1,18 @@
-"""The console's live feed on a real store (SQLite and MongoDB): what it hands out, and to whom."""
+"""The console's live feed and a page's stream on a real store (SQLite and MongoDB): what they
+hand out, and to whom."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 from collections.abc import AsyncIterator
 from datetime import datetime, timedelta, timezone
 
-from fleetbus.api.console.feed import Batch, Feed, Subscription
+from starlette.requests import Request
+
+from fleetbus.api.console.feed import Batch, Feed, Subscription, cursor_of
+from fleetbus.api.console.live import FRAGMENT_EVENT, Shared, _fragments
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.repositories import Repositories
 from tests.store.conftest import store  # noqa: F401  (every repository on each backend)
@@ -98,3 +103,32 @@ async def test_a_subscriber_that_falls_behind_is_dropped_and_counted(store: Repo
     left = [lagging.queue.get_nowait() for _ in range(lagging.queue.qsize())]
     assert len(left) == 4 and left[-1] is None, "its 3 batches behind, then the end of its stream"
     assert not keeping_up.dropped
+
+
+class RowsView:
+    """A page with a shared snapshot (one section) and a row per event."""
+
+    def __init__(self) -> None:
+        self.snapshot = Shared(self._render, interval=3600)
+
+    async def _render(self) -> list[str]:
+        return ['<section id="state">the state</section>']
+
+    async def events(self, records: list[EventRecord]) -> list[str]:
+        return [f'<tr id="event-{record.seq}"><td>{record.seq}</td></tr>' for record in records]
+
+
+async def test_a_replay_leaves_the_snapshot_other_pages_are_shown_as_it_was(store: Repositories) -> None:  # noqa: F811
+    now = datetime.now(timezone.utc)
+    await store.events.write_events([received(0, now)])
+    view = RowsView()
+    shown = await view.snapshot()  # as a page rendered a moment before its stream opens
+    seen = cursor_of(now - timedelta(seconds=1))
+    request = Request({"type": "http", "headers": [(b"last-event-id", seen.encode())], "query_string": b""})
+    stream = _fragments(view, Feed(store.events), request)
+    first = await anext(stream)
+    await stream.aclose()
+    assert first.event == FRAGMENT_EVENT
+    assert json.loads(first.data) == [*shown, '<tr id="event-0"><td>0</td></tr>'], "the page's replay"
+    # the next page rendered within the interval is given the same snapshot, not the replay's rows
+    assert await view.snapshot() == shown == ['<section id="state">the state</section>']
