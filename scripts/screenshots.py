@@ -1,0 +1,135 @@
+"""Screenshots of every console page, for the documentation: ``docs/images/console/<page>.png``.
+
+    bash scripts/screenshots            # scripts/setup first; a minute or two
+
+A private demo on this checkout's broker node: `fleetbus demo`'s team (an explorer, two wardens
+and a guide: hazards held until the wardens localised, then announced, claimed and cleared; a
+map; beacons) in a virtual host and a store of its own (a temporary folder), then a few steps
+more through the service: hazards left claimed and reached, two missions (one in progress), a
+user of each role. The console (`fleetbus api`'s app) is served on that store; headless chromium
+(as in the browser tests) logs in as an administrator and saves the login form and each page of
+``sitemap.PAGES`` (pages added later are included), 1280 pixels wide and up to 1,600 tall.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from rich.console import Console
+
+from fleetbus.api.console.sitemap import PAGES
+from fleetbus.broker.accounts import with_vhost
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.cli.context import endpoint as resolved_broker
+from fleetbus.dev.demo import DEMO_VHOST, WARDENS, run_demo
+from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.settings import load_settings
+from fleetbus.workers.store.hazards import DEFAULT_MISSION
+from tests.console.support import Browser, running_console, start_chromium
+from tests.console.support import Console as RunningConsole
+from tests.support import Bus
+
+ROOT = Path(__file__).resolve().parent.parent
+WIDTH = 1280
+MAX_HEIGHT = 1600
+ADMIN = f"demo-{UserRole.ADMIN.value}"
+SURVEY = {
+    "geofence": {"polygon": [{"x": 0, "y": 0}, {"x": 40, "y": 0}, {"x": 40, "y": 25}, {"x": 0, "y": 25}]},
+    "points_of_interest": [{"name": "lab", "x": 8, "y": 3}, {"name": "stairs", "x": 4, "y": 9}],
+    "itinerary": [{"action": "sweep the lab", "point_of_interest": "lab"}],
+}
+console = Console()
+
+
+def stage(running: RunningConsole) -> None:
+    """Beyond the demo: a user of each role, two missions, hazards left claimed and reached."""
+    people = [role for role in UserRole if role not in (UserRole.ROBOT, UserRole.INACTIVE)]
+    users = {role: running.user(f"demo-{role.value}", role) for role in people}
+    service = running.service
+    now = datetime.now(timezone.utc)
+
+    async def steps() -> None:
+        accounts = service.repositories.users
+        planner = await accounts.get_user(users[UserRole.PLANNER])
+        supervisor = await accounts.get_user(users[UserRole.SUPERVISOR])
+        client = await accounts.get_user(users[UserRole.CLIENT])
+        assert planner and supervisor and client
+        survey = await service.missions.create(
+            planner, "survey", "Survey of building C", MissionPlan.model_validate(SURVEY)
+        )
+        await service.missions.transition(
+            supervisor, survey.mission_id, MissionState.IN_PROGRESS, "team ready"
+        )
+        await service.missions.create(client, "hazard-response", "Gas leak, east wing", MissionPlan())
+        hazards = service.repositories.hazards
+        await hazards.claim(DEFAULT_MISSION, 2, WARDENS[0], now)
+        await hazards.claim(DEFAULT_MISSION, 3, WARDENS[1], now)
+        await hazards.mark_reached(DEFAULT_MISSION, 3, WARDENS[1], now)
+
+    running.run(steps)
+
+
+def shoot(browser: Browser, path: Path, width: int) -> None:
+    """The page ``width`` pixels wide, as tall as it is up to ``MAX_HEIGHT`` (a long list is cut)."""
+    browser.driver.set_window_size(width, 600)
+    height, frame = browser.driver.execute_script(
+        "return [document.documentElement.scrollHeight, window.outerHeight - window.innerHeight]"
+    )
+    browser.driver.set_window_size(width, max(600, min(int(height), MAX_HEIGHT)) + int(frame))
+    path.write_bytes(browser.driver.get_screenshot_as_png())
+    console.print(f"wrote {path}")
+
+
+def screenshots(running: RunningConsole, out: Path, width: int) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    browser = Browser(start_chromium())
+    try:
+        browser.go(running.url("/console/login"))
+        shoot(browser, out / "login.png", width)
+        running.log_in(browser, ADMIN)
+        for page in PAGES:
+            browser.go(running.url(page.path))
+            if browser.find("main[data-stream]"):
+                running.wait_live(browser)
+                # two ticks of the feed: the page's first updates are in (its own stream counted)
+                time.sleep(2 * running.service.settings.console_tick_s)
+            shoot(browser, out / f"{page.name}.png", width)
+    finally:
+        browser.driver.quit()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--out", type=Path, default=ROOT / "docs" / "images" / "console", help="where they go"
+    )
+    parser.add_argument("--width", type=int, default=WIDTH, help="the window's width in pixels")
+    args = parser.parse_args()
+    settings = load_settings()
+    endpoint = resolved_broker()  # as `fleetbus demo` finds it; a clean error when there is none
+    with tempfile.TemporaryDirectory(prefix="fleetbus-screenshots-") as folder:
+        demo = settings.updated(data_dir=Path(folder), mongodb_url=None)
+        console.print("running the demo team")
+        run_demo(demo, endpoint, console)
+        # the store and virtual host run_demo used and left
+        store = demo.updated(
+            data_dir=Path(folder) / "demo",
+            amqp_url=with_vhost(endpoint.amqp_url, DEMO_VHOST),
+            management_url=endpoint.management_url,
+        )
+        with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
+            try:
+                with running_console(Bus(endpoint, api, DEMO_VHOST, store)) as running:
+                    stage(running)
+                    screenshots(running, args.out, args.width)
+            finally:
+                api.delete_vhost(DEMO_VHOST)
+
+
+if __name__ == "__main__":
+    main()
