@@ -143,9 +143,15 @@ class Feed:
         finally:
             self._subscribers.discard(subscription)
 
-    async def missed(self, since: datetime, limit: int) -> list[EventRecord]:
-        """What a page that saw everything up to ``since`` may have missed (from the store)."""
-        return await self.events.events_received_since(since - self.overlap, limit)
+    async def missed(self, since: datetime, limit: int) -> list[EventRecord] | None:
+        """What a page that saw everything up to ``since`` may have missed, from the store: the
+        events received since (``None`` when there are ``limit`` or more), after those received in
+        the ``overlap`` before it (committed late, they may be new to the page too)."""
+        after = await self.events.events_received_since(since, limit)
+        if len(after) >= limit:
+            return None
+        around = await self.events.events_received_since(since - self.overlap, limit)
+        return [record for record in around if record.received_at < since] + after
 
 
 @contextlib.asynccontextmanager

@@ -2,7 +2,8 @@
 
 A page names the :class:`LiveView` that renders its live parts. On connecting, the page is sent
 the view's snapshot and, when it says (``Last-Event-ID``) what it saw last, the events it missed,
-read from the store; then each batch of the :class:`~.feed.Feed`. An SSE event carries a JSON list
+read from the store (or, past :data:`MISSED_LIMIT`, told to reload); then each batch of the
+:class:`~.feed.Feed`. An SSE event carries a JSON list
 of fragments. Each fragment is one element with an ``id``, parsed on its own (a table row mixed
 with other elements in one piece of HTML would be dropped by the browser's parser):
 ``static/live.js`` replaces the element with that id, or, for a fragment with ``data-into``, adds
@@ -26,8 +27,11 @@ from fleetbus.api.console.feed import Batch, Feed, moment_of
 from fleetbus.workers.store.base import EventRecord
 
 FRAGMENT_EVENT = "fragment"
+RELOAD_EVENT = "reload"
+"""Sent instead of a replay too long to send: the page loads itself again (and shows the newest)."""
 MISSED_LIMIT = 10_000
-"""At most this many missed events are replayed to a reconnecting page; the snapshot shows the rest."""
+"""At most this many missed events are replayed to a reconnecting page; one that missed more is
+told to reload (a replay of the oldest would show them as the newest, and leave a gap after)."""
 _ID = re.compile(r'\bid="([^"]+)"')
 
 
@@ -69,7 +73,11 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
         first = await view.snapshot()
         since = moment_of(last_event_id(request))
         if since is not None:
-            first = [*first, *await view.events(await feed.missed(since, MISSED_LIMIT))]
+            missed = await feed.missed(since, MISSED_LIMIT)
+            if missed is None:
+                yield ServerSentEvent(data=f"more than {MISSED_LIMIT:,} events missed", event=RELOAD_EVENT)
+                return
+            first = [*first, *await view.events(missed)]
         yield ServerSentEvent(data=json.dumps(changed(first)), event=FRAGMENT_EVENT, id=cursor)
         while True:
             batch: Batch | None = await subscription.queue.get()

@@ -9,10 +9,13 @@ import json
 from collections.abc import AsyncIterator
 from datetime import datetime, timedelta, timezone
 
+import pytest
+from sse_starlette import ServerSentEvent
 from starlette.requests import Request
 
+from fleetbus.api.console import live
 from fleetbus.api.console.feed import Batch, Feed, Subscription, cursor_of
-from fleetbus.api.console.live import FRAGMENT_EVENT, Shared, _fragments
+from fleetbus.api.console.live import FRAGMENT_EVENT, RELOAD_EVENT, Shared, _fragments
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.repositories import Repositories
 from tests.store.conftest import store  # noqa: F401  (every repository on each backend)
@@ -118,16 +121,45 @@ class RowsView:
         return [f'<tr id="event-{record.seq}"><td>{record.seq}</td></tr>' for record in records]
 
 
+def reconnecting(seen: datetime) -> Request:
+    """A page's request for its stream, having seen every event up to ``seen``."""
+    headers = [(b"last-event-id", cursor_of(seen).encode())]
+    return Request({"type": "http", "headers": headers, "query_string": b""})
+
+
+async def first_event(view: RowsView, feed: Feed, request: Request) -> ServerSentEvent:
+    stream = _fragments(view, feed, request)
+    try:
+        return await anext(stream)
+    finally:
+        await stream.aclose()
+
+
+async def test_a_page_that_missed_more_than_a_replay_is_told_to_reload(
+    store: Repositories,  # noqa: F811
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(live, "MISSED_LIMIT", 3)
+    now = datetime.now(timezone.utc)
+    await store.events.write_events([received(seq, now + timedelta(milliseconds=seq)) for seq in range(3)])
+    told = await first_event(RowsView(), Feed(store.events), reconnecting(now - timedelta(seconds=1)))
+    assert told.event == RELOAD_EVENT
+    await store.events.write_events([received(3, now + timedelta(milliseconds=3))])
+    # one that saw the first two missed two: replayed, with those of the overlap before (the
+    # count is of the events after what the page saw, or a busy overlap would reload every page)
+    replay = await first_event(RowsView(), Feed(store.events), reconnecting(now + timedelta(milliseconds=2)))
+    assert replay.event == FRAGMENT_EVENT
+    assert [row for row in json.loads(replay.data) if row.startswith("<tr")] == [
+        f'<tr id="event-{seq}"><td>{seq}</td></tr>' for seq in range(4)
+    ]
+
+
 async def test_a_replay_leaves_the_snapshot_other_pages_are_shown_as_it_was(store: Repositories) -> None:  # noqa: F811
     now = datetime.now(timezone.utc)
     await store.events.write_events([received(0, now)])
     view = RowsView()
     shown = await view.snapshot()  # as a page rendered a moment before its stream opens
-    seen = cursor_of(now - timedelta(seconds=1))
-    request = Request({"type": "http", "headers": [(b"last-event-id", seen.encode())], "query_string": b""})
-    stream = _fragments(view, Feed(store.events), request)
-    first = await anext(stream)
-    await stream.aclose()
+    first = await first_event(view, Feed(store.events), reconnecting(now - timedelta(seconds=1)))
     assert first.event == FRAGMENT_EVENT
     assert json.loads(first.data) == [*shown, '<tr id="event-0"><td>0</td></tr>'], "the page's replay"
     # the next page rendered within the interval is given the same snapshot, not the replay's rows

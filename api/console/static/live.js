@@ -6,7 +6,8 @@
 // the element with the same id, or, carrying data-into="LIST", is added at the top of that list
 // (which keeps at most its data-max rows). The browser's EventSource reconnects by itself, sending
 // Last-Event-ID; when it gives up, this opens a new one with the last id in the query, so a page
-// that was cut off is always sent what it missed.
+// that was cut off is always sent what it missed (or, when it missed more than the server
+// replays, told to "reload").
 (function () {
   "use strict";
   const main = document.querySelector("main[data-stream]");
@@ -59,6 +60,11 @@
       if (event.lastEventId) lastId = event.lastEventId;
       apply(JSON.parse(event.data));
       main.dataset.lastEventId = lastId;
+    });
+    source.addEventListener("reload", function () {
+      // it missed more than the server replays: the page as rendered now shows the newest
+      source.close();
+      window.location.reload();
     });
     source.addEventListener("error", function () {
       show("reconnecting", "reconnecting… (since " + new Date().toLocaleTimeString() + ")");
