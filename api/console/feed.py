@@ -155,6 +155,18 @@ class Feed:
 
 
 @contextlib.asynccontextmanager
+async def running(feed: Feed) -> AsyncIterator[Feed]:
+    """``feed`` reading the store until the ``with`` ends."""
+    task = asyncio.create_task(feed.run(), name="console-feed")
+    try:
+        yield feed
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+@contextlib.asynccontextmanager
 async def running_feed(events: EventStore, settings: Settings) -> AsyncIterator[Feed]:
     """The process's feed, reading the store until the app stops."""
     feed = Feed(
@@ -163,10 +175,5 @@ async def running_feed(events: EventStore, settings: Settings) -> AsyncIterator[
         tick_s=settings.console_tick_s,
         queue_size=settings.console_queue,
     )
-    task = asyncio.create_task(feed.run(), name="console-feed")
-    try:
+    async with running(feed):
         yield feed
-    finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task

@@ -4,9 +4,7 @@ hand out, and to whom."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
-from collections.abc import AsyncIterator
 from datetime import datetime, timedelta, timezone
 
 import pytest
@@ -14,7 +12,7 @@ from sse_starlette import ServerSentEvent
 from starlette.requests import Request
 
 from fleetbus.api.console import live
-from fleetbus.api.console.feed import Batch, Feed, Subscription, cursor_of
+from fleetbus.api.console.feed import Batch, Feed, Subscription, cursor_of, running
 from fleetbus.api.console.live import FRAGMENT_EVENT, RELOAD_EVENT, Shared, _fragments
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.repositories import Repositories
@@ -38,17 +36,6 @@ def received(seq: int, at: datetime, robot: str = "explorer1") -> EventRecord:
         exchange=f"{robot}.events",
         routing_key=f"{robot}.status",
     )
-
-
-@contextlib.asynccontextmanager
-async def running(feed: Feed) -> AsyncIterator[Feed]:
-    task = asyncio.create_task(feed.run())
-    try:
-        yield feed
-    finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
 
 
 Key = tuple[str, str, int]
