@@ -3,12 +3,13 @@
 A page names the :class:`LiveView` that renders its live parts. On connecting, the page is sent
 the view's snapshot and, when it says (``Last-Event-ID``) what it saw last, the events it missed,
 read from the store (or, past :data:`MISSED_LIMIT`, told to reload); then each batch of the
-:class:`~.feed.Feed`. An SSE event carries a JSON list
-of fragments. Each fragment is one element with an ``id``, parsed on its own (a table row mixed
-with other elements in one piece of HTML would be dropped by the browser's parser):
-``static/live.js`` replaces the element with that id, or, for a fragment with ``data-into``, adds
-it to that list. So a fragment sent twice shows once, and a fragment that did
-not change since this page was last sent it is not sent again.
+:class:`~.feed.Feed`. An SSE event carries a JSON list of fragments. Each fragment is one element
+with an ``id``, parsed on its own (a table row mixed with other elements in one piece of HTML
+would be dropped by the browser's parser): ``static/live.js`` replaces the element with that id,
+or, for a fragment with ``data-into``, adds it to that list. So a fragment sent twice shows once.
+A fragment of the state (the snapshot's) that did not change since this page was last sent it is
+not sent again; an event's fragments are sent as they come (remembering each would grow with
+every event an open page is shown).
 """
 
 from __future__ import annotations
@@ -70,20 +71,20 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
 
     async with feed.subscribe() as subscription:
         cursor = feed.cursor
-        first = await view.snapshot()
+        first = changed(await view.snapshot())
         since = moment_of(last_event_id(request))
         if since is not None:
             missed = await feed.missed(since, MISSED_LIMIT)
             if missed is None:
                 yield ServerSentEvent(data=f"more than {MISSED_LIMIT:,} events missed", event=RELOAD_EVENT)
                 return
-            first = [*first, *await view.events(missed)]
-        yield ServerSentEvent(data=json.dumps(changed(first)), event=FRAGMENT_EVENT, id=cursor)
+            first += await view.events(missed)
+        yield ServerSentEvent(data=json.dumps(first), event=FRAGMENT_EVENT, id=cursor)
         while True:
             batch: Batch | None = await subscription.queue.get()
             if batch is None:  # dropped for falling behind: the browser reconnects and catches up
                 return
-            news = changed([*await view.events(batch.events), *await view.snapshot()])
+            news = [*await view.events(batch.events), *changed(await view.snapshot())]
             if news:
                 yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
 
