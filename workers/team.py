@@ -144,19 +144,6 @@ async def read_team(
     return members
 
 
-async def why_each_held(
-    team: CoordinationStore, events: EventStore, hazards: Sequence[Hazard], now: datetime
-) -> list[tuple[Hazard, str]]:
-    """Each of ``hazards`` with why it is held (:func:`why_held`; "" once announced). The team is
-    read only when some hazard is held."""
-    if not any(hazard.state is HazardState.HELD for hazard in hazards):
-        return [(hazard, "") for hazard in hazards]
-    robots = await team.robots()
-    seen = {robot.name: await last_seen(events, robot.name) for robot in robots}
-    state = gate(robots)
-    return [(hazard, why_held(hazard, state, seen, now)) for hazard in hazards]
-
-
 class TeamRefused(Exception):
     """A team change that cannot be made; the message says why."""
 

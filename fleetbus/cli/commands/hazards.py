@@ -10,15 +10,20 @@ import typer
 from rich.table import Table
 
 from fleetbus.cli.context import console, settings
-from fleetbus.workers.store import Hazard, Repositories, run_with_repositories
+from fleetbus.workers.store import Hazard, HazardState, Repositories, run_with_repositories
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
-from fleetbus.workers.team import why_each_held
+from fleetbus.workers.team import gate, last_seen, why_held
 
 
 async def _open_and_why(repos: Repositories, mission: str) -> list[tuple[Hazard, str]]:
     """The mission's open hazards, each with why it is held ("" once announced)."""
     found = await repos.hazards.open_hazards(mission)
-    return await why_each_held(repos.hazards, repos.events, found, datetime.now(timezone.utc))
+    if not any(hazard.state is HazardState.HELD for hazard in found):
+        return [(hazard, "") for hazard in found]
+    team = await repos.hazards.robots()
+    seen = {robot.name: await last_seen(repos.events, robot.name) for robot in team}
+    state, now = gate(team), datetime.now(timezone.utc)
+    return [(hazard, why_held(hazard, state, seen, now)) for hazard in found]
 
 
 def hazards(
