@@ -4,18 +4,15 @@ back; who may press which button."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from datetime import datetime, timedelta, timezone
 
 import httpx
 
-from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
 from fleetbus.broker.accounts import Role
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.hazards import Hazard, HazardState
-from tests.console.support import Browser, Console, running_console
+from tests.console.support import Browser, Console, http_session, running_console
 from tests.factories import hazard
 from tests.support import Bus, notifications_until, read_inbox, wait_for
 
@@ -149,16 +146,6 @@ def test_new_hazards_and_their_steps_appear_live_and_what_a_robot_wrote_shows_as
         assert not any("alert" in line for line in browser.console_errors())
 
 
-@contextmanager
-def session(console: Console, name: str) -> Iterator[httpx.Client]:
-    """An HTTP client with ``name``'s console session and the CSRF header its pages' buttons send."""
-    with httpx.Client(base_url=console.base, timeout=30) as http:
-        http.get("/console/login")
-        http.cookies.set(SESSION_COOKIE, console.service.secrets.tokens.issue(name).value)
-        http.headers[CSRF_HEADER] = http.cookies[CSRF_COOKIE]
-        yield http
-
-
 def test_only_supervisors_and_operators_see_the_buttons_and_others_get_403(bus: Bus) -> None:
     explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", Role.ROBOT, RobotKind.WARDEN))
@@ -173,7 +160,7 @@ def test_only_supervisors_and_operators_see_the_buttons_and_others_get_403(bus: 
         explorer.publish("hazard", hazard(0))
         wait_for(lambda: in_state(bus, HazardState.ANNOUNCED), what="the hazard announced")
         claim = "/console/hazards/steps/default/1/claim"
-        with session(console, "admin1") as admin, session(console, "oper1") as operator:
+        with http_session(console, "admin1") as admin, http_session(console, "oper1") as operator:
             watched = admin.get("/console/hazards")
             assert watched.status_code == 200 and 'id="hazard-default-1"' in watched.text
             assert "hx-post" not in watched.text, "an admin watches: no button"
@@ -195,7 +182,7 @@ def test_only_supervisors_and_operators_see_the_buttons_and_others_get_403(bus: 
             too_soon = operator.post(claim.replace("claim", "cleared"), data={"warden": "warden1"})
             assert 'class="notice problem"' in too_soon.text
             assert "hazard 1 is claimed; warden1 cannot have it cleared" in too_soon.text
-        with session(console, "plan1") as planner:
+        with http_session(console, "plan1") as planner:
             assert planner.get("/console/hazards").status_code == 403
             assert planner.get("/console/stream/hazards").status_code == 403
 
@@ -217,7 +204,7 @@ def test_every_hazard_cleared_ones_too_newest_first_a_page_at_a_time(bus: Bus) -
 
         stored_at = datetime.now(timezone.utc)
         console.run(three_hazards)
-        with session(console, "oper1") as http:
+        with http_session(console, "oper1") as http:
             first = http.get("/console/hazards")
             assert first.text.index("hazard 3") < first.text.index("hazard 2")
             assert "hazard 1<" not in first.text and 'rel="next"' in first.text
