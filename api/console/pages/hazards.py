@@ -47,6 +47,14 @@ class Card:
     detected_at: datetime | None
 
     @property
+    def held_for(self) -> str:
+        """How long it was held before its announcement: ``3 s``, ``2 min``."""
+        if self.hazard.announced_at is None:
+            return ""
+        seconds = max(0, int((self.hazard.announced_at - self.hazard.received_at).total_seconds()))
+        return f"{seconds} s" if seconds < 120 else f"{seconds // 60} min"
+
+    @property
     def element_id(self) -> str:
         return f"hazard-{self.hazard.mission_id}-{self.hazard.hazard_id}"
 
