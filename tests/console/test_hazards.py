@@ -9,6 +9,7 @@ from datetime import datetime, timedelta, timezone
 import httpx
 
 from fleetbus.broker.accounts import Role
+from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.hazards import Hazard, HazardState
@@ -34,9 +35,9 @@ def badge(browser: Browser, card: str = CARD) -> str:
     return browser.text(f"{card} .badge")
 
 
-def open_live(console: Console, browser: Browser, user: str) -> None:
-    """``user`` on the hazards page, live, marked so that a reload would show."""
-    console.log_in(browser, user)
+def open_live(console: Console, browser: Browser, user: str, role: UserRole) -> None:
+    """A new user with ``role`` on the hazards page, live, marked so that a reload would show."""
+    console.log_in(browser, console.user(user, role))
     browser.go(console.url("/console/hazards"))
     console.wait_live(browser)
     browser.driver.execute_script("document.body.dataset.marker = 'not reloaded'")
@@ -44,6 +45,12 @@ def open_live(console: Console, browser: Browser, user: str) -> None:
 
 def not_reloaded(browser: Browser) -> bool:
     return browser.driver.execute_script("return document.body.dataset.marker") == "not reloaded"
+
+
+def explorer_and_warden(bus: Bus) -> tuple[RobotClient, RobotClient]:
+    """explorer1 and warden1, connected."""
+    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
+    return explorer, bus.robot(bus.add("warden1", Role.ROBOT, RobotKind.WARDEN))
 
 
 def press(browser: Browser, button: str, notice: str) -> None:
@@ -55,11 +62,9 @@ def press(browser: Browser, button: str, notice: str) -> None:
 def test_an_operator_claims_and_clears_a_hazard_for_a_warden_which_is_told_in_its_inbox(
     bus: Bus, browser: Browser
 ) -> None:
-    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
-    warden = bus.robot(bus.add("warden1", Role.ROBOT, RobotKind.WARDEN))
+    explorer, warden = explorer_and_warden(bus)
     with bus.worker(), running_console(bus) as console:
-        console.user("oper1", UserRole.OPERATOR)
-        open_live(console, browser, "oper1")
+        open_live(console, browser, "oper1", UserRole.OPERATOR)
         warden.publish("localisation", {"localised": True})
         sent = explorer.publish("hazard", hazard(0, description="Gas leak in bay 3"))
         browser.until(lambda: badge(browser) == "announced", "the hazard, announced, without a reload")
@@ -92,8 +97,7 @@ def test_a_warden_taken_out_of_service_on_the_page_leaves_the_gate_and_catches_u
     explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
     wardens = [bus.robot(bus.add(name, Role.ROBOT, RobotKind.WARDEN)) for name in ("warden1", "warden2")]
     with bus.worker(), running_console(bus) as console:
-        console.user("super1", UserRole.SUPERVISOR)
-        open_live(console, browser, "super1")
+        open_live(console, browser, "super1", UserRole.SUPERVISOR)
         wardens[0].publish("localisation", {"localised": True})  # warden2 never localises
 
         press(browser, "#warden-warden2 button[data-change=out]", "warden2 out of service (by super1)")
@@ -119,11 +123,9 @@ def test_a_warden_taken_out_of_service_on_the_page_leaves_the_gate_and_catches_u
 def test_new_hazards_and_their_steps_appear_live_and_what_a_robot_wrote_shows_as_text(
     bus: Bus, browser: Browser
 ) -> None:
-    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
-    warden = bus.robot(bus.add("warden1", Role.ROBOT, RobotKind.WARDEN))
+    explorer, warden = explorer_and_warden(bus)
     with bus.worker(), running_console(bus) as console:
-        console.user("admin1", UserRole.ADMIN)
-        open_live(console, browser, "admin1")
+        open_live(console, browser, "admin1", UserRole.ADMIN)
         assert browser.text("#hazard-empty") == "No hazard has been reported."
         explorer.publish("hazard", hazard(0, description=XSS))
         browser.until(lambda: badge(browser) == "held", "the hazard, held, without a reload")
@@ -147,8 +149,7 @@ def test_new_hazards_and_their_steps_appear_live_and_what_a_robot_wrote_shows_as
 
 
 def test_only_supervisors_and_operators_see_the_buttons_and_others_get_403(bus: Bus) -> None:
-    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
-    warden = bus.robot(bus.add("warden1", Role.ROBOT, RobotKind.WARDEN))
+    explorer, warden = explorer_and_warden(bus)
     with bus.worker(), running_console(bus) as console:
         for name, role in (
             ("admin1", UserRole.ADMIN),
