@@ -33,6 +33,11 @@ from fleetbus.workers.store.users import User, UserStore
 
 log = logging.getLogger("fleetbus.api.channels")
 
+#: Who mounts robots, and checks in to missions and out.
+OPERATING = frozenset({UserRole.OPERATOR})
+#: Who unmounts: an operator its own robots, a supervisor anyone's (a forced unmount).
+UNMOUNTERS = frozenset({UserRole.OPERATOR, UserRole.SUPERVISOR})
+
 
 @dataclass(frozen=True)
 class BindingReport:

@@ -12,7 +12,7 @@ from datetime import datetime, timezone
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
-from fleetbus.schemas.use_cases import InvalidTransition, RoleNotAllowed, machine_for, readiness
+from fleetbus.schemas.use_cases import STEPS, InvalidTransition, RoleNotAllowed, machine_for, readiness
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore
 from fleetbus.workers.store.users import User
@@ -21,6 +21,10 @@ from fleetbus.workers.store.users import User
 SEE_ALL = frozenset(
     {UserRole.ADMIN, UserRole.PLANNER, UserRole.SUPERVISOR, UserRole.OPERATOR, UserRole.GUEST}
 )
+#: Who creates missions and edits their plans.
+AUTHORS = frozenset({UserRole.CLIENT, UserRole.PLANNER})
+#: Who may ask for a step at all: every role some step admits (the machine says which step).
+MOVERS = frozenset(role for step in STEPS.values() for role in step.roles)
 SERVICE_ACTOR = "fleetbus"
 
 

@@ -10,6 +10,7 @@ from datetime import timedelta
 
 from fleetbus.api.accounts import Accounts
 from fleetbus.api.channels import Channels
+from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.login_limits import LoginLimits
 from fleetbus.api.missions import Missions
 from fleetbus.api.security import Secrets
@@ -32,6 +33,8 @@ class Service:
     missions: Missions
     channels: Channels
     team: Team
+    hazard_steps: HazardSteps
+    """Steps of a hazard an operator takes for a warden (claim, reached, cleared, release)."""
     recording: RecordingStore
     management: ManagementAPI
     vhost: str
@@ -76,6 +79,7 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
                 admin_url,
                 timedelta(seconds=settings.stale_after_s),
             ),
+            hazard_steps=HazardSteps(repositories.hazards, repositories.channels, admin_url),
             recording=recording,
             management=management,
             vhost=vhost_of(admin_url),

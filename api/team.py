@@ -8,6 +8,7 @@ from datetime import datetime, timedelta, timezone
 
 from fleetbus.api.errors import BadRequest, NotFound, Unavailable
 from fleetbus.broker.team_changes import HazardServiceNotTold
+from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.hazards import CoordinationStore, RobotState
 from fleetbus.workers.team import (
@@ -22,6 +23,9 @@ from fleetbus.workers.team import (
 )
 
 log = logging.getLogger("fleetbus.api.team")
+
+#: Who takes wardens out of service and back: the roles that run missions and their robots.
+DISPATCHERS = frozenset({UserRole.SUPERVISOR, UserRole.OPERATOR})
 
 
 @dataclass(frozen=True)

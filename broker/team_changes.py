@@ -11,8 +11,8 @@ from __future__ import annotations
 import uuid
 
 import pika
-import pika.exceptions
 
+from fleetbus.broker.direct import NoSuchQueue, NotTaken, put_in_queue
 from fleetbus.schemas.routing import EXPRESS_QUEUE
 from fleetbus.schemas.team import TEAM_CHANGE_TYPE, TeamChange
 
@@ -25,7 +25,6 @@ def tell_hazard_service(admin_url: str, change: TeamChange) -> None:
     """Put ``change`` on the express lane, persistent and confirmed (the default exchange)."""
     properties = pika.BasicProperties(
         content_type="application/json",
-        delivery_mode=pika.DeliveryMode.Persistent,
         message_id=f"team-change-{uuid.uuid4().hex}",
         type=TEAM_CHANGE_TYPE,
     )
@@ -33,21 +32,10 @@ def tell_hazard_service(admin_url: str, change: TeamChange) -> None:
         f"the team change is stored; repeat the command to tell the hazard service ({change.change.value})"
     )
     try:
-        connection = pika.BlockingConnection(pika.URLParameters(admin_url))
-    except pika.exceptions.AMQPError as error:
-        raise HazardServiceNotTold(f"the broker does not answer ({error!r}): {retry}") from error
-    try:
-        channel = connection.channel()
-        channel.confirm_delivery()
-        channel.basic_publish(
-            "", EXPRESS_QUEUE, change.model_dump_json().encode(), properties, mandatory=True
-        )
-    except pika.exceptions.UnroutableError as error:
+        put_in_queue(admin_url, EXPRESS_QUEUE, change.model_dump_json().encode(), properties)
+    except NoSuchQueue as error:
         raise HazardServiceNotTold(
             f"there is no express lane ({EXPRESS_QUEUE}) on this broker yet: start a worker"
         ) from error
-    except pika.exceptions.AMQPError as error:
-        raise HazardServiceNotTold(f"the broker refused it ({error!r}): {retry}") from error
-    finally:
-        if connection.is_open:
-            connection.close()
+    except NotTaken as error:
+        raise HazardServiceNotTold(f"{error}: {retry}") from error

@@ -214,6 +214,9 @@ class Settings(BaseSettings):
     console_recent_events: Annotated[int, Positive] = setting(
         200, "how many of the newest events the dashboard lists (older ones are in Messages)"
     )
+    console_hazards_page: Annotated[int, Positive] = setting(
+        50, "how many hazards one page of the console's hazards list shows (newest first; then older pages)"
+    )
     console_queue: Annotated[int, Positive] = setting(
         64,
         "batches of news a console page may fall behind before its stream is cut (the browser then "

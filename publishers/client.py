@@ -79,6 +79,7 @@ def missed_hazard(hazard: dict[str, Any], now: datetime) -> Notification:
         notified_at=now,
         hazard_id=hazard["hazard_id"],
         hazard_state=hazard["state"],
+        claimed_by=hazard.get("claimed_by"),
         late=(now - event.sent_at).total_seconds() > LATE_AFTER_S,
     )
 
@@ -394,8 +395,9 @@ class RobotClient:
         self._resynced_on = connection  # only once all were handed out: a caller may stop early
 
     def _seen_before(self, note: Notification) -> bool:
-        """Whether this client handed out ``note`` already (an announcement's copies, a resync)."""
-        key = f"{note.topic.value}:{note.event.message_id}"
+        """Whether this client handed out ``note`` already (an announcement's copies, a resync); a
+        hazard in a new state (claimed for this warden by an operator, say) is news."""
+        key = f"{note.topic.value}:{note.event.message_id}:{note.hazard_state or ''}"
         if key in self._seen_notes:
             return True
         self._seen_notes[key] = None

@@ -26,7 +26,11 @@ class Notification(BaseModel):
     hazard_state: str | None = None
     """For hazards: ``announced`` when it is first announced; ``claimed`` or ``reached`` (by
     another warden, say) when a warden that missed it gets it later: put back in service, or its
-    client rebuilding its list after a (re)connect."""
+    client rebuilding its list after a (re)connect. When an operator takes a step for a warden
+    (the console), that warden is told the new state: ``claimed``, ``reached``, ``cleared``, or
+    ``announced`` again after a release."""
+    claimed_by: str | None = None
+    """For hazards: the warden holding the claim, if any (this warden: the hazard is its own)."""
     map_version: int | None = None
     """For maps: the stored version to fetch with the ``map.latest`` / ``map.chunk`` services."""
     late: bool = False

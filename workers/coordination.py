@@ -150,18 +150,26 @@ class HazardCoordinator:
     def notification(
         self, hazard: Hazard, now: datetime, state: HazardState = HazardState.ANNOUNCED
     ) -> Notification:
-        """The announcement; ``late`` when it reaches the wardens long after the explorer sent it
-        (its robot was cut off, the workers were down, or the wardens were not localised yet)."""
-        event = EVENT_ADAPTER.validate_python(hazard.event)
-        return Notification(
-            topic=Topic.HAZARD,
-            event=event,
-            received_at=hazard.received_at,
-            notified_at=now,
-            hazard_id=hazard.hazard_id,
-            hazard_state=state.value,
-            late=now - event.sent_at > self._late_after,
-        )
+        return hazard_notification(hazard, now, state, self._late_after)
+
+
+def hazard_notification(
+    hazard: Hazard, now: datetime, state: HazardState, late_after: timedelta | None
+) -> Notification:
+    """What a warden is told of ``hazard`` as ``state``. An announcement is ``late`` when it reaches
+    the wardens more than ``late_after`` after the explorer sent it (its robot was cut off, the
+    workers were down, or the wardens were not localised yet); ``None``: not an announcement."""
+    event = EVENT_ADAPTER.validate_python(hazard.event)
+    return Notification(
+        topic=Topic.HAZARD,
+        event=event,
+        received_at=hazard.received_at,
+        notified_at=now,
+        hazard_id=hazard.hazard_id,
+        hazard_state=state.value,
+        claimed_by=hazard.claimed_by,
+        late=late_after is not None and now - event.sent_at > late_after,
+    )
 
 
 class TeamChanges:

@@ -25,9 +25,11 @@ WATCHERS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
+HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)
+MISSIONS = Page("missions", "Missions", "/console/missions", MISSION_ROLES)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD,)
+PAGES: tuple[Page, ...] = (DASHBOARD, HAZARDS, MISSIONS)
 
 
 def pages_for(role: R) -> list[Page]:

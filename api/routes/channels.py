@@ -7,14 +7,15 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.auth import ChannelsDep, ServiceDep, require_role
+from fleetbus.api.channels import OPERATING, UNMOUNTERS
 from fleetbus.api.models import BindingReportOut, ChannelChangeOut, MountIn, MountOut
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["channels"])
 R = UserRole
-Operator = Annotated[User, Depends(require_role(R.OPERATOR))]
-Unmounter = Annotated[User, Depends(require_role(R.OPERATOR, R.SUPERVISOR))]
+Operator = Annotated[User, Depends(require_role(*OPERATING))]
+Unmounter = Annotated[User, Depends(require_role(*UNMOUNTERS))]
 Watcher = Annotated[User, Depends(require_role(R.OPERATOR, R.SUPERVISOR, R.ADMIN))]
 Overseer = Annotated[User, Depends(require_role(R.SUPERVISOR, R.ADMIN))]
 

@@ -7,6 +7,8 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.auth import ChannelsDep, EventsDep, MissionsDep, ServiceDep, require_role
+from fleetbus.api.channels import OPERATING
+from fleetbus.api.missions import AUTHORS, MOVERS
 from fleetbus.api.models import (
     CheckInOut,
     CheckOutOut,
@@ -32,9 +34,9 @@ Reader = Annotated[
     User, Depends(require_role(R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST))
 ]
 DataReader = Annotated[User, Depends(require_role(R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR))]
-Author = Annotated[User, Depends(require_role(R.CLIENT, R.PLANNER))]
-Mover = Annotated[User, Depends(require_role(R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR))]
-Operator = Annotated[User, Depends(require_role(R.OPERATOR))]
+Author = Annotated[User, Depends(require_role(*AUTHORS))]
+Mover = Annotated[User, Depends(require_role(*MOVERS))]
+Operator = Annotated[User, Depends(require_role(*OPERATING))]
 
 
 @router.get("/use-cases", response_model=list[UseCaseOut])

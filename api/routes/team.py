@@ -8,14 +8,14 @@ from fastapi import APIRouter, Depends
 
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.models import TeamMemberOut, TeamOut
+from fleetbus.api.team import DISPATCHERS
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["team"])
 R = UserRole
 Watcher = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR, R.OPERATOR))]
-#: Who may take a warden out of service: the roles that run missions and their robots.
-Dispatcher = Annotated[User, Depends(require_role(R.SUPERVISOR, R.OPERATOR))]
+Dispatcher = Annotated[User, Depends(require_role(*DISPATCHERS))]
 
 
 @router.get("/team", response_model=TeamOut)

@@ -25,6 +25,7 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.remote.webelement import WebElement
 
 from fleetbus.api.app import create_app
+from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
 from fleetbus.api.service import Service
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
@@ -180,3 +181,14 @@ def running_console(bus: Bus, settings: Settings | None = None) -> Iterator[Cons
 
             loop.run_until_complete(settle())
         loop.close()
+
+
+@contextmanager
+def http_session(console: Console, name: str) -> Iterator[httpx.Client]:
+    """An HTTP client with ``name``'s console session (minted, no login form) and the CSRF header
+    the console's htmx buttons send: for status codes and refusals without a browser."""
+    with httpx.Client(base_url=console.base, timeout=30) as http:
+        http.get("/console/login")  # the CSRF cookie
+        http.cookies.set(SESSION_COOKIE, console.service.secrets.tokens.issue(name).value)
+        http.headers[CSRF_HEADER] = http.cookies[CSRF_COOKIE]
+        yield http

@@ -105,6 +105,21 @@ async def test_claim_reach_release_and_refusals(store: Repositories) -> None:
     assert unchanged is not None and unchanged.state is HazardState.HELD
 
 
+async def test_recent_hazards_are_every_hazard_newest_first_a_page_at_a_time(store: Repositories) -> None:
+    """What the console's hazards page lists: cleared ones too, of every mission, newest first."""
+    for seq, (mission, seconds) in enumerate([("m1", 0), ("m2", 10), ("m1", 20), ("m1", 30)]):
+        at = T0 + timedelta(seconds=seconds)
+        await store.hazards.add_hazard(mission, "explorer1", EPOCH, seq, BODY, at, held=False)
+    await store.hazards.claim("m1", 1, "warden1", T0)
+    await store.hazards.mark_reached("m1", 1, "warden1", T0)
+    await store.hazards.mark_cleared("m1", 1, "warden1", T0)
+    newest = await store.hazards.recent_hazards(3)
+    assert [(h.mission_id, h.hazard_id) for h in newest] == [("m1", 3), ("m1", 2), ("m2", 1)]
+    [oldest] = await store.hazards.recent_hazards(3, offset=3)
+    assert (oldest.mission_id, oldest.hazard_id, oldest.state) == ("m1", 1, HazardState.CLEARED)
+    assert await store.hazards.recent_hazards(3, offset=4) == []
+
+
 async def test_two_claims_at_once_one_wins(store: Repositories) -> None:
     await store.hazards.add_hazard("m1", "explorer1", EPOCH, 0, BODY, T0, held=False)
     outcomes = await asyncio.gather(

@@ -260,6 +260,11 @@ class CoordinationStore(abc.ABC):
         """Hazards not cleared, in id order (``None``: of every mission, by mission then id)."""
 
     @abc.abstractmethod
+    async def recent_hazards(self, limit: int, offset: int = 0) -> list[Hazard]:
+        """Every hazard, cleared ones too, of every mission, newest first (by the time it was
+        received): ``limit`` of them after skipping the ``offset`` newest."""
+
+    @abc.abstractmethod
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:

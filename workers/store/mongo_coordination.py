@@ -78,6 +78,7 @@ class MongoCoordination(OnMongo, CoordinationStore):
         await self._collection("hazards").create_index(
             [("announced_at_us", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
         )
+        await self._collection("hazards").create_index([("received_at_us", DESCENDING)])
 
     async def register_robot(self, name: str, kind: str | None) -> None:
         await self._collection("robots").update_one(
@@ -226,6 +227,11 @@ class MongoCoordination(OnMongo, CoordinationStore):
             .find(query)
             .sort([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
         )
+        return [_hazard(doc) async for doc in cursor]
+
+    async def recent_hazards(self, limit: int, offset: int = 0) -> list[Hazard]:
+        newest_first = [("received_at_us", DESCENDING), ("mission_id", DESCENDING), ("hazard_id", DESCENDING)]
+        cursor = self._collection("hazards").find({}).sort(newest_first).skip(offset).limit(limit)
         return [_hazard(doc) async for doc in cursor]
 
     async def apply_transition(

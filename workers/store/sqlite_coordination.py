@@ -59,6 +59,7 @@ CREATE TABLE IF NOT EXISTS hazards (
 );
 CREATE INDEX IF NOT EXISTS hazards_state ON hazards (state, mission_id, hazard_id);
 CREATE INDEX IF NOT EXISTS hazards_unannounced ON hazards (mission_id, hazard_id) WHERE announced_at IS NULL;
+CREATE INDEX IF NOT EXISTS hazards_received ON hazards (received_at);
 """
 
 
@@ -244,6 +245,14 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
         rows = await self._run(
             lambda db: db.execute(sql + " ORDER BY mission_id, hazard_id", params).fetchall()
         )
+        return [_hazard(row) for row in rows]
+
+    async def recent_hazards(self, limit: int, offset: int = 0) -> list[Hazard]:
+        sql = (
+            "SELECT * FROM hazards ORDER BY received_at DESC, mission_id DESC, hazard_id DESC "
+            "LIMIT ? OFFSET ?"
+        )
+        rows = await self._run(lambda db: db.execute(sql, (limit, offset)).fetchall())
         return [_hazard(row) for row in rows]
 
     async def apply_transition(

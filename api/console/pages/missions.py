@@ -1,0 +1,285 @@
+"""Missions: the list, a form for a new one, and each mission's detail with its state machine.
+
+Everything a button does goes through the services the HTTP API calls (``svc.missions``,
+``svc.channels``), so the rules are theirs: the role that may take each step is the use case's
+machine's (:mod:`fleetbus.schemas.use_cases`), who may mount, unmount and check in is the channels
+service's. A button is shown only to the roles it admits; a refusal shows its reason with the
+service's status (403 for a role that may not, 409 for a state that does not allow it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Form, Request
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
+from pydantic import ValidationError
+
+from fleetbus.api.channels import OPERATING, UNMOUNTERS
+from fleetbus.api.console.session import Allowed
+from fleetbus.api.console.sitemap import MISSIONS
+from fleetbus.api.console.templating import render
+from fleetbus.api.errors import Conflict, ServiceRefusal
+from fleetbus.api.missions import AUTHORS, MOVERS
+from fleetbus.api.service import Service
+from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.use_cases import CHECK_IN_STATES, USE_CASES, machine_for
+from fleetbus.workers.store.users import User
+
+router = APIRouter()
+Viewer = Annotated[User, Depends(Allowed.page(MISSIONS))]
+Author = Annotated[User, Depends(Allowed(AUTHORS, "the new mission form"))]
+Mover = Annotated[User, Depends(Allowed(MOVERS, "the mission state buttons"))]
+Mounter = Annotated[User, Depends(Allowed(OPERATING, "mounting robots and checking in"))]
+Unmounter = Annotated[User, Depends(Allowed(UNMOUNTERS, "unmounting robots"))]
+
+#: What a redirect after a button says was done (a fixed text: nothing from the address is shown).
+DONE = {
+    "created": "Mission created.",
+    "moved": "The mission took the step.",
+    "mounted": "Robot mounted.",
+    "unmounted": "Robot unmounted.",
+    "checked-in": "Checked in: the data of the robots you mounted for this mission is recorded under it.",
+    "checked-out": "Checked out.",
+}
+
+
+def _service(request: Request) -> Service:
+    return request.app.state.service
+
+
+@router.get("/console/missions", response_class=HTMLResponse)
+async def missions(request: Request, user: Viewer) -> Response:
+    found = await _service(request).missions.visible(user)
+    return render(
+        request,
+        "missions/list.html",
+        user,
+        MISSIONS,
+        missions=list(reversed(found)),
+        may_create=user.role in AUTHORS,
+        done=DONE.get(request.query_params.get("done", "")),
+    )
+
+
+# --- a new mission ------------------------------------------------------------------------------
+
+
+@dataclass
+class PlanForm:
+    """The plan as the form takes it: one vertex or point of interest a line."""
+
+    geofence: str = ""
+    points_of_interest: str = ""
+    risk_level: str = ""
+    risk_summary: str = ""
+    mitigations: str = ""
+
+    def plan(self) -> MissionPlan:
+        """The plan, or ValueError naming every line or field that is wrong."""
+        problems: list[str] = []
+        plan: dict[str, Any] = {}
+        vertices = [_numbers(line, 2, f"geofence line {n}", problems) for n, line in _lines(self.geofence)]
+        if vertices:
+            plan["geofence"] = {"polygon": [{"x": v[0], "y": v[1]} for v in vertices if v]}
+        plan["points_of_interest"] = [
+            poi for n, line in _lines(self.points_of_interest) if (poi := _poi(n, line, problems))
+        ]
+        if self.risk_level or self.risk_summary.strip():
+            plan["risk_assessment"] = {
+                "level": self.risk_level,
+                "summary": self.risk_summary.strip(),
+                "mitigations": [line for _, line in _lines(self.mitigations)],
+            }
+        if problems:
+            raise ValueError("; ".join(problems))
+        try:
+            return MissionPlan.model_validate(plan)
+        except ValidationError as error:
+            raise ValueError(_readable(error)) from None
+
+
+def _lines(text: str) -> list[tuple[int, str]]:
+    return [(n, line.strip()) for n, line in enumerate(text.splitlines(), 1) if line.strip()]
+
+
+def _numbers(text: str, count: int, where: str, problems: list[str]) -> list[float] | None:
+    parts = text.replace(",", " ").split()
+    try:
+        if len(parts) != count:
+            raise ValueError
+        return [float(part) for part in parts]
+    except ValueError:
+        problems.append(f"{where}: expected {count} numbers, got {text!r}")
+        return None
+
+
+def _poi(number: int, line: str, problems: list[str]) -> dict[str, Any] | None:
+    name, *rest = [part.strip() for part in line.split(",", 3)]
+    where = _numbers(" ".join(rest[:2]), 2, f"point of interest line {number} ({name})", problems)
+    if where is None:
+        return None
+    return {"name": name, "x": where[0], "y": where[1], "note": rest[2] if len(rest) > 2 else ""}
+
+
+def _readable(error: ValidationError) -> str:
+    """pydantic's errors as one line: where, then what."""
+    parts = []
+    for item in error.errors():
+        where = ".".join(str(step) for step in item["loc"])
+        message = str(item["msg"]).removeprefix("Value error, ")
+        parts.append(f"{where}: {message}" if where else message)
+    return "; ".join(parts)
+
+
+def _new_form(request: Request, user: User, status: int = 200, **context: Any) -> Response:
+    return render(
+        request,
+        "missions/new.html",
+        user,
+        MISSIONS,
+        status_code=status,
+        use_cases=list(USE_CASES.values()),
+        **{"form": PlanForm(), "title": "", "use_case": "", "problem": None, **context},
+    )
+
+
+@router.get("/console/missions/new", response_class=HTMLResponse)
+async def new_mission(request: Request, user: Author) -> Response:
+    return _new_form(request, user)
+
+
+@router.post("/console/missions", response_class=HTMLResponse)
+async def create_mission(
+    request: Request,
+    user: Author,
+    title: Annotated[str, Form()],
+    use_case: Annotated[str, Form()],
+    geofence: Annotated[str, Form()] = "",
+    points_of_interest: Annotated[str, Form()] = "",
+    risk_level: Annotated[str, Form()] = "",
+    risk_summary: Annotated[str, Form()] = "",
+    mitigations: Annotated[str, Form()] = "",
+) -> Response:
+    form = PlanForm(geofence, points_of_interest, risk_level, risk_summary, mitigations)
+    again = {"form": form, "title": title, "use_case": use_case}
+    if not title.strip():
+        return _new_form(request, user, 422, problem="the mission needs a title", **again)
+    try:
+        plan = form.plan()
+    except ValueError as problem:
+        return _new_form(request, user, 422, problem=f"the plan is not valid: {problem}", **again)
+    try:
+        mission = await _service(request).missions.create(user, use_case, title.strip(), plan)
+    except ServiceRefusal as refused:
+        return _new_form(request, user, refused.status, problem=refused.detail, **again)
+    return RedirectResponse(f"/console/missions/{mission.mission_id}?done=created", status_code=303)
+
+
+# --- one mission --------------------------------------------------------------------------------
+
+
+async def _detail(
+    request: Request, user: User, mission_id: str, problem: str | None = None, status: int = 200
+) -> Response:
+    svc = _service(request)
+    try:
+        mission = await svc.missions.get(user, mission_id)
+    except ServiceRefusal as refused:
+        return render(
+            request, "missions/missing.html", user, MISSIONS, refused.status, problem=refused.detail
+        )
+    machine = machine_for(mission.use_case)
+    channels = svc.repositories.channels
+    mounts = await channels.mounts(mission_id=mission_id)
+    check_ins = await channels.check_ins(mission_id=mission_id)
+    operating = user.role in OPERATING
+    robots = await svc.repositories.users.users(UserRole.ROBOT) if operating else []
+    return render(
+        request,
+        "missions/detail.html",
+        user,
+        MISSIONS,
+        status_code=status,
+        mission=mission,
+        plan=MissionPlan.model_validate(mission.plan),
+        machine=machine,
+        steps=machine.steps_from(mission.state),
+        role=user.role,
+        history=await svc.repositories.missions.mission_history(mission_id),
+        mounts=mounts,
+        check_ins=[(c, [m.robot for m in mounts if m.operator == c.operator]) for c in check_ins],
+        may_mount=operating and machine.mountable(mission.state),
+        may_unmount=user.role in UNMOUNTERS,
+        may_check_in=operating
+        and mission.state in CHECK_IN_STATES
+        and all(c.operator != user.name for c in check_ins),
+        may_check_out=operating and any(c.operator == user.name for c in check_ins),
+        robots=[r.name for r in robots if all(m.robot != r.name for m in mounts)],
+        problem=problem,
+        done=DONE.get(request.query_params.get("done", "")) if problem is None else None,
+    )
+
+
+@router.get("/console/missions/{mission_id}", response_class=HTMLResponse)
+async def mission(request: Request, user: Viewer, mission_id: str) -> Response:
+    return await _detail(request, user, mission_id)
+
+
+async def _act(
+    request: Request, user: User, mission_id: str, work: Callable[[], Awaitable[object]], done: str
+) -> Response:
+    """Do ``work`` (a service's action), then back to the mission saying ``done``; or the mission
+    with the service's reason, and its status."""
+    try:
+        await work()
+    except ServiceRefusal as refused:
+        return await _detail(request, user, mission_id, refused.detail, refused.status)
+    return RedirectResponse(f"/console/missions/{mission_id}?done={done}", status_code=303)
+
+
+@router.post("/console/missions/{mission_id}/transitions", response_class=HTMLResponse)
+async def transition(
+    request: Request,
+    user: Mover,
+    mission_id: str,
+    to: Annotated[MissionState, Form()],
+    note: Annotated[str, Form(max_length=500)] = "",
+) -> Response:
+    work = _service(request).missions.transition
+    return await _act(request, user, mission_id, lambda: work(user, mission_id, to, note), "moved")
+
+
+@router.post("/console/missions/{mission_id}/mounts", response_class=HTMLResponse)
+async def mount(request: Request, user: Mounter, mission_id: str, robot: Annotated[str, Form()]) -> Response:
+    work = _service(request).channels.mount
+    return await _act(request, user, mission_id, lambda: work(user, robot, mission_id), "mounted")
+
+
+@router.post("/console/missions/{mission_id}/unmount", response_class=HTMLResponse)
+async def unmount(
+    request: Request, user: Unmounter, mission_id: str, robot: Annotated[str, Form()]
+) -> Response:
+    svc = _service(request)
+
+    async def work() -> object:
+        if not await svc.repositories.channels.mounts(robot=robot, mission_id=mission_id):
+            raise Conflict(f"robot {robot} is not mounted for mission {mission_id}")
+        return await svc.channels.unmount(user, robot)
+
+    return await _act(request, user, mission_id, work, "unmounted")
+
+
+@router.post("/console/missions/{mission_id}/check-in", response_class=HTMLResponse)
+async def check_in(request: Request, user: Mounter, mission_id: str) -> Response:
+    work = _service(request).channels.check_in
+    return await _act(request, user, mission_id, lambda: work(user, mission_id), "checked-in")
+
+
+@router.post("/console/missions/{mission_id}/check-out", response_class=HTMLResponse)
+async def check_out(request: Request, user: Mounter, mission_id: str) -> Response:
+    work = _service(request).channels.check_out
+    return await _act(request, user, mission_id, lambda: work(user, mission_id), "checked-out")

@@ -1,0 +1,39 @@
+"""Put one message straight into a named queue, by the default exchange, as the administrator.
+
+Persistent, confirmed and ``mandatory``: the broker says whether the queue took it. Only the
+administrator and the service's own account may write to the default exchange (no robot can), so
+what arrives this way in a warden's inbox or on the express lane came from the service side.
+"""
+
+from __future__ import annotations
+
+import pika
+import pika.exceptions
+
+
+class NoSuchQueue(RuntimeError):
+    """The broker returned the message: no queue of that name."""
+
+
+class NotTaken(RuntimeError):
+    """The broker did not answer, or refused the message; the message says why."""
+
+
+def put_in_queue(admin_url: str, queue: str, body: bytes, properties: pika.BasicProperties) -> None:
+    """Publish ``body`` to ``queue`` and wait for the broker's confirm (blocking: run it on a thread)."""
+    properties.delivery_mode = pika.DeliveryMode.Persistent.value
+    try:
+        connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    except pika.exceptions.AMQPError as error:
+        raise NotTaken(f"the broker does not answer ({error!r})") from error
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        channel.basic_publish("", queue, body, properties, mandatory=True)
+    except pika.exceptions.UnroutableError as error:
+        raise NoSuchQueue(f"there is no queue {queue} on this broker") from error
+    except pika.exceptions.AMQPError as error:
+        raise NotTaken(f"the broker refused it ({error!r})") from error
+    finally:
+        if connection.is_open:
+            connection.close()
