@@ -34,6 +34,8 @@ class Service:
     team: Team
     recording: RecordingStore
     management: ManagementAPI
+    admin_url: str
+    """The administrator's AMQP URL (the console reads and changes the dead-letter queue with it)."""
     vhost: str
     login_limits: LoginLimits
 
@@ -78,6 +80,7 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
             ),
             recording=recording,
             management=management,
+            admin_url=admin_url,
             vhost=vhost_of(admin_url),
             login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
         )
