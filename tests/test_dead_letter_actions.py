@@ -110,7 +110,7 @@ def test_requeue_publishes_it_again_as_its_sender_confirmed_and_then_removes_it(
 def test_a_requeue_the_broker_refuses_leaves_the_letter_where_it_was(bus: Bus) -> None:
     account, letters = _dead_letters(bus, "a", "b")
     wrong_password = url_for(bus.admin_url, "explorer1", uuid.uuid4().hex)
-    with pytest.raises(RequeueRefused, match="explorer1.*stays a dead letter"):
+    with pytest.raises(RequeueRefused, match=r"explorer1.*stays a dead letter"):
         requeue_dead_letter(bus.admin_url, letters[0].letter_id, lambda user: wrong_password)
     # another account may not speak for explorer1: the broker checks the validated user id
     impostor = bus.add("explorer2", kind=RobotKind.EXPLORER)

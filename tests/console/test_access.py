@@ -118,5 +118,6 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
     made = console.run(lambda: users.get_user("made1"))
     assert made is not None and made.role is UserRole.ADMIN
     after = console.run(lambda: users.get_user("target1"))
-    assert after is not None and after.role is UserRole.INACTIVE and after.broker_secret != before.broker_secret
+    assert after is not None and before is not None
+    assert after.role is UserRole.INACTIVE and after.broker_secret != before.broker_secret
     assert console.bus.ready_messages(DEAD_LETTER_QUEUE) == 0
