@@ -13,7 +13,6 @@ page, for two minutes; the page deletes it as it shows it, and answers ``Cache-C
 from __future__ import annotations
 
 import json
-import logging
 from dataclasses import asdict
 from typing import Annotated
 from urllib.parse import urlencode
@@ -27,11 +26,11 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ACCOUNTS, ADMINS
 from fleetbus.api.console.templating import render
 from fleetbus.api.errors import BadRequest, ServiceRefusal
+from fleetbus.api.service import Service
 from fleetbus.schemas.roles import ROLE_PURPOSE, UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.users import User
 
-log = logging.getLogger("fleetbus.api.console")
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(ACCOUNTS))]
 Creator = Annotated[User, Depends(Allowed(ADMINS, "create users"))]
@@ -55,7 +54,7 @@ def _shown_once_path(name: str) -> str:
 async def _page(
     request: Request,
     user: User,
-    svc: ServiceDep,
+    svc: Service,
     status_code: int = 200,
     problem: str | None = None,
     notice: str | None = None,
@@ -122,9 +121,7 @@ async def create(
     return _done("created", name)
 
 
-async def _set_role(
-    request: Request, admin: User, svc: ServiceDep, name: str, role: str, done: str
-) -> Response:
+async def _set_role(request: Request, admin: User, svc: Service, name: str, role: str, done: str) -> Response:
     try:
         await svc.accounts.set_role(name, _role(role), admin.name)
     except ServiceRefusal as refusal:
@@ -164,7 +161,7 @@ async def reset_broker_password(request: Request, name: str, admin: Rekeyer, svc
     return response
 
 
-def _opened(svc: ServiceDep, sealed: str | None, name: str) -> BrokerCredentials | None:
+def _opened(svc: Service, sealed: str | None, name: str) -> BrokerCredentials | None:
     if not sealed:
         return None
     try:
@@ -186,7 +183,6 @@ async def new_broker_password(request: Request, name: str, admin: Viewer, svc: S
         headers=NO_STORE,
         name=name,
         credentials=credentials,
-        shown_for_s=SHOWN_ONCE_S,
     )
     response.delete_cookie(SHOWN_ONCE_COOKIE, path=_shown_once_path(name))
     return response

@@ -32,7 +32,7 @@ from fleetbus.broker.dead_letter_actions import (
     discard_dead_letter,
     requeue_dead_letter,
 )
-from fleetbus.broker.dead_letter_queue import DeadLetter, read_dead_letters
+from fleetbus.broker.dead_letter_queue import DeadLetter, Listing, read_dead_letters
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 from fleetbus.workers.bounds import bounds
 from fleetbus.workers.overflow import dropped_from_queue
@@ -73,25 +73,24 @@ async def _page(
     notice: str | None = None,
 ) -> Response:
     settings = svc.settings
+    listing: Listing | None = None
     try:
         listing = await read_dead_letters(
             svc.admin_url, settings.console_dead_letters, svc.repositories.rejections.rejections
         )
     except BROKER_FAILURES as error:
-        listing = None
         unread = f"the dead-letter queue cannot be read ({type(error).__name__}: {error})"
         problem = f"{problem}; {unread}" if problem else unread
         status_code = 503
     counts = await svc.repositories.housekeeping.bound_counts()
+    letters = listing.letters if listing else []
     return render(
         request,
         "dead_letters/page.html",
         user,
         DEAD_LETTERS,
         status_code=status_code,
-        letters=[_shown(letter, settings.console_dead_letter_body) for letter in listing.letters]
-        if listing
-        else [],
+        letters=[_shown(letter, settings.console_dead_letter_body) for letter in letters],
         in_queue=listing.in_queue if listing else None,
         dropped=dropped_from_queue(counts, DEAD_LETTER_QUEUE),
         kept=bounds(settings).dead_letters.describe(),
