@@ -151,6 +151,9 @@ class Accounts:
         return user
 
     async def set_role(self, name: str, role: UserRole, by: str) -> User:
+        """Give ``name`` another role (``inactive`` disables it); ``by`` is the admin who does it."""
+        if name == by and role is not UserRole.ADMIN:
+            raise BadRequest("an admin cannot take its own admin role away (ask another admin)")
         user = await self.get(name)
         if user.kind is not None and role is not UserRole.ROBOT and role is not UserRole.INACTIVE:
             raise BadRequest(f"{name} is a robot ({user.kind}); it can be a robot or inactive")
@@ -166,6 +169,23 @@ class Accounts:
         return await self._users.update_user(
             name, datetime.now(timezone.utc), password_hash=await self._secrets.passwords.hash(password)
         )
+
+    async def reset_broker_password(self, name: str, by: str) -> BrokerCredentials:
+        """Give the user's broker account a new random password; the old one no longer logs in
+        (connections already open stay open). The store is written first and put back if the
+        broker refuses, so the password the login hands out is always the broker's."""
+        user = await self.get(name)
+        password = secrets.token_urlsafe(24)
+        rekeyed = await self._users.update_user(
+            name, datetime.now(timezone.utc), broker_secret=self._secrets.box.seal(password)
+        )
+        try:
+            await self._broker(name, user.role, user.kind, password=password)
+        except Unavailable:
+            await self._users.update_user(name, datetime.now(timezone.utc), broker_secret=user.broker_secret)
+            raise
+        log.info("user %s: broker password reset by %s", name, by)
+        return self.broker_credentials(rekeyed)
 
     async def remove(self, name: str, by: str) -> None:
         await self.get(name)

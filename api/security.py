@@ -134,7 +134,7 @@ class Tokens:
 
 
 class SecretBox:
-    """Encrypts the broker passwords kept in the store."""
+    """Encrypts the broker passwords kept in the store (and one on its way to the console's page)."""
 
     def __init__(self, key: bytes) -> None:
         self._fernet = Fernet(base64.urlsafe_b64encode(key))
@@ -142,10 +142,13 @@ class SecretBox:
     def seal(self, plain: str) -> str:
         return self._fernet.encrypt(plain.encode()).decode()
 
-    def open(self, sealed: str) -> str:
+    def open(self, sealed: str, max_age_s: int | None = None) -> str:
+        """The plain text; ``max_age_s``: refused when sealed longer ago than that."""
         try:
-            return self._fernet.decrypt(sealed.encode()).decode()
+            return self._fernet.decrypt(sealed.encode(), ttl=max_age_s).decode()
         except InvalidToken:
+            if max_age_s is not None:
+                raise ValueError(f"sealed more than {max_age_s} s ago, or not by this service") from None
             raise ValueError(
                 "the stored broker password cannot be decrypted with this service's secret"
             ) from None

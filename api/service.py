@@ -37,6 +37,8 @@ class Service:
     """Steps of a hazard an operator takes for a warden (claim, reached, cleared, release)."""
     recording: RecordingStore
     management: ManagementAPI
+    admin_url: str
+    """The administrator's AMQP URL (the console reads and changes the dead-letter queue with it)."""
     vhost: str
     login_limits: LoginLimits
 
@@ -82,6 +84,7 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
             hazard_steps=HazardSteps(repositories.hazards, repositories.channels, admin_url),
             recording=recording,
             management=management,
+            admin_url=admin_url,
             vhost=vhost_of(admin_url),
             login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
         )

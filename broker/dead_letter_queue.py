@@ -3,6 +3,10 @@
 Messages are fetched with ``basic.get`` and not acked; closing the channel puts them back in
 their place (the queue is a classic queue, where that costs no delivery count).
 
+Each letter is named by :func:`letter_id`, a digest of the whole message as the queue holds it,
+which stays the same however often it is read; :mod:`fleetbus.broker.dead_letter_actions`
+requeues or discards a letter by it.
+
 The workers reject a message with ``basic.nack`` (no requeue) and the broker moves it here
 itself, atomically, so a worker that dies meanwhile can never leave it twice (README, "What is
 guaranteed"); the move cannot add headers, so the worker first records why in the store under
@@ -11,10 +15,13 @@ guaranteed"); the move cannot add headers, so the worker first records why in th
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+import json
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
 from datetime import datetime
+from decimal import Decimal
 from typing import Any, Protocol
 
 import pika
@@ -33,9 +40,27 @@ class DeadLetter:
     rejected_at: str | None
     size: int
     body_preview: str
+    letter_id: str
+    """Which letter this is (:func:`letter_id`): what a requeue or a discard names."""
+    headers: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    """The message's headers as the queue holds them, the broker's ``x-death`` included."""
+    body: bytes = field(default=b"", repr=False, compare=False)
 
     def as_dict(self) -> dict[str, Any]:
-        return self.__dict__.copy()
+        """The description, without the headers and the body (the JSON lines of ``fleetbus dlq``)."""
+        return {key: value for key, value in self.__dict__.items() if key not in ("headers", "body")}
+
+    def headers_text(self) -> str:
+        """The headers as indented JSON, for reading (bytes as text, times in ISO 8601)."""
+        return json.dumps(self.headers, indent=2, sort_keys=True, default=_plain, ensure_ascii=False)
+
+
+@dataclass(frozen=True)
+class Listing:
+    letters: list[DeadLetter]
+    """The oldest letters, up to the limit asked for."""
+    in_queue: int
+    """How many letters the queue held when read."""
 
 
 class KeptReason(Protocol):
@@ -64,6 +89,30 @@ def _text(value: Any) -> str:
     return value.decode(errors="replace") if isinstance(value, bytes) else str(value)
 
 
+def _plain(value: Any) -> Any:
+    """What JSON cannot hold, as text: bytes, times (x-death), decimals."""
+    if isinstance(value, datetime):
+        return value.isoformat()
+    if isinstance(value, (bytes, Decimal)):
+        return _text(value)
+    return repr(value)
+
+
+def letter_id(properties: pika.BasicProperties, body: bytes) -> str:
+    """Which dead letter this is: a digest of the whole message as the queue holds it (every
+    property, the headers with the broker's ``x-death`` record and its times, the body).
+
+    A message id alone would not do: a robot may send none, and a message refused twice (sent
+    again after an outage) is in the queue twice with the same one. Two letters share a digest
+    only when they are the same bytes, refused at the same second: taking either is the same.
+    """
+    described = json.dumps(vars(properties), sort_keys=True, default=_plain, ensure_ascii=False)
+    digest = hashlib.sha256(described.encode())
+    digest.update(b"\0")
+    digest.update(body)
+    return digest.hexdigest()[:32]
+
+
 def moved_letter_key(
     headers: Mapping[str, Any] | None, user_id: str | None, message_id: str | None, body: bytes
 ) -> str | None:
@@ -81,9 +130,10 @@ def _key_of(properties: pika.BasicProperties, body: bytes) -> str | None:
     return moved_letter_key(properties.headers, properties.user_id, properties.message_id, body)
 
 
-def _describe(
-    properties: pika.BasicProperties, body: bytes, routing_key: str, kept: KeptReason | None
+def describe(
+    properties: pika.BasicProperties, body: bytes, routing_key: str, kept: KeptReason | None = None
 ) -> DeadLetter:
+    """A letter as fetched from the queue; ``kept``: why the workers refused it, from the store."""
     headers = properties.headers or {}
     reason: object = None
     detail = ""
@@ -111,34 +161,58 @@ def _describe(
         rejected_at=_text(rejected_at) if rejected_at else None,
         size=len(body),
         body_preview=body[:120].decode(errors="replace"),
+        letter_id=letter_id(properties, body),
+        headers=headers,
+        body=body,
     )
+
+
+Fetched = list[tuple[str, pika.BasicProperties, bytes]]
 
 
 def peek_dead_letters(
     amqp_url: str, limit: int = 1000, reasons: ReasonLookup | None = None
 ) -> list[DeadLetter]:
     """Up to ``limit`` dead letters, oldest first; ``reasons`` finds why the workers refused each."""
-    fetched = _peek(amqp_url, limit)
-    keys = [key for _, properties, body in fetched if (key := _key_of(properties, body))]
-    kept = reasons(keys) if reasons is not None and keys else {}
+    _, fetched = _peek(amqp_url, limit)
+    keys = _keys(fetched)
+    return _described(fetched, reasons(keys) if reasons is not None and keys else {})
+
+
+AsyncReasonLookup = Callable[[list[str]], Awaitable[Mapping[str, KeptReason]]]
+
+
+async def read_dead_letters(amqp_url: str, limit: int, reasons: AsyncReasonLookup) -> Listing:
+    """:func:`peek_dead_letters` for an event loop (the queue read on a thread, the reasons
+    awaited), with how many letters the queue held."""
+    in_queue, fetched = await asyncio.to_thread(_peek, amqp_url, limit)
+    keys = _keys(fetched)
+    return Listing(_described(fetched, await reasons(keys) if keys else {}), in_queue)
+
+
+def _keys(fetched: Fetched) -> list[str]:
+    return [key for _, properties, body in fetched if (key := _key_of(properties, body))]
+
+
+def _described(fetched: Fetched, kept: Mapping[str, KeptReason]) -> list[DeadLetter]:
     return [
-        _describe(properties, body, routing_key, kept.get(_key_of(properties, body) or ""))
+        describe(properties, body, routing_key, kept.get(_key_of(properties, body) or ""))
         for routing_key, properties, body in fetched
     ]
 
 
-def _peek(amqp_url: str, limit: int) -> list[tuple[str, pika.BasicProperties, bytes]]:
+def _peek(amqp_url: str, limit: int) -> tuple[int, Fetched]:
     connection = pika.BlockingConnection(pika.URLParameters(amqp_url))
     try:
         channel = connection.channel()
         available = channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count
-        fetched: list[tuple[str, pika.BasicProperties, bytes]] = []
+        fetched: Fetched = []
         for _ in range(min(limit, available)):
             method, properties, body = channel.basic_get(DEAD_LETTER_QUEUE, auto_ack=False)
             if method is None:
                 break
             fetched.append((method.routing_key, properties, body))
         channel.close()  # returns every fetched message to the queue
-        return fetched
+        return available, fetched
     finally:
         connection.close()

@@ -222,6 +222,12 @@ class Settings(BaseSettings):
         "batches of news a console page may fall behind before its stream is cut (the browser then "
         "reconnects and catches up from the store); cuts are counted on the dashboard",
     )
+    console_dead_letters: Annotated[int, Positive] = setting(
+        200, "how many dead letters the console's page lists, the oldest first (`fleetbus dlq --limit`: more)"
+    )
+    console_dead_letter_body: Annotated[int, Positive] = setting(
+        16384, "how many bytes of each dead letter's body the console's page shows (the rest is counted)"
+    )
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )

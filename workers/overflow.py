@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import logging
 from collections import Counter
+from collections.abc import Iterable
 from datetime import datetime, timezone
 from typing import Any
 
@@ -21,10 +22,16 @@ from aio_pika.abc import AbstractChannel, AbstractQueue
 from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.store.base import StoreUnavailable
-from fleetbus.workers.store.housekeeping import Housekeeping
+from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
 
 log = logging.getLogger("fleetbus.overflow")
 BOUND = "overflow"
+
+
+def dropped_from_queue(counts: Iterable[BoundCount], queue: str) -> int:
+    """How many messages the full ``queue`` dropped, as the workers counted them."""
+    subject = f"{queue} maxlen"
+    return sum(c.count for c in counts if c.bound == BOUND and c.subject == subject)
 
 
 def _text(value: Any) -> str:

@@ -21,15 +21,19 @@ class Page:
 
 #: Who watches the team and its traffic.
 WATCHERS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
+#: Who manages accounts and changes the dead-letter queue.
+ADMINS = frozenset({R.ADMIN})
 #: Every role that may read missions.
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
 HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)
 MISSIONS = Page("missions", "Missions", "/console/missions", MISSION_ROLES)
+DEAD_LETTERS = Page("dead-letters", "Dead letters", "/console/dead-letters", WATCHERS)
+ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD, HAZARDS, MISSIONS)
+PAGES: tuple[Page, ...] = (DASHBOARD, HAZARDS, MISSIONS, DEAD_LETTERS, ACCOUNTS)
 
 
 def pages_for(role: R) -> list[Page]:

@@ -186,3 +186,33 @@ def test_users_cannot_be_created_twice_or_with_bad_names_or_short_passwords(api:
         reply = api.call("admin1", "POST", "/users", json=body)
         assert reply.status_code == status and detail in reply.json()["detail"], (body, reply.text)
     assert [u.name for u in api.run(api.service.repositories.users.users)] == ["admin1", "alice"]
+
+
+def test_an_admin_cannot_take_its_own_admin_role_away(api: Api) -> None:
+    for role in ("client", "inactive"):  # inactive: disabling itself
+        reply = api.call("admin1", "PUT", "/users/admin1/role", json={"role": role})
+        assert (reply.status_code, reply.json()["detail"]) == (
+            422,
+            "an admin cannot take its own admin role away (ask another admin)",
+        )
+    stored = api.run(lambda: api.service.repositories.users.get_user("admin1"))
+    assert stored is not None and stored.role is UserRole.ADMIN
+
+
+def test_a_broker_password_reset_locks_the_old_one_out_and_the_login_hands_out_the_new(
+    api: Api, caplog: pytest.LogCaptureFixture
+) -> None:
+    api.user("alice", UserRole.OPERATOR)
+    old = api.client.post("/auth/token", data={"username": "alice", "password": PASSWORD}).json()["broker"]
+    with caplog.at_level(logging.DEBUG):
+        new = api.run(lambda: api.service.accounts.reset_broker_password("alice", by="admin1"))
+    assert new.password != old["password"] and new.username == "alice"
+    assert not [r for r in caplog.records if new.password in r.getMessage()], "never in a log"
+    assert "broker password reset by admin1" in caplog.text
+    with pytest.raises(pika.exceptions.ProbableAuthenticationError):
+        pika.BlockingConnection(pika.URLParameters(old["amqp_url"]))
+    connection = pika.BlockingConnection(pika.URLParameters(new.amqp_url))
+    connection.channel().queue_declare("alice.stream", passive=True)  # its permissions kept
+    connection.close()
+    login = api.client.post("/auth/token", data={"username": "alice", "password": PASSWORD})
+    assert login.json()["broker"]["amqp_url"] == new.amqp_url

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from fleetbus.api.console.pages import dashboard, hazards, missions
+from fleetbus.api.console.pages import accounts, dashboard, dead_letters, hazards, missions
 
 router = APIRouter()
-for page in (dashboard, hazards, missions):
+for page in (dashboard, hazards, missions, dead_letters, accounts):
     router.include_router(page.router)

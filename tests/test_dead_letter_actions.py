@@ -1,0 +1,134 @@
+"""Requeue and discard one dead letter by its id, on the real broker: exactly that one, the others
+left in their order; the requeued message published again as its sender, confirmed."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from typing import Any
+
+import pika
+import pytest
+
+from fleetbus.broker.accounts import Account, url_for
+from fleetbus.broker.dead_letter_actions import (
+    DeadLetterGone,
+    RequeueRefused,
+    discard_dead_letter,
+    requeue_dead_letter,
+)
+from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, INGEST_QUEUE, RobotKind
+from tests.support import Bus, wait_for
+
+
+def _status_body(seq: int) -> bytes:
+    return json.dumps({"robot_id": "explorer1", "seq": seq, "type": "status", "nope": 1}).encode()
+
+
+def _refuse_everything(bus: Bus, expected: int) -> None:
+    """What a worker does to a bad message: ``basic.nack`` without requeue, so the broker moves it
+    to the dead-letter queue itself (with its ``x-death`` record)."""
+    with bus.admin_channel() as channel:
+        for _ in range(expected):
+            method, _, _ = _next_in_ingest(channel)
+            channel.basic_nack(method.delivery_tag, requeue=False)
+    wait_for(lambda: bus.ready_messages(DEAD_LETTER_QUEUE) == expected, what="the dead letters")
+
+
+def _next_in_ingest(channel: Any) -> tuple[Any, pika.BasicProperties, bytes]:
+    """The next message of the ingest queue (a quorum queue with a single active consumer, which
+    refuses ``basic.get``), taken unacked."""
+    channel.basic_qos(prefetch_count=1)
+    for method, properties, body in channel.consume(INGEST_QUEUE, inactivity_timeout=30):
+        assert method is not None, "a message in the ingest queue within 30 s"
+        channel.cancel()
+        return method, properties, body
+    raise AssertionError("the ingest queue's consumer ended")
+
+
+def _dead_letters(bus: Bus, *message_ids: str) -> tuple[Account, list[DeadLetter]]:
+    """Bad statuses from explorer1 (one per message id, in order), dead-lettered by the broker."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    for seq, message_id in enumerate(message_ids):
+        bus.publish_raw(account, "explorer1.status", _status_body(seq), message_id=message_id)
+    _refuse_everything(bus, len(message_ids))
+    return account, peek_dead_letters(bus.admin_url)
+
+
+def _ids(letters: list[DeadLetter]) -> list[str]:
+    return [letter.letter_id for letter in letters]
+
+
+def test_reading_leaves_every_letter_in_place_and_names_each_the_same_way_every_time(bus: Bus) -> None:
+    _, first = _dead_letters(bus, "a", "b", "c")
+    again = peek_dead_letters(bus.admin_url)
+    assert [letter.message_id for letter in again] == ["a", "b", "c"]
+    assert _ids(again) == _ids(first) and len(set(_ids(first))) == 3
+    assert all(letter.headers["x-death"] and letter.body.startswith(b"{") for letter in first)
+    assert "x-death" in first[0].headers_text() and "fleetbus.ingest.events" in first[0].headers_text()
+    assert "headers" not in first[0].as_dict() and first[0].as_dict()["letter_id"] == first[0].letter_id
+
+
+def test_discard_removes_exactly_the_chosen_letter_even_beside_one_with_the_same_message_id(bus: Bus) -> None:
+    # a robot that sends a message again after an outage may be refused twice with one message id
+    _, letters = _dead_letters(bus, "a", "twice", "twice", "d")
+    chosen = letters[2]
+    assert letters[1].message_id == chosen.message_id and letters[1].letter_id != chosen.letter_id
+
+    assert discard_dead_letter(bus.admin_url, chosen.letter_id).letter_id == chosen.letter_id
+
+    left = peek_dead_letters(bus.admin_url)
+    assert _ids(left) == _ids([letters[0], letters[1], letters[3]]), "the others, in their order"
+    with pytest.raises(DeadLetterGone, match="nothing was changed"):
+        discard_dead_letter(bus.admin_url, chosen.letter_id)
+    assert _ids(peek_dead_letters(bus.admin_url)) == _ids(left)
+
+
+def test_requeue_publishes_it_again_as_its_sender_confirmed_and_then_removes_it(bus: Bus) -> None:
+    account, letters = _dead_letters(bus, "a", "b", "c")
+    asked_for: list[str] = []
+
+    def sender_url(user_id: str) -> str:
+        asked_for.append(user_id)
+        return account.amqp_url
+
+    requeued = requeue_dead_letter(bus.admin_url, letters[1].letter_id, sender_url)
+
+    assert requeued.message_id == "b" and asked_for == ["explorer1"]
+    assert _ids(peek_dead_letters(bus.admin_url)) == _ids([letters[0], letters[2]])
+    assert bus.ready_messages(INGEST_QUEUE) == 1, "published once, confirmed before the requeue returned"
+    with bus.admin_channel() as channel:
+        _, properties, body = _next_in_ingest(channel)
+    assert (properties.message_id, properties.user_id, body) == ("b", "explorer1", _status_body(1))
+    assert properties.delivery_mode == 2
+    assert "x-death" not in (properties.headers or {}), "the broker's record of the old refusal is left out"
+    with pytest.raises(DeadLetterGone):
+        requeue_dead_letter(bus.admin_url, letters[1].letter_id, sender_url)
+
+
+def test_a_requeue_the_broker_refuses_leaves_the_letter_where_it_was(bus: Bus) -> None:
+    account, letters = _dead_letters(bus, "a", "b")
+    wrong_password = url_for(bus.admin_url, "explorer1", uuid.uuid4().hex)
+    with pytest.raises(RequeueRefused, match=r"explorer1.*stays a dead letter"):
+        requeue_dead_letter(bus.admin_url, letters[0].letter_id, lambda user: wrong_password)
+    # another account may not speak for explorer1: the broker checks the validated user id
+    impostor = bus.add("explorer2", kind=RobotKind.EXPLORER)
+    with pytest.raises(RequeueRefused, match="stays a dead letter"):
+        requeue_dead_letter(bus.admin_url, letters[0].letter_id, lambda user: impostor.amqp_url)
+    assert _ids(peek_dead_letters(bus.admin_url)) == _ids(letters)
+    assert bus.ready_messages(INGEST_QUEUE) == 0
+    # the same letter goes once its sender's own login is used
+    requeue_dead_letter(bus.admin_url, letters[0].letter_id, lambda user: account.amqp_url)
+    assert _ids(peek_dead_letters(bus.admin_url)) == _ids(letters[1:])
+
+
+def test_a_letter_nobody_sent_cannot_be_requeued_as_anyone(bus: Bus) -> None:
+    bus.add("explorer1", kind=RobotKind.EXPLORER)  # the topology
+    with bus.admin_channel() as channel:
+        channel.confirm_delivery()
+        channel.basic_publish("fleetbus.dlx", "", b"anonymous", pika.BasicProperties(delivery_mode=2))
+    [letter] = peek_dead_letters(bus.admin_url)
+    with pytest.raises(RequeueRefused, match="no sender"):
+        requeue_dead_letter(bus.admin_url, letter.letter_id, lambda user: bus.admin_url)
+    assert _ids(peek_dead_letters(bus.admin_url)) == [letter.letter_id]
