@@ -214,6 +214,14 @@ class Settings(BaseSettings):
     console_recent_events: Annotated[int, Positive] = setting(
         200, "how many of the newest events the dashboard lists (older ones are in Messages)"
     )
+    console_search_limit: Annotated[int, Positive] = setting(
+        500,
+        "most recorded messages a search or a robot's timeline lists on the console's Messages page "
+        "(the newest of them; the form's limit cannot exceed it)",
+    )
+    console_tail_rows: Annotated[int, Positive] = setting(
+        100, "how many messages the live tail on the console's Messages page keeps on screen"
+    )
     console_queue: Annotated[int, Positive] = setting(
         64,
         "batches of news a console page may fall behind before its stream is cut (the browser then "

@@ -25,9 +25,10 @@ WATCHERS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
+MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD,)
+PAGES: tuple[Page, ...] = (DASHBOARD, MESSAGES)
 
 
 def pages_for(role: R) -> list[Page]:
