@@ -24,11 +24,15 @@ WATCHERS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 #: Every role that may read missions.
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
+#: Who reads the recording's figures (the performance evaluation, its growth), not its traffic.
+EVALUATORS = WATCHERS | {R.PLANNER}
+
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
 MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
+EVALUATION = Page("evaluation", "Evaluation", "/console/evaluation", EVALUATORS)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD, MESSAGES)
+PAGES: tuple[Page, ...] = (DASHBOARD, MESSAGES, EVALUATION)
 
 
 def pages_for(role: R) -> list[Page]:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from fleetbus.api.console.pages import dashboard, messages
+from fleetbus.api.console.pages import dashboard, evaluation, messages
 
 router = APIRouter()
-for page in (dashboard, messages):
+for page in (dashboard, messages, evaluation):
     router.include_router(page.router)
