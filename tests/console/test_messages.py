@@ -7,9 +7,11 @@ from collections.abc import Iterator
 from datetime import datetime, timezone
 from urllib.parse import urlencode
 
+import httpx
 import pytest
 from selenium.webdriver.support.select import Select
 
+from fleetbus.api.console.session import CSRF_COOKIE
 from fleetbus.broker.accounts import Account, Role
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.missions import MissionState
@@ -18,7 +20,7 @@ from fleetbus.schemas.routing import EXPRESS_QUEUE, RECORDER_QUEUE, EventType, R
 from fleetbus.schemas.use_cases import machine_for
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests.api.support import PATHS, READY_PLAN
-from tests.console.support import Browser, Console, running_console
+from tests.console.support import PASSWORD, Browser, Console, running_console
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 
@@ -235,3 +237,26 @@ def test_the_live_tail_shows_a_mounted_robots_message_and_never_an_unmounted_one
         assert len(ids) == len(set(ids)), "each message once (a mounted robot's beacon too)"
         routing_keys = sorted(cell.text for cell in browser.find("#tail td.routing-key"))
         assert routing_keys == ["explorer1.beacon", "explorer1.status", "explorer2.beacon"]
+
+        console.wait_live(browser)
+        console.run(lambda: console.service.channels.unmount(operator, "explorer1"))
+        browser.until(lambda: not browser.find(".following a.mounted"), "the unmount shown")
+        mounted.publish("status", status(55))  # no longer in oper1's stream
+        wait_for(lambda: bus.count("status", "explorer1") == 2, what="explorer1's second status stored")
+        unmounted.publish("beacon", {"beacon_id": "b9", "rssi": -63})  # the sentinel
+        browser.until(lambda: '"beacon_id":"b9"' in tail(), "the sentinel beacon in the tail")
+        assert '"battery_percent":55' not in tail(), "unmounted: explorer1's status never shows"
+
+
+def test_a_user_without_a_stream_is_shown_no_traffic(bus: Bus) -> None:
+    with bus.worker(), running_console(bus) as console, httpx.Client(base_url=console.base) as http:
+        console.user("admin1", UserRole.ADMIN)
+        with robot_client(bus, console, "explorer1") as explorer1:
+            explorer1.publish("beacon", {"beacon_id": "b1", "rssi": -60})
+        wait_for(lambda: bus.count("beacon") == 1, what="the beacon stored")
+        http.get("/console/login")
+        form = {"username": "admin1", "password": PASSWORD, "csrf": http.cookies[CSRF_COOKIE]}
+        assert http.post("/console/login", data=form).status_code == 303
+        page = http.get("/console/messages")
+        assert page.status_code == 200 and "has no stream" in page.text
+        assert 'id="tail-explorer1' not in page.text, "an administrator's account follows no stream"
