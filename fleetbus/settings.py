@@ -216,8 +216,8 @@ class Settings(BaseSettings):
     )
     console_search_limit: Annotated[int, Positive] = setting(
         500,
-        "most recorded messages a search or a robot's timeline lists on the console's Messages page "
-        "(the newest of them; the form's limit cannot exceed it)",
+        "most recorded messages a search (the newest that match) or a robot's timeline (the first of "
+        "its window) lists on the console's Messages page; the form's limit cannot exceed it",
     )
     console_tail_rows: Annotated[int, Positive] = setting(
         100, "how many messages the live tail on the console's Messages page keeps on screen"
