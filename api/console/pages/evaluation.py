@@ -8,8 +8,9 @@ from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse, Response
+from pydantic import BaseModel
 
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.charts import BarChart, TimeChart, bar_chart, time_chart
@@ -70,26 +71,29 @@ def growth_charts(rows: Sequence[Growth]) -> tuple[TimeChart, TimeChart]:
     )
 
 
+class EvaluationForm(BaseModel):
+    """The evaluation's window and robot, and the growth charts' start and bucket, as typed."""
+
+    since: str = ""
+    until: str = ""
+    robot: str = ""
+    growth_since: str = ""
+    every: str = ""
+
+
 @router.get("/console/evaluation", response_class=HTMLResponse)
 async def evaluation(
-    request: Request,
-    user: Viewer,
-    svc: ServiceDep,
-    since: str = "",
-    until: str = "",
-    robot: str = "",
-    growth_since: str = "",
-    every: str = "",
+    request: Request, user: Viewer, svc: ServiceDep, form: Annotated[EvaluationForm, Query()]
 ) -> Response:
     problem = None
     stats: list[OutcomeStats] = []
     rows: list[Growth] = []
     start = datetime.now(timezone.utc) - GROWTH_WINDOW
     try:
-        window = moment("since", since), moment("until", until)
-        robot_id = robot_name(robot)
-        start = moment("growth since", growth_since) or start
-        minutes = every_of(every)
+        window = moment("since", form.since), moment("until", form.until)
+        robot_id = robot_name(form.robot)
+        start = moment("growth since", form.growth_since) or start
+        minutes = every_of(form.every)
     except FormProblem as error:
         problem = str(error)
     else:
@@ -104,7 +108,7 @@ async def evaluation(
         EVALUATION,
         status_code=422 if problem else 200,
         problem=problem,
-        form={"since": since, "until": until, "robot": robot, "growth_since": growth_since, "every": every},
+        form=form,
         stats=stats,
         rows=rows,
         start=start,

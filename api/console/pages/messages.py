@@ -13,8 +13,9 @@ from datetime import datetime, timedelta, timezone
 from typing import Annotated
 
 import httpx
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse, Response
+from pydantic import BaseModel
 
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.following import MountBook, TailView
@@ -40,9 +41,8 @@ SUMMARY_WIDTH = 120
 TIMELINE_WINDOW = timedelta(hours=1)
 
 
-@dataclass
-class SearchForm:
-    """The search as typed; every field a string, as the browser sent it."""
+class SearchForm(BaseModel):
+    """The search as typed; every field a string, as the browser sent it (empty when left blank)."""
 
     type: str = ""
     robot: str = ""
@@ -54,6 +54,13 @@ class SearchForm:
     @property
     def conditions(self) -> list[str]:
         return [line.strip() for line in self.where.splitlines() if line.strip()]
+
+
+class TimelineForm(BaseModel):
+    robot: str = ""
+    since: str = ""
+    until: str = ""
+    limit: str = ""
 
 
 @dataclass
@@ -119,18 +126,8 @@ def is_search_swap(request: Request) -> bool:
 
 @router.get("/console/messages", response_class=HTMLResponse)
 async def messages(
-    request: Request,
-    user: Viewer,
-    svc: ServiceDep,
-    book: Book,
-    type: str = "",
-    robot: str = "",
-    since: str = "",
-    until: str = "",
-    where: str = "",
-    limit: str = "",
+    request: Request, user: Viewer, svc: ServiceDep, book: Book, form: Annotated[SearchForm, Query()]
 ) -> Response:
-    form = SearchForm(type, robot, since, until, where, limit)
     result = await search(svc, form) if form.type.strip() else None
     context = {
         "form": form,
@@ -191,13 +188,7 @@ async def message_trace(request: Request, user: Viewer, svc: ServiceDep, message
 
 @router.get("/console/messages/timeline", response_class=HTMLResponse)
 async def robot_timeline(
-    request: Request,
-    user: Viewer,
-    svc: ServiceDep,
-    robot: str = "",
-    since: str = "",
-    until: str = "",
-    limit: str = "",
+    request: Request, user: Viewer, svc: ServiceDep, form: Annotated[TimelineForm, Query()]
 ) -> Response:
     """Fault analysis: what the robot sent and was sent in the window, every type in time order
     (as ``fleetbus timeline``)."""
@@ -206,10 +197,10 @@ async def robot_timeline(
     inbound: list[str] = []
     start = None
     try:
-        name = robot_name(robot)
-        start = moment("since", since) or datetime.now(timezone.utc) - TIMELINE_WINDOW
-        end = moment("until", until)
-        most = limit_of(limit, DEFAULT_LIMIT, svc.settings.console_search_limit)
+        name = robot_name(form.robot)
+        start = moment("since", form.since) or datetime.now(timezone.utc) - TIMELINE_WINDOW
+        end = moment("until", form.until)
+        most = limit_of(form.limit, DEFAULT_LIMIT, svc.settings.console_search_limit)
     except FormProblem as error:
         problem, name = str(error), None
     if name is not None:
@@ -222,10 +213,7 @@ async def robot_timeline(
         user,
         MESSAGES,
         status_code=422 if problem else 200,
-        robot=robot.strip(),
-        since=since,
-        until=until,
-        limit=limit,
+        form=form,
         start=start,
         problem=problem,
         result=result,
