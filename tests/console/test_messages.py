@@ -90,6 +90,7 @@ def test_a_search_by_robot_type_and_condition_finds_exactly_the_matching_message
     browser.go(browser.driver.current_url)  # the same search, rendered whole
     assert row_keys(browser, "#results") == expected
     assert browser.find("textarea[name=where]")[0].get_attribute("value") == "name=grab\nsuccess=false"
+    assert not any("Content Security Policy" in line for line in browser.console_errors())
 
 
 def test_a_bad_condition_shows_the_parsers_error_in_the_form(
