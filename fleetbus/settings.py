@@ -217,6 +217,14 @@ class Settings(BaseSettings):
     console_hazards_page: Annotated[int, Positive] = setting(
         50, "how many hazards one page of the console's hazards list shows (newest first; then older pages)"
     )
+    console_search_limit: Annotated[int, Positive] = setting(
+        500,
+        "most recorded messages a search (the newest that match) or a robot's timeline (the first of "
+        "its window) lists on the console's Messages page; the form's limit cannot exceed it",
+    )
+    console_tail_rows: Annotated[int, Positive] = setting(
+        100, "how many messages the live tail on the console's Messages page keeps on screen"
+    )
     console_queue: Annotated[int, Positive] = setting(
         64,
         "batches of news a console page may fall behind before its stream is cut (the browser then "

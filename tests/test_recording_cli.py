@@ -173,6 +173,7 @@ def test_trace_shows_where_a_message_came_from_and_who_received_it(bus: Bus, sce
     assert note["__recorded"]["routing_key"] == "notify.hazard"
     assert "cli-warden.inbox" in {r["queue"] for r in note["routes"]}
     assert "published by" in table.stdout and "cli-herb.events →" in table.stdout
+    assert f"as epoch {detected.epoch} seq {detected.seq}" in table.stdout, "the express lane stored it"
 
     refused = json.loads(fleetbus(bus, "trace", "bad-hazard", "--json").stdout)
     assert {r["__recorded"]["type"] for r in refused["records"]} == {"hazard", "dead_letter"}

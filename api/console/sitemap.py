@@ -26,14 +26,19 @@ ADMINS = frozenset({R.ADMIN})
 #: Every role that may read missions.
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
+#: Who reads the recording's figures (the performance evaluation, its growth), not its traffic.
+EVALUATORS = WATCHERS | {R.PLANNER}
+
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
 HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)
 MISSIONS = Page("missions", "Missions", "/console/missions", MISSION_ROLES)
+MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
 DEAD_LETTERS = Page("dead-letters", "Dead letters", "/console/dead-letters", WATCHERS)
+EVALUATION = Page("evaluation", "Evaluation", "/console/evaluation", EVALUATORS)
 ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD, HAZARDS, MISSIONS, DEAD_LETTERS, ACCOUNTS)
+PAGES: tuple[Page, ...] = (DASHBOARD, HAZARDS, MISSIONS, MESSAGES, DEAD_LETTERS, EVALUATION, ACCOUNTS)
 
 
 def pages_for(role: R) -> list[Page]:

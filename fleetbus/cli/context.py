@@ -22,10 +22,8 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.settings import Settings, load_settings
-from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
-from fleetbus.workers.recorder.queries import EVENT_TYPES
 from fleetbus.workers.store import open_recording_store, run_with_repositories
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
+from fleetbus.workers.store.recordings import RecordingStore
 
 T = TypeVar("T")
 
@@ -102,36 +100,6 @@ def parse_time(value: str | None) -> datetime | None:
 
 def clock(moment: datetime) -> str:
     return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
-
-
-def shorten(text: str, width: int) -> str:
-    return text if len(text) <= width else text[: width - 1] + "…"
-
-
-def _compact(value: Any) -> str:
-    return json.dumps(value, separators=(",", ":"), ensure_ascii=False)
-
-
-def summarize(record: RecordedMessage, width: int) -> str:
-    """One line of what a recorded message says, for tables."""
-    doc = record.document
-    if record.type == DEAD_LETTER:
-        reason, detail = refusal(record) or ("by the broker", "")
-        text = f"refused ({reason}): {detail}"
-    elif not record.body_kept:
-        text = f"({record.size} bytes, not kept)"
-    elif record.raw is not None:
-        text = f"({record.size} bytes, not JSON)"
-    elif record.type == NOTIFICATION and isinstance(doc, dict) and isinstance(doc.get("event"), dict):
-        event = doc["event"]
-        extra = {k: v for k, v in doc.items() if k in ("hazard_id", "map_version", "late") and v}
-        text = f"{doc.get('topic')}: {event.get('robot_id')} seq {event.get('seq')} "
-        text += _compact(extra) if extra else ""
-    elif isinstance(doc, dict) and record.type in EVENT_TYPES and "body" in doc:
-        text = _compact(doc["body"])
-    else:
-        text = _compact(doc)
-    return shorten(text.strip(), width)
 
 
 def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:

@@ -20,8 +20,16 @@ from typing import Any, TypeVar
 
 from fleetbus.broker.routes import Route, RouteMap
 from fleetbus.broker.topics import topic_matches
-from fleetbus.schemas.routing import ANNOUNCED_TO_HEADER, EventType, Topic, inbox_queue
-from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION
+from fleetbus.schemas.routing import (
+    ANNOUNCED_TO_HEADER,
+    EXPRESS_QUEUE,
+    RECORDER_QUEUE,
+    EventType,
+    Topic,
+    inbox_queue,
+    shard_of_queue,
+)
+from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
 from fleetbus.workers.store.base import EventQuery, EventRecord, EventStore
 from fleetbus.workers.store.recordings import (
     Condition,
@@ -258,6 +266,21 @@ class Trace:
     @property
     def refused(self) -> RecordedMessage | None:
         return next((r for r in self.records if r.type == DEAD_LETTER), None)
+
+    def outcome(self, record: RecordedMessage, queue: str, clock: Callable[[datetime], str]) -> str:
+        """What is known of what ``queue``'s consumer did with ``record`` ("" when nothing is):
+        the recorder recorded it; an ingest queue's worker stored it, or refused it."""
+        if queue == RECORDER_QUEUE:
+            return f"recorded at {clock(record.recorded_at)}"
+        if queue == EXPRESS_QUEUE or shard_of_queue(queue) is not None:
+            if self.stored is not None:
+                stored = self.stored
+                return f"stored at {clock(stored.received_at)} as epoch {stored.epoch} seq {stored.seq}"
+            refused = self.refused
+            if refused is not None:
+                reason, detail = refusal(refused) or ("?", "")
+                return f"refused: {reason}: {detail}"
+        return ""
 
 
 async def trace(

@@ -4,8 +4,16 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from fleetbus.api.console.pages import accounts, dashboard, dead_letters, hazards, missions
+from fleetbus.api.console.pages import (
+    accounts,
+    dashboard,
+    dead_letters,
+    evaluation,
+    hazards,
+    messages,
+    missions,
+)
 
 router = APIRouter()
-for page in (dashboard, hazards, missions, dead_letters, accounts):
+for page in (dashboard, hazards, missions, messages, dead_letters, evaluation, accounts):
     router.include_router(page.router)

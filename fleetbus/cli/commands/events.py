@@ -18,7 +18,6 @@ from fleetbus.cli.context import (
     load_data,
     parse_time,
     settings,
-    summarize,
     with_recording,
 )
 from fleetbus.publishers.client import RobotClient
@@ -28,6 +27,7 @@ from fleetbus.schemas.envelope import SchemaError, validate_body
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.capture import LEDGER_VIEWS
 from fleetbus.workers.recorder.queries import find, parse_condition, record_view
+from fleetbus.workers.recorder.summary import summarize
 from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
 

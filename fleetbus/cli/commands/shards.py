@@ -15,8 +15,9 @@ from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import ShardMap, apply_move, read_shard_map, rebalance_plan
 from fleetbus.broker.topology import core_topology, declare_with_url
-from fleetbus.cli.context import admin_api, console, endpoint, fail, settings, shorten
+from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
 from fleetbus.schemas.routing import EXPRESS_QUEUE, EXPRESS_TYPES, ingest_shard_queue
+from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX
 from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.leases import Lease

@@ -16,13 +16,13 @@ from fleetbus.cli.context import (
     parse_time,
     route_map,
     settings,
-    summarize,
     with_recording,
 )
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, RobotKind, inbox_queue
 from fleetbus.workers.recorder.queries import record_view
 from fleetbus.workers.recorder.queries import timeline as build_timeline
+from fleetbus.workers.recorder.summary import summarize
 from fleetbus.workers.store import run_with_repositories
 
 

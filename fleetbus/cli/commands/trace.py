@@ -10,8 +10,6 @@ from rich.table import Table
 
 from fleetbus.broker.routes import Route
 from fleetbus.cli.context import clock, console, fail, route_map, settings, with_recording
-from fleetbus.schemas.routing import RECORDER_QUEUE, shard_of_queue
-from fleetbus.workers.recorder.capture import refusal
 from fleetbus.workers.recorder.queries import Trace, record_view
 from fleetbus.workers.recorder.queries import trace as trace_message
 from fleetbus.workers.store import open_repositories
@@ -21,21 +19,6 @@ from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 def _consumers(route: Route) -> str:
     """The consuming accounts (``--json`` also gives their connections)."""
     return ", ".join(sorted({c.label for c in route.consumers})) or "none now"
-
-
-def _outcome(result: Trace, record: RecordedMessage, route: Route) -> str:
-    """What is known of what the queue's consumer did with it."""
-    if route.queue == RECORDER_QUEUE:
-        return f"recorded at {clock(record.recorded_at)}"
-    if shard_of_queue(route.queue) is not None:
-        if result.stored is not None:
-            stored = result.stored
-            return f"stored at {clock(stored.received_at)} as epoch {stored.epoch} seq {stored.seq}"
-        refused = result.refused
-        if refused is not None:
-            reason, detail = refusal(refused) or ("?", "")
-            return f"refused: {reason}: {detail}"
-    return ""
 
 
 def _provenance(record: RecordedMessage, result: Trace) -> Table:
@@ -71,7 +54,12 @@ def _routes(result: Trace, records: list[RecordedMessage], title: str, label: st
     for record in records:
         for route in result.routes.get(record.key, []):
             cells = [record.routing_key] if label else []
-            cells += [route.queue, " → ".join(route.via), _consumers(route), _outcome(result, record, route)]
+            cells += [
+                route.queue,
+                " → ".join(route.via),
+                _consumers(route),
+                result.outcome(record, route.queue, clock),
+            ]
             table.add_row(*cells)
     return table
 
