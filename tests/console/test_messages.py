@@ -250,7 +250,11 @@ def test_the_live_tail_shows_a_mounted_robots_message_and_never_an_unmounted_one
 
 
 def test_a_user_without_a_stream_is_shown_no_traffic(bus: Bus) -> None:
-    with bus.worker(), running_console(bus) as console, httpx.Client(base_url=console.base) as http:
+    with (
+        bus.worker(),
+        running_console(bus) as console,
+        httpx.Client(base_url=console.base, timeout=30) as http,
+    ):
         console.user("admin1", UserRole.ADMIN)
         with robot_client(bus, console, "explorer1") as explorer1:
             explorer1.publish("beacon", {"beacon_id": "b1", "rssi": -60})
