@@ -36,3 +36,8 @@ ROLE_PURPOSE: dict[UserRole, str] = {
 
 #: Every role that may do anything at all.
 ACTIVE_ROLES = frozenset(UserRole) - {UserRole.INACTIVE}
+
+#: Who watches the team and its traffic: fault analysis reads every robot's messages.
+WATCHERS = frozenset({UserRole.ADMIN, UserRole.SUPERVISOR, UserRole.OPERATOR})
+#: Who reads the recording's figures (the performance evaluation, its growth), not its traffic.
+EVALUATORS = WATCHERS | {UserRole.PLANNER}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from fleetbus.schemas.roles import EVALUATORS, WATCHERS
 from fleetbus.schemas.roles import UserRole as R
 
 
@@ -19,15 +20,10 @@ class Page:
         return role in self.roles
 
 
-#: Who watches the team and its traffic.
-WATCHERS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 #: Who manages accounts and changes the dead-letter queue.
 ADMINS = frozenset({R.ADMIN})
 #: Every role that may read missions.
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
-
-#: Who reads the recording's figures (the performance evaluation, its growth), not its traffic.
-EVALUATORS = WATCHERS | {R.PLANNER}
 
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
 HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)

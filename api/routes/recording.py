@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field
 
 from fleetbus.api.auth import EventsDep, ServiceDep, require_role
 from fleetbus.schemas.identity import validate_name
-from fleetbus.schemas.roles import UserRole as R
+from fleetbus.schemas.roles import EVALUATORS, WATCHERS
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
 from fleetbus.workers.recorder.growth import growth
@@ -26,8 +26,8 @@ from fleetbus.workers.store.recordings import OutcomeStats, RecordedMessage, Rec
 from fleetbus.workers.store.users import User
 
 router = APIRouter(prefix="/recording", tags=["recording"])
-Analyst = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR, R.OPERATOR))]
-Evaluator = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR, R.OPERATOR, R.PLANNER))]
+Analyst = Annotated[User, Depends(require_role(*WATCHERS))]
+Evaluator = Annotated[User, Depends(require_role(*EVALUATORS))]
 Limit = Annotated[int, Query(ge=1, le=10_000)]
 
 

@@ -9,12 +9,12 @@ from fastapi import APIRouter, Depends
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.models import TeamMemberOut, TeamOut
 from fleetbus.api.team import DISPATCHERS
-from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.roles import WATCHERS, UserRole
 from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["team"])
 R = UserRole
-Watcher = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR, R.OPERATOR))]
+Watcher = Annotated[User, Depends(require_role(*WATCHERS))]
 Dispatcher = Annotated[User, Depends(require_role(*DISPATCHERS))]
 
 
