@@ -15,11 +15,13 @@ from fleetbus.api.missions import Missions
 from fleetbus.api.security import Secrets
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
 from fleetbus.workers.store import Repositories, open_recording_store, repositories_for
 from fleetbus.workers.store.recordings import RecordingStore
+from fleetbus.workers.store.rejections import Rejection
 
 
 @dataclass
@@ -36,6 +38,19 @@ class Service:
     management: ManagementAPI
     vhost: str
     login_limits: LoginLimits
+    admin_url: str
+    """The broker's administrator (AMQP), for what only AMQP reads: the dead-letter queue."""
+
+    async def dead_letters(self, limit: int) -> list[DeadLetter]:
+        """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
+        ``fleetbus dlq`` lists them: peeked on a thread (nothing is removed from the queue)."""
+        loop = asyncio.get_running_loop()
+        rejections = self.repositories.rejections
+
+        def reasons(keys: list[str]) -> dict[str, Rejection]:
+            return asyncio.run_coroutine_threadsafe(rejections.rejections(keys), loop).result()
+
+        return await asyncio.to_thread(peek_dead_letters, self.admin_url, limit, reasons)
 
     async def route_map(self) -> RouteMap:
         """The broker's exchanges, bindings and consumers now (the management API, off the loop)."""
@@ -80,6 +95,7 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
             management=management,
             vhost=vhost_of(admin_url),
             login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
+            admin_url=admin_url,
         )
     finally:
         secrets_.passwords.close()

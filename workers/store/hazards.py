@@ -260,6 +260,10 @@ class CoordinationStore(abc.ABC):
         """Hazards not cleared, in id order (``None``: of every mission, by mission then id)."""
 
     @abc.abstractmethod
+    async def cleared_hazards(self, limit: int) -> list[Hazard]:
+        """The ``limit`` hazards cleared last, of every mission, the last cleared first."""
+
+    @abc.abstractmethod
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
