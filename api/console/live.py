@@ -13,14 +13,14 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import re
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Collection
 from typing import Protocol
 
 from fastapi import Request
 from sse_starlette import EventSourceResponse, ServerSentEvent
 
 from fleetbus.api.console.feed import Batch, Feed, moment_of
-from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.base import EventRecord, to_micros
 
 FRAGMENT_EVENT = "fragment"
 MISSED_LIMIT = 10_000
@@ -49,6 +49,12 @@ def last_event_id(request: Request) -> str | None:
     return request.headers.get("last-event-id") or request.query_params.get("last_event_id")
 
 
+def _events(fragments: list[str], cursor: str) -> list[ServerSentEvent]:
+    """An event per fragment: the browser parses each alone (a table row parsed along with a
+    section would take the section's table apart)."""
+    return [ServerSentEvent(data=fragment, event=FRAGMENT_EVENT, id=cursor) for fragment in fragments]
+
+
 async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncIterator[ServerSentEvent]:
     sent: dict[str, str] = {}
 
@@ -63,18 +69,21 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
 
     async with feed.subscribe() as subscription:
         cursor = feed.cursor
-        first = await view.snapshot()
+        first = [*await view.snapshot()]  # a copy: the snapshot may be shared by every page
         since = moment_of(last_event_id(request))
         if since is not None:
             first += await view.events(await feed.missed(since, MISSED_LIMIT))
-        yield ServerSentEvent(data="\n".join(changed(first)), event=FRAGMENT_EVENT, id=cursor)
+        for event in _events(changed(first), cursor) or [
+            ServerSentEvent(data="", event=FRAGMENT_EVENT, id=cursor)
+        ]:
+            yield event
         while True:
             batch: Batch | None = await subscription.queue.get()
             if batch is None:  # dropped for falling behind: the browser reconnects and catches up
                 return
             news = changed([*await view.events(batch.events), *await view.snapshot()])
-            if news:
-                yield ServerSentEvent(data="\n".join(news), event=FRAGMENT_EVENT, id=batch.cursor)
+            for event in _events(news, batch.cursor):
+                yield event
 
 
 def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResponse:
@@ -86,7 +95,10 @@ def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResp
 
 class Shared:
     """An async render shared by every open page: run at most once per ``interval`` seconds;
-    pages asking in between are given the last result. N dashboards cost one read of the store."""
+    pages asking in between are given the last result. N dashboards cost one read of the store.
+
+    News that changes what the render shows (a hazard's event) need not wait for the interval:
+    :meth:`want` asks for a render covering it, which the first page asking then runs, once."""
 
     def __init__(self, render: Callable[[], Awaitable[list[str]]], interval: float = 0.5) -> None:
         self._render = render
@@ -94,11 +106,25 @@ class Shared:
         self._lock = asyncio.Lock()
         self._at = -float("inf")
         self._value: list[str] = []
+        self._wanted = 0
+        self._covered = 0
+
+    def want(self, news: int) -> None:
+        """Render again at the next call, unless a render began after ``news`` (an increasing mark,
+        such as the receive time of the newest event that matters) was wanted."""
+        self._wanted = max(self._wanted, news)
 
     async def __call__(self) -> list[str]:
         async with self._lock:
             now = asyncio.get_running_loop().time()
-            if now - self._at >= self._interval:
+            if now - self._at >= self._interval or self._covered < self._wanted:
+                covering = self._wanted
                 self._value = await self._render()
-                self._at = now
+                self._at, self._covered = now, covering
             return self._value
+
+
+def newest_of(records: list[EventRecord], types: Collection[str]) -> int:
+    """The receive time (microseconds) of the newest of ``records`` of these types; 0 for none:
+    the mark to hand :meth:`Shared.want` when those types change what a render shows."""
+    return max((to_micros(record.received_at) for record in records if record.type in types), default=0)
