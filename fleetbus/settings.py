@@ -219,6 +219,17 @@ class Settings(BaseSettings):
         "batches of news a console page may fall behind before its stream is cut (the browser then "
         "reconnects and catches up from the store); cuts are counted on the dashboard",
     )
+    console_broker_poll_s: Annotated[float, Positive] = setting(
+        5.0,
+        "how often the console asks the broker's management API for its nodes, queues and connections, "
+        "and peeks the dead letters when their queue changed (one poller per API process, while a "
+        "dashboard is open)",
+    )
+    console_dead_letters_peek: Annotated[int, Positive] = setting(
+        1000,
+        "dead letters the dashboard reads (oldest first) to count those of the last hour; when the queue "
+        "holds more, the dashboard says so",
+    )
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )

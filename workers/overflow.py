@@ -19,12 +19,19 @@ from typing import Any
 from aio_pika.abc import AbstractChannel, AbstractQueue
 
 from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.store.base import StoreUnavailable
 from fleetbus.workers.store.housekeeping import Housekeeping
 
 log = logging.getLogger("fleetbus.overflow")
 BOUND = "overflow"
+
+
+async def dropped_dead_letters(store: Housekeeping) -> int:
+    """What the full dead-letter queue dropped, as the workers counted it."""
+    subject = f"{DEAD_LETTER_QUEUE} maxlen"
+    return sum(c.count for c in await store.bound_counts() if c.bound == BOUND and c.subject == subject)
 
 
 def _text(value: Any) -> str:

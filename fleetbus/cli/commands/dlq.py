@@ -9,9 +9,8 @@ import typer
 from rich.table import Table
 
 from fleetbus.cli.context import console, dead_letters, settings
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 from fleetbus.workers.bounds import bounds
-from fleetbus.workers.overflow import BOUND
+from fleetbus.workers.overflow import dropped_dead_letters as counted_drops
 from fleetbus.workers.store import run_with_repositories
 
 
@@ -46,6 +45,4 @@ def dlq(
 
 def dropped_dead_letters() -> int:
     """What the full queue dropped, as the workers counted it."""
-    subject = f"{DEAD_LETTER_QUEUE} maxlen"
-    counts = run_with_repositories(settings(), lambda repos: repos.housekeeping.bound_counts())
-    return sum(c.count for c in counts if c.bound == BOUND and c.subject == subject)
+    return run_with_repositories(settings(), lambda repos: counted_drops(repos.housekeeping))
