@@ -6,19 +6,16 @@ import json
 import time
 import uuid
 
-import httpx
-
-from fleetbus.api.console.session import SESSION_COOKIE
 from fleetbus.broker.accounts import Role
+from fleetbus.broker.management import ManagementAPI
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
-from tests.console.support import Browser, Console, running_console
+from tests.api.server import free_port
+from tests.console.support import LIVE_WITHIN_S, Browser, running_console
 from tests.factories import hazard, status
 from tests.support import Bus
 
 XSS = "<script>alert(1)</script>"
-#: The promise: what a robot publishes is on the operator's screen this soon, without a reload.
-LIVE_WITHIN_S = 2.0
 
 
 def shown_live_within(browser: Browser, condition: object, what: str, since: float) -> float:
@@ -138,22 +135,36 @@ def test_what_a_robot_sent_shows_as_text_never_as_markup(bus: Bus, browser: Brow
         assert not any("alert" in line for line in browser.console_errors())
 
 
-def session_of(console: Console, name: str) -> httpx.Client:
-    """An HTTP client with ``name``'s session (minted: a planner or client may not log in to these pages)."""
-    http = httpx.Client(base_url=console.base, timeout=30)
-    http.cookies.set(SESSION_COOKIE, console.service.secrets.tokens.issue(name).value)
-    return http
-
-
 def test_the_dashboard_is_refused_to_planners_and_clients(bus: Bus) -> None:
     with running_console(bus) as console:
         for name, role in (("plan1", UserRole.PLANNER), ("client1", UserRole.CLIENT)):
             console.user(name, role)
-            with session_of(console, name) as http:
+            with console.http_as(name) as http:
                 for path in ("/console/", "/console/stream/dashboard"):
                     refused = http.get(path)
                     assert refused.status_code == 403, (name, path, refused.status_code)
                 assert "may not use the dashboard page" in http.get("/console/").text
         console.user("oper1", UserRole.OPERATOR)
-        with session_of(console, "oper1") as http:
+        with console.http_as("oper1") as http:
             assert http.get("/console/").status_code == 200
+
+
+def test_a_management_api_that_does_not_answer_is_shown_as_such(bus: Bus, browser: Browser) -> None:
+    bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER)
+    with running_console(bus, bus.settings.updated(console_broker_poll_s=0.5)) as console:
+        console.user("oper1", UserRole.OPERATOR)
+        answering = console.service.management
+        console.service.management = ManagementAPI(f"http://127.0.0.1:{free_port()}/", "admin", "secret")
+        try:
+            console.log_in(browser, "oper1")
+            console.wait_live(browser)
+            browser.until(
+                lambda: "the management API did not answer" in browser.text("#broker-problem"),
+                "the broker's health says why it is unknown",
+            )
+            assert browser.text("#robot-explorer1 td.connected") == "unknown"
+            assert "secret" not in browser.text("#broker-health")
+            assert browser.find("#live-status")[0].get_attribute("data-state") == "live", "the page goes on"
+        finally:
+            console.service.management.close()
+            console.service.management = answering
