@@ -230,6 +230,17 @@ class Settings(BaseSettings):
         "dead letters the dashboard reads (oldest first) to count those of the last hour; when the queue "
         "holds more, the dashboard says so",
     )
+    console_map_pixels: Annotated[int, Positive] = setting(
+        2048,
+        "longest side, in pixels, of the map image the console sends; larger maps are scaled down "
+        "(markers keep their world coordinates)",
+    )
+    console_map_cache: Annotated[int, Positive] = setting(
+        4, "map versions the console keeps rendered as PNG images (the most recently shown)"
+    )
+    console_map_cleared: Annotated[int, Positive] = setting(
+        50, "cleared hazards the live map shows (the last cleared)"
+    )
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )

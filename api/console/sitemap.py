@@ -25,9 +25,10 @@ WATCHERS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
+MAP = Page("map", "Live map", "/console/map", WATCHERS)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD,)
+PAGES: tuple[Page, ...] = (DASHBOARD, MAP)
 
 
 def pages_for(role: R) -> list[Page]:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from fleetbus.api.console.pages import dashboard
+from fleetbus.api.console.pages import dashboard, live_map
 
 router = APIRouter()
-for page in (dashboard,):
+for page in (dashboard, live_map):
     router.include_router(page.router)
