@@ -4,13 +4,15 @@ likely stranded; live.
 
 The markers are drawn in metres (:class:`~..map_image.Frame`), not in a version's pixels, so one
 rendering of them serves every open map whatever version it shows: N open maps cost one
-refresh of five store reads (robots, open hazards, the hazards cleared last, beacons and the
-recent sightings, the newest version). Choosing another version swaps the image and its frame
+refresh of five store reads (the robots, the open hazards, the hazards cleared last, the beacons,
+the newest version), and at most every two seconds two more (the beacons again and the last ten
+minutes' sightings: where people are likely stranded). Choosing another version swaps the image and its frame
 (htmx); the markers stay.
 """
 
 from __future__ import annotations
 
+import asyncio
 from datetime import datetime, timezone
 from typing import Annotated, Any
 
@@ -38,7 +40,10 @@ Viewer = Annotated[User, Depends(Allowed.page(MAP))]
 Version = Annotated[int | None, Query(ge=1, description="a stored map version; the newest by default")]
 #: Events that change the map at once: shown without waiting for the next refresh. (Poses come
 #: with statuses, often; they are in memory and show at the next refresh.)
-NEWS = frozenset({EventType.HAZARD.value, EventType.BEACON.value, EventType.MAP.value})
+NEWS = frozenset({EventType.HAZARD.value, EventType.MAP.value})
+#: The recent sightings are read again at most this often: each read is every sighting of the
+#: last ten minutes (:func:`~fleetbus.workers.beacons.stranded`), many when guides report often.
+SIGHTINGS_EVERY_S = 2.0
 #: The live fragments of the map, in the order :meth:`MapView.snapshot` gives them.
 PARTS = ("marks", "hazards", "robots", "beacons", "newest")
 
@@ -59,6 +64,18 @@ class MapView:
             service.repositories.maps, service.settings.console_map_pixels, service.settings.console_map_cache
         )
         self.snapshot = Shared(self._render)
+        self._heard: list[dict[str, Any]] = []
+        self._heard_at = -float("inf")
+
+    async def _stranded(self) -> list[dict[str, Any]]:
+        """Where people are likely stranded, read at most every :data:`SIGHTINGS_EVERY_S`."""
+        now = asyncio.get_running_loop().time()
+        if now - self._heard_at >= SIGHTINGS_EVERY_S:
+            since = datetime.now(timezone.utc) - DEFAULT_WINDOW
+            repositories = self._service.repositories
+            self._heard = await stranded(repositories.beacons, repositories.events, since)
+            self._heard_at = now
+        return self._heard
 
     async def _render(self) -> list[str]:
         repositories = self._service.repositories
@@ -70,9 +87,7 @@ class MapView:
         ]
         grouped = by_state(hazards)
         beacons = await repositories.beacons.beacons()
-        heard = await stranded(
-            repositories.beacons, repositories.events, datetime.now(timezone.utc) - DEFAULT_WINDOW
-        )
+        heard = await self._stranded()
         newest = await repositories.maps.map_version(None)
         context = {
             "robots": robots,
