@@ -16,6 +16,7 @@ from fleetbus.api.missions import Missions
 from fleetbus.api.security import Secrets
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.dead_letter_queue import DeadLetter, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
@@ -41,6 +42,12 @@ class Service:
     """The administrator's AMQP URL (the console reads and changes the dead-letter queue with it)."""
     vhost: str
     login_limits: LoginLimits
+
+    async def dead_letters(self, limit: int) -> list[DeadLetter]:
+        """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
+        ``fleetbus dlq`` lists them (nothing is removed from the queue)."""
+        listing = await read_dead_letters(self.admin_url, limit, self.repositories.rejections.rejections)
+        return listing.letters
 
     async def route_map(self) -> RouteMap:
         """The broker's exchanges, bindings and consumers now (the management API, off the loop)."""

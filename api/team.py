@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
@@ -19,6 +20,7 @@ from fleetbus.workers.team import (
     change_service,
     gate,
     read_team,
+    team_member,
     why_closed,
 )
 
@@ -44,9 +46,17 @@ class Team:
         self._admin_url = admin_url
         self._stale_after = stale_after
 
-    async def view(self) -> TeamView:
+    async def view(self, last_seen: Mapping[str, datetime] | None = None) -> TeamView:
+        """The team and its gate; ``last_seen``: when each robot was last heard from, for a caller
+        that keeps it (the console, from its live feed), else read from the store (a query per robot)."""
         now = datetime.now(timezone.utc)
-        members = await read_team(self._team, self._events, now, self._stale_after)
+        if last_seen is None:
+            members = await read_team(self._team, self._events, now, self._stale_after)
+        else:
+            members = [
+                team_member(robot, last_seen.get(robot.name), now, self._stale_after)
+                for robot in await self._team.robots()
+            ]
         state = gate([member.robot for member in members])
         return TeamView(members, state, why_closed(state, {m.robot.name: m.last_seen for m in members}, now))
 

@@ -198,5 +198,13 @@ class ManagementAPI:
     def list_connections(self) -> list[dict[str, Any]]:
         return self._request("GET", "connections")
 
+    def list_vhost_connections(self, vhost: str) -> list[dict[str, Any]]:
+        """The connections open on ``vhost`` (each names its ``user``)."""
+        return self._request("GET", f"vhosts/{_q(vhost)}/connections")
+
+    def list_nodes(self) -> list[dict[str, Any]]:
+        """The cluster's nodes: running, memory and disk alarms, file descriptors."""
+        return self._request("GET", "nodes")
+
     def overview(self) -> dict[str, Any]:
         return self._request("GET", "overview")

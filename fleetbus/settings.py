@@ -236,6 +236,28 @@ class Settings(BaseSettings):
     console_dead_letter_body: Annotated[int, Positive] = setting(
         16384, "how many bytes of each dead letter's body the console's page shows (the rest is counted)"
     )
+    console_broker_poll_s: Annotated[float, Positive] = setting(
+        5.0,
+        "how often the console asks the broker's management API for its nodes, queues and connections, "
+        "and peeks the dead letters when their queue changed (one poller per API process, while a "
+        "dashboard is open)",
+    )
+    console_dead_letters_peek: Annotated[int, Positive] = setting(
+        1000,
+        "dead letters the dashboard reads (oldest first) to count those of the last hour; when the queue "
+        "holds more, the dashboard says so",
+    )
+    console_map_pixels: Annotated[int, Positive] = setting(
+        2048,
+        "longest side, in pixels, of the map image the console sends; larger maps are scaled down "
+        "(markers keep their world coordinates)",
+    )
+    console_map_cache: Annotated[int, Positive] = setting(
+        4, "map versions the console keeps rendered as PNG images (the most recently shown)"
+    )
+    console_map_cleared: Annotated[int, Positive] = setting(
+        50, "cleared hazards the live map shows (the last cleared)"
+    )
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )

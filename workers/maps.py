@@ -130,6 +130,11 @@ async def missing_version(maps: MapStore, version: int | None) -> str:
     return f"no map version {version}"
 
 
+async def map_image(maps: MapStore, version: MapVersion) -> bytes:
+    """A stored version's whole PGM file, read chunk by chunk."""
+    return b"".join([await maps.map_chunk(version.version, index) for index in range(version.chunks)])
+
+
 def map_services(maps: MapStore) -> dict[str, Handler]:
     async def latest(caller: str, params: dict[str, Any]) -> Any:
         version = params.get("version")

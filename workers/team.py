@@ -133,15 +133,21 @@ async def last_seen(events: EventStore, name: str) -> datetime | None:
     return newest[0].received_at if newest else None
 
 
+def team_member(
+    robot: RobotState, seen: datetime | None, now: datetime, stale_after: timedelta
+) -> TeamMember:
+    """``robot``, last heard from at ``seen``: stale when silent over ``stale_after`` or never heard."""
+    return TeamMember(robot, seen, seen is None or now - seen > stale_after)
+
+
 async def read_team(
     team: CoordinationStore, events: EventStore, now: datetime, stale_after: timedelta
 ) -> list[TeamMember]:
-    """Every robot of the team, by name, with when it was last heard from."""
-    members = []
-    for robot in await team.robots():
-        seen = await last_seen(events, robot.name)
-        members.append(TeamMember(robot, seen, seen is None or now - seen > stale_after))
-    return members
+    """Every robot of the team, by name, with when it was last heard from (a query per robot)."""
+    return [
+        team_member(robot, await last_seen(events, robot.name), now, stale_after)
+        for robot in await team.robots()
+    ]
 
 
 class TeamRefused(Exception):

@@ -23,7 +23,7 @@ import asyncio
 import contextlib
 import logging
 from collections import OrderedDict
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 
@@ -75,6 +75,7 @@ class Feed:
     _cursor: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
     _seen: OrderedDict[tuple[str, str, int], None] = field(default_factory=OrderedDict)
     _subscribers: set[Subscription] = field(default_factory=set)
+    _watchers: list[Callable[[list[EventRecord]], None]] = field(default_factory=list)
 
     @property
     def cursor(self) -> str:
@@ -95,6 +96,8 @@ class Feed:
                 self.store_errors += 1
                 log.warning("console feed: the store did not answer (%s); trying again", error)
                 fresh = []
+            for watcher in self._watchers if fresh else ():
+                watcher(fresh)
             if fresh or loop.time() >= next_tick:
                 self._publish(Batch(fresh, self.cursor))
                 next_tick = loop.time() + self.tick_s
@@ -132,6 +135,12 @@ class Feed:
         self.dropped += 1
         subscription.queue.put_nowait(None)
         log.warning("console feed: a page did not keep up and was dropped (it reconnects)")
+
+    def watch(self, watcher: Callable[[list[EventRecord]], None]) -> None:
+        """Call ``watcher`` with every batch of new events, before the pages get it,
+        for as long as the process runs: how state kept in memory (the newest status of each robot)
+        follows the store without a read of its own. It must be quick and must not raise."""
+        self._watchers.append(watcher)
 
     @contextlib.asynccontextmanager
     async def subscribe(self) -> AsyncIterator[Subscription]:

@@ -18,14 +18,14 @@ import asyncio
 import hashlib
 import json
 import re
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Collection
 from typing import Protocol
 
 from fastapi import Request
 from sse_starlette import EventSourceResponse, ServerSentEvent
 
 from fleetbus.api.console.feed import Batch, Feed, moment_of
-from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.base import EventRecord, to_micros
 
 FRAGMENT_EVENT = "fragment"
 RELOAD_EVENT = "reload"
@@ -98,7 +98,10 @@ def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResp
 
 class Shared:
     """An async render shared by every open page: run at most once per ``interval`` seconds;
-    pages asking in between are given the last result. N dashboards cost one read of the store."""
+    pages asking in between are given the last result. N dashboards cost one read of the store.
+
+    News that changes what the render shows (a hazard's event) need not wait for the interval:
+    :meth:`want` asks for a render covering it, which the first page asking then runs, once."""
 
     def __init__(self, render: Callable[[], Awaitable[list[str]]], interval: float = 0.5) -> None:
         self._render = render
@@ -106,11 +109,25 @@ class Shared:
         self._lock = asyncio.Lock()
         self._at = -float("inf")
         self._value: list[str] = []
+        self._wanted = 0
+        self._covered = 0
+
+    def want(self, news: int) -> None:
+        """Render again at the next call, unless a render began after ``news`` (an increasing mark,
+        such as the receive time of the newest event that matters) was wanted."""
+        self._wanted = max(self._wanted, news)
 
     async def __call__(self) -> list[str]:
         async with self._lock:
             now = asyncio.get_running_loop().time()
-            if now - self._at >= self._interval:
+            if now - self._at >= self._interval or self._covered < self._wanted:
+                covering = self._wanted
                 self._value = await self._render()
-                self._at = now
+                self._at, self._covered = now, covering
             return list(self._value)  # a caller that adds to its copy changes no other page's
+
+
+def newest_of(records: list[EventRecord], types: Collection[str]) -> int:
+    """The receive time (microseconds) of the newest of ``records`` of these types; 0 for none:
+    the mark to hand :meth:`Shared.want` when those types change what a render shows."""
+    return max((to_micros(record.received_at) for record in records if record.type in types), default=0)

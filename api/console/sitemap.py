@@ -26,6 +26,7 @@ ADMINS = frozenset({R.ADMIN})
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
 DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
+MAP = Page("map", "Live map", "/console/map", WATCHERS)
 HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)
 MISSIONS = Page("missions", "Missions", "/console/missions", MISSION_ROLES)
 MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
@@ -34,7 +35,7 @@ EVALUATION = Page("evaluation", "Evaluation", "/console/evaluation", EVALUATORS)
 ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD, HAZARDS, MISSIONS, MESSAGES, DEAD_LETTERS, EVALUATION, ACCOUNTS)
+PAGES: tuple[Page, ...] = (DASHBOARD, MAP, HAZARDS, MISSIONS, MESSAGES, DEAD_LETTERS, EVALUATION, ACCOUNTS)
 
 
 def pages_for(role: R) -> list[Page]:

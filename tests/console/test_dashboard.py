@@ -2,19 +2,31 @@
 
 from __future__ import annotations
 
+import json
 import time
+import uuid
 
 from fleetbus.broker.accounts import Role
+from fleetbus.broker.management import ManagementAPI
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
-from tests.console.support import Browser, running_console
-from tests.factories import hazard
+from tests.api.server import free_port
+from tests.console.support import LIVE_WITHIN_S, Browser, running_console
+from tests.factories import hazard, status
 from tests.support import Bus
 
 XSS = "<script>alert(1)</script>"
 
 
-def test_a_published_hazard_appears_live_without_a_reload(bus: Bus, browser: Browser) -> None:
+def shown_live_within(browser: Browser, condition: object, what: str, since: float) -> float:
+    """Wait for ``condition`` (generously, to fail with a message), then say how long it took."""
+    browser.until(condition, what)  # type: ignore[arg-type]
+    return time.monotonic() - since
+
+
+def test_a_published_hazard_appears_on_the_dashboard_within_2_s_without_a_reload(
+    bus: Bus, browser: Browser
+) -> None:
     explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
     with bus.worker(), running_console(bus) as console:
         console.user("oper1", UserRole.OPERATOR)
@@ -22,23 +34,91 @@ def test_a_published_hazard_appears_live_without_a_reload(bus: Bus, browser: Bro
         assert browser.driver.current_url == console.url("/console/")
         console.wait_live(browser)
         browser.driver.execute_script("document.body.dataset.marker = 'not reloaded'")
+        # a first event through the whole chain: the worker is up and consuming
+        explorer.publish("status", status(80.0))
+        browser.until(lambda: "80 %" in browser.text("#robot-explorer1 td.battery"), "the first status")
 
-        explorer.publish("hazard", hazard(0, description="Smoke in corridor B"))
         published = time.monotonic()
-
-        browser.until(
+        explorer.publish("hazard", hazard(0, description="Smoke in corridor B"))
+        row = shown_live_within(
+            browser,
             lambda: any("Smoke in corridor B" in row for row in browser.texts("#events tr")),
             "the hazard's row on the dashboard",
+            published,
         )
-        # the promise is 2 s from publishing; allow the worker's first batch on a loaded machine
-        assert time.monotonic() - published < 10
-        assert "explorer1" in browser.text("#events tr")
-        browser.until(
+        counted = shown_live_within(
+            browser,
             lambda: browser.text("#hazards-held") + browser.text("#hazards-announced") != "00",
             "the hazard counted by state",
+            published,
         )
+        assert browser.find("#dashboard-hazard-default-1"), "the hazard listed by its id"
+        assert row < LIVE_WITHIN_S and counted < LIVE_WITHIN_S, (row, counted)
+        assert "explorer1" in browser.text("#events tr")
         assert "explorer" in browser.text("#robot-explorer1")
         assert browser.driver.execute_script("return document.body.dataset.marker") == "not reloaded"
+
+
+def test_battery_and_connection_of_a_robot_that_sent_a_status(bus: Bus, browser: Browser) -> None:
+    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
+    bus.add("warden1", Role.ROBOT, RobotKind.WARDEN)  # never connects, never reports
+    with bus.worker(), running_console(bus, bus.settings.updated(console_broker_poll_s=0.5)) as console:
+        explorer.publish("status", status(42.0))  # before the page opens: read from the store once
+        console.user("oper1", UserRole.OPERATOR)
+        console.log_in(browser, "oper1")
+        browser.until(lambda: "42 %" in browser.text("#robot-explorer1 td.battery"), "the stored battery")
+        console.wait_live(browser)
+        explorer.publish("status", status(17.0))  # after: from the live feed
+        browser.until(lambda: "17 %" in browser.text("#robot-explorer1 td.battery"), "the new battery")
+        assert browser.find("#robot-explorer1 td.battery .bad"), "below FLEETBUS_BATTERY_LOW_PERCENT"
+        browser.until(
+            lambda: browser.text("#robot-explorer1 td.connected") == "yes", "explorer1 connected", timeout=30
+        )
+        assert browser.text("#robot-warden1 td.connected") == "no"
+        assert browser.text("#robot-warden1 td.battery") == "no status"
+        assert "stale" in browser.text("#robot-warden1")
+
+
+def test_broker_health_lists_the_fleetbus_queues_with_their_consumers(bus: Bus, browser: Browser) -> None:
+    with bus.worker(), running_console(bus, bus.settings.updated(console_broker_poll_s=0.5)) as console:
+        console.user("oper1", UserRole.OPERATOR)
+        console.log_in(browser, "oper1")
+        console.wait_live(browser)
+
+        def consumers(queue: str) -> int:
+            for row in browser.find("#broker-queues tbody tr"):
+                cells = [cell.text for cell in row.find_elements("css selector", "td")]
+                if cells and cells[0] == queue:
+                    return int(cells[4])
+            return 0
+
+        # the management API counts consumers from statistics it gathers every few seconds
+        browser.until(
+            lambda: consumers("fleetbus.ingest.events") >= 1 and consumers("fleetbus.rpc.requests") >= 1,
+            "the worker consuming its queues",
+            timeout=30,
+        )
+        names = [row.split()[0] for row in browser.texts("#broker-queues tbody tr")]
+        assert {"fleetbus.ingest.events", "fleetbus.dead-letters", "fleetbus.rpc.requests"} <= set(names)
+        assert all(name.startswith("fleetbus.") for name in names), names
+        assert "running" in browser.text("#broker-health table.nodes")
+
+
+def test_a_poison_message_counts_among_the_dead_letters_of_the_last_hour(bus: Bus, browser: Browser) -> None:
+    account = bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER)
+    with bus.worker(), running_console(bus, bus.settings.updated(console_broker_poll_s=0.5)) as console:
+        console.user("oper1", UserRole.OPERATOR)
+        console.log_in(browser, "oper1")
+        console.wait_live(browser)
+        browser.until(lambda: browser.text("#dead-letters-hour") == "0", "no dead letter yet")
+        poison = json.dumps({"robot_id": "explorer1", "seq": 0, "type": "status", "nope": 1}).encode()
+        bus.publish_raw(account, "explorer1.status", poison, message_id=uuid.uuid4().hex)
+        # read when the queue's depth changes, which the management API tells within seconds
+        browser.until(
+            lambda: browser.text("#dead-letters-hour") == "1", "the poison message counted", timeout=30
+        )
+        assert "schema 1" in browser.text("#dead-letters .reasons")
+        assert browser.text("#dead-letters-queued") == "1"
 
 
 def test_what_a_robot_sent_shows_as_text_never_as_markup(bus: Bus, browser: Browser) -> None:
@@ -53,3 +133,38 @@ def test_what_a_robot_sent_shows_as_text_never_as_markup(bus: Bus, browser: Brow
         browser.until(lambda: XSS in browser.texts("#events td.summary"), "the hazard, as first rendered")
         assert browser.find("#events script") == []
         assert not any("alert" in line for line in browser.console_errors())
+
+
+def test_the_dashboard_is_refused_to_planners_and_clients(bus: Bus) -> None:
+    with running_console(bus) as console:
+        for name, role in (("plan1", UserRole.PLANNER), ("client1", UserRole.CLIENT)):
+            console.user(name, role)
+            with console.http_as(name) as http:
+                for path in ("/console/", "/console/stream/dashboard"):
+                    refused = http.get(path)
+                    assert refused.status_code == 403, (name, path, refused.status_code)
+                assert "may not use the dashboard page" in http.get("/console/").text
+        console.user("oper1", UserRole.OPERATOR)
+        with console.http_as("oper1") as http:
+            assert http.get("/console/").status_code == 200
+
+
+def test_a_management_api_that_does_not_answer_is_shown_as_such(bus: Bus, browser: Browser) -> None:
+    bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER)
+    with running_console(bus, bus.settings.updated(console_broker_poll_s=0.5)) as console:
+        console.user("oper1", UserRole.OPERATOR)
+        answering = console.service.management
+        console.service.management = ManagementAPI(f"http://127.0.0.1:{free_port()}/", "admin", "secret")
+        try:
+            console.log_in(browser, "oper1")
+            console.wait_live(browser)
+            browser.until(
+                lambda: "the management API did not answer" in browser.text("#broker-problem"),
+                "the broker's health says why it is unknown",
+            )
+            assert browser.text("#robot-explorer1 td.connected") == "unknown"
+            assert "secret" not in browser.text("#broker-health")
+            assert browser.find("#live-status")[0].get_attribute("data-state") == "live", "the page goes on"
+        finally:
+            console.service.management.close()
+            console.service.management = answering

@@ -120,6 +120,21 @@ async def test_recent_hazards_are_every_hazard_newest_first_a_page_at_a_time(sto
     assert await store.hazards.recent_hazards(3, offset=4) == []
 
 
+async def test_the_hazards_cleared_last_come_first_and_as_many_as_asked(store: Repositories) -> None:
+    for seq in range(4):
+        await store.hazards.add_hazard("m1", "explorer1", EPOCH, seq, BODY, T0, held=False)
+    await store.hazards.add_hazard("m2", "explorer1", EPOCH, 9, BODY, T0, held=False)
+    assert await store.hazards.cleared_hazards(10) == []
+    for mission_id, hazard_id, minutes in (("m1", 2, 1), ("m2", 1, 3), ("m1", 4, 2), ("m1", 1, 4)):
+        await store.hazards.claim(mission_id, hazard_id, "warden1", T0)
+        await store.hazards.mark_reached(mission_id, hazard_id, "warden1", T0)
+        await store.hazards.mark_cleared(mission_id, hazard_id, "warden1", T0 + timedelta(minutes=minutes))
+    cleared = await store.hazards.cleared_hazards(3)
+    assert [(h.mission_id, h.hazard_id) for h in cleared] == [("m1", 1), ("m2", 1), ("m1", 4)]
+    assert all(h.state is HazardState.CLEARED for h in cleared)
+    assert [h.hazard_id for h in await store.hazards.open_hazards("m1")] == [3], "still open"
+
+
 async def test_two_claims_at_once_one_wins(store: Repositories) -> None:
     await store.hazards.add_hazard("m1", "explorer1", EPOCH, 0, BODY, T0, held=False)
     outcomes = await asyncio.gather(

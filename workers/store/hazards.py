@@ -265,6 +265,10 @@ class CoordinationStore(abc.ABC):
         received): ``limit`` of them after skipping the ``offset`` newest."""
 
     @abc.abstractmethod
+    async def cleared_hazards(self, limit: int) -> list[Hazard]:
+        """The ``limit`` hazards cleared last, of every mission, the last cleared first."""
+
+    @abc.abstractmethod
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:

@@ -234,6 +234,15 @@ class MongoCoordination(OnMongo, CoordinationStore):
         cursor = self._collection("hazards").find({}).sort(newest_first).skip(offset).limit(limit)
         return [_hazard(doc) async for doc in cursor]
 
+    async def cleared_hazards(self, limit: int) -> list[Hazard]:
+        cursor = (
+            self._collection("hazards")
+            .find({"state": HazardState.CLEARED.value})
+            .sort([("cleared_at_us", DESCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
+            .limit(limit)
+        )
+        return [_hazard(doc) async for doc in cursor]
+
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:

@@ -255,6 +255,14 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
         rows = await self._run(lambda db: db.execute(sql, (limit, offset)).fetchall())
         return [_hazard(row) for row in rows]
 
+    async def cleared_hazards(self, limit: int) -> list[Hazard]:
+        sql = (
+            "SELECT * FROM hazards WHERE state = 'cleared' "
+            "ORDER BY cleared_at DESC, mission_id, hazard_id LIMIT ?"
+        )
+        rows = await self._run(lambda db: db.execute(sql, (limit,)).fetchall())
+        return [_hazard(row) for row in rows]
+
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:

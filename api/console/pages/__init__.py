@@ -10,10 +10,11 @@ from fleetbus.api.console.pages import (
     dead_letters,
     evaluation,
     hazards,
+    live_map,
     messages,
     missions,
 )
 
 router = APIRouter()
-for page in (dashboard, hazards, missions, messages, dead_letters, evaluation, accounts):
+for page in (dashboard, live_map, hazards, missions, messages, dead_letters, evaluation, accounts):
     router.include_router(page.router)

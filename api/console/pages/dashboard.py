@@ -1,47 +1,106 @@
-"""The dashboard: the team (a row per robot), the hazards by state, the newest events, live."""
+"""The dashboard: the team (a row per robot), the hazards by state, the broker's health, the dead
+letters of the last hour, the newest events; live.
+
+What one refresh costs, whatever the number of open dashboards (they share it, :class:`Shared`)
+and of robots: four store reads (the team, the open hazards, the open sequence gaps, the mounts).
+Each robot's last-seen time, battery and pose are kept in memory from the live feed
+(:mod:`..latest`), and the broker is polled in the background at most every
+``console_broker_poll_s`` (:mod:`..broker_health`).
+"""
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, defaultdict
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, Response
 
+from fleetbus.api.console.broker_health import BrokerWatch, broker_watch
 from fleetbus.api.console.feed import Feed
-from fleetbus.api.console.live import Shared, live_stream
+from fleetbus.api.console.latest import Latest, latest_for
+from fleetbus.api.console.live import Shared, live_stream, newest_of
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import DASHBOARD
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.service import Service
+from fleetbus.api.team import TeamView
+from fleetbus.schemas.routing import EventType
 from fleetbus.workers.store.base import EventQuery, EventRecord
-from fleetbus.workers.store.hazards import HazardState
+from fleetbus.workers.store.hazards import Hazard, HazardState
 from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(DASHBOARD))]
+#: Hazard ids listed per state; the rest are counted.
+IDS_SHOWN = 12
+#: Events that change the team or the hazards at once: shown without waiting for the next refresh.
+#: (Statuses come often; their batteries are in memory and show at the next refresh.)
+NEWS = frozenset({EventType.HAZARD.value, EventType.LOCALISATION.value})
+
+
+async def team_view(service: Service, latest: Latest) -> TeamView:
+    """The team with the last-seen times kept in memory; a robot shown for the first time is read
+    from the store first (once)."""
+    view = await service.team.view(latest.last_seen())
+    if await latest.seed([member.robot.name for member in view.members]):
+        view = await service.team.view(latest.last_seen())
+    return view
+
+
+def by_state(hazards: list[Hazard]) -> dict[HazardState, list[Hazard]]:
+    grouped: dict[HazardState, list[Hazard]] = defaultdict(list)
+    for hazard in hazards:
+        grouped[hazard.state].append(hazard)
+    return grouped
 
 
 class DashboardView:
     """What every open dashboard shows live; one per API process, shared by all of them."""
 
-    def __init__(self, service: Service, feed: Feed) -> None:
+    def __init__(self, service: Service, feed: Feed, latest: Latest, broker: BrokerWatch) -> None:
         self._service = service
         self._feed = feed
+        self._latest = latest
+        self._broker = broker
         self.snapshot = Shared(self._render)
         self.recent_limit = service.settings.console_recent_events
 
     async def _render(self) -> list[str]:
-        team = await self._service.team.view()
-        hazards = await self._service.repositories.hazards.open_hazards(None)
-        by_state = Counter(hazard.state for hazard in hazards)
+        repositories = self._service.repositories
+        team = await team_view(self._service, self._latest)
+        hazards = by_state(await repositories.hazards.open_hazards(None))
+        gaps: Counter[str] = Counter()
+        missing: Counter[str] = Counter()
+        for gap in await repositories.events.gaps(None):
+            gaps[gap.robot_id] += 1
+            missing[gap.robot_id] += gap.size
+        mounts = {mount.robot: mount for mount in await repositories.channels.mounts()}
+        health, dead_letters = self._broker.current()
         return [
-            fragment("dashboard/team.html", team=team),
-            fragment("dashboard/hazards.html", states=list(HazardState), by_state=by_state),
+            fragment(
+                "dashboard/team.html",
+                team=team,
+                latest=self._latest,
+                health=health,
+                gaps=gaps,
+                missing=missing,
+                mounts=mounts,
+                battery_low=self._service.settings.battery_low_percent,
+            ),
+            fragment(
+                "dashboard/hazards.html",
+                states=[state for state in HazardState if state is not HazardState.CLEARED],
+                hazards=hazards,
+                ids_shown=IDS_SHOWN,
+            ),
+            fragment("dashboard/dead_letters.html", count=dead_letters),
+            fragment("dashboard/broker.html", health=health),
             fragment("dashboard/feed.html", feed=self._feed),
         ]
 
     async def events(self, records: list[EventRecord]) -> list[str]:
+        self.snapshot.want(newest_of(records, NEWS))
         return [fragment("dashboard/event.html", event=record) for record in records[-self.recent_limit :]]
 
     async def newest(self) -> list[str]:
@@ -54,7 +113,7 @@ class DashboardView:
 def dashboard_view(request: Request) -> DashboardView:
     state = request.app.state
     if getattr(state, "dashboard", None) is None:
-        state.dashboard = DashboardView(state.service, state.feed)
+        state.dashboard = DashboardView(state.service, state.feed, latest_for(request), broker_watch(request))
     return state.dashboard
 
 

@@ -10,7 +10,7 @@ import yaml
 from rich.table import Table
 
 from fleetbus.cli.context import console, fail, settings
-from fleetbus.workers.maps import missing_version
+from fleetbus.workers.maps import map_image, missing_version
 from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.maps import MapStore, MapVersion
 
@@ -22,7 +22,7 @@ async def _read(maps: MapStore, version: int | None) -> tuple[MapVersion, bytes]
     found = await maps.map_version(version)
     if found is None:
         return await missing_version(maps, version)
-    return found, b"".join([await maps.map_chunk(found.version, i) for i in range(found.chunks)])
+    return found, await map_image(maps, found)
 
 
 def map_yaml(metadata: dict, image_name: str) -> str:

@@ -1,0 +1,111 @@
+"""The team's map as the browser shows it: a stored PGM version drawn as a PNG, and where the
+map's world coordinates fall on it.
+
+Pillow reads every PGM a robot may send (binary and plain, 8 and 16 bits, any maxval) and writes
+the PNG; a map larger than ``console_map_pixels`` on a side is scaled down (the markers keep
+their world coordinates, so nothing moves). A version never changes, so its PNG is made once and
+the last ``console_map_cache`` are kept.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+from collections import OrderedDict
+from dataclasses import dataclass
+
+from PIL import Image, UnidentifiedImageError
+
+from fleetbus.schemas.pgm import read_pgm_header
+from fleetbus.workers.maps import map_image
+from fleetbus.workers.store.maps import MapStore, MapVersion
+
+
+class ImageUnreadable(Exception):
+    """The stored image could not be drawn; the message says why."""
+
+
+def png_of(pgm: bytes, max_side: int) -> bytes:
+    """The PGM ``pgm`` as an 8-bit greyscale PNG, no side longer than ``max_side``."""
+    try:
+        image = Image.open(io.BytesIO(pgm))
+        image.load()
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as error:
+        raise ImageUnreadable(f"the stored image is not a PGM Pillow can read: {error}") from error
+    if image.mode != "L":  # 16-bit PGM: Pillow gives 0..65535
+        image = image.point(lambda value: value * (1 / 257)).convert("L")
+    if max(image.size) > max_side:
+        image.thumbnail((max_side, max_side), Image.Resampling.BOX)
+    out = io.BytesIO()
+    image.save(out, format="PNG", optimize=False)
+    return out.getvalue()
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Where a version's image lies in the world: its SVG ``viewBox`` in metres (y pointing down,
+    as SVG's does: a world point (x, y) is drawn at (x, -y)) and the size of its markers."""
+
+    version: MapVersion
+    width: int
+    """Pixels of the stored image (before any scaling down)."""
+    height: int
+
+    @property
+    def resolution(self) -> float:
+        return float(self.version.metadata["resolution"])
+
+    @property
+    def origin(self) -> tuple[float, float, float]:
+        x, y, yaw = self.version.metadata["origin"]
+        return float(x), float(y), float(yaw)
+
+    @property
+    def view_box(self) -> str:
+        """``min-x min-y width height``: the lower-left pixel is at the origin (map_server's YAML),
+        and the image's top row at origin y + height x resolution."""
+        x, y, _ = self.origin
+        width, height = self.width * self.resolution, self.height * self.resolution
+        return f"{x:g} {-(y + height):g} {width:g} {height:g}"
+
+    @property
+    def marker(self) -> float:
+        """A marker's radius in metres: a seventieth of the map's longer side, whatever its scale."""
+        return max(self.width, self.height) * self.resolution / 70
+
+
+#: Image sizes remembered (a version's size is read from its first chunk's PGM header).
+SIZES_KEPT = 256
+
+
+class MapImages:
+    """The PNGs of the versions last shown, made on a thread (one at a time) and kept."""
+
+    def __init__(self, maps: MapStore, max_side: int, keep: int) -> None:
+        self._maps = maps
+        self._max_side = max_side
+        self._keep = keep
+        self._made: OrderedDict[int, bytes] = OrderedDict()
+        self._sizes: OrderedDict[int, tuple[int, int]] = OrderedDict()
+        self._lock = asyncio.Lock()
+
+    async def frame(self, version: MapVersion) -> Frame:
+        size = self._sizes.get(version.version)
+        if size is None:
+            header = read_pgm_header(await self._maps.map_chunk(version.version, 0))
+            size = self._sizes[version.version] = (header.width, header.height)
+            while len(self._sizes) > SIZES_KEPT:
+                self._sizes.popitem(last=False)
+        return Frame(version, *size)
+
+    async def png(self, version: MapVersion) -> bytes:
+        async with self._lock:
+            if version.version in self._made:
+                self._made.move_to_end(version.version)
+                return self._made[version.version]
+            pgm = await map_image(self._maps, version)
+            made = await asyncio.to_thread(png_of, pgm, self._max_side)
+            self._made[version.version] = made
+            while len(self._made) > self._keep:
+                self._made.popitem(last=False)
+            return made

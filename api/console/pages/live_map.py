@@ -1,0 +1,176 @@
+"""The live map: a stored version of the team's map, and over it, in the map's world coordinates,
+each robot's last pose, the hazards by state with their ids, the beacons and where people are
+likely stranded; live.
+
+The markers are drawn in metres (:class:`~..map_image.Frame`), not in a version's pixels, so one
+rendering of them serves every open map whatever version it shows: N open maps cost one
+refresh of five store reads (the robots, the open hazards, the hazards cleared last, the beacons,
+the newest version), and at most every two seconds two more (the beacons again and the last ten
+minutes' sightings: where people are likely stranded). Choosing another version swaps the image and its frame
+(htmx); the markers stay.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from datetime import datetime, timezone
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
+from fastapi.responses import HTMLResponse, Response
+
+from fleetbus.api.console.latest import Latest, latest_for
+from fleetbus.api.console.live import Shared, live_stream, newest_of
+from fleetbus.api.console.map_image import ImageUnreadable, MapImages
+from fleetbus.api.console.pages.dashboard import by_state
+from fleetbus.api.console.session import Allowed
+from fleetbus.api.console.sitemap import MAP
+from fleetbus.api.console.templating import fragment, render
+from fleetbus.api.service import Service
+from fleetbus.schemas.routing import EventType
+from fleetbus.workers.beacons import DEFAULT_WINDOW, stranded
+from fleetbus.workers.maps import missing_version
+from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.hazards import Hazard, HazardState
+from fleetbus.workers.store.maps import MapVersion
+from fleetbus.workers.store.users import User
+
+router = APIRouter()
+Viewer = Annotated[User, Depends(Allowed.page(MAP))]
+Version = Annotated[int | None, Query(ge=1, description="a stored map version; the newest by default")]
+#: Events that change the map at once: shown without waiting for the next refresh. (Poses come
+#: with statuses, often; they are in memory and show at the next refresh.)
+NEWS = frozenset({EventType.HAZARD.value, EventType.MAP.value})
+#: The recent sightings are read again at most this often: each read is every sighting of the
+#: last ten minutes (:func:`~fleetbus.workers.beacons.stranded`), many when guides report often.
+SIGHTINGS_EVERY_S = 2.0
+#: The live fragments of the map, in the order :meth:`MapView.snapshot` gives them.
+PARTS = ("marks", "hazards", "robots", "beacons", "newest")
+
+
+def position(hazard: Hazard) -> dict[str, Any] | None:
+    """Where the robot saw the hazard (its event's pose), if it says."""
+    pose = hazard.event.get("body", {}).get("pose")
+    return pose if isinstance(pose, dict) and "x" in pose and "y" in pose else None
+
+
+class MapView:
+    """What every open map shows live; one per API process, shared by all of them."""
+
+    def __init__(self, service: Service, latest: Latest) -> None:
+        self._service = service
+        self._latest = latest
+        self.images = MapImages(
+            service.repositories.maps, service.settings.console_map_pixels, service.settings.console_map_cache
+        )
+        self.snapshot = Shared(self._render)
+        self._heard: list[dict[str, Any]] = []
+        self._heard_at = -float("inf")
+
+    async def _stranded(self) -> list[dict[str, Any]]:
+        """Where people are likely stranded, read at most every :data:`SIGHTINGS_EVERY_S`."""
+        now = asyncio.get_running_loop().time()
+        if now - self._heard_at >= SIGHTINGS_EVERY_S:
+            since = datetime.now(timezone.utc) - DEFAULT_WINDOW
+            repositories = self._service.repositories
+            self._heard = await stranded(repositories.beacons, repositories.events, since)
+            self._heard_at = now
+        return self._heard
+
+    async def _render(self) -> list[str]:
+        repositories = self._service.repositories
+        robots = await repositories.hazards.robots()
+        await self._latest.seed([robot.name for robot in robots])
+        hazards = [
+            *await repositories.hazards.open_hazards(None),
+            *await repositories.hazards.cleared_hazards(self._service.settings.console_map_cleared),
+        ]
+        grouped = by_state(hazards)
+        beacons = await repositories.beacons.beacons()
+        heard = await self._stranded()
+        newest = await repositories.maps.map_version(None)
+        context = {
+            "robots": robots,
+            "latest": self._latest,
+            "states": list(HazardState),
+            "hazards": grouped,
+            "position": position,
+            "beacons": beacons,
+            "stranded": heard,
+            "stranded_ids": {entry["beacon_id"] for entry in heard},
+            "window_minutes": int(DEFAULT_WINDOW.total_seconds() // 60),
+        }
+        return [fragment(f"map/{part}.html", newest=newest, **context) for part in PARTS]
+
+    async def events(self, records: list[EventRecord]) -> list[str]:
+        self.snapshot.want(newest_of(records, NEWS))
+        return []  # everything the map shows is state, refreshed by the snapshot
+
+    async def stored(self, version: int | None) -> MapVersion | str:
+        """The stored version (the newest for None), or why there is none."""
+        maps = self._service.repositories.maps
+        found = await maps.map_version(version)
+        return found if found is not None else await missing_version(maps, version)
+
+
+def map_view(request: Request) -> MapView:
+    state = request.app.state
+    if getattr(state, "live_map", None) is None:
+        state.live_map = MapView(state.service, latest_for(request))
+    return state.live_map
+
+
+View = Annotated[MapView, Depends(map_view)]
+
+
+async def _frame_context(view: MapView, version: int | None) -> dict[str, Any]:
+    """The chosen version's frame (or why there is none) and the markers drawn over it."""
+    found = await view.stored(version)
+    frame = await view.images.frame(found) if isinstance(found, MapVersion) else None
+    parts = dict(zip(PARTS, await view.snapshot(), strict=True))
+    return {"frame": frame, "why": found if isinstance(found, str) else None, "marks": parts["marks"]}
+
+
+@router.get("/console/map", response_class=HTMLResponse)
+async def live_map(request: Request, user: Viewer, view: View, version: Version = None) -> Response:
+    versions = await request.app.state.service.repositories.maps.map_versions()
+    parts = dict(zip(PARTS, await view.snapshot(), strict=True))
+    return render(
+        request,
+        "map/page.html",
+        user,
+        MAP,
+        cursor=request.app.state.feed.cursor,
+        versions=versions,
+        lists=[parts["hazards"], parts["robots"], parts["beacons"]],
+        newest=parts["newest"],
+        **await _frame_context(view, version),
+    )
+
+
+@router.get("/console/map/frame", response_class=HTMLResponse)
+async def map_frame(user: Viewer, view: View, version: Version = None) -> Response:
+    """The chosen version's image and frame, for the version select (htmx)."""
+    body = fragment("map/frame.html", **await _frame_context(view, version))
+    where = "/console/map" if version is None else f"/console/map?version={version}"
+    return HTMLResponse(body, headers={"HX-Push-Url": where})
+
+
+@router.get("/console/map/{version}.png")
+async def map_png(user: Viewer, view: View, version: int) -> Response:
+    found = await view.stored(version)
+    if isinstance(found, str):
+        raise HTTPException(404, detail=found)
+    try:
+        png = await view.images.png(found)
+    except ImageUnreadable as error:
+        raise HTTPException(422, detail=str(error)) from None
+    # a version never changes: the browser may keep it
+    return Response(
+        png, media_type="image/png", headers={"Cache-Control": "private, max-age=86400, immutable"}
+    )
+
+
+@router.get("/console/stream/map")
+async def map_stream(request: Request, user: Viewer, view: View) -> Response:
+    return live_stream(view, request.app.state.feed, request)

@@ -1,0 +1,166 @@
+"""The live map in a real browser, on the real broker, worker and store; its image and frame."""
+
+from __future__ import annotations
+
+import io
+import time
+from typing import Any
+
+import httpx
+from PIL import Image
+from selenium.webdriver.support.select import Select
+
+from fleetbus.api.console.map_image import Frame, png_of
+from fleetbus.broker.accounts import Role
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.beacons import Beacon
+from fleetbus.workers.store.maps import MapVersion
+from tests.console.support import LIVE_WITHIN_S, Browser, Console, running_console
+from tests.factories import hazard, small_map, status
+from tests.support import Bus, wait_for
+
+#: small_map's world: 64 x 48 pixels of 0.11 m from (2.1, 3.5), so x 2.1 to 9.14, y 3.5 to 8.78.
+INSIDE = {"x": 5.0, "y": 6.0}
+
+
+def at(body: dict[str, Any], x: float, y: float) -> dict[str, Any]:
+    return {**body, "pose": {"x": x, "y": y}}
+
+
+def natural_width(browser: Browser) -> int:
+    return browser.driver.execute_script(
+        "const image = document.getElementById('map-image');"
+        "return image && image.complete ? image.naturalWidth : 0"
+    )
+
+
+def stored_maps(bus: Bus, count: int) -> None:
+    wait_for(
+        lambda: len(bus.with_store(lambda store: store.maps.map_versions())) == count,
+        what=f"{count} map versions stored",
+    )
+
+
+def open_map(console: Console, browser: Browser, query: str = "") -> None:
+    console.user("oper1", UserRole.OPERATOR)
+    console.log_in(browser, "oper1")
+    browser.go(console.url("/console/map" + query))
+    console.wait_live(browser)
+
+
+def test_a_published_hazard_appears_on_the_map_within_2_s_with_its_id(bus: Bus, browser: Browser) -> None:
+    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
+    guide = bus.robot(bus.add("guide1", Role.ROBOT, RobotKind.GUIDE))
+    bus.with_store(lambda store: store.beacons.put_beacons([Beacon("b1", 8.0, 7.5, "room 101")]))
+    with bus.worker(), running_console(bus) as console:
+        # first events through the whole chain (the worker is up): a map, and where the explorer is
+        explorer.publish("map", small_map())
+        explorer.publish("status", at(status(80.0), 4.0, 5.0))
+        stored_maps(bus, 1)
+        open_map(console, browser)
+        browser.until(lambda: natural_width(browser) == 64, "the map's image loaded")
+        browser.until(lambda: browser.find("#mark-robot-explorer1"), "the explorer's last pose")
+        assert (
+            browser.find("#mark-robot-explorer1")[0].get_attribute("transform") == "translate(4.000 -5.000)"
+        )
+        browser.driver.execute_script("document.body.dataset.marker = 'not reloaded'")
+
+        published = time.monotonic()
+        explorer.publish("hazard", at(hazard(0, description="Gas leak"), INSIDE["x"], INSIDE["y"]))
+        browser.until(lambda: browser.find("#mark-hazard-default-1"), "the hazard's marker")
+        shown = time.monotonic() - published
+        marker = browser.find("#mark-hazard-default-1")[0]
+        assert marker.find_element("css selector", "text").get_attribute("textContent") == "1", "its id"
+        assert marker.get_attribute("transform") == "translate(5.000 -6.000)", "where the robot saw it"
+        assert "state-held" in marker.get_attribute("class")
+        assert shown < LIVE_WITHIN_S, shown
+        assert "Gas leak" in browser.text("#map-hazard-default-1")
+
+        explorer.publish("status", at(status(79.0), 6.5, 4.0))  # the explorer moves
+        browser.until(
+            lambda: (
+                browser.find("#mark-robot-explorer1")[0].get_attribute("transform")
+                == "translate(6.500 -4.000)"
+            ),
+            "the explorer's new pose",
+        )
+        guide.publish("beacon", {"beacon_id": "b1", "rssi": -60, "pose": {"x": 7.5, "y": 7.0}})
+        browser.until(
+            lambda: "stranded" in browser.find("#mark-beacon-b1")[0].get_attribute("class"),
+            "people likely stranded at beacon b1",
+        )
+        assert "room 101" in browser.text("#map-stranded-b1")
+        assert browser.driver.execute_script("return document.body.dataset.marker") == "not reloaded"
+        assert not browser.console_errors() or all("favicon" in line for line in browser.console_errors())
+
+
+def test_an_older_map_version_can_be_chosen(bus: Bus, browser: Browser) -> None:
+    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
+    with bus.worker(), running_console(bus) as console:
+        explorer.publish("map", small_map(64, 48))
+        explorer.publish("map", small_map(80, 60))
+        explorer.publish("hazard", at(hazard(0), INSIDE["x"], INSIDE["y"]))
+        stored_maps(bus, 2)
+        open_map(console, browser)
+        browser.until(lambda: natural_width(browser) == 80, "the newest version shown")
+        assert browser.find("#map-image")[0].get_attribute("src").endswith("/console/map/2.png")
+        browser.until(lambda: browser.find("#mark-hazard-default-1"), "the hazard's marker")
+
+        Select(browser.find("select[name=version]")[0]).select_by_value("1")
+        browser.until(lambda: natural_width(browser) == 64, "version 1 shown")
+        assert browser.find("#map-image")[0].get_attribute("src").endswith("/console/map/1.png")
+        assert browser.text(".map-caption").startswith("Version 1 from explorer1")
+        assert browser.driver.current_url.endswith("/console/map?version=1"), "the address says which"
+        assert browser.find("#mark-hazard-default-1"), "the markers stay over the other version"
+        browser.go(console.url("/console/map?version=1"))
+        browser.until(lambda: natural_width(browser) == 64, "version 1 from its address")
+
+
+def test_the_map_is_refused_to_planners_and_clients(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
+    with bus.worker(), running_console(bus) as console:
+        explorer.publish("map", small_map())
+        stored_maps(bus, 1)
+        paths = ("/console/map", "/console/map/frame?version=1", "/console/map/1.png", "/console/stream/map")
+        for name, role in (("plan1", UserRole.PLANNER), ("client1", UserRole.CLIENT)):
+            console.user(name, role)
+            with console.http_as(name) as http:
+                for path in paths:
+                    assert http.get(path).status_code == 403, (name, path)
+                assert "may not use the live map page" in http.get("/console/map").text
+        console.user("oper1", UserRole.OPERATOR)
+        with console.http_as("oper1") as http:
+            png = http.get("/console/map/1.png")
+            assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+            assert Image.open(io.BytesIO(png.content)).size == (64, 48)
+            missing = http.get("/console/map/7.png")
+            assert missing.status_code == 404 and "no map version 7" in missing.text
+            nav = http.get("/console/map").text.split("<nav>")[1].split("</nav>")[0]
+            assert 'href="/console/map"' in nav
+        with console.http_as("plan1") as http:
+            assert 'href="/console/map"' not in http.get("/console/map").text.split("</nav>")[0]
+
+
+def test_every_pgm_a_robot_may_send_is_drawn_and_large_ones_scaled_down() -> None:
+    plain = b"P2\n# a comment\n3 2\n15\n0 5 10\n15 15 0\n"
+    sixteen = b"P5\n2 1\n65535\n" + (0).to_bytes(2, "big") + (65535).to_bytes(2, "big")
+    assert Image.open(io.BytesIO(png_of(plain, 2048))).getpixel((2, 0)) == 170
+    assert Image.open(io.BytesIO(png_of(sixteen, 2048))).tobytes() == bytes([0, 255])
+    large = b"P5\n3000 1000\n255\n" + bytes(3000 * 1000)
+    assert Image.open(io.BytesIO(png_of(large, 600))).size == (600, 200)
+
+
+def test_the_frame_puts_the_lower_left_pixel_at_the_maps_origin() -> None:
+    metadata = {"resolution": 0.5, "origin": [-3.0, 2.0, 0.0]}
+    version = MapVersion(1, "explorer1", "e", 0, metadata, None, 0, "", 0, 1)  # type: ignore[arg-type]
+    frame = Frame(version, width=40, height=20)
+    # x from -3 to 17; y from 2 to 12, drawn at -y: the top row (y 12) at -12
+    assert frame.view_box == "-3 -12 20 10"
+    assert frame.marker == 20 / 70
+
+
+def test_a_session_less_request_for_the_image_is_sent_to_log_in(bus: Bus) -> None:
+    with running_console(bus) as console:
+        away = httpx.get(console.url("/console/map/1.png"))
+        assert away.status_code == 303 and away.headers["location"].startswith("/console/login")
