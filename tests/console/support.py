@@ -84,6 +84,12 @@ class Browser:
         except StaleElementReferenceException:  # replaced by a live update while read: read again
             return self.texts(css)
 
+    def attributes(self, css: str, name: str) -> list[str | None]:
+        try:
+            return [element.get_attribute(name) for element in self.find(css)]
+        except StaleElementReferenceException:  # replaced by a live update while read: read again
+            return self.attributes(css, name)
+
     def until(self, condition: Callable[[], Any], what: str, timeout: float = 15) -> Any:
         """Wait (with a deadline) until ``condition()`` is true; fail saying ``what`` was awaited."""
 

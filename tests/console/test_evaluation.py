@@ -38,8 +38,8 @@ def test_the_table_counts_each_behaviour_and_the_charts_draw_each(bus: Bus, brow
         )
 
         console.log_in(browser, "planner1")
-        assert browser.driver.current_url == console.url("/console/evaluation"), "a planner's home"
-        assert browser.texts("header nav a") == ["Evaluation"], "the only page a planner may open"
+        assert browser.texts("header nav a") == ["Missions", "Evaluation"], "the pages a planner may open"
+        browser.go(console.url("/console/evaluation"))
 
         def row(name: str) -> dict[str, str]:
             cells = f"#outcomes tr[data-behaviour={name}] td"
@@ -84,7 +84,7 @@ def test_a_planner_may_open_evaluation_but_not_messages(bus: Bus) -> None:
         console.user("planner1", UserRole.PLANNER)
         http.get("/console/login")
         form = {"username": "planner1", "password": PASSWORD, "csrf": http.cookies[CSRF_COOKIE]}
-        assert http.post("/console/login", data=form).headers["location"] == "/console/evaluation"
+        assert http.post("/console/login", data=form).headers["location"] == "/console/missions"
         assert http.get("/console/evaluation").status_code == 200
         for path in (
             "/console/messages",

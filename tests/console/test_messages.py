@@ -234,9 +234,9 @@ def test_the_live_tail_shows_a_mounted_robots_message_and_never_an_unmounted_one
         assert '"battery_percent":77' in tail() and '"battery_percent":11' not in tail()
 
         browser.go(console.url("/console/messages"))  # as first rendered, from the store
-        ids = [row.get_attribute("id") for row in browser.find("#tail tr")]
+        ids = browser.attributes("#tail tr", "id")
         assert len(ids) == len(set(ids)), "each message once (a mounted robot's beacon too)"
-        routing_keys = sorted(cell.text for cell in browser.find("#tail td.routing-key"))
+        routing_keys = sorted(browser.texts("#tail td.routing-key"))
         assert routing_keys == ["explorer1.beacon", "explorer1.status", "explorer2.beacon"]
 
         console.wait_live(browser)
