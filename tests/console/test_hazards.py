@@ -55,7 +55,12 @@ def explorer_and_warden(bus: Bus) -> tuple[RobotClient, RobotClient]:
 
 def press(browser: Browser, button: str, notice: str) -> None:
     """Press ``button`` and wait for the notice that says it was done."""
-    browser.click(button)
+
+    def pressed() -> bool:
+        browser.click(button)  # replaced by a live update between finding and clicking: found again
+        return True
+
+    browser.until(pressed, f"{button} pressed")
     browser.until(lambda: notice in browser.text("#hazard-notice"), f"the notice {notice!r}")
 
 
