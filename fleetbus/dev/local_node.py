@@ -647,14 +647,16 @@ log.console = false
         """Belt and braces: a database made before fleetbus set default_user may have guest."""
         import httpx
 
+        from fleetbus.broker.management import tls_context
+
         _, management_url = self._urls()
         creds = self.admin_credentials()
         assert management_url is not None and creds is not None
         with contextlib.suppress(httpx.HTTPError):
             url = management_url.rstrip("/") + "/api/users/guest"
-            if httpx.get(url, auth=creds, timeout=5).status_code == 200:
+            if httpx.get(url, auth=creds, timeout=5, verify=tls_context()).status_code == 200:
                 log.warning("deleting the guest account of the private node")
-                httpx.delete(url, auth=creds, timeout=5)
+                httpx.delete(url, auth=creds, timeout=5, verify=tls_context())
 
     def _reap(self) -> None:
         if self._proc is not None:
