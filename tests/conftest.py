@@ -31,6 +31,12 @@ from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
 
+#: Password hashes of 1 MiB instead of 64 in every process of the suite (the API in-process and as
+#: `fleetbus api`): the same argon2id at a hundredth of the CPU, for the hundreds of hashes the
+#: tests make. What they check does not depend on the cost; the test of a login that keeps argon2
+#: busy makes its own costly hash.
+os.environ.setdefault("FLEETBUS_API_HASH_MEMORY_KIB", "1024")
+
 #: Modules of tests that take tens of seconds each (worker processes killed and restarted, outages,
 #: every bench scenario): they start first, so that no xdist worker begins one when the rest is done.
 LONG_MODULES = frozenset(
