@@ -549,6 +549,8 @@ log.console = false
         self._require_installation()
         deadline = time.monotonic() + timeout
         with self._lock(timeout):
+            # a database made by this start has no queues yet, let alone leaderless ones
+            had_database = any((self.base_dir / "mnesia").glob("*"))
             self._write_config()
             pid = self.pid()
             started = pid is None
@@ -557,7 +559,8 @@ log.console = false
             self._wait_ready(deadline, started)
             if started:
                 self._drop_guest()
-                self.heal_quorum_queues(deadline)
+                if had_database:
+                    self.heal_quorum_queues(deadline)
         return self.status()
 
     def heal_quorum_queues(self, deadline: float) -> int:
