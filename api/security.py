@@ -54,8 +54,8 @@ class Passwords:
     of CPU (argon2 releases the GIL): on the event loop, a burst of logins would hold up every
     other request; on unbounded threads, it would take every core."""
 
-    def __init__(self, concurrency: int = 1) -> None:
-        self._hasher = PasswordHasher()
+    def __init__(self, concurrency: int = 1, memory_kib: int = 65536) -> None:
+        self._hasher = PasswordHasher(memory_cost=memory_kib)
         self._threads = ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="fleetbus-argon2")
         # verifying against this when the user does not exist takes as long as a real check
         self._dummy = self._hasher.hash(secrets.token_urlsafe(16))
@@ -164,7 +164,7 @@ class Secrets:
     def for_settings(cls, settings: Settings) -> Secrets:
         secret = master_secret(settings)
         return cls(
-            Passwords(settings.api_hash_threads),
+            Passwords(settings.api_hash_threads, settings.api_hash_memory_kib),
             Tokens(derive_key(secret, "fleetbus api tokens"), timedelta(minutes=settings.api_token_minutes)),
             SecretBox(derive_key(secret, "fleetbus broker passwords")),
         )

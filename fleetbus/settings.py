@@ -197,6 +197,11 @@ class Settings(BaseSettings):
     api_hash_threads: Annotated[int, Positive] = setting(
         1, "password hashes the API computes at once, on threads of their own (never on its event loop)"
     )
+    api_hash_memory_kib: Annotated[int, Field(ge=32)] = setting(
+        65536,
+        "memory one password hash takes (argon2id, 3 passes), in KiB: what each guess at a stolen hash "
+        "costs, and each login; on a small machine no less than 12288 (OWASP's minimum for 3 passes)",
+    )
     api_account_failures: str = setting(
         "5 per 5 minutes",
         "failed logins to one account from one address before that address gets 429 for it",

@@ -9,8 +9,10 @@ of its own: broker users are node-wide, and every test names its robots alike (`
 and re-keys the service accounts (``fleetbus``) in its fresh data directory, so two tests at once
 on one node would replace each other's passwords and delete each other's users. The first worker
 (or a run in one process) uses the node ``fleetbus broker up`` started; the others each start a
-private node in their temporary folder and stop it at the end. The tests that kill a broker do it
-on a node of their own (``killable_node``, one per worker that runs any).
+private node in their temporary folder and stop it at the end. The tests that kill a broker
+(``killable_node``) kill that private node of their worker, which runs one test at a time; the
+first worker, or a run in one process, starts a node of their own for them instead of killing
+the one ``fleetbus broker up`` started.
 """
 
 from __future__ import annotations
@@ -30,6 +32,12 @@ from tests.link import NetworkLink
 from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
+
+#: Password hashes of 1 MiB instead of 64 in every process of the suite (the API in-process and as
+#: `fleetbus api`): the same argon2id at a hundredth of the CPU, for the hundreds of hashes the
+#: tests make. What they check does not depend on the cost; the test of a login that keeps argon2
+#: busy makes its own costly hash.
+os.environ.setdefault("FLEETBUS_API_HASH_MEMORY_KIB", "1024")
 
 #: Modules of tests that take tens of seconds each (worker processes killed and restarted, outages,
 #: every bench scenario): they start first, so that no xdist worker begins one when the rest is done.
@@ -65,14 +73,18 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     return ModulesWhole(config, log)
 
 
+def has_own_node() -> bool:
+    """Whether this process's tests run on a node it started (an xdist worker but the first)."""
+    return os.environ.get("PYTEST_XDIST_WORKER", "gw0") != "gw0"
+
+
 @pytest.fixture(scope="session")
 def broker_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode | None]:
     """The private node this process's tests use (see the module docstring); None when the broker
     is a configured one (``FLEETBUS_AMQP_URL``) or Docker's."""
     settings = load_settings()
     shared = resolve_broker(settings, start=True)  # the same code path as `fleetbus broker up`
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-    if worker == "gw0":
+    if not has_own_node():
         yield LocalNode(settings.broker_dir) if shared.kind == "private" else None
         return
     if shared.kind != "private":
@@ -132,14 +144,21 @@ async def stored_bus(request: pytest.FixtureRequest, bus: Bus) -> AsyncIterator[
 
 
 @pytest.fixture(scope="session")
-def killable_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode]:
-    """A private node of the tests' own (not the suite's shared broker), for tests that kill it."""
+def killable_node(
+    broker_node: LocalNode | None, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[LocalNode]:
+    """A private node the tests may kill: this worker's own (see the module docstring), else one
+    started for them (never the node `fleetbus broker up` started, nor a configured broker)."""
+    if has_own_node() and broker_node is not None:
+        yield broker_node
+        return
     node = LocalNode(tmp_path_factory.mktemp("killable") / "broker")
     node.up()
     try:
         yield node
     finally:
-        node.down()
+        node.kill()  # a throwaway node: no need for a clean shutdown's seconds
+        node.down()  # its epmd
 
 
 @pytest.fixture

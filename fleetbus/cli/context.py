@@ -9,21 +9,20 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 import typer
-import yaml
 from rich.console import Console
 
-from fleetbus.broker.accounts import SERVICE_USER, vhost_of
-from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
-from fleetbus.broker.endpoint import BrokerEndpoint, derive_management_url, service_account_url
-from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.routes import RouteMap
-from fleetbus.dev.fallback import resolve_broker
-from fleetbus.settings import Settings, load_settings
-from fleetbus.workers.store import open_recording_store, run_with_repositories
-from fleetbus.workers.store.recordings import RecordingStore
+# What only some commands need is imported in the functions that need it: every command loads
+# this module, and one that reads the store should not wait for the broker's clients to load.
+if TYPE_CHECKING:
+    from fleetbus.broker.dead_letter_queue import DeadLetter
+    from fleetbus.broker.endpoint import BrokerEndpoint
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.broker.routes import RouteMap
+    from fleetbus.settings import Settings
+    from fleetbus.workers.store.recordings import RecordingStore
 
 T = TypeVar("T")
 
@@ -38,6 +37,8 @@ def fail(message: str, code: int = 1) -> NoReturn:
 
 def settings() -> Settings:
     """The settings; one that does not parse ends the command, naming its variable."""
+    from fleetbus.settings import load_settings
+
     try:
         return load_settings()
     except ValueError as error:
@@ -50,6 +51,8 @@ def actor(by: str | None) -> str:
 
 
 def endpoint(start: bool = True) -> BrokerEndpoint:
+    from fleetbus.dev.fallback import resolve_broker
+
     try:
         return resolve_broker(settings(), start=start)
     except Exception as error:  # any failure to find a broker ends the command with its reason
@@ -58,6 +61,9 @@ def endpoint(start: bool = True) -> BrokerEndpoint:
 
 def dead_letters(limit: int = 1000) -> list[DeadLetter]:
     """The dead-letter queue, each letter with the reason the workers kept in the store."""
+    from fleetbus.broker.dead_letter_queue import peek_dead_letters
+    from fleetbus.workers.store import run_with_repositories
+
     config = settings()
     return peek_dead_letters(
         endpoint().amqp_url,
@@ -66,18 +72,24 @@ def dead_letters(limit: int = 1000) -> list[DeadLetter]:
     )
 
 
-def service_account(account: str = SERVICE_USER) -> str:
-    """The URL the worker (``fleetbus``) or the recorder (``fleetbus-recorder``) logs in with:
-    never the administrator's."""
+def service_account(account: str | None = None) -> str:
+    """The URL the worker (``fleetbus``, the default) or the recorder (``fleetbus-recorder``)
+    logs in with: never the administrator's."""
+    from fleetbus.broker.accounts import SERVICE_USER
+    from fleetbus.broker.endpoint import service_account_url
+    from fleetbus.dev.fallback import resolve_broker
+
     try:
         current = settings()
-        return service_account_url(current, account, lambda: resolve_broker(current).amqp_url)
+        return service_account_url(current, account or SERVICE_USER, lambda: resolve_broker(current).amqp_url)
     except Exception as error:  # any failure to find the broker ends the command with its reason
         fail(f"no broker: {error}")
 
 
 @contextmanager
 def admin_api(ep: BrokerEndpoint) -> Iterator[ManagementAPI]:
+    from fleetbus.broker.management import ManagementAPI
+
     with ManagementAPI.from_urls(ep.management_url, ep.amqp_url) as api:
         yield api
 
@@ -104,6 +116,7 @@ def clock(moment: datetime) -> str:
 
 def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:
     """Open the recording the settings select, run one operation, close it."""
+    from fleetbus.workers.store import open_recording_store
 
     async def go() -> T:
         async with open_recording_store(settings()) as store:
@@ -116,6 +129,8 @@ def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:
 def recording_stream(open_stream: Callable[[RecordingStore], AsyncIterator[T]]) -> Iterator[Iterator[T]]:
     """Open the recording and iterate ``open_stream(store)`` from synchronous code (pika's blocking
     publishing, say), one item at a time on an event loop of its own; closed on leaving."""
+    from fleetbus.workers.store import open_recording_store
+
     loop = asyncio.new_event_loop()
     store = open_recording_store(settings())
     stream: AsyncIterator[T] | None = None
@@ -141,6 +156,11 @@ def recording_stream(open_stream: Callable[[RecordingStore], AsyncIterator[T]]) 
 
 def route_map() -> RouteMap | None:
     """The broker's exchanges, bindings and consumers now; None (with a warning) when it does not answer."""
+    from fleetbus.broker.accounts import vhost_of
+    from fleetbus.broker.endpoint import BrokerEndpoint, derive_management_url
+    from fleetbus.broker.routes import RouteMap
+    from fleetbus.dev.fallback import resolve_broker
+
     config = settings()
     try:
         if config.amqp_url:  # only its management API is asked: no AMQP login to probe first
@@ -163,6 +183,8 @@ def load_data(argument: str) -> Any:
             fail(f"{path}: no such file")
         text = path.read_text()
         if path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
             try:
                 return yaml.safe_load(text)
             except yaml.YAMLError as error:

@@ -549,6 +549,8 @@ log.console = false
         self._require_installation()
         deadline = time.monotonic() + timeout
         with self._lock(timeout):
+            # a database made by this start has no queues yet, let alone leaderless ones
+            had_database = any((self.base_dir / "mnesia").glob("*"))
             self._write_config()
             pid = self.pid()
             started = pid is None
@@ -557,7 +559,8 @@ log.console = false
             self._wait_ready(deadline, started)
             if started:
                 self._drop_guest()
-                self.heal_quorum_queues(deadline)
+                if had_database:
+                    self.heal_quorum_queues(deadline)
         return self.status()
 
     def heal_quorum_queues(self, deadline: float) -> int:
@@ -647,14 +650,16 @@ log.console = false
         """Belt and braces: a database made before fleetbus set default_user may have guest."""
         import httpx
 
+        from fleetbus.broker.management import tls_context
+
         _, management_url = self._urls()
         creds = self.admin_credentials()
         assert management_url is not None and creds is not None
         with contextlib.suppress(httpx.HTTPError):
             url = management_url.rstrip("/") + "/api/users/guest"
-            if httpx.get(url, auth=creds, timeout=5).status_code == 200:
+            if httpx.get(url, auth=creds, timeout=5, verify=tls_context()).status_code == 200:
                 log.warning("deleting the guest account of the private node")
-                httpx.delete(url, auth=creds, timeout=5)
+                httpx.delete(url, auth=creds, timeout=5, verify=tls_context())
 
     def _reap(self) -> None:
         if self._proc is not None:

@@ -19,6 +19,22 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
+def wait_until_serving(server: subprocess.Popen[bytes], base: str, log: str) -> None:
+    """Until `fleetbus api` at ``base`` answers ``GET /health`` (one HTTP client for every try:
+    each new one loads the TLS certificates); fail if it exits first."""
+    with httpx.Client(base_url=base, timeout=2) as http:
+
+        def healthy() -> bool:
+            if server.poll() is not None:
+                raise AssertionError(f"`fleetbus api` exited with {server.returncode}: see {log}")
+            try:
+                return http.get("/health").status_code == 200
+            except httpx.HTTPError:
+                return False
+
+        wait_for(healthy, timeout=60, what="the API answering")
+
+
 @contextmanager
 def api_server(bus: Bus, admin: str, password: str, **settings: str) -> Iterator[str]:
     """`fleetbus api` served by uvicorn in its own process on the bus (as administrator), with
@@ -49,17 +65,8 @@ def api_process(
     log = open(bus.settings.data_dir / f"api-{port}.log", "wb")
     server = subprocess.Popen([*fleetbus, "--port", str(port)], env=env, stdout=log, stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"
-
-    def healthy() -> bool:
-        if server.poll() is not None:
-            raise AssertionError(f"`fleetbus api` exited with {server.returncode}: see {log.name}")
-        try:
-            return httpx.get(f"{base}/health", timeout=2).status_code == 200
-        except httpx.HTTPError:
-            return False
-
     try:
-        wait_for(healthy, timeout=60, what="the API answering")
+        wait_until_serving(server, base, log.name)
         yield base, server
     finally:
         server.terminate()

@@ -13,8 +13,8 @@ import pytest
 from typer.testing import CliRunner
 
 from fleetbus.cli import app
-from tests.api.server import free_port
-from tests.support import Bus, wait_for
+from tests.api.server import free_port, wait_until_serving
+from tests.support import Bus
 
 PASSWORD = "first admin password"
 
@@ -51,14 +51,7 @@ def test_create_admin_serve_and_log_in_from_the_shell(bus: Bus, env: dict[str, s
     )
     base = f"http://127.0.0.1:{port}"
     try:
-
-        def healthy() -> bool:
-            try:
-                return httpx.get(f"{base}/health", timeout=2).status_code == 200
-            except httpx.HTTPError:
-                return False
-
-        wait_for(healthy, timeout=60, what="the API answering")
+        wait_until_serving(server, base, log.name)
         token = httpx.post(f"{base}/auth/token", data={"username": "admin", "password": PASSWORD}).json()[
             "access_token"
         ]
