@@ -185,6 +185,18 @@ async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[s
     return Watched(dashboards, start, end, resident)
 
 
+async def received_between(repos: Repositories, start: float, end: float) -> list[EventRecord]:
+    """The events received from ``start`` to ``end`` (``time.time()``), read a page at a time."""
+    found: dict[tuple[str, str, int], EventRecord] = {}
+    since, until = datetime.fromtimestamp(start, timezone.utc), datetime.fromtimestamp(end, timezone.utc)
+    while True:
+        page = await repos.events.events_received_since(since, WRITE_BATCH)
+        found.update((record.key, record) for record in page if record.received_at <= until)
+        if len(page) < WRITE_BATCH or page[-1].received_at >= until or page[-1].received_at == since:
+            return list(found.values())
+        since = page[-1].received_at
+
+
 def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
     """The live and reconnects parts, on one team."""
     with context.bus() as bus:
@@ -197,12 +209,7 @@ def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
         ):
             context.show(f"{args.robots} robots publishing")
             watched = asyncio.run(watch(base, api.pid, args, context.show))
-        stored = bus.with_store(
-            lambda repos: repos.events.events_received_since(
-                datetime.fromtimestamp(watched.start, timezone.utc), 10_000_000
-            )
-        )
-    measured = [r for r in stored if r.received_at.timestamp() <= watched.end]
+        measured = bus.with_store(lambda repos: received_between(repos, watched.start, watched.end))
     latencies: list[float] = []
     missing = 0
     for record in measured:
