@@ -39,10 +39,10 @@ class ManagementAPI:
         )
 
     @classmethod
-    def from_urls(cls, management_url: str, amqp_url: str) -> ManagementAPI:
+    def from_urls(cls, management_url: str, amqp_url: str, timeout: float = 15.0) -> ManagementAPI:
         """Use the credentials of an AMQP URL (the administrator's) against the HTTP API."""
         parts = urlsplit(amqp_url)
-        return cls(management_url, parts.username or "", parts.password or "")
+        return cls(management_url, parts.username or "", parts.password or "", timeout)
 
     def close(self) -> None:
         self._client.close()

@@ -5,8 +5,9 @@
 A private demo on this checkout's broker node: `fleetbus demo`'s team (an explorer, two wardens
 and a guide: hazards held until the wardens localised, then announced, claimed and cleared; a
 map; beacons) in a virtual host and a store of its own (a temporary folder), then a few steps
-more through the service: hazards left claimed and reached, two missions (one in progress), a
-user of each role. The console (`fleetbus api`'s app) is served on that store; headless chromium
+more: the robots connected again with a status each, a message the worker refuses, hazards left
+claimed and reached, two missions (one in progress), a user of each role; the worker and the
+recorder run meanwhile. The console (`fleetbus api`'s app) is served on that store; headless chromium
 (as in the browser tests) logs in as an administrator and saves the login form and each page of
 ``sitemap.PAGES`` (pages added later are included), 1280 pixels wide and up to 1,600 tall.
 """
@@ -22,17 +23,18 @@ from pathlib import Path
 from rich.console import Console
 
 from fleetbus.api.console.sitemap import PAGES
-from fleetbus.broker.accounts import with_vhost
+from fleetbus.broker.accounts import Role, with_vhost
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.cli.context import endpoint as resolved_broker
-from fleetbus.dev.demo import DEMO_VHOST, WARDENS, run_demo
+from fleetbus.dev.demo import DEMO_VHOST, TEAM, WARDENS, demo_status, run_demo
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.settings import load_settings
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
 from tests.console.support import Browser, running_console, start_chromium
 from tests.console.support import Console as RunningConsole
-from tests.support import Bus
+from tests.support import Bus, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 WIDTH = 1280
@@ -44,6 +46,17 @@ SURVEY = {
     "itinerary": [{"action": "sweep the lab", "point_of_interest": "lab"}],
 }
 console = Console()
+
+
+def back_online(bus: Bus) -> None:
+    """The demo's robots connected again (run_demo removes their accounts when it ends), each with
+    a status, and one message the worker must refuse (a dead letter)."""
+    for i, (name, kind) in enumerate(TEAM):
+        account = bus.add(name, Role.ROBOT, kind)
+        bus.robot(account).publish(EventType.STATUS, demo_status(10 + 25 * i))
+        if kind is RobotKind.EXPLORER:
+            bus.publish_raw(account, f"{name}.status", b'{"robot_id": "not a valid event"}')
+    wait_for(lambda: bus.dead_letters(), what="the refused message dead-lettered")
 
 
 def stage(running: RunningConsole) -> None:
@@ -123,11 +136,15 @@ def main() -> None:
             management_url=endpoint.management_url,
         )
         with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
+            bus = Bus(endpoint, api, DEMO_VHOST, store)
             try:
-                with running_console(Bus(endpoint, api, DEMO_VHOST, store)) as running:
+                with bus.worker(), bus.recorder(), running_console(bus) as running:
+                    back_online(bus)
                     stage(running)
                     screenshots(running, args.out, args.width)
             finally:
+                bus.close_robots()
+                bus.remove_accounts()
                 api.delete_vhost(DEMO_VHOST)
 
 

@@ -51,6 +51,9 @@ class Batch:
 
     events: list[EventRecord]
     cursor: str
+    rendered: dict[int, tuple[object, list[str]]] = field(default_factory=dict, compare=False, repr=False)
+    """What each live view made of ``events`` (by the view's id, the view kept with it), so that
+    a view's open pages render a batch once between them (:func:`.live.events_of`)."""
 
 
 @dataclass(eq=False)

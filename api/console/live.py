@@ -42,7 +42,8 @@ class LiveView(Protocol):
         ...
 
     async def events(self, records: list[EventRecord]) -> list[str]:
-        """The fragments ``records`` add to the page (a row each, say); may be none."""
+        """The fragments ``records`` add to the page (a row each, say); may be none. A batch is
+        rendered once for all the view's open pages: they must not depend on who looks."""
         ...
 
 
@@ -84,9 +85,18 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
             batch: Batch | None = await subscription.queue.get()
             if batch is None:  # dropped for falling behind: the browser reconnects and catches up
                 return
-            news = [*await view.events(batch.events), *changed(await view.snapshot())]
+            news = [*await events_of(view, batch), *changed(await view.snapshot())]
             if news:
                 yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
+
+
+async def events_of(view: LiveView, batch: Batch) -> list[str]:
+    """``view``'s fragments for the batch's events, rendered once for all the view's open pages
+    (a view's fragments depend on the events alone, not on who looks)."""
+    done = batch.rendered.get(id(view))
+    if done is None:
+        done = batch.rendered[id(view)] = (view, await view.events(batch.events))
+    return done[1]
 
 
 def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResponse:

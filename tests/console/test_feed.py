@@ -100,11 +100,14 @@ class RowsView:
 
     def __init__(self) -> None:
         self.snapshot = Shared(self._render, interval=3600)
+        self.rendered: list[int] = []
+        """The events rendered, in order."""
 
     async def _render(self) -> list[str]:
         return ['<section id="state">the state</section>']
 
     async def events(self, records: list[EventRecord]) -> list[str]:
+        self.rendered += [record.seq for record in records]
         return [f'<tr id="event-{record.seq}"><td>{record.seq}</td></tr>' for record in records]
 
 
@@ -151,3 +154,21 @@ async def test_a_replay_leaves_the_snapshot_other_pages_are_shown_as_it_was(stor
     assert json.loads(first.data) == [*shown, '<tr id="event-0"><td>0</td></tr>'], "the page's replay"
     # the next page rendered within the interval is given the same snapshot, not the replay's rows
     assert await view.snapshot() == shown == ['<section id="state">the state</section>']
+
+
+async def test_a_batch_is_rendered_once_for_every_open_page_of_a_view(store: Repositories) -> None:  # noqa: F811
+    view = RowsView()
+    opened = Request({"type": "http", "headers": [], "query_string": b""})
+    async with running(Feed(store.events, poll_s=0.01)) as feed:
+        pages = [_fragments(view, feed, opened) for _ in range(3)]
+        try:
+            for page in pages:
+                assert (await anext(page)).event == FRAGMENT_EVENT  # subscribed, the state sent
+            await store.events.write_events([received(0, datetime.now(timezone.utc))])
+            async with asyncio.timeout(DEADLINE_S):
+                for page in pages:
+                    assert '<tr id="event-0"><td>0</td></tr>' in json.loads((await anext(page)).data)
+        finally:
+            for page in pages:
+                await page.aclose()
+    assert view.rendered == [0], "three pages, one render"
