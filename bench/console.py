@@ -197,6 +197,11 @@ async def received_between(repos: Repositories, start: float, end: float) -> lis
         since = page[-1].received_at
 
 
+def console_settings(args: argparse.Namespace) -> dict[str, str]:
+    """The settings `fleetbus api` is given beyond the bus's own."""
+    return {} if args.poll_s is None else {"FLEETBUS_CONSOLE_POLL_S": str(args.poll_s)}
+
+
 def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
     """The live and reconnects parts, on one team."""
     with context.bus() as bus:
@@ -204,7 +209,7 @@ def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
         urls = [bus.add(robot_name(i), kind=RobotKind.EXPLORER).amqp_url for i in range(args.robots)]
         with (
             worker_process(bus, "--no-recorder"),
-            api_process(bus, ADMIN, PASSWORD) as (base, api),
+            api_process(bus, ADMIN, PASSWORD, **console_settings(args)) as (base, api),
             TelemetryLoad(bus, urls, 2 * args.robots, pose=True) as load,
         ):
             context.show(f"{args.robots} robots publishing")
@@ -375,6 +380,9 @@ def main() -> None:
     parser.add_argument("--hazards", type=int, default=10_000, help="hazards in the store for the renders")
     parser.add_argument("--messages", type=int, default=1_000_000, help="events and recorded messages")
     parser.add_argument("--renders", type=int, default=50, help="fetches of each page")
+    parser.add_argument(
+        "--poll-s", type=float, help="the console's FLEETBUS_CONSOLE_POLL_S (default: the setting's own)"
+    )
     parser.add_argument("--skip", choices=("live", "renders"), help="leave out one part")
     parser.add_argument("--out", type=Path, default=Path("bench/results"))
     args = parser.parse_args()
