@@ -14,7 +14,8 @@ through the console's own form.
   live        for --seconds, --dashboards open dashboards note when each event's row arrives. The
               latency runs from the event's ``received_at`` (the worker's stamp, read back from the
               store) to its row's arrival at a dashboard: median and p95 over every (dashboard,
-              event) pair (target: p95 under 200 ms), and rows that never arrived.
+              event) pair (target: p95 under 200 ms), rows that never arrived, and the console
+              process's CPU time meanwhile.
   reconnects  the robots and dashboards going on, one more dashboard's stream opened --reconnects
               times, each sending the Last-Event-ID of the one before (so each is replayed what it
               missed from the store) and dropped after its first event; the console process's
@@ -50,7 +51,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from bench.ingest import status_body
-from bench.proc import rss_megabytes
+from bench.proc import cpu_seconds, rss_megabytes
 from bench.processes import worker_process
 from bench.replay import write_recording
 from bench.report import load_average
@@ -158,6 +159,8 @@ class Watched:
     dashboards: list[Dashboard]
     start: float
     end: float
+    console_cpu: float
+    """The console process's CPU time over the live part, in % of one core."""
     resident: list[float]
 
 
@@ -171,10 +174,11 @@ async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[s
             for dashboard in dashboards:
                 await dashboard.opened.wait()
         await asyncio.sleep(2)  # past the first batches after opening: the measurement's start
-        start = time.time()
+        start, cpu = time.time(), cpu_seconds(pid)
         show(f"{args.dashboards} dashboards open for {args.seconds:g} s")
         await asyncio.sleep(args.seconds)
         end = time.time()
+        console_cpu = 100 * (cpu_seconds(pid) - cpu) / (end - start)
         await asyncio.sleep(3)  # the rows of the last events measured are on their way
         resident = await reconnections(client, pid, args.reconnects, show)
     finally:
@@ -182,7 +186,7 @@ async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[s
             follower.cancel()
         await asyncio.gather(*followers, return_exceptions=True)
         await client.aclose()
-    return Watched(dashboards, start, end, resident)
+    return Watched(dashboards, start, end, console_cpu, resident)
 
 
 async def received_between(repos: Repositories, start: float, end: float) -> list[EventRecord]:
@@ -240,6 +244,7 @@ def live_figures(rate: float, measured: list[EventRecord], watched: Watched) -> 
         "event to dashboard max ms": max(latencies),
         "rows never shown": missing,
         "dashboard streams cut": sum(d.cuts for d in watched.dashboards),
+        "console CPU % of a core": watched.console_cpu,
         "console RSS MB, first reconnection": resident[0],
         "console RSS MB, last reconnection": resident[-1],
         "console RSS MB, highest": max(resident),
