@@ -14,7 +14,8 @@ through the console's own form.
   live        for --seconds, --dashboards open dashboards note when each event's row arrives. The
               latency runs from the event's ``received_at`` (the worker's stamp, read back from the
               store) to its row's arrival at a dashboard: median and p95 over every (dashboard,
-              event) pair (target: p95 under 200 ms), and rows that never arrived.
+              event) pair (target: p95 under 200 ms), rows that never arrived, and the console
+              process's CPU time meanwhile.
   reconnects  the robots and dashboards going on, one more dashboard's stream opened --reconnects
               times, each sending the Last-Event-ID of the one before (so each is replayed what it
               missed from the store) and dropped after its first event; the console process's
@@ -50,7 +51,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from bench.ingest import status_body
-from bench.proc import rss_megabytes
+from bench.proc import cpu_seconds, rss_megabytes
 from bench.processes import worker_process
 from bench.replay import write_recording
 from bench.report import load_average
@@ -158,6 +159,8 @@ class Watched:
     dashboards: list[Dashboard]
     start: float
     end: float
+    console_cpu: float
+    """The console process's CPU time over the live part, in % of one core."""
     resident: list[float]
 
 
@@ -171,10 +174,11 @@ async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[s
             for dashboard in dashboards:
                 await dashboard.opened.wait()
         await asyncio.sleep(2)  # past the first batches after opening: the measurement's start
-        start = time.time()
+        start, cpu = time.time(), cpu_seconds(pid)
         show(f"{args.dashboards} dashboards open for {args.seconds:g} s")
         await asyncio.sleep(args.seconds)
         end = time.time()
+        console_cpu = 100 * (cpu_seconds(pid) - cpu) / (end - start)
         await asyncio.sleep(3)  # the rows of the last events measured are on their way
         resident = await reconnections(client, pid, args.reconnects, show)
     finally:
@@ -182,7 +186,7 @@ async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[s
             follower.cancel()
         await asyncio.gather(*followers, return_exceptions=True)
         await client.aclose()
-    return Watched(dashboards, start, end, resident)
+    return Watched(dashboards, start, end, console_cpu, resident)
 
 
 async def received_between(repos: Repositories, start: float, end: float) -> list[EventRecord]:
@@ -197,6 +201,11 @@ async def received_between(repos: Repositories, start: float, end: float) -> lis
         since = page[-1].received_at
 
 
+def console_settings(args: argparse.Namespace) -> dict[str, str]:
+    """The settings `fleetbus api` is given beyond the bus's own."""
+    return {} if args.poll_s is None else {"FLEETBUS_CONSOLE_POLL_S": str(args.poll_s)}
+
+
 def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
     """The live and reconnects parts, on one team."""
     with context.bus() as bus:
@@ -204,7 +213,7 @@ def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
         urls = [bus.add(robot_name(i), kind=RobotKind.EXPLORER).amqp_url for i in range(args.robots)]
         with (
             worker_process(bus, "--no-recorder"),
-            api_process(bus, ADMIN, PASSWORD) as (base, api),
+            api_process(bus, ADMIN, PASSWORD, **console_settings(args)) as (base, api),
             TelemetryLoad(bus, urls, 2 * args.robots, pose=True) as load,
         ):
             context.show(f"{args.robots} robots publishing")
@@ -235,6 +244,7 @@ def live_figures(rate: float, measured: list[EventRecord], watched: Watched) -> 
         "event to dashboard max ms": max(latencies),
         "rows never shown": missing,
         "dashboard streams cut": sum(d.cuts for d in watched.dashboards),
+        "console CPU % of a core": watched.console_cpu,
         "console RSS MB, first reconnection": resident[0],
         "console RSS MB, last reconnection": resident[-1],
         "console RSS MB, highest": max(resident),
@@ -375,6 +385,9 @@ def main() -> None:
     parser.add_argument("--hazards", type=int, default=10_000, help="hazards in the store for the renders")
     parser.add_argument("--messages", type=int, default=1_000_000, help="events and recorded messages")
     parser.add_argument("--renders", type=int, default=50, help="fetches of each page")
+    parser.add_argument(
+        "--poll-s", type=float, help="the console's FLEETBUS_CONSOLE_POLL_S (default: the setting's own)"
+    )
     parser.add_argument("--skip", choices=("live", "renders"), help="leave out one part")
     parser.add_argument("--out", type=Path, default=Path("bench/results"))
     args = parser.parse_args()
