@@ -282,7 +282,7 @@ class IngestConsumer:
         accepted: list[Accepted] = []
         for (message, item), result in zip(candidates, results, strict=True):
             record = item.record
-            if not result.inserted and result.stored_message_id != record.message_id:
+            if not result.inserted and not result.pruned and result.stored_message_id != record.message_id:
                 # Each client start numbers in an epoch of its own, so only a client that is not
                 # fleetbus's (or a bug) can send one number twice with two messages.
                 detail = (

@@ -157,3 +157,26 @@ async def test_two_lanes_observing_one_robot_at_once_leave_the_ledger_one_lane_w
         assert await store.events.high_water("explorer1", EPOCH) == 199
     finally:
         await other.close()
+
+
+async def test_a_resend_of_a_pruned_event_is_a_duplicate_not_a_second_copy(store: Repositories) -> None:
+    statuses = [record(seq=seq, type="status", at=T0 + timedelta(seconds=seq)) for seq in range(4)]
+    await store.events.store_batch(statuses, T0)
+    assert await store.housekeeping.prune_events("status", None, 1, 10) == 3  # seq 0-2 pruned
+
+    gap_filler = record(seq=9, type="status")
+    stored = await store.events.store_batch([statuses[0], statuses[3], gap_filler, record(seq=6)], T1)
+
+    assert [(r.inserted, r.stored_message_id, r.pruned) for r in stored.results] == [
+        (False, None, True),
+        (False, statuses[3].message_id, False),
+        (True, None, False),
+        (True, None, False),
+    ]
+    assert sorted(r.seq for r in await store.events.find_events(EventQuery())) == [3, 6, 9]
+    # a number in an open gap (4, 5, 7, 8) was never seen: it is stored when it comes
+    late = await store.events.store_batch([record(seq=5, type="status")], T1)
+    assert late.results[0].inserted and spans(await store.events.gaps()) == [
+        ("explorer1", EPOCH, 4, 4),
+        ("explorer1", EPOCH, 7, 8),
+    ]

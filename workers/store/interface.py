@@ -42,12 +42,22 @@ def stamp_missions(records: Sequence[EventRecord], missions: dict[str, str]) -> 
     ]
 
 
+def numbers_of(records: Sequence[EventRecord]) -> dict[RobotEpoch, list[int]]:
+    """The records' sequence numbers by robot and epoch."""
+    numbers: dict[RobotEpoch, list[int]] = {}
+    for record in records:
+        numbers.setdefault(RobotEpoch(record.robot_id, record.epoch), []).append(record.seq)
+    return numbers
+
+
 def held_sequences(
     records: Sequence[EventRecord], results: Sequence[WriteResult]
 ) -> dict[RobotEpoch, list[int]]:
     """By robot and epoch, the numbers whose events the store holds after a write (not the reused ones)."""
-    held: dict[RobotEpoch, list[int]] = {}
-    for record, result in zip(records, results, strict=True):
-        if result.inserted or result.stored_message_id == record.message_id:
-            held.setdefault(RobotEpoch(record.robot_id, record.epoch), []).append(record.seq)
-    return held
+    return numbers_of(
+        [
+            record
+            for record, result in zip(records, results, strict=True)
+            if result.inserted or result.stored_message_id == record.message_id
+        ]
+    )

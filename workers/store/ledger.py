@@ -85,6 +85,18 @@ def apply_seqs(
     return LedgerChange(hw, gaps, list(touched))
 
 
+def seen_numbers(high_water: int | None, gaps: Iterable[Gap], seqs: Iterable[int]) -> set[int]:
+    """Of ``seqs``, the numbers the ledger has observed: at or below the high-water mark and in no
+    gap. An event pruned from the log stays observed here, which is what keeps a late resend of it
+    from being stored again."""
+    if high_water is None:
+        return set()
+    holes = list(gaps)
+    return {
+        seq for seq in seqs if seq <= high_water and not any(gap.first <= seq <= gap.last for gap in holes)
+    }
+
+
 class SequenceLedger(abc.ABC):
     @abc.abstractmethod
     async def observe_sequences(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:

@@ -24,7 +24,7 @@ from fleetbus.workers.store.base import (
     to_micros,
 )
 from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.interface import StoredBatch, store_in_turn
+from fleetbus.workers.store.interface import StoredBatch, numbers_of, store_in_turn
 from fleetbus.workers.store.mongo_attempts import MongoAttempts
 from fleetbus.workers.store.mongo_channels import MongoChannels
 from fleetbus.workers.store.mongo_coordination import MongoBeacons, MongoCoordination
@@ -137,6 +137,13 @@ def mongo_repositories(
     )
 
 
+def _result(key: str, stored: dict[str, str]) -> WriteResult:
+    """The result of a record not inserted: its key taken, or its number seen and pruned."""
+    if key in stored:
+        return WriteResult(inserted=False, stored_message_id=stored[key])
+    return WriteResult(inserted=False, pruned=True)
+
+
 @translate_unavailable(EventLog)
 class MongoEventLog(MongoLedger, EventLog):
     """The event log and its sequence ledger; the system of record for validated events. A batch
@@ -164,12 +171,17 @@ class MongoEventLog(MongoLedger, EventLog):
         return await store_in_turn(self, self._channels, records, at)
 
     async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
+        """Insert each record unless its key is taken or the ledger has seen its number (its event
+        pruned since)."""
         if not records:
             return []
+        seen = await self._observed(numbers_of(records))
         documents = [to_document(record) for record in records]
-        duplicates: set[int] = set()
+        taken = {index for index, record in enumerate(records) if record.key in seen}
+        fresh = [index for index in range(len(documents)) if index not in taken]
         try:
-            await self._events().insert_many(documents, ordered=False)
+            if fresh:
+                await self._events().insert_many([documents[index] for index in fresh], ordered=False)
         except BulkWriteError as error:
             errors = error.details.get("writeErrors", [])
             if any(e.get("code") != DUPLICATE_KEY for e in errors):
@@ -181,22 +193,20 @@ class MongoEventLog(MongoLedger, EventLog):
                     f"MongoDB at {self._safe_url()}: write concern not met: "
                     f"{error.details['writeConcernErrors']}"
                 ) from error
-            duplicates = {e["index"] for e in errors}
+            # a key repeated inside the batch: MongoDB inserts the first copy and reports the others
+            taken.update(fresh[e["index"]] for e in errors)
         except PyMongoError as error:
             raise_as_store_error(error, self._safe_url())
-        # a key repeated inside the batch: MongoDB inserts the first copy and reports the others
         stored: dict[str, str] = {}
-        if duplicates:
-            ids = [documents[index]["_id"] for index in duplicates]
+        if taken:
             try:
+                ids = list({documents[index]["_id"] for index in taken})
                 cursor = self._events().find({"_id": {"$in": ids}}, {"message_id": 1})
                 stored = {doc["_id"]: doc["message_id"] async for doc in cursor}
             except PyMongoError as error:
                 raise_as_store_error(error, self._safe_url())
         return [
-            WriteResult(inserted=True)
-            if index not in duplicates
-            else WriteResult(inserted=False, stored_message_id=stored.get(documents[index]["_id"]))
+            _result(documents[index]["_id"], stored) if index in taken else WriteResult(inserted=True)
             for index in range(len(documents))
         ]
 

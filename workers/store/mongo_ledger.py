@@ -18,7 +18,14 @@ from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import DuplicateKeyError
 
 from fleetbus.workers.store.base import from_micros, to_micros
-from fleetbus.workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
+from fleetbus.workers.store.ledger import (
+    Duplicate,
+    Gap,
+    RobotEpoch,
+    SequenceLedger,
+    apply_seqs,
+    seen_numbers,
+)
 from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 
 
@@ -54,6 +61,19 @@ class MongoLedger(OnMongo, SequenceLedger):
             {"_id": numbering_id(RobotEpoch(robot_id, epoch))}
         )
         return doc["high_water"] if doc else None
+
+    async def _observed(self, wanted: Mapping[RobotEpoch, Sequence[int]]) -> set[tuple[str, str, int]]:
+        """The (robot, epoch, seq) keys of ``wanted`` the ledger has seen."""
+        if not wanted:
+            return set()
+        ids = [numbering_id(RobotEpoch(*numbering)) for numbering in wanted]
+        docs = self._collection("robot_sequences").find({"_id": {"$in": ids}})
+        keys: set[tuple[str, str, int]] = set()
+        async for doc in docs:
+            numbering = RobotEpoch(doc["robot_id"], doc["epoch"])
+            seqs = wanted[numbering]
+            keys.update((*numbering, seq) for seq in seen_numbers(doc["high_water"], _gaps_of(doc), seqs))
+        return keys
 
     async def observe_sequences(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
         for numbering, seqs in seen.items():

@@ -22,7 +22,7 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
-from fleetbus.workers.store.interface import StoredBatch, held_sequences, stamp_missions
+from fleetbus.workers.store.interface import StoredBatch, held_sequences, numbers_of, stamp_missions
 from fleetbus.workers.store.repositories import EventLog, Repositories
 from fleetbus.workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
 from fleetbus.workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
@@ -32,7 +32,7 @@ from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transactio
 from fleetbus.workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from fleetbus.workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
 from fleetbus.workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
-from fleetbus.workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe
+from fleetbus.workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe, observed
 from fleetbus.workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from fleetbus.workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
 from fleetbus.workers.store.sqlite_rejections import REJECTION_SCHEMA, SQLiteRejections
@@ -96,17 +96,23 @@ def _row(record: EventRecord) -> tuple[Any, ...]:
 
 
 def _write(db: sqlite3.Connection, records: Sequence[EventRecord]) -> list[WriteResult]:
-    """Within the caller's transaction: insert each record unless its key is taken."""
+    """Within the caller's transaction: insert each record unless its key is taken or the ledger
+    has seen its number (its event pruned since)."""
+    seen = observed(db, numbers_of(records))
     results: list[WriteResult] = []
     for record in records:
         row = _row(record)
-        if db.execute(INSERT, row).rowcount == 1:
+        if record.key not in seen and db.execute(INSERT, row).rowcount == 1:
             results.append(WriteResult(inserted=True))
-        else:
-            stored = db.execute(
-                "SELECT message_id FROM events WHERE robot_id = ? AND epoch = ? AND seq = ?", row[:3]
-            ).fetchone()
-            results.append(WriteResult(inserted=False, stored_message_id=stored[0]))
+            continue
+        stored = db.execute(
+            "SELECT message_id FROM events WHERE robot_id = ? AND epoch = ? AND seq = ?", row[:3]
+        ).fetchone()
+        results.append(
+            WriteResult(inserted=False, stored_message_id=stored[0])
+            if stored
+            else WriteResult(inserted=False, pruned=True)
+        )
     return results
 
 

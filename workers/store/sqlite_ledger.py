@@ -10,7 +10,14 @@ from collections.abc import Mapping, Sequence
 from datetime import datetime
 
 from fleetbus.workers.store.base import from_micros, to_micros
-from fleetbus.workers.store.ledger import Duplicate, Gap, RobotEpoch, SequenceLedger, apply_seqs
+from fleetbus.workers.store.ledger import (
+    Duplicate,
+    Gap,
+    RobotEpoch,
+    SequenceLedger,
+    apply_seqs,
+    seen_numbers,
+)
 from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
 
 LEDGER_SCHEMA = """
@@ -51,6 +58,23 @@ def observe(db: sqlite3.Connection, seen: Mapping[RobotEpoch, Sequence[int]], at
     for numbering, seqs in seen.items():
         if seqs:
             _observe(db, RobotEpoch(*numbering), seqs, at)
+
+
+def observed(db: sqlite3.Connection, wanted: Mapping[RobotEpoch, Sequence[int]]) -> set[tuple[str, str, int]]:
+    """Within the caller's transaction: the (robot, epoch, seq) keys of ``wanted`` the ledger has seen."""
+    keys: set[tuple[str, str, int]] = set()
+    for numbering, seqs in wanted.items():
+        row = db.execute(
+            "SELECT high_water FROM robot_sequences WHERE robot_id = ? AND epoch = ?", numbering
+        ).fetchone()
+        if row is None or min(seqs) > row[0]:
+            continue
+        gaps = [
+            _gap(r)
+            for r in db.execute("SELECT * FROM sequence_gaps WHERE robot_id = ? AND epoch = ?", numbering)
+        ]
+        keys.update((*numbering, seq) for seq in seen_numbers(row[0], gaps, seqs))
+    return keys
 
 
 def _observe(db: sqlite3.Connection, numbering: RobotEpoch, seqs: Sequence[int], at: datetime) -> None:
