@@ -263,6 +263,9 @@ class Settings(BaseSettings):
     console_map_cleared: Annotated[int, Positive] = setting(
         50, "cleared hazards the live map shows (the last cleared)"
     )
+    console_map_hazards: Annotated[int, Positive] = setting(
+        300, "hazards of each open state the live map draws and lists (the newest); the rest are counted"
+    )
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import time
+from datetime import datetime, timedelta, timezone
 from typing import Any
 
 import httpx
@@ -16,7 +17,7 @@ from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.beacons import Beacon
 from fleetbus.workers.store.maps import MapVersion
-from tests.console.support import LIVE_WITHIN_S, Browser, Console, running_console
+from tests.console.support import LIVE_WITHIN_S, Browser, Console, http_session, running_console
 from tests.factories import hazard, small_map, status
 from tests.support import Bus, wait_for
 
@@ -164,3 +165,28 @@ def test_a_session_less_request_for_the_image_is_sent_to_log_in(bus: Bus) -> Non
     with running_console(bus) as console:
         away = httpx.get(console.url("/console/map/1.png"))
         assert away.status_code == 303 and away.headers["location"].startswith("/console/login")
+
+
+def test_the_map_and_the_dashboard_draw_the_newest_hazards_and_count_the_rest(bus: Bus) -> None:
+    settings = bus.settings.updated(console_map_hazards=2)
+    with running_console(bus, settings) as console:
+        console.user("oper1", UserRole.OPERATOR)
+        received = datetime.now(timezone.utc)
+
+        async def hazards(count: int) -> None:
+            store = console.service.repositories.hazards
+            for seq in range(count):
+                event = {"body": at(hazard(seq, description=f"hazard {seq + 1}"), INSIDE["x"], INSIDE["y"])}
+                when = received + timedelta(seconds=seq)
+                await store.add_hazard("default", "explorer1", "e", seq, event, when, held=False)
+
+        console.run(lambda: hazards(15))
+        with http_session(console, "oper1") as http:
+            page = http.get("/console/map").text
+            assert [f'id="map-hazard-default-{n}"' in page for n in (15, 14, 13)] == [True, True, False]
+            assert 'id="map-hazards-announced">15<' in page
+            assert "announced: the newest 2 of 15 drawn and listed" in page
+            dashboard = http.get("/console/").text
+            assert 'id="hazards-announced">15<' in dashboard and "and 3 more" in dashboard
+            assert 'id="dashboard-hazard-default-15"' in dashboard
+            assert 'id="dashboard-hazard-default-3"' not in dashboard, "the twelve newest are listed"

@@ -118,6 +118,9 @@ async def test_recent_hazards_are_every_hazard_newest_first_a_page_at_a_time(sto
     [oldest] = await store.hazards.recent_hazards(3, offset=3)
     assert (oldest.mission_id, oldest.hazard_id, oldest.state) == ("m1", 1, HazardState.CLEARED)
     assert await store.hazards.recent_hazards(3, offset=4) == []
+    announced = await store.hazards.recent_hazards(2, state=HazardState.ANNOUNCED)
+    assert [(h.mission_id, h.hazard_id) for h in announced] == [("m1", 3), ("m1", 2)]
+    assert await store.hazards.hazard_counts() == {HazardState.ANNOUNCED: 3, HazardState.CLEARED: 1}
 
 
 async def test_the_hazards_cleared_last_come_first_and_as_many_as_asked(store: Repositories) -> None:

@@ -260,9 +260,15 @@ class CoordinationStore(abc.ABC):
         """Hazards not cleared, in id order (``None``: of every mission, by mission then id)."""
 
     @abc.abstractmethod
-    async def recent_hazards(self, limit: int, offset: int = 0) -> list[Hazard]:
-        """Every hazard, cleared ones too, of every mission, newest first (by the time it was
-        received): ``limit`` of them after skipping the ``offset`` newest."""
+    async def recent_hazards(
+        self, limit: int, offset: int = 0, state: HazardState | None = None
+    ) -> list[Hazard]:
+        """Every hazard (or those in ``state``), cleared ones too, of every mission, newest first
+        (by the time it was received): ``limit`` of them after skipping the ``offset`` newest."""
+
+    @abc.abstractmethod
+    async def hazard_counts(self) -> dict[HazardState, int]:
+        """How many hazards are in each state, of every mission (a state with none is left out)."""
 
     @abc.abstractmethod
     async def cleared_hazards(self, limit: int) -> list[Hazard]:

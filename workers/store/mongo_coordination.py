@@ -79,6 +79,7 @@ class MongoCoordination(OnMongo, CoordinationStore):
             [("announced_at_us", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
         )
         await self._collection("hazards").create_index([("received_at_us", DESCENDING)])
+        await self._collection("hazards").create_index([("state", ASCENDING), ("received_at_us", DESCENDING)])
 
     async def register_robot(self, name: str, kind: str | None) -> None:
         await self._collection("robots").update_one(
@@ -229,10 +230,17 @@ class MongoCoordination(OnMongo, CoordinationStore):
         )
         return [_hazard(doc) async for doc in cursor]
 
-    async def recent_hazards(self, limit: int, offset: int = 0) -> list[Hazard]:
+    async def recent_hazards(
+        self, limit: int, offset: int = 0, state: HazardState | None = None
+    ) -> list[Hazard]:
         newest_first = [("received_at_us", DESCENDING), ("mission_id", DESCENDING), ("hazard_id", DESCENDING)]
-        cursor = self._collection("hazards").find({}).sort(newest_first).skip(offset).limit(limit)
+        query = {"state": state.value} if state is not None else {}
+        cursor = self._collection("hazards").find(query).sort(newest_first).skip(offset).limit(limit)
         return [_hazard(doc) async for doc in cursor]
+
+    async def hazard_counts(self) -> dict[HazardState, int]:
+        cursor = await self._collection("hazards").aggregate([{"$group": {"_id": "$state", "n": {"$sum": 1}}}])
+        return {HazardState(doc["_id"]): doc["n"] async for doc in cursor}
 
     async def cleared_hazards(self, limit: int) -> list[Hazard]:
         cursor = (

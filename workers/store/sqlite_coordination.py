@@ -60,6 +60,7 @@ CREATE TABLE IF NOT EXISTS hazards (
 CREATE INDEX IF NOT EXISTS hazards_state ON hazards (state, mission_id, hazard_id);
 CREATE INDEX IF NOT EXISTS hazards_unannounced ON hazards (mission_id, hazard_id) WHERE announced_at IS NULL;
 CREATE INDEX IF NOT EXISTS hazards_received ON hazards (received_at);
+CREATE INDEX IF NOT EXISTS hazards_state_received ON hazards (state, received_at);
 """
 
 
@@ -247,13 +248,21 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
         )
         return [_hazard(row) for row in rows]
 
-    async def recent_hazards(self, limit: int, offset: int = 0) -> list[Hazard]:
+    async def recent_hazards(
+        self, limit: int, offset: int = 0, state: HazardState | None = None
+    ) -> list[Hazard]:
+        where, params = (" WHERE state = ?", (state.value,)) if state is not None else ("", ())
         sql = (
-            "SELECT * FROM hazards ORDER BY received_at DESC, mission_id DESC, hazard_id DESC "
+            f"SELECT * FROM hazards{where} ORDER BY received_at DESC, mission_id DESC, hazard_id DESC "
             "LIMIT ? OFFSET ?"
         )
-        rows = await self._run(lambda db: db.execute(sql, (limit, offset)).fetchall())
+        rows = await self._run(lambda db: db.execute(sql, (*params, limit, offset)).fetchall())
         return [_hazard(row) for row in rows]
+
+    async def hazard_counts(self) -> dict[HazardState, int]:
+        sql = "SELECT state, count(*) FROM hazards GROUP BY state"
+        rows = await self._run(lambda db: db.execute(sql).fetchall())
+        return {HazardState(state): count for state, count in rows}
 
     async def cleared_hazards(self, limit: int) -> list[Hazard]:
         sql = (

@@ -2,7 +2,8 @@
 letters of the last hour, the newest events; live.
 
 What one refresh costs, whatever the number of open dashboards (they share it, :class:`Shared`)
-and of robots: four store reads (the team, the open hazards, the open sequence gaps, the mounts).
+and of robots: a few store reads (the team, the hazard counts and the newest of each state, the open
+sequence gaps, the mounts), bounded however many hazards are open.
 Each robot's last-seen time, battery and pose are kept in memory from the live feed
 (:mod:`..latest`), and the broker is polled in the background at most every
 ``console_broker_poll_s`` (:mod:`..broker_health`).
@@ -10,7 +11,7 @@ Each robot's last-seen time, battery and pose are kept in memory from the live f
 
 from __future__ import annotations
 
-from collections import Counter, defaultdict
+from collections import Counter
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Request
@@ -27,13 +28,14 @@ from fleetbus.api.service import Service
 from fleetbus.api.team import TeamView
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.store.base import EventQuery, EventRecord
-from fleetbus.workers.store.hazards import Hazard, HazardState
+from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState
 from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(DASHBOARD))]
 #: Hazard ids listed per state; the rest are counted.
 IDS_SHOWN = 12
+OPEN = [state for state in HazardState if state is not HazardState.CLEARED]
 #: Events that change the team or the hazards at once: shown without waiting for the next refresh.
 #: (Statuses come often; their batteries are in memory and show at the next refresh.)
 NEWS = frozenset({EventType.HAZARD.value, EventType.LOCALISATION.value})
@@ -48,11 +50,11 @@ async def team_view(service: Service, latest: Latest) -> TeamView:
     return view
 
 
-def by_state(hazards: list[Hazard]) -> dict[HazardState, list[Hazard]]:
-    grouped: dict[HazardState, list[Hazard]] = defaultdict(list)
-    for hazard in hazards:
-        grouped[hazard.state].append(hazard)
-    return grouped
+async def newest_by_state(
+    hazards: CoordinationStore, states: list[HazardState], limit: int
+) -> dict[HazardState, list[Hazard]]:
+    """The newest ``limit`` hazards of each state: bounded however many are open."""
+    return {state: await hazards.recent_hazards(limit, state=state) for state in states}
 
 
 class DashboardView:
@@ -69,7 +71,8 @@ class DashboardView:
     async def _render(self) -> list[str]:
         repositories = self._service.repositories
         team = await team_view(self._service, self._latest)
-        hazards = by_state(await repositories.hazards.open_hazards(None))
+        hazards = await newest_by_state(repositories.hazards, OPEN, IDS_SHOWN)
+        counts = await repositories.hazards.hazard_counts()
         gaps: Counter[str] = Counter()
         missing: Counter[str] = Counter()
         for gap in await repositories.events.gaps(None):
@@ -90,8 +93,9 @@ class DashboardView:
             ),
             fragment(
                 "dashboard/hazards.html",
-                states=[state for state in HazardState if state is not HazardState.CLEARED],
+                states=OPEN,
                 hazards=hazards,
+                counts=counts,
                 ids_shown=IDS_SHOWN,
             ),
             fragment("dashboard/dead_letters.html", count=dead_letters),

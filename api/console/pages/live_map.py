@@ -4,10 +4,11 @@ likely stranded; live.
 
 The markers are drawn in metres (:class:`~..map_image.Frame`), not in a version's pixels, so one
 rendering of them serves every open map whatever version it shows: N open maps cost one
-refresh of five store reads (the robots, the open hazards, the hazards cleared last, the beacons,
-the newest version), and at most every two seconds two more (the beacons again and the last ten
-minutes' sightings: where people are likely stranded). Choosing another version swaps the image and its frame
-(htmx); the markers stay.
+refresh of a few store reads (the robots, the hazard counts and the newest hazards of each
+state, the beacons, the newest version), bounded however many hazards there are, and at most
+every two seconds two more (the beacons again and the last ten minutes' sightings: where people
+are likely stranded). Choosing another version swaps the image and its frame (htmx); the
+markers stay.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from fastapi.responses import HTMLResponse, Response
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
 from fleetbus.api.console.map_image import ImageUnreadable, MapImages
-from fleetbus.api.console.pages.dashboard import by_state
+from fleetbus.api.console.pages.dashboard import OPEN, newest_by_state
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
@@ -81,11 +82,11 @@ class MapView:
         repositories = self._service.repositories
         robots = await repositories.hazards.robots()
         await self._latest.seed([robot.name for robot in robots])
-        hazards = [
-            *await repositories.hazards.open_hazards(None),
-            *await repositories.hazards.cleared_hazards(self._service.settings.console_map_cleared),
-        ]
-        grouped = by_state(hazards)
+        settings = self._service.settings
+        grouped = await newest_by_state(repositories.hazards, OPEN, settings.console_map_hazards)
+        cleared = await repositories.hazards.cleared_hazards(settings.console_map_cleared)
+        grouped[HazardState.CLEARED] = cleared
+        counts = await repositories.hazards.hazard_counts()
         beacons = await repositories.beacons.beacons()
         heard = await self._stranded()
         newest = await repositories.maps.map_version(None)
@@ -94,6 +95,7 @@ class MapView:
             "latest": self._latest,
             "states": list(HazardState),
             "hazards": grouped,
+            "counts": counts,
             "position": position,
             "beacons": beacons,
             "stranded": heard,
