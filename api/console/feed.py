@@ -6,8 +6,9 @@ store holds, so a browser that reconnects with the last event id it saw is sent,
 everything it missed.
 
 Workers write concurrently, so an event received a moment earlier may be committed a moment
-later than one already read. The reader therefore reads again from ``overlap`` before its cursor
-and skips the keys it already handed out (a bounded set). Fragments are keyed by the event, so a
+later than one already read. The reader therefore looks again from ``overlap`` before its cursor,
+at the keys only (an index read), and reads the events from the oldest key it has not handed out
+yet (a bounded set of keys), usually just the new ones. Fragments are keyed by the event, so a
 browser shown an event twice shows it once. An event whose write was held up for longer than
 ``overlap`` (the store was down and the worker retried) is not streamed: pages show it when
 they are next loaded.
@@ -108,7 +109,9 @@ class Feed:
 
     async def _read(self) -> list[EventRecord]:
         fresh: list[EventRecord] = []
-        since = self._cursor - self.overlap
+        since = await self._first_unseen(self._cursor - self.overlap)
+        if since is None:
+            return fresh
         while True:
             found = await self.events.events_received_since(since, self.batch_limit)
             for record in found:
@@ -119,6 +122,17 @@ class Feed:
             if len(found) < self.batch_limit or found[-1].received_at == since:
                 return fresh
             since = found[-1].received_at  # a full page: read on from where it ended
+
+    async def _first_unseen(self, since: datetime) -> datetime | None:
+        """When the first event received since ``since`` not handed out yet was received."""
+        while True:
+            keys = await self.events.keys_received_since(since, self.batch_limit)
+            for received in keys:
+                if received.key not in self._seen:
+                    return received.received_at
+            if len(keys) < self.batch_limit or keys[-1].received_at == since:
+                return None
+            since = keys[-1].received_at
 
     def _remember(self, key: tuple[str, str, int]) -> None:
         self._seen[key] = None

@@ -210,3 +210,6 @@ async def test_events_received_since_follow_the_order_they_were_received(store: 
     assert [r.key for r in found] == [first.key, other.key, late.key]
     assert [r.key for r in await store.events.events_received_since(T0, limit=1)] == [first.key]
     assert await store.events.events_received_since(T0 + timedelta(seconds=3), limit=10) == []
+    keys = await store.events.keys_received_since(T0 + timedelta(seconds=1), limit=10)
+    assert keys == [(r.key, r.received_at) for r in found], "the same, without the events"
+    assert await store.events.keys_received_since(T0 + timedelta(seconds=3), limit=10) == []

@@ -12,7 +12,7 @@ import abc
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Any
+from typing import Any, NamedTuple
 
 
 def to_micros(moment: datetime) -> int:
@@ -55,6 +55,12 @@ class EventRecord:
     @property
     def key(self) -> tuple[str, str, int]:
         return (self.robot_id, self.epoch, self.seq)
+
+
+class Received(NamedTuple):
+    key: tuple[str, str, int]
+    """(robot_id, epoch, seq)"""
+    received_at: datetime
 
 
 @dataclass(frozen=True)
@@ -102,6 +108,11 @@ class EventStore(abc.ABC):
 
     @abc.abstractmethod
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int: ...
+
+    @abc.abstractmethod
+    async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
+        """What :meth:`events_received_since` finds, without the events: only their keys and
+        receive times, from the index (the console's feed reads its overlap this way, cheaply)."""
 
     @abc.abstractmethod
     async def events_received_since(self, since: datetime, limit: int) -> list[EventRecord]:

@@ -18,6 +18,7 @@ from pymongo.errors import BulkWriteError, PyMongoError
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
+    Received,
     StoreUnavailable,
     WriteResult,
     from_micros,
@@ -244,11 +245,24 @@ class MongoEventLog(MongoLedger, EventLog):
         except PyMongoError as error:
             raise_as_store_error(error, self._safe_url())
 
-    async def events_received_since(self, since: datetime, limit: int) -> list[EventRecord]:
-        keys = [(name, ASCENDING) for name in ("received_at_us", "robot_id", "epoch", "seq")]
-        cursor = self._events().find({"received_at_us": {"$gte": to_micros(since)}}).sort(keys).limit(limit)
+    def _received_since(self, since: datetime, limit: int, fields: list[str] | None = None) -> Any:
+        order = [(name, ASCENDING) for name in ("received_at_us", "robot_id", "epoch", "seq")]
+        found = self._events().find({"received_at_us": {"$gte": to_micros(since)}}, fields)
+        return found.sort(order).limit(limit)
+
+    async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
+        fields = ["robot_id", "epoch", "seq", "received_at_us"]
         try:
-            return [from_document(doc) async for doc in cursor]
+            return [
+                Received((doc["robot_id"], doc["epoch"], doc["seq"]), from_micros(doc["received_at_us"]))
+                async for doc in self._received_since(since, limit, fields)
+            ]
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
+
+    async def events_received_since(self, since: datetime, limit: int) -> list[EventRecord]:
+        try:
+            return [from_document(doc) async for doc in self._received_since(since, limit)]
         except PyMongoError as error:
             raise_as_store_error(error, self._safe_url())
 

@@ -239,7 +239,8 @@ class MongoCoordination(OnMongo, CoordinationStore):
         return [_hazard(doc) async for doc in cursor]
 
     async def hazard_counts(self) -> dict[HazardState, int]:
-        cursor = await self._collection("hazards").aggregate([{"$group": {"_id": "$state", "n": {"$sum": 1}}}])
+        by_state = [{"$group": {"_id": "$state", "n": {"$sum": 1}}}]
+        cursor = await self._collection("hazards").aggregate(by_state)
         return {HazardState(doc["_id"]): doc["n"] async for doc in cursor}
 
     async def cleared_hazards(self, limit: int) -> list[Hazard]:
