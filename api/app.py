@@ -21,7 +21,7 @@ from fleetbus.api.auth import RoleCheck
 from fleetbus.api.console.feed import running_feed
 from fleetbus.api.console.router import install_console
 from fleetbus.api.errors import ServiceRefusal
-from fleetbus.api.routes import auth, beacons, channels, missions, recording, team, users
+from fleetbus.api.routes import auth, beacons, channels, hazards, missions, recording, team, users
 from fleetbus.api.service import open_service
 from fleetbus.schemas.roles import UserRole
 from fleetbus.settings import Settings
@@ -78,6 +78,7 @@ def create_app(settings: Settings, admin_url: str, management_url: str) -> FastA
         beacons.router,
         recording.router,
         team.router,
+        hazards.router,
     ):
         app.include_router(document_roles(router))
 

@@ -17,6 +17,7 @@ from fleetbus.schemas.use_cases import MissionMachine, machine_for
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.channels import ChannelChange, CheckIn, Mount
 from fleetbus.workers.store.discards import Discard, DiscardCount
+from fleetbus.workers.store.hazards import Hazard
 from fleetbus.workers.store.missions import Mission, StateChange
 from fleetbus.workers.store.users import User
 from fleetbus.workers.team import TeamMember
@@ -327,3 +328,34 @@ class TeamOut(BaseModel):
                 open=view.gate.open, announces_to=view.gate.wardens, closed_because=view.closed_because
             ),
         )
+
+
+class HazardOut(BaseModel):
+    mission_id: str
+    hazard_id: int
+    state: str = Field(description="held, announced, claimed, reached or cleared")
+    robot_id: str = Field(description="the robot that detected it")
+    description: str
+    received_at: datetime
+    announced_at: datetime | None
+    claimed_by: str | None
+    claimed_at: datetime | None
+    reached_at: datetime | None
+    cleared_at: datetime | None
+    held_reason: str | None
+    event: dict[str, Any] = Field(description="the hazard event as the robot sent it")
+
+    @classmethod
+    def of(cls, hazard: Hazard) -> HazardOut:
+        description = hazard.event.get("body", {}).get("description", "")
+        return cls.model_validate({**hazard.as_dict(), "description": description})
+
+
+class HazardStepIn(_In):
+    warden: str = Field(description="the warden the step is taken for")
+
+
+class HazardStepOut(BaseModel):
+    hazard: HazardOut = Field(description="the hazard after the step")
+    warden_told: bool = Field(description="the warden's inbox took the news of the step")
+    not_told: str | None = Field(description="why the warden was not told")

@@ -258,3 +258,24 @@ def test_a_warden_rebuilds_its_open_hazards_on_start_and_after_every_reconnect(
         [missed] = warden1.receive(1, timeout=60)  # it reconnects and rebuilds its list
         assert (missed.event, missed.hazard_id, missed.hazard_state) == (fourth, 4, "announced")
         assert warden1.receive(1, timeout=0.5) == [], "none of the first three again"
+
+
+def test_the_cli_claims_for_a_warden_and_refuses_a_step_the_rules_do_not_allow(bus: Bus) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=WARDEN))
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        wait_for(lambda: handled(bus, "warden1", True), what="warden1 localised")
+        sent = explorer.publish("hazard", hazard(0))
+        assert [n.event for n in warden.receive(1, timeout=30)] == [sent]
+        early = fleetbus(bus, "hazards", "reached", "1", "--for", "warden1")
+        assert (early.returncode, early.stderr) == (
+            1,
+            "error: hazard 1 is announced; warden1 cannot have it reached\n",
+        )
+        claimed = fleetbus(bus, "hazards", "claim", "1", "--for", "warden1", "--by", "ops1")
+        assert claimed.returncode == 0, claimed.stderr
+        assert "hazard 1: claimed for warden1 (by ops1)" in claimed.stdout
+        [note] = warden.receive(1, timeout=30)
+        assert (note.hazard_state, note.claimed_by) == ("claimed", "warden1")
+    assert states(bus) == ["claimed"]

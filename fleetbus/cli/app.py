@@ -23,7 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "query": ("events", "query"),
     "dlq": ("dlq", "dlq"),
     "outbox": ("outbox", "outbox"),
-    "hazards": ("hazards", "hazards"),
+    "hazards": ("hazards", "app"),
     "demo": ("demo", "demo"),
     "schemas": ("schemas_export", "export_schemas"),
     "tail": ("tail", "tail"),

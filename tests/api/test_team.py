@@ -92,3 +92,38 @@ def test_deleting_a_warden_takes_it_out_of_the_team_in_the_same_operation(api: A
         assert names == ["explorer1", "warden1"]
         assert [n.event for n in warden1.receive(2, timeout=30)] == sent
         wait_for(lambda: held(api) == ["announced", "announced"], what="announced")
+
+
+def test_an_operator_claims_and_clears_for_a_warden_who_is_told_and_the_rules_stay_the_wardens(
+    api: Api,
+) -> None:
+    explorer, warden1, warden2 = (robot(api, name) for name in ("explorer1", "warden1", "warden2"))
+    with api.bus.worker():
+        for warden in (warden1, warden2):
+            warden.publish("localisation", {"localised": True})
+        sent = explorer.publish("hazard", hazard(0))
+        assert [n.event for n in warden1.receive(1, timeout=30)] == [sent]
+        wait_for(lambda: held(api) == ["announced"], what="the hazard announced")
+
+        claimed = api.call("oper1", "POST", "/hazards/default/1/claim", json={"warden": "warden1"})
+        assert claimed.status_code == 200, claimed.text
+        assert claimed.json()["hazard"]["state"] == "claimed" and claimed.json()["warden_told"]
+        assert claimed.json()["hazard"]["claimed_by"] == "warden1"
+        [note] = warden1.receive(1, timeout=30)
+        assert (note.event, note.hazard_state, note.claimed_by) == (sent, "claimed", "warden1")
+
+        not_holder = api.call("super1", "POST", "/hazards/default/1/cleared", json={"warden": "warden2"})
+        assert not_holder.status_code == 409 and "warden1" in not_holder.json()["detail"], not_holder.text
+        for step in ("reached", "cleared"):
+            done = api.call("super1", "POST", f"/hazards/default/1/{step}", json={"warden": "warden1"})
+            assert done.json()["hazard"]["state"] == step, done.text
+        assert [n.hazard_state for n in warden1.receive(2, timeout=30)] == ["reached", "cleared"]
+
+        listed = api.call("oper1", "GET", "/hazards", params={"state": "cleared"}).json()
+        assert [(h["hazard_id"], h["claimed_by"], h["robot_id"]) for h in listed] == [
+            (1, "warden1", "explorer1")
+        ]
+        admin = api.call("admin1", "POST", "/hazards/default/1/claim", json={"warden": "warden1"})
+        assert admin.status_code == 403, "administrators manage accounts, dispatchers act for wardens"
+        unknown = api.call("oper1", "POST", "/hazards/default/1/land", json={"warden": "warden1"})
+        assert unknown.status_code == 422
