@@ -292,7 +292,7 @@ class IngestConsumer:
                 await self._reject(message, Rejected(RejectReason.SEQUENCE_REUSED, detail))
                 continue
             accepted.append(item)
-            if result.inserted:
+            if result.inserted or result.rewritten:
                 self.stats.stored += 1
             else:
                 duplicates.append(

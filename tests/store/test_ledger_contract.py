@@ -180,3 +180,15 @@ async def test_a_resend_of_a_pruned_event_is_a_duplicate_not_a_second_copy(store
         ("explorer1", EPOCH, 4, 4),
         ("explorer1", EPOCH, 7, 8),
     ]
+
+
+async def test_a_write_repeated_after_its_answer_was_lost_is_not_a_duplicate(store: Repositories) -> None:
+    first = record(seq=5)
+    await store.events.store_batch([first], T0)
+    again = await store.events.store_batch([first], T0)  # the worker's retry: the very same record
+    resent = replace(first, received_at=first.received_at + timedelta(seconds=3))  # the robot's resend
+    later = await store.events.store_batch([resent], T1)
+    assert [(r.inserted, r.rewritten, r.stored_message_id) for r in (*again.results, *later.results)] == [
+        (False, True, first.message_id),
+        (False, False, first.message_id),
+    ]

@@ -70,6 +70,10 @@ class WriteResult:
     stored_message_id: str | None = None
     """When not inserted: the message id of the record already stored under that key. The same id
     means a resend or redelivery; another id means the robot reused a sequence number."""
+    rewritten: bool = False
+    """When not inserted: the stored record is this very one (same message id, same receive time),
+    so an earlier attempt of this write stored it (its answer lost: the store timed out, say). Not
+    a duplicate: the robot did not send it twice."""
     pruned: bool = False
     """When not inserted: the ledger had seen this number but its event has been pruned since, so a
     resend of an old event is not stored a second time (and reuse of the number cannot be told)."""

@@ -138,11 +138,16 @@ def mongo_repositories(
     )
 
 
-def _result(key: str, stored: dict[str, str]) -> WriteResult:
+def _result(document: dict[str, Any], stored: dict[str, dict[str, Any]]) -> WriteResult:
     """The result of a record not inserted: its key taken, or its number seen and pruned."""
-    if key in stored:
-        return WriteResult(inserted=False, stored_message_id=stored[key])
-    return WriteResult(inserted=False, pruned=True)
+    found = stored.get(document["_id"])
+    if found is None:
+        return WriteResult(inserted=False, pruned=True)
+    same = (found["message_id"], found["received_at_us"]) == (
+        document["message_id"],
+        document["received_at_us"],
+    )
+    return WriteResult(inserted=False, stored_message_id=found["message_id"], rewritten=same)
 
 
 @translate_unavailable(EventLog)
@@ -198,16 +203,16 @@ class MongoEventLog(MongoLedger, EventLog):
             taken.update(fresh[e["index"]] for e in errors)
         except PyMongoError as error:
             raise_as_store_error(error, self._safe_url())
-        stored: dict[str, str] = {}
+        stored: dict[str, dict[str, Any]] = {}
         if taken:
             try:
                 ids = list({documents[index]["_id"] for index in taken})
-                cursor = self._events().find({"_id": {"$in": ids}}, {"message_id": 1})
-                stored = {doc["_id"]: doc["message_id"] async for doc in cursor}
+                cursor = self._events().find({"_id": {"$in": ids}}, ["message_id", "received_at_us"])
+                stored = {doc["_id"]: doc async for doc in cursor}
             except PyMongoError as error:
                 raise_as_store_error(error, self._safe_url())
         return [
-            _result(documents[index]["_id"], stored) if index in taken else WriteResult(inserted=True)
+            _result(documents[index], stored) if index in taken else WriteResult(inserted=True)
             for index in range(len(documents))
         ]
 

@@ -107,10 +107,13 @@ def _write(db: sqlite3.Connection, records: Sequence[EventRecord]) -> list[Write
             results.append(WriteResult(inserted=True))
             continue
         stored = db.execute(
-            "SELECT message_id FROM events WHERE robot_id = ? AND epoch = ? AND seq = ?", row[:3]
+            "SELECT message_id, received_at FROM events WHERE robot_id = ? AND epoch = ? AND seq = ?",
+            row[:3],
         ).fetchone()
         results.append(
-            WriteResult(inserted=False, stored_message_id=stored[0])
+            WriteResult(
+                inserted=False, stored_message_id=stored[0], rewritten=tuple(stored) == (row[4], row[6])
+            )
             if stored
             else WriteResult(inserted=False, pruned=True)
         )
