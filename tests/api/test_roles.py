@@ -15,10 +15,12 @@ import pytest
 
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.schemas.envelope import build_event
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.recordings import RecordedMessage
+from tests import factories
 from tests.api.support import PASSWORD, READY_PLAN, Api, running_api
 from tests.support import fresh_bus
 
@@ -171,6 +173,27 @@ def warden_service(action: str) -> Callable[[Api, UserRole], Call]:
     return prepare
 
 
+_hazard_seqs = itertools.count()
+EPOCH = "20261125T000000000Z-0000beef"
+
+
+def hazard_claim(api: Api, role: UserRole) -> Call:
+    """An announced hazard of its own, to claim for a warden in service."""
+    store = api.service.repositories.hazards
+    warden = f"warden-claim-{role.value}"
+    api.run(lambda: store.register_robot(warden, RobotKind.WARDEN.value))
+    at, seq = datetime.now(timezone.utc), next(_hazard_seqs)
+    sent = build_event("hazard", "explorer1", EPOCH, seq, factories.hazard(seq, f"for {role.value}"))
+    event = sent.model_dump(mode="json")
+    hazard = api.run(lambda: store.add_hazard("default", "explorer1", EPOCH, seq, event, at, held=False))
+    return Call(
+        "POST",
+        f"/hazards/default/{hazard.hazard_id}/claim",
+        {"warden": warden},
+        lambda: api.run(lambda: store.get_hazard("default", hazard.hazard_id)) == hazard,
+    )
+
+
 READERS = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 ANALYSTS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 CASES = [
@@ -305,6 +328,14 @@ CASES = [
     Case("GET", "/team", frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR}), 200, fixed("GET", "/team")),
     Case("POST", "/team/{robot}/out", frozenset({R.SUPERVISOR, R.OPERATOR}), 200, warden_service("out")),
     Case("POST", "/team/{robot}/in", frozenset({R.SUPERVISOR, R.OPERATOR}), 200, warden_service("in")),
+    Case("GET", "/hazards", frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR}), 200, fixed("GET", "/hazards")),
+    Case(
+        "POST",
+        "/hazards/{mission_id}/{hazard_id}/{step}",
+        frozenset({R.SUPERVISOR, R.OPERATOR}),
+        200,
+        hazard_claim,
+    ),
 ]
 
 
