@@ -10,8 +10,8 @@ later than one already read. The reader therefore looks again from ``overlap`` b
 at the keys only (an index read), and reads the events from the oldest key it has not handed out
 yet (a bounded set of keys), usually just the new ones. Fragments are keyed by the event, so a
 browser shown an event twice shows it once. An event whose write was held up for longer than
-``overlap`` (the store was down and the worker retried) is not streamed: pages show it when
-they are next loaded.
+``overlap`` (the store was down and the worker retried, or the machine overloaded) is not
+streamed: pages show it when they are next loaded.
 
 A subscriber that does not keep up (its queue of ``queue_size`` batches is full) is dropped: its
 page's stream ends and the browser reconnects with its last event id. Drops are counted
@@ -68,7 +68,7 @@ class Feed:
     events: EventStore
     poll_s: float = 0.1
     tick_s: float = 1.0
-    overlap: timedelta = timedelta(seconds=2)
+    overlap: timedelta = timedelta(seconds=5)
     queue_size: int = 64
     batch_limit: int = 1000
     remembered: int = 20_000
@@ -199,6 +199,7 @@ async def running_feed(events: EventStore, settings: Settings) -> AsyncIterator[
         events,
         poll_s=settings.console_poll_s,
         tick_s=settings.console_tick_s,
+        overlap=timedelta(seconds=settings.console_overlap_s),
         queue_size=settings.console_queue,
     )
     async with running(feed):
