@@ -24,6 +24,7 @@ import pika.exceptions
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import assign_shard, unassign_shard
+from fleetbus.broker.tls import pika_parameters
 from fleetbus.broker.topology import account_topology, core_topology, declare_with_url
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
@@ -207,7 +208,7 @@ def ensure_recorder_account(admin_url: str, api: ManagementAPI, credentials_dir:
 
 def can_login(amqp_url: str) -> bool:
     """Whether the broker accepts this URL's credentials (it answers at all, or this raises)."""
-    parameters = pika.URLParameters(amqp_url)
+    parameters = pika_parameters(amqp_url)
     parameters.connection_attempts = 1
     parameters.socket_timeout = 5
     try:

@@ -57,7 +57,9 @@ def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
     import pika
     import pika.exceptions
 
-    parameters = pika.URLParameters(url)
+    from fleetbus.broker.tls import pika_parameters
+
+    parameters = pika_parameters(url)
     parameters.connection_attempts = 1
     parameters.retry_delay = 0
     parameters.socket_timeout = timeout
