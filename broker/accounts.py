@@ -73,6 +73,22 @@ def url_for(amqp_url: str, username: str, password: str) -> str:
     return urlunsplit((parts.scheme, netloc, parts.path, parts.query, ""))
 
 
+def as_public(amqp_url: str, public_url: str | None) -> str:
+    """``amqp_url``'s login and virtual host at the broker's public address (``public_url``: its
+    scheme, host, port and query, e.g. ``amqps://broker.example:5671/?cacertfile=...``): the URL a
+    robot or a user is handed. Without a public address, ``amqp_url`` itself."""
+    if not public_url:
+        return amqp_url
+    parts, public = urlsplit(amqp_url), urlsplit(public_url)
+    host = public.hostname or "localhost"
+    if ":" in host:
+        host = f"[{host}]"
+    netloc = f"{parts.netloc.rpartition('@')[0]}@{host}" if "@" in parts.netloc else host
+    if public.port:
+        netloc += f":{public.port}"
+    return urlunsplit((public.scheme, netloc, parts.path or "/", public.query, ""))
+
+
 def with_vhost(amqp_url: str, vhost: str) -> str:
     """The same login on another virtual host."""
     parts = urlsplit(amqp_url)

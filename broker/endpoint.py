@@ -45,6 +45,9 @@ class BrokerEndpoint:
     management_url: str
     """Base URL of the management HTTP API (same credentials as ``amqp_url``)."""
     kind: Kind
+    public_url: str | None = None
+    """The broker as robots and users reach it, without credentials (``FLEETBUS_PUBLIC_AMQP_URL``,
+    or the private node's AMQPS listener); None: ``amqp_url``'s broker."""
 
 
 def derive_management_url(amqp_url: str) -> str:
@@ -114,7 +117,7 @@ def external_endpoint(settings: Settings) -> BrokerEndpoint | None:
         )
     wait_for_login(settings.amqp_url, "the broker of FLEETBUS_AMQP_URL", settings.broker_wait_s)
     management_url = settings.management_url or derive_management_url(settings.amqp_url)
-    return BrokerEndpoint(settings.amqp_url, management_url, "external")
+    return BrokerEndpoint(settings.amqp_url, management_url, "external", settings.public_amqp_url)
 
 
 def service_account_url(

@@ -10,6 +10,8 @@ import ipaddress
 import json
 import os
 import re
+import socket
+import ssl
 import stat
 import subprocess
 import sys
@@ -22,6 +24,7 @@ import httpx
 import pika
 import pytest
 
+from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
@@ -33,7 +36,11 @@ from fleetbus.dev.local_node import (
     pid_alive,
     pids_listening_on,
 )
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.errors import BrokerUnavailable as RobotUnreachable
+from fleetbus.schemas.routing import EXPRESS_QUEUE
 from fleetbus.settings import Settings, load_settings
+from tests.factories import hazard
 from tests.support import wait_for
 
 pytestmark = pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed")
@@ -84,8 +91,8 @@ def test_up_is_idempotent(node: LocalNode) -> None:
 def test_status_shows_urls_and_keeps_state_in_its_folder(node: LocalNode) -> None:
     info = node.status()
     ports = json.loads(node.node_file.read_text())["ports"]
-    assert set(ports) == {"amqp", "management", "dist", "epmd", "stream"}
-    assert len(set(ports.values())) == 5
+    assert set(ports) == {"amqp", "management", "dist", "epmd", "stream", "amqps", "management_tls"}
+    assert len(set(ports.values())) == 7
     assert info.ports == ports
     assert info.amqp_url is not None
     match = re.fullmatch(r"amqp://fleetbus-admin:([^@]+)@127\.0\.0\.1:(\d+)/", info.amqp_url)
@@ -119,7 +126,9 @@ def test_listens_only_on_loopback(node: LocalNode) -> None:
     info = node.status()
     assert info.pid is not None
     beam = listening_addresses(info.pid)
-    assert {port for _, port in beam} >= {info.ports["amqp"], info.ports["management"], info.ports["dist"]}
+    assert {port for _, port in beam} >= {
+        info.ports[name] for name in ("amqp", "management", "dist", "amqps", "management_tls")
+    }
     epmds = node.epmd_pids()
     assert epmds, "the node's private epmd is not running"
     assert {host for host, _ in beam} == {"127.0.0.1"}, beam
@@ -268,6 +277,105 @@ def test_broker_status_masks_the_password_unless_asked(node: LocalNode, node_set
     assert f"amqp://{ADMIN_USER}:****@127.0.0.1:{node.status().ports['amqp']}/" in masked
     assert str(node.admin_file) in masked, "it says where the password is kept"
     assert node.status().amqp_url in status("--show-password")
+
+
+def _peer_names(port: int, ca: Path, server_name: str = "127.0.0.1") -> list[str]:
+    """A real TLS handshake with the node, verified against ``ca``: the names its certificate carries."""
+    context = ssl.create_default_context(cafile=str(ca))
+    with (
+        socket.create_connection(("127.0.0.1", port), timeout=10) as raw,
+        context.wrap_socket(raw, server_hostname=server_name) as tls,
+    ):
+        certificate = tls.getpeercert()
+    return [value for _, value in certificate["subjectAltName"]]
+
+
+def test_the_node_serves_its_certificate_on_amqps_and_the_management_api(node: LocalNode) -> None:
+    info = node.status()
+    assert node.tls.ca == node.base_dir.parent / "tls" / "ca.pem"  # made at the first start
+    assert stat.S_IMODE(node.tls.key.stat().st_mode) == 0o600
+    for port in (info.ports["amqps"], info.ports["management_tls"]):
+        assert _peer_names(port, node.tls.ca) == ["localhost", "127.0.0.1"]
+    assert info.management_tls_url == f"https://127.0.0.1:{info.ports['management_tls']}/"
+    overview = httpx.get(
+        info.management_tls_url + "api/overview",
+        auth=admin(node),
+        timeout=10,
+        verify=ssl.create_default_context(cafile=str(node.tls.ca)),
+    )
+    assert overview.status_code == 200
+    with pytest.raises(httpx.ConnectError, match="CERTIFICATE_VERIFY_FAILED"):
+        httpx.get(info.management_tls_url + "api/overview", timeout=10)  # the system's CAs do not know it
+    assert info.amqps_url is not None and amqp_login(info.amqps_url) is True
+    assert info.public_url == (f"amqps://127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}")
+
+
+def test_a_node_json_without_the_tls_ports_keeps_its_ports(tmp_path: Path) -> None:
+    """A node made by an older version keeps the ports robots and tools know; only the new ones
+    are chosen (no node is started)."""
+    old = LocalNode(tmp_path / "broker")
+    old.base_dir.mkdir(parents=True)
+    kept = {"amqp": 23001, "management": 23002, "dist": 23003, "epmd": 23004, "stream": 23005}
+    old.node_file.write_text(json.dumps({"node_name": old.node_name, "ports": kept}))
+    assert old.ports() is None  # incomplete: nothing is made up without create
+    ports = old.ports(create=True)
+    assert ports is not None and {name: ports[name] for name in kept} == kept
+    assert len(set(ports.values())) == len(ports) == len(kept) + 2
+    assert json.loads(old.node_file.read_text())["ports"] == ports
+
+
+@pytest.fixture
+def robot_url(node: LocalNode, node_settings: Settings) -> Iterator[str]:
+    """A robot account made by `fleetbus users add` with nothing configured (the private node):
+    the URL it hands out."""
+    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="300")
+    command = [sys.executable, "-m", "fleetbus", "users", "add", "tls-explorer", "--kind", "explorer"]
+    added = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+    assert added.returncode == 0, added.stderr
+    [url] = [line for line in added.stdout.splitlines() if line.startswith("amqp")]
+    assert f"the CA {node.tls.ca}" in added.stdout, "it says where the robot's CA is"
+    try:
+        yield url
+    finally:
+        httpx.delete(node.status().management_url + "api/users/tls-explorer", auth=admin(node), timeout=10)
+
+
+def test_users_add_hands_out_an_amqps_url_the_robot_client_publishes_with(
+    robot_url: str, node: LocalNode, tmp_path: Path
+) -> None:
+    info = node.status()
+    assert robot_url.startswith("amqps://tls-explorer:")
+    assert robot_url.endswith(f"@127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}")
+    admin_url = info.amqp_url or ""
+    before = _ready(admin_url, EXPRESS_QUEUE)
+    with RobotClient(robot_url, state_dir=tmp_path, connect_timeout=20) as robot:
+        robot.connect()
+        robot.publish("hazard", hazard())
+        assert robot.flush(timeout=20)
+    wait_for(lambda: _ready(admin_url, EXPRESS_QUEUE) == before + 1, 20, "the hazard in the express lane")
+
+
+@pytest.mark.parametrize(
+    ("change", "refusal"),
+    [
+        ("another CA", "CERTIFICATE_VERIFY_FAILED"),
+        ("a name not in the certificate", "Hostname mismatch, certificate is not valid for 'broker.example'"),
+    ],
+)
+def test_the_robot_client_refuses_a_broker_it_cannot_verify(
+    robot_url: str, tmp_path: Path, node: LocalNode, change: str, refusal: str
+) -> None:
+    if change == "another CA":
+        other = TlsFiles.in_folder(tmp_path / "other")
+        make_certificates(other)
+        url = robot_url.replace(str(node.tls.ca), str(other.ca))
+    else:
+        url = robot_url + "&server_name_indication=broker.example"
+    with RobotClient(url, state_dir=tmp_path / "robot", connect_timeout=5) as robot:
+        with pytest.raises(RobotUnreachable, match="certificate verify failed") as refused:
+            robot.connect()
+        assert refusal in str(refused.value)
 
 
 def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> None:
