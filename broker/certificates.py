@@ -49,13 +49,7 @@ class TlsFiles:
     @classmethod
     def for_settings(cls, settings: Settings) -> TlsFiles:
         """``FLEETBUS_TLS_CA`` / ``_CERT`` / ``_KEY`` when set, else the files in ``FLEETBUS_TLS_DIR``."""
-        made = cls.in_folder(settings.tls_folder)
-        return cls(
-            settings.tls_ca or made.ca,
-            settings.tls_cert or made.cert,
-            settings.tls_key or made.key,
-            made.ca_key,
-        )
+        return cls(settings.ca_file, settings.cert_file, settings.key_file, settings.tls_folder / "ca.key")
 
     def server_ready(self) -> bool:
         return self.ca.exists() and self.cert.exists() and self.key.exists()

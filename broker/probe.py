@@ -89,14 +89,14 @@ def management_answers(management_url: str, username: str, password: str, timeou
     """Whether ``GET /api/overview`` answers 200 with these credentials."""
     import httpx
 
-    from fleetbus.broker.management import tls_context
+    from fleetbus.broker.management import verification
 
     try:
         response = httpx.get(
             management_url.rstrip("/") + "/api/overview",
             auth=(username, password),
             timeout=timeout,
-            verify=tls_context(),
+            verify=verification(management_url),
         )
     except httpx.HTTPError:
         return False

@@ -393,6 +393,19 @@ class Settings(BaseSettings):
     def tls_folder(self) -> Path:
         return self.tls_dir or self.data_dir / "tls"
 
+    @property
+    def ca_file(self) -> Path:
+        """The CA clients verify the broker and the API with: ``FLEETBUS_TLS_CA``, else the made one."""
+        return self.tls_ca or self.tls_folder / "ca.pem"
+
+    @property
+    def cert_file(self) -> Path:
+        return self.tls_cert or self.tls_folder / "server.pem"
+
+    @property
+    def key_file(self) -> Path:
+        return self.tls_key or self.tls_folder / "server.key"
+
 
 def load_settings(environ: Mapping[str, str] | None = None) -> Settings:
     """The settings from the process's environment, or from ``environ`` alone when given.

@@ -26,6 +26,7 @@ import pytest
 
 from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable
+from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
@@ -308,6 +309,22 @@ def test_the_node_serves_its_certificate_on_amqps_and_the_management_api(node: L
         httpx.get(info.management_tls_url + "api/overview", timeout=10)  # the system's CAs do not know it
     assert info.amqps_url is not None and amqp_login(info.amqps_url) is True
     assert info.public_url == (f"amqps://127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}")
+
+
+def test_the_management_client_verifies_an_https_api_with_fleetbus_ca(
+    node: LocalNode, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    info = node.status()
+    assert info.management_tls_url is not None
+    monkeypatch.setenv("FLEETBUS_TLS_CA", str(node.tls.ca))
+    with ManagementAPI(info.management_tls_url, *admin(node)) as api:
+        assert ADMIN_USER in [user["name"] for user in api.list_users()]
+    other = TlsFiles.in_folder(tmp_path / "other")
+    make_certificates(other)
+    monkeypatch.setenv("FLEETBUS_TLS_CA", str(other.ca))
+    with ManagementAPI(info.management_tls_url, *admin(node)) as api:
+        with pytest.raises(httpx.ConnectError, match="CERTIFICATE_VERIFY_FAILED"):
+            api.list_users()
 
 
 def test_a_node_json_without_the_tls_ports_keeps_its_ports(tmp_path: Path) -> None:
