@@ -17,6 +17,7 @@ same URL also works for the broker's shovel and federation links::
 
 from __future__ import annotations
 
+import ipaddress
 import ssl
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -140,3 +141,47 @@ async def aio_connect_robust(url: str, **kwargs: Any) -> AbstractRobustConnectio
 
     plain, tls = aio_pika_arguments(url)
     return await aio_pika.connect_robust(plain, **tls, **kwargs)
+
+
+def shovel_uri(url: str) -> str:
+    """``url`` as RabbitMQ's shovel and federation links take it, verifying as fleetbus's clients
+    do. The Erlang client of RabbitMQ 3.x checks nothing unless told (its ``verify`` defaults to
+    ``verify_none``), so an ``amqps://`` URL gets ``verify=verify_peer`` and the name to check
+    (``server_name_indication``) written out. It needs ``cacertfile``, and a DNS name to check: the
+    Erlang client matches DNS names only, so a URL whose host is an IP address must name one
+    (``server_name_indication=localhost`` for the private node). The default virtual host is
+    written ``%2F``: to the Erlang client, ``amqp://host/`` means the virtual host "" instead."""
+    plain, options = split_tls(url)
+    parts = urlsplit(plain)
+    path = "/%2F" if parts.path in ("", "/") else parts.path
+    if options is None:
+        return urlunsplit((parts.scheme, parts.netloc, path, parts.query, ""))
+    name = options.server_name
+    if options.verify:
+        if not options.cacertfile:
+            raise TlsSettingError(
+                "a shovel's amqps:// URL needs cacertfile= (the Erlang client has no default trust store)"
+            )
+        if name == parts.hostname and _is_ip(name):
+            raise TlsSettingError(
+                f"a shovel checks the broker's certificate for a DNS name, not the address {name}: add "
+                "server_name_indication=<a name in its certificate> to the URL"
+            )
+    query = parse_qsl(parts.query, keep_blank_values=True)
+    tls = [
+        ("cacertfile", options.cacertfile),
+        ("certfile", options.certfile),
+        ("keyfile", options.keyfile),
+        ("verify", VERIFY_PEER if options.verify else VERIFY_NONE),
+        ("server_name_indication", name if options.verify else None),
+    ]
+    query += [(key, value) for key, value in tls if value]
+    return urlunsplit((parts.scheme, parts.netloc, path, urlencode(query, safe="/"), ""))
+
+
+def _is_ip(host: str | None) -> bool:
+    try:
+        ipaddress.ip_address(host or "")
+    except ValueError:
+        return False
+    return True

@@ -27,6 +27,7 @@ import pytest
 from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.tls import TlsSettingError, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
@@ -393,6 +394,76 @@ def test_the_robot_client_refuses_a_broker_it_cannot_verify(
         with pytest.raises(RobotUnreachable, match="certificate verify failed") as refused:
             robot.connect()
         assert refusal in str(refused.value)
+
+
+def _shovel_states(node: LocalNode) -> dict[str, str]:
+    listing = node.rabbitmqctl("shovel_status", "--formatter", "json").stdout
+    return {shovel["name"]: shovel["state"] for shovel in json.loads(listing or "[]")}
+
+
+def test_a_shovel_reaches_the_node_over_amqps_only_when_it_can_verify_it(
+    node: LocalNode, tmp_path: Path
+) -> None:
+    """The URL form a site's shovel takes (:func:`shovel_uri`), on RabbitMQ's own Erlang client:
+    it moves messages with the right CA and name, and refuses another CA or another name."""
+    plugins = node.env()
+    enabled = subprocess.run(
+        [str(RABBITMQ_SERVER.parent / "rabbitmq-plugins"), "enable", "rabbitmq_shovel", "--online"],
+        env=plugins,
+        cwd=node.base_dir,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert enabled.returncode == 0, enabled.stderr
+    info = node.status()
+    assert info.amqps_url is not None and info.amqp_url is not None and info.management_url is not None
+    other = TlsFiles.in_folder(tmp_path / "other")
+    make_certificates(other)
+    with pytest.raises(TlsSettingError, match="server_name_indication"):
+        shovel_uri(info.amqps_url)  # 127.0.0.1: the Erlang client checks DNS names only
+    named = info.amqps_url + "&server_name_indication=localhost"
+    shovels = {
+        "tls-verified": shovel_uri(named),
+        "tls-other-ca": shovel_uri(named.replace(str(node.tls.ca), str(other.ca))),
+        "tls-other-name": shovel_uri(info.amqps_url + "&server_name_indication=broker.example"),
+    }
+    connection = pika.BlockingConnection(pika.URLParameters(info.amqp_url))
+    channel = connection.channel()
+    for name in shovels:
+        for queue in (f"{name}.from", f"{name}.to"):
+            channel.queue_declare(queue, durable=True)
+    connection.close()
+    parameters = info.management_url + "api/parameters/shovel/%2F/"
+    try:
+        for name, uri in shovels.items():
+            value = {
+                "src-uri": "amqp://",
+                "src-queue": f"{name}.from",
+                "dest-uri": uri,
+                "dest-queue": f"{name}.to",
+            }
+            answer = httpx.put(parameters + name, json={"value": value}, auth=admin(node), timeout=10)
+            assert answer.status_code in (201, 204), answer.text
+            _publish(info.amqp_url, f"{name}.from", [b"over the link"])
+        wait_for(lambda: _ready(info.amqp_url or "", "tls-verified.to") == 1, 30, "the message over AMQPS")
+        assert _shovel_states(node)["tls-verified"] == "running"
+        wait_for(
+            lambda: (
+                "Shovel 'tls-other-ca' failed to connect" in node.node_log.read_text()
+                and "Shovel 'tls-other-name' failed to connect" in node.node_log.read_text()
+            ),
+            30,
+            "the two refusals in the node's log",
+        )
+        logged = node.node_log.read_text()
+        assert re.search(r"Shovel 'tls-other-ca' failed to connect .*unknown_ca", logged)
+        assert re.search(r"Shovel 'tls-other-name' failed to connect .*hostname_check_failed", logged)
+        for name in ("tls-other-ca", "tls-other-name"):
+            assert _ready(info.amqp_url, f"{name}.to") == 0 and _ready(info.amqp_url, f"{name}.from") == 1
+    finally:
+        for name in shovels:
+            httpx.delete(parameters + name, auth=admin(node), timeout=10)
 
 
 def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from fleetbus.broker.certificates import TlsFiles, make_certificates
-from fleetbus.broker.tls import TlsSettingError, aio_pika_arguments, pika_parameters, split_tls
+from fleetbus.broker.tls import TlsSettingError, aio_pika_arguments, pika_parameters, shovel_uri, split_tls
 
 
 @pytest.fixture(scope="module")
@@ -75,3 +75,14 @@ def test_server_name_indication_names_the_host_to_check(ca: Path) -> None:
 def test_wrong_tls_parameters_are_refused_saying_why(url: str, said: str) -> None:
     with pytest.raises(TlsSettingError, match=said):
         pika_parameters(url)
+
+
+def test_a_shovel_uri_spells_out_verification_and_the_default_virtual_host(ca: Path) -> None:
+    url = f"amqps://site:pw@central.example:5671/?cacertfile={ca}&heartbeat=10"
+    assert shovel_uri(url) == (
+        f"amqps://site:pw@central.example:5671/%2F?heartbeat=10&cacertfile={ca}"
+        "&verify=verify_peer&server_name_indication=central.example"
+    )
+    assert shovel_uri("amqp://site:pw@central.example/fleet") == "amqp://site:pw@central.example/fleet"
+    with pytest.raises(TlsSettingError, match="needs cacertfile"):
+        shovel_uri("amqps://site:pw@central.example/")
