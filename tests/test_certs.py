@@ -61,4 +61,4 @@ def test_make_refuses_to_overwrite_the_operators_own_files(tmp_path: Path) -> No
     own = tmp_path / "own.pem"
     refused = certs("make", env={"FLEETBUS_TLS_CERT": str(own), "FLEETBUS_DATA_DIR": str(tmp_path)})
     assert refused.returncode == 1
-    assert "FLEETBUS_TLS_CERT" in refused.stderr and not own.exists()
+    assert "FLEETBUS_TLS_CA, _CERT or _KEY" in refused.stderr and not own.exists()

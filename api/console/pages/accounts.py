@@ -20,6 +20,7 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api import audit
 from fleetbus.api.accounts import BrokerCredentials
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.session import Allowed
@@ -145,6 +146,7 @@ async def disable(request: Request, name: str, admin: RoleSetter, svc: ServiceDe
 @router.post("/console/accounts/{name}/broker-password", response_class=HTMLResponse)
 async def reset_broker_password(request: Request, name: str, admin: Rekeyer, svc: ServiceDep) -> Response:
     if refusal := broker_password_refusal(request, svc.settings):  # before the password changes
+        audit.refused(request, 403, admin.name, refusal)
         return await _page(request, admin, svc, 403, problem=refusal)
     try:
         credentials = await svc.accounts.reset_broker_password(name, admin.name)

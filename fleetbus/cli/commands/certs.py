@@ -35,8 +35,9 @@ def make(
     """Make a CA (an existing one is kept) and a server certificate it signs, for localhost,
     127.0.0.1 and every --host. Restart the broker (`fleetbus broker down` and `up`) to use a new one."""
     files = _files(folder)
-    if folder is None and (settings().tls_cert or settings().tls_key):
-        fail("FLEETBUS_TLS_CERT or FLEETBUS_TLS_KEY names your own files: make certificates with --dir")
+    config = settings()
+    if folder is None and (config.tls_ca or config.tls_cert or config.tls_key):
+        fail("FLEETBUS_TLS_CA, _CERT or _KEY name your own files: make certificates with --dir")
     try:
         made_ca = make_certificates(files, host or [])
     except CertificateError as error:
