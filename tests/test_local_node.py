@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import logging
 import os
 import re
 import socket
@@ -32,6 +33,7 @@ from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
     RABBITMQ_SERVER,
+    TLS_PORT_NAMES,
     LocalNode,
     amqp_login,
     listening_addresses,
@@ -335,7 +337,7 @@ def test_a_node_json_without_the_tls_ports_keeps_its_ports(tmp_path: Path) -> No
     old.base_dir.mkdir(parents=True)
     kept = {"amqp": 23001, "management": 23002, "dist": 23003, "epmd": 23004, "stream": 23005}
     old.node_file.write_text(json.dumps({"node_name": old.node_name, "ports": kept}))
-    assert old.ports() is None  # incomplete: nothing is made up without create
+    assert old.ports() == kept  # what the running node of that version listens on
     ports = old.ports(create=True)
     assert ports is not None and {name: ports[name] for name in kept} == kept
     assert len(set(ports.values())) == len(ports) == len(kept) + 2
@@ -394,6 +396,30 @@ def test_the_robot_client_refuses_a_broker_it_cannot_verify(
         with pytest.raises(RobotUnreachable, match="certificate verify failed") as refused:
             robot.connect()
         assert refusal in str(refused.value)
+
+
+def test_a_running_node_of_an_older_version_keeps_working_and_gets_tls_at_its_next_start(
+    node: LocalNode, caplog: pytest.LogCaptureFixture
+) -> None:
+    """As after an upgrade: node.json has no TLS ports and the running node listens on none of the
+    ones chosen now. `up` returns at once with the plain URLs (robots are handed amqp:// as before)
+    and says how to get TLS; the next start listens on the new ports."""
+    before = node.status()
+    data = json.loads(node.node_file.read_text())
+    data["ports"] = {name: port for name, port in data["ports"].items() if name not in TLS_PORT_NAMES}
+    node.node_file.write_text(json.dumps(data))
+    started = time.monotonic()
+    with caplog.at_level(logging.WARNING, logger="fleetbus.broker"):
+        info = node.up()
+    assert time.monotonic() - started < 10
+    assert info.pid == before.pid and info.amqp_url == before.amqp_url
+    assert {name: info.ports[name] for name in data["ports"]} == data["ports"]
+    assert info.public_url is info.amqps_url is info.management_tls_url is None
+    assert any("without its AMQPS and HTTPS listeners" in r.getMessage() for r in caplog.records)
+    node.down()
+    again = node.up()
+    assert again.public_url == f"amqps://127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}"
+    assert again.amqps_url is not None and amqp_login(again.amqps_url) is True
 
 
 def _shovel_states(node: LocalNode) -> dict[str, str]:

@@ -49,6 +49,9 @@ RABBITMQCTL = RABBITMQ_BIN / "rabbitmqctl"
 ADMIN_USER = "fleetbus-admin"
 HOST = "127.0.0.1"
 PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream", "amqps", "management_tls")
+#: The ports a node made by an older version lacks: chosen at its next start, listened on once it
+#: starts again (a running node keeps the configuration it started with).
+TLS_PORT_NAMES = ("amqps", "management_tls")
 PLUGINS = ("rabbitmq_management",)
 
 #: Erlang run by ``rabbitmqctl eval``: trigger an election in every quorum queue whose Ra
@@ -327,6 +330,8 @@ class LocalNode:
             ports = {name: int(data["ports"][name]) for name in PORT_NAMES if name in data.get("ports", {})}
             if len(ports) == len(PORT_NAMES):
                 return ports
+            if not create and all(name in ports for name in PORT_NAMES if name not in TLS_PORT_NAMES):
+                return ports  # an older node.json: its node has no TLS listeners
         if not create:
             return None
         missing = [name for name in PORT_NAMES if name not in ports]
@@ -362,10 +367,10 @@ class LocalNode:
 
     def public_url(self) -> str | None:
         """The node's AMQPS listener as a robot on this machine reaches it (no credentials)."""
-        ports = self.ports()
-        if ports is None:
+        port = (self.ports() or {}).get("amqps")
+        if port is None:
             return None
-        return f"amqps://{HOST}:{ports['amqps']}/?cacertfile={quote(str(self.tls.ca), safe='/')}"
+        return f"amqps://{HOST}:{port}/?cacertfile={quote(str(self.tls.ca), safe='/')}"
 
     def _amqps_url(self) -> str | None:
         public, creds = self.public_url(), self.admin_credentials()
@@ -534,6 +539,7 @@ log.console = false
         pid = self.pid()
         amqp_url, management_url = self._urls()
         ports = self.ports() or {}
+        tls = pid is not None and self._tls_listening(pid)
         return NodeInfo(
             running=pid is not None,
             pid=pid,
@@ -543,10 +549,16 @@ log.console = false
             management_url=management_url,
             ports=ports,
             log_file=self.node_log,
-            amqps_url=self._amqps_url(),
-            public_url=self.public_url(),
-            management_tls_url=f"https://{HOST}:{ports['management_tls']}/" if ports else None,
+            amqps_url=self._amqps_url() if tls else None,
+            public_url=self.public_url() if tls else None,
+            management_tls_url=f"https://{HOST}:{ports['management_tls']}/" if tls else None,
         )
+
+    def _tls_listening(self, pid: int) -> bool:
+        """Whether the running node listens on its AMQPS port (one started by an older version,
+        with another configuration, does not until it starts again)."""
+        port = (self.ports() or {}).get("amqps")
+        return port is not None and port in {listening for _, listening in listening_addresses(pid)}
 
     def ready(self, timeout: float = 3.0) -> bool:
         """Whether the administrator can log in over AMQP and the management API answers."""
@@ -622,6 +634,11 @@ log.console = false
             if started:
                 self._start()
             self._wait_ready(deadline, started)
+            if not started and pid is not None and not self._tls_listening(pid):
+                log.warning(
+                    "the private node runs without its AMQPS and HTTPS listeners (it was started by an "
+                    "older fleetbus): `fleetbus broker down`, then `up`, to add them"
+                )
             if started:
                 self._drop_guest()
                 if had_database:
@@ -696,7 +713,7 @@ log.console = false
             if (
                 amqp_ok
                 and management_answers(management_url, *creds, timeout=probe_timeout)
-                and amqp_login(amqps_url, timeout=probe_timeout)
+                and (not started or amqp_login(amqps_url, timeout=probe_timeout))
             ):
                 return
             if time.monotonic() >= deadline:
