@@ -26,7 +26,7 @@ import pika
 import pytest
 
 from fleetbus.broker.certificates import TlsFiles, make_certificates
-from fleetbus.broker.endpoint import BrokerUnavailable
+from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.tls import TlsSettingError, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
@@ -396,6 +396,19 @@ def test_the_robot_client_refuses_a_broker_it_cannot_verify(
         with pytest.raises(RobotUnreachable, match="certificate verify failed") as refused:
             robot.connect()
         assert refusal in str(refused.value)
+
+
+def test_a_configured_broker_that_cannot_be_verified_is_an_error_at_once_not_waited_for(
+    node: LocalNode, tmp_path: Path
+) -> None:
+    other = TlsFiles.in_folder(tmp_path / "other")
+    make_certificates(other)
+    url = (node.status().amqps_url or "").replace(str(node.tls.ca), str(other.ca))
+    started = time.monotonic()
+    with pytest.raises(BrokerUnavailable, match=r"cannot be trusted: .*certificate verify failed") as refused:
+        wait_for_login(url, "the broker of FLEETBUS_AMQP_URL", wait_s=60)
+    assert time.monotonic() - started < 10  # not the 60 s a broker that does not answer is waited for
+    assert admin(node)[1] not in str(refused.value)
 
 
 def test_a_running_node_of_an_older_version_keeps_working_and_gets_tls_at_its_next_start(
