@@ -13,11 +13,19 @@ import logging
 import secrets
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from urllib.parse import unquote, urlsplit
 
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
 from fleetbus.api.security import Secrets, Token, password_problem
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
-from fleetbus.broker.accounts import configure_account, delete_account, revoke_account, url_for, vhost_of
+from fleetbus.broker.accounts import (
+    as_public,
+    configure_account,
+    delete_account,
+    revoke_account,
+    url_for,
+    vhost_of,
+)
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
@@ -67,7 +75,11 @@ class Accounts:
         management: ManagementAPI,
         admin_url: str,
         shards: int = 1,
+        public_url: str | None = None,
     ) -> None:
+        """``public_url``: the broker as users and robots reach it (no credentials), for the URLs
+        handed out; None: ``admin_url``'s broker."""
+        self._public_url = public_url
         self._users = users
         self._team = team
         self._channels = channels
@@ -213,12 +225,18 @@ class Accounts:
         return Login(user, self._secrets.tokens.issue(user.name), self.broker_credentials(user))
 
     def broker_credentials(self, user: User) -> BrokerCredentials:
+        """What the user is handed: its broker password and URL at the broker's public address."""
+        internal = self.internal_broker_url(user)
+        password = unquote(urlsplit(internal).password or "")
+        return BrokerCredentials(
+            user.name, password, vhost_of(self._admin_url), as_public(internal, self._public_url)
+        )
+
+    def internal_broker_url(self, user: User) -> str:
+        """The user's login at the broker as this service reaches it (to publish as the user)."""
         if user.broker_secret is None:
             raise Unavailable(f"user {user.name} has no broker password on record")
-        password = self._secrets.box.open(user.broker_secret)
-        return BrokerCredentials(
-            user.name, password, vhost_of(self._admin_url), url_for(self._admin_url, user.name, password)
-        )
+        return url_for(self._admin_url, user.name, self._secrets.box.open(user.broker_secret))
 
 
 class WrongCredentials(Exception):

@@ -11,9 +11,9 @@ from collections.abc import AsyncIterator, Iterator
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import APIRouter, FastAPI, Request
+from fastapi import APIRouter, FastAPI, HTTPException, Request
 from fastapi.dependencies.models import Dependant
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi.routing import APIRoute
 
 from fleetbus.api import audit
@@ -23,6 +23,7 @@ from fleetbus.api.console.router import install_console
 from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.routes import auth, beacons, channels, hazards, missions, recording, team, users
 from fleetbus.api.service import open_service
+from fleetbus.broker.certificates import TlsFiles
 from fleetbus.schemas.roles import UserRole
 from fleetbus.settings import Settings
 from fleetbus.workers.store.base import StoreUnavailable
@@ -54,10 +55,12 @@ def document_roles(router: APIRouter) -> APIRouter:
     return router
 
 
-def create_app(settings: Settings, admin_url: str, management_url: str) -> FastAPI:
+def create_app(
+    settings: Settings, admin_url: str, management_url: str, public_url: str | None = None
+) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        async with open_service(settings, admin_url, management_url) as service:
+        async with open_service(settings, admin_url, management_url, public_url) as service:
             app.state.service = service
             async with running_feed(service.repositories.events, settings) as feed:
                 app.state.feed = feed
@@ -83,6 +86,15 @@ def create_app(settings: Settings, admin_url: str, management_url: str) -> FastA
         app.include_router(document_roles(router))
 
     install_console(app)
+
+    @app.get("/ca.pem", tags=["health"], response_class=PlainTextResponse)
+    async def ca_certificate() -> PlainTextResponse:
+        """The CA certificate (PEM) robots and clients verify the broker and this API with: public,
+        no login needed (``FLEETBUS_TLS_CA``, else the one ``fleetbus certs make`` made)."""
+        path = TlsFiles.for_settings(settings).ca
+        if not path.exists():
+            raise HTTPException(404, detail=f"no CA certificate here ({path}): run `fleetbus certs make`")
+        return PlainTextResponse(path.read_text(), media_type="application/x-pem-file")
 
     @app.get("/health", tags=["health"])
     async def health() -> dict[str, Any]:

@@ -1,4 +1,5 @@
-"""The refusals log: every 401, 403 and 429 the service answers, and why, on ``fleetbus.api.security``."""
+"""The refusals log: every 401, 403 and 429 the service answers, and every broker password withheld,
+and why, on ``fleetbus.api.security``."""
 
 from __future__ import annotations
 
@@ -20,3 +21,8 @@ def where(request: Request) -> str:
 
 def refused(request: Request, status: int, who: str, why: str) -> None:
     log.warning("refused %d: %s as %s: %s", status, where(request), who, why)
+
+
+def withheld(request: Request, who: str, why: str) -> None:
+    """A broker password not handed out over this connection (the rest of the answer was given)."""
+    log.warning("withheld the broker password: %s as %s: %s", where(request), who, why)

@@ -87,7 +87,15 @@ class TokenOut(BaseModel):
     token_type: str = "bearer"
     expires_at: datetime
     user: UserOut
-    broker: BrokerOut = Field(description="the broker account: confined to resources named <user>.*")
+    broker: BrokerOut | None = Field(
+        description="the broker account: confined to resources named <user>.*; null when it may not be "
+        "handed out over this connection (see broker_withheld)"
+    )
+    broker_withheld: str | None = Field(
+        None,
+        description="why the broker account was not handed out: its password goes over HTTPS only, or "
+        "to a client on the API's own machine",
+    )
 
 
 class MissionCreate(_In):

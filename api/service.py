@@ -55,8 +55,11 @@ class Service:
 
 
 @asynccontextmanager
-async def open_service(settings: Settings, admin_url: str, management_url: str) -> AsyncIterator[Service]:
-    """The repositories, the broker's management API (as administrator) and the services on top."""
+async def open_service(
+    settings: Settings, admin_url: str, management_url: str, public_url: str | None = None
+) -> AsyncIterator[Service]:
+    """The repositories, the broker's management API (as administrator) and the services on top;
+    ``public_url`` (else ``FLEETBUS_PUBLIC_AMQP_URL``) is the broker address users are handed."""
     secrets_ = Secrets.for_settings(settings)
     repositories = repositories_for(settings)
     await repositories.open()
@@ -77,6 +80,7 @@ async def open_service(settings: Settings, admin_url: str, management_url: str) 
                 management,
                 admin_url,
                 settings.ingest_shards,
+                public_url or settings.public_amqp_url,
             ),
             missions=missions,
             channels=Channels(

@@ -24,6 +24,7 @@ import pika.exceptions
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import assign_shard, unassign_shard
+from fleetbus.broker.tls import pika_parameters
 from fleetbus.broker.topology import account_topology, core_topology, declare_with_url
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
@@ -70,6 +71,22 @@ def url_for(amqp_url: str, username: str, password: str) -> str:
     if parts.port:
         netloc += f":{parts.port}"
     return urlunsplit((parts.scheme, netloc, parts.path, parts.query, ""))
+
+
+def as_public(amqp_url: str, public_url: str | None) -> str:
+    """``amqp_url``'s login and virtual host at the broker's public address (``public_url``: its
+    scheme, host, port and query, e.g. ``amqps://broker.example:5671/?cacertfile=...``): the URL a
+    robot or a user is handed. Without a public address, ``amqp_url`` itself."""
+    if not public_url:
+        return amqp_url
+    parts, public = urlsplit(amqp_url), urlsplit(public_url)
+    host = public.hostname or "localhost"
+    if ":" in host:
+        host = f"[{host}]"
+    netloc = f"{parts.netloc.rpartition('@')[0]}@{host}" if "@" in parts.netloc else host
+    if public.port:
+        netloc += f":{public.port}"
+    return urlunsplit((public.scheme, netloc, parts.path or "/", public.query, ""))
 
 
 def with_vhost(amqp_url: str, vhost: str) -> str:
@@ -207,7 +224,7 @@ def ensure_recorder_account(admin_url: str, api: ManagementAPI, credentials_dir:
 
 def can_login(amqp_url: str) -> bool:
     """Whether the broker accepts this URL's credentials (it answers at all, or this raises)."""
-    parameters = pika.URLParameters(amqp_url)
+    parameters = pika_parameters(amqp_url)
     parameters.connection_attempts = 1
     parameters.socket_timeout = 5
     try:

@@ -26,6 +26,7 @@ from typing import Any, Protocol
 
 import pika
 
+from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RECORDER_QUEUE
 
 
@@ -202,7 +203,7 @@ def _described(fetched: Fetched, kept: Mapping[str, KeptReason]) -> list[DeadLet
 
 
 def _peek(amqp_url: str, limit: int) -> tuple[int, Fetched]:
-    connection = pika.BlockingConnection(pika.URLParameters(amqp_url))
+    connection = pika.BlockingConnection(pika_parameters(amqp_url))
     try:
         channel = connection.channel()
         available = channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count

@@ -10,6 +10,8 @@ from __future__ import annotations
 import pika
 import pika.exceptions
 
+from fleetbus.broker.tls import pika_parameters
+
 
 class NoSuchQueue(RuntimeError):
     """The broker returned the message: no queue of that name."""
@@ -23,7 +25,7 @@ def put_in_queue(admin_url: str, queue: str, body: bytes, properties: pika.Basic
     """Publish ``body`` to ``queue`` and wait for the broker's confirm (blocking: run it on a thread)."""
     properties.delivery_mode = pika.DeliveryMode.Persistent.value
     try:
-        connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+        connection = pika.BlockingConnection(pika_parameters(admin_url))
     except pika.exceptions.AMQPError as error:
         raise NotTaken(f"the broker does not answer ({error!r})") from error
     try:

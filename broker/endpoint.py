@@ -19,7 +19,7 @@ from typing import Literal
 from urllib.parse import unquote, urlsplit
 
 from fleetbus.broker.accounts import SERVICE_USER, kept_password, url_for
-from fleetbus.broker.probe import NoAnswer, amqp_login, check_amqp_login, management_answers
+from fleetbus.broker.probe import NoAnswer, NotVerified, amqp_login, check_amqp_login, management_answers
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.urls import mask_password
 from fleetbus.settings import Settings
@@ -45,6 +45,9 @@ class BrokerEndpoint:
     management_url: str
     """Base URL of the management HTTP API (same credentials as ``amqp_url``)."""
     kind: Kind
+    public_url: str | None = None
+    """The broker as robots and users reach it, without credentials (``FLEETBUS_PUBLIC_AMQP_URL``,
+    or the private node's AMQPS listener); None: ``amqp_url``'s broker."""
 
 
 def derive_management_url(amqp_url: str) -> str:
@@ -76,6 +79,12 @@ def wait_for_login(url: str, what: str, wait_s: float, refused_hint: str = "") -
 
     try:
         accepted = retrying(shown, on=NoAnswer, deadline=wait_s, backoff=BROKER_BACKOFF, logger=log)(login)
+    except NotVerified as error:
+        raise BrokerUnavailable(
+            f"{shown} cannot be trusted: {error}. Check the URL's cacertfile (the CA that signed the "
+            "broker's certificate) and that its host is a name in that certificate "
+            "(`fleetbus certs show`); verify=verify_none turns the check off"
+        ) from None
     except GaveUp as error:
         raise BrokerUnavailable(
             f"{shown} did not answer in {error.waited:.0f} s ({error.error}). A configured broker is "
@@ -114,7 +123,7 @@ def external_endpoint(settings: Settings) -> BrokerEndpoint | None:
         )
     wait_for_login(settings.amqp_url, "the broker of FLEETBUS_AMQP_URL", settings.broker_wait_s)
     management_url = settings.management_url or derive_management_url(settings.amqp_url)
-    return BrokerEndpoint(settings.amqp_url, management_url, "external")
+    return BrokerEndpoint(settings.amqp_url, management_url, "external", settings.public_amqp_url)
 
 
 def service_account_url(

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import ssl
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -41,23 +42,38 @@ class NoAnswer(Exception):
     """Nothing usable answers at an AMQP URL (refused, timed out, still starting); the message says what."""
 
 
-def _reason(error: BaseException) -> str:
+class NotVerified(Exception):
+    """The broker's TLS certificate or host name did not verify, or the URL's TLS files are
+    unusable: waiting does not help. The message says why."""
+
+
+def _innermost(error: BaseException) -> BaseException:
     """The innermost cause of a failed connection (pika wraps it in one or two exceptions)."""
     while True:
         inner = getattr(error, "exception", None) or (error.args[-1] if error.args else None)
         if not isinstance(inner, BaseException):
-            break
+            return error
         error = inner
+
+
+def _reason(error: BaseException) -> str:
+    error = _innermost(error)
     return f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
 
 
 def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
     """Try an AMQP login: True when it works, False when the credentials are refused; raise
-    :class:`NoAnswer` when nothing usable answers (connection refused, timeout, broker starting)."""
+    :class:`NoAnswer` when nothing usable answers (connection refused, timeout, broker starting),
+    :class:`NotVerified` when TLS verification failed."""
     import pika
     import pika.exceptions
 
-    parameters = pika.URLParameters(url)
+    from fleetbus.broker.tls import TlsSettingError, pika_parameters
+
+    try:
+        parameters = pika_parameters(url)
+    except TlsSettingError as error:
+        raise NotVerified(str(error)) from None
     parameters.connection_attempts = 1
     parameters.retry_delay = 0
     parameters.socket_timeout = timeout
@@ -71,15 +87,17 @@ def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
         except pika.exceptions.ProbableAccessDeniedError:
             return True  # the login worked; only the virtual host is refused
         except (pika.exceptions.AMQPError, OSError) as error:
+            if isinstance(_innermost(error), ssl.SSLCertVerificationError):
+                raise NotVerified(_reason(error)) from None
             raise NoAnswer(_reason(error)) from None
     return True
 
 
 def amqp_login(url: str, timeout: float = 3.0) -> bool | None:
-    """:func:`check_amqp_login`, with None when nothing usable answers."""
+    """:func:`check_amqp_login`, with None when nothing usable answers (or cannot be verified)."""
     try:
         return check_amqp_login(url, timeout)
-    except NoAnswer:
+    except (NoAnswer, NotVerified):
         return None
 
 
@@ -87,14 +105,14 @@ def management_answers(management_url: str, username: str, password: str, timeou
     """Whether ``GET /api/overview`` answers 200 with these credentials."""
     import httpx
 
-    from fleetbus.broker.management import tls_context
+    from fleetbus.broker.management import verification
 
     try:
         response = httpx.get(
             management_url.rstrip("/") + "/api/overview",
             auth=(username, password),
             timeout=timeout,
-            verify=tls_context(),
+            verify=verification(management_url),
         )
     except httpx.HTTPError:
         return False

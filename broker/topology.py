@@ -16,6 +16,7 @@ import aio_pika
 from aio_pika.abc import AbstractChannel, ExchangeType
 
 from fleetbus.broker.account_roles import Role
+from fleetbus.broker.tls import aio_connect
 from fleetbus.schemas.routing import (
     ALL_TOPICS_BINDING,
     BEACON_CHECK_EXCHANGE,
@@ -305,7 +306,7 @@ async def declare(channel: AbstractChannel, topologies: Iterable[Topology]) -> N
 
 
 async def declare_with_url(amqp_url: str, topologies: Iterable[Topology]) -> None:
-    connection = await aio_pika.connect(amqp_url)
+    connection = await aio_connect(amqp_url)
     async with connection:
         channel = await connection.channel()
         await declare(channel, topologies)

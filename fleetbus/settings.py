@@ -274,11 +274,46 @@ class Settings(BaseSettings):
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )
+    tls_dir: Path | None = setting(
+        None,
+        "where `fleetbus certs make` writes the CA (`ca.pem`, `ca.key`) and the server certificate "
+        "(`server.pem`, `server.key`) that the private node, its management API and `fleetbus api --tls` use",
+        shown="`$FLEETBUS_DATA_DIR/tls`",
+    )
+    tls_ca: Path | None = setting(
+        None,
+        "your own CA certificate (PEM) instead of the one in `FLEETBUS_TLS_DIR`: what clients verify the "
+        "broker's and the API's certificates against, and what `GET /ca.pem` serves",
+        shown="`$FLEETBUS_TLS_DIR/ca.pem`",
+    )
+    tls_cert: Path | None = setting(
+        None,
+        "your own server certificate (PEM, with its chain) for the broker and `fleetbus api --tls`",
+        shown="`$FLEETBUS_TLS_DIR/server.pem`",
+    )
+    tls_key: Path | None = setting(
+        None,
+        "the private key of `FLEETBUS_TLS_CERT` (PEM, unencrypted)",
+        shown="`$FLEETBUS_TLS_DIR/server.key`",
+    )
+    public_amqp_url: str | None = setting(
+        None,
+        "the broker as robots and users reach it, without credentials, e.g. "
+        "`amqps://broker.example:5671/?cacertfile=/etc/fleetbus/ca.pem`: `users add` and the API's login "
+        "hand out URLs with its scheme, host, port and query (the virtual host stays "
+        "`FLEETBUS_AMQP_URL`'s); `cacertfile` is where the robot keeps the CA",
+        shown="unset: the private node's AMQPS port and this machine's CA, else `FLEETBUS_AMQP_URL`'s",
+    )
+    api_insecure_http: bool = setting(
+        False,
+        "DANGEROUS: let the API's login hand out broker passwords over plain HTTP to clients that are not on "
+        "this machine (anyone on the network path reads them); serve HTTPS (`fleetbus api --tls`) instead",
+    )
 
-    @field_validator("data_dir")
+    @field_validator("data_dir", "tls_dir", "tls_ca", "tls_cert", "tls_key")
     @classmethod
-    def _absolute(cls, path: Path) -> Path:
-        return path.resolve()
+    def _absolute(cls, path: Path | None) -> Path | None:
+        return path.resolve() if path is not None else None
 
     @field_validator("ingest_shards", mode="before")
     @classmethod
@@ -353,6 +388,23 @@ class Settings(BaseSettings):
     @property
     def api_dir(self) -> Path:
         return self.data_dir / "api"
+
+    @property
+    def tls_folder(self) -> Path:
+        return self.tls_dir or self.data_dir / "tls"
+
+    @property
+    def ca_file(self) -> Path:
+        """The CA clients verify the broker and the API with: ``FLEETBUS_TLS_CA``, else the made one."""
+        return self.tls_ca or self.tls_folder / "ca.pem"
+
+    @property
+    def cert_file(self) -> Path:
+        return self.tls_cert or self.tls_folder / "server.pem"
+
+    @property
+    def key_file(self) -> Path:
+        return self.tls_key or self.tls_folder / "server.key"
 
 
 def load_settings(environ: Mapping[str, str] | None = None) -> Settings:

@@ -32,6 +32,7 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
+from fleetbus.broker.tls import pika_parameters
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outgoing
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError, PublishRefused
@@ -133,7 +134,7 @@ class RobotClient:
         """This client's epoch: its events are numbered 0, 1, 2, ... in it
         (:mod:`fleetbus.publishers.sequence`)."""
         self._sequence = SequenceCounter()
-        self._parameters = pika.URLParameters(amqp_url)
+        self._parameters = pika_parameters(amqp_url)
         self._parameters.heartbeat = 30
         self._parameters.connection_attempts = 1
         self._parameters.socket_timeout = 5

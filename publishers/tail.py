@@ -18,9 +18,9 @@ from datetime import datetime, timedelta, timezone
 from typing import Any
 from urllib.parse import unquote, urlsplit
 
-import aio_pika
 from aio_pika.abc import AbstractIncomingMessage
 
+from fleetbus.broker.tls import aio_connect
 from fleetbus.broker.topics import topic_matches
 from fleetbus.schemas.routing import stream_queue
 
@@ -92,7 +92,7 @@ async def follow(
     """Show what the account's stream receives (from ``since``, else from now) whose routing key
     matches ``pattern``; stop after ``count`` messages or ``idle_timeout`` seconds of silence.
     Returns how many were shown."""
-    connection = await aio_pika.connect(amqp_url)
+    connection = await aio_connect(amqp_url)
     shown = 0
     async with connection:
         channel = await connection.channel()

@@ -66,3 +66,10 @@ def test_the_worker_holds_the_service_accounts_alone() -> None:
     assert worker["depends_on"]["setup"] == {"condition": "service_completed_successfully"}
     assert setup["command"] == ["fleetbus", "setup"] and "FLEETBUS_AMQP_URL" in setup["environment"]
     assert "service-credentials:/data/accounts" in setup["volumes"]
+
+
+def test_the_api_hands_out_no_broker_password_over_plain_http_unless_the_operator_says_so() -> None:
+    api = SERVICES["api"]
+    assert "--tls" not in api["command"]
+    assert api["environment"]["FLEETBUS_API_INSECURE_HTTP"] == "${FLEETBUS_API_INSECURE_HTTP:-false}"
+    assert api["ports"] == ["127.0.0.1:8000:8000"]

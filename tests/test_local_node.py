@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import logging
 import os
 import re
+import socket
+import ssl
 import stat
 import subprocess
 import sys
@@ -22,18 +25,26 @@ import httpx
 import pika
 import pytest
 
-from fleetbus.broker.endpoint import BrokerUnavailable
+from fleetbus.broker.certificates import TlsFiles, make_certificates
+from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.tls import TlsSettingError, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
     RABBITMQ_SERVER,
+    TLS_PORT_NAMES,
     LocalNode,
     amqp_login,
     listening_addresses,
     pid_alive,
     pids_listening_on,
 )
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.errors import BrokerUnavailable as RobotUnreachable
+from fleetbus.schemas.routing import EXPRESS_QUEUE
 from fleetbus.settings import Settings, load_settings
+from tests.factories import hazard
 from tests.support import wait_for
 
 pytestmark = pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed")
@@ -84,8 +95,8 @@ def test_up_is_idempotent(node: LocalNode) -> None:
 def test_status_shows_urls_and_keeps_state_in_its_folder(node: LocalNode) -> None:
     info = node.status()
     ports = json.loads(node.node_file.read_text())["ports"]
-    assert set(ports) == {"amqp", "management", "dist", "epmd", "stream"}
-    assert len(set(ports.values())) == 5
+    assert set(ports) == {"amqp", "management", "dist", "epmd", "stream", "amqps", "management_tls"}
+    assert len(set(ports.values())) == 7
     assert info.ports == ports
     assert info.amqp_url is not None
     match = re.fullmatch(r"amqp://fleetbus-admin:([^@]+)@127\.0\.0\.1:(\d+)/", info.amqp_url)
@@ -119,7 +130,9 @@ def test_listens_only_on_loopback(node: LocalNode) -> None:
     info = node.status()
     assert info.pid is not None
     beam = listening_addresses(info.pid)
-    assert {port for _, port in beam} >= {info.ports["amqp"], info.ports["management"], info.ports["dist"]}
+    assert {port for _, port in beam} >= {
+        info.ports[name] for name in ("amqp", "management", "dist", "amqps", "management_tls")
+    }
     epmds = node.epmd_pids()
     assert epmds, "the node's private epmd is not running"
     assert {host for host, _ in beam} == {"127.0.0.1"}, beam
@@ -268,6 +281,228 @@ def test_broker_status_masks_the_password_unless_asked(node: LocalNode, node_set
     assert f"amqp://{ADMIN_USER}:****@127.0.0.1:{node.status().ports['amqp']}/" in masked
     assert str(node.admin_file) in masked, "it says where the password is kept"
     assert node.status().amqp_url in status("--show-password")
+
+
+def _peer_names(port: int, ca: Path, server_name: str = "127.0.0.1") -> list[str]:
+    """A real TLS handshake with the node, verified against ``ca``: the names its certificate carries."""
+    context = ssl.create_default_context(cafile=str(ca))
+    with (
+        socket.create_connection(("127.0.0.1", port), timeout=10) as raw,
+        context.wrap_socket(raw, server_hostname=server_name) as tls,
+    ):
+        certificate = tls.getpeercert()
+    return [value for _, value in certificate["subjectAltName"]]
+
+
+def test_the_node_serves_its_certificate_on_amqps_and_the_management_api(node: LocalNode) -> None:
+    info = node.status()
+    assert node.tls.ca == node.base_dir.parent / "tls" / "ca.pem"  # made at the first start
+    assert stat.S_IMODE(node.tls.key.stat().st_mode) == 0o600
+    for port in (info.ports["amqps"], info.ports["management_tls"]):
+        assert _peer_names(port, node.tls.ca) == ["localhost", "127.0.0.1"]
+    assert info.management_tls_url == f"https://127.0.0.1:{info.ports['management_tls']}/"
+    overview = httpx.get(
+        info.management_tls_url + "api/overview",
+        auth=admin(node),
+        timeout=10,
+        verify=ssl.create_default_context(cafile=str(node.tls.ca)),
+    )
+    assert overview.status_code == 200
+    with pytest.raises(httpx.ConnectError, match="CERTIFICATE_VERIFY_FAILED"):
+        httpx.get(info.management_tls_url + "api/overview", timeout=10)  # the system's CAs do not know it
+    assert info.amqps_url is not None and amqp_login(info.amqps_url) is True
+    assert info.public_url == (f"amqps://127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}")
+
+
+def test_the_management_client_verifies_an_https_api_with_fleetbus_ca(
+    node: LocalNode, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    info = node.status()
+    assert info.management_tls_url is not None
+    monkeypatch.setenv("FLEETBUS_TLS_CA", str(node.tls.ca))
+    with ManagementAPI(info.management_tls_url, *admin(node)) as api:
+        assert ADMIN_USER in [user["name"] for user in api.list_users()]
+    other = TlsFiles.in_folder(tmp_path / "other")
+    make_certificates(other)
+    monkeypatch.setenv("FLEETBUS_TLS_CA", str(other.ca))
+    with ManagementAPI(info.management_tls_url, *admin(node)) as api:
+        with pytest.raises(httpx.ConnectError, match="CERTIFICATE_VERIFY_FAILED"):
+            api.list_users()
+
+
+def test_a_node_json_without_the_tls_ports_keeps_its_ports(tmp_path: Path) -> None:
+    """A node made by an older version keeps the ports robots and tools know; only the new ones
+    are chosen (no node is started)."""
+    old = LocalNode(tmp_path / "broker")
+    old.base_dir.mkdir(parents=True)
+    kept = {"amqp": 23001, "management": 23002, "dist": 23003, "epmd": 23004, "stream": 23005}
+    old.node_file.write_text(json.dumps({"node_name": old.node_name, "ports": kept}))
+    assert old.ports() == kept  # what the running node of that version listens on
+    ports = old.ports(create=True)
+    assert ports is not None and {name: ports[name] for name in kept} == kept
+    assert len(set(ports.values())) == len(ports) == len(kept) + 2
+    assert json.loads(old.node_file.read_text())["ports"] == ports
+
+
+@pytest.fixture
+def robot_url(node: LocalNode, node_settings: Settings) -> Iterator[str]:
+    """A robot account made by `fleetbus users add` with nothing configured (the private node):
+    the URL it hands out."""
+    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="300")
+    command = [sys.executable, "-m", "fleetbus", "users", "add", "tls-explorer", "--kind", "explorer"]
+    added = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+    assert added.returncode == 0, added.stderr
+    [url] = [line for line in added.stdout.splitlines() if line.startswith("amqp")]
+    assert f"the CA {node.tls.ca}" in added.stdout, "it says where the robot's CA is"
+    try:
+        yield url
+    finally:
+        httpx.delete(node.status().management_url + "api/users/tls-explorer", auth=admin(node), timeout=10)
+
+
+def test_users_add_hands_out_an_amqps_url_the_robot_client_publishes_with(
+    robot_url: str, node: LocalNode, tmp_path: Path
+) -> None:
+    info = node.status()
+    assert robot_url.startswith("amqps://tls-explorer:")
+    assert robot_url.endswith(f"@127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}")
+    admin_url = info.amqp_url or ""
+    before = _ready(admin_url, EXPRESS_QUEUE)
+    with RobotClient(robot_url, state_dir=tmp_path, connect_timeout=20) as robot:
+        robot.connect()
+        robot.publish("hazard", hazard())
+        assert robot.flush(timeout=20)
+    wait_for(lambda: _ready(admin_url, EXPRESS_QUEUE) == before + 1, 20, "the hazard in the express lane")
+
+
+@pytest.mark.parametrize(
+    ("change", "refusal"),
+    [
+        ("another CA", "CERTIFICATE_VERIFY_FAILED"),
+        ("a name not in the certificate", "Hostname mismatch, certificate is not valid for 'broker.example'"),
+    ],
+)
+def test_the_robot_client_refuses_a_broker_it_cannot_verify(
+    robot_url: str, tmp_path: Path, node: LocalNode, change: str, refusal: str
+) -> None:
+    if change == "another CA":
+        other = TlsFiles.in_folder(tmp_path / "other")
+        make_certificates(other)
+        url = robot_url.replace(str(node.tls.ca), str(other.ca))
+    else:
+        url = robot_url + "&server_name_indication=broker.example"
+    with RobotClient(url, state_dir=tmp_path / "robot", connect_timeout=5) as robot:
+        with pytest.raises(RobotUnreachable, match="certificate verify failed") as refused:
+            robot.connect()
+        assert refusal in str(refused.value)
+
+
+def test_a_configured_broker_that_cannot_be_verified_is_an_error_at_once_not_waited_for(
+    node: LocalNode, tmp_path: Path
+) -> None:
+    other = TlsFiles.in_folder(tmp_path / "other")
+    make_certificates(other)
+    url = (node.status().amqps_url or "").replace(str(node.tls.ca), str(other.ca))
+    started = time.monotonic()
+    with pytest.raises(BrokerUnavailable, match=r"cannot be trusted: .*certificate verify failed") as refused:
+        wait_for_login(url, "the broker of FLEETBUS_AMQP_URL", wait_s=60)
+    assert time.monotonic() - started < 10  # not the 60 s a broker that does not answer is waited for
+    assert admin(node)[1] not in str(refused.value)
+
+
+def test_a_running_node_of_an_older_version_keeps_working_and_gets_tls_at_its_next_start(
+    node: LocalNode, caplog: pytest.LogCaptureFixture
+) -> None:
+    """As after an upgrade: node.json has no TLS ports and the running node listens on none of the
+    ones chosen now. `up` returns at once with the plain URLs (robots are handed amqp:// as before)
+    and says how to get TLS; the next start listens on the new ports."""
+    before = node.status()
+    data = json.loads(node.node_file.read_text())
+    data["ports"] = {name: port for name, port in data["ports"].items() if name not in TLS_PORT_NAMES}
+    node.node_file.write_text(json.dumps(data))
+    started = time.monotonic()
+    with caplog.at_level(logging.WARNING, logger="fleetbus.broker"):
+        info = node.up()
+    assert time.monotonic() - started < 10
+    assert info.pid == before.pid and info.amqp_url == before.amqp_url
+    assert {name: info.ports[name] for name in data["ports"]} == data["ports"]
+    assert info.public_url is info.amqps_url is info.management_tls_url is None
+    assert any("without its AMQPS and HTTPS listeners" in r.getMessage() for r in caplog.records)
+    node.down()
+    again = node.up()
+    assert again.public_url == f"amqps://127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}"
+    assert again.amqps_url is not None and amqp_login(again.amqps_url) is True
+
+
+def _shovel_states(node: LocalNode) -> dict[str, str]:
+    listing = node.rabbitmqctl("shovel_status", "--formatter", "json").stdout
+    return {shovel["name"]: shovel["state"] for shovel in json.loads(listing or "[]")}
+
+
+def test_a_shovel_reaches_the_node_over_amqps_only_when_it_can_verify_it(
+    node: LocalNode, tmp_path: Path
+) -> None:
+    """The URL form a site's shovel takes (:func:`shovel_uri`), on RabbitMQ's own Erlang client:
+    it moves messages with the right CA and name, and refuses another CA or another name."""
+    plugins = node.env()
+    enabled = subprocess.run(
+        [str(RABBITMQ_SERVER.parent / "rabbitmq-plugins"), "enable", "rabbitmq_shovel", "--online"],
+        env=plugins,
+        cwd=node.base_dir,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert enabled.returncode == 0, enabled.stderr
+    info = node.status()
+    assert info.amqps_url is not None and info.amqp_url is not None and info.management_url is not None
+    other = TlsFiles.in_folder(tmp_path / "other")
+    make_certificates(other)
+    with pytest.raises(TlsSettingError, match="server_name_indication"):
+        shovel_uri(info.amqps_url)  # 127.0.0.1: the Erlang client checks DNS names only
+    named = info.amqps_url + "&server_name_indication=localhost"
+    shovels = {
+        "tls-verified": shovel_uri(named),
+        "tls-other-ca": shovel_uri(named.replace(str(node.tls.ca), str(other.ca))),
+        "tls-other-name": shovel_uri(info.amqps_url + "&server_name_indication=broker.example"),
+    }
+    connection = pika.BlockingConnection(pika.URLParameters(info.amqp_url))
+    channel = connection.channel()
+    for name in shovels:
+        for queue in (f"{name}.from", f"{name}.to"):
+            channel.queue_declare(queue, durable=True)
+    connection.close()
+    parameters = info.management_url + "api/parameters/shovel/%2F/"
+    try:
+        for name, uri in shovels.items():
+            value = {
+                "src-uri": "amqp://",
+                "src-queue": f"{name}.from",
+                "dest-uri": uri,
+                "dest-queue": f"{name}.to",
+            }
+            answer = httpx.put(parameters + name, json={"value": value}, auth=admin(node), timeout=10)
+            assert answer.status_code in (201, 204), answer.text
+            _publish(info.amqp_url, f"{name}.from", [b"over the link"])
+        wait_for(lambda: _ready(info.amqp_url or "", "tls-verified.to") == 1, 30, "the message over AMQPS")
+        assert _shovel_states(node)["tls-verified"] == "running"
+        wait_for(
+            lambda: (
+                "Shovel 'tls-other-ca' failed to connect" in node.node_log.read_text()
+                and "Shovel 'tls-other-name' failed to connect" in node.node_log.read_text()
+            ),
+            30,
+            "the two refusals in the node's log",
+        )
+        logged = node.node_log.read_text()
+        assert re.search(r"Shovel 'tls-other-ca' failed to connect .*unknown_ca", logged)
+        assert re.search(r"Shovel 'tls-other-name' failed to connect .*hostname_check_failed", logged)
+        for name in ("tls-other-ca", "tls-other-name"):
+            assert _ready(info.amqp_url, f"{name}.to") == 0 and _ready(info.amqp_url, f"{name}.from") == 1
+    finally:
+        for name in shovels:
+            httpx.delete(parameters + name, auth=admin(node), timeout=10)
 
 
 def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> None:

@@ -9,13 +9,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import timedelta
 
-import aio_pika
 from aio_pika.abc import AbstractChannel, AbstractRobustConnection
 
 from fleetbus.broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import read_shard_map
+from fleetbus.broker.tls import aio_connect_robust
 from fleetbus.broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
 from fleetbus.schemas.routing import (
     BEACON_DISCARD_QUEUE,
@@ -123,7 +123,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`fleetbus.workers.setup`)."""
     repositories = repositories_for(settings)
     await repositories.open()
-    connection = await aio_pika.connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
+    connection = await aio_connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
     setup = await connection.channel()
     await declare(setup, [core_topology(settings.ingest_shards)])
     await setup.close()

@@ -7,9 +7,11 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Request
 from fastapi.security import OAuth2PasswordRequestForm
 
+from fleetbus.api import audit
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.login import log_in
 from fleetbus.api.models import BrokerOut, TokenOut, UserOut
+from fleetbus.api.transport import broker_password_refusal
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 
@@ -19,13 +21,19 @@ async def login(
     request: Request, form: Annotated[OAuth2PasswordRequestForm, Depends()], svc: ServiceDep
 ) -> TokenOut:
     """Log in with user name and password (an OAuth2 password form). The token expires; the reply
-    also hands over the user's broker account, whose password the service generated. Too many
+    also hands over the user's broker account, whose password the service generated, but only over
+    HTTPS or to a client on the API's own machine (else ``broker`` is null and ``broker_withheld``
+    says why; FLEETBUS_API_INSECURE_HTTP overrides). Too many
     failed logins to an account from one address, or from one address to any, get 429 with
     Retry-After until the oldest of them is old enough."""
     login = await log_in(request, svc, form.username, form.password)
+    withheld = broker_password_refusal(request, svc.settings)
+    if withheld:
+        audit.withheld(request, form.username, withheld)
     return TokenOut(
         access_token=login.token.value,
         expires_at=login.token.expires_at,
         user=UserOut.of(login.user),
-        broker=BrokerOut.of(login.broker),
+        broker=None if withheld else BrokerOut.of(login.broker),
+        broker_withheld=withheld,
     )

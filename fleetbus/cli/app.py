@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("replay", "replay"),
     "stats": ("stats", "stats"),
     "broker": ("broker", "app"),
+    "certs": ("certs", "app"),
     "users": ("users", "app"),
     "beacons": ("beacons", "app"),
     "map": ("maps", "app"),

@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from urllib.parse import quote
 
+from fleetbus.broker.certificates import TlsFiles
 from fleetbus.broker.endpoint import (
     MANAGEMENT_PORT,
     BrokerEndpoint,
@@ -30,7 +31,14 @@ from fleetbus.broker.endpoint import (
     external_endpoint,
 )
 from fleetbus.broker.probe import write_private_file
-from fleetbus.dev.local_node import ADMIN_USER, RABBITMQ_SERVER, SETUP_HINT, LocalNode, LocalNodeError
+from fleetbus.dev.local_node import (
+    ADMIN_USER,
+    RABBITMQ_SERVER,
+    SETUP_HINT,
+    LocalNode,
+    LocalNodeError,
+    NodeInfo,
+)
 from fleetbus.settings import Settings
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -78,6 +86,7 @@ def docker_endpoint(settings: Settings) -> BrokerEndpoint:
         f"amqp://{ADMIN_USER}:{quote(password, safe='')}@127.0.0.1:{DOCKER_AMQP_PORT}/",
         f"http://127.0.0.1:{MANAGEMENT_PORT}/",
         "docker",
+        settings.public_amqp_url,
     )
 
 
@@ -125,21 +134,33 @@ def compose_up(settings: Settings, timeout: float = 180.0) -> BrokerEndpoint:
 # --------------------------------------------------------------------------- private node
 
 
+def local_node(settings: Settings) -> LocalNode:
+    """The private node of ``settings``' data folder, serving ``FLEETBUS_TLS_*``'s certificates."""
+    return LocalNode(settings.broker_dir, TlsFiles.for_settings(settings))
+
+
+def node_endpoint(settings: Settings, info: NodeInfo) -> BrokerEndpoint:
+    """The private node as administrator; robots are handed its AMQPS listener."""
+    assert info.amqp_url is not None and info.management_url is not None
+    return BrokerEndpoint(
+        info.amqp_url, info.management_url, "private", settings.public_amqp_url or info.public_url
+    )
+
+
 def private_endpoint(settings: Settings, start: bool = True) -> BrokerEndpoint:
     if not RABBITMQ_SERVER.exists():
         raise BrokerUnavailable(
             f"no broker: FLEETBUS_AMQP_URL is unset, no Docker engine answers, "
             f"and RabbitMQ is not installed ({RABBITMQ_SERVER} is missing): {SETUP_HINT}"
         )
-    node = LocalNode(settings.broker_dir)
+    node = local_node(settings)
     if start:
         info = node.up()
     else:
         info = node.status()
         if not info.running or not node.ready():
             raise BrokerUnavailable("the private RabbitMQ node is not running: run `fleetbus broker up`")
-    assert info.amqp_url is not None and info.management_url is not None
-    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
+    return node_endpoint(settings, info)
 
 
 def resolve_broker(settings: Settings, start: bool = True) -> BrokerEndpoint:

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import IO, TypeVar
 from urllib.parse import quote
 
+from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.probe import (
     amqp_login,
     management_answers,
@@ -47,7 +48,10 @@ RABBITMQ_SERVER = RABBITMQ_BIN / "rabbitmq-server"
 RABBITMQCTL = RABBITMQ_BIN / "rabbitmqctl"
 ADMIN_USER = "fleetbus-admin"
 HOST = "127.0.0.1"
-PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream")
+PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream", "amqps", "management_tls")
+#: The ports a node made by an older version lacks: chosen at its next start, listened on once it
+#: starts again (a running node keeps the configuration it started with).
+TLS_PORT_NAMES = ("amqps", "management_tls")
 PLUGINS = ("rabbitmq_management",)
 
 #: Erlang run by ``rabbitmqctl eval``: trigger an election in every quorum queue whose Ra
@@ -81,6 +85,12 @@ class NodeInfo:
     """``http://127.0.0.1:<port>/``; None before the first up."""
     ports: dict[str, int] = field(default_factory=dict)
     log_file: Path | None = None
+    amqps_url: str | None = None
+    """The administrator over TLS, ``amqps://fleetbus-admin:<pw>@127.0.0.1:<port>/?cacertfile=<ca>``."""
+    public_url: str | None = None
+    """What robots on this machine are given: ``amqps://127.0.0.1:<port>/?cacertfile=<ca>``."""
+    management_tls_url: str | None = None
+    """``https://127.0.0.1:<port>/``, its certificate signed by ``tls.ca``."""
 
 
 # --------------------------------------------------------------------------- processes (/proc)
@@ -271,8 +281,12 @@ def _tail(path: Path, lines: int = 30) -> str:
 class LocalNode:
     """A private RabbitMQ node under ``base_dir``; see the module docstring."""
 
-    def __init__(self, base_dir: Path | str) -> None:
+    def __init__(self, base_dir: Path | str, tls: TlsFiles | None = None) -> None:
+        """``tls``: the CA and server certificate the node serves (default: ``tls/`` beside
+        ``base_dir``, which is ``$FLEETBUS_DATA_DIR/tls`` for ``$FLEETBUS_DATA_DIR/broker``);
+        made at the first start when missing."""
         self.base_dir = Path(base_dir).expanduser().resolve()
+        self.tls = tls or TlsFiles.in_folder(self.base_dir.parent / "tls")
         digest = hashlib.sha1(str(self.base_dir).encode()).hexdigest()[:10]
         self.node_name = f"fleetbus-{digest}@localhost"
         self._proc: subprocess.Popen[bytes] | None = None
@@ -308,15 +322,22 @@ class LocalNode:
 
     # persistent state
     def ports(self, create: bool = False) -> dict[str, int] | None:
-        """The node's ports from ``node.json``; with ``create``, chosen and saved when missing."""
+        """The node's ports from ``node.json``; with ``create``, chosen and saved when missing.
+        A ``node.json`` of an older version keeps its ports: only the ones it lacks are added."""
+        ports: dict[str, int] = {}
         if self.node_file.exists():
             data = json.loads(self.node_file.read_text())
             ports = {name: int(data["ports"][name]) for name in PORT_NAMES if name in data.get("ports", {})}
             if len(ports) == len(PORT_NAMES):
                 return ports
+            if not create and all(name in ports for name in PORT_NAMES if name not in TLS_PORT_NAMES):
+                return ports  # an older node.json: its node has no TLS listeners
         if not create:
             return None
-        ports = dict(zip(PORT_NAMES, choose_free_ports(len(PORT_NAMES)), strict=True))
+        missing = [name for name in PORT_NAMES if name not in ports]
+        fresh = [port for port in choose_free_ports(len(missing) + len(ports)) if port not in ports.values()]
+        ports.update(zip(missing, fresh, strict=False))
+        ports = {name: ports[name] for name in PORT_NAMES}
         self.base_dir.mkdir(parents=True, exist_ok=True)
         _write_if_changed(
             self.node_file, json.dumps({"node_name": self.node_name, "ports": ports}, indent=2) + "\n"
@@ -343,6 +364,32 @@ class LocalNode:
             f"amqp://{user}:{password}@{HOST}:{ports['amqp']}/",
             f"http://{HOST}:{ports['management']}/",
         )
+
+    def public_url(self) -> str | None:
+        """The node's AMQPS listener as a robot on this machine reaches it (no credentials)."""
+        port = (self.ports() or {}).get("amqps")
+        if port is None:
+            return None
+        return f"amqps://{HOST}:{port}/?cacertfile={quote(str(self.tls.ca), safe='/')}"
+
+    def _amqps_url(self) -> str | None:
+        public, creds = self.public_url(), self.admin_credentials()
+        if public is None or creds is None:
+            return None
+        user, password = (quote(part, safe="") for part in creds)
+        return public.replace("amqps://", f"amqps://{user}:{password}@", 1)
+
+    def _ensure_certificates(self) -> None:
+        """The server certificate, made (with a CA, unless one exists) when it is missing from
+        the folder fleetbus makes them in; the operator's own files are never made."""
+        if self.tls.server_ready():
+            return
+        ours = TlsFiles.in_folder(self.tls.ca_key.parent)
+        if self.tls != ours:
+            missing = [str(path) for path in (self.tls.ca, self.tls.cert, self.tls.key) if not path.exists()]
+            raise LocalNodeError(f"the TLS files FLEETBUS_TLS_CA/_CERT/_KEY name are missing: {missing}")
+        log.info("making the private node's certificates in %s", ours.ca.parent)
+        make_certificates(ours)
 
     def env(self) -> dict[str, str]:
         """The whole environment of the server and of its CLI tools: the one place that makes the
@@ -391,10 +438,23 @@ class LocalNode:
             "# Shadows /etc/rabbitmq/rabbitmq-env.conf: fleetbus sets everything in the environment.\n",
         )
         _write_if_changed(base / "enabled_plugins", "[" + ",".join(PLUGINS) + "].\n")
+        self._ensure_certificates()
+        tls = self.tls
         conf = f"""\
 # Written by fleetbus (broker/local_node.py) on every start; edits are overwritten.
 management.tcp.ip = {HOST}
 management.tcp.port = {ports["management"]}
+management.ssl.ip = {HOST}
+management.ssl.port = {ports["management_tls"]}
+management.ssl.cacertfile = {tls.ca}
+management.ssl.certfile = {tls.cert}
+management.ssl.keyfile = {tls.key}
+listeners.ssl.default = {HOST}:{ports["amqps"]}
+ssl_options.cacertfile = {tls.ca}
+ssl_options.certfile = {tls.cert}
+ssl_options.keyfile = {tls.key}
+ssl_options.verify = verify_peer
+ssl_options.fail_if_no_peer_cert = false
 stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
 default_vhost = /
 default_user = {user}
@@ -409,6 +469,12 @@ log.console = false
 """
         conf_file = base / "rabbitmq.conf"
         if not conf_file.exists() or conf_file.read_text() != conf:
+            if self.pid() is not None:
+                log.warning(
+                    "the private node's configuration changed (%s): it takes effect when the node "
+                    "starts again (`fleetbus broker down`, then `up`)",
+                    conf_file,
+                )
             write_private_file(conf_file, conf)
         cookie = base / ".erlang.cookie"
         if not cookie.exists():
@@ -472,6 +538,8 @@ log.console = false
     def status(self) -> NodeInfo:
         pid = self.pid()
         amqp_url, management_url = self._urls()
+        ports = self.ports() or {}
+        tls = pid is not None and self._tls_listening(pid)
         return NodeInfo(
             running=pid is not None,
             pid=pid,
@@ -479,9 +547,18 @@ log.console = false
             base_dir=self.base_dir,
             amqp_url=amqp_url,
             management_url=management_url,
-            ports=self.ports() or {},
+            ports=ports,
             log_file=self.node_log,
+            amqps_url=self._amqps_url() if tls else None,
+            public_url=self.public_url() if tls else None,
+            management_tls_url=f"https://{HOST}:{ports['management_tls']}/" if tls else None,
         )
+
+    def _tls_listening(self, pid: int) -> bool:
+        """Whether the running node listens on its AMQPS port (one started by an older version,
+        with another configuration, does not until it starts again)."""
+        port = (self.ports() or {}).get("amqps")
+        return port is not None and port in {listening for _, listening in listening_addresses(pid)}
 
     def ready(self, timeout: float = 3.0) -> bool:
         """Whether the administrator can log in over AMQP and the management API answers."""
@@ -557,6 +634,11 @@ log.console = false
             if started:
                 self._start()
             self._wait_ready(deadline, started)
+            if not started and pid is not None and not self._tls_listening(pid):
+                log.warning(
+                    "the private node runs without its AMQPS and HTTPS listeners (it was started by an "
+                    "older fleetbus): `fleetbus broker down`, then `up`, to add them"
+                )
             if started:
                 self._drop_guest()
                 if had_database:
@@ -607,7 +689,9 @@ log.console = false
     def _wait_ready(self, deadline: float, started: bool) -> None:
         creds = self.admin_credentials()
         amqp_url, management_url = self._urls()
+        amqps_url = self._amqps_url()
         assert creds is not None and amqp_url is not None and management_url is not None
+        assert amqps_url is not None
         repaired = False
         amqp_ok = False
         while True:
@@ -625,14 +709,19 @@ log.console = false
                     repaired = True
                     continue
                 amqp_ok = bool(login)
-            if amqp_ok and management_answers(management_url, *creds, timeout=max(0.5, min(3.0, remaining))):
+            probe_timeout = max(0.5, min(3.0, remaining))
+            if (
+                amqp_ok
+                and management_answers(management_url, *creds, timeout=probe_timeout)
+                and (not started or amqp_login(amqps_url, timeout=probe_timeout))
+            ):
                 return
             if time.monotonic() >= deadline:
                 if started:
                     self._force_stop()
                 raise self._startup_failure(
-                    "the private RabbitMQ node did not accept the administrator's login in time"
-                    + (" (it was stopped again)" if started else "")
+                    "the private RabbitMQ node did not accept the administrator's login (AMQP, AMQPS "
+                    "and the management API) in time" + (" (it was stopped again)" if started else "")
                 )
             time.sleep(0.2)
 

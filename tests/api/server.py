@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import socket
+import ssl
 import subprocess
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import httpx
 
@@ -19,10 +21,12 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-def wait_until_serving(server: subprocess.Popen[bytes], base: str, log: str) -> None:
+def wait_until_serving(
+    server: subprocess.Popen[bytes], base: str, log: str, verify: ssl.SSLContext | bool = True
+) -> None:
     """Until `fleetbus api` at ``base`` answers ``GET /health`` (one HTTP client for every try:
     each new one loads the TLS certificates); fail if it exits first."""
-    with httpx.Client(base_url=base, timeout=2) as http:
+    with httpx.Client(base_url=base, timeout=2, verify=verify) as http:
 
         def healthy() -> bool:
             if server.poll() is not None:
@@ -45,9 +49,10 @@ def api_server(bus: Bus, admin: str, password: str, **settings: str) -> Iterator
 
 @contextmanager
 def api_process(
-    bus: Bus, admin: str, password: str, **settings: str
+    bus: Bus, admin: str, password: str, ca: Path | None = None, **settings: str
 ) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
-    """:func:`api_server`, yielding its base URL and its process (to read its memory, say)."""
+    """:func:`api_server`, yielding its base URL and its process (to read its memory, say); with
+    ``ca``, served over HTTPS (``--tls``) with a certificate that CA signed."""
     env = {**bus.worker_env(), **settings}
     env.pop("FLEETBUS_API_SECRET", None)  # the secret the server keeps itself
     fleetbus = [sys.executable, "-m", "fleetbus", "api"]
@@ -63,10 +68,13 @@ def api_process(
     assert made.returncode == 0, made.stderr
     port = free_port()
     log = open(bus.settings.data_dir / f"api-{port}.log", "wb")
-    server = subprocess.Popen([*fleetbus, "--port", str(port)], env=env, stdout=log, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
+    tls = ["--tls"] if ca else []
+    server = subprocess.Popen(
+        [*fleetbus, "--port", str(port), *tls], env=env, stdout=log, stderr=subprocess.STDOUT
+    )
+    base = f"{'https' if ca else 'http'}://127.0.0.1:{port}"
     try:
-        wait_until_serving(server, base, log.name)
+        wait_until_serving(server, base, log.name, ssl.create_default_context(cafile=str(ca)) if ca else True)
         yield base, server
     finally:
         server.terminate()

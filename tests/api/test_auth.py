@@ -78,7 +78,7 @@ def test_wrong_credentials_get_401_and_are_logged(
         reply = api.client.post("/auth/token", data={"username": username, "password": password})
     assert (reply.status_code, reply.json()) == (401, {"detail": "wrong user name or password"})
     assert reply.headers["WWW-Authenticate"] == "Bearer"
-    assert [m for m in refusals(caplog) if f"POST /auth/token from testclient as {username}" in m]
+    assert [m for m in refusals(caplog) if f"POST /auth/token from 127.0.0.1 as {username}" in m]
 
 
 @pytest.mark.parametrize(
@@ -128,7 +128,7 @@ def test_a_guest_calling_an_admin_endpoint_gets_403_and_is_logged(
     assert api.run(lambda: api.service.repositories.users.get_user("mallory")) is None
     assert api.bus.api.get_user("mallory") is None, "no broker account made either"
     assert refusals(caplog) == [
-        "refused 403: POST /users from testclient as visitor (guest): "
+        "refused 403: POST /users from 127.0.0.1 as visitor (guest): "
         "role guest may not do this; it needs admin"
     ]
 

@@ -372,7 +372,7 @@ def test_each_role_against_each_endpoint(
         logged = [r.getMessage() for r in caplog.records if r.name == "fleetbus.api.security"]
         who = f"{USERS[role]} ({role.value})"
         assert logged == [
-            f"refused 403: {call.method} {call.path} from testclient as {who}: {reply.json()['detail']}"
+            f"refused 403: {call.method} {call.path} from 127.0.0.1 as {who}: {reply.json()['detail']}"
         ]
         if call.unchanged is not None:
             assert call.unchanged(), "a refused call changed nothing"
@@ -392,4 +392,4 @@ def test_the_table_covers_every_endpoint_and_matches_the_openapi_document(api: A
     public = {
         (m.upper(), p) for p, ops in document["paths"].items() for m, op in ops.items() if "x-roles" not in op
     }
-    assert public == {("POST", "/auth/token"), ("GET", "/health")}
+    assert public == {("POST", "/auth/token"), ("GET", "/health"), ("GET", "/ca.pem")}

@@ -22,6 +22,7 @@ from pika.channel import Channel
 from pika.spec import Basic, BasicProperties
 
 from fleetbus.broker.retry import Backoff, Stopped, async_retrying
+from fleetbus.broker.tls import pika_parameters
 
 log = logging.getLogger("fleetbus.recorder")
 
@@ -81,7 +82,7 @@ class RecorderQueue:
     connection is lost (the messages in hand then cannot be settled: the broker redelivers them)."""
 
     def __init__(self, url: str, queue: str, prefetch: int, name: str) -> None:
-        self._parameters = pika.URLParameters(url)
+        self._parameters = pika_parameters(url)
         self._parameters.client_properties = {"connection_name": name}
         self._queue = queue
         self._prefetch = prefetch

@@ -20,6 +20,7 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api import audit
 from fleetbus.api.accounts import BrokerCredentials
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.session import Allowed
@@ -27,6 +28,7 @@ from fleetbus.api.console.sitemap import ACCOUNTS, ADMINS
 from fleetbus.api.console.templating import render
 from fleetbus.api.errors import BadRequest, ServiceRefusal
 from fleetbus.api.service import Service
+from fleetbus.api.transport import broker_password_refusal
 from fleetbus.schemas.roles import ROLE_PURPOSE, UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.users import User
@@ -143,6 +145,9 @@ async def disable(request: Request, name: str, admin: RoleSetter, svc: ServiceDe
 
 @router.post("/console/accounts/{name}/broker-password", response_class=HTMLResponse)
 async def reset_broker_password(request: Request, name: str, admin: Rekeyer, svc: ServiceDep) -> Response:
+    if refusal := broker_password_refusal(request, svc.settings):  # before the password changes
+        audit.refused(request, 403, admin.name, refusal)
+        return await _page(request, admin, svc, 403, problem=refusal)
     try:
         credentials = await svc.accounts.reset_broker_password(name, admin.name)
     except ServiceRefusal as refusal:

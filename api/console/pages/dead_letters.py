@@ -117,7 +117,7 @@ async def _sender_url(svc: Service, user_id: str) -> str:
             "message cannot be published again as it"
         )
     try:
-        return svc.accounts.broker_credentials(user).amqp_url
+        return svc.accounts.internal_broker_url(user)
     except (ServiceRefusal, ValueError) as error:
         raise RequeueRefused(f"{user_id}'s broker password cannot be had: {error}") from None
 

@@ -30,6 +30,14 @@ def serve(
     ctx: typer.Context,
     host: Annotated[str, typer.Option(help="address to listen on")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="port to listen on")] = 8000,
+    tls: Annotated[
+        bool,
+        typer.Option(
+            "--tls/--no-tls",
+            help="serve HTTPS with the server certificate of FLEETBUS_TLS_CERT/_KEY "
+            "(`fleetbus certs make` makes one)",
+        ),
+    ] = False,
 ) -> None:
     """Serve the API with uvicorn (OpenAPI at /docs), until Ctrl-C."""
     if ctx.invoked_subcommand is not None:
@@ -37,17 +45,34 @@ def serve(
     import uvicorn
 
     from fleetbus.api.app import create_app
+    from fleetbus.broker.certificates import TlsFiles
 
+    config = settings()
+    files = TlsFiles.for_settings(config)
+    if tls and not (files.cert.exists() and files.key.exists()):
+        fail(
+            f"--tls needs the server certificate {files.cert} and its key {files.key}: `fleetbus certs make`"
+        )
     ep = endpoint()
+    scheme = "https" if tls else "http"
     console.print(
-        f"fleetbus API and console on http://{host}:{port}/ (API docs at /docs); broker {ep.management_url}"
+        f"fleetbus API and console on {scheme}://{host}:{port}/ (API docs at /docs); "
+        f"broker {ep.management_url}",
+        soft_wrap=True,
     )
+    if not tls:
+        console.print(
+            "[yellow]note:[/] plain HTTP: the login hands out broker passwords to clients on this machine "
+            "only (--tls serves HTTPS)"
+        )
     uvicorn.run(
-        create_app(settings(), ep.amqp_url, ep.management_url),
+        create_app(config, ep.amqp_url, ep.management_url, ep.public_url),
         host=host,
         port=port,
         log_level="info",
         timeout_graceful_shutdown=5,  # open console pages stream until closed
+        ssl_certfile=str(files.cert) if tls else None,
+        ssl_keyfile=str(files.key) if tls else None,
     )
 
 
@@ -114,7 +139,10 @@ def login(
     if response.status_code != 200:
         fail(f"{response.status_code}: {response.json().get('detail', response.text)}")
     reply = response.json()
-    save_secret(settings().accounts_dir / f"{name}.url", reply["broker"]["amqp_url"])
     console.print(f"logged in as {name} ({reply['user']['role']}) until {reply['expires_at']}")
-    console.print(f"broker URL kept in {settings().accounts_dir / f'{name}.url'} (for `fleetbus tail`)")
+    if reply.get("broker"):
+        save_secret(settings().accounts_dir / f"{name}.url", reply["broker"]["amqp_url"])
+        console.print(f"broker URL kept in {settings().accounts_dir / f'{name}.url'} (for `fleetbus tail`)")
+    else:
+        console.print(f"[yellow]no broker URL[/]: {reply.get('broker_withheld')}", soft_wrap=True)
     console.print(f"token: {reply['access_token']}", soft_wrap=True, highlight=False)

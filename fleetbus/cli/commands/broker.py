@@ -17,7 +17,14 @@ import typer
 from fleetbus.broker.endpoint import BrokerEndpoint, BrokerUnavailable, endpoint_ready, external_endpoint
 from fleetbus.cli.commands.setup import ShowPassword, set_up, show_url
 from fleetbus.cli.context import console, fail, settings
-from fleetbus.dev.fallback import compose_up, docker_endpoint, docker_engine_answers, resolve_broker
+from fleetbus.dev.fallback import (
+    compose_up,
+    docker_endpoint,
+    docker_engine_answers,
+    local_node,
+    node_endpoint,
+    resolve_broker,
+)
 from fleetbus.dev.local_node import LocalNode, LocalNodeError
 
 app = typer.Typer(
@@ -36,13 +43,19 @@ def _show(endpoint: BrokerEndpoint, extra: dict[str, str] | None = None, show_pa
     rows = {"broker": KIND_LABEL[endpoint.kind], **(extra or {})}
     rows["AMQP URL"] = show_url(endpoint.amqp_url, show_password)
     rows["management URL"] = endpoint.management_url
+    if endpoint.public_url:
+        rows["robots' URL"] = endpoint.public_url
     for key, value in rows.items():
         console.print(f"[bold]{key:<15}[/] {value}", soft_wrap=True, highlight=False)
 
 
 def _node_extra(node: LocalNode) -> dict[str, str]:
     info = node.status()
-    return {"pid": str(info.pid), "node": info.node_name, "folder": str(info.base_dir)}
+    extra = {"pid": str(info.pid), "node": info.node_name, "folder": str(info.base_dir)}
+    if info.management_tls_url:
+        extra["management TLS"] = info.management_tls_url
+    extra["CA"] = str(node.tls.ca)
+    return extra
 
 
 @app.command()
@@ -61,12 +74,11 @@ def up(
             with console.status("starting RabbitMQ with docker compose…"):
                 endpoint = compose_up(current)
         elif endpoint is None:
-            node = LocalNode(current.broker_dir)
+            node = local_node(current)
             already = node.pid() is not None
             with console.status("starting the private RabbitMQ node…"):
                 info = node.up(timeout=timeout)
-            assert info.amqp_url is not None and info.management_url is not None
-            endpoint = BrokerEndpoint(info.amqp_url, info.management_url, "private")
+            endpoint = node_endpoint(current, info)
             console.print(
                 "[green]already running[/]"
                 if already
@@ -85,7 +97,7 @@ def down(
 ) -> None:
     """Stop the private RabbitMQ node and its epmd (a broker fleetbus did not start is left alone)."""
     current = settings()
-    node = LocalNode(current.broker_dir)
+    node = local_node(current)
     if node.pid() is None and not node.epmd_pids():
         console.print("the private RabbitMQ node is not running")
     else:
@@ -113,12 +125,12 @@ def status(show_password: ShowPassword = False) -> None:
     except (BrokerUnavailable, LocalNodeError) as error:
         console.print(f"[red]not running[/]: {error}", highlight=False)
         raise typer.Exit(1) from None
-    extra = _node_extra(LocalNode(current.broker_dir)) if endpoint.kind == "private" else None
+    extra = _node_extra(local_node(current)) if endpoint.kind == "private" else None
     console.print("[green]running[/]")
     _show(endpoint, extra, show_password)
     if not show_password:
         where = {
-            "private": f"{LocalNode(current.broker_dir).admin_file}",
+            "private": f"{local_node(current).admin_file}",
             "docker": f"FLEETBUS_BROKER_PASSWORD, else the file {current.broker_dir / 'docker-password'}",
             "external": "FLEETBUS_AMQP_URL",
         }[endpoint.kind]

@@ -8,8 +8,16 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.broker.accounts import AccountExists, Role, delete_account, provision_account, save_secret
+from fleetbus.broker.accounts import (
+    AccountExists,
+    Role,
+    as_public,
+    delete_account,
+    provision_account,
+    save_secret,
+)
 from fleetbus.broker.team_changes import HazardServiceNotTold
+from fleetbus.broker.tls import split_tls
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
 from fleetbus.cli.registry import register_robot
 from fleetbus.schemas.routing import RobotKind
@@ -42,10 +50,19 @@ def add(
             fail(str(error))
     if role is Role.ROBOT:
         register_robot(config, name, kind)
+    url = as_public(account.amqp_url, ep.public_url)
     if save:
-        save_secret(config.accounts_dir / f"{name}.url", account.amqp_url)
+        save_secret(config.accounts_dir / f"{name}.url", url)
     console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")
-    console.print(account.amqp_url, soft_wrap=True, highlight=False)
+    console.print(url, soft_wrap=True, highlight=False)
+    _, tls = split_tls(url)
+    if tls is not None and tls.cacertfile:
+        console.print(
+            f"it verifies the broker with the CA {tls.cacertfile} (give the robot a copy there, or "
+            "fetch it from the API's GET /ca.pem)",
+            soft_wrap=True,
+            highlight=False,
+        )
 
 
 @app.command("remove")

@@ -1,0 +1,187 @@
+"""A broker URL made into connection parameters for pika and aio-pika: the one place TLS is decided.
+
+An ``amqps://`` URL carries its TLS settings as RabbitMQ's own URI query parameters, so the very
+same URL also works for the broker's shovel and federation links::
+
+    amqps://user:pw@host:5671/vhost?cacertfile=/etc/fleetbus/ca.pem&server_name_indication=host
+
+- ``cacertfile``: the CA that signed the broker's certificate (without it: the system's trust store);
+- ``certfile``, ``keyfile``: a client certificate, when the broker asks for one;
+- ``verify``: ``verify_peer`` (the default) checks the certificate and the host name;
+  ``verify_none`` checks nothing, and is the only way to turn verification off;
+- ``server_name_indication``: the name checked against the certificate (and sent as SNI) when it
+  is not the URL's host, e.g. a broker reached by its IP address.
+
+``amqp://`` URLs are passed through unchanged. Base install: the standard library and pika only.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import ssl
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
+
+import pika
+
+if TYPE_CHECKING:
+    from aio_pika.abc import AbstractConnection, AbstractRobustConnection
+
+TLS_PARAMETERS = ("cacertfile", "certfile", "keyfile", "verify", "server_name_indication")
+VERIFY_PEER = "verify_peer"
+VERIFY_NONE = "verify_none"
+
+
+class TlsSettingError(ValueError):
+    """A broker URL's TLS parameters are wrong (unknown ``verify``, a file that is missing...)."""
+
+
+@dataclass(frozen=True)
+class TlsOptions:
+    """What an ``amqps://`` URL says about TLS (RabbitMQ's URI query parameters)."""
+
+    cacertfile: str | None = None
+    certfile: str | None = None
+    keyfile: str | None = None
+    verify: bool = True
+    server_name: str | None = None
+    """The name the certificate must carry: ``server_name_indication``, else the URL's host."""
+
+
+def split_tls(url: str) -> tuple[str, TlsOptions | None]:
+    """The URL without its TLS parameters, and those parameters (None for ``amqp://``)."""
+    parts = urlsplit(url)
+    query = parse_qsl(parts.query, keep_blank_values=True)
+    given = {key: value for key, value in query if key in TLS_PARAMETERS}
+    rest = [(key, value) for key, value in query if key not in TLS_PARAMETERS]
+    plain = urlunsplit((parts.scheme, parts.netloc, parts.path, urlencode(rest), parts.fragment))
+    if parts.scheme != "amqps":
+        if given:
+            raise TlsSettingError(
+                f"{', '.join(sorted(given))} in a broker URL apply to amqps:// only, not {parts.scheme}://"
+            )
+        return plain, None
+    verify = given.get("verify", VERIFY_PEER)
+    if verify not in (VERIFY_PEER, VERIFY_NONE):
+        raise TlsSettingError(f"verify={verify!r} in a broker URL: use {VERIFY_PEER} or {VERIFY_NONE}")
+    options = TlsOptions(
+        cacertfile=given.get("cacertfile") or None,
+        certfile=given.get("certfile") or None,
+        keyfile=given.get("keyfile") or None,
+        verify=verify == VERIFY_PEER,
+        server_name=given.get("server_name_indication") or parts.hostname,
+    )
+    return plain, options
+
+
+class _NamedContext(ssl.SSLContext):
+    """A client context that checks (and sends as SNI) a given name instead of the host dialled:
+    asyncio always passes the URL's host, and RabbitMQ's ``server_name_indication`` overrides it."""
+
+    server_name: str | None = None
+
+    def wrap_socket(self, sock: Any, *args: Any, **kwargs: Any) -> ssl.SSLSocket:
+        kwargs["server_hostname"] = self.server_name or kwargs.get("server_hostname")
+        return super().wrap_socket(sock, *args, **kwargs)
+
+    def wrap_bio(self, incoming: Any, outgoing: Any, *args: Any, **kwargs: Any) -> ssl.SSLObject:
+        kwargs["server_hostname"] = self.server_name or kwargs.get("server_hostname")
+        return super().wrap_bio(incoming, outgoing, *args, **kwargs)
+
+
+def client_context(options: TlsOptions) -> ssl.SSLContext:
+    """The client's TLS context: the URL's CA (else the system's), host name checked, unless
+    ``verify_none`` turned both off."""
+    context = _NamedContext(ssl.PROTOCOL_TLS_CLIENT)
+    context.server_name = options.server_name
+    try:
+        if options.cacertfile:
+            context.load_verify_locations(cafile=options.cacertfile)
+        else:
+            context.load_default_certs(ssl.Purpose.SERVER_AUTH)
+        if options.certfile:
+            context.load_cert_chain(options.certfile, options.keyfile)
+    except (OSError, ssl.SSLError) as error:
+        raise TlsSettingError(f"cannot load the TLS files a broker URL names: {error}") from error
+    if not options.verify:
+        context.check_hostname = False
+        context.verify_mode = ssl.CERT_NONE
+    return context
+
+
+def pika_parameters(url: str) -> pika.URLParameters:
+    """pika's parameters for ``url``; for ``amqps://``, with its verified TLS context."""
+    plain, options = split_tls(url)
+    parameters = pika.URLParameters(plain)
+    if options is not None:
+        parameters.ssl_options = pika.SSLOptions(client_context(options), server_hostname=options.server_name)
+    return parameters
+
+
+def aio_pika_arguments(url: str) -> tuple[str, dict[str, Any]]:
+    """The URL and keyword arguments for ``aio_pika.connect`` / ``connect_robust``."""
+    plain, options = split_tls(url)
+    if options is None:
+        return plain, {}
+    return plain, {"ssl_context": client_context(options)}
+
+
+async def aio_connect(url: str, **kwargs: Any) -> AbstractConnection:
+    """``aio_pika.connect`` with the URL's TLS settings."""
+    import aio_pika
+
+    plain, tls = aio_pika_arguments(url)
+    return await aio_pika.connect(plain, **tls, **kwargs)
+
+
+async def aio_connect_robust(url: str, **kwargs: Any) -> AbstractRobustConnection:
+    """``aio_pika.connect_robust`` with the URL's TLS settings."""
+    import aio_pika
+
+    plain, tls = aio_pika_arguments(url)
+    return await aio_pika.connect_robust(plain, **tls, **kwargs)
+
+
+def shovel_uri(url: str) -> str:
+    """``url`` as RabbitMQ's shovel and federation links take it, verifying as fleetbus's clients
+    do. The Erlang client of RabbitMQ 3.x checks nothing unless told (its ``verify`` defaults to
+    ``verify_none``), so an ``amqps://`` URL gets ``verify=verify_peer`` and the name to check
+    (``server_name_indication``) written out. It needs ``cacertfile``, and a DNS name to check: the
+    Erlang client matches DNS names only, so a URL whose host is an IP address must name one
+    (``server_name_indication=localhost`` for the private node). The default virtual host is
+    written ``%2F``: to the Erlang client, ``amqp://host/`` means the virtual host "" instead."""
+    plain, options = split_tls(url)
+    parts = urlsplit(plain)
+    path = "/%2F" if parts.path in ("", "/") else parts.path
+    if options is None:
+        return urlunsplit((parts.scheme, parts.netloc, path, parts.query, ""))
+    name = options.server_name
+    if options.verify:
+        if not options.cacertfile:
+            raise TlsSettingError(
+                "a shovel's amqps:// URL needs cacertfile= (the Erlang client has no default trust store)"
+            )
+        if name == parts.hostname and _is_ip(name):
+            raise TlsSettingError(
+                f"a shovel checks the broker's certificate for a DNS name, not the address {name}: add "
+                "server_name_indication=<a name in its certificate> to the URL"
+            )
+    query = parse_qsl(parts.query, keep_blank_values=True)
+    tls = [
+        ("cacertfile", options.cacertfile),
+        ("certfile", options.certfile),
+        ("keyfile", options.keyfile),
+        ("verify", VERIFY_PEER if options.verify else VERIFY_NONE),
+        ("server_name_indication", name if options.verify else None),
+    ]
+    query += [(key, value) for key, value in tls if value]
+    return urlunsplit((parts.scheme, parts.netloc, path, urlencode(query, safe="/"), ""))
+
+
+def _is_ip(host: str | None) -> bool:
+    try:
+        ipaddress.ip_address(host or "")
+    except ValueError:
+        return False
+    return True

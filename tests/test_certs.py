@@ -1,0 +1,64 @@
+"""`fleetbus certs make | show`: a CA kept across runs, a server certificate it signs for the names
+clients use, keys readable by their owner only."""
+
+from __future__ import annotations
+
+import os
+import ssl
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+from cryptography import x509
+
+from fleetbus.broker.certificates import TlsFiles, describe
+
+
+def certs(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "fleetbus", "certs", *args],
+        env={**os.environ, "COLUMNS": "200", **(env or {})},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_make_keeps_the_ca_and_signs_a_server_certificate_for_the_names_given(tmp_path: Path) -> None:
+    files = TlsFiles.in_folder(tmp_path / "tls")
+    made = certs("make", "--dir", str(tmp_path / "tls"), "--host", "hub.lan", "--host", "10.1.2.3")
+    assert made.returncode == 0, made.stderr
+    assert "made the CA" in made.stdout
+    for key in (files.ca_key, files.key):
+        assert stat.S_IMODE(key.stat().st_mode) == 0o600
+    assert describe(files.cert).names == ["localhost", "127.0.0.1", "hub.lan", "10.1.2.3"]
+    ca = files.ca.read_bytes()
+
+    again = certs("make", "--dir", str(tmp_path / "tls"), "--host", "hub.lan")
+    assert again.returncode == 0, again.stderr
+    assert "kept the CA" in again.stdout
+    assert files.ca.read_bytes() == ca  # robots that trust it keep trusting it
+    assert describe(files.cert).names == ["localhost", "127.0.0.1", "hub.lan"]
+    # the new server certificate is signed by that CA, and its key is the one beside it
+    server_cert = x509.load_pem_x509_certificate(files.cert.read_bytes())
+    server_cert.verify_directly_issued_by(x509.load_pem_x509_certificate(ca))
+    ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(files.cert, files.key)  # raises on a mismatch
+
+    shown = certs("show", "--dir", str(tmp_path / "tls"))
+    assert shown.returncode == 0, shown.stderr
+    assert "names: localhost, 127.0.0.1, hub.lan" in shown.stdout
+    assert "issuer: CN=fleetbus CA" in shown.stdout
+
+
+def test_show_reads_the_settings_and_names_what_is_missing(tmp_path: Path) -> None:
+    shown = certs("show", env={"FLEETBUS_TLS_DIR": str(tmp_path / "nothing")})
+    assert shown.returncode == 0, shown.stderr
+    assert f"{tmp_path / 'nothing' / 'ca.pem'} is missing" in shown.stdout
+
+
+def test_make_refuses_to_overwrite_the_operators_own_files(tmp_path: Path) -> None:
+    own = tmp_path / "own.pem"
+    refused = certs("make", env={"FLEETBUS_TLS_CERT": str(own), "FLEETBUS_DATA_DIR": str(tmp_path)})
+    assert refused.returncode == 1
+    assert "FLEETBUS_TLS_CA, _CERT or _KEY" in refused.stderr and not own.exists()

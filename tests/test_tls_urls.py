@@ -1,0 +1,88 @@
+"""Broker URLs made into connection parameters (:mod:`fleetbus.broker.tls`): amqp:// unchanged,
+amqps:// verified by default with RabbitMQ's own URI query parameters, verify_none the only way out."""
+
+from __future__ import annotations
+
+import ssl
+from pathlib import Path
+
+import pytest
+
+from fleetbus.broker.certificates import TlsFiles, make_certificates
+from fleetbus.broker.tls import TlsSettingError, aio_pika_arguments, pika_parameters, shovel_uri, split_tls
+
+
+@pytest.fixture(scope="module")
+def ca(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    files = TlsFiles.in_folder(tmp_path_factory.mktemp("tls"))
+    make_certificates(files)
+    return files.ca
+
+
+def test_an_amqp_url_is_passed_through_as_before() -> None:
+    url = "amqp://robot:secret@127.0.0.1:5672/fleet?heartbeat=7"
+    assert split_tls(url) == (url, None)
+    parameters = pika_parameters(url)
+    assert parameters.ssl_options is None
+    assert (parameters.host, parameters.port, parameters.virtual_host, parameters.heartbeat) == (
+        "127.0.0.1",
+        5672,
+        "fleet",
+        7,
+    )
+    assert aio_pika_arguments(url) == (url, {})
+
+
+def test_amqps_verifies_the_certificate_and_the_host_name_by_default(ca: Path) -> None:
+    url = f"amqps://robot:secret@broker.example:5671/?cacertfile={ca}&heartbeat=9"
+    plain, options = split_tls(url)
+    assert plain == "amqps://robot:secret@broker.example:5671/?heartbeat=9"  # pika refuses unknown keys
+    assert options is not None and options.verify and options.server_name == "broker.example"
+    parameters = pika_parameters(url)
+    assert parameters.heartbeat == 9
+    assert parameters.ssl_options is not None
+    assert parameters.ssl_options.server_hostname == "broker.example"
+    context = parameters.ssl_options.context
+    assert context.verify_mode is ssl.CERT_REQUIRED and context.check_hostname
+    assert len(context.get_ca_certs()) == 1  # the URL's CA, not the system's
+    _, arguments = aio_pika_arguments(url)
+    assert arguments["ssl_context"].verify_mode is ssl.CERT_REQUIRED
+
+
+def test_without_cacertfile_the_system_trust_store_is_used() -> None:
+    context = pika_parameters("amqps://robot:secret@broker.example/").ssl_options.context
+    assert context.verify_mode is ssl.CERT_REQUIRED and context.check_hostname
+
+
+def test_verify_none_is_the_explicit_opt_out(ca: Path) -> None:
+    context = pika_parameters(f"amqps://r:s@broker.example/?cacertfile={ca}&verify=verify_none").ssl_options
+    assert context.context.verify_mode is ssl.CERT_NONE and not context.context.check_hostname
+
+
+def test_server_name_indication_names_the_host_to_check(ca: Path) -> None:
+    url = f"amqps://r:s@10.0.0.5:5671/?cacertfile={ca}&server_name_indication=broker.example"
+    assert pika_parameters(url).ssl_options.server_hostname == "broker.example"
+
+
+@pytest.mark.parametrize(
+    ("url", "said"),
+    [
+        ("amqp://r:s@host/?cacertfile=/ca.pem", "apply to amqps:// only"),
+        ("amqps://r:s@host/?verify=maybe", "verify_peer or verify_none"),
+        ("amqps://r:s@host/?cacertfile=/no/such/ca.pem", "cannot load the TLS files"),
+    ],
+)
+def test_wrong_tls_parameters_are_refused_saying_why(url: str, said: str) -> None:
+    with pytest.raises(TlsSettingError, match=said):
+        pika_parameters(url)
+
+
+def test_a_shovel_uri_spells_out_verification_and_the_default_virtual_host(ca: Path) -> None:
+    url = f"amqps://site:pw@central.example:5671/?cacertfile={ca}&heartbeat=10"
+    assert shovel_uri(url) == (
+        f"amqps://site:pw@central.example:5671/%2F?heartbeat=10&cacertfile={ca}"
+        "&verify=verify_peer&server_name_indication=central.example"
+    )
+    assert shovel_uri("amqp://site:pw@central.example/fleet") == "amqp://site:pw@central.example/fleet"
+    with pytest.raises(TlsSettingError, match="needs cacertfile"):
+        shovel_uri("amqps://site:pw@central.example/")
