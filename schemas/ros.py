@@ -11,9 +11,10 @@ exchange       ``ros`` (:data:`ROS_EXCHANGE`)
 routing key    ``<robot>.ros.<topic>``, the topic's ``/`` as ``.``
                (``explorer1.ros.camera.image_raw``; :func:`ros_routing_key`)
 robot          the robot the messages belong to
-recorded_at    the ROS log time (a bag's receive time)
+recorded_at    the ROS log time (a bag's receive time), to the microsecond
 sent_at        ``header.stamp`` when the message has one, else None
-document       a :class:`RosMessage`: topic, ROS type, stamp, fields as plain JSON
+document       a :class:`RosMessage`: topic, ROS type, log time in ns, stamp, fields
+               as plain JSON
 =============  ==================================================================
 
 Field values are plain JSON; a byte array is kept as base64 under :data:`BYTES_KEY`, or, over
@@ -46,6 +47,9 @@ class RosMessage(BaseModel):
     ros_type: str = Field(
         description="The ROS message type as the bag names it: ``sensor_msgs/msg/Image`` (ROS 2) or "
         "``sensor_msgs/Image`` (ROS 1)."
+    )
+    log_time_ns: int = Field(
+        ge=0, description="The ROS log time in nanoseconds (``recorded_at`` holds it to the microsecond)."
     )
     stamp: datetime | None = Field(default=None, description="``header.stamp``, when the message has one.")
     fields: dict[str, Any] = Field(description="The message's fields as plain JSON.")
