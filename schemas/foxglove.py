@@ -18,11 +18,13 @@ from pydantic import BaseModel, ConfigDict, Field
 FOXGLOVE_SCHEMAS_SOURCE = "https://github.com/foxglove/schemas (MIT)"
 
 
-class _Model(BaseModel):
+class FoxgloveModel(BaseModel):
+    """A Foxglove message; its schema name is its title."""
+
     model_config = ConfigDict(frozen=True)
 
 
-class Time(_Model):
+class Time(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="time")
     sec: int = Field(ge=0)
     nsec: int = Field(ge=0, le=999_999_999)
@@ -33,26 +35,26 @@ class Time(_Model):
         return cls(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-class Duration(_Model):
+class Duration(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="duration")
     sec: int = 0
     nsec: int = Field(default=0, ge=0, le=999_999_999)
 
 
-class Vector2(_Model):
+class Vector2(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.Vector2")
     x: float
     y: float
 
 
-class Vector3(_Model):
+class Vector3(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.Vector3")
     x: float
     y: float
     z: float = 0.0
 
 
-class Quaternion(_Model):
+class Quaternion(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.Quaternion")
     x: float = 0.0
     y: float = 0.0
@@ -60,13 +62,13 @@ class Quaternion(_Model):
     w: float = 1.0
 
 
-class Pose(_Model):
+class Pose(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.Pose")
     position: Vector3
     orientation: Quaternion = Quaternion()
 
 
-class Color(_Model):
+class Color(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.Color")
     r: float
     g: float
@@ -78,14 +80,14 @@ class NumericType(IntEnum):
     UINT8 = 1
 
 
-class PackedElementField(_Model):
+class PackedElementField(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.PackedElementField")
     name: str
     offset: int = Field(ge=0)
     type: NumericType
 
 
-class Grid(_Model):
+class Grid(FoxgloveModel):
     """A 2-D grid of cells; fleetbus writes a map as one ``uint8`` field, 0 free to 255 occupied."""
 
     model_config = ConfigDict(frozen=True, title="foxglove.Grid")
@@ -100,27 +102,27 @@ class Grid(_Model):
     data: str = Field(json_schema_extra={"contentEncoding": "base64"})
 
 
-class PoseInFrame(_Model):
+class PoseInFrame(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.PoseInFrame")
     timestamp: Time
     frame_id: str
     pose: Pose
 
 
-class KeyValuePair(_Model):
+class KeyValuePair(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.KeyValuePair")
     key: str
     value: str
 
 
-class SpherePrimitive(_Model):
+class SpherePrimitive(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.SpherePrimitive")
     pose: Pose
     size: Vector3
     color: Color
 
 
-class TextPrimitive(_Model):
+class TextPrimitive(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.TextPrimitive")
     pose: Pose
     billboard: bool = True
@@ -130,7 +132,7 @@ class TextPrimitive(_Model):
     text: str
 
 
-class SceneEntity(_Model):
+class SceneEntity(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.SceneEntity")
     timestamp: Time
     frame_id: str
@@ -142,7 +144,7 @@ class SceneEntity(_Model):
     texts: list[TextPrimitive] = []
 
 
-class SceneUpdate(_Model):
+class SceneUpdate(FoxgloveModel):
     model_config = ConfigDict(frozen=True, title="foxglove.SceneUpdate")
     deletions: list[dict[str, object]] = []
     entities: list[SceneEntity]
