@@ -17,10 +17,12 @@ from fleetbus.schemas.ros import BYTES_KEY, ROS_EXCHANGE, ROS_TYPE, TRUNCATED_KE
 from fleetbus.workers.recorder import bag_import
 from fleetbus.workers.recorder.bag_import import import_bag
 from fleetbus.workers.recorder.ros_fields import nanos_to_datetime
+from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.base import WriteResult
 from fleetbus.workers.store.recordings import RecordedMessage, RecordQuery
 from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
 from tests.ros_bags import FORMATS, Written, storage_file, write_bag
+from tests.support import Bus
 
 ROBOT = "bag-explorer"
 LIMIT = 1024 * 1024
@@ -197,3 +199,17 @@ def test_byte_arrays_over_the_size_limit_are_described_not_kept(tmp_path: Path) 
     assert data[TRUNCATED_KEY] is True and data["length"] == 6000 and len(data["sha256"]) == 64
     assert image.document["fields"]["width"] == 6000, "the rest of the message is kept"
     assert "size limit" in (image.problem or "")
+
+
+async def test_a_bag_is_imported_alike_into_either_store(stored_bus: Bus, tmp_path: Path) -> None:
+    """SQLite and MongoDB hold the same records: the byte arrays' keys are ones MongoDB stores as they are."""
+    bag = bag_path(tmp_path, "ros2-sqlite3")
+    written = write_bag(bag, "ros2-sqlite3", count=12)
+    async with open_recording_store(stored_bus.settings) as store:
+        first = await import_bag(store, bag, ROBOT, LIMIT)
+        again = await import_bag(store, bag, ROBOT, LIMIT)
+        records = await store.find_recorded(RecordQuery(ROS_TYPE))
+
+    assert (first.stored, again.stored, again.already) == (12, 0, 12)
+    assert all(r.raw is None and r.problem is None for r in records), "kept as documents"
+    assert_imported(records, written)

@@ -44,8 +44,8 @@ PROFILE = ""
 LIBRARY = "fleetbus export"
 SERVICE_TOPIC = "fleetbus"
 """The first topic segment of messages no robot sent (notifications)."""
-RAW_KEY = "$raw_base64"
-"""A body kept raw (not JSON) is written as ``{"$raw_base64": "...", "problem": "..."}``."""
+RAW_KEY = "_raw_base64"
+"""A body kept raw (not JSON) is written as ``{"_raw_base64": "...", "problem": "..."}``."""
 
 _MODELS: dict[str, type[BaseModel]] = {
     **{t.value: m for t, m in EVENT_MODELS.items()},

@@ -2,12 +2,12 @@
 
 - nested messages become objects, field by field;
 - arrays of bytes (``uint8[]``, ``int8[]``: images, point clouds, occupancy data) become
-  ``{"$base64": "...", "length": n}``: a third of the size of a list of numbers;
+  ``{"_base64": "...", "length": n}``: a third of the size of a list of numbers;
 - other numeric arrays become lists;
 - floats that JSON cannot hold (NaN, infinities) become the strings ``"nan"``, ``"inf"``, ``"-inf"``.
 
 A message whose JSON would be over the recording's message size limit keeps every array of more
-than :data:`LARGE_ARRAY` elements described instead, ``{"$truncated": true, "length": n,
+than :data:`LARGE_ARRAY` elements described instead, ``{"_truncated": true, "length": n,
 "sha256": "..."}``, so the rest of the message (its header, its sizes, its encoding) is kept.
 """
 
