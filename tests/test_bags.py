@@ -139,7 +139,8 @@ def test_the_command_imports_and_says_so_when_run_again(tmp_path: Path) -> None:
     assert first.returncode == 0, first.stderr
     assert "imported 9 messages" in " ".join(first.stdout.split())
     assert second.returncode == 0, second.stderr
-    assert "9 were in the recording already" in " ".join(second.stdout.split())
+    assert "all 9 messages" in " ".join(second.stdout.split())
+    assert "were in the recording already" in " ".join(second.stdout.split())
     assert_imported(recorded(tmp_path / "data" / "recording.sqlite3"), written)
 
 

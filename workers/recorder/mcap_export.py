@@ -53,11 +53,40 @@ _MODELS: dict[str, type[BaseModel]] = {
 }
 
 
+def self_contained(schema: dict[str, Any]) -> dict[str, Any]:
+    """``schema`` with every ``$ref`` to its ``$defs`` replaced by the definition itself: readers
+    that look for fields (Foxglove finds base64 fields by their ``contentEncoding``) need not
+    resolve references. The models have no recursive types; one would be left as a reference."""
+    definitions = schema.get("$defs", {})
+
+    def inline(value: Any, seen: tuple[str, ...]) -> Any:
+        if isinstance(value, dict):
+            ref = value.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                name = ref.removeprefix("#/$defs/")
+                if name in definitions and name not in seen:
+                    rest = {k: v for k, v in value.items() if k != "$ref"}
+                    return inline({**definitions[name], **rest}, (*seen, name))
+            return {k: inline(v, seen) for k, v in value.items() if k != "$defs"}
+        if isinstance(value, list):
+            return [inline(v, seen) for v in value]
+        return value
+
+    inlined: dict[str, Any] = inline(schema, ())
+    if "$ref" in json.dumps(inlined):
+        return schema
+    return inlined
+
+
+def model_schema(model: type[BaseModel]) -> dict[str, Any]:
+    return self_contained(model.model_json_schema())
+
+
 def type_schema(type_name: str) -> dict[str, Any]:
     """The JSON Schema of a recorded type's documents: its pydantic model's, else any object."""
     model = _MODELS.get(type_name)
     if model is not None:
-        return model.model_json_schema()
+        return model_schema(model)
     return {"title": f"fleetbus.{type_name}", "type": "object"}
 
 
@@ -130,7 +159,7 @@ class McapExport:
         if drawn is not None:
             view_topic = f"/{owner}/{suffix}"
             title = str(model.model_config.get("title"))
-            view_channel = self._channel(view_topic, title, model.model_json_schema, robot=owner)
+            view_channel = self._channel(view_topic, title, lambda: model_schema(model), robot=owner)
             self._add(view_channel, view_topic, drawn.model_dump(mode="json"), log_time, publish_time)
             self.report.views += 1
 

@@ -3,6 +3,7 @@ into an MCAP file for Foxglove."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 from collections.abc import Iterator
@@ -68,8 +69,12 @@ def import_bag(
     if as_json:
         typer.echo(json.dumps({**report.__dict__, "already": report.already}))
         return
-    text = f"imported {report.stored} messages of {path} as {robot}'s"
-    if report.already:
+    if report.stored == 0 and report.already:
+        text = f"nothing new: all {report.already} messages of {path} were in the recording already"
+        text += " (imported before)"
+    else:
+        text = f"imported {report.stored} messages of {path} as {robot}'s"
+    if report.already and report.stored:
         text += f"; {report.already} were in the recording already (imported before)"
     if report.trimmed:
         text += f"; {report.trimmed} had arrays over the size limit described, not kept"
@@ -99,6 +104,8 @@ def export(
     from fleetbus.workers.recorder.mcap_export import export_mcap
     from fleetbus.workers.recorder.queries import recorded_between
 
+    if importlib.util.find_spec("mcap") is None:
+        fail("writing MCAP files needs the mcap package: pip install 'fleetbus[ros]'")
     if mcap.exists() and not force:
         fail(f"{mcap} exists; add --force to replace it", code=2)
     start, end = parse_time(since), parse_time(until)
