@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import os
+import sqlite3
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -214,3 +215,17 @@ async def test_a_bag_is_imported_alike_into_either_store(stored_bus: Bus, tmp_pa
     assert (first.stored, again.stored, again.already) == (12, 0, 12)
     assert all(r.raw is None and r.problem is None for r in records), "kept as documents"
     assert_imported(records, written)
+
+
+def test_a_ros2_bag_without_message_definitions_is_read_with_the_standard_types(tmp_path: Path) -> None:
+    """Bags recorded before ROS 2 Iron carry no definitions of their types."""
+    bag = bag_path(tmp_path, "ros2-sqlite3")
+    written = write_bag(bag, "ros2-sqlite3", count=6)
+    with sqlite3.connect(storage_file(bag)) as db:
+        db.execute("DELETE FROM message_definitions")
+    store = tmp_path / "recording.sqlite3"
+
+    report = run_import(store, bag)
+
+    assert report.stored == 6
+    assert_imported(recorded(store), written)

@@ -18,6 +18,9 @@ from typing import Any
 from fleetbus.schemas.ros import RosMessage
 from fleetbus.workers.recorder.ros_fields import header_stamp, message_fields
 
+#: The typestore (``rosbags.typesys.Stores``) that decodes a bag carrying no message definitions
+#: (ROS 2 bags recorded before Iron): the standard messages of the latest ROS 2 LTS release.
+STANDARD_TYPES = "LATEST"
 #: Bytes hashed at a time to recognise a bag imported before.
 _BLOCK = 1024 * 1024
 
@@ -55,9 +58,12 @@ def _reader(path: Path) -> Any:
         from rosbags.highlevel import AnyReader
     except ImportError as error:  # the `ros` extra is not installed
         raise BagError(f"{path}: reading bags needs rosbags: pip install 'fleetbus[ros]'") from error
+    from rosbags.typesys import Stores, get_typestore
+
     if not path.exists():
         raise BagError(f"{path}: no such file or directory")
-    return AnyReader([path])
+    # ROS 2 bags before Iron carry no message definitions: decode them with the standard types
+    return AnyReader([path], default_typestore=get_typestore(Stores[STANDARD_TYPES]))
 
 
 #: What rosbags (and the formats under it) raise for a bag it cannot read.
