@@ -17,8 +17,9 @@ document       a :class:`RosMessage`: topic, ROS type, log time in ns, stamp, fi
                as plain JSON
 =============  ==================================================================
 
-Field values are plain JSON; a byte array is kept as base64 under :data:`BYTES_KEY`, or, over
-the size cap, only described under :data:`TRUNCATED_KEY`.
+:func:`fleetbus.workers.recorder.ros_records.ros_record` builds such a record from a
+:class:`RosMessage`. Field values are plain JSON; a byte array is kept as base64 under
+:data:`BYTES_KEY`, or, over the size cap, only described under :data:`TRUNCATED_KEY`.
 """
 
 from __future__ import annotations

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fleetbus.schemas.identity import validate_name
-from fleetbus.schemas.ros import ROS_EXCHANGE, ROS_TYPE, ros_record_key, ros_routing_key
+from fleetbus.schemas.ros import ROS_TYPE, ros_record_key
 from fleetbus.workers.recorder.bags import BagMessage, bag_digest, message_count, read_bag
-from fleetbus.workers.recorder.ros_fields import nanos_to_datetime
+from fleetbus.workers.recorder.ros_records import ros_record
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 
 BATCH = 500
@@ -43,28 +43,19 @@ class ImportReport:
         return self.messages - self.stored
 
 
-def ros_record(robot: str, digest: str, bag_file: str, item: BagMessage) -> RecordedMessage:
-    """The recording's record of one bag message (the convention of :mod:`fleetbus.schemas.ros`)."""
-    message = item.message
-    return RecordedMessage(
-        key=ros_record_key(digest, item.index),
-        type=ROS_TYPE,
-        recorded_at=nanos_to_datetime(message.log_time_ns),
-        exchange=ROS_EXCHANGE,
-        routing_key=ros_routing_key(robot, message.topic),
-        user_id=None,
-        robot_id=robot,
-        sent_at=message.stamp,
+def bag_record(robot: str, digest: str, bag_file: str, item: BagMessage) -> RecordedMessage:
+    """The record of one bag message: keyed by the bag's digest and the message's index."""
+    return ros_record(
+        robot,
+        item.message,
+        ros_record_key(digest, item.index),
+        size=item.size,
         seq=item.index,
-        known=True,
-        problem="arrays over the size limit described, not kept" if item.trimmed else None,
-        document=message.model_dump(mode="json"),
+        trimmed=item.trimmed,
         properties={
             "app_id": IMPORT_APP_ID,
-            "type": message.ros_type,
             "headers": {"x-ros-bag": bag_file, "x-ros-bag-sha256": digest, "x-ros-bag-index": item.index},
         },
-        size=item.size,
     )
 
 
@@ -88,7 +79,7 @@ async def import_bag(
     written = 0
     try:
         for item in read_bag(path, max_bytes):
-            batch.append(ros_record(robot, digest, path.name, item))
+            batch.append(bag_record(robot, digest, path.name, item))
             if len(batch) == BATCH:
                 written += await _write(store, batch, added)
                 progress("store", written, total)
