@@ -48,7 +48,8 @@ RABBITMQCTL = RABBITMQ_BIN / "rabbitmqctl"
 ADMIN_USER = "fleetbus-admin"
 HOST = "127.0.0.1"
 PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream")
-PLUGINS = ("rabbitmq_management",)
+#: The shovel plugins carry a site's events to central and central's changes back (docs/guides/sites.md).
+PLUGINS = ("rabbitmq_management", "rabbitmq_shovel", "rabbitmq_shovel_management")
 
 #: Erlang run by ``rabbitmqctl eval``: trigger an election in every quorum queue whose Ra
 #: server does not know a leader; print their names.
