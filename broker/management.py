@@ -111,6 +111,24 @@ class ManagementAPI:
         response = self._client.get(f"policies/{_q(vhost)}/{_q(name)}")
         return response.json() if response.status_code == 200 else None
 
+    # shovels (the rabbitmq_shovel plugin's runtime parameters; their status needs
+    # rabbitmq_shovel_management)
+    def put_shovel(self, vhost: str, name: str, definition: dict[str, Any]) -> None:
+        """Create or replace the dynamic shovel ``name`` (RabbitMQ restarts it with the new definition)."""
+        self._request("PUT", f"parameters/shovel/{_q(vhost)}/{_q(name)}", json={"value": definition})
+
+    def get_shovel(self, vhost: str, name: str) -> dict[str, Any] | None:
+        response = self._client.get(f"parameters/shovel/{_q(vhost)}/{_q(name)}")
+        return response.json().get("value") if response.status_code == 200 else None
+
+    def delete_shovel(self, vhost: str, name: str) -> None:
+        self._request("DELETE", f"parameters/shovel/{_q(vhost)}/{_q(name)}")
+
+    def shovel_status(self, vhost: str) -> list[dict[str, Any]]:
+        """Each shovel of ``vhost`` as it runs now: ``name``, ``state`` (running, starting,
+        terminated), ``timestamp`` of the state, ``reason`` when terminated."""
+        return self._request("GET", f"shovels/{_q(vhost)}")
+
     # virtual hosts
     def put_vhost(self, vhost: str) -> None:
         self._request("PUT", f"vhosts/{_q(vhost)}")

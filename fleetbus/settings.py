@@ -168,6 +168,19 @@ class Settings(BaseSettings):
     map_staging_ttl: str = setting(
         "1h", "staged map chunks that no map event named this long after their last chunk are deleted"
     )
+    uplink_max: Annotated[int, Positive] = setting(
+        1_000_000,
+        "on a site: the most events waiting to be forwarded to central (`fleetbus.uplink`); when it is full "
+        "the site's broker refuses robots' events, which stay in their outboxes (set by `fleetbus site up`)",
+    )
+    uplink_max_bytes: Annotated[int, Positive] = setting(
+        4 * 1024**3,
+        "on a site: the most bytes waiting to be forwarded to central, with the same refusal when full",
+        shown="4 GiB",
+    )
+    site_reconnect_delay_s: float = setting(
+        1.0, "on a site: how long the uplink and downlink shovels wait before connecting to central again"
+    )
     inbox_max: Words = setting(
         ("10000", "100MB"),
         "each inbox's length, in messages and/or bytes; when full its oldest notifications are dropped, "
