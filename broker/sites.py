@@ -49,7 +49,10 @@ from fleetbus.schemas.routing import (
     UPLINK_QUEUE,
     UPLINK_SHOVEL,
     RobotKind,
+    beacon_exchange,
+    events_exchange,
     inbox_queue,
+    owner_pattern,
     site_downlink_queue,
 )
 
@@ -190,6 +193,11 @@ def grant_site_robots(
     configure, write, read = site_permissions(site, robots)
     api.put_permissions(vhost, site, configure=configure, write=write, read=read)
     for robot in robots:
+        # on a robot's exchanges, only that robot's routing keys (as the robot itself may)
+        for exchange in (events_exchange(robot), beacon_exchange(robot)):
+            api.put_topic_permissions(
+                vhost, site, exchange, write=owner_pattern(robot), read=owner_pattern(robot)
+            )
         queue = inbox_queue(robot)
         keys = [
             b["routing_key"]
