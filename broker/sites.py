@@ -89,7 +89,7 @@ def local_uri(vhost: str) -> str:
     return "amqp:///" + quote(vhost, safe="")
 
 
-def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: float, prefetch: int) -> dict[str, Any]:
+def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int) -> dict[str, Any]:
     """The uplink's definition. ``central_url`` is used as given (``amqps://`` with RabbitMQ's TLS
     query parameters works the same)."""
     return {
@@ -106,7 +106,7 @@ def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: float, prefet
     }
 
 
-def downlink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: float) -> dict[str, Any]:
+def downlink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: int) -> dict[str, Any]:
     return {
         "src-protocol": "amqp091",
         "src-uri": central_url,
@@ -127,7 +127,7 @@ async def start_site_links(
     *,
     max_messages: int,
     max_bytes: int,
-    reconnect_delay_s: float,
+    reconnect_delay_s: int,
     prefetch: int = 1000,
 ) -> None:
     """On the site's broker, as its administrator: the uplink and downlink queues and shovels

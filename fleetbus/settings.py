@@ -178,8 +178,9 @@ class Settings(BaseSettings):
         "on a site: the most bytes waiting to be forwarded to central, with the same refusal when full",
         shown="4 GiB",
     )
-    site_reconnect_delay_s: float = setting(
-        1.0, "on a site: how long the uplink and downlink shovels wait before connecting to central again"
+    site_reconnect_delay_s: Annotated[int, Positive] = setting(
+        1,
+        "on a site: whole seconds the uplink and downlink shovels wait before connecting to central again",
     )
     inbox_max: Words = setting(
         ("10000", "100MB"),

@@ -54,7 +54,7 @@ class SitePair:
             self.central_url,
             max_messages=settings.uplink_max,
             max_bytes=settings.uplink_max_bytes,
-            reconnect_delay_s=0.5,
+            reconnect_delay_s=settings.site_reconnect_delay_s,
         )
 
     def stop(self) -> None:
