@@ -65,6 +65,12 @@ class ManagementAPI:
     def put_user(self, name: str, password: str, tags: str = "") -> None:
         self._request("PUT", f"users/{_q(name)}", json={"password": password, "tags": tags})
 
+    def put_user_hash(self, name: str, password_hash: str, hashing_algorithm: str, tags: str = "") -> None:
+        """Create or replace an account with a password hash another broker made (the same
+        password then works on both)."""
+        body = {"password_hash": password_hash, "hashing_algorithm": hashing_algorithm, "tags": tags}
+        self._request("PUT", f"users/{_q(name)}", json=body)
+
     def get_user(self, name: str) -> dict[str, Any] | None:
         response = self._client.get(f"users/{_q(name)}")
         return response.json() if response.status_code == 200 else None

@@ -4,13 +4,16 @@ site's account may write, :func:`fleetbus.broker.sites.grant_site_robots`), toge
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
+
+import pika
 
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import grant_site_robots
 from fleetbus.schemas.identity import validate_name
-from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
+from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, RobotAccount
 from fleetbus.workers.store import Repositories
 
 
@@ -35,3 +38,44 @@ async def assign_robots(
     for other in moved_from:
         grant_site_robots(api, vhost, other, after.get(other, ()))
     return tuple(sorted(new))
+
+
+async def robot_accounts(
+    repositories: Repositories, api: ManagementAPI, robots: Collection[str]
+) -> list[RobotAccount]:
+    """The accounts of ``robots`` as central has them (those without an account are left out)."""
+    kinds = {robot.name: robot.kind for robot in await repositories.hazards.robots()}
+    accounts = []
+    for name in sorted(robots):
+        user = api.get_user(name)
+        if user is None:
+            continue
+        kind = kinds.get(name)
+        accounts.append(
+            RobotAccount(
+                name=name,
+                kind=RobotKind(kind) if kind else None,
+                password_hash=user["password_hash"],
+                hashing_algorithm=user.get("hashing_algorithm", "rabbit_password_hashing_sha256"),
+            )
+        )
+    return accounts
+
+
+def send_to_site(admin_url: str, site: str, accounts: Sequence[RobotAccount]) -> None:
+    """Publish ``accounts`` to the site's downlink (persistent, confirmed: the shovel takes it on
+    whenever the site is connected)."""
+    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        for account in accounts:
+            channel.basic_publish(
+                SITES_EXCHANGE,
+                site_downlink_key(site, account.change),
+                account.model_dump_json().encode(),
+                pika.BasicProperties(delivery_mode=2, content_type="application/json", type=SITE_CHANGE_TYPE),
+                mandatory=True,
+            )
+    finally:
+        connection.close()

@@ -12,7 +12,7 @@ from fleetbus.broker.sites import add_site_account, start_site_links, stop_site_
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.schemas.routing import UPLINK_QUEUE, UPLINK_SHOVEL, RobotKind
 from fleetbus.workers.sites import assign_robots
-from fleetbus.workers.store import Repositories
+from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.sites import Forward
 from tests.link import NetworkLink
@@ -38,6 +38,8 @@ class SitePair:
         central = self.central
         self.account = await add_site_account(central.admin_url, central.api, self.name, rotate=True)
         self.central.accounts.append(self.name)
+        async with open_repositories(central.settings) as repositories:
+            await assign_robots(repositories, central.api, central.admin_url, self.name, ())
         await self.start_links()
 
     @property

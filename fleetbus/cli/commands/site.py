@@ -113,6 +113,22 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
 
 
 @app.command()
+def apply(
+    once: Annotated[bool, typer.Option("--once", help="apply what is waiting, then stop")] = False,
+) -> None:
+    """Apply central's changes (its robots' accounts) to this broker as they come, until Ctrl-C."""
+    from fleetbus.workers.downlink import apply_downlink
+
+    ep = endpoint()
+    with admin_api(ep) as api:
+        try:
+            applied = apply_downlink(settings(), ep.amqp_url, api, idle_s=1.0 if once else None)
+        except KeyboardInterrupt:
+            return
+    console.print(f"applied {applied} changes from central", highlight=False)
+
+
+@app.command()
 def down() -> None:
     """Stop forwarding (delete both shovels); what waits in the uplink stays for the next `site up`."""
     ep = endpoint()

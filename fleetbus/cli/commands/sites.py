@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from collections.abc import Collection
 from datetime import datetime, timezone
 from typing import Annotated
 
@@ -11,11 +12,12 @@ import typer
 from rich.table import Table
 
 from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import assign_robots
+from fleetbus.workers.sites import assign_robots, robot_accounts, send_to_site
 from fleetbus.workers.store import run_with_repositories
 
 app = typer.Typer(
@@ -117,4 +119,26 @@ def robots_command(
         names = run_with_repositories(
             settings(), lambda repos: assign_robots(repos, api, ep.amqp_url, site, wanted)
         )
+        _send_accounts(api, ep.amqp_url, site, set(names) - set(known[site]))
     console.print(f"site [bold]{site}[/]: {', '.join(names) or 'no robots'}")
+
+
+@app.command()
+def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
+    """Send the site every one of its robots' accounts again (after a re-key, or to a new site node)."""
+    ep = endpoint()
+    known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
+    if site not in known:
+        fail(f"no site {site!r}")
+    with admin_api(ep) as api:
+        _send_accounts(api, ep.amqp_url, site, known[site])
+
+
+def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:
+    accounts = run_with_repositories(settings(), lambda repos: robot_accounts(repos, api, robots))
+    send_to_site(admin_url, site, accounts)
+    if accounts:
+        names = ", ".join(account.name for account in accounts)
+        console.print(
+            f"sent {site} the accounts of {names} (`fleetbus site apply` applies them)", highlight=False
+        )
