@@ -4,7 +4,8 @@ A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
 
 * **uplink** (on the site): ``fleetbus.uplink``, a durable queue bound to ``fleetbus.ingest`` with
   ``#``, keeps a copy of every event the site's broker accepted (beacons that passed the header
-  check included). The dynamic shovel ``fleetbus-uplink`` moves it to central in order, acking a
+  check included), bounded by a policy whose overflow refuses new events (they stay in the
+  robots' outboxes). The dynamic shovel ``fleetbus-uplink`` moves it to central in order, acking a
   message only once central confirmed it (``ack-mode: on-confirm``). It names no destination
   exchange, so central receives each message on the exchange the robot published it to, with the
   robot's routing key and properties, ``user_id`` included: the site logs in to central as its own
@@ -30,6 +31,7 @@ from aio_pika.abc import ExchangeType
 
 from fleetbus.broker.accounts import Account, Role, url_for, vhost_of
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.policies import apply_policies, uplink_policy
 from fleetbus.broker.topology import (
     BindingSpec,
     ExchangeSpec,
@@ -63,21 +65,12 @@ SITE_TAGS = "impersonator"
 # --------------------------------------------------------------------------- on the site
 
 
-def uplink_arguments(max_messages: int, max_bytes: int) -> dict[str, Any]:
-    """The uplink queue: bounded, and full means the broker refuses the robot's publish (its
-    client keeps the event in its outbox and sends it again), never a silent drop."""
-    return {
-        "x-queue-type": "classic",
-        "x-max-length": max_messages,
-        "x-max-length-bytes": max_bytes,
-        "x-overflow": "reject-publish",
-    }
-
-
-def site_topology(max_messages: int, max_bytes: int) -> Topology:
+def site_topology() -> Topology:
+    """The uplink and downlink queues; the uplink's bound is a policy (:func:`uplink_policy`), so
+    that changing it needs no new queue."""
     return Topology(
         queues=(
-            QueueSpec(UPLINK_QUEUE, uplink_arguments(max_messages, max_bytes)),
+            QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(DOWNLINK_QUEUE, {"x-queue-type": "classic"}),
         ),
         bindings=(BindingSpec(INGEST_EXCHANGE, UPLINK_QUEUE, "#"),),
@@ -134,8 +127,9 @@ async def start_site_links(
     (idempotent; a new ``central_url`` replaces the old one)."""
     validate_name(site)
     # the ingest exchange first (declaring what exists changes nothing; one shard is what it needs)
-    await declare_with_url(admin_url, [core_topology(1), site_topology(max_messages, max_bytes)])
     vhost = vhost_of(admin_url)
+    apply_policies(api, vhost, [uplink_policy(max_messages, max_bytes)])
+    await declare_with_url(admin_url, [core_topology(1), site_topology()])
     api.put_shovel(vhost, UPLINK_SHOVEL, uplink_shovel(central_url, vhost, reconnect_delay_s, prefetch))
     api.put_shovel(vhost, DOWNLINK_SHOVEL, downlink_shovel(central_url, site, vhost, reconnect_delay_s))
 
