@@ -35,6 +35,11 @@ COMPOSE_ONLY = {
     "FLEETBUS_MONGODB_PASSWORD": "the password of MongoDB's `fleetbus` user (readWrite on `fleetbus` only), "
     "made on the volume's first boot by `mongo-init/fleetbus-user.js`; put it in `FLEETBUS_MONGODB_URL` "
     "(read by `compose.yaml` only)",
+    "FLEETBUS_SITE_NAME": "the site's name, as central knows it (`fleetbus sites add`), for the "
+    "`site` profile's "
+    "`fleetbus site up` (read by `compose.yaml` only)",
+    "FLEETBUS_CENTRAL_URL": "the site's URL at central, which `fleetbus sites add` printed, for the `site` "
+    "profile's `fleetbus site up` (read by `compose.yaml` only)",
 }
 
 TABLE_START = (
