@@ -18,6 +18,7 @@ import pytest
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.local_node import LocalNode
+from tests.console.conftest import browser, chromium  # noqa: F401  (the console's browser fixtures)
 from tests.link import NetworkLink
 from tests.sites.pair import SitePair
 from tests.support import fresh_bus
