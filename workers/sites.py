@@ -15,13 +15,16 @@ from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
 from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, RobotAccount
 from fleetbus.workers.store import Repositories
+from fleetbus.workers.team import change_service
 
 
 async def assign_robots(
     repositories: Repositories, api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]
 ) -> tuple[str, ...]:
     """Make ``robots`` exactly the robots of ``site`` (a robot of another site moves here; the
-    other site's account loses it). Returns them, sorted."""
+    other site's account loses it). At central, a site's wardens are out of service (the site's
+    gate counts them, central's must not wait for them); one that leaves its site is back in
+    service. Returns the robots, sorted."""
     validate_name(site)
     for robot in robots:
         validate_name(robot)
@@ -37,6 +40,14 @@ async def assign_robots(
     after = await repositories.sites.sites()
     for other in moved_from:
         grant_site_robots(api, vhost, other, after.get(other, ()))
+    # central's hazard gate must not wait for wardens that localise at their site only
+    by = f"site {site}"
+    for robot in sorted(new - old):
+        if kinds.get(robot) == RobotKind.WARDEN.value:
+            await change_service(repositories.hazards, admin_url, robot, False, by)
+    for robot in sorted(old - new):
+        if kinds.get(robot) == RobotKind.WARDEN.value:
+            await change_service(repositories.hazards, admin_url, robot, True, by)
     return tuple(sorted(new))
 
 
