@@ -16,6 +16,7 @@ def test_link_up_events_reach_central_once_with_their_site_and_user(pair: SitePa
     explorer = pair.site.robot(pair.add_robot("explorer1", RobotKind.EXPLORER))
     with pair.site.worker(), pair.central.worker():
         items = [("hazard", hazard(i)) if i % 3 == 0 else ("status", status(80)) for i in range(30)]
+        items.append(("beacon", {"beacon_id": "b1", "rssi": -60, "pose": {"x": 1.0, "y": 2.0}}))
         sent = explorer.publish_many(items)
         expected = {(event.epoch, event.seq) for event in sent}
         wait_for(lambda: set(pair.central_keys("explorer1")) == expected, what="every event at central")
@@ -23,7 +24,10 @@ def test_link_up_events_reach_central_once_with_their_site_and_user(pair: SitePa
     assert set(pair.central_keys("explorer1").values()) == {1}, "each event once at central"
     assert set(pair.site_keys("explorer1").values()) == {1} and set(pair.site_keys("explorer1")) == expected
     records = pair.central.find()
-    assert {(r.user_id, r.exchange) for r in records} == {("explorer1", "explorer1.events")}
+    assert {(r.user_id, r.exchange) for r in records} == {
+        ("explorer1", "explorer1.events"),
+        ("explorer1", "explorer1.beacon"),  # through central's beacon check too
+    }
     forwards = pair.forwards("explorer1")
     assert {f.site for f in forwards} == {"base1"} and not any(f.late for f in forwards)
     assert pair.uplink_waiting() == 0
