@@ -36,7 +36,7 @@ from rich.table import Table
 from fleetbus.broker.accounts import Role, fresh_vhost, provision_account, url_for, vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.sites import add_site_account, local_uri, start_site_links
+from fleetbus.broker.sites import add_site_account, forward_robot, local_uri, start_site_links
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.dev.worker_thread import WorkerThread
@@ -236,6 +236,8 @@ def run(
             reconnect_delay_s=1,
         )
     )
+    for robot in robots:
+        forward_robot(site_api, vhost_of(site.amqp_url), robot)
     console.print("loading the outage's backlog at the site ...", highlight=False)
     count, size = load_backlog(
         url_for(site.amqp_url, "bench-loader", loader_password), robots, args.seconds, args.hz

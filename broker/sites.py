@@ -1,18 +1,20 @@
-"""Sites and central on the broker: the uplink and downlink shovels, and each site's account at central.
+"""Sites and central on the broker: the uplink and downlink shovels, and each site's account at
+central.
 
 A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
 
 * **uplink** (on the site): ``fleetbus.uplink``, a durable queue bound to ``fleetbus.ingest`` with
-  ``#``, keeps a copy of every event the site's broker accepted (beacons that passed the header
-  check included), bounded by a policy whose overflow refuses new events (they stay in the
-  robots' outboxes). The dynamic shovel ``fleetbus-uplink`` moves it to central in order, acking a
-  message only once central confirmed it (``ack-mode: on-confirm``). It names no destination
-  exchange, so central receives each message on the exchange the robot published it to, with the
-  robot's routing key and properties, ``user_id`` included: the site logs in to central as its own
+  ``<robot>.#`` for each robot central sent the site (:func:`forward_robot`), keeps a copy of
+  every event of theirs the site's broker accepted (beacons that passed the header check
+  included), bounded by a policy whose overflow refuses new events (they stay in the robots'
+  outboxes). The dynamic shovel ``fleetbus-uplink`` moves it to central in order, acking a message
+  only once central confirmed it (``ack-mode: on-confirm``). It names no destination exchange, so
+  central receives each message on the exchange the robot published it to, with the robot's
+  routing key and properties, ``user_id`` included: the site logs in to central as its own
   account, tagged ``impersonator``, which RabbitMQ lets publish with another user's ``user_id``.
 * **downlink** (central to site): central publishes what a site needs (its robots' accounts) to
-  ``fleetbus.sites`` with keys ``<site>.<kind>``; ``<site>.downlink`` holds the site's share until
-  the shovel ``fleetbus-downlink``, running on the site, moves it into the site's
+  ``fleetbus.sites`` with keys ``<site>.<kind>``; ``<site>.downlink`` holds the site's share
+  until the shovel ``fleetbus-downlink``, running on the site, moves it into the site's
   ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it.
 
 At central, a site's account may configure and read only ``<site>.*`` and write only to its own
@@ -73,8 +75,27 @@ def site_topology() -> Topology:
             QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(DOWNLINK_QUEUE, {"x-queue-type": "classic"}),
         ),
-        bindings=(BindingSpec(INGEST_EXCHANGE, UPLINK_QUEUE, "#"),),
     )
+
+
+def uplink_key(robot: str) -> str:
+    return f"{robot}.#"
+
+
+def forward_robot(api: ManagementAPI, vhost: str, robot: str) -> None:
+    """Forward ``robot``'s events to central from now on: its binding into the uplink. Only robots
+    central knows are bound (``fleetbus site apply`` binds each account central sends): an event
+    of a robot central does not know would be refused there and stop the uplink for everyone."""
+    api.bind(vhost, INGEST_EXCHANGE, UPLINK_QUEUE, uplink_key(robot))
+
+
+def forwarded_robots(api: ManagementAPI, vhost: str) -> set[str]:
+    """The robots whose events the uplink takes."""
+    return {
+        b["routing_key"].removesuffix(".#")
+        for b in api.exchange_bindings(vhost, INGEST_EXCHANGE)
+        if b["destination"] == UPLINK_QUEUE and b["destination_type"] == "queue"
+    }
 
 
 def local_uri(vhost: str) -> str:

@@ -1,10 +1,10 @@
 """On a site: apply what central sent over the downlink (``fleetbus.downlink``) to this broker.
 
 Each robot account is made here with central's password hash (so the robot's central password
-works at its site), granted and given its topology as ``fleetbus users add`` would, and entered in
-the team with its kind. A message is acked once applied; applying one again changes nothing.
-Run as the site's administrator (``fleetbus site apply``): the workers' account may not make users.
-"""
+works at its site), granted and given its topology as ``fleetbus users add`` would, entered in the
+team with its kind, and its events bound into the uplink (forwarded to central). A message is
+acked once applied; applying one again changes nothing. Run as the site's administrator
+(``fleetbus site apply``): the workers' account may not make users."""
 
 from __future__ import annotations
 
@@ -15,8 +15,9 @@ import threading
 import pika
 from pydantic import ValidationError
 
-from fleetbus.broker.accounts import Role, configure_account
+from fleetbus.broker.accounts import Role, configure_account, vhost_of
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.sites import forward_robot
 from fleetbus.schemas.routing import DOWNLINK_QUEUE
 from fleetbus.schemas.site_changes import RobotAccount
 from fleetbus.settings import Settings
@@ -34,6 +35,7 @@ def apply_account(settings: Settings, admin_url: str, api: ManagementAPI, accoun
     )
     kind = account.kind.value if account.kind else None
     run_with_repositories(settings, lambda repos: repos.hazards.register_robot(account.name, kind))
+    forward_robot(api, vhost_of(admin_url), account.name)
     log.info("account %s (%s) applied from central", account.name, kind or "no kind")
 
 

@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Collection
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.broker.management import ManagementAPI, ManagementError
+from fleetbus.broker.sites import forwarded_robots
 from fleetbus.schemas.routing import DOWNLINK_SHOVEL, UPLINK_QUEUE, UPLINK_SHOVEL
 from fleetbus.workers.store.sites import SiteSummary
 
@@ -82,12 +84,20 @@ class SiteLink:
     downlink: ShovelState
     waiting: int | None
     """Events in ``fleetbus.uplink`` not yet confirmed by central (ready and in flight)."""
+    not_forwarded: list[str]
+    """Robots of the site's team whose events are not forwarded (central did not send them)."""
 
     def as_dict(self) -> dict[str, Any]:
-        return {"uplink": self.uplink.__dict__, "downlink": self.downlink.__dict__, "waiting": self.waiting}
+        return {
+            "uplink": self.uplink.__dict__,
+            "downlink": self.downlink.__dict__,
+            "waiting": self.waiting,
+            "not_forwarded": self.not_forwarded,
+        }
 
 
-def site_view(api: ManagementAPI, vhost: str) -> SiteLink:
+def site_view(api: ManagementAPI, vhost: str, team: Collection[str]) -> SiteLink:
+    """The site's links, and which of ``team`` (the robots the site's store knows) are not forwarded."""
     found = {shovel.get("name"): shovel for shovel in api.shovel_status(vhost)}
 
     def state(name: str) -> ShovelState:
@@ -103,4 +113,5 @@ def site_view(api: ManagementAPI, vhost: str) -> SiteLink:
     with contextlib.suppress(ManagementError):
         queue = api.get_queue(vhost, UPLINK_QUEUE)
         waiting = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
-    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting)
+    not_forwarded = sorted(set(team) - forwarded_robots(api, vhost))
+    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting, not_forwarded)

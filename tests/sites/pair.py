@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from typing import TypeVar
 
 from fleetbus.broker.accounts import Account, Role
-from fleetbus.broker.sites import add_site_account, start_site_links, stop_site_links
+from fleetbus.broker.sites import add_site_account, forward_robot, start_site_links, stop_site_links
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.schemas.routing import UPLINK_QUEUE, UPLINK_SHOVEL, RobotKind
 from fleetbus.workers.sites import assign_robots
@@ -64,14 +64,16 @@ class SitePair:
 
     def add_robot(self, name: str, kind: RobotKind) -> Account:
         """A robot of the site: registered at central (and assigned to the site), and at the site,
-        where it connects. Returns its site account."""
+        where it connects and its events are forwarded. Returns its site account."""
         self.central.add(name, Role.ROBOT, kind)
         self.robots.append(name)
         central = self.central
         self.central_store(
             lambda repos: assign_robots(repos, central.api, central.admin_url, self.name, self.robots)
         )
-        return self.site.add(name, Role.ROBOT, kind)
+        account = self.site.add(name, Role.ROBOT, kind)
+        forward_robot(self.site.api, self.site.vhost, name)  # as `fleetbus site apply` does
+        return account
 
     def central_store(self, operation: Callable[[Repositories], Awaitable[T]]) -> T:
         return self.central.with_store(operation)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from fleetbus.broker.sites import forward_robot
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import status
 from tests.sites.pair import SitePair
@@ -34,6 +35,10 @@ def test_sites_add_site_up_and_both_views_of_the_link(pair: SitePair) -> None:
 
     wait_for(lambda: site_status()["uplink"]["state"] == "running", what="the uplink running")
     explorer = site.robot(site.add("explorer2", kind=RobotKind.EXPLORER))
+    robots = json.loads(fleetbus(site, "site", "status", "--json").stdout)["not_forwarded"]
+    assert robots == ["explorer2"], "a robot central did not send is shown, not forwarded"
+    forward_robot(site.api, site.vhost, "explorer2")  # what `fleetbus site apply` does for central's robots
+    assert site_status()["not_forwarded"] == []
     with central.worker(), site.worker():
         explorer.publish("status", status(80))
         wait_for(lambda: central_rows()["base2"]["forwarded"] == 1, what="the event forwarded")

@@ -17,6 +17,7 @@ from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
 from fleetbus.workers.site_status import site_view
+from fleetbus.workers.store import run_with_repositories
 
 app = typer.Typer(
     help="On a site: its links to central (the uplink and downlink shovels).", no_args_is_help=True
@@ -96,8 +97,9 @@ def up(
 def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False) -> None:
     """The uplink and downlink: running or not, since when, and what waits to be forwarded."""
     ep = endpoint()
+    team = run_with_repositories(settings(), lambda repos: repos.hazards.robots())
     with admin_api(ep) as api:
-        link = site_view(api, vhost_of(ep.amqp_url))
+        link = site_view(api, vhost_of(ep.amqp_url), [robot.name for robot in team])
     if as_json:
         console.print_json(json.dumps(link.as_dict()))
         return
@@ -110,6 +112,11 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     console.print(table)
     waiting = "?" if link.waiting is None else f"{link.waiting:,}"
     console.print(f"waiting to be forwarded: {waiting} events", highlight=False)
+    if link.not_forwarded:
+        console.print(
+            f"not forwarded (central did not send their accounts): {', '.join(link.not_forwarded)}",
+            highlight=False,
+        )
 
 
 @app.command()
