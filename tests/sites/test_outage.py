@@ -24,7 +24,10 @@ from tests.test_maps import TABLE2, pgm
 
 #: How long the link stays cut: a few seconds in the default suite, ten minutes under ``slow``.
 #: What is proven does not depend on the length.
-OUTAGES = [pytest.param(3.0, id="3s"), pytest.param(600.0, id="10min", marks=pytest.mark.slow)]
+OUTAGES = [
+    pytest.param(3.0, id="3s"),
+    pytest.param(600.0, id="10min", marks=[pytest.mark.slow, pytest.mark.timeout(1200)]),
+]
 LATE_AFTER_S = 2.0
 
 
