@@ -45,6 +45,10 @@ LONG_MODULES = frozenset(
     {"test_scaling.py", "test_bench.py", "test_outages.py", "test_shards.py", "test_robot_runs.py"}
 )
 
+#: The two-node tests of sites (``tests/sites/``): one xdist worker runs them all, so that one pair
+#: of nodes is booted for the run rather than one per worker.
+SITES_TESTS = "tests/sites/"
+
 #: Modules whose tests share a module-scoped node or app, and need their order (the local node's
 #: last test stops it): one xdist worker runs each of them whole.
 ONE_WORKER_MODULES = frozenset(
@@ -55,11 +59,17 @@ ONE_WORKER_MODULES = frozenset(
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The longest tests first (the ``slow`` outages, then ``LONG_MODULES``), each module's in its
     order."""
-    items.sort(key=lambda item: (item.get_closest_marker("slow") is None, item.path.name not in LONG_MODULES))
+    items.sort(
+        key=lambda item: (
+            item.get_closest_marker("slow") is None,
+            item.path.name not in LONG_MODULES and not item.nodeid.startswith(SITES_TESTS),
+        )
+    )
 
 
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
-    """Test by test to whichever worker is free, but each of ``ONE_WORKER_MODULES`` whole to one.
+    """Test by test to whichever worker is free, but each of ``ONE_WORKER_MODULES`` whole to one, and
+    every test of ``SITES_TESTS`` to one.
 
     (xdist's own ``xdist_group`` mark does not work with pytest 9.2: xdist 3.8 tags the group onto
     ``item._nodeid``, which pytest no longer reads.)"""
@@ -68,6 +78,8 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     class ModulesWhole(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
+            if module.startswith(SITES_TESTS):
+                return SITES_TESTS
             return module if module in ONE_WORKER_MODULES else nodeid
 
     return ModulesWhole(config, log)

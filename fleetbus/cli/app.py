@@ -43,6 +43,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "api": ("api", "app"),
     "shards": ("shards", "app"),
     "team": ("team", "app"),
+    "site": ("site", "app"),
+    "sites": ("sites", "app"),
 }
 
 
