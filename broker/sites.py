@@ -34,6 +34,7 @@ from aio_pika.abc import ExchangeType
 from fleetbus.broker.accounts import Account, Role, url_for, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.policies import apply_policies, uplink_policy
+from fleetbus.broker.tls import shovel_uri
 from fleetbus.broker.topology import (
     BindingSpec,
     ExchangeSpec,
@@ -104,15 +105,15 @@ def local_uri(vhost: str) -> str:
 
 
 def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int) -> dict[str, Any]:
-    """The uplink's definition. ``central_url`` is used as given (``amqps://`` with RabbitMQ's TLS
-    query parameters works the same)."""
+    """The uplink's definition. An ``amqps://`` ``central_url`` is verified as fleetbus's own
+    clients verify (:func:`~fleetbus.broker.tls.shovel_uri`: certificate and host name)."""
     return {
         "src-protocol": "amqp091",
         "src-uri": local_uri(vhost),
         "src-queue": UPLINK_QUEUE,
         "src-prefetch-count": prefetch,
         "dest-protocol": "amqp091",
-        "dest-uri": central_url,
+        "dest-uri": shovel_uri(central_url),
         # no dest-exchange: each message goes to the exchange it was published to, with its key
         "dest-add-forward-headers": True,
         "ack-mode": "on-confirm",
@@ -123,7 +124,7 @@ def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: int, prefetch
 def downlink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: int) -> dict[str, Any]:
     return {
         "src-protocol": "amqp091",
-        "src-uri": central_url,
+        "src-uri": shovel_uri(central_url),
         "src-queue": site_downlink_queue(site),
         "dest-protocol": "amqp091",
         "dest-uri": local_uri(vhost),

@@ -183,6 +183,11 @@ class Settings(BaseSettings):
         "on a site: the most bytes waiting to be forwarded to central, with the same refusal when full",
         shown="4 GiB",
     )
+    central_url: str | None = setting(
+        None,
+        "on a site: its account's URL at central (`fleetbus sites add` prints it), for `fleetbus site "
+        "up` when `--central` is not given; `amqps://` with `cacertfile=` is verified",
+    )
     site_reconnect_delay_s: Annotated[int, Positive] = setting(
         1,
         "on a site: whole seconds the uplink and downlink shovels wait before connecting to central again",

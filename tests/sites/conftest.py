@@ -61,7 +61,7 @@ def pair(site_node: LocalNode, central_node: LocalNode, tmp_path: Path) -> Itera
         fresh_bus(central_endpoint, central_api, tmp_path / "central", prefix="central") as central,
         fresh_bus(site_endpoint, site_api, tmp_path / "site", prefix="site") as site,
     ):
-        link = NetworkLink(central_node.ports()["amqp"]).start()  # type: ignore[index]
+        link = NetworkLink(central_node.ports()["amqps"]).start()  # type: ignore[index]  (TLS)
         pair = SitePair(site, central, link, "base1", site_node, central_node)
         try:
             asyncio.run(pair.join())

@@ -6,6 +6,7 @@ from collections import Counter
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import TypeVar
+from urllib.parse import urlencode, urlsplit, urlunsplit
 
 from fleetbus.broker.accounts import Account, Role
 from fleetbus.broker.sites import add_site_account, forward_robot, start_site_links, stop_site_links
@@ -45,7 +46,16 @@ class SitePair:
     @property
     def central_url(self) -> str:
         assert self.account is not None
-        return self.link.url(self.account.amqp_url)
+        return self.over_tls(self.account.amqp_url)
+
+    def over_tls(self, central_account_url: str) -> str:
+        """A login at central as the site's shovels use it: over AMQPS through the link, verified
+        against central's CA for the name its certificate carries (``localhost``), as in the field."""
+        parts = urlsplit(self.link.url(central_account_url))
+        query = urlencode(
+            {"cacertfile": str(self.central_node.tls.ca), "server_name_indication": "localhost"}, safe="/"
+        )
+        return urlunsplit(("amqps", parts.netloc, parts.path, query, ""))
 
     async def start_links(self) -> None:
         settings = self.site.settings

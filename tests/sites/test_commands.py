@@ -19,7 +19,7 @@ def test_sites_add_site_up_and_both_views_of_the_link(pair: SitePair) -> None:
     assert added.returncode == 0, added.stderr
     central.accounts.append("base2")
     url = next(line for line in added.stdout.splitlines() if line.startswith("amqp://base2:"))
-    up = fleetbus(site, "site", "up", "--name", "base2", "--central", pair.link.url(url))
+    up = fleetbus(site, "site", "up", "--name", "base2", "--central", pair.over_tls(url))
     assert up.returncode == 0, up.stderr
     assert "****" in up.stdout and url.split("@")[0].split(":")[-1] not in up.stdout, "the password masked"
 
@@ -56,3 +56,16 @@ def test_sites_add_site_up_and_both_views_of_the_link(pair: SitePair) -> None:
     robots = fleetbus(central, "sites", "robots", "base2", "--add", "explorer3", "--remove", "explorer2")
     assert robots.returncode == 0, robots.stderr
     assert central.api.get_permissions(central.vhost, "base2")["write"] == "^(base2|explorer3)\\."
+
+
+def test_site_up_refuses_a_central_url_its_shovels_could_not_verify(pair: SitePair) -> None:
+    """An amqps:// URL naming central by its IP address gives the shovel no DNS name to check: it
+    is refused, saying what to add, before any link changes."""
+    unverifiable = pair.over_tls(pair.link.url("amqp://base1:secret@127.0.0.1/")).replace(
+        "&server_name_indication=localhost", ""
+    )
+    refused = fleetbus(pair.site, "site", "up", "--name", "base1", "--central", unverifiable)
+    assert refused.returncode != 0
+    assert "server_name_indication" in refused.stderr + refused.stdout
+    assert "secret" not in refused.stderr + refused.stdout, "the password is never shown"
+    assert pair.uplink_state() == "running", "the working link is left as it was"

@@ -13,6 +13,7 @@ from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import start_site_links, stop_site_links
+from fleetbus.broker.tls import TlsSettingError, shovel_uri
 from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
@@ -59,17 +60,23 @@ def _enable_shovels(ep: BrokerEndpoint, api: ManagementAPI) -> None:
 def up(
     name: Annotated[str, typer.Option("--name", help="the site's name, as central knows it")],
     central: Annotated[
-        str,
+        str | None,
         typer.Option(
             "--central",
-            help="the site's URL at central (`fleetbus sites add` printed it)",
-            envvar="FLEETBUS_CENTRAL_URL",
+            help="the site's URL at central (`fleetbus sites add` printed it); default FLEETBUS_CENTRAL_URL",
         ),
-    ],
+    ] = None,
 ) -> None:
     """Start the site's links: this broker (started if it is the private one) forwards everything it
     accepts to central, and takes central's changes; run `fleetbus worker` beside it as usual."""
     config = settings()
+    central = central or config.central_url
+    if not central:
+        fail("no central URL: give --central or set FLEETBUS_CENTRAL_URL")
+    try:
+        shovel_uri(central)  # a URL the shovels cannot verify with is refused before anything changes
+    except TlsSettingError as error:
+        fail(f"the central URL cannot be used for the site's links: {error}")
     ep = endpoint()
     set_up(ep)
     with admin_api(ep) as api:

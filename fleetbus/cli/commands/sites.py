@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.accounts import as_public, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
@@ -100,7 +100,7 @@ def add(
     console.print(
         f"site [bold]{site}[/] with robots {', '.join(names) or 'none yet'}; its central URL (shown once):"
     )
-    console.print(account.amqp_url, soft_wrap=True, highlight=False)
+    console.print(as_public(account.amqp_url, ep.public_url), soft_wrap=True, highlight=False)
 
 
 @app.command("robots")
