@@ -18,6 +18,7 @@ from pydantic import ValidationError
 from fleetbus.broker.accounts import Role, configure_account, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import forward_robot
+from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.routing import DOWNLINK_QUEUE
 from fleetbus.schemas.site_changes import RobotAccount
 from fleetbus.settings import Settings
@@ -50,7 +51,7 @@ def apply_downlink(
     """Apply the downlink's messages until ``stop`` is set, or (``idle_s``) until none came for that
     long; return how many were applied. One that does not parse is logged and dropped (acked)."""
     applied = 0
-    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    connection = pika.BlockingConnection(pika_parameters(admin_url))
     try:
         channel = connection.channel()
         channel.basic_qos(prefetch_count=16)

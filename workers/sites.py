@@ -11,6 +11,7 @@ import pika
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import grant_site_robots
+from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
 from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, RobotAccount
@@ -76,7 +77,7 @@ async def robot_accounts(
 def send_to_site(admin_url: str, site: str, accounts: Sequence[RobotAccount]) -> None:
     """Publish ``accounts`` to the site's downlink (persistent, confirmed: the shovel takes it on
     whenever the site is connected)."""
-    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    connection = pika.BlockingConnection(pika_parameters(admin_url))
     try:
         channel = connection.channel()
         channel.confirm_delivery()
