@@ -31,6 +31,7 @@ from fleetbus.schemas.bodies import (
     MapChunk,
     MapUpdate,
     RobotStatus,
+    RosMessage,
 )
 from fleetbus.schemas.identity import RobotId
 from fleetbus.schemas.routing import EventType
@@ -97,8 +98,22 @@ class BehaviourEvent(_EnvelopeBase):
     body: BehaviourOutcome
 
 
+class RosEvent(_EnvelopeBase):
+    type: Literal[EventType.ROS] = EventType.ROS
+    body: RosMessage
+
+
 Event = Annotated[
-    Union[HazardEvent, MapEvent, MapChunkEvent, StatusEvent, LocalisationEvent, BeaconEvent, BehaviourEvent],  # noqa: UP007
+    Union[  # noqa: UP007
+        HazardEvent,
+        MapEvent,
+        MapChunkEvent,
+        StatusEvent,
+        LocalisationEvent,
+        BeaconEvent,
+        BehaviourEvent,
+        RosEvent,
+    ],
     Field(discriminator="type"),
 ]
 EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
@@ -109,6 +124,7 @@ EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
     EventType.LOCALISATION: LocalisationEvent,
     EventType.BEACON: BeaconEvent,
     EventType.BEHAVIOUR: BehaviourEvent,
+    EventType.ROS: RosEvent,
 }
 BODY_MODELS: dict[EventType, type[BaseModel]] = {
     t: m.model_fields["body"].annotation
