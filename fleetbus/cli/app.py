@@ -41,6 +41,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "api": ("api", "app"),
     "shards": ("shards", "app"),
     "team": ("team", "app"),
+    "ros": ("ros", "app"),
 }
 
 
