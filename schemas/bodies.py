@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import uuid
 from datetime import datetime
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from pydantic import (
     AwareDatetime,
@@ -157,26 +157,3 @@ class BehaviourOutcome(Strict):
     duration_s: float = Field(ge=0)
     error: str | None = Field(default=None, max_length=2048)
     started_at: datetime | None = None
-
-
-#: Most bytes a recorded ROS message's fields may take as JSON (the worker's message limit is larger:
-#: the envelope and base64 take the rest).
-ROS_FIELDS_MAX_BYTES = 4 * 1024 * 1024
-
-
-class RosMessage(Strict):
-    """Any ROS message, as the ROS bridge recorded it: where it came from and its fields as a document.
-
-    ``fields`` follows the message definition: nested messages are objects, arrays are lists,
-    ``time`` and ``duration`` are ``{"secs", "nsecs"}``, and ``uint8[]``/``char[]`` arrays are
-    base64 text (cut to the bridge's byte limit; ``truncated`` then names the fields that were cut).
-    """
-
-    topic: str = Field(min_length=2, max_length=256, pattern=r"^/")
-    type: str = Field(min_length=3, max_length=256, pattern=r"^[A-Za-z0-9_]+/[A-Za-z0-9_]+$")
-    stamp: AwareDatetime | None = Field(
-        default=None, description="the message's header stamp, when it has a header with a non-zero stamp"
-    )
-    received_at: AwareDatetime = Field(description="when the bridge received the message (the robot's clock)")
-    fields: dict[str, Any]
-    truncated: list[str] = Field(default_factory=list, description="paths of byte arrays cut to the limit")

@@ -31,9 +31,9 @@ from fleetbus.schemas.bodies import (
     MapChunk,
     MapUpdate,
     RobotStatus,
-    RosMessage,
 )
 from fleetbus.schemas.identity import RobotId
+from fleetbus.schemas.ros import RosMessage
 from fleetbus.schemas.routing import EventType
 
 #: 2: the envelope carries the ``epoch`` its sequence number belongs to (version 1 had none).

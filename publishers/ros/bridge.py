@@ -53,6 +53,10 @@ STATUS_FILE = "ros-bridge.json"
 Item = tuple[EventType, Any]
 
 
+def now() -> datetime:
+    return datetime.now(timezone.utc)
+
+
 class RosSideError(RuntimeError):
     """The ROS side could not start or ended; the message says how and where its log is."""
 
@@ -179,32 +183,29 @@ class Bridge:
         """The fleetbus events of one ROS message (validated); raises ConversionError or SchemaError."""
         topic, type_name, fields = item["topic"], item["type"], item["fields"]
         rule = self.mapping.rule_for(topic, type_name)
-        received = datetime.fromtimestamp(item["received"], timezone.utc)
+        stamp = ros_stamp(item.get("stamp_ns"))
         if rule is None:
             body = {
                 "topic": topic,
-                "type": type_name,
-                "stamp": stamp.isoformat() if (stamp := ros_stamp(item.get("stamp"))) else None,
-                "received_at": received.isoformat(),
+                "ros_type": type_name,
+                "log_time_ns": item["received_ns"],
+                "stamp": stamp.isoformat() if stamp else None,
                 "fields": fields,
-                "truncated": item.get("truncated", []),
             }
             return [(EventType.ROS, validate_body(EventType.ROS, body))]
-        return self.mapped(rule, item, received)
+        return self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))
 
-    def mapped(self, rule: Rule, item: dict[str, Any], received: datetime) -> list[Item]:
-        fields = item["fields"]
+    def mapped(self, rule: Rule, fields: dict[str, Any], when: datetime | None) -> list[Item]:
+        """The events of a mapped message; ``when``: its header stamp, else when it was received."""
         if rule.event == "localisation":
             body = validate_body(EventType.LOCALISATION, localisation_body(fields, rule.pose))
             self._last_pose = body.pose.model_dump(mode="json")  # type: ignore[attr-defined]
             return [(EventType.LOCALISATION, body)]
         if rule.event == "map":
             pgm, metadata = occupancy_grid_map(fields)
-            when = ros_stamp(item.get("stamp")) or received
             return [(t, validate_body(t, b)) for t, b in map_events(pgm, metadata, when)]
         frame = (fields.get("header") or {}).get("frame_id") or "map"
-        when = ros_stamp(item.get("stamp")) or received
-        body = hazard_body(fields, rule.description, rule.pose, self._last_pose, frame, when)
+        body = hazard_body(fields, rule.description, rule.pose, self._last_pose, frame, when or now())
         return [(EventType.HAZARD, validate_body(EventType.HAZARD, body))]
 
     def forward(self, batch: list[dict[str, Any]]) -> None:
@@ -213,7 +214,7 @@ class Bridge:
         topics: list[tuple[str, bool, int]] = []  # (topic, mapped, how many events)
         for item in batch:
             topic = item["topic"]
-            if not self._rate.allows(topic, item["received"]):
+            if not self._rate.allows(topic, item["received_ns"] / 1e9):
                 self.counters.drop(topic, DropReason.RATE)
                 continue
             try:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import base64
 import math
 from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.ros import BYTES_KEY, TRUNCATED_KEY
 
 #: map_server's thresholds: an occupancy at or above 65 % is occupied, at or below 19.6 % free.
 OCCUPIED_THRESH = 0.65
@@ -86,7 +88,7 @@ def occupancy_grid_map(fields: dict[str, Any]) -> tuple[bytes, dict[str, Any]]:
     """A nav_msgs/OccupancyGrid as map_server saves it: the PGM image (top row first) and its fields."""
     info = fields["info"]
     width, height = int(info["width"]), int(info["height"])
-    data = fields["data"]
+    data = [v - 256 if v > 127 else v for v in byte_array(fields["data"])]  # int8: -1 is unknown
     if width < 1 or height < 1 or len(data) != width * height:
         raise ConversionError(f"an occupancy grid of {width}x{height} cells holds {len(data)} values")
     occupied, free = OCCUPIED_THRESH * 100, FREE_THRESH * 100
@@ -106,10 +108,23 @@ def occupancy_grid_map(fields: dict[str, Any]) -> tuple[bytes, dict[str, Any]]:
     return pgm, metadata
 
 
-def ros_stamp(stamp: list[int] | None) -> datetime | None:
-    if not stamp:
+def ros_stamp(nanos: int | None) -> datetime | None:
+    """A ROS time in nanoseconds since the epoch, in UTC to the microsecond (None for none)."""
+    if not nanos:
         return None
-    return datetime.fromtimestamp(stamp[0] + stamp[1] / 1e9, timezone.utc)
+    seconds, rest = divmod(nanos, 1_000_000_000)
+    return datetime.fromtimestamp(seconds, timezone.utc).replace(microsecond=rest // 1000)
+
+
+def byte_array(value: Any) -> bytes:
+    """A ``uint8[]``/``int8[]`` field as the ROS side sends it (``{"$base64": ..., "length": n}``)."""
+    if isinstance(value, dict) and BYTES_KEY in value:
+        return base64.b64decode(value[BYTES_KEY])
+    if isinstance(value, dict) and value.get(TRUNCATED_KEY):
+        raise ConversionError(f"an array of {value.get('length')} bytes was cut at the bridge's byte limit")
+    if isinstance(value, list):
+        return bytes(v & 0xFF for v in value)
+    raise ConversionError(f"not a byte array: {str(value)[:80]}")
 
 
 def ros_time(moment: datetime) -> dict[str, int]:

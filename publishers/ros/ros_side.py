@@ -7,8 +7,8 @@ lines over this process's standard streams:
 stdout, one object a line (``kind`` says which):
   ``ready``       the node is up
   ``subscribed``  ``topic``, ``type``: a topic found and subscribed to
-  ``message``     ``topic``, ``type``, ``stamp`` ([secs, nsecs] of the header, or null), ``received``
-                  (UNIX time), ``fields`` (the message as a document), ``truncated`` (byte arrays cut)
+  ``message``     ``topic``, ``type``, ``stamp_ns`` (the header's stamp in ns, or null), ``received_ns``
+                  (UNIX time in ns), ``fields`` (the message as a document, see :func:`to_document`)
   ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
   ``error``       ``topic``, ``detail``: a message that could not be read
 stdin, one object a line:
@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import base64
 import fnmatch
+import hashlib
 import json
 import math
 import queue
@@ -36,35 +37,44 @@ import genpy.message
 import roslib.message
 import rospy
 
-BYTE_TYPES = ("uint8[", "char[")
+#: Array types kept as bytes (``{"$base64": ..., "length": n}``), as fleetbus keeps imported bags.
+BYTE_ARRAYS = ("uint8[", "int8[", "char[", "byte[")
+BYTES_KEY, TRUNCATED_KEY = "$base64", "$truncated"
 
 
-def to_document(msg: Any, bytes_max: int, path: str, truncated: list[str]) -> Any:
-    """A genpy message (or field value) as JSON-able data; byte arrays as base64, cut at ``bytes_max``."""
-    if isinstance(msg, genpy.Message):
+def to_document(value: Any, bytes_max: int, slot_type: str = "") -> Any:
+    """A genpy message (or field value) as plain JSON, in fleetbus's convention for ROS messages
+    (``fleetbus.schemas.ros``): nested messages as objects, times as ``{"sec", "nanosec"}``, byte
+    arrays as ``{"$base64", "length"}`` or, over ``bytes_max``, ``{"$truncated", "length", "sha256"}``,
+    floats JSON cannot hold as ``"nan"``, ``"inf"``, ``"-inf"``."""
+    if isinstance(value, genpy.Message):
         return {
-            slot: to_document(getattr(msg, slot), bytes_max, f"{path}.{slot}" if path else slot, truncated)
-            for slot in msg.__slots__
+            slot: to_document(getattr(value, slot), bytes_max, kind)
+            for slot, kind in zip(value.__slots__, value._slot_types, strict=True)
         }
-    if isinstance(msg, (genpy.Time, genpy.Duration)):
-        return {"secs": msg.secs, "nsecs": msg.nsecs}
-    if isinstance(msg, (bytes, bytearray)):
-        if len(msg) > bytes_max:
-            truncated.append(path)
-            msg = msg[:bytes_max]
-        return base64.b64encode(bytes(msg)).decode("ascii")
-    if isinstance(msg, (list, tuple)):
-        return [to_document(item, bytes_max, f"{path}[{i}]", truncated) for i, item in enumerate(msg)]
-    if isinstance(msg, float) and not math.isfinite(msg):
-        return None  # JSON has no NaN or infinity
-    return msg
+    if isinstance(value, (genpy.Time, genpy.Duration)):
+        return {"sec": value.secs, "nanosec": value.nsecs}
+    if isinstance(value, (bytes, bytearray)) or (
+        slot_type.startswith(BYTE_ARRAYS) and isinstance(value, (list, tuple))
+    ):
+        data = bytes(value) if isinstance(value, (bytes, bytearray)) else bytes(v & 0xFF for v in value)
+        if len(data) > bytes_max:
+            return {TRUNCATED_KEY: True, "length": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        return {BYTES_KEY: base64.b64encode(data).decode("ascii"), "length": len(data)}
+    if isinstance(value, (list, tuple)):
+        element = slot_type.split("[", 1)[0]
+        return [to_document(item, bytes_max, element) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
 
 
-def header_stamp(msg: Any) -> list[int] | None:
+def header_stamp(msg: Any) -> int | None:
+    """The header stamp in nanoseconds, when the message has a header with a non-zero stamp."""
     header = getattr(msg, "header", None)
     stamp = getattr(header, "stamp", None)
     if isinstance(stamp, genpy.Time) and (stamp.secs or stamp.nsecs):
-        return [stamp.secs, stamp.nsecs]
+        return stamp.secs * 1_000_000_000 + stamp.nsecs
     return None
 
 
@@ -90,7 +100,7 @@ class Recorder:
     def __init__(self, out: Output, args: argparse.Namespace) -> None:
         self.out = out
         self.args = args
-        self.queue: queue.Queue[tuple[str, Any, float]] = queue.Queue(args.queue)
+        self.queue: queue.Queue[tuple[str, Any, int]] = queue.Queue(args.queue)
         self.subscribed: dict[str, rospy.Subscriber] = {}
         self.dropped: dict[str, int] = {}
         self.dropped_lock = threading.Lock()
@@ -113,7 +123,7 @@ class Recorder:
 
     def received(self, raw: Any, topic: str) -> None:
         try:
-            self.queue.put_nowait((topic, raw, time.time()))
+            self.queue.put_nowait((topic, raw, time.time_ns()))
         except queue.Full:
             with self.dropped_lock:
                 self.dropped[topic] = self.dropped.get(topic, 0) + 1
@@ -141,8 +151,7 @@ class Recorder:
             try:
                 type_name = raw._connection_header["type"]
                 msg = self.message_class(raw)().deserialize(raw._buff)
-                truncated: list[str] = []
-                fields = to_document(msg, self.args.bytes_max, "", truncated)
+                fields = to_document(msg, self.args.bytes_max)
             except Exception as error:  # a message that cannot be read is reported, not fatal
                 self.out.write({"kind": "error", "topic": topic, "detail": repr(error)})
                 continue
@@ -151,10 +160,9 @@ class Recorder:
                     "kind": "message",
                     "topic": topic,
                     "type": type_name,
-                    "stamp": header_stamp(msg),
-                    "received": received,
+                    "stamp_ns": header_stamp(msg),
+                    "received_ns": received,
                     "fields": fields,
-                    "truncated": truncated,
                 }
             )
 

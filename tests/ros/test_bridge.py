@@ -41,13 +41,14 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
             lambda: (r := ros_records(bus, "rosbot1")) and {"/chatter", "/imu"} <= set(r) and r,
             what="/chatter and /imu stored as ros events",
         )
-        assert records["/chatter"]["type"] == "std_msgs/String"
+        assert records["/chatter"]["ros_type"] == "std_msgs/String"
         assert records["/chatter"]["fields"] == {"data": "hello fleetbus"}
         assert records["/chatter"]["stamp"] is None, "a message without a header has no stamp"
         imu = records["/imu"]  # a type fleetbus has no model of
-        assert imu["type"] == "sensor_msgs/Imu"
+        assert imu["ros_type"] == "sensor_msgs/Imu"
         assert datetime.fromisoformat(imu["stamp"]) == SAMPLE_STAMP
         assert imu["fields"]["header"]["frame_id"] == "imu_link"
+        assert imu["fields"]["header"]["stamp"] == {"sec": 1_700_000_000, "nanosec": 250_000_000}
         assert imu["fields"]["linear_acceleration"] == {"x": 0.0, "y": 0.0, "z": 9.81}
         assert imu["fields"]["orientation_covariance"] == [0.5] * 9
         assert not {"/robot_pose", "/map"} & set(records), "mapped topics are events of their own"
@@ -65,9 +66,20 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
         assert stored.metadata["resolution"] == pytest.approx(0.05)  # a float32 in ROS
         assert stored.metadata["origin"] == [-1.0, -2.0, 0.0]
 
-        # the recorder keeps the ros events like any other
-        recorded = wait_for(lambda: bus.recorded("ros", robot_id="rosbot1"), what="ros events recorded")
-        assert {r.document["body"]["topic"] for r in recorded} >= {"/chatter", "/imu"}
+        # the recording keeps them as it keeps a bag's messages (fleetbus.schemas.ros)
+        recorded = wait_for(
+            lambda: (
+                (r := {r.routing_key: r for r in bus.recorded("ros", robot_id="rosbot1")})
+                and {"rosbot1.ros.imu", "rosbot1.ros.chatter"} <= set(r)
+                and r
+            ),
+            what="/imu and /chatter recorded",
+        )
+        imu_record = recorded["rosbot1.ros.imu"]
+        assert imu_record.exchange == "ros"
+        assert imu_record.sent_at == SAMPLE_STAMP
+        assert imu_record.document == imu
+        assert recorded["rosbot1.ros.chatter"].document["fields"] == {"data": "hello fleetbus"}
 
         # the warden (localised by its pose) is told of a hazard: on a ROS topic, for ROS code
         explorer.publish("hazard", hazard(0, "Fire"))
