@@ -28,6 +28,7 @@ from fleetbus.publishers.client import RobotClient, robot_folder
 from fleetbus.publishers.errors import PublisherError
 from fleetbus.publishers.maps import map_events
 from fleetbus.publishers.outbox import OutboxFull
+from fleetbus.publishers.ros.commands import follow_commands
 from fleetbus.publishers.ros.convert import (
     ConversionError,
     hazard_body,
@@ -96,8 +97,17 @@ class BridgeOptions:
 class Bridge:
     """One robot's bridge; :meth:`run` until the ROS side ends or :meth:`stop` is called."""
 
-    def __init__(self, robot: RobotClient, mapping: Mapping, options: BridgeOptions, state_dir: Path) -> None:
+    def __init__(
+        self,
+        robot: RobotClient,
+        mapping: Mapping,
+        options: BridgeOptions,
+        state_dir: Path,
+        commands_url: str | None = None,
+    ) -> None:
+        """``commands_url``: the robot's URL, to read its operator's commands (none: not read)."""
         self.robot = robot
+        self.commands_url = commands_url
         self.mapping = mapping
         self.options = options
         self.counters = Counters()
@@ -256,6 +266,15 @@ class Bridge:
         self.start_ros_side()
         notifier = threading.Thread(target=self._notify, name="ros-notifications", daemon=True)
         notifier.start()
+        commands = None
+        if self.commands_url:
+            commands = threading.Thread(
+                target=follow_commands,
+                args=(self.commands_url, self.robot.robot_id, NOTIFY_PREFIX, self.send_to_ros, self._stop),
+                name="ros-commands",
+                daemon=True,
+            )
+            commands.start()
         next_status = time.monotonic() + self.options.status_every_s
         died = False
         try:
@@ -273,6 +292,8 @@ class Bridge:
             self._stop.set()
             code = self._end_ros_side()
             notifier.join(10)
+            if commands is not None:
+                commands.join(10)
             self.report()
         if died:
             log.error("the ROS side ended by itself (status %s): see %s", code, self.ros_log)

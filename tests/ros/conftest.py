@@ -113,11 +113,11 @@ def ros_peer(master: RosMaster, *args: str) -> Iterator[subprocess.Popen[str]]:
 
 @contextmanager
 def running_bridge(
-    robot: RobotClient, master: RosMaster, state_dir: Path, **options: object
+    robot: RobotClient, master: RosMaster, state_dir: Path, commands_url: str | None = None, **options: object
 ) -> Iterator[Bridge]:
     """The bridge for ``robot`` on a thread, with the standard mapping; stopped (and checked) after."""
     settings = {"discover_every_s": 0.2, "status_every_s": 0.5, "ros_env": master.env, **options}
-    bridge = Bridge(robot, load_mapping(None), BridgeOptions(**settings), state_dir)  # type: ignore[arg-type]
+    bridge = Bridge(robot, load_mapping(None), BridgeOptions(**settings), state_dir, commands_url)  # type: ignore[arg-type]
     result: list[int | BaseException] = []
 
     def run() -> None:

@@ -6,8 +6,11 @@ import json
 from datetime import datetime, timezone
 from typing import Any
 
+import pika
 import pytest
 
+from fleetbus.broker.accounts import Role
+from fleetbus.broker.mounts import bind_all, mount_bindings
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
 from tests.factories import hazard
@@ -30,12 +33,15 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
     account = bus.add("rosbot1", kind=RobotKind.WARDEN)
     robot = bus.robot(account)
     explorer = bus.robot(bus.add("scout1", kind=RobotKind.EXPLORER))
+    operator = bus.add("oper1", Role.OPERATOR)
+    bind_all(bus.api, bus.vhost, mount_bindings("rosbot1", "oper1"))  # what a mount does
     with (
         bus.worker(),
         bus.recorder(),
         ros_peer(ros_master, "listen", "/fleetbus/hazard_pose", "geometry_msgs/PoseStamped") as listener,
+        ros_peer(ros_master, "listen", "/fleetbus/goal", "geometry_msgs/PoseStamped") as goals,
         ros_peer(ros_master, "samples"),
-        running_bridge(robot, ros_master, bus.settings.robots_dir),
+        running_bridge(robot, ros_master, bus.settings.robots_dir, commands_url=account.amqp_url),
     ):
         records = wait_for(
             lambda: (r := ros_records(bus, "rosbot1")) and {"/chatter", "/imu"} <= set(r) and r,
@@ -85,6 +91,20 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
         explorer.publish("hazard", hazard(0, "Fire"))
         line = json.loads(read_line(listener, '{"topic": "/fleetbus/hazard_pose"', 30))
         assert line == {"topic": "/fleetbus/hazard_pose", "frame_id": "map", "x": 2.66, "y": 1.22}
+
+        # a goal from the operator who mounted the robot: a PoseStamped, as RViz sends one
+        connection = pika.BlockingConnection(pika.URLParameters(operator.amqp_url))
+        try:
+            channel = connection.channel()
+            channel.confirm_delivery()
+            goal = json.dumps({"x": 4.0, "y": 5.5, "frame_id": "map"}).encode()
+            channel.basic_publish(
+                "oper1.commands", "rosbot1.goal", goal, pika.BasicProperties(user_id="oper1"), mandatory=True
+            )
+        finally:
+            connection.close()
+        line = json.loads(read_line(goals, '{"topic": "/fleetbus/goal"', 30))
+        assert line == {"topic": "/fleetbus/goal", "frame_id": "map", "x": 4.0, "y": 5.5}
 
 
 def test_the_outbox_keeps_what_the_bridge_records_while_the_broker_is_away(

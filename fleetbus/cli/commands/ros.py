@@ -10,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from fleetbus.cli.commands.events import open_robot
+from fleetbus.cli.commands.events import open_robot, robot_url
 from fleetbus.cli.context import console, fail, settings
 
 app = typer.Typer(help="The live ROS 1 bridge: ROS topics into fleetbus, notifications out as ROS topics.")
@@ -55,8 +55,9 @@ def bridge(
         bytes_max=config.ros_bytes_max,
         status_every_s=config.ros_status_every_s,
     )
-    client = open_robot(robot, url, 10.0)
-    runner = Bridge(client, rules, options, config.robots_dir)
+    amqp_url = robot_url(robot, url)
+    client = open_robot(robot, amqp_url, 10.0)
+    runner = Bridge(client, rules, options, config.robots_dir, commands_url=amqp_url)
     signal.signal(signal.SIGTERM, lambda *_: runner.stop())
     try:
         code = runner.run()
