@@ -26,6 +26,7 @@ import hashlib
 import json
 import math
 import queue
+import signal
 import sys
 import threading
 import time
@@ -214,6 +215,7 @@ def main() -> None:
     parser.add_argument("--own-prefix", default="/fleetbus")
     args = parser.parse_args()
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the bridge, which closes our input
     rospy.init_node(args.node, anonymous=True, disable_signals=True)
     out = Output()
     recorder = Recorder(out, args)
@@ -231,6 +233,7 @@ def main() -> None:
             out.write(
                 {"kind": "error", "topic": "", "detail": f"cannot publish {line.strip()[:200]}: {error!r}"}
             )
+    recorder.report_drops()  # the last counts, before the pipe closes
     rospy.signal_shutdown("the bridge closed its end")
 
 
