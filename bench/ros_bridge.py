@@ -39,7 +39,8 @@ from fleetbus.settings import load_settings
 from tests.support import fresh_bus, wait_for
 
 ROS_PYTHON = "/usr/bin/python3"
-PUBLISHER = Path(__file__).with_name("ros_publisher.py")
+# a script for the ROS machine's Python, not a module of the bench (it imports rospy)
+PUBLISHER = Path(__file__).parent / "ros_nodes" / "publisher.py"
 TOPICS = ("/bench/small", "/bench/image")
 ROBOT = "bench-ros"
 console = Console()

@@ -1,6 +1,6 @@
 """The ROS node of ``bench.ros_bridge``, for the ROS machine's Python (/usr/bin/python3).
 
-    ros_publisher.py SECONDS SMALL_HZ IMAGE_HZ SUBSCRIBERS
+    publisher.py SECONDS SMALL_HZ IMAGE_HZ SUBSCRIBERS
 
 Once each topic has SUBSCRIBERS subscribers, publishes for SECONDS: std_msgs/String on /bench/small
 at SMALL_HZ, and a 640x480 rgb8 sensor_msgs/Image on /bench/image at IMAGE_HZ, on a fixed
