@@ -17,8 +17,9 @@ document       a :class:`RosMessage`: topic, ROS type, log time in ns, stamp, fi
                as plain JSON
 =============  ==================================================================
 
-Field values are plain JSON; a byte array is kept as base64 under :data:`BYTES_KEY`, or, over
-the size cap, only described under :data:`TRUNCATED_KEY`.
+:func:`fleetbus.workers.recorder.ros_records.ros_record` builds such a record from a
+:class:`RosMessage`. Field values are plain JSON; a byte array is kept as base64 under
+:data:`BYTES_KEY`, or, over the size cap, only described under :data:`TRUNCATED_KEY`.
 """
 
 from __future__ import annotations
@@ -34,10 +35,12 @@ ROS_TYPE = "ros"
 ROS_EXCHANGE = "ros"
 """The exchange a recorded ROS message names: none on the bus, it marks the ROS origin."""
 ROUTING_SEGMENT = "ros"
-BYTES_KEY = "$base64"
-"""A byte array (``uint8[]``) is kept as ``{"$base64": "...", "length": n}``."""
-TRUNCATED_KEY = "$truncated"
-"""A byte array over the size cap is kept as ``{"$truncated": true, "length": n, "sha256": "..."}``."""
+# ROS field names start with a letter, so these keys cannot be a message's own; and MongoDB
+# stores them as they are (it refuses or mangles keys that start with "$").
+BYTES_KEY = "_base64"
+"""A byte array (``uint8[]``) is kept as ``{"_base64": "...", "length": n}``."""
+TRUNCATED_KEY = "_truncated"
+"""A byte array over the size cap is kept as ``{"_truncated": true, "length": n, "sha256": "..."}``."""
 
 
 class RosMessage(BaseModel):

@@ -54,6 +54,13 @@ STATUS_FILE = "ros-bridge.json"
 Item = tuple[EventType, Any]
 
 
+def ros2_type_name(type_name: str) -> str:
+    """``sensor_msgs/Image`` as ``sensor_msgs/msg/Image``: how fleetbus names ROS types in the
+    recording, for ROS 1 and ROS 2 alike (as bag imports do)."""
+    package, _, name = type_name.partition("/")
+    return f"{package}/msg/{name}" if name and "/" not in name else type_name
+
+
 def now() -> datetime:
     return datetime.now(timezone.utc)
 
@@ -197,7 +204,7 @@ class Bridge:
         if rule is None:
             body = {
                 "topic": topic,
-                "ros_type": type_name,
+                "ros_type": ros2_type_name(type_name),
                 "log_time_ns": item["received_ns"],
                 "stamp": stamp.isoformat() if stamp else None,
                 "fields": fields,

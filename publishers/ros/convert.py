@@ -117,7 +117,7 @@ def ros_stamp(nanos: int | None) -> datetime | None:
 
 
 def byte_array(value: Any) -> bytes:
-    """A ``uint8[]``/``int8[]`` field as the ROS side sends it (``{"$base64": ..., "length": n}``)."""
+    """A ``uint8[]``/``int8[]`` field as the ROS side sends it (``{"_base64": ..., "length": n}``)."""
     if isinstance(value, dict) and BYTES_KEY in value:
         return base64.b64decode(value[BYTES_KEY])
     if isinstance(value, dict) and value.get(TRUNCATED_KEY):

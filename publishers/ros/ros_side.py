@@ -38,15 +38,15 @@ import genpy.message
 import roslib.message
 import rospy
 
-#: Array types kept as bytes (``{"$base64": ..., "length": n}``), as fleetbus keeps imported bags.
+#: Array types kept as bytes (``{"_base64": ..., "length": n}``), as fleetbus keeps imported bags.
 BYTE_ARRAYS = ("uint8[", "int8[", "char[", "byte[")
-BYTES_KEY, TRUNCATED_KEY = "$base64", "$truncated"
+BYTES_KEY, TRUNCATED_KEY = "_base64", "_truncated"  # as fleetbus.schemas.ros names them
 
 
 def to_document(value: Any, bytes_max: int, slot_type: str = "") -> Any:
     """A genpy message (or field value) as plain JSON, in fleetbus's convention for ROS messages
     (``fleetbus.schemas.ros``): nested messages as objects, times as ``{"sec", "nanosec"}``, byte
-    arrays as ``{"$base64", "length"}`` or, over ``bytes_max``, ``{"$truncated", "length", "sha256"}``,
+    arrays as ``{"_base64", "length"}`` or, over ``bytes_max``, ``{"_truncated", "length", "sha256"}``,
     floats JSON cannot hold as ``"nan"``, ``"inf"``, ``"-inf"``."""
     if isinstance(value, genpy.Message):
         return {

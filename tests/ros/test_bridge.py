@@ -47,11 +47,11 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
             lambda: (r := ros_records(bus, "rosbot1")) and {"/chatter", "/imu"} <= set(r) and r,
             what="/chatter and /imu stored as ros events",
         )
-        assert records["/chatter"]["ros_type"] == "std_msgs/String"
+        assert records["/chatter"]["ros_type"] == "std_msgs/msg/String", "named as bag imports name types"
         assert records["/chatter"]["fields"] == {"data": "hello fleetbus"}
         assert records["/chatter"]["stamp"] is None, "a message without a header has no stamp"
         imu = records["/imu"]  # a type fleetbus has no model of
-        assert imu["ros_type"] == "sensor_msgs/Imu"
+        assert imu["ros_type"] == "sensor_msgs/msg/Imu"
         assert datetime.fromisoformat(imu["stamp"]) == SAMPLE_STAMP
         assert imu["fields"]["header"]["frame_id"] == "imu_link"
         assert imu["fields"]["header"]["stamp"] == {"sec": 1_700_000_000, "nanosec": 250_000_000}
