@@ -131,6 +131,40 @@ class Settings(BaseSettings):
         DEFAULT_MAX_MESSAGE_BYTES, "larger bodies are dead-lettered as `too-large`"
     )
     robot_url: str | None = setting(None, "the robot URL `fleetbus publish` uses")
+    ros_python: str = setting(
+        "/usr/bin/python3",
+        "the Python that ROS 1 (rospy) is installed for: `fleetbus ros bridge` runs its ROS side with it",
+    )
+    ros_mapping: Path | None = setting(
+        None,
+        "the mapping file of `fleetbus ros bridge`: which ROS messages become which fleetbus events",
+        shown="the standard mapping shipped with fleetbus",
+    )
+    ros_include: Words = setting(
+        (), "topic patterns the ROS bridge records (none: every topic), e.g. `/scan /odom*`"
+    )
+    ros_exclude: Words = setting((), "topic patterns the ROS bridge leaves out, e.g. `/rosout* /camera/*`")
+    ros_max_rate_hz: Annotated[float, Field(ge=0)] = setting(
+        0.0,
+        "most messages a second the ROS bridge forwards per topic (0: no limit); the rest are "
+        "dropped and counted",
+    )
+    ros_discover_every_s: Annotated[float, Positive] = setting(
+        1.0, "how often the ROS bridge looks for new topics"
+    )
+    ros_queue: Annotated[int, Positive] = setting(
+        10_000,
+        "messages the ROS bridge holds between ROS and the outbox, on each side; beyond, they are "
+        "dropped and counted",
+    )
+    ros_bytes_max: Annotated[int, Positive] = setting(
+        256 * 1024,
+        "bytes of a `uint8[]` field (an image's pixels) the ROS bridge records; the rest is cut "
+        "and the field named in `truncated`",
+    )
+    ros_status_every_s: Annotated[float, Positive] = setting(
+        10.0, "how often the ROS bridge logs its counts and rewrites its status file"
+    )
     battery_low_percent: float = setting(20.0, "a status below it warns the operators")
     late_after_s: float = setting(
         LATE_AFTER_S,

@@ -64,6 +64,7 @@ DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
     EventType.MAP_CHUNK.value: TypePolicy(Overflow.KEEP, 20_000),
     EventType.BEHAVIOUR.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
     EventType.BEACON.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
+    EventType.ROS.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
 }
 DEFAULT_POLICY = TypePolicy(Overflow.KEEP, KEEP_LIMIT)
 

@@ -33,6 +33,7 @@ from fleetbus.schemas.bodies import (
     RobotStatus,
 )
 from fleetbus.schemas.identity import RobotId
+from fleetbus.schemas.ros import RosMessage
 from fleetbus.schemas.routing import EventType
 
 #: 2: the envelope carries the ``epoch`` its sequence number belongs to (version 1 had none).
@@ -97,8 +98,22 @@ class BehaviourEvent(_EnvelopeBase):
     body: BehaviourOutcome
 
 
+class RosEvent(_EnvelopeBase):
+    type: Literal[EventType.ROS] = EventType.ROS
+    body: RosMessage
+
+
 Event = Annotated[
-    Union[HazardEvent, MapEvent, MapChunkEvent, StatusEvent, LocalisationEvent, BeaconEvent, BehaviourEvent],  # noqa: UP007
+    Union[  # noqa: UP007
+        HazardEvent,
+        MapEvent,
+        MapChunkEvent,
+        StatusEvent,
+        LocalisationEvent,
+        BeaconEvent,
+        BehaviourEvent,
+        RosEvent,
+    ],
     Field(discriminator="type"),
 ]
 EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
@@ -109,6 +124,7 @@ EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
     EventType.LOCALISATION: LocalisationEvent,
     EventType.BEACON: BeaconEvent,
     EventType.BEHAVIOUR: BehaviourEvent,
+    EventType.ROS: RosEvent,
 }
 BODY_MODELS: dict[EventType, type[BaseModel]] = {
     t: m.model_fields["body"].annotation

@@ -131,6 +131,7 @@ class EventType(str, Enum):
     LOCALISATION = "localisation"
     BEACON = "beacon"
     BEHAVIOUR = "behaviour"
+    ROS = "ros"
 
 
 #: The express lane's types: the hazards the wardens wait for, and the localisations that open their

@@ -45,6 +45,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "team": ("team", "app"),
     "site": ("site", "app"),
     "sites": ("sites", "app"),
+    "ros": ("ros", "app"),
 }
 
 

@@ -14,6 +14,9 @@ exchange                  type               robot
 ``<robot>.requests``      ``request``        the exchange's owner
 ``fleetbus.notify``       ``notification``   none (the service speaks)
 ``fleetbus.dlx``          ``dead_letter``    ``x-original-user-id``
+``<robot>.events``, key   ``ros``, kept as   the exchange's owner
+``<robot>.ros``           every ROS message
+                          (``schemas.ros``)
 anything else             ``other``          the publisher
 ========================  =================  ===================================
 
@@ -41,6 +44,7 @@ from fleetbus.schemas.routing import (
     EventType,
 )
 from fleetbus.workers.beacon_discards import discard_reason
+from fleetbus.workers.recorder.ros_live import as_ros_record
 from fleetbus.workers.store.recordings import TYPE_NAME, RecordedMessage
 
 if TYPE_CHECKING:
@@ -103,6 +107,8 @@ def origin(
     if kind == "requests":
         return Origin(REQUEST, owner)
     if kind == "events":
+        if routing_key == f"{owner}.{EventType.ROS.value}":  # the ROS bridge's: see ros_live
+            return Origin(EventType.ROS.value, owner)
         type_name, problem = names.admit(routing_key.split(".")[1] if "." in routing_key else "")
         return Origin(type_name, owner, problem)
     if kind == BEACON_TYPE:
@@ -234,7 +240,7 @@ def capture(
     message_id = message.message_id or _text(envelope.get("message_id"))
     seq = envelope.get("seq")
     mission = envelope.get("mission_id")
-    return RecordedMessage(
+    record = RecordedMessage(
         key=record_key(exchange, user_id, message_id, routing_key, message.correlation_id, body),
         type=where.type,
         recorded_at=recorded_at,
@@ -254,6 +260,9 @@ def capture(
         size=len(body),
         received=body,
     )
+    if where.type == EventType.ROS.value and raw is None:
+        return as_ros_record(record)  # kept as every ROS message is (fleetbus.schemas.ros)
+    return record
 
 
 def refusal(record: RecordedMessage) -> tuple[str, str] | None:

@@ -1,0 +1,91 @@
+"""``fleetbus ros``: the live bridge between a robot's ROS 1 master and fleetbus."""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from fleetbus.cli.commands.events import open_robot, robot_url
+from fleetbus.cli.context import console, fail, settings
+
+app = typer.Typer(help="The live ROS 1 bridge: ROS topics into fleetbus, notifications out as ROS topics.")
+
+
+@app.command()
+def bridge(
+    robot: Annotated[str, typer.Argument(help="the robot's account (its fleetbus name)")],
+    url: Annotated[
+        str | None,
+        typer.Option(
+            help="the robot's AMQP URL (default: FLEETBUS_ROBOT_URL, else the one `users add` kept)"
+        ),
+    ] = None,
+    mapping: Annotated[
+        Path | None,
+        typer.Option(help="the mapping file (default: FLEETBUS_ROS_MAPPING, else the standard mapping)"),
+    ] = None,
+) -> None:
+    """Record every ROS topic of this robot's master in fleetbus, through the robot's outbox.
+
+    Runs beside the ROS master (ROS_MASTER_URI), with the robot's credentials and state folder:
+    what the broker has not confirmed waits in the outbox. Mapped topics become fleetbus events;
+    this robot's notifications are published on /fleetbus/... topics. Runs until interrupted.
+    """
+    from fleetbus.publishers.ros.bridge import Bridge, BridgeOptions, RosSideError
+    from fleetbus.publishers.ros.mapping import MappingError, load_mapping
+
+    config = settings()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        rules = load_mapping(mapping or config.ros_mapping)
+    except MappingError as error:
+        fail(str(error), code=2)
+    options = BridgeOptions(
+        python=config.ros_python,
+        include=config.ros_include,
+        exclude=config.ros_exclude,
+        max_rate_hz=config.ros_max_rate_hz,
+        discover_every_s=config.ros_discover_every_s,
+        queue=config.ros_queue,
+        bytes_max=config.ros_bytes_max,
+        status_every_s=config.ros_status_every_s,
+    )
+    amqp_url = robot_url(robot, url)
+    client = open_robot(robot, amqp_url, 10.0)
+    runner = Bridge(client, rules, options, config.robots_dir, commands_url=amqp_url)
+    signal.signal(signal.SIGTERM, lambda *_: runner.stop())
+    try:
+        code = runner.run()
+    except RosSideError as error:
+        fail(str(error))
+    except KeyboardInterrupt:
+        runner.stop()
+        code = 0
+    finally:
+        client.close()
+    raise typer.Exit(code)
+
+
+@app.command()
+def status(robot: Annotated[str, typer.Argument(help="the robot's account")]) -> None:
+    """The counts of a robot's running (or last) bridge: per topic, recorded, as events, dropped and why."""
+    from fleetbus.publishers.client import robot_folder
+    from fleetbus.publishers.ros.bridge import STATUS_FILE
+
+    path = robot_folder(settings().robots_dir, robot) / STATUS_FILE
+    if not path.exists():
+        fail(f"no bridge has run for {robot!r} here ({path} does not exist)")
+    console.print_json(json.dumps(json.loads(path.read_text())))
+
+
+@app.command("mapping")
+def show_mapping() -> None:
+    """Print the standard mapping file (a start for your own)."""
+    from fleetbus.publishers.ros.mapping import standard_mapping_text
+
+    print(standard_mapping_text(), end="")

@@ -1,0 +1,345 @@
+"""The fleetbus side of the live ROS bridge: runs the ROS side, records, maps, and talks back.
+
+The ROS side (:mod:`ros_side`, a script for the ROS machine's own Python) discovers and reads
+the topics and writes each message as a JSON line. This side reads those lines into a bounded
+queue, applies the per-topic rate limit, turns mapped messages into fleetbus events (the mapping
+file) and every other one into a ``ros`` event, and hands them to the robot client: its outbox
+keeps them until the broker confirmed them. This robot's notifications go the other way, as
+lines the ROS side publishes on ROS topics. What is dropped anywhere is counted per topic, with
+its reason, in the log's status lines and the status file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import subprocess
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import IO, Any
+
+import pika.exceptions
+
+from fleetbus.publishers.client import RobotClient, robot_folder
+from fleetbus.publishers.errors import PublisherError
+from fleetbus.publishers.maps import map_events
+from fleetbus.publishers.outbox import OutboxFull
+from fleetbus.publishers.ros.commands import follow_commands
+from fleetbus.publishers.ros.convert import (
+    ConversionError,
+    hazard_body,
+    localisation_body,
+    notification_messages,
+    occupancy_grid_map,
+    ros_stamp,
+)
+from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
+from fleetbus.publishers.ros.mapping import Mapping, Rule
+from fleetbus.schemas.envelope import SchemaError, validate_body
+from fleetbus.schemas.routing import EventType
+
+log = logging.getLogger("fleetbus.ros")
+
+ROS_SIDE = Path(__file__).with_name("ros_side.py")
+#: Messages taken from the queue into one outbox write at most.
+BATCH = 256
+#: The ROS topics notifications are published on start with this.
+NOTIFY_PREFIX = "/fleetbus"
+STATUS_FILE = "ros-bridge.json"
+
+Item = tuple[EventType, Any]
+
+
+def ros2_type_name(type_name: str) -> str:
+    """``sensor_msgs/Image`` as ``sensor_msgs/msg/Image``: how fleetbus names ROS types in the
+    recording, for ROS 1 and ROS 2 alike (as bag imports do)."""
+    package, _, name = type_name.partition("/")
+    return f"{package}/msg/{name}" if name and "/" not in name else type_name
+
+
+def now() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+class RosSideError(RuntimeError):
+    """The ROS side could not start or ended; the message says how and where its log is."""
+
+
+@dataclass(frozen=True)
+class BridgeOptions:
+    python: str = "/usr/bin/python3"
+    include: tuple[str, ...] = ()
+    exclude: tuple[str, ...] = ()
+    max_rate_hz: float = 0.0
+    discover_every_s: float = 1.0
+    queue: int = 10_000
+    bytes_max: int = 256 * 1024
+    status_every_s: float = 10.0
+    ready_timeout_s: float = 30.0
+    ros_env: dict[str, str] | None = None
+    """The ROS side's environment (default: this process's, with its ``ROS_MASTER_URI``)."""
+    extra_args: tuple[str, ...] = field(default=())
+
+    def ros_side_command(self) -> list[str]:
+        command = [self.python, str(ROS_SIDE), "--discover-every", str(self.discover_every_s)]
+        command += [
+            "--bytes-max",
+            str(self.bytes_max),
+            "--queue",
+            str(self.queue),
+            "--own-prefix",
+            NOTIFY_PREFIX,
+        ]
+        for pattern in self.include:
+            command += ["--include", pattern]
+        for pattern in self.exclude:
+            command += ["--exclude", pattern]
+        return command + list(self.extra_args)
+
+
+class Bridge:
+    """One robot's bridge; :meth:`run` until the ROS side ends or :meth:`stop` is called."""
+
+    def __init__(
+        self,
+        robot: RobotClient,
+        mapping: Mapping,
+        options: BridgeOptions,
+        state_dir: Path,
+        commands_url: str | None = None,
+    ) -> None:
+        """``commands_url``: the robot's URL, to read its operator's commands (none: not read)."""
+        self.robot = robot
+        self.commands_url = commands_url
+        self.mapping = mapping
+        self.options = options
+        self.counters = Counters()
+        self.status_file = robot_folder(state_dir, robot.robot_id) / STATUS_FILE
+        self.ros_log = robot_folder(state_dir, robot.robot_id) / "ros-side.log"
+        self._queue: queue.Queue[dict[str, Any]] = queue.Queue(options.queue)
+        self._rate = RateLimit(options.max_rate_hz)
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._ended = threading.Event()
+        self._stdin_lock = threading.Lock()
+        self._process: subprocess.Popen[bytes] | None = None
+        self._last_pose: dict[str, Any] | None = None
+
+    # the ROS side
+    def start_ros_side(self) -> None:
+        try:
+            self._process = subprocess.Popen(
+                self.options.ros_side_command(),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=self.ros_log.open("ab"),
+                env=self.options.ros_env,
+                bufsize=1 << 16,
+            )
+        except OSError as error:
+            raise RosSideError(
+                f"cannot start the ROS side with {self.options.python!r} (FLEETBUS_ROS_PYTHON): {error}"
+            ) from None
+        threading.Thread(
+            target=self._read, args=(self._process.stdout,), name="ros-reader", daemon=True
+        ).start()
+        deadline = time.monotonic() + self.options.ready_timeout_s
+        while not self._ready.wait(0.1):
+            if self._ended.is_set() or time.monotonic() > deadline:
+                self.stop()
+                raise RosSideError(
+                    f"the ROS side did not start (is ROS installed for {self.options.python}, and does "
+                    f"ROS_MASTER_URI name a running master?): see {self.ros_log}"
+                )
+
+    def _read(self, stream: IO[bytes]) -> None:
+        for line in stream:
+            try:
+                item = json.loads(line)
+            except ValueError:
+                log.warning("the ROS side wrote a line that is not JSON: %r", line[:200])
+                continue
+            kind = item.get("kind")
+            if kind == "message":
+                try:
+                    self._queue.put_nowait(item)
+                except queue.Full:
+                    self.counters.drop(item["topic"], DropReason.BRIDGE_QUEUE)
+            elif kind == "subscribed":
+                self.counters.types[item["topic"]] = item["type"]
+                log.info("recording %s (%s)", item["topic"], item["type"])
+            elif kind == "dropped":
+                for topic, count in item["counts"].items():
+                    self.counters.drop(topic, DropReason.ROS_QUEUE, count)
+            elif kind == "error":
+                self.counters.drop(item.get("topic") or "(publish)", DropReason.UNREADABLE)
+                log.warning("ROS side: %s: %s", item.get("topic"), item.get("detail"))
+            elif kind == "ready":
+                self.counters.ros_side = "running"
+                self._ready.set()
+        self._ended.set()
+
+    def send_to_ros(self, items: list[dict[str, Any]]) -> None:
+        process = self._process
+        if process is None or process.stdin is None:
+            return
+        data = "".join(json.dumps(item) + "\n" for item in items).encode()
+        with self._stdin_lock:
+            try:
+                process.stdin.write(data)
+                process.stdin.flush()
+            except (BrokenPipeError, ValueError):
+                log.warning("the ROS side is gone: %d messages for ROS not published", len(items))
+
+    # messages to events
+    def events_of(self, item: dict[str, Any]) -> list[Item]:
+        """The fleetbus events of one ROS message (validated); raises ConversionError or SchemaError."""
+        topic, type_name, fields = item["topic"], item["type"], item["fields"]
+        rule = self.mapping.rule_for(topic, type_name)
+        stamp = ros_stamp(item.get("stamp_ns"))
+        if rule is None:
+            body = {
+                "topic": topic,
+                "ros_type": ros2_type_name(type_name),
+                "log_time_ns": item["received_ns"],
+                "stamp": stamp.isoformat() if stamp else None,
+                "fields": fields,
+            }
+            return [(EventType.ROS, validate_body(EventType.ROS, body))]
+        return self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))
+
+    def mapped(self, rule: Rule, fields: dict[str, Any], when: datetime | None) -> list[Item]:
+        """The events of a mapped message; ``when``: its header stamp, else when it was received."""
+        if rule.event == "localisation":
+            body = validate_body(EventType.LOCALISATION, localisation_body(fields, rule.pose))
+            self._last_pose = body.pose.model_dump(mode="json")  # type: ignore[attr-defined]
+            return [(EventType.LOCALISATION, body)]
+        if rule.event == "map":
+            pgm, metadata = occupancy_grid_map(fields)
+            return [(t, validate_body(t, b)) for t, b in map_events(pgm, metadata, when)]
+        frame = (fields.get("header") or {}).get("frame_id") or "map"
+        body = hazard_body(fields, rule.description, rule.pose, self._last_pose, frame, when or now())
+        return [(EventType.HAZARD, validate_body(EventType.HAZARD, body))]
+
+    def forward(self, batch: list[dict[str, Any]]) -> None:
+        """Rate limit, convert and put one batch in the outbox (one write)."""
+        items: list[Item] = []
+        topics: list[tuple[str, bool, int]] = []  # (topic, mapped, how many events)
+        for item in batch:
+            topic = item["topic"]
+            if not self._rate.allows(topic, item["received_ns"] / 1e9):
+                self.counters.drop(topic, DropReason.RATE)
+                continue
+            try:
+                events = self.events_of(item)
+            except (ConversionError, SchemaError, KeyError, TypeError, ValueError) as error:
+                self.counters.drop(topic, DropReason.UNREADABLE)
+                log.warning("%s (%s) not forwarded: %s", topic, item.get("type"), error)
+                continue
+            items += events
+            topics.append((topic, events[0][0] is not EventType.ROS, len(events)))
+        if not items:
+            return
+        try:
+            self.robot.publish_many(items, wait=False)
+        except OutboxFull as error:
+            for topic, _, _ in topics:
+                self.counters.drop(topic, DropReason.OUTBOX_FULL)
+            log.error("the outbox is full: %d messages dropped (%s)", len(topics), error)
+            return
+        for topic, mapped, _ in topics:
+            (self.counters.mapped if mapped else self.counters.recorded)[topic] += 1
+
+    # notifications to ROS
+    def _notify(self) -> None:
+        while not self._stop.is_set():
+            try:
+                for note in self.robot.notifications(timeout=0.5):
+                    self.send_to_ros(notification_messages(note, NOTIFY_PREFIX))
+                    self.counters.notifications += 1
+                    if self._stop.is_set():
+                        break
+            except (PublisherError, pika.exceptions.AMQPError) as error:
+                log.warning("notifications: %s; trying again", error)
+                self._stop.wait(1.0)  # the client reconnects at the next call
+
+    # the loop
+    def run(self) -> int:
+        """Forward until the ROS side ends (its exit code) or :meth:`stop` (0)."""
+        self.start_ros_side()
+        notifier = threading.Thread(target=self._notify, name="ros-notifications", daemon=True)
+        notifier.start()
+        commands = None
+        if self.commands_url:
+            commands = threading.Thread(
+                target=follow_commands,
+                args=(self.commands_url, self.robot.robot_id, NOTIFY_PREFIX, self.send_to_ros, self._stop),
+                name="ros-commands",
+                daemon=True,
+            )
+            commands.start()
+        next_status = time.monotonic() + self.options.status_every_s
+        died = False
+        try:
+            while not self._stop.is_set():
+                batch = self._take()
+                if batch:
+                    self.forward(batch)
+                elif self._ended.is_set():
+                    died = True  # it ended by itself, and everything it wrote is forwarded
+                    break
+                if time.monotonic() >= next_status:
+                    self.report()
+                    next_status = time.monotonic() + self.options.status_every_s
+        finally:
+            self._stop.set()
+            code = self._end_ros_side()
+            notifier.join(10)
+            if commands is not None:
+                commands.join(10)
+            self.report()
+        if died:
+            log.error("the ROS side ended by itself (status %s): see %s", code, self.ros_log)
+            return code or 1
+        return 0
+
+    def _take(self) -> list[dict[str, Any]]:
+        try:
+            batch = [self._queue.get(timeout=0.2)]
+        except queue.Empty:
+            return []
+        while len(batch) < BATCH:
+            try:
+                batch.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return batch
+
+    def report(self) -> None:
+        self.counters.write(self.status_file)
+        log.info("ROS bridge: %s", self.counters.status_line())
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _end_ros_side(self) -> int:
+        process = self._process
+        if process is None:
+            return 0
+        if process.stdin is not None:
+            with self._stdin_lock:
+                try:
+                    process.stdin.close()  # the ROS side ends at the end of its input
+                except BrokenPipeError:
+                    pass
+        try:
+            code = process.wait(10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            code = process.wait()
+        self.counters.ros_side = f"ended ({code})"
+        return code

@@ -1,0 +1,103 @@
+"""Per-topic counts of what the bridge recorded, mapped and dropped (with why): never a silent drop."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+class DropReason:
+    ROS_QUEUE = "ros-queue"
+    """The ROS side's queue was full (the bridge read its pipe too slowly)."""
+    BRIDGE_QUEUE = "bridge-queue"
+    """The bridge's queue between the pipe and the outbox was full (``FLEETBUS_ROS_QUEUE``)."""
+    RATE = "rate"
+    """Above the topic's maximum rate (``FLEETBUS_ROS_MAX_RATE_HZ``)."""
+    OUTBOX_FULL = "outbox-full"
+    """The robot's outbox held as many events as it may keep while the broker was away."""
+    UNREADABLE = "unreadable"
+    """The ROS side could not read the message, or it did not hold what its mapping rule needs."""
+
+
+@dataclass
+class Counters:
+    """Thread-safe counts, per topic; :meth:`snapshot` is what the status line and file show."""
+
+    started: float = field(default_factory=time.time)
+    recorded: Counter[str] = field(default_factory=Counter)
+    mapped: Counter[str] = field(default_factory=Counter)
+    dropped: dict[str, Counter[str]] = field(default_factory=dict)
+    types: dict[str, str] = field(default_factory=dict)
+    notifications: int = 0
+    ros_side: str = "starting"
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def drop(self, topic: str, reason: str, count: int = 1) -> None:
+        with self._lock:
+            self.dropped.setdefault(topic, Counter())[reason] += count
+
+    def total_dropped(self) -> int:
+        with self._lock:
+            return sum(sum(c.values()) for c in self.dropped.values())
+
+    def snapshot(self) -> dict[str, Any]:
+        with self._lock:
+            topics = sorted(set(self.types) | set(self.recorded) | set(self.mapped) | set(self.dropped))
+            return {
+                "started": self.started,
+                "updated": time.time(),
+                "ros_side": self.ros_side,
+                "notifications_published": self.notifications,
+                "topics": {
+                    topic: {
+                        "type": self.types.get(topic),
+                        "recorded": self.recorded[topic],
+                        "mapped": self.mapped[topic],
+                        "dropped": dict(self.dropped.get(topic, {})),
+                    }
+                    for topic in topics
+                },
+            }
+
+    def status_line(self) -> str:
+        snap = self.snapshot()
+        recorded = sum(t["recorded"] for t in snap["topics"].values())
+        mapped = sum(t["mapped"] for t in snap["topics"].values())
+        drops = [
+            f"{topic} {sum(t['dropped'].values())} ({', '.join(f'{r} {n}' for r, n in t['dropped'].items())})"
+            for topic, t in snap["topics"].items()
+            if t["dropped"]
+        ]
+        return (
+            f"{len(snap['topics'])} topics, {recorded} recorded, {mapped} as events, "
+            f"dropped: {'; '.join(drops) if drops else 'none'}"
+        )
+
+    def write(self, path: Path) -> None:
+        """The snapshot as JSON, replaced atomically (``fleetbus ros status`` reads it)."""
+        temporary = path.with_suffix(".tmp")
+        temporary.write_text(json.dumps(self.snapshot(), indent=1))
+        temporary.replace(path)
+
+
+class RateLimit:
+    """At most ``max_hz`` messages a second per topic (0: no limit): a message that comes sooner
+    than ``1 / max_hz`` after the last one taken is dropped."""
+
+    def __init__(self, max_hz: float) -> None:
+        self._interval = 1.0 / max_hz if max_hz > 0 else 0.0
+        self._last: dict[str, float] = {}
+
+    def allows(self, topic: str, now: float) -> bool:
+        if not self._interval:
+            return True
+        last = self._last.get(topic)
+        if last is not None and now - last < self._interval:
+            return False
+        self._last[topic] = now
+        return True

@@ -1,0 +1,241 @@
+"""The ROS side of ``fleetbus ros bridge``: a plain script for the ROS machine's own Python.
+
+It imports rospy and nothing of fleetbus, so it runs on the interpreter ROS is installed for
+(Debian's ``/usr/bin/python3``) while fleetbus runs in its own environment. The two talk in JSON
+lines over this process's standard streams:
+
+stdout, one object a line (``kind`` says which):
+  ``ready``       the node is up
+  ``subscribed``  ``topic``, ``type``: a topic found and subscribed to
+  ``message``     ``topic``, ``type``, ``stamp_ns`` (the header's stamp in ns, or null), ``received_ns``
+                  (UNIX time in ns), ``fields`` (the message as a document, see :func:`to_document`)
+  ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
+  ``error``       ``topic``, ``detail``: a message that could not be read
+stdin, one object a line:
+  ``publish``     ``topic``, ``type``, ``fields``: publish this message (latched) on the ROS side
+
+The process ends when its standard input closes (the bridge ended), and its end closes its stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import fnmatch
+import hashlib
+import json
+import math
+import queue
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+import genpy
+import genpy.dynamic
+import genpy.message
+import roslib.message
+import rospy
+
+#: Array types kept as bytes (``{"_base64": ..., "length": n}``), as fleetbus keeps imported bags.
+BYTE_ARRAYS = ("uint8[", "int8[", "char[", "byte[")
+BYTES_KEY, TRUNCATED_KEY = "_base64", "_truncated"  # as fleetbus.schemas.ros names them
+
+
+def to_document(value: Any, bytes_max: int, slot_type: str = "") -> Any:
+    """A genpy message (or field value) as plain JSON, in fleetbus's convention for ROS messages
+    (``fleetbus.schemas.ros``): nested messages as objects, times as ``{"sec", "nanosec"}``, byte
+    arrays as ``{"_base64", "length"}`` or, over ``bytes_max``, ``{"_truncated", "length", "sha256"}``,
+    floats JSON cannot hold as ``"nan"``, ``"inf"``, ``"-inf"``."""
+    if isinstance(value, genpy.Message):
+        return {
+            slot: to_document(getattr(value, slot), bytes_max, kind)
+            for slot, kind in zip(value.__slots__, value._slot_types, strict=True)
+        }
+    if isinstance(value, (genpy.Time, genpy.Duration)):
+        return {"sec": value.secs, "nanosec": value.nsecs}
+    if isinstance(value, (bytes, bytearray)) or (
+        slot_type.startswith(BYTE_ARRAYS) and isinstance(value, (list, tuple))
+    ):
+        data = bytes(value) if isinstance(value, (bytes, bytearray)) else bytes(v & 0xFF for v in value)
+        if len(data) > bytes_max:
+            return {TRUNCATED_KEY: True, "length": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        return {BYTES_KEY: base64.b64encode(data).decode("ascii"), "length": len(data)}
+    if isinstance(value, (list, tuple)):
+        element = slot_type.split("[", 1)[0]
+        return [to_document(item, bytes_max, element) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def header_stamp(msg: Any) -> int | None:
+    """The header stamp in nanoseconds, when the message has a header with a non-zero stamp."""
+    header = getattr(msg, "header", None)
+    stamp = getattr(header, "stamp", None)
+    if isinstance(stamp, genpy.Time) and (stamp.secs or stamp.nsecs):
+        return stamp.secs * 1_000_000_000 + stamp.nsecs
+    return None
+
+
+class Output:
+    """Everything written to stdout, one JSON line at a time, from any thread."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+
+    def write(self, item: dict[str, Any]) -> None:
+        line = json.dumps(item, separators=(",", ":")) + "\n"
+        with self._lock:
+            try:
+                sys.stdout.write(line)
+                sys.stdout.flush()
+            except (BrokenPipeError, ValueError):
+                rospy.signal_shutdown("the bridge closed the pipe")
+
+
+class Recorder:
+    """Subscribes to topics and hands their messages, read, to the output; never blocks ROS."""
+
+    def __init__(self, out: Output, args: argparse.Namespace) -> None:
+        self.out = out
+        self.args = args
+        self.queue: queue.Queue[tuple[str, Any, int]] = queue.Queue(args.queue)
+        self.subscribed: dict[str, rospy.Subscriber] = {}
+        self.dropped: dict[str, int] = {}
+        self.dropped_lock = threading.Lock()
+        self.classes: dict[tuple[str, str], type] = {}
+
+    def wanted(self, topic: str) -> bool:
+        if topic.startswith(self.args.own_prefix + "/") or topic == self.args.own_prefix:
+            return False  # what this node publishes for fleetbus is not recorded back
+        if self.args.include and not any(fnmatch.fnmatchcase(topic, p) for p in self.args.include):
+            return False
+        return not any(fnmatch.fnmatchcase(topic, p) for p in self.args.exclude)
+
+    def discover(self) -> None:
+        for topic, type_name in rospy.get_published_topics():
+            if topic not in self.subscribed and self.wanted(topic):
+                self.subscribed[topic] = rospy.Subscriber(
+                    topic, rospy.AnyMsg, self.received, callback_args=topic, queue_size=None
+                )
+                self.out.write({"kind": "subscribed", "topic": topic, "type": type_name})
+
+    def received(self, raw: Any, topic: str) -> None:
+        try:
+            self.queue.put_nowait((topic, raw, time.time_ns()))
+        except queue.Full:
+            with self.dropped_lock:
+                self.dropped[topic] = self.dropped.get(topic, 0) + 1
+
+    def message_class(self, raw: Any) -> type:
+        header = raw._connection_header
+        key = (header["type"], header.get("md5sum", ""))
+        cls = self.classes.get(key)
+        if cls is None:
+            cls = roslib.message.get_message_class(header["type"])
+            if cls is None or cls._md5sum != header.get("md5sum", cls._md5sum):
+                # a type this machine has no package for (or another version): from its definition
+                cls = genpy.dynamic.generate_dynamic(header["type"], header["message_definition"])[
+                    header["type"]
+                ]
+            self.classes[key] = cls
+        return cls
+
+    def convert_forever(self) -> None:
+        while not rospy.is_shutdown():
+            try:
+                topic, raw, received = self.queue.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            try:
+                type_name = raw._connection_header["type"]
+                msg = self.message_class(raw)().deserialize(raw._buff)
+                fields = to_document(msg, self.args.bytes_max)
+            except Exception as error:  # a message that cannot be read is reported, not fatal
+                self.out.write({"kind": "error", "topic": topic, "detail": repr(error)})
+                continue
+            self.out.write(
+                {
+                    "kind": "message",
+                    "topic": topic,
+                    "type": type_name,
+                    "stamp_ns": header_stamp(msg),
+                    "received_ns": received,
+                    "fields": fields,
+                }
+            )
+
+    def report_drops(self) -> None:
+        with self.dropped_lock:
+            counts, self.dropped = self.dropped, {}
+        if counts:
+            self.out.write({"kind": "dropped", "counts": counts})
+
+
+class Publishers:
+    """The ROS topics fleetbus writes to, made on first use (latched: a late subscriber gets the last)."""
+
+    def __init__(self, out: Output) -> None:
+        self.out = out
+        self.publishers: dict[str, rospy.Publisher] = {}
+
+    def publish(self, item: dict[str, Any]) -> None:
+        topic, type_name = item["topic"], item["type"]
+        cls = roslib.message.get_message_class(type_name)
+        if cls is None:
+            self.out.write({"kind": "error", "topic": topic, "detail": f"no message type {type_name}"})
+            return
+        publisher = self.publishers.get(topic)
+        if publisher is None:
+            publisher = rospy.Publisher(topic, cls, queue_size=100, latch=True)
+            self.publishers[topic] = publisher
+        msg = cls()
+        genpy.message.fill_message_args(msg, [item["fields"]])
+        publisher.publish(msg)
+
+
+def every(seconds: float, action: Any) -> None:
+    while not rospy.is_shutdown():
+        action()
+        time.sleep(seconds)  # a period, not a wait for a condition
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--node", default="fleetbus_bridge")
+    parser.add_argument("--discover-every", type=float, default=1.0)
+    parser.add_argument("--include", action="append", default=[])
+    parser.add_argument("--exclude", action="append", default=[])
+    parser.add_argument("--bytes-max", type=int, default=256 * 1024)
+    parser.add_argument("--queue", type=int, default=10_000)
+    parser.add_argument("--own-prefix", default="/fleetbus")
+    args = parser.parse_args()
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the bridge, which closes our input
+    rospy.init_node(args.node, anonymous=True, disable_signals=True)
+    out = Output()
+    recorder = Recorder(out, args)
+    publishers = Publishers(out)
+    for target, seconds in ((recorder.discover, args.discover_every), (recorder.report_drops, 1.0)):
+        threading.Thread(target=every, args=(seconds, target), daemon=True).start()
+    threading.Thread(target=recorder.convert_forever, daemon=True).start()
+    out.write({"kind": "ready"})
+    for line in sys.stdin:  # ends when the bridge closes our stdin (or dies)
+        try:
+            item = json.loads(line)
+            if item.get("kind") == "publish":
+                publishers.publish(item)
+        except Exception as error:  # a bad request is reported, the node goes on
+            out.write(
+                {"kind": "error", "topic": "", "detail": f"cannot publish {line.strip()[:200]}: {error!r}"}
+            )
+    recorder.report_drops()  # the last counts, before the pipe closes
+    rospy.signal_shutdown("the bridge closed its end")
+
+
+if __name__ == "__main__":
+    main()

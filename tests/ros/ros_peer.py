@@ -1,0 +1,102 @@
+"""A ROS node for the bridge's tests, run with the ROS machine's Python (/usr/bin/python3).
+
+    ros_peer.py samples            latched samples: /chatter (std_msgs/String), /robot_pose
+                                   (geometry_msgs/PoseStamped), /map (nav_msgs/OccupancyGrid),
+                                   /imu (sensor_msgs/Imu, a type fleetbus has no model of)
+    ros_peer.py burst TOPIC N      N std_msgs/String on TOPIC ("0".."N-1") once someone subscribed,
+                                   then "last" (the sentinel)
+    ros_peer.py listen TOPIC TYPE  print each message received on TOPIC as a JSON line
+
+Prints "ready" once its publishers or subscriber exist; runs until its standard input closes.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from typing import Any
+
+import roslib.message
+import rospy
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import OccupancyGrid
+from sensor_msgs.msg import Imu
+from std_msgs.msg import String
+
+STAMP = rospy.Time(1_700_000_000, 250_000_000)
+
+
+def say(item: object) -> None:
+    sys.stdout.write(json.dumps(item) + "\n")
+    sys.stdout.flush()
+
+
+def samples() -> list[rospy.Publisher]:
+    chatter = rospy.Publisher("/chatter", String, queue_size=10, latch=True)
+    chatter.publish(String(data="hello fleetbus"))
+    pose = PoseStamped()
+    pose.header.stamp, pose.header.frame_id = STAMP, "map"
+    pose.pose.position.x, pose.pose.position.y = 3.5, -1.25
+    pose.pose.orientation.z, pose.pose.orientation.w = 0.0, 1.0
+    poses = rospy.Publisher("/robot_pose", PoseStamped, queue_size=10, latch=True)
+    poses.publish(pose)
+    grid = OccupancyGrid()
+    grid.header.stamp, grid.header.frame_id = STAMP, "map"
+    grid.info.resolution, grid.info.width, grid.info.height = 0.05, 4, 3
+    grid.info.origin.position.x, grid.info.origin.position.y = -1.0, -2.0
+    grid.info.origin.orientation.w = 1.0
+    grid.data = [0, 0, 100, -1, 0, 50, 100, 0, 0, 0, 0, 100]
+    maps = rospy.Publisher("/map", OccupancyGrid, queue_size=1, latch=True)
+    maps.publish(grid)
+    imu = Imu()
+    imu.header.stamp, imu.header.frame_id = STAMP, "imu_link"
+    imu.linear_acceleration.z = 9.81
+    imu.orientation_covariance = [0.5] * 9
+    imus = rospy.Publisher("/imu", Imu, queue_size=10, latch=True)
+    imus.publish(imu)
+    return [chatter, poses, maps, imus]
+
+
+def burst(topic: str, count: int) -> rospy.Publisher:
+    publisher = rospy.Publisher(topic, String, queue_size=count + 10)
+
+    def run() -> None:
+        while publisher.get_num_connections() == 0 and not rospy.is_shutdown():
+            time.sleep(0.01)
+        for i in range(count):
+            publisher.publish(String(data=str(i)))
+        publisher.publish(String(data="last"))
+
+    threading.Thread(target=run, daemon=True).start()
+    return publisher
+
+
+def listen(topic: str, type_name: str) -> rospy.Subscriber:
+    cls = roslib.message.get_message_class(type_name)
+
+    def received(msg: Any) -> None:
+        if hasattr(msg, "data"):
+            say({"topic": topic, "data": msg.data})
+        else:
+            position = msg.pose.position
+            say({"topic": topic, "frame_id": msg.header.frame_id, "x": position.x, "y": position.y})
+
+    return rospy.Subscriber(topic, cls, received)
+
+
+def main() -> None:
+    rospy.init_node("fleetbus_test_peer", anonymous=True, disable_signals=True)
+    mode, args = sys.argv[1], sys.argv[2:]
+    keep = (
+        samples() if mode == "samples" else burst(args[0], int(args[1])) if mode == "burst" else listen(*args)
+    )
+    say("ready")
+    sys.stdin.read()  # until the test closes our input
+    del keep
+    rospy.signal_shutdown("done")
+
+
+if __name__ == "__main__":
+    main()

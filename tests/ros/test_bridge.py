@@ -1,0 +1,157 @@
+"""The live ROS bridge against a real ROS 1 master, real ROS nodes and the real broker."""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime, timezone
+from typing import Any
+
+import pika
+import pytest
+
+from fleetbus.broker.accounts import Role
+from fleetbus.broker.mounts import bind_all, mount_bindings
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventQuery
+from tests.factories import hazard
+from tests.link import NetworkLink
+from tests.ros.conftest import RosMaster, ros_peer, running_bridge
+from tests.support import Bus, network_link, read_line, wait_for
+
+#: The header stamp ros_peer.py gives its samples.
+SAMPLE_STAMP = datetime.fromtimestamp(1_700_000_000.25, timezone.utc)
+
+
+def ros_records(bus: Bus, robot: str) -> dict[str, dict[str, Any]]:
+    """The last stored ``ros`` event body of each topic."""
+    return {r.body["topic"]: r.body for r in bus.find(EventQuery(type="ros", robot_id=robot))}
+
+
+def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back_as_ros(
+    bus: Bus, ros_master: RosMaster
+) -> None:
+    account = bus.add("rosbot1", kind=RobotKind.WARDEN)
+    robot = bus.robot(account)
+    explorer = bus.robot(bus.add("scout1", kind=RobotKind.EXPLORER))
+    operator = bus.add("oper1", Role.OPERATOR)
+    bind_all(bus.api, bus.vhost, mount_bindings("rosbot1", "oper1"))  # what a mount does
+    with (
+        bus.worker(),
+        bus.recorder(),
+        ros_peer(ros_master, "listen", "/fleetbus/hazard_pose", "geometry_msgs/PoseStamped") as listener,
+        ros_peer(ros_master, "listen", "/fleetbus/goal", "geometry_msgs/PoseStamped") as goals,
+        ros_peer(ros_master, "samples"),
+        running_bridge(robot, ros_master, bus.settings.robots_dir, commands_url=account.amqp_url),
+    ):
+        records = wait_for(
+            lambda: (r := ros_records(bus, "rosbot1")) and {"/chatter", "/imu"} <= set(r) and r,
+            what="/chatter and /imu stored as ros events",
+        )
+        assert records["/chatter"]["ros_type"] == "std_msgs/msg/String", "named as bag imports name types"
+        assert records["/chatter"]["fields"] == {"data": "hello fleetbus"}
+        assert records["/chatter"]["stamp"] is None, "a message without a header has no stamp"
+        imu = records["/imu"]  # a type fleetbus has no model of
+        assert imu["ros_type"] == "sensor_msgs/msg/Imu"
+        assert datetime.fromisoformat(imu["stamp"]) == SAMPLE_STAMP
+        assert imu["fields"]["header"]["frame_id"] == "imu_link"
+        assert imu["fields"]["header"]["stamp"] == {"sec": 1_700_000_000, "nanosec": 250_000_000}
+        assert imu["fields"]["linear_acceleration"] == {"x": 0.0, "y": 0.0, "z": 9.81}
+        assert imu["fields"]["orientation_covariance"] == [0.5] * 9
+        assert not {"/robot_pose", "/map"} & set(records), "mapped topics are events of their own"
+
+        # the pose is the robot's localisation (its place on the console's map), the grid a map
+        [pose] = wait_for(lambda: bus.find(EventQuery(type="localisation", robot_id="rosbot1")), what="pose")
+        assert pose.body == {
+            "localised": True,
+            "pose": {"x": 3.5, "y": -1.25, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+        }
+        wait_for(lambda: bus.count("map", "rosbot1"), what="the grid stored as a map")
+        stored = explorer.fetch_map()
+        rows = [bytes([254, 254, 254, 0]), bytes([254, 205, 0, 254]), bytes([254, 254, 0, 205])]
+        assert stored.pgm == b"P5\n4 3\n255\n" + b"".join(rows), "top row first, map_server's thresholds"
+        assert stored.metadata["resolution"] == pytest.approx(0.05)  # a float32 in ROS
+        assert stored.metadata["origin"] == [-1.0, -2.0, 0.0]
+
+        # the recording keeps them as it keeps a bag's messages (fleetbus.schemas.ros)
+        recorded = wait_for(
+            lambda: (
+                (r := {r.routing_key: r for r in bus.recorded("ros", robot_id="rosbot1")})
+                and {"rosbot1.ros.imu", "rosbot1.ros.chatter"} <= set(r)
+                and r
+            ),
+            what="/imu and /chatter recorded",
+        )
+        imu_record = recorded["rosbot1.ros.imu"]
+        assert imu_record.exchange == "ros"
+        assert imu_record.sent_at == SAMPLE_STAMP
+        assert imu_record.document == imu
+        assert recorded["rosbot1.ros.chatter"].document["fields"] == {"data": "hello fleetbus"}
+
+        # the warden (localised by its pose) is told of a hazard: on a ROS topic, for ROS code
+        explorer.publish("hazard", hazard(0, "Fire"))
+        line = json.loads(read_line(listener, '{"topic": "/fleetbus/hazard_pose"', 30))
+        assert line == {"topic": "/fleetbus/hazard_pose", "frame_id": "map", "x": 2.66, "y": 1.22}
+
+        # a goal from the operator who mounted the robot: a PoseStamped, as RViz sends one
+        connection = pika.BlockingConnection(pika.URLParameters(operator.amqp_url))
+        try:
+            channel = connection.channel()
+            channel.confirm_delivery()
+            goal = json.dumps({"x": 4.0, "y": 5.5, "frame_id": "map"}).encode()
+            channel.basic_publish(
+                "oper1.commands", "rosbot1.goal", goal, pika.BasicProperties(user_id="oper1"), mandatory=True
+            )
+        finally:
+            connection.close()
+        line = json.loads(read_line(goals, '{"topic": "/fleetbus/goal"', 30))
+        assert line == {"topic": "/fleetbus/goal", "frame_id": "map", "x": 4.0, "y": 5.5}
+
+
+def test_the_outbox_keeps_what_the_bridge_records_while_the_broker_is_away(
+    bus: Bus, ros_master: RosMaster, link_for: list[NetworkLink]
+) -> None:
+    account = bus.add("rosbot2", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    robot = bus.robot(account, via=link)
+    link.cut()
+    with (
+        bus.worker(),
+        ros_peer(ros_master, "samples"),
+        running_bridge(robot, ros_master, bus.settings.robots_dir) as bridge,
+    ):
+        wait_for(lambda: {"/chatter", "/imu"} <= set(bridge.counters.recorded), what="messages taken")
+        wait_for(lambda: robot.outbox.pending() >= 4, what="ros events, pose and map waiting in the outbox")
+        assert bus.count(robot_id="rosbot2") == 0, "nothing reached the broker through the cut link"
+        link.restore()
+        wait_for(lambda: {"/chatter", "/imu"} <= set(ros_records(bus, "rosbot2")), what="delivered")
+        wait_for(lambda: bus.count("map", "rosbot2") and bus.count("localisation", "rosbot2"), what="events")
+
+
+def test_filters_and_the_rate_limit_drop_and_count(bus: Bus, ros_master: RosMaster) -> None:
+    robot = bus.robot(bus.add("rosbot3", kind=RobotKind.EXPLORER))
+    with (
+        bus.worker(),
+        ros_peer(ros_master, "samples"),
+        ros_peer(ros_master, "burst", "/fast", "300"),
+        running_bridge(
+            robot, ros_master, bus.settings.robots_dir, exclude=("/chatter", "/rosout*"), max_rate_hz=20
+        ) as bridge,
+    ):
+
+        def fast() -> dict[str, Any]:
+            return bridge.counters.snapshot()["topics"].get("/fast", {})
+
+        # every one of the 301 messages is either forwarded or counted as dropped
+        counts = wait_for(
+            lambda: (f := fast()) and f["recorded"] + sum(f["dropped"].values()) == 301 and f,
+            what="all of /fast forwarded or counted",
+        )
+        assert counts["dropped"]["rate"] > 0
+        assert set(counts["dropped"]) == {"rate"}
+        wait_for(lambda: bus.count("ros", "rosbot3") >= counts["recorded"], what="the forwarded ones stored")
+        wait_for(lambda: "/imu" in bridge.counters.recorded, what="/imu recorded")
+        # topics are found in one listing: /imu found means /chatter was seen, and left out
+        assert "/chatter" not in bridge.counters.types
+        assert not any(topic.startswith("/rosout") for topic in bridge.counters.types)
+    status = json.loads(bridge.status_file.read_text())
+    assert status["topics"]["/fast"]["dropped"] == counts["dropped"]
