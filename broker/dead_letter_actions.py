@@ -27,7 +27,7 @@ import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
 from fleetbus.broker.dead_letter_queue import DeadLetter, describe, letter_id
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import blocking_connection, pika_parameter_list
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 
 #: What the broker (or an earlier fleetbus) wrote on the letter about its refusal: not part of
@@ -86,7 +86,7 @@ def _gone(wanted: str) -> DeadLetterGone:
 def _holding(amqp_url: str, wanted: str) -> Iterator[_Held]:
     """The named letter, taken from the queue and held unacked on a channel of the administrator's;
     leaving puts every message not acked back in its place."""
-    connection = pika.BlockingConnection(pika_parameters(amqp_url))
+    connection = blocking_connection(amqp_url)
     try:
         channel = connection.channel()
         available = channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count
@@ -141,8 +141,7 @@ def _publish_as(url: str, letter: DeadLetter, properties: pika.BasicProperties) 
     again = copy.copy(properties)
     again.headers = {k: v for k, v in (properties.headers or {}).items() if k not in DEATH_HEADERS}
     again.user_id = letter.user_id
-    parameters = pika_parameters(url)
-    parameters.connection_attempts = 1
+    parameters = pika_parameter_list(url, connection_attempts=1)
     sender = f"{letter.user_id} to {letter.exchange or '(default exchange)'} with {letter.routing_key!r}"
     try:
         connection = pika.BlockingConnection(parameters)

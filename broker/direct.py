@@ -10,7 +10,7 @@ from __future__ import annotations
 import pika
 import pika.exceptions
 
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import blocking_connection
 
 
 class NoSuchQueue(RuntimeError):
@@ -25,7 +25,7 @@ def put_in_queue(admin_url: str, queue: str, body: bytes, properties: pika.Basic
     """Publish ``body`` to ``queue`` and wait for the broker's confirm (blocking: run it on a thread)."""
     properties.delivery_mode = pika.DeliveryMode.Persistent.value
     try:
-        connection = pika.BlockingConnection(pika_parameters(admin_url))
+        connection = blocking_connection(admin_url)
     except pika.exceptions.AMQPError as error:
         raise NotTaken(f"the broker does not answer ({error!r})") from error
     try:

@@ -111,7 +111,7 @@ class Sender:
     def __init__(
         self,
         outbox: Outbox,
-        parameters: pika.URLParameters,
+        parameters: list[pika.URLParameters],
         to_outgoing: Callable[[Entry], Outgoing],
         *,
         confirm_timeout: float,
@@ -335,7 +335,10 @@ class Sender:
             self._connected = True
             self.last_error = None
             self._condition.notify_all()
-        log.info("robot sender connected to %s:%s", self._parameters.host, self._parameters.port)
+        params = getattr(connection._impl, "params", None)
+        log.info(
+            "robot sender connected to %s:%s", getattr(params, "host", "?"), getattr(params, "port", "?")
+        )
 
     def _disconnect(self, error: str | None) -> None:
         connection, self._connection, self._confirms = self._connection, None, None

@@ -138,7 +138,14 @@ class Bus:
         self.accounts.append(name)
         account = asyncio.run(
             provision_account(
-                self.admin_url, self.api, name, role, kind, rotate=True, shards=self.settings.ingest_shards
+                self.admin_url,
+                self.api,
+                name,
+                role,
+                kind,
+                rotate=True,
+                shards=self.settings.ingest_shards,
+                cluster=self.settings.cluster,
             )
         )
         if role is Role.ROBOT:

@@ -125,7 +125,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     await repositories.open()
     connection = await aio_connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
     setup = await connection.channel()
-    await declare(setup, [core_topology(settings.ingest_shards)])
+    await declare(setup, [core_topology(settings.ingest_shards, cluster=settings.cluster)])
     await setup.close()
     stats = IngestStats()
 

@@ -10,7 +10,7 @@ import pika.exceptions
 import typer
 from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.cli.context import console, endpoint, errors, fail, parse_time, recording_stream
 from fleetbus.workers.recorder.queries import parse_condition, recorded_between
 from fleetbus.workers.recorder.replay import ReplayReport
@@ -22,7 +22,7 @@ class Publisher:
     """pika with publisher confirms and ``mandatory``: an unroutable message is counted, not lost."""
 
     def __init__(self, url: str, exchange: str, declare: bool) -> None:
-        self._connection = pika.BlockingConnection(pika_parameters(url))
+        self._connection = blocking_connection(url)
         self._channel = self._connection.channel()
         self._exchange = exchange
         try:
