@@ -80,29 +80,20 @@ async def connect_failover(
     addresses: Sequence[tuple[str, dict[str, Any]]], **kwargs: Any
 ) -> FailoverConnection:
     """A :class:`FailoverConnection` over ``addresses`` (each a URL and its TLS keyword arguments,
-    :func:`fleetbus.broker.tls.aio_pika_arguments`), connected to the first that answers."""
+    :func:`fleetbus.broker.tls.aio_pika_arguments`), connected to the first that answers. Its list
+    starts with that address (a robust connection that failed its first attempt is closed for good,
+    so each address gets a connection of its own until one answers)."""
     urls = [(make_url(url), tls.get("ssl_context")) for url, tls in addresses]
-    first_url, first_context = urls[0]
-    connection = FailoverConnection(first_url, addresses=urls, ssl_context=first_context, **kwargs)
-    last_error: BaseException | None = None
-    for _ in urls:
+    for start in range(len(urls)):
+        rotated = urls[start:] + urls[:start]
+        url, context = rotated[0]
+        connection = FailoverConnection(url, addresses=rotated, ssl_context=context, **kwargs)
         try:
             await connection.connect(timeout=kwargs.get("timeout"))
-            return connection
-        except Exception as error:  # fail_fast: the first attempt's error; the next address follows
-            last_error = error
+        except Exception:  # this address does not answer (or refuses): the next one, unless none is left
             await connection.close()
-            connection = _reopened(connection, urls, kwargs)
-    assert last_error is not None
-    raise last_error
-
-
-def _reopened(
-    previous: FailoverConnection, urls: list[tuple[URL, ssl.SSLContext | None]], kwargs: dict[str, Any]
-) -> FailoverConnection:
-    """A new connection whose first attempt goes to the address after ``previous``'s (a closed
-    robust connection cannot be connected again)."""
-    start = (previous.address_index + 1) % len(urls)
-    rotated = urls[start:] + urls[:start]
-    url, context = rotated[0]
-    return FailoverConnection(url, addresses=rotated, ssl_context=context, **kwargs)
+            if start == len(urls) - 1:
+                raise
+            continue
+        return connection
+    raise AssertionError("unreachable: at least one address")
