@@ -249,6 +249,7 @@ class Bus:
         env.update(
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
             FLEETBUS_INGEST_SHARDS=str(self.settings.ingest_shards),
+            FLEETBUS_CLUSTER="true" if self.settings.cluster else "false",
         )
         if self.settings.mongodb_url is not None:  # the test's own database, not the server's default one
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
