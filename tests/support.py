@@ -25,6 +25,7 @@ from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.retry import retrying
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.urls import without_password
 from fleetbus.cli.registry import register_robot
 from fleetbus.dev.recorder_thread import RecorderThread
@@ -297,7 +298,7 @@ class Bus:
     @contextmanager
     def admin_channel(self) -> Iterator[Any]:
         """A pika channel as the administrator of the test's virtual host."""
-        connection = pika.BlockingConnection(pika.URLParameters(self.admin_url))
+        connection = blocking_connection(self.admin_url)
         try:
             yield connection.channel()
         finally:
@@ -306,7 +307,7 @@ class Bus:
 
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""
-        connection = pika.BlockingConnection(pika.URLParameters(self.admin_url))
+        connection = blocking_connection(self.admin_url)
         try:
             return connection.channel().queue_declare(queue, passive=True).method.message_count
         finally:

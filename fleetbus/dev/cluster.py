@@ -187,6 +187,30 @@ class LocalCluster:
         if pid_alive(pid):
             _signal(pid, signal.SIGCONT)
 
+    def partition(self, index: int) -> None:
+        """Cut one node off from the others, as a network partition of the distribution does: it
+        uses a wrong cookie towards each peer and drops its links, so neither side can reconnect
+        (``rabbitmqctl`` still reaches it: the CLI uses the default cookie). With
+        ``pause_minority`` the node then pauses itself; the majority carries on."""
+        peers = self._peer_atoms(index)
+        self.nodes[index].rabbitmqctl(
+            "eval",
+            f"[begin erlang:set_cookie(N, fleetbus_partitioned), erlang:disconnect_node(N) end "
+            f"|| N <- [{peers}]], ok.",
+        )
+
+    def heal(self, index: int) -> None:
+        """Undo :meth:`partition`: the right cookie again, and a ping to each peer."""
+        peers = self._peer_atoms(index)
+        self.nodes[index].rabbitmqctl(
+            "eval",
+            f"C = erlang:get_cookie(), [erlang:set_cookie(N, C) || N <- [{peers}]], "
+            f"[net_adm:ping(N) || N <- [{peers}]], ok.",
+        )
+
+    def _peer_atoms(self, index: int) -> str:
+        return ", ".join(f"'{node.node_name}'" for i, node in enumerate(self.nodes) if i != index)
+
     def down(self, timeout: float = 90.0) -> None:
         """Stop every node (the last one first), then the shared epmd."""
         deadline = time.monotonic() + timeout

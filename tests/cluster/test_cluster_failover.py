@@ -13,6 +13,10 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import pika
+import pika.exceptions
+
+from fleetbus.broker.addresses import split_addresses
 from fleetbus.dev.cluster import LocalCluster
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import EXPRESS_QUEUE
@@ -22,6 +26,8 @@ from tests.factories import hazard
 from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
 
 ROBOTS = 10
+#: A quorum queue of the test's own, published to through the minority alone.
+MINORITY_PROBE = "minority-probe"
 #: RabbitMQ's own bar for a quorum queue to take messages again after its leader died.
 PUBLISH_RESUMES_S = 15.0
 #: The workers' bar to consume again.
@@ -112,3 +118,68 @@ def test_killing_the_express_leader_loses_and_doubles_nothing_and_service_resume
     assert total > 20 * ROBOTS
     assert confirmed <= PUBLISH_RESUMES_S, f"publishing resumed after {confirmed:.1f} s"
     assert stored <= CONSUME_RESUMES_S, f"the worker stored again after {stored:.1f} s"
+
+
+def test_a_rolling_restart_of_every_node_under_load_loses_and_doubles_nothing(
+    cluster_bus: Bus, cluster: LocalCluster
+) -> None:
+    bus = cluster_bus
+    with loaded_bus(bus) as (publishing, _probe):
+        for index in range(cluster.size):
+            before = bus.count()
+            cluster.stop_node(index)
+            cluster.start_node(index)
+            cluster.wait_members(time.monotonic() + 120)
+            wait_for(lambda before=before: bus.count() > before + 50, timeout=60, what="the ingest going on")
+        total = drain_and_check(bus, publishing)
+    assert total > 20 * ROBOTS
+
+
+def test_a_partitioned_node_pauses_the_majority_serves_and_nothing_confirmed_is_lost_when_it_heals(
+    cluster_bus: Bus, cluster: LocalCluster
+) -> None:
+    """Node 1 (the first address of every URL here, so most clients' node) is cut off from the
+    other two: with ``pause_minority`` it stops serving (a publish to it alone is refused) while
+    the majority takes the clients over."""
+    bus = cluster_bus
+    minority = 0
+    with bus.admin_channel() as channel:
+        channel.queue_declare(MINORITY_PROBE, durable=True, arguments={"x-queue-type": "quorum"})
+    with loaded_bus(bus) as (publishing, probe):
+        cut_at = time.monotonic()
+        cluster.partition(minority)
+        try:
+            confirmed, stored = probe_resumes(bus, probe, cut_at)
+            print(f"partition: confirmed publish after {confirmed:.1f} s, stored after {stored:.1f} s")
+            wait_for(
+                lambda: not minority_accepts(bus, cluster, minority), timeout=60, what="the minority refusing"
+            )
+        finally:
+            cluster.heal(minority)
+        cluster.wait_members(time.monotonic() + 180)
+        total = drain_and_check(bus, publishing)
+    assert total > 20 * ROBOTS
+    assert confirmed <= PUBLISH_RESUMES_S, f"publishing resumed after {confirmed:.1f} s"
+
+
+def minority_accepts(bus: Bus, cluster: LocalCluster, index: int) -> bool:
+    """Whether a confirmed publish to the express lane through node ``index`` alone works."""
+    url = split_addresses(bus.admin_url)[index]
+    parameters = pika.URLParameters(url)
+    parameters.connection_attempts = 1
+    parameters.socket_timeout = 3
+    parameters.blocked_connection_timeout = 3
+    try:
+        connection = pika.BlockingConnection(parameters)
+    except pika.exceptions.AMQPError:
+        return False
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        channel.basic_publish("", MINORITY_PROBE, b"1", pika.BasicProperties(delivery_mode=2), mandatory=True)
+        return True
+    except pika.exceptions.AMQPError:
+        return False
+    finally:
+        if connection.is_open:
+            connection.close()
