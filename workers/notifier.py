@@ -17,6 +17,12 @@ from aio_pika.abc import AbstractExchange
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import inbox_queue, notification_routing_key
 
+#: Seconds the worker waits for the broker's confirm of a notification before it gives up on the
+#: event (raising: it is not acked, so the broker delivers it again, and the store recognises it).
+#: Without a bound, a quorum queue that lost its leader, or a node cut off from the majority, would
+#: hold the worker's consumer for ever.
+CONFIRM_TIMEOUT_S = 30.0
+
 
 def _message(
     note: Notification, message_id: str, service_user: str, headers: dict[str, Any] | None = None
@@ -37,7 +43,9 @@ async def publish_notification(
 ) -> None:
     """Publish one notification (persistent, confirmed) to everyone subscribed to its topic."""
     message = _message(note, f"{note.event.message_id}:{note.topic.value}", service_user, headers)
-    await exchange.publish(message, routing_key=notification_routing_key(note.topic), mandatory=False)
+    await exchange.publish(
+        message, routing_key=notification_routing_key(note.topic), mandatory=False, timeout=CONFIRM_TIMEOUT_S
+    )
 
 
 async def deliver_to_inbox(
@@ -48,7 +56,10 @@ async def deliver_to_inbox(
     # a message id of its own: aiormq matches a returned message to its publish by this id
     message_id = f"{note.event.message_id}:{note.topic.value}@{robot}"
     result = await default_exchange.publish(
-        _message(note, message_id, service_user), routing_key=inbox_queue(robot), mandatory=True
+        _message(note, message_id, service_user),
+        routing_key=inbox_queue(robot),
+        mandatory=True,
+        timeout=CONFIRM_TIMEOUT_S,
     )
     if result is None:
         raise RuntimeError("delivering to an inbox needs a channel with publisher confirms")
