@@ -215,8 +215,10 @@ def run(events: int, robots: int, shards: int, workers: int, kills: int) -> dict
             with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
                 console.print(f"{name}: raw pika consume")
                 result[f"{name}_raw_consume"] = raw_consume_rate(endpoint, api, events)
+                console.print(f"{name}: raw pika consume {result[f'{name}_raw_consume']:,.0f} msg/s")
                 console.print(f"{name}: drain with {workers} worker(s)")
                 result[f"{name}_drain"] = drain(endpoint, api, options, workers)[f"drain_{workers}w"]
+                console.print(f"{name}: drain {result[f'{name}_drain']:,.0f} msg/s")
         result.update(kill_resumes(clustered, cluster, kills, Path(tmp)))
     raw = result["cluster_raw_consume"]
     result["cluster_drain_vs_cluster_raw"] = result["cluster_drain"] / raw
