@@ -190,8 +190,9 @@ def status(show_password: ShowPassword = False) -> None:
     console.print("[green]running[/]")
     _show(endpoint, extra, show_password)
     if not show_password:
+        private = cluster.nodes[0] if extra is not None and "nodes" in extra else local_node(current)
         where = {
-            "private": f"{local_node(current).admin_file}",
+            "private": f"{private.admin_file}",
             "docker": f"FLEETBUS_BROKER_PASSWORD, else the file {current.broker_dir / 'docker-password'}",
             "external": "FLEETBUS_AMQP_URL",
         }[endpoint.kind]
