@@ -14,14 +14,13 @@ import aio_pika
 import aiormq.abc
 from aio_pika.abc import AbstractExchange
 
+from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import inbox_queue, notification_routing_key
 
-#: Seconds the worker waits for the broker's confirm of a notification before it gives up on the
-#: event (raising: it is not acked, so the broker delivers it again, and the store recognises it).
-#: Without a bound, a quorum queue that lost its leader, or a node cut off from the majority, would
-#: hold the worker's consumer for ever.
-CONFIRM_TIMEOUT_S = 30.0
+#: The worker's bound on a notification's confirm: past it the publish raises, the event is not
+#: acked, and the broker delivers it again (the store recognises it).
+CONFIRM_TIMEOUT_S = SERVICE_CONFIRM_TIMEOUT_S
 
 
 def _message(
