@@ -48,6 +48,11 @@ PUBLISH_WINDOW = 4 * SEGMENT_EVENTS
 #: connection) drain at 0.60-0.73 of raw pika publishing where two reached 0.50-0.61; on a
 #: saturated machine both are CPU-bound, alike (``python -m bench.outbox --windows 1000x2,1024x4``).
 WINDOWS_IN_FLIGHT = 4
+#: Nacks in a row after which the sender opens a new connection (to the next address that answers)
+#: instead of trying on the same channel again: on RabbitMQ 3.10 a channel that reached a cluster
+#: while a quorum queue's leader was being elected again kept nacking that queue's messages (for
+#: minutes, measured), while a new connection's were confirmed at once.
+NACKS_BEFORE_RECONNECT = 3
 #: How often an idle sender lets pika answer heartbeats.
 IDLE_TICK = 1.0
 
@@ -278,6 +283,14 @@ class Sender:
             except Nacked as nacked:
                 delay = reconnect_delay(nacks, self._max_delay)
                 nacks += 1
+                if nacks % NACKS_BEFORE_RECONNECT == 0:
+                    log.warning(
+                        "%s %d times in a row: reconnecting, next try in %.1f s", nacked, nacks, delay
+                    )
+                    self._outbox.release()
+                    self._disconnect(f"{nacked} {nacks} times in a row")
+                    self._backoff(delay)
+                    continue
                 log.warning("%s; they stay in the outbox, next try in %.1f s", nacked, delay)
                 self._pause(delay)
             except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
