@@ -58,7 +58,8 @@ from fleetbus.schemas.routing import (
 #: A robot's or operator's inbox: a classic durable queue. On one node it keeps every persistent
 #: message across a SIGKILL and cannot come back without a leader as a quorum queue can
 #: (rabbitmq-server #10070), and it hands a notification to its robot about 1 ms sooner (no Raft
-#: commit first). The ingest queue, which carries everything, stays a quorum queue.
+#: commit first). The ingest queue, which carries everything, stays a quorum queue. On a cluster
+#: the inbox is a quorum queue too (:func:`replicated`).
 INBOX_ARGUMENTS: dict[str, Any] = {"x-queue-type": "classic"}
 
 #: A message redelivered this many times (the worker died on it each time) is dead-lettered
@@ -130,6 +131,7 @@ OVERFLOW_QUEUE_ARGUMENTS: dict[str, Any] = {
 #: quorum queue (no Raft commit first) and keeps every persistent message across a SIGKILL on one
 #: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`fleetbus.workers.attempts`).
 #: Its dead-letter exchange takes what the worker rejects (``basic.nack``), as the shards' do.
+#: On a cluster it is a quorum queue instead (:func:`replicated`), like every queue that holds data.
 EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
     "x-queue-type": "classic",
     "x-single-active-consumer": True,
