@@ -8,8 +8,8 @@ first reconnection after a lost node goes to the next node, and a run of failed 
 the list round and round, ``reconnect_interval`` apart.
 
 The hook is the attribute ``transport``, which ``RobustConnection`` sets to None as each
-connection attempt begins (aio-pika 9.x); its tests pin that behaviour
-(``tests/test_broker_addresses.py``).
+connection attempt begins (aio-pika 9.x); ``tests/test_broker_addresses.py`` pins that behaviour,
+and ``tests/cluster/`` the worker's failover when a node dies.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ class FailoverConnection(RobustConnection):
 
     @transport.setter
     def transport(self, value: Any) -> None:
-        if value is None and self._transport is None:
+        if value is None:  # a connection attempt begins (or the connection closes)
             self._next_attempt()
         self._transport = value
 

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import socket
+
+import pytest
 
 from fleetbus.broker.accounts import url_for
 from fleetbus.broker.addresses import first_address, join_addresses, split_addresses
@@ -67,3 +70,31 @@ def test_pika_and_aio_pika_connect_to_the_next_address_when_the_first_is_down(
 
     live = int(endpoint.amqp_url.split("@", 1)[1].split("/", 1)[0].rsplit(":", 1)[1])
     assert asyncio.run(both()) == live, "the dead node is skipped"
+
+
+def test_a_lost_robust_connection_tries_the_next_address_then_comes_back(
+    endpoint: BrokerEndpoint, caplog: pytest.LogCaptureFixture
+) -> None:
+    """aio-pika's robust connection over [live, dead]: once lost, it tries the dead address next,
+    fails, and reconnects to the live one, restoring itself (the worker's failover)."""
+    url = _with_dead_node_first(endpoint.amqp_url)
+    caplog.set_level(logging.INFO, logger="fleetbus.broker")
+
+    async def lose_and_recover() -> int | None:
+        robust = await aio_connect_robust(url, reconnect_interval=0.1)
+        try:
+            assert robust.transport is not None
+            await robust.transport.connection.close()
+            deadline = asyncio.get_running_loop().time() + 30
+            while not (robust.connected.is_set() and "address 1 of 2" in caplog.text):
+                assert asyncio.get_running_loop().time() < deadline, caplog.text
+                await asyncio.sleep(0.05)
+            channel = await robust.channel()
+            await channel.close()
+            return robust.url.port
+        finally:
+            await robust.close()
+
+    live = int(endpoint.amqp_url.split("@", 1)[1].split("/", 1)[0].rsplit(":", 1)[1])
+    assert asyncio.run(lose_and_recover()) == live
+    assert "address 2 of 2" in caplog.text, "the dead address was tried in between"
