@@ -241,7 +241,11 @@ class LocalCluster:
         for node in self.nodes:
             if node.pid() is None:
                 continue
-            result = node.rabbitmqctl("cluster_status", "--formatter", "json", check=False, timeout=30)
+            try:
+                result = node.rabbitmqctl("cluster_status", "--formatter", "json", check=False, timeout=30)
+            except LocalNodeError as error:  # the CLI timed out (a node starting, a loaded machine)
+                log.info("cluster_status on %s: %s", node.node_name, error)
+                continue
             if result.returncode == 0:
                 data = json.loads(result.stdout)
                 return set(data.get("disk_nodes", [])) | set(data.get("ram_nodes", [])), set(
