@@ -83,6 +83,12 @@ class ManagementAPI:
     def put_user(self, name: str, password: str, tags: str = "") -> None:
         self._request("PUT", f"users/{_q(name)}", json={"password": password, "tags": tags})
 
+    def put_user_hash(self, name: str, password_hash: str, hashing_algorithm: str, tags: str = "") -> None:
+        """Create or replace an account with a password hash another broker made (the same
+        password then works on both)."""
+        body = {"password_hash": password_hash, "hashing_algorithm": hashing_algorithm, "tags": tags}
+        self._request("PUT", f"users/{_q(name)}", json=body)
+
     def get_user(self, name: str) -> dict[str, Any] | None:
         response = self._client.get(f"users/{_q(name)}")
         return response.json() if response.status_code == 200 else None
@@ -128,6 +134,24 @@ class ManagementAPI:
     def get_policy(self, vhost: str, name: str) -> dict[str, Any] | None:
         response = self._client.get(f"policies/{_q(vhost)}/{_q(name)}")
         return response.json() if response.status_code == 200 else None
+
+    # shovels (the rabbitmq_shovel plugin's runtime parameters; their status needs
+    # rabbitmq_shovel_management)
+    def put_shovel(self, vhost: str, name: str, definition: dict[str, Any]) -> None:
+        """Create or replace the dynamic shovel ``name`` (RabbitMQ restarts it with the new definition)."""
+        self._request("PUT", f"parameters/shovel/{_q(vhost)}/{_q(name)}", json={"value": definition})
+
+    def get_shovel(self, vhost: str, name: str) -> dict[str, Any] | None:
+        response = self._client.get(f"parameters/shovel/{_q(vhost)}/{_q(name)}")
+        return response.json().get("value") if response.status_code == 200 else None
+
+    def delete_shovel(self, vhost: str, name: str) -> None:
+        self._request("DELETE", f"parameters/shovel/{_q(vhost)}/{_q(name)}")
+
+    def shovel_status(self, vhost: str) -> list[dict[str, Any]]:
+        """Each shovel of ``vhost`` as it runs now: ``name``, ``state`` (running, starting,
+        terminated), ``timestamp`` of the state, ``reason`` when terminated."""
+        return self._request("GET", f"shovels/{_q(vhost)}")
 
     # virtual hosts
     def put_vhost(self, vhost: str) -> None:

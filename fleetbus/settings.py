@@ -35,6 +35,11 @@ COMPOSE_ONLY = {
     "FLEETBUS_MONGODB_PASSWORD": "the password of MongoDB's `fleetbus` user (readWrite on `fleetbus` only), "
     "made on the volume's first boot by `mongo-init/fleetbus-user.js`; put it in `FLEETBUS_MONGODB_URL` "
     "(read by `compose.yaml` only)",
+    "FLEETBUS_SITE_NAME": "the site's name, as central knows it (`fleetbus sites add`), for the "
+    "`site` profile's "
+    "`fleetbus site up` (read by `compose.yaml` only)",
+    "FLEETBUS_CENTRAL_URL": "the site's URL at central, which `fleetbus sites add` printed, for the `site` "
+    "profile's `fleetbus site up` (read by `compose.yaml` only)",
 }
 
 TABLE_START = (
@@ -175,6 +180,25 @@ class Settings(BaseSettings):
     )
     map_staging_ttl: str = setting(
         "1h", "staged map chunks that no map event named this long after their last chunk are deleted"
+    )
+    uplink_max: Annotated[int, Positive] = setting(
+        1_000_000,
+        "on a site: the most events waiting to be forwarded to central (`fleetbus.uplink`); when it is full "
+        "the site's broker refuses robots' events, which stay in their outboxes (set by `fleetbus site up`)",
+    )
+    uplink_max_bytes: Annotated[int, Positive] = setting(
+        4 * 1024**3,
+        "on a site: the most bytes waiting to be forwarded to central, with the same refusal when full",
+        shown="4 GiB",
+    )
+    central_url: str | None = setting(
+        None,
+        "on a site: its account's URL at central (`fleetbus sites add` prints it), for `fleetbus site "
+        "up` when `--central` is not given; `amqps://` with `cacertfile=` is verified",
+    )
+    site_reconnect_delay_s: Annotated[int, Positive] = setting(
+        1,
+        "on a site: whole seconds the uplink and downlink shovels wait before connecting to central again",
     )
     inbox_max: Words = setting(
         ("10000", "100MB"),

@@ -48,6 +48,17 @@ The service owns everything that starts with ``fleetbus.``::
                             the beacon discards, read only by the recorder's account ``fleetbus-recorder``
     fleetbus.recorder.dlx   fanout exchange into fleetbus.dead-letters, the recorder queue's dead-letter
                             exchange (a policy ``fleetbus setup`` sets): what the recorder cannot store
+
+A site (docs/guides/sites.md) adds, on its own broker::
+
+    fleetbus.uplink         classic durable queue bound to fleetbus.ingest with ``#``: everything the site
+                            accepted, until the shovel ``fleetbus-uplink`` has it confirmed by central
+    fleetbus.downlink       classic durable queue the shovel ``fleetbus-downlink`` fills from central
+
+and central, for each site ``<site>`` (an account of its own, tagged ``impersonator``)::
+
+    fleetbus.sites          topic exchange of what central sends its sites, keys ``<site>.<kind>``
+    <site>.downlink         queue of one site's share of it, bound with ``<site>.#``
 """
 
 from __future__ import annotations
@@ -92,6 +103,24 @@ RECORDED_EXCHANGES = (
     DEAD_LETTER_EXCHANGE,
     BEACON_DISCARD_EXCHANGE,
 )
+
+
+UPLINK_QUEUE = "fleetbus.uplink"
+UPLINK_SHOVEL = "fleetbus-uplink"
+DOWNLINK_QUEUE = "fleetbus.downlink"
+DOWNLINK_SHOVEL = "fleetbus-downlink"
+SITES_EXCHANGE = "fleetbus.sites"
+#: The header the shovel adds to what it forwards (``dest-add-forward-headers``).
+SHOVELLED_HEADER = "x-shovelled"
+
+
+def site_downlink_queue(site: str) -> str:
+    """Central's queue of what one site is sent (accounts of its robots)."""
+    return f"{site}.downlink"
+
+
+def site_downlink_key(site: str, kind: str) -> str:
+    return f"{site}.{kind}"
 
 
 class EventType(str, Enum):

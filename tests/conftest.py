@@ -53,6 +53,10 @@ LONG_MODULES = frozenset(
     }
 )
 
+#: The two-node tests of sites (``tests/sites/``): one xdist worker runs them all, so that one pair
+#: of nodes is booted for the run rather than one per worker.
+SITES_TESTS = "tests/sites/"
+
 #: Modules whose tests share a module-scoped node or app, and need their order (the local node's
 #: last test stops it): one xdist worker runs each of them whole.
 ONE_WORKER_MODULES = frozenset(
@@ -66,11 +70,17 @@ CLUSTER_TESTS = "tests/cluster/"
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The longest tests first (the ``slow`` outages, then ``LONG_MODULES``), each module's in its
     order."""
-    items.sort(key=lambda item: (item.get_closest_marker("slow") is None, item.path.name not in LONG_MODULES))
+    items.sort(
+        key=lambda item: (
+            item.get_closest_marker("slow") is None,
+            item.path.name not in LONG_MODULES and not item.nodeid.startswith(SITES_TESTS),
+        )
+    )
 
 
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
-    """Test by test to whichever worker is free, but each of ``ONE_WORKER_MODULES`` whole to one.
+    """Test by test to whichever worker is free, but each of ``ONE_WORKER_MODULES`` whole to one, and
+    every test of ``SITES_TESTS`` to one.
 
     (xdist's own ``xdist_group`` mark does not work with pytest 9.2: xdist 3.8 tags the group onto
     ``item._nodeid``, which pytest no longer reads.)"""
@@ -81,6 +91,8 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
             module = nodeid.split("::", 1)[0]
             if module.startswith(CLUSTER_TESTS):
                 return CLUSTER_TESTS  # one worker boots the three-node cluster for them all
+            if module.startswith(SITES_TESTS):
+                return SITES_TESTS
             return module if module in ONE_WORKER_MODULES else nodeid
 
     return ModulesWhole(config, log)

@@ -75,6 +75,26 @@ def test_the_api_hands_out_no_broker_password_over_plain_http_unless_the_operato
     assert api["ports"] == ["127.0.0.1:8000:8000"]
 
 
+def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alone() -> None:
+    site = {name: service for name, service in SERVICES.items() if "site" in service.get("profiles", [])}
+    assert set(site) == {"site-rabbitmq", "site-up", "site-worker", "site-apply"}
+    central = {name: s for name, s in SERVICES.items() if name not in site and name not in CLUSTER_NODES}
+    assert not any(service.get("profiles") for service in central.values())
+    worker = site["site-worker"]
+    assert "FLEETBUS_BROKER_PASSWORD" not in yaml.safe_dump(worker)
+    assert "FLEETBUS_MONGODB_URL" not in worker["environment"], "a site stores in SQLite"
+    service_url = urlsplit(worker["environment"]["FLEETBUS_SERVICE_URL"])
+    assert service_url.username == SERVICE_USER and service_url.password is None
+    assert site["site-up"]["command"][:3] == ["fleetbus", "site", "up"]
+    assert required_variable(site["site-up"]["command"][-1]) == "FLEETBUS_CENTRAL_URL"
+    plugins = (ROOT / "compose" / "site-enabled-plugins").read_text()
+    assert "rabbitmq_shovel," in plugins and "rabbitmq_shovel_management" in plugins
+
+
+#: The cluster profile's nodes beside central's `rabbitmq` (docs/operations/cluster.md).
+CLUSTER_NODES = ("rabbitmq-2", "rabbitmq-3")
+
+
 def test_the_cluster_profile_adds_two_nodes_of_the_same_pinned_4x_release_sharing_one_cookie() -> None:
     nodes = {name: SERVICES[name] for name in ("rabbitmq", "rabbitmq-2", "rabbitmq-3")}
     images = {service["image"] for service in nodes.values()}

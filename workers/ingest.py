@@ -254,7 +254,7 @@ class IngestConsumer:
             urgent = any(item.event.type in self._urgent for _, item in candidates)
             stored = await self._retrying(lambda: self._events.store_batch(records, at, urgent=urgent))
             candidates = [
-                (message, Accepted(item.event, record))
+                (message, Accepted(item.event, record, item.forwarded))
                 for (message, item), record in zip(candidates, stored.records, strict=True)
             ]
             accepted, duplicates = await self._sort_out(candidates, stored.results, at)

@@ -31,6 +31,7 @@ from fleetbus.workers.beacon_discards import DiscardCounter
 from fleetbus.workers.beacons import KnownRobotsOnly, beacon_services
 from fleetbus.workers.bounds import bounds
 from fleetbus.workers.coordination import GATED, HazardCoordinator, TeamChanges
+from fleetbus.workers.forwards import ForwardLog, SiteLocalOnly
 from fleetbus.workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from fleetbus.workers.maps import MapCheck, MapService, map_services
 from fleetbus.workers.overflow import OverflowCounter
@@ -135,6 +136,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     await declare(setup, [core_topology(settings.ingest_shards, cluster=settings.cluster)])
     await setup.close()
     stats = IngestStats()
+    forward_log = ForwardLog(repositories.sites, timedelta(seconds=settings.late_after_s))
 
     async def consume(queue_name: str, prefetch: int, express: bool) -> QueueConsumer:
         channel = await connection.channel(publisher_confirms=True)
@@ -151,7 +153,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             coordinator = HazardCoordinator(
                 repositories.hazards, notify_exchange, channel.default_exchange, SERVICE_USER, late_after
             )
-            services: list[BatchService] = [coordinator]
+            services: list[BatchService] = [SiteLocalOnly(coordinator, repositories.sites), forward_log]
             control = TeamChanges(coordinator)
         else:
             checks = [KnownRobotsOnly(repositories.hazards), MapCheck(repositories.maps)]
@@ -160,6 +162,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
                 BatteryWatch(
                     repositories.events, notify_exchange, SERVICE_USER, settings.battery_low_percent
                 ),
+                forward_log,
             ]
         consumer = IngestConsumer(
             channel,

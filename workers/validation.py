@@ -10,7 +10,7 @@ from typing import Any
 from aio_pika.abc import AbstractIncomingMessage
 
 from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, parse_event
-from fleetbus.schemas.routing import EventType, publish_exchange, split_event_routing_key
+from fleetbus.schemas.routing import SHOVELLED_HEADER, EventType, publish_exchange, split_event_routing_key
 from fleetbus.workers.store.base import EventRecord
 
 
@@ -34,6 +34,9 @@ class RejectReason(str, Enum):
 class Accepted:
     event: Event
     record: EventRecord
+    forwarded: bool = False
+    """It came through a site's uplink (the shovel's ``x-shovelled`` header): a claim, believed
+    only for the robots of the site (:mod:`fleetbus.workers.forwards`)."""
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,8 @@ def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rej
             RejectReason.WRONG_EXCHANGE,
             f"{event.type.value} events are published to {expected_exchange!r}, not {message.exchange!r}",
         )
-    return Accepted(event, event_record(event, received_at, user_id, message.exchange or "", routing_key))
+    record = event_record(event, received_at, user_id, message.exchange or "", routing_key)
+    return Accepted(event, record, forwarded=SHOVELLED_HEADER in (message.headers or {}))
 
 
 def event_record(

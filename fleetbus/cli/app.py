@@ -31,6 +31,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "trace": ("trace", "trace"),
     "evaluate": ("evaluate", "evaluate"),
     "replay": ("replay", "replay"),
+    "import": ("bags", "import_bag"),
+    "export": ("bags", "export"),
     "stats": ("stats", "stats"),
     "broker": ("broker", "app"),
     "certs": ("certs", "app"),
@@ -41,6 +43,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "api": ("api", "app"),
     "shards": ("shards", "app"),
     "team": ("team", "app"),
+    "site": ("site", "app"),
+    "sites": ("sites", "app"),
 }
 
 

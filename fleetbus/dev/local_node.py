@@ -52,7 +52,8 @@ PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream", "amqps", "manageme
 #: The ports a node made by an older version lacks: chosen at its next start, listened on once it
 #: starts again (a running node keeps the configuration it started with).
 TLS_PORT_NAMES = ("amqps", "management_tls")
-PLUGINS = ("rabbitmq_management",)
+#: The shovel plugins carry a site's events to central and central's changes back (docs/guides/sites.md).
+PLUGINS = ("rabbitmq_management", "rabbitmq_shovel", "rabbitmq_shovel_management")
 
 #: Erlang run by ``rabbitmqctl eval``: trigger an election in every quorum queue whose Ra
 #: server does not know a leader; print their names.

@@ -31,6 +31,7 @@ from datetime import datetime, timezone
 from decimal import Decimal
 from typing import TYPE_CHECKING, Any
 
+from fleetbus.schemas.ros import ROS_TYPE
 from fleetbus.schemas.routing import (
     BEACON_CODENAME_HEADER,
     BEACON_TYPE,
@@ -52,11 +53,12 @@ REJECTION = "rejection"
 """Where a recorded dead letter keeps why a worker refused it (the store's record of it): the
 broker moved the message itself, unchanged, so its headers cannot say."""
 OTHER = "other"
-SERVICE_TYPES = (NOTIFICATION, REQUEST, DEAD_LETTER, OTHER)
+#: Types the recorder keeps for itself; ``ros`` holds every ROS message (``fleetbus.schemas.ros``).
+SERVICE_TYPES = (NOTIFICATION, REQUEST, DEAD_LETTER, OTHER, ROS_TYPE)
 #: What ``fleetbus query`` shows besides recorded types: the workers' sequence ledger.
 LEDGER_VIEWS = ("gaps", "duplicates")
 #: Types whose messages follow a fleetbus schema; everything else is stored as received, flagged unknown.
-KNOWN_TYPES = frozenset({t.value for t in EventType} | {NOTIFICATION, REQUEST, DEAD_LETTER})
+KNOWN_TYPES = frozenset({t.value for t in EventType} | {NOTIFICATION, REQUEST, DEAD_LETTER, ROS_TYPE})
 DEFAULT_MAX_TYPES = 200
 
 

@@ -42,6 +42,7 @@ from fleetbus.workers.store.mongo_ledger import MongoLedger
 from fleetbus.workers.store.mongo_maps import MongoMaps
 from fleetbus.workers.store.mongo_missions import MongoMissions
 from fleetbus.workers.store.mongo_rejections import MongoRejections
+from fleetbus.workers.store.mongo_sites import MongoSites
 from fleetbus.workers.store.mongo_statuses import MongoStatuses
 from fleetbus.workers.store.mongo_users import MongoUsers
 from fleetbus.workers.store.repositories import EventLog, Repositories
@@ -132,6 +133,7 @@ def mongo_repositories(
         leases=MongoLeases(shared),
         statuses=MongoStatuses(shared),
         housekeeping=housekeeping,
+        sites=MongoSites(shared),
         opener=open,
         closer=shared.close,
         again=lambda: mongo_repositories(url, shared._database_name, server_selection_timeout),

@@ -37,6 +37,7 @@ from fleetbus.workers.store.ledger import SequenceLedger
 from fleetbus.workers.store.maps import MapStore
 from fleetbus.workers.store.missions import MissionStore
 from fleetbus.workers.store.rejections import RejectionLog
+from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.statuses import StatusBoard
 from fleetbus.workers.store.users import UserStore
 
@@ -92,6 +93,8 @@ class Repositories:
     leases: LeaseStore
     statuses: StatusBoard
     housekeeping: Housekeeping
+    sites: SiteRegistry
+    """On central: which robots live at which site, and what each site forwarded."""
     opener: Callable[[], Awaitable[None]] = field(repr=False)
     """Connects and creates the tables or indexes (idempotent)."""
     closer: Callable[[], Awaitable[None]] = field(repr=False)

@@ -37,6 +37,7 @@ from fleetbus.workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, ob
 from fleetbus.workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from fleetbus.workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
 from fleetbus.workers.store.sqlite_rejections import REJECTION_SCHEMA, SQLiteRejections
+from fleetbus.workers.store.sqlite_sites import SITE_SCHEMA, SQLiteSites
 from fleetbus.workers.store.sqlite_statuses import STATUS_SCHEMA, SQLiteStatuses
 from fleetbus.workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
 
@@ -156,6 +157,7 @@ class SQLiteFile(SQLiteDatabase):
             REJECTION_SCHEMA,
             STATUS_SCHEMA,
             HOUSEKEEPING_SCHEMA,
+            SITE_SCHEMA,
         ):
             db.executescript(schema)
 
@@ -178,6 +180,7 @@ def sqlite_repositories(path: Path, busy_timeout: float = 2.0) -> Repositories:
         leases=SQLiteLeases(file),
         statuses=SQLiteStatuses(file),
         housekeeping=SQLiteHousekeeping(file),
+        sites=SQLiteSites(file),
         opener=file.open,
         closer=file.close,
         again=lambda: sqlite_repositories(path, busy_timeout),

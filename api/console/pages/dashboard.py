@@ -1,5 +1,5 @@
 """The dashboard: the team (a row per robot), the hazards by state, the broker's health, the dead
-letters of the last hour, the newest events; live.
+letters of the last hour, on central its sites' links, the newest events; live.
 
 What one refresh costs, whatever the number of open dashboards (they share it, :class:`Shared`)
 and of robots: a few store reads (the team, the hazard counts and the newest of each state, the open
@@ -99,6 +99,8 @@ class DashboardView:
                 ids_shown=IDS_SHOWN,
             ),
             fragment("dashboard/dead_letters.html", count=dead_letters),
+            # central's sites (none elsewhere): link up while the site's account is connected
+            fragment("dashboard/sites.html", sites=await repositories.sites.summaries(), health=health),
             fragment("dashboard/broker.html", health=health),
             fragment("dashboard/feed.html", feed=self._feed),
         ]

@@ -1,0 +1,226 @@
+"""Sites and central on the broker: the uplink and downlink shovels, and each site's account at
+central.
+
+A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
+
+* **uplink** (on the site): ``fleetbus.uplink``, a durable queue bound to ``fleetbus.ingest`` with
+  ``<robot>.#`` for each robot central sent the site (:func:`forward_robot`), keeps a copy of
+  every event of theirs the site's broker accepted (beacons that passed the header check
+  included), bounded by a policy whose overflow refuses new events (they stay in the robots'
+  outboxes). The dynamic shovel ``fleetbus-uplink`` moves it to central in order, acking a message
+  only once central confirmed it (``ack-mode: on-confirm``). It names no destination exchange, so
+  central receives each message on the exchange the robot published it to, with the robot's
+  routing key and properties, ``user_id`` included: the site logs in to central as its own
+  account, tagged ``impersonator``, which RabbitMQ lets publish with another user's ``user_id``.
+* **downlink** (central to site): central publishes what a site needs (its robots' accounts) to
+  ``fleetbus.sites`` with keys ``<site>.<kind>``; ``<site>.downlink`` holds the site's share
+  until the shovel ``fleetbus-downlink``, running on the site, moves it into the site's
+  ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it.
+
+At central, a site's account may configure and read only ``<site>.*`` and write only to its own
+robots' exchanges (:func:`site_permissions`): the broker refuses anything else.
+"""
+
+from __future__ import annotations
+
+import re
+import secrets
+from collections.abc import Collection, Mapping
+from typing import Any
+from urllib.parse import quote
+
+from aio_pika.abc import ExchangeType
+
+from fleetbus.broker.accounts import Account, Role, url_for, vhost_of
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.policies import apply_policies, uplink_policy
+from fleetbus.broker.tls import shovel_uri
+from fleetbus.broker.topology import (
+    BindingSpec,
+    ExchangeSpec,
+    QueueSpec,
+    Topology,
+    core_topology,
+    declare_with_url,
+    inbox_bindings,
+)
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.routing import (
+    DOWNLINK_QUEUE,
+    DOWNLINK_SHOVEL,
+    INGEST_EXCHANGE,
+    NOTIFY_EXCHANGE,
+    SITES_EXCHANGE,
+    UPLINK_QUEUE,
+    UPLINK_SHOVEL,
+    RobotKind,
+    beacon_exchange,
+    events_exchange,
+    inbox_queue,
+    owner_pattern,
+    site_downlink_queue,
+)
+
+#: The tag that lets a site's account publish its robots' events with their own ``user_id``.
+SITE_TAGS = "impersonator"
+
+
+# --------------------------------------------------------------------------- on the site
+
+
+def site_topology() -> Topology:
+    """The uplink and downlink queues; the uplink's bound is a policy (:func:`uplink_policy`), so
+    that changing it needs no new queue."""
+    return Topology(
+        queues=(
+            QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(DOWNLINK_QUEUE, {"x-queue-type": "classic"}),
+        ),
+    )
+
+
+def uplink_key(robot: str) -> str:
+    return f"{robot}.#"
+
+
+def forward_robot(api: ManagementAPI, vhost: str, robot: str) -> None:
+    """Forward ``robot``'s events to central from now on: its binding into the uplink. Only robots
+    central knows are bound (``fleetbus site apply`` binds each account central sends): an event
+    of a robot central does not know would be refused there and stop the uplink for everyone."""
+    api.bind(vhost, INGEST_EXCHANGE, UPLINK_QUEUE, uplink_key(robot))
+
+
+def forwarded_robots(api: ManagementAPI, vhost: str) -> set[str]:
+    """The robots whose events the uplink takes."""
+    return {
+        b["routing_key"].removesuffix(".#")
+        for b in api.exchange_bindings(vhost, INGEST_EXCHANGE)
+        if b["destination"] == UPLINK_QUEUE and b["destination_type"] == "queue"
+    }
+
+
+def local_uri(vhost: str) -> str:
+    """The site's own broker as a shovel reaches it: RabbitMQ's direct connection, no network."""
+    return "amqp:///" + quote(vhost, safe="")
+
+
+def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int) -> dict[str, Any]:
+    """The uplink's definition. An ``amqps://`` ``central_url`` is verified as fleetbus's own
+    clients verify (:func:`~fleetbus.broker.tls.shovel_uri`: certificate and host name)."""
+    return {
+        "src-protocol": "amqp091",
+        "src-uri": local_uri(vhost),
+        "src-queue": UPLINK_QUEUE,
+        "src-prefetch-count": prefetch,
+        "dest-protocol": "amqp091",
+        "dest-uri": shovel_uri(central_url),
+        # no dest-exchange: each message goes to the exchange it was published to, with its key
+        "dest-add-forward-headers": True,
+        "ack-mode": "on-confirm",
+        "reconnect-delay": reconnect_delay_s,
+    }
+
+
+def downlink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: int) -> dict[str, Any]:
+    return {
+        "src-protocol": "amqp091",
+        "src-uri": shovel_uri(central_url),
+        "src-queue": site_downlink_queue(site),
+        "dest-protocol": "amqp091",
+        "dest-uri": local_uri(vhost),
+        "dest-queue": DOWNLINK_QUEUE,
+        "ack-mode": "on-confirm",
+        "reconnect-delay": reconnect_delay_s,
+    }
+
+
+async def start_site_links(
+    admin_url: str,
+    api: ManagementAPI,
+    site: str,
+    central_url: str,
+    *,
+    max_messages: int,
+    max_bytes: int,
+    reconnect_delay_s: int,
+    prefetch: int = 1000,
+) -> None:
+    """On the site's broker, as its administrator: the uplink and downlink queues and shovels
+    (idempotent; a new ``central_url`` replaces the old one)."""
+    validate_name(site)
+    # the ingest exchange first (declaring what exists changes nothing; one shard is what it needs)
+    vhost = vhost_of(admin_url)
+    apply_policies(api, vhost, [uplink_policy(max_messages, max_bytes)])
+    await declare_with_url(admin_url, [core_topology(1), site_topology()])
+    api.put_shovel(vhost, UPLINK_SHOVEL, uplink_shovel(central_url, vhost, reconnect_delay_s, prefetch))
+    api.put_shovel(vhost, DOWNLINK_SHOVEL, downlink_shovel(central_url, site, vhost, reconnect_delay_s))
+
+
+def stop_site_links(api: ManagementAPI, vhost: str) -> None:
+    """Delete both shovels; the queues (and what waits in them) stay."""
+    api.delete_shovel(vhost, UPLINK_SHOVEL)
+    api.delete_shovel(vhost, DOWNLINK_SHOVEL)
+
+
+# --------------------------------------------------------------------------- on central
+
+
+def site_permissions(site: str, robots: Collection[str]) -> tuple[str, str, str]:
+    """(configure, write, read) of a site's account at central: its own ``<site>.*`` (its
+    downlink queue), and writing to its robots' exchanges only (``<robot>.events``, ``.beacon``)."""
+    own = f"^{re.escape(site)}\\."
+    names = "|".join(re.escape(name) for name in sorted({site, *robots}))
+    return own, f"^({names})\\.", own
+
+
+def central_site_topology(site: str) -> Topology:
+    queue = site_downlink_queue(site)
+    return Topology(
+        exchanges=(ExchangeSpec(SITES_EXCHANGE, ExchangeType.TOPIC),),
+        queues=(QueueSpec(queue, {"x-queue-type": "classic"}),),
+        bindings=(BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),),
+    )
+
+
+async def add_site_account(admin_url: str, api: ManagementAPI, site: str, *, rotate: bool = False) -> Account:
+    """Central's account for ``site`` (a new password each time, like ``fleetbus users add``) and
+    its downlink queue. Its robots are granted by :func:`grant_site_robots`."""
+    validate_name(site)
+    if api.get_user(site) is not None and not rotate:
+        raise ValueError(f"the account {site!r} exists at central; use --rotate to give it a new password")
+    password = secrets.token_urlsafe(24)
+    api.put_user(site, password, SITE_TAGS)
+    grant_site_robots(api, vhost_of(admin_url), site, ())
+    await declare_with_url(admin_url, [central_site_topology(site)])
+    return Account(site, Role.SERVICE, url_for(admin_url, site, password))
+
+
+def grant_site_robots(
+    api: ManagementAPI,
+    vhost: str,
+    site: str,
+    robots: Collection[str],
+    returning: Mapping[str, RobotKind | None] | None = None,
+) -> None:
+    """Let ``site`` write for exactly ``robots``. At central the inboxes of robots that live at a
+    site take no notifications (the site notifies them; theirs at central would fill and never
+    drain): they are unbound from ``fleetbus.notify``; those of ``returning`` robots (that left
+    their site, with their kinds) are bound again."""
+    configure, write, read = site_permissions(site, robots)
+    api.put_permissions(vhost, site, configure=configure, write=write, read=read)
+    for robot in robots:
+        # on a robot's exchanges, only that robot's routing keys (as the robot itself may)
+        for exchange in (events_exchange(robot), beacon_exchange(robot)):
+            api.put_topic_permissions(
+                vhost, site, exchange, write=owner_pattern(robot), read=owner_pattern(robot)
+            )
+        queue = inbox_queue(robot)
+        keys = [
+            b["routing_key"]
+            for b in api.exchange_bindings(vhost, NOTIFY_EXCHANGE)
+            if b["destination"] == queue and b["destination_type"] == "queue"
+        ]
+        api.unbind_keys(vhost, NOTIFY_EXCHANGE, queue, keys)
+    for robot, kind in (returning or {}).items():
+        for key in inbox_bindings(robot, kind, operator=False):
+            api.bind(vhost, NOTIFY_EXCHANGE, inbox_queue(robot), key)

@@ -1,0 +1,151 @@
+"""``fleetbus site up | status | down``, on a site: its links to central."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI, ManagementError
+from fleetbus.broker.sites import start_site_links, stop_site_links
+from fleetbus.broker.tls import TlsSettingError, shovel_uri
+from fleetbus.broker.urls import mask_password
+from fleetbus.cli.commands.setup import set_up
+from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.workers.site_status import site_view
+from fleetbus.workers.store import run_with_repositories
+
+app = typer.Typer(
+    help="On a site: its links to central (the uplink and downlink shovels).", no_args_is_help=True
+)
+
+SHOVEL_PLUGINS = ("rabbitmq_shovel", "rabbitmq_shovel_management")
+
+
+def _shovels_enabled(api: ManagementAPI, vhost: str) -> bool:
+    try:
+        api.shovel_status(vhost)
+    except ManagementError:
+        return False
+    return True
+
+
+def _enable_shovels(ep: BrokerEndpoint, api: ManagementAPI) -> None:
+    """The shovel plugins: enabled on the private node at once; on another broker, say how."""
+    if _shovels_enabled(api, vhost_of(ep.amqp_url)):
+        return
+    if ep.kind != "private":
+        plugins = " ".join(SHOVEL_PLUGINS)
+        fail(f"enable the shovel plugins on the site's broker first: rabbitmq-plugins enable {plugins}")
+    import subprocess
+
+    from fleetbus.dev.local_node import RABBITMQ_BIN, LocalNode
+
+    node = LocalNode(settings().broker_dir)
+    subprocess.run(
+        [str(RABBITMQ_BIN / "rabbitmq-plugins"), "enable", "--online", *SHOVEL_PLUGINS],
+        env=node.env(),
+        cwd=node.base_dir,
+        check=True,
+        capture_output=True,
+    )
+
+
+@app.command()
+def up(
+    name: Annotated[str, typer.Option("--name", help="the site's name, as central knows it")],
+    central: Annotated[
+        str | None,
+        typer.Option(
+            "--central",
+            help="the site's URL at central (`fleetbus sites add` printed it); default FLEETBUS_CENTRAL_URL",
+        ),
+    ] = None,
+) -> None:
+    """Start the site's links: this broker (started if it is the private one) forwards everything it
+    accepts to central, and takes central's changes; run `fleetbus worker` beside it as usual."""
+    config = settings()
+    central = central or config.central_url
+    if not central:
+        fail("no central URL: give --central or set FLEETBUS_CENTRAL_URL")
+    try:
+        shovel_uri(central)  # a URL the shovels cannot verify with is refused before anything changes
+    except TlsSettingError as error:
+        fail(f"the central URL cannot be used for the site's links: {error}")
+    ep = endpoint()
+    set_up(ep)
+    with admin_api(ep) as api:
+        _enable_shovels(ep, api)
+        asyncio.run(
+            start_site_links(
+                ep.amqp_url,
+                api,
+                name,
+                central,
+                max_messages=config.uplink_max,
+                max_bytes=config.uplink_max_bytes,
+                reconnect_delay_s=config.site_reconnect_delay_s,
+            )
+        )
+    console.print(
+        f"site [bold]{name}[/]: forwarding to {mask_password(central)} (fleetbus-uplink), "
+        "taking central's changes (fleetbus-downlink)",
+        soft_wrap=True,
+        highlight=False,
+    )
+
+
+@app.command()
+def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False) -> None:
+    """The uplink and downlink: running or not, since when, and what waits to be forwarded."""
+    ep = endpoint()
+    team = run_with_repositories(settings(), lambda repos: repos.hazards.robots())
+    with admin_api(ep) as api:
+        link = site_view(api, vhost_of(ep.amqp_url), [robot.name for robot in team])
+    if as_json:
+        console.print_json(json.dumps(link.as_dict()))
+        return
+    table = Table(title="links to central")
+    for column in ("shovel", "state", "since", "reason"):
+        table.add_column(column)
+    for shovel in (link.uplink, link.downlink):
+        colour = "green" if shovel.state == "running" else "red"
+        table.add_row(shovel.name, f"[{colour}]{shovel.state}[/]", shovel.since or "-", shovel.reason or "")
+    console.print(table)
+    waiting = "?" if link.waiting is None else f"{link.waiting:,}"
+    console.print(f"waiting to be forwarded: {waiting} events", highlight=False)
+    if link.not_forwarded:
+        console.print(
+            f"not forwarded (central did not send their accounts): {', '.join(link.not_forwarded)}",
+            highlight=False,
+        )
+
+
+@app.command()
+def apply(
+    once: Annotated[bool, typer.Option("--once", help="apply what is waiting, then stop")] = False,
+) -> None:
+    """Apply central's changes (its robots' accounts) to this broker as they come, until Ctrl-C."""
+    from fleetbus.workers.downlink import apply_downlink
+
+    ep = endpoint()
+    with admin_api(ep) as api:
+        try:
+            applied = apply_downlink(settings(), ep.amqp_url, api, idle_s=1.0 if once else None)
+        except KeyboardInterrupt:
+            return
+    console.print(f"applied {applied} changes from central", highlight=False)
+
+
+@app.command()
+def down() -> None:
+    """Stop forwarding (delete both shovels); what waits in the uplink stays for the next `site up`."""
+    ep = endpoint()
+    with admin_api(ep) as api:
+        stop_site_links(api, vhost_of(ep.amqp_url))
+    console.print("the site's links to central are stopped")

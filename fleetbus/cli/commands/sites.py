@@ -1,0 +1,144 @@
+"""``fleetbus sites [add | robots | remove]``, on central: the sites, their robots and links."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Collection
+from datetime import datetime, timezone
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from fleetbus.broker.accounts import as_public, vhost_of
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.sites import add_site_account
+from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.workers.recorder.summary import shorten
+from fleetbus.workers.site_status import central_view
+from fleetbus.workers.sites import assign_robots, robot_accounts, send_to_site
+from fleetbus.workers.store import run_with_repositories
+
+app = typer.Typer(
+    help="On central: the sites, their robots, and how their links fare.", invoke_without_command=True
+)
+
+Robots = Annotated[str, typer.Option("--robots", help="the site's robots, comma separated")]
+
+
+def _names(text: str) -> list[str]:
+    return [name.strip() for name in text.replace(" ", ",").split(",") if name.strip()]
+
+
+def _ago(seconds: float | None) -> str:
+    if seconds is None:
+        return "-"
+    seconds = max(0.0, seconds)
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+@app.callback()
+def sites(
+    ctx: typer.Context,
+    as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False,
+) -> None:
+    """Each site: link up or down and since when, what it forwarded, how far behind central is."""
+    if ctx.invoked_subcommand is not None:
+        return
+    ep = endpoint()
+    summaries = run_with_repositories(settings(), lambda repos: repos.sites.summaries())
+    now = datetime.now(timezone.utc)
+    with admin_api(ep) as api:
+        rows = central_view(api, vhost_of(ep.amqp_url), summaries, now)
+    if as_json:
+        console.print_json(json.dumps([row.as_dict() for row in rows]))
+        return
+    table = Table(title=f"{len(rows)} sites")
+    for column in ("site", "link", "since", "robots", "forwarded", "late", "behind"):
+        table.add_column(column, justify="right" if column in ("forwarded", "late", "behind") else "left")
+    for row in rows:
+        since = _ago((now - row.since).total_seconds()) + " ago" if row.since else "-"
+        table.add_row(
+            row.site,
+            "[green]up[/]" if row.link_up else "[red]down[/]",
+            since,
+            shorten(", ".join(row.robots), 40),
+            f"{row.forwarded:,}",
+            f"{row.late:,}",
+            _ago(row.behind_s),
+        )
+    console.print(table)
+    console.print(
+        "waiting to be forwarded: on each site, `fleetbus site status`; behind: since the newest event "
+        "central received from the site was sent",
+        highlight=False,
+    )
+
+
+@app.command()
+def add(
+    site: Annotated[str, typer.Argument(help="the site's name (its account at central)")],
+    robots: Robots = "",
+    rotate: Annotated[bool, typer.Option("--rotate", help="give an existing site a new password")] = False,
+) -> None:
+    """Make a site's account at central (tagged impersonator, confined to its robots); its URL,
+    for `fleetbus site up --central`, is printed once."""
+    ep = endpoint()
+    with admin_api(ep) as api:
+        try:
+            account = asyncio.run(add_site_account(ep.amqp_url, api, site, rotate=rotate))
+            names = run_with_repositories(
+                settings(), lambda repos: assign_robots(repos, api, ep.amqp_url, site, _names(robots))
+            )
+        except ValueError as error:
+            fail(str(error))
+    console.print(
+        f"site [bold]{site}[/] with robots {', '.join(names) or 'none yet'}; its central URL (shown once):"
+    )
+    console.print(as_public(account.amqp_url, ep.public_url), soft_wrap=True, highlight=False)
+
+
+@app.command("robots")
+def robots_command(
+    site: Annotated[str, typer.Argument(help="the site")],
+    add_: Annotated[str, typer.Option("--add", help="robots to add, comma separated")] = "",
+    remove: Annotated[str, typer.Option("--remove", help="robots to remove, comma separated")] = "",
+) -> None:
+    """Change which robots a site forwards for (its account's permissions follow)."""
+    ep = endpoint()
+    known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
+    if site not in known:
+        fail(f"no site {site!r}; make it with `fleetbus sites add {site}`")
+    wanted = (set(known[site]) | set(_names(add_))) - set(_names(remove))
+    with admin_api(ep) as api:
+        names = run_with_repositories(
+            settings(), lambda repos: assign_robots(repos, api, ep.amqp_url, site, wanted)
+        )
+        _send_accounts(api, ep.amqp_url, site, set(names) - set(known[site]))
+    console.print(f"site [bold]{site}[/]: {', '.join(names) or 'no robots'}")
+
+
+@app.command()
+def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
+    """Send the site every one of its robots' accounts again (after a re-key, or to a new site node)."""
+    ep = endpoint()
+    known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
+    if site not in known:
+        fail(f"no site {site!r}")
+    with admin_api(ep) as api:
+        _send_accounts(api, ep.amqp_url, site, known[site])
+
+
+def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:
+    accounts = run_with_repositories(settings(), lambda repos: robot_accounts(repos, api, robots))
+    send_to_site(admin_url, site, accounts)
+    if accounts:
+        names = ", ".join(account.name for account in accounts)
+        console.print(
+            f"sent {site} the accounts of {names} (`fleetbus site apply` applies them)", highlight=False
+        )

@@ -1,0 +1,83 @@
+"""How a ROS message is named in the recording, written down once.
+
+Every ROS message the recording holds, whether imported from a bag (``fleetbus import``) or
+recorded live, is one record of type :data:`ROS_TYPE` with:
+
+=============  ==================================================================
+field          value
+=============  ==================================================================
+type           ``ros`` (one table or collection for every ROS message type)
+exchange       ``ros`` (:data:`ROS_EXCHANGE`)
+routing key    ``<robot>.ros.<topic>``, the topic's ``/`` as ``.``
+               (``explorer1.ros.camera.image_raw``; :func:`ros_routing_key`)
+robot          the robot the messages belong to
+recorded_at    the ROS log time (a bag's receive time), to the microsecond
+sent_at        ``header.stamp`` when the message has one, else None
+document       a :class:`RosMessage`: topic, ROS type, log time in ns, stamp, fields
+               as plain JSON
+=============  ==================================================================
+
+:func:`fleetbus.workers.recorder.ros_records.ros_record` builds such a record from a
+:class:`RosMessage`. Field values are plain JSON; a byte array is kept as base64 under
+:data:`BYTES_KEY`, or, over the size cap, only described under :data:`TRUNCATED_KEY`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+ROS_TYPE = "ros"
+"""The recording type (table or collection) of every ROS message."""
+ROS_EXCHANGE = "ros"
+"""The exchange a recorded ROS message names: none on the bus, it marks the ROS origin."""
+ROUTING_SEGMENT = "ros"
+# ROS field names start with a letter, so these keys cannot be a message's own; and MongoDB
+# stores them as they are (it refuses or mangles keys that start with "$").
+BYTES_KEY = "_base64"
+"""A byte array (``uint8[]``) is kept as ``{"_base64": "...", "length": n}``."""
+TRUNCATED_KEY = "_truncated"
+"""A byte array over the size cap is kept as ``{"_truncated": true, "length": n, "sha256": "..."}``."""
+
+
+class RosMessage(BaseModel):
+    """The stored document of one ROS message."""
+
+    topic: str = Field(description="The ROS topic, as in the bag (``/camera/image_raw``).")
+    ros_type: str = Field(
+        description="The ROS message type as the bag names it: ``sensor_msgs/msg/Image`` (ROS 2) or "
+        "``sensor_msgs/Image`` (ROS 1)."
+    )
+    log_time_ns: int = Field(
+        ge=0, description="The ROS log time in nanoseconds (``recorded_at`` holds it to the microsecond)."
+    )
+    stamp: datetime | None = Field(default=None, description="``header.stamp``, when the message has one.")
+    fields: dict[str, Any] = Field(description="The message's fields as plain JSON.")
+
+
+def topic_segments(topic: str) -> str:
+    """``/camera/image_raw`` as ``camera.image_raw`` (a ROS name has no dots, so this is reversible)."""
+    return ".".join(part for part in topic.split("/") if part) or "_"
+
+
+def ros_routing_key(robot: str, topic: str) -> str:
+    """The routing key a ROS message of ``robot`` on ``topic`` is recorded under."""
+    return f"{robot}.{ROUTING_SEGMENT}.{topic_segments(topic)}"
+
+
+def topic_of(routing_key: str) -> str | None:
+    """The ROS topic a recorded routing key names, or None when it is not a ROS one."""
+    parts = routing_key.split(".", 2)
+    if len(parts) < 3 or parts[1] != ROUTING_SEGMENT:
+        return None
+    return "/" + parts[2].replace(".", "/")
+
+
+def ros_record_key(source: str, index: int) -> str:
+    """The recording key of the ``index``-th message of ``source`` (a bag's content hash, or a live
+    session's id): the same message imported twice is stored once."""
+    digest = hashlib.sha256(f"ros\0{source}\0{index}".encode()).hexdigest()
+    return digest[:32]

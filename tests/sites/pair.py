@@ -1,0 +1,108 @@
+"""A site and its central for a test: robots at both, the site's links up, what arrived where."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import TypeVar
+from urllib.parse import urlencode, urlsplit, urlunsplit
+
+from fleetbus.broker.accounts import Account, Role
+from fleetbus.broker.sites import add_site_account, forward_robot, start_site_links, stop_site_links
+from fleetbus.dev.local_node import LocalNode
+from fleetbus.schemas.routing import UPLINK_QUEUE, UPLINK_SHOVEL, RobotKind
+from fleetbus.workers.sites import assign_robots
+from fleetbus.workers.store import Repositories, open_repositories
+from fleetbus.workers.store.base import EventQuery
+from fleetbus.workers.store.sites import Forward
+from tests.link import NetworkLink
+from tests.support import Bus
+
+T = TypeVar("T")
+
+
+@dataclass
+class SitePair:
+    site: Bus
+    central: Bus
+    link: NetworkLink
+    name: str
+    site_node: LocalNode
+    central_node: LocalNode
+    account: Account | None = None
+    """The site's account at central (its URL goes to the site's shovels, through the link)."""
+    robots: list[str] = field(default_factory=list)
+
+    async def join(self) -> None:
+        """Central makes the site's account; the site starts its links through :attr:`link`."""
+        central = self.central
+        self.account = await add_site_account(central.admin_url, central.api, self.name, rotate=True)
+        self.central.accounts.append(self.name)
+        async with open_repositories(central.settings) as repositories:
+            await assign_robots(repositories, central.api, central.admin_url, self.name, ())
+        await self.start_links()
+
+    @property
+    def central_url(self) -> str:
+        assert self.account is not None
+        return self.over_tls(self.account.amqp_url)
+
+    def over_tls(self, central_account_url: str) -> str:
+        """A login at central as the site's shovels use it: over AMQPS through the link, verified
+        against central's CA for the name its certificate carries (``localhost``), as in the field."""
+        parts = urlsplit(self.link.url(central_account_url))
+        query = urlencode(
+            {"cacertfile": str(self.central_node.tls.ca), "server_name_indication": "localhost"}, safe="/"
+        )
+        return urlunsplit(("amqps", parts.netloc, parts.path, query, ""))
+
+    async def start_links(self) -> None:
+        settings = self.site.settings
+        await start_site_links(
+            self.site.admin_url,
+            self.site.api,
+            self.name,
+            self.central_url,
+            max_messages=settings.uplink_max,
+            max_bytes=settings.uplink_max_bytes,
+            reconnect_delay_s=settings.site_reconnect_delay_s,
+        )
+
+    def stop(self) -> None:
+        stop_site_links(self.site.api, self.site.vhost)
+
+    def add_robot(self, name: str, kind: RobotKind) -> Account:
+        """A robot of the site: registered at central (and assigned to the site), and at the site,
+        where it connects and its events are forwarded. Returns its site account."""
+        self.central.add(name, Role.ROBOT, kind)
+        self.robots.append(name)
+        central = self.central
+        self.central_store(
+            lambda repos: assign_robots(repos, central.api, central.admin_url, self.name, self.robots)
+        )
+        account = self.site.add(name, Role.ROBOT, kind)
+        forward_robot(self.site.api, self.site.vhost, name)  # as `fleetbus site apply` does
+        return account
+
+    def central_store(self, operation: Callable[[Repositories], Awaitable[T]]) -> T:
+        return self.central.with_store(operation)
+
+    # what arrived
+    def central_keys(self, robot: str) -> Counter[tuple[str, int]]:
+        return Counter((r.epoch, r.seq) for r in self.central.find(EventQuery(robot_id=robot)))
+
+    def site_keys(self, robot: str) -> Counter[tuple[str, int]]:
+        return Counter((r.epoch, r.seq) for r in self.site.find(EventQuery(robot_id=robot)))
+
+    def forwards(self, robot: str | None = None) -> list[Forward]:
+        return self.central_store(lambda repos: repos.sites.forwards(robot))
+
+    def uplink_waiting(self) -> int:
+        return self.site.ready_messages(UPLINK_QUEUE)
+
+    def uplink_state(self) -> str | None:
+        for shovel in self.site.api.shovel_status(self.site.vhost):
+            if shovel.get("name") == UPLINK_SHOVEL:
+                return str(shovel.get("state"))
+        return None

@@ -1,0 +1,85 @@
+"""A site's account at central writes for its own robots only: central's broker refuses the rest,
+and what a site sends in another's name is refused by central's worker."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pika
+import pika.exceptions
+import pytest
+
+from fleetbus.broker.sites import add_site_account
+from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
+from fleetbus.schemas.routing import RobotKind, site_downlink_queue
+from fleetbus.workers.sites import assign_robots
+from tests.factories import hazard
+from tests.sites.pair import SitePair
+from tests.support import wait_for
+
+
+def publish_as_site(pair: SitePair, robot: str, user_id: str, key_robot: str | None = None) -> None:
+    """Publish a hazard of ``user_id`` to ``robot``'s exchange at central, as the site, confirmed,
+    with the routing key of ``key_robot`` (``user_id`` by default)."""
+    assert pair.account is not None
+    event = build_event("hazard", user_id, new_epoch(), 0, hazard(0))
+    connection = pika.BlockingConnection(pika.URLParameters(pair.account.amqp_url))
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        properties = pika.BasicProperties(user_id=user_id, delivery_mode=2, headers={"x-shovelled": []})
+        channel.basic_publish(
+            f"{robot}.events",
+            f"{key_robot or user_id}.hazard",
+            encode_event(event),
+            properties,
+            mandatory=True,
+        )
+    finally:
+        if connection.is_open:
+            connection.close()
+
+
+def test_a_site_cannot_write_as_robots_not_its_own_nor_as_another_site(pair: SitePair) -> None:
+    pair.add_robot("explorer1", RobotKind.EXPLORER)
+    pair.central.add("explorer9", kind=RobotKind.EXPLORER)  # a robot of central's, at no site
+    pair.central.add("explorer8", kind=RobotKind.EXPLORER)  # a robot of another site
+    asyncio.run(add_site_account(pair.central.admin_url, pair.central.api, "base2", rotate=True))
+    pair.central.accounts.append("base2")
+    central = pair.central
+    pair.central_store(
+        lambda repos: assign_robots(repos, central.api, central.admin_url, "base2", ["explorer8"])
+    )
+
+    for robot in ("explorer9", "explorer8", "base2"):
+        with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:
+            publish_as_site(pair, robot, robot)
+        assert refused.value.reply_code == 403, f"writing to {robot}.events is refused"
+    # nor read another site's downlink
+    assert pair.account is not None
+    connection = pika.BlockingConnection(pika.URLParameters(pair.account.amqp_url))
+    try:
+        with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:
+            connection.channel().basic_get(site_downlink_queue("base2"))
+        assert refused.value.reply_code == 403
+    finally:
+        if connection.is_open:
+            connection.close()
+
+    # on its own robot's exchange, another's routing key: refused by the broker (topic permissions)
+    for other in ("explorer8", "base2"):
+        with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:
+            publish_as_site(pair, "explorer1", other)
+        assert refused.value.reply_code == 403, f"{other}'s routing key on explorer1.events is refused"
+
+    # its own robot's exchange and key in another's name: the broker lets an impersonator set any
+    # user_id, and central's worker refuses it (user, key and body do not agree)
+    with pair.central.worker():
+        publish_as_site(pair, "explorer1", "explorer8", key_robot="explorer1")
+        publish_as_site(pair, "explorer1", "base2", key_robot="explorer1")
+        publish_as_site(pair, "explorer1", "explorer1")  # the sentinel: its own, stored
+        wait_for(lambda: pair.central.count() == 1, what="the site's own robot's event stored")
+        letters = wait_for(lambda: len(pair.central.dead_letters()) == 2 and pair.central.dead_letters())
+    assert sorted(letter.user_id or "" for letter in letters) == ["base2", "explorer8"]
+    assert {letter.reason for letter in letters} == {"identity-mismatch"}
+    assert [r.robot_id for r in pair.central.find()] == ["explorer1"]

@@ -1,0 +1,100 @@
+"""Import a ROS bag into the recording: all of its messages or none.
+
+Two passes over the bag. The first reads and converts every message and stores nothing, so a
+truncated or corrupt bag is refused before anything is written. The second writes the messages
+in batches, each under a key made of the bag's content digest and the message's position
+(:func:`fleetbus.schemas.ros.ros_record_key`): importing the same bag again stores nothing new.
+Should a write fail half-way (the database gone), the messages this import added are deleted
+again before the error is raised.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.ros import ROS_TYPE, ros_record_key
+from fleetbus.workers.recorder.bags import BagMessage, bag_digest, message_count, read_bag
+from fleetbus.workers.recorder.ros_records import ros_record
+from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
+
+BATCH = 500
+"""Messages written at once."""
+IMPORT_APP_ID = "fleetbus-import"
+
+Progress = Callable[[str, int, int], None]
+"""``(phase, done, total)``: phase ``check`` (reading the bag) then ``store``."""
+
+
+@dataclass(frozen=True)
+class ImportReport:
+    path: str
+    digest: str
+    messages: int
+    stored: int
+    """New records; ``messages - stored`` were in the recording already (imported before)."""
+    trimmed: int
+    """Messages whose large arrays were described instead of kept (over the size limit)."""
+
+    @property
+    def already(self) -> int:
+        return self.messages - self.stored
+
+
+def bag_record(robot: str, digest: str, bag_file: str, item: BagMessage) -> RecordedMessage:
+    """The record of one bag message: keyed by the bag's digest and the message's index."""
+    return ros_record(
+        robot,
+        item.message,
+        ros_record_key(digest, item.index),
+        size=item.size,
+        seq=item.index,
+        trimmed=item.trimmed,
+        properties={
+            "app_id": IMPORT_APP_ID,
+            "headers": {"x-ros-bag": bag_file, "x-ros-bag-sha256": digest, "x-ros-bag-index": item.index},
+        },
+    )
+
+
+async def import_bag(
+    store: RecordingStore,
+    path: Path,
+    robot: str,
+    max_bytes: int,
+    progress: Progress = lambda phase, done, total: None,
+) -> ImportReport:
+    """Store every message of the bag at ``path`` as ``robot``'s, or none (raising why)."""
+    validate_name(robot)
+    total = message_count(path)
+    digest = bag_digest(path)
+    trimmed = 0
+    for item in read_bag(path, max_bytes):  # the whole bag is readable before anything is stored
+        trimmed += item.trimmed
+        progress("check", item.index + 1, total)
+    added: list[str] = []
+    batch: list[RecordedMessage] = []
+    written = 0
+    try:
+        for item in read_bag(path, max_bytes):
+            batch.append(bag_record(robot, digest, path.name, item))
+            if len(batch) == BATCH:
+                written += await _write(store, batch, added)
+                progress("store", written, total)
+        written += await _write(store, batch, added)
+        progress("store", written, total)
+    except BaseException:
+        if added:
+            await store.delete_recorded(ROS_TYPE, added)
+        raise
+    return ImportReport(str(path), digest, written, len(added), trimmed)
+
+
+async def _write(store: RecordingStore, batch: list[RecordedMessage], added: list[str]) -> int:
+    results = await store.write_recorded(batch)
+    added.extend(record.key for record, result in zip(batch, results, strict=True) if result.inserted)
+    count = len(batch)
+    batch.clear()
+    return count

@@ -1,0 +1,117 @@
+"""How each site's link fares, as central sees it and as the site sees it (``fleetbus sites``,
+``fleetbus site status``, the console's dashboard)."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Collection
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any
+
+from fleetbus.broker.management import ManagementAPI, ManagementError
+from fleetbus.broker.sites import forwarded_robots
+from fleetbus.schemas.routing import DOWNLINK_SHOVEL, UPLINK_QUEUE, UPLINK_SHOVEL
+from fleetbus.workers.store.sites import SiteSummary
+
+
+@dataclass(frozen=True)
+class SiteRow:
+    """One site as central sees it."""
+
+    site: str
+    robots: tuple[str, ...]
+    link_up: bool
+    """The site's account has a connection open to central (its uplink shovel's)."""
+    since: datetime | None
+    """Up: when that connection opened. Down: when central last received an event from the site."""
+    forwarded: int
+    late: int
+    behind_s: float | None
+    """Seconds between now and the send time of the newest event central received from the site:
+    how far behind central is (while the site is busy), or how long the site has been quiet."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            **self.__dict__,
+            "robots": list(self.robots),
+            "since": self.since.isoformat() if self.since else None,
+        }
+
+
+def central_view(
+    api: ManagementAPI, vhost: str, summaries: list[SiteSummary], now: datetime
+) -> list[SiteRow]:
+    opened: dict[str, datetime] = {}
+    for connection in api.list_vhost_connections(vhost):
+        user, at = connection.get("user"), connection.get("connected_at")
+        if user and at:
+            moment = datetime.fromtimestamp(at / 1000, timezone.utc)
+            opened[user] = min(opened.get(user, moment), moment)
+    rows = []
+    for summary in summaries:
+        up = summary.site in opened
+        rows.append(
+            SiteRow(
+                summary.site,
+                summary.robots,
+                up,
+                opened[summary.site] if up else summary.last_received_at,
+                summary.forwarded,
+                summary.late,
+                (now - summary.newest_sent_at).total_seconds() if summary.newest_sent_at else None,
+            )
+        )
+    return rows
+
+
+@dataclass(frozen=True)
+class ShovelState:
+    name: str
+    state: str
+    """``running``, ``starting`` (connecting, or waiting to connect again), ``terminated``, or
+    ``absent`` (no such shovel)."""
+    since: str | None
+    """When it entered that state, as RabbitMQ tells it (the node's local time)."""
+    reason: str | None = None
+
+
+@dataclass(frozen=True)
+class SiteLink:
+    """The site's own view: its shovels, and what waits in its uplink."""
+
+    uplink: ShovelState
+    downlink: ShovelState
+    waiting: int | None
+    """Events in ``fleetbus.uplink`` not yet confirmed by central (ready and in flight)."""
+    not_forwarded: list[str]
+    """Robots of the site's team whose events are not forwarded (central did not send them)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "uplink": self.uplink.__dict__,
+            "downlink": self.downlink.__dict__,
+            "waiting": self.waiting,
+            "not_forwarded": self.not_forwarded,
+        }
+
+
+def site_view(api: ManagementAPI, vhost: str, team: Collection[str]) -> SiteLink:
+    """The site's links, and which of ``team`` (the robots the site's store knows) are not forwarded."""
+    found = {shovel.get("name"): shovel for shovel in api.shovel_status(vhost)}
+
+    def state(name: str) -> ShovelState:
+        shovel = found.get(name)
+        if shovel is None:
+            return ShovelState(name, "absent", None)
+        reason = shovel.get("reason")
+        return ShovelState(
+            name, str(shovel.get("state")), shovel.get("timestamp"), str(reason) if reason else None
+        )
+
+    waiting = None
+    with contextlib.suppress(ManagementError):
+        queue = api.get_queue(vhost, UPLINK_QUEUE)
+        waiting = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
+    not_forwarded = sorted(set(team) - forwarded_robots(api, vhost))
+    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting, not_forwarded)

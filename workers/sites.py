@@ -1,0 +1,93 @@
+"""Central's administration of its sites: the one place that assigns robots to a site, in the
+store (who may forward for whom, :mod:`fleetbus.workers.store.sites`) and on the broker (what the
+site's account may write, :func:`fleetbus.broker.sites.grant_site_robots`), together."""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Sequence
+
+import pika
+
+from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.sites import grant_site_robots
+from fleetbus.broker.tls import pika_parameters
+from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
+from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, RobotAccount
+from fleetbus.workers.store import Repositories
+from fleetbus.workers.team import change_service
+
+
+async def assign_robots(
+    repositories: Repositories, api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]
+) -> tuple[str, ...]:
+    """Make ``robots`` exactly the robots of ``site`` (a robot of another site moves here; the
+    other site's account loses it). At central, a site's wardens are out of service (the site's
+    gate counts them, central's must not wait for them); one that leaves its site is back in
+    service. Returns the robots, sorted."""
+    validate_name(site)
+    for robot in robots:
+        validate_name(robot)
+    before = await repositories.sites.sites()
+    old = set(before.get(site, ()))
+    new = set(robots)
+    moved_from = {other for other, members in before.items() if other != site and new & set(members)}
+    await repositories.sites.set_robots(site, sorted(new))
+    kinds = {robot.name: robot.kind for robot in await repositories.hazards.robots()}
+    returning = {r: RobotKind(kinds[r]) if kinds.get(r) else None for r in old - new}
+    vhost = vhost_of(admin_url)
+    grant_site_robots(api, vhost, site, sorted(new), returning)
+    after = await repositories.sites.sites()
+    for other in moved_from:
+        grant_site_robots(api, vhost, other, after.get(other, ()))
+    # central's hazard gate must not wait for wardens that localise at their site only
+    by = f"site {site}"
+    for robot in sorted(new - old):
+        if kinds.get(robot) == RobotKind.WARDEN.value:
+            await change_service(repositories.hazards, admin_url, robot, False, by)
+    for robot in sorted(old - new):
+        if kinds.get(robot) == RobotKind.WARDEN.value:
+            await change_service(repositories.hazards, admin_url, robot, True, by)
+    return tuple(sorted(new))
+
+
+async def robot_accounts(
+    repositories: Repositories, api: ManagementAPI, robots: Collection[str]
+) -> list[RobotAccount]:
+    """The accounts of ``robots`` as central has them (those without an account are left out)."""
+    kinds = {robot.name: robot.kind for robot in await repositories.hazards.robots()}
+    accounts = []
+    for name in sorted(robots):
+        user = api.get_user(name)
+        if user is None:
+            continue
+        kind = kinds.get(name)
+        accounts.append(
+            RobotAccount(
+                name=name,
+                kind=RobotKind(kind) if kind else None,
+                password_hash=user["password_hash"],
+                hashing_algorithm=user.get("hashing_algorithm", "rabbit_password_hashing_sha256"),
+            )
+        )
+    return accounts
+
+
+def send_to_site(admin_url: str, site: str, accounts: Sequence[RobotAccount]) -> None:
+    """Publish ``accounts`` to the site's downlink (persistent, confirmed: the shovel takes it on
+    whenever the site is connected)."""
+    connection = pika.BlockingConnection(pika_parameters(admin_url))
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        for account in accounts:
+            channel.basic_publish(
+                SITES_EXCHANGE,
+                site_downlink_key(site, account.change),
+                account.model_dump_json().encode(),
+                pika.BasicProperties(delivery_mode=2, content_type="application/json", type=SITE_CHANGE_TYPE),
+                mandatory=True,
+            )
+    finally:
+        connection.close()
