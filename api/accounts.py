@@ -76,6 +76,8 @@ class Accounts:
         admin_url: str,
         shards: int = 1,
         public_url: str | None = None,
+        *,
+        cluster: bool = False,
     ) -> None:
         """``public_url``: the broker as users and robots reach it (no credentials), for the URLs
         handed out; None: ``admin_url``'s broker."""
@@ -84,6 +86,7 @@ class Accounts:
         self._team = team
         self._channels = channels
         self._shards = shards
+        self._cluster = cluster
         self._secrets = secrets_
         self._management = management
         self._admin_url = admin_url
@@ -106,6 +109,7 @@ class Accounts:
                         broker_role(role),
                         robot_kind,
                         shards=self._shards,
+                        cluster=self._cluster,
                     )
                 )
 

@@ -81,6 +81,7 @@ async def open_service(
                 admin_url,
                 settings.ingest_shards,
                 public_url or settings.public_amqp_url,
+                cluster=settings.cluster,
             ),
             missions=missions,
             channels=Channels(

@@ -15,6 +15,7 @@ import aio_pika
 import pika
 
 from bench.scenario import Context, Figures
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 
@@ -37,7 +38,7 @@ def publish_bodies(
     url: str, exchange: str, routing_key: str, bodies: list[bytes], **properties: Any
 ) -> float:
     """Publish ``bodies`` persistent, confirms pipelined a window at a time; messages a second."""
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         confirms = PipelinedConfirms(connection, connection.channel(), timeout=120)
         props = pika.BasicProperties(delivery_mode=2, **properties)

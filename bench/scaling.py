@@ -86,6 +86,8 @@ class Options:
     workers: tuple[int, ...] = (1, 2, 4)
     mongodb_url: str | None = None
     """Run the workers on this MongoDB server (a database of the run's own) instead of SQLite."""
+    cluster: bool = False
+    """The broker is a cluster (``FLEETBUS_CLUSTER``): quorum queues, and no one broker PID to watch."""
 
 
 # raw broker
@@ -201,6 +203,7 @@ class Fleet:
             FLEETBUS_SERVICE_URL=without_password(self.service_url),
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
             FLEETBUS_INGEST_SHARDS=str(self.settings.ingest_shards),
+            FLEETBUS_CLUSTER="true" if self.settings.cluster else "false",
         )
         if self.settings.mongodb_url:
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
@@ -236,16 +239,24 @@ def fleet(endpoint: BrokerEndpoint, api: ManagementAPI, options: Options) -> Ite
             management_url=endpoint.management_url,
             mongodb_url=f"{options.mongodb_url.rstrip('/')}/{database}" if options.mongodb_url else None,
             ingest_shards=options.shards,
+            cluster=options.cluster,
         )
         accounts = [
             asyncio.run(
                 provision_account(
-                    admin_url, api, f"bench-robot{n}", Role.ROBOT, rotate=True, shards=options.shards
+                    admin_url,
+                    api,
+                    f"bench-robot{n}",
+                    Role.ROBOT,
+                    rotate=True,
+                    shards=options.shards,
+                    cluster=options.cluster,
                 )
             )
             for n in range(options.robots)
         ]
-        broker_pid = LocalNode(load_settings().broker_dir).pid() if endpoint.kind == "private" else None
+        single = endpoint.kind == "private" and not options.cluster
+        broker_pid = LocalNode(load_settings().broker_dir).pid() if single else None
         service = asyncio.run(set_up_service(settings, replace(endpoint, amqp_url=admin_url)))
         try:
             yield Fleet(settings, accounts, broker_pid, service.service_url)

@@ -22,9 +22,10 @@ import pika
 import pika.exceptions
 
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
+from fleetbus.broker.addresses import address_count, map_addresses
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import assign_shard, unassign_shard
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import pika_parameter_list
 from fleetbus.broker.topology import account_topology, core_topology, declare_with_url
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
@@ -64,7 +65,10 @@ def vhost_of(amqp_url: str) -> str:
 
 
 def url_for(amqp_url: str, username: str, password: str) -> str:
-    """The same broker and virtual host as ``amqp_url``, logged in as another account."""
+    """The same broker (every address of a cluster's URL) and virtual host as ``amqp_url``, logged
+    in as another account."""
+    if address_count(amqp_url) > 1:
+        return map_addresses(amqp_url, lambda single: url_for(single, username, password))
     parts = urlsplit(amqp_url)
     host = parts.hostname or "localhost"
     netloc = f"{quote(username, safe='')}:{quote(password, safe='')}@{host}"
@@ -120,6 +124,7 @@ async def provision_account(
     *,
     rotate: bool = False,
     shards: int = 1,
+    cluster: bool = False,
 ) -> Account:
     """Create (or with ``rotate``, re-key) an account with its exchange, inbox and permissions;
     a robot is bound to one of the ``shards`` ingest shards (``FLEETBUS_INGEST_SHARDS``)."""
@@ -130,7 +135,7 @@ async def provision_account(
         raise AccountExists(f"user {name!r} exists; use --rotate to give it a new password")
     password = secrets.token_urlsafe(24)
     api.put_user(name, password, ROLE_TAGS[role])
-    await configure_account(admin_url, api, name, role, kind, shards=shards)
+    await configure_account(admin_url, api, name, role, kind, shards=shards, cluster=cluster)
     return Account(name, role, url_for(admin_url, name, password))
 
 
@@ -142,9 +147,11 @@ async def configure_account(
     kind: RobotKind | None = None,
     *,
     shards: int = 1,
+    cluster: bool = False,
 ) -> None:
     """Grant an existing account its confined permissions and declare what it owns (idempotent);
-    a robot keeps its ingest shard, or gets the least loaded of ``shards``."""
+    a robot keeps its ingest shard, or gets the least loaded of ``shards``. ``cluster``: the
+    broker is a cluster (``FLEETBUS_CLUSTER``), its queues quorum queues."""
     validate_name(name)
     vhost = vhost_of(admin_url)
     api.put_user_tags(name, ROLE_TAGS[role])
@@ -154,7 +161,10 @@ async def configure_account(
         keyed.append(beacon_exchange(name))
     for exchange in keyed:
         api.put_topic_permissions(vhost, name, exchange, write=TOPIC_PATTERN, read=TOPIC_PATTERN)
-    await declare_with_url(admin_url, [core_topology(shards), account_topology(name, role, kind=kind)])
+    await declare_with_url(
+        admin_url,
+        [core_topology(shards, cluster=cluster), account_topology(name, role, kind=kind, cluster=cluster)],
+    )
     if role is Role.ROBOT:
         assign_shard(api, vhost, name, shards)
 
@@ -224,9 +234,7 @@ def ensure_recorder_account(admin_url: str, api: ManagementAPI, credentials_dir:
 
 def can_login(amqp_url: str) -> bool:
     """Whether the broker accepts this URL's credentials (it answers at all, or this raises)."""
-    parameters = pika_parameters(amqp_url)
-    parameters.connection_attempts = 1
-    parameters.socket_timeout = 5
+    parameters = pika_parameter_list(amqp_url, connection_attempts=1, socket_timeout=5)
     try:
         pika.BlockingConnection(parameters).close()
     except pika.exceptions.ProbableAuthenticationError:

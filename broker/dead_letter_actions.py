@@ -27,7 +27,9 @@ import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
 from fleetbus.broker.dead_letter_queue import DeadLetter, describe, letter_id
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import blocking_connection, pika_parameter_list
+from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outcome, Outgoing, PipelinedConfirms
+from fleetbus.publishers.errors import PublisherError
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 
 #: What the broker (or an earlier fleetbus) wrote on the letter about its refusal: not part of
@@ -86,7 +88,7 @@ def _gone(wanted: str) -> DeadLetterGone:
 def _holding(amqp_url: str, wanted: str) -> Iterator[_Held]:
     """The named letter, taken from the queue and held unacked on a channel of the administrator's;
     leaving puts every message not acked back in its place."""
-    connection = pika.BlockingConnection(pika_parameters(amqp_url))
+    connection = blocking_connection(amqp_url)
     try:
         channel = connection.channel()
         available = channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count
@@ -137,27 +139,29 @@ def requeue_dead_letter(amqp_url: str, wanted: str, sender_url: SenderUrl) -> De
     return letter
 
 
+def _raise_unless_taken(outcome: Outcome, sender: str) -> None:
+    if outcome.returned:
+        raise RequeueRefused(f"published as {sender}, it reached no queue; it stays a dead letter")
+    if outcome.nacked:
+        raise RequeueRefused(f"the broker did not take it as {sender}; it stays a dead letter")
+
+
 def _publish_as(url: str, letter: DeadLetter, properties: pika.BasicProperties) -> None:
     again = copy.copy(properties)
     again.headers = {k: v for k, v in (properties.headers or {}).items() if k not in DEATH_HEADERS}
     again.user_id = letter.user_id
-    parameters = pika_parameters(url)
-    parameters.connection_attempts = 1
+    parameters = pika_parameter_list(url, connection_attempts=1)
     sender = f"{letter.user_id} to {letter.exchange or '(default exchange)'} with {letter.routing_key!r}"
     try:
         connection = pika.BlockingConnection(parameters)
         try:
-            channel = connection.channel()
-            channel.confirm_delivery()
-            channel.basic_publish(letter.exchange, letter.routing_key, letter.body, again, mandatory=True)
+            confirms = PipelinedConfirms(connection, connection.channel(), SERVICE_CONFIRM_TIMEOUT_S)
+            outcome = confirms.send_one(Outgoing(letter.exchange, letter.routing_key, letter.body, again))
         finally:
             if connection.is_open:
                 connection.close()
-    except pika.exceptions.UnroutableError:
-        raise RequeueRefused(f"published as {sender}, it reached no queue; it stays a dead letter") from None
-    except pika.exceptions.NackError:
-        raise RequeueRefused(f"the broker did not take it as {sender}; it stays a dead letter") from None
-    except (pika.exceptions.AMQPError, OSError) as error:
+    except (pika.exceptions.AMQPError, OSError, PublisherError) as error:
         raise RequeueRefused(
             f"the broker refused it as {sender} ({type(error).__name__}: {error}); it stays a dead letter"
         ) from None
+    _raise_unless_taken(outcome, sender)

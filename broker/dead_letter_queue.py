@@ -26,7 +26,7 @@ from typing import Any, Protocol
 
 import pika
 
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RECORDER_QUEUE
 
 
@@ -203,7 +203,7 @@ def _described(fetched: Fetched, kept: Mapping[str, KeptReason]) -> list[DeadLet
 
 
 def _peek(amqp_url: str, limit: int) -> tuple[int, Fetched]:
-    connection = pika.BlockingConnection(pika_parameters(amqp_url))
+    connection = blocking_connection(amqp_url)
     try:
         channel = connection.channel()
         available = channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count

@@ -10,7 +10,9 @@ from __future__ import annotations
 import pika
 import pika.exceptions
 
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
+from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
 
 
 class NoSuchQueue(RuntimeError):
@@ -25,17 +27,18 @@ def put_in_queue(admin_url: str, queue: str, body: bytes, properties: pika.Basic
     """Publish ``body`` to ``queue`` and wait for the broker's confirm (blocking: run it on a thread)."""
     properties.delivery_mode = pika.DeliveryMode.Persistent.value
     try:
-        connection = pika.BlockingConnection(pika_parameters(admin_url))
+        connection = blocking_connection(admin_url)
     except pika.exceptions.AMQPError as error:
         raise NotTaken(f"the broker does not answer ({error!r})") from error
     try:
-        channel = connection.channel()
-        channel.confirm_delivery()
-        channel.basic_publish("", queue, body, properties, mandatory=True)
-    except pika.exceptions.UnroutableError as error:
-        raise NoSuchQueue(f"there is no queue {queue} on this broker") from error
-    except pika.exceptions.AMQPError as error:
-        raise NotTaken(f"the broker refused it ({error!r})") from error
+        confirms = PipelinedConfirms(connection, connection.channel(), SERVICE_CONFIRM_TIMEOUT_S)
+        outcome = confirms.send_one(Outgoing("", queue, body, properties))
+    except (pika.exceptions.AMQPError, PublishRefused, BrokerUnavailable, PublishTimeout) as error:
+        raise NotTaken(f"the broker refused it or did not confirm it ({error})") from error
     finally:
         if connection.is_open:
             connection.close()
+    if outcome.returned:
+        raise NoSuchQueue(f"there is no queue {queue} on this broker")
+    if outcome.nacked:
+        raise NotTaken(f"the broker nacked it (queue {queue} could not take it now)")

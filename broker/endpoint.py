@@ -19,6 +19,7 @@ from typing import Literal
 from urllib.parse import unquote, urlsplit
 
 from fleetbus.broker.accounts import SERVICE_USER, kept_password, url_for
+from fleetbus.broker.addresses import first_address
 from fleetbus.broker.probe import NoAnswer, NotVerified, amqp_login, check_amqp_login, management_answers
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.urls import mask_password
@@ -51,8 +52,9 @@ class BrokerEndpoint:
 
 
 def derive_management_url(amqp_url: str) -> str:
-    """``http://<host>:15672/`` for ``amqp://…@<host>…`` (``https://<host>:15671/`` for amqps)."""
-    parts = urlsplit(amqp_url)
+    """``http://<host>:15672/`` for ``amqp://…@<host>…`` (``https://<host>:15671/`` for amqps);
+    a cluster's URL: its first node's."""
+    parts = urlsplit(first_address(amqp_url))
     host = parts.hostname or "localhost"
     if ":" in host:
         host = f"[{host}]"

@@ -68,17 +68,19 @@ def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
     import pika
     import pika.exceptions
 
-    from fleetbus.broker.tls import TlsSettingError, pika_parameters
+    from fleetbus.broker.tls import TlsSettingError, pika_parameter_list
 
     try:
-        parameters = pika_parameters(url)
+        parameters = pika_parameter_list(
+            url,
+            connection_attempts=1,
+            retry_delay=0,
+            socket_timeout=timeout,
+            stack_timeout=timeout,
+            blocked_connection_timeout=timeout,
+        )
     except TlsSettingError as error:
         raise NotVerified(str(error)) from None
-    parameters.connection_attempts = 1
-    parameters.retry_delay = 0
-    parameters.socket_timeout = timeout
-    parameters.stack_timeout = timeout
-    parameters.blocked_connection_timeout = timeout
     with _quiet_pika():
         try:
             pika.BlockingConnection(parameters).close()

@@ -25,6 +25,8 @@ from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
 import pika
 
+from fleetbus.broker.addresses import first_address, split_addresses
+
 if TYPE_CHECKING:
     from aio_pika.abc import AbstractConnection, AbstractRobustConnection
 
@@ -111,12 +113,29 @@ def client_context(options: TlsOptions) -> ssl.SSLContext:
 
 
 def pika_parameters(url: str) -> pika.URLParameters:
-    """pika's parameters for ``url``; for ``amqps://``, with its verified TLS context."""
-    plain, options = split_tls(url)
+    """pika's parameters for ``url``'s first address; for ``amqps://``, with its verified TLS
+    context. A cluster's URL: :func:`pika_parameter_list`."""
+    plain, options = split_tls(first_address(url))
     parameters = pika.URLParameters(plain)
     if options is not None:
         parameters.ssl_options = pika.SSLOptions(client_context(options), server_hostname=options.server_name)
     return parameters
+
+
+def pika_parameter_list(url: str, **attributes: Any) -> list[pika.URLParameters]:
+    """pika's parameters for each address of ``url`` (:mod:`fleetbus.broker.addresses`), in order,
+    each with ``attributes`` set (``socket_timeout=5``...). ``pika.BlockingConnection`` takes the
+    list and tries each address in turn: a node that is down means a connection to the next."""
+    parameters = [pika_parameters(single) for single in split_addresses(url)]
+    for each in parameters:
+        for name, value in attributes.items():
+            setattr(each, name, value)
+    return parameters
+
+
+def blocking_connection(url: str, **attributes: Any) -> pika.BlockingConnection:
+    """A pika connection to the first of ``url``'s addresses that answers."""
+    return pika.BlockingConnection(pika_parameter_list(url, **attributes))
 
 
 def aio_pika_arguments(url: str) -> tuple[str, dict[str, Any]]:
@@ -128,19 +147,34 @@ def aio_pika_arguments(url: str) -> tuple[str, dict[str, Any]]:
 
 
 async def aio_connect(url: str, **kwargs: Any) -> AbstractConnection:
-    """``aio_pika.connect`` with the URL's TLS settings."""
+    """``aio_pika.connect`` with the URL's TLS settings, to the first of its addresses that answers
+    (each tried in turn; the last one's error is raised when none does)."""
     import aio_pika
 
-    plain, tls = aio_pika_arguments(url)
-    return await aio_pika.connect(plain, **tls, **kwargs)
+    addresses = split_addresses(url)
+    for index, single in enumerate(addresses):
+        plain, tls = aio_pika_arguments(single)
+        try:
+            return await aio_pika.connect(plain, **tls, **kwargs)
+        except (ConnectionError, OSError, aio_pika.exceptions.AMQPConnectionError):
+            if index == len(addresses) - 1:
+                raise
+    raise AssertionError("unreachable: split_addresses returns at least one URL")
 
 
 async def aio_connect_robust(url: str, **kwargs: Any) -> AbstractRobustConnection:
-    """``aio_pika.connect_robust`` with the URL's TLS settings."""
+    """``aio_pika.connect_robust`` with the URL's TLS settings. With several addresses, the first
+    that answers; and every reconnection after a lost connection tries the next address, then the
+    others in turn (:class:`fleetbus.broker.failover.FailoverConnection`)."""
     import aio_pika
 
-    plain, tls = aio_pika_arguments(url)
-    return await aio_pika.connect_robust(plain, **tls, **kwargs)
+    addresses = split_addresses(url)
+    if len(addresses) == 1:
+        plain, tls = aio_pika_arguments(url)
+        return await aio_pika.connect_robust(plain, **tls, **kwargs)
+    from fleetbus.broker.failover import connect_failover
+
+    return await connect_failover([aio_pika_arguments(single) for single in addresses], **kwargs)
 
 
 def shovel_uri(url: str) -> str:

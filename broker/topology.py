@@ -58,7 +58,8 @@ from fleetbus.schemas.routing import (
 #: A robot's or operator's inbox: a classic durable queue. On one node it keeps every persistent
 #: message across a SIGKILL and cannot come back without a leader as a quorum queue can
 #: (rabbitmq-server #10070), and it hands a notification to its robot about 1 ms sooner (no Raft
-#: commit first). The ingest queue, which carries everything, stays a quorum queue.
+#: commit first). The ingest queue, which carries everything, stays a quorum queue. On a cluster
+#: the inbox is a quorum queue too (:func:`replicated`).
 INBOX_ARGUMENTS: dict[str, Any] = {"x-queue-type": "classic"}
 
 #: A message redelivered this many times (the worker died on it each time) is dead-lettered
@@ -130,6 +131,7 @@ OVERFLOW_QUEUE_ARGUMENTS: dict[str, Any] = {
 #: quorum queue (no Raft commit first) and keeps every persistent message across a SIGKILL on one
 #: node. A classic queue has no delivery limit, so the worker keeps one (:mod:`fleetbus.workers.attempts`).
 #: Its dead-letter exchange takes what the worker rejects (``basic.nack``), as the shards' do.
+#: On a cluster it is a quorum queue instead (:func:`replicated`), like every queue that holds data.
 EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
     "x-queue-type": "classic",
     "x-single-active-consumer": True,
@@ -137,13 +139,26 @@ EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
 }
 
 
-def core_topology(shards: int = 1) -> Topology:
+def queue_type(cluster: bool) -> dict[str, Any]:
+    """The type of every queue that must not lose or reorder what it holds: classic on one node
+    (for the reasons given where each is declared), quorum on a cluster, where a classic queue
+    lives on one node and is gone while that node is (docs/operations/cluster.md)."""
+    return {"x-queue-type": "quorum" if cluster else "classic"}
+
+
+def replicated(arguments: dict[str, Any], cluster: bool) -> dict[str, Any]:
+    """``arguments`` with the queue type :func:`queue_type` gives."""
+    return {**arguments, **queue_type(cluster)}
+
+
+def core_topology(shards: int = 1, *, cluster: bool = False) -> Topology:
     """The service's exchanges and queues, with ``shards`` ingest shard queues.
 
     Robots' events reach ``fleetbus.ingest.shards``, which routes every robot's hazards and
     localisations to the express queue, and each robot's other types to its one shard (bound by
     its name, :mod:`fleetbus.broker.shards`); a message neither matches goes to shard 0 by the exchange's
-    alternate exchange, so nothing is ever routed to no queue.
+    alternate exchange, so nothing is ever routed to no queue. On a ``cluster`` every queue is a
+    quorum queue (:func:`queue_type`).
     """
     if shards < 1:
         raise ValueError(f"the ingest needs at least one shard, not {shards}")
@@ -164,16 +179,16 @@ def core_topology(shards: int = 1) -> Topology:
         ),
         queues=(
             *(QueueSpec(ingest_shard_queue(shard), INGEST_QUEUE_ARGUMENTS) for shard in range(shards)),
-            QueueSpec(EXPRESS_QUEUE, EXPRESS_QUEUE_ARGUMENTS),
+            QueueSpec(EXPRESS_QUEUE, replicated(EXPRESS_QUEUE_ARGUMENTS, cluster)),
             # Classic, not quorum: listing it (`fleetbus dlq`) gets and requeues messages, and a
             # quorum queue would count each listing as a delivery.
-            QueueSpec(DEAD_LETTER_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(DEAD_LETTER_QUEUE, queue_type(cluster)),
             # Requests are worth nothing once their caller gave up (each carries an expiration).
-            QueueSpec(RPC_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(RPC_QUEUE, queue_type(cluster)),
             # Drained into the store's discard log by the workers, which is where they are counted.
-            QueueSpec(BEACON_DISCARD_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(BEACON_DISCARD_QUEUE, queue_type(cluster)),
             # What full queues dropped (broker/policies.py), drained into the store's counts.
-            QueueSpec(OVERFLOW_QUEUE, OVERFLOW_QUEUE_ARGUMENTS),
+            QueueSpec(OVERFLOW_QUEUE, replicated(OVERFLOW_QUEUE_ARGUMENTS, cluster)),
         ),
         bindings=(
             BindingSpec(INGEST_EXCHANGE, SHARD_EXCHANGE, "#", to_exchange=True),
@@ -203,7 +218,7 @@ RECORDER_UNSTORABLE = {
 }
 
 
-def recorder_topology() -> Topology:
+def recorder_topology(*, cluster: bool = False) -> Topology:
     """The recorder's queue, bound to every exchange of the service with ``#``.
 
     Bound rather than fed by RabbitMQ's firehose: the copies are persistent and covered by the
@@ -222,7 +237,7 @@ def recorder_topology() -> Topology:
             QueueSpec(
                 RECORDER_QUEUE,
                 {
-                    "x-queue-type": "classic",
+                    **queue_type(cluster),
                     "x-single-active-consumer": True,
                     "x-max-length-bytes": RECORDER_BACKLOG_BYTES,
                     "x-dead-letter-exchange": RECORDER_DEAD_LETTER_EXCHANGE,
@@ -246,7 +261,9 @@ def inbox_bindings(owner: str, kind: RobotKind | None, operator: bool) -> list[s
     ]
 
 
-def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | None = None) -> Topology:
+def account_topology(
+    owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | None = None, cluster: bool = False
+) -> Topology:
     """What an account owns: its exchanges (bound into the ingest and the service requests), its
     inbox, and by role a robot's beacon exchange and commands queue, or an operator's commands
     exchange and stream. Mount bindings are not here: the service makes them while it runs."""
@@ -255,7 +272,7 @@ def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | N
     inbox = inbox_queue(owner)
     operator = role is Role.OPERATOR
     exchanges = [ExchangeSpec(exchange, ExchangeType.TOPIC), ExchangeSpec(requests, ExchangeType.TOPIC)]
-    queues = [QueueSpec(inbox, INBOX_ARGUMENTS)]
+    queues = [QueueSpec(inbox, replicated(INBOX_ARGUMENTS, cluster))]
     bindings = [
         BindingSpec(exchange, INGEST_EXCHANGE, "#", to_exchange=True),
         BindingSpec(requests, RPC_EXCHANGE, "#", to_exchange=True),
@@ -268,7 +285,7 @@ def account_topology(owner: str, role: Role = Role.ROBOT, *, kind: RobotKind | N
         exchanges.append(ExchangeSpec(beacons, ExchangeType.TOPIC))
         bindings.append(BindingSpec(beacons, BEACON_CHECK_EXCHANGE, "#", to_exchange=True))
         queues.append(
-            QueueSpec(commands_queue(owner), {"x-queue-type": "classic", "x-message-ttl": COMMAND_TTL_MS})
+            QueueSpec(commands_queue(owner), {**queue_type(cluster), "x-message-ttl": COMMAND_TTL_MS})
         )
     if operator:
         exchanges.append(ExchangeSpec(commands_exchange(owner), ExchangeType.TOPIC))

@@ -101,6 +101,14 @@ class Settings(BaseSettings):
         "answer is waited for, then an error",
         shown="unset: Docker's broker, else the private node",
     )
+    cluster: bool = setting(
+        False,
+        "the broker is a RabbitMQ cluster of several nodes: the queues whose loss would lose or reorder "
+        "data (express lane, inboxes, dead letters, service requests, commands) are declared as quorum "
+        "queues, replicated on the nodes. Every process of a deployment must agree (a queue's type "
+        "cannot change once declared): see docs/operations/cluster.md. A broker URL may list every "
+        "node's address: `amqp://user:pw@host1:5672,host2:5672,host3:5672/vhost`",
+    )
     management_url: str | None = setting(
         None, "that broker's management API", shown="`http://<amqp host>:15672/`"
     )

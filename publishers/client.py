@@ -32,7 +32,7 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import pika_parameter_list
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outgoing
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError, PublishRefused
@@ -134,10 +134,11 @@ class RobotClient:
         """This client's epoch: its events are numbered 0, 1, 2, ... in it
         (:mod:`fleetbus.publishers.sequence`)."""
         self._sequence = SequenceCounter()
-        self._parameters = pika_parameters(amqp_url)
-        self._parameters.heartbeat = 30
-        self._parameters.connection_attempts = 1
-        self._parameters.socket_timeout = 5
+        # every address of a cluster's URL, tried in turn at each (re)connection
+        self._parameters = pika_parameter_list(
+            amqp_url, heartbeat=30, connection_attempts=1, socket_timeout=5
+        )
+        self._where = ", ".join(f"{each.host}:{each.port}" for each in self._parameters)
         self._connect_timeout = connect_timeout
         self._confirm_timeout = confirm_timeout
         self._close_timeout = close_timeout
@@ -179,7 +180,7 @@ class RobotClient:
         timeout = self._connect_timeout if timeout is None else timeout
         if not self._sender.wait_connected(timeout):
             raise BrokerUnavailable(
-                f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} within "
+                f"cannot reach the broker at {self._where} within "
                 f"{timeout:g} s: {self._sender.last_error or 'no answer'}"
             )
 
@@ -427,7 +428,7 @@ class RobotClient:
                 attempt += 1
                 if time.monotonic() + delay > deadline:
                     raise BrokerUnavailable(
-                        f"cannot reach the broker at {self._parameters.host}:{self._parameters.port} "
+                        f"cannot reach the broker at {self._where} "
                         f"within {self._connect_timeout:g} s: {error!r}"
                     ) from error
                 time.sleep(delay)  # the caller's own thread waits for its connection

@@ -49,6 +49,12 @@ class Window:
     tags: dict[int, str]
 
 
+#: Seconds a service process (the worker, the command line) waits for the broker's confirm of what
+#: it publishes before it gives up on it: a quorum queue without a leader, or a node cut off from
+#: its cluster's majority, never confirms, and must not hold a thread for ever.
+SERVICE_CONFIRM_TIMEOUT_S = 30.0
+
+
 class PipelinedConfirms:
     def __init__(self, connection: BlockingConnection, channel: BlockingChannel, timeout: float) -> None:
         self._connection = connection
@@ -177,6 +183,10 @@ class PipelinedConfirms:
         self._nacked -= tags.keys()
         returned = {mid: self._returned.pop(mid) for mid in list(tags.values()) if mid in self._returned}
         return Outcome(nacked, returned)
+
+    def send_one(self, message: Outgoing, timeout: float = SERVICE_CONFIRM_TIMEOUT_S) -> Outcome:
+        """:meth:`send` for one message (its ``message_id`` identifies it in the outcome)."""
+        return self.send([message], timeout)
 
     def publish(self, messages: Sequence[Outgoing], timeout: float) -> None:
         """Publish all messages and wait for their confirms; raise if any was not taken."""

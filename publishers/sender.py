@@ -48,6 +48,11 @@ PUBLISH_WINDOW = 4 * SEGMENT_EVENTS
 #: connection) drain at 0.60-0.73 of raw pika publishing where two reached 0.50-0.61; on a
 #: saturated machine both are CPU-bound, alike (``python -m bench.outbox --windows 1000x2,1024x4``).
 WINDOWS_IN_FLIGHT = 4
+#: Nacks in a row after which the sender opens a new connection (to the next address that answers)
+#: instead of trying on the same channel again: on RabbitMQ 3.10 a channel that reached a cluster
+#: while a quorum queue's leader was being elected again kept nacking that queue's messages (for
+#: minutes, measured), while a new connection's were confirmed at once.
+NACKS_BEFORE_RECONNECT = 3
 #: How often an idle sender lets pika answer heartbeats.
 IDLE_TICK = 1.0
 
@@ -111,7 +116,7 @@ class Sender:
     def __init__(
         self,
         outbox: Outbox,
-        parameters: pika.URLParameters,
+        parameters: list[pika.URLParameters],
         to_outgoing: Callable[[Entry], Outgoing],
         *,
         confirm_timeout: float,
@@ -278,6 +283,14 @@ class Sender:
             except Nacked as nacked:
                 delay = reconnect_delay(nacks, self._max_delay)
                 nacks += 1
+                if nacks % NACKS_BEFORE_RECONNECT == 0:
+                    log.warning(
+                        "%s %d times in a row: reconnecting, next try in %.1f s", nacked, nacks, delay
+                    )
+                    self._outbox.release()
+                    self._disconnect(f"{nacked} {nacks} times in a row")
+                    self._backoff(delay)
+                    continue
                 log.warning("%s; they stay in the outbox, next try in %.1f s", nacked, delay)
                 self._pause(delay)
             except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
@@ -335,7 +348,10 @@ class Sender:
             self._connected = True
             self.last_error = None
             self._condition.notify_all()
-        log.info("robot sender connected to %s:%s", self._parameters.host, self._parameters.port)
+        params = getattr(connection._impl, "params", None)
+        log.info(
+            "robot sender connected to %s:%s", getattr(params, "host", "?"), getattr(params, "port", "?")
+        )
 
     def _disconnect(self, error: str | None) -> None:
         connection, self._connection, self._confirms = self._connection, None, None

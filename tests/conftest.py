@@ -42,7 +42,15 @@ os.environ.setdefault("FLEETBUS_API_HASH_MEMORY_KIB", "1024")
 #: Modules of tests that take tens of seconds each (worker processes killed and restarted, outages,
 #: every bench scenario): they start first, so that no xdist worker begins one when the rest is done.
 LONG_MODULES = frozenset(
-    {"test_scaling.py", "test_bench.py", "test_outages.py", "test_shards.py", "test_robot_runs.py"}
+    {
+        "test_cluster_failover.py",
+        "test_cluster_workers.py",
+        "test_scaling.py",
+        "test_bench.py",
+        "test_outages.py",
+        "test_shards.py",
+        "test_robot_runs.py",
+    }
 )
 
 #: The two-node tests of sites (``tests/sites/``): one xdist worker runs them all, so that one pair
@@ -54,6 +62,9 @@ SITES_TESTS = "tests/sites/"
 ONE_WORKER_MODULES = frozenset(
     {"tests/test_local_node.py", "tests/test_packaging.py", "tests/api/test_roles.py"}
 )
+
+#: The tests on a three-node cluster: one xdist worker runs them all, on one cluster.
+CLUSTER_TESTS = "tests/cluster/"
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
@@ -78,6 +89,8 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     class ModulesWhole(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
+            if module.startswith(CLUSTER_TESTS):
+                return CLUSTER_TESTS  # one worker boots the three-node cluster for them all
             if module.startswith(SITES_TESTS):
                 return SITES_TESTS
             return module if module in ONE_WORKER_MODULES else nodeid

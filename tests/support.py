@@ -25,6 +25,7 @@ from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.retry import retrying
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.urls import without_password
 from fleetbus.cli.registry import register_robot
 from fleetbus.dev.recorder_thread import RecorderThread
@@ -138,7 +139,14 @@ class Bus:
         self.accounts.append(name)
         account = asyncio.run(
             provision_account(
-                self.admin_url, self.api, name, role, kind, rotate=True, shards=self.settings.ingest_shards
+                self.admin_url,
+                self.api,
+                name,
+                role,
+                kind,
+                rotate=True,
+                shards=self.settings.ingest_shards,
+                cluster=self.settings.cluster,
             )
         )
         if role is Role.ROBOT:
@@ -242,6 +250,7 @@ class Bus:
         env.update(
             FLEETBUS_DATA_DIR=str(self.settings.data_dir),
             FLEETBUS_INGEST_SHARDS=str(self.settings.ingest_shards),
+            FLEETBUS_CLUSTER="true" if self.settings.cluster else "false",
         )
         if self.settings.mongodb_url is not None:  # the test's own database, not the server's default one
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
@@ -289,7 +298,7 @@ class Bus:
     @contextmanager
     def admin_channel(self) -> Iterator[Any]:
         """A pika channel as the administrator of the test's virtual host."""
-        connection = pika.BlockingConnection(pika.URLParameters(self.admin_url))
+        connection = blocking_connection(self.admin_url)
         try:
             yield connection.channel()
         finally:
@@ -298,7 +307,7 @@ class Bus:
 
     def ready_messages(self, queue: str) -> int:
         """Messages ready in ``queue`` now (AMQP passive declare; the HTTP API lags seconds)."""
-        connection = pika.BlockingConnection(pika.URLParameters(self.admin_url))
+        connection = blocking_connection(self.admin_url)
         try:
             return connection.channel().queue_declare(queue, passive=True).method.message_count
         finally:

@@ -73,10 +73,13 @@ def test_the_api_hands_out_no_broker_password_over_plain_http_unless_the_operato
     assert "--tls" not in api["command"]
     assert api["environment"]["FLEETBUS_API_INSECURE_HTTP"] == "${FLEETBUS_API_INSECURE_HTTP:-false}"
     assert api["ports"] == ["127.0.0.1:8000:8000"]
+
+
 def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alone() -> None:
     site = {name: service for name, service in SERVICES.items() if "site" in service.get("profiles", [])}
     assert set(site) == {"site-rabbitmq", "site-up", "site-worker", "site-apply"}
-    assert not any(service.get("profiles") for name, service in SERVICES.items() if name not in site)
+    central = {name: s for name, s in SERVICES.items() if name not in site and name not in CLUSTER_NODES}
+    assert not any(service.get("profiles") for service in central.values())
     worker = site["site-worker"]
     assert "FLEETBUS_BROKER_PASSWORD" not in yaml.safe_dump(worker)
     assert "FLEETBUS_MONGODB_URL" not in worker["environment"], "a site stores in SQLite"
@@ -86,3 +89,22 @@ def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alo
     assert required_variable(site["site-up"]["command"][-1]) == "FLEETBUS_CENTRAL_URL"
     plugins = (ROOT / "compose" / "site-enabled-plugins").read_text()
     assert "rabbitmq_shovel," in plugins and "rabbitmq_shovel_management" in plugins
+
+
+#: The cluster profile's nodes beside central's `rabbitmq` (docs/operations/cluster.md).
+CLUSTER_NODES = ("rabbitmq-2", "rabbitmq-3")
+
+
+def test_the_cluster_profile_adds_two_nodes_of_the_same_pinned_4x_release_sharing_one_cookie() -> None:
+    nodes = {name: SERVICES[name] for name in ("rabbitmq", "rabbitmq-2", "rabbitmq-3")}
+    images = {service["image"] for service in nodes.values()}
+    assert len(images) == 1 and re.fullmatch(r"rabbitmq:4\.\d+-management", images.pop())
+    assert "profiles" not in nodes["rabbitmq"], "node 1 is the single broker too"
+    assert all(nodes[name]["profiles"] == ["cluster"] for name in ("rabbitmq-2", "rabbitmq-3"))
+    cookies = {service["environment"]["RABBITMQ_SERVER_ADDITIONAL_ERL_ARGS"] for service in nodes.values()}
+    assert cookies == {"-setcookie ${FLEETBUS_ERLANG_COOKIE:-fleetbus-single-node}"}
+    for name in ("setup", "worker", "api"):
+        environment = SERVICES[name]["environment"]
+        url = environment.get("FLEETBUS_AMQP_URL") or environment["FLEETBUS_SERVICE_URL"]
+        assert "@${FLEETBUS_BROKER_HOSTS:-rabbitmq:5672}/" in url, f"{name} lists every node"
+        assert environment["FLEETBUS_CLUSTER"] == "${FLEETBUS_CLUSTER:-false}"

@@ -151,3 +151,20 @@ def test_a_team_reconnects_after_a_broker_kill_at_jittered_capped_times(
         assert max(robot_waits) - min(robot_waits) > 0.2 * cap, f"waits that do not vary: {robot_waits}"
     assert all(robot.outbox.refused() == [] for robot, _ in team), "an outage refuses nothing"
     assert sorted(r.message_id for r in bus.find()) == sorted(str(e.message_id) for e in published)
+
+
+def test_nacks_in_a_row_make_the_sender_reconnect_and_the_event_stays(bus: Bus) -> None:
+    """A channel that keeps nacking (RabbitMQ 3.10 after a quorum queue's leader moved, on a
+    cluster) is left for a new connection after NACKS_BEFORE_RECONNECT nacks; the event is kept."""
+    explorer = bus.robot(
+        bus.add("explorer1", kind=RobotKind.EXPLORER), confirm_timeout=60, max_reconnect_delay=0.2
+    )
+    with every_publish_nacked(bus, "explorer1"):
+        explorer.publish("status", status(80))
+        wait_for(
+            lambda: "times in a row" in (explorer.last_error or ""),
+            timeout=30,
+            what="a reconnection after nacks",
+        )
+        assert explorer.outbox.pending() == 1 and explorer.outbox.refused() == []
+    assert explorer.flush(30), "taken once the queue takes messages again"

@@ -14,8 +14,13 @@ import aio_pika
 import aiormq.abc
 from aio_pika.abc import AbstractExchange
 
+from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import inbox_queue, notification_routing_key
+
+#: The worker's bound on a notification's confirm: past it the publish raises, the event is not
+#: acked, and the broker delivers it again (the store recognises it).
+CONFIRM_TIMEOUT_S = SERVICE_CONFIRM_TIMEOUT_S
 
 
 def _message(
@@ -37,7 +42,9 @@ async def publish_notification(
 ) -> None:
     """Publish one notification (persistent, confirmed) to everyone subscribed to its topic."""
     message = _message(note, f"{note.event.message_id}:{note.topic.value}", service_user, headers)
-    await exchange.publish(message, routing_key=notification_routing_key(note.topic), mandatory=False)
+    await exchange.publish(
+        message, routing_key=notification_routing_key(note.topic), mandatory=False, timeout=CONFIRM_TIMEOUT_S
+    )
 
 
 async def deliver_to_inbox(
@@ -48,7 +55,10 @@ async def deliver_to_inbox(
     # a message id of its own: aiormq matches a returned message to its publish by this id
     message_id = f"{note.event.message_id}:{note.topic.value}@{robot}"
     result = await default_exchange.publish(
-        _message(note, message_id, service_user), routing_key=inbox_queue(robot), mandatory=True
+        _message(note, message_id, service_user),
+        routing_key=inbox_queue(robot),
+        mandatory=True,
+        timeout=CONFIRM_TIMEOUT_S,
     )
     if result is None:
         raise RuntimeError("delivering to an inbox needs a channel with publisher confirms")

@@ -19,6 +19,8 @@ from typing import Any
 import aio_pika
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 
+from fleetbus.workers.notifier import CONFIRM_TIMEOUT_S
+
 log = logging.getLogger("fleetbus.rpc")
 
 Handler = Callable[[str, dict[str, Any]], Awaitable[Any]]
@@ -94,4 +96,5 @@ class RpcServer:
                 ),
                 routing_key=message.reply_to,
                 mandatory=False,
+                timeout=CONFIRM_TIMEOUT_S,
             )

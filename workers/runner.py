@@ -104,6 +104,11 @@ async def _first_to_end(tasks: list[asyncio.Task[None]]) -> None:
         task.result()  # its error, if it failed
 
 
+#: Seconds between the worker's reconnection attempts (aio-pika's default is 5); on a cluster each
+#: attempt goes to the next node's address (:mod:`fleetbus.broker.failover`).
+RECONNECT_INTERVAL_S = 1.0
+
+
 def service_url(settings: Settings, endpoint: BrokerEndpoint) -> str:
     """As the administrator (:mod:`fleetbus.workers.setup`): the ``fleetbus`` account; returns its URL."""
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:
@@ -124,9 +129,11 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`fleetbus.workers.setup`)."""
     repositories = repositories_for(settings)
     await repositories.open()
-    connection = await aio_connect_robust(url, client_properties={"connection_name": "fleetbus-worker"})
+    connection = await aio_connect_robust(
+        url, client_properties={"connection_name": "fleetbus-worker"}, reconnect_interval=RECONNECT_INTERVAL_S
+    )
     setup = await connection.channel()
-    await declare(setup, [core_topology(settings.ingest_shards)])
+    await declare(setup, [core_topology(settings.ingest_shards, cluster=settings.cluster)])
     await setup.close()
     stats = IngestStats()
     forward_log = ForwardLog(repositories.sites, timedelta(seconds=settings.late_after_s))

@@ -39,7 +39,13 @@ async def set_up_service(settings: Settings, admin: BrokerEndpoint) -> ServiceAc
     """As the administrator of ``admin``: the service accounts, the topology and the bindings."""
     service = await asyncio.to_thread(service_url, settings, admin)
     recorder = await asyncio.to_thread(recorder_url, settings, admin)
-    await declare_with_url(admin.amqp_url, [core_topology(settings.ingest_shards), recorder_topology()])
+    await declare_with_url(
+        admin.amqp_url,
+        [
+            core_topology(settings.ingest_shards, cluster=settings.cluster),
+            recorder_topology(cluster=settings.cluster),
+        ],
+    )
     await asyncio.to_thread(set_queue_bounds, settings, admin)
     return ServiceAccounts(service, recorder)
 

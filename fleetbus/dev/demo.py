@@ -272,7 +272,14 @@ def run_demo(
         accounts = {
             name: asyncio.run(
                 provision_account(
-                    admin_url, api, name, Role.ROBOT, kind, rotate=True, shards=demo_settings.ingest_shards
+                    admin_url,
+                    api,
+                    name,
+                    Role.ROBOT,
+                    kind,
+                    rotate=True,
+                    shards=demo_settings.ingest_shards,
+                    cluster=demo_settings.cluster,
                 )
             )
             for name, kind in TEAM

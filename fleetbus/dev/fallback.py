@@ -31,6 +31,7 @@ from fleetbus.broker.endpoint import (
     external_endpoint,
 )
 from fleetbus.broker.probe import write_private_file
+from fleetbus.dev.cluster import ClusterInfo, LocalCluster
 from fleetbus.dev.local_node import (
     ADMIN_USER,
     RABBITMQ_SERVER,
@@ -147,7 +148,22 @@ def node_endpoint(settings: Settings, info: NodeInfo) -> BrokerEndpoint:
     )
 
 
+def local_cluster(settings: Settings, size: int = 3) -> LocalCluster:
+    """The private cluster of ``settings``' data folder (``fleetbus broker up --nodes N``)."""
+    return LocalCluster(settings.data_dir / "cluster", size, TlsFiles.for_settings(settings))
+
+
+def cluster_endpoint(info: ClusterInfo) -> BrokerEndpoint:
+    """The private cluster as administrator, its URL listing every node; robots are handed it too
+    (with their own login): a URL with several AMQPS addresses is not made for them."""
+    assert info.amqp_url is not None and info.management_url is not None
+    return BrokerEndpoint(info.amqp_url, info.management_url, "private", None)
+
+
 def private_endpoint(settings: Settings, start: bool = True) -> BrokerEndpoint:
+    cluster = local_cluster(settings)
+    if cluster.exists() and cluster.status().running:  # `fleetbus broker up --nodes N` started it
+        return cluster_endpoint(cluster.up() if start else cluster.status())
     if not RABBITMQ_SERVER.exists():
         raise BrokerUnavailable(
             f"no broker: FLEETBUS_AMQP_URL is unset, no Docker engine answers, "

@@ -778,8 +778,9 @@ log.console = false
             raise LocalNodeError(f"the node's process {pid} survived SIGKILL")
         self._reap()
 
-    def down(self, timeout: float = 60.0) -> None:
-        """Stop the node (``rabbitmqctl shutdown``, SIGKILL if that fails) and its private epmd."""
+    def down(self, timeout: float = 60.0, stop_epmd: bool = True) -> None:
+        """Stop the node (``rabbitmqctl shutdown``, SIGKILL if that fails) and, unless ``stop_epmd``
+        is False (a cluster's nodes share one epmd), its private epmd."""
         deadline = time.monotonic() + timeout
         with self._lock(timeout):
             pid = self.pid()
@@ -795,7 +796,8 @@ log.console = false
             self._reap()
             with contextlib.suppress(FileNotFoundError):
                 self.pid_file.unlink()
-            self._stop_epmd(deadline)
+            if stop_epmd:
+                self._stop_epmd(deadline)
 
     def _stop_epmd(self, deadline: float) -> None:
         for pid in self.epmd_pids():

@@ -51,7 +51,7 @@ def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions
     return RecorderOptions(**{**options.__dict__, **overrides})  # type: ignore[arg-type]
 
 
-async def declare_recording(url: str) -> None:
+async def declare_recording(url: str, cluster: bool = False) -> None:
     """The recorder's queue and its bindings (as the administrator, or the ``fleetbus`` account:
     they are the service's). `fleetbus worker` declares them before it consumes, so whatever is
     published from then on waits for its recorder child, even while that process is still
@@ -59,7 +59,7 @@ async def declare_recording(url: str) -> None:
     # imported here, as in recorder_url: the recording process itself needs neither (its memory)
     from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
 
-    await declare_with_url(url, [core_topology(), recorder_topology()])
+    await declare_with_url(url, [core_topology(cluster=cluster), recorder_topology(cluster=cluster)])
 
 
 def recorder_url(settings: Settings, endpoint: BrokerEndpoint) -> str:

@@ -22,7 +22,7 @@ from pika.channel import Channel
 from pika.spec import Basic, BasicProperties
 
 from fleetbus.broker.retry import Backoff, Stopped, async_retrying
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import pika_parameter_list
 
 log = logging.getLogger("fleetbus.recorder")
 
@@ -82,8 +82,10 @@ class RecorderQueue:
     connection is lost (the messages in hand then cannot be settled: the broker redelivers them)."""
 
     def __init__(self, url: str, queue: str, prefetch: int, name: str) -> None:
-        self._parameters = pika_parameters(url)
-        self._parameters.client_properties = {"connection_name": name}
+        # every address of a cluster's URL: each new connection after a failed or lost one goes
+        # to the next address
+        self._parameters = pika_parameter_list(url, client_properties={"connection_name": name})
+        self._address = 0
         self._queue = queue
         self._prefetch = prefetch
         self._connection: AsyncioConnection | None = None
@@ -132,6 +134,7 @@ class RecorderQueue:
             opened.done() or opened.set_result(connection)
 
         def on_open_error(_: Any, error: BaseException | str) -> None:
+            self._next_address()
             if not opened.done():
                 opened.set_exception(
                     error if isinstance(error, BaseException) else pika.exceptions.AMQPConnectionError(error)
@@ -143,9 +146,11 @@ class RecorderQueue:
             self._closed_by = error
             if not self._closing.is_set():
                 log.warning("broker connection closed: %r", error)
+                self._next_address()
             self._lost.set()
 
-        AsyncioConnection(self._parameters, on_open, on_open_error, on_close, custom_ioloop=loop)
+        parameters = self._parameters[self._address]
+        AsyncioConnection(parameters, on_open, on_open_error, on_close, custom_ioloop=loop)
         self._lost.clear()
         self._connection = connection = await opened
         channel_open: asyncio.Future[Channel] = loop.create_future()
@@ -155,6 +160,9 @@ class RecorderQueue:
         qos: asyncio.Future[None] = loop.create_future()
         channel.basic_qos(prefetch_count=self._prefetch, callback=lambda _: qos.set_result(None))
         await self._unless_lost(qos)
+
+    def _next_address(self) -> None:
+        self._address = (self._address + 1) % len(self._parameters)
 
     async def _unless_lost(self, step: asyncio.Future[T]) -> T:
         """The step's result; :class:`ConnectionLost` when the channel or connection closes first

@@ -10,8 +10,10 @@ import pika.exceptions
 import typer
 from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.cli.context import console, endpoint, errors, fail, parse_time, recording_stream
+from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
+from fleetbus.publishers.errors import PublishRefused
 from fleetbus.workers.recorder.queries import parse_condition, recorded_between
 from fleetbus.workers.recorder.replay import ReplayReport
 from fleetbus.workers.recorder.replay import replay as replay_records
@@ -22,7 +24,7 @@ class Publisher:
     """pika with publisher confirms and ``mandatory``: an unroutable message is counted, not lost."""
 
     def __init__(self, url: str, exchange: str, declare: bool) -> None:
-        self._connection = pika.BlockingConnection(pika_parameters(url))
+        self._connection = blocking_connection(url)
         self._channel = self._connection.channel()
         self._exchange = exchange
         try:
@@ -31,16 +33,15 @@ class Publisher:
             self._connection.close()
             hint = " (add --declare to create it as a topic exchange)" if error.reply_code == 404 else ""
             fail(f"exchange {exchange!r}: {error.reply_text}{hint}")
-        self._channel.confirm_delivery()
+        self._confirms = PipelinedConfirms(self._connection, self._channel, SERVICE_CONFIRM_TIMEOUT_S)
 
     def __call__(self, record: RecordedMessage, body: bytes, properties: dict[str, Any]) -> bool:
-        try:
-            self._channel.basic_publish(
-                self._exchange, record.routing_key, body, pika.BasicProperties(**properties), mandatory=True
-            )
-        except pika.exceptions.UnroutableError:
-            return False
-        return True
+        """Whether the broker routed it (and confirmed it); a nack or no confirm in time raises."""
+        message = Outgoing(self._exchange, record.routing_key, body, pika.BasicProperties(**properties))
+        outcome = self._confirms.send_one(message)
+        if outcome.nacked:
+            raise PublishRefused(f"the broker nacked {record.routing_key}: a queue could not take it now")
+        return not outcome.returned
 
     def close(self) -> None:
         if self._connection.is_open:

@@ -12,6 +12,7 @@ from fleetbus.broker.accounts import RECORDER_USER, SERVICE_USER, kept_password_
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.urls import mask_password, without_password
 from fleetbus.cli.context import console, endpoint, fail, settings
+from fleetbus.settings import Settings
 from fleetbus.workers.bounds import bounds
 from fleetbus.workers.setup import set_up_service
 
@@ -25,9 +26,10 @@ def show_url(url: str, show_password: bool) -> str:
     return url if show_password else mask_password(url)
 
 
-def set_up(admin: BrokerEndpoint, show_password: bool = False) -> None:
-    """Make the service accounts, the topology and the bindings on ``admin``; say what was made."""
-    config = settings()
+def set_up(admin: BrokerEndpoint, show_password: bool = False, config: Settings | None = None) -> None:
+    """Make the service accounts, the topology and the bindings on ``admin``; say what was made.
+    ``config``: the settings to use instead of the environment's."""
+    config = config or settings()
     try:
         accounts = asyncio.run(set_up_service(config, admin))
     except Exception as error:  # the management API or AMQP refused: say so, with no traceback

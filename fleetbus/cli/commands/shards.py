@@ -159,7 +159,9 @@ def rebalance(
     with admin_api(ep) as api:
         if not dry_run:  # a dry run changes nothing on the broker
             # every target shard's queue exists before robots are bound to it
-            asyncio.run(declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards)]))
+            asyncio.run(
+                declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards, cluster=config.cluster)])
+            )
         shard_map = read_shard_map(api, vhost, config.ingest_shards)
         moves = rebalance_plan(shard_map)
         if not moves:

@@ -43,7 +43,14 @@ def add(
         try:
             account = asyncio.run(
                 provision_account(
-                    ep.amqp_url, api, name, role, kind, rotate=rotate, shards=config.ingest_shards
+                    ep.amqp_url,
+                    api,
+                    name,
+                    role,
+                    kind,
+                    rotate=rotate,
+                    shards=config.ingest_shards,
+                    cluster=config.cluster,
                 )
             )
         except (AccountExists, ValueError) as error:

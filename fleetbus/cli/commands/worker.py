@@ -59,6 +59,6 @@ def worker(
         config = config.updated(ingest_shards=shards)
     runs: list[Run] = [lambda stop: run_worker(config, url, stop)]
     if recorder:
-        asyncio.run(declare_recording(url))
+        asyncio.run(declare_recording(url, cluster=config.cluster))
         runs.append(lambda stop: run_recorder_process(stop, verbose))
     asyncio.run(run_together(*runs))
