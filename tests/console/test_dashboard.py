@@ -52,8 +52,14 @@ def test_a_published_hazard_appears_on_the_dashboard_within_2_s_without_a_reload
             "the hazard counted by state",
             published,
         )
-        assert browser.find("#dashboard-hazard-default-1"), "the hazard listed by its id"
-        assert row < LIVE_WITHIN_S and counted < LIVE_WITHIN_S, (row, counted)
+        # the list of the newest hazards is a fragment of its own: it may arrive after the counts
+        listed = shown_live_within(
+            browser,
+            lambda: bool(browser.find("#dashboard-hazard-default-1")),
+            "the hazard listed by its id",
+            published,
+        )
+        assert max(row, counted, listed) < LIVE_WITHIN_S, (row, counted, listed)
         assert "explorer1" in browser.text("#events tr")
         assert "explorer" in browser.text("#robot-explorer1")
         assert browser.driver.execute_script("return document.body.dataset.marker") == "not reloaded"
