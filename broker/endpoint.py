@@ -19,7 +19,7 @@ from typing import Literal
 from urllib.parse import unquote, urlsplit
 
 from fleetbus.broker.accounts import SERVICE_USER, kept_password, url_for
-from fleetbus.broker.addresses import first_address
+from fleetbus.broker.addresses import join_addresses, split_addresses
 from fleetbus.broker.probe import NoAnswer, NotVerified, amqp_login, check_amqp_login, management_answers
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.urls import mask_password
@@ -53,14 +53,18 @@ class BrokerEndpoint:
 
 def derive_management_url(amqp_url: str) -> str:
     """``http://<host>:15672/`` for ``amqp://…@<host>…`` (``https://<host>:15671/`` for amqps);
-    a cluster's URL: its first node's."""
-    parts = urlsplit(first_address(amqp_url))
-    host = parts.hostname or "localhost"
-    if ":" in host:
-        host = f"[{host}]"
-    if parts.scheme == "amqps":
-        return f"https://{host}:15671/"
-    return f"http://{host}:{MANAGEMENT_PORT}/"
+    a cluster's URL: every node's, in the same order (the management client fails over alike)."""
+
+    def one(single: str) -> str:
+        parts = urlsplit(single)
+        host = parts.hostname or "localhost"
+        if ":" in host:
+            host = f"[{host}]"
+        if parts.scheme == "amqps":
+            return f"https://{host}:15671/"
+        return f"http://{host}:{MANAGEMENT_PORT}/"
+
+    return join_addresses(list(dict.fromkeys(one(single) for single in split_addresses(amqp_url))))
 
 
 def _credentials(amqp_url: str) -> tuple[str, str]:

@@ -15,6 +15,8 @@ from urllib.parse import quote, urlsplit
 
 import httpx
 
+from fleetbus.broker.addresses import split_addresses
+
 
 class ManagementError(RuntimeError):
     """The management API refused or failed a request; the message quotes its answer."""
@@ -47,14 +49,41 @@ def _q(part: str) -> str:
 
 
 class ManagementAPI:
+    """The management API of one broker, or of a cluster: ``base_url`` may list several nodes
+    (``http://h1:15672,h2:15672/``, as :mod:`fleetbus.broker.addresses` writes broker URLs). A
+    request that cannot reach the node in use (refused, timed out) goes to the next one, and the
+    client stays there; an answer, even a refusal, is the cluster's answer."""
+
     def __init__(self, base_url: str, username: str, password: str, timeout: float = 15.0) -> None:
-        self.base_url = base_url.rstrip("/") + "/"
-        self._client = httpx.Client(
-            base_url=self.base_url + "api/",
-            auth=(username, password),
-            timeout=timeout,
-            verify=verification(self.base_url),
-        )
+        self._clients = [
+            httpx.Client(
+                base_url=url.rstrip("/") + "/api/",
+                auth=(username, password),
+                timeout=timeout,
+                verify=verification(url),
+            )
+            for url in split_addresses(base_url)
+        ]
+        self._current = 0
+
+    @property
+    def base_url(self) -> str:
+        """The node in use, ``http://host:port/``."""
+        return str(self._clients[self._current].base_url).removesuffix("api/")
+
+    def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        failed: httpx.TransportError | None = None
+        for step in range(len(self._clients)):
+            index = (self._current + step) % len(self._clients)
+            try:
+                response = self._clients[index].request(method, path, **kwargs)
+            except httpx.TransportError as error:
+                failed = error
+                continue
+            self._current = index
+            return response
+        assert failed is not None
+        raise failed
 
     @classmethod
     def from_urls(cls, management_url: str, amqp_url: str, timeout: float = 15.0) -> ManagementAPI:
@@ -63,7 +92,8 @@ class ManagementAPI:
         return cls(management_url, parts.username or "", parts.password or "", timeout)
 
     def close(self) -> None:
-        self._client.close()
+        for client in self._clients:
+            client.close()
 
     def __enter__(self) -> ManagementAPI:
         return self
@@ -72,7 +102,7 @@ class ManagementAPI:
         self.close()
 
     def _request(self, method: str, path: str, **kwargs: Any) -> Any:
-        response = self._client.request(method, path, **kwargs)
+        response = self._send(method, path, **kwargs)
         if response.status_code == 404 and method == "DELETE":
             return None
         if response.status_code >= 400:
@@ -90,7 +120,7 @@ class ManagementAPI:
         self._request("PUT", f"users/{_q(name)}", json=body)
 
     def get_user(self, name: str) -> dict[str, Any] | None:
-        response = self._client.get(f"users/{_q(name)}")
+        response = self._send("GET", f"users/{_q(name)}")
         return response.json() if response.status_code == 200 else None
 
     def put_user_tags(self, name: str, tags: str) -> None:
@@ -113,7 +143,7 @@ class ManagementAPI:
         self._request("PUT", f"permissions/{_q(vhost)}/{_q(user)}", json=body)
 
     def get_permissions(self, vhost: str, user: str) -> dict[str, Any] | None:
-        response = self._client.get(f"permissions/{_q(vhost)}/{_q(user)}")
+        response = self._send("GET", f"permissions/{_q(vhost)}/{_q(user)}")
         return response.json() if response.status_code == 200 else None
 
     def delete_permissions(self, vhost: str, user: str) -> None:
@@ -132,7 +162,7 @@ class ManagementAPI:
         self._request("PUT", f"policies/{_q(vhost)}/{_q(name)}", json=body)
 
     def get_policy(self, vhost: str, name: str) -> dict[str, Any] | None:
-        response = self._client.get(f"policies/{_q(vhost)}/{_q(name)}")
+        response = self._send("GET", f"policies/{_q(vhost)}/{_q(name)}")
         return response.json() if response.status_code == 200 else None
 
     # shovels (the rabbitmq_shovel plugin's runtime parameters; their status needs
@@ -142,7 +172,7 @@ class ManagementAPI:
         self._request("PUT", f"parameters/shovel/{_q(vhost)}/{_q(name)}", json={"value": definition})
 
     def get_shovel(self, vhost: str, name: str) -> dict[str, Any] | None:
-        response = self._client.get(f"parameters/shovel/{_q(vhost)}/{_q(name)}")
+        response = self._send("GET", f"parameters/shovel/{_q(vhost)}/{_q(name)}")
         return response.json().get("value") if response.status_code == 200 else None
 
     def delete_shovel(self, vhost: str, name: str) -> None:
@@ -203,7 +233,7 @@ class ManagementAPI:
         """Remove every binding between the two with one of these routing keys; absent ones are fine."""
         kind = "e" if to_exchange else "q"
         path = f"bindings/{_q(vhost)}/e/{_q(source)}/{kind}/{_q(destination)}"
-        response = self._client.get(path)
+        response = self._send("GET", path)
         if response.status_code == 404:  # either end is gone, and the binding with it
             return
         if response.status_code >= 400:
@@ -218,7 +248,7 @@ class ManagementAPI:
 
     def exchange_bindings(self, vhost: str, exchange: str, side: str = "source") -> list[dict[str, Any]]:
         """The bindings whose ``side`` (source or destination) is ``exchange``; none if it does not exist."""
-        response = self._client.get(f"exchanges/{_q(vhost)}/{_q(exchange)}/bindings/{side}")
+        response = self._send("GET", f"exchanges/{_q(vhost)}/{_q(exchange)}/bindings/{side}")
         if response.status_code == 404:
             return []
         if response.status_code >= 400:
@@ -237,7 +267,7 @@ class ManagementAPI:
         return self._request("GET", f"exchanges/{_q(vhost)}")
 
     def get_exchange(self, vhost: str, name: str) -> dict[str, Any] | None:
-        response = self._client.get(f"exchanges/{_q(vhost)}/{_q(name)}")
+        response = self._send("GET", f"exchanges/{_q(vhost)}/{_q(name)}")
         return response.json() if response.status_code == 200 else None
 
     def delete_exchange(self, vhost: str, name: str) -> None:

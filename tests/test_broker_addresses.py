@@ -10,8 +10,9 @@ import pytest
 
 from fleetbus.broker.accounts import url_for
 from fleetbus.broker.addresses import first_address, join_addresses, split_addresses
-from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.endpoint import BrokerEndpoint, derive_management_url
 from fleetbus.broker.failover import FailoverConnection
+from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.tls import aio_connect, aio_connect_robust, blocking_connection
 from fleetbus.broker.urls import mask_password
 
@@ -98,3 +99,20 @@ def test_a_lost_robust_connection_tries_the_next_address_then_comes_back(
     live = int(endpoint.amqp_url.split("@", 1)[1].split("/", 1)[0].rsplit(":", 1)[1])
     assert asyncio.run(lose_and_recover()) == live
     assert "address 2 of 2" in caplog.text, "the dead address was tried in between"
+
+
+def test_the_management_client_goes_to_the_next_node_when_the_first_does_not_answer(
+    endpoint: BrokerEndpoint,
+) -> None:
+    dead = f"http://127.0.0.1:{_closed_port()}/"
+    live = endpoint.management_url.split(",")[0]
+    with ManagementAPI.from_urls(join_addresses([dead, live]), endpoint.amqp_url) as api:
+        assert api.base_url == dead
+        assert api.get_vhost("/") is not None, "answered by the live node"
+        assert api.base_url.rstrip("/") == live.rstrip("/"), "and it stays there"
+
+
+def test_a_clusters_management_urls_follow_its_broker_addresses() -> None:
+    assert derive_management_url(CLUSTER) == "http://10.0.0.1:15672,10.0.0.2:15672,node3:15672/"
+    assert derive_management_url("amqps://u:p@a:5671,b:5671/") == "https://a:15671,b:15671/"
+    assert derive_management_url("amqp://u:p@h:1/v") == "http://h:15672/"

@@ -273,9 +273,14 @@ class LocalCluster:
             [f"amqp://{user}:{password}@{HOST}:{p['amqp']}/{vhost}" for p in ports if p is not None]
         )
 
-    def management_url(self, index: int = 0) -> str | None:
-        ports = self.nodes[index].ports()
-        return None if ports is None else f"http://{HOST}:{ports['management']}/"
+    def management_url(self, index: int | None = None) -> str | None:
+        """Node ``index``'s management API; by default every node's, as one URL the management
+        client fails over along (each node answers for the whole cluster)."""
+        indexes = range(len(self.nodes)) if index is None else [index]
+        ports = [self.nodes[i].ports() for i in indexes]
+        if any(p is None for p in ports):
+            return None
+        return join_addresses([f"http://{HOST}:{p['management']}/" for p in ports if p is not None])
 
     def status(self) -> ClusterInfo:
         return ClusterInfo([node.status() for node in self.nodes], self.amqp_url(), self.management_url())

@@ -16,7 +16,8 @@ from contextlib import contextmanager
 import pika
 import pika.exceptions
 
-from fleetbus.broker.addresses import split_addresses
+from fleetbus.broker.addresses import join_addresses, split_addresses
+from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.cluster import LocalCluster
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import EXPRESS_QUEUE
@@ -113,6 +114,11 @@ def test_killing_the_express_leader_loses_and_doubles_nothing_and_service_resume
         print(f"leader kill: confirmed publish after {confirmed:.1f} s, stored after {stored:.1f} s")
         new_leader = express_leader(bus, cluster)
         assert new_leader != leader
+        # the administrator's management client, its first node the dead one, answers from another
+        ordered = [cluster.management_url(i) or "" for i in (leader, *(set(range(cluster.size)) - {leader}))]
+        with ManagementAPI.from_urls(join_addresses(ordered), bus.admin_url) as api:
+            assert api.get_queue(bus.vhost, EXPRESS_QUEUE)["leader"] == cluster.nodes[new_leader].node_name
+            assert api.base_url != ordered[0], "it moved to a live node"
         cluster.start_node(leader)
         total = drain_and_check(bus, publishing)
     assert total > 20 * ROBOTS
