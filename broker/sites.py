@@ -12,10 +12,12 @@ A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
   central receives each message on the exchange the robot published it to, with the robot's
   routing key and properties, ``user_id`` included: the site logs in to central as its own
   account, tagged ``impersonator``, which RabbitMQ lets publish with another user's ``user_id``.
-* **downlink** (central to site): central publishes what a site needs (its robots' accounts) to
+* **downlink** (central to site): central publishes what a site needs (its robots' accounts, the
+  team's missions) to
   ``fleetbus.sites`` with keys ``<site>.<kind>``; ``<site>.downlink`` holds the site's share
   until the shovel ``fleetbus-downlink``, running on the site, moves it into the site's
-  ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it.
+  ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it (what it cannot parse
+  it moves to ``fleetbus.downlink.rejected``).
 
 At central, a site's account may configure and read only ``<site>.*`` and write only to its own
 robots' exchanges (:func:`site_permissions`): the broker refuses anything else.
@@ -47,6 +49,7 @@ from fleetbus.broker.topology import (
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
     DOWNLINK_QUEUE,
+    DOWNLINK_REJECTED_QUEUE,
     DOWNLINK_SHOVEL,
     INGEST_EXCHANGE,
     NOTIFY_EXCHANGE,
@@ -75,6 +78,7 @@ def site_topology() -> Topology:
         queues=(
             QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(DOWNLINK_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(DOWNLINK_REJECTED_QUEUE, {"x-queue-type": "classic"}),
         ),
     )
 

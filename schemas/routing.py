@@ -109,6 +109,8 @@ UPLINK_QUEUE = "fleetbus.uplink"
 UPLINK_SHOVEL = "fleetbus-uplink"
 DOWNLINK_QUEUE = "fleetbus.downlink"
 DOWNLINK_SHOVEL = "fleetbus-downlink"
+#: On a site: downlink messages ``fleetbus site apply`` could not parse, kept for a look.
+DOWNLINK_REJECTED_QUEUE = "fleetbus.downlink.rejected"
 SITES_EXCHANGE = "fleetbus.sites"
 #: The header the shovel adds to what it forwards (``dest-add-forward-headers``).
 SHOVELLED_HEADER = "x-shovelled"

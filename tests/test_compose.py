@@ -73,6 +73,8 @@ def test_the_api_hands_out_no_broker_password_over_plain_http_unless_the_operato
     assert "--tls" not in api["command"]
     assert api["environment"]["FLEETBUS_API_INSECURE_HTTP"] == "${FLEETBUS_API_INSECURE_HTTP:-false}"
     assert api["ports"] == ["127.0.0.1:8000:8000"]
+
+
 def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alone() -> None:
     site = {name: service for name, service in SERVICES.items() if "site" in service.get("profiles", [])}
     assert set(site) == {"site-rabbitmq", "site-up", "site-worker", "site-apply"}

@@ -11,7 +11,7 @@ from typing import Any
 
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import forwarded_robots
-from fleetbus.schemas.routing import DOWNLINK_SHOVEL, UPLINK_QUEUE, UPLINK_SHOVEL
+from fleetbus.schemas.routing import DOWNLINK_REJECTED_QUEUE, DOWNLINK_SHOVEL, UPLINK_QUEUE, UPLINK_SHOVEL
 from fleetbus.workers.store.sites import SiteSummary
 
 
@@ -86,6 +86,8 @@ class SiteLink:
     """Events in ``fleetbus.uplink`` not yet confirmed by central (ready and in flight)."""
     not_forwarded: list[str]
     """Robots of the site's team whose events are not forwarded (central did not send them)."""
+    rejected: int | None = None
+    """Downlink messages ``fleetbus site apply`` could not parse (in ``fleetbus.downlink.rejected``)."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -93,6 +95,7 @@ class SiteLink:
             "downlink": self.downlink.__dict__,
             "waiting": self.waiting,
             "not_forwarded": self.not_forwarded,
+            "rejected": self.rejected,
         }
 
 
@@ -113,5 +116,9 @@ def site_view(api: ManagementAPI, vhost: str, team: Collection[str]) -> SiteLink
     with contextlib.suppress(ManagementError):
         queue = api.get_queue(vhost, UPLINK_QUEUE)
         waiting = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
+    rejected = None
+    with contextlib.suppress(ManagementError):
+        queue = api.get_queue(vhost, DOWNLINK_REJECTED_QUEUE)
+        rejected = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
     not_forwarded = sorted(set(team) - forwarded_robots(api, vhost))
-    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting, not_forwarded)
+    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting, not_forwarded, rejected)

@@ -119,6 +119,12 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     console.print(table)
     waiting = "?" if link.waiting is None else f"{link.waiting:,}"
     console.print(f"waiting to be forwarded: {waiting} events", highlight=False)
+    if link.rejected:
+        console.print(
+            f"[red]downlink messages not understood: {link.rejected:,}[/] "
+            "(kept in fleetbus.downlink.rejected)",
+            highlight=False,
+        )
     if link.not_forwarded:
         console.print(
             f"not forwarded (central did not send their accounts): {', '.join(link.not_forwarded)}",
@@ -130,7 +136,8 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
 def apply(
     once: Annotated[bool, typer.Option("--once", help="apply what is waiting, then stop")] = False,
 ) -> None:
-    """Apply central's changes (its robots' accounts) to this broker as they come, until Ctrl-C."""
+    """Apply central's changes (its robots' accounts, the team's missions) to this site as they
+    come, until Ctrl-C."""
     from fleetbus.workers.downlink import apply_downlink
 
     ep = endpoint()

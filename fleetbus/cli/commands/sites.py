@@ -17,7 +17,7 @@ from fleetbus.broker.sites import add_site_account
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import assign_robots, robot_accounts, send_to_site
+from fleetbus.workers.sites import assign_robots, mission_changes, robot_accounts, send_to_site
 from fleetbus.workers.store import run_with_repositories
 
 app = typer.Typer(
@@ -125,13 +125,17 @@ def robots_command(
 
 @app.command()
 def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
-    """Send the site every one of its robots' accounts again (after a re-key, or to a new site node)."""
+    """Send the site every one of its robots' accounts and every mission again (after a re-key, to a
+    new site node, or when a change could not be sent)."""
     ep = endpoint()
     known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
     if site not in known:
         fail(f"no site {site!r}")
     with admin_api(ep) as api:
         _send_accounts(api, ep.amqp_url, site, known[site])
+        missions = run_with_repositories(settings(), mission_changes)
+        send_to_site(ep.amqp_url, site, missions)
+    console.print(f"sent {site} {len(missions)} missions", highlight=False)
 
 
 def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:
