@@ -20,7 +20,8 @@ A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
   it moves to ``fleetbus.downlink.rejected``).
 
 At central, a site's account may configure and read only ``<site>.*`` and write only to its own
-robots' exchanges (:func:`site_permissions`): the broker refuses anything else.
+robots' exchanges and its own ``<site>.status`` (its reports, :mod:`fleetbus.workers.site_report`)
+(:func:`site_permissions`): the broker refuses anything else.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ from fleetbus.schemas.routing import (
     DOWNLINK_SHOVEL,
     INGEST_EXCHANGE,
     NOTIFY_EXCHANGE,
+    SITE_REPORTS_QUEUE,
     SITES_EXCHANGE,
     UPLINK_QUEUE,
     UPLINK_SHOVEL,
@@ -62,6 +64,7 @@ from fleetbus.schemas.routing import (
     inbox_queue,
     owner_pattern,
     site_downlink_queue,
+    site_status_exchange,
 )
 
 #: The tag that lets a site's account publish its robots' events with their own ``user_id``.
@@ -178,11 +181,22 @@ def site_permissions(site: str, robots: Collection[str]) -> tuple[str, str, str]
 
 
 def central_site_topology(site: str) -> Topology:
+    """The site's downlink queue, and its status exchange into the reports queue."""
     queue = site_downlink_queue(site)
+    status = site_status_exchange(site)
     return Topology(
-        exchanges=(ExchangeSpec(SITES_EXCHANGE, ExchangeType.TOPIC),),
-        queues=(QueueSpec(queue, {"x-queue-type": "classic"}),),
-        bindings=(BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),),
+        exchanges=(
+            ExchangeSpec(SITES_EXCHANGE, ExchangeType.TOPIC),
+            ExchangeSpec(status, ExchangeType.FANOUT),
+        ),
+        queues=(
+            QueueSpec(queue, {"x-queue-type": "classic"}),
+            QueueSpec(SITE_REPORTS_QUEUE, {"x-queue-type": "classic"}),
+        ),
+        bindings=(
+            BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),
+            BindingSpec(status, SITE_REPORTS_QUEUE, ""),
+        ),
     )
 
 

@@ -17,6 +17,8 @@ import asyncio
 import hashlib
 import logging
 import threading
+import time
+from collections.abc import Callable
 
 import pika
 from pika.adapters.blocking_connection import BlockingChannel
@@ -101,10 +103,14 @@ def apply_downlink(
     *,
     idle_s: float | None = None,
     stop: threading.Event | None = None,
+    tick: Callable[[], object] | None = None,
+    tick_every_s: float = 30.0,
 ) -> int:
     """Apply the downlink's messages until ``stop`` is set, or (``idle_s``) until none came for that
-    long; return how many were applied. One that does not parse is moved to the rejected queue."""
+    long; return how many were applied. One that does not parse is moved to the rejected queue.
+    ``tick`` (the site's report to central) is called at the start and every ``tick_every_s``."""
     applied = 0
+    next_tick = time.monotonic()
     connection = pika.BlockingConnection(pika_parameters(admin_url))
     try:
         channel = connection.channel()
@@ -112,6 +118,9 @@ def apply_downlink(
         channel.queue_declare(DOWNLINK_REJECTED_QUEUE, durable=True, arguments={"x-queue-type": "classic"})
         channel.basic_qos(prefetch_count=16)
         for method, properties, body in channel.consume(DOWNLINK_QUEUE, inactivity_timeout=idle_s or 1.0):
+            if tick is not None and time.monotonic() >= next_tick:
+                tick()
+                next_tick = time.monotonic() + tick_every_s
             if method is None:
                 if idle_s is not None or (stop is not None and stop.is_set()):
                     break
