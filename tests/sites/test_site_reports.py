@@ -4,6 +4,10 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from urllib.parse import urlsplit
 
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.site_report import report_to_central
@@ -47,3 +51,21 @@ def test_central_shows_what_waits_at_the_site_and_how_old_that_is(pair: SitePair
     shown = fleetbus(pair.central, "sites")
     assert shown.returncode == 0, shown.stderr
     assert "waiting" in shown.stdout and "ago" in shown.stdout
+
+
+def test_site_apply_reports_to_central(pair: SitePair) -> None:
+    env = {**os.environ, **pair.site.worker_env(), "FLEETBUS_CENTRAL_URL": pair.central_url, "COLUMNS": "200"}
+    applied = subprocess.run(
+        [sys.executable, "-m", "fleetbus", "site", "apply", "--once", "--name", pair.name],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert applied.returncode == 0, applied.stderr
+    assert "not reporting" not in applied.stdout
+    assert pair.account is not None
+    password = urlsplit(pair.account.amqp_url).password or ""
+    assert password not in applied.stdout + applied.stderr, "the password is never shown"
+    row = _row(pair)
+    assert row["waiting"] == 0 and row["reported_at"] is not None
