@@ -7,6 +7,8 @@ the state the check saw; when another change got in first, the caller is told th
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Awaitable, Callable
 from datetime import datetime, timezone
 
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
@@ -27,20 +29,40 @@ AUTHORS = frozenset({UserRole.CLIENT, UserRole.PLANNER})
 MOVERS = frozenset(role for step in STEPS.values() for role in step.roles)
 SERVICE_ACTOR = "fleetbus"
 
+log = logging.getLogger("fleetbus.api")
+
+#: Told each mission as it is after a change (central sends it to its sites).
+MissionListener = Callable[[Mission], Awaitable[object]]
+
 
 class Missions:
-    def __init__(self, missions: MissionStore, channels: ChannelStore) -> None:
+    def __init__(
+        self, missions: MissionStore, channels: ChannelStore, on_change: MissionListener | None = None
+    ) -> None:
         self._missions = missions
         self._channels = channels
+        self._on_change = on_change
+
+    async def _changed(self, mission: Mission) -> Mission:
+        if self._on_change is not None:
+            try:
+                await self._on_change(mission)
+            except Exception:  # the change is made; `fleetbus sites sync` sends the sites it again
+                log.exception(
+                    "mission %s changed but not sent to the sites: run `fleetbus sites sync`",
+                    mission.mission_id,
+                )
+        return mission
 
     async def create(self, user: User, use_case: str, title: str, plan: MissionPlan) -> Mission:
         try:
             machine_for(use_case)
         except InvalidTransition as error:
             raise BadRequest(str(error)) from None
-        return await self._missions.create_mission(
+        created = await self._missions.create_mission(
             use_case, title, user.name, plan.model_dump(mode="json"), datetime.now(timezone.utc)
         )
+        return await self._changed(created)
 
     async def get(self, user: User, mission_id: str) -> Mission:
         mission = await self._missions.get_mission(mission_id)
@@ -65,12 +87,13 @@ class Missions:
         if user.role is UserRole.CLIENT and mission.owner != user.name:
             raise Forbidden(f"mission {mission_id} belongs to another client")
         try:
-            return await self._missions.update_plan(
+            edited = await self._missions.update_plan(
                 mission_id, plan.model_dump(mode="json"), MissionState.PLANNING, datetime.now(timezone.utc)
             )
         except MissionConflict as conflict:
             state = conflict.current.state.value if conflict.current else "gone"
             raise Conflict(f"mission {mission_id} is {state}: its plan can change only in planning") from None
+        return await self._changed(edited)
 
     async def transition(
         self, user: User | None, mission_id: str, target: MissionState, note: str = ""
@@ -97,7 +120,7 @@ class Missions:
                 robots = ", ".join(f"{m.robot} (by {m.operator})" for m in mounted)
                 raise Conflict(f"mission {mission_id} still has robots mounted: {robots}; unmount them first")
         try:
-            return await self._missions.transition_mission(
+            moved = await self._missions.transition_mission(
                 mission_id,
                 mission.state,
                 target,
@@ -112,3 +135,4 @@ class Missions:
                 f"mission {mission_id} changed meanwhile: it is now {now.value} "
                 f"(not {mission.state.value}); allowed next: {allowed}"
             ) from None
+        return await self._changed(moved)

@@ -20,6 +20,7 @@ from fleetbus.broker.dead_letter_queue import DeadLetter, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
+from fleetbus.workers.sites import send_mission_to_sites
 from fleetbus.workers.store import Repositories, open_recording_store, repositories_for
 from fleetbus.workers.store.recordings import RecordingStore
 
@@ -67,7 +68,11 @@ async def open_service(
     await recording.open()
     management = ManagementAPI.from_urls(management_url, admin_url)
     try:
-        missions = Missions(repositories.missions, repositories.channels)
+        missions = Missions(
+            repositories.missions,
+            repositories.channels,
+            lambda mission: send_mission_to_sites(repositories, admin_url, mission),
+        )
         yield Service(
             settings=settings,
             repositories=repositories,

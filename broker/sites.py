@@ -12,13 +12,16 @@ A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
   central receives each message on the exchange the robot published it to, with the robot's
   routing key and properties, ``user_id`` included: the site logs in to central as its own
   account, tagged ``impersonator``, which RabbitMQ lets publish with another user's ``user_id``.
-* **downlink** (central to site): central publishes what a site needs (its robots' accounts) to
+* **downlink** (central to site): central publishes what a site needs (its robots' accounts, the
+  team's missions) to
   ``fleetbus.sites`` with keys ``<site>.<kind>``; ``<site>.downlink`` holds the site's share
   until the shovel ``fleetbus-downlink``, running on the site, moves it into the site's
-  ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it.
+  ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it (what it cannot parse
+  it moves to ``fleetbus.downlink.rejected``).
 
 At central, a site's account may configure and read only ``<site>.*`` and write only to its own
-robots' exchanges (:func:`site_permissions`): the broker refuses anything else.
+robots' exchanges and its own ``<site>.status`` (its reports, :mod:`fleetbus.workers.site_report`)
+(:func:`site_permissions`): the broker refuses anything else.
 """
 
 from __future__ import annotations
@@ -47,9 +50,11 @@ from fleetbus.broker.topology import (
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
     DOWNLINK_QUEUE,
+    DOWNLINK_REJECTED_QUEUE,
     DOWNLINK_SHOVEL,
     INGEST_EXCHANGE,
     NOTIFY_EXCHANGE,
+    SITE_REPORTS_QUEUE,
     SITES_EXCHANGE,
     UPLINK_QUEUE,
     UPLINK_SHOVEL,
@@ -59,6 +64,7 @@ from fleetbus.schemas.routing import (
     inbox_queue,
     owner_pattern,
     site_downlink_queue,
+    site_status_exchange,
 )
 
 #: The tag that lets a site's account publish its robots' events with their own ``user_id``.
@@ -75,6 +81,7 @@ def site_topology() -> Topology:
         queues=(
             QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(DOWNLINK_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(DOWNLINK_REJECTED_QUEUE, {"x-queue-type": "classic"}),
         ),
     )
 
@@ -174,11 +181,22 @@ def site_permissions(site: str, robots: Collection[str]) -> tuple[str, str, str]
 
 
 def central_site_topology(site: str) -> Topology:
+    """The site's downlink queue, and its status exchange into the reports queue."""
     queue = site_downlink_queue(site)
+    status = site_status_exchange(site)
     return Topology(
-        exchanges=(ExchangeSpec(SITES_EXCHANGE, ExchangeType.TOPIC),),
-        queues=(QueueSpec(queue, {"x-queue-type": "classic"}),),
-        bindings=(BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),),
+        exchanges=(
+            ExchangeSpec(SITES_EXCHANGE, ExchangeType.TOPIC),
+            ExchangeSpec(status, ExchangeType.FANOUT),
+        ),
+        queues=(
+            QueueSpec(queue, {"x-queue-type": "classic"}),
+            QueueSpec(SITE_REPORTS_QUEUE, {"x-queue-type": "classic"}),
+        ),
+        bindings=(
+            BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),
+            BindingSpec(status, SITE_REPORTS_QUEUE, ""),
+        ),
     )
 
 

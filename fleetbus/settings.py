@@ -230,6 +230,15 @@ class Settings(BaseSettings):
         "on a site: its account's URL at central (`fleetbus sites add` prints it), for `fleetbus site "
         "up` when `--central` is not given; `amqps://` with `cacertfile=` is verified",
     )
+    site_name: str | None = setting(
+        None,
+        "on a site: its name as central knows it, for `fleetbus site apply` to report to central under it",
+    )
+    site_report_every_s: Annotated[float, Positive] = setting(
+        30.0,
+        "on a site: seconds between `fleetbus site apply`'s reports to central (what waits in the uplink, "
+        "how the links fare); central shows the newest with its age",
+    )
     site_reconnect_delay_s: Annotated[int, Positive] = setting(
         1,
         "on a site: whole seconds the uplink and downlink shovels wait before connecting to central again",

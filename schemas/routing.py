@@ -109,7 +109,11 @@ UPLINK_QUEUE = "fleetbus.uplink"
 UPLINK_SHOVEL = "fleetbus-uplink"
 DOWNLINK_QUEUE = "fleetbus.downlink"
 DOWNLINK_SHOVEL = "fleetbus-downlink"
+#: On a site: downlink messages ``fleetbus site apply`` could not parse, kept for a look.
+DOWNLINK_REJECTED_QUEUE = "fleetbus.downlink.rejected"
 SITES_EXCHANGE = "fleetbus.sites"
+#: At central: every site's reports about itself (from its ``<site>.status`` exchange).
+SITE_REPORTS_QUEUE = "fleetbus.site-reports"
 #: The header the shovel adds to what it forwards (``dest-add-forward-headers``).
 SHOVELLED_HEADER = "x-shovelled"
 
@@ -117,6 +121,11 @@ SHOVELLED_HEADER = "x-shovelled"
 def site_downlink_queue(site: str) -> str:
     """Central's queue of what one site is sent (accounts of its robots)."""
     return f"{site}.downlink"
+
+
+def site_status_exchange(site: str) -> str:
+    """At central: where ``site`` publishes its reports (its account may write ``<site>.*``)."""
+    return f"{site}.status"
 
 
 def site_downlink_key(site: str, kind: str) -> str:

@@ -373,7 +373,9 @@ def express_holder(bus: Bus, workers: list[subprocess.Popen[bytes]]) -> subproce
 
 @pytest.mark.parametrize(
     # fewer on the emulated MongoDB, whose inserts slow down as a collection grows (not MongoDB's)
-    ("store", "hazards"), [("sqlite", 300), ("mongodb", 120)], ids=["sqlite-300", "mongodb-120"]
+    ("store", "hazards"),
+    [("sqlite", 300), ("mongodb", 120)],
+    ids=["sqlite-300", "mongodb-120"],
 )
 def test_the_express_lanes_single_active_consumer_is_all_the_hazard_service_needs(
     bus: Bus, store: str, hazards: int, request: pytest.FixtureRequest

@@ -2,27 +2,39 @@
 
 Each robot account is made here with central's password hash (so the robot's central password
 works at its site), granted and given its topology as ``fleetbus users add`` would, entered in the
-team with its kind, and its events bound into the uplink (forwarded to central). A message is
-acked once applied; applying one again changes nothing. Run as the site's administrator
-(``fleetbus site apply``): the workers' account may not make users."""
+team with its kind, and its events bound into the uplink (forwarded to central). Each mission is
+written into the site's missions as central has it, unless the site already has that version or a
+newer one. Each map is stored as a new version of the site's maps (once per map event), so the
+site's map service hands it to the site's robots. A message is acked once applied; applying one
+again changes nothing. A message that is no change this version knows (or a map whose image is
+not what its checksum says) is moved, unchanged, to ``fleetbus.downlink.rejected`` (confirmed
+there before it leaves the downlink): ``fleetbus site status`` counts it. Run as the site's
+administrator (``fleetbus site apply``): the workers' account may not make users."""
 
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import logging
 import threading
+import time
+from collections.abc import Callable
 
 import pika
+from pika.adapters.blocking_connection import BlockingChannel
 from pydantic import ValidationError
 
 from fleetbus.broker.accounts import Role, configure_account, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import forward_robot
 from fleetbus.broker.tls import pika_parameters
-from fleetbus.schemas.routing import DOWNLINK_QUEUE
-from fleetbus.schemas.site_changes import RobotAccount
+from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
+from fleetbus.schemas.pgm import check_pgm
+from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE
+from fleetbus.schemas.site_changes import MapChange, MissionChange, RobotAccount, parse_site_change
 from fleetbus.settings import Settings
-from fleetbus.workers.store import run_with_repositories
+from fleetbus.workers.store import Repositories, run_with_repositories
+from fleetbus.workers.store.missions import Mission
 
 log = logging.getLogger("fleetbus.sites")
 
@@ -40,6 +52,50 @@ def apply_account(settings: Settings, admin_url: str, api: ManagementAPI, accoun
     log.info("account %s (%s) applied from central", account.name, kind or "no kind")
 
 
+def apply_mission(settings: Settings, change: MissionChange) -> bool:
+    """Write the mission into the site's store unless it has that version or a newer one."""
+    mission = Mission(**change.model_dump(exclude={"change"}))
+    written = run_with_repositories(settings, lambda repos: repos.missions.put_mission(mission))
+    if written:
+        log.info("mission %s (%s) applied from central", mission.mission_id, mission.state.value)
+    return written
+
+
+def apply_map(settings: Settings, change: MapChange) -> bool:
+    """Store the map as the site's newest version unless its map event was stored already;
+    ValueError when the image is not the PGM its checksum says."""
+    if hashlib.sha256(change.pgm).hexdigest() != change.sha256:
+        raise ValueError(f"map of {change.robot_id} ({change.epoch}, {change.seq}): SHA-256 does not match")
+    check_pgm(change.pgm)
+
+    async def store(repos: Repositories) -> bool:
+        if await repos.maps.committed_map(change.robot_id, change.epoch, change.seq) is not None:
+            return False
+        version = await repos.maps.commit_map(
+            change.robot_id,
+            change.epoch,
+            change.seq,
+            change.pgm,
+            change.metadata,
+            change.created_at,
+            change.sha256,
+            MAP_CHUNK_BYTES,
+            None,
+        )
+        log.info("map of %s applied from central as version %d", change.robot_id, version.version)
+        return True
+
+    return run_with_repositories(settings, store)
+
+
+def _reject(channel: BlockingChannel, properties: pika.BasicProperties, body: bytes, error: str) -> None:
+    """Keep an unparsable message in the rejected queue (confirmed) before it leaves the downlink."""
+    headers = dict(properties.headers or {})
+    headers["x-fleetbus-rejected"] = error[:1000]
+    properties.headers = headers
+    channel.basic_publish("", DOWNLINK_REJECTED_QUEUE, body, properties, mandatory=True)
+
+
 def apply_downlink(
     settings: Settings,
     admin_url: str,
@@ -47,25 +103,44 @@ def apply_downlink(
     *,
     idle_s: float | None = None,
     stop: threading.Event | None = None,
+    tick: Callable[[], object] | None = None,
+    tick_every_s: float = 30.0,
 ) -> int:
     """Apply the downlink's messages until ``stop`` is set, or (``idle_s``) until none came for that
-    long; return how many were applied. One that does not parse is logged and dropped (acked)."""
+    long; return how many were applied. One that does not parse is moved to the rejected queue.
+    ``tick`` (the site's report to central) is called at the start and every ``tick_every_s``."""
     applied = 0
+    next_tick = time.monotonic()
     connection = pika.BlockingConnection(pika_parameters(admin_url))
     try:
         channel = connection.channel()
+        channel.confirm_delivery()
+        channel.queue_declare(DOWNLINK_REJECTED_QUEUE, durable=True, arguments={"x-queue-type": "classic"})
         channel.basic_qos(prefetch_count=16)
-        for method, _, body in channel.consume(DOWNLINK_QUEUE, inactivity_timeout=idle_s or 1.0):
+        for method, properties, body in channel.consume(DOWNLINK_QUEUE, inactivity_timeout=idle_s or 1.0):
+            if tick is not None and time.monotonic() >= next_tick:
+                tick()
+                next_tick = time.monotonic() + tick_every_s
             if method is None:
                 if idle_s is not None or (stop is not None and stop.is_set()):
                     break
                 continue
             try:
-                account = RobotAccount.model_validate_json(body)
-            except ValidationError as error:
-                log.error("a downlink message that is not an account change, dropped: %s", error)
+                change = parse_site_change(body)
+                if isinstance(change, MapChange):
+                    apply_map(settings, change)
+            except (ValidationError, ValueError) as error:
+                log.error(
+                    "a downlink message that cannot be applied, moved to %s: %s",
+                    DOWNLINK_REJECTED_QUEUE,
+                    error,
+                )
+                _reject(channel, properties, body, str(error))
             else:
-                apply_account(settings, admin_url, api, account)
+                if isinstance(change, RobotAccount):
+                    apply_account(settings, admin_url, api, change)
+                elif isinstance(change, MissionChange):
+                    apply_mission(settings, change)
                 applied += 1
             channel.basic_ack(method.delivery_tag)
             if stop is not None and stop.is_set():

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from datetime import datetime, timezone
 from typing import Any
 
@@ -75,10 +75,18 @@ async def assemble(maps: MapStore, item: Accepted, in_batch: dict[int, bytes] | 
 class MapService:
     """After a batch is stored: stage chunks, commit maps, notify the robots of each new version."""
 
-    def __init__(self, maps: MapStore, notify_exchange: AbstractExchange, service_user: str) -> None:
+    def __init__(
+        self,
+        maps: MapStore,
+        notify_exchange: AbstractExchange,
+        service_user: str,
+        relay: Callable[[MapVersion], Awaitable[object]] | None = None,
+    ) -> None:
         self._maps = maps
         self._exchange = notify_exchange
         self._service_user = service_user
+        self._relay = relay
+        """Told every version a map event committed (central sends it to its sites)."""
 
     async def handle(self, accepted: Sequence[Accepted]) -> int:
         sent = 0
@@ -90,6 +98,8 @@ class MapService:
                 version = await self._maps.committed_map(
                     event.robot_id, event.epoch, event.seq
                 ) or await self._commit(item)
+                if self._relay is not None:
+                    await self._relay(version)
                 note = Notification(
                     topic=Topic.MAP,
                     event=event,

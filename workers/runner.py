@@ -40,6 +40,7 @@ from fleetbus.workers.rpc import RpcServer
 from fleetbus.workers.services import hazard_services
 from fleetbus.workers.shards import ShardPool
 from fleetbus.workers.signals import stop_on_signals
+from fleetbus.workers.site_maps import SiteMapRelay
 from fleetbus.workers.status import report_status
 from fleetbus.workers.store import Repositories, repositories_for
 from fleetbus.workers.telemetry import BatteryWatch
@@ -158,7 +159,12 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
         else:
             checks = [KnownRobotsOnly(repositories.hazards), MapCheck(repositories.maps)]
             services = [
-                MapService(repositories.maps, notify_exchange, SERVICE_USER),
+                MapService(
+                    repositories.maps,
+                    notify_exchange,
+                    SERVICE_USER,
+                    SiteMapRelay(repositories.sites, repositories.maps, channel).relay,
+                ),
                 BatteryWatch(
                     repositories.events, notify_exchange, SERVICE_USER, settings.battery_low_percent
                 ),

@@ -11,7 +11,8 @@ from typing import Any
 
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import forwarded_robots
-from fleetbus.schemas.routing import DOWNLINK_SHOVEL, UPLINK_QUEUE, UPLINK_SHOVEL
+from fleetbus.schemas.routing import DOWNLINK_REJECTED_QUEUE, DOWNLINK_SHOVEL, UPLINK_QUEUE, UPLINK_SHOVEL
+from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.store.sites import SiteSummary
 
 
@@ -30,17 +31,28 @@ class SiteRow:
     behind_s: float | None
     """Seconds between now and the send time of the newest event central received from the site:
     how far behind central is (while the site is busy), or how long the site has been quiet."""
+    waiting: int | None = None
+    """Events waiting at the site to be forwarded, as its newest report said (None: no report)."""
+    reported_at: datetime | None = None
+    """When the site measured its newest report."""
+    report_age_s: float | None = None
+    """How old that report is: while the link is down it grows, and ``waiting`` is that old."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
             **self.__dict__,
             "robots": list(self.robots),
             "since": self.since.isoformat() if self.since else None,
+            "reported_at": self.reported_at.isoformat() if self.reported_at else None,
         }
 
 
 def central_view(
-    api: ManagementAPI, vhost: str, summaries: list[SiteSummary], now: datetime
+    api: ManagementAPI,
+    vhost: str,
+    summaries: list[SiteSummary],
+    now: datetime,
+    reports: dict[str, SiteReport] | None = None,
 ) -> list[SiteRow]:
     opened: dict[str, datetime] = {}
     for connection in api.list_vhost_connections(vhost):
@@ -51,6 +63,7 @@ def central_view(
     rows = []
     for summary in summaries:
         up = summary.site in opened
+        report = (reports or {}).get(summary.site)
         rows.append(
             SiteRow(
                 summary.site,
@@ -60,6 +73,9 @@ def central_view(
                 summary.forwarded,
                 summary.late,
                 (now - summary.newest_sent_at).total_seconds() if summary.newest_sent_at else None,
+                report.waiting if report else None,
+                report.at if report else None,
+                max(0.0, (now - report.at).total_seconds()) if report else None,
             )
         )
     return rows
@@ -86,6 +102,8 @@ class SiteLink:
     """Events in ``fleetbus.uplink`` not yet confirmed by central (ready and in flight)."""
     not_forwarded: list[str]
     """Robots of the site's team whose events are not forwarded (central did not send them)."""
+    rejected: int | None = None
+    """Downlink messages ``fleetbus site apply`` could not parse (in ``fleetbus.downlink.rejected``)."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -93,6 +111,7 @@ class SiteLink:
             "downlink": self.downlink.__dict__,
             "waiting": self.waiting,
             "not_forwarded": self.not_forwarded,
+            "rejected": self.rejected,
         }
 
 
@@ -113,5 +132,9 @@ def site_view(api: ManagementAPI, vhost: str, team: Collection[str]) -> SiteLink
     with contextlib.suppress(ManagementError):
         queue = api.get_queue(vhost, UPLINK_QUEUE)
         waiting = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
+    rejected = None
+    with contextlib.suppress(ManagementError):
+        queue = api.get_queue(vhost, DOWNLINK_REJECTED_QUEUE)
+        rejected = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
     not_forwarded = sorted(set(team) - forwarded_robots(api, vhost))
-    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting, not_forwarded)
+    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting, not_forwarded, rejected)

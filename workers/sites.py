@@ -4,6 +4,7 @@ site's account may write, :func:`fleetbus.broker.sites.grant_site_robots`), toge
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Collection, Sequence
 
 import pika
@@ -14,8 +15,9 @@ from fleetbus.broker.sites import grant_site_robots
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
-from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, RobotAccount
+from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, MissionChange, RobotAccount
 from fleetbus.workers.store import Repositories
+from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.team import change_service
 
 
@@ -74,18 +76,47 @@ async def robot_accounts(
     return accounts
 
 
-def send_to_site(admin_url: str, site: str, accounts: Sequence[RobotAccount]) -> None:
-    """Publish ``accounts`` to the site's downlink (persistent, confirmed: the shovel takes it on
+def mission_change(mission: Mission) -> MissionChange:
+    """The downlink message for ``mission`` as central's store has it."""
+    return MissionChange(
+        mission_id=mission.mission_id,
+        number=mission.number,
+        use_case=mission.use_case,
+        title=mission.title,
+        owner=mission.owner,
+        state=mission.state,
+        plan=mission.plan,
+        created_at=mission.created_at,
+        updated_at=mission.updated_at,
+    )
+
+
+async def mission_changes(repositories: Repositories) -> list[MissionChange]:
+    """Every mission as central's store has it, in creation order."""
+    return [mission_change(m) for m in await repositories.missions.missions()]
+
+
+async def send_mission_to_sites(repositories: Repositories, admin_url: str, mission: Mission) -> list[str]:
+    """Send every site the mission as it is now (after central created or changed it); the sites."""
+    sites = sorted(await repositories.sites.sites())
+    change = mission_change(mission)
+    for site in sites:
+        await asyncio.to_thread(send_to_site, admin_url, site, [change])
+    return sites
+
+
+def send_to_site(admin_url: str, site: str, changes: Sequence[RobotAccount | MissionChange]) -> None:
+    """Publish ``changes`` to the site's downlink (persistent, confirmed: the shovel takes them on
     whenever the site is connected)."""
     connection = pika.BlockingConnection(pika_parameters(admin_url))
     try:
         channel = connection.channel()
         channel.confirm_delivery()
-        for account in accounts:
+        for change in changes:
             channel.basic_publish(
                 SITES_EXCHANGE,
-                site_downlink_key(site, account.change),
-                account.model_dump_json().encode(),
+                site_downlink_key(site, change.change),
+                change.model_dump_json().encode(),
                 pika.BasicProperties(delivery_mode=2, content_type="application/json", type=SITE_CHANGE_TYPE),
                 mandatory=True,
             )

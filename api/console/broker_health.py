@@ -100,6 +100,16 @@ class Queue:
         return not self.consumers and self.name != DEAD_LETTER_QUEUE
 
 
+def _oldest_by_user(connections: list[dict[str, Any]]) -> dict[str, datetime]:
+    oldest: dict[str, datetime] = {}
+    for connection in connections:
+        user, at = connection.get("user"), connection.get("connected_at")
+        if user and at:
+            moment = datetime.fromtimestamp(at / 1000, timezone.utc)
+            oldest[user] = min(oldest.get(user, moment), moment)
+    return oldest
+
+
 @dataclass(frozen=True)
 class BrokerHealth:
     """The management API's last answer, or why there is none."""
@@ -110,6 +120,8 @@ class BrokerHealth:
     connections: Counter[str] = field(default_factory=Counter)
     """Open connections on the service's virtual host, by user."""
     problem: str | None = "not asked yet"
+    connected_since: dict[str, datetime] = field(default_factory=dict)
+    """When each user's oldest open connection opened (a site's: its link up since)."""
 
     @property
     def known(self) -> bool:
@@ -211,6 +223,7 @@ class BrokerWatch:
                 ),
                 Counter(connection.get("user", "?") for connection in connections),
                 None,
+                _oldest_by_user(connections),
             )
 
         try:

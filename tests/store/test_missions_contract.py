@@ -85,3 +85,18 @@ async def test_history_records_who_and_when(store: Repositories) -> None:
         (S.PLANNING, S.IN_PROGRESS, "super1", T0 + timedelta(minutes=1), "n1"),
         (S.IN_PROGRESS, S.REVIEWING, "fleetbus", T0 + timedelta(minutes=2), "n2"),
     ]
+
+
+async def test_a_mission_from_central_is_kept_only_when_newer(store: Repositories) -> None:
+    """A site keeps central's missions: a newer version replaces the one kept, an older one does not."""
+    from fleetbus.workers.store.missions import Mission
+
+    first = Mission("m-7", 7, "survey", "Quay wall", "client1", S.PLANNING, PLAN, T0, T0)
+    later = Mission("m-7", 7, "survey", "Quay wall", "client1", S.CLOSED, PLAN, T0, T0 + timedelta(seconds=5))
+    assert await store.missions.put_mission(first)
+    assert not await store.missions.put_mission(first), "the same version again changes nothing"
+    assert await store.missions.put_mission(later)
+    assert not await store.missions.put_mission(first), "an older one never overwrites a newer"
+    assert await store.missions.get_mission("m-7") == later
+    history = await store.missions.mission_history("m-7")
+    assert [(h.source, h.target) for h in history] == [(None, S.PLANNING), (S.PLANNING, S.CLOSED)]

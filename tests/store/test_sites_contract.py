@@ -47,3 +47,23 @@ async def test_each_forward_is_kept_once_and_summed_by_site(store: Repositories)
         ]
     finally:
         await other.close()
+
+
+async def test_each_site_keeps_its_newest_report(store: Repositories) -> None:
+    from fleetbus.schemas.site_reports import SiteReport
+
+    def report(site: str, seconds: int, waiting: int) -> SiteReport:
+        return SiteReport(
+            site=site,
+            at=T0 + timedelta(seconds=seconds),
+            waiting=waiting,
+            uplink="running",
+            downlink="running",
+        )
+
+    assert await store.sites.reports() == {}
+    assert await store.sites.put_report(report("base1", 10, 5))
+    assert await store.sites.put_report(report("base2", 1, 0))
+    assert not await store.sites.put_report(report("base1", 5, 99)), "an older report arriving late"
+    assert await store.sites.put_report(report("base1", 20, 7))
+    assert await store.sites.reports() == {"base1": report("base1", 20, 7), "base2": report("base2", 1, 0)}

@@ -92,5 +92,11 @@ class MissionStore(abc.ABC):
         """Move from ``source`` to ``target`` atomically and record it; else :class:`MissionConflict`."""
 
     @abc.abstractmethod
+    async def put_mission(self, mission: Mission) -> bool:
+        """Keep ``mission`` as another store (central's) has it, unless this store has a version
+        as new or newer (by ``updated_at``); whether it was written. Its history here records
+        the state it arrived in."""
+
+    @abc.abstractmethod
     async def mission_history(self, mission_id: str) -> list[StateChange]:
         """Every state the mission went through, oldest first."""

@@ -72,6 +72,34 @@ class MongoMissions(OnMongo, MissionStore):
         await self._collection("missions").insert_one(doc)
         return _mission(doc)
 
+    async def put_mission(self, mission: Mission) -> bool:
+        missions = self._collection("missions")
+        updated = to_micros(mission.updated_at)
+        current = await missions.find_one({"_id": mission.mission_id}, {"history": 0})
+        if current is not None and current["updated_at_us"] >= updated:
+            return False
+        fields = {
+            "number": mission.number,
+            "use_case": mission.use_case,
+            "title": mission.title,
+            "owner": mission.owner,
+            "state": mission.state.value,
+            "plan": mission.plan,
+            "created_at_us": to_micros(mission.created_at),
+            "updated_at_us": updated,
+        }
+        update: dict[str, Any] = {"$set": fields}
+        if current is None or current["state"] != mission.state.value:
+            source = MissionState(current["state"]) if current else None
+            entry = _history_entry(source, mission.state, "central", mission.updated_at, "from central")
+            update["$push"] = {"history": entry}
+        # conditional on the version seen: a newer one written meanwhile is never overwritten
+        condition: dict[str, Any] = {"_id": mission.mission_id}
+        if current is not None:
+            condition["updated_at_us"] = current["updated_at_us"]
+        result = await missions.update_one(condition, update, upsert=current is None)
+        return result.modified_count > 0 or result.upserted_id is not None
+
     async def get_mission(self, mission_id: str) -> Mission | None:
         doc = await self._collection("missions").find_one({"_id": mission_id}, {"history": 0})
         return _mission(doc) if doc else None

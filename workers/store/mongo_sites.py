@@ -7,7 +7,9 @@ from datetime import datetime, timezone
 from typing import Any
 
 from pymongo import UpdateOne
+from pymongo.errors import DuplicateKeyError
 
+from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 from fleetbus.workers.store.sites import Forward, SiteRegistry, SiteSummary
@@ -114,3 +116,24 @@ class MongoSites(OnMongo, SiteRegistry):
                 )
             )
         return summaries
+
+    async def put_report(self, report: SiteReport) -> bool:
+        at = to_micros(report.at)
+        reports = self._collection("site_reports")
+        doc = {"at_us": at, "report": report.model_dump(mode="json")}
+        result = await reports.update_one({"_id": report.site, "at_us": {"$lt": at}}, {"$set": doc})
+        if result.matched_count:
+            return True
+        if await reports.find_one({"_id": report.site}) is not None:
+            return False  # one as new or newer is kept
+        try:
+            await reports.insert_one({"_id": report.site, **doc})
+        except DuplicateKeyError:  # another wrote first: keep the newer
+            return await self.put_report(report)
+        return True
+
+    async def reports(self) -> dict[str, SiteReport]:
+        found = {}
+        async for doc in self._collection("site_reports").find({}):
+            found[doc["_id"]] = SiteReport.model_validate(doc["report"])
+        return found

@@ -14,6 +14,8 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
+from fleetbus.schemas.site_reports import SiteReport
+
 
 @dataclass(frozen=True)
 class Forward:
@@ -75,3 +77,11 @@ class SiteRegistry(abc.ABC):
     @abc.abstractmethod
     async def summaries(self) -> list[SiteSummary]:
         """Each known site: its robots, how much it forwarded, the newest, by name."""
+
+    @abc.abstractmethod
+    async def put_report(self, report: SiteReport) -> bool:
+        """Keep ``report`` as its site's newest unless one as new or newer is kept; whether it was."""
+
+    @abc.abstractmethod
+    async def reports(self) -> dict[str, SiteReport]:
+        """Each site's newest report, by site."""

@@ -168,6 +168,47 @@ class SQLiteMissions(OnSQLite, MissionStore):
             lambda db: _history(db, StateChange(mission_id, source, target, by, at, note)),
         )
 
+    async def put_mission(self, mission: Mission) -> bool:
+        def put(db: sqlite3.Connection) -> bool:
+            def work() -> bool:
+                current = _get(db, mission.mission_id)
+                if current is not None and current.updated_at >= mission.updated_at:
+                    return False
+                db.execute(
+                    "INSERT INTO missions (mission_id, number, use_case, title, owner, state, plan, "
+                    "created_at, updated_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?) "
+                    "ON CONFLICT (mission_id) DO UPDATE SET use_case = excluded.use_case, "
+                    "title = excluded.title, owner = excluded.owner, state = excluded.state, "
+                    "plan = excluded.plan, updated_at = excluded.updated_at",
+                    (
+                        mission.mission_id,
+                        mission.number,
+                        mission.use_case,
+                        mission.title,
+                        mission.owner,
+                        mission.state.value,
+                        json.dumps(mission.plan),
+                        to_micros(mission.created_at),
+                        to_micros(mission.updated_at),
+                    ),
+                )
+                if current is None or current.state != mission.state:
+                    source = current.state if current else None
+                    change = StateChange(
+                        mission.mission_id,
+                        source,
+                        mission.state,
+                        "central",
+                        mission.updated_at,
+                        "from central",
+                    )
+                    _history(db, change)
+                return True
+
+            return in_transaction(db, work)
+
+        return await self._run(put)
+
     async def mission_history(self, mission_id: str) -> list[StateChange]:
         rows = await self._run(
             lambda db: db.execute(

@@ -6,6 +6,7 @@ import sqlite3
 from collections.abc import Collection, Sequence
 from datetime import datetime, timezone
 
+from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.sites import Forward, SiteRegistry, SiteSummary
 from fleetbus.workers.store.sqlite_database import OnSQLite, in_transaction
@@ -32,6 +33,11 @@ CREATE TABLE IF NOT EXISTS site_forwards (
     PRIMARY KEY (robot_id, epoch, seq)
 ) WITHOUT ROWID;
 CREATE INDEX IF NOT EXISTS site_forwards_site ON site_forwards (site, sent_at);
+CREATE TABLE IF NOT EXISTS site_reports (
+    site       TEXT    PRIMARY KEY,
+    at         INTEGER NOT NULL,
+    report     TEXT    NOT NULL
+) WITHOUT ROWID;
 """
 
 
@@ -132,3 +138,16 @@ class SQLiteSites(OnSQLite, SiteRegistry):
                 )
             )
         return summaries
+
+    async def put_report(self, report: SiteReport) -> bool:
+        sql = (
+            "INSERT INTO site_reports VALUES (?, ?, ?) ON CONFLICT (site) DO UPDATE SET "
+            "at = excluded.at, report = excluded.report WHERE excluded.at > site_reports.at"
+        )
+        params = (report.site, to_micros(report.at), report.model_dump_json())
+        changed = await self._run(lambda db: in_transaction(db, lambda: db.execute(sql, params).rowcount))
+        return bool(changed)
+
+    async def reports(self) -> dict[str, SiteReport]:
+        rows = await self._run(lambda db: db.execute("SELECT site, report FROM site_reports").fetchall())
+        return {str(site): SiteReport.model_validate_json(str(body)) for site, body in rows}

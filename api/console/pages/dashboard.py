@@ -11,6 +11,7 @@ Each robot's last-seen time, battery and pose are kept in memory from the live f
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from typing import Annotated
 
@@ -27,12 +28,15 @@ from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.service import Service
 from fleetbus.api.team import TeamView
 from fleetbus.schemas.routing import EventType
+from fleetbus.schemas.site_reports import SiteReport
+from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.store.base import EventQuery, EventRecord
 from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState
 from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(DASHBOARD))]
+log = logging.getLogger("fleetbus.console")
 #: Hazard ids listed per state; the rest are counted.
 IDS_SHOWN = 12
 OPEN = [state for state in HazardState if state is not HazardState.CLEARED]
@@ -100,10 +104,24 @@ class DashboardView:
             ),
             fragment("dashboard/dead_letters.html", count=dead_letters),
             # central's sites (none elsewhere): link up while the site's account is connected
-            fragment("dashboard/sites.html", sites=await repositories.sites.summaries(), health=health),
+            fragment(
+                "dashboard/sites.html",
+                sites=await repositories.sites.summaries(),
+                reports=await self._site_reports(),
+                health=health,
+            ),
             fragment("dashboard/broker.html", health=health),
             fragment("dashboard/feed.html", feed=self._feed),
         ]
+
+    async def _site_reports(self) -> dict[str, SiteReport]:
+        """Each site's newest report (those waiting in the broker taken into the store first)."""
+        sites = self._service.repositories.sites
+        try:
+            await collect_site_reports(self._service.admin_url, sites)
+        except Exception as error:  # the broker is away: the stored reports still show, aged
+            log.warning("site reports not collected: %s", type(error).__name__)
+        return await sites.reports()
 
     async def events(self, records: list[EventRecord]) -> list[str]:
         self.snapshot.want(newest_of(records, NEWS))

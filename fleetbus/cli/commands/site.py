@@ -119,6 +119,12 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     console.print(table)
     waiting = "?" if link.waiting is None else f"{link.waiting:,}"
     console.print(f"waiting to be forwarded: {waiting} events", highlight=False)
+    if link.rejected:
+        console.print(
+            f"[red]downlink messages not understood: {link.rejected:,}[/] "
+            "(kept in fleetbus.downlink.rejected)",
+            highlight=False,
+        )
     if link.not_forwarded:
         console.print(
             f"not forwarded (central did not send their accounts): {', '.join(link.not_forwarded)}",
@@ -129,14 +135,35 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
 @app.command()
 def apply(
     once: Annotated[bool, typer.Option("--once", help="apply what is waiting, then stop")] = False,
+    name: Annotated[
+        str | None,
+        typer.Option("--name", help="the site's name, to report to central; default FLEETBUS_SITE_NAME"),
+    ] = None,
 ) -> None:
-    """Apply central's changes (its robots' accounts) to this broker as they come, until Ctrl-C."""
+    """Apply central's changes (its robots' accounts, the team's missions) to this site as they
+    come, until Ctrl-C. With the site's name and FLEETBUS_CENTRAL_URL, it also reports what waits
+    in the uplink and how the links fare to central every FLEETBUS_SITE_REPORT_EVERY_S (`fleetbus
+    sites` there shows it)."""
     from fleetbus.workers.downlink import apply_downlink
+    from fleetbus.workers.site_report import report_to_central
 
+    config = settings()
     ep = endpoint()
+    site, central = name or config.site_name, config.central_url
     with admin_api(ep) as api:
+        vhost = vhost_of(ep.amqp_url)
+        tick = (lambda: report_to_central(api, vhost, site, central)) if site and central else None
+        if tick is None:
+            console.print("not reporting to central: no site name (--name) or no FLEETBUS_CENTRAL_URL")
         try:
-            applied = apply_downlink(settings(), ep.amqp_url, api, idle_s=1.0 if once else None)
+            applied = apply_downlink(
+                config,
+                ep.amqp_url,
+                api,
+                idle_s=1.0 if once else None,
+                tick=tick,
+                tick_every_s=config.site_report_every_s,
+            )
         except KeyboardInterrupt:
             return
     console.print(f"applied {applied} changes from central", highlight=False)

@@ -15,10 +15,13 @@ from fleetbus.broker.accounts import as_public, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.recorder.summary import shorten
+from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import assign_robots, robot_accounts, send_to_site
-from fleetbus.workers.store import run_with_repositories
+from fleetbus.workers.sites import assign_robots, mission_changes, robot_accounts, send_to_site
+from fleetbus.workers.store import Repositories, run_with_repositories
+from fleetbus.workers.store.sites import SiteSummary
 
 app = typer.Typer(
     help="On central: the sites, their robots, and how their links fare.", invoke_without_command=True
@@ -51,16 +54,22 @@ def sites(
     if ctx.invoked_subcommand is not None:
         return
     ep = endpoint()
-    summaries = run_with_repositories(settings(), lambda repos: repos.sites.summaries())
+
+    async def read(repos: Repositories) -> tuple[list[SiteSummary], dict[str, SiteReport]]:
+        await collect_site_reports(ep.amqp_url, repos.sites)
+        return await repos.sites.summaries(), await repos.sites.reports()
+
+    summaries, reports = run_with_repositories(settings(), read)
     now = datetime.now(timezone.utc)
     with admin_api(ep) as api:
-        rows = central_view(api, vhost_of(ep.amqp_url), summaries, now)
+        rows = central_view(api, vhost_of(ep.amqp_url), summaries, now, reports)
     if as_json:
         console.print_json(json.dumps([row.as_dict() for row in rows]))
         return
     table = Table(title=f"{len(rows)} sites")
-    for column in ("site", "link", "since", "robots", "forwarded", "late", "behind"):
-        table.add_column(column, justify="right" if column in ("forwarded", "late", "behind") else "left")
+    numbers = ("forwarded", "late", "behind", "waiting")
+    for column in ("site", "link", "since", "robots", "forwarded", "late", "behind", "waiting", "reported"):
+        table.add_column(column, justify="right" if column in numbers else "left")
     for row in rows:
         since = _ago((now - row.since).total_seconds()) + " ago" if row.since else "-"
         table.add_row(
@@ -71,11 +80,13 @@ def sites(
             f"{row.forwarded:,}",
             f"{row.late:,}",
             _ago(row.behind_s),
+            "?" if row.waiting is None else f"{row.waiting:,}",
+            _ago(row.report_age_s) + " ago" if row.reported_at else "never",
         )
     console.print(table)
     console.print(
-        "waiting to be forwarded: on each site, `fleetbus site status`; behind: since the newest event "
-        "central received from the site was sent",
+        "waiting: to be forwarded, as the site's newest report said (reported: how old that is; while "
+        "the link is down it ages); behind: since the newest event central received from the site was sent",
         highlight=False,
     )
 
@@ -125,13 +136,17 @@ def robots_command(
 
 @app.command()
 def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
-    """Send the site every one of its robots' accounts again (after a re-key, or to a new site node)."""
+    """Send the site every one of its robots' accounts and every mission again (after a re-key, to a
+    new site node, or when a change could not be sent)."""
     ep = endpoint()
     known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
     if site not in known:
         fail(f"no site {site!r}")
     with admin_api(ep) as api:
         _send_accounts(api, ep.amqp_url, site, known[site])
+        missions = run_with_repositories(settings(), mission_changes)
+        send_to_site(ep.amqp_url, site, missions)
+    console.print(f"sent {site} {len(missions)} missions", highlight=False)
 
 
 def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:

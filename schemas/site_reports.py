@@ -1,0 +1,25 @@
+"""What a site tells central about itself (``fleetbus site apply`` sends it every
+``FLEETBUS_SITE_REPORT_EVERY_S``): what waits in its uplink and how its shovels fare, at a time."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, ConfigDict
+
+SITE_REPORT_TYPE = "fleetbus.site-report"
+
+
+class SiteReport(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    site: str
+    at: datetime
+    """When the site measured it (its clock)."""
+    waiting: int | None
+    """Events in the site's uplink not yet confirmed by central; None when it could not tell."""
+    uplink: str
+    """The uplink shovel's state (``running``, ``starting``, ``terminated``, ``absent``)."""
+    downlink: str
+    rejected: int | None = None
+    """Downlink messages the site could not apply."""

@@ -1,0 +1,93 @@
+"""Central's missions reach the site through the downlink, the newest version winning; a downlink
+message the site cannot parse is kept aside and counted, and the next one still applies."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta, timezone
+
+import pika
+
+from fleetbus.api.missions import Missions
+from fleetbus.broker.tls import pika_parameters
+from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, SITES_EXCHANGE
+from fleetbus.workers.downlink import apply_downlink
+from fleetbus.workers.site_status import site_view
+from fleetbus.workers.sites import mission_change, send_mission_to_sites, send_to_site
+from fleetbus.workers.store import Repositories
+from fleetbus.workers.store.missions import Mission
+from fleetbus.workers.store.users import User
+from tests.sites.pair import SitePair
+from tests.support import wait_for
+
+
+def _apply(pair: SitePair) -> int:
+    return apply_downlink(pair.site.settings, pair.site.admin_url, pair.site.api, idle_s=1.0)
+
+
+def _at_site(pair: SitePair, mission_id: str) -> Mission | None:
+    return pair.site.with_store(lambda repos: repos.missions.get_mission(mission_id))
+
+
+def test_a_mission_created_at_central_appears_at_the_site_and_the_newest_wins(pair: SitePair) -> None:
+    central = pair.central
+    now = datetime.now(timezone.utc)
+    client = User("client1", UserRole.CLIENT, None, None, None, now, "test", now)
+
+    async def create(repos: Repositories) -> Mission:
+        missions = Missions(
+            repos.missions, repos.channels, lambda m: send_mission_to_sites(repos, central.admin_url, m)
+        )
+        return await missions.create(client, "hazard-response", "north tunnel", MissionPlan())
+
+    created = pair.central_store(create)
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 1, what="the mission through the downlink")
+    assert _apply(pair) == 1
+    assert _at_site(pair, created.mission_id) == created, "as central's store has it"
+
+    later = created.updated_at + timedelta(seconds=1)
+    closed = pair.central_store(
+        lambda repos: repos.missions.transition_mission(
+            created.mission_id, MissionState.PLANNING, MissionState.CLOSED, "planner1", later
+        )
+    )
+    # the newer version, then the older one again (a late resend): the newer stays
+    send_to_site(central.admin_url, pair.name, [mission_change(closed), mission_change(created)])
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="both versions through the downlink")
+    assert _apply(pair) == 2
+    assert _at_site(pair, created.mission_id) == closed
+    history = pair.site.with_store(lambda repos: repos.missions.mission_history(created.mission_id))
+    assert [(h.source, h.target) for h in history] == [
+        (None, MissionState.PLANNING),
+        (MissionState.PLANNING, MissionState.CLOSED),
+    ]
+    assert _apply(pair) == 0, "nothing waits"
+
+
+def test_a_bad_downlink_message_is_kept_aside_and_counted_and_the_next_applies(pair: SitePair) -> None:
+    central = pair.central
+    now = datetime.now(timezone.utc)
+    mission = pair.central_store(
+        lambda repos: repos.missions.create_mission("survey", "east shaft", "client1", {}, now)
+    )
+    connection = pika.BlockingConnection(pika_parameters(central.admin_url))
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        channel.basic_publish(
+            SITES_EXCHANGE, f"{pair.name}.mystery", b'{"change": "mystery"}', mandatory=True
+        )
+    finally:
+        connection.close()
+    send_to_site(central.admin_url, pair.name, [mission_change(mission)])
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="both through the downlink")
+
+    assert _apply(pair) == 1, "the mission applied after the bad one"
+    assert _at_site(pair, mission.mission_id) == mission
+    assert pair.site.ready_messages(DOWNLINK_QUEUE) == 0
+    assert pair.site.ready_messages(DOWNLINK_REJECTED_QUEUE) == 1, "kept, not lost"
+    wait_for(
+        lambda: site_view(pair.site.api, pair.site.vhost, []).rejected == 1,
+        what="counted where `fleetbus site status` shows it",
+    )

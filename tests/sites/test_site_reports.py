@@ -1,0 +1,71 @@
+"""Central sees what waits at each site: the site reports its uplink and links to central, and
+`fleetbus sites` shows the newest report with its age (stale while the link is down)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from urllib.parse import urlsplit
+
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.site_report import report_to_central
+from fleetbus.workers.site_status import site_view
+from tests.factories import status
+from tests.sites.pair import SitePair
+from tests.support import wait_for
+from tests.test_cli import fleetbus
+
+
+def _row(pair: SitePair) -> dict:
+    shown = fleetbus(pair.central, "sites", "--json")
+    assert shown.returncode == 0, shown.stderr
+    [row] = [row for row in json.loads(shown.stdout) if row["site"] == pair.name]
+    return row
+
+
+def test_central_shows_what_waits_at_the_site_and_how_old_that_is(pair: SitePair) -> None:
+    explorer = pair.site.robot(pair.add_robot("explorer1", RobotKind.EXPLORER))
+    row = _row(pair)
+    assert row["waiting"] is None and row["reported_at"] is None, "no report yet"
+
+    pair.stop()  # the shovels stopped: the robot's events wait in the uplink
+    explorer.publish_many([("status", status(80)) for _ in range(3)])
+    wait_for(lambda: pair.uplink_waiting() == 3, what="three waiting at the site")
+    # as `fleetbus site status` counts them (the management API's figures lag a few seconds)
+    wait_for(lambda: site_view(pair.site.api, pair.site.vhost, []).waiting == 3, what="counted at the site")
+    assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url)
+    row = _row(pair)
+    assert row["waiting"] == 3 and row["reported_at"] is not None
+    assert row["report_age_s"] < 60
+
+    pair.link.cut()  # no report can go now: central keeps showing the last one, older each time
+    assert not report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url)
+    later = wait_for(
+        lambda: (r := _row(pair))["report_age_s"] > row["report_age_s"] and r, what="the age grows"
+    )
+    assert later["waiting"] == 3 and later["reported_at"] == row["reported_at"]
+    assert not later["link_up"]
+
+    shown = fleetbus(pair.central, "sites")
+    assert shown.returncode == 0, shown.stderr
+    assert "waiting" in shown.stdout and "ago" in shown.stdout
+
+
+def test_site_apply_reports_to_central(pair: SitePair) -> None:
+    env = {**os.environ, **pair.site.worker_env(), "FLEETBUS_CENTRAL_URL": pair.central_url, "COLUMNS": "200"}
+    applied = subprocess.run(
+        [sys.executable, "-m", "fleetbus", "site", "apply", "--once", "--name", pair.name],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert applied.returncode == 0, applied.stderr
+    assert "not reporting" not in applied.stdout
+    assert pair.account is not None
+    password = urlsplit(pair.account.amqp_url).password or ""
+    assert password not in applied.stdout + applied.stderr, "the password is never shown"
+    row = _row(pair)
+    assert row["waiting"] == 0 and row["reported_at"] is not None

@@ -1,0 +1,61 @@
+"""On a site: tell central what waits in the uplink and how the shovels fare
+(:class:`~fleetbus.schemas.site_reports.SiteReport`), published to the site's ``<site>.status``
+at central as the site's own account. While the link is down the report cannot go: central shows
+the last one it got, with its age."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Collection
+from datetime import datetime, timezone
+
+import pika
+
+from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.tls import pika_parameters
+from fleetbus.schemas.routing import site_status_exchange
+from fleetbus.schemas.site_reports import SITE_REPORT_TYPE, SiteReport
+from fleetbus.workers.site_status import site_view
+
+log = logging.getLogger("fleetbus.sites")
+
+
+def site_report(api: ManagementAPI, vhost: str, site: str, team: Collection[str] = ()) -> SiteReport:
+    """The site's links now, as ``fleetbus site status`` shows them."""
+    link = site_view(api, vhost, team)
+    return SiteReport(
+        site=site,
+        at=datetime.now(timezone.utc),
+        waiting=link.waiting,
+        uplink=link.uplink.state,
+        downlink=link.downlink.state,
+        rejected=link.rejected,
+    )
+
+
+def send_report(central_url: str, report: SiteReport) -> None:
+    """Publish ``report`` at central (confirmed); raises when central cannot be reached."""
+    connection = pika.BlockingConnection(pika_parameters(central_url))
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        channel.basic_publish(
+            site_status_exchange(report.site),
+            "",
+            report.model_dump_json().encode(),
+            pika.BasicProperties(content_type="application/json", type=SITE_REPORT_TYPE),
+            mandatory=True,
+        )
+    finally:
+        connection.close()
+
+
+def report_to_central(api: ManagementAPI, vhost: str, site: str, central_url: str) -> bool:
+    """Measure and send one report; False (logged, without the URL's password) when it could not go."""
+    report = site_report(api, vhost, site)
+    try:
+        send_report(central_url, report)
+    except Exception as error:  # the link is down: the next report tries again
+        log.warning("site %s: report to central not sent (%s)", site, type(error).__name__)
+        return False
+    return True

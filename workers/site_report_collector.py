@@ -1,0 +1,44 @@
+"""At central: take the sites' reports from ``fleetbus.site-reports`` into the store (each site's
+newest is kept), acknowledging each only once it is stored."""
+
+from __future__ import annotations
+
+import logging
+
+from aiormq.exceptions import ChannelNotFoundEntity
+from pydantic import ValidationError
+
+from fleetbus.broker.tls import aio_connect
+from fleetbus.schemas.routing import SITE_REPORTS_QUEUE
+from fleetbus.schemas.site_reports import SiteReport
+from fleetbus.workers.store.sites import SiteRegistry
+
+log = logging.getLogger("fleetbus.sites")
+
+
+async def collect_site_reports(admin_url: str, sites: SiteRegistry, limit: int = 10_000) -> int:
+    """Store what waits in the reports queue (up to ``limit``); how many were read. A report that
+    does not parse is logged and counted as read."""
+    read = 0
+    connection = await aio_connect(admin_url)
+    try:
+        channel = await connection.channel()
+        try:
+            queue = await channel.get_queue(SITE_REPORTS_QUEUE)
+        except ChannelNotFoundEntity:
+            return 0  # no site added yet
+        while read < limit:
+            message = await queue.get(fail=False)
+            if message is None:
+                break
+            read += 1
+            try:
+                report = SiteReport.model_validate_json(message.body)
+            except ValidationError as error:
+                log.error("a site report that does not parse, skipped: %s", error)
+            else:
+                await sites.put_report(report)
+            await message.ack()
+    finally:
+        await connection.close()
+    return read
