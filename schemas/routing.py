@@ -119,7 +119,7 @@ SHOVELLED_HEADER = "x-shovelled"
 
 
 def site_downlink_queue(site: str) -> str:
-    """Central's queue of what one site is sent (accounts of its robots)."""
+    """Central's queue of what one site is sent (its robots' accounts, missions, maps)."""
     return f"{site}.downlink"
 
 

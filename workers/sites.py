@@ -5,6 +5,7 @@ site's account may write, :func:`fleetbus.broker.sites.grant_site_robots`), toge
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from collections.abc import Collection, Sequence
 
 import pika
@@ -78,17 +79,7 @@ async def robot_accounts(
 
 def mission_change(mission: Mission) -> MissionChange:
     """The downlink message for ``mission`` as central's store has it."""
-    return MissionChange(
-        mission_id=mission.mission_id,
-        number=mission.number,
-        use_case=mission.use_case,
-        title=mission.title,
-        owner=mission.owner,
-        state=mission.state,
-        plan=mission.plan,
-        created_at=mission.created_at,
-        updated_at=mission.updated_at,
-    )
+    return MissionChange(**dataclasses.asdict(mission))
 
 
 async def mission_changes(repositories: Repositories) -> list[MissionChange]:
@@ -99,26 +90,29 @@ async def mission_changes(repositories: Repositories) -> list[MissionChange]:
 async def send_mission_to_sites(repositories: Repositories, admin_url: str, mission: Mission) -> list[str]:
     """Send every site the mission as it is now (after central created or changed it); the sites."""
     sites = sorted(await repositories.sites.sites())
-    change = mission_change(mission)
-    for site in sites:
-        await asyncio.to_thread(send_to_site, admin_url, site, [change])
+    await asyncio.to_thread(send_to_sites, admin_url, sites, [mission_change(mission)])
     return sites
 
 
-def send_to_site(admin_url: str, site: str, changes: Sequence[RobotAccount | MissionChange]) -> None:
-    """Publish ``changes`` to the site's downlink (persistent, confirmed: the shovel takes them on
-    whenever the site is connected)."""
+def send_to_sites(
+    admin_url: str, sites: Sequence[str], changes: Sequence[RobotAccount | MissionChange]
+) -> None:
+    """Publish ``changes`` to each site's downlink, over one connection (persistent, confirmed: the
+    shovel takes them on whenever the site is connected)."""
     connection = pika.BlockingConnection(pika_parameters(admin_url))
     try:
         channel = connection.channel()
         channel.confirm_delivery()
-        for change in changes:
-            channel.basic_publish(
-                SITES_EXCHANGE,
-                site_downlink_key(site, change.change),
-                change.model_dump_json().encode(),
-                pika.BasicProperties(delivery_mode=2, content_type="application/json", type=SITE_CHANGE_TYPE),
-                mandatory=True,
-            )
+        for site in sites:
+            for change in changes:
+                channel.basic_publish(
+                    SITES_EXCHANGE,
+                    site_downlink_key(site, change.change),
+                    change.model_dump_json().encode(),
+                    pika.BasicProperties(
+                        delivery_mode=2, content_type="application/json", type=SITE_CHANGE_TYPE
+                    ),
+                    mandatory=True,
+                )
     finally:
         connection.close()

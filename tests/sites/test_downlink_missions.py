@@ -14,7 +14,7 @@ from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, SITES_EXCHANGE
 from fleetbus.workers.downlink import apply_downlink
 from fleetbus.workers.site_status import site_view
-from fleetbus.workers.sites import mission_change, send_mission_to_sites, send_to_site
+from fleetbus.workers.sites import mission_change, send_mission_to_sites, send_to_sites
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.store.users import User
@@ -53,7 +53,7 @@ def test_a_mission_created_at_central_appears_at_the_site_and_the_newest_wins(pa
         )
     )
     # the newer version, then the older one again (a late resend): the newer stays
-    send_to_site(central.admin_url, pair.name, [mission_change(closed), mission_change(created)])
+    send_to_sites(central.admin_url, [pair.name], [mission_change(closed), mission_change(created)])
     wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="both versions through the downlink")
     assert _apply(pair) == 2
     assert _at_site(pair, created.mission_id) == closed
@@ -80,7 +80,7 @@ def test_a_bad_downlink_message_is_kept_aside_and_counted_and_the_next_applies(p
         )
     finally:
         connection.close()
-    send_to_site(central.admin_url, pair.name, [mission_change(mission)])
+    send_to_sites(central.admin_url, [pair.name], [mission_change(mission)])
     wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="both through the downlink")
 
     assert _apply(pair) == 1, "the mission applied after the bad one"

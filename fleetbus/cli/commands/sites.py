@@ -19,7 +19,7 @@ from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import assign_robots, mission_changes, robot_accounts, send_to_site
+from fleetbus.workers.sites import assign_robots, mission_changes, robot_accounts, send_to_sites
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.sites import SiteSummary
 
@@ -145,13 +145,13 @@ def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
     with admin_api(ep) as api:
         _send_accounts(api, ep.amqp_url, site, known[site])
         missions = run_with_repositories(settings(), mission_changes)
-        send_to_site(ep.amqp_url, site, missions)
+        send_to_sites(ep.amqp_url, [site], missions)
     console.print(f"sent {site} {len(missions)} missions", highlight=False)
 
 
 def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:
     accounts = run_with_repositories(settings(), lambda repos: robot_accounts(repos, api, robots))
-    send_to_site(admin_url, site, accounts)
+    send_to_sites(admin_url, [site], accounts)
     if accounts:
         names = ", ".join(account.name for account in accounts)
         console.print(
