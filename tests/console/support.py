@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 import httpx
 import uvicorn
 from selenium import webdriver
-from selenium.common.exceptions import StaleElementReferenceException
+from selenium.common.exceptions import StaleElementReferenceException, WebDriverException
 from selenium.webdriver.chrome.service import Service as DriverService
 from selenium.webdriver.common.by import By
 from selenium.webdriver.remote.webelement import WebElement
@@ -37,6 +37,14 @@ T = TypeVar("T")
 PASSWORD = "correct horse battery"
 #: The promise: what a robot publishes is on the operator's screen this soon, without a reload.
 LIVE_WITHIN_S = 2.0
+
+
+def _replaced(error: WebDriverException) -> bool:
+    """Whether ``error`` says the element was swapped out (by an htmx or SSE update) while read:
+    chromedriver reports that as a stale reference or, mid-call, as this inspector error."""
+    if isinstance(error, StaleElementReferenceException):
+        return True
+    return "does not belong to the document" in str(error)
 
 
 def _executable(setting: str, *names: str) -> str:
@@ -75,19 +83,28 @@ class Browser:
         return self.driver.find_elements(By.CSS_SELECTOR, css)
 
     def text(self, css: str) -> str:
-        found = self.find(css)
-        return found[0].text if found else ""
+        try:
+            found = self.find(css)
+            return found[0].text if found else ""
+        except WebDriverException as error:
+            if not _replaced(error):
+                raise
+            return self.text(css)
 
     def texts(self, css: str) -> list[str]:
         try:
             return [element.text for element in self.find(css)]
-        except StaleElementReferenceException:  # replaced by a live update while read: read again
+        except WebDriverException as error:
+            if not _replaced(error):
+                raise
             return self.texts(css)
 
     def attributes(self, css: str, name: str) -> list[str | None]:
         try:
             return [element.get_attribute(name) for element in self.find(css)]
-        except StaleElementReferenceException:  # replaced by a live update while read: read again
+        except WebDriverException as error:
+            if not _replaced(error):
+                raise
             return self.attributes(css, name)
 
     def until(self, condition: Callable[[], Any], what: str, timeout: float = 15) -> Any:
@@ -96,7 +113,9 @@ class Browser:
         def holds() -> Any:
             try:
                 return condition()
-            except StaleElementReferenceException:
+            except WebDriverException as error:
+                if not _replaced(error):
+                    raise
                 return False
 
         return wait_for(holds, timeout=timeout, what=what, interval=0.05)
