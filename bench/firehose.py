@@ -33,6 +33,7 @@ from bench.results import medians, save, spread
 from fleetbus.broker.accounts import fresh_vhost
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
@@ -105,7 +106,7 @@ def one_run(
 ) -> dict[str, float]:
     url = fresh_vhost(api, endpoint.amqp_url, VHOST)
     api.set_tracing(VHOST, setup == "firehose")
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         prepare(connection.channel(), setup)
         cpu = cpu_seconds(broker_pid) if broker_pid else 0.0

@@ -36,6 +36,7 @@ from bench.results import percentile
 from bench.scenario import Context, Figures
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import EventType, RobotKind
 from tests.support import wait_for
 
@@ -98,7 +99,7 @@ class Arrivals:
 
 def ping_receiver(admin_url: str) -> Callable[[Callable[[int], bool]], None]:
     def receive(arrived: Callable[[int], bool]) -> None:
-        connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+        connection = blocking_connection(admin_url)
         try:
             channel = connection.channel()
             channel.basic_qos(prefetch_count=64)
@@ -131,7 +132,7 @@ def measure(
         with worker_process(bus, *worker_args), WardenProcess(bus, warden_url) as warden:
             wait_for(lambda: all(w.localised for w in bus.with_store(lambda r: r.hazards.robots("warden"))))
             context.show(f"{rate:,.0f} telemetry events/s starting")
-            ping = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+            ping = blocking_connection(bus.admin_url)
             sent: dict[int, float] = {}
             pinged: dict[int, float] = {}
             confirmed: list[float] = []  # how long each publish took: outbox, broker confirm

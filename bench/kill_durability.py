@@ -26,6 +26,7 @@ import pika.exceptions
 from rich.console import Console
 from rich.table import Table
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.local_node import LocalNode
 
 QUEUES = {"quorum": {"x-queue-type": "quorum"}, "classic": {"x-queue-type": "classic"}}
@@ -33,7 +34,7 @@ QUEUES = {"quorum": {"x-queue-type": "quorum"}, "classic": {"x-queue-type": "cla
 
 def count(url: str, queue: str) -> int | None:
     """Messages in ``queue``; None while the restarted node has not recovered it yet."""
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         return connection.channel().queue_declare(queue, durable=True, passive=True).method.message_count
     except pika.exceptions.ChannelClosedByBroker as error:
@@ -73,7 +74,7 @@ def main() -> None:
     info = node.up()
     assert info.amqp_url
     try:
-        connection = pika.BlockingConnection(pika.URLParameters(info.amqp_url))
+        connection = blocking_connection(info.amqp_url)
         channel = connection.channel()
         channel.confirm_delivery()
         for name, arguments in QUEUES.items():

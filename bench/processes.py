@@ -17,13 +17,14 @@ import pika
 import pika.exceptions
 
 from bench.profile import record
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import INGEST_QUEUE
 from tests.support import Bus, read_line, wait_for
 
 
 def consumers(admin_url: str, queue: str) -> int:
     """Consumers of ``queue`` now (0 while it does not exist)."""
-    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    connection = blocking_connection(admin_url)
     try:
         return connection.channel().queue_declare(queue, passive=True).method.consumer_count
     except pika.exceptions.ChannelClosedByBroker:

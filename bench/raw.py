@@ -15,7 +15,7 @@ import aio_pika
 import pika
 
 from bench.scenario import Context, Figures
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.broker.tls import aio_connect, blocking_connection
 from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 
@@ -59,7 +59,7 @@ def raw_publish(url: str, count: int, size: int, queue: str = RAW_QUEUE) -> floa
 
 async def raw_consume(url: str, count: int, queue: str = RAW_QUEUE, prefetch: int = PREFETCH) -> float:
     """Consume ``count`` messages from ``queue``, acking each; messages a second."""
-    connection = await aio_pika.connect(url)
+    connection = await aio_connect(url)
     async with connection:
         channel = await connection.channel()
         await channel.set_qos(prefetch_count=prefetch)

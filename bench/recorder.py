@@ -47,6 +47,7 @@ from bench.scenario import Context, Figures
 from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_account
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.urls import without_password
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import LocalNode
@@ -82,7 +83,7 @@ def properties(i: int) -> pika.BasicProperties:
 
 def paced(account: Account, seconds: float, first: int) -> int:
     """Publish RATE messages a second, each confirmed, on an absolute schedule; how many."""
-    connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
+    connection = blocking_connection(account.amqp_url)
     channel = connection.channel()
     channel.confirm_delivery()
     count = int(RATE * seconds)
@@ -97,7 +98,7 @@ def paced(account: Account, seconds: float, first: int) -> int:
 
 
 def backlog(account: Account, count: int, first: int) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
+    connection = blocking_connection(account.amqp_url)
     confirms = PipelinedConfirms(connection, connection.channel(), timeout=120)
     for start in range(0, count, 1000):
         confirms.publish(

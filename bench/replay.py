@@ -22,11 +22,10 @@ import time
 from collections.abc import Callable
 from datetime import datetime, timedelta, timezone
 
-import pika
-
 from bench.proc import rss_megabytes
 from bench.scenario import Context, Figures
 from bench.worker_memory import SAMPLE_EVERY, peak_megabytes
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests.factories import status
@@ -80,7 +79,7 @@ def write_recording(bus: Bus, count: int, show: Callable[[str], None]) -> None:
 
 def declare_target(admin_url: str) -> None:
     """The exchange replayed into, and a queue that keeps only the newest 1,000 (so all are routable)."""
-    connection = pika.BlockingConnection(pika.URLParameters(admin_url))
+    connection = blocking_connection(admin_url)
     try:
         channel = connection.channel()
         channel.exchange_declare(EXCHANGE, "topic", durable=True)

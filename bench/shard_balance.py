@@ -38,6 +38,7 @@ from bench.results import save
 from fleetbus.broker.accounts import fresh_vhost
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import RABBITMQCTL, LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
@@ -58,7 +59,7 @@ def queue_name(shard: int) -> str:
 def ensure_plugin(endpoint: BrokerEndpoint, url: str) -> None:
     """Declare the exchange; on the private node, enable the plugin first if the type is unknown."""
     for attempt in (1, 2):
-        connection = pika.BlockingConnection(pika.URLParameters(url))
+        connection = blocking_connection(url)
         try:
             connection.channel().exchange_declare(EXCHANGE, "x-consistent-hash", durable=False)
             return
@@ -78,7 +79,7 @@ def ensure_plugin(endpoint: BrokerEndpoint, url: str) -> None:
 
 def route(url: str, shards: int, keys: list[str]) -> dict[str, int]:
     """Publish one message per routing key through the exchange; the shard each reached."""
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         channel = connection.channel()
         for shard in range(shards):

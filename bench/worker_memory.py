@@ -20,13 +20,12 @@ from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
 
-import pika
-
 from bench.ingest import status_items, stored_and_acked
 from bench.proc import rss_megabytes
 from bench.processes import worker_process
 from bench.raw import WINDOW
 from bench.scenario import Context, Figures
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.client import outgoing
 from fleetbus.publishers.confirms import PipelinedConfirms
 from fleetbus.publishers.outbox import Entry
@@ -59,7 +58,7 @@ def prefill(url: str, robot: str, count: int, show: Callable[[str], None]) -> fl
     epoch = new_epoch()  # one run of a robot, as a client's start makes
     render = event_renderer(robot, epoch)
     sent_at = datetime.now(timezone.utc)
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         confirms = PipelinedConfirms(connection, connection.channel(), timeout=120)
         started = time.perf_counter()

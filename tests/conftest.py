@@ -23,12 +23,14 @@ from pathlib import Path
 
 import pytest
 
+from fleetbus.broker.certificates import make_certificates
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import LocalNode
+from fleetbus.dev.local_node import LocalNode, NodeInfo
 from fleetbus.settings import load_settings
 from tests.link import NetworkLink
+from tests.run_tls import BROKER_TLS, run_tls_files
 from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
@@ -98,6 +100,25 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     return ModulesWhole(config, log)
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """The run's certificates, made once by the controlling process before any xdist worker starts
+    a node with them (two workers making them at once would each make a CA of their own)."""
+    if not hasattr(config, "workerinput"):
+        files = run_tls_files()
+        if not files.server_ready():
+            make_certificates(files)
+
+
+def node_endpoint(info: NodeInfo) -> BrokerEndpoint:
+    """A node of the suite as administrator: over TLS (see ``BROKER_TLS``), robots handed its AMQPS
+    URL; or over plain AMQP."""
+    if BROKER_TLS:
+        assert info.amqps_url and info.management_tls_url, f"the node serves no TLS: {info}"
+        return BrokerEndpoint(info.amqps_url, info.management_tls_url, "private", info.public_url)
+    assert info.amqp_url and info.management_url
+    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
+
+
 def has_own_node() -> bool:
     """Whether this process's tests run on a node it started (an xdist worker but the first)."""
     return os.environ.get("PYTEST_XDIST_WORKER", "gw0") != "gw0"
@@ -110,7 +131,7 @@ def broker_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode 
     settings = load_settings()
     shared = resolve_broker(settings, start=True)  # the same code path as `fleetbus broker up`
     if not has_own_node():
-        yield LocalNode(settings.broker_dir) if shared.kind == "private" else None
+        yield LocalNode(settings.broker_dir, run_tls_files()) if shared.kind == "private" else None
         return
     if shared.kind != "private":
         pytest.exit(
@@ -118,7 +139,7 @@ def broker_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LocalNode 
             "node-wide: run the suite in one process (-n 0)",
             returncode=4,
         )
-    node = LocalNode(tmp_path_factory.mktemp("broker") / "broker")
+    node = LocalNode(tmp_path_factory.mktemp("broker") / "broker", run_tls_files())
     node.up()
     try:
         yield node
@@ -132,9 +153,7 @@ def endpoint(broker_node: LocalNode | None) -> BrokerEndpoint:
     """The broker as administrator: the private node of this process, or the configured one."""
     if broker_node is None:
         return resolve_broker(load_settings(), start=True)
-    info = broker_node.status()
-    assert info.amqp_url and info.management_url
-    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
+    return node_endpoint(broker_node.status())
 
 
 @pytest.fixture(scope="session")
@@ -177,7 +196,7 @@ def killable_node(
     if has_own_node() and broker_node is not None:
         yield broker_node
         return
-    node = LocalNode(tmp_path_factory.mktemp("killable") / "broker")
+    node = LocalNode(tmp_path_factory.mktemp("killable") / "broker", run_tls_files())
     node.up()
     try:
         yield node
@@ -189,11 +208,9 @@ def killable_node(
 @pytest.fixture
 def killable_bus(killable_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
     """A fresh virtual host on the killable node, started again if an earlier test left it down."""
-    info = killable_node.up()
-    assert info.amqp_url and info.management_url
-    endpoint = BrokerEndpoint(info.amqp_url, info.management_url, "private")
+    endpoint = node_endpoint(killable_node.up())
     with (
-        ManagementAPI.from_urls(info.management_url, info.amqp_url) as api,
+        ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
         fresh_bus(endpoint, api, tmp_path) as test_bus,
     ):
         try:

@@ -74,7 +74,7 @@ def read_inbox(
     login until ``until(received)`` holds or nothing comes for ``timeout`` s (the robot client
     would skip a notification it handed out already, and rebuild on start: this reads the inbox
     itself)."""
-    connection = pika.BlockingConnection(pika.URLParameters(amqp_url))
+    connection = blocking_connection(amqp_url)
     received: list[Notification] = []
     try:
         channel = connection.channel()
@@ -217,7 +217,7 @@ class Bus:
 
     def publish_raw(self, account: Account, routing_key: str, body: bytes, **properties: Any) -> None:
         """Publish as the account with pika, confirmed: what any AMQP client of a robot could send."""
-        connection = pika.BlockingConnection(pika.URLParameters(account.amqp_url))
+        connection = blocking_connection(account.amqp_url)
         try:
             channel = connection.channel()
             channel.confirm_delivery()
@@ -254,6 +254,8 @@ class Bus:
         )
         if self.settings.mongodb_url is not None:  # the test's own database, not the server's default one
             env["FLEETBUS_MONGODB_URL"] = self.settings.mongodb_url
+        if self.endpoint.management_url.startswith("https:"):  # the run's CA, not one in the test's folder
+            env.setdefault("FLEETBUS_TLS_CA", str(load_settings().ca_file))
         return env
 
     def spawn_worker(self, *options: str, module: str = "fleetbus") -> subprocess.Popen[bytes]:

@@ -8,6 +8,7 @@ import threading
 import pika
 
 from fleetbus.broker.accounts import Role
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
 from tests.factories import TABLE1_TIME, hazard, status
@@ -49,7 +50,7 @@ def test_telemetry_is_stored_but_not_sent_to_wardens(bus: Bus) -> None:
 
 
 def _publish_raw(url: str, routing_key: str, body: bytes, user_id: str | None) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     channel = connection.channel()
     channel.confirm_delivery()
     properties = pika.BasicProperties(

@@ -7,6 +7,7 @@ import pika
 import pika.exceptions
 import pytest
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
@@ -24,7 +25,7 @@ def sighting(beacon_id: str = "b1", rssi: int = -60) -> dict:
 
 def publish_raw(url: str, exchange: str, seq: int, headers: dict | None, robot: str = "guide1") -> None:
     event = build_event("beacon", robot, EPOCH, seq, sighting())
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         confirms = PipelinedConfirms(connection, connection.channel(), timeout=10)
         properties = pika.BasicProperties(

@@ -104,8 +104,8 @@ def test_a_lost_robust_connection_tries_the_next_address_then_comes_back(
 def test_the_management_client_goes_to_the_next_node_when_the_first_does_not_answer(
     endpoint: BrokerEndpoint,
 ) -> None:
-    dead = f"http://127.0.0.1:{_closed_port()}/"
     live = endpoint.management_url.split(",")[0]
+    dead = f"{live.split(':')[0]}://127.0.0.1:{_closed_port()}/"
     with ManagementAPI.from_urls(join_addresses([dead, live]), endpoint.amqp_url) as api:
         assert api.base_url == dead
         assert api.get_vhost("/") is not None, "answered by the live node"

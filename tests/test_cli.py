@@ -27,7 +27,7 @@ def test_users_publish_query_and_dlq(bus: Bus, tmp_path: Path) -> None:
     bus.accounts.append("cli-explorer")
     added = fleetbus(bus, "users", "add", "cli-explorer", "--kind", "explorer")
     assert added.returncode == 0, added.stderr
-    assert "amqp://cli-explorer:" in added.stdout
+    assert re.search(r"amqps?://cli-explorer:", added.stdout)
     assert "fleetbus-demo" not in added.stdout
     again = fleetbus(bus, "users", "add", "cli-explorer")
     assert again.returncode == 1 and "exists" in again.stderr

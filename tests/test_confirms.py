@@ -7,6 +7,7 @@ import time
 import pika
 import pytest
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers import confirms
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from tests.support import Bus
@@ -20,7 +21,7 @@ def test_turning_confirms_on_and_a_confirm_end_the_wait_not_its_time_slice(
     """pika's blocking loop does not return for frames of the channel underneath its facade: each
     wait would last its whole slice (50 ms: every robot's connect took 54 ms) unless woken."""
     monkeypatch.setattr(confirms, "_SLICE", SLICE)
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    connection = blocking_connection(bus.admin_url)
     try:
         channel = connection.channel()
         channel.queue_declare("test.confirms", durable=True)

@@ -16,9 +16,9 @@ from typing import Any
 
 import aio_pika
 import aio_pika.abc
-import pika
 import pytest
 
+from fleetbus.broker.tls import aio_connect, blocking_connection
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.routing import (
@@ -41,7 +41,7 @@ REFUSING_QUEUE = "test.refuses-battery-warnings"
 @contextmanager
 def battery_warnings_refused(bus: Bus) -> Iterator[None]:
     """While it lasts, the broker nacks every battery warning the worker publishes."""
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    connection = blocking_connection(bus.admin_url)
     try:
         channel = connection.channel()
         channel.queue_declare(REFUSING_QUEUE, arguments={"x-max-length": 0, "x-overflow": "reject-publish"})
@@ -158,7 +158,7 @@ async def express_consumer(
     bus: Bus, check: CrashesOn
 ) -> tuple[aio_pika.abc.AbstractConnection, IngestConsumer]:
     """The express lane's consumer, with ``check`` and a limit of LIMIT."""
-    connection = await aio_pika.connect(bus.admin_url)
+    connection = await aio_connect(bus.admin_url)
     store = repositories_for(bus.settings)
     await store.open()
     _, consumer = await on_express_lane(
@@ -236,7 +236,7 @@ def test_a_worker_handing_the_express_lane_over_finishes_its_batch_before_the_ne
     first = explorer.publish_many([("hazard", hazard(0)), ("hazard", hazard(1))])
 
     async def hand_over() -> tuple[list[str], list[Event]]:
-        connection = await aio_pika.connect(bus.admin_url)
+        connection = await aio_connect(bus.admin_url)
         store = repositories_for(bus.settings)
         await store.open()
         log: list[str] = []

@@ -28,7 +28,7 @@ import pytest
 from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import TlsSettingError, shovel_uri
+from fleetbus.broker.tls import TlsSettingError, blocking_connection, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
@@ -142,7 +142,7 @@ def test_listens_only_on_loopback(node: LocalNode) -> None:
 
 
 def _declare(url: str, queue: str) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         connection.channel().queue_declare(queue, durable=True)
     finally:
@@ -150,7 +150,7 @@ def _declare(url: str, queue: str) -> None:
 
 
 def _publish(url: str, queue: str, bodies: list[bytes]) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         channel = connection.channel()
         channel.confirm_delivery()
@@ -165,7 +165,7 @@ def _publish(url: str, queue: str, bodies: list[bytes]) -> None:
 def _ready(url: str, queue: str) -> int | None:
     """Messages ready in ``queue``; None while the node is not answering or still recovering it."""
     try:
-        connection = pika.BlockingConnection(pika.URLParameters(url))
+        connection = blocking_connection(url)
     except pika.exceptions.AMQPError:
         return None
     try:
@@ -180,7 +180,7 @@ def _ready(url: str, queue: str) -> int | None:
 
 
 def _drain(url: str, queue: str) -> list[bytes]:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     bodies: list[bytes] = []
     try:
         channel = connection.channel()
@@ -467,7 +467,7 @@ def test_a_shovel_reaches_the_node_over_amqps_only_when_it_can_verify_it(
         "tls-other-ca": shovel_uri(named.replace(str(node.tls.ca), str(other.ca))),
         "tls-other-name": shovel_uri(info.amqps_url + "&server_name_indication=broker.example"),
     }
-    connection = pika.BlockingConnection(pika.URLParameters(info.amqp_url))
+    connection = blocking_connection(info.amqp_url)
     channel = connection.channel()
     for name in shovels:
         for queue in (f"{name}.from", f"{name}.to"):

@@ -12,6 +12,7 @@ import uuid
 import pika
 import yaml
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.maps import map_events
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.envelope import new_epoch
@@ -87,7 +88,7 @@ def test_a_16_mb_map_travels_in_chunks_and_every_version_is_kept(bus: Bus, tmp_p
 
 
 def _publish_raw(url: str, events: list) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     channel = connection.channel()
     channel.confirm_delivery()
     for event_type, robot, seq, body in events:

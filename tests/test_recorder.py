@@ -15,6 +15,7 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.accounts import RECORDER_USER, url_for
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.local_node import pid_alive
 from fleetbus.schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from fleetbus.workers.recorder.capture import refusal
@@ -214,7 +215,7 @@ def test_the_recorder_account_may_only_read_its_queue(bus: Bus) -> None:
     url = url_for(bus.admin_url, RECORDER_USER, password)
 
     def refused(action: str) -> None:
-        connection = pika.BlockingConnection(pika.URLParameters(url))
+        connection = blocking_connection(url)
         channel = connection.channel()
         with pytest.raises(pika.exceptions.ChannelClosedByBroker) as error:
             if action == "publish":
@@ -231,7 +232,7 @@ def test_the_recorder_account_may_only_read_its_queue(bus: Bus) -> None:
 
     for action in ("publish", "consume ingest", "declare", "bind"):
         refused(action)
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     connection.channel().basic_consume(RECORDER_QUEUE, lambda *a: None)  # its own queue: allowed
     connection.close()
     assert bus.api.get_user(RECORDER_USER)["tags"] in ("", []), "no management access either"
@@ -259,7 +260,7 @@ def test_beacons_are_recorded_and_those_the_broker_discarded_say_so(bus: Bus) ->
     sighting = {"beacon_id": "b1", "rssi": -60}
     with bus.recorder() as recorder, bus.robot(guide) as robot:
         robot.publish(EventType.BEACON, sighting)  # the client sets the beacon headers
-        connection = pika.BlockingConnection(pika.URLParameters(guide.amqp_url))
+        connection = blocking_connection(guide.amqp_url)
         channel = connection.channel()
         channel.confirm_delivery()
         properties = pika.BasicProperties(user_id="rec-guide", message_id="no-headers", delivery_mode=2)

@@ -14,9 +14,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from itertools import pairwise
 
-import pika
 import pytest
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import PublishRefused
@@ -41,7 +41,7 @@ def every_publish_nacked(bus: Bus, robot: str) -> Iterator[None]:
     """While it lasts, a queue bound to the robot's exchange refuses everything (``x-max-length`` 0,
     ``reject-publish``), so the broker nacks each of the robot's publishes; another queue keeps a
     copy of each, which counts the robot's tries."""
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    connection = blocking_connection(bus.admin_url)
     try:
         channel = connection.channel()
         channel.queue_declare(REFUSING_QUEUE, arguments={"x-max-length": 0, "x-overflow": "reject-publish"})

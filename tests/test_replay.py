@@ -11,6 +11,7 @@ from typing import Any
 import pika
 import pytest
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.replay import schedule
 from fleetbus.workers.store import open_recording_store
@@ -25,7 +26,7 @@ EXCHANGE, QUEUE = "replay.test", "replay.out"
 @pytest.fixture
 def listener(bus: Bus) -> Iterator[pika.adapters.blocking_connection.BlockingChannel]:
     """A topic exchange of the test's own with a queue bound to every key (as the administrator)."""
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    connection = blocking_connection(bus.admin_url)
     channel = connection.channel()
     channel.exchange_declare(EXCHANGE, "topic", durable=True)
     channel.queue_declare(QUEUE, durable=True)

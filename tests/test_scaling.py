@@ -14,11 +14,11 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-import pika
 import pytest
 
 from fleetbus.broker.accounts import Account, Role
 from fleetbus.broker.shards import read_shard_map
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable
 from fleetbus.publishers.rpc import ServiceRefused, ServiceTimeout
@@ -290,7 +290,7 @@ class ClaimingWarden(threading.Thread):
 
     def run(self) -> None:
         try:
-            connection = pika.BlockingConnection(pika.URLParameters(self.account.amqp_url))
+            connection = blocking_connection(self.account.amqp_url)
             channel = connection.channel()
             channel.basic_qos(prefetch_count=64)
             inbox = channel.consume(inbox_queue(self.account.name), inactivity_timeout=1)

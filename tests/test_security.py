@@ -9,6 +9,7 @@ import pika.exceptions
 import pytest
 import yaml
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.schemas.routing import RobotKind
@@ -16,7 +17,7 @@ from tests.support import Bus
 
 
 def _channel(url: str) -> tuple[pika.BlockingConnection, pika.adapters.blocking_connection.BlockingChannel]:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     return connection, connection.channel()
 
 

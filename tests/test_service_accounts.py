@@ -63,7 +63,7 @@ def test_the_worker_runs_with_the_service_account_alone(bus: Bus) -> None:
 
         users = {c["user"] for c in bus.api.list_connections() if c.get("vhost") == bus.vhost}
         assert {SERVICE_USER, RECORDER_USER} <= users <= {SERVICE_USER, RECORDER_USER, "sa-explorer"}, users
-        assert accounts.service_url.startswith(f"amqp://{SERVICE_USER}:")
+        assert accounts.service_url.startswith((f"amqp://{SERVICE_USER}:", f"amqps://{SERVICE_USER}:"))
     finally:
         worker.send_signal(signal.SIGTERM)
         assert worker.wait(60) == 0

@@ -15,6 +15,7 @@ from pika.adapters.blocking_connection import BlockingChannel
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings, unbind_all
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
@@ -26,7 +27,7 @@ Attempt = Callable[[BlockingChannel], object]
 
 def refused(url: str, attempt: Attempt) -> int:
     """The reply code the broker closed the channel with (the attempt must be refused)."""
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         with pytest.raises(pika.exceptions.ChannelClosedByBroker) as closed:
             attempt(connection.channel())
@@ -58,7 +59,7 @@ def test_an_operator_cannot_reach_a_robot_it_has_not_mounted(bus: Bus) -> None:
     for what, attempt in attempts.items():
         assert refused(operator.amqp_url, attempt) == 403, what
     # a command goes nowhere until the service mounts the robot
-    connection = pika.BlockingConnection(pika.URLParameters(operator.amqp_url))
+    connection = blocking_connection(operator.amqp_url)
     confirms = PipelinedConfirms(connection, connection.channel(), timeout=10)
     command = Outgoing(
         "oper1.commands", "explorer1.stop", b"{}", pika.BasicProperties(user_id="oper1", message_id="c1")
@@ -89,7 +90,7 @@ def test_a_user_cannot_declare_or_bind_another_users_queue(bus: Bus) -> None:
     }
     for what, attempt in attempts.items():
         assert refused(alice.amqp_url, attempt) == 403, what
-    connection = pika.BlockingConnection(pika.URLParameters(alice.amqp_url))
+    connection = blocking_connection(alice.amqp_url)
     connection.channel().queue_declare("alice.scratch", exclusive=True)  # her own name: allowed
     connection.close()
 

@@ -11,6 +11,7 @@ import pytest
 from fleetbus.broker.accounts import Role, delete_account
 from fleetbus.broker.routes import RouteMap
 from fleetbus.broker.shards import Move, ShardMap, apply_move, read_shard_map, rebalance_plan
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import (
     EXPRESS_QUEUE,
     INGEST_EXCHANGE,
@@ -79,7 +80,7 @@ def test_the_broker_refuses_a_beacon_under_another_robots_name(bus: Bus) -> None
     assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (1,)}
     properties = pika.BasicProperties(user_id="robot-a", delivery_mode=2, headers=beacon_headers("robot-a"))
     body = json.dumps({}).encode()
-    connection = pika.BlockingConnection(pika.URLParameters(forger.amqp_url))
+    connection = blocking_connection(forger.amqp_url)
     try:
         channel = connection.channel()
         channel.confirm_delivery()

@@ -13,10 +13,10 @@ from datetime import datetime, timezone
 from typing import Any
 from urllib.parse import urlsplit
 
-import pika
 import pytest
 
 from fleetbus.broker.accounts import Role
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import account_topology, declare_with_url
 from fleetbus.schemas.routing import RobotKind, inbox_queue
 from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN
@@ -56,7 +56,7 @@ def team(bus: Bus) -> dict[str, Any]:
 
 def inbox_admin(bus: Bus, action: str, robot: str) -> None:
     """``queue_purge`` or ``queue_delete`` a robot's inbox as the administrator: its inbox lost."""
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    connection = blocking_connection(bus.admin_url)
     try:
         getattr(connection.channel(), action)(inbox_queue(robot))
     finally:

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import pika
 import pytest
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topics import topic_matches
 from tests.support import Bus
 
@@ -58,7 +58,7 @@ def test_the_matcher_routes_as_rabbitmq_does_on_every_pattern_and_key(bus: Bus) 
     patterns = _joined(PATTERN_WORDS, 3)
     keys = _joined(KEY_WORDS, 3)
     assert len(patterns) * len(keys) > 5000
-    connection = pika.BlockingConnection(pika.URLParameters(bus.admin_url))
+    connection = blocking_connection(bus.admin_url)
     try:
         channel = connection.channel()
         channel.exchange_declare("topics.check", "topic", auto_delete=True)

@@ -14,6 +14,7 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.accounts import can_login
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.roles import UserRole
 from tests.api.support import PASSWORD, Api, running_api
 from tests.support import Bus
@@ -44,7 +45,7 @@ def test_login_returns_an_expiring_token_and_working_broker_credentials(api: Api
     broker = body["broker"]
     assert broker["username"] == "alice" and broker["vhost"] == api.bus.vhost
     assert can_login(broker["amqp_url"]), "the broker account accepts the password the login handed over"
-    connection = pika.BlockingConnection(pika.URLParameters(broker["amqp_url"]))
+    connection = blocking_connection(broker["amqp_url"])
     channel = connection.channel()
     assert channel.queue_declare("alice.stream", passive=True).method.queue == "alice.stream"
     connection.close()
@@ -145,12 +146,12 @@ def test_a_new_account_is_inactive_may_not_log_in_and_has_no_broker_access(api: 
     assert stored is not None
     url = api.service.accounts.broker_credentials(stored).amqp_url
     with pytest.raises(pika.exceptions.ProbableAccessDeniedError):
-        pika.BlockingConnection(pika.URLParameters(url))  # right password, no permission on the vhost
+        blocking_connection(url)  # right password, no permission on the vhost
     # an admin activates it: the same broker password now opens its own queues
     assert api.call("admin1", "PUT", "/users/newbie/role", json={"role": "client"}).status_code == 200
     login = api.client.post("/auth/token", data={"username": "newbie", "password": PASSWORD})
     assert login.status_code == 200 and login.json()["broker"]["amqp_url"] == url
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     connection.channel().queue_declare("newbie.inbox", passive=True)
     connection.close()
 
@@ -210,8 +211,8 @@ def test_a_broker_password_reset_locks_the_old_one_out_and_the_login_hands_out_t
     assert not [r for r in caplog.records if new.password in r.getMessage()], "never in a log"
     assert "broker password reset by admin1" in caplog.text
     with pytest.raises(pika.exceptions.ProbableAuthenticationError):
-        pika.BlockingConnection(pika.URLParameters(old["amqp_url"]))
-    connection = pika.BlockingConnection(pika.URLParameters(new.amqp_url))
+        blocking_connection(old["amqp_url"])
+    connection = blocking_connection(new.amqp_url)
     connection.channel().queue_declare("alice.stream", passive=True)  # its permissions kept
     connection.close()
     login = api.client.post("/auth/token", data={"username": "alice", "password": PASSWORD})

@@ -15,6 +15,7 @@ import pytest
 
 from fleetbus.broker.accounts import Account, Role
 from fleetbus.broker.mounts import QueueBinding, mount_bindings_on_broker
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.schemas.missions import MissionState
@@ -193,7 +194,7 @@ def test_of_two_operators_mounting_at_once_one_gets_the_robot(api: Api) -> None:
 
 
 def send_command(url: str, operator: str, robot: str, name: str) -> None:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         confirms = PipelinedConfirms(connection, connection.channel(), timeout=10)
         properties = pika.BasicProperties(delivery_mode=2, user_id=operator, message_id=uuid.uuid4().hex)
@@ -214,7 +215,7 @@ def test_commands_reach_only_a_mounted_robot_and_a_supervisor_can_force_an_unmou
         send_command(operator_url, "oper1", "explorer1", "stop")  # not mounted: nowhere to go
     api.call("oper1", "POST", "/mounts", json={"robot": "explorer1", "mission_id": mission_id})
     send_command(operator_url, "oper1", "explorer1", "stop")
-    robot = pika.BlockingConnection(pika.URLParameters(robot_url(api, "explorer1")))
+    robot = blocking_connection(robot_url(api, "explorer1"))
     method, properties, body = robot.channel().basic_get("explorer1.commands", auto_ack=True)
     robot.close()
     assert method is not None and (method.exchange, method.routing_key, properties.user_id, body) == (

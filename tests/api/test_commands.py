@@ -8,10 +8,10 @@ import sys
 from collections.abc import Iterator
 
 import httpx
-import pika
 import pytest
 from typer.testing import CliRunner
 
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.cli import app
 from tests.api.server import free_port, wait_until_serving
 from tests.support import Bus
@@ -71,7 +71,7 @@ def test_create_admin_serve_and_log_in_from_the_shell(bus: Bus, env: dict[str, s
         assert "logged in as ops1 (operator)" in login.output
         saved = bus.settings.accounts_dir / "ops1.url"
         assert oct(saved.stat().st_mode & 0o777) == "0o600"
-        connection = pika.BlockingConnection(pika.URLParameters(saved.read_text().strip()))
+        connection = blocking_connection(saved.read_text().strip())
         connection.channel().queue_declare("ops1.stream", passive=True)
         connection.close()
         wrong = runner.invoke(

@@ -6,6 +6,7 @@ is Secure there."""
 from __future__ import annotations
 
 import logging
+import shutil
 import ssl
 import subprocess
 import sys
@@ -20,6 +21,7 @@ from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.schemas.roles import UserRole
 from tests.api.server import api_process
 from tests.api.support import PASSWORD, Api, running_api
+from tests.run_tls import run_tls_files
 from tests.support import Bus
 
 FAR = "192.0.2.10"  # a client on another machine (TEST-NET-1)
@@ -27,7 +29,12 @@ FAR = "192.0.2.10"  # a client on another machine (TEST-NET-1)
 
 @pytest.fixture(scope="module")
 def tls_files(tmp_path_factory: pytest.TempPathFactory) -> TlsFiles:
+    """The API's own certificate, signed by the CA of the run's brokers (one CA for a deployment:
+    the API's processes verify the broker's management API with the CA they serve)."""
     files = TlsFiles.in_folder(tmp_path_factory.mktemp("tls"))
+    run = run_tls_files()
+    for made, kept in ((run.ca, files.ca), (run.ca_key, files.ca_key)):
+        shutil.copy2(made, kept)
     make_certificates(files)
     return files
 

@@ -14,6 +14,7 @@ from selenium.webdriver.support.ui import Select
 
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD, SESSION_COOKIE
 from fleetbus.api.security import password_problem
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
@@ -104,11 +105,11 @@ def test_a_new_broker_password_is_shown_once_works_on_the_broker_and_is_in_no_lo
         assert any("broker password reset by admin1" in r.getMessage() for r in server_side)
         assert not [r.getMessage() for r in server_side if password in r.getMessage()], "never in a log"
         assert url == _broker_url(console, "explorer1") and password in url
-        connection = pika.BlockingConnection(pika.URLParameters(url))  # the new password logs in
+        connection = blocking_connection(url)  # the new password logs in
         connection.channel().queue_declare("explorer1.inbox", passive=True)  # with its permissions
         connection.close()
         with pytest.raises(pika.exceptions.ProbableAuthenticationError):
-            pika.BlockingConnection(pika.URLParameters(old_url))
+            blocking_connection(old_url)
 
 
 def test_the_page_with_the_new_password_is_never_stored_by_a_cache(bus: Bus) -> None:

@@ -11,6 +11,7 @@ import pytest
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
 from tests.factories import hazard
@@ -93,7 +94,7 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
         assert line == {"topic": "/fleetbus/hazard_pose", "frame_id": "map", "x": 2.66, "y": 1.22}
 
         # a goal from the operator who mounted the robot: a PoseStamped, as RViz sends one
-        connection = pika.BlockingConnection(pika.URLParameters(operator.amqp_url))
+        connection = blocking_connection(operator.amqp_url)
         try:
             channel = connection.channel()
             channel.confirm_delivery()

@@ -10,6 +10,7 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.sites import add_site_account
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind, site_downlink_queue
 from fleetbus.workers.sites import assign_robots
@@ -23,7 +24,7 @@ def publish_as_site(pair: SitePair, robot: str, user_id: str, key_robot: str | N
     with the routing key of ``key_robot`` (``user_id`` by default)."""
     assert pair.account is not None
     event = build_event("hazard", user_id, new_epoch(), 0, hazard(0))
-    connection = pika.BlockingConnection(pika.URLParameters(pair.account.amqp_url))
+    connection = blocking_connection(pair.account.amqp_url)
     try:
         channel = connection.channel()
         channel.confirm_delivery()
@@ -57,7 +58,7 @@ def test_a_site_cannot_write_as_robots_not_its_own_nor_as_another_site(pair: Sit
         assert refused.value.reply_code == 403, f"writing to {robot}.events is refused"
     # nor read another site's downlink
     assert pair.account is not None
-    connection = pika.BlockingConnection(pika.URLParameters(pair.account.amqp_url))
+    connection = blocking_connection(pair.account.amqp_url)
     try:
         with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:
             connection.channel().basic_get(site_downlink_queue("base2"))

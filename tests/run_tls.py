@@ -1,0 +1,18 @@
+"""Whether the suite reaches its brokers over TLS, and the certificates its nodes serve."""
+
+from __future__ import annotations
+
+import os
+
+from fleetbus.broker.certificates import TlsFiles
+from fleetbus.settings import load_settings
+
+#: The suite reaches its brokers over TLS: AMQPS, and the management API over HTTPS, each verified
+#: with the run's CA (``FLEETBUS_TEST_TLS=0``: plain AMQP and HTTP). Every node the suite starts
+#: serves the certificates of the project's data folder, so one CA verifies them all.
+BROKER_TLS = os.environ.get("FLEETBUS_TEST_TLS", "1") != "0"
+
+
+def run_tls_files() -> TlsFiles:
+    """The certificates every node of the run serves (those of ``fleetbus broker up``'s node)."""
+    return TlsFiles.for_settings(load_settings())
