@@ -27,17 +27,27 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import statistics
 import sys
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import pika
 from rich.console import Console
 from rich.table import Table
 
-from bench.hazard_latency import HAZARD_RATE, LOADERS, PING_QUEUE, Arrivals, ping_receiver, publish_paced
+from bench.hazard_latency import (
+    HAZARD_RATE,
+    LOADERS,
+    PING_QUEUE,
+    STAGES,
+    Arrivals,
+    ping_receiver,
+    publish_paced,
+)
 from bench.processes import worker_process
 from bench.raw import declare_queue, ingest_queue_arguments
 from bench.report import load_average, machine
@@ -54,16 +64,51 @@ PHASES = ("up", "cut", "restored")
 QUANTILES = (50, 95, 99)
 
 
+@dataclass
+class Phase:
+    """What one phase (link up, cut or restored) measured, over every round."""
+
+    hazard_ms: list[float] = field(default_factory=list)
+    ping_ms: list[float] = field(default_factory=list)
+    publish_ms: list[float] = field(default_factory=list)
+    stages_ms: list[tuple[float, ...]] = field(default_factory=list)
+    hazard_p50_by_round: list[float] = field(default_factory=list)
+    hop_p50_by_round: list[float] = field(default_factory=list)
+    waiting_after: list[int] = field(default_factory=list)
+    link_s: list[float] = field(default_factory=list)
+
+    def figures(self) -> Figures:
+        return {
+            **{f"hazard p{q} ms": percentile(self.hazard_ms, q) for q in QUANTILES},
+            "hazard max ms": max(self.hazard_ms),
+            **{f"raw hop p{q} ms": percentile(self.ping_ms, q) for q in QUANTILES},
+            "hazard p50 in raw hops": percentile(self.hazard_ms, 50) / percentile(self.ping_ms, 50),
+            **{
+                f"{stage} p50 ms": percentile([stages[k] for stages in self.stages_ms], 50)
+                for k, stage in enumerate(STAGES)
+            },
+            "explorer's publish p50 ms": percentile(self.publish_ms, 50),
+            "link changed s, max": max(self.link_s),
+            "uplink waiting after, max": float(max(self.waiting_after)),
+        }
+
+
 def measure(
-    pair: SitePair, count: int, rate: float, show: Callable[[str], None] = lambda text: None
-) -> dict[str, Figures]:
-    """Each phase's figures: ``count`` hazards under ``rate`` telemetry events a second at the site."""
+    pair: SitePair,
+    count: int,
+    rate: float,
+    rounds: int = 1,
+    show: Callable[[str], None] = lambda text: None,
+) -> tuple[dict[str, Phase], float]:
+    """Each phase's samples, and the telemetry rate achieved: ``rounds`` times up, cut, restored
+    (interleaved, so that a slow spell of a shared machine falls on every phase alike), ``count``
+    hazards in each under ``rate`` telemetry events a second at the site."""
     site = pair.site
     explorer = site.robot(pair.add_robot("bench-explorer", RobotKind.EXPLORER))
     warden_url = pair.add_robot("bench-warden", RobotKind.WARDEN).amqp_url
     loaders = [pair.add_robot(f"bench-telemetry{i}", RobotKind.EXPLORER).amqp_url for i in range(LOADERS)]
     declare_queue(site.admin_url, ingest_queue_arguments(), PING_QUEUE)
-    found: dict[str, Figures] = {}
+    found = {phase: Phase() for phase in PHASES}
     with worker_process(site, "--no-recorder"), WardenProcess(site, warden_url) as warden:
         wait_for(lambda: all(w.localised for w in site.with_store(lambda r: r.hazards.robots("warden"))))
         wait_for(lambda: pair.uplink_state() == "running", 60, "the uplink shovel running")
@@ -72,31 +117,29 @@ def measure(
             TelemetryLoad(site, loaders, rate) as load,
             Arrivals(ping_receiver(site.admin_url), "ping") as pings,
         ):
-            for k, phase in enumerate(PHASES):
-                changed = _change_link(pair, phase)
-                waiting_before = pair.uplink_waiting()
-                show(f"{phase}: {count} hazards at {HAZARD_RATE}/s under {rate:,.0f} telemetry events/s")
-                paced = publish_paced(explorer, ping.channel(), range(k * count, (k + 1) * count))
-                warden.wait((k + 1) * count, 60)
-                pings.wait((k + 1) * count, 60)
-                hazard_ms = [1000 * (warden.at[i] - sent) for i, sent in paced.sent.items()]
-                ping_ms = [1000 * (pings.at[i] - pinged) for i, pinged in paced.pinged.items()]
-                found[phase] = {
-                    **{f"hazard p{q} ms": percentile(hazard_ms, q) for q in QUANTILES},
-                    "hazard max ms": max(hazard_ms),
-                    **{f"raw hop p{q} ms": percentile(ping_ms, q) for q in QUANTILES},
-                    "hazard p50 in raw hops": percentile(hazard_ms, 50) / percentile(ping_ms, 50),
-                    "explorer's publish p50 ms": percentile([1000 * s for s in paced.confirmed], 50),
-                    "link changed s": changed,
-                    "uplink waiting before": float(waiting_before),
-                    "uplink waiting after": float(pair.uplink_waiting()),
-                }
-            show("restored: the uplink draining")
-            drained = wait_for_seconds(lambda: pair.uplink_waiting() == 0, 300, "the uplink drained")
-            found["restored"]["uplink drained s after the hazards"] = drained
+            first = 0
+            for number in range(rounds):
+                for phase in PHASES:
+                    measured = found[phase]
+                    measured.link_s.append(_change_link(pair, phase))
+                    show(f"round {number + 1}/{rounds}, link {phase}: {count} hazards at {HAZARD_RATE}/s")
+                    paced = publish_paced(explorer, ping.channel(), range(first, first + count))
+                    first += count
+                    warden.wait(first, 120)
+                    pings.wait(first, 120)
+                    hazard_ms = [1000 * (warden.at[i] - sent) for i, sent in paced.sent.items()]
+                    ping_ms = [1000 * (pings.at[i] - pinged) for i, pinged in paced.pinged.items()]
+                    measured.hazard_ms += hazard_ms
+                    measured.ping_ms += ping_ms
+                    measured.publish_ms += [1000 * seconds for seconds in paced.confirmed]
+                    measured.stages_ms += [tuple(1000 * t for t in warden.stages[i]) for i in paced.sent]
+                    measured.hazard_p50_by_round.append(percentile(hazard_ms, 50))
+                    measured.hop_p50_by_round.append(percentile(ping_ms, 50))
+                    measured.waiting_after.append(pair.uplink_waiting())
+                show(f"round {number + 1}/{rounds}: the uplink draining")
+                wait_for(lambda: pair.uplink_waiting() == 0, 300, "the uplink drained", interval=0.2)
         ping.close()
-    found["run"] = {"telemetry events/s": load.rate}
-    return found
+    return found, load.rate
 
 
 def _change_link(pair: SitePair, phase: str) -> float:
@@ -111,43 +154,41 @@ def _change_link(pair: SitePair, phase: str) -> float:
     return time.monotonic() - started
 
 
-def wait_for_seconds(condition: Callable[[], bool], timeout: float, what: str) -> float:
-    started = time.monotonic()
-    wait_for(condition, timeout, what, interval=0.2)
-    return time.monotonic() - started
+def ratios(found: dict[str, Phase]) -> Figures:
+    """Each phase over link up: pooled quantiles, and the median of the rounds' own p50 ratios."""
+    up = found["up"].figures()
+    result: Figures = {}
+    for phase in ("cut", "restored"):
+        figures = found[phase].figures()
+        for figure in [f"hazard p{q} ms" for q in QUANTILES] + ["raw hop p50 ms"]:
+            result[f"{phase} / up, {figure.removesuffix(' ms')}"] = figures[figure] / up[figure]
+        paired = zip(found[phase].hazard_p50_by_round, found["up"].hazard_p50_by_round, strict=True)
+        result[f"{phase} / up, hazard p50, median of the rounds"] = statistics.median(
+            a / b for a, b in paired
+        )
+    return result
 
 
-def ratios(found: dict[str, Figures]) -> Figures:
-    """Cut (and restored) over up, for the hazard's quantiles and the raw hop's median."""
-    up = found["up"]
-    figures = [f"hazard p{q} ms" for q in QUANTILES] + ["raw hop p50 ms"]
-    return {
-        f"{phase} / up, {figure.removesuffix(' ms')}": found[phase][figure] / up[figure]
-        for phase in ("cut", "restored")
-        for figure in figures
-    }
-
-
-def table(found: dict[str, Figures], title: str) -> Table:
+def table(found: dict[str, Phase], title: str) -> Table:
     shown = Table(title=title)
     shown.add_column("figure")
     for phase in PHASES:
         shown.add_column(f"link {phase}", justify="right")
     shown.add_column("cut / up", justify="right")
-    for figure in found["up"]:
-        values = [found[phase].get(figure) for phase in PHASES]
-        ratio = (
-            found["cut"][figure] / found["up"][figure]
-            if "hazard p" in figure or "raw hop" in figure
-            else None
-        )
+    figures = {phase: found[phase].figures() for phase in PHASES}
+    for figure in figures["up"]:
+        values = [figures[phase][figure] for phase in PHASES]
+        compared = figure.startswith(("hazard p", "raw hop"))
         shown.add_row(
             figure,
-            *("" if value is None else f"{value:,.2f}" for value in values),
-            "" if ratio is None else f"{ratio:.2f}",
+            *(f"{value:,.2f}" for value in values),
+            f"{values[1] / values[0]:.2f}" if compared else "",
         )
-    for figure in ("uplink drained s after the hazards",):
-        shown.add_row(figure, "", "", f"{found['restored'][figure]:,.1f}", "")
+    for name, by_round in (
+        ("hazard p50 ms by round", lambda p: p.hazard_p50_by_round),
+        ("raw hop p50 ms by round", lambda p: p.hop_p50_by_round),
+    ):
+        shown.add_row(name, *(", ".join(f"{v:.1f}" for v in by_round(found[phase])) for phase in PHASES), "")
     return shown
 
 
@@ -157,6 +198,7 @@ def main() -> None:
     )
     parser.add_argument("--hazards", type=int, default=200, help="hazards in each phase (20 a second)")
     parser.add_argument("--rate", type=float, default=1000, help="telemetry events a second at the site")
+    parser.add_argument("--rounds", type=int, default=1, help="times up, cut and restored, in turn")
     parser.add_argument("--out", type=Path, default=Path("bench/results"), help="where the JSON goes")
     args = parser.parse_args()
     console = Console()
@@ -170,25 +212,34 @@ def main() -> None:
                 node.up()
             with open_pair(*nodes, base / "pair") as pair:
                 where = machine(pair.site.api, pair.site.endpoint)
-                found = measure(
-                    pair, args.hazards, args.rate, lambda text: console.print(text, highlight=False)
+                found, telemetry = measure(
+                    pair,
+                    args.hazards,
+                    args.rate,
+                    args.rounds,
+                    lambda text: console.print(text, highlight=False),
                 )
         finally:
             for node in nodes:
                 node.kill()  # throwaway: no clean shutdown's seconds
                 node.down()
-    meta = {"command": command, "load before": load_before, "load after": load_average(), "machine": where}
-    console.print(
-        table(
-            found,
-            f"a site's hazard to its warden, {args.hazards} hazards a phase, "
-            f"{found['run']['telemetry events/s']:,.0f} telemetry events/s",
-        )
+    meta = {
+        "command": command,
+        "load before": load_before,
+        "load after": load_average(),
+        "machine": where,
+        "telemetry events/s": telemetry,
+    }
+    title = (
+        f"a site's hazard to its warden: {args.rounds} x {args.hazards} hazards a phase, "
+        f"{telemetry:,.0f} telemetry events/s"
     )
+    console.print(table(found, title))
     for name, value in ratios(found).items():
         console.print(f"{name}: {value:.2f}", highlight=False)
     console.print(f"load average before {load_before}, after {meta['load after']}", highlight=False)
-    path = save(args.out, "site-latency", {**meta, "phases": found, "ratios": ratios(found)})
+    phases = {name: {**asdict(phase), "figures": phase.figures()} for name, phase in found.items()}
+    path = save(args.out, "site-latency", {**meta, "phases": phases, "ratios": ratios(found)})
     console.print(f"wrote {path}")
 
 
