@@ -24,11 +24,13 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from types import TracebackType
 from typing import Any
 
 import pika
+from pika.adapters.blocking_connection import BlockingChannel
 
 from bench.processes import worker_process
 from bench.raw import declare_queue, ingest_queue_arguments
@@ -37,6 +39,7 @@ from bench.scenario import Context, Figures
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
 from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import EventType, RobotKind
 from tests.support import wait_for
 
@@ -117,6 +120,36 @@ def ping_receiver(admin_url: str) -> Callable[[Callable[[int], bool]], None]:
     return receive
 
 
+@dataclass
+class Paced:
+    """When each hazard and each raw ping went out (monotonic seconds, by number)."""
+
+    sent: dict[int, float] = field(default_factory=dict)
+    pinged: dict[int, float] = field(default_factory=dict)
+    confirmed: list[float] = field(default_factory=list)
+    """How long each publish took: outbox, broker confirm."""
+    stamped: list[float] = field(default_factory=list)
+    """From the publish call to the event's ``sent_at``: building it."""
+
+
+def publish_paced(explorer: RobotClient, ping: BlockingChannel, numbers: range) -> Paced:
+    """The explorer publishes hazards ``numbers`` at HAZARD_RATE a second (as robot code does), and
+    half-way between two hazards a raw message of the same number goes to PING_QUEUE."""
+    paced = Paced()
+    start = time.monotonic()
+    for k, i in enumerate(numbers):
+        time.sleep(max(0.0, start + k / HAZARD_RATE - time.monotonic()))  # the schedule
+        paced.sent[i] = time.monotonic()
+        wall = time.time()
+        event = explorer.publish(EventType.HAZARD, hazard(i))
+        paced.stamped.append(event.sent_at.timestamp() - wall)
+        paced.confirmed.append(time.monotonic() - paced.sent[i])
+        time.sleep(max(0.0, start + (k + 0.5) / HAZARD_RATE - time.monotonic()))
+        paced.pinged[i] = time.monotonic()
+        ping.basic_publish("", PING_QUEUE, str(i).encode(), PERSISTENT)
+    return paced
+
+
 def measure(
     context: Context,
     count: int,
@@ -133,27 +166,14 @@ def measure(
             wait_for(lambda: all(w.localised for w in bus.with_store(lambda r: r.hazards.robots("warden"))))
             context.show(f"{rate:,.0f} telemetry events/s starting")
             ping = blocking_connection(bus.admin_url)
-            sent: dict[int, float] = {}
-            pinged: dict[int, float] = {}
-            confirmed: list[float] = []  # how long each publish took: outbox, broker confirm
-            stamped: list[float] = []  # from the publish call to the event's sent_at: building it
             with (
                 TelemetryLoad(bus, loaders, rate) as load,
                 Arrivals(ping_receiver(bus.admin_url), "ping") as pings,
             ):
                 context.show(f"{count} hazards at {HAZARD_RATE}/s under {rate:,.0f} telemetry events/s")
-                channel = ping.channel()
-                start = time.monotonic()
-                for i in range(count):
-                    time.sleep(max(0.0, start + i / HAZARD_RATE - time.monotonic()))  # the schedule
-                    sent[i] = time.monotonic()
-                    wall = time.time()
-                    event = explorer.publish(EventType.HAZARD, hazard(i))
-                    stamped.append(event.sent_at.timestamp() - wall)
-                    confirmed.append(time.monotonic() - sent[i])
-                    time.sleep(max(0.0, start + (i + 0.5) / HAZARD_RATE - time.monotonic()))
-                    pinged[i] = time.monotonic()
-                    channel.basic_publish("", PING_QUEUE, str(i).encode(), PERSISTENT)
+                paced = publish_paced(explorer, ping.channel(), range(count))
+                sent, pinged = paced.sent, paced.pinged
+                confirmed, stamped = paced.confirmed, paced.stamped
                 warden.wait(count, 60)
                 pings.wait(count, 60)
             ping.close()

@@ -37,6 +37,7 @@ from fleetbus.broker.accounts import Role, fresh_vhost, provision_account, url_f
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, forward_robot, local_uri, start_site_links
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.dev.worker_thread import WorkerThread
@@ -58,7 +59,7 @@ def endpoint_of(node: LocalNode) -> BrokerEndpoint:
 
 
 def queue_count(url: str, queue: str) -> int:
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     try:
         return connection.channel().queue_declare(queue, passive=True).method.message_count
     finally:
@@ -80,7 +81,7 @@ def load_backlog(url: str, robots: list[str], seconds: int, hz: float) -> tuple[
     epochs = {robot: new_epoch() for robot in robots}
     start = datetime.now(timezone.utc) - timedelta(seconds=seconds)
     ticks = int(seconds * hz)
-    connection = pika.BlockingConnection(pika.URLParameters(url))
+    connection = blocking_connection(url)
     size = 0
     try:
         channel = connection.channel()
@@ -107,10 +108,10 @@ def raw_rate(
 ) -> float:
     """Messages a second one shovel moves from a queue on the site to a queue at central."""
     for url in (site.amqp_url, central.amqp_url):
-        connection = pika.BlockingConnection(pika.URLParameters(url))
+        connection = blocking_connection(url)
         connection.channel().queue_declare(RAW_QUEUE, durable=True, arguments={"x-queue-type": "classic"})
         connection.close()
-    connection = pika.BlockingConnection(pika.URLParameters(site.amqp_url))
+    connection = blocking_connection(site.amqp_url)
     channel = connection.channel()
     channel.confirm_delivery()
     body = b"x" * size

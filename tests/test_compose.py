@@ -93,6 +93,48 @@ def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alo
 
 #: The cluster profile's nodes beside central's `rabbitmq` (docs/operations/cluster.md).
 CLUSTER_NODES = ("rabbitmq-2", "rabbitmq-3")
+CENTRAL = {"rabbitmq", "mongo", "setup", "worker", "api"}
+SITE = {"site-rabbitmq", "site-up", "site-worker", "site-apply"}
+
+
+def started(*profiles: str, named: tuple[str, ...] = ()) -> set[str]:
+    """What ``docker compose --profile P... up -d [NAMED...]`` starts, by the Compose specification's
+    rule (compose-go's ``HasProfile``): a service without profiles always, one with profiles when one
+    is active; with service names, those and what they depend on, transitively."""
+    if not named:
+        return {
+            name
+            for name, service in SERVICES.items()
+            if not service.get("profiles") or set(service["profiles"]) & set(profiles)
+        }
+    wanted, todo = set(), list(named)
+    while todo:
+        name = todo.pop()
+        if name not in wanted:
+            wanted.add(name)
+            todo += list(SERVICES[name].get("depends_on") or {})
+    return wanted
+
+
+def test_the_central_profile_starts_central_alone_as_plain_up_does() -> None:
+    assert started() == started("central") == CENTRAL, "no profile is still central, as before sites"
+    assert started("central", "cluster") == CENTRAL | set(CLUSTER_NODES)
+    assert all(started(named=(name,)) <= CENTRAL for name in CENTRAL), "central depends on nothing else"
+    assert "FLEETBUS_MONGODB_URL" in SERVICES["worker"]["environment"], "central stores in MongoDB"
+    header = (ROOT / "compose.yaml").read_text().split("\nname:")[0]
+    assert "docker compose --profile central up -d" in header
+
+
+def test_a_site_is_started_by_its_services_names_without_central() -> None:
+    """Central's services start with every profile (they have none), on the site broker's ports:
+    the documented command names the site's services, which depend on nothing of central's."""
+    assert started("site") == CENTRAL | SITE
+    ports = {name: set(SERVICES[name].get("ports", [])) for name in ("rabbitmq", "site-rabbitmq")}
+    assert ports["rabbitmq"] & ports["site-rabbitmq"], "why `--profile site` alone would not do"
+    command = "docker compose --profile site up -d site-rabbitmq site-up site-worker site-apply"
+    for document in ("compose.yaml", "docs/operations/compose.md", "docs/guides/sites.md"):
+        assert command in (ROOT / document).read_text(), document
+    assert started("site", named=tuple(command.split()[6:])) == SITE
 
 
 def test_the_cluster_profile_adds_two_nodes_of_the_same_pinned_4x_release_sharing_one_cookie() -> None:

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import asyncio
 from collections import Counter
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TypeVar
 from urllib.parse import urlencode, urlsplit, urlunsplit
 
 from fleetbus.broker.accounts import Account, Role
+from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, forward_robot, start_site_links, stop_site_links
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.schemas.routing import UPLINK_QUEUE, UPLINK_SHOVEL, RobotKind
@@ -17,7 +22,7 @@ from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.sites import Forward
 from tests.link import NetworkLink
-from tests.support import Bus
+from tests.support import Bus, fresh_bus
 
 T = TypeVar("T")
 
@@ -106,3 +111,34 @@ class SitePair:
             if shovel.get("name") == UPLINK_SHOVEL:
                 return str(shovel.get("state"))
         return None
+
+
+def node_endpoint(node: LocalNode) -> BrokerEndpoint:
+    info = node.up()  # started again if an earlier user left it down
+    assert info.amqp_url and info.management_url
+    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
+
+
+@contextmanager
+def open_pair(
+    site_node: LocalNode, central_node: LocalNode, folder: Path, name: str = "base1"
+) -> Iterator[SitePair]:
+    """A site ``name`` and central, each with a fresh virtual host and store under ``folder``; the
+    site's links to central go through ``pair.link``. Both nodes are up again afterwards."""
+    central_endpoint, site_endpoint = node_endpoint(central_node), node_endpoint(site_node)
+    with (
+        ManagementAPI.from_urls(central_endpoint.management_url, central_endpoint.amqp_url) as central_api,
+        ManagementAPI.from_urls(site_endpoint.management_url, site_endpoint.amqp_url) as site_api,
+        fresh_bus(central_endpoint, central_api, folder / "central", prefix="central") as central,
+        fresh_bus(site_endpoint, site_api, folder / "site", prefix="site") as site,
+    ):
+        link = NetworkLink(central_node.ports()["amqps"]).start()  # type: ignore[index]  (TLS)
+        pair = SitePair(site, central, link, name, site_node, central_node)
+        try:
+            asyncio.run(pair.join())
+            yield pair
+        finally:
+            link.stop()
+            pair.stop()
+            site_node.up()
+            central_node.up()
