@@ -371,6 +371,11 @@ class Settings(BaseSettings):
         "the private key of `FLEETBUS_TLS_CERT` (PEM, unencrypted)",
         shown="`$FLEETBUS_TLS_DIR/server.key`",
     )
+    broker_tls_only: bool = setting(
+        False,
+        "the private node (`fleetbus broker up`) listens only over TLS: AMQPS and the management API over "
+        "HTTPS, no plain AMQP or HTTP port at all, so a client that does not speak TLS cannot log in",
+    )
     public_amqp_url: str | None = setting(
         None,
         "the broker as robots and users reach it, without credentials, e.g. "

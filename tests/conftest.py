@@ -27,10 +27,10 @@ from fleetbus.broker.certificates import make_certificates
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import LocalNode, NodeInfo
+from fleetbus.dev.local_node import LocalNode
 from fleetbus.settings import load_settings
 from tests.link import NetworkLink
-from tests.run_tls import BROKER_TLS, run_tls_files
+from tests.run_tls import node_endpoint, run_tls_files
 from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
@@ -107,16 +107,6 @@ def pytest_configure(config: pytest.Config) -> None:
         files = run_tls_files()
         if not files.server_ready():
             make_certificates(files)
-
-
-def node_endpoint(info: NodeInfo) -> BrokerEndpoint:
-    """A node of the suite as administrator: over TLS (see ``BROKER_TLS``), robots handed its AMQPS
-    URL; or over plain AMQP."""
-    if BROKER_TLS:
-        assert info.amqps_url and info.management_tls_url, f"the node serves no TLS: {info}"
-        return BrokerEndpoint(info.amqps_url, info.management_tls_url, "private", info.public_url)
-    assert info.amqp_url and info.management_url
-    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
 
 
 def has_own_node() -> bool:

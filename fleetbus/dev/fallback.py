@@ -137,7 +137,7 @@ def compose_up(settings: Settings, timeout: float = 180.0) -> BrokerEndpoint:
 
 def local_node(settings: Settings) -> LocalNode:
     """The private node of ``settings``' data folder, serving ``FLEETBUS_TLS_*``'s certificates."""
-    return LocalNode(settings.broker_dir, TlsFiles.for_settings(settings))
+    return LocalNode(settings.broker_dir, TlsFiles.for_settings(settings), settings.broker_tls_only)
 
 
 def node_endpoint(settings: Settings, info: NodeInfo) -> BrokerEndpoint:

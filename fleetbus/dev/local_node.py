@@ -282,12 +282,14 @@ def _tail(path: Path, lines: int = 30) -> str:
 class LocalNode:
     """A private RabbitMQ node under ``base_dir``; see the module docstring."""
 
-    def __init__(self, base_dir: Path | str, tls: TlsFiles | None = None) -> None:
+    def __init__(self, base_dir: Path | str, tls: TlsFiles | None = None, tls_only: bool = False) -> None:
         """``tls``: the CA and server certificate the node serves (default: ``tls/`` beside
         ``base_dir``, which is ``$FLEETBUS_DATA_DIR/tls`` for ``$FLEETBUS_DATA_DIR/broker``);
-        made at the first start when missing."""
+        made at the first start when missing. ``tls_only``: no plain AMQP or HTTP listener, and
+        the administrator's URLs are the TLS ones (``FLEETBUS_BROKER_TLS_ONLY``)."""
         self.base_dir = Path(base_dir).expanduser().resolve()
         self.tls = tls or TlsFiles.in_folder(self.base_dir.parent / "tls")
+        self.tls_only = tls_only
         digest = hashlib.sha1(str(self.base_dir).encode()).hexdigest()[:10]
         self.node_name = f"fleetbus-{digest}@localhost"
         self._proc: subprocess.Popen[bytes] | None = None
@@ -360,6 +362,8 @@ class LocalNode:
         ports, creds = self.ports(), self.admin_credentials()
         if ports is None or creds is None:
             return None, None
+        if self.tls_only:
+            return self._amqps_url(), f"https://{HOST}:{ports['management_tls']}/"
         user, password = (quote(part, safe="") for part in creds)
         return (
             f"amqp://{user}:{password}@{HOST}:{ports['amqp']}/",
@@ -409,8 +413,6 @@ class LocalNode:
             RABBITMQ_ADVANCED_CONFIG_FILE=str(base / "advanced.config"),
             RABBITMQ_ENABLED_PLUGINS_FILE=str(base / "enabled_plugins"),
             RABBITMQ_NODENAME=self.node_name,
-            RABBITMQ_NODE_IP_ADDRESS=HOST,
-            RABBITMQ_NODE_PORT=str(ports["amqp"]),
             RABBITMQ_DIST_PORT=str(ports["dist"]),
             ERL_EPMD_PORT=str(ports["epmd"]),
             ERL_EPMD_ADDRESS=HOST,
@@ -424,6 +426,8 @@ class LocalNode:
             RABBITMQ_CTL_DIST_PORT_MIN="0",
             RABBITMQ_CTL_DIST_PORT_MAX="0",
         )
+        if not self.tls_only:
+            env.update(RABBITMQ_NODE_IP_ADDRESS=HOST, RABBITMQ_NODE_PORT=str(ports["amqp"]))
         return env
 
     def _write_config(self) -> None:
@@ -441,11 +445,14 @@ class LocalNode:
         _write_if_changed(base / "enabled_plugins", "[" + ",".join(PLUGINS) + "].\n")
         self._ensure_certificates()
         tls = self.tls
+        plain = (
+            "listeners.tcp = none\n"
+            if self.tls_only
+            else f"management.tcp.ip = {HOST}\nmanagement.tcp.port = {ports['management']}\n"
+        )
         conf = f"""\
 # Written by fleetbus (broker/local_node.py) on every start; edits are overwritten.
-management.tcp.ip = {HOST}
-management.tcp.port = {ports["management"]}
-management.ssl.ip = {HOST}
+{plain}management.ssl.ip = {HOST}
 management.ssl.port = {ports["management_tls"]}
 management.ssl.cacertfile = {tls.ca}
 management.ssl.certfile = {tls.cert}
