@@ -1,6 +1,8 @@
 """What central sends a site over its downlink: the accounts of the site's robots, and the
 team's missions as central's store has them, and each new map central stores that a robot of
-another site (or of central) made. A message is one change; its ``change`` field says
+another site (or of central) made. A map larger than one chunk (``MAP_CHUNK_BYTES``) travels as
+its chunks (:class:`MapChunk`) followed by its :class:`MapChange`, so no message comes near the
+broker's largest (16 MiB by default on RabbitMQ 4). A message is one change; its ``change`` field says
 which kind (:data:`SiteChange`, parsed by :func:`parse_site_change`).
 
 The password travels as RabbitMQ's own salted hash (``password_hash`` and ``hashing_algorithm``
@@ -13,7 +15,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 from fleetbus.schemas.mission_states import MissionState
 from fleetbus.schemas.routing import RobotKind
@@ -49,9 +51,22 @@ class MissionChange(BaseModel):
     updated_at: datetime
 
 
+class MapChunk(BaseModel):
+    """One part of a large map's PGM, sent before its :class:`MapChange`; the site keeps it with
+    the map's other parts (``map_id``) until the change commits them."""
+
+    model_config = ConfigDict(extra="forbid", ser_json_bytes="base64", val_json_bytes="base64")
+
+    change: Literal["map_chunk"] = "map_chunk"
+    map_id: str = Field(min_length=1, max_length=200)
+    index: int = Field(ge=0)
+    data: bytes = Field(min_length=1)
+
+
 class MapChange(BaseModel):
     """A map version central stored: the map event it came from (``robot_id``, ``epoch``,
-    ``seq``: the site stores it once however often it arrives) and its whole PGM (base64 in JSON)."""
+    ``seq``: the site stores it once however often it arrives) and its whole PGM (base64 in JSON),
+    or, for a large map, how many :class:`MapChunk` (``chunks``, under ``map_id``) carried it."""
 
     model_config = ConfigDict(extra="forbid", ser_json_bytes="base64", val_json_bytes="base64")
 
@@ -62,11 +77,21 @@ class MapChange(BaseModel):
     metadata: dict[str, Any]
     created_at: datetime
     sha256: str
-    pgm: bytes
+    pgm: bytes = b""
+    map_id: str | None = Field(None, min_length=1, max_length=200)
+    chunks: int = Field(0, ge=0)
+
+    @model_validator(mode="after")
+    def _image_inline_or_in_chunks(self) -> MapChange:
+        if self.chunks and (self.map_id is None or self.pgm):
+            raise ValueError("a map sent in chunks names its map_id and carries no pgm of its own")
+        if not self.chunks and (self.map_id is not None or not self.pgm):
+            raise ValueError("a map sent whole carries its pgm and no map_id")
+        return self
 
 
-SiteChange = Annotated[RobotAccount | MissionChange | MapChange, Field(discriminator="change")]
-AnySiteChange = RobotAccount | MissionChange | MapChange
+SiteChange = Annotated[RobotAccount | MissionChange | MapChunk | MapChange, Field(discriminator="change")]
+AnySiteChange = RobotAccount | MissionChange | MapChunk | MapChange
 _SITE_CHANGE: TypeAdapter[AnySiteChange] = TypeAdapter(SiteChange)
 
 

@@ -5,7 +5,8 @@ works at its site), granted and given its topology as ``fleetbus users add`` wou
 team with its kind, and its events bound into the uplink (forwarded to central). Each mission is
 written into the site's missions as central has it, unless the site already has that version or a
 newer one. Each map is stored as a new version of the site's maps (once per map event), so the
-site's map service hands it to the site's robots. A message is acked once applied; applying one
+site's map service hands it to the site's robots; a large map's chunks are kept in the site's
+store until the change that names them commits them. A message is acked once applied; applying one
 again changes nothing. A message that is no change this version knows (or a map whose image is
 not what its checksum says) is moved, unchanged, to ``fleetbus.downlink.rejected`` (confirmed
 there before it leaves the downlink): ``fleetbus site status`` counts it. Run as the site's
@@ -31,7 +32,7 @@ from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.pgm import check_pgm
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE
-from fleetbus.schemas.site_changes import MapChange, MissionChange, RobotAccount, parse_site_change
+from fleetbus.schemas.site_changes import MapChange, MapChunk, MissionChange, RobotAccount, parse_site_change
 from fleetbus.settings import Settings
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.missions import Mission
@@ -61,26 +62,50 @@ def apply_mission(settings: Settings, change: MissionChange) -> bool:
     return written
 
 
+def apply_map_chunk(settings: Settings, chunk: MapChunk) -> None:
+    """Keep a large map's chunk in the site's store until its map change arrives (idempotent)."""
+    run_with_repositories(
+        settings, lambda repos: repos.maps.stage_map_chunk(chunk.map_id, chunk.index, chunk.data)
+    )
+
+
+async def _image(repos: Repositories, change: MapChange) -> bytes:
+    """The change's PGM: its own, or its chunks joined; ValueError when one is missing."""
+    if not change.chunks:
+        return change.pgm
+    assert change.map_id is not None
+    staged = await repos.maps.staged_map_chunks(change.map_id)
+    missing = sorted(set(range(change.chunks)) - set(staged))
+    if missing:
+        raise ValueError(
+            f"map of {change.robot_id} ({change.epoch}, {change.seq}): chunks {missing} never arrived"
+        )
+    return b"".join(staged[index] for index in range(change.chunks))
+
+
 def apply_map(settings: Settings, change: MapChange) -> bool:
     """Store the map as the site's newest version unless its map event was stored already;
-    ValueError when the image is not the PGM its checksum says."""
-    if hashlib.sha256(change.pgm).hexdigest() != change.sha256:
-        raise ValueError(f"map of {change.robot_id} ({change.epoch}, {change.seq}): SHA-256 does not match")
-    check_pgm(change.pgm)
+    ValueError when the image is not the PGM its checksum says, or a chunk of it is missing."""
 
     async def store(repos: Repositories) -> bool:
         if await repos.maps.committed_map(change.robot_id, change.epoch, change.seq) is not None:
             return False
+        image = await _image(repos, change)
+        if hashlib.sha256(image).hexdigest() != change.sha256:
+            raise ValueError(
+                f"map of {change.robot_id} ({change.epoch}, {change.seq}): SHA-256 does not match"
+            )
+        check_pgm(image)
         version = await repos.maps.commit_map(
             change.robot_id,
             change.epoch,
             change.seq,
-            change.pgm,
+            image,
             change.metadata,
             change.created_at,
             change.sha256,
             MAP_CHUNK_BYTES,
-            None,
+            change.map_id,
         )
         log.info("map of %s applied from central as version %d", change.robot_id, version.version)
         return True
@@ -127,7 +152,9 @@ def apply_downlink(
                 continue
             try:
                 change = parse_site_change(body)
-                if isinstance(change, MapChange):
+                if isinstance(change, MapChunk):
+                    apply_map_chunk(settings, change)
+                elif isinstance(change, MapChange):
                     apply_map(settings, change)
             except (ValidationError, ValueError) as error:
                 log.error(

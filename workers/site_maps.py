@@ -1,14 +1,16 @@
 """On central: each map version it stores goes to every site but the one whose robot made it, over
-the site's downlink (:class:`~fleetbus.schemas.site_changes.MapChange`), so the site's robots fetch
-the team's newest map from their own site."""
+the site's downlink (:class:`~fleetbus.schemas.site_changes.MapChange`, after its
+:class:`~fleetbus.schemas.site_changes.MapChunk` parts when it is larger than one chunk), so the
+site's robots fetch the team's newest map from their own site."""
 
 from __future__ import annotations
 
 import aio_pika
 from aio_pika.abc import AbstractChannel, ExchangeType
 
+from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.routing import SITES_EXCHANGE, site_downlink_key
-from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, MapChange
+from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, MapChange, MapChunk
 from fleetbus.workers.maps import map_image
 from fleetbus.workers.store.maps import MapStore, MapVersion
 from fleetbus.workers.store.sites import SiteRegistry
@@ -31,23 +33,38 @@ class SiteMapRelay:
         ]
         if not targets:
             return []
-        change = MapChange(
-            robot_id=version.robot_id,
-            epoch=version.epoch,
-            seq=version.seq,
-            metadata=version.metadata,
-            created_at=version.created_at,
-            sha256=version.sha256,
-            pgm=await map_image(self._maps, version),
-        )
-        body = change.model_dump_json().encode()
+        changes = downlink_map(version, await map_image(self._maps, version))
         exchange = await self._channel.declare_exchange(SITES_EXCHANGE, ExchangeType.TOPIC, durable=True)
         for site in sorted(targets):
-            message = aio_pika.Message(
-                body,
-                delivery_mode=aio_pika.DeliveryMode.PERSISTENT,
-                content_type="application/json",
-                type=SITE_CHANGE_TYPE,
-            )
-            await exchange.publish(message, routing_key=site_downlink_key(site, change.change))
+            for change in changes:  # in order: the chunks before the change that commits them
+                message = aio_pika.Message(
+                    change.model_dump_json().encode(),
+                    delivery_mode=aio_pika.DeliveryMode.PERSISTENT,
+                    content_type="application/json",
+                    type=SITE_CHANGE_TYPE,
+                )
+                await exchange.publish(message, routing_key=site_downlink_key(site, change.change))
         return sorted(targets)
+
+
+def downlink_map(
+    version: MapVersion, image: bytes, chunk_bytes: int = MAP_CHUNK_BYTES
+) -> list[MapChunk | MapChange]:
+    """The downlink messages of a map version: the change with the image in it, or, for an image
+    larger than ``chunk_bytes``, its chunks and then the change that names them."""
+    change = {
+        "robot_id": version.robot_id,
+        "epoch": version.epoch,
+        "seq": version.seq,
+        "metadata": version.metadata,
+        "created_at": version.created_at,
+        "sha256": version.sha256,
+    }
+    if len(image) <= chunk_bytes:
+        return [MapChange(**change, pgm=image)]
+    map_id = f"downlink:{version.robot_id}:{version.epoch}:{version.seq}"
+    chunks: list[MapChunk | MapChange] = [
+        MapChunk(map_id=map_id, index=index, data=image[start : start + chunk_bytes])
+        for index, start in enumerate(range(0, len(image), chunk_bytes))
+    ]
+    return [*chunks, MapChange(**change, map_id=map_id, chunks=len(chunks))]

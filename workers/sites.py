@@ -16,7 +16,7 @@ from fleetbus.broker.sites import grant_site_robots
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
-from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, MissionChange, RobotAccount
+from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, AnySiteChange, MissionChange, RobotAccount
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.team import change_service
@@ -95,7 +95,7 @@ async def send_mission_to_sites(repositories: Repositories, admin_url: str, miss
 
 
 def send_to_sites(
-    admin_url: str, sites: Sequence[str], changes: Sequence[RobotAccount | MissionChange]
+    admin_url: str, sites: Sequence[str], changes: Sequence[AnySiteChange]
 ) -> None:
     """Publish ``changes`` to each site's downlink, over one connection (persistent, confirmed: the
     shovel takes them on whenever the site is connected)."""

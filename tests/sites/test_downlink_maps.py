@@ -3,8 +3,14 @@ the site from its own site; the site's own maps are not sent back to it."""
 
 from __future__ import annotations
 
-from fleetbus.schemas.routing import DOWNLINK_QUEUE, RobotKind
+import hashlib
+from datetime import datetime, timezone
+
+from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
+from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, RobotKind
+from fleetbus.schemas.site_changes import MapChange, MapChunk
 from fleetbus.workers.downlink import apply_downlink
+from fleetbus.workers.sites import send_to_sites
 from tests.sites.pair import SitePair
 from tests.support import wait_for
 from tests.test_maps import TABLE2, pgm
@@ -29,3 +35,48 @@ def test_a_map_stored_at_central_is_fetched_by_a_site_robot_from_the_site(pair: 
 
     versions = pair.site.with_store(lambda repos: repos.maps.map_versions())
     assert [v.robot_id for v in versions] == ["explorer9"]
+
+
+def test_a_map_larger_than_a_chunk_goes_down_in_chunks_and_is_fetched_whole(pair: SitePair) -> None:
+    explorer = pair.central.robot(pair.central.add("explorer9", kind=RobotKind.EXPLORER))
+    site_warden = pair.site.robot(pair.add_robot("warden3", RobotKind.WARDEN))
+    image = pgm(1500, 1000)  # 1.5 MB: three chunks
+    parts = -(-len(image) // MAP_CHUNK_BYTES)
+    assert parts == 3
+    with pair.central.worker():
+        explorer.publish_map(image, TABLE2)
+        wait_for(
+            lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == parts + 1,
+            timeout=60,
+            what="the chunks and the map change through the downlink",
+        )
+    assert apply_downlink(pair.site.settings, pair.site.admin_url, pair.site.api, idle_s=1.0) == parts + 1
+    with pair.site.worker():
+        fetched = site_warden.fetch_map()
+    assert fetched.pgm == image and fetched.robot_id == "explorer9"
+    [version] = pair.site.with_store(lambda repos: repos.maps.map_versions())
+    map_id = f"downlink:explorer9:{version.epoch}:{version.seq}"
+    assert pair.site.with_store(lambda repos: repos.maps.staged_map_chunks(map_id)) == {}, "chunks dropped"
+
+
+def test_a_chunked_map_with_a_chunk_missing_is_kept_aside_and_nothing_is_stored(pair: SitePair) -> None:
+    image = pgm(1500, 1000)
+    change = MapChange(
+        robot_id="explorer9",
+        epoch="e1",
+        seq=7,
+        metadata=TABLE2,
+        created_at=datetime.now(timezone.utc),
+        sha256=hashlib.sha256(image).hexdigest(),
+        map_id="downlink:explorer9:e1:7",
+        chunks=3,
+    )
+    first = MapChunk(map_id="downlink:explorer9:e1:7", index=0, data=image[:MAP_CHUNK_BYTES])
+    send_to_sites(pair.central.admin_url, [pair.name], [first, change])
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="both through the downlink")
+
+    assert apply_downlink(pair.site.settings, pair.site.admin_url, pair.site.api, idle_s=1.0) == 1, (
+        "the chunk"
+    )
+    assert pair.site.ready_messages(DOWNLINK_REJECTED_QUEUE) == 1, "the change kept, not lost"
+    assert pair.site.with_store(lambda repos: repos.maps.map_versions()) == []
