@@ -40,7 +40,9 @@ def hazard_services(hazards: CoordinationStore, channels: ChannelStore) -> dict[
         return hazard.as_dict()
 
     async def open_hazards(caller: str, params: dict[str, Any]) -> Any:
-        return [h.as_dict() for h in await hazards.open_hazards(await _mission(caller, params))]
+        # a site's hazards are its wardens' (central shows them, its robots are not given them)
+        found = await hazards.open_hazards(await _mission(caller, params))
+        return [h.as_dict() for h in found if h.site is None]
 
     async def claim_announced(mission: str, hazard_id: int, caller: str, now: datetime) -> Hazard:
         """A claim; of a hazard still held, too, when the gate is open: its announcement reached the
@@ -58,6 +60,13 @@ def hazard_services(hazards: CoordinationStore, channels: ChannelStore) -> dict[
             _hazard_id(params),
             datetime.now(timezone.utc),
         )
+        # a site's hazard never becomes central's: its state is the site's, whatever is done here
+        current = await hazards.get_hazard(mission, hazard_id)
+        if current is not None and current.site is not None:
+            raise ServiceError(
+                f"hazard {hazard_id} is site {current.site}'s (its hazard {current.site_hazard_id} there): "
+                "its wardens claim, reach and clear it at the site"
+            )
         try:
             if action == "claim":
                 hazard = await claim_announced(mission, hazard_id, caller, now)
