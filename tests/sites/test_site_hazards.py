@@ -5,6 +5,7 @@ repeated state never undoes a newer one; a site sets no state of a hazard that i
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 from datetime import timedelta
 from typing import Any
@@ -17,14 +18,17 @@ from fleetbus.broker.sites import add_site_account
 from fleetbus.publishers.rpc import ServiceRefused
 from fleetbus.schemas.envelope import build_event, new_epoch
 from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE, RobotKind, site_hazards_exchange
 from fleetbus.schemas.site_hazards import SITE_HAZARD_TYPE, SiteHazardState
 from fleetbus.workers.site_hazards import MALFORMED, NOT_THE_SITES_HAZARD, NOT_THE_SITES_ROBOT
 from fleetbus.workers.sites import assign_robots
 from fleetbus.workers.store.hazards import Hazard, HazardState
+from tests.console.support import http_session, running_console
 from tests.factories import hazard
 from tests.sites.pair import SitePair
 from tests.support import wait_for
+from tests.test_cli import fleetbus
 
 
 def announced(warden: Any, timeout: float = 30.0) -> Notification:
@@ -94,18 +98,17 @@ def test_states_made_at_the_site_while_central_is_away_reach_central(pair: SiteP
 
 def _state(robot: str, version: int, state: str = "announced", **fields: Any) -> SiteHazardState:
     event = build_event("hazard", robot, new_epoch(), 3, hazard(0))
+    given: dict[str, Any] = {"hazard_id": 7, "announced_at": event.sent_at, **fields}
     return SiteHazardState(
         mission_id="default",
-        hazard_id=7,
         robot_id=robot,
         epoch=event.epoch,
         seq=event.seq,
         event=event.model_dump(mode="json"),
         state=state,  # type: ignore[arg-type]
         received_at=event.sent_at,
-        announced_at=event.sent_at,
         version=version,
-        **fields,
+        **given,
     )
 
 
@@ -212,14 +215,34 @@ def test_a_site_sets_no_state_of_a_hazard_not_its_own(pair: SitePair) -> None:
     }
 
 
-def test_a_sites_hazard_takes_no_step_at_central(pair: SitePair) -> None:
+def test_central_shows_a_sites_hazard_and_takes_no_step_of_it(pair: SitePair) -> None:
     pair.add_robot("explorer1", RobotKind.EXPLORER)
     warden = pair.central.robot(pair.central.add("warden9", kind=RobotKind.WARDEN))  # central's own
+    claimed = _state("explorer1", 2, "claimed", claimed_by="warden1", hazard_id=5)
+    held = _state("explorer1", 0, "held", hazard_id=6, announced_at=None, held_reason="no warden took it")
     with pair.central.worker() as worker:
-        send_as_site(pair, [_state("explorer1", 1).model_dump_json().encode()])
+        send_as_site(pair, [claimed.model_dump_json().encode(), held.model_dump_json().encode()])
         assert worker.context is not None
-        wait_for(lambda: worker.context.site_hazards.counts["applied"] == 1, what="the state applied")  # type: ignore[union-attr]
-        [shown] = central_hazards(pair, "explorer1")
+        counts = worker.context.site_hazards.counts
+        wait_for(lambda: counts["applied"] == 2, what="the states applied")
+        shown = {h.site_hazard_id: h for h in central_hazards(pair, "explorer1")}
         with pytest.raises(ServiceRefused, match="site base1"):
-            warden.claim_hazard(shown.hazard_id)
-        assert warden.open_hazards() == []
+            warden.claim_hazard(shown[6].hazard_id)
+        assert warden.open_hazards() == [], "central's wardens are not given a site's hazards"
+
+    listed = fleetbus(pair.central, "hazards", "--json")
+    assert listed.returncode == 0, listed.stderr
+    rows = {row["site_hazard_id"]: row for row in map(json.loads, listed.stdout.splitlines())}
+    assert (rows[5]["site"], rows[5]["state"], rows[5]["claimed_by"]) == ("base1", "claimed", "warden1")
+    assert rows[6]["held_because"] == "held at site base1: no warden took it"
+
+    with (
+        running_console(pair.central) as console,
+        http_session(console, console.user("oper1", UserRole.OPERATOR)) as http,
+    ):
+        page = http.get("/console/hazards")
+        assert page.status_code == 200
+        card = page.text[page.text.index(f'id="hazard-default-{shown[5].hazard_id}"') :]
+        card = card[: card.index("</article>")]
+        assert "site base1 (#5 there)" in card and "warden1" in card
+        assert "hx-post" not in card, "no step for central to take"
