@@ -72,6 +72,8 @@ class HazardUplink:
         self._not_a_site_every_s = not_a_site_every_s
         self._stopping = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
+        self._a_site = False
+        """The queue took the last version offered: send whole batches."""
         self.sent = 0
 
     def start(self) -> None:
@@ -85,11 +87,13 @@ class HazardUplink:
     async def send_unsent(self) -> int | None:
         """Send the unsent versions (up to :data:`BATCH`) and mark them sent; how many, or None
         when the broker has no hazard uplink queue (this is not a site)."""
-        unsent = await self._hazards.unsent_hazards(BATCH)
+        # where the broker returned the last one, one is offered first (central has many unsent)
+        unsent = await self._hazards.unsent_hazards(BATCH if self._a_site else 1)
         sent: list[Hazard] = []
         try:
             for hazard in unsent:
-                if not await self._put(hazard):
+                self._a_site = await self._put(hazard)
+                if not self._a_site:
                     return None
                 sent.append(hazard)
         finally:

@@ -60,13 +60,6 @@ def hazard_services(hazards: CoordinationStore, channels: ChannelStore) -> dict[
             _hazard_id(params),
             datetime.now(timezone.utc),
         )
-        # a site's hazard never becomes central's: its state is the site's, whatever is done here
-        current = await hazards.get_hazard(mission, hazard_id)
-        if current is not None and current.site is not None:
-            raise ServiceError(
-                f"hazard {hazard_id} is site {current.site}'s (its hazard {current.site_hazard_id} there): "
-                "its wardens claim, reach and clear it at the site"
-            )
         try:
             if action == "claim":
                 hazard = await claim_announced(mission, hazard_id, caller, now)

@@ -8,7 +8,9 @@ import sqlite3
 from datetime import timedelta
 from pathlib import Path
 
-from fleetbus.workers.store.hazards import Hazard, HazardState, SiteApplied
+import pytest
+
+from fleetbus.workers.store.hazards import Hazard, HazardRefused, HazardState, SiteApplied
 from fleetbus.workers.store.repositories import Repositories
 from fleetbus.workers.store.sqlite import sqlite_repositories
 from tests.store.test_coordination_contract import BODY, EPOCH, T0
@@ -151,3 +153,12 @@ CREATE TABLE hazards (
     held_reason TEXT, PRIMARY KEY (mission_id, hazard_id), UNIQUE (robot_id, epoch, seq)
 );
 """
+
+
+async def test_a_sites_hazard_takes_no_step_at_central(store: Repositories) -> None:
+    announced = await store.hazards.add_hazard("m1", "explorer1", EPOCH, 7, BODY, T0, held=False)
+    done, shown = await store.hazards.apply_site_hazard("base1", dataclasses.replace(announced, seq=8))
+    assert done is SiteApplied.APPLIED and shown is not None and shown.state is HazardState.ANNOUNCED
+    with pytest.raises(HazardRefused, match="site base1"):
+        await store.hazards.claim("m1", shown.hazard_id, "warden9", T0)
+    assert await _get(store, shown.hazard_id) == shown

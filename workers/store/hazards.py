@@ -316,7 +316,8 @@ class CoordinationStore(abc.ABC):
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
-        """Apply one of the :data:`TRANSITIONS` atomically, or raise :class:`HazardRefused`."""
+        """Apply one of the :data:`TRANSITIONS` atomically, or raise :class:`HazardRefused` (also
+        for a site's hazard, whose steps are taken at its site)."""
 
     async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
         """Give an announced hazard to ``warden``; atomic, so of two claims one wins."""
@@ -341,6 +342,11 @@ def refuse_transition(
     """The error for an action the hazard's current state does not allow."""
     if hazard is None:
         return HazardRefused(f"no hazard {hazard_id} in mission {mission_id!r}")
+    if hazard.site is not None:
+        return HazardRefused(
+            f"hazard {hazard_id} is site {hazard.site}'s (its hazard {hazard.site_hazard_id} there): "
+            f"its wardens take its steps at the site; it cannot be {action} here"
+        )
     if hazard.state is HazardState.HELD:
         return HazardRefused(
             f"hazard {hazard_id} is held until every warden is localised; it cannot be {action}"

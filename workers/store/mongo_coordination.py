@@ -337,6 +337,7 @@ class MongoCoordination(OnMongo, CoordinationStore):
         condition: dict[str, Any] = {
             "_id": hazard_id_of(mission_id, hazard_id),
             "state": {"$in": [source.value for source in transition.sources]},
+            "site": None,  # a site's hazard takes its steps at its site (its state here is the site's)
         }
         if transition.claimer_only:
             condition["claimed_by"] = warden

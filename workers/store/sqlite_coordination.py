@@ -379,7 +379,8 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
         else:
             changes, values = f"claimed_by = ?, {transition.stamp} = ?", (warden, to_micros(at))
         sources = ", ".join("?" for _ in transition.sources)
-        condition = f"state IN ({sources}) AND mission_id = ? AND hazard_id = ?" + (
+        # a site's hazard takes its steps at its site (its state here is the site's)
+        condition = f"state IN ({sources}) AND site IS NULL AND mission_id = ? AND hazard_id = ?" + (
             " AND claimed_by = ?" if transition.claimer_only else ""
         )
         params = (
