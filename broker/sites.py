@@ -52,6 +52,7 @@ from fleetbus.broker.topology import (
     core_topology,
     declare_with_url,
     inbox_bindings,
+    replicated,
 )
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
@@ -212,9 +213,10 @@ def site_permissions(site: str, robots: Collection[str]) -> tuple[str, str, str]
     return own, f"^({names})\\.", own
 
 
-def central_site_topology(site: str) -> Topology:
+def central_site_topology(site: str, cluster: bool = False) -> Topology:
     """The site's downlink queue, its status exchange into the reports queue, and its hazards
-    exchange into the hazard states' queue."""
+    exchange into the hazard states' queue (replicated on a cluster, as the worker declares it:
+    a state the broker confirmed to the site's shovel must not be lost with a node)."""
     queue = site_downlink_queue(site)
     status = site_status_exchange(site)
     hazards = site_hazards_exchange(site)
@@ -227,7 +229,7 @@ def central_site_topology(site: str) -> Topology:
         queues=(
             QueueSpec(queue, {"x-queue-type": "classic"}),
             QueueSpec(SITE_REPORTS_QUEUE, {"x-queue-type": "classic"}),
-            QueueSpec(SITE_HAZARDS_QUEUE, SITE_HAZARDS_QUEUE_ARGUMENTS),
+            QueueSpec(SITE_HAZARDS_QUEUE, replicated(SITE_HAZARDS_QUEUE_ARGUMENTS, cluster)),
         ),
         bindings=(
             BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),
@@ -237,7 +239,9 @@ def central_site_topology(site: str) -> Topology:
     )
 
 
-async def add_site_account(admin_url: str, api: ManagementAPI, site: str, *, rotate: bool = False) -> Account:
+async def add_site_account(
+    admin_url: str, api: ManagementAPI, site: str, *, rotate: bool = False, cluster: bool = False
+) -> Account:
     """Central's account for ``site`` (a new password each time, like ``fleetbus users add``) and
     its downlink queue. Its robots are granted by :func:`grant_site_robots`."""
     validate_name(site)
@@ -246,7 +250,7 @@ async def add_site_account(admin_url: str, api: ManagementAPI, site: str, *, rot
     password = secrets.token_urlsafe(24)
     api.put_user(site, password, SITE_TAGS)
     grant_site_robots(api, vhost_of(admin_url), site, ())
-    await declare_with_url(admin_url, [central_site_topology(site)])
+    await declare_with_url(admin_url, [central_site_topology(site, cluster)])
     return Account(site, Role.SERVICE, url_for(admin_url, site, password))
 
 

@@ -17,7 +17,7 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import read_shard_map
 from fleetbus.broker.sites import SITE_HAZARDS_QUEUE_ARGUMENTS
 from fleetbus.broker.tls import aio_connect_robust
-from fleetbus.broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
+from fleetbus.broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare, replicated
 from fleetbus.schemas.routing import (
     BEACON_DISCARD_QUEUE,
     EXPRESS_QUEUE,
@@ -238,7 +238,9 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     site_hazards = SiteHazards(
         sites_channel,
         await sites_channel.declare_queue(
-            SITE_HAZARDS_QUEUE, durable=True, arguments=SITE_HAZARDS_QUEUE_ARGUMENTS
+            SITE_HAZARDS_QUEUE,
+            durable=True,
+            arguments=replicated(SITE_HAZARDS_QUEUE_ARGUMENTS, settings.cluster),
         ),
         repositories.hazards,
         repositories.sites,

@@ -103,7 +103,9 @@ def add(
     ep = endpoint()
     with admin_api(ep) as api:
         try:
-            account = asyncio.run(add_site_account(ep.amqp_url, api, site, rotate=rotate))
+            account = asyncio.run(
+                add_site_account(ep.amqp_url, api, site, rotate=rotate, cluster=settings().cluster)
+            )
             names = run_with_repositories(
                 settings(), lambda repos: assign_robots(repos, api, ep.amqp_url, site, _names(robots))
             )
@@ -144,7 +146,7 @@ def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
     known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
     if site not in known:
         fail(f"no site {site!r}")
-    asyncio.run(declare_with_url(ep.amqp_url, [central_site_topology(site)]))
+    asyncio.run(declare_with_url(ep.amqp_url, [central_site_topology(site, settings().cluster)]))
     with admin_api(ep) as api:
         _send_accounts(api, ep.amqp_url, site, known[site])
         missions = run_with_repositories(settings(), mission_changes)
