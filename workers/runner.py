@@ -282,7 +282,11 @@ async def run_worker(
             context.shards.holder,
             context.stats,
             reported,
-            lambda: {"rpc_internal_errors": context.rpc.internal_errors},
+            lambda: {
+                "rpc_internal_errors": context.rpc.internal_errors,
+                "hazard_states_sent": context.hazard_uplink.sent,
+                **{f"site_hazards.{what}": n for what, n in context.site_hazards.counts.items()},
+            },
         )
     )
     try:

@@ -204,6 +204,14 @@ def test_a_site_sets_no_state_of_a_hazard_not_its_own(pair: SitePair) -> None:
         wait_for(lambda: sum(counts.values()) == 5, what="five states taken")
         assert counts == {NOT_THE_SITES_ROBOT: 2, NOT_THE_SITES_HAZARD: 1, MALFORMED: 1, "applied": 1}
         letters = wait_for(lambda: len(ls := central.dead_letters()) == 4 and ls, what="four dead letters")
+
+        def reported() -> dict[str, int]:  # the worker's status, as `fleetbus stats` reads it
+            statuses = central.with_store(lambda repos: repos.statuses.statuses())
+            return {k: v for status in statuses for k, v in status.counters.items() if k.startswith("site_")}
+
+        wait_for(
+            lambda: reported().get(f"site_hazards.{NOT_THE_SITES_ROBOT}") == 2, what="the refusals counted"
+        )
     assert sorted(letter.reason for letter in letters) == sorted(
         [NOT_THE_SITES_ROBOT, NOT_THE_SITES_ROBOT, NOT_THE_SITES_HAZARD, MALFORMED]
     )
