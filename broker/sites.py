@@ -18,10 +18,16 @@ A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
   until the shovel ``fleetbus-downlink``, running on the site, moves it into the site's
   ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it (what it cannot parse
   it moves to ``fleetbus.downlink.rejected``).
+* **hazard states** (on the site): the site's worker puts each new state of its hazards in
+  ``fleetbus.hazard-uplink`` (:mod:`fleetbus.workers.hazard_uplink`); the shovel
+  ``fleetbus-hazard-uplink`` moves them, confirmed, to the site's ``<site>.hazards`` at central,
+  whose ``fleetbus.site-hazards`` central's worker applies (:mod:`fleetbus.workers.site_hazards`).
+  A shovel of its own: an exchange central lacks (a central older than its site) stops it alone,
+  never the events' uplink.
 
 At central, a site's account may configure and read only ``<site>.*`` and write only to its own
-robots' exchanges and its own ``<site>.status`` (its reports, :mod:`fleetbus.workers.site_report`)
-(:func:`site_permissions`): the broker refuses anything else.
+robots' exchanges, its own ``<site>.status`` (its reports, :mod:`fleetbus.workers.site_report`)
+and ``<site>.hazards`` (:func:`site_permissions`): the broker refuses anything else.
 """
 
 from __future__ import annotations
@@ -46,14 +52,19 @@ from fleetbus.broker.topology import (
     core_topology,
     declare_with_url,
     inbox_bindings,
+    replicated,
 )
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
+    DEAD_LETTER_EXCHANGE,
     DOWNLINK_QUEUE,
     DOWNLINK_REJECTED_QUEUE,
     DOWNLINK_SHOVEL,
+    HAZARD_UPLINK_QUEUE,
+    HAZARD_UPLINK_SHOVEL,
     INGEST_EXCHANGE,
     NOTIFY_EXCHANGE,
+    SITE_HAZARDS_QUEUE,
     SITE_REPORTS_QUEUE,
     SITES_EXCHANGE,
     UPLINK_QUEUE,
@@ -64,11 +75,14 @@ from fleetbus.schemas.routing import (
     inbox_queue,
     owner_pattern,
     site_downlink_queue,
+    site_hazards_exchange,
     site_status_exchange,
 )
 
 #: The tag that lets a site's account publish its robots' events with their own ``user_id``.
 SITE_TAGS = "impersonator"
+#: Central's queue of the sites' hazard states: what its worker refuses goes to the dead letters.
+SITE_HAZARDS_QUEUE_ARGUMENTS = {"x-queue-type": "classic", "x-dead-letter-exchange": DEAD_LETTER_EXCHANGE}
 
 
 # --------------------------------------------------------------------------- on the site
@@ -82,6 +96,7 @@ def site_topology() -> Topology:
             QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(DOWNLINK_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(DOWNLINK_REJECTED_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(HAZARD_UPLINK_QUEUE, {"x-queue-type": "classic"}),
         ),
     )
 
@@ -141,6 +156,20 @@ def downlink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: 
     }
 
 
+def hazard_uplink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: int) -> dict[str, Any]:
+    """The hazard states' way to central: into the site's own ``<site>.hazards`` there."""
+    return {
+        "src-protocol": "amqp091",
+        "src-uri": local_uri(vhost),
+        "src-queue": HAZARD_UPLINK_QUEUE,
+        "dest-protocol": "amqp091",
+        "dest-uri": shovel_uri(central_url),
+        "dest-exchange": site_hazards_exchange(site),
+        "ack-mode": "on-confirm",
+        "reconnect-delay": reconnect_delay_s,
+    }
+
+
 async def start_site_links(
     admin_url: str,
     api: ManagementAPI,
@@ -152,8 +181,8 @@ async def start_site_links(
     reconnect_delay_s: int,
     prefetch: int = 1000,
 ) -> None:
-    """On the site's broker, as its administrator: the uplink and downlink queues and shovels
-    (idempotent; a new ``central_url`` replaces the old one)."""
+    """On the site's broker, as its administrator: the uplink, downlink and hazard uplink queues
+    and shovels (idempotent; a new ``central_url`` replaces the old one)."""
     validate_name(site)
     # the ingest exchange first (declaring what exists changes nothing; one shard is what it needs)
     vhost = vhost_of(admin_url)
@@ -161,12 +190,16 @@ async def start_site_links(
     await declare_with_url(admin_url, [core_topology(1), site_topology()])
     api.put_shovel(vhost, UPLINK_SHOVEL, uplink_shovel(central_url, vhost, reconnect_delay_s, prefetch))
     api.put_shovel(vhost, DOWNLINK_SHOVEL, downlink_shovel(central_url, site, vhost, reconnect_delay_s))
+    api.put_shovel(
+        vhost, HAZARD_UPLINK_SHOVEL, hazard_uplink_shovel(central_url, site, vhost, reconnect_delay_s)
+    )
 
 
 def stop_site_links(api: ManagementAPI, vhost: str) -> None:
-    """Delete both shovels; the queues (and what waits in them) stay."""
+    """Delete the shovels; the queues (and what waits in them) stay."""
     api.delete_shovel(vhost, UPLINK_SHOVEL)
     api.delete_shovel(vhost, DOWNLINK_SHOVEL)
+    api.delete_shovel(vhost, HAZARD_UPLINK_SHOVEL)
 
 
 # --------------------------------------------------------------------------- on central
@@ -180,27 +213,35 @@ def site_permissions(site: str, robots: Collection[str]) -> tuple[str, str, str]
     return own, f"^({names})\\.", own
 
 
-def central_site_topology(site: str) -> Topology:
-    """The site's downlink queue, and its status exchange into the reports queue."""
+def central_site_topology(site: str, cluster: bool = False) -> Topology:
+    """The site's downlink queue, its status exchange into the reports queue, and its hazards
+    exchange into the hazard states' queue (replicated on a cluster, as the worker declares it:
+    a state the broker confirmed to the site's shovel must not be lost with a node)."""
     queue = site_downlink_queue(site)
     status = site_status_exchange(site)
+    hazards = site_hazards_exchange(site)
     return Topology(
         exchanges=(
             ExchangeSpec(SITES_EXCHANGE, ExchangeType.TOPIC),
             ExchangeSpec(status, ExchangeType.FANOUT),
+            ExchangeSpec(hazards, ExchangeType.FANOUT),
         ),
         queues=(
             QueueSpec(queue, {"x-queue-type": "classic"}),
             QueueSpec(SITE_REPORTS_QUEUE, {"x-queue-type": "classic"}),
+            QueueSpec(SITE_HAZARDS_QUEUE, replicated(SITE_HAZARDS_QUEUE_ARGUMENTS, cluster)),
         ),
         bindings=(
             BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),
             BindingSpec(status, SITE_REPORTS_QUEUE, ""),
+            BindingSpec(hazards, SITE_HAZARDS_QUEUE, ""),
         ),
     )
 
 
-async def add_site_account(admin_url: str, api: ManagementAPI, site: str, *, rotate: bool = False) -> Account:
+async def add_site_account(
+    admin_url: str, api: ManagementAPI, site: str, *, rotate: bool = False, cluster: bool = False
+) -> Account:
     """Central's account for ``site`` (a new password each time, like ``fleetbus users add``) and
     its downlink queue. Its robots are granted by :func:`grant_site_robots`."""
     validate_name(site)
@@ -209,7 +250,7 @@ async def add_site_account(admin_url: str, api: ManagementAPI, site: str, *, rot
     password = secrets.token_urlsafe(24)
     api.put_user(site, password, SITE_TAGS)
     grant_site_robots(api, vhost_of(admin_url), site, ())
-    await declare_with_url(admin_url, [central_site_topology(site)])
+    await declare_with_url(admin_url, [central_site_topology(site, cluster)])
     return Account(site, Role.SERVICE, url_for(admin_url, site, password))
 
 

@@ -114,6 +114,12 @@ DOWNLINK_REJECTED_QUEUE = "fleetbus.downlink.rejected"
 SITES_EXCHANGE = "fleetbus.sites"
 #: At central: every site's reports about itself (from its ``<site>.status`` exchange).
 SITE_REPORTS_QUEUE = "fleetbus.site-reports"
+#: On a site: its hazards' states on their way to central (the shovel ``fleetbus-hazard-uplink``
+#: moves them to the site's ``<site>.hazards`` there).
+HAZARD_UPLINK_QUEUE = "fleetbus.hazard-uplink"
+HAZARD_UPLINK_SHOVEL = "fleetbus-hazard-uplink"
+#: At central: every site's hazard states (from its ``<site>.hazards`` exchange), for the worker.
+SITE_HAZARDS_QUEUE = "fleetbus.site-hazards"
 #: The header the shovel adds to what it forwards (``dest-add-forward-headers``).
 SHOVELLED_HEADER = "x-shovelled"
 
@@ -126,6 +132,17 @@ def site_downlink_queue(site: str) -> str:
 def site_status_exchange(site: str) -> str:
     """At central: where ``site`` publishes its reports (its account may write ``<site>.*``)."""
     return f"{site}.status"
+
+
+def site_hazards_exchange(site: str) -> str:
+    """At central: where ``site``'s hazard states arrive (its account may write ``<site>.*``)."""
+    return f"{site}.hazards"
+
+
+def site_of_hazards_exchange(exchange: str) -> str | None:
+    """The site whose hazards exchange ``exchange`` is; None when it is none."""
+    site, dot, rest = exchange.partition(".")
+    return site if dot and rest == "hazards" and site else None
 
 
 def site_downlink_key(site: str, kind: str) -> str:

@@ -54,6 +54,7 @@ def test_the_worker_runs_with_the_service_account_alone(bus: Bus) -> None:
             "fleetbus.rpc.requests": SERVICE_USER,
             "fleetbus.beacon.discarded": SERVICE_USER,
             "fleetbus.overflow.dropped": SERVICE_USER,
+            "fleetbus.site-hazards": SERVICE_USER,  # the sites' hazard states (none here)
             RECORDER_QUEUE: RECORDER_USER,
         }
         robot = bus.robot(explorer)

@@ -133,7 +133,11 @@ class HazardCoordinator:
         if not wardens:
             return sent
         now = datetime.now(timezone.utc)
-        missed = [h for h in await self._hazards.open_hazards(None) if h.state is not HazardState.HELD]
+        missed = [
+            h
+            for h in await self._hazards.open_hazards(None)
+            if h.state is not HazardState.HELD and h.site is None  # a site's are its wardens'
+        ]
         for warden in wardens:
             for hazard in missed:
                 note = self.notification(hazard, now, hazard.state)

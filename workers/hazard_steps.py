@@ -57,7 +57,10 @@ class StepTaken:
 
 
 def steps_from(hazard: Hazard) -> list[str]:
-    """The steps that may start from ``hazard``'s state (who may take them is for the step to say)."""
+    """The steps that may start from ``hazard``'s state (who may take them is for the step to say);
+    none for a site's hazard, whose steps are taken at its site."""
+    if hazard.site is not None:
+        return []
     return [name for name, (_, sources) in STEPS.items() if hazard.state in sources]
 
 

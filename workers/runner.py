@@ -15,14 +15,16 @@ from fleetbus.broker.accounts import SERVICE_USER, ensure_service_account, vhost
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import read_shard_map
+from fleetbus.broker.sites import SITE_HAZARDS_QUEUE_ARGUMENTS
 from fleetbus.broker.tls import aio_connect_robust
-from fleetbus.broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare
+from fleetbus.broker.topology import INGEST_DELIVERY_LIMIT, core_topology, declare, replicated
 from fleetbus.schemas.routing import (
     BEACON_DISCARD_QUEUE,
     EXPRESS_QUEUE,
     NOTIFY_EXCHANGE,
     OVERFLOW_QUEUE,
     RPC_QUEUE,
+    SITE_HAZARDS_QUEUE,
     ingest_shard_queue,
 )
 from fleetbus.settings import Settings
@@ -32,6 +34,7 @@ from fleetbus.workers.beacons import KnownRobotsOnly, beacon_services
 from fleetbus.workers.bounds import bounds
 from fleetbus.workers.coordination import GATED, HazardCoordinator, TeamChanges
 from fleetbus.workers.forwards import ForwardLog, SiteLocalOnly
+from fleetbus.workers.hazard_uplink import HazardUplink
 from fleetbus.workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
 from fleetbus.workers.maps import MapCheck, MapService, map_services
 from fleetbus.workers.overflow import OverflowCounter
@@ -40,6 +43,7 @@ from fleetbus.workers.rpc import RpcServer
 from fleetbus.workers.services import hazard_services
 from fleetbus.workers.shards import ShardPool
 from fleetbus.workers.signals import stop_on_signals
+from fleetbus.workers.site_hazards import SiteHazards
 from fleetbus.workers.site_maps import SiteMapRelay
 from fleetbus.workers.status import report_status
 from fleetbus.workers.store import Repositories, repositories_for
@@ -61,6 +65,10 @@ class WorkerContext:
     repositories: Repositories
     pruner: Pruner
     overflow: OverflowCounter
+    site_hazards: SiteHazards
+    """At central: applies the sites' hazard states."""
+    hazard_uplink: HazardUplink
+    """At a site: sends central its hazards' states."""
     stats: IngestStats = field(default_factory=IngestStats)
     """Counters of every shard this worker consumed."""
 
@@ -225,7 +233,25 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
         discard_channel, await discard_channel.get_queue(OVERFLOW_QUEUE), repositories.housekeeping
     )
     await overflow.start()
-    return WorkerContext(connection, shards, rpc, discards, repositories, pruner, overflow, stats)
+    sites_channel = await connection.channel(publisher_confirms=True)
+    await sites_channel.set_qos(prefetch_count=32)
+    site_hazards = SiteHazards(
+        sites_channel,
+        await sites_channel.declare_queue(
+            SITE_HAZARDS_QUEUE,
+            durable=True,
+            arguments=replicated(SITE_HAZARDS_QUEUE_ARGUMENTS, settings.cluster),
+        ),
+        repositories.hazards,
+        repositories.sites,
+        repositories.rejections,
+    )
+    await site_hazards.start()
+    hazard_uplink = HazardUplink(sites_channel, repositories.hazards)
+    hazard_uplink.start()
+    return WorkerContext(
+        connection, shards, rpc, discards, repositories, pruner, overflow, site_hazards, hazard_uplink, stats
+    )
 
 
 async def run_worker(
@@ -256,7 +282,11 @@ async def run_worker(
             context.shards.holder,
             context.stats,
             reported,
-            lambda: {"rpc_internal_errors": context.rpc.internal_errors},
+            lambda: {
+                "rpc_internal_errors": context.rpc.internal_errors,
+                "hazard_states_sent": context.hazard_uplink.sent,
+                **{f"site_hazards.{what}": n for what, n in context.site_hazards.counts.items()},
+            },
         )
     )
     try:
@@ -265,6 +295,8 @@ async def run_worker(
         await context.discards.stop()
         await context.pruner.stop()
         await context.overflow.stop()
+        await context.site_hazards.stop()
+        await context.hazard_uplink.stop()
         await context.shards.stop()
         reported.set()  # a last status, with the counts of the last batches
         await reporting

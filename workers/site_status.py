@@ -11,7 +11,14 @@ from typing import Any
 
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import forwarded_robots
-from fleetbus.schemas.routing import DOWNLINK_REJECTED_QUEUE, DOWNLINK_SHOVEL, UPLINK_QUEUE, UPLINK_SHOVEL
+from fleetbus.schemas.routing import (
+    DOWNLINK_REJECTED_QUEUE,
+    DOWNLINK_SHOVEL,
+    HAZARD_UPLINK_QUEUE,
+    HAZARD_UPLINK_SHOVEL,
+    UPLINK_QUEUE,
+    UPLINK_SHOVEL,
+)
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.store.sites import SiteSummary
 
@@ -104,12 +111,18 @@ class SiteLink:
     """Robots of the site's team whose events are not forwarded (central did not send them)."""
     rejected: int | None = None
     """Downlink messages ``fleetbus site apply`` could not parse (in ``fleetbus.downlink.rejected``)."""
+    hazard_uplink: ShovelState | None = None
+    """The shovel of the hazards' states."""
+    hazard_states_waiting: int | None = None
+    """Hazard states in ``fleetbus.hazard-uplink`` not yet confirmed by central."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "uplink": self.uplink.__dict__,
             "downlink": self.downlink.__dict__,
+            "hazard_uplink": self.hazard_uplink.__dict__ if self.hazard_uplink else None,
             "waiting": self.waiting,
+            "hazard_states_waiting": self.hazard_states_waiting,
             "not_forwarded": self.not_forwarded,
             "rejected": self.rejected,
         }
@@ -128,13 +141,20 @@ def site_view(api: ManagementAPI, vhost: str, team: Collection[str]) -> SiteLink
             name, str(shovel.get("state")), shovel.get("timestamp"), str(reason) if reason else None
         )
 
-    waiting = None
-    with contextlib.suppress(ManagementError):
-        queue = api.get_queue(vhost, UPLINK_QUEUE)
-        waiting = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
-    rejected = None
-    with contextlib.suppress(ManagementError):
-        queue = api.get_queue(vhost, DOWNLINK_REJECTED_QUEUE)
-        rejected = int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
+    def held(queue_name: str) -> int | None:
+        """Ready and in flight in ``queue_name``; None when the broker cannot tell."""
+        with contextlib.suppress(ManagementError):
+            queue = api.get_queue(vhost, queue_name)
+            return int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
+        return None
+
     not_forwarded = sorted(set(team) - forwarded_robots(api, vhost))
-    return SiteLink(state(UPLINK_SHOVEL), state(DOWNLINK_SHOVEL), waiting, not_forwarded, rejected)
+    return SiteLink(
+        state(UPLINK_SHOVEL),
+        state(DOWNLINK_SHOVEL),
+        held(UPLINK_QUEUE),
+        not_forwarded,
+        held(DOWNLINK_REJECTED_QUEUE),
+        state(HAZARD_UPLINK_SHOVEL),
+        held(HAZARD_UPLINK_QUEUE),
+    )

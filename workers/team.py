@@ -91,9 +91,12 @@ def why_closed(
 
 
 def why_held(hazard: Hazard, state: Gate, last_seen: Mapping[str, datetime | None], now: datetime) -> str:
-    """Why ``hazard`` is still held: the gate, or with the gate open, what its announcement met."""
+    """Why ``hazard`` is still held: the gate, or with the gate open, what its announcement met. A
+    site's hazard waits for its site's gate, not this one: what its site said, if anything."""
     if hazard.state is not HazardState.HELD:
         return ""
+    if hazard.site is not None:
+        return f"held at site {hazard.site}" + (f": {hazard.held_reason}" if hazard.held_reason else "")
     closed = why_closed(state, last_seen, now)
     if closed:
         return closed

@@ -34,6 +34,8 @@ def test_sites_add_site_up_and_both_views_of_the_link(pair: SitePair) -> None:
         return {row["site"]: row for row in json.loads(shown.stdout)}
 
     wait_for(lambda: site_status()["uplink"]["state"] == "running", what="the uplink running")
+    # the hazard states' shovel too: `sites add` made base2.hazards at central
+    wait_for(lambda: site_status()["hazard_uplink"]["state"] == "running", what="the hazard uplink running")
     explorer = site.robot(site.add("explorer2", kind=RobotKind.EXPLORER))
     robots = json.loads(fleetbus(site, "site", "status", "--json").stdout)["not_forwarded"]
     assert robots == ["explorer2"], "a robot central did not send is shown, not forwarded"

@@ -31,6 +31,8 @@ def test_central_shows_what_waits_at_the_site_and_how_old_that_is(pair: SitePair
     assert row["waiting"] is None and row["reported_at"] is None, "no report yet"
 
     pair.stop()  # the shovels stopped: the robot's events wait in the uplink
+    # their connections to central close after the shovels are deleted, not with the deletion
+    wait_for(lambda: not _row(pair)["link_up"], what="the shovels' connections closed at central")
     explorer.publish_many([("status", status(80)) for _ in range(3)])
     wait_for(lambda: pair.uplink_waiting() == 3, what="three waiting at the site")
     # as `fleetbus site status` counts them (the management API's figures lag a few seconds)

@@ -49,6 +49,15 @@ class Hazard:
     held_reason: str | None = None
     """While held with the gate open: why the last announcement did not count (no warden's inbox
     took it). The gate's own reasons are the team's state, read when asked (:mod:`fleetbus.workers.team`)."""
+    version: int = 0
+    """Grows with each change of its state where it is kept. At a site, central is sent each new
+    version (:mod:`fleetbus.workers.hazard_uplink`); at central, a site's hazard holds the version
+    the site sent last, and an older one is never applied over it."""
+    site: str | None = None
+    """At central: the site whose hazard this is; its state is the site's (its wardens are there).
+    None: central's own hazard."""
+    site_hazard_id: int | None = None
+    """At central: the hazard's id at its site (central gives it an id of its own in the mission)."""
 
     def as_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
@@ -171,6 +180,17 @@ class HazardRefused(StoreError):
     """A claim, release or arrival the hazard's state does not allow; the message says why."""
 
 
+class SiteApplied(str, Enum):
+    """What central made of a site's hazard state (:meth:`CoordinationStore.apply_site_hazard`)."""
+
+    APPLIED = "applied"
+    """Registered, or newer than what central had: central shows it now."""
+    STALE = "stale"
+    """Central has this version or a newer one already (repeated, or overtaken): nothing changed."""
+    NOT_THE_SITES = "not-the-sites"
+    """Central has this hazard event as its own, or as another site's: the site may not set it."""
+
+
 class CoordinationStore(abc.ABC):
     @abc.abstractmethod
     async def register_robot(self, name: str, kind: str | None) -> None:
@@ -275,10 +295,29 @@ class CoordinationStore(abc.ABC):
         """The ``limit`` hazards cleared last, of every mission, the last cleared first."""
 
     @abc.abstractmethod
+    async def unsent_hazards(self, limit: int) -> list[Hazard]:
+        """At a site: the store's own hazards (none of another site's) whose newest version is
+        not marked sent (:meth:`mark_sent`), by mission then id, at most ``limit``."""
+
+    @abc.abstractmethod
+    async def mark_sent(self, hazards: Sequence[Hazard]) -> None:
+        """Each of ``hazards`` is on its way to central at its :attr:`Hazard.version`: a version
+        marked before is never marked back, a newer one stays unsent."""
+
+    @abc.abstractmethod
+    async def apply_site_hazard(self, site: str, hazard: Hazard) -> tuple[SiteApplied, Hazard | None]:
+        """At central: take ``hazard`` as ``site`` has it (its id and version there) into the
+        registry, atomically: registered under the mission's next id when central does not have its
+        event yet, updated when its version is newer than central's, left alone when not
+        (:attr:`SiteApplied.STALE`); refused when central has the event as its own hazard or as
+        another site's. Returns what was done and the hazard as central has it now."""
+
+    @abc.abstractmethod
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
-        """Apply one of the :data:`TRANSITIONS` atomically, or raise :class:`HazardRefused`."""
+        """Apply one of the :data:`TRANSITIONS` atomically, or raise :class:`HazardRefused` (also
+        for a site's hazard, whose steps are taken at its site)."""
 
     async def claim(self, mission_id: str, hazard_id: int, warden: str, at: datetime) -> Hazard:
         """Give an announced hazard to ``warden``; atomic, so of two claims one wins."""
@@ -303,6 +342,11 @@ def refuse_transition(
     """The error for an action the hazard's current state does not allow."""
     if hazard is None:
         return HazardRefused(f"no hazard {hazard_id} in mission {mission_id!r}")
+    if hazard.site is not None:
+        return HazardRefused(
+            f"hazard {hazard_id} is site {hazard.site}'s (its hazard {hazard.site_hazard_id} there): "
+            f"its wardens take its steps at the site; it cannot be {action} here"
+        )
     if hazard.state is HazardState.HELD:
         return HazardRefused(
             f"hazard {hazard_id} is held until every warden is localised; it cannot be {action}"

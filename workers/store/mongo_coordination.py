@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import datetime
 from typing import Any
 
@@ -15,6 +16,7 @@ from fleetbus.workers.store.hazards import (
     Hazard,
     HazardState,
     RobotState,
+    SiteApplied,
     Transition,
     refuse_transition,
 )
@@ -23,6 +25,9 @@ from fleetbus.workers.store.mongo_database import OnMongo, translate_unavailable
 TIMES = ("announced_at", "claimed_at", "reached_at", "cleared_at")
 #: What a robot's document starts with: in the team, in service, nothing owed.
 NEW_ROBOT = {"in_service": True, "service_changed_by": None, "service_changed_at_us": None, "catch_up": False}
+#: What every change of a hazard's state adds: a new version, not yet sent to central (at a site).
+#: ``unsent`` is False once the version is marked sent; a document made before it had none is unsent.
+CHANGED = {"$inc": {"version": 1}, "$set": {"unsent": True}}
 
 
 def hazard_id_of(mission_id: str, hazard_id: int) -> str:
@@ -41,6 +46,9 @@ def _hazard(doc: dict[str, Any]) -> Hazard:
         received_at=from_micros(doc["received_at_us"]),
         claimed_by=doc.get("claimed_by"),
         held_reason=doc.get("held_reason"),
+        version=doc.get("version", 0),
+        site=doc.get("site"),
+        site_hazard_id=doc.get("site_hazard_id"),
         **{
             name: from_micros(doc[f"{name}_us"]) if doc.get(f"{name}_us") is not None else None
             for name in TIMES
@@ -79,6 +87,7 @@ class MongoCoordination(OnMongo, CoordinationStore):
             [("announced_at_us", ASCENDING), ("mission_id", ASCENDING), ("hazard_id", ASCENDING)]
         )
         await self._collection("hazards").create_index([("received_at_us", DESCENDING)])
+        await self._collection("hazards").create_index([("unsent", ASCENDING), ("site", ASCENDING)])
         await self._collection("hazards").create_index([("state", ASCENDING), ("received_at_us", DESCENDING)])
 
     async def register_robot(self, name: str, kind: str | None) -> None:
@@ -171,6 +180,8 @@ class MongoCoordination(OnMongo, CoordinationStore):
                 "held_reason": None,
                 **{f"{name}_us": None for name in TIMES},
                 "announced_at_us": None if held else to_micros(received_at),
+                "version": 0,
+                "unsent": True,
             }
             try:
                 await hazards.insert_one(doc)
@@ -192,7 +203,7 @@ class MongoCoordination(OnMongo, CoordinationStore):
     async def unannounced_hazards(self) -> list[Hazard]:
         cursor = (
             self._collection("hazards")
-            .find({"announced_at_us": None})
+            .find({"announced_at_us": None, "site": None})  # a site's hazards are announced there
             .sort([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
         )
         return [_hazard(doc) async for doc in cursor]
@@ -200,13 +211,15 @@ class MongoCoordination(OnMongo, CoordinationStore):
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
         ids = [hazard_id_of(h.mission_id, h.hazard_id) for h in hazards]
         collection, stamp = self._collection("hazards"), to_micros(at)
+        announced = {"state": HazardState.ANNOUNCED.value, "announced_at_us": stamp, "held_reason": None}
         await collection.update_many(
             {"_id": {"$in": ids}, "state": HazardState.HELD.value},
-            {"$set": {"state": HazardState.ANNOUNCED.value, "announced_at_us": stamp, "held_reason": None}},
+            {**CHANGED, "$set": {**CHANGED["$set"], **announced}},
         )
         # one claimed by the first warden to get it, before this mark
         await collection.update_many(
-            {"_id": {"$in": ids}, "announced_at_us": None}, {"$set": {"announced_at_us": stamp}}
+            {"_id": {"$in": ids}, "announced_at_us": None},
+            {**CHANGED, "$set": {**CHANGED["$set"], "announced_at_us": stamp}},
         )
 
     async def note_held(self, hazards: list[Hazard], reason: str) -> None:
@@ -252,12 +265,79 @@ class MongoCoordination(OnMongo, CoordinationStore):
         )
         return [_hazard(doc) async for doc in cursor]
 
+    async def unsent_hazards(self, limit: int) -> list[Hazard]:
+        cursor = (
+            self._collection("hazards")
+            .find({"unsent": {"$ne": False}, "site": None})
+            .sort([("mission_id", ASCENDING), ("hazard_id", ASCENDING)])
+            .limit(limit)
+        )
+        return [_hazard(doc) async for doc in cursor]
+
+    async def mark_sent(self, hazards: Sequence[Hazard]) -> None:
+        collection = self._collection("hazards")
+        for hazard in hazards:
+            # only the version sent: a change since keeps it unsent (0 is also a document's without one)
+            version: dict[str, Any] = {"$in": [0, None]} if hazard.version == 0 else hazard.version
+            await collection.update_one(
+                {"_id": hazard_id_of(hazard.mission_id, hazard.hazard_id), "version": version},
+                {"$set": {"unsent": False}},
+            )
+
+    async def apply_site_hazard(self, site: str, hazard: Hazard) -> tuple[SiteApplied, Hazard | None]:
+        hazards = self._collection("hazards")
+        source = {"robot_id": hazard.robot_id, "epoch": hazard.epoch, "seq": hazard.seq}
+        state = {
+            "state": hazard.state.value,
+            "claimed_by": hazard.claimed_by,
+            "held_reason": hazard.held_reason,
+            "version": hazard.version,
+            "site_hazard_id": hazard.hazard_id,
+            **{f"{name}_us": _micros(getattr(hazard, name)) for name in TIMES},
+        }
+        while True:
+            existing = await hazards.find_one(source)
+            if existing is None:
+                last = await hazards.find_one(
+                    {"mission_id": hazard.mission_id}, sort=[("hazard_id", DESCENDING)]
+                )
+                next_id = (last["hazard_id"] if last else 0) + 1
+                doc = {
+                    "_id": hazard_id_of(hazard.mission_id, next_id),
+                    "mission_id": hazard.mission_id,
+                    "hazard_id": next_id,
+                    **source,
+                    "event": hazard.event,
+                    "received_at": hazard.received_at,
+                    "received_at_us": to_micros(hazard.received_at),
+                    "site": site,
+                    "unsent": False,
+                    **state,
+                }
+                try:
+                    await hazards.insert_one(doc)
+                except DuplicateKeyError:  # the id, or this event, taken meanwhile: look again
+                    continue
+                return SiteApplied.APPLIED, _hazard(doc)
+            if existing.get("site") != site:
+                return SiteApplied.NOT_THE_SITES, _hazard(existing)
+            doc = await hazards.find_one_and_update(
+                {"_id": existing["_id"], "site": site, "version": {"$lt": hazard.version}},
+                {"$set": state},
+                return_document=ReturnDocument.AFTER,
+            )
+            if doc is None:
+                current = await hazards.find_one({"_id": existing["_id"]})
+                return SiteApplied.STALE, _hazard(current) if current else None
+            return SiteApplied.APPLIED, _hazard(doc)
+
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
         condition: dict[str, Any] = {
             "_id": hazard_id_of(mission_id, hazard_id),
             "state": {"$in": [source.value for source in transition.sources]},
+            "site": None,  # a site's hazard takes its steps at its site (its state here is the site's)
         }
         if transition.claimer_only:
             condition["claimed_by"] = warden
@@ -268,11 +348,17 @@ class MongoCoordination(OnMongo, CoordinationStore):
             change[f"{transition.stamp}_us"] = to_micros(at)
             if not transition.claimer_only:
                 change["claimed_by"] = warden
-        await self._collection("hazards").find_one_and_update(condition, {"$set": change})
+        await self._collection("hazards").find_one_and_update(
+            condition, {**CHANGED, "$set": {**CHANGED["$set"], **change}}
+        )
         hazard = await self.get_hazard(mission_id, hazard_id)
         if hazard is None or not transition.done_by(hazard, warden):
             raise refuse_transition(hazard, mission_id, hazard_id, transition.action, warden)
         return hazard
+
+
+def _micros(moment: datetime | None) -> int | None:
+    return to_micros(moment) if moment else None
 
 
 def _beacon(doc: dict[str, Any]) -> Beacon:

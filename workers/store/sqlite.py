@@ -28,7 +28,7 @@ from fleetbus.workers.store.repositories import EventLog, Repositories
 from fleetbus.workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
 from fleetbus.workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from fleetbus.workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
-from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination
+from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, add_hazard_columns
 from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transaction
 from fleetbus.workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from fleetbus.workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
@@ -160,6 +160,7 @@ class SQLiteFile(SQLiteDatabase):
             SITE_SCHEMA,
         ):
             db.executescript(schema)
+        add_hazard_columns(db)
 
 
 def sqlite_repositories(path: Path, busy_timeout: float = 2.0) -> Repositories:

@@ -17,6 +17,7 @@ from fleetbus.workers.store.hazards import (
     HeldHazards,
     NewHazard,
     RobotState,
+    SiteApplied,
     Transition,
     refuse_transition,
 )
@@ -63,6 +64,29 @@ CREATE INDEX IF NOT EXISTS hazards_received ON hazards (received_at);
 CREATE INDEX IF NOT EXISTS hazards_state_received ON hazards (state, received_at);
 """
 
+#: Columns added to ``hazards`` after its first version: a file made before gets them on opening
+#: (:func:`add_hazard_columns`), with these defaults.
+HAZARD_COLUMNS = (
+    ("version", "INTEGER NOT NULL DEFAULT 0"),
+    ("sent_version", "INTEGER"),
+    ("site", "TEXT"),
+    ("site_hazard_id", "INTEGER"),
+)
+UNSENT = "site IS NULL AND (sent_version IS NULL OR sent_version < version)"
+
+
+def add_hazard_columns(db: sqlite3.Connection) -> None:
+    """Add the :data:`HAZARD_COLUMNS` ``hazards`` lacks, and their indexes; idempotent."""
+    present = {row[1] for row in db.execute("PRAGMA table_info(hazards)")}
+    for name, declaration in HAZARD_COLUMNS:
+        if name not in present:
+            try:
+                db.execute(f"ALTER TABLE hazards ADD COLUMN {name} {declaration}")
+            except sqlite3.OperationalError as error:  # the other connection added it first
+                if "duplicate column" not in str(error):
+                    raise
+    db.execute(f"CREATE INDEX IF NOT EXISTS hazards_unsent ON hazards (mission_id, hazard_id) WHERE {UNSENT}")
+
 
 def _micros(moment: datetime | None) -> int | None:
     return to_micros(moment) if moment else None
@@ -87,6 +111,9 @@ def _hazard(row: sqlite3.Row) -> Hazard:
         reached_at=moment("reached_at"),
         cleared_at=moment("cleared_at"),
         held_reason=row["held_reason"],
+        version=row["version"],
+        site=row["site"],
+        site_hazard_id=row["site_hazard_id"],
     )
 
 
@@ -213,7 +240,7 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
                 db,
                 lambda: db.executemany(
                     "UPDATE hazards SET state = CASE state WHEN 'held' THEN 'announced' ELSE state END, "
-                    "announced_at = COALESCE(announced_at, ?), held_reason = NULL "
+                    "announced_at = COALESCE(announced_at, ?), held_reason = NULL, version = version + 1 "
                     "WHERE mission_id = ? AND hazard_id = ?",
                     keys,
                 ),
@@ -272,6 +299,76 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
         rows = await self._run(lambda db: db.execute(sql, (limit,)).fetchall())
         return [_hazard(row) for row in rows]
 
+    async def unsent_hazards(self, limit: int) -> list[Hazard]:
+        sql = f"SELECT * FROM hazards WHERE {UNSENT} ORDER BY mission_id, hazard_id LIMIT ?"
+        rows = await self._run(lambda db: db.execute(sql, (limit,)).fetchall())
+        return [_hazard(row) for row in rows]
+
+    async def mark_sent(self, hazards: Sequence[Hazard]) -> None:
+        keys = [(h.version, h.mission_id, h.hazard_id, h.version) for h in hazards]
+
+        def mark(db: sqlite3.Connection) -> None:
+            in_transaction(
+                db,
+                lambda: db.executemany(
+                    "UPDATE hazards SET sent_version = ? WHERE mission_id = ? AND hazard_id = ? "
+                    "AND (sent_version IS NULL OR sent_version < ?)",
+                    keys,
+                ),
+            )
+
+        await self._run(mark, small=True)
+
+    async def apply_site_hazard(self, site: str, hazard: Hazard) -> tuple[SiteApplied, Hazard | None]:
+        def work(db: sqlite3.Connection) -> tuple[SiteApplied, Hazard | None]:
+            new = NewHazard(
+                hazard.mission_id, hazard.robot_id, hazard.epoch, hazard.seq, hazard.event, hazard.received_at
+            )
+            row = _registered(db, new)
+            if row is None:
+                mission_id, hazard_id = hazard.mission_id, _next_id(db, hazard.mission_id)
+                db.execute(
+                    "INSERT INTO hazards (mission_id, hazard_id, robot_id, epoch, seq, event, state, "
+                    "received_at, site, version) VALUES (?, ?, ?, ?, ?, ?, 'held', ?, ?, -1)",
+                    (
+                        mission_id,
+                        hazard_id,
+                        hazard.robot_id,
+                        hazard.epoch,
+                        hazard.seq,
+                        json.dumps(hazard.event),
+                        to_micros(hazard.received_at),
+                        site,
+                    ),
+                )
+            elif row["site"] != site:
+                return SiteApplied.NOT_THE_SITES, _hazard(row)
+            elif row["version"] >= hazard.version:
+                return SiteApplied.STALE, _hazard(row)
+            else:
+                mission_id, hazard_id = row["mission_id"], row["hazard_id"]
+            db.execute(
+                "UPDATE hazards SET state = ?, announced_at = ?, claimed_by = ?, claimed_at = ?, "
+                "reached_at = ?, cleared_at = ?, held_reason = ?, version = ?, site_hazard_id = ? "
+                "WHERE mission_id = ? AND hazard_id = ?",
+                (
+                    hazard.state.value,
+                    _micros(hazard.announced_at),
+                    hazard.claimed_by,
+                    _micros(hazard.claimed_at),
+                    _micros(hazard.reached_at),
+                    _micros(hazard.cleared_at),
+                    hazard.held_reason,
+                    hazard.version,
+                    hazard.hazard_id,
+                    mission_id,
+                    hazard_id,
+                ),
+            )
+            return SiteApplied.APPLIED, _one(db, mission_id, hazard_id)
+
+        return await self._run(lambda db: in_transaction(db, lambda: work(db)))
+
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
@@ -282,7 +379,8 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
         else:
             changes, values = f"claimed_by = ?, {transition.stamp} = ?", (warden, to_micros(at))
         sources = ", ".join("?" for _ in transition.sources)
-        condition = f"state IN ({sources}) AND mission_id = ? AND hazard_id = ?" + (
+        # a site's hazard takes its steps at its site (its state here is the site's)
+        condition = f"state IN ({sources}) AND site IS NULL AND mission_id = ? AND hazard_id = ?" + (
             " AND claimed_by = ?" if transition.claimer_only else ""
         )
         params = (
@@ -296,7 +394,10 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
 
         def change(db: sqlite3.Connection) -> Hazard:
             def work() -> Hazard:
-                db.execute(f"UPDATE hazards SET state = ?, {changes} WHERE {condition}", params)
+                db.execute(
+                    f"UPDATE hazards SET state = ?, {changes}, version = version + 1 WHERE {condition}",
+                    params,
+                )
                 hazard = _one(db, mission_id, hazard_id)
                 if hazard is None or not transition.done_by(hazard, warden):
                     raise refuse_transition(hazard, mission_id, hazard_id, transition.action, warden)
@@ -312,11 +413,7 @@ def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazar
     row = _registered(db, new)
     if row:
         return _hazard(row)
-    (next_id,) = db.execute(
-        "INSERT INTO hazard_counters (mission_id, last_id) VALUES (?, 1) "
-        "ON CONFLICT (mission_id) DO UPDATE SET last_id = last_id + 1 RETURNING last_id",
-        (new.mission_id,),
-    ).fetchone()
+    next_id = _next_id(db, new.mission_id)
     state = HazardState.HELD if held else HazardState.ANNOUNCED
     db.execute(
         "INSERT INTO hazards (mission_id, hazard_id, robot_id, epoch, seq, event, state, received_at, "
@@ -338,6 +435,16 @@ def register_hazard(db: sqlite3.Connection, new: NewHazard, held: bool) -> Hazar
     return found
 
 
+def _next_id(db: sqlite3.Connection, mission_id: str) -> int:
+    """The mission's next hazard id, taken (inside the caller's transaction)."""
+    (next_id,) = db.execute(
+        "INSERT INTO hazard_counters (mission_id, last_id) VALUES (?, 1) "
+        "ON CONFLICT (mission_id) DO UPDATE SET last_id = last_id + 1 RETURNING last_id",
+        (mission_id,),
+    ).fetchone()
+    return int(next_id)
+
+
 def _registered(db: sqlite3.Connection, hazard: NewHazard) -> sqlite3.Row | None:
     """The hazard registered for ``hazard``'s event, if any."""
     row: sqlite3.Row | None = db.execute(
@@ -350,7 +457,8 @@ def _registered(db: sqlite3.Connection, hazard: NewHazard) -> sqlite3.Row | None
 def _unannounced(db: sqlite3.Connection) -> list[Hazard]:
     """Hazards no warden's inbox has confirmed yet, by mission then id (held ones, and one claimed
     on its way before the worker announcing it could mark it)."""
-    sql = "SELECT * FROM hazards WHERE announced_at IS NULL ORDER BY mission_id, hazard_id"
+    # a site's hazards are announced at their site, never here
+    sql = "SELECT * FROM hazards WHERE announced_at IS NULL AND site IS NULL ORDER BY mission_id, hazard_id"
     return [_hazard(row) for row in db.execute(sql)]
 
 

@@ -59,6 +59,7 @@ def hazards(
         "where",
         "detected at",
         "by",
+        "site",
         "claimed by",
         "held because",
         title=f"mission {mission}",
@@ -72,6 +73,7 @@ def hazards(
             f"({body['pose']['x']:g}, {body['pose']['y']:g})",
             body["detected_at"][:23],
             hazard.robot_id,
+            f"{hazard.site} (#{hazard.site_hazard_id})" if hazard.site else "",
             hazard.claimed_by or "",
             why,
         )

@@ -102,7 +102,8 @@ def up(
 
 @app.command()
 def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False) -> None:
-    """The uplink and downlink: running or not, since when, and what waits to be forwarded."""
+    """The uplink, downlink and hazard uplink: running or not, since when, and what waits to be
+    forwarded."""
     ep = endpoint()
     team = run_with_repositories(settings(), lambda repos: repos.hazards.robots())
     with admin_api(ep) as api:
@@ -113,12 +114,14 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     table = Table(title="links to central")
     for column in ("shovel", "state", "since", "reason"):
         table.add_column(column)
-    for shovel in (link.uplink, link.downlink):
+    for shovel in (link.uplink, link.downlink, *([link.hazard_uplink] if link.hazard_uplink else [])):
         colour = "green" if shovel.state == "running" else "red"
         table.add_row(shovel.name, f"[{colour}]{shovel.state}[/]", shovel.since or "-", shovel.reason or "")
     console.print(table)
     waiting = "?" if link.waiting is None else f"{link.waiting:,}"
     console.print(f"waiting to be forwarded: {waiting} events", highlight=False)
+    if link.hazard_states_waiting:
+        console.print(f"hazard states waiting for central: {link.hazard_states_waiting:,}", highlight=False)
     if link.rejected:
         console.print(
             f"[red]downlink messages not understood: {link.rejected:,}[/] "

@@ -13,7 +13,8 @@ from rich.table import Table
 
 from fleetbus.broker.accounts import as_public, vhost_of
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.sites import add_site_account
+from fleetbus.broker.sites import add_site_account, central_site_topology
+from fleetbus.broker.topology import declare_with_url
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.recorder.summary import shorten
@@ -102,7 +103,9 @@ def add(
     ep = endpoint()
     with admin_api(ep) as api:
         try:
-            account = asyncio.run(add_site_account(ep.amqp_url, api, site, rotate=rotate))
+            account = asyncio.run(
+                add_site_account(ep.amqp_url, api, site, rotate=rotate, cluster=settings().cluster)
+            )
             names = run_with_repositories(
                 settings(), lambda repos: assign_robots(repos, api, ep.amqp_url, site, _names(robots))
             )
@@ -137,11 +140,13 @@ def robots_command(
 @app.command()
 def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
     """Send the site every one of its robots' accounts and every mission again (after a re-key, to a
-    new site node, or when a change could not be sent)."""
+    new site node, or when a change could not be sent); declare what central takes from the site
+    (its status and hazards exchanges: a site added by an older fleetbus gets the latter)."""
     ep = endpoint()
     known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
     if site not in known:
         fail(f"no site {site!r}")
+    asyncio.run(declare_with_url(ep.amqp_url, [central_site_topology(site, settings().cluster)]))
     with admin_api(ep) as api:
         _send_accounts(api, ep.amqp_url, site, known[site])
         missions = run_with_repositories(settings(), mission_changes)
