@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, OVERFLOW_EXCHANGE, UPLINK_QUEUE
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, HAZARD_UPLINK_QUEUE, OVERFLOW_EXCHANGE, UPLINK_QUEUE
 
 if TYPE_CHECKING:  # every process that loads the settings imports this module: httpx is 6 MB
     from fleetbus.broker.management import ManagementAPI
@@ -79,12 +79,16 @@ def bound_policies(inbox: QueueLimit, dead_letters: QueueLimit) -> list[QueuePol
     ]
 
 
-def uplink_policy(max_messages: int, max_bytes: int) -> QueuePolicy:
-    """A site's uplink (:mod:`fleetbus.broker.sites`): full means the broker refuses the robot's
-    publish (``reject-publish``, a nack), so the event stays in the robot's outbox and is sent
-    again; never a drop, since central has not got it yet."""
+def uplink_policies(max_messages: int, max_bytes: int) -> list[QueuePolicy]:
+    """A site's uplink and hazard uplink (:mod:`fleetbus.broker.sites`), each bounded alike: full
+    means the broker refuses the publish (``reject-publish``, a nack), so the event stays in the
+    robot's outbox, or the hazard's state unsent in the site's store, and is sent again; never a
+    drop, since central has not got it yet."""
     definition = {"overflow": "reject-publish", "max-length": max_messages, "max-length-bytes": max_bytes}
-    return QueuePolicy("fleetbus-uplink", _exactly(UPLINK_QUEUE), definition)
+    return [
+        QueuePolicy("fleetbus-uplink", _exactly(UPLINK_QUEUE), definition),
+        QueuePolicy("fleetbus-hazard-uplink", _exactly(HAZARD_UPLINK_QUEUE), definition),
+    ]
 
 
 def apply_policies(api: ManagementAPI, vhost: str, policies: list[QueuePolicy]) -> None:

@@ -42,7 +42,7 @@ from aio_pika.abc import ExchangeType
 
 from fleetbus.broker.accounts import Account, Role, url_for, vhost_of
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.policies import apply_policies, uplink_policy
+from fleetbus.broker.policies import apply_policies, uplink_policies
 from fleetbus.broker.tls import shovel_uri
 from fleetbus.broker.topology import (
     BindingSpec,
@@ -89,8 +89,8 @@ SITE_HAZARDS_QUEUE_ARGUMENTS = {"x-queue-type": "classic", "x-dead-letter-exchan
 
 
 def site_topology() -> Topology:
-    """The uplink and downlink queues; the uplink's bound is a policy (:func:`uplink_policy`), so
-    that changing it needs no new queue."""
+    """The uplink, downlink and hazard uplink queues; the uplinks' bounds are policies
+    (:func:`~fleetbus.broker.policies.uplink_policies`), so that changing them needs no new queue."""
     return Topology(
         queues=(
             QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
@@ -186,7 +186,7 @@ async def start_site_links(
     validate_name(site)
     # the ingest exchange first (declaring what exists changes nothing; one shard is what it needs)
     vhost = vhost_of(admin_url)
-    apply_policies(api, vhost, [uplink_policy(max_messages, max_bytes)])
+    apply_policies(api, vhost, uplink_policies(max_messages, max_bytes))
     await declare_with_url(admin_url, [core_topology(1), site_topology()])
     api.put_shovel(vhost, UPLINK_SHOVEL, uplink_shovel(central_url, vhost, reconnect_delay_s, prefetch))
     api.put_shovel(vhost, DOWNLINK_SHOVEL, downlink_shovel(central_url, site, vhost, reconnect_delay_s))

@@ -218,7 +218,8 @@ class Settings(BaseSettings):
     uplink_max: Annotated[int, Positive] = setting(
         1_000_000,
         "on a site: the most events waiting to be forwarded to central (`fleetbus.uplink`); when it is full "
-        "the site's broker refuses robots' events, which stay in their outboxes (set by `fleetbus site up`)",
+        "the site's broker refuses robots' events, which stay in their outboxes (set by `fleetbus site up`); "
+        "the hazard states waiting for central (`fleetbus.hazard-uplink`) have the same bound",
     )
     uplink_max_bytes: Annotated[int, Positive] = setting(
         4 * 1024**3,

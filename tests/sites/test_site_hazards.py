@@ -15,6 +15,7 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.sites import add_site_account
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.rpc import ServiceRefused
 from fleetbus.schemas.envelope import build_event, new_epoch
 from fleetbus.schemas.notifications import Notification
@@ -115,7 +116,7 @@ def _state(robot: str, version: int, state: str = "announced", **fields: Any) ->
 def send_as_site(pair: SitePair, bodies: list[bytes], site: str | None = None) -> None:
     """Publish ``bodies`` to ``site``'s hazards exchange at central as the site (confirmed)."""
     assert pair.account is not None
-    connection = pika.BlockingConnection(pika.URLParameters(pair.account.amqp_url))
+    connection = blocking_connection(pair.account.amqp_url)
     try:
         channel = connection.channel()
         channel.confirm_delivery()
@@ -254,3 +255,31 @@ def test_central_shows_a_sites_hazard_and_takes_no_step_of_it(pair: SitePair) ->
         card = card[: card.index("</article>")]
         assert "site base1 (#5 there)" in card and "warden1" in card
         assert "hx-post" not in card, "no step for central to take"
+
+
+def test_a_full_hazard_uplink_keeps_the_states_unsent_at_the_site_until_there_is_room(pair: SitePair) -> None:
+    pair.site.settings = pair.site.settings.updated(uplink_max=1)
+    asyncio.run(pair.start_links())  # what `fleetbus site up` does again after a change of the bound
+    explorer = pair.site.robot(pair.add_robot("explorer1", RobotKind.EXPLORER))
+    warden = pair.site.robot(pair.add_robot("warden1", RobotKind.WARDEN))
+    with pair.site.worker(), pair.central.worker():
+        warden.publish("localisation", {"localised": True})
+        wait_for(lambda: pair.central.count() == 1, what="the link up")
+        pair.link.cut()
+        events = [
+            explorer.publish("hazard", hazard(i), wait=False) for i in range(3)
+        ]  # the full uplink refuses two
+        for _ in events:
+            announced(warden)
+        wait_for(lambda: pair.site.ready_messages(HAZARD_UPLINK_QUEUE) == 1, what="the hazard uplink full")
+        unsent = pair.site.with_store(lambda repos: repos.hazards.unsent_hazards(10))
+        assert len(unsent) == 2, "the refused states wait in the site's store, not dropped"
+        pair.link.restore()
+        wait_for(
+            lambda: (
+                sorted((h.seq, h.state) for h in central_hazards(pair, "explorer1"))
+                == [(e.seq, HazardState.ANNOUNCED) for e in events]
+            ),
+            timeout=60,
+            what="all three announced at central",
+        )
