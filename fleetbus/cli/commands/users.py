@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 from typing import Annotated
+from urllib.parse import urlsplit
 
 import typer
 from rich.table import Table
@@ -12,15 +13,18 @@ from fleetbus.broker.accounts import (
     AccountExists,
     Role,
     as_public,
+    can_login,
     delete_account,
     provision_account,
     save_secret,
 )
+from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
 from fleetbus.broker.team_changes import HazardServiceNotTold
-from fleetbus.broker.tls import split_tls
+from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
 from fleetbus.cli.registry import register_robot
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.settings import Settings
 from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.team import leave_team
 
@@ -36,9 +40,20 @@ def add(
     save: Annotated[
         bool, typer.Option(help="keep the URL in FLEETBUS_DATA_DIR/accounts for `publish`")
     ] = True,
+    cert: Annotated[
+        bool,
+        typer.Option(
+            "--cert",
+            help="no password: the account logs in with a client certificate (CN=NAME) made now, "
+            "signed by fleetbus's CA (docs/operations/tls.md)",
+        ),
+    ] = False,
 ) -> None:
-    """Create an account with a random password; its URL is printed once."""
+    """Create an account with a random password (or, with --cert, none and a client certificate);
+    its URL is printed once."""
     ep, config = endpoint(), settings()
+    if cert and urlsplit(ep.public_url or ep.amqp_url).scheme != "amqps":
+        fail("--cert needs a broker reached over TLS (amqps://): see docs/operations/tls.md")
     with admin_api(ep) as api:
         try:
             account = asyncio.run(
@@ -51,6 +66,7 @@ def add(
                     rotate=rotate,
                     shards=config.ingest_shards,
                     cluster=config.cluster,
+                    password_login=not cert,
                 )
             )
         except (AccountExists, ValueError) as error:
@@ -58,6 +74,8 @@ def add(
     if role is Role.ROBOT:
         register_robot(config, name, kind)
     url = as_public(account.amqp_url, ep.public_url)
+    if cert:
+        url = _with_certificate(config, name, url)
     if save:
         save_secret(config.accounts_dir / f"{name}.url", url)
     console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")
@@ -70,6 +88,25 @@ def add(
             soft_wrap=True,
             highlight=False,
         )
+
+
+def _with_certificate(config: Settings, name: str, url: str) -> str:
+    """Sign ``name``'s client certificate and return ``url`` logging in with it."""
+    files = TlsFiles.for_settings(config)
+    client = ClientFiles.in_folder(files.clients, name)
+    try:
+        issue_client_certificate(files, client, name)
+    except CertificateError as error:
+        fail(f"made the account {name}, but not its certificate: {error}")
+    url = with_client_certificate(url, client.cert, client.key)
+    console.print(f"its client certificate: {client.cert} (key: {client.key}, 0600)", soft_wrap=True)
+    if not can_login(url):
+        console.print(
+            "[yellow]the broker refuses the certificate's login: it needs the EXTERNAL mechanism "
+            "(the private node gets it at its next start: `fleetbus broker down`, then `up`)[/]",
+            soft_wrap=True,
+        )
+    return url
 
 
 @app.command("remove")
