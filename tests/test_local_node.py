@@ -32,6 +32,7 @@ from fleetbus.broker.tls import TlsSettingError, blocking_connection, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
+    PLUGINS,
     RABBITMQ_SERVER,
     TLS_PORT_NAMES,
     LocalNode,
@@ -515,6 +516,34 @@ def test_the_certificate_is_the_identity_a_robot_cannot_act_as_another(
         channel.basic_publish(events_exchange("cert-scout"), "cert-scout.hazard", b"{}", properties)
     finally:
         ok.close()
+
+
+def test_a_node_started_without_certificate_logins_offers_them_after_its_next_start(
+    node: LocalNode, node_settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As after an upgrade: the running node was started by a version without EXTERNAL. Passwords
+    keep working, `users add --cert` still makes the account and says the node needs a restart;
+    after `down` and `up` the certificate logs in."""
+    import fleetbus.dev.local_node as local_node
+
+    node.down()
+    with monkeypatch.context() as older:
+        older.setattr(local_node, "PLUGINS", tuple(p for p in PLUGINS if p != "rabbitmq_auth_mechanism_ssl"))
+        older.setattr(local_node, "CERTIFICATE_LOGIN", "")
+        info = node.up()
+    assert "EXTERNAL" not in (node.base_dir / "rabbitmq.conf").read_text()
+    try:
+        url, said = _add_cert_robot(node, node_settings, "cert-late")
+        assert "the broker refuses the certificate's login" in said and "`fleetbus broker down`" in said
+        assert amqp_login(info.amqps_url or "") is True  # passwords as before
+        assert "EXTERNAL" in (node.base_dir / "rabbitmq.conf").read_text()  # written for the next start
+        with pytest.raises(pika.exceptions.AMQPConnectionError):
+            blocking_connection(url, connection_attempts=1, socket_timeout=5)
+        node.down()
+        node.up()
+        blocking_connection(url, connection_attempts=1, socket_timeout=5).close()
+    finally:
+        httpx.delete(node.status().management_url + "api/users/cert-late", auth=admin(node), timeout=10)
 
 
 def test_a_configured_broker_that_cannot_be_verified_is_an_error_at_once_not_waited_for(

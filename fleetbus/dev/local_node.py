@@ -70,6 +70,15 @@ Leaderless = [Q || Q <- rabbit_amqqueue:list(),
 [ra:trigger_election(amqqueue:get_pid(Q)) || Q <- Leaderless],
 io:format("~p~n", [[rabbit_misc:rs(amqqueue:get_name(Q)) || Q <- Leaderless]]).
 """
+#: Robots may log in with a client certificate signed by the node's CA, as the account its common
+#: name names (EXTERNAL); passwords keep working (PLAIN, AMQPLAIN). A certificate is only ever
+#: verified, never required: ``fail_if_no_peer_cert = false``.
+CERTIFICATE_LOGIN = """\
+auth_mechanisms.1 = PLAIN
+auth_mechanisms.2 = AMQPLAIN
+auth_mechanisms.3 = EXTERNAL
+ssl_cert_login_from = common_name
+"""
 SETUP_HINT = "run scripts/setup (it installs Debian's rabbitmq-server)"
 
 log = logging.getLogger("fleetbus.broker")
@@ -469,11 +478,7 @@ ssl_options.certfile = {tls.cert}
 ssl_options.keyfile = {tls.key}
 ssl_options.verify = verify_peer
 ssl_options.fail_if_no_peer_cert = false
-auth_mechanisms.1 = PLAIN
-auth_mechanisms.2 = AMQPLAIN
-auth_mechanisms.3 = EXTERNAL
-ssl_cert_login_from = common_name
-stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
+{CERTIFICATE_LOGIN}stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
 default_vhost = /
 default_user = {user}
 default_pass = {password}
