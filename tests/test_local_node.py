@@ -6,6 +6,7 @@ the last test stops it.
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
 import json
 import logging
@@ -28,7 +29,7 @@ import pytest
 from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_certificate, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import TlsSettingError, blocking_connection, shovel_uri
+from fleetbus.broker.tls import TlsSettingError, aio_connect, blocking_connection, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
@@ -452,6 +453,29 @@ def test_users_add_cert_hands_out_a_certificate_url_the_robot_client_publishes_w
     wait_for(lambda: _ready(admin_url, EXPRESS_QUEUE) == before + 1, 20, "the hazard in the express lane")
 
 
+def test_a_worker_style_aio_pika_connection_logs_in_with_the_certificate_too(
+    cert_robots: dict[str, str], node: LocalNode
+) -> None:
+    async def who_am_i() -> None:
+        connection = await aio_connect(cert_robots["cert-rover"])
+        try:
+            channel = await connection.channel()
+            await channel.declare_exchange(events_exchange("cert-rover"), passive=True)
+            with _management(node) as api:
+                wait_for(
+                    lambda: any(
+                        c.get("user") == "cert-rover" and c.get("auth_mechanism") == "EXTERNAL"
+                        for c in api.list_connections()
+                    ),
+                    20,
+                    "the aio-pika connection, as cert-rover",
+                )
+        finally:
+            await connection.close()
+
+    asyncio.run(who_am_i())
+
+
 def test_a_certificate_account_has_no_password(cert_robots: dict[str, str], node: LocalNode) -> None:
     with _management(node) as api:
         user = api.get_user("cert-scout")
@@ -535,6 +559,7 @@ def test_a_node_started_without_certificate_logins_offers_them_after_its_next_st
     try:
         url, said = _add_cert_robot(node, node_settings, "cert-late")
         assert "the broker refuses the certificate's login" in said and "`fleetbus broker down`" in said
+        assert "it has no password" in said and "PRIVATE KEY" not in said
         assert amqp_login(info.amqps_url or "") is True  # passwords as before
         assert "EXTERNAL" in (node.base_dir / "rabbitmq.conf").read_text()  # written for the next start
         with pytest.raises(pika.exceptions.AMQPConnectionError):

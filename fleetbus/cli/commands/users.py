@@ -6,6 +6,7 @@ import asyncio
 from typing import Annotated
 from urllib.parse import urlsplit
 
+import pika.exceptions
 import typer
 from rich.table import Table
 
@@ -74,12 +75,15 @@ def add(
     if role is Role.ROBOT:
         register_robot(config, name, kind)
     url = as_public(account.amqp_url, ep.public_url)
-    if cert:
-        url = _with_certificate(config, name, url)
+    client = _issue_certificate(config, name) if cert else None
+    if client is not None:
+        url = with_client_certificate(url, client.cert, client.key)
     if save:
         save_secret(config.accounts_dir / f"{name}.url", url)
     console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")
     console.print(url, soft_wrap=True, highlight=False)
+    if client is not None:
+        _say_certificate(client, url)
     _, tls = split_tls(url)
     if tls is not None and tls.cacertfile:
         console.print(
@@ -90,23 +94,36 @@ def add(
         )
 
 
-def _with_certificate(config: Settings, name: str, url: str) -> str:
-    """Sign ``name``'s client certificate and return ``url`` logging in with it."""
+def _issue_certificate(config: Settings, name: str) -> ClientFiles:
+    """``name``'s client certificate (CN=name), signed by fleetbus's CA."""
     files = TlsFiles.for_settings(config)
     client = ClientFiles.in_folder(files.clients, name)
     try:
         issue_client_certificate(files, client, name)
     except CertificateError as error:
-        fail(f"made the account {name}, but not its certificate: {error}")
-    url = with_client_certificate(url, client.cert, client.key)
-    console.print(f"its client certificate: {client.cert} (key: {client.key}, 0600)", soft_wrap=True)
-    if not can_login(url):
+        fail(f"made the account {name} (it has no password), but not its certificate: {error}")
+    return client
+
+
+def _say_certificate(client: ClientFiles, url: str) -> None:
+    console.print(
+        f"it has no password: it logs in with its client certificate {client.cert} and key "
+        f"{client.key} (0600; copy both to the robot only)",
+        soft_wrap=True,
+        highlight=False,
+    )
+    try:
+        accepted = can_login(url)
+    except pika.exceptions.AMQPError as error:
+        console.print(f"[yellow]could not try the certificate's login: {error}[/]", soft_wrap=True)
+        return
+    if not accepted:
         console.print(
             "[yellow]the broker refuses the certificate's login: it needs the EXTERNAL mechanism "
             "(the private node gets it at its next start: `fleetbus broker down`, then `up`)[/]",
             soft_wrap=True,
+            highlight=False,
         )
-    return url
 
 
 @app.command("remove")
