@@ -476,10 +476,24 @@ def test_a_worker_style_aio_pika_connection_logs_in_with_the_certificate_too(
     asyncio.run(who_am_i())
 
 
-def test_a_certificate_account_has_no_password(cert_robots: dict[str, str], node: LocalNode) -> None:
+def test_a_certificate_account_has_no_password(
+    cert_robots: dict[str, str], node: LocalNode, node_settings: Settings
+) -> None:
     with _management(node) as api:
         user = api.get_user("cert-scout")
     assert user is not None and user["password_hash"] == ""
+    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="200")
+    listed = subprocess.run(
+        [sys.executable, "-m", "fleetbus", "users", "list"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert listed.returncode == 0, listed.stderr
+    rows = {line.split()[1]: line.split()[-2] for line in listed.stdout.splitlines() if line.count("│") >= 4}
+    assert rows["cert-scout"] == "certificate" and rows[ADMIN_USER] == "password"
     public = node.status().public_url or ""
     for password in ("", "guess", admin(node)[1]):
         plain = public.replace("amqps://", f"amqps://cert-scout:{password}@", 1)

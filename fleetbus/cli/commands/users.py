@@ -154,12 +154,14 @@ def remove(
 
 @app.command("list")
 def list_users() -> None:
-    """The broker's accounts and their tags."""
+    """The broker's accounts, their tags and how they log in (a password, or a client certificate
+    only)."""
     ep = endpoint()
     with admin_api(ep) as api:
         users = api.list_users()
-    table = Table("user", "tags")
+    table = Table("user", "tags", "login")
     for user in sorted(users, key=lambda u: u["name"]):
         tags = user.get("tags") or []
-        table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags))
+        login = "password" if user.get("password_hash") else "certificate"
+        table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags), login)
     console.print(table)
