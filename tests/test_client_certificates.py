@@ -8,7 +8,7 @@ import asyncio
 
 import pytest
 
-from fleetbus.broker.accounts import Role, provision_account
+from fleetbus.broker.accounts import Role, can_login, provision_account
 from fleetbus.broker.certificates import ClientFiles, issue_client_certificate
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.registry import register_robot
@@ -53,3 +53,14 @@ def test_a_robot_with_its_client_certificate_publishes_and_the_worker_stores_it(
         robot.publish("hazard", hazard())
         assert robot.flush(timeout=20)
         wait_for(lambda: bus.count("hazard", "explorer1") == 1, what="the robot's hazard stored")
+
+
+def test_rotate_with_a_certificate_takes_the_password_away(killable_bus: Bus) -> None:
+    """`users add NAME --cert --rotate` on an account that logs in with a password: afterwards only
+    its certificate does."""
+    bus = killable_bus
+    with_password = bus.add("explorer2", kind=RobotKind.EXPLORER).amqp_url
+    assert can_login(with_password)
+    url = certificate_robot(bus, "explorer2")
+    assert not can_login(with_password)
+    assert can_login(url)
