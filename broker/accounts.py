@@ -138,7 +138,8 @@ async def provision_account(
     if role is not Role.ROBOT and kind is not None:
         raise ValueError("--kind applies to robots only")
     if api.get_user(name) is not None and not rotate:
-        raise AccountExists(f"user {name!r} exists; use --rotate to give it a new password")
+        what = "a new password" if password_login else "a new certificate and no password"
+        raise AccountExists(f"user {name!r} exists; use --rotate to give it {what}")
     password: str | None = None
     if password_login:
         password = secrets.token_urlsafe(24)

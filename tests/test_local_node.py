@@ -556,6 +556,23 @@ def test_the_certificate_is_the_identity_a_robot_cannot_act_as_another(
         ok.close()
 
 
+def test_users_add_cert_without_the_cas_key_makes_no_account(
+    node: LocalNode, node_settings: Settings
+) -> None:
+    moved = node.tls.ca_key.with_name("ca.key.away")
+    node.tls.ca_key.rename(moved)
+    try:
+        env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+        env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="300")
+        command = [sys.executable, "-m", "fleetbus", "users", "add", "cert-orphan", "--cert"]
+        refused = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+    finally:
+        moved.rename(node.tls.ca_key)
+    assert refused.returncode == 1 and "CA's key" in refused.stderr
+    with _management(node) as api:
+        assert api.get_user("cert-orphan") is None
+
+
 def test_a_node_started_without_certificate_logins_offers_them_after_its_next_start(
     node: LocalNode, node_settings: Settings, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -55,6 +55,9 @@ def add(
     ep, config = endpoint(), settings()
     if cert and urlsplit(ep.public_url or ep.amqp_url).scheme != "amqps":
         fail("--cert needs a broker reached over TLS (amqps://): see docs/operations/tls.md")
+    ca_key = TlsFiles.for_settings(config).ca_key
+    if cert and not ca_key.exists():
+        fail(f"--cert signs the robot's certificate with the CA's key {ca_key}, which is missing")
     with admin_api(ep) as api:
         try:
             account = asyncio.run(
