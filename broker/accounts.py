@@ -64,14 +64,17 @@ def vhost_of(amqp_url: str) -> str:
     return unquote(path[1:]) if len(path) > 1 else "/"
 
 
-def url_for(amqp_url: str, username: str, password: str) -> str:
+def url_for(amqp_url: str, username: str, password: str | None) -> str:
     """The same broker (every address of a cluster's URL) and virtual host as ``amqp_url``, logged
-    in as another account."""
+    in as another account (``password`` None: one that logs in with a client certificate)."""
     if address_count(amqp_url) > 1:
         return map_addresses(amqp_url, lambda single: url_for(single, username, password))
     parts = urlsplit(amqp_url)
     host = parts.hostname or "localhost"
-    netloc = f"{quote(username, safe='')}:{quote(password, safe='')}@{host}"
+    netloc = quote(username, safe="")
+    if password is not None:
+        netloc += f":{quote(password, safe='')}"
+    netloc += f"@{host}"
     if parts.port:
         netloc += f":{parts.port}"
     return urlunsplit((parts.scheme, netloc, parts.path, parts.query, ""))
@@ -125,16 +128,24 @@ async def provision_account(
     rotate: bool = False,
     shards: int = 1,
     cluster: bool = False,
+    password_login: bool = True,
 ) -> Account:
     """Create (or with ``rotate``, re-key) an account with its exchange, inbox and permissions;
-    a robot is bound to one of the ``shards`` ingest shards (``FLEETBUS_INGEST_SHARDS``)."""
+    a robot is bound to one of the ``shards`` ingest shards (``FLEETBUS_INGEST_SHARDS``). Without
+    ``password_login`` the account has no password at all: it logs in with a client certificate
+    (EXTERNAL) only, and its URL carries no password."""
     validate_name(name)
     if role is not Role.ROBOT and kind is not None:
         raise ValueError("--kind applies to robots only")
     if api.get_user(name) is not None and not rotate:
-        raise AccountExists(f"user {name!r} exists; use --rotate to give it a new password")
-    password = secrets.token_urlsafe(24)
-    api.put_user(name, password, ROLE_TAGS[role])
+        what = "a new password" if password_login else "a new certificate and no password"
+        raise AccountExists(f"user {name!r} exists; use --rotate to give it {what}")
+    password: str | None = None
+    if password_login:
+        password = secrets.token_urlsafe(24)
+        api.put_user(name, password, ROLE_TAGS[role])
+    else:
+        api.put_user_without_password(name, ROLE_TAGS[role])
     await configure_account(admin_url, api, name, role, kind, shards=shards, cluster=cluster)
     return Account(name, role, url_for(admin_url, name, password))
 
@@ -237,8 +248,8 @@ def can_login(amqp_url: str) -> bool:
     parameters = pika_parameter_list(amqp_url, connection_attempts=1, socket_timeout=5)
     try:
         pika.BlockingConnection(parameters).close()
-    except pika.exceptions.ProbableAuthenticationError:
-        return False
+    except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.AuthenticationError):
+        return False  # AuthenticationError: the broker does not offer the URL's mechanism
     except pika.exceptions.ProbableAccessDeniedError:
         return True  # the password is right; the permissions are granted next
     return True

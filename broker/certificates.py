@@ -25,6 +25,7 @@ from fleetbus.settings import Settings
 
 CA_DAYS = 3650
 SERVER_DAYS = 825  # what browsers and Apple's clients still accept for a server certificate
+CLIENT_DAYS = 825
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
 
 
@@ -50,6 +51,11 @@ class TlsFiles:
     def for_settings(cls, settings: Settings) -> TlsFiles:
         """``FLEETBUS_TLS_CA`` / ``_CERT`` / ``_KEY`` when set, else the files in ``FLEETBUS_TLS_DIR``."""
         return cls(settings.ca_file, settings.cert_file, settings.key_file, settings.tls_folder / "ca.key")
+
+    @property
+    def clients(self) -> Path:
+        """Where the client certificates the CA signs (``fleetbus certs client``) are written."""
+        return self.ca_key.parent / "clients"
 
     def server_ready(self) -> bool:
         return self.ca.exists() and self.cert.exists() and self.key.exists()
@@ -128,21 +134,30 @@ def _alt_name(host: str) -> x509.GeneralName:
         return x509.DNSName(host)
 
 
-def _sign_server(
-    files: TlsFiles, ca: x509.Certificate, ca_key: ec.EllipticCurvePrivateKey, hosts: list[str]
-) -> None:
+def _leaf(
+    ca: x509.Certificate,
+    ca_key: ec.EllipticCurvePrivateKey,
+    common_name: str,
+    days: int,
+    usage: x509.ObjectIdentifier,
+    names: list[x509.GeneralName],
+) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
+    """A certificate for ``common_name`` signed by the CA, for ``usage`` (server or client) only."""
     key = ec.generate_private_key(ec.SECP256R1())
     public = key.public_key()
-    cert = (
+    builder = (
         x509.CertificateBuilder()
-        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, hosts[0])]))
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)]))
         .issuer_name(ca.subject)
         .public_key(public)
         .serial_number(x509.random_serial_number())
         .not_valid_before(_now() - datetime.timedelta(minutes=5))
-        .not_valid_after(_now() + datetime.timedelta(days=SERVER_DAYS))
-        .add_extension(x509.SubjectAlternativeName([_alt_name(host) for host in hosts]), critical=False)
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .not_valid_after(_now() + datetime.timedelta(days=days))
+    )
+    if names:
+        builder = builder.add_extension(x509.SubjectAlternativeName(names), critical=False)
+    cert = (
+        builder.add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
         .add_extension(
             x509.KeyUsage(
                 digital_signature=True,
@@ -157,13 +172,21 @@ def _sign_server(
             ),
             critical=True,
         )
-        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
+        .add_extension(x509.ExtendedKeyUsage([usage]), critical=False)
         .add_extension(x509.SubjectKeyIdentifier.from_public_key(public), critical=False)
         .add_extension(
             x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False
         )
         .sign(ca_key, hashes.SHA256())
     )
+    return cert, key
+
+
+def _sign_server(
+    files: TlsFiles, ca: x509.Certificate, ca_key: ec.EllipticCurvePrivateKey, hosts: list[str]
+) -> None:
+    names = [_alt_name(host) for host in hosts]
+    cert, key = _leaf(ca, ca_key, hosts[0], SERVER_DAYS, ExtendedKeyUsageOID.SERVER_AUTH, names)
     _write(files.key, _key_pem(key), 0o600)
     _write(files.cert, cert.public_bytes(serialization.Encoding.PEM), 0o644)
 
@@ -181,6 +204,33 @@ def make_certificates(files: TlsFiles, hosts: Iterable[str] = ()) -> bool:
         ca, ca_key = _load_ca(files)
     _sign_server(files, ca, ca_key, names)
     return made_ca
+
+
+@dataclass(frozen=True)
+class ClientFiles:
+    """A robot's (or any account's) client certificate and its key."""
+
+    cert: Path
+    key: Path
+
+    @classmethod
+    def in_folder(cls, folder: Path, name: str) -> ClientFiles:
+        return cls(folder / f"{name}.pem", folder / f"{name}.key")
+
+
+def issue_client_certificate(files: TlsFiles, client: ClientFiles, name: str) -> None:
+    """A client certificate whose common name is the account ``name``, signed by the CA in
+    ``files`` (it must exist, with its key); the key is written with mode 0600. A broker that
+    takes the login from the common name (EXTERNAL) logs whoever holds it in as ``name``."""
+    if not files.ca_key.exists():
+        raise CertificateError(
+            f"signing a client certificate needs the CA's key {files.ca_key} (`fleetbus certs make`); "
+            "with a CA of your own, sign the robot's certificate (CN=<its name>) with it instead"
+        )
+    ca, ca_key = _load_ca(files)
+    cert, key = _leaf(ca, ca_key, name, CLIENT_DAYS, ExtendedKeyUsageOID.CLIENT_AUTH, [])
+    _write(client.key, _key_pem(key), 0o600)
+    _write(client.cert, cert.public_bytes(serialization.Encoding.PEM), 0o644)
 
 
 @dataclass(frozen=True)

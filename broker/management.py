@@ -119,6 +119,11 @@ class ManagementAPI:
         body = {"password_hash": password_hash, "hashing_algorithm": hashing_algorithm, "tags": tags}
         self._request("PUT", f"users/{_q(name)}", json=body)
 
+    def put_user_without_password(self, name: str, tags: str = "") -> None:
+        """Create or replace an account no password logs in as (an empty ``password_hash``): it
+        logs in by other means only, a client certificate (EXTERNAL)."""
+        self._request("PUT", f"users/{_q(name)}", json={"password_hash": "", "tags": tags})
+
     def get_user(self, name: str) -> dict[str, Any] | None:
         response = self._send("GET", f"users/{_q(name)}")
         return response.json() if response.status_code == 200 else None

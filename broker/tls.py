@@ -10,7 +10,11 @@ same URL also works for the broker's shovel and federation links::
 - ``verify``: ``verify_peer`` (the default) checks the certificate and the host name;
   ``verify_none`` checks nothing, and is the only way to turn verification off;
 - ``server_name_indication``: the name checked against the certificate (and sent as SNI) when it
-  is not the URL's host, e.g. a broker reached by its IP address.
+  is not the URL's host, e.g. a broker reached by its IP address;
+- ``auth_mechanism``: ``external`` logs in with the client certificate (``certfile``, ``keyfile``)
+  instead of a password: the broker takes the account's name from the certificate
+  (RabbitMQ's EXTERNAL mechanism, ``rabbitmq_auth_mechanism_ssl``); ``plain``, the default, sends
+  the URL's user and password.
 
 ``amqp://`` URLs are passed through unchanged. Base install: the standard library and pika only.
 """
@@ -20,17 +24,22 @@ from __future__ import annotations
 import ipaddress
 import ssl
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
 import pika
+import pika.credentials
 
-from fleetbus.broker.addresses import first_address, split_addresses
+from fleetbus.broker.addresses import address_count, first_address, map_addresses, split_addresses
 
 if TYPE_CHECKING:
     from aio_pika.abc import AbstractConnection, AbstractRobustConnection
 
 TLS_PARAMETERS = ("cacertfile", "certfile", "keyfile", "verify", "server_name_indication")
+AUTH_PARAMETER = "auth_mechanism"
+EXTERNAL = "external"
+PLAIN = "plain"
 VERIFY_PEER = "verify_peer"
 VERIFY_NONE = "verify_none"
 
@@ -49,21 +58,33 @@ class TlsOptions:
     verify: bool = True
     server_name: str | None = None
     """The name the certificate must carry: ``server_name_indication``, else the URL's host."""
+    external: bool = False
+    """``auth_mechanism=external``: log in with the client certificate, not a password."""
 
 
 def split_tls(url: str) -> tuple[str, TlsOptions | None]:
     """The URL without its TLS parameters, and those parameters (None for ``amqp://``)."""
     parts = urlsplit(url)
     query = parse_qsl(parts.query, keep_blank_values=True)
-    given = {key: value for key, value in query if key in TLS_PARAMETERS}
-    rest = [(key, value) for key, value in query if key not in TLS_PARAMETERS]
+    ours = (*TLS_PARAMETERS, AUTH_PARAMETER)
+    given = {key: value for key, value in query if key in ours}
+    rest = [(key, value) for key, value in query if key not in ours]
     plain = urlunsplit((parts.scheme, parts.netloc, parts.path, urlencode(rest), parts.fragment))
+    mechanism = given.pop(AUTH_PARAMETER, PLAIN).lower()
+    if mechanism not in (PLAIN, EXTERNAL):
+        raise TlsSettingError(f"auth_mechanism={mechanism!r} in a broker URL: use {PLAIN} or {EXTERNAL}")
     if parts.scheme != "amqps":
+        if mechanism == EXTERNAL:
+            raise TlsSettingError("auth_mechanism=external logs in with a client certificate: amqps:// only")
         if given:
             raise TlsSettingError(
                 f"{', '.join(sorted(given))} in a broker URL apply to amqps:// only, not {parts.scheme}://"
             )
         return plain, None
+    if mechanism == EXTERNAL and not given.get("certfile"):
+        raise TlsSettingError(
+            "auth_mechanism=external needs the client certificate: add certfile= and keyfile="
+        )
     verify = given.get("verify", VERIFY_PEER)
     if verify not in (VERIFY_PEER, VERIFY_NONE):
         raise TlsSettingError(f"verify={verify!r} in a broker URL: use {VERIFY_PEER} or {VERIFY_NONE}")
@@ -73,8 +94,29 @@ def split_tls(url: str) -> tuple[str, TlsOptions | None]:
         keyfile=given.get("keyfile") or None,
         verify=verify == VERIFY_PEER,
         server_name=given.get("server_name_indication") or parts.hostname,
+        external=mechanism == EXTERNAL,
     )
     return plain, options
+
+
+def with_client_certificate(url: str, certfile: str | Path, keyfile: str | Path) -> str:
+    """``url`` (``amqps://``, every address of a cluster's) logging in with a client certificate:
+    its user without a password, ``certfile``, ``keyfile`` and ``auth_mechanism=external``."""
+    if address_count(url) > 1:
+        return map_addresses(url, lambda single: with_client_certificate(single, certfile, keyfile))
+    parts = urlsplit(url)
+    if parts.scheme != "amqps":
+        raise TlsSettingError(
+            f"a client certificate needs the broker's amqps:// address, not {parts.scheme}://"
+        )
+    netloc = parts.netloc
+    if "@" in netloc:
+        login, _, host = netloc.rpartition("@")
+        netloc = f"{login.partition(':')[0]}@{host}"
+    ours = ("certfile", "keyfile", AUTH_PARAMETER)
+    query = [(key, value) for key, value in parse_qsl(parts.query, keep_blank_values=True) if key not in ours]
+    query += [("certfile", str(certfile)), ("keyfile", str(keyfile)), (AUTH_PARAMETER, EXTERNAL)]
+    return urlunsplit((parts.scheme, netloc, parts.path or "/", urlencode(query, safe="/"), ""))
 
 
 class _NamedContext(ssl.SSLContext):
@@ -116,9 +158,13 @@ def pika_parameters(url: str) -> pika.URLParameters:
     """pika's parameters for ``url``'s first address; for ``amqps://``, with its verified TLS
     context. A cluster's URL: :func:`pika_parameter_list`."""
     plain, options = split_tls(first_address(url))
+    if options is not None and options.external:
+        plain = _without_login(plain)  # the certificate names the account; pika wants a password
     parameters = pika.URLParameters(plain)
     if options is not None:
         parameters.ssl_options = pika.SSLOptions(client_context(options), server_hostname=options.server_name)
+        if options.external:
+            parameters.credentials = pika.credentials.ExternalCredentials()
     return parameters
 
 
@@ -143,6 +189,10 @@ def aio_pika_arguments(url: str) -> tuple[str, dict[str, Any]]:
     plain, options = split_tls(url)
     if options is None:
         return plain, {}
+    if options.external:  # aiormq's own name for the mechanism
+        parts = urlsplit(plain)
+        query = urlencode([*parse_qsl(parts.query, keep_blank_values=True), ("auth", EXTERNAL)])
+        plain = urlunsplit((parts.scheme, parts.netloc, parts.path, query, parts.fragment))
     return plain, {"ssl_context": client_context(options)}
 
 
@@ -208,9 +258,17 @@ def shovel_uri(url: str) -> str:
         ("keyfile", options.keyfile),
         ("verify", VERIFY_PEER if options.verify else VERIFY_NONE),
         ("server_name_indication", name if options.verify else None),
+        (AUTH_PARAMETER, EXTERNAL if options.external else None),
     ]
     query += [(key, value) for key, value in tls if value]
     return urlunsplit((parts.scheme, parts.netloc, path, urlencode(query, safe="/"), ""))
+
+
+def _without_login(url: str) -> str:
+    parts = urlsplit(url)
+    return urlunsplit(
+        (parts.scheme, parts.netloc.rpartition("@")[2], parts.path, parts.query, parts.fragment)
+    )
 
 
 def _is_ip(host: str | None) -> bool:

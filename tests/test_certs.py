@@ -1,5 +1,5 @@
-"""`fleetbus certs make | show`: a CA kept across runs, a server certificate it signs for the names
-clients use, keys readable by their owner only."""
+"""`fleetbus certs make | show | client`: a CA kept across runs, a server certificate it signs for
+the names clients use, client certificates for accounts, keys readable by their owner only."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import sys
 from pathlib import Path
 
 from cryptography import x509
+from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from fleetbus.broker.certificates import TlsFiles, describe
+from fleetbus.broker.certificates import ClientFiles, TlsFiles, describe
 
 
 def certs(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
@@ -62,3 +63,30 @@ def test_make_refuses_to_overwrite_the_operators_own_files(tmp_path: Path) -> No
     refused = certs("make", env={"FLEETBUS_TLS_CERT": str(own), "FLEETBUS_DATA_DIR": str(tmp_path)})
     assert refused.returncode == 1
     assert "FLEETBUS_TLS_CA, _CERT or _KEY" in refused.stderr and not own.exists()
+
+
+def test_client_signs_a_certificate_whose_common_name_is_the_account(tmp_path: Path) -> None:
+    files = TlsFiles.in_folder(tmp_path / "tls")
+    assert certs("make", "--dir", str(tmp_path / "tls")).returncode == 0
+    made = certs("client", "scout-1", "--dir", str(tmp_path / "tls"))
+    assert made.returncode == 0, made.stderr
+    client = ClientFiles.in_folder(files.clients, "scout-1")
+    assert stat.S_IMODE(client.key.stat().st_mode) == 0o600
+    assert "auth_mechanism=external" in made.stdout
+    assert client.key.read_text() not in made.stdout
+    cert = x509.load_pem_x509_certificate(client.cert.read_bytes())
+    cert.verify_directly_issued_by(x509.load_pem_x509_certificate(files.ca.read_bytes()))
+    assert cert.subject.rfc4514_string() == "CN=scout-1"
+    usage = cert.extensions.get_extension_for_class(x509.ExtendedKeyUsage).value
+    assert list(usage) == [ExtendedKeyUsageOID.CLIENT_AUTH]  # not a server certificate
+    ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT).load_cert_chain(client.cert, client.key)
+
+
+def test_client_needs_the_cas_key_and_a_valid_name(tmp_path: Path) -> None:
+    files = TlsFiles.in_folder(tmp_path / "tls")
+    assert certs("make", "--dir", str(tmp_path / "tls")).returncode == 0
+    files.ca_key.unlink()  # an operator's own CA: fleetbus cannot sign with it
+    refused = certs("client", "scout-1", "--dir", str(tmp_path / "tls"))
+    assert refused.returncode == 1 and "needs the CA's key" in refused.stderr
+    wrong = certs("client", "no/such name", "--dir", str(tmp_path / "tls"))
+    assert wrong.returncode == 1

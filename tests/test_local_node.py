@@ -6,6 +6,7 @@ the last test stops it.
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
 import json
 import logging
@@ -25,13 +26,14 @@ import httpx
 import pika
 import pytest
 
-from fleetbus.broker.certificates import TlsFiles, make_certificates
+from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_certificate, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import TlsSettingError, blocking_connection, shovel_uri
+from fleetbus.broker.tls import TlsSettingError, aio_connect, blocking_connection, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
+    PLUGINS,
     RABBITMQ_SERVER,
     TLS_PORT_NAMES,
     LocalNode,
@@ -42,7 +44,7 @@ from fleetbus.dev.local_node import (
 )
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable as RobotUnreachable
-from fleetbus.schemas.routing import EXPRESS_QUEUE
+from fleetbus.schemas.routing import EXPRESS_QUEUE, events_exchange
 from fleetbus.settings import Settings, load_settings
 from tests.factories import hazard
 from tests.support import wait_for
@@ -396,6 +398,208 @@ def test_the_robot_client_refuses_a_broker_it_cannot_verify(
         with pytest.raises(RobotUnreachable, match="certificate verify failed") as refused:
             robot.connect()
         assert refusal in str(refused.value)
+
+
+def _add_cert_robot(node: LocalNode, node_settings: Settings, name: str) -> tuple[str, str]:
+    """`fleetbus users add NAME --cert` on the private node: the URL it hands out, and what it said."""
+    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="400")
+    command = [sys.executable, "-m", "fleetbus", "users", "add", name, "--kind", "explorer", "--cert"]
+    added = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+    assert added.returncode == 0, added.stderr
+    [url] = [line for line in added.stdout.splitlines() if line.startswith("amqp")]
+    return url, added.stdout
+
+
+@pytest.fixture
+def cert_robots(node: LocalNode, node_settings: Settings) -> Iterator[dict[str, str]]:
+    """Two robots made by `fleetbus users add --cert`: their URLs by name."""
+    urls = {name: _add_cert_robot(node, node_settings, name)[0] for name in ("cert-scout", "cert-rover")}
+    try:
+        yield urls
+    finally:
+        for name in urls:
+            httpx.delete(node.status().management_url + f"api/users/{name}", auth=admin(node), timeout=10)
+
+
+def _management(node: LocalNode) -> ManagementAPI:
+    info = node.status()
+    assert info.management_url is not None
+    return ManagementAPI(info.management_url, *admin(node))
+
+
+def test_users_add_cert_hands_out_a_certificate_url_the_robot_client_publishes_with(
+    cert_robots: dict[str, str], node: LocalNode, tmp_path: Path
+) -> None:
+    info = node.status()
+    clients = node.tls.clients
+    url = cert_robots["cert-scout"]
+    assert url == (
+        f"amqps://cert-scout@127.0.0.1:{info.ports['amqps']}/?cacertfile={node.tls.ca}"
+        f"&certfile={clients / 'cert-scout.pem'}&keyfile={clients / 'cert-scout.key'}&auth_mechanism=external"
+    )
+    assert stat.S_IMODE((clients / "cert-scout.key").stat().st_mode) == 0o600
+    admin_url = info.amqp_url or ""
+    before = _ready(admin_url, EXPRESS_QUEUE)
+    with RobotClient(url, state_dir=tmp_path, connect_timeout=20) as robot, _management(node) as api:
+        robot.connect()
+        robot.publish("hazard", hazard())
+        assert robot.flush(timeout=20)  # the broker confirmed it, user_id and all
+
+        def logins() -> list[tuple[str, str]]:
+            return [(c.get("user", ""), c.get("auth_mechanism", "")) for c in api.list_connections()]
+
+        wait_for(lambda: ("cert-scout", "EXTERNAL") in logins(), 20, "the robot's connection, as cert-scout")
+    wait_for(lambda: _ready(admin_url, EXPRESS_QUEUE) == before + 1, 20, "the hazard in the express lane")
+
+
+def test_a_worker_style_aio_pika_connection_logs_in_with_the_certificate_too(
+    cert_robots: dict[str, str], node: LocalNode
+) -> None:
+    async def who_am_i() -> None:
+        connection = await aio_connect(cert_robots["cert-rover"])
+        try:
+            channel = await connection.channel()
+            await channel.declare_exchange(events_exchange("cert-rover"), passive=True)
+            with _management(node) as api:
+                wait_for(
+                    lambda: any(
+                        c.get("user") == "cert-rover" and c.get("auth_mechanism") == "EXTERNAL"
+                        for c in api.list_connections()
+                    ),
+                    20,
+                    "the aio-pika connection, as cert-rover",
+                )
+        finally:
+            await connection.close()
+
+    asyncio.run(who_am_i())
+
+
+def test_a_certificate_account_has_no_password(
+    cert_robots: dict[str, str], node: LocalNode, node_settings: Settings
+) -> None:
+    with _management(node) as api:
+        user = api.get_user("cert-scout")
+    assert user is not None and user["password_hash"] == ""
+    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="200")
+    listed = subprocess.run(
+        [sys.executable, "-m", "fleetbus", "users", "list"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert listed.returncode == 0, listed.stderr
+    rows = {line.split()[1]: line.split()[-2] for line in listed.stdout.splitlines() if line.count("│") >= 4}
+    assert rows["cert-scout"] == "certificate" and rows[ADMIN_USER] == "password"
+    public = node.status().public_url or ""
+    for password in ("", "guess", admin(node)[1]):
+        plain = public.replace("amqps://", f"amqps://cert-scout:{password}@", 1)
+        assert amqp_login(plain) is False, f"a PLAIN login with {password!r}"
+    # the certificate presented but a password asked for: still PLAIN, still refused
+    with_cert = cert_robots["cert-scout"].replace("cert-scout@", "cert-scout:guess@")
+    assert amqp_login(with_cert.replace("&auth_mechanism=external", "")) is False
+
+
+def test_a_client_certificate_of_another_ca_is_refused(
+    cert_robots: dict[str, str], node: LocalNode, tmp_path: Path
+) -> None:
+    other = TlsFiles.in_folder(tmp_path / "other")
+    make_certificates(other)
+    forged = ClientFiles.in_folder(other.clients, "cert-scout")
+    issue_client_certificate(other, forged, "cert-scout")  # the right name, the wrong CA
+    clients = node.tls.clients
+    url = (
+        cert_robots["cert-scout"]
+        .replace(str(clients / "cert-scout.pem"), str(forged.cert))
+        .replace(str(clients / "cert-scout.key"), str(forged.key))
+    )
+    with pytest.raises(pika.exceptions.AMQPConnectionError, match="TLSV1_ALERT_UNKNOWN_CA"):
+        blocking_connection(url, connection_attempts=1, socket_timeout=5).close()  # the broker's alert
+
+
+def test_the_certificate_is_the_identity_a_robot_cannot_act_as_another(
+    cert_robots: dict[str, str], node: LocalNode
+) -> None:
+    """cert-scout's certificate in a URL that names cert-rover logs in as cert-scout: it may
+    neither publish on cert-rover's exchange nor sign cert-rover's name on its own messages."""
+    clients = node.tls.clients
+    url = (
+        cert_robots["cert-rover"]
+        .replace(str(clients / "cert-rover.pem"), str(clients / "cert-scout.pem"))
+        .replace(str(clients / "cert-rover.key"), str(clients / "cert-scout.key"))
+    )
+    attempts = [
+        (events_exchange("cert-rover"), "cert-rover.hazard", "cert-rover", 403),  # not its exchange
+        (events_exchange("cert-scout"), "cert-scout.hazard", "cert-rover", 406),  # not its user_id
+    ]
+    for exchange, key, user_id, refusal in attempts:
+        connection = blocking_connection(url, connection_attempts=1, socket_timeout=5)
+        try:
+            channel = connection.channel()
+            channel.confirm_delivery()
+            with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:
+                channel.basic_publish(exchange, key, b"{}", pika.BasicProperties(user_id=user_id))
+            assert refused.value.reply_code == refusal
+        finally:
+            if connection.is_open:
+                connection.close()
+    ok = blocking_connection(url, connection_attempts=1, socket_timeout=5)
+    try:
+        channel = ok.channel()
+        channel.confirm_delivery()
+        properties = pika.BasicProperties(user_id="cert-scout")
+        channel.basic_publish(events_exchange("cert-scout"), "cert-scout.hazard", b"{}", properties)
+    finally:
+        ok.close()
+
+
+def test_users_add_cert_without_the_cas_key_makes_no_account(
+    node: LocalNode, node_settings: Settings
+) -> None:
+    moved = node.tls.ca_key.with_name("ca.key.away")
+    node.tls.ca_key.rename(moved)
+    try:
+        env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+        env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="300")
+        command = [sys.executable, "-m", "fleetbus", "users", "add", "cert-orphan", "--cert"]
+        refused = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+    finally:
+        moved.rename(node.tls.ca_key)
+    assert refused.returncode == 1 and "CA's key" in refused.stderr
+    with _management(node) as api:
+        assert api.get_user("cert-orphan") is None
+
+
+def test_a_node_started_without_certificate_logins_offers_them_after_its_next_start(
+    node: LocalNode, node_settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As after an upgrade: the running node was started by a version without EXTERNAL. Passwords
+    keep working, `users add --cert` still makes the account and says the node needs a restart;
+    after `down` and `up` the certificate logs in."""
+    import fleetbus.dev.local_node as local_node
+
+    node.down()
+    with monkeypatch.context() as older:
+        older.setattr(local_node, "PLUGINS", tuple(p for p in PLUGINS if p != "rabbitmq_auth_mechanism_ssl"))
+        older.setattr(local_node, "CERTIFICATE_LOGIN", "")
+        info = node.up()
+    assert "EXTERNAL" not in (node.base_dir / "rabbitmq.conf").read_text()
+    try:
+        url, said = _add_cert_robot(node, node_settings, "cert-late")
+        assert "the broker refuses the certificate's login" in said and "`fleetbus broker down`" in said
+        assert "it has no password" in said and "PRIVATE KEY" not in said
+        assert amqp_login(info.amqps_url or "") is True  # passwords as before
+        assert "EXTERNAL" in (node.base_dir / "rabbitmq.conf").read_text()  # written for the next start
+        with pytest.raises(pika.exceptions.AMQPConnectionError):
+            blocking_connection(url, connection_attempts=1, socket_timeout=5)
+        node.down()
+        node.up()
+        blocking_connection(url, connection_attempts=1, socket_timeout=5).close()
+    finally:
+        httpx.delete(node.status().management_url + "api/users/cert-late", auth=admin(node), timeout=10)
 
 
 def test_a_configured_broker_that_cannot_be_verified_is_an_error_at_once_not_waited_for(

@@ -6,10 +6,18 @@ from __future__ import annotations
 import ssl
 from pathlib import Path
 
+import pika.credentials
 import pytest
 
-from fleetbus.broker.certificates import TlsFiles, make_certificates
-from fleetbus.broker.tls import TlsSettingError, aio_pika_arguments, pika_parameters, shovel_uri, split_tls
+from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_certificate, make_certificates
+from fleetbus.broker.tls import (
+    TlsSettingError,
+    aio_pika_arguments,
+    pika_parameters,
+    shovel_uri,
+    split_tls,
+    with_client_certificate,
+)
 
 
 @pytest.fixture(scope="module")
@@ -86,3 +94,55 @@ def test_a_shovel_uri_spells_out_verification_and_the_default_virtual_host(ca: P
     assert shovel_uri("amqp://site:pw@central.example/fleet") == "amqp://site:pw@central.example/fleet"
     with pytest.raises(TlsSettingError, match="needs cacertfile"):
         shovel_uri("amqps://site:pw@central.example/")
+
+
+@pytest.fixture(scope="module")
+def robot_cert(ca: Path) -> ClientFiles:
+    files = TlsFiles.in_folder(ca.parent)
+    client = ClientFiles.in_folder(files.clients, "scout-1")
+    issue_client_certificate(files, client, "scout-1")
+    return client
+
+
+def test_auth_mechanism_external_logs_in_with_the_client_certificate(
+    ca: Path, robot_cert: ClientFiles
+) -> None:
+    url = (
+        f"amqps://scout-1@broker.example:5671/?cacertfile={ca}&certfile={robot_cert.cert}"
+        f"&keyfile={robot_cert.key}&auth_mechanism=external&heartbeat=9"
+    )
+    plain, options = split_tls(url)
+    assert plain == "amqps://scout-1@broker.example:5671/?heartbeat=9"  # pika refuses unknown keys
+    assert options is not None and options.external and options.certfile == str(robot_cert.cert)
+    parameters = pika_parameters(url)
+    assert isinstance(parameters.credentials, pika.credentials.ExternalCredentials)
+    assert parameters.heartbeat == 9
+    aio_url, arguments = aio_pika_arguments(url)
+    assert aio_url == "amqps://scout-1@broker.example:5671/?heartbeat=9&auth=external"  # aiormq's name
+    assert "ssl_context" in arguments
+    assert shovel_uri(url).endswith("&auth_mechanism=external")
+    password = pika_parameters(url.replace("&auth_mechanism=external", "").replace("scout-1@", "scout-1:pw@"))
+    assert isinstance(password.credentials, pika.credentials.PlainCredentials)
+
+
+@pytest.mark.parametrize(
+    ("url", "said"),
+    [
+        ("amqp://r@host/?auth_mechanism=external", "amqps:// only"),
+        ("amqps://r@host/?auth_mechanism=external", "needs the client certificate"),
+        ("amqps://r:s@host/?auth_mechanism=kerberos", "use plain or external"),
+    ],
+)
+def test_a_certificate_login_without_tls_or_a_certificate_is_refused_saying_why(url: str, said: str) -> None:
+    with pytest.raises(TlsSettingError, match=said):
+        pika_parameters(url)
+
+
+def test_with_client_certificate_drops_the_password_and_names_the_files() -> None:
+    url = "amqps://scout-1:secret@a.example:5671,b.example:5671/fleet?cacertfile=/ca.pem"
+    assert with_client_certificate(url, "/c/scout-1.pem", "/c/scout-1.key") == (
+        "amqps://scout-1@a.example:5671,b.example:5671/fleet?cacertfile=/ca.pem&certfile=/c/scout-1.pem"
+        "&keyfile=/c/scout-1.key&auth_mechanism=external"
+    )
+    with pytest.raises(TlsSettingError, match="amqps://"):
+        with_client_certificate("amqp://scout-1:pw@host/", "/c.pem", "/c.key")

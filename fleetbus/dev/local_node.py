@@ -52,8 +52,14 @@ PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream", "amqps", "manageme
 #: The ports a node made by an older version lacks: chosen at its next start, listened on once it
 #: starts again (a running node keeps the configuration it started with).
 TLS_PORT_NAMES = ("amqps", "management_tls")
-#: The shovel plugins carry a site's events to central and central's changes back (docs/guides/sites.md).
-PLUGINS = ("rabbitmq_management", "rabbitmq_shovel", "rabbitmq_shovel_management")
+#: The shovel plugins carry a site's events to central and central's changes back (docs/guides/sites.md);
+#: rabbitmq_auth_mechanism_ssl lets robots log in with a client certificate (EXTERNAL).
+PLUGINS = (
+    "rabbitmq_management",
+    "rabbitmq_shovel",
+    "rabbitmq_shovel_management",
+    "rabbitmq_auth_mechanism_ssl",
+)
 
 #: Erlang run by ``rabbitmqctl eval``: trigger an election in every quorum queue whose Ra
 #: server does not know a leader; print their names.
@@ -63,6 +69,15 @@ Leaderless = [Q || Q <- rabbit_amqqueue:list(),
                    case ra:members(amqqueue:get_pid(Q), 2000) of {ok, _, _} -> false; _ -> true end],
 [ra:trigger_election(amqqueue:get_pid(Q)) || Q <- Leaderless],
 io:format("~p~n", [[rabbit_misc:rs(amqqueue:get_name(Q)) || Q <- Leaderless]]).
+"""
+#: Robots may log in with a client certificate signed by the node's CA, as the account its common
+#: name names (EXTERNAL); passwords keep working (PLAIN, AMQPLAIN). A certificate is only ever
+#: verified, never required: ``fail_if_no_peer_cert = false``.
+CERTIFICATE_LOGIN = """\
+auth_mechanisms.1 = PLAIN
+auth_mechanisms.2 = AMQPLAIN
+auth_mechanisms.3 = EXTERNAL
+ssl_cert_login_from = common_name
 """
 SETUP_HINT = "run scripts/setup (it installs Debian's rabbitmq-server)"
 
@@ -463,7 +478,7 @@ ssl_options.certfile = {tls.cert}
 ssl_options.keyfile = {tls.key}
 ssl_options.verify = verify_peer
 ssl_options.fail_if_no_peer_cert = false
-stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
+{CERTIFICATE_LOGIN}stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
 default_vhost = /
 default_user = {user}
 default_pass = {password}

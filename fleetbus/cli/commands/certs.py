@@ -1,4 +1,5 @@
-"""``fleetbus certs make | show``: the CA and the server certificate the broker and the API use."""
+"""``fleetbus certs make | show | client``: the CA and the server certificate the broker and the API
+use, and client certificates robots log in with."""
 
 from __future__ import annotations
 
@@ -7,8 +8,16 @@ from typing import Annotated
 
 import typer
 
-from fleetbus.broker.certificates import CertificateError, TlsFiles, describe, make_certificates
+from fleetbus.broker.certificates import (
+    CertificateError,
+    ClientFiles,
+    TlsFiles,
+    describe,
+    issue_client_certificate,
+    make_certificates,
+)
 from fleetbus.cli.context import console, fail, settings
+from fleetbus.schemas.identity import validate_name
 
 app = typer.Typer(
     help="TLS: a CA and a server certificate for the broker and the API, or your own files.",
@@ -69,3 +78,37 @@ def show(folder: DirOption = None) -> None:
             console.print(f"  names: {', '.join(info.names)}", soft_wrap=True)
         console.print(f"  expires: {info.not_after.isoformat()}", soft_wrap=True)
     console.print(f"server key: {files.key}{'' if files.key.exists() else ' (missing)'}", soft_wrap=True)
+
+
+@app.command("client")
+def client(
+    name: str,
+    folder: DirOption = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out", help="folder to write NAME.pem and NAME.key in (default: clients/ beside the CA)"
+        ),
+    ] = None,
+) -> None:
+    """Sign a client certificate for the account NAME (CN=NAME) with fleetbus's CA: a broker that
+    takes the login from the certificate (EXTERNAL) logs its holder in as NAME. `fleetbus users add
+    NAME --cert` makes the account without a password and this certificate at once."""
+    try:
+        validate_name(name)
+    except ValueError as error:
+        fail(str(error))
+    files = _files(folder)
+    client_files = ClientFiles.in_folder(out.resolve() if out else files.clients, name)
+    try:
+        issue_client_certificate(files, client_files, name)
+    except CertificateError as error:
+        fail(str(error))
+    console.print(f"made the client certificate {client_files.cert} (CN={name})", soft_wrap=True)
+    console.print(f"its key: {client_files.key} (0600): give both to {name} only", soft_wrap=True)
+    console.print(
+        f"its URL logs in with them: amqps://{name}@<broker>:<port>/?cacertfile={files.ca}"
+        f"&certfile={client_files.cert}&keyfile={client_files.key}&auth_mechanism=external",
+        soft_wrap=True,
+        highlight=False,
+    )

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import asyncio
 from typing import Annotated
+from urllib.parse import urlsplit
 
+import pika.exceptions
 import typer
 from rich.table import Table
 
@@ -12,15 +14,18 @@ from fleetbus.broker.accounts import (
     AccountExists,
     Role,
     as_public,
+    can_login,
     delete_account,
     provision_account,
     save_secret,
 )
+from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
 from fleetbus.broker.team_changes import HazardServiceNotTold
-from fleetbus.broker.tls import split_tls
+from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
 from fleetbus.cli.registry import register_robot
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.settings import Settings
 from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.team import leave_team
 
@@ -36,9 +41,23 @@ def add(
     save: Annotated[
         bool, typer.Option(help="keep the URL in FLEETBUS_DATA_DIR/accounts for `publish`")
     ] = True,
+    cert: Annotated[
+        bool,
+        typer.Option(
+            "--cert",
+            help="no password: the account logs in with a client certificate (CN=NAME) made now, "
+            "signed by fleetbus's CA (docs/operations/tls.md)",
+        ),
+    ] = False,
 ) -> None:
-    """Create an account with a random password; its URL is printed once."""
+    """Create an account with a random password (or, with --cert, none and a client certificate);
+    its URL is printed once."""
     ep, config = endpoint(), settings()
+    if cert and urlsplit(ep.public_url or ep.amqp_url).scheme != "amqps":
+        fail("--cert needs a broker reached over TLS (amqps://): see docs/operations/tls.md")
+    ca_key = TlsFiles.for_settings(config).ca_key
+    if cert and not ca_key.exists():
+        fail(f"--cert signs the robot's certificate with the CA's key {ca_key}, which is missing")
     with admin_api(ep) as api:
         try:
             account = asyncio.run(
@@ -51,6 +70,7 @@ def add(
                     rotate=rotate,
                     shards=config.ingest_shards,
                     cluster=config.cluster,
+                    password_login=not cert,
                 )
             )
         except (AccountExists, ValueError) as error:
@@ -58,15 +78,52 @@ def add(
     if role is Role.ROBOT:
         register_robot(config, name, kind)
     url = as_public(account.amqp_url, ep.public_url)
+    client = _issue_certificate(config, name) if cert else None
+    if client is not None:
+        url = with_client_certificate(url, client.cert, client.key)
     if save:
         save_secret(config.accounts_dir / f"{name}.url", url)
     console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")
     console.print(url, soft_wrap=True, highlight=False)
+    if client is not None:
+        _say_certificate(client, url)
     _, tls = split_tls(url)
     if tls is not None and tls.cacertfile:
         console.print(
             f"it verifies the broker with the CA {tls.cacertfile} (give the robot a copy there, or "
             "fetch it from the API's GET /ca.pem)",
+            soft_wrap=True,
+            highlight=False,
+        )
+
+
+def _issue_certificate(config: Settings, name: str) -> ClientFiles:
+    """``name``'s client certificate (CN=name), signed by fleetbus's CA."""
+    files = TlsFiles.for_settings(config)
+    client = ClientFiles.in_folder(files.clients, name)
+    try:
+        issue_client_certificate(files, client, name)
+    except CertificateError as error:
+        fail(f"made the account {name} (it has no password), but not its certificate: {error}")
+    return client
+
+
+def _say_certificate(client: ClientFiles, url: str) -> None:
+    console.print(
+        f"it has no password: it logs in with its client certificate {client.cert} and key "
+        f"{client.key} (0600; copy both to the robot only)",
+        soft_wrap=True,
+        highlight=False,
+    )
+    try:
+        accepted = can_login(url)
+    except pika.exceptions.AMQPError as error:
+        console.print(f"[yellow]could not try the certificate's login: {error}[/]", soft_wrap=True)
+        return
+    if not accepted:
+        console.print(
+            "[yellow]the broker refuses the certificate's login: it needs the EXTERNAL mechanism "
+            "(the private node gets it at its next start: `fleetbus broker down`, then `up`)[/]",
             soft_wrap=True,
             highlight=False,
         )
@@ -100,12 +157,14 @@ def remove(
 
 @app.command("list")
 def list_users() -> None:
-    """The broker's accounts and their tags."""
+    """The broker's accounts, their tags and how they log in (a password, or a client certificate
+    only)."""
     ep = endpoint()
     with admin_api(ep) as api:
         users = api.list_users()
-    table = Table("user", "tags")
+    table = Table("user", "tags", "login")
     for user in sorted(users, key=lambda u: u["name"]):
         tags = user.get("tags") or []
-        table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags))
+        login = "password" if user.get("password_hash") else "certificate"
+        table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags), login)
     console.print(table)
