@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import socket
 import ssl
 import subprocess
 import sys
@@ -12,13 +11,14 @@ from pathlib import Path
 
 import httpx
 
+from fleetbus.dev.local_node import choose_free_ports
 from tests.support import Bus, wait_for
 
 
 def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+    """A free port below the ephemeral range: one the kernel hands out (port 0) may be taken as an
+    outgoing connection's source port before the server binds it."""
+    return choose_free_ports(1)[0]
 
 
 def wait_until_serving(

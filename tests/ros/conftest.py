@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import threading
 import xmlrpc.client
@@ -19,6 +18,7 @@ import pytest
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.ros.bridge import Bridge, BridgeOptions
 from fleetbus.publishers.ros.mapping import load_mapping
+from tests.api.server import free_port
 from tests.support import read_line, wait_for
 
 ROS_PYTHON = "/usr/bin/python3"
@@ -40,12 +40,6 @@ def ros_installed() -> None:
         pytest.fail(f"FLEETBUS_WITH_ROS=1 but {missing}: scripts/setup should have installed it")
     if missing:
         pytest.skip(f"{missing} (FLEETBUS_WITH_ROS=1 bash scripts/setup installs ROS 1)")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass
