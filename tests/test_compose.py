@@ -77,7 +77,7 @@ def test_the_api_hands_out_no_broker_password_over_plain_http_unless_the_operato
 
 def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alone() -> None:
     site = {name: service for name, service in SERVICES.items() if "site" in service.get("profiles", [])}
-    assert set(site) == {"site-rabbitmq", "site-up", "site-worker", "site-apply"}
+    assert set(site) == {"site-certs", "site-rabbitmq", "site-up", "site-worker", "site-apply"}
     central = {name: s for name, s in SERVICES.items() if name not in site and name not in CLUSTER_NODES}
     assert not any(service.get("profiles") for service in central.values())
     worker = site["site-worker"]
@@ -93,8 +93,8 @@ def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alo
 
 #: The cluster profile's nodes beside central's `rabbitmq` (docs/operations/cluster.md).
 CLUSTER_NODES = ("rabbitmq-2", "rabbitmq-3")
-CENTRAL = {"rabbitmq", "mongo", "setup", "worker", "api"}
-SITE = {"site-rabbitmq", "site-up", "site-worker", "site-apply"}
+CENTRAL = {"certs", "rabbitmq", "mongo", "setup", "worker", "api"}
+SITE = {"site-certs", "site-rabbitmq", "site-up", "site-worker", "site-apply"}
 
 
 def started(*profiles: str, named: tuple[str, ...] = ()) -> set[str]:
@@ -148,5 +148,74 @@ def test_the_cluster_profile_adds_two_nodes_of_the_same_pinned_4x_release_sharin
     for name in ("setup", "worker", "api"):
         environment = SERVICES[name]["environment"]
         url = environment.get("FLEETBUS_AMQP_URL") or environment["FLEETBUS_SERVICE_URL"]
-        assert "@${FLEETBUS_BROKER_HOSTS:-rabbitmq:5672}/" in url, f"{name} lists every node"
+        assert "@${FLEETBUS_BROKER_HOSTS:-rabbitmq:5671}/" in url, f"{name} lists every node"
         assert environment["FLEETBUS_CLUSTER"] == "${FLEETBUS_CLUSTER:-false}"
+
+
+#: The brokers and who makes their certificates; the fleetbus services of each side.
+BROKERS = {"rabbitmq": "certs", "rabbitmq-2": "certs", "rabbitmq-3": "certs", "site-rabbitmq": "site-certs"}
+CLIENTS = {"setup": "rabbitmq", "worker": "rabbitmq", "api": "rabbitmq"} | {
+    name: "site-rabbitmq" for name in ("site-up", "site-worker", "site-apply")
+}
+TLS_CONFIG = [
+    line.strip()
+    for line in yaml.safe_load((ROOT / "compose.yaml").read_text())["configs"]["rabbitmq-tls"][
+        "content"
+    ].splitlines()
+]
+
+
+def _mounts(service: dict[str, Any]) -> dict[str, str]:
+    """Target to source of a service's volumes (short and long syntax)."""
+    found = {}
+    for volume in service.get("volumes", []):
+        if isinstance(volume, dict):
+            found[volume["target"]] = volume["source"]
+        else:
+            source, target = volume.split(":")[:2]
+            found[target] = source
+    return found
+
+
+def test_every_broker_listens_on_amqps_and_https_with_the_certificate_its_certs_service_made() -> None:
+    assert "listeners.ssl.default = 5671" in TLS_CONFIG and "management.ssl.port = 15671" in TLS_CONFIG
+    assert "ssl_options.keyfile = /etc/fleetbus/tls/server.key" in TLS_CONFIG
+    for broker, maker in BROKERS.items():
+        service = SERVICES[broker]
+        assert {c["source"] for c in service["configs"]} >= {"rabbitmq-tls"}, broker
+        volume = _mounts(service)["/etc/fleetbus/tls"]
+        assert _mounts(SERVICES[maker])["/tls"] == volume, f"{broker} serves what {maker} made"
+    for maker in set(BROKERS.values()):
+        command = " ".join(SERVICES[maker]["command"])
+        assert "fleetbus certs make --dir /tls" in command and SERVICES[maker]["user"] == "0"
+        # the RabbitMQ image runs as uid 999: the key is its alone
+        assert "chown 999:999 /tls/server.key && chmod 0600 /tls/server.key" in command
+    assert SERVICES["rabbitmq"]["depends_on"]["certs"] == {"condition": "service_completed_successfully"}
+    assert SERVICES["site-rabbitmq"]["depends_on"]["site-certs"] == {
+        "condition": "service_completed_successfully"
+    }
+
+
+def test_every_fleetbus_service_reaches_its_broker_over_verified_tls() -> None:
+    for name, broker in CLIENTS.items():
+        environment = SERVICES[name]["environment"]
+        url = environment.get("FLEETBUS_AMQP_URL") or environment["FLEETBUS_SERVICE_URL"]
+        assert url.startswith("amqps://") and url.endswith("/?cacertfile=/etc/fleetbus/tls/ca.pem"), name
+        assert f"@{broker}:5671/" in url or "${FLEETBUS_BROKER_HOSTS:-rabbitmq:5671}" in url, name
+        management = environment.get("FLEETBUS_MANAGEMENT_URL", f"https://{broker}:15671/")
+        assert management == f"https://{broker}:15671/", name
+        assert environment["FLEETBUS_TLS_CA"] == "/etc/fleetbus/tls/ca.pem", name
+        assert (
+            _mounts(SERVICES[name])["/etc/fleetbus/tls"] == _mounts(SERVICES[broker])["/etc/fleetbus/tls"]
+        ), name
+
+
+def test_a_site_verifies_central_with_centrals_ca_which_must_be_there() -> None:
+    """The shovels run in the site's broker and `site up` checks the URL first: both read central's
+    CA at the path FLEETBUS_CENTRAL_URL names; a missing file stops Compose rather than becoming an
+    empty folder."""
+    for name in ("site-rabbitmq", "site-up", "site-apply"):
+        [ca] = [v for v in SERVICES[name]["volumes"] if isinstance(v, dict)]
+        assert ca["source"] == "./compose/central-ca.pem" and ca["target"] == "/etc/fleetbus/central-ca.pem"
+        assert ca["read_only"] is True and ca["bind"] == {"create_host_path": False}
+    assert "cacertfile=/etc/fleetbus/central-ca.pem" in (ROOT / "compose.yaml").read_text()
