@@ -13,6 +13,7 @@ from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.login_limits import LoginLimits
 from fleetbus.api.missions import Missions
+from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
@@ -67,12 +68,10 @@ async def open_service(
     recording = open_recording_store(settings)
     await recording.open()
     management = ManagementAPI.from_urls(management_url, admin_url)
+    to_sites = MissionsToSites(lambda mission: send_mission_to_sites(repositories.sites, admin_url, mission))
+    to_sites.start()
     try:
-        missions = Missions(
-            repositories.missions,
-            repositories.channels,
-            lambda mission: send_mission_to_sites(repositories, admin_url, mission),
-        )
+        missions = Missions(repositories.missions, repositories.channels, to_sites.changed)
         yield Service(
             settings=settings,
             repositories=repositories,
@@ -106,6 +105,7 @@ async def open_service(
             login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
         )
     finally:
+        await to_sites.stop()
         secrets_.passwords.close()
         management.close()
         await recording.close()

@@ -19,6 +19,7 @@ from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_ke
 from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, AnySiteChange, MissionChange, RobotAccount
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.missions import Mission
+from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.team import change_service
 
 
@@ -87,16 +88,14 @@ async def mission_changes(repositories: Repositories) -> list[MissionChange]:
     return [mission_change(m) for m in await repositories.missions.missions()]
 
 
-async def send_mission_to_sites(repositories: Repositories, admin_url: str, mission: Mission) -> list[str]:
+async def send_mission_to_sites(sites_: SiteRegistry, admin_url: str, mission: Mission) -> list[str]:
     """Send every site the mission as it is now (after central created or changed it); the sites."""
-    sites = sorted(await repositories.sites.sites())
+    sites = sorted(await sites_.sites())
     await asyncio.to_thread(send_to_sites, admin_url, sites, [mission_change(mission)])
     return sites
 
 
-def send_to_sites(
-    admin_url: str, sites: Sequence[str], changes: Sequence[AnySiteChange]
-) -> None:
+def send_to_sites(admin_url: str, sites: Sequence[str], changes: Sequence[AnySiteChange]) -> None:
     """Publish ``changes`` to each site's downlink, over one connection (persistent, confirmed: the
     shovel takes them on whenever the site is connected)."""
     connection = pika.BlockingConnection(pika_parameters(admin_url))

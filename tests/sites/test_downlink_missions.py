@@ -37,7 +37,7 @@ def test_a_mission_created_at_central_appears_at_the_site_and_the_newest_wins(pa
 
     async def create(repos: Repositories) -> Mission:
         missions = Missions(
-            repos.missions, repos.channels, lambda m: send_mission_to_sites(repos, central.admin_url, m)
+            repos.missions, repos.channels, lambda m: send_mission_to_sites(repos.sites, central.admin_url, m)
         )
         return await missions.create(client, "hazard-response", "north tunnel", MissionPlan())
 

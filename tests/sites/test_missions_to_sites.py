@@ -1,0 +1,75 @@
+"""A mission changed while central's broker does not answer reaches the sites once it answers
+again: the API's sender keeps the newest version of each mission and tries again with backoff."""
+
+from __future__ import annotations
+
+import asyncio
+from datetime import datetime, timedelta, timezone
+from urllib.parse import urlsplit
+
+from fleetbus.api.missions_to_sites import MissionsToSites
+from fleetbus.publishers.backoff import Backoff
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.routing import DOWNLINK_QUEUE
+from fleetbus.workers.downlink import apply_downlink
+from fleetbus.workers.sites import mission_change, send_to_sites
+from fleetbus.workers.store.missions import Mission
+from tests.link import NetworkLink
+from tests.sites.pair import SitePair
+from tests.support import wait_for
+
+
+def test_a_mission_changed_while_centrals_broker_is_away_reaches_the_site_when_it_is_back(
+    pair: SitePair,
+) -> None:
+    central = pair.central
+    now = datetime.now(timezone.utc)
+    created = pair.central_store(
+        lambda repos: repos.missions.create_mission("survey", "east shaft", "client1", {}, now)
+    )
+    closed = pair.central_store(
+        lambda repos: repos.missions.transition_mission(
+            created.mission_id,
+            MissionState.PLANNING,
+            MissionState.CLOSED,
+            "planner1",
+            now + timedelta(seconds=1),
+        )
+    )
+    link = NetworkLink(urlsplit(central.admin_url).port or 5672).start()
+    tries: list[str] = []
+
+    async def send(mission: Mission) -> None:
+        tries.append(mission.mission_id)
+        await asyncio.to_thread(
+            send_to_sites, link.url(central.admin_url), [pair.name], [mission_change(mission)]
+        )
+
+    async def scenario() -> int:
+        sender = MissionsToSites(send, Backoff(initial=0.1, maximum=0.5, jitter=0.05))
+        sender.start()
+        try:
+            link.cut()
+            await sender.changed(created)
+            await asyncio.to_thread(
+                wait_for, lambda: len(tries) >= 2, 30, "two tries while the broker is away"
+            )
+            await sender.changed(closed)  # the newer version replaces the one waiting
+            assert sender.waiting == 1
+            link.restore()
+            await asyncio.to_thread(wait_for, lambda: sender.waiting == 0, 30, "the mission sent once back")
+            return sender.waiting
+        finally:
+            await sender.stop()
+
+    try:
+        assert asyncio.run(scenario()) == 0
+    finally:
+        link.stop()
+    # the sentinel: whatever the sender sent is ahead of it in the site's downlink
+    send_to_sites(central.admin_url, [pair.name], [mission_change(closed)])
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) >= 2, what="the mission and the sentinel")
+    assert pair.site.ready_messages(DOWNLINK_QUEUE) == 2, "the waiting version sent once, the older never"
+    assert apply_downlink(pair.site.settings, pair.site.admin_url, pair.site.api, idle_s=1.0) == 2
+    at_site = pair.site.with_store(lambda repos: repos.missions.get_mission(created.mission_id))
+    assert at_site == closed
