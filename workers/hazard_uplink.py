@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 
 import aio_pika
@@ -38,24 +39,10 @@ BATCH = 500
 
 
 def state_message(hazard: Hazard) -> SiteHazardState:
-    """What central is told of ``hazard`` as the site's store has it now."""
-    return SiteHazardState(
-        mission_id=hazard.mission_id,
-        hazard_id=hazard.hazard_id,
-        robot_id=hazard.robot_id,
-        epoch=hazard.epoch,
-        seq=hazard.seq,
-        event=hazard.event,
-        state=hazard.state.value,
-        received_at=hazard.received_at,
-        announced_at=hazard.announced_at,
-        claimed_by=hazard.claimed_by,
-        claimed_at=hazard.claimed_at,
-        reached_at=hazard.reached_at,
-        cleared_at=hazard.cleared_at,
-        held_reason=hazard.held_reason,
-        version=hazard.version,
-    )
+    """What central is told of ``hazard`` as the site's store has it now: every field the message
+    has, taken from the hazard as a whole."""
+    fields = dataclasses.asdict(hazard) | {"state": hazard.state.value}
+    return SiteHazardState(**{name: fields[name] for name in SiteHazardState.model_fields})
 
 
 class HazardUplink:

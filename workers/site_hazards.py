@@ -55,23 +55,7 @@ class Refused(Exception):
 
 def hazard_of(state: SiteHazardState) -> Hazard:
     """The hazard as its site has it (its id and version there)."""
-    return Hazard(
-        mission_id=state.mission_id,
-        hazard_id=state.hazard_id,
-        robot_id=state.robot_id,
-        epoch=state.epoch,
-        seq=state.seq,
-        event=state.event,
-        state=HazardState(state.state),
-        received_at=state.received_at,
-        announced_at=state.announced_at,
-        claimed_by=state.claimed_by,
-        claimed_at=state.claimed_at,
-        reached_at=state.reached_at,
-        cleared_at=state.cleared_at,
-        held_reason=state.held_reason,
-        version=state.version,
-    )
+    return Hazard(**state.model_dump(exclude={"state"}), state=HazardState(state.state))
 
 
 class SiteHazards:
