@@ -91,8 +91,10 @@ def docker_endpoint(settings: Settings) -> BrokerEndpoint:
     )
 
 
-def compose_up(settings: Settings, timeout: float = 180.0) -> BrokerEndpoint:
-    """``docker compose up -d rabbitmq`` from the project root, then wait until it answers."""
+def compose_up(settings: Settings, timeout: float = 600.0) -> BrokerEndpoint:
+    """``docker compose up -d rabbitmq`` from the project root, then wait until it answers. Compose
+    runs the one-shot ``certs`` service first (the broker's TLS certificate), which builds the
+    fleetbus image the first time: minutes, hence the long ``timeout``."""
     endpoint = docker_endpoint(settings)
     if endpoint_ready(endpoint):
         return endpoint
