@@ -39,11 +39,25 @@ def test_a_mission_changed_while_centrals_broker_is_away_reaches_the_site_when_i
     link = NetworkLink(urlsplit(central.admin_url).port or 5672).start()
     tries: list[str] = []
 
+    failed: list[str] = []
+
     async def send(mission: Mission) -> None:
         tries.append(mission.mission_id)
-        await asyncio.to_thread(
-            send_to_sites, link.url(central.admin_url), [pair.name], [mission_change(mission)]
-        )
+        try:
+            await asyncio.to_thread(
+                send_to_sites, link.url(central.admin_url), [pair.name], [mission_change(mission)]
+            )
+        except Exception:
+            failed.append(mission.mission_id)
+            raise
+
+    async def between_tries(at_least: int) -> None:
+        """Until ``at_least`` tries failed and none is under way (the sender waits to try again):
+        checked on the sender's own loop, so nothing starts before the caller's next step."""
+        deadline = asyncio.get_running_loop().time() + 30
+        while not (len(failed) >= at_least and len(tries) == len(failed)):
+            assert asyncio.get_running_loop().time() < deadline, f"{len(failed)} tries failed in 30 s"
+            await asyncio.sleep(0.01)
 
     async def scenario() -> int:
         sender = MissionsToSites(send, Backoff(initial=0.1, maximum=0.5, jitter=0.05))
@@ -51,10 +65,8 @@ def test_a_mission_changed_while_centrals_broker_is_away_reaches_the_site_when_i
         try:
             link.cut()
             await sender.changed(created)
-            await asyncio.to_thread(
-                wait_for, lambda: len(tries) >= 2, 30, "two tries while the broker is away"
-            )
-            await sender.changed(closed)  # the newer version replaces the one waiting
+            await between_tries(2)
+            await sender.changed(closed)  # the newer version replaces the one waiting, before its next try
             assert sender.waiting == 1
             link.restore()
             await asyncio.to_thread(wait_for, lambda: sender.waiting == 0, 30, "the mission sent once back")
