@@ -126,48 +126,54 @@ def local_uri(vhost: str) -> str:
     return "amqp:///" + quote(vhost, safe="")
 
 
-def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int) -> dict[str, Any]:
-    """The uplink's definition. An ``amqps://`` ``central_url`` is verified as fleetbus's own
-    clients verify (:func:`~fleetbus.broker.tls.shovel_uri`: certificate and host name)."""
+def _confirmed_shovel(source: str, destination: str, reconnect_delay_s: int, **ends: Any) -> dict[str, Any]:
+    """A shovel as fleetbus runs each of its links: AMQP 0-9-1 at both ends, a message acked at
+    its source only once the destination confirmed it, and tried again every
+    ``reconnect_delay_s`` while the other side is away; ``ends`` names the queues and exchanges."""
     return {
         "src-protocol": "amqp091",
-        "src-uri": local_uri(vhost),
-        "src-queue": UPLINK_QUEUE,
-        "src-prefetch-count": prefetch,
+        "src-uri": source,
         "dest-protocol": "amqp091",
-        "dest-uri": shovel_uri(central_url),
-        # no dest-exchange: each message goes to the exchange it was published to, with its key
-        "dest-add-forward-headers": True,
+        "dest-uri": destination,
+        **{key.replace("_", "-"): value for key, value in ends.items()},
         "ack-mode": "on-confirm",
         "reconnect-delay": reconnect_delay_s,
     }
+
+
+def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int) -> dict[str, Any]:
+    """The uplink's definition. An ``amqps://`` ``central_url`` is verified as fleetbus's own
+    clients verify (:func:`~fleetbus.broker.tls.shovel_uri`: certificate and host name). No
+    destination exchange: each message goes to the exchange it was published to, with its key."""
+    return _confirmed_shovel(
+        local_uri(vhost),
+        shovel_uri(central_url),
+        reconnect_delay_s,
+        src_queue=UPLINK_QUEUE,
+        src_prefetch_count=prefetch,
+        dest_add_forward_headers=True,
+    )
 
 
 def downlink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: int) -> dict[str, Any]:
-    return {
-        "src-protocol": "amqp091",
-        "src-uri": shovel_uri(central_url),
-        "src-queue": site_downlink_queue(site),
-        "dest-protocol": "amqp091",
-        "dest-uri": local_uri(vhost),
-        "dest-queue": DOWNLINK_QUEUE,
-        "ack-mode": "on-confirm",
-        "reconnect-delay": reconnect_delay_s,
-    }
+    return _confirmed_shovel(
+        shovel_uri(central_url),
+        local_uri(vhost),
+        reconnect_delay_s,
+        src_queue=site_downlink_queue(site),
+        dest_queue=DOWNLINK_QUEUE,
+    )
 
 
 def hazard_uplink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: int) -> dict[str, Any]:
     """The hazard states' way to central: into the site's own ``<site>.hazards`` there."""
-    return {
-        "src-protocol": "amqp091",
-        "src-uri": local_uri(vhost),
-        "src-queue": HAZARD_UPLINK_QUEUE,
-        "dest-protocol": "amqp091",
-        "dest-uri": shovel_uri(central_url),
-        "dest-exchange": site_hazards_exchange(site),
-        "ack-mode": "on-confirm",
-        "reconnect-delay": reconnect_delay_s,
-    }
+    return _confirmed_shovel(
+        local_uri(vhost),
+        shovel_uri(central_url),
+        reconnect_delay_s,
+        src_queue=HAZARD_UPLINK_QUEUE,
+        dest_exchange=site_hazards_exchange(site),
+    )
 
 
 async def start_site_links(
