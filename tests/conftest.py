@@ -30,7 +30,7 @@ from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.settings import load_settings
 from tests.link import NetworkLink
-from tests.run_tls import node_endpoint, run_tls_files
+from tests.run_tls import run_tls_files, suite_endpoint
 from tests.store.conftest import fresh_database
 from tests.store.mongodb import mongodb_url  # noqa: F401  (the MongoDB fixture, shared)
 from tests.support import Bus, fresh_bus
@@ -143,7 +143,7 @@ def endpoint(broker_node: LocalNode | None) -> BrokerEndpoint:
     """The broker as administrator: the private node of this process, or the configured one."""
     if broker_node is None:
         return resolve_broker(load_settings(), start=True)
-    return node_endpoint(broker_node.status())
+    return suite_endpoint(broker_node.status())
 
 
 @pytest.fixture(scope="session")
@@ -198,7 +198,7 @@ def killable_node(
 @pytest.fixture
 def killable_bus(killable_node: LocalNode, tmp_path: Path) -> Iterator[Bus]:
     """A fresh virtual host on the killable node, started again if an earlier test left it down."""
-    endpoint = node_endpoint(killable_node.up())
+    endpoint = suite_endpoint(killable_node.up())
     with (
         ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
         fresh_bus(endpoint, api, tmp_path) as test_bus,

@@ -20,11 +20,16 @@ def run_tls_files() -> TlsFiles:
     return TlsFiles.for_settings(load_settings())
 
 
-def node_endpoint(info: NodeInfo) -> BrokerEndpoint:
+def suite_endpoint(info: NodeInfo) -> BrokerEndpoint:
     """A node of the suite as administrator: over TLS (see ``BROKER_TLS``), robots handed its AMQPS
     URL; or over plain AMQP (a TLS-only node's URLs are its TLS ones either way)."""
     if BROKER_TLS:
         assert info.amqps_url and info.management_tls_url, f"the node serves no TLS: {info}"
         return BrokerEndpoint(info.amqps_url, info.management_tls_url, "private", info.public_url)
+    return plain_endpoint(info)
+
+
+def plain_endpoint(info: NodeInfo) -> BrokerEndpoint:
+    """A node as administrator over plain AMQP and HTTP."""
     assert info.amqp_url and info.management_url
     return BrokerEndpoint(info.amqp_url, info.management_url, "private")

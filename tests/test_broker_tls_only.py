@@ -15,7 +15,7 @@ from fleetbus.broker.probe import amqp_login
 from fleetbus.dev.local_node import HOST, LocalNode, listening_addresses
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import status
-from tests.run_tls import node_endpoint, run_tls_files
+from tests.run_tls import run_tls_files, suite_endpoint
 from tests.support import fresh_bus, wait_for
 
 
@@ -45,7 +45,7 @@ def test_no_plain_port_listens_and_a_plain_login_is_refused(tls_only_node: Local
 
 
 def test_robots_and_the_worker_work_over_tls_alone(tls_only_node: LocalNode, tmp_path: Path) -> None:
-    endpoint = node_endpoint(tls_only_node.status())
+    endpoint = suite_endpoint(tls_only_node.status())
     with (
         ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
         fresh_bus(endpoint, api, tmp_path) as bus,

@@ -22,6 +22,7 @@ from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.sites import Forward
 from tests.link import NetworkLink
+from tests.run_tls import plain_endpoint
 from tests.support import Bus, fresh_bus
 
 T = TypeVar("T")
@@ -114,9 +115,7 @@ class SitePair:
 
 
 def node_endpoint(node: LocalNode) -> BrokerEndpoint:
-    info = node.up()  # started again if an earlier user left it down
-    assert info.amqp_url and info.management_url
-    return BrokerEndpoint(info.amqp_url, info.management_url, "private")
+    return plain_endpoint(node.up())  # started again if an earlier user left it down
 
 
 @contextmanager
