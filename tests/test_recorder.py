@@ -276,8 +276,20 @@ def test_beacons_are_recorded_and_those_the_broker_discarded_say_so(bus: Bus) ->
 
 
 def _children(pid: int) -> list[int]:
-    tasks = Path(f"/proc/{pid}/task")
-    return [int(child) for task in tasks.iterdir() for child in (task / "children").read_text().split()]
+    """The live processes whose parent is ``pid`` (from each one's /proc stat: a thread's
+    ``children`` file can vanish while it is read)."""
+    children = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except (FileNotFoundError, ProcessLookupError):
+            continue  # exited meanwhile
+        state, parent = fields[0], int(fields[1])
+        if parent == pid and state != "Z":
+            children.append(int(entry.name))
+    return sorted(children)
 
 
 def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(bus: Bus) -> None:
