@@ -23,3 +23,8 @@ class SiteReport(BaseModel):
     downlink: str
     rejected: int | None = None
     """Downlink messages the site could not apply."""
+    hazard_states_waiting: int | None = None
+    """Hazard states made at the site not yet confirmed by central (in ``fleetbus.hazard-uplink``);
+    None when it could not tell, or the site's fleetbus is older."""
+    hazard_uplink: str | None = None
+    """The hazard states' shovel's state; None from an older site."""

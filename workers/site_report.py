@@ -30,6 +30,8 @@ def site_report(api: ManagementAPI, vhost: str, site: str, team: Collection[str]
         uplink=link.uplink.state,
         downlink=link.downlink.state,
         rejected=link.rejected,
+        hazard_states_waiting=link.hazard_states_waiting,
+        hazard_uplink=link.hazard_uplink.state if link.hazard_uplink else None,
     )
 
 

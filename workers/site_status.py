@@ -44,6 +44,8 @@ class SiteRow:
     """When the site measured its newest report."""
     report_age_s: float | None = None
     """How old that report is: while the link is down it grows, and ``waiting`` is that old."""
+    hazard_states_waiting: int | None = None
+    """Hazard states made at the site waiting to be forwarded, as its newest report said."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -83,6 +85,7 @@ def central_view(
                 report.waiting if report else None,
                 report.at if report else None,
                 max(0.0, (now - report.at).total_seconds()) if report else None,
+                report.hazard_states_waiting if report else None,
             )
         )
     return rows

@@ -39,4 +39,5 @@ def test_the_dashboard_shows_what_waits_at_each_site_and_since_when(pair: SitePa
         )
         assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url)
         browser.until(lambda: browser.text("#site-base1 td.waiting").startswith("2 (reported"), "2 waiting")
+        assert browser.text("#site-base1 td.hazard-states-waiting") == "0", "no hazard state made at the site"
         browser.until(lambda: browser.text("#site-base1 td.link") == "down", "the link down")

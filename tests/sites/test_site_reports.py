@@ -9,10 +9,10 @@ import subprocess
 import sys
 from urllib.parse import urlsplit
 
-from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE, RobotKind
 from fleetbus.workers.site_report import report_to_central
 from fleetbus.workers.site_status import site_view
-from tests.factories import status
+from tests.factories import hazard, status
 from tests.sites.pair import SitePair
 from tests.support import wait_for
 from tests.test_cli import fleetbus
@@ -71,3 +71,22 @@ def test_site_apply_reports_to_central(pair: SitePair) -> None:
     assert password not in applied.stdout + applied.stderr, "the password is never shown"
     row = _row(pair)
     assert row["waiting"] == 0 and row["reported_at"] is not None
+
+
+def test_central_shows_the_hazard_states_waiting_at_the_site(pair: SitePair) -> None:
+    explorer = pair.site.robot(pair.add_robot("explorer1", RobotKind.EXPLORER))
+    with pair.site.worker():
+        pair.stop()  # the hazard states' shovel too: what the site's worker makes waits
+        explorer.publish("hazard", hazard(0))  # held (no warden localised): a first state
+        waiting = wait_for(
+            lambda: (n := site_view(pair.site.api, pair.site.vhost, []).hazard_states_waiting) and n,
+            what="a hazard state counted at the site",
+        )
+        assert pair.site.ready_messages(HAZARD_UPLINK_QUEUE) == waiting
+        assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url)
+    row = _row(pair)
+    assert row["hazard_states_waiting"] == waiting and row["waiting"] == 1, "the hazard event and its state"
+
+    shown = fleetbus(pair.central, "sites")
+    assert shown.returncode == 0, shown.stderr
+    assert "states" in shown.stdout

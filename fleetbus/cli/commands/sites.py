@@ -68,8 +68,8 @@ def sites(
         console.print_json(json.dumps([row.as_dict() for row in rows]))
         return
     table = Table(title=f"{len(rows)} sites")
-    numbers = ("forwarded", "late", "behind", "waiting")
-    for column in ("site", "link", "since", "robots", "forwarded", "late", "behind", "waiting", "reported"):
+    numbers = ("forwarded", "late", "behind", "waiting", "states")
+    for column in ("site", "link", "since", "robots", *numbers, "reported"):
         table.add_column(column, justify="right" if column in numbers else "left")
     for row in rows:
         since = _ago((now - row.since).total_seconds()) + " ago" if row.since else "-"
@@ -82,12 +82,14 @@ def sites(
             f"{row.late:,}",
             _ago(row.behind_s),
             "?" if row.waiting is None else f"{row.waiting:,}",
+            "?" if row.hazard_states_waiting is None else f"{row.hazard_states_waiting:,}",
             _ago(row.report_age_s) + " ago" if row.reported_at else "never",
         )
     console.print(table)
     console.print(
-        "waiting: to be forwarded, as the site's newest report said (reported: how old that is; while "
-        "the link is down it ages); behind: since the newest event central received from the site was sent",
+        "waiting: events to be forwarded, as the site's newest report said (states: the hazard states "
+        "made at the site; reported: how old that is; while the link is down it ages); "
+        "behind: since the newest event central received from the site was sent",
         highlight=False,
     )
 
