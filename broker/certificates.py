@@ -53,6 +53,16 @@ class TlsFiles:
         return cls(settings.ca_file, settings.cert_file, settings.key_file, settings.tls_folder / "ca.key")
 
     @property
+    def issued(self) -> Path:
+        """A copy of every client certificate the CA signed, by serial number (to revoke them)."""
+        return self.ca_key.parent / "issued"
+
+    @property
+    def crl_dir(self) -> Path:
+        """The CA's revocation list, named for the broker to find (:mod:`fleetbus.broker.revocation`)."""
+        return self.ca_key.parent / "crl"
+
+    @property
     def clients(self) -> Path:
         """Where the client certificates the CA signs (``fleetbus certs client``) are written."""
         return self.ca_key.parent / "clients"
@@ -61,7 +71,7 @@ class TlsFiles:
         return self.ca.exists() and self.cert.exists() and self.key.exists()
 
 
-def _write(path: Path, data: bytes, mode: int) -> None:
+def write_file(path: Path, data: bytes, mode: int) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
@@ -111,12 +121,12 @@ def _make_ca(files: TlsFiles) -> tuple[x509.Certificate, ec.EllipticCurvePrivate
         .add_extension(x509.SubjectKeyIdentifier.from_public_key(public), critical=False)
         .sign(key, hashes.SHA256())
     )
-    _write(files.ca_key, _key_pem(key), 0o600)
-    _write(files.ca, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_file(files.ca_key, _key_pem(key), 0o600)
+    write_file(files.ca, cert.public_bytes(serialization.Encoding.PEM), 0o644)
     return cert, key
 
 
-def _load_ca(files: TlsFiles) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
+def load_ca(files: TlsFiles) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
     try:
         cert = x509.load_pem_x509_certificate(files.ca.read_bytes())
         key = serialization.load_pem_private_key(files.ca_key.read_bytes(), password=None)
@@ -187,8 +197,8 @@ def _sign_server(
 ) -> None:
     names = [_alt_name(host) for host in hosts]
     cert, key = _leaf(ca, ca_key, hosts[0], SERVER_DAYS, ExtendedKeyUsageOID.SERVER_AUTH, names)
-    _write(files.key, _key_pem(key), 0o600)
-    _write(files.cert, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_file(files.key, _key_pem(key), 0o600)
+    write_file(files.cert, cert.public_bytes(serialization.Encoding.PEM), 0o644)
 
 
 def make_certificates(files: TlsFiles, hosts: Iterable[str] = ()) -> bool:
@@ -201,7 +211,7 @@ def make_certificates(files: TlsFiles, hosts: Iterable[str] = ()) -> bool:
             raise CertificateError(f"{files.ca_key} exists without {files.ca}: move it away first")
         ca, ca_key = _make_ca(files)
     else:
-        ca, ca_key = _load_ca(files)
+        ca, ca_key = load_ca(files)
     _sign_server(files, ca, ca_key, names)
     return made_ca
 
@@ -227,10 +237,12 @@ def issue_client_certificate(files: TlsFiles, client: ClientFiles, name: str) ->
             f"signing a client certificate needs the CA's key {files.ca_key} (`fleetbus certs make`); "
             "with a CA of your own, sign the robot's certificate (CN=<its name>) with it instead"
         )
-    ca, ca_key = _load_ca(files)
+    ca, ca_key = load_ca(files)
     cert, key = _leaf(ca, ca_key, name, CLIENT_DAYS, ExtendedKeyUsageOID.CLIENT_AUTH, [])
-    _write(client.key, _key_pem(key), 0o600)
-    _write(client.cert, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+    pem = cert.public_bytes(serialization.Encoding.PEM)
+    write_file(files.issued / f"{cert.serial_number:x}.pem", pem, 0o644)  # first: it can be revoked
+    write_file(client.key, _key_pem(key), 0o600)
+    write_file(client.cert, pem, 0o644)
 
 
 @dataclass(frozen=True)

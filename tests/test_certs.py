@@ -14,6 +14,7 @@ from cryptography import x509
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from fleetbus.broker.certificates import ClientFiles, TlsFiles, describe
+from fleetbus.broker.revocation import issued_certificates
 
 
 def certs(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
@@ -90,3 +91,33 @@ def test_client_needs_the_cas_key_and_a_valid_name(tmp_path: Path) -> None:
     assert refused.returncode == 1 and "needs the CA's key" in refused.stderr
     wrong = certs("client", "no/such name", "--dir", str(tmp_path / "tls"))
     assert wrong.returncode == 1
+
+
+def test_revoke_lists_and_revokes_an_accounts_certificates(tmp_path: Path) -> None:
+    folder = str(tmp_path / "tls")
+    files = TlsFiles.in_folder(tmp_path / "tls")
+    assert certs("make", "--dir", folder).returncode == 0
+    for name in ("scout-1", "scout-1", "rover-2"):
+        signed = certs("client", name, "--dir", folder)
+        assert signed.returncode == 0, signed.stderr
+    shown = certs("show", "--dir", folder)
+    assert shown.returncode == 0, shown.stderr
+    assert "0 revoked" in shown.stdout and shown.stdout.count("valid") >= 3
+
+    bad = certs("revoke", "scout-1", "--serial", "not-hex", "--dir", folder)
+    assert bad.returncode == 1 and "not a hexadecimal serial number" in bad.stderr
+    [rover] = issued_certificates(files, "rover-2")
+    assert f"{rover.serial:x}" in shown.stdout
+    wrong = certs("revoke", "scout-1", "--serial", f"{rover.serial:x}", "--dir", folder)
+    assert wrong.returncode == 1 and "no certificate" in wrong.stderr, "another account's serial"
+
+    revoked = certs("revoke", "scout-1", "--dir", folder)
+    assert revoked.returncode == 0, revoked.stderr
+    assert "revoked 2 certificate(s) of scout-1" in revoked.stdout
+    again = certs("revoke", "scout-1", "--dir", folder)
+    assert again.returncode == 0 and "nothing to revoke" in again.stdout
+    after = certs("show", "--dir", folder)
+    assert "2 revoked" in after.stdout
+    rows = [line for line in after.stdout.splitlines() if "scout-1" in line or "rover-2" in line]
+    assert [("revoked" in row) for row in rows if "scout-1" in row] == [True, True], after.stdout
+    assert [("valid" in row) for row in rows if "rover-2" in row] == [True], after.stdout

@@ -26,6 +26,7 @@ import httpx
 import pika
 import pytest
 
+from fleetbus.broker.accounts import can_login
 from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_certificate, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
 from fleetbus.broker.management import ManagementAPI
@@ -48,6 +49,7 @@ from fleetbus.schemas.routing import EXPRESS_QUEUE, events_exchange
 from fleetbus.settings import Settings, load_settings
 from tests.factories import hazard
 from tests.support import wait_for
+from tests.test_revocation import refused_as_revoked
 
 pytestmark = pytest.mark.skipif(not RABBITMQ_SERVER.exists(), reason="rabbitmq-server is not installed")
 
@@ -557,6 +559,53 @@ def test_the_certificate_is_the_identity_a_robot_cannot_act_as_another(
         channel.basic_publish(events_exchange("cert-scout"), "cert-scout.hazard", b"{}", properties)
     finally:
         ok.close()
+
+
+def _users(node_settings: Settings, *args: str) -> subprocess.CompletedProcess[str]:
+    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
+    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="400")
+    command = [sys.executable, "-m", "fleetbus", "users", *args]
+    return subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+
+
+def _keep_aside(url: str, folder: Path) -> str:
+    """The URL with its certificate and key copied to ``folder`` (`users add` writes new ones)."""
+    query = dict(part.split("=", 1) for part in urlsplit(url).query.split("&"))
+    folder.mkdir()
+    for field in ("certfile", "keyfile"):
+        copy = folder / Path(query[field]).name
+        copy.write_bytes(Path(query[field]).read_bytes())
+        url = url.replace(query[field], str(copy))
+    return url
+
+
+def test_a_new_certificate_or_a_removal_revokes_the_accounts_earlier_ones(
+    node: LocalNode, node_settings: Settings, tmp_path: Path
+) -> None:
+    """A robot's certificate is lost: `users add --cert --rotate` gives it a new one and the old
+    one is refused from its next connection; after `users remove`, an account given that name
+    again does not inherit the certificate."""
+    first = _keep_aside(_add_cert_robot(node, node_settings, "cert-lost")[0], tmp_path / "first")
+    assert can_login(first)
+    rotated = _users(node_settings, "add", "cert-lost", "--kind", "explorer", "--cert", "--rotate")
+    assert rotated.returncode == 0, rotated.stderr
+    assert "revoked 1 earlier certificate(s) of cert-lost" in rotated.stdout
+    [second] = [line for line in rotated.stdout.splitlines() if line.startswith("amqp")]
+    second = _keep_aside(second, tmp_path / "second")
+    log_file = node.status().log_file
+    assert log_file is not None
+    refused_as_revoked(first, log_file)
+    assert can_login(second)
+
+    removed = _users(node_settings, "remove", "cert-lost")
+    assert removed.returncode == 0, removed.stderr
+    assert "revoked 1 earlier certificate(s) of cert-lost" in removed.stdout
+    again = _users(node_settings, "add", "cert-lost", "--kind", "explorer")  # a new robot, a password
+    assert again.returncode == 0, again.stderr
+    try:
+        refused_as_revoked(second, log_file)
+    finally:
+        assert _users(node_settings, "remove", "cert-lost").returncode == 0
 
 
 def test_users_add_cert_without_the_cas_key_makes_no_account(

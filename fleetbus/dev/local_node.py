@@ -42,6 +42,7 @@ from fleetbus.broker.probe import (
     write_private_file,
 )
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
+from fleetbus.broker.revocation import ensure_crl
 
 RABBITMQ_BIN = Path("/usr/lib/rabbitmq/bin")
 RABBITMQ_SERVER = RABBITMQ_BIN / "rabbitmq-server"
@@ -275,6 +276,11 @@ def choose_free_ports(count: int) -> list[int]:
     return chosen
 
 
+def _erlang_string(path: Path) -> str:
+    """``path`` as an Erlang string literal."""
+    return '"' + str(path).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
 def _write_if_changed(path: Path, text: str) -> None:
     if not path.exists() or path.read_text() != text:
         path.write_text(text)
@@ -473,11 +479,6 @@ management.ssl.cacertfile = {tls.ca}
 management.ssl.certfile = {tls.cert}
 management.ssl.keyfile = {tls.key}
 listeners.ssl.default = {HOST}:{ports["amqps"]}
-ssl_options.cacertfile = {tls.ca}
-ssl_options.certfile = {tls.cert}
-ssl_options.keyfile = {tls.key}
-ssl_options.verify = verify_peer
-ssl_options.fail_if_no_peer_cert = false
 {CERTIFICATE_LOGIN}stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
 default_vhost = /
 default_user = {user}
@@ -490,18 +491,44 @@ loopback_users = none
 log.file.level = info
 log.console = false
 """
-        conf_file = base / "rabbitmq.conf"
-        if not conf_file.exists() or conf_file.read_text() != conf:
-            if self.pid() is not None:
-                log.warning(
-                    "the private node's configuration changed (%s): it takes effect when the node "
-                    "starts again (`fleetbus broker down`, then `up`)",
-                    conf_file,
-                )
-            write_private_file(conf_file, conf)
+        files = ((base / "rabbitmq.conf", conf), (base / "advanced.config", self._advanced_config()))
+        for path, text in files:
+            if not path.exists() or path.read_text() != text:
+                if self.pid() is not None:
+                    log.warning(
+                        "the private node's configuration changed (%s): it takes effect when the node "
+                        "starts again (`fleetbus broker down`, then `up`)",
+                        path,
+                    )
+                write_private_file(path, text)
         cookie = base / ".erlang.cookie"
         if not cookie.exists():
             write_private_file(cookie, secrets.token_hex(20).upper(), mode=0o400)
+
+    def _advanced_config(self) -> str:
+        """The AMQPS listener's TLS options. They live here, not in rabbitmq.conf, because the
+        revocation list's folder (``crl_cache``) can only be given in this file, and RabbitMQ
+        takes a listener's ``ssl_options`` from one file or the other, never merged.
+
+        Client certificates are checked against the CA's revocation list when there is one
+        (fleetbus's CA always has one; :mod:`fleetbus.broker.revocation`)."""
+        tls = self.tls
+        options = [
+            f"{{cacertfile, {_erlang_string(tls.ca)}}}",
+            f"{{certfile, {_erlang_string(tls.cert)}}}",
+            f"{{keyfile, {_erlang_string(tls.key)}}}",
+            "{verify, verify_peer}",
+            "{fail_if_no_peer_cert, false}",
+        ]
+        if ensure_crl(tls):
+            folder = _erlang_string(tls.crl_dir)
+            cache = f"{{crl_cache, {{ssl_crl_hash_dir, {{internal, [{{dir, {folder}}}]}}}}}}"
+            options += ["{crl_check, peer}", cache]
+        joined = ",\n    ".join(options)
+        return (
+            "%% Written by fleetbus (broker/local_node.py) on every start; edits are overwritten.\n"
+            f"[{{rabbit, [{{ssl_options, [\n    {joined}\n]}}]}}].\n"
+        )
 
     @contextlib.contextmanager
     def _lock(self, timeout: float) -> Iterator[None]:

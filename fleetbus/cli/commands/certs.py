@@ -1,12 +1,14 @@
-"""``fleetbus certs make | show | client``: the CA and the server certificate the broker and the API
-use, and client certificates robots log in with."""
+"""``fleetbus certs make | show | client | revoke``: the CA and the server certificate the broker and
+the API use, and client certificates robots log in with."""
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.table import Table
 
 from fleetbus.broker.certificates import (
     CertificateError,
@@ -16,6 +18,7 @@ from fleetbus.broker.certificates import (
     issue_client_certificate,
     make_certificates,
 )
+from fleetbus.broker.revocation import ensure_crl, issued_certificates, read_crl, revoke, revoke_account
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.schemas.identity import validate_name
 
@@ -49,6 +52,7 @@ def make(
         fail("FLEETBUS_TLS_CA, _CERT or _KEY name your own files: make certificates with --dir")
     try:
         made_ca = make_certificates(files, host or [])
+        ensure_crl(files)
     except CertificateError as error:
         fail(str(error))
     done = "made" if made_ca else "kept"
@@ -78,6 +82,39 @@ def show(folder: DirOption = None) -> None:
             console.print(f"  names: {', '.join(info.names)}", soft_wrap=True)
         console.print(f"  expires: {info.not_after.isoformat()}", soft_wrap=True)
     console.print(f"server key: {files.key}{'' if files.key.exists() else ' (missing)'}", soft_wrap=True)
+    _show_revocation(files)
+
+
+def _show_revocation(files: TlsFiles) -> None:
+    """The revocation list, and the client certificates the CA signed with their state."""
+    if not files.ca.exists():
+        return
+    try:
+        crl = read_crl(files)
+        issued = issued_certificates(files)
+    except CertificateError as error:
+        fail(str(error))
+    if crl is None:
+        console.print("revocation list: none (client certificates cannot be revoked)", soft_wrap=True)
+    else:
+        until = crl.next_update.isoformat() if crl.next_update else "?"
+        console.print(
+            f"revocation list: {crl.path} ({len(crl.revoked)} revoked; valid until {until})", soft_wrap=True
+        )
+    if not issued:
+        return
+    table = Table(title=f"{len(issued)} client certificates signed by the CA")
+    for column in ("account", "serial", "expires", "state"):
+        table.add_column(column)
+    now = datetime.now(timezone.utc)
+    for cert in issued:
+        revoked = crl.revoked.get(cert.serial) if crl else None
+        if revoked is not None:
+            state = f"[red]revoked[/] {revoked:%Y-%m-%d %H:%M}"
+        else:
+            state = "expired" if cert.not_after < now else "[green]valid[/]"
+        table.add_row(cert.name, f"{cert.serial:x}", f"{cert.not_after:%Y-%m-%d}", state)
+    console.print(table)
 
 
 @app.command("client")
@@ -112,3 +149,37 @@ def client(
         soft_wrap=True,
         highlight=False,
     )
+
+
+@app.command("revoke")
+def revoke_command(
+    name: Annotated[str, typer.Argument(help="the account whose certificates are revoked")],
+    serial: Annotated[
+        str | None,
+        typer.Option("--serial", help="only this certificate (hexadecimal, as `certs show` lists)"),
+    ] = None,
+    folder: DirOption = None,
+) -> None:
+    """Revoke the client certificates fleetbus's CA signed for NAME (or one of them): the broker
+    refuses them at their next connection, without a restart. Connections open now stay open:
+    `fleetbus users remove NAME` (or close them in the management UI) to cut them off too."""
+    files = _files(folder)
+    try:
+        if serial is None:
+            done = revoke_account(files, name)
+        else:
+            mine = {cert.serial for cert in issued_certificates(files, name)}
+            try:
+                wanted = int(serial, 16)
+            except ValueError:
+                fail(f"--serial {serial!r} is not a hexadecimal serial number")
+            if wanted not in mine:
+                fail(f"the CA signed no certificate {serial} for {name} (`fleetbus certs show` lists them)")
+            done = revoke(files, [wanted])
+    except CertificateError as error:
+        fail(str(error))
+    if not done:
+        console.print(f"nothing to revoke: {name} has no unrevoked certificate of this CA", soft_wrap=True)
+        return
+    serials = ", ".join(f"{number:x}" for number in done)
+    console.print(f"revoked {len(done)} certificate(s) of {name} (serial {serials})", soft_wrap=True)

@@ -20,6 +20,7 @@ from fleetbus.broker.accounts import (
     save_secret,
 )
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
+from fleetbus.broker.revocation import issued_certificates, revoke_account
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
@@ -51,13 +52,16 @@ def add(
     ] = False,
 ) -> None:
     """Create an account with a random password (or, with --cert, none and a client certificate);
-    its URL is printed once."""
+    its URL is printed once. Certificates fleetbus's CA signed earlier for NAME are revoked: the
+    account logs in only with what this command hands out."""
     ep, config = endpoint(), settings()
     if cert and urlsplit(ep.public_url or ep.amqp_url).scheme != "amqps":
         fail("--cert needs a broker reached over TLS (amqps://): see docs/operations/tls.md")
-    ca_key = TlsFiles.for_settings(config).ca_key
-    if cert and not ca_key.exists():
-        fail(f"--cert signs the robot's certificate with the CA's key {ca_key}, which is missing")
+    files = TlsFiles.for_settings(config)
+    if cert and not files.ca_key.exists():
+        fail(f"--cert signs the robot's certificate with the CA's key {files.ca_key}, which is missing")
+    if issued_certificates(files, name) and not files.ca_key.exists():
+        fail(f"{name} has certificates in {files.issued}; revoking them needs the CA's key {files.ca_key}")
     with admin_api(ep) as api:
         try:
             account = asyncio.run(
@@ -77,6 +81,7 @@ def add(
             fail(str(error))
     if role is Role.ROBOT:
         register_robot(config, name, kind)
+    _revoke(files, name)
     url = as_public(account.amqp_url, ep.public_url)
     client = _issue_certificate(config, name) if cert else None
     if client is not None:
@@ -95,6 +100,17 @@ def add(
             soft_wrap=True,
             highlight=False,
         )
+
+
+def _revoke(files: TlsFiles, name: str) -> None:
+    """Revoke every certificate of ``name`` the CA signed; say so when there were any."""
+    try:
+        revoked = revoke_account(files, name)
+    except CertificateError as error:
+        fail(f"could not revoke the certificates of {name}: {error}")
+    if revoked:
+        serials = ", ".join(f"{serial:x}" for serial in revoked)
+        console.print(f"revoked {len(revoked)} earlier certificate(s) of {name} (serial {serials})")
 
 
 def _issue_certificate(config: Settings, name: str) -> ClientFiles:
@@ -137,7 +153,8 @@ def remove(
     ] = None,
 ) -> None:
     """Delete an account and take it out of the hazard gate's team (its exchange and inbox stay,
-    with whatever they hold); a warden removed no longer holds the gate."""
+    with whatever they hold); a warden removed no longer holds the gate. Its client certificates
+    are revoked."""
     ep = endpoint()
     with admin_api(ep) as api:
         try:
@@ -153,6 +170,7 @@ def remove(
     except HazardServiceNotTold as error:
         fail(f"removed {name} and took it out of the team, but {error}")
     console.print(f"removed {name}" + (" and took it out of the team" if left else ""))
+    _revoke(TlsFiles.for_settings(settings()), name)  # a later account of that name must not inherit them
 
 
 @app.command("list")
