@@ -1,10 +1,11 @@
 """A private RabbitMQ node that lives entirely in one folder (``.fleetbus/broker/`` by default).
 
 Everything the node touches is inside ``base_dir``: its database (mnesia), logs, Erlang cookie
-(``HOME=base_dir``), pid file, ``rabbitmq.conf``, ``enabled_plugins`` and a ``rabbitmq-env.conf``
-that shadows the system one. It binds to 127.0.0.1 only, on ports picked once and kept in
-``node.json``, and its node name is derived from the folder, so several checkouts (or a test's
-temporary folder) each get their own node next to each other and next to a system RabbitMQ.
+(``HOME=base_dir``), pid file, ``rabbitmq.conf``, ``advanced.config`` (the AMQPS listener's TLS
+options), ``enabled_plugins`` and a ``rabbitmq-env.conf`` that shadows the system one. It binds to
+127.0.0.1 only, on ports picked once and kept in ``node.json``, and its node name is derived from
+the folder, so several checkouts (or a test's temporary folder) each get their own node next to
+each other and next to a system RabbitMQ.
 
 There is no ``guest`` account: the first boot creates ``fleetbus-admin`` with a random password
 kept in ``admin.json`` (mode 0600).
@@ -472,7 +473,7 @@ class LocalNode:
             else f"management.tcp.ip = {HOST}\nmanagement.tcp.port = {ports['management']}\n"
         )
         conf = f"""\
-# Written by fleetbus (broker/local_node.py) on every start; edits are overwritten.
+# Written by fleetbus (fleetbus/dev/local_node.py) on every start; edits are overwritten.
 {plain}management.ssl.ip = {HOST}
 management.ssl.port = {ports["management_tls"]}
 management.ssl.cacertfile = {tls.ca}
@@ -526,7 +527,7 @@ log.console = false
             options += ["{crl_check, peer}", cache]
         joined = ",\n    ".join(options)
         return (
-            "%% Written by fleetbus (broker/local_node.py) on every start; edits are overwritten.\n"
+            "%% Written by fleetbus (fleetbus/dev/local_node.py) on every start; edits are overwritten.\n"
             f"[{{rabbit, [{{ssl_options, [\n    {joined}\n]}}]}}].\n"
         )
 
