@@ -328,6 +328,11 @@ class Settings(BaseSettings):
         "and peeks the dead letters when their queue changed (one poller per API process, while a "
         "dashboard is open)",
     )
+    console_certificate_warn_days: Annotated[float, Positive] = setting(
+        30.0,
+        "the dashboard warns when the certificate the broker presents to clients expires within this many "
+        "days (every robot's TLS connection fails once it has expired)",
+    )
     console_dead_letters_peek: Annotated[int, Positive] = setting(
         1000,
         "dead letters the dashboard reads (oldest first) to count those of the last hour; when the queue "

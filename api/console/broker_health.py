@@ -17,7 +17,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
@@ -25,6 +25,7 @@ from fastapi import Request
 
 from fleetbus.api.service import Service
 from fleetbus.broker.dead_letter_queue import DeadLetter
+from fleetbus.broker.served_certificate import ServedCertificate, served_certificate
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 from fleetbus.workers.overflow import dropped_from_queue
 
@@ -36,6 +37,8 @@ WINDOW = timedelta(hours=1)
 RECOUNT_S = 60.0
 #: The queues the dashboard lists: the service's own.
 QUEUE_PREFIX = "fleetbus."
+#: Read the broker's certificate again after this long (it changes when an operator replaces it).
+CERTIFICATE_RECHECK_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -111,6 +114,44 @@ def _oldest_by_user(connections: list[dict[str, Any]]) -> dict[str, datetime]:
 
 
 @dataclass(frozen=True)
+class CertificateCheck:
+    """The certificate the broker presents to clients, as last read; or why it could not be."""
+
+    checked_at: datetime
+    warn_days: float
+    certificate: ServedCertificate | None = None
+    problem: str | None = None
+    plain: bool = False
+    """The service reaches the broker without TLS: there was no certificate to read."""
+
+    @property
+    def days_left(self) -> float | None:
+        return self.certificate.days_left(self.checked_at) if self.certificate else None
+
+    @property
+    def state(self) -> str:
+        """``ok``; ``expiring`` within ``warn_days``; ``expired``; ``unknown`` (not read, or plain)."""
+        days = self.days_left
+        if days is None:
+            return "unknown"
+        return "expired" if days <= 0 else "expiring" if days <= self.warn_days else "ok"
+
+
+def check_certificate(urls: list[str], warn_days: float) -> CertificateCheck:
+    """Read the certificate at the first of ``urls`` served over TLS (the service's broker URL,
+    then its management API's)."""
+    now = datetime.now(timezone.utc)
+    for url in urls:
+        try:
+            found = served_certificate(url)
+        except (OSError, ValueError) as error:  # ssl.SSLError is an OSError
+            return CertificateCheck(now, warn_days, problem=f"could not be read: {error}")
+        if found is not None:
+            return CertificateCheck(now, warn_days, certificate=found)
+    return CertificateCheck(now, warn_days, plain=True)
+
+
+@dataclass(frozen=True)
 class BrokerHealth:
     """The management API's last answer, or why there is none."""
 
@@ -122,6 +163,7 @@ class BrokerHealth:
     problem: str | None = "not asked yet"
     connected_since: dict[str, datetime] = field(default_factory=dict)
     """When each user's oldest open connection opened (a site's: its link up since)."""
+    certificate: CertificateCheck | None = None
 
     @property
     def known(self) -> bool:
@@ -188,6 +230,7 @@ class BrokerWatch:
         self._started = -float("inf")
         self._counted: tuple[float, int | None] | None = None
         """When the dead letters were last read, and their queue's depth then."""
+        self._certificate: tuple[float, CertificateCheck] | None = None
 
     def current(self) -> tuple[BrokerHealth, DeadLetterCount]:
         """The last answers; starts a new poll in the background when one is due."""
@@ -199,7 +242,7 @@ class BrokerWatch:
 
     async def poll(self) -> None:
         """Ask the management API; then read the dead letters, if their queue changed."""
-        self.health = await self._ask_broker()
+        self.health = replace(await self._ask_broker(), certificate=await self._check_certificate())
         dlq = self.health.queue(DEAD_LETTER_QUEUE)
         depth = dlq.depth if dlq else None
         now = asyncio.get_running_loop().time()
@@ -231,6 +274,17 @@ class BrokerWatch:
         except Exception as error:  # any failure to ask is shown, never raised into the pages
             log.warning("console: the management API did not answer: %s", error)
             return BrokerHealth(problem=f"the management API did not answer: {error}")
+
+    async def _check_certificate(self) -> CertificateCheck:
+        now = asyncio.get_running_loop().time()
+        if self._certificate is None or now - self._certificate[0] >= CERTIFICATE_RECHECK_S:
+            urls = [self._service.admin_url, self._service.management.base_url]
+            warn = self._service.settings.console_certificate_warn_days
+            check = await asyncio.to_thread(check_certificate, urls, warn)
+            if check.problem:
+                log.warning("console: the broker's certificate %s", check.problem)
+            self._certificate = (now, check)
+        return self._certificate[1]
 
     async def _count_dead_letters(self, in_queue: int) -> DeadLetterCount:
         now = datetime.now(timezone.utc)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import time
 import uuid
 
@@ -13,6 +14,7 @@ from fleetbus.schemas.routing import RobotKind
 from tests.api.server import free_port
 from tests.console.support import LIVE_WITHIN_S, Browser, running_console
 from tests.factories import hazard, status
+from tests.run_tls import BROKER_TLS
 from tests.support import Bus
 
 XSS = "<script>alert(1)</script>"
@@ -108,6 +110,11 @@ def test_broker_health_lists_the_fleetbus_queues_with_their_consumers(bus: Bus, 
         assert {"fleetbus.ingest.events", "fleetbus.dead-letters", "fleetbus.rpc.requests"} <= set(names)
         assert all(name.startswith("fleetbus.") for name in names), names
         assert "running" in browser.text("#broker-health table.nodes")
+        tls_line = browser.text("#broker-tls")
+        if BROKER_TLS:  # the certificate the node presents, read as a client meets it
+            assert re.search(r"expires on \d{4}-\d{2}-\d{2}, in \d+ days", tls_line), tls_line
+        else:
+            assert "not used" in tls_line
 
 
 def test_a_poison_message_counts_among_the_dead_letters_of_the_last_hour(bus: Bus, browser: Browser) -> None:
