@@ -4,6 +4,7 @@ the names clients use, client certificates for accounts, keys readable by their 
 from __future__ import annotations
 
 import os
+import re
 import ssl
 import stat
 import subprocess
@@ -11,9 +12,10 @@ import sys
 from pathlib import Path
 
 from cryptography import x509
+from cryptography.hazmat.primitives import serialization
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from fleetbus.broker.certificates import ClientFiles, TlsFiles, describe
+from fleetbus.broker.certificates import ClientFiles, TlsFiles, _leaf, describe, load_ca
 from fleetbus.broker.revocation import issued_certificates
 
 
@@ -121,3 +123,17 @@ def test_revoke_lists_and_revokes_an_accounts_certificates(tmp_path: Path) -> No
     rows = [line for line in after.stdout.splitlines() if "scout-1" in line or "rover-2" in line]
     assert [("revoked" in row) for row in rows if "scout-1" in row] == [True, True], after.stdout
     assert [("valid" in row) for row in rows if "rover-2" in row] == [True], after.stdout
+
+
+def test_show_marks_a_client_certificate_near_its_expiry(tmp_path: Path) -> None:
+    folder = tmp_path / "tls"
+    files = TlsFiles.in_folder(folder)
+    assert certs("make", "--dir", str(folder)).returncode == 0
+    ca, ca_key = load_ca(files)
+    cert, _ = _leaf(ca, ca_key, "old-scout", 10, ExtendedKeyUsageOID.CLIENT_AUTH, [])  # signed long ago
+    files.issued.mkdir()
+    (files.issued / f"{cert.serial_number:x}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    shown = certs("show", "--dir", str(folder))
+    assert shown.returncode == 0, shown.stderr
+    [row] = [line for line in shown.stdout.splitlines() if "old-scout" in line]
+    assert re.search(r"expires in (9|10) days", row), row

@@ -3,7 +3,7 @@ the API use, and client certificates robots log in with."""
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Annotated
 
@@ -26,6 +26,9 @@ app = typer.Typer(
     help="TLS: a CA and a server certificate for the broker and the API, or your own files.",
     no_args_is_help=True,
 )
+
+#: A client certificate this close to its expiry is shown as expiring: sign the robot a new one.
+EXPIRING = timedelta(days=30)
 
 DirOption = Annotated[
     Path | None, typer.Option("--dir", help="folder of the files (default: FLEETBUS_TLS_DIR)")
@@ -111,8 +114,12 @@ def _show_revocation(files: TlsFiles) -> None:
         revoked = crl.revoked.get(cert.serial) if crl else None
         if revoked is not None:
             state = f"[red]revoked[/] {revoked:%Y-%m-%d %H:%M}"
+        elif cert.not_after < now:
+            state = "expired"
+        elif cert.not_after < now + EXPIRING:
+            state = f"[yellow]expires in {(cert.not_after - now).days} days[/]"
         else:
-            state = "expired" if cert.not_after < now else "[green]valid[/]"
+            state = "[green]valid[/]"
         table.add_row(cert.name, f"{cert.serial:x}", f"{cert.not_after:%Y-%m-%d}", state)
     console.print(table)
 
