@@ -18,6 +18,7 @@ idempotently by robot and sequence, so requeueing it twice stores it once.
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -84,26 +85,45 @@ def _gone(wanted: str) -> DeadLetterGone:
     )
 
 
+#: How long an action looks for a letter that is not in the queue: another reader (a listing
+#: of the console's, ``fleetbus dlq``) holds the letters it peeks for a moment, unacked.
+HELD_ELSEWHERE_S = 5.0
+
+
 @contextmanager
-def _holding(amqp_url: str, wanted: str) -> Iterator[_Held]:
+def _holding(amqp_url: str, wanted: str, patience: float = HELD_ELSEWHERE_S) -> Iterator[_Held]:
     """The named letter, taken from the queue and held unacked on a channel of the administrator's;
-    leaving puts every message not acked back in its place."""
+    leaving puts every message not acked back in its place. A letter not found is looked for
+    again, until ``patience`` runs out, while another reader may hold it."""
     connection = blocking_connection(amqp_url)
     try:
-        channel = connection.channel()
-        available = channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count
-        for _ in range(available):
-            method, properties, body = channel.basic_get(DEAD_LETTER_QUEUE, auto_ack=False)
-            if method is None:
-                break
-            if letter_id(properties, body) == wanted:
-                letter = describe(properties, body, method.routing_key)
-                yield _Held(channel, method.delivery_tag, letter, properties)
+        deadline = time.monotonic() + patience
+        while True:
+            channel = connection.channel()
+            held = _find(channel, wanted)
+            if held is not None:
+                yield held
                 return
-        raise _gone(wanted)
+            channel.close()  # returns what it took, before another look
+            if time.monotonic() >= deadline:
+                raise _gone(wanted)
+            time.sleep(0.2)  # a reader's hold lasts as long as its listing takes
     finally:
         if connection.is_open:
             connection.close()
+
+
+def _find(channel: BlockingChannel, wanted: str) -> _Held | None:
+    """Take messages from the queue (unacked) until the named letter; None if it is not there."""
+    available = channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count
+    for _ in range(available):
+        method, properties, body = channel.basic_get(DEAD_LETTER_QUEUE, auto_ack=False)
+        if method is None:
+            return None
+        if letter_id(properties, body) == wanted:
+            letter = describe(properties, body, method.routing_key)
+            return _Held(channel, method.delivery_tag, letter, properties)
+    return None
 
 
 def _acked(held: _Held) -> None:
@@ -112,14 +132,16 @@ def _acked(held: _Held) -> None:
     held.channel.close()
 
 
-def discard_dead_letter(amqp_url: str, wanted: str) -> DeadLetter:
+def discard_dead_letter(amqp_url: str, wanted: str, patience: float = HELD_ELSEWHERE_S) -> DeadLetter:
     """Remove exactly the named letter from the queue (as administrator, ``amqp_url``)."""
-    with _holding(amqp_url, wanted) as held:
+    with _holding(amqp_url, wanted, patience) as held:
         _acked(held)
     return held.letter
 
 
-def requeue_dead_letter(amqp_url: str, wanted: str, sender_url: SenderUrl) -> DeadLetter:
+def requeue_dead_letter(
+    amqp_url: str, wanted: str, sender_url: SenderUrl, patience: float = HELD_ELSEWHERE_S
+) -> DeadLetter:
     """Publish the named letter again as its sender (``sender_url(user_id)``), to its original
     exchange and routing key, confirmed; then remove it from the queue."""
     with _holding(amqp_url, wanted) as held:

@@ -4,6 +4,7 @@ left in their order; the requeued message published again as its sender, confirm
 from __future__ import annotations
 
 import json
+import threading
 import uuid
 from typing import Any
 
@@ -18,6 +19,7 @@ from fleetbus.broker.dead_letter_actions import (
     requeue_dead_letter,
 )
 from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, INGEST_QUEUE, RobotKind
 from tests.support import Bus, wait_for
 
@@ -81,8 +83,36 @@ def test_discard_removes_exactly_the_chosen_letter_even_beside_one_with_the_same
     left = peek_dead_letters(bus.admin_url)
     assert _ids(left) == _ids([letters[0], letters[1], letters[3]]), "the others, in their order"
     with pytest.raises(DeadLetterGone, match="nothing was changed"):
-        discard_dead_letter(bus.admin_url, chosen.letter_id)
+        discard_dead_letter(bus.admin_url, chosen.letter_id, patience=0.5)
     assert _ids(peek_dead_letters(bus.admin_url)) == _ids(left)
+
+
+def test_a_letter_another_reader_holds_for_a_moment_is_still_found(bus: Bus) -> None:
+    """A listing (the console's, `fleetbus dlq`) holds the letters it peeks, unacked, while it
+    reads them: an action at that moment waits for them to come back instead of calling the
+    letter gone."""
+    _, [letter] = _dead_letters(bus, "held")
+    holding, failures = threading.Event(), []
+
+    def reader() -> None:  # a listing that takes a second to read what it peeked
+        try:
+            with blocking_connection(bus.admin_url) as connection:
+                method, _, _ = connection.channel().basic_get(DEAD_LETTER_QUEUE, auto_ack=False)
+                assert method is not None
+                holding.set()
+                connection.sleep(1.0)
+        except Exception as error:
+            failures.append(error)
+            holding.set()
+
+    thread = threading.Thread(target=reader)
+    thread.start()
+    assert holding.wait(30) and not failures, failures
+    assert bus.ready_messages(DEAD_LETTER_QUEUE) == 0, "held by the reader"
+    assert discard_dead_letter(bus.admin_url, letter.letter_id).letter_id == letter.letter_id
+    thread.join(30)
+    assert not failures, failures
+    assert peek_dead_letters(bus.admin_url) == []
 
 
 def test_requeue_publishes_it_again_as_its_sender_confirmed_and_then_removes_it(bus: Bus) -> None:
