@@ -118,7 +118,19 @@ class Browser:
                     raise
                 return False
 
-        return wait_for(holds, timeout=timeout, what=what, interval=0.05)
+        try:
+            return wait_for(holds, timeout=timeout, what=what, interval=0.05)
+        except AssertionError as error:
+            page = f"--- the page ({self.driver.current_url}) ---"
+            raise AssertionError(f"{error}\n{page}\n{self._shown()}") from None
+
+    def _shown(self, limit: int = 2000) -> str:
+        """What the page shows, to say why a wait failed."""
+        try:
+            text = self.driver.find_element("css selector", "body").text
+        except WebDriverException as error:
+            return f"(unreadable: {error.msg})"
+        return text if len(text) <= limit else text[:limit] + " …"
 
     def fill(self, css: str, value: str) -> None:
         element = self.find(css)[0]
