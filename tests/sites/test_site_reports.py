@@ -11,7 +11,7 @@ from urllib.parse import urlsplit
 
 from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE, RobotKind
 from fleetbus.workers.site_report import report_to_central
-from fleetbus.workers.site_status import site_view
+from fleetbus.workers.site_status import SiteLink, site_view
 from tests.factories import hazard, status
 from tests.sites.pair import SitePair
 from tests.support import wait_for
@@ -77,11 +77,17 @@ def test_central_shows_the_hazard_states_waiting_at_the_site(pair: SitePair) -> 
     explorer = pair.site.robot(pair.add_robot("explorer1", RobotKind.EXPLORER))
     with pair.site.worker():
         pair.stop()  # the hazard states' shovel too: what the site's worker makes waits
+        # their connections to central close after the shovels are deleted, not with the deletion
+        wait_for(lambda: not _row(pair)["link_up"], what="the shovels' connections closed at central")
         explorer.publish("hazard", hazard(0))  # held (no warden localised): a first state
-        waiting = wait_for(
-            lambda: (n := site_view(pair.site.api, pair.site.vhost, []).hazard_states_waiting) and n,
-            what="a hazard state counted at the site",
-        )
+
+        # counted as the report counts them (the management API's figures lag a few seconds)
+        def counted() -> SiteLink | None:
+            view = site_view(pair.site.api, pair.site.vhost, [])
+            return view if view.hazard_states_waiting and view.waiting else None
+
+        view = wait_for(counted, what="the hazard event and a hazard state counted at the site")
+        waiting = view.hazard_states_waiting
         assert pair.site.ready_messages(HAZARD_UPLINK_QUEUE) == waiting
         assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url)
     row = _row(pair)
