@@ -168,15 +168,20 @@ def ensure_crl(files: TlsFiles) -> bool:
 
 
 def revoke(files: TlsFiles, serials: Iterable[int]) -> list[int]:
-    """Add ``serials`` to the CA's CRL; the ones not revoked before, in order."""
+    """Add ``serials`` to the CA's CRL; the ones not revoked before, in order.
+
+    The list does not grow for ever: a certificate past its expiry is refused by the broker
+    anyway, so it is neither added nor kept (the CA's copy in ``issued/`` says when it expires)."""
     with _locked(files):
         current = read_crl(files)
-        revoked = dict(current.revoked) if current else {}
         now = datetime.datetime.now(datetime.timezone.utc)
-        new = sorted(serial for serial in set(serials) if serial not in revoked)
-        if new or current is None:
-            revoked.update((serial, now) for serial in new)
-            _sign(files, revoked, (current.number if current else 0) + 1)
+        expired = {cert.serial for cert in issued_certificates(files) if cert.not_after < now}
+        before = current.revoked if current else {}
+        kept = {serial: at for serial, at in before.items() if serial not in expired}
+        new = sorted(serial for serial in set(serials) if serial not in kept and serial not in expired)
+        if new or current is None or len(kept) < len(before):
+            kept.update((serial, now) for serial in new)
+            _sign(files, kept, (current.number if current else 0) + 1)
         return new
 
 

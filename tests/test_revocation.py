@@ -17,12 +17,19 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
 from fleetbus.broker.accounts import can_login
-from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_certificate, make_certificates
+from fleetbus.broker.certificates import (
+    ClientFiles,
+    TlsFiles,
+    issue_client_certificate,
+    load_ca,
+    make_certificates,
+)
 from fleetbus.broker.revocation import (
     crl_file,
     ensure_crl,
     issued_certificates,
     read_crl,
+    revoke,
     revoke_account,
     subject_hash,
 )
@@ -133,3 +140,29 @@ def test_a_revoked_certificate_is_refused_at_its_next_connection_others_still_lo
         # the connection opened before stays open (documented: remove the account to cut it off)
         robot.publish("hazard", hazard())
         assert robot.flush(timeout=20), "the broker confirmed it on the connection opened before"
+
+
+def test_a_certificate_past_its_expiry_leaves_the_list(tmp_path: Path) -> None:
+    """The broker refuses an expired certificate anyway: the list keeps only what it must."""
+    files = TlsFiles.in_folder(tmp_path / "tls")
+    make_certificates(files)
+    issue_client_certificate(files, ClientFiles.in_folder(tmp_path / "out", "scout"), "scout")
+    [valid] = issued_certificates(files, "scout")
+    ca, ca_key = load_ca(files)
+    now = datetime.datetime.now(datetime.timezone.utc)
+    old = (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "scout")]))
+        .issuer_name(ca.subject)
+        .public_key(ec.generate_private_key(ec.SECP256R1()).public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(days=900))
+        .not_valid_after(now - datetime.timedelta(days=75))
+        .sign(ca_key, hashes.SHA256())
+    )
+    assert revoke(files, [old.serial_number]) == [old.serial_number], "its expiry unknown here yet"
+    (files.issued / f"{old.serial_number:x}.pem").write_bytes(old.public_bytes(serialization.Encoding.PEM))
+
+    assert revoke_account(files, "scout") == [valid.serial], "the expired one is not added again"
+    crl = read_crl(files)
+    assert crl is not None and set(crl.revoked) == {valid.serial}, "and no longer kept"
