@@ -79,12 +79,14 @@ def subject_hash(name: x509.Name) -> str:
     return f"{int.from_bytes(digest[:4], 'little'):08x}"
 
 
-def crl_file(files: TlsFiles) -> Path:
-    """Where the broker looks for the CRL of the CA in ``files`` (the CA certificate must exist)."""
-    try:
-        ca = x509.load_pem_x509_certificate(files.ca.read_bytes())
-    except (OSError, ValueError) as error:
-        raise CertificateError(f"cannot read the CA {files.ca}: {error}") from error
+def crl_file(files: TlsFiles, ca: x509.Certificate | None = None) -> Path:
+    """Where the broker looks for the CRL of the CA in ``files`` (``ca``, when already read; the
+    CA certificate must exist)."""
+    if ca is None:
+        try:
+            ca = x509.load_pem_x509_certificate(files.ca.read_bytes())
+        except (OSError, ValueError) as error:
+            raise CertificateError(f"cannot read the CA {files.ca}: {error}") from error
     return files.crl_dir / f"{subject_hash(ca.subject)}.r0"
 
 
@@ -150,7 +152,7 @@ def _sign(files: TlsFiles, revoked: dict[int, datetime.datetime], number: int) -
             x509.RevokedCertificateBuilder().serial_number(serial).revocation_date(at).build()
         )
     crl = builder.sign(ca_key, hashes.SHA256())
-    write_file(crl_file(files), crl.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_file(crl_file(files, ca), crl.public_bytes(serialization.Encoding.PEM), 0o644)
 
 
 def ensure_crl(files: TlsFiles) -> bool:
@@ -208,10 +210,10 @@ def issued_certificates(files: TlsFiles, name: str | None = None) -> list[Issued
     return sorted(found, key=lambda issued: issued.path.stat().st_mtime)
 
 
-def revoke_account(files: TlsFiles, name: str, keep: Iterable[int] = ()) -> list[int]:
-    """Revoke every certificate the CA signed for the account ``name`` but those in ``keep``;
-    the serial numbers revoked now. Nothing to revoke (or no CA here) changes nothing."""
-    serials = [issued.serial for issued in issued_certificates(files, name) if issued.serial not in set(keep)]
+def revoke_certificates_of(files: TlsFiles, name: str) -> list[int]:
+    """Revoke every certificate the CA signed for the account ``name``; the serial numbers revoked
+    now. Nothing to revoke (or no CA here) changes nothing."""
+    serials = [issued.serial for issued in issued_certificates(files, name)]
     if not serials:
         return []
     return revoke(files, serials)

@@ -402,12 +402,17 @@ def test_the_robot_client_refuses_a_broker_it_cannot_verify(
         assert refusal in str(refused.value)
 
 
-def _add_cert_robot(node: LocalNode, node_settings: Settings, name: str) -> tuple[str, str]:
-    """`fleetbus users add NAME --cert` on the private node: the URL it hands out, and what it said."""
+def _users(node_settings: Settings, *args: str) -> subprocess.CompletedProcess[str]:
+    """`fleetbus users ARGS` with the node's settings only."""
     env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
     env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="400")
-    command = [sys.executable, "-m", "fleetbus", "users", "add", name, "--kind", "explorer", "--cert"]
-    added = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+    command = [sys.executable, "-m", "fleetbus", "users", *args]
+    return subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+
+
+def _add_cert_robot(node: LocalNode, node_settings: Settings, name: str) -> tuple[str, str]:
+    """`fleetbus users add NAME --cert` on the private node: the URL it hands out, and what it said."""
+    added = _users(node_settings, "add", name, "--kind", "explorer", "--cert")
     assert added.returncode == 0, added.stderr
     [url] = [line for line in added.stdout.splitlines() if line.startswith("amqp")]
     return url, added.stdout
@@ -559,13 +564,6 @@ def test_the_certificate_is_the_identity_a_robot_cannot_act_as_another(
         channel.basic_publish(events_exchange("cert-scout"), "cert-scout.hazard", b"{}", properties)
     finally:
         ok.close()
-
-
-def _users(node_settings: Settings, *args: str) -> subprocess.CompletedProcess[str]:
-    env = {key: value for key, value in os.environ.items() if not key.startswith("FLEETBUS_")}
-    env.update(FLEETBUS_DATA_DIR=str(node_settings.data_dir), COLUMNS="400")
-    command = [sys.executable, "-m", "fleetbus", "users", *args]
-    return subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
 
 
 def _keep_aside(url: str, folder: Path) -> str:

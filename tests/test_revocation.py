@@ -30,7 +30,7 @@ from fleetbus.broker.revocation import (
     issued_certificates,
     read_crl,
     revoke,
-    revoke_account,
+    revoke_certificates_of,
     subject_hash,
 )
 from fleetbus.dev.local_node import LocalNode
@@ -92,15 +92,15 @@ def test_revoking_adds_to_the_list_and_keeps_what_was_revoked(tmp_path: Path) ->
     scouts = {cert.serial for cert in issued_certificates(files, "scout")}
     assert len(scouts) == 2
 
-    assert set(revoke_account(files, "scout")) == scouts
-    assert revoke_account(files, "scout") == [], "revoked once"
+    assert set(revoke_certificates_of(files, "scout")) == scouts
+    assert revoke_certificates_of(files, "scout") == [], "revoked once"
     [rover] = issued_certificates(files, "rover")
-    assert revoke_account(files, "rover") == [rover.serial]
+    assert revoke_certificates_of(files, "rover") == [rover.serial]
     after = read_crl(files)
     assert after is not None and set(after.revoked) == scouts | {rover.serial}
     assert after.number > empty.number
     assert after.next_update is not None and after.next_update > datetime.datetime.now(datetime.timezone.utc)
-    assert revoke_account(files, "nobody") == []
+    assert revoke_certificates_of(files, "nobody") == []
 
 
 REVOKED_ALERT = "Certificate Revoked"
@@ -131,7 +131,7 @@ def test_a_revoked_certificate_is_refused_at_its_next_connection_others_still_lo
 
     with RobotClient(revoked_url, state_dir=bus.settings.robots_dir, connect_timeout=20) as robot:
         robot.connect()
-        assert revoke_account(run_tls_files(), revoked)
+        assert revoke_certificates_of(run_tls_files(), revoked)
         # no restart: the broker reads the list at the next handshake
         log_file = killable_node.status().log_file
         assert log_file is not None
@@ -163,6 +163,6 @@ def test_a_certificate_past_its_expiry_leaves_the_list(tmp_path: Path) -> None:
     assert revoke(files, [old.serial_number]) == [old.serial_number], "its expiry unknown here yet"
     (files.issued / f"{old.serial_number:x}.pem").write_bytes(old.public_bytes(serialization.Encoding.PEM))
 
-    assert revoke_account(files, "scout") == [valid.serial], "the expired one is not added again"
+    assert revoke_certificates_of(files, "scout") == [valid.serial], "the expired one is not added again"
     crl = read_crl(files)
     assert crl is not None and set(crl.revoked) == {valid.serial}, "and no longer kept"

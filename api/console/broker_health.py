@@ -121,8 +121,11 @@ class CertificateCheck:
     warn_days: float
     certificate: ServedCertificate | None = None
     problem: str | None = None
-    plain: bool = False
-    """The service reaches the broker without TLS: there was no certificate to read."""
+
+    @property
+    def plain(self) -> bool:
+        """The service reaches the broker without TLS: there was no certificate to read."""
+        return self.certificate is None and self.problem is None
 
     @property
     def days_left(self) -> float | None:
@@ -148,7 +151,7 @@ def check_certificate(urls: list[str], warn_days: float) -> CertificateCheck:
             return CertificateCheck(now, warn_days, problem=f"could not be read: {error}")
         if found is not None:
             return CertificateCheck(now, warn_days, certificate=found)
-    return CertificateCheck(now, warn_days, plain=True)
+    return CertificateCheck(now, warn_days)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,13 @@ from fleetbus.broker.certificates import (
     issue_client_certificate,
     make_certificates,
 )
-from fleetbus.broker.revocation import ensure_crl, issued_certificates, read_crl, revoke, revoke_account
+from fleetbus.broker.revocation import (
+    ensure_crl,
+    issued_certificates,
+    read_crl,
+    revoke,
+    revoke_certificates_of,
+)
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.schemas.identity import validate_name
 
@@ -173,7 +179,7 @@ def revoke_command(
     files = _files(folder)
     try:
         if serial is None:
-            done = revoke_account(files, name)
+            done = revoke_certificates_of(files, name)
         else:
             mine = {cert.serial for cert in issued_certificates(files, name)}
             try:

@@ -20,7 +20,7 @@ from fleetbus.broker.accounts import (
     save_secret,
 )
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
-from fleetbus.broker.revocation import issued_certificates, revoke_account
+from fleetbus.broker.revocation import issued_certificates, revoke_certificates_of
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
@@ -105,7 +105,7 @@ def add(
 def _revoke(files: TlsFiles, name: str) -> None:
     """Revoke every certificate of ``name`` the CA signed; say so when there were any."""
     try:
-        revoked = revoke_account(files, name)
+        revoked = revoke_certificates_of(files, name)
     except CertificateError as error:
         fail(f"could not revoke the certificates of {name}: {error}")
     if revoked:
