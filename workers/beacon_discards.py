@@ -8,13 +8,13 @@ only after its record is durable, and a redelivered one counts once (its message
 
 from __future__ import annotations
 
-import asyncio
 import logging
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING, Any
 
 from fleetbus.broker.retry import GaveUp, Stopped, async_retrying, run_retrying
 from fleetbus.schemas.routing import BEACON_CODENAME_HEADER, BEACON_TYPE, BEACON_TYPE_HEADER
+from fleetbus.workers.queue_consumer import QueueConsumer
 from fleetbus.workers.store.base import StoreUnavailable
 from fleetbus.workers.store.discards import Discard, DiscardLog
 
@@ -55,22 +55,11 @@ def to_discard(message: AbstractIncomingMessage, at: datetime) -> Discard:
     )
 
 
-class DiscardCounter:
+class DiscardCounter(QueueConsumer):
     def __init__(self, channel: AbstractChannel, queue: AbstractQueue, store: DiscardLog) -> None:
-        self._channel = channel
-        self._queue = queue
+        super().__init__(channel, queue)
         self._store = store
-        self._tag: str | None = None
-        self._stopping = asyncio.Event()
         self.counted = 0
-
-    async def start(self) -> None:
-        self._tag = await self._queue.consume(self._on_message)
-
-    async def stop(self) -> None:
-        self._stopping.set()
-        if self._tag is not None and not self._channel.is_closed:
-            await self._queue.cancel(self._tag)
 
     async def _on_message(self, message: AbstractIncomingMessage) -> None:
         discard = to_discard(message, datetime.now(timezone.utc))

@@ -15,7 +15,6 @@ once the store has applied it.
 
 from __future__ import annotations
 
-import asyncio
 import logging
 from collections import Counter
 from collections.abc import Awaitable, Callable
@@ -28,6 +27,7 @@ from fleetbus.broker.retry import GaveUp, Stopped, async_retrying, run_retrying
 from fleetbus.schemas.routing import site_of_hazards_exchange
 from fleetbus.schemas.site_hazards import SiteHazardState
 from fleetbus.workers.dead_letters import move_to_dead_letters, rejection_of
+from fleetbus.workers.queue_consumer import QueueConsumer
 from fleetbus.workers.store.base import StoreUnavailable
 from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState, SiteApplied
 from fleetbus.workers.store.rejections import RejectionLog
@@ -58,7 +58,7 @@ def hazard_of(state: SiteHazardState) -> Hazard:
     return Hazard(**state.model_dump(exclude={"state"}), state=HazardState(state.state))
 
 
-class SiteHazards:
+class SiteHazards(QueueConsumer):
     def __init__(
         self,
         channel: AbstractChannel,
@@ -67,23 +67,12 @@ class SiteHazards:
         sites: SiteRegistry,
         rejections: RejectionLog,
     ) -> None:
-        self._channel = channel
-        self._queue = queue
+        super().__init__(channel, queue)
         self._hazards = hazards
         self._sites = sites
         self._rejections = rejections
-        self._tag: str | None = None
-        self._stopping = asyncio.Event()
         self.counts: Counter[str] = Counter()
         """How many messages were applied, stale, or refused (by reason)."""
-
-    async def start(self) -> None:
-        self._tag = await self._queue.consume(self._on_message)
-
-    async def stop(self) -> None:
-        self._stopping.set()
-        if self._tag is not None and not self._channel.is_closed:
-            await self._queue.cancel(self._tag)
 
     async def _store(self, what: str, operation: Callable[[], Awaitable[T]]) -> T:
         retrying = async_retrying(
