@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ssl
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import pika.credentials
 import pytest
@@ -55,6 +56,26 @@ def test_amqps_verifies_the_certificate_and_the_host_name_by_default(ca: Path) -
     assert len(context.get_ca_certs()) == 1  # the URL's CA, not the system's
     _, arguments = aio_pika_arguments(url)
     assert arguments["ssl_context"].verify_mode is ssl.CERT_REQUIRED
+
+
+@pytest.mark.parametrize(
+    ("url", "port"),
+    [
+        ("amqps://robot:s%40cret@broker.example/fleet", 5671),
+        ("amqps://robot:s%40cret@[::1]:5999/fleet", 5999),
+    ],
+)
+def test_amqps_keeps_its_port_host_account_and_virtual_host(ca: Path, url: str, port: int) -> None:
+    parameters = pika_parameters(f"{url}?cacertfile={ca}&heartbeat=9")
+    host = urlsplit(url).hostname
+    assert (parameters.host, parameters.port, parameters.virtual_host, parameters.heartbeat) == (
+        host,
+        port,
+        "fleet",
+        9,
+    )
+    assert (parameters.credentials.username, parameters.credentials.password) == ("robot", "s@cret")
+    assert len(parameters.ssl_options.context.get_ca_certs()) == 1
 
 
 def test_without_cacertfile_the_system_trust_store_is_used() -> None:
