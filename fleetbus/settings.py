@@ -20,8 +20,12 @@ from pydantic import BeforeValidator, Field, SecretStr, ValidationError, Validat
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
-from fleetbus.defaults import DEFAULT_FIELD_INDEXES_MAX, DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
-from fleetbus.schemas.notifications import LATE_AFTER_S
+from fleetbus.defaults import (
+    DEFAULT_FIELD_INDEXES_MAX,
+    DEFAULT_MAX_MESSAGE_BYTES,
+    DEFAULT_RECORDER_KEEP,
+    LATE_AFTER_S,
+)
 
 ENV_PREFIX = "FLEETBUS_"
 DEFAULT_DATA_DIR = ".fleetbus"
@@ -420,6 +424,8 @@ class Settings(BaseSettings):
     @classmethod
     def _rate(cls, value: str, info: ValidationInfo) -> str:
         """A rate such as ``5 per 5 minutes`` or ``20/hour`` (the ``limits`` library's notation)."""
+        if info.field_name and value == cls.model_fields[info.field_name].default:
+            return value  # every process loads the settings: the library only for a rate set by hand
         from limits import parse
 
         try:

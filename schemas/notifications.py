@@ -4,12 +4,11 @@ from __future__ import annotations
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict
 
+from fleetbus.defaults import LATE_AFTER_S
 from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.routing import Topic
 
-#: A notification that reaches its robots this long after the event was sent is ``late`` (the
-#: default of ``FLEETBUS_LATE_AFTER_S``; a robot client rebuilding its list uses it too).
-LATE_AFTER_S = 5.0
+__all__ = ["LATE_AFTER_S", "Notification"]
 
 
 class Notification(BaseModel):

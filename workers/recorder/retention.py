@@ -11,8 +11,10 @@ import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
+from typing import TYPE_CHECKING
 
-from fleetbus.workers.store.recordings import RecordingStore
+if TYPE_CHECKING:  # the bounds' grammar is read by every process at start: no store imported for it
+    from fleetbus.workers.store.recordings import RecordingStore
 
 ANY_TYPE = "*"
 AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
