@@ -30,11 +30,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import pika
+import pika.credentials
 import pika.exceptions
 
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
 from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
+from fleetbus.publishers.handshake import certificate_refusal
 from fleetbus.publishers.outbox import SEGMENT_EVENTS, Entry, Outbox
 
 log = logging.getLogger("fleetbus.robot.sender")
@@ -125,6 +127,9 @@ class Sender:
     ) -> None:
         self._outbox = outbox
         self._parameters = parameters
+        self._certificate_login = any(
+            isinstance(each.credentials, pika.credentials.ExternalCredentials) for each in parameters
+        )
         self._to_outgoing = to_outgoing
         self._confirm_timeout = confirm_timeout
         self._max_delay = max_reconnect_delay
@@ -295,7 +300,7 @@ class Sender:
                 self._pause(delay)
             except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
                 self._outbox.release()
-                self._disconnect(repr(error))
+                self._disconnect(self._failure(error))
                 self._backoff(reconnect_delay(failures, self._max_delay))
                 failures += 1
             except Exception as error:  # never let the sender die silently
@@ -304,6 +309,12 @@ class Sender:
                 self._disconnect(repr(error))
                 self._backoff(1.0)
         self._disconnect(None)
+
+    def _failure(self, error: BaseException) -> str:
+        """What went wrong; for a certificate login that could not connect, what that most
+        likely means (the broker does not say it to the client)."""
+        hint = certificate_refusal(error) if self._connection is None and self._certificate_login else None
+        return f"{hint}: {error!r}" if hint else repr(error)
 
     def _backoff(self, delay: float) -> None:
         """Wait before the next connection attempt; cut short by stop, or by a robot about to stop

@@ -35,6 +35,7 @@ from fleetbus.broker.revocation import (
 )
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.errors import BrokerUnavailable
 from tests.factories import hazard
 from tests.run_tls import BROKER_TLS, run_tls_files
 from tests.support import Bus, wait_for
@@ -121,7 +122,7 @@ def refused_as_revoked(url: str, log_file: Path) -> None:
 
 @pytest.mark.skipif(not BROKER_TLS, reason="certificate logins need the broker's TLS listener")
 def test_a_revoked_certificate_is_refused_at_its_next_connection_others_still_log_in(
-    killable_bus: Bus, killable_node: LocalNode
+    killable_bus: Bus, killable_node: LocalNode, tmp_path: Path
 ) -> None:
     bus = killable_bus
     # names of this test only: every test of the run signs with the run's CA
@@ -137,6 +138,10 @@ def test_a_revoked_certificate_is_refused_at_its_next_connection_others_still_lo
         assert log_file is not None
         refused_as_revoked(revoked_url, log_file)
         assert can_login(kept_url), "another robot's certificate still logs in"
+        # a robot sees the handshake end, often without the reason: it is told what that means
+        with RobotClient(revoked_url, state_dir=tmp_path / "again", connect_timeout=3) as again:
+            with pytest.raises(BrokerUnavailable, match="client certificate"):
+                again.connect()
         # the connection opened before stays open (documented: remove the account to cut it off)
         robot.publish("hazard", hazard())
         assert robot.flush(timeout=20), "the broker confirmed it on the connection opened before"
