@@ -15,6 +15,7 @@ from types import TracebackType
 
 import pika
 import pika.exceptions
+from pika.adapters.blocking_connection import BlockingChannel
 
 from bench.profile import record
 from fleetbus.broker.tls import blocking_connection
@@ -22,16 +23,27 @@ from fleetbus.schemas.routing import INGEST_QUEUE
 from tests.support import Bus, read_line, wait_for
 
 
-def consumers(admin_url: str, queue: str) -> int:
-    """Consumers of ``queue`` now (0 while it does not exist)."""
-    connection = blocking_connection(admin_url)
-    try:
-        return connection.channel().queue_declare(queue, passive=True).method.consumer_count
-    except pika.exceptions.ChannelClosedByBroker:
-        return 0
-    finally:
-        if connection.is_open:
-            connection.close()
+class ConsumerCount:
+    """Consumers of a queue, asked as often as a wait needs over one connection (a TLS handshake
+    for every question cost more CPU than the process being waited for)."""
+
+    def __init__(self, admin_url: str, queue: str) -> None:
+        self._queue = queue
+        self._connection = blocking_connection(admin_url)
+        self._channel: BlockingChannel | None = None
+
+    def __call__(self) -> int:
+        """Consumers now; 0 while the queue does not exist (the broker then closes the channel)."""
+        if self._channel is None or not self._channel.is_open:
+            self._channel = self._connection.channel()
+        try:
+            return self._channel.queue_declare(self._queue, passive=True).method.consumer_count
+        except pika.exceptions.ChannelClosedByBroker:
+            return 0
+
+    def close(self) -> None:
+        if self._connection.is_open:
+            self._connection.close()
 
 
 class FleetbusProcess:
@@ -45,11 +57,15 @@ class FleetbusProcess:
             [sys.executable, "-m", "fleetbus", *args], env=env, stdout=self._log, stderr=subprocess.STDOUT
         )
         try:
-            wait_for(
-                lambda: self.process.poll() is not None or consumers(admin_url, queue) >= 1,
-                timeout,
-                f"`fleetbus {' '.join(args)}` to consume {queue}",
-            )
+            consumers = ConsumerCount(admin_url, queue)
+            try:
+                wait_for(
+                    lambda: self.process.poll() is not None or consumers() >= 1,
+                    timeout,
+                    f"`fleetbus {' '.join(args)}` to consume {queue}",
+                )
+            finally:
+                consumers.close()
             if self.process.returncode is not None:
                 raise RuntimeError(
                     f"`fleetbus {' '.join(args)}` exited with {self.process.returncode}; see {log}"
