@@ -4,6 +4,9 @@ The store holds the user (role, password hash, encrypted broker password); the b
 account of the same name with a random password, confined to ``^<name>\\.``. The store is
 written first, so a name is claimed atomically; a broker failure then undoes the store write.
 An ``inactive`` user's broker account has no permissions at all: it cannot even connect.
+Client certificates fleetbus's CA signed for a name are revoked when a user of that name is made or
+removed, as ``fleetbus users add`` and ``remove`` do: a later account of that name must not
+inherit them.
 """
 
 from __future__ import annotations
@@ -26,7 +29,9 @@ from fleetbus.broker.accounts import (
     url_for,
     vhost_of,
 )
+from fleetbus.broker.certificates import CertificateError, TlsFiles
 from fleetbus.broker.management import ManagementAPI, ManagementError
+from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
@@ -78,9 +83,12 @@ class Accounts:
         public_url: str | None = None,
         *,
         cluster: bool = False,
+        certificates: TlsFiles | None = None,
     ) -> None:
         """``public_url``: the broker as users and robots reach it (no credentials), for the URLs
-        handed out; None: ``admin_url``'s broker."""
+        handed out; None: ``admin_url``'s broker. ``certificates``: fleetbus's CA, whose
+        certificates for a name are revoked when a user of that name is made or removed."""
+        self._certificates = certificates
         self._public_url = public_url
         self._users = users
         self._team = team
@@ -118,6 +126,27 @@ class Accounts:
         except (ManagementError, OSError) as error:
             raise Unavailable(f"the broker refused or failed to set up account {name!r}: {error}") from error
 
+    async def _check_revocable(self, name: str) -> None:
+        """Refuse before anything changes when ``name``'s certificates could not be revoked."""
+        if self._certificates is not None:
+            if problem := await asyncio.to_thread(cannot_revoke, self._certificates, name):
+                raise Unavailable(problem)
+
+    async def _revoke_certificates(self, name: str) -> None:
+        if self._certificates is None:
+            return
+        try:
+            revoked = await asyncio.to_thread(revoke_certificates_of, self._certificates, name)
+        except CertificateError as error:
+            raise Unavailable(f"could not revoke the certificates of {name}: {error}") from error
+        if revoked:
+            log.warning(
+                "revoked %d earlier certificate(s) of %s (serial %s)",
+                len(revoked),
+                name,
+                ", ".join(f"{serial:x}" for serial in revoked),
+            )
+
     async def create(
         self, name: str, password: str | None, role: UserRole, kind: RobotKind | None, by: str
     ) -> User:
@@ -133,6 +162,7 @@ class Accounts:
         if await asyncio.to_thread(self._management.get_user, name) is not None:
             if await self._users.get_user(name) is None:
                 raise Conflict(f"a broker account named {name!r} exists outside the service; remove it first")
+        await self._check_revocable(name)
         now = datetime.now(timezone.utc)
         broker_password = secrets.token_urlsafe(24)
         user = User(
@@ -157,6 +187,7 @@ class Accounts:
             raise
         if role is UserRole.ROBOT:
             await self._team.register_robot(name, user.kind)
+        await self._revoke_certificates(name)
         log.info("user %s created by %s with role %s", name, by, role.value)
         return user
 
@@ -209,8 +240,10 @@ class Accounts:
         if mounts or await self._channels.check_ins(operator=name):
             held = ", ".join(f"{m.robot} mounted by {m.operator} for {m.mission_id}" for m in mounts)
             raise Conflict(f"{name} is in use ({held or 'checked in'}); unmount and check out first")
+        await self._check_revocable(name)
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
         await self._users.remove_user(name)
+        await self._revoke_certificates(name)
         log.info("user %s removed by %s", name, by)
         try:  # a warden removed no longer holds the hazard gate
             await leave_team(self._team, self._admin_url, name, by)

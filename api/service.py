@@ -17,6 +17,7 @@ from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
+from fleetbus.broker.certificates import TlsFiles
 from fleetbus.broker.dead_letter_queue import DeadLetter, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
@@ -86,6 +87,7 @@ async def open_service(
                 settings.ingest_shards,
                 public_url or settings.public_amqp_url,
                 cluster=settings.cluster,
+                certificates=TlsFiles.for_settings(settings),
             ),
             missions=missions,
             channels=Channels(

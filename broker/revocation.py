@@ -210,6 +210,15 @@ def issued_certificates(files: TlsFiles, name: str | None = None) -> list[Issued
     return sorted(found, key=lambda issued: issued.path.stat().st_mtime)
 
 
+def cannot_revoke(files: TlsFiles, name: str) -> str | None:
+    """Why the certificates the CA signed for ``name`` cannot be revoked here (there are some, and
+    the CA's key is missing); None when they can, or there are none. An account is made or removed
+    only when they can: a later account of that name must not inherit them."""
+    if issued_certificates(files, name) and not files.ca_key.exists():
+        return f"{name} has certificates in {files.issued}; revoking them needs the CA's key {files.ca_key}"
+    return None
+
+
 def revoke_certificates_of(files: TlsFiles, name: str) -> list[int]:
     """Revoke every certificate the CA signed for the account ``name``; the serial numbers revoked
     now. Nothing to revoke (or no CA here) changes nothing."""

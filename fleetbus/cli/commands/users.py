@@ -20,7 +20,7 @@ from fleetbus.broker.accounts import (
     save_secret,
 )
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
-from fleetbus.broker.revocation import issued_certificates, revoke_certificates_of
+from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
@@ -60,8 +60,8 @@ def add(
     files = TlsFiles.for_settings(config)
     if cert and not files.ca_key.exists():
         fail(f"--cert signs the robot's certificate with the CA's key {files.ca_key}, which is missing")
-    if issued_certificates(files, name) and not files.ca_key.exists():
-        fail(f"{name} has certificates in {files.issued}; revoking them needs the CA's key {files.ca_key}")
+    if problem := cannot_revoke(files, name):
+        fail(problem)
     with admin_api(ep) as api:
         try:
             account = asyncio.run(
@@ -155,7 +155,9 @@ def remove(
     """Delete an account and take it out of the hazard gate's team (its exchange and inbox stay,
     with whatever they hold); a warden removed no longer holds the gate. Its client certificates
     are revoked."""
-    ep = endpoint()
+    ep, files = endpoint(), TlsFiles.for_settings(settings())
+    if problem := cannot_revoke(files, name):
+        fail(problem)
     with admin_api(ep) as api:
         try:
             delete_account(ep.amqp_url, api, name)
@@ -170,7 +172,7 @@ def remove(
     except HazardServiceNotTold as error:
         fail(f"removed {name} and took it out of the team, but {error}")
     console.print(f"removed {name}" + (" and took it out of the team" if left else ""))
-    _revoke(TlsFiles.for_settings(settings()), name)  # a later account of that name must not inherit them
+    _revoke(files, name)  # a later account of that name must not inherit them
 
 
 @app.command("list")
