@@ -9,6 +9,9 @@ standard library only.
 
 from __future__ import annotations
 
+import ssl
+from collections.abc import Iterator
+
 #: Alerts that name the reason, as OpenSSL words them (lower case), and what a robot is told.
 _ALERTS = (
     ("alert certificate revoked", "the broker says this robot's client certificate is revoked"),
@@ -43,12 +46,25 @@ def certificate_refusal(error: BaseException) -> str | None:
     return None
 
 
-def _described(error: BaseException, depth: int = 0) -> str:
-    """``error`` and everything it wraps (its cause, its context, exceptions among its
-    arguments: pika passes the socket's error on as an argument)."""
+def broker_unverified(error: BaseException) -> bool:
+    """Whether ``error`` says the robot could not verify the broker's certificate (another CA, a
+    name the certificate does not carry): trying again will not change that."""
+    return any(isinstance(each, ssl.SSLCertVerificationError) for each in _wrapped(error))
+
+
+def _described(error: BaseException) -> str:
+    return " ".join(repr(each) for each in _wrapped(error))
+
+
+def _wrapped(error: BaseException, depth: int = 0) -> Iterator[BaseException]:
+    """``error`` and everything it wraps: its cause, its context, and what pika passes the
+    socket's error on in (an argument, or a connector error's ``exception``)."""
     if depth > 5:
-        return ""
-    parts = [repr(error)]
-    inner = [error.__cause__, error.__context__, *(a for a in error.args if isinstance(a, BaseException))]
-    parts += [_described(each, depth + 1) for each in inner if each is not None and each is not error]
-    return " ".join(parts)
+        return
+    yield error
+    carried = getattr(error, "exception", None)
+    inner = [error.__cause__, error.__context__, carried, *error.args]
+    inner = [each for each in inner if isinstance(each, BaseException)]
+    for each in inner:
+        if each is not error:
+            yield from _wrapped(each, depth + 1)

@@ -36,7 +36,7 @@ import pika.exceptions
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
 from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
-from fleetbus.publishers.handshake import certificate_refusal
+from fleetbus.publishers.handshake import broker_unverified, certificate_refusal
 from fleetbus.publishers.outbox import SEGMENT_EVENTS, Entry, Outbox
 
 log = logging.getLogger("fleetbus.robot.sender")
@@ -127,6 +127,8 @@ class Sender:
     ) -> None:
         self._outbox = outbox
         self._parameters = parameters
+        self._unverified = False
+        """The last try to connect could not verify the broker's certificate."""
         self._certificate_login = any(
             isinstance(each.credentials, pika.credentials.ExternalCredentials) for each in parameters
         )
@@ -186,10 +188,11 @@ class Sender:
             return job
 
     def wait_connected(self, timeout: float) -> bool:
+        """Wait until connected; False at ``timeout``, or at once when the broker's certificate
+        could not be verified (the sender goes on trying in the background)."""
         with self._condition:
-            return self._condition.wait_for(lambda: self._connected or self._stopping, timeout) and (
-                self._connected
-            )
+            self._condition.wait_for(lambda: self._connected or self._stopping or self._unverified, timeout)
+            return self._connected
 
     def watch(self, message_ids: Sequence[str]) -> Waiter:
         """Start following these events' settles (before they are written; see :class:`Waiter`)."""
@@ -313,7 +316,9 @@ class Sender:
     def _failure(self, error: BaseException) -> str:
         """What went wrong; for a certificate login that could not connect, what that most
         likely means (the broker does not say it to the client)."""
-        hint = certificate_refusal(error) if self._connection is None and self._certificate_login else None
+        connecting = self._connection is None
+        self._unverified = connecting and broker_unverified(error)
+        hint = certificate_refusal(error) if connecting and self._certificate_login else None
         return f"{hint}: {error!r}" if hint else repr(error)
 
     def _backoff(self, delay: float) -> None:
@@ -357,6 +362,7 @@ class Sender:
         self._connection, self._confirms = connection, confirms
         with self._condition:
             self._connected = True
+            self._unverified = False
             self.last_error = None
             self._condition.notify_all()
         params = getattr(connection._impl, "params", None)

@@ -9,7 +9,7 @@ import pika.exceptions
 import pytest
 from pika.adapters.utils.connection_workflow import AMQPConnectorSocketConnectError
 
-from fleetbus.publishers.handshake import certificate_refusal
+from fleetbus.publishers.handshake import broker_unverified, certificate_refusal
 
 
 def _wrapped(inner: BaseException) -> BaseException:
@@ -67,3 +67,11 @@ def test_a_handshake_the_broker_ended_is_explained(error: BaseException, said: s
 )
 def test_other_failures_get_no_certificate_explanation(error: BaseException) -> None:
     assert certificate_refusal(error) is None
+
+
+def test_only_a_broker_certificate_the_robot_cannot_verify_ends_its_wait_to_connect() -> None:
+    unverified = ssl.SSLCertVerificationError(1, "certificate verify failed: unable to get local issuer")
+    assert broker_unverified(_wrapped(unverified))
+    revoked = ssl.SSLError(1, "[SSL: SSLV3_ALERT_CERTIFICATE_REVOKED] sslv3 alert certificate revoked")
+    for other in (_wrapped(revoked), _wrapped(ConnectionRefusedError(111, "Connection refused"))):
+        assert not broker_unverified(other)
