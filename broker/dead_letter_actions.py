@@ -144,7 +144,7 @@ def requeue_dead_letter(
 ) -> DeadLetter:
     """Publish the named letter again as its sender (``sender_url(user_id)``), to its original
     exchange and routing key, confirmed; then remove it from the queue."""
-    with _holding(amqp_url, wanted) as held:
+    with _holding(amqp_url, wanted, patience) as held:
         letter = held.letter
         if not letter.user_id:
             raise RequeueRefused(
