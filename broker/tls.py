@@ -165,8 +165,7 @@ def pika_parameters(url: str) -> pika.URLParameters:
     # Given amqps://, pika first builds a context from the system's trust store (about 20 ms of
     # CPU, at every connection) that ours replaces: give it amqp:// and the port amqps:// means.
     parts = urlsplit(plain)
-    port = parts.port or pika.ConnectionParameters.DEFAULT_SSL_PORT
-    netloc = f"{parts.netloc.rpartition(':')[0]}:{port}" if parts.port else f"{parts.netloc}:{port}"
+    netloc = parts.netloc if parts.port else f"{parts.netloc}:{pika.ConnectionParameters.DEFAULT_SSL_PORT}"
     parameters = pika.URLParameters(urlunsplit(("amqp", netloc, parts.path, parts.query, parts.fragment)))
     parameters.ssl_options = pika.SSLOptions(client_context(options), server_hostname=options.server_name)
     if options.external:

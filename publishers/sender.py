@@ -303,7 +303,9 @@ class Sender:
                 self._pause(delay)
             except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
                 self._outbox.release()
-                self._disconnect(self._failure(error))
+                connecting = self._connection is None
+                self._unverified = connecting and broker_unverified(error)
+                self._disconnect(self._failure(error, connecting))
                 self._backoff(reconnect_delay(failures, self._max_delay))
                 failures += 1
             except Exception as error:  # never let the sender die silently
@@ -313,11 +315,9 @@ class Sender:
                 self._backoff(1.0)
         self._disconnect(None)
 
-    def _failure(self, error: BaseException) -> str:
+    def _failure(self, error: BaseException, connecting: bool) -> str:
         """What went wrong; for a certificate login that could not connect, what that most
         likely means (the broker does not say it to the client)."""
-        connecting = self._connection is None
-        self._unverified = connecting and broker_unverified(error)
         hint = certificate_refusal(error) if connecting and self._certificate_login else None
         return f"{hint}: {error!r}" if hint else repr(error)
 
