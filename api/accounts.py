@@ -31,7 +31,7 @@ from fleetbus.broker.accounts import (
 )
 from fleetbus.broker.certificates import CertificateError, TlsFiles
 from fleetbus.broker.management import ManagementAPI, ManagementError
-from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of
+from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
@@ -140,12 +140,7 @@ class Accounts:
         except CertificateError as error:
             raise Unavailable(f"could not revoke the certificates of {name}: {error}") from error
         if revoked:
-            log.warning(
-                "revoked %d earlier certificate(s) of %s (serial %s)",
-                len(revoked),
-                name,
-                ", ".join(f"{serial:x}" for serial in revoked),
-            )
+            log.warning("%s", revoked_summary(name, revoked))
 
     async def create(
         self, name: str, password: str | None, role: UserRole, kind: RobotKind | None, by: str

@@ -226,3 +226,9 @@ def revoke_certificates_of(files: TlsFiles, name: str) -> list[int]:
     if not serials:
         return []
     return revoke(files, serials)
+
+
+def revoked_summary(name: str, serials: list[int]) -> str:
+    """What :func:`revoke_certificates_of` did, in words, for the operator's console or log."""
+    listed = ", ".join(f"{serial:x}" for serial in serials)
+    return f"revoked {len(serials)} earlier certificate(s) of {name} (serial {listed})"

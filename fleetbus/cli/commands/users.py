@@ -20,7 +20,7 @@ from fleetbus.broker.accounts import (
     save_secret,
 )
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
-from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of
+from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
@@ -109,8 +109,7 @@ def _revoke(files: TlsFiles, name: str) -> None:
     except CertificateError as error:
         fail(f"could not revoke the certificates of {name}: {error}")
     if revoked:
-        serials = ", ".join(f"{serial:x}" for serial in revoked)
-        console.print(f"revoked {len(revoked)} earlier certificate(s) of {name} (serial {serials})")
+        console.print(revoked_summary(name, revoked))
 
 
 def _issue_certificate(config: Settings, name: str) -> ClientFiles:
