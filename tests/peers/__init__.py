@@ -1,0 +1,39 @@
+"""Outside peers: tools and clients nobody on the project wrote, that check fleetbus's published
+contracts (the OpenAPI and AsyncAPI documents, the TLS listeners). ``scripts/setup`` installs them
+when ``FLEETBUS_WITH_PEERS=1`` (``scripts/test`` sets it): the Python ones in ``.venv-peers``, the
+Node.js ones in ``tests/peers/node_modules``, each pinned in its lock file here."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PEERS = Path(__file__).resolve().parent
+PEERS_VENV = ROOT / ".venv-peers"
+NODE_MODULES = PEERS / "node_modules"
+
+_INSTALL = "install the outside peers: FLEETBUS_WITH_PEERS=1 bash scripts/setup"
+
+
+def peer_command(name: str) -> Path:
+    """A console script of ``.venv-peers`` (``schemathesis``, ``sslyze``, ``openapi-python-client``);
+    fails the test, naming the fix, when the peers are not installed."""
+    path = PEERS_VENV / "bin" / name
+    if not path.exists():
+        pytest.fail(f"{path} is missing: {_INSTALL}", pytrace=False)
+    return path
+
+
+def peer_python() -> Path:
+    return peer_command("python")
+
+
+def node() -> str:
+    """The ``node`` binary, with ``tests/peers/node_modules`` installed beside it."""
+    found = shutil.which("node")
+    if found is None or not NODE_MODULES.is_dir():
+        pytest.fail(f"node or {NODE_MODULES} is missing: {_INSTALL}", pytrace=False)
+    return found
