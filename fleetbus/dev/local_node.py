@@ -44,6 +44,7 @@ from fleetbus.broker.probe import (
 )
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.revocation import ensure_crl
+from fleetbus.broker.tls_profile import MANAGEMENT, erlang_terms, rabbitmq_conf
 
 RABBITMQ_BIN = Path("/usr/lib/rabbitmq/bin")
 RABBITMQ_SERVER = RABBITMQ_BIN / "rabbitmq-server"
@@ -479,7 +480,7 @@ management.ssl.port = {ports["management_tls"]}
 management.ssl.cacertfile = {tls.ca}
 management.ssl.certfile = {tls.cert}
 management.ssl.keyfile = {tls.key}
-listeners.ssl.default = {HOST}:{ports["amqps"]}
+{rabbitmq_conf(MANAGEMENT)}listeners.ssl.default = {HOST}:{ports["amqps"]}
 {CERTIFICATE_LOGIN}stream.listeners.tcp.1 = {HOST}:{ports["stream"]}
 default_vhost = /
 default_user = {user}
@@ -507,7 +508,8 @@ log.console = false
             write_private_file(cookie, secrets.token_hex(20).upper(), mode=0o400)
 
     def _advanced_config(self) -> str:
-        """The AMQPS listener's TLS options. They live here, not in rabbitmq.conf, because the
+        """The AMQPS listener's TLS options, with the TLS profile
+        (:mod:`fleetbus.broker.tls_profile`). They live here, not in rabbitmq.conf, because the
         revocation list's folder (``crl_cache``) can only be given in this file, and RabbitMQ
         takes a listener's ``ssl_options`` from one file or the other, never merged.
 
@@ -520,6 +522,7 @@ log.console = false
             f"{{keyfile, {_erlang_string(tls.key)}}}",
             "{verify, verify_peer}",
             "{fail_if_no_peer_cert, false}",
+            *erlang_terms(),
         ]
         if ensure_crl(tls):
             folder = _erlang_string(tls.crl_dir)

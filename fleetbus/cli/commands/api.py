@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import ssl
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -73,7 +75,16 @@ def serve(
         timeout_graceful_shutdown=5,  # open console pages stream until closed
         ssl_certfile=str(files.cert) if tls else None,
         ssl_keyfile=str(files.key) if tls else None,
+        ssl_context_factory=_profiled_context if tls else None,
     )
+
+
+def _profiled_context(config: Any, default: Callable[[], ssl.SSLContext]) -> ssl.SSLContext:
+    """uvicorn's own context (the certificate and key, its ALPN) held to the TLS profile: uvicorn
+    has no setting for the lowest TLS version."""
+    from fleetbus.broker.tls_profile import apply
+
+    return apply(default())
 
 
 @app.command("create-admin")
