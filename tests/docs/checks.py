@@ -88,9 +88,7 @@ def check_docker(args: list[str]) -> str | None:
     while rest and rest[0] == "--profile":
         profiles.append(rest[1])
         rest = rest[2:]
-    known_profiles = {profile for service in services.values() for profile in service.get("profiles", [])}
-    if unknown := [profile for profile in profiles if profile not in known_profiles]:
-        return f"compose.yaml has no profile {unknown}"
+    # Compose takes any profile name (`central` names the services that have none): no check
     verb, rest = rest[0], rest[1:]
     if verb == "up":
         named = [word for word in rest if not word.startswith("-")]
@@ -176,6 +174,23 @@ def check_pip(args: list[str]) -> str | None:
     return None
 
 
+def check_curl(args: list[str]) -> str | None:
+    """A request to the HTTP API: its method and path are routes of the API's OpenAPI document."""
+    from urllib.parse import urlsplit
+
+    from scripts.docs_hooks import openapi_document
+
+    urls = [word for word in args if "://" in word or word.startswith(("localhost:", "127.0.0.1:"))]
+    if len(urls) != 1:
+        return f"curl {shlex.join(args)}: expected one URL of the HTTP API"
+    method = args[args.index("-X") + 1].lower() if "-X" in args else "get"
+    path = urlsplit(urls[0] if "://" in urls[0] else f"http://{urls[0]}").path
+    for route, operations in openapi_document()["paths"].items():
+        if re.fullmatch(re.sub(r"\\{[^}]+\\}", "[^/]+", re.escape(route)), path) and method in operations:
+            return None
+    return f"the HTTP API has no {method.upper()} {path}"
+
+
 def check_argv(argv: list[str]) -> str | None:
     """The check this command's program has; a problem, or None when it passed."""
     if not argv:
@@ -194,6 +209,8 @@ def check_argv(argv: list[str]) -> str | None:
         return check_pip(args)
     if name == "py-spy":
         return None if any("py-spy" in dep for dep in extras().get("profile", [])) else "py-spy: no extra"
+    if name == "curl":
+        return check_curl(args)
     if name == "bash" and args and args[0].startswith("scripts/"):
         return None if (ROOT / args[0]).is_file() else f"no {args[0]}"
     return f"{program}: nothing checks this program's arguments here; add a check in tests/docs/checks.py"

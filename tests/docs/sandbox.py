@@ -28,6 +28,7 @@ import contextlib
 import os
 import re
 import shlex
+import shutil
 import signal
 import socket
 import subprocess
@@ -43,6 +44,7 @@ from fleetbus.broker.tls import blocking_connection
 from fleetbus.workers.store.base import EventQuery
 from tests.docs.checks import fleetbus_path, words
 from tests.docs.pages import ROOT, Command, Page
+from tests.run_tls import run_tls_files
 from tests.support import Bus, wait_for
 
 #: The password a page's account is given when a command asks for one (``api create-admin``), and
@@ -54,6 +56,8 @@ PLACEHOLDERS: dict[str, Callable[[Sandbox], str]] = {
     "MESSAGE_ID": lambda sandbox: sandbox.last_message_id(),
     "PASSWORD": lambda sandbox: PASSWORD,
 }
+#: Words in capitals that are what they say, not placeholders.
+LITERAL_CAPITALS = frozenset({"GET", "POST", "PUT", "DELETE", "PATCH"})
 #: Commands that ask for a password on their terminal, and how many times they ask.
 TYPED: dict[tuple[str, ...], int] = {("api", "create-admin"): 2, ("api", "login"): 1}
 #: Commands that run until stopped, by their subcommand path: how to tell each is ready.
@@ -100,8 +104,13 @@ class Sandbox:
             if entry.name not in (".fleetbus", ".git", "site"):
                 (folder / entry.name).symlink_to(entry)
         bus.service_accounts()  # what `fleetbus setup` (run by `scripts/setup`) made
+        # the run's CA and certificates, copied: what `certs make` and `users add --cert` change is
+        # the sandbox's, and what they sign the broker trusts
+        tls = bus.settings.data_dir / "tls"
+        shutil.copytree(run_tls_files().ca.parent, tls, dirs_exist_ok=True)
         env = {
-            **bus.worker_env(),
+            **{key: value for key, value in bus.worker_env().items() if key != "FLEETBUS_TLS_CA"},
+            "FLEETBUS_TLS_DIR": str(tls),
             "PATH": f"{ROOT / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
             "COLUMNS": "160",
             "NO_COLOR": "1",
@@ -118,7 +127,7 @@ class Sandbox:
 
     def filled(self, command: Command) -> str:
         text = re.sub(rf"\b{API_PORT_SHOWN}\b", str(self.api_port), command.text)
-        for word in set(CAPITALS.findall(" ".join(words(text)))):
+        for word in set(CAPITALS.findall(" ".join(words(text)))) - LITERAL_CAPITALS:
             if word not in PLACEHOLDERS:
                 raise AssertionError(
                     f"{command.where}: {word} in `{command.text}` looks like a placeholder: show a value "
@@ -161,6 +170,12 @@ class Sandbox:
         if tuple(path) in SERVERS or text.rstrip().split("#", 1)[0].rstrip().endswith("&"):
             self.start_server(command, text, tuple(path), params)
             return
+        if argv[:1] == ["curl"] and not any(
+            word.startswith("--fail") or re.fullmatch(r"-[a-zA-Z]*f[a-zA-Z]*", word) for word in argv
+        ):
+            raise AssertionError(
+                f"{command.where}: `{command.text}` would exit 0 on an HTTP error: add --fail-with-body"
+            )
         stdin = "".join(f"{PASSWORD}\n" * TYPED.get(tuple(path), 0))
         env_file = self.folder.parent / "env"
         script = f'{text}\n__status=$?\nenv -0 > "{env_file}"\nexit $__status\n'
