@@ -62,6 +62,7 @@ def test_every_command_not_run_here_passes_its_parser() -> None:
     assert not problems, "\n".join(problems)
 
 
+@pytest.mark.timeout(900)  # a page of forty commands on a loaded machine: each waits for its own end
 @pytest.mark.parametrize("page", RUN_HERE, ids=[page.path for page in RUN_HERE])
 def test_the_commands_of_each_page_run_as_shown(
     page: Page, bus: Bus, tmp_path: Path, request: pytest.FixtureRequest
