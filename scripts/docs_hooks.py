@@ -1,9 +1,11 @@
 """MkDocs hook: the reference and performance pages, generated from the code at every build.
 
 mkdocs.yml names this file under ``hooks:``; ``bash scripts/docs`` (or ``mkdocs build``) runs it.
-Nothing is written into docs/: each page is added to the build as a generated file.
+Nothing is written into docs/: each page is added to the build as a generated file. (The command
+line reference, docs/reference/cli.md, is kept in the repository instead, so that the README's
+link to it works in a checkout: ``python -m fleetbus.cli.reference --update`` writes it, and a
+test fails while it differs from the parser.)
 
-- reference/cli.md: typer's own ``typer fleetbus.cli utils docs`` of the ``fleetbus`` app;
 - reference/http-api.md: FastAPI's OpenAPI document rendered by essentials-openapi (the renderer of
   neoteroi's OAD plugin, called directly: the plugin reads a file from disk, and the document is
   made here in memory), and openapi.json beside it;
@@ -20,8 +22,6 @@ pydantic's ``$defs``; a table per model is a few lines.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +35,6 @@ GENERATED_NOTE = "<!-- generated at build time by scripts/docs_hooks.py: edit th
 
 def on_files(files: Files, config: MkDocsConfig) -> Files:
     pages = {
-        "reference/cli.md": cli_page(),
         "reference/http-api.md": http_api_page(),
         "reference/messages.md": messages_page(),
         "reference/asyncapi.md": asyncapi_page(),
@@ -46,21 +45,6 @@ def on_files(files: Files, config: MkDocsConfig) -> Files:
     for path, document in downloads().items():
         files.append(File.generated(config, path, content=json.dumps(document, indent=2) + "\n"))
     return files
-
-
-# --- the command line ---------------------------------------------------------------------------
-
-
-def cli_page() -> str:
-    """typer's Markdown of the ``fleetbus`` app, under a title of the site's own."""
-    command = [sys.executable, "-m", "typer", "fleetbus.cli", "utils", "docs", "--name", "fleetbus"]
-    text = subprocess.run(command, check=True, capture_output=True, text=True, cwd=ROOT).stdout
-    body = text.split("\n", 1)[1]  # typer's own title, "# `fleetbus`"
-    return (
-        "# Command line reference\n\n"
-        "Every command of the `fleetbus` console script, with its arguments and options, as "
-        "`fleetbus COMMAND --help` prints them. The guides say when to use which.\n" + body
-    )
 
 
 # --- the HTTP API ---------------------------------------------------------------------------------

@@ -75,3 +75,12 @@ def test_the_documentation_site_builds_strictly(tmp_path: Path) -> None:
         assert (site / page / "index.html").is_file(), page
     assert "fleetbus worker" in (site / "reference" / "cli" / "index.html").read_text()
     assert json.loads((site / "reference" / "asyncapi.json").read_text()) == asyncapi_document()
+
+
+def test_the_command_line_reference_is_the_parsers() -> None:
+    """docs/reference/cli.md is kept in the repository (the README links it): it must be what the
+    console script's parser says now."""
+    from fleetbus.cli.reference import UPDATE, reference_page
+
+    page = ROOT / "docs" / "reference" / "cli.md"
+    assert page.read_text() == reference_page(), f"docs/reference/cli.md is out of date: run `{UPDATE}`"

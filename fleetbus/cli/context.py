@@ -94,22 +94,6 @@ def admin_api(ep: BrokerEndpoint) -> Iterator[ManagementAPI]:
         yield api
 
 
-def parse_time(value: str | None) -> datetime | None:
-    """ISO 8601, or a duration back from now: ``90s``, ``10m``, ``2h``, ``1d``."""
-    if value is None:
-        return None
-    units = {"s": 1, "m": 60, "h": 3600, "d": 86400}
-    if value[-1:] in units and value[:-1].replace(".", "", 1).isdigit():
-        return datetime.fromtimestamp(
-            datetime.now(timezone.utc).timestamp() - float(value[:-1]) * units[value[-1]], timezone.utc
-        )
-    try:
-        parsed = datetime.fromisoformat(value)
-    except ValueError:
-        fail(f"cannot read time {value!r}: use ISO 8601 or a duration like 10m")
-    return parsed if parsed.tzinfo else parsed.replace(tzinfo=timezone.utc)
-
-
 def clock(moment: datetime) -> str:
     return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
 

@@ -21,7 +21,16 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from fleetbus.broker.accounts import Role, fresh_vhost, provision_account
+from fleetbus.broker.accounts import (
+    RECORDER_USER,
+    SERVICE_USER,
+    Role,
+    fresh_vhost,
+    kept_password,
+    kept_password_file,
+    provision_account,
+    save_secret,
+)
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
@@ -262,6 +271,11 @@ def run_demo(
     demo_settings = settings.updated(data_dir=settings.data_dir / "demo", mongodb_url=None)
     shutil.rmtree(demo_settings.data_dir, ignore_errors=True)
     demo_settings.data_dir.mkdir(parents=True)
+    # The service accounts are the broker's, not the virtual host's: a worker of the team may be
+    # logged in with them. The demo uses their kept passwords, so that it re-keys neither under it.
+    for name in (SERVICE_USER, RECORDER_USER):
+        if (password := kept_password(settings.accounts_dir, name)) is not None:
+            save_secret(kept_password_file(demo_settings.accounts_dir, name), password)
     with (
         ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api,
         Progress(console=console, transient=True) as progress,

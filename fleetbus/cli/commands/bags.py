@@ -17,11 +17,11 @@ from fleetbus.cli.context import (
     console,
     errors,
     fail,
-    parse_time,
     recording_stream,
     settings,
     with_recording,
 )
+from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingError
 
 PHASES = {"check": "reading the bag", "store": "storing"}
@@ -92,9 +92,11 @@ def export(
     ] = None,
     since: Annotated[
         str | None,
-        typer.Option(help="recorded from this time (ISO 8601 or e.g. 10m ago; default: the start)"),
+        typer.Option(help=f"recorded from this time (default: the start): {TIME_FORMS}"),
     ] = None,
-    until: Annotated[str | None, typer.Option(help="recorded before this time (default: now)")] = None,
+    until: Annotated[
+        str | None, typer.Option(help="recorded before this time (default: now; the same forms)")
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="replace the file if it exists")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="print the report as JSON")] = False,
 ) -> None:
@@ -108,7 +110,7 @@ def export(
         fail("writing MCAP files needs the mcap package: pip install 'fleetbus[ros]'")
     if mcap.exists() and not force:
         fail(f"{mcap} exists; add --force to replace it", code=2)
-    start, end = parse_time(since), parse_time(until)
+    start, end = parse_time(since, "--since"), parse_time(until, "--until")
     wanted = set(robots or [])
     partial = mcap.with_name(mcap.name + ".partial")
     columns = (TextColumn("exporting: {task.completed:,.0f} messages"), TimeElapsedColumn())

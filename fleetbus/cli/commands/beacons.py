@@ -11,7 +11,8 @@ import typer
 import yaml
 from rich.table import Table
 
-from fleetbus.cli.context import console, fail, parse_time, settings
+from fleetbus.cli.context import console, fail, settings
+from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.workers.beacons import stranded
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.beacons import Beacon
@@ -65,11 +66,11 @@ def list_beacons() -> None:
 
 @app.command("stranded")
 def stranded_people(
-    since: Annotated[str, typer.Option(help="heard since (ISO 8601 or e.g. 10m)")] = "10m",
+    since: Annotated[str, typer.Option(help=f"heard since: {TIME_FORMS}")] = "10m",
     as_json: Annotated[bool, typer.Option("--json")] = False,
 ) -> None:
     """Beacons heard recently: where people are likely stranded, and when they were last heard."""
-    start = parse_time(since)
+    start = parse_time(since, "--since")
     assert start is not None
     entries = _with_repositories(lambda repos: stranded(repos.beacons, repos.events, start))
     if as_json:

@@ -9,7 +9,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.cli.context import console, errors, fail, parse_time, with_recording
+from fleetbus.cli.context import console, errors, fail, with_recording
+from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.workers.recorder.queries import BEHAVIOUR, resolve_path
 from fleetbus.workers.recorder.queries import evaluate as evaluate_outcomes
 from fleetbus.workers.store.recordings import OutcomeFields, RecordingError
@@ -17,9 +18,9 @@ from fleetbus.workers.store.recordings import OutcomeFields, RecordingError
 
 def evaluate(
     since: Annotated[
-        str | None, typer.Option(help="recorded from this time (ISO 8601 or e.g. 30d ago)")
+        str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")
     ] = None,
-    until: Annotated[str | None, typer.Option(help="recorded before this time")] = None,
+    until: Annotated[str | None, typer.Option(help="recorded before this time (the same forms)")] = None,
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
     message_type: Annotated[str, typer.Option("--type", help="the type holding outcomes")] = BEHAVIOUR,
     name_field: Annotated[str, typer.Option(help="field naming the behaviour")] = "name",
@@ -33,7 +34,7 @@ def evaluate(
         fields = OutcomeFields(
             *(resolve_path(message_type, f) for f in (name_field, success_field, duration_field))
         )
-        start, end = parse_time(since), parse_time(until)
+        start, end = parse_time(since, "--since"), parse_time(until, "--until")
         stats = with_recording(
             lambda store: evaluate_outcomes(
                 store, start, end, robot_id=robot, type=message_type, fields=fields

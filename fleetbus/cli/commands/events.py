@@ -16,10 +16,10 @@ from fleetbus.cli.context import (
     console,
     fail,
     load_data,
-    parse_time,
     settings,
     with_recording,
 )
+from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError
 from fleetbus.publishers.state_lock import RobotStateInUse
@@ -117,9 +117,9 @@ def query(
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
     mission: Annotated[str | None, typer.Option(help="only messages recorded under this mission")] = None,
     since: Annotated[
-        str | None, typer.Option(help="recorded from this time (ISO 8601 or e.g. 10m ago)")
+        str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")
     ] = None,
-    until: Annotated[str | None, typer.Option(help="recorded before this time")] = None,
+    until: Annotated[str | None, typer.Option(help="recorded before this time (the same forms)")] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
     latest: Annotated[bool, typer.Option("--latest", help="only the newest match")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
@@ -139,8 +139,8 @@ def query(
                 message_type,
                 conditions,
                 robot_id=robot,
-                since=parse_time(since),
-                until=parse_time(until),
+                since=parse_time(since, "--since"),
+                until=parse_time(until, "--until"),
                 limit=limit,
                 newest_first=True,
                 mission_id=mission,

@@ -11,7 +11,8 @@ import typer
 from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
 from fleetbus.broker.tls import blocking_connection
-from fleetbus.cli.context import console, endpoint, errors, fail, parse_time, recording_stream
+from fleetbus.cli.context import console, endpoint, errors, fail, recording_stream
+from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.workers.recorder.queries import parse_condition, recorded_between
@@ -50,8 +51,10 @@ class Publisher:
 
 def replay(
     to: Annotated[str, typer.Option("--to", help="the exchange to publish to")],
-    since: Annotated[str, typer.Option(help="recorded from this time (ISO 8601 or e.g. 10m ago)")],
-    until: Annotated[str | None, typer.Option(help="recorded before this time (default: now)")] = None,
+    since: Annotated[str, typer.Option(help=f"recorded from this time: {TIME_FORMS}")],
+    until: Annotated[
+        str | None, typer.Option(help="recorded before this time (default: now; the same forms)")
+    ] = None,
     message_types: Annotated[
         list[str] | None,
         typer.Option("--type", help="only this type (repeatable; default: all but dead letters)"),
@@ -77,7 +80,7 @@ def replay(
         conditions = [parse_condition(text, types[0]) for text in where or []] if types else []
         if where and len(types) != 1:
             raise RecordingError("--where needs exactly one --type")
-        start, end = parse_time(since), parse_time(until)
+        start, end = parse_time(since, "--since"), parse_time(until, "--until")
     except (RecordingError, ValueError) as error:
         fail(str(error), code=2)
     if speed < 0:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
-from datetime import datetime, timedelta, timezone
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Annotated
 
@@ -18,23 +18,14 @@ from fleetbus.cli.context import (
     console,
     dead_letters,
     errors,
-    fail,
-    parse_time,
     settings,
     with_recording,
 )
+from fleetbus.cli.times import TIME_FORMS, parse_duration, parse_time
 from fleetbus.workers.recorder.growth import Growth, growth
 from fleetbus.workers.store import StoreError, run_with_repositories
 from fleetbus.workers.store.housekeeping import BoundCount
 from fleetbus.workers.store.statuses import WorkerStatus
-
-UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
-
-
-def parse_every(text: str) -> timedelta:
-    if text[-1:] in UNITS and text[:-1].isdigit() and int(text[:-1]) > 0:
-        return timedelta(seconds=int(text[:-1]) * UNITS[text[-1]])
-    fail(f"--every {text!r}: write a duration like 1m, 10m or 1h", code=2)
 
 
 def _view(item: Growth) -> dict[str, object]:
@@ -99,16 +90,16 @@ def _dead_letters() -> None:
 
 
 def stats(
-    since: Annotated[str, typer.Option(help="from this time (ISO 8601 or e.g. 6h ago)")] = "1h",
-    every: Annotated[str, typer.Option(help="one row per this much time")] = "1m",
+    since: Annotated[str, typer.Option(help=f"from this time: {TIME_FORMS}")] = "1h",
+    every: Annotated[str, typer.Option(help="one row per this much time: 1m, 10m, 1h")] = "1m",
     plot: Annotated[Path | None, typer.Option(help="also write a PNG plot here")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
     """The workers' statuses and the dead letters by reason; database growth (MB per minute) and
     inserts per minute over time, from the recorder's samples; then what each bound removed since
     the store began: records pruned, messages full queues dropped (--json: growth and bound rows)."""
-    bucket = parse_every(every)
-    start = parse_time(since)
+    bucket = parse_duration(every, "--every")
+    start = parse_time(since, "--since")
     if not as_json:
         _workers()
         _dead_letters()

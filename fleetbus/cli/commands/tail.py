@@ -15,8 +15,8 @@ import aiormq.exceptions
 import typer
 from rich.markup import escape
 
-from fleetbus.cli.commands.events import parse_time
 from fleetbus.cli.context import console, fail, settings
+from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.tail import Seen, follow
 
 
@@ -45,7 +45,7 @@ def tail(
     ] = None,
     url: Annotated[str | None, typer.Option(help="your broker URL (default: FLEETBUS_USER_URL)")] = None,
     since: Annotated[
-        str | None, typer.Option(help="replay from this time first (ISO 8601 or e.g. 10m)")
+        str | None, typer.Option(help=f"replay from this time first: {TIME_FORMS}")
     ] = None,
     count: Annotated[int | None, typer.Option(help="stop after this many messages")] = None,
     idle: Annotated[float | None, typer.Option(help="stop after this many seconds without one")] = None,
@@ -53,7 +53,7 @@ def tail(
 ) -> None:
     """Follow live messages from your stream (<user>.stream): the beacons, and the robots you mounted."""
     amqp_url = user_url(user, url)
-    start = parse_time(since)
+    start = parse_time(since, "--since")
 
     def show(seen: Seen) -> None:
         if as_json:

@@ -13,11 +13,11 @@ from fleetbus.cli.context import (
     clock,
     console,
     fail,
-    parse_time,
     route_map,
     settings,
     with_recording,
 )
+from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, RobotKind, inbox_queue
 from fleetbus.workers.recorder.queries import record_view
@@ -36,8 +36,10 @@ def registered_subscriptions(robot: str) -> list[str]:
 
 def timeline(
     robot: Annotated[str, typer.Argument(help="the robot (or operator) account")],
-    since: Annotated[str, typer.Option(help="from this time (ISO 8601 or e.g. 10m ago)")] = "1h",
-    until: Annotated[str | None, typer.Option(help="until this time (default: now)")] = None,
+    since: Annotated[str, typer.Option(help=f"from this time: {TIME_FORMS}")] = "1h",
+    until: Annotated[
+        str | None, typer.Option(help="until this time (default: now; the same forms)")
+    ] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the oldest first")] = 500,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
@@ -57,7 +59,12 @@ def timeline(
     )
     result = with_recording(
         lambda store: build_timeline(
-            store, robot, parse_time(since), parse_time(until), inbound=inbound, limit=limit
+            store,
+            robot,
+            parse_time(since, "--since"),
+            parse_time(until, "--until"),
+            inbound=inbound,
+            limit=limit,
         )
     )
     if as_json:

@@ -1,0 +1,77 @@
+"""Times and durations on the command line: the one rule every ``--since``, ``--until`` and
+``--every`` follows.
+
+A time is one of:
+
+- ISO 8601, ``2026-03-02T09:00`` or ``2026-03-02T09:00:00+02:00`` (``Z`` too): UTC unless it
+  carries an offset;
+- a time of day, ``10:00`` or ``10:00:30``: today's, in UTC unless it carries an offset
+  (``10:00+02:00``), as the tables of the command line show times in UTC;
+- a duration back from now, ``90s``, ``10m``, ``2h``, ``1d``.
+
+A duration is a number and a unit: ``s``, ``m``, ``h`` or ``d``.
+"""
+
+from __future__ import annotations
+
+import re
+from datetime import datetime, time, timedelta, timezone
+
+from fleetbus.cli.context import fail
+
+#: What a time option takes, for its help: every option says the same.
+TIME_FORMS = (
+    "2026-03-02T09:00, 10:00 (today) or a duration back from now: 90s, 10m, 2h, 1d; "
+    "UTC unless an offset is given"
+)
+UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+DURATION = re.compile(r"(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[smhd])")
+TIME_OF_DAY = re.compile(r"[0-9]{2}:[0-9]{2}(:[0-9]{2}(\.[0-9]+)?)?([+-][0-9]{2}:[0-9]{2}|Z)?")
+
+
+def read_duration(text: str) -> timedelta:
+    """``90s``, ``10m``, ``2h``, ``1d`` (a fraction allowed: ``1.5h``); ValueError otherwise."""
+    match = DURATION.fullmatch(text.strip())
+    if not match:
+        raise ValueError(f"{text!r} is not a duration: write a number and s, m, h or d (90s, 10m, 2h, 1d)")
+    return timedelta(seconds=float(match["amount"]) * UNITS[match["unit"]])
+
+
+def read_time(text: str, now: datetime | None = None) -> datetime:
+    """The moment ``text`` names (see the module's docstring), aware; ValueError otherwise."""
+    now = now or datetime.now(timezone.utc)
+    value = text.strip()
+    if DURATION.fullmatch(value):
+        return now - read_duration(value)
+    iso = value[:-1] + "+00:00" if value.endswith("Z") else value  # Python 3.10 reads no "Z"
+    try:
+        if TIME_OF_DAY.fullmatch(value):
+            of_day = time.fromisoformat(iso)
+            zone = of_day.tzinfo or timezone.utc
+            return datetime.combine(now.astimezone(zone).date(), of_day.replace(tzinfo=None), tzinfo=zone)
+        moment = datetime.fromisoformat(iso)
+    except ValueError:
+        raise ValueError(f"cannot read the time {text!r}: write {TIME_FORMS}") from None
+    return moment if moment.tzinfo else moment.replace(tzinfo=timezone.utc)
+
+
+def parse_time(value: str | None, option: str = "time") -> datetime | None:
+    """An option's time, or None when it was not given; one that does not parse ends the command
+    (status 2) saying what is wrong."""
+    if value is None:
+        return None
+    try:
+        return read_time(value)
+    except ValueError as error:
+        fail(f"{option}: {error}", code=2)
+
+
+def parse_duration(value: str, option: str = "duration") -> timedelta:
+    """An option's duration, more than zero; else the command ends (status 2) saying why."""
+    try:
+        duration = read_duration(value)
+    except ValueError as error:
+        fail(f"{option}: {error}", code=2)
+    if duration <= timedelta(0):
+        fail(f"{option}: {value!r} is no time at all: give more than 0", code=2)
+    return duration
