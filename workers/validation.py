@@ -9,7 +9,7 @@ from typing import Any
 
 from aio_pika.abc import AbstractIncomingMessage
 
-from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, parse_event
+from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, content_digest, parse_event
 from fleetbus.schemas.routing import SHOVELLED_HEADER, EventType, publish_exchange, split_event_routing_key
 from fleetbus.workers.store.base import EventRecord
 
@@ -113,4 +113,5 @@ def event_record(
         user_id=user_id,
         exchange=exchange,
         routing_key=routing_key,
+        digest=content_digest(event.type, event.body),
     )
