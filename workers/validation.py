@@ -10,6 +10,7 @@ from typing import Any
 from aio_pika.abc import AbstractIncomingMessage
 
 from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, content_digest, parse_event
+from fleetbus.schemas.properties import content_type_problem, delivery_mode_problem
 from fleetbus.schemas.routing import SHOVELLED_HEADER, EventType, publish_exchange, split_event_routing_key
 from fleetbus.workers.store.base import EventRecord
 
@@ -20,6 +21,8 @@ class RejectReason(str, Enum):
     SCHEMA = "schema"
     UNKNOWN_TYPE = "unknown-type"
     NO_USER_ID = "no-user-id"
+    CONTENT_TYPE = "content-type"
+    NOT_PERSISTENT = "not-persistent"
     IDENTITY_MISMATCH = "identity-mismatch"
     UNKNOWN_ROBOT = "unknown-robot"
     BAD_MAP = "bad-map"
@@ -64,6 +67,10 @@ def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rej
         return Rejected(
             RejectReason.NO_USER_ID, "the message has no user_id property, so its origin is unproven"
         )
+    if problem := content_type_problem(message.content_type):
+        return Rejected(RejectReason.CONTENT_TYPE, problem)
+    if problem := delivery_mode_problem(message.delivery_mode):
+        return Rejected(RejectReason.NOT_PERSISTENT, problem)
     routing_key = message.routing_key or ""
     try:
         key_robot, key_type = split_event_routing_key(routing_key)
