@@ -4,33 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from enum import Enum
 from typing import Any
 
 from aio_pika.abc import AbstractIncomingMessage
 
 from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, content_digest, parse_event
 from fleetbus.schemas.properties import content_type_problem, delivery_mode_problem
+from fleetbus.schemas.rejections import RejectReason
 from fleetbus.schemas.routing import SHOVELLED_HEADER, EventType, publish_exchange, split_event_routing_key
 from fleetbus.workers.store.base import EventRecord
-
-
-class RejectReason(str, Enum):
-    TOO_LARGE = "too-large"
-    NOT_JSON = "not-json"
-    SCHEMA = "schema"
-    UNKNOWN_TYPE = "unknown-type"
-    NO_USER_ID = "no-user-id"
-    CONTENT_TYPE = "content-type"
-    NOT_PERSISTENT = "not-persistent"
-    IDENTITY_MISMATCH = "identity-mismatch"
-    UNKNOWN_ROBOT = "unknown-robot"
-    BAD_MAP = "bad-map"
-    WRONG_EXCHANGE = "wrong-exchange"
-    SEQUENCE_REUSED = "sequence-reused"
-    DELIVERY_LIMIT = "delivery-limit"
-    INTERNAL_ERROR = "internal-error"
-    """Not the message's fault: handling it raised an unexpected error (a bug, logged with its traceback)."""
 
 
 @dataclass(frozen=True)
