@@ -70,7 +70,6 @@ def content_digest(event_type: EventType | str, body: BaseModel) -> str:
         {"type": EventType(event_type).value, "body": body.model_dump(mode="json")},
         sort_keys=True,
         separators=(",", ":"),
-        ensure_ascii=False,
     )
     return hashlib.sha256(canonical.encode()).hexdigest()
 
