@@ -60,7 +60,7 @@ class Method:
     params: dict[str, Any] = field(default_factory=dict)
     """The parameters' properties (JSON Schema); the request body is a JSON object of them."""
     required: tuple[str, ...] = ()
-    result: dict[str, Any] = field(default_factory=lambda: {})
+    result: dict[str, Any] = field(default_factory=dict)
 
     def params_schema(self) -> dict[str, Any]:
         return {"type": "object", "properties": self.params, "required": list(self.required)}
@@ -83,7 +83,8 @@ METHODS: tuple[Method, ...] = (
     ),
     Method(
         "hazard.open",
-        "the mission's hazards not yet cleared, oldest first: what a warden rebuilds its list from",
+        "the mission's hazards not yet cleared, in id order, held ones included (their `state` says): "
+        "what a warden rebuilds its list from (a site's hazards are its own wardens', left out)",
         {"mission_id": MISSION},
         (),
         {"type": "array", "items": HAZARD},
