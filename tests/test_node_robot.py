@@ -19,13 +19,20 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import pytest
+
+from fleetbus.broker.certificates import TlsFiles, make_certificates
+from fleetbus.schemas.export import write_json_schemas
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
 from tests.peers import PEERS, node
-from tests.run_tls import run_tls_files
+from tests.run_tls import BROKER_TLS, run_tls_files
 from tests.support import Bus, read_line, wait_for
 
 TIMEOUT_S = 60
+pytestmark = pytest.mark.skipif(
+    not BROKER_TLS, reason="FLEETBUS_TEST_TLS=0: the run is over plain AMQP, the contract's server is AMQPS"
+)
 
 
 def fleetbus(bus: Bus, *args: str) -> subprocess.Popen[str]:
@@ -59,7 +66,9 @@ def printed_url(command: subprocess.Popen[str]) -> str:
     return url
 
 
-def start_robot(bus: Bus, role: str, url: str, contract: Path, **extra: Any) -> subprocess.Popen[str]:
+def start_robot(
+    bus: Bus, role: str, url: str, contract: Path, ca: Path | None = None, **extra: Any
+) -> subprocess.Popen[str]:
     """``node robot.mjs`` with its configuration (the URL and its password included) on stdin."""
     robot = subprocess.Popen(
         [node(), str(PEERS / "robot.mjs")],
@@ -70,7 +79,7 @@ def start_robot(bus: Bus, role: str, url: str, contract: Path, **extra: Any) -> 
         text=True,
     )
     assert robot.stdin is not None
-    settings = {"role": role, "url": url, "ca": str(run_tls_files().ca), "asyncapi": str(contract)}
+    settings = {"role": role, "url": url, "ca": str(ca or run_tls_files().ca), "asyncapi": str(contract)}
     robot.stdin.write(json.dumps({**settings, "timeout_s": TIMEOUT_S, **extra}))
     robot.stdin.close()
     return robot
@@ -164,3 +173,17 @@ def test_a_node_robot_built_from_the_asyncapi_document_alone(bus: Bus, tmp_path:
         "announced",
         "explorer1",
     )
+
+
+def test_the_node_robot_refuses_a_broker_its_ca_did_not_sign(bus: Bus, tmp_path: Path) -> None:
+    """It verifies the broker with the CA file it is given, not with whatever the URL names."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    [contract] = [path for path in write_json_schemas(tmp_path / "contract") if path.name == "asyncapi.json"]
+    other = TlsFiles.in_folder(tmp_path / "another-ca")
+    make_certificates(other)
+    robot = start_robot(bus, "explorer", account.amqp_url, contract, ca=other.ca, other="warden1")
+    assert robot.stdout is not None
+    output, code = robot.stdout.read(), robot.wait(TIMEOUT_S)
+    log = (bus.settings.data_dir / "node-explorer.log").read_text()
+    assert code == 1 and "published" not in output, output
+    assert "self-signed certificate in certificate chain" in log, log

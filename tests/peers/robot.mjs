@@ -25,6 +25,11 @@ const config = JSON.parse(readFileSync(0, "utf8"));
 if (config.url === undefined && config.url_file) config.url = readFileSync(config.url_file, "utf8").trim();
 const contract = new Contract(config.asyncapi);
 const timeoutMs = (config.timeout_s ?? 60) * 1000;
+// whatever hangs, the program ends: no step may outlast its own timeout, nor the whole run three
+setTimeout(() => {
+  process.stderr.write(`gave up after ${(3 * timeoutMs) / 1000} s\n`);
+  process.exit(2);
+}, 3 * timeoutMs).unref();
 
 function say(line) {
   process.stdout.write(`${JSON.stringify(line)}\n`);
@@ -44,7 +49,7 @@ async function connect() {
   if (url.protocol !== `${server.protocol}:`) {
     throw new Error(`the document's server speaks ${server.protocol}, the URL ${url.protocol}`);
   }
-  const connection = await amqp.connect(config.url, { ca: [readFileSync(config.ca)] });
+  const connection = await amqp.connect(config.url, { ca: [readFileSync(config.ca)], timeout: timeoutMs });
   connection.on("error", (error) => say({ step: "connection-error", message: error.message }));
   say({ step: "connected", protocol: server.protocol, port: url.port, document_port: server.variables.port.default });
   return { connection, robot: decodeURIComponent(url.username) };
