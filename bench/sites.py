@@ -96,7 +96,12 @@ def load_backlog(url: str, robots: list[str], seconds: int, hz: float) -> tuple[
                     events_exchange(robot),
                     event_routing_key(robot, "status"),
                     body,
-                    pika.BasicProperties(user_id=robot, delivery_mode=2, message_id=str(event.message_id)),
+                    pika.BasicProperties(
+                        user_id=robot,
+                        delivery_mode=2,
+                        message_id=str(event.message_id),
+                        content_type="application/json",
+                    ),
                 )
     finally:
         connection.close()

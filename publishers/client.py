@@ -46,6 +46,7 @@ from fleetbus.schemas.bodies import MapMetadata
 from fleetbus.schemas.envelope import EVENT_ADAPTER, Event, build_event, new_epoch, validate_body
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.notifications import LATE_AFTER_S, Notification
+from fleetbus.schemas.properties import EVENT_CONTENT_TYPE, PERSISTENT
 from fleetbus.schemas.routing import (
     EventType,
     Topic,
@@ -87,8 +88,8 @@ def missed_hazard(hazard: dict[str, Any], now: datetime) -> Notification:
 
 def outgoing(robot_id: str, entry: Entry) -> Outgoing:
     properties = pika.BasicProperties(
-        content_type="application/json",
-        delivery_mode=pika.DeliveryMode.Persistent,
+        content_type=EVENT_CONTENT_TYPE,
+        delivery_mode=PERSISTENT,
         message_id=entry.message_id,
         user_id=robot_id,  # checked by the broker against the login
         timestamp=int(entry.sent_at.timestamp()),

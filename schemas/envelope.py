@@ -4,10 +4,18 @@ An event is known by (robot, epoch, seq). Every start of a robot's client mints 
 (:func:`new_epoch`) and numbers its events 0, 1, 2, ... within it, so a robot whose personal
 database was lost, or two processes with the same account, never reuse a number, and a resend
 (built once, kept in the outbox with its epoch and number) is still an exact duplicate.
+
+What an event *is* beyond its key is its content: its type and its body, compared as validated
+JSON (:func:`content_digest`). A resend is the same key with the same content, whatever optional
+fields it leaves out or stamps anew (``message_id``, ``sent_at``); the same key with other content
+is a reused number. An event sent without a ``message_id`` gets one derived from its key and
+content (:func:`derived_message_id`), so every delivery and every resend of it carries the same.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import secrets
 import uuid
 from datetime import datetime, timezone
@@ -21,6 +29,7 @@ from pydantic import (
     NonNegativeInt,
     TypeAdapter,
     ValidationError,
+    model_validator,
 )
 
 from fleetbus.schemas.bodies import (
@@ -49,10 +58,43 @@ def new_epoch(now: datetime | None = None) -> str:
     return f"{moment:%Y%m%dT%H%M%S}{moment.microsecond // 1000:03d}Z-{secrets.token_hex(4)}"
 
 
-class _EnvelopeBase(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+#: The namespace of the message ids derived for events sent without one (a fixed, random UUID).
+MESSAGE_ID_NAMESPACE = uuid.UUID("6d1f4c1e-5b0a-4e27-9f0c-3f6b1a2e8d47")
 
-    message_id: uuid.UUID = Field(default_factory=uuid.uuid4)
+
+def content_digest(event_type: EventType | str, body: BaseModel) -> str:
+    """SHA-256 of the event's content: its type and its validated body as canonical JSON (keys
+    sorted, no spaces), so key order, white space and optional fields left at their defaults do
+    not change it. Two sends of one (robot, epoch, seq) are one event exactly when these agree."""
+    canonical = json.dumps(
+        {"type": EventType(event_type).value, "body": body.model_dump(mode="json")},
+        sort_keys=True,
+        separators=(",", ":"),
+    )
+    return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+def derived_message_id(robot_id: str, epoch: str, seq: int, digest: str) -> uuid.UUID:
+    """The message id of an event sent without one: the same for every send of the same event."""
+    return uuid.uuid5(MESSAGE_ID_NAMESPACE, f"{robot_id}/{epoch}/{seq}/{digest}")
+
+
+def _type_required(schema: dict[str, Any]) -> None:
+    """``type`` has a default for Python callers, but a message must carry it: the parser picks
+    the event's model by it (a message without one is refused as ``schema``)."""
+    required = schema.setdefault("required", [])
+    if "type" not in required:
+        required.append("type")
+
+
+class _EnvelopeBase(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_type_required)
+
+    message_id: uuid.UUID = Field(
+        default_factory=uuid.uuid4,  # replaced at once by the derived id (_derive_message_id)
+        description="optional: when left out, fleetbus derives it from robot_id, epoch, seq, type "
+        "and body, so a resend of the same event carries the same id",
+    )
     robot_id: RobotId
     epoch: str = Field(
         pattern=EPOCH_PATTERN,
@@ -61,6 +103,14 @@ class _EnvelopeBase(BaseModel):
     seq: NonNegativeInt = Field(description="the event's number within its epoch: 0, 1, 2, ...")
     sent_at: AwareDatetime = Field(default_factory=lambda: datetime.now(timezone.utc))
     schema_version: Literal[2] = SCHEMA_VERSION
+
+    @model_validator(mode="after")
+    def _derive_message_id(self) -> _EnvelopeBase:
+        if "message_id" not in self.model_fields_set:
+            digest = content_digest(self.type, self.body)  # type: ignore[attr-defined]
+            derived = derived_message_id(self.robot_id, self.epoch, self.seq, digest)
+            object.__setattr__(self, "message_id", derived)  # frozen: set once, while validating
+        return self
 
 
 class HazardEvent(_EnvelopeBase):
@@ -149,7 +199,11 @@ def describe_validation_error(error: ValidationError, prefix: str = "") -> list[
     problems = []
     for item in error.errors(include_url=False):
         location = ".".join(str(part) for part in item["loc"]) or "(message)"
-        problems.append(f"{prefix}{location}: {item['msg']}")
+        message = item["msg"]
+        if item["type"] == "union_tag_not_found":  # the discriminator itself is missing
+            location = ".".join([*map(str, item["loc"]), "type"])
+            message = f"Field required (one of {', '.join(t.value for t in EventType)})"
+        problems.append(f"{prefix}{location}: {message}")
     return problems
 
 

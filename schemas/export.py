@@ -18,11 +18,12 @@ def json_schemas() -> dict[str, dict[str, Any]]:
     return schemas
 
 
-def write_json_schemas(directory: Path) -> list[Path]:
-    """``<type>.schema.json`` for every event type, plus ``asyncapi.json`` for the whole bus."""
+def write_json_schemas(directory: Path, **asyncapi: Any) -> list[Path]:
+    """``<type>.schema.json`` for every event type, plus ``asyncapi.json`` for the whole bus (made
+    with ``asyncapi``: :func:`asyncapi_document`'s options)."""
     directory.mkdir(parents=True, exist_ok=True)
     documents = {f"{name}.schema.json": schema for name, schema in json_schemas().items()}
-    documents["asyncapi.json"] = asyncapi_document()
+    documents["asyncapi.json"] = asyncapi_document(**asyncapi)
     written = []
     for filename, document in documents.items():
         path = directory / filename

@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from typing import Annotated
 
-from pydantic import AfterValidator
+from pydantic import AfterValidator, WithJsonSchema
 
 NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_-]{1,31}$")
 RESERVED_PREFIXES = ("fleetbus", "amq", "guest")
@@ -28,4 +28,14 @@ def validate_name(name: str) -> str:
     return name
 
 
-RobotId = Annotated[str, AfterValidator(validate_name)]
+RobotId = Annotated[
+    str,
+    AfterValidator(validate_name),
+    WithJsonSchema(
+        {
+            "type": "string",
+            "pattern": NAME_PATTERN.pattern,
+            "description": "an account name, not starting with " + ", ".join(RESERVED_PREFIXES),
+        }
+    ),
+]

@@ -10,7 +10,8 @@ test fails while it differs from the parser.)
   neoteroi's OAD plugin, called directly: the plugin reads a file from disk, and the document is
   made here in memory), and openapi.json beside it;
 - reference/messages.md: the JSON Schema of every event type, as tables, and the schema files;
-- reference/asyncapi.md: the channels of the AsyncAPI document, and asyncapi.json;
+- reference/asyncapi.md: the AsyncAPI document (the server, the event properties, the channels),
+  and asyncapi.json;
 - performance/runs.md: every benchmark suite report, committed under docs/performance/runs/ or
   left by ``python -m bench`` in bench/results/, newest first.
 
@@ -176,14 +177,44 @@ def asyncapi_page() -> str:
     from fleetbus.schemas.asyncapi import asyncapi_document
 
     document = asyncapi_document()
+    [server] = document["servers"].values()
+    event = document["components"]["messageTraits"]["event"]
     lines = [
-        "# AsyncAPI: the channels",
+        "# AsyncAPI: the contract",
         "",
         f"The bus described as an AsyncAPI {document['asyncapi']} document, generated from the "
         "models and the routing constants in `fleetbus.schemas`: [asyncapi.json](asyncapi.json) "
-        "(`fleetbus schemas DIR` writes it too). Open it in any AsyncAPI tool; a test validates it "
-        "against the official AsyncAPI JSON Schema of its version. Below, each channel: who "
-        "publishes or receives on it, the exchange or queue, and its messages.",
+        "(`fleetbus schemas DIR` writes it too, its server the broker `fleetbus users add` hands out "
+        "there). It is the contract for a robot written in any language ([A robot in another "
+        "language](../guides/robot-client.md#a-robot-in-another-language)); a test validates it "
+        "against the official AsyncAPI JSON Schema of its version and its AMQP bindings, and a "
+        "Node.js robot built from it alone runs in CI.",
+        "",
+        document["info"]["description"],
+        "",
+        "## Connecting",
+        "",
+        f"`{server['protocol']}` (AMQP {server['protocolVersion']}), `{server['url']}`. "
+        + server["description"],
+        "",
+        "## What every event message carries",
+        "",
+        _escape(event["description"]),
+        "",
+        "| AMQP property | required | value | meaning |",
+        "| --- | --- | --- | --- |",
+    ]
+    properties = event["x-amqp-properties"]
+    for name, prop in properties["properties"].items():
+        value = f"`{json.dumps(prop['const'])}`" if "const" in prop else ""
+        required = "yes" if name in properties["required"] else ""
+        lines.append(f"| `{name}` | {required} | {value} | {_escape(prop.get('description', ''))} |")
+    lines += [
+        "",
+        "The body fields each type requires are the `required` lists of its payload schema "
+        "([Message schemas](messages.md)).",
+        "",
+        "## Channels",
         "",
         "| channel | operation | AMQP | messages |",
         "| --- | --- | --- | --- |",

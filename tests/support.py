@@ -221,6 +221,7 @@ class Bus:
         try:
             channel = connection.channel()
             channel.confirm_delivery()
+            properties.setdefault("content_type", "application/json")
             props = pika.BasicProperties(user_id=account.name, delivery_mode=2, **properties)
             channel.basic_publish(f"{account.name}.events", routing_key, body, props, mandatory=True)
         finally:

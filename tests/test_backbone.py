@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import json
+import os
 import sqlite3
+import subprocess
+import sys
 import threading
 
 import pika
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.tls import blocking_connection
+from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
 from tests.factories import TABLE1_TIME, hazard, status
@@ -54,7 +59,10 @@ def _publish_raw(url: str, routing_key: str, body: bytes, user_id: str | None) -
     channel = connection.channel()
     channel.confirm_delivery()
     properties = pika.BasicProperties(
-        delivery_mode=2, user_id=user_id, message_id=f"raw-{routing_key}-{len(body)}"
+        delivery_mode=2,
+        user_id=user_id,
+        message_id=f"raw-{routing_key}-{len(body)}",
+        content_type="application/json",
     )
     channel.basic_publish("explorer1.events", routing_key, body, properties, mandatory=True)
     connection.close()
@@ -85,6 +93,47 @@ def test_bad_input_is_dead_lettered_with_reasons_and_good_input_is_unaffected(bu
     assert "body.pose: Field required" in schema_letter.detail
     assert [r.seq for r in bus.find()] == list(range(200))
     assert bus.dead_letters() == letters, "listing does not consume"
+
+
+def test_an_event_without_the_contracts_properties_is_refused_naming_the_property(bus: Bus) -> None:
+    """No content type, another one, another charset, or transient: each dead-lettered with a reason
+    that names the property, nothing of them stored; `fleetbus dlq` shows why."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    epoch = new_epoch()
+    refused = {
+        1: ({"content_type": None}, "content-type", "has no content_type property"),
+        2: ({"content_type": "text/plain"}, "content-type", "content_type is 'text/plain'"),
+        3: ({"content_type": "application/json; charset=latin-1"}, "content-type", "(UTF-8)"),
+        4: ({"delivery_mode": 1}, "not-persistent", "delivery_mode is 1 (transient)"),
+    }
+    with bus.worker():
+        for seq in (*refused, 5):
+            properties = {"content_type": "application/json", "delivery_mode": 2}
+            properties.update(refused[seq][0] if seq in refused else {})
+            body = encode_event(build_event("hazard", "explorer1", epoch, seq, hazard(seq)))
+            connection = blocking_connection(account.amqp_url)
+            try:
+                channel = connection.channel()
+                channel.confirm_delivery()
+                props = pika.BasicProperties(user_id="explorer1", **properties)
+                channel.basic_publish("explorer1.events", "explorer1.hazard", body, props, mandatory=True)
+            finally:
+                connection.close()
+        wait_for(lambda: bus.count() == 1, what="the one event with the contract's properties stored")
+        letters = wait_for(lambda: (found := bus.dead_letters()) and len(found) == len(refused) and found)
+    assert [r.seq for r in bus.find()] == [5]
+    assert sorted((json.loads(letter.body)["seq"], letter.reason) for letter in letters) == [
+        (seq, reason) for seq, (_, reason, _) in refused.items()
+    ]
+    for letter in letters:
+        assert refused[json.loads(letter.body)["seq"]][2] in letter.detail, letter.detail
+    env = {**os.environ, **bus.worker_env(), "COLUMNS": "250"}
+    listed = subprocess.run(
+        [sys.executable, "-m", "fleetbus", "dlq"], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert listed.returncode == 0, listed.stderr
+    assert "content-type" in listed.stdout and "not-persistent" in listed.stdout
+    assert "content_type is 'text/plain'" in listed.stdout, listed.stdout
 
 
 def test_worker_keeps_running_after_poison_and_later_events_flow(bus: Bus) -> None:

@@ -29,7 +29,11 @@ def publish_raw(url: str, exchange: str, seq: int, headers: dict | None, robot: 
     try:
         confirms = PipelinedConfirms(connection, connection.channel(), timeout=10)
         properties = pika.BasicProperties(
-            delivery_mode=2, user_id=robot, message_id=str(event.message_id), headers=headers
+            delivery_mode=2,
+            user_id=robot,
+            message_id=str(event.message_id),
+            headers=headers,
+            content_type="application/json",
         )
         confirms.publish([Outgoing(exchange, f"{robot}.beacon", encode_event(event), properties)], timeout=10)
     finally:

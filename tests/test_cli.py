@@ -12,6 +12,7 @@ from pathlib import Path
 import yaml
 
 from fleetbus.schemas.routing import EventType
+from fleetbus.schemas.services import METHODS
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 
@@ -61,8 +62,10 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
     assert written == {"event.schema.json", *(f"{t.value}.schema.json" for t in EventType)}
     asyncapi = json.loads((tmp_path / "asyncapi.json").read_text())
     assert set(asyncapi["channels"]) == {
-        "{robot}.{type}",
-        "{robot}.beacon",
+        *(f"{{robot}}.{t.value}" for t in EventType),  # beacons included, on their own exchange
+        *(f"{{robot}}.{method.name}" for method in METHODS),
+        "{robot}.inbox",
+        "amq.rabbitmq.reply-to",
         "{robot}.{command}",
         "{user}.stream",
         "notify.{topic}",
@@ -75,7 +78,7 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
     text = json.dumps(asyncapi)
     targets = {
         f"#/components/{kind}/{name}"
-        for kind in ("schemas", "messages")
+        for kind in ("schemas", "messages", "messageTraits")
         for name in asyncapi["components"][kind]
     }
     assert set(re.findall(r'"\$ref": "([^"]+)"', text)) <= targets, "every $ref resolves"

@@ -12,13 +12,21 @@ from typing import Any
 
 import jsonschema
 import pytest
+from referencing import Registry, Resource
 
 from fleetbus.schemas.asyncapi import asyncapi_document
+from fleetbus.schemas.services import METHODS
+from fleetbus.workers.beacons import beacon_services
+from fleetbus.workers.maps import map_services
+from fleetbus.workers.services import hazard_services
 
 ROOT = Path(__file__).resolve().parent.parent
 # AsyncAPI's own JSON Schema of the 2.6.0 specification, from the npm package @asyncapi/specs 6.11.1
 # (schemas/2.6.0.json; Apache-2.0, see LICENSE and NOTICE beside it)
 ASYNCAPI_SCHEMA = ROOT / "tests" / "data" / "asyncapi" / "asyncapi-2.6.0.schema.json"
+# its AMQP bindings' JSON Schemas, from the same package (bindings/amqp/0.3.0/*.json, and the
+# definitions/3.0.0/specificationExtension.json they refer to)
+AMQP_BINDINGS = ROOT / "tests" / "data" / "asyncapi" / "bindings"
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +50,80 @@ def test_the_asyncapi_document_is_valid_against_the_official_schema_of_its_versi
     document = asyncapi_document()
     assert document["asyncapi"] == "2.6.0"  # the vendored schema is this version's
     assert _errors(asyncapi_validator, document) == []
+
+
+@pytest.fixture(scope="module")
+def binding_validators() -> dict[str, jsonschema.protocols.Validator]:
+    """The official AMQP binding schemas (0.3.0) of channels, operations and messages."""
+    extension = json.loads((AMQP_BINDINGS / "specificationExtension-3.0.0.json").read_text())
+    registry = Registry().with_resource(extension["$id"], Resource.from_contents(extension))
+    validators = {}
+    for kind in ("channel", "operation", "message"):
+        schema = json.loads((AMQP_BINDINGS / "amqp" / "0.3.0" / f"{kind}.json").read_text())
+        validator_class = jsonschema.validators.validator_for(schema)
+        validator_class.check_schema(schema)
+        validators[kind] = validator_class(schema, registry=registry)
+    return validators
+
+
+def _amqp_bindings(document: dict[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
+    """Every AMQP binding of the document: (kind, where, binding)."""
+    found: list[tuple[str, str, dict[str, Any]]] = []
+
+    def message(where: str, item: dict[str, Any]) -> None:
+        for option in item.get("oneOf", [item]):
+            if "amqp" in option.get("bindings", {}):
+                found.append(("message", where, option["bindings"]["amqp"]))
+
+    for name, channel in document["channels"].items():
+        found.append(("channel", name, channel["bindings"]["amqp"]))
+        for kind in ("publish", "subscribe"):
+            if kind in channel:
+                if "amqp" in channel[kind].get("bindings", {}):
+                    found.append(("operation", f"{name} {kind}", channel[kind]["bindings"]["amqp"]))
+                message(f"{name} {kind}", channel[kind]["message"])
+    for name, item in document["components"]["messages"].items():
+        message(name, item)
+    return found
+
+
+def test_every_amqp_binding_is_valid_against_the_official_binding_schemas(
+    binding_validators: dict[str, jsonschema.protocols.Validator],
+) -> None:
+    found = _amqp_bindings(asyncapi_document())
+    assert {kind for kind, _, _ in found} == {"channel", "operation", "message"}
+    problems = [
+        f"{kind} {where}: {error}"
+        for kind, where, binding in found
+        for error in _errors(binding_validators[kind], binding)
+    ]
+    assert problems == []
+    assert {binding["bindingVersion"] for _, _, binding in found} == {"0.3.0"}
+    broken = {"is": "routingKey", "exchange": {"name": "x", "type": "fanout-ish"}, "bindingVersion": "0.3.0"}
+    assert _errors(binding_validators["channel"], broken), "the schemas do catch a wrong binding"
+
+
+def test_the_documented_services_are_the_workers_own() -> None:
+    handlers = {
+        **hazard_services(None, None),  # type: ignore[arg-type]
+        **beacon_services(None, None),  # type: ignore[arg-type]
+        **map_services(None),  # type: ignore[arg-type]
+    }
+    assert [method.name for method in METHODS] == list(handlers)
+    channels = asyncapi_document()["channels"]
+    assert all(f"{{robot}}.{name}" in channels for name in handlers)
+
+
+def test_the_server_is_the_one_robots_are_handed() -> None:
+    [server] = asyncapi_document(broker_url="amqps://broker.example:5999/?cacertfile=/ca.pem")["servers"].values()
+    assert (server["protocol"], server["url"]) == ("amqps", "{host}:{port}")
+    assert {name: v["default"] for name, v in server["variables"].items()} == {
+        "host": "broker.example",
+        "port": "5999",
+    }
+    [default] = asyncapi_document()["servers"].values()
+    assert (default["protocol"], default["variables"]["port"]["default"]) == ("amqps", "5671")
+    assert "cacertfile" in default["description"], "the note that other clients ignore it"
 
 
 def test_the_validation_finds_what_asyncapi_refuses(

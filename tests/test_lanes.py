@@ -12,6 +12,7 @@ import asyncio
 import signal
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from types import SimpleNamespace
 from typing import Any
 
 import aio_pika
@@ -28,7 +29,7 @@ from fleetbus.schemas.routing import (
     RobotKind,
     notification_routing_key,
 )
-from fleetbus.workers.attempts import AttemptLimit
+from fleetbus.workers.attempts import AttemptLimit, attempt_key
 from fleetbus.workers.ingest import IngestConsumer
 from fleetbus.workers.store import Repositories, repositories_for
 from fleetbus.workers.validation import Accepted, Rejected
@@ -171,6 +172,22 @@ async def express_consumer(
 
 
 LIMIT = 3
+
+
+def test_a_message_is_counted_under_one_key_at_every_delivery_with_or_without_a_message_id() -> None:
+    def delivery(tag: int, body: bytes, message_id: str | None = None) -> Any:
+        return SimpleNamespace(
+            user_id="explorer1",
+            exchange="explorer1.events",
+            routing_key="explorer1.hazard",
+            message_id=message_id,
+            body=body,
+            delivery_tag=tag,
+        )
+
+    assert attempt_key(delivery(1, b"{}")) == attempt_key(delivery(7, b"{}")), "no id: still one message"
+    assert attempt_key(delivery(1, b"{}", "m1")) == attempt_key(delivery(9, b"{}", "m1"))
+    assert attempt_key(delivery(1, b"{}", "m1")) != attempt_key(delivery(1, b"[]", "m1")), "an id reused"
 
 
 def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> None:

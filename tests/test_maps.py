@@ -101,7 +101,7 @@ def _publish_raw(url: str, events: list) -> None:
             "type": event_type,
             "body": body,
         }
-        properties = pika.BasicProperties(delivery_mode=2, user_id=robot)
+        properties = pika.BasicProperties(delivery_mode=2, user_id=robot, content_type="application/json")
         channel.basic_publish(
             f"{robot}.events", f"{robot}.{event_type}", json.dumps(envelope).encode(), properties
         )

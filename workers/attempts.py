@@ -19,13 +19,18 @@ from datetime import datetime, timezone
 
 from aio_pika.abc import AbstractIncomingMessage
 
+from fleetbus.broker.dead_letter_queue import dead_letter_key
 from fleetbus.workers.store.attempts import AttemptLog
 from fleetbus.workers.validation import Rejected, RejectReason
 
 
 def attempt_key(message: AbstractIncomingMessage) -> str:
-    """The broker-validated publisher and the message id (a robot's ids are its own)."""
-    return f"{message.user_id or ''}:{message.message_id or message.delivery_tag}"
+    """The same for every delivery of one message: a digest of its broker-validated publisher,
+    route, message id and body. Not the delivery tag (new at each delivery), so a message sent
+    without a message id is counted too; not the message id alone, which a client may repeat."""
+    return dead_letter_key(
+        message.user_id, message.exchange or "", message.routing_key or "", message.message_id, message.body
+    )
 
 
 class AttemptLimit:

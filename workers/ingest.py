@@ -282,12 +282,13 @@ class IngestConsumer:
         accepted: list[Accepted] = []
         for (message, item), result in zip(candidates, results, strict=True):
             record = item.record
-            if not result.inserted and not result.pruned and result.stored_message_id != record.message_id:
+            if result.reused(record):
                 # Each client start numbers in an epoch of its own, so only a client that is not
-                # fleetbus's (or a bug) can send one number twice with two messages.
+                # fleetbus's (or a bug) can send one number twice with two events.
                 detail = (
                     f"{record.robot_id} reused sequence number {record.seq} of epoch {record.epoch}: "
-                    f"message {record.message_id} is not the stored {result.stored_message_id}"
+                    f"message {record.message_id} is another event than the stored "
+                    f"{result.stored_message_id} (its type or body differ)"
                 )
                 await self._reject(message, Rejected(RejectReason.SEQUENCE_REUSED, detail))
                 continue

@@ -4,30 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from enum import Enum
 from typing import Any
 
 from aio_pika.abc import AbstractIncomingMessage
 
-from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, parse_event
+from fleetbus.schemas.envelope import Event, NotJSONError, SchemaError, content_digest, parse_event
+from fleetbus.schemas.properties import content_type_problem, delivery_mode_problem
+from fleetbus.schemas.rejections import RejectReason
 from fleetbus.schemas.routing import SHOVELLED_HEADER, EventType, publish_exchange, split_event_routing_key
 from fleetbus.workers.store.base import EventRecord
-
-
-class RejectReason(str, Enum):
-    TOO_LARGE = "too-large"
-    NOT_JSON = "not-json"
-    SCHEMA = "schema"
-    UNKNOWN_TYPE = "unknown-type"
-    NO_USER_ID = "no-user-id"
-    IDENTITY_MISMATCH = "identity-mismatch"
-    UNKNOWN_ROBOT = "unknown-robot"
-    BAD_MAP = "bad-map"
-    WRONG_EXCHANGE = "wrong-exchange"
-    SEQUENCE_REUSED = "sequence-reused"
-    DELIVERY_LIMIT = "delivery-limit"
-    INTERNAL_ERROR = "internal-error"
-    """Not the message's fault: handling it raised an unexpected error (a bug, logged with its traceback)."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +49,10 @@ def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rej
         return Rejected(
             RejectReason.NO_USER_ID, "the message has no user_id property, so its origin is unproven"
         )
+    if problem := content_type_problem(message.content_type):
+        return Rejected(RejectReason.CONTENT_TYPE, problem)
+    if problem := delivery_mode_problem(message.delivery_mode):
+        return Rejected(RejectReason.NOT_PERSISTENT, problem)
     routing_key = message.routing_key or ""
     try:
         key_robot, key_type = split_event_routing_key(routing_key)
@@ -113,4 +102,5 @@ def event_record(
         user_id=user_id,
         exchange=exchange,
         routing_key=routing_key,
+        digest=content_digest(event.type, event.body),
     )

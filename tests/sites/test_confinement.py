@@ -28,7 +28,9 @@ def publish_as_site(pair: SitePair, robot: str, user_id: str, key_robot: str | N
     try:
         channel = connection.channel()
         channel.confirm_delivery()
-        properties = pika.BasicProperties(user_id=user_id, delivery_mode=2, headers={"x-shovelled": []})
+        properties = pika.BasicProperties(
+            user_id=user_id, delivery_mode=2, headers={"x-shovelled": []}, content_type="application/json"
+        )
         channel.basic_publish(
             f"{robot}.events",
             f"{key_robot or user_id}.hazard",

@@ -94,6 +94,32 @@ async def test_a_write_that_finds_its_key_taken_says_by_which_message(store: Rep
     ]
 
 
+async def test_a_key_holds_one_content_whatever_message_id_a_send_carries(store: Repositories) -> None:
+    """Same (robot, epoch, seq) and same content digest: the stored event, whichever message id the
+    resend carries (a client that mints one per send); another digest: a reused number, even under
+    the stored message id. Records stored without a digest are told apart by their message ids."""
+    first = replace(record(seq=5), digest="d" * 64)
+    legacy = record(seq=6)  # stored without a digest
+    await store.events.write_events([first, legacy])
+    resent = replace(first, message_id="minted-again")
+    reused = replace(first, digest="e" * 64)
+    legacy_resent, legacy_reused = replace(legacy, digest="f" * 64), replace(legacy, message_id="other")
+    batch = [resent, reused, legacy_resent, legacy_reused]
+    stored = await store.events.store_batch(batch, T1)
+    assert [(r.stored_message_id, r.stored_digest) for r in stored.results] == [
+        (first.message_id, first.digest),
+        (first.message_id, first.digest),
+        (legacy.message_id, None),
+        (legacy.message_id, None),
+    ]
+    pairs = list(zip(stored.results, batch, strict=True))
+    assert [r.holds(item) for r, item in pairs] == [True, False, True, False]
+    assert [r.reused(item) for r, item in pairs] == [False, True, False, True]
+    found = {r.seq: r for r in await store.events.find_events(EventQuery(robot_id="explorer1"))}
+    assert found[5] == first and found[6] == legacy, "what was stored stays"
+    assert await store.events.high_water("explorer1", EPOCH) == 6
+
+
 def test_the_ledger_does_not_depend_on_the_order_it_sees_numbers_in() -> None:
     numbers = [0, 2, 3, 7, 9, 12]
     outcomes = set()

@@ -51,6 +51,10 @@ class EventRecord:
     exchange: str
     routing_key: str
     mission_id: str | None = None
+    digest: str | None = None
+    """The event's content (:func:`fleetbus.schemas.envelope.content_digest`): what tells a resend
+    (the same) from a reused number (another). None for a record stored without one: compared by
+    message id."""
 
     @property
     def key(self) -> tuple[str, str, int]:
@@ -68,8 +72,10 @@ class WriteResult:
     inserted: bool
     """False when a record with the same (robot_id, epoch, seq) was already stored."""
     stored_message_id: str | None = None
-    """When not inserted: the message id of the record already stored under that key. The same id
-    means a resend or redelivery; another id means the robot reused a sequence number."""
+    """When not inserted: the message id of the record already stored under that key."""
+    stored_digest: str | None = None
+    """When not inserted: the content digest of the record already stored under that key (None
+    for one stored without)."""
     rewritten: bool = False
     """When not inserted: the stored record is this very one (same message id, same receive time),
     so an earlier attempt of this write stored it (its answer lost: the store timed out, say). Not
@@ -77,6 +83,22 @@ class WriteResult:
     pruned: bool = False
     """When not inserted: the ledger had seen this number but its event has been pruned since, so a
     resend of an old event is not stored a second time (and reuse of the number cannot be told)."""
+
+    def holds(self, record: EventRecord) -> bool:
+        """Whether the store holds ``record``'s event under its key: written now, or already, with
+        the same content (a resend or a redelivery, whatever message id it carries). False for a
+        reused number (another event holds the key) and for a pruned one (cannot be told)."""
+        if self.inserted:
+            return True
+        if self.pruned:
+            return False
+        if self.stored_digest is not None and record.digest is not None:
+            return self.stored_digest == record.digest
+        return self.stored_message_id == record.message_id
+
+    def reused(self, record: EventRecord) -> bool:
+        """Whether ``record`` reuses its number: another event is stored under its key."""
+        return not self.inserted and not self.pruned and not self.holds(record)
 
 
 @dataclass(frozen=True)

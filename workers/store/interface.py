@@ -58,6 +58,6 @@ def held_sequences(
         [
             record
             for record, result in zip(records, results, strict=True)
-            if result.inserted or result.stored_message_id == record.message_id
+            if result.holds(record)
         ]
     )

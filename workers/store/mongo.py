@@ -73,6 +73,7 @@ def to_document(record: EventRecord) -> dict[str, Any]:
         "exchange": record.exchange,
         "routing_key": record.routing_key,
         "mission_id": record.mission_id,
+        "digest": record.digest,
     }
 
 
@@ -90,6 +91,7 @@ def from_document(doc: dict[str, Any]) -> EventRecord:
         exchange=doc["exchange"],
         routing_key=doc["routing_key"],
         mission_id=doc.get("mission_id"),
+        digest=doc.get("digest"),
     )
 
 
@@ -149,7 +151,12 @@ def _result(document: dict[str, Any], stored: dict[str, dict[str, Any]]) -> Writ
         document["message_id"],
         document["received_at_us"],
     )
-    return WriteResult(inserted=False, stored_message_id=found["message_id"], rewritten=same)
+    return WriteResult(
+        inserted=False,
+        stored_message_id=found["message_id"],
+        stored_digest=found.get("digest"),
+        rewritten=same,
+    )
 
 
 @translate_unavailable(EventLog)
@@ -209,7 +216,8 @@ class MongoEventLog(MongoLedger, EventLog):
         if taken:
             try:
                 ids = list({documents[index]["_id"] for index in taken})
-                cursor = self._events().find({"_id": {"$in": ids}}, ["message_id", "received_at_us"])
+                fields = ["message_id", "received_at_us", "digest"]
+                cursor = self._events().find({"_id": {"$in": ids}}, fields)
                 stored = {doc["_id"]: doc async for doc in cursor}
             except PyMongoError as error:
                 raise_as_store_error(error, self._safe_url())

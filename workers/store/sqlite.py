@@ -60,6 +60,7 @@ CREATE TABLE IF NOT EXISTS events (
     exchange    TEXT    NOT NULL,
     routing_key TEXT    NOT NULL,
     mission_id  TEXT,
+    digest      TEXT,
     PRIMARY KEY (robot_id, epoch, seq)
 ) WITHOUT ROWID;
 CREATE INDEX IF NOT EXISTS events_type_time ON events (type, sent_at);
@@ -70,14 +71,25 @@ CREATE INDEX IF NOT EXISTS events_received ON events (received_at);
 """
 COLUMNS = (
     "robot_id, epoch, seq, type, message_id, sent_at, received_at, body, user_id, exchange, routing_key, "
-    "mission_id"
+    "mission_id, digest"
 )
 # Unlike INSERT OR IGNORE, this skips only an existing key: a NOT NULL violation still raises
 # instead of being reported as a duplicate.
 INSERT = (
-    f"INSERT INTO events ({COLUMNS}) VALUES ({','.join('?' * 12)}) "
+    f"INSERT INTO events ({COLUMNS}) VALUES ({','.join('?' * 13)}) "
     "ON CONFLICT (robot_id, epoch, seq) DO NOTHING"
 )
+
+
+def add_event_columns(db: sqlite3.Connection) -> None:
+    """Add ``digest`` to an ``events`` table made before it (its rows keep NULL: compared by
+    message id); idempotent."""
+    if "digest" not in {row[1] for row in db.execute("PRAGMA table_info(events)")}:
+        try:
+            db.execute("ALTER TABLE events ADD COLUMN digest TEXT")
+        except sqlite3.OperationalError as error:  # the other connection added it first
+            if "duplicate column" not in str(error):
+                raise
 
 
 def _row(record: EventRecord) -> tuple[Any, ...]:
@@ -94,6 +106,7 @@ def _row(record: EventRecord) -> tuple[Any, ...]:
         record.exchange,
         record.routing_key,
         record.mission_id,
+        record.digest,
     )
 
 
@@ -108,12 +121,15 @@ def _write(db: sqlite3.Connection, records: Sequence[EventRecord]) -> list[Write
             results.append(WriteResult(inserted=True))
             continue
         stored = db.execute(
-            "SELECT message_id, received_at FROM events WHERE robot_id = ? AND epoch = ? AND seq = ?",
+            "SELECT message_id, received_at, digest FROM events WHERE robot_id = ? AND epoch = ? AND seq = ?",
             row[:3],
         ).fetchone()
         results.append(
             WriteResult(
-                inserted=False, stored_message_id=stored[0], rewritten=tuple(stored) == (row[4], row[6])
+                inserted=False,
+                stored_message_id=stored[0],
+                stored_digest=stored[2],
+                rewritten=(stored[0], stored[1]) == (row[4], row[6]),
             )
             if stored
             else WriteResult(inserted=False, pruned=True)
@@ -135,6 +151,7 @@ def _record(row: sqlite3.Row) -> EventRecord:
         exchange=row["exchange"],
         routing_key=row["routing_key"],
         mission_id=row["mission_id"],
+        digest=row["digest"],
     )
 
 
@@ -160,6 +177,7 @@ class SQLiteFile(SQLiteDatabase):
             SITE_SCHEMA,
         ):
             db.executescript(schema)
+        add_event_columns(db)
         add_hazard_columns(db)
 
 

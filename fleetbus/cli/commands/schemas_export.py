@@ -1,4 +1,4 @@
-"""``fleetbus schemas DIR``: write the JSON Schema of every message and the AsyncAPI document."""
+"""``fleetbus schemas DIR``: write the JSON Schema of every message, and the AsyncAPI document."""
 
 from __future__ import annotations
 
@@ -7,8 +7,20 @@ from typing import Annotated
 
 import typer
 
-from fleetbus.cli.context import console
+from fleetbus.cli.context import console, settings
 from fleetbus.schemas.export import write_json_schemas
+from fleetbus.settings import Settings
+
+
+def robots_broker(config: Settings) -> str | None:
+    """The broker address `fleetbus users add` hands robots, from the settings and the private
+    node's state alone (nothing is started or asked): ``FLEETBUS_PUBLIC_AMQP_URL``, else
+    ``FLEETBUS_AMQP_URL``'s, else the private node's AMQPS listener once it has run."""
+    if config.public_amqp_url or config.amqp_url:
+        return config.public_amqp_url or config.amqp_url
+    from fleetbus.dev.fallback import local_node
+
+    return local_node(config).public_url()
 
 
 def export_schemas(
@@ -18,6 +30,10 @@ def export_schemas(
 ) -> None:
     """Write the JSON Schema of every event type (<type>.schema.json, and event.schema.json for the
     envelope of any type) and asyncapi.json, the AsyncAPI document of the bus: its channels
-    (exchanges and queues) and the messages on each."""
-    for path in write_json_schemas(directory):
+    (exchanges and queues), the messages on each, and its server: the broker robots are handed here."""
+    config = settings()
+    written = write_json_schemas(
+        directory, broker_url=robots_broker(config), max_message_bytes=config.max_message_bytes
+    )
+    for path in written:
         console.print(f"wrote {path}")
