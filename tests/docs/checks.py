@@ -7,8 +7,9 @@
 - ``python -m bench...``: the benchmark's own argparse parser reads the arguments, and the run
   stops there;
 - ``pip install 'fleetbus[EXTRA]'`` and ``pip install PACKAGE``: the extra exists, or the package
-  is one of the project's extras;
+  is one of the project's extras or outside peers (``tests/peers/requirements.in``);
 - ``bash scripts/NAME``: the script exists;
+- ``sslyze ...``: its options are the pinned sslyze's (``.venv-peers``), its targets HOST:PORT;
 - shell builtins (``export``, a function definition, ``cp``): nothing to parse.
 
 Any other program has no check here: the test says so, so that one is added with its command.
@@ -22,6 +23,7 @@ import io
 import re
 import runpy
 import shlex
+import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -159,18 +161,28 @@ def extras() -> dict[str, list[str]]:
     return found
 
 
+def peer_packages() -> set[str]:
+    """The outside peers a page may tell a reader to install (``tests/peers/requirements.in``)."""
+    lines = (ROOT / "tests" / "peers" / "requirements.in").read_text().splitlines()
+    names = (re.split(r"[<>=\[ ;#]", line.strip(), maxsplit=1)[0] for line in lines)
+    return {name for name in names if name[:1].isalnum()}
+
+
 def check_pip(args: list[str]) -> str | None:
     if args[:1] != ["install"]:
         return f"pip {args[:1]}: only `pip install` is checked here"
     known = extras()
+    peers = peer_packages()
     for requirement in (word for word in args[1:] if not word.startswith("-")):
         name, _, extra = requirement.partition("[")
         if name == "fleetbus":
             missing = [each for each in extra.rstrip("]").split(",") if each and each not in known]
             if missing:
                 return f"fleetbus has no extra {missing}"
-        elif not any(re.match(re.escape(name) + r"\b", each) for deps in known.values() for each in deps):
-            return f"{name} is in none of the project's extras"
+        elif name not in peers and not any(
+            re.match(re.escape(name) + r"\b", each) for deps in known.values() for each in deps
+        ):
+            return f"{name} is in none of the project's extras, nor an outside peer (tests/peers)"
     return None
 
 
@@ -189,6 +201,26 @@ def check_curl(args: list[str]) -> str | None:
         if re.fullmatch(re.sub(r"\\{[^}]+\\}", "[^/]+", re.escape(route)), path) and method in operations:
             return None
     return f"the HTTP API has no {method.upper()} {path}"
+
+
+def check_sslyze(args: list[str]) -> str | None:
+    """Every option is one the pinned sslyze (``.venv-peers``) knows, and every target HOST:PORT."""
+    from tests.peers import peer_command
+
+    shown = subprocess.run([peer_command("sslyze"), "--help"], capture_output=True, text=True, check=True)
+    known = set(re.findall(r"(--\w+)", shown.stdout))
+    unknown = [word for word in args if word.startswith("--") and word.split("=", 1)[0] not in known]
+    if unknown:
+        return f"sslyze knows no {unknown}"
+    takes_value = {"--certinfo_ca_file", "--json_out", "--targets_in", "--cert", "--key", "--keyform",
+                   "--mozilla_config"}
+    targets = [
+        word
+        for word, before in zip(args, ["", *args[:-1]], strict=True)
+        if not word.startswith("-") and before not in {*takes_value, "--pass"}
+    ]
+    bad = [word for word in targets if not re.fullmatch(r"[\w.-]+:\d+(\{[\w.-]+\})?", word)]
+    return f"sslyze targets are HOST:PORT, not {bad}" if bad or not targets else None
 
 
 def check_argv(argv: list[str]) -> str | None:
@@ -211,6 +243,8 @@ def check_argv(argv: list[str]) -> str | None:
         return None if any("py-spy" in dep for dep in extras().get("profile", [])) else "py-spy: no extra"
     if name == "curl":
         return check_curl(args)
+    if name == "sslyze":
+        return check_sslyze(args)
     if name == "bash" and args and args[0].startswith("scripts/"):
         return None if (ROOT / args[0]).is_file() else f"no {args[0]}"
     return f"{program}: nothing checks this program's arguments here; add a check in tests/docs/checks.py"

@@ -9,9 +9,10 @@ checkout's console script (``.venv/bin`` first on the PATH).
 
 Each command runs in ``bash -c`` with the environment the page's earlier commands left
 (``export`` carries on), its standard input empty. A command that runs until stopped (see
-``SERVERS``), or one ending in ``&``, is started in the background, awaited until it is ready,
-and stopped with Ctrl-C (SIGINT) once the page's last command ran; it must still be running then
-and exit cleanly.
+``SERVERS``) is started in the background, awaited until it is ready, and stopped with Ctrl-C
+(SIGINT) once the page's last command ran; it must still be running then and exit cleanly. Any
+other command ending in ``&`` is a job: it runs beside the next commands and must end with status
+0 by the page's next ``wait`` (or by its end).
 
 What the test puts in a command, declared here and nowhere else (docs/contributing.md):
 
@@ -93,6 +94,7 @@ class Sandbox:
     env: dict[str, str]
     api_port: int = field(default_factory=free_port)
     servers: list[Server] = field(default_factory=list)
+    jobs: list[Server] = field(default_factory=list)  # ``cmd &`` that ends by itself
     published: list[tuple[str, str, str]] = field(default_factory=list)  # (type, message id, robot)
     tools: dict[str, dict[str, str]] = field(default_factory=dict)  # a program's own environment
 
@@ -103,6 +105,8 @@ class Sandbox:
         for entry in ROOT.iterdir():
             if entry.name not in (".fleetbus", ".git", "site"):
                 (folder / entry.name).symlink_to(entry)
+        # where a reader's files are (the default data directory, ./.fleetbus) is the sandbox's
+        (folder / ".fleetbus").symlink_to(bus.settings.data_dir, target_is_directory=True)
         bus.service_accounts()  # what `fleetbus setup` (run by `scripts/setup`) made
         # the run's CA and certificates, copied: what `certs make` and `users add --cert` change is
         # the sandbox's, and what they sign the broker trusts
@@ -153,7 +157,8 @@ class Sandbox:
                 self.run(command)
         except AssertionError as failure:
             logs = "\n".join(
-                f"{each.command.where}: `{each.command.text}`:\n{each.output()}" for each in self.servers
+                f"{each.command.where}: `{each.command.text}`:\n{each.output()}"
+                for each in (*self.servers, *self.jobs)
             )
             with contextlib.suppress(AssertionError):
                 self.stop_servers()
@@ -167,8 +172,15 @@ class Sandbox:
         text = self.filled(command)
         argv = words(text)
         path, params = fleetbus_path(argv[1:]) if argv and Path(argv[0]).name == "fleetbus" else ((), {})
-        if tuple(path) in SERVERS or text.rstrip().split("#", 1)[0].rstrip().endswith("&"):
+        background = text.rstrip().split("#", 1)[0].rstrip().endswith("&")
+        if tuple(path) in SERVERS:
             self.start_server(command, text, tuple(path), params)
+            return
+        if background:
+            self.start_job(command, text)
+            return
+        if text.split("#", 1)[0].strip() == "wait":
+            self.wait_jobs(command)
             return
         if argv[:1] == ["curl"] and not any(
             word.startswith("--fail") or re.fullmatch(r"-[a-zA-Z]*f[a-zA-Z]*", word) for word in argv
@@ -310,8 +322,49 @@ class Sandbox:
         except httpx.HTTPError:
             return False
 
+    # --- what runs in the background and ends by itself (``cmd &`` ... ``wait``) -----------------
+
+    def start_job(self, command: Command, text: str) -> None:
+        """A command ending in ``&`` that is not a server: it runs in ``bash -c`` beside the page's
+        next commands, as in a reader's shell, and must have ended with status 0 by the page's
+        ``wait`` (or its end)."""
+        log = self.folder.parent / f"job-{len(self.jobs)}.log"
+        script = text.split("#", 1)[0].rstrip().removesuffix("&")
+        process = subprocess.Popen(
+            ["bash", "-c", script],
+            cwd=self.folder,
+            env=self.env,
+            stdin=subprocess.DEVNULL,
+            stdout=log.open("wb"),
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        self.jobs.append(Server(command, (), {}, process, log))
+
+    def wait_jobs(self, command: Command | None = None) -> None:
+        """``wait``: every background job ends, each with status 0."""
+        problems = []
+        for job in self.jobs:
+            try:
+                status = job.process.wait(COMMAND_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                os.killpg(job.process.pid, signal.SIGKILL)
+                job.process.wait()
+                problems.append(f"{job.command.where}: `{job.command.text}` did not end within "
+                                f"{COMMAND_TIMEOUT_S:.0f} s:\n{job.output()}")
+                continue
+            if status != 0:
+                problems.append(
+                    f"{job.command.where}: `{job.command.text}` exited with {status}:\n{job.output()}"
+                )
+        self.jobs.clear()
+        where = f"{command.where}: " if command is not None else ""
+        assert not problems, where + "\n\n".join(problems)
+
     def stop_servers(self) -> None:
-        """Ctrl-C to each, newest first: each must still run, and end cleanly."""
+        """Every job waited for; then Ctrl-C to each server, newest first: each must still run, and
+        end cleanly."""
+        self.wait_jobs()
         problems = []
         for server in reversed(self.servers):
             process = server.process
