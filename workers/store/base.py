@@ -14,6 +14,10 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, NamedTuple
 
+#: The largest integer a store keeps or takes in a query: SQLite's and MongoDB's are signed 64-bit.
+#: An id beyond it names nothing stored; an offset beyond it skips every row there can be.
+LARGEST_INTEGER = 2**63 - 1
+
 
 def to_micros(moment: datetime) -> int:
     """Integer microseconds since the epoch: exact, sortable, the same in every adapter."""

@@ -284,7 +284,8 @@ class CoordinationStore(abc.ABC):
         self, limit: int, offset: int = 0, state: HazardState | None = None
     ) -> list[Hazard]:
         """Every hazard (or those in ``state``), cleared ones too, of every mission, newest first
-        (by the time it was received): ``limit`` of them after skipping the ``offset`` newest."""
+        (by the time it was received): ``limit`` of them after skipping the ``offset`` newest (any
+        offset: one past :data:`~fleetbus.workers.store.base.LARGEST_INTEGER` gives none)."""
 
     @abc.abstractmethod
     async def hazard_counts(self) -> dict[HazardState, int]:

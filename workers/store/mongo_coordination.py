@@ -9,7 +9,7 @@ from typing import Any
 from pymongo import ASCENDING, DESCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
-from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.base import LARGEST_INTEGER, from_micros, to_micros
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
 from fleetbus.workers.store.hazards import (
     CoordinationStore,
@@ -248,7 +248,8 @@ class MongoCoordination(OnMongo, CoordinationStore):
     ) -> list[Hazard]:
         newest_first = [("received_at_us", DESCENDING), ("mission_id", DESCENDING), ("hazard_id", DESCENDING)]
         query = {"state": state.value} if state is not None else {}
-        cursor = self._collection("hazards").find(query).sort(newest_first).skip(offset).limit(limit)
+        skip = min(offset, LARGEST_INTEGER)
+        cursor = self._collection("hazards").find(query).sort(newest_first).skip(skip).limit(limit)
         return [_hazard(doc) async for doc in cursor]
 
     async def hazard_counts(self) -> dict[HazardState, int]:
