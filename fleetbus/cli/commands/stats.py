@@ -23,7 +23,7 @@ from fleetbus.cli.context import (
     settings,
     with_recording,
 )
-from fleetbus.workers.recorder.growth import Growth, growth
+from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
 from fleetbus.workers.store import StoreError, run_with_repositories
 from fleetbus.workers.store.housekeeping import BoundCount
 from fleetbus.workers.store.statuses import WorkerStatus
@@ -32,9 +32,11 @@ UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
 
 
 def parse_every(text: str) -> timedelta:
-    if text[-1:] in UNITS and text[:-1].isdigit() and int(text[:-1]) > 0:
-        return timedelta(seconds=int(text[:-1]) * UNITS[text[-1]])
-    fail(f"--every {text!r}: write a duration like 1m, 10m or 1h", code=2)
+    if text[-1:] in UNITS and text[:-1].isdigit():
+        every = timedelta(seconds=int(text[:-1]) * UNITS[text[-1]])
+        if SHORTEST_BUCKET <= every <= LONGEST_BUCKET:
+            return every
+    fail(f"--every {text!r}: write a duration from 1s to 1d, like 1m, 10m or 1h", code=2)
 
 
 def _view(item: Growth) -> dict[str, object]:
