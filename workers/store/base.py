@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, NamedTuple
 
-#: The largest integer a store keeps or takes in a query: SQLite's and MongoDB's are signed 64-bit.
-#: An id beyond it names nothing stored; an offset beyond it skips every row there can be.
+#: The largest integer a store keeps: SQLite's and MongoDB's are signed 64-bit. An id beyond it
+#: names nothing stored.
 LARGEST_INTEGER = 2**63 - 1
 
 

@@ -9,8 +9,9 @@ from datetime import datetime
 from typing import Any, TypeVar
 
 from fleetbus.schemas.routing import RobotKind
-from fleetbus.workers.store.base import LARGEST_INTEGER, from_micros, to_micros
+from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.hazards import (
+    MOST_HAZARDS,
     CoordinationStore,
     Hazard,
     HazardState,
@@ -283,8 +284,9 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
             f"SELECT * FROM hazards{where} ORDER BY received_at DESC, mission_id DESC, hazard_id DESC "
             "LIMIT ? OFFSET ?"
         )
-        skip = min(offset, LARGEST_INTEGER)
-        rows = await self._run(lambda db: db.execute(sql, (*params, limit, skip)).fetchall())
+        if offset > MOST_HAZARDS:
+            return []
+        rows = await self._run(lambda db: db.execute(sql, (*params, limit, offset)).fetchall())
         return [_hazard(row) for row in rows]
 
     async def hazard_counts(self) -> dict[HazardState, int]:
