@@ -16,6 +16,7 @@ or demote another role's user while that one is being tested.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
@@ -33,6 +34,7 @@ CHECKS = (
     "response_schema_conformance",
     "negative_data_rejection",
 )
+PHASES = "examples,coverage,fuzzing"
 SEED = 20261127
 MAX_EXAMPLES = 8
 CONFIG = PEERS / "schemathesis.toml"
@@ -53,7 +55,7 @@ def schemathesis_command(base: str, token: str, report: Path, operation_ids: lis
         "--checks",
         ",".join(CHECKS),
         "--phases",
-        "examples,coverage,fuzzing",
+        PHASES,
         "--seed",
         str(SEED),
         "--max-examples",
@@ -108,3 +110,16 @@ def test_every_role_gets_only_answers_the_openapi_document_promises(bus: Bus, tm
         if report["exit_code"] != 0 or report["failures"] or report["errors"] or not operations["tested"]:
             failed.append(f"--- as {role}:\n{output}")
     assert not failed, "\n".join(failed)
+
+
+def test_the_docs_show_the_command_the_suite_runs() -> None:
+    """The guide's command, and the HTTP API reference's, run what this test runs."""
+    spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "scripts" / "docs_hooks.py")
+    assert spec is not None and spec.loader is not None
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    pages = {"guide": (ROOT / "docs/guides/service-layer.md").read_text(), "reference": hooks.http_api_page()}
+    for page, text in pages.items():
+        assert f"schemathesis --config-file {CONFIG.relative_to(ROOT)} run" in text, page
+        assert f"--checks {','.join(CHECKS)} " in text, page
+        assert f"--phases {PHASES} --seed {SEED} --max-examples {MAX_EXAMPLES}" in text, page
