@@ -78,6 +78,7 @@ def problem_response(
 
 
 def field_problems(error: RequestValidationError) -> list[FieldProblem]:
+    """Each bad field, without the value sent (it may be a password)."""
     return [FieldProblem(loc=list(e["loc"]), msg=e["msg"], type=e["type"]) for e in error.errors()]
 
 
