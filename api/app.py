@@ -2,57 +2,28 @@
 
 ``create_app`` builds the app for one broker (as administrator) and the settings' store; the
 ``fleetbus api`` command serves it with uvicorn. The OpenAPI document is at ``/openapi.json``
-(and ``/docs``); each operation lists the roles it admits under ``x-roles``.
+(and ``/docs``); each operation lists the roles it admits under ``x-roles`` and the refusals it
+can answer with, every one an RFC 9457 problem (:mod:`fleetbus.api.openapi`,
+:mod:`fleetbus.api.problems`).
 """
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import APIRouter, FastAPI, HTTPException, Request
-from fastapi.dependencies.models import Dependant
-from fastapi.responses import JSONResponse, PlainTextResponse
-from fastapi.routing import APIRoute
+from fastapi import FastAPI, HTTPException
+from fastapi.responses import PlainTextResponse
 
-from fleetbus.api import audit
-from fleetbus.api.auth import RoleCheck
 from fleetbus.api.console.feed import running_feed
 from fleetbus.api.console.router import install_console
-from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.openapi import document, refusals, with_problem_schemas
+from fleetbus.api.problems import install_problem_handlers
 from fleetbus.api.routes import auth, beacons, channels, hazards, missions, recording, team, users
 from fleetbus.api.service import open_service
 from fleetbus.broker.certificates import TlsFiles
-from fleetbus.schemas.roles import UserRole
 from fleetbus.settings import Settings
-from fleetbus.workers.store.base import StoreUnavailable
-
-
-def _role_checks(dependant: Dependant) -> Iterator[RoleCheck]:
-    for sub in dependant.dependencies:
-        if isinstance(sub.call, RoleCheck):
-            yield sub.call
-        yield from _role_checks(sub)
-
-
-def route_roles(route: APIRoute) -> list[UserRole]:
-    """The roles a route admits (every role check on it must pass)."""
-    admitted = set(UserRole)
-    for check in _role_checks(route.dependant):
-        admitted &= check.roles
-    return sorted(admitted, key=list(UserRole).index)
-
-
-def document_roles(router: APIRouter) -> APIRouter:
-    """Put each route's roles in its OpenAPI operation (``x-roles``) and description."""
-    for route in router.routes:
-        already = isinstance(route, APIRoute) and "x-roles" in (route.openapi_extra or {})
-        if isinstance(route, APIRoute) and not already and any(True for _ in _role_checks(route.dependant)):
-            roles = route_roles(route)
-            route.openapi_extra = {**(route.openapi_extra or {}), "x-roles": [r.value for r in roles]}
-            route.description = (route.description or "") + f"\n\nRoles: {', '.join(r.value for r in roles)}."
-    return router
 
 
 def create_app(
@@ -70,8 +41,14 @@ def create_app(
         title="fleetbus service layer",
         version="0.1.0",
         description="Accounts and roles, missions and their state machines, mount and check-in of "
-        "robots. Log in at POST /auth/token; send the token as 'Authorization: Bearer <token>'.",
+        "robots. Log in at POST /auth/token; send the token as 'Authorization: Bearer <token>'. "
+        "Every refusal is an RFC 9457 problem (application/problem+json, the Problem schema): "
+        "type, title, status, detail (what went wrong, in words) and instance (the request's "
+        "path); a request that is not valid also gets errors, each bad field with its location "
+        "(loc), what is wrong (msg) and its kind (type).",
         lifespan=lifespan,
+        # each operation's id is its function's name: what a generated client calls it
+        generate_unique_id_function=lambda route: route.name,
     )
     for router in (
         auth.router,
@@ -83,32 +60,30 @@ def create_app(
         team.router,
         hazards.router,
     ):
-        app.include_router(document_roles(router))
+        app.include_router(document(router))
 
     install_console(app)
 
-    @app.get("/ca.pem", tags=["health"], response_class=PlainTextResponse)
+    @app.get(
+        "/ca.pem",
+        tags=["health"],
+        response_class=PlainTextResponse,
+        responses=refusals(404),
+    )
     async def ca_certificate() -> PlainTextResponse:
-        """The CA certificate (PEM) robots and clients verify the broker and this API with: public,
-        no login needed (``FLEETBUS_TLS_CA``, else the one ``fleetbus certs make`` made)."""
+        """The CA certificate (PEM, a text: ``text/plain``) robots and clients verify the broker and
+        this API with: public, no login needed (``FLEETBUS_TLS_CA``, else the one ``fleetbus certs
+        make`` made)."""
         path = TlsFiles.for_settings(settings).ca
         if not path.exists():
             raise HTTPException(404, detail=f"no CA certificate here ({path}): run `fleetbus certs make`")
-        return PlainTextResponse(path.read_text(), media_type="application/x-pem-file")
+        return PlainTextResponse(path.read_text())
 
     @app.get("/health", tags=["health"])
     async def health() -> dict[str, Any]:
         return {"ok": True, "store": app.state.service.repositories.name}
 
-    @app.exception_handler(ServiceRefusal)
-    async def refusal(request: Request, error: ServiceRefusal) -> JSONResponse:
-        if error.status == 403:
-            user = getattr(request.state, "user", None)
-            audit.refused(request, 403, f"{user.name} ({user.role.value})" if user else "?", error.detail)
-        return JSONResponse({"detail": error.detail}, status_code=error.status)
-
-    @app.exception_handler(StoreUnavailable)
-    async def store_down(request: Request, error: StoreUnavailable) -> JSONResponse:
-        return JSONResponse({"detail": f"the store is unavailable: {error}"}, status_code=503)
-
+    document(app.router)
+    install_problem_handlers(app)
+    with_problem_schemas(app)
     return app

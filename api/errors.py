@@ -1,4 +1,6 @@
-"""What the services refuse, as exceptions that become HTTP answers with a plain ``detail``."""
+"""What the services refuse, as exceptions: the HTTP API answers each with its status as a problem
+whose ``detail`` is the exception's (:mod:`fleetbus.api.problems`); the command line and the
+console show the same ``detail``."""
 
 from __future__ import annotations
 

@@ -70,8 +70,49 @@ def http_api_page() -> str:
         "Every route of `fleetbus api`, from the OpenAPI document the service serves at "
         "`/openapi.json` ([download it](openapi.json), or `fleetbus api openapi FILE`). Routes say "
         "which roles may call them (`x-roles`). Log in with `POST /auth/token` and send the token "
-        "as `Authorization: Bearer <token>`.\n\n" + rest.replace("\n# ", "\n## ")
+        "as `Authorization: Bearer <token>`.\n\n" + rest.replace("\n# ", "\n## ").replace(
+            "<hr />", REFUSALS + "<hr />", 1
+        )
     )
+
+
+REFUSALS = """
+
+## Refusals
+
+The refusals are problems as the description above says; a request that is not valid, for one:
+
+```json
+{"type": "about:blank", "title": "Unprocessable Entity", "status": 422,
+ "detail": "query.offset: Input should be greater than or equal to 0", "instance": "/hazards",
+ "errors": [{"loc": ["query", "offset"], "msg": "Input should be greater than or equal to 0",
+             "type": "greater_than_equal"}]}
+```
+
+Each operation below lists exactly the statuses it can answer with; a 401 carries
+`WWW-Authenticate: Bearer`, a 429 `Retry-After`. More examples: [Refusals in the
+guide](../guides/service-layer.md#refusals-problem-details).
+
+## Checking the service against this document
+
+The test suite runs schemathesis against the service with a token of each role. To run it
+yourself, from the checkout's root with the outside peers installed
+(`FLEETBUS_WITH_PEERS=1 bash scripts/setup`), `fleetbus api` on port 8000 and `TOKEN` holding an
+access token ([the guide](../guides/service-layer.md#checking-the-api-against-its-document) logs
+in for it):
+
+```sh
+.venv-peers/bin/schemathesis --config-file tests/peers/schemathesis.toml run \\
+    http://127.0.0.1:8000/openapi.json --header "Authorization: Bearer $TOKEN" \\
+    --checks CHECKS \\
+    --phases examples,coverage,fuzzing --seed 20261127 --max-examples 8
+```
+
+""".replace(
+    "CHECKS",
+    "not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance,"
+    "negative_data_rejection",
+)
 
 
 # --- messages and channels -----------------------------------------------------------------------

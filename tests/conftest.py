@@ -52,6 +52,7 @@ LONG_MODULES = frozenset(
         "test_outages.py",
         "test_shards.py",
         "test_robot_runs.py",
+        "test_openapi_schemathesis.py",
     }
 )
 

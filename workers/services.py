@@ -7,6 +7,7 @@ from typing import Any
 
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.rpc import Handler, ServiceError
+from fleetbus.workers.store.base import LARGEST_INTEGER
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.hazards import (
     CLAIM_WHILE_OPEN,
@@ -20,8 +21,8 @@ from fleetbus.workers.team import gate
 
 def _hazard_id(params: dict[str, Any]) -> int:
     value = params.get("hazard_id")
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ServiceError(f"hazard_id must be a positive integer, not {value!r}")
+    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= LARGEST_INTEGER:
+        raise ServiceError(f"hazard_id must be an integer from 1 to {LARGEST_INTEGER}, not {value!r}")
     return value
 
 

@@ -11,12 +11,13 @@ from fleetbus.api import audit
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.login import log_in
 from fleetbus.api.models import BrokerOut, TokenOut, UserOut
+from fleetbus.api.openapi import refusals
 from fleetbus.api.transport import broker_password_refusal
 
 router = APIRouter(prefix="/auth", tags=["auth"])
 
 
-@router.post("/token", response_model=TokenOut)
+@router.post("/token", response_model=TokenOut, responses=refusals(401, 403, 429))
 async def login(
     request: Request, form: Annotated[OAuth2PasswordRequestForm, Depends()], svc: ServiceDep
 ) -> TokenOut:

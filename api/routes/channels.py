@@ -8,7 +8,9 @@ from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.auth import ChannelsDep, ServiceDep, require_role
 from fleetbus.api.channels import OPERATING, UNMOUNTERS
+from fleetbus.api.errors import Conflict, NotFound
 from fleetbus.api.models import BindingReportOut, ChannelChangeOut, MountIn, MountOut
+from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.users import User
 
@@ -20,7 +22,7 @@ Watcher = Annotated[User, Depends(require_role(R.OPERATOR, R.SUPERVISOR, R.ADMIN
 Overseer = Annotated[User, Depends(require_role(R.SUPERVISOR, R.ADMIN))]
 
 
-@router.post("/mounts", response_model=MountOut, status_code=201)
+@router.post("/mounts", response_model=MountOut, status_code=201, responses=refusals(NotFound, Conflict))
 async def mount(body: MountIn, user: Operator, svc: ServiceDep) -> MountOut:
     """Take control of a robot for a mission: its data reaches the operator's stream, the operator's
     commands reach it. Refused (409) when the robot or the operator is booked by another mission."""

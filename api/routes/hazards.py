@@ -7,7 +7,10 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.auth import HazardsDep, ServiceDep, require_role
+from fleetbus.api.errors import Conflict
+from fleetbus.api.hazard_steps import HazardId
 from fleetbus.api.models import HazardOut, HazardStepIn, HazardStepOut
+from fleetbus.api.openapi import refusals
 from fleetbus.api.team import DISPATCHERS
 from fleetbus.schemas.roles import WATCHERS
 from fleetbus.workers.store.hazards import HazardState
@@ -31,9 +34,11 @@ async def list_hazards(
     return [HazardOut.of(hazard) for hazard in await hazards.recent_hazards(limit, offset, state)]
 
 
-@router.post("/hazards/{mission_id}/{hazard_id}/{step}", response_model=HazardStepOut)
+@router.post(
+    "/hazards/{mission_id}/{hazard_id}/{step}", response_model=HazardStepOut, responses=refusals(Conflict)
+)
 async def take_step(
-    mission_id: str, hazard_id: int, step: Step, body: HazardStepIn, user: Dispatcher, svc: ServiceDep
+    mission_id: str, hazard_id: HazardId, step: Step, body: HazardStepIn, user: Dispatcher, svc: ServiceDep
 ) -> HazardStepOut:
     """Take a hazard's step for a warden, by the rules of the warden's own request (a claim for a
     warden in service; the other steps for the warden holding the claim); the warden is told in

@@ -8,6 +8,7 @@ from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.auth import ChannelsDep, EventsDep, MissionsDep, ServiceDep, require_role
 from fleetbus.api.channels import OPERATING
+from fleetbus.api.errors import Conflict
 from fleetbus.api.missions import AUTHORS, MOVERS
 from fleetbus.api.models import (
     CheckInOut,
@@ -21,6 +22,7 @@ from fleetbus.api.models import (
     TransitionIn,
     UseCaseOut,
 )
+from fleetbus.api.openapi import refusals
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.use_cases import USE_CASES
@@ -69,13 +71,13 @@ async def get_mission(
     )
 
 
-@router.put("/missions/{mission_id}/plan", response_model=MissionOut)
+@router.put("/missions/{mission_id}/plan", response_model=MissionOut, responses=refusals(Conflict))
 async def edit_plan(mission_id: str, plan: MissionPlan, user: Author, svc: ServiceDep) -> MissionOut:
     """Replace the plan (geofence, points of interest, itinerary, risk assessment) while in planning."""
     return MissionOut.of(await svc.missions.edit_plan(user, mission_id, plan))
 
 
-@router.post("/missions/{mission_id}/transitions", response_model=MissionOut)
+@router.post("/missions/{mission_id}/transitions", response_model=MissionOut, responses=refusals(Conflict))
 async def transition(mission_id: str, body: TransitionIn, user: Mover, svc: ServiceDep) -> MissionOut:
     """Take one step of the use case's state machine (409 names the current state and the allowed ones)."""
     return MissionOut.of(await svc.missions.transition(user, mission_id, body.to, body.note))
@@ -96,13 +98,13 @@ async def mission_events(
     return [EventOut.of(r) for r in records]
 
 
-@router.post("/missions/{mission_id}/check-in", response_model=CheckInOut)
+@router.post("/missions/{mission_id}/check-in", response_model=CheckInOut, responses=refusals(Conflict))
 async def check_in(mission_id: str, user: Operator, svc: ServiceDep) -> CheckInOut:
     """From now on, the data of the robots this operator mounted for the mission is recorded under it."""
     return CheckInOut.of(await svc.channels.check_in(user, mission_id))
 
 
-@router.post("/missions/{mission_id}/check-out", response_model=CheckOutOut)
+@router.post("/missions/{mission_id}/check-out", response_model=CheckOutOut, responses=refusals(Conflict))
 async def check_out(mission_id: str, user: Operator, svc: ServiceDep) -> CheckOutOut:
     """Stop recording; when the last operator checks out, the mission moves to reviewing."""
     return CheckOutOut.of(await svc.channels.check_out(user, mission_id))

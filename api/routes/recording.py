@@ -13,14 +13,14 @@ from datetime import datetime, timedelta, timezone
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Query
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, BeforeValidator, Field
 
 from fleetbus.api.auth import EventsDep, ServiceDep, require_role
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import EVALUATORS, WATCHERS
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
-from fleetbus.workers.recorder.growth import growth
+from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, growth
 from fleetbus.workers.recorder.queries import evaluate, find, parse_condition, timeline, trace
 from fleetbus.workers.store.recordings import OutcomeStats, RecordedMessage, RecordingError
 from fleetbus.workers.store.users import User
@@ -31,11 +31,27 @@ Evaluator = Annotated[User, Depends(require_role(*EVALUATORS))]
 Limit = Annotated[int, Query(ge=1, le=10_000)]
 
 
-def utc(moment: datetime | None) -> datetime | None:
-    """A time without a zone is UTC."""
-    if moment is None:
-        return None
+def read_time(text: str) -> datetime:
+    """A time written in ISO 8601 (``2026-11-27T08:00:00Z``); one without a zone is UTC. A
+    :class:`ValueError` when it is not one."""
+    moment = datetime.fromisoformat(text)
     return moment if moment.tzinfo else moment.replace(tzinfo=timezone.utc)
+
+
+def _time_in_query(value: Any) -> Any:
+    """:func:`read_time`, as the document's ``date-time`` says: pydantic alone would also take a
+    number, as seconds since 1970."""
+    if not isinstance(value, str):
+        return value
+    try:
+        return read_time(value)
+    except ValueError:
+        raise ValueError(f"{value!r} is not an ISO 8601 time, such as 2026-11-27T08:00:00Z") from None
+
+
+MINUTE = timedelta(minutes=1)
+#: A time in a query.
+Moment = Annotated[datetime, BeforeValidator(_time_in_query)]
 
 
 class RecordOut(BaseModel):
@@ -160,8 +176,8 @@ async def records(
     ] = None,
     robot: str | None = None,
     mission: str | None = None,
-    since: datetime | None = None,
-    until: datetime | None = None,
+    since: Moment | None = None,
+    until: Moment | None = None,
     limit: Limit = 100,
     latest: bool = False,
 ) -> list[RecordOut]:
@@ -175,8 +191,8 @@ async def records(
             conditions,
             robot_id=robot,
             mission_id=mission,
-            since=utc(since),
-            until=utc(until),
+            since=since,
+            until=until,
             limit=1 if latest else limit,
             newest_first=True,
         )
@@ -190,8 +206,8 @@ async def robot_timeline(
     robot: str,
     user: Analyst,
     svc: ServiceDep,
-    since: datetime | None = None,
-    until: datetime | None = None,
+    since: Moment | None = None,
+    until: Moment | None = None,
     limit: Limit = 1000,
 ) -> TimelineOut:
     """What the robot sent and was sent in the window (default: the last hour), every type in time order."""
@@ -199,10 +215,10 @@ async def robot_timeline(
         validate_name(robot)
     except ValueError as error:
         raise HTTPException(422, detail=str(error)) from None
-    start = utc(since) or datetime.now(timezone.utc) - timedelta(hours=1)
+    start = since or datetime.now(timezone.utc) - timedelta(hours=1)
     routes = await svc.route_map()
     inbound = routes.keys_into(inbox_queue(robot), NOTIFY_EXCHANGE)
-    result = await timeline(svc.recording, robot, start, utc(until), inbound=inbound, limit=limit)
+    result = await timeline(svc.recording, robot, start, until, inbound=inbound, limit=limit)
     return TimelineOut(
         robot_id=robot,
         truncated=result.truncated,
@@ -246,13 +262,13 @@ async def trace_message(message_id: str, user: Analyst, svc: ServiceDep, events:
 async def evaluation(
     user: Evaluator,
     svc: ServiceDep,
-    since: datetime | None = None,
-    until: datetime | None = None,
+    since: Moment | None = None,
+    until: Moment | None = None,
     robot: str | None = None,
 ) -> list[OutcomeOut]:
     """Per behaviour: successes, failures, success rate, mean and standard deviation of the duration,
     computed by the database."""
-    stats = await evaluate(svc.recording, utc(since), utc(until), robot_id=robot)
+    stats = await evaluate(svc.recording, since, until, robot_id=robot)
     return [OutcomeOut.of(s) for s in stats]
 
 
@@ -260,11 +276,11 @@ async def evaluation(
 async def recording_growth(
     user: Evaluator,
     svc: ServiceDep,
-    since: datetime | None = None,
-    every_minutes: Annotated[float, Query(gt=0, le=1440)] = 1,
+    since: Moment | None = None,
+    every_minutes: Annotated[float, Query(ge=SHORTEST_BUCKET / MINUTE, le=LONGEST_BUCKET / MINUTE)] = 1,
 ) -> list[GrowthOut]:
     """The recording's growth (MB per minute) and inserts per minute, one row per ``every_minutes``."""
-    start = utc(since) or datetime.now(timezone.utc) - timedelta(hours=1)
+    start = since or datetime.now(timezone.utc) - timedelta(hours=1)
     rows = growth(await svc.recording.samples(start), timedelta(minutes=every_minutes))
     return [
         GrowthOut(

@@ -7,7 +7,9 @@ from typing import Annotated
 from fastapi import APIRouter, Depends
 
 from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.errors import BadRequest
 from fleetbus.api.models import TeamMemberOut, TeamOut
+from fleetbus.api.openapi import refusals
 from fleetbus.api.team import DISPATCHERS
 from fleetbus.schemas.roles import WATCHERS, UserRole
 from fleetbus.workers.store.users import User
@@ -25,7 +27,7 @@ async def team(user: Watcher, svc: ServiceDep) -> TeamOut:
     return TeamOut.of(await svc.team.view())
 
 
-@router.post("/team/{robot}/out", response_model=TeamMemberOut)
+@router.post("/team/{robot}/out", response_model=TeamMemberOut, responses=refusals(BadRequest))
 async def take_out(robot: str, user: Dispatcher, svc: ServiceDep) -> TeamMemberOut:
     """Take a warden out of service: it no longer holds the hazard gate and is sent no hazards.
     Recorded with who did it and when."""
@@ -33,7 +35,7 @@ async def take_out(robot: str, user: Dispatcher, svc: ServiceDep) -> TeamMemberO
     return TeamMemberOut.of(await svc.team.member(robot))
 
 
-@router.post("/team/{robot}/in", response_model=TeamMemberOut)
+@router.post("/team/{robot}/in", response_model=TeamMemberOut, responses=refusals(BadRequest))
 async def put_back(robot: str, user: Dispatcher, svc: ServiceDep) -> TeamMemberOut:
     """Put a warden back in service: it is sent the open hazards it missed, then counts for the gate."""
     await svc.team.set_in_service(robot, True, user.name)

@@ -7,8 +7,9 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Response
 
 from fleetbus.api.auth import ServiceDep, UsersDep, require_role
-from fleetbus.api.errors import BadRequest, Forbidden
+from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
 from fleetbus.api.models import PasswordChange, PasswordSet, RoleChange, UserCreate, UserOut
+from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.workers.store.users import User
 
@@ -24,7 +25,7 @@ async def me(user: Anyone) -> UserOut:
     return UserOut.of(user)
 
 
-@router.put("/users/me/password", status_code=204)
+@router.put("/users/me/password", status_code=204, responses=refusals(NotFound))
 async def change_my_password(body: PasswordChange, user: Anyone, svc: ServiceDep) -> Response:
     if not await svc.secrets.passwords.verify(user.password_hash, body.current_password):
         raise BadRequest("the current password is wrong")
@@ -42,7 +43,7 @@ async def list_users(user: AdminOrSupervisor, users: UsersDep, role: UserRole | 
     return [UserOut.of(u) for u in await users.users(role)]
 
 
-@router.post("/users", response_model=UserOut, status_code=201)
+@router.post("/users", response_model=UserOut, status_code=201, responses=refusals(Conflict))
 async def create_user(body: UserCreate, admin: Admin, svc: ServiceDep) -> UserOut:
     """A new user (``inactive`` unless a role is given) and its broker account."""
     return UserOut.of(await svc.accounts.create(body.name, body.password, body.role, body.kind, admin.name))
@@ -68,7 +69,7 @@ async def reset_password(name: str, body: PasswordSet, admin: Admin, svc: Servic
     return Response(status_code=204)
 
 
-@router.delete("/users/{name}", status_code=204)
+@router.delete("/users/{name}", status_code=204, responses=refusals(BadRequest, Conflict))
 async def remove_user(name: str, admin: Admin, svc: ServiceDep) -> Response:
     """Remove the user and its broker account."""
     if name == admin.name:

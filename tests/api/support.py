@@ -11,6 +11,7 @@ from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from http import HTTPStatus
 from typing import Any, TypeVar
 
 import pytest
@@ -42,6 +43,20 @@ PATHS = {
     ],
     "survey": [MissionState.IN_PROGRESS, MissionState.REVIEWING],
 }
+
+
+def problem(status: int, detail: str, instance: str) -> dict[str, Any]:
+    """The body of a refusal: RFC 9457 problem details."""
+    title = HTTPStatus(status).phrase
+    return {"type": "about:blank", "title": title, "status": status, "detail": detail, "instance": instance}
+
+
+def refusal(reply: Any) -> tuple[int, str, Any]:
+    """A reply's status, media type and body, to compare with ``(status, PROBLEM_JSON, problem(...))``."""
+    return reply.status_code, reply.headers["content-type"], reply.json()
+
+
+PROBLEM_JSON = "application/problem+json"
 
 
 @dataclass

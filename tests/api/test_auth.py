@@ -16,7 +16,7 @@ import pytest
 from fleetbus.broker.accounts import can_login
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.roles import UserRole
-from tests.api.support import PASSWORD, Api, running_api
+from tests.api.support import PASSWORD, PROBLEM_JSON, Api, problem, refusal, running_api
 from tests.support import Bus
 
 SECURITY_LOG = "fleetbus.api.security"
@@ -77,7 +77,7 @@ def test_wrong_credentials_get_401_and_are_logged(
     api.user("alice", UserRole.CLIENT)
     with caplog.at_level(logging.WARNING, SECURITY_LOG):
         reply = api.client.post("/auth/token", data={"username": username, "password": password})
-    assert (reply.status_code, reply.json()) == (401, {"detail": "wrong user name or password"})
+    assert refusal(reply) == (401, PROBLEM_JSON, problem(401, "wrong user name or password", "/auth/token"))
     assert reply.headers["WWW-Authenticate"] == "Bearer"
     assert [m for m in refusals(caplog) if f"POST /auth/token from 127.0.0.1 as {username}" in m]
 
@@ -103,7 +103,8 @@ def test_bad_tokens_get_401_with_a_plain_message_and_are_logged(
     headers = {"Authorization": f"Bearer {values[token]}"} if token else {}
     with caplog.at_level(logging.WARNING, SECURITY_LOG):
         reply = api.client.get("/users", headers=headers)
-    assert (reply.status_code, reply.json()) == (401, {"detail": detail})
+    assert refusal(reply) == (401, PROBLEM_JSON, problem(401, detail, "/users"))
+    assert reply.headers["WWW-Authenticate"] == "Bearer"
     assert [m for m in refusals(caplog) if "refused 401: GET /users" in m and detail in m]
 
 
@@ -122,9 +123,10 @@ def test_a_guest_calling_an_admin_endpoint_gets_403_and_is_logged(
     api.user("visitor", UserRole.GUEST)
     with caplog.at_level(logging.WARNING, SECURITY_LOG):
         reply = api.call("visitor", "POST", "/users", json={"name": "mallory", "role": "admin"})
-    assert (reply.status_code, reply.json()) == (
+    assert refusal(reply) == (
         403,
-        {"detail": "role guest may not do this; it needs admin"},
+        PROBLEM_JSON,
+        problem(403, "role guest may not do this; it needs admin", "/users"),
     )
     assert api.run(lambda: api.service.repositories.users.get_user("mallory")) is None
     assert api.bus.api.get_user("mallory") is None, "no broker account made either"
@@ -138,9 +140,10 @@ def test_a_new_account_is_inactive_may_not_log_in_and_has_no_broker_access(api: 
     created = api.call("admin1", "POST", "/users", json={"name": "newbie", "password": PASSWORD})
     assert created.status_code == 201 and created.json()["role"] == "inactive"
     reply = api.client.post("/auth/token", data={"username": "newbie", "password": PASSWORD})
-    assert (reply.status_code, reply.json()) == (
+    assert refusal(reply) == (
         403,
-        {"detail": "user newbie is inactive: an admin must give it a role first"},
+        PROBLEM_JSON,
+        problem(403, "user newbie is inactive: an admin must give it a role first", "/auth/token"),
     )
     stored = api.run(lambda: api.service.repositories.users.get_user("newbie"))
     assert stored is not None

@@ -21,7 +21,7 @@ from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests import factories
-from tests.api.support import PASSWORD, READY_PLAN, Api, running_api
+from tests.api.support import PASSWORD, PROBLEM_JSON, READY_PLAN, Api, running_api
 from tests.support import fresh_bus
 
 R, S = UserRole, MissionState
@@ -367,7 +367,7 @@ def test_each_role_against_each_endpoint(
         if role in case.allowed:
             assert reply.status_code == case.success, reply.text
             return
-        assert reply.status_code == 403, reply.text
+        assert (reply.status_code, reply.headers["content-type"]) == (403, PROBLEM_JSON), reply.text
         assert reply.json()["detail"].startswith(f"role {role.value} may not do")
         logged = [r.getMessage() for r in caplog.records if r.name == "fleetbus.api.security"]
         who = f"{USERS[role]} ({role.value})"

@@ -8,7 +8,7 @@ from datetime import datetime, timedelta, timezone
 import pytest
 
 from fleetbus.workers.store.beacons import Beacon
-from fleetbus.workers.store.hazards import HazardRefused, HazardState, NewHazard
+from fleetbus.workers.store.hazards import MOST_HAZARDS, HazardRefused, HazardState, NewHazard
 from fleetbus.workers.store.repositories import Repositories
 from fleetbus.workers.team import gate
 from tests.store.test_contract import record
@@ -118,6 +118,8 @@ async def test_recent_hazards_are_every_hazard_newest_first_a_page_at_a_time(sto
     [oldest] = await store.hazards.recent_hazards(3, offset=3)
     assert (oldest.mission_id, oldest.hazard_id, oldest.state) == ("m1", 1, HazardState.CLEARED)
     assert await store.hazards.recent_hazards(3, offset=4) == []
+    for past_every_row in (MOST_HAZARDS, MOST_HAZARDS + 1, 2**63, 2**100):  # past the stores' integers too
+        assert await store.hazards.recent_hazards(3, offset=past_every_row) == []
     announced = await store.hazards.recent_hazards(2, state=HazardState.ANNOUNCED)
     assert [(h.mission_id, h.hazard_id) for h in announced] == [("m1", 3), ("m1", 2)]
     assert await store.hazards.hazard_counts() == {HazardState.ANNOUNCED: 3, HazardState.CLEARED: 1}

@@ -14,6 +14,10 @@ from datetime import datetime, timedelta, timezone
 from fleetbus.workers.store.recordings import StorageSample
 
 EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
+#: The shortest and longest bucket (the recorder looks once a minute by default; a bucket shorter
+#: than the clock's microsecond would be none at all).
+SHORTEST_BUCKET = timedelta(seconds=1)
+LONGEST_BUCKET = timedelta(days=1)
 
 
 @dataclass(frozen=True)
@@ -44,7 +48,10 @@ def growth(samples: Sequence[StorageSample], every: timedelta) -> list[Growth]:
     Growth is the size at the bucket's last sample less the size at the sample before the bucket
     (any recorder's: a standby recorder looks at the same database), and inserts are what the
     bucket's samples counted (a standby counts none), so two recorders never count anything twice.
+    A bucket outside :data:`SHORTEST_BUCKET` to :data:`LONGEST_BUCKET` is a :class:`ValueError`.
     """
+    if not SHORTEST_BUCKET <= every <= LONGEST_BUCKET:
+        raise ValueError(f"a bucket must be from {SHORTEST_BUCKET} to {LONGEST_BUCKET}, not {every}")
     ordered = sorted(samples, key=lambda s: (s.sampled_at, s.run_id))
     buckets: dict[int, list[StorageSample]] = {}
     for sample in ordered:

@@ -14,6 +14,10 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, NamedTuple
 
+#: The largest integer a store keeps: SQLite's and MongoDB's are signed 64-bit. An id beyond it
+#: names nothing stored.
+LARGEST_INTEGER = 2**63 - 1
+
 
 def to_micros(moment: datetime) -> int:
     """Integer microseconds since the epoch: exact, sortable, the same in every adapter."""

@@ -19,6 +19,10 @@ from typing import TYPE_CHECKING, Any
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord, StoreError
 
+#: More hazards than any store holds: a page that starts past it is empty, without asking the
+#: database to skip that many (SQLite's OFFSET takes 64 bits, mongoeco's skip 32).
+MOST_HAZARDS = 2**31 - 1
+
 DEFAULT_MISSION = "default"
 
 
@@ -284,7 +288,8 @@ class CoordinationStore(abc.ABC):
         self, limit: int, offset: int = 0, state: HazardState | None = None
     ) -> list[Hazard]:
         """Every hazard (or those in ``state``), cleared ones too, of every mission, newest first
-        (by the time it was received): ``limit`` of them after skipping the ``offset`` newest."""
+        (by the time it was received): ``limit`` of them after skipping the ``offset`` newest (any
+        offset: one past :data:`MOST_HAZARDS` gives none)."""
 
     @abc.abstractmethod
     async def hazard_counts(self) -> dict[HazardState, int]:

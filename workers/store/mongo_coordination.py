@@ -12,6 +12,7 @@ from pymongo.errors import DuplicateKeyError
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
 from fleetbus.workers.store.hazards import (
+    MOST_HAZARDS,
     CoordinationStore,
     Hazard,
     HazardState,
@@ -248,6 +249,8 @@ class MongoCoordination(OnMongo, CoordinationStore):
     ) -> list[Hazard]:
         newest_first = [("received_at_us", DESCENDING), ("mission_id", DESCENDING), ("hazard_id", DESCENDING)]
         query = {"state": state.value} if state is not None else {}
+        if offset > MOST_HAZARDS:
+            return []
         cursor = self._collection("hazards").find(query).sort(newest_first).skip(offset).limit(limit)
         return [_hazard(doc) async for doc in cursor]
 

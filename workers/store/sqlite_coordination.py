@@ -11,6 +11,7 @@ from typing import Any, TypeVar
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import from_micros, to_micros
 from fleetbus.workers.store.hazards import (
+    MOST_HAZARDS,
     CoordinationStore,
     Hazard,
     HazardState,
@@ -283,6 +284,8 @@ class SQLiteCoordination(OnSQLite, CoordinationStore):
             f"SELECT * FROM hazards{where} ORDER BY received_at DESC, mission_id DESC, hazard_id DESC "
             "LIMIT ? OFFSET ?"
         )
+        if offset > MOST_HAZARDS:
+            return []
         rows = await self._run(lambda db: db.execute(sql, (*params, limit, offset)).fetchall())
         return [_hazard(row) for row in rows]
 

@@ -18,7 +18,7 @@ from fleetbus.api.console.forms import FormProblem, moment, robot_name
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import EVALUATION
 from fleetbus.api.console.templating import render
-from fleetbus.workers.recorder.growth import Growth, growth
+from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
 from fleetbus.workers.recorder.queries import evaluate
 from fleetbus.workers.store.recordings import OutcomeStats
 from fleetbus.workers.store.users import User
@@ -28,7 +28,8 @@ Viewer = Annotated[User, Depends(Allowed.page(EVALUATION))]
 #: The growth charts' window and bucket when the form gives none (as ``GET /recording/growth``).
 GROWTH_WINDOW = timedelta(hours=1)
 DEFAULT_EVERY_MINUTES = 1.0
-MOST_EVERY_MINUTES = 1440.0
+FEWEST_EVERY_MINUTES = SHORTEST_BUCKET / timedelta(minutes=1)
+MOST_EVERY_MINUTES = LONGEST_BUCKET / timedelta(minutes=1)
 
 
 def every_of(text: str) -> float:
@@ -38,8 +39,11 @@ def every_of(text: str) -> float:
         minutes = float(text)
     except ValueError:
         raise FormProblem(f"bucket: {text!r} is not a number of minutes") from None
-    if not 0 < minutes <= MOST_EVERY_MINUTES:
-        raise FormProblem(f"bucket: between 0 and {MOST_EVERY_MINUTES:g} minutes")
+    if not FEWEST_EVERY_MINUTES <= minutes <= MOST_EVERY_MINUTES:
+        raise FormProblem(
+            f"bucket: from {FEWEST_EVERY_MINUTES:.4g} ({SHORTEST_BUCKET.total_seconds():g} s) "
+            f"to {MOST_EVERY_MINUTES:g} minutes"
+        )
     return minutes
 
 

@@ -21,6 +21,7 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import HAZARDS
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.hazard_steps import HazardId
 from fleetbus.api.service import Service
 from fleetbus.api.team import DISPATCHERS, TeamView
 from fleetbus.schemas.routing import RobotKind
@@ -189,7 +190,7 @@ async def take_step(
     request: Request,
     user: Dispatcher,
     mission_id: str,
-    hazard_id: int,
+    hazard_id: HazardId,
     step: str,
     warden: Annotated[str, Form()],
 ) -> Response:

@@ -18,11 +18,12 @@ from fleetbus.cli.context import (
     console,
     dead_letters,
     errors,
+    fail,
     settings,
     with_recording,
 )
 from fleetbus.cli.times import TIME_FORMS, parse_duration, parse_time
-from fleetbus.workers.recorder.growth import Growth, growth
+from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
 from fleetbus.workers.store import StoreError, run_with_repositories
 from fleetbus.workers.store.housekeeping import BoundCount
 from fleetbus.workers.store.statuses import WorkerStatus
@@ -99,6 +100,8 @@ def stats(
     inserts per minute over time, from the recorder's samples; then what each bound removed since
     the store began: records pruned, messages full queues dropped (--json: growth and bound rows)."""
     bucket = parse_duration(every, "--every")
+    if not SHORTEST_BUCKET <= bucket <= LONGEST_BUCKET:
+        fail(f"--every {every!r}: write a duration from 1s to 1d, like 1m, 10m or 1h", code=2)
     start = parse_time(since, "--since")
     if not as_json:
         _workers()
