@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from fleetbus.api.accounts import BrokerCredentials
 from fleetbus.api.channels import BindingReport, CheckOut
 from fleetbus.api.team import TeamView
+from fleetbus.schemas.identity import RobotId
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
@@ -360,7 +361,7 @@ class HazardOut(BaseModel):
 
 
 class HazardStepIn(_In):
-    warden: str = Field(description="the warden the step is taken for")
+    warden: RobotId = Field(description="the warden the step is taken for")
 
 
 class HazardStepOut(BaseModel):

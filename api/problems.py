@@ -20,6 +20,7 @@ from collections.abc import Mapping, Sequence
 from http import HTTPStatus
 from typing import Any
 
+import httpx
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import Response
@@ -29,6 +30,7 @@ from starlette.exceptions import HTTPException
 
 from fleetbus.api import audit
 from fleetbus.api.errors import ServiceRefusal
+from fleetbus.broker.management import ManagementError
 from fleetbus.workers.store.base import StoreUnavailable
 
 PROBLEM_JSON = "application/problem+json"
@@ -108,6 +110,15 @@ def install_problem_handlers(app: FastAPI) -> None:
     @app.exception_handler(StoreUnavailable)
     async def store_down(request: Request, error: StoreUnavailable) -> Response:
         return problem_response(request, 503, f"the store is unavailable: {error}")
+
+    @app.exception_handler(ManagementError)
+    async def management_down(request: Request, error: ManagementError) -> Response:
+        return problem_response(request, 503, f"the broker's management API failed: {error}")
+
+    @app.exception_handler(httpx.TransportError)
+    async def management_unreachable(request: Request, error: httpx.TransportError) -> Response:
+        # the only HTTP the service makes is to the broker's management API
+        return problem_response(request, 503, f"the broker's management API is unreachable: {error}")
 
 
 def problem_schemas() -> dict[str, Any]:

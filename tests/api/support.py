@@ -126,12 +126,13 @@ def running_api(
     client_host: str = "127.0.0.1",
     base_url: str = "http://testserver",
     public_url: str | None = None,
+    management_url: str | None = None,
 ) -> Iterator[Api]:
     """The app on ``bus`` (its virtual host, as administrator) and its store; broker users removed after.
     Its requests come from ``client_host`` (by default the API's own machine, where the login hands out
     broker passwords over plain HTTP) to ``base_url``."""
     settings = settings or bus.settings
-    app = create_app(settings, bus.admin_url, bus.endpoint.management_url, public_url)
+    app = create_app(settings, bus.admin_url, management_url or bus.endpoint.management_url, public_url)
     with TestClient(app, base_url=base_url, client=(client_host, 50000)) as client:
         service: Service = app.state.service
         api = Api(client, service, bus)

@@ -5,6 +5,7 @@ can answer."""
 
 from __future__ import annotations
 
+import socket
 import sqlite3
 from collections.abc import Iterator
 
@@ -35,6 +36,8 @@ def test_a_validation_error_names_each_bad_field_where_it_is(api: Api) -> None:
     assert refusal(reply) == (422, PROBLEM_JSON, {**problem(422, detail, "/hazards"), "errors": errors})
     bad_body = api.call("admin1", "POST", "/users", json={"name": "bob", "role": "captain"})
     assert [e["loc"] for e in refusal(bad_body)[2]["errors"]] == [["body", "role"]]
+    no_warden = api.call("admin1", "POST", "/hazards/m1/1/claim", json={"warden": ""})
+    assert [e["loc"] for e in refusal(no_warden)[2]["errors"]] == [["body", "warden"]]
 
 
 def test_the_services_own_refusals_are_problems_without_field_errors(api: Api) -> None:
@@ -76,6 +79,19 @@ def test_a_locked_store_is_a_503_problem_and_changes_nothing(api: Api) -> None:
     )
     assert body["detail"].startswith("the store is unavailable: SQLite") and "locked" in body["detail"]
     assert api.run(lambda: api.service.repositories.users.get_user("admin1")) == before
+
+
+def test_a_management_api_out_of_reach_is_a_503_problem(api: Api) -> None:
+    """The mount bindings are read from the broker's management API: with nothing listening where
+    it should be, the service answers 503 and says which part is missing."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        closed = f"http://127.0.0.1:{probe.getsockname()[1]}/"  # bound, never listening: refused
+        with running_api(api.bus, management_url=closed) as cut_off:  # the same store and users
+            reply = cut_off.call("admin1", "GET", "/channels/bindings")
+    status, media_type, body = refusal(reply)
+    assert (status, media_type, body["instance"]) == (503, PROBLEM_JSON, "/channels/bindings")
+    assert body["detail"].startswith("the broker's management API is unreachable"), body
 
 
 def test_the_document_describes_the_problem_once_and_lists_it_for_every_refusal(api: Api) -> None:
