@@ -36,7 +36,8 @@ def test_a_validation_error_names_each_bad_field_where_it_is(api: Api) -> None:
     assert refusal(reply) == (422, PROBLEM_JSON, {**problem(422, detail, "/hazards"), "errors": errors})
     bad_body = api.call("admin1", "POST", "/users", json={"name": "bob", "role": "captain"})
     assert [e["loc"] for e in refusal(bad_body)[2]["errors"]] == [["body", "role"]]
-    no_warden = api.call("admin1", "POST", "/hazards/m1/1/claim", json={"warden": ""})
+    api.user("ops1", UserRole.OPERATOR)
+    no_warden = api.call("ops1", "POST", "/hazards/m1/1/claim", json={"warden": ""})
     assert [e["loc"] for e in refusal(no_warden)[2]["errors"]] == [["body", "warden"]]
 
 
