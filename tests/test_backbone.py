@@ -16,7 +16,7 @@ from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
-from tests.factories import TABLE1_TIME, hazard, status
+from tests.factories import TABLE1_TIME, hazard, small_map, status
 from tests.support import Bus, notifications_until, wait_for
 
 
@@ -49,9 +49,12 @@ def test_telemetry_is_stored_but_not_sent_to_wardens(bus: Bus) -> None:
     with bus.worker():
         warden.publish("localisation", {"localised": True})
         explorer.publish_many([("status", status(90 - i)) for i in range(10)] + [("hazard", hazard())])
-        notes = warden.receive(2, timeout=15)
-        wait_for(lambda: bus.count(robot_id="explorer1") == 11, what="11 stored events")
-    assert [n.topic.value for n in notes] == ["hazard"]
+        # the sentinel: a map, which wardens are told of, on the statuses' own lane (the robot's
+        # shard) after them; any status notification would reach the inbox before it
+        explorer.publish("map", small_map())
+        notes = notifications_until(warden, lambda note: note.topic.value == "map")
+        wait_for(lambda: bus.count(robot_id="explorer1", type="status") == 10, what="10 stored statuses")
+    assert sorted(n.topic.value for n in notes) == ["hazard", "map"]
 
 
 def _publish_raw(url: str, routing_key: str, body: bytes, user_id: str | None) -> None:
