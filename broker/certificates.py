@@ -24,8 +24,10 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 from fleetbus.settings import Settings
 
 CA_DAYS = 3650
-SERVER_DAYS = 825  # what browsers and Apple's clients still accept for a server certificate
-CLIENT_DAYS = 825
+# Mozilla's "intermediate" profile: a leaf certificate lives at most 366 days (`certs make` signs a
+# new server certificate with the same CA; the console warns ahead of its expiry)
+SERVER_DAYS = 366
+CLIENT_DAYS = 366
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
 
 

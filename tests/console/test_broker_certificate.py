@@ -22,7 +22,7 @@ def test_the_certificate_the_node_presents_is_read_and_verified(bus: Bus) -> Non
     check = check_certificate([bus.admin_url], warn_days=30)
     assert check.problem is None and check.certificate is not None
     assert check.certificate.address == f"127.0.0.1:{urlsplit(bus.admin_url).port}"
-    assert check.state == "ok" and 800 < (check.days_left or 0) <= 825, "fleetbus signs for 825 days"
+    assert check.state == "ok" and 360 < (check.days_left or 0) <= 366, "fleetbus signs for 366 days"
 
 
 def test_a_plain_address_has_no_certificate_and_a_silent_one_is_a_problem(bus: Bus) -> None:
