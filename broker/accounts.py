@@ -27,6 +27,7 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import assign_shard, unassign_shard
 from fleetbus.broker.tls import pika_parameter_list
 from fleetbus.broker.topology import account_topology, core_topology, declare_with_url
+from fleetbus.private_files import private_dir
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
     RECORDER_QUEUE,
@@ -217,7 +218,7 @@ def kept_password(credentials_dir: Path, name: str) -> str | None:
 @contextlib.contextmanager
 def _exclusive(lock_file: Path) -> Iterator[None]:
     """An exclusive ``flock`` on ``lock_file`` (waited for), between processes of this machine."""
-    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    private_dir(lock_file.parent)
     fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o600)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
@@ -256,7 +257,7 @@ def can_login(amqp_url: str) -> bool:
 
 
 def save_secret(path: Path, secret: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
+    private_dir(path.parent)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as handle:
         handle.write(secret + "\n")
@@ -266,7 +267,7 @@ def save_secret_once(path: Path, secret: str) -> None:
     """Write ``path`` (mode 0600) unless it exists; never a half-written file. Processes racing
     to make it all keep the first: each writes a file of its own whole, then links it into
     place, which fails for all but one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    private_dir(path.parent)
     draft = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
     save_secret(draft, secret)
     try:

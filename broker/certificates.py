@@ -21,6 +21,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from fleetbus.private_files import private_dir
 from fleetbus.settings import Settings
 
 CA_DAYS = 3650
@@ -74,7 +75,7 @@ class TlsFiles:
 
 
 def write_file(path: Path, data: bytes, mode: int) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
+    private_dir(path.parent)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
     with os.fdopen(fd, "wb") as handle:
@@ -124,7 +125,7 @@ def _make_ca(files: TlsFiles) -> tuple[x509.Certificate, ec.EllipticCurvePrivate
         .sign(key, hashes.SHA256())
     )
     write_file(files.ca_key, _key_pem(key), 0o600)
-    write_file(files.ca, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_file(files.ca, cert.public_bytes(serialization.Encoding.PEM), 0o600)
     return cert, key
 
 
@@ -200,7 +201,7 @@ def _sign_server(
     names = [_alt_name(host) for host in hosts]
     cert, key = _leaf(ca, ca_key, hosts[0], SERVER_DAYS, ExtendedKeyUsageOID.SERVER_AUTH, names)
     write_file(files.key, _key_pem(key), 0o600)
-    write_file(files.cert, cert.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_file(files.cert, cert.public_bytes(serialization.Encoding.PEM), 0o600)
 
 
 def make_certificates(files: TlsFiles, hosts: Iterable[str] = ()) -> bool:
@@ -242,9 +243,9 @@ def issue_client_certificate(files: TlsFiles, client: ClientFiles, name: str) ->
     ca, ca_key = load_ca(files)
     cert, key = _leaf(ca, ca_key, name, CLIENT_DAYS, ExtendedKeyUsageOID.CLIENT_AUTH, [])
     pem = cert.public_bytes(serialization.Encoding.PEM)
-    write_file(files.issued / f"{cert.serial_number:x}.pem", pem, 0o644)  # first: it can be revoked
+    write_file(files.issued / f"{cert.serial_number:x}.pem", pem, 0o600)  # first: it can be revoked
     write_file(client.key, _key_pem(key), 0o600)
-    write_file(client.cert, pem, 0o644)
+    write_file(client.cert, pem, 0o600)
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 
 from fleetbus.broker.certificates import CertificateError, TlsFiles, load_ca, write_file
+from fleetbus.private_files import private_file
 
 _WHITESPACE = re.compile(r"[ \t\n\v\f\r]+")  # what OpenSSL takes for whitespace (ASCII only)
 
@@ -119,8 +120,7 @@ def read_crl(files: TlsFiles) -> RevocationList | None:
 @contextlib.contextmanager
 def _locked(files: TlsFiles) -> Iterator[None]:
     """One writer of the CRL at a time (two revocations at once must not lose one)."""
-    files.crl_dir.mkdir(parents=True, exist_ok=True)
-    with open(files.crl_dir / ".lock", "w") as handle:
+    with open(private_file(files.crl_dir / ".lock"), "w") as handle:
         fcntl.flock(handle, fcntl.LOCK_EX)
         try:
             yield
@@ -152,7 +152,7 @@ def _sign(files: TlsFiles, revoked: dict[int, datetime.datetime], number: int) -
             x509.RevokedCertificateBuilder().serial_number(serial).revocation_date(at).build()
         )
     crl = builder.sign(ca_key, hashes.SHA256())
-    write_file(crl_file(files, ca), crl.public_bytes(serialization.Encoding.PEM), 0o644)
+    write_file(crl_file(files, ca), crl.public_bytes(serialization.Encoding.PEM), 0o600)
 
 
 def ensure_crl(files: TlsFiles) -> bool:

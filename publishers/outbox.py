@@ -30,7 +30,7 @@ from typing import Any, Protocol
 from tinydb import TinyDB
 from tinydb.table import Document
 
-from fleetbus.publishers.storage import AtomicJSONStorage, write_atomically
+from fleetbus.publishers.storage import AtomicJSONStorage, own_folder, write_atomically
 from fleetbus.schemas.envelope import Event, encode_event
 from fleetbus.schemas.routing import EventType
 
@@ -172,7 +172,7 @@ class Outbox:
         self._lock = threading.RLock()
         self._in_flight: set[tuple[int, int]] = set()
         if not read_only:
-            folder.mkdir(parents=True, exist_ok=True)
+            own_folder(folder)
         elif not folder.is_dir():
             raise FileNotFoundError(f"no outbox at {folder}")
         self._meta = TinyDB(folder / "meta.json", storage=AtomicJSONStorage, durable=durable)

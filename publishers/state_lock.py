@@ -6,6 +6,8 @@ import fcntl
 import os
 from pathlib import Path
 
+from fleetbus.publishers.storage import own_folder
+
 
 class RobotStateInUse(RuntimeError):
     """Another process holds this robot's personal database."""
@@ -15,7 +17,7 @@ class StateLock:
     """An exclusive ``flock`` on ``<robot state>/lock``, released when the process ends (even by a kill)."""
 
     def __init__(self, folder: Path) -> None:
-        folder.mkdir(parents=True, exist_ok=True)
+        own_folder(folder)
         self.path = folder / "lock"
         self._fd: int | None = None
 

@@ -7,6 +7,8 @@ the folder, so the file always holds either the old or the new content, on disk.
 
 It also keeps what it last wrote in memory: the robot process is the only writer (the client
 holds a lock on its state folder), so reading the file back on every operation is wasted work.
+
+The robot's personal database is its own: folders 0700, files 0600.
 """
 
 from __future__ import annotations
@@ -17,6 +19,18 @@ from pathlib import Path
 from typing import Any
 
 from tinydb.storages import Storage
+
+
+def own_folder(path: Path) -> Path:
+    """``path`` and the folders missing above it, made 0700 (only the robot's user may enter)."""
+    missing = []
+    folder = path
+    while not folder.exists():
+        missing.append(folder)
+        folder = folder.parent
+    for each in reversed(missing):
+        each.mkdir(mode=0o700, exist_ok=True)
+    return path
 
 
 def fsync_dir(path: Path) -> None:
@@ -30,7 +44,7 @@ def fsync_dir(path: Path) -> None:
 def write_atomically(path: Path, data: bytes, durable: bool = True) -> None:
     """Replace ``path`` with ``data`` so that a crash leaves the old or the new file, never a mix."""
     temporary = path.with_name(f".{path.name}.tmp")
-    with open(temporary, "wb") as handle:
+    with os.fdopen(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "wb") as handle:
         handle.write(data)
         if durable:
             handle.flush()
@@ -45,7 +59,7 @@ class AtomicJSONStorage(Storage):
 
     def __init__(self, path: str | Path, durable: bool = True) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        own_folder(self.path.parent)
         self.durable = durable
         self._cache: dict[str, dict[str, Any]] | None = None
 

@@ -16,6 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TypeVar
 
+from fleetbus.private_files import private_file
 from fleetbus.workers.store.base import StoreUnavailable
 
 T = TypeVar("T")
@@ -161,7 +162,7 @@ class SQLiteDatabase:
         return StoreUnavailable(f"SQLite {self.path}: {error}")
 
     def _connect(self, timeout: float) -> sqlite3.Connection:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        private_file(self.path)  # its WAL and shared-memory files take its mode
         db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None, check_same_thread=False)
         db.row_factory = sqlite3.Row
         db.execute("PRAGMA journal_mode=WAL")

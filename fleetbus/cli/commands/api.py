@@ -20,6 +20,7 @@ import typer
 
 from fleetbus.broker.accounts import save_secret
 from fleetbus.cli.context import console, endpoint, fail, settings
+from fleetbus.private_files import owner_only_umask
 from fleetbus.schemas.roles import UserRole
 
 # FastAPI, the service and httpx are imported by the commands that use them: every `fleetbus`
@@ -44,6 +45,7 @@ def serve(
     """Serve the API with uvicorn (OpenAPI at /docs), until Ctrl-C."""
     if ctx.invoked_subcommand is not None:
         return
+    owner_only_umask()  # what it writes is its own only (fleetbus.private_files)
     import uvicorn
 
     from fleetbus.api.app import create_app

@@ -11,6 +11,7 @@ from rich.table import Table
 
 from fleetbus.broker.accounts import RECORDER_USER
 from fleetbus.cli.context import clock, console, fail, service_account, settings, with_recording
+from fleetbus.private_files import owner_only_umask
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
 from fleetbus.workers.recorder.launch import Launch, exec_recorder
 from fleetbus.workers.recorder.process import die_with_parent
@@ -38,6 +39,7 @@ def run(
     Runs as the `fleetbus-recorder` account only, which may read its one queue: `fleetbus setup`
     makes the account and the queue."""
     die_with_parent()  # when `fleetbus worker` started it (the death signal outlives the exec)
+    owner_only_umask()  # what it writes is its own only (fleetbus.private_files)
     try:
         launch = Launch.resolve(
             settings(),

@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from fleetbus.cli.context import service_account, settings
+from fleetbus.private_files import owner_only_umask
 from fleetbus.settings import MAX_INGEST_SHARDS
 from fleetbus.workers.logs import configure_logging
 from fleetbus.workers.recorder.process import run_recorder_process
@@ -53,6 +54,7 @@ def worker(
     Runs as the `fleetbus` account only (the recorder as `fleetbus-recorder`): run `fleetbus setup`
     as the administrator once first. Run several to share the ingest: each takes its share of the shards.
     """
+    owner_only_umask()  # what it and its recorder write is theirs only (fleetbus.private_files)
     configure_logging(verbose)
     config, url = settings(), service_account()
     if shards is not None:
