@@ -32,6 +32,9 @@ from pydantic import BaseModel, Field
 
 ROS_TYPE = "ros"
 """The recording type (table or collection) of every ROS message."""
+ROS_TF_TYPE = "ros_tf"
+"""The recording type of each transform of a TF message, one record per transform, to query by
+frame (``fleetbus.workers.recorder.ros_tf``); a copy of what the ``ros`` records hold."""
 ROS_EXCHANGE = "ros"
 """The exchange a recorded ROS message names: none on the bus, it marks the ROS origin."""
 ROUTING_SEGMENT = "ros"
@@ -56,6 +59,10 @@ class RosMessage(BaseModel):
     )
     stamp: datetime | None = Field(default=None, description="``header.stamp``, when the message has one.")
     fields: dict[str, Any] = Field(description="The message's fields as plain JSON.")
+
+
+MESSAGE_FIELDS = frozenset(RosMessage.model_fields)
+"""The top-level fields of a ROS message's document; a query names any other as ``fields.<name>``."""
 
 
 def topic_segments(topic: str) -> str:

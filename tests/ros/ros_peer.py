@@ -6,6 +6,10 @@
     ros_peer.py burst TOPIC N      N std_msgs/String on TOPIC ("0".."N-1") once someone subscribed,
                                    then "last" (the sentinel)
     ros_peer.py listen TOPIC TYPE  print each message received on TOPIC as a JSON line
+    ros_peer.py scene N            once each topic has N subscribers: /chatter "hello 0".."hello 4"
+                                   then "goodbye"; /tf three tf2_msgs/TFMessage of two transforms
+                                   (map->odom x=i, odom->base_link x=10+i); /odom three
+                                   nav_msgs/Odometry (pose x=i, twist linear x=0.5*i); "sent" after
 
 Prints "ready" once its publishers or subscriber exist; runs until its standard input closes.
 """
@@ -20,10 +24,11 @@ from typing import Any
 
 import roslib.message
 import rospy
-from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import OccupancyGrid
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 
 STAMP = rospy.Time(1_700_000_000, 250_000_000)
 
@@ -73,6 +78,42 @@ def burst(topic: str, count: int) -> rospy.Publisher:
     return publisher
 
 
+def transform(parent: str, child: str, x: float, stamp: rospy.Time) -> TransformStamped:
+    moved = TransformStamped()
+    moved.header.stamp, moved.header.frame_id, moved.child_frame_id = stamp, parent, child
+    moved.transform.translation.x = x
+    moved.transform.rotation.w = 1.0
+    return moved
+
+
+def scene(subscribers: int) -> list[rospy.Publisher]:
+    chatter = rospy.Publisher("/chatter", String, queue_size=100)
+    tf = rospy.Publisher("/tf", TFMessage, queue_size=100)
+    odom = rospy.Publisher("/odom", Odometry, queue_size=100)
+    publishers = [chatter, tf, odom]
+
+    def run() -> None:
+        while any(p.get_num_connections() < subscribers for p in publishers) and not rospy.is_shutdown():
+            time.sleep(0.01)
+        for i in range(5):
+            chatter.publish(String(data=f"hello {i}"))
+        for i in range(3):
+            stamp = rospy.Time(STAMP.secs + i, 0)
+            pair = [transform("map", "odom", i, stamp), transform("odom", "base_link", 10.0 + i, stamp)]
+            tf.publish(TFMessage(pair))
+            moved = Odometry()
+            moved.header.stamp, moved.header.frame_id, moved.child_frame_id = stamp, "odom", "base_link"
+            moved.pose.pose.position.x, moved.pose.pose.orientation.w = float(i), 1.0
+            moved.twist.twist.linear.x = 0.5 * i
+            odom.publish(moved)
+            time.sleep(0.05)  # three distinct log times, for a time window
+        chatter.publish(String(data="goodbye"))
+        say("sent")
+
+    threading.Thread(target=run, daemon=True).start()
+    return publishers
+
+
 def listen(topic: str, type_name: str) -> rospy.Subscriber:
     cls = roslib.message.get_message_class(type_name)
 
@@ -89,9 +130,13 @@ def listen(topic: str, type_name: str) -> rospy.Subscriber:
 def main() -> None:
     rospy.init_node("fleetbus_test_peer", anonymous=True, disable_signals=True)
     mode, args = sys.argv[1], sys.argv[2:]
-    keep = (
-        samples() if mode == "samples" else burst(args[0], int(args[1])) if mode == "burst" else listen(*args)
-    )
+    modes = {
+        "samples": lambda: samples(),
+        "burst": lambda: burst(args[0], int(args[1])),
+        "listen": lambda: listen(*args),
+        "scene": lambda: scene(int(args[0])),
+    }
+    keep = modes[mode]()
     say("ready")
     sys.stdin.read()  # until the test closes our input
     del keep

@@ -18,6 +18,7 @@ from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.ros import ROS_TYPE, ros_record_key
 from fleetbus.workers.recorder.bags import BagMessage, bag_digest, message_count, read_bag
 from fleetbus.workers.recorder.ros_records import ros_record
+from fleetbus.workers.recorder.ros_tf import transform_records
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 
 BATCH = 500
@@ -74,27 +75,32 @@ async def import_bag(
     for item in read_bag(path, max_bytes):  # the whole bag is readable before anything is stored
         trimmed += item.trimmed
         progress("check", item.index + 1, total)
-    added: list[str] = []
+    added: list[tuple[str, str]] = []  # (type, key) of each record this import stored
     batch: list[RecordedMessage] = []
     written = 0
     try:
         for item in read_bag(path, max_bytes):
-            batch.append(bag_record(robot, digest, path.name, item))
-            if len(batch) == BATCH:
+            record = bag_record(robot, digest, path.name, item)
+            batch += [record, *transform_records(record)]
+            if len(batch) >= BATCH:
                 written += await _write(store, batch, added)
                 progress("store", written, total)
         written += await _write(store, batch, added)
         progress("store", written, total)
     except BaseException:
-        if added:
-            await store.delete_recorded(ROS_TYPE, added)
+        for type in {type for type, _ in added}:
+            await store.delete_recorded(type, [key for kind, key in added if kind == type])
         raise
-    return ImportReport(str(path), digest, written, len(added), trimmed)
+    stored = sum(type == ROS_TYPE for type, _ in added)
+    return ImportReport(str(path), digest, written, stored, trimmed)
 
 
-async def _write(store: RecordingStore, batch: list[RecordedMessage], added: list[str]) -> int:
+async def _write(
+    store: RecordingStore, batch: list[RecordedMessage], added: list[tuple[str, str]]
+) -> int:
+    """Write the batch; how many messages it held (their transforms not counted)."""
     results = await store.write_recorded(batch)
-    added.extend(record.key for record, result in zip(batch, results, strict=True) if result.inserted)
-    count = len(batch)
+    added.extend((r.type, r.key) for r, result in zip(batch, results, strict=True) if result.inserted)
+    count = sum(record.type == ROS_TYPE for record in batch)
     batch.clear()
     return count

@@ -33,6 +33,7 @@ from fleetbus.workers.recorder.capture import (
 )
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import Retention, RetentionSweeper, parse_retention
+from fleetbus.workers.recorder.ros_tf import transform_records
 from fleetbus.workers.recorder.source import Delivery, RecorderQueue
 from fleetbus.workers.store.base import StoreUnavailable, WriteResult
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
@@ -188,6 +189,10 @@ class RecorderConsumer:
                     self._since_sample += 1
                 else:
                     self.stats.duplicates += 1
+            # a redelivered TF message's transforms are written again too: they may be what was lost
+            transforms = [t for record in records for t in transform_records(record)]
+            if transforms:
+                await self._retrying(lambda: self._write(transforms))
         last = last_unsettled(batch)
         if last is not None:
             await last.ack(multiple=True)
