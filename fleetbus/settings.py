@@ -164,6 +164,9 @@ class Settings(BaseSettings):
     ros_discover_every_s: Annotated[float, Positive] = setting(
         1.0, "how often the ROS bridge looks for new topics"
     )
+    ros_retry_most_s: Annotated[float, Positive] = setting(
+        10.0, "the longest pause of the ROS bridge between two tries of a master that does not answer"
+    )
     ros_queue: Annotated[int, Positive] = setting(
         10_000,
         "messages the ROS bridge holds between ROS and the outbox, on each side; beyond, they are "

@@ -2,7 +2,9 @@
 
     ros_peer.py samples            latched samples: /chatter (std_msgs/String), /robot_pose
                                    (geometry_msgs/PoseStamped), /map (nav_msgs/OccupancyGrid),
-                                   /imu (sensor_msgs/Imu, a type fleetbus has no model of)
+                                   /imu (sensor_msgs/Imu, a type fleetbus has no model of), and on
+                                   topics no rule maps /move_base_simple/goal (a PoseStamped at
+                                   x=42, y=-7) and /move_base/local_costmap/costmap (a grid)
     ros_peer.py burst TOPIC N      N std_msgs/String on TOPIC ("0".."N-1") once someone subscribed,
                                    then "last" (the sentinel)
     ros_peer.py listen TOPIC TYPE  print each message received on TOPIC as a JSON line
@@ -61,7 +63,15 @@ def samples() -> list[rospy.Publisher]:
     imu.orientation_covariance = [0.5] * 9
     imus = rospy.Publisher("/imu", Imu, queue_size=10, latch=True)
     imus.publish(imu)
-    return [chatter, poses, maps, imus]
+    # a pose and a grid on topics no rule names: an operator's goal, a local costmap
+    goal = PoseStamped()
+    goal.header.stamp, goal.header.frame_id = STAMP, "map"
+    goal.pose.position.x, goal.pose.position.y, goal.pose.orientation.w = 42.0, -7.0, 1.0
+    goals = rospy.Publisher("/move_base_simple/goal", PoseStamped, queue_size=1, latch=True)
+    goals.publish(goal)
+    costmaps = rospy.Publisher("/move_base/local_costmap/costmap", OccupancyGrid, queue_size=1, latch=True)
+    costmaps.publish(grid)
+    return [chatter, poses, maps, imus, goals, costmaps]
 
 
 def burst(topic: str, count: int) -> rospy.Publisher:

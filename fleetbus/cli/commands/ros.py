@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 from pathlib import Path
 from typing import Annotated
@@ -51,6 +52,7 @@ def bridge(
         exclude=config.ros_exclude,
         max_rate_hz=config.ros_max_rate_hz,
         discover_every_s=config.ros_discover_every_s,
+        retry_most_s=config.ros_retry_most_s,
         queue=config.ros_queue,
         bytes_max=config.ros_bytes_max,
         status_every_s=config.ros_status_every_s,
@@ -80,7 +82,22 @@ def status(robot: Annotated[str, typer.Argument(help="the robot's account")]) ->
     path = robot_folder(settings().robots_dir, robot) / STATUS_FILE
     if not path.exists():
         fail(f"no bridge has run for {robot!r} here ({path} does not exist)")
-    console.print_json(json.dumps(json.loads(path.read_text())))
+    status = json.loads(path.read_text())
+    if status.get("ros_side") == "running" and not process_alive(status.get("pid")):
+        status["ros_side"] = f"not running: the bridge (pid {status.get('pid')}) is gone"
+    console.print_json(json.dumps(status))
+
+
+def process_alive(pid: object) -> bool:
+    if not isinstance(pid, int):
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 @app.command("mapping")
