@@ -41,6 +41,7 @@ from fleetbus.publishers.ros.convert import (
 from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
 from fleetbus.publishers.ros.mapping import Mapping, Rule
 from fleetbus.schemas.envelope import SchemaError, validate_body
+from fleetbus.schemas.ros import schema_key
 from fleetbus.schemas.routing import EventType
 
 log = logging.getLogger("fleetbus.ros")
@@ -51,6 +52,8 @@ BATCH = 256
 #: The ROS topics notifications are published on start with this.
 NOTIFY_PREFIX = "/fleetbus"
 STATUS_FILE = "ros-bridge.json"
+ROS1_DEFINITION = "ros1msg"
+"""A live connection's definition: ROS 1's message definition text (MCAP's schema encoding)."""
 
 Item = tuple[EventType, Any]
 
@@ -132,6 +135,7 @@ class Bridge:
         self._stdin_lock = threading.Lock()
         self._process: subprocess.Popen[bytes] | None = None
         self._last_pose: dict[str, Any] | None = None
+        self._schema_keys: dict[tuple[str, str], str] = {}
 
     # the ROS side
     def start_ros_side(self) -> None:
@@ -220,18 +224,31 @@ class Bridge:
         event, then what its mapping rule makes of it; raises ConversionError or SchemaError."""
         topic, type_name, fields = item["topic"], item["type"], item["fields"]
         stamp = ros_stamp(item.get("stamp_ns"))
+        ros_type = ros2_type_name(type_name)
         body = {
             "topic": topic,
-            "ros_type": ros2_type_name(type_name),
+            "ros_type": ros_type,
             "log_time_ns": item["received_ns"],
             "stamp": stamp.isoformat() if stamp else None,
             "fields": fields,
+            "schema_key": self._schema_key(topic, ros_type, item),
         }
+        if item.get("definition"):
+            text, md5sum = item["definition"], item.get("md5sum")
+            body["definition"] = {"encoding": ROS1_DEFINITION, "text": text, "md5sum": md5sum}
         recorded: Item = (EventType.ROS, validate_body(EventType.ROS, body))
         rule = self.mapping.rule_for(topic, type_name)
         if rule is None:
             return [recorded]
         return [recorded, *self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))]
+
+    def _schema_key(self, topic: str, ros_type: str, item: dict[str, Any]) -> str | None:
+        """The key of the message's type definition: made from the first message of its kind,
+        which carries the definition, and kept for the others."""
+        kind = (topic, item.get("md5sum") or "")
+        if item.get("definition"):
+            self._schema_keys[kind] = schema_key(ROS1_DEFINITION, ros_type, item["definition"])
+        return self._schema_keys.get(kind)
 
     def mapped(self, rule: Rule, fields: dict[str, Any], when: datetime | None) -> list[Item]:
         """The events of a mapped message; ``when``: its header stamp, else when it was received."""

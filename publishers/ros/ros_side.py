@@ -10,8 +10,10 @@ stdout, one object a line (``kind`` says which):
                   how the master answers; every failure is retried, backing off up to a limit
   ``ready``       the node is up (registered with a master)
   ``subscribed``  ``topic``, ``type``: a topic found and subscribed to
-  ``message``     ``topic``, ``type``, ``stamp_ns`` (the header's stamp in ns, or null), ``received_ns``
-                  (UNIX time in ns), ``fields`` (the message as a document, see :func:`to_document`)
+  ``message``     ``topic``, ``type``, ``md5sum``, ``stamp_ns`` (the header's stamp in ns, or null),
+                  ``received_ns`` (UNIX time in ns), ``fields`` (the message as a document, see
+                  :func:`to_document`); the first of each topic and type also ``definition`` (the
+                  type's full definition, as its publisher sent it)
   ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
   ``error``       ``topic``, ``detail``: a message that could not be read
 stdin, one object a line:
@@ -117,6 +119,7 @@ class Recorder:
         self.dropped: dict[str, int] = {}
         self.dropped_lock = threading.Lock()
         self.classes: dict[tuple[str, str], type] = {}
+        self.defined: set[tuple[str, str]] = set()
 
     def wanted(self, topic: str) -> bool:
         if topic.startswith(self.args.own_prefix + "/") or topic == self.args.own_prefix:
@@ -167,16 +170,19 @@ class Recorder:
             except Exception as error:  # a message that cannot be read is reported, not fatal
                 self.out.write({"kind": "error", "topic": topic, "detail": repr(error)})
                 continue
-            self.out.write(
-                {
-                    "kind": "message",
-                    "topic": topic,
-                    "type": type_name,
-                    "stamp_ns": header_stamp(msg),
-                    "received_ns": received,
-                    "fields": fields,
-                }
-            )
+            item = {
+                "kind": "message",
+                "topic": topic,
+                "type": type_name,
+                "md5sum": raw._connection_header.get("md5sum"),
+                "stamp_ns": header_stamp(msg),
+                "received_ns": received,
+                "fields": fields,
+            }
+            if (topic, item["md5sum"]) not in self.defined:  # the first of its kind says its definition
+                self.defined.add((topic, item["md5sum"]))
+                item["definition"] = raw._connection_header.get("message_definition")
+            self.out.write(item)
 
     def report_drops(self) -> None:
         with self.dropped_lock:

@@ -17,6 +17,7 @@ from pathlib import Path
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.ros import ROS_TYPE, ros_record_key
 from fleetbus.workers.recorder.bags import BagMessage, bag_digest, message_count, read_bag
+from fleetbus.workers.recorder.ros_native import schema_record
 from fleetbus.workers.recorder.ros_records import ros_record
 from fleetbus.workers.recorder.ros_tf import transform_records
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
@@ -78,9 +79,13 @@ async def import_bag(
     added: list[tuple[str, str]] = []  # (type, key) of each record this import stored
     batch: list[RecordedMessage] = []
     written = 0
+    schemas: set[str] = set()
     try:
         for item in read_bag(path, max_bytes):
             record = bag_record(robot, digest, path.name, item)
+            if item.schema is not None and item.schema.key not in schemas:
+                schemas.add(item.schema.key)  # stored before the first message that names it
+                batch.append(schema_record(item.schema, robot, item.message.topic, record.recorded_at))
             batch += [record, *transform_records(record)]
             if len(batch) >= BATCH:
                 written += await _write(store, batch, added)

@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 
 from fleetbus.broker.routes import Route, RouteMap
 from fleetbus.broker.topics import topic_matches
-from fleetbus.schemas.ros import MESSAGE_FIELDS, ROS_TF_TYPE, ROS_TYPE
+from fleetbus.schemas.ros import MESSAGE_FIELDS, ROS_SCHEMA_TYPE, ROS_TF_TYPE, ROS_TYPE
 from fleetbus.schemas.routing import (
     ANNOUNCED_TO_HEADER,
     EXPRESS_QUEUE,
@@ -217,8 +217,8 @@ async def timeline(
     streams: list[Iterable[TimelineEntry]] = []
     types = await store.recorded_types()
     for type in types:
-        if type == ROS_TF_TYPE:
-            continue  # copies of the TF messages the timeline shows
+        if type in (ROS_TF_TYPE, ROS_SCHEMA_TYPE):
+            continue  # what the ROS messages the timeline shows bring with them
         sent = await store.find_recorded(
             RecordQuery(type, robot_id=robot_id, since=since, until=until, limit=limit + 1)
         )
