@@ -13,6 +13,7 @@ const zstd = require("@foxglove/wasm-zstd");
 
 function plain(key, value) {
   if (typeof value === "bigint") return value.toString();
+  if (typeof value === "number" && !Number.isFinite(value)) return String(value);
   if (value instanceof Uint8Array || value instanceof Int8Array) return { base64: Buffer.from(value).toString("base64") };
   if (ArrayBuffer.isView(value)) return Array.from(value);
   return value;
