@@ -22,6 +22,7 @@ from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests.console.support import Console, running_console
 from tests.ros.conftest import RosMaster, ros_peer, running_bridge
+from tests.ros.test_foxglove_export import foxglove_read
 from tests.support import Bus, read_line, wait_for
 from tests.test_cli import fleetbus
 
@@ -106,6 +107,17 @@ def test_ros_messages_are_found_by_topic_field_and_time_and_transforms_by_frames
         assert {t["message"] for t in transforms if t["__recorded"]["robot_id"] == LIVE} == {
             r.key for r in live_tf
         }, "each transform names the message it came in"
+
+        # a live message's definition came with it: Foxglove decodes what the bridge recorded
+        out = tmp_path / "live.mcap"
+        exported = fleetbus(bus, "export", "--mcap", str(out), "--robot", LIVE, "--topic", "/tf")
+        assert exported.returncode == 0, exported.stderr
+        decoded = [line for line in foxglove_read(out) if line["kind"] == "message"]
+        assert [(m["topic"], m["schema"], m["encoding"]) for m in decoded] == [
+            (f"/{LIVE}/tf", "tf2_msgs/TFMessage", "ros1")
+        ] * 3
+        moved = [m["message"]["transforms"][1]["transform"]["translation"]["x"] for m in decoded]
+        assert moved == [10, 11, 12]
 
         # the same through the HTTP API and the console's Messages page
         with running_console(bus) as console:
