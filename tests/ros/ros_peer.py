@@ -8,6 +8,8 @@
     ros_peer.py burst TOPIC N      N std_msgs/String on TOPIC ("0".."N-1") once someone subscribed,
                                    then "last" (the sentinel)
     ros_peer.py listen TOPIC TYPE  print each message received on TOPIC as a JSON line
+    ros_peer.py record TOPIC...    print each message received on the TOPICs, of whatever type, as a
+                                   JSON line: topic, type, its bytes (base64), when (monotonic s)
     ros_peer.py scene N            once each topic has N subscribers: /chatter "hello 0".."hello 4"
                                    then "goodbye"; /tf three tf2_msgs/TFMessage of two transforms
                                    (map->odom x=i, odom->base_link x=10+i); /odom three
@@ -18,6 +20,7 @@ Prints "ready" once its publishers or subscriber exist; runs until its standard 
 
 from __future__ import annotations
 
+import base64
 import json
 import sys
 import threading
@@ -137,6 +140,15 @@ def listen(topic: str, type_name: str) -> rospy.Subscriber:
     return rospy.Subscriber(topic, cls, received)
 
 
+def record(topics: list[str]) -> list[rospy.Subscriber]:
+    def received(raw: rospy.AnyMsg, topic: str) -> None:
+        kind = raw._connection_header["type"]
+        data = base64.b64encode(raw._buff).decode()
+        say({"topic": topic, "type": kind, "data": data, "t": time.monotonic()})
+
+    return [rospy.Subscriber(topic, rospy.AnyMsg, received, callback_args=topic) for topic in topics]
+
+
 def main() -> None:
     rospy.init_node("fleetbus_test_peer", anonymous=True, disable_signals=True)
     mode, args = sys.argv[1], sys.argv[2:]
@@ -145,6 +157,7 @@ def main() -> None:
         "burst": lambda: burst(args[0], int(args[1])),
         "listen": lambda: listen(*args),
         "scene": lambda: scene(int(args[0])),
+        "record": lambda: record(args),
     }
     keep = modes[mode]()
     say("ready")

@@ -1,10 +1,12 @@
 """Writes a ROS 1 bag of the sensor types Foxglove's panels draw, with ROS's own rosbag API and
 message classes; run with the ROS machine's Python (/usr/bin/python3).
 
-    sensor_bag.py PATH OFFSET   an Image (4x3 rgb8), a PointCloud2 (3 points x, y, z), a LaserScan
+    sensor_bag.py PATH OFFSET [N]
+                                an Image (4x3 rgb8), a PointCloud2 (3 points x, y, z), a LaserScan
                                 (5 ranges, one inf), an OccupancyGrid (4x3) on /map, a TFMessage
-                                (map->odom, odom->base_link) and a String on /chatter, each twice;
-                                values shifted by OFFSET (so that two bags differ)
+                                (map->odom, odom->base_link) and a String on /chatter, each N times
+                                (default 2), 100 ms apart; values shifted by OFFSET (so that two
+                                bags differ)
 
 Prints, as one JSON line, what it wrote: per topic, the type and each message's bytes (base64)
 as rosbag serialised them.
@@ -65,9 +67,10 @@ def messages(offset: int, i: int, stamp: rospy.Time) -> list[tuple[str, object]]
 
 def main() -> None:
     path, offset = sys.argv[1], int(sys.argv[2])
+    count = int(sys.argv[3]) if len(sys.argv) > 3 else 2
     written: dict[str, dict[str, object]] = {}
     with rosbag.Bag(path, "w") as bag:
-        for i in range(2):
+        for i in range(count):
             stamp = rospy.Time(T0 + offset, i * 100_000_000 + 123)
             for topic, message in messages(offset, i, stamp):
                 bag.write(topic, message, stamp)

@@ -37,8 +37,8 @@ print(json.dumps({
 """
 
 
-def sensor_bag(path: Path, offset: int) -> dict[str, Any]:
-    command = [ROS_PYTHON, str(SENSOR_BAG), str(path), str(offset)]
+def sensor_bag(path: Path, offset: int, count: int = 2) -> dict[str, Any]:
+    command = [ROS_PYTHON, str(SENSOR_BAG), str(path), str(offset), str(count)]
     done = subprocess.run(command, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     written: dict[str, Any] = json.loads(done.stdout)

@@ -106,3 +106,51 @@ def show_mapping() -> None:
     from fleetbus.publishers.ros.mapping import standard_mapping_text
 
     print(standard_mapping_text(), end="")
+
+
+@app.command()
+def replay(
+    robot: Annotated[str, typer.Argument(help="the robot whose recorded ROS messages are replayed")],
+    since: Annotated[str | None, typer.Option(help="recorded from this time (as `fleetbus export`)")] = None,
+    until: Annotated[str | None, typer.Option(help="recorded before this time")] = None,
+    topics: Annotated[
+        list[str] | None, typer.Option("--topic", help="only this topic; `*` and `?` match (repeatable)")
+    ] = None,
+    speed: Annotated[float, typer.Option(min=0.001, help="faster (2) or slower (0.5) than recorded")] = 1.0,
+    subscribers: Annotated[
+        int, typer.Option(min=0, help="wait until each topic has this many subscribers before starting")
+    ] = 0,
+    delay: Annotated[
+        float, typer.Option(min=0, help="seconds between advertising and the first message (rosbag play's)")
+    ] = 0.2,
+    prefix: Annotated[str, typer.Option(help="publish under this namespace, e.g. /replay")] = "",
+) -> None:
+    """Publish a recorded window of the robot's ROS messages on the ROS master (ROS_MASTER_URI), as
+    their original topics and types, at the recorded pace (or --speed times it)."""
+    from fleetbus.cli.commands.bags import bound_ns, known_robots_and_schemas, selected
+    from fleetbus.cli.context import recording_stream, with_recording
+    from fleetbus.workers.recorder.export_selection import Selection
+    from fleetbus.workers.recorder.ros_replay import ReplayError, ReplayOptions, replay_into_ros
+    from fleetbus.workers.store.recordings import RecordingError
+
+    if prefix and (not prefix.startswith("/") or prefix.endswith("/")):
+        fail(f"--prefix {prefix!r}: a namespace starts with '/' and does not end with one", code=2)
+    try:
+        selection = Selection((robot,), ("ros",), tuple(topics or ()), bound_ns(since), bound_ns(until))
+        schemas = with_recording(lambda store: known_robots_and_schemas(store, selection))
+    except RecordingError as error:
+        fail(str(error), code=2)
+    python = settings().ros_python
+    options = ReplayOptions(python, speed, subscribers, delay_s=delay, prefix=prefix, env=dict(os.environ))
+    try:
+        with (
+            recording_stream(lambda store: selected(store, selection)) as survey,
+            recording_stream(lambda store: selected(store, selection)) as records,
+        ):
+            report = replay_into_ros(survey, records, schemas, options)
+    except ReplayError as error:
+        fail(str(error))
+    total = sum(report.published.values())
+    console.print(f"replayed {total} messages of {robot} on {len(report.published)} topics")
+    for why, count in report.left_out.items():
+        console.print(f"[yellow]left out {count}[/]: {why}", highlight=False)
