@@ -177,6 +177,11 @@ class Settings(BaseSettings):
         "bytes of a `uint8[]` field (an image's pixels) the ROS bridge records; the rest is cut "
         "and the field named in `truncated`",
     )
+    ros_linger_s: Annotated[float, Field(ge=0)] = setting(
+        0.25,
+        "how long the ROS bridge gathers messages into one outbox write (a mapped topic's message "
+        "goes at once)",
+    )
     ros_status_every_s: Annotated[float, Positive] = setting(
         10.0, "how often the ROS bridge logs its counts and rewrites its status file"
     )

@@ -85,6 +85,8 @@ class BridgeOptions:
     queue: int = 10_000
     bytes_max: int = 256 * 1024
     status_every_s: float = 10.0
+    linger_s: float = 0.25
+    """How long the bridge gathers messages into one outbox write (``FLEETBUS_ROS_LINGER_S``)."""
     ready_timeout_s: float = 30.0
     ros_env: dict[str, str] | None = None
     """The ROS side's environment (default: this process's, with its ``ROS_MASTER_URI``)."""
@@ -348,16 +350,23 @@ class Bridge:
         return 0
 
     def _take(self) -> list[dict[str, Any]]:
+        """The next batch: what comes within ``linger_s`` of its first message (up to BATCH), so that
+        a steady topic costs one outbox write a linger, not one a message; a message of a mapped
+        topic (a hazard, a pose) ends the batch at once."""
         try:
             batch = [self._queue.get(timeout=0.2)]
         except queue.Empty:
             return []
-        while len(batch) < BATCH:
+        deadline = time.monotonic() + self.options.linger_s
+        while len(batch) < BATCH and not self._urgent(batch[-1]):
             try:
-                batch.append(self._queue.get_nowait())
+                batch.append(self._queue.get(timeout=max(0.0, deadline - time.monotonic())))
             except queue.Empty:
                 break
         return batch
+
+    def _urgent(self, item: dict[str, Any]) -> bool:
+        return self.mapping.rule_for(item["topic"], item["type"]) is not None
 
     def report(self) -> None:
         self.counters.write(self.status_file)

@@ -56,6 +56,7 @@ def bridge(
         queue=config.ros_queue,
         bytes_max=config.ros_bytes_max,
         status_every_s=config.ros_status_every_s,
+        linger_s=config.ros_linger_s,
     )
     amqp_url = robot_url(robot, url)
     client = open_robot(robot, amqp_url, 10.0)
