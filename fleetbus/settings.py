@@ -177,6 +177,11 @@ class Settings(BaseSettings):
         "bytes of a `uint8[]` field (an image's pixels) the ROS bridge records; the rest is cut "
         "and the field named in `truncated`",
     )
+    ros_blob_max_bytes: Annotated[int, Field(ge=0)] = setting(
+        16 * 1024 * 1024,
+        "the largest byte array of a ROS message (an image's pixels) a bag import keeps whole, in "
+        "the recording's blob store; a larger one is described (length, SHA-256); 0: none kept",
+    )
     ros_linger_s: Annotated[float, Field(ge=0)] = setting(
         0.25,
         "how long the ROS bridge gathers messages into one outbox write (a mapped topic's message "

@@ -46,6 +46,8 @@ ROUTING_SEGMENT = "ros"
 BYTES_KEY = "_base64"
 """A byte array (``uint8[]``) is kept as ``{"_base64": "...", "length": n}``."""
 TRUNCATED_KEY = "_truncated"
+BLOB_KEY = "_blob"
+"""A large byte array kept whole in the recording's blob store: ``{"_blob": "<sha256>", "length": n}``."""
 """A byte array over the size cap is kept as ``{"_truncated": true, "length": n, "sha256": "..."}``."""
 
 

@@ -67,21 +67,27 @@ async def import_bag(
     robot: str,
     max_bytes: int,
     progress: Progress = lambda phase, done, total: None,
+    blob_max: int = 0,
 ) -> ImportReport:
-    """Store every message of the bag at ``path`` as ``robot``'s, or none (raising why)."""
+    """Store every message of the bag at ``path`` as ``robot``'s, or none (raising why); byte
+    arrays over 64 KiB and up to ``blob_max`` bytes (0: none) whole, in the blob store."""
     validate_name(robot)
     total = message_count(path)
     digest = bag_digest(path)
     trimmed = 0
-    for item in read_bag(path, max_bytes):  # the whole bag is readable before anything is stored
+    for item in read_bag(path, max_bytes, blob_max):  # all readable before anything is stored
         trimmed += item.trimmed
         progress("check", item.index + 1, total)
     added: list[tuple[str, str]] = []  # (type, key) of each record this import stored
     batch: list[RecordedMessage] = []
     written = 0
     schemas: set[str] = set()
+    blobs_added: list[str] = []
     try:
-        for item in read_bag(path, max_bytes):
+        for item in read_bag(path, max_bytes, blob_max):
+            for name, data in item.blobs.items():
+                if await store.put_blob(name, data):
+                    blobs_added.append(name)
             record = bag_record(robot, digest, path.name, item)
             if item.schema is not None and item.schema.key not in schemas:
                 schemas.add(item.schema.key)  # stored before the first message that names it
@@ -95,6 +101,8 @@ async def import_bag(
     except BaseException:
         for type in {type for type, _ in added}:
             await store.delete_recorded(type, [key for kind, key in added if kind == type])
+        if blobs_added:
+            await store.delete_blobs(blobs_added)
         raise
     stored = sum(type == ROS_TYPE for type, _ in added)
     return ImportReport(str(path), digest, written, stored, trimmed)

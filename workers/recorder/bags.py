@@ -11,7 +11,7 @@ import hashlib
 import sqlite3
 import struct
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +41,8 @@ class BagMessage:
     """Large arrays were described instead of kept, to stay within the size limit."""
     schema: RosSchema | None = None
     """Its type's definition (the same object for every message of a connection)."""
+    blobs: dict[str, bytes] = field(default_factory=dict)
+    """Its large byte arrays, by SHA-256 (the fields name them)."""
 
 
 def bag_digest(path: Path) -> str:
@@ -100,7 +102,7 @@ def message_count(path: Path) -> int:
         raise BagError(_explain(path, error)) from error
 
 
-def read_bag(path: Path, max_bytes: int) -> Iterator[BagMessage]:
+def read_bag(path: Path, max_bytes: int, blob_max: int = 0) -> Iterator[BagMessage]:
     """Every message of the bag in log-time order, deserialised, as a :class:`RosMessage`.
 
     Raises :class:`BagError` at the first message (or index) that cannot be read, and when
@@ -114,7 +116,7 @@ def read_bag(path: Path, max_bytes: int) -> Iterator[BagMessage]:
             expected = int(reader.message_count)
             for connection, log_time, raw in reader.messages():
                 decoded = reader.deserialize(raw, connection.msgtype)
-                fields, trimmed = message_fields(decoded, max_bytes)
+                fields, trimmed, blobs = message_fields(decoded, max_bytes, blob_max)
                 schema = schemas.get(connection.id)
                 if schema is None:
                     schema = schemas[connection.id] = schema_of(reader, connection)
@@ -126,7 +128,7 @@ def read_bag(path: Path, max_bytes: int) -> Iterator[BagMessage]:
                     fields=fields,
                     schema_key=schema.key,
                 )
-                yield BagMessage(index, message, len(raw), trimmed, schema)
+                yield BagMessage(index, message, len(raw), trimmed, schema, blobs)
                 index += 1
     except BagError:
         raise

@@ -13,12 +13,15 @@ the bytes a ROS node would have sent.
 from __future__ import annotations
 
 import base64
+import json
 import math
-from dataclasses import dataclass
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import Any
 
 from fleetbus.schemas.ros import (
+    BLOB_KEY,
     BYTES_KEY,
     ROS_EXCHANGE,
     ROS_SCHEMA_TYPE,
@@ -164,6 +167,8 @@ class Codec:
         sub, _ = detail
         if isinstance(value, dict) and value.get(TRUNCATED_KEY):
             raise NotEncodable(f"{where}: only described in the recording ({value.get('length')} elements)")
+        if isinstance(value, dict) and BLOB_KEY in value:
+            raise NotEncodable(f"{where}: its bytes ({value[BLOB_KEY]}) are not in the blob store")
         if sub[0].name == "BASE" and sub[1][0] in _NUMPY:
             import numpy as np  # only where messages are serialised again: the recorder needs none
 
@@ -173,6 +178,30 @@ class Codec:
             items = [_base(sub[1][0], v, where) for v in (value or [])]
             return np.array(items, dtype=dtype)
         return [self._value(sub, item, where) for item in (value or [])]
+
+
+async def with_blobs(
+    record: RecordedMessage, get_blob: Callable[[str], Awaitable[bytes | None]]
+) -> RecordedMessage:
+    """``record`` with the byte arrays it keeps in the blob store read back into its fields (as
+    ``{"_base64"}``), so that it can be serialised again; one whose bytes are gone stays named."""
+
+    async def inline(value: Any) -> Any:
+        if isinstance(value, list):
+            return [await inline(item) for item in value]
+        if not isinstance(value, dict):
+            return value
+        if BLOB_KEY in value:
+            data = await get_blob(str(value[BLOB_KEY]))
+            if data is not None:
+                return {BYTES_KEY: base64.b64encode(data).decode(), "length": len(data)}
+            return value
+        return {key: await inline(item) for key, item in value.items()}
+
+    document = record.document
+    if not isinstance(document, dict) or BLOB_KEY not in json.dumps(document.get("fields")):
+        return record
+    return replace(record, document={**document, "fields": await inline(document.get("fields"))})
 
 
 def _base(kind: str, value: Any, where: str) -> Any:

@@ -62,7 +62,9 @@ def import_bag(
 
         try:
             report = with_recording(
-                lambda store: run_import(store, path, robot, settings().max_message_bytes, advance)
+                lambda store: run_import(
+                    store, path, robot, settings().max_message_bytes, advance, settings().ros_blob_max_bytes
+                )
             )
         except BagError as error:
             fail(f"{error}; nothing was imported")
@@ -203,12 +205,13 @@ async def known_robots_and_schemas(store: Any, selection: Any) -> dict[str, Any]
 
 async def selected(store: Any, selection: Any) -> Any:
     from fleetbus.workers.recorder.queries import recorded_between
+    from fleetbus.workers.recorder.ros_native import with_blobs
 
     since, until = selection.store_window()
     one = selection.robots[0] if len(selection.robots) == 1 else None
     async for record in recorded_between(store, since, until, types=selection.chosen_types, robot_id=one):
         if selection.keeps(record):
-            yield record
+            yield await with_blobs(record, store.get_blob)
 
 
 def write_file(
