@@ -164,6 +164,9 @@ class Settings(BaseSettings):
     ros_discover_every_s: Annotated[float, Positive] = setting(
         1.0, "how often the ROS bridge looks for new topics"
     )
+    ros_retry_most_s: Annotated[float, Positive] = setting(
+        10.0, "the longest pause of the ROS bridge between two tries of a master that does not answer"
+    )
     ros_queue: Annotated[int, Positive] = setting(
         10_000,
         "messages the ROS bridge holds between ROS and the outbox, on each side; beyond, they are "
@@ -173,6 +176,16 @@ class Settings(BaseSettings):
         256 * 1024,
         "bytes of a `uint8[]` field (an image's pixels) the ROS bridge records; the rest is cut "
         "and the field named in `truncated`",
+    )
+    ros_blob_max_bytes: Annotated[int, Field(ge=0)] = setting(
+        16 * 1024 * 1024,
+        "the largest byte array of a ROS message (an image's pixels) a bag import keeps whole, in "
+        "the recording's blob store; a larger one is described (length, SHA-256); 0: none kept",
+    )
+    ros_linger_s: Annotated[float, Field(ge=0)] = setting(
+        0.25,
+        "how long the ROS bridge gathers messages into one outbox write (a mapped topic's message "
+        "goes at once)",
     )
     ros_status_every_s: Annotated[float, Positive] = setting(
         10.0, "how often the ROS bridge logs its counts and rewrites its status file"

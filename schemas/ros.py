@@ -32,6 +32,12 @@ from pydantic import BaseModel, Field
 
 ROS_TYPE = "ros"
 """The recording type (table or collection) of every ROS message."""
+ROS_TF_TYPE = "ros_tf"
+"""The recording type of each transform of a TF message, one record per transform, to query by
+frame (``fleetbus.workers.recorder.ros_tf``); a copy of what the ``ros`` records hold."""
+ROS_SCHEMA_TYPE = "ros_schema"
+"""The recording type of the definitions of ROS types, one record per definition, named by the
+``schema`` of the messages (``fleetbus.workers.recorder.ros_native``)."""
 ROS_EXCHANGE = "ros"
 """The exchange a recorded ROS message names: none on the bus, it marks the ROS origin."""
 ROUTING_SEGMENT = "ros"
@@ -40,7 +46,17 @@ ROUTING_SEGMENT = "ros"
 BYTES_KEY = "_base64"
 """A byte array (``uint8[]``) is kept as ``{"_base64": "...", "length": n}``."""
 TRUNCATED_KEY = "_truncated"
+BLOB_KEY = "_blob"
+"""A large byte array kept whole in the recording's blob store: ``{"_blob": "<sha256>", "length": n}``."""
 """A byte array over the size cap is kept as ``{"_truncated": true, "length": n, "sha256": "..."}``."""
+
+
+class RosDefinition(BaseModel):
+    """A ROS type's definition, as its publisher sent it (carried by a connection's first message)."""
+
+    encoding: str = Field(description="``ros1msg`` (ROS 1 message definition) or ``ros2msg``.")
+    text: str = Field(description="The definition with its dependencies, as a connection header holds it.")
+    md5sum: str | None = Field(default=None, description="ROS 1's MD5 of the definition.")
 
 
 class RosMessage(BaseModel):
@@ -56,6 +72,24 @@ class RosMessage(BaseModel):
     )
     stamp: datetime | None = Field(default=None, description="``header.stamp``, when the message has one.")
     fields: dict[str, Any] = Field(description="The message's fields as plain JSON.")
+    schema_key: str | None = Field(
+        default=None,
+        description="The key of the ``ros_schema`` record of its type's definition, when known.",
+    )
+    definition: RosDefinition | None = Field(
+        default=None,
+        description="The definition itself, on the first message of a live connection (the recorder "
+        "keeps it as a ``ros_schema`` record).",
+    )
+
+
+MESSAGE_FIELDS = frozenset(RosMessage.model_fields)
+"""The top-level fields of a ROS message's document; a query names any other as ``fields.<name>``."""
+
+
+def schema_key(encoding: str, ros_type: str, definition: str) -> str:
+    """The key of a ROS type's definition in the recording (a message's ``schema_key``)."""
+    return hashlib.sha256(f"{encoding}\0{ros_type}\0{definition}".encode()).hexdigest()[:32]
 
 
 def topic_segments(topic: str) -> str:

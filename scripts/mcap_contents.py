@@ -5,8 +5,11 @@
 A small recording made on the spot (no broker: a temporary SQLite recording): an explorer's map,
 statuses and hazards, a warden's localisation, and a ROS 1 bag imported as the explorer's. It
 is exported with ``export_mcap`` exactly as ``fleetbus export --mcap`` does, read back with the
-``mcap`` reader and shown with rich: the channel table (topic, schema, messages) and one decoded
-message of each Foxglove channel. Written as ``mcap-contents.svg`` (rich's own rendering) and
+``mcap`` reader and shown with rich: the channel table (topic, schema, messages), then messages
+as Foxglove's own reader decodes them (``tests/peers/mcap_decode.js``: ``@mcap/core``,
+``@foxglove/rosmsg``, ``@foxglove/rosmsg-serialization``; needs ``FLEETBUS_WITH_PEERS=1 bash
+scripts/setup``): a Foxglove pose, a hazard's scene update, and an imported ROS 1 pose and image
+from their native encoding. Written as ``mcap-contents.svg`` (rich's own rendering) and
 ``mcap-contents.png`` (the SVG in headless chromium).
 """
 
@@ -31,11 +34,13 @@ from rich.panel import Panel
 from rich.table import Table
 
 from fleetbus.schemas.envelope import EVENT_MODELS
+from fleetbus.schemas.ros import ROS_SCHEMA_TYPE
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.bag_import import import_bag
 from fleetbus.workers.recorder.mcap_export import export_mcap
 from fleetbus.workers.recorder.queries import recorded_between
-from fleetbus.workers.store.recordings import RecordedMessage
+from fleetbus.workers.recorder.ros_native import RosSchema
+from fleetbus.workers.store.recordings import RecordedMessage, RecordQuery
 from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
 from tests.factories import hazard, small_map, status
 from tests.ros_bags import write_bag
@@ -84,8 +89,9 @@ async def export(folder: Path, target: Path) -> None:
         write_bag(bag, "ros1", count=6)
         await import_bag(store, bag, "explorer1", 1024 * 1024)
         records = [r async for r in recorded_between(store, None, None)]
+        schemas = [RosSchema.of(r.document) for r in await store.find_recorded(RecordQuery(ROS_SCHEMA_TYPE))]
     with target.open("wb") as stream:
-        export_mcap(records, stream)
+        export_mcap(records, stream, ros_schemas={s.key: s for s in schemas if s is not None})
 
 
 def render(path: Path, console: Console) -> None:
@@ -105,16 +111,24 @@ def render(path: Path, console: Console) -> None:
                 f"{channel.message_encoding} / {schema.encoding}",
                 str(counts.get(channel_id, 0)),
             )
-        first: dict[str, Any] = {}
-        for schema, channel, message in reader.iter_messages():
-            if schema is not None and schema.name not in first:
-                first[schema.name] = (channel.topic, json.loads(message.data))
+    decoded = subprocess.run(
+        ["node", str(ROOT / "tests" / "peers" / "mcap_decode.js"), str(path)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    first: dict[str, Any] = {}
+    for line in map(json.loads, decoded.stdout.splitlines()):
+        if line["kind"] == "message" and line["schema"] not in first:
+            first[line["schema"]] = line
     panels = []
-    for name in ("foxglove.PoseInFrame", "foxglove.SceneUpdate", "geometry_msgs/msg/PoseStamped"):
-        topic, data = first[name]
-        text = JSON.from_data(data, indent=None).text
+    shown = ("foxglove.PoseInFrame", "foxglove.SceneUpdate", "geometry_msgs/PoseStamped", "sensor_msgs/Image")
+    for name in shown:
+        line = first[name]
+        text = JSON.from_data(line["message"], indent=None).text
         text.no_wrap, text.overflow = False, "fold"
-        panels.append(Panel(text, title=f"{topic}  ({name})", title_align="left"))
+        title = f"{line['topic']}  ({name}, {line['encoding']}: decoded by Foxglove's reader)"
+        panels.append(Panel(text, title=title, title_align="left"))
     console.print(Group(table, *panels))
 
 

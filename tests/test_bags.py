@@ -229,3 +229,29 @@ def test_a_ros2_bag_without_message_definitions_is_read_with_the_standard_types(
 
     assert report.stored == 6
     assert_imported(recorded(store), written)
+
+
+def test_a_large_image_is_kept_whole_in_the_blob_store_and_exported_byte_for_byte(tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    bag = bag_path(tmp_path, "ros1")
+    frame = 640 * 480 * 3  # a 640x480 rgb8 camera image: over the 1 MiB limit once in JSON
+    written = write_bag(bag, "ros1", count=3, image_bytes=frame)
+    imported = fleetbus(tmp_path, "import", str(bag), "--robot", ROBOT)
+    assert imported.returncode == 0, imported.stderr
+    assert "described" not in imported.stdout, "nothing trimmed"
+    [image] = [r for r in recorded(tmp_path / "data" / "recording.sqlite3") if "image" in r.document["topic"]]
+    kept = image.document["fields"]["data"]
+    assert kept["length"] == frame and set(kept) == {"_blob", "length"}
+    blob = tmp_path / "data" / "recording.sqlite3.blobs" / kept["_blob"][:2] / kept["_blob"]
+    assert blob.read_bytes() == written[2].fields["data"], "in the blob store, whole"
+
+    out = tmp_path / "out.bag"
+    exported = fleetbus(tmp_path, "export", "--bag", str(out))
+    assert exported.returncode == 0, exported.stderr
+
+    def images(path: Path) -> list[bytes]:
+        with AnyReader([path]) as reader:
+            return [raw for c, _, raw in reader.messages() if c.topic.endswith("image_raw")]
+
+    assert images(out) == images(bag), "the image, byte for byte"

@@ -14,11 +14,13 @@ from typing import Any
 
 import jsonschema
 from mcap.reader import make_reader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.workers.recorder.bag_import import import_bag
 from fleetbus.workers.recorder.mcap_export import export_mcap, nanos
 from fleetbus.workers.recorder.queries import recorded_between
+from fleetbus.workers.recorder.ros_fields import plain
 from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests.factories import hazard, small_map, status
@@ -51,6 +53,14 @@ def assert_valid(schema: Any, data: bytes) -> Any:
     message = json.loads(data)
     jsonschema.validate(message, document)
     return message
+
+
+def ros1_fields(schema: Any, data: bytes) -> Any:
+    """A ROS 1 message read with the definition its channel's schema carries (``rosbags``)."""
+    store = get_typestore(Stores.EMPTY)
+    name = schema.name.replace("/", "/msg/", 1)
+    store.register(get_types_from_msg(schema.data.decode(), name))
+    return plain(store.deserialize_ros1(data, name))
 
 
 def test_recorded_and_imported_messages_round_trip_through_mcap(bus: Bus, tmp_path: Path) -> None:
@@ -89,12 +99,14 @@ def test_recorded_and_imported_messages_round_trip_through_mcap(bus: Bus, tmp_pa
     own = [(s, c, m) for s, c, m in messages if s.name not in FOXGLOVE]
     assert len(own) == len(expected), "every recorded message, once"
     for (schema, channel, message), record in zip(own, expected, strict=True):
-        data = assert_valid(schema, message.data)
         if record.type == "ros":
-            assert channel.topic == record.document["topic"] and schema.name == record.document["ros_type"]
+            assert channel.topic == f"/mcap-explorer{record.document['topic']}", "per robot and topic"
+            assert schema.name == record.document["ros_type"].replace("/msg/", "/")
+            assert (schema.encoding, channel.message_encoding) == ("ros1msg", "ros1"), "native"
             assert message.log_time == record.document["log_time_ns"], "the bag's time, to the nanosecond"
-            assert data == record.document["fields"]
+            assert ros1_fields(schema, message.data) == record.document["fields"]
         else:
+            data = assert_valid(schema, message.data)
             assert channel.topic == f"/{record.robot_id or 'fleetbus'}/{record.type}"
             assert schema.name == f"fleetbus.{record.type}"
             assert message.log_time == nanos(record.recorded_at)

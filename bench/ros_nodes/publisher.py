@@ -1,10 +1,11 @@
 """The ROS node of ``bench.ros_bridge``, for the ROS machine's Python (/usr/bin/python3).
 
-    publisher.py SECONDS SMALL_HZ IMAGE_HZ SUBSCRIBERS
+    publisher.py SECONDS SMALL_HZ IMAGE_HZ SUBSCRIBERS [SMALL_BYTES]
 
 Once each topic has SUBSCRIBERS subscribers, publishes for SECONDS: std_msgs/String on /bench/small
-at SMALL_HZ, and a 640x480 rgb8 sensor_msgs/Image on /bench/image at IMAGE_HZ, on a fixed
-schedule (late sends are sent at once, not skipped). Prints the counts sent as one JSON line.
+at SMALL_HZ (its text SMALL_BYTES long, default about 20), and a 640x480 rgb8 sensor_msgs/Image on
+/bench/image at IMAGE_HZ (0: none), on a fixed schedule (late sends are sent at once, not
+skipped). Prints the counts sent as one JSON line.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ def main() -> None:
         float(sys.argv[3]),
         int(sys.argv[4]),
     )
+    small_bytes = int(sys.argv[5]) if len(sys.argv) > 5 else 0
     rospy.init_node("bench_publisher", anonymous=True, disable_signals=True)
     small = rospy.Publisher("/bench/small", String, queue_size=10_000)
     image = rospy.Publisher("/bench/image", Image, queue_size=100)
@@ -37,15 +39,17 @@ def main() -> None:
     print(json.dumps({"started": time.time()}), flush=True)
     while (now := time.monotonic()) < start + seconds:
         if now >= next_small:
-            small.publish(String(data=f"small message {sent['/bench/small']}"))
+            text = f"small message {sent['/bench/small']}"
+            small.publish(String(data=text.ljust(small_bytes, ".")))
             sent["/bench/small"] += 1
             next_small += 1 / small_hz
-        if now >= next_image:
+        if image_hz and now >= next_image:
             frame.header.stamp = rospy.Time.now()
             image.publish(frame)
             sent["/bench/image"] += 1
             next_image += 1 / image_hz
-        time.sleep(max(0.0, min(next_small, next_image) - time.monotonic()))
+        due = min(next_small, next_image) if image_hz else next_small
+        time.sleep(max(0.0, due - time.monotonic()))
     print(json.dumps({"sent": sent, "seconds": time.monotonic() - start}), flush=True)
     time.sleep(1.0)  # let the last messages leave the publisher's queues before the node goes
     rospy.signal_shutdown("done")

@@ -66,6 +66,18 @@ def parse_time(value: str | None, option: str = "time") -> datetime | None:
         fail(f"{option}: {error}", code=2)
 
 
+def parse_time_ns(value: str | None, option: str = "time") -> int | None:
+    """An option's time in nanoseconds since 1970: an integer of them as written (a ROS log time,
+    to the nanosecond), else what :func:`parse_time` reads; None when it was not given."""
+    if value is None:
+        return None
+    if value.isdigit():
+        return int(value)
+    moment = parse_time(value, option)
+    assert moment is not None
+    return round(moment.timestamp() * 1_000_000) * 1000
+
+
 def parse_duration(value: str, option: str = "duration") -> timedelta:
     """An option's duration, more than zero; else the command ends (status 2) saying why."""
     try:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import queue
 import subprocess
 import threading
@@ -40,6 +41,7 @@ from fleetbus.publishers.ros.convert import (
 from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
 from fleetbus.publishers.ros.mapping import Mapping, Rule
 from fleetbus.schemas.envelope import SchemaError, validate_body
+from fleetbus.schemas.ros import schema_key
 from fleetbus.schemas.routing import EventType
 
 log = logging.getLogger("fleetbus.ros")
@@ -50,6 +52,8 @@ BATCH = 256
 #: The ROS topics notifications are published on start with this.
 NOTIFY_PREFIX = "/fleetbus"
 STATUS_FILE = "ros-bridge.json"
+ROS1_DEFINITION = "ros1msg"
+"""A live connection's definition: ROS 1's message definition text (MCAP's schema encoding)."""
 
 Item = tuple[EventType, Any]
 
@@ -76,9 +80,13 @@ class BridgeOptions:
     exclude: tuple[str, ...] = ()
     max_rate_hz: float = 0.0
     discover_every_s: float = 1.0
+    retry_most_s: float = 10.0
+    """The longest wait between two tries of a master that does not answer (backing off)."""
     queue: int = 10_000
     bytes_max: int = 256 * 1024
     status_every_s: float = 10.0
+    linger_s: float = 0.25
+    """How long the bridge gathers messages into one outbox write (``FLEETBUS_ROS_LINGER_S``)."""
     ready_timeout_s: float = 30.0
     ros_env: dict[str, str] | None = None
     """The ROS side's environment (default: this process's, with its ``ROS_MASTER_URI``)."""
@@ -86,6 +94,7 @@ class BridgeOptions:
 
     def ros_side_command(self) -> list[str]:
         command = [self.python, str(ROS_SIDE), "--discover-every", str(self.discover_every_s)]
+        command += ["--retry-most", str(self.retry_most_s), "--parent", str(os.getpid())]
         command += [
             "--bytes-max",
             str(self.bytes_max),
@@ -123,11 +132,12 @@ class Bridge:
         self._queue: queue.Queue[dict[str, Any]] = queue.Queue(options.queue)
         self._rate = RateLimit(options.max_rate_hz)
         self._stop = threading.Event()
-        self._ready = threading.Event()
+        self._started = threading.Event()
         self._ended = threading.Event()
         self._stdin_lock = threading.Lock()
         self._process: subprocess.Popen[bytes] | None = None
         self._last_pose: dict[str, Any] | None = None
+        self._schema_keys: dict[tuple[str, str], str] = {}
 
     # the ROS side
     def start_ros_side(self) -> None:
@@ -148,12 +158,13 @@ class Bridge:
             target=self._read, args=(self._process.stdout,), name="ros-reader", daemon=True
         ).start()
         deadline = time.monotonic() + self.options.ready_timeout_s
-        while not self._ready.wait(0.1):
+        while not self._started.wait(0.1):
             if self._ended.is_set() or time.monotonic() > deadline:
-                self.stop()
+                self._stop.set()
+                self._end_ros_side()
                 raise RosSideError(
-                    f"the ROS side did not start (is ROS installed for {self.options.python}, and does "
-                    f"ROS_MASTER_URI name a running master?): see {self.ros_log}"
+                    f"the ROS side did not start (is ROS installed for {self.options.python}?): "
+                    f"see {self.ros_log}"
                 )
 
     def _read(self, stream: IO[bytes]) -> None:
@@ -178,10 +189,24 @@ class Bridge:
             elif kind == "error":
                 self.counters.drop(item.get("topic") or "(publish)", DropReason.UNREADABLE)
                 log.warning("ROS side: %s: %s", item.get("topic"), item.get("detail"))
+            elif kind == "master":
+                self._master(item)
+            elif kind == "started":
+                self.counters.ros_side = "waiting for the master"
+                self._started.set()
             elif kind == "ready":
                 self.counters.ros_side = "running"
-                self._ready.set()
         self._ended.set()
+
+    def _master(self, item: dict[str, Any]) -> None:
+        state, uri, restarted = item["state"], item.get("uri") or "", bool(item.get("restarted"))
+        detail, retry_in = item.get("detail") or "", item.get("retry_in") or 0.0
+        self.counters.master_said(state, detail, uri, retry_in, restarted)
+        self.counters.write(self.status_file)
+        if state == "running":
+            log.info("the ROS master at %s answers%s", uri, " (restarted: registered again)" * restarted)
+        else:
+            log.warning("the ROS master at %s does not answer (%s); next in %.1f s", uri, detail, retry_in)
 
     def send_to_ros(self, items: list[dict[str, Any]]) -> None:
         process = self._process
@@ -197,20 +222,35 @@ class Bridge:
 
     # messages to events
     def events_of(self, item: dict[str, Any]) -> list[Item]:
-        """The fleetbus events of one ROS message (validated); raises ConversionError or SchemaError."""
+        """The fleetbus events of one ROS message (validated): the message itself as a ``ros``
+        event, then what its mapping rule makes of it; raises ConversionError or SchemaError."""
         topic, type_name, fields = item["topic"], item["type"], item["fields"]
-        rule = self.mapping.rule_for(topic, type_name)
         stamp = ros_stamp(item.get("stamp_ns"))
+        ros_type = ros2_type_name(type_name)
+        body = {
+            "topic": topic,
+            "ros_type": ros_type,
+            "log_time_ns": item["received_ns"],
+            "stamp": stamp.isoformat() if stamp else None,
+            "fields": fields,
+            "schema_key": self._schema_key(topic, ros_type, item),
+        }
+        if item.get("definition"):
+            text, md5sum = item["definition"], item.get("md5sum")
+            body["definition"] = {"encoding": ROS1_DEFINITION, "text": text, "md5sum": md5sum}
+        recorded: Item = (EventType.ROS, validate_body(EventType.ROS, body))
+        rule = self.mapping.rule_for(topic, type_name)
         if rule is None:
-            body = {
-                "topic": topic,
-                "ros_type": ros2_type_name(type_name),
-                "log_time_ns": item["received_ns"],
-                "stamp": stamp.isoformat() if stamp else None,
-                "fields": fields,
-            }
-            return [(EventType.ROS, validate_body(EventType.ROS, body))]
-        return self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))
+            return [recorded]
+        return [recorded, *self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))]
+
+    def _schema_key(self, topic: str, ros_type: str, item: dict[str, Any]) -> str | None:
+        """The key of the message's type definition: made from the first message of its kind,
+        which carries the definition, and kept for the others."""
+        kind = (topic, item.get("md5sum") or "")
+        if item.get("definition"):
+            self._schema_keys[kind] = schema_key(ROS1_DEFINITION, ros_type, item["definition"])
+        return self._schema_keys.get(kind)
 
     def mapped(self, rule: Rule, fields: dict[str, Any], when: datetime | None) -> list[Item]:
         """The events of a mapped message; ``when``: its header stamp, else when it was received."""
@@ -241,7 +281,7 @@ class Bridge:
                 log.warning("%s (%s) not forwarded: %s", topic, item.get("type"), error)
                 continue
             items += events
-            topics.append((topic, events[0][0] is not EventType.ROS, len(events)))
+            topics.append((topic, len(events) > 1, len(events)))
         if not items:
             return
         try:
@@ -252,7 +292,9 @@ class Bridge:
             log.error("the outbox is full: %d messages dropped (%s)", len(topics), error)
             return
         for topic, mapped, _ in topics:
-            (self.counters.mapped if mapped else self.counters.recorded)[topic] += 1
+            self.counters.recorded[topic] += 1
+            if mapped:
+                self.counters.mapped[topic] += 1
 
     # notifications to ROS
     def _notify(self) -> None:
@@ -308,16 +350,23 @@ class Bridge:
         return 0
 
     def _take(self) -> list[dict[str, Any]]:
+        """The next batch: what comes within ``linger_s`` of its first message (up to BATCH), so that
+        a steady topic costs one outbox write a linger, not one a message; a message of a mapped
+        topic (a hazard, a pose) ends the batch at once."""
         try:
             batch = [self._queue.get(timeout=0.2)]
         except queue.Empty:
             return []
-        while len(batch) < BATCH:
+        deadline = time.monotonic() + self.options.linger_s
+        while len(batch) < BATCH and not self._urgent(batch[-1]):
             try:
-                batch.append(self._queue.get_nowait())
+                batch.append(self._queue.get(timeout=max(0.0, deadline - time.monotonic())))
             except queue.Empty:
                 break
         return batch
+
+    def _urgent(self, item: dict[str, Any]) -> bool:
+        return self.mapping.rule_for(item["topic"], item["type"]) is not None
 
     def report(self) -> None:
         self.counters.write(self.status_file)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from collections import Counter
@@ -35,11 +36,29 @@ class Counters:
     types: dict[str, str] = field(default_factory=dict)
     notifications: int = 0
     ros_side: str = "starting"
+    master: dict[str, Any] = field(default_factory=lambda: {"state": "unknown"})
+    """How the ROS master answers: ``state`` (``running``, ``unreachable``), ``detail``, ``since``,
+    ``failures`` (tries in a row that failed), ``retry_in``, ``restarts`` (seen since the start)."""
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def drop(self, topic: str, reason: str, count: int = 1) -> None:
         with self._lock:
             self.dropped.setdefault(topic, Counter())[reason] += count
+
+    def master_said(self, state: str, detail: str, uri: str, retry_in: float | None, restarted: bool) -> None:
+        """What the ROS side reported of the master (every failed try, and every change)."""
+        with self._lock:
+            before = self.master
+            changed = before.get("state") != state
+            self.master = {
+                "state": state,
+                "uri": uri,
+                "detail": detail,
+                "since": time.time() if changed else before.get("since", time.time()),
+                "failures": 0 if state == "running" else before.get("failures", 0) + 1,
+                "retry_in": retry_in,
+                "restarts": before.get("restarts", 0) + int(restarted),
+            }
 
     def total_dropped(self) -> int:
         with self._lock:
@@ -49,9 +68,11 @@ class Counters:
         with self._lock:
             topics = sorted(set(self.types) | set(self.recorded) | set(self.mapped) | set(self.dropped))
             return {
+                "pid": os.getpid(),
                 "started": self.started,
                 "updated": time.time(),
                 "ros_side": self.ros_side,
+                "master": dict(self.master),
                 "notifications_published": self.notifications,
                 "topics": {
                     topic: {
@@ -73,8 +94,12 @@ class Counters:
             for topic, t in snap["topics"].items()
             if t["dropped"]
         ]
+        master = snap["master"]
+        said = f"master {master['state']}"
+        if master["state"] == "unreachable":
+            said += f" ({master['failures']} tries, next in {master['retry_in']:.0f} s: {master['detail']})"
         return (
-            f"{len(snap['topics'])} topics, {recorded} recorded, {mapped} as events, "
+            f"{said}; {len(snap['topics'])} topics, {recorded} recorded, {mapped} as events, "
             f"dropped: {'; '.join(drops) if drops else 'none'}"
         )
 

@@ -5,38 +5,51 @@ It imports rospy and nothing of fleetbus, so it runs on the interpreter ROS is i
 lines over this process's standard streams:
 
 stdout, one object a line (``kind`` says which):
-  ``ready``       the node is up
+  ``started``     rospy is imported: the process can run here
+  ``master``      ``state`` (``running``, ``unreachable``), ``detail``, ``retry_in`` (s), ``restarted``:
+                  how the master answers; every failure is retried, backing off up to a limit
+  ``ready``       the node is up (registered with a master)
   ``subscribed``  ``topic``, ``type``: a topic found and subscribed to
-  ``message``     ``topic``, ``type``, ``stamp_ns`` (the header's stamp in ns, or null), ``received_ns``
-                  (UNIX time in ns), ``fields`` (the message as a document, see :func:`to_document`)
+  ``message``     ``topic``, ``type``, ``md5sum``, ``stamp_ns`` (the header's stamp in ns, or null),
+                  ``received_ns`` (UNIX time in ns), ``fields`` (the message as a document, see
+                  :func:`to_document`); the first of each topic and type also ``definition`` (the
+                  type's full definition, as its publisher sent it)
   ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
   ``error``       ``topic``, ``detail``: a message that could not be read
 stdin, one object a line:
   ``publish``     ``topic``, ``type``, ``fields``: publish this message (latched) on the ROS side
 
-The process ends when its standard input closes (the bridge ended), and its end closes its stdout.
+The process ends when its standard input closes (the bridge ended), or with the bridge itself
+(the kernel signals it when its parent dies), and its end closes its stdout. It waits for a
+master that is not there yet, and when the master comes back after a restart it registers its
+subscriptions and publications with the new one (ROS 1 nodes do not do that by themselves).
 """
 
 from __future__ import annotations
 
 import argparse
 import base64
+import ctypes
 import fnmatch
 import hashlib
 import json
 import math
+import os
 import queue
 import signal
 import sys
 import threading
 import time
+import xmlrpc.client
 from typing import Any
 
 import genpy
 import genpy.dynamic
 import genpy.message
+import rosgraph.masterapi
 import roslib.message
 import rospy
+import rospy.impl.registration
 
 #: Array types kept as bytes (``{"_base64": ..., "length": n}``), as fleetbus keeps imported bags.
 BYTE_ARRAYS = ("uint8[", "int8[", "char[", "byte[")
@@ -106,6 +119,7 @@ class Recorder:
         self.dropped: dict[str, int] = {}
         self.dropped_lock = threading.Lock()
         self.classes: dict[tuple[str, str], type] = {}
+        self.defined: set[tuple[str, str]] = set()
 
     def wanted(self, topic: str) -> bool:
         if topic.startswith(self.args.own_prefix + "/") or topic == self.args.own_prefix:
@@ -114,8 +128,8 @@ class Recorder:
             return False
         return not any(fnmatch.fnmatchcase(topic, p) for p in self.args.exclude)
 
-    def discover(self) -> None:
-        for topic, type_name in rospy.get_published_topics():
+    def discover(self, master: rosgraph.masterapi.Master) -> None:
+        for topic, type_name in master.getPublishedTopics(""):
             if topic not in self.subscribed and self.wanted(topic):
                 self.subscribed[topic] = rospy.Subscriber(
                     topic, rospy.AnyMsg, self.received, callback_args=topic, queue_size=None
@@ -156,16 +170,19 @@ class Recorder:
             except Exception as error:  # a message that cannot be read is reported, not fatal
                 self.out.write({"kind": "error", "topic": topic, "detail": repr(error)})
                 continue
-            self.out.write(
-                {
-                    "kind": "message",
-                    "topic": topic,
-                    "type": type_name,
-                    "stamp_ns": header_stamp(msg),
-                    "received_ns": received,
-                    "fields": fields,
-                }
-            )
+            item = {
+                "kind": "message",
+                "topic": topic,
+                "type": type_name,
+                "md5sum": raw._connection_header.get("md5sum"),
+                "stamp_ns": header_stamp(msg),
+                "received_ns": received,
+                "fields": fields,
+            }
+            if (topic, item["md5sum"]) not in self.defined:  # the first of its kind says its definition
+                self.defined.add((topic, item["md5sum"]))
+                item["definition"] = raw._connection_header.get("message_definition")
+            self.out.write(item)
 
     def report_drops(self) -> None:
         with self.dropped_lock:
@@ -175,13 +192,28 @@ class Recorder:
 
 
 class Publishers:
-    """The ROS topics fleetbus writes to, made on first use (latched: a late subscriber gets the last)."""
+    """The ROS topics fleetbus writes to, made on first use (latched: a late subscriber gets the
+    last). What comes before the node is up waits, the newest per topic, and goes out once it is."""
 
     def __init__(self, out: Output) -> None:
         self.out = out
         self.publishers: dict[str, rospy.Publisher] = {}
+        self.waiting: dict[str, dict[str, Any]] = {}
+        self.started = False
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        with self._lock:
+            self.started = True
+            waiting, self.waiting = self.waiting, {}
+        for item in waiting.values():
+            self.publish(item)
 
     def publish(self, item: dict[str, Any]) -> None:
+        with self._lock:
+            if not self.started:
+                self.waiting[item["topic"]] = item  # latched topics: only the last one counts
+                return
         topic, type_name = item["topic"], item["type"]
         cls = roslib.message.get_message_class(type_name)
         if cls is None:
@@ -202,28 +234,127 @@ def every(seconds: float, action: Any) -> None:
         time.sleep(seconds)  # a period, not a wait for a condition
 
 
+class MasterWatch:
+    """Asks the master, retries every failure with backoff, says how it goes, and registers this
+    node again with a master that restarted (a new process: another pid)."""
+
+    def __init__(self, out: Output, every_s: float, most_s: float) -> None:
+        self.out, self.every_s, self.most_s = out, every_s, most_s
+        self.master = rosgraph.masterapi.Master(rospy.names.get_caller_id())
+        self.pid: int | None = None
+        self.state = ""
+        self.failures = 0
+
+    def delay(self) -> float:
+        return min(self.every_s * 2 ** min(self.failures, 16), self.most_s) if self.failures else self.every_s
+
+    def answers(self) -> int | None:
+        """The master's pid, or None (reported, with when the next try is) when it does not answer."""
+        try:
+            pid = int(self.master.getPid())
+        except Exception as error:  # socket errors, refusals: all mean "not now"
+            self.failures += 1
+            self.report("unreachable", f"{type(error).__name__}: {error}")
+            return None
+        restarted = self.pid is not None and pid != self.pid
+        self.pid, self.failures = pid, 0
+        if restarted or self.state != "running":
+            self.report("running", "", restarted=restarted)
+        return pid
+
+    def report(self, state: str, detail: str, restarted: bool = False) -> None:
+        self.state = state
+        item = {"kind": "master", "state": state, "detail": detail, "uri": self.master.master_uri}
+        self.out.write({**item, "retry_in": self.delay() if detail else None, "restarted": restarted})
+
+    def register_again(self) -> None:
+        """This node's publications and subscriptions, registered with the (new) master; each
+        subscription is told of the topic's publishers, as the master would tell it."""
+        manager = rospy.impl.registration.get_topic_manager()
+        uri = rospy.get_node_uri()
+        for topic, type_name in manager.get_publications():
+            self.master.registerPublisher(topic, type_name, uri)
+        for topic, type_name in manager.get_subscriptions():
+            publishers = self.master.registerSubscriber(topic, type_name, uri)
+            xmlrpc.client.ServerProxy(uri).publisherUpdate("/master", topic, publishers)
+
+    def wait(self, ended: threading.Event) -> bool:
+        """Until the master answers (True), or ``ended`` is set (False)."""
+        while self.answers() is None:
+            if ended.wait(self.delay()):
+                return False
+        return True
+
+    def watch(self, recorder: Recorder) -> None:
+        """Discovery, for as long as the node runs: new topics, a master gone, a master back."""
+        while not rospy.is_shutdown():
+            before = self.pid
+            pid = self.answers()
+            try:
+                if pid is not None and before is not None and pid != before:
+                    self.register_again()
+                if pid is not None:
+                    recorder.discover(self.master)
+            except Exception as error:  # the master went away half-way: the next round retries
+                self.failures += 1
+                self.report("unreachable", f"{type(error).__name__}: {error}")
+                if before is not None and pid != before:
+                    self.pid = before  # register again at the next round
+            time.sleep(self.delay())  # a period (or backoff), not a wait for a condition
+
+
+def end_with_parent(parent: int | None) -> None:
+    """Ask the kernel to end this process when the bridge that started it (``parent``) dies
+    (Linux); end now if it died before we asked."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass  # another system: the end of our input still ends us
+    if parent is not None and os.getppid() != parent:
+        sys.exit("the bridge that started this process is gone")
+
+
+def start_node(
+    args: argparse.Namespace, out: Output, recorder: Recorder, publishers: Publishers, ended: threading.Event
+) -> None:
+    """Waits for the master, starts the node, then discovers for ever (a thread of its own)."""
+    watch = MasterWatch(out, args.discover_every, args.retry_most)
+    if not watch.wait(ended):
+        return
+    rospy.init_node(args.node, anonymous=True, disable_signals=True)
+    watch.master = rosgraph.masterapi.Master(rospy.get_name())
+    threading.Thread(target=every, args=(1.0, recorder.report_drops), daemon=True).start()
+    threading.Thread(target=recorder.convert_forever, daemon=True).start()
+    publishers.start()
+    out.write({"kind": "ready"})
+    watch.watch(recorder)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--node", default="fleetbus_bridge")
     parser.add_argument("--discover-every", type=float, default=1.0)
+    parser.add_argument("--retry-most", type=float, default=10.0, help="longest wait between tries")
     parser.add_argument("--include", action="append", default=[])
     parser.add_argument("--exclude", action="append", default=[])
     parser.add_argument("--bytes-max", type=int, default=256 * 1024)
     parser.add_argument("--queue", type=int, default=10_000)
     parser.add_argument("--own-prefix", default="/fleetbus")
+    parser.add_argument("--parent", type=int, help="the bridge's pid: this process ends with it")
     args = parser.parse_args()
 
+    end_with_parent(args.parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the bridge, which closes our input
-    rospy.init_node(args.node, anonymous=True, disable_signals=True)
     out = Output()
-    recorder = Recorder(out, args)
-    publishers = Publishers(out)
-    for target, seconds in ((recorder.discover, args.discover_every), (recorder.report_drops, 1.0)):
-        threading.Thread(target=every, args=(seconds, target), daemon=True).start()
-    threading.Thread(target=recorder.convert_forever, daemon=True).start()
-    out.write({"kind": "ready"})
+    out.write({"kind": "started"})
+    ended = threading.Event()
+    recorder, publishers = Recorder(out, args), Publishers(out)
+    threading.Thread(
+        target=start_node, args=(args, out, recorder, publishers, ended), daemon=True
+    ).start()
     for line in sys.stdin:  # ends when the bridge closes our stdin (or dies)
         try:
             item = json.loads(line)
@@ -233,8 +364,10 @@ def main() -> None:
             out.write(
                 {"kind": "error", "topic": "", "detail": f"cannot publish {line.strip()[:200]}: {error!r}"}
             )
+    ended.set()
     recorder.report_drops()  # the last counts, before the pipe closes
-    rospy.signal_shutdown("the bridge closed its end")
+    if publishers.started:
+        rospy.signal_shutdown("the bridge closed its end")
 
 
 if __name__ == "__main__":

@@ -10,14 +10,13 @@ import threading
 import xmlrpc.client
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.ros.bridge import Bridge, BridgeOptions
-from fleetbus.publishers.ros.mapping import load_mapping
+from fleetbus.publishers.ros.mapping import Mapping, load_mapping
 from tests.api.server import free_port
 from tests.support import read_line, wait_for
 
@@ -42,44 +41,64 @@ def ros_installed() -> None:
         pytest.skip(f"{missing} (FLEETBUS_WITH_ROS=1 bash scripts/setup installs ROS 1)")
 
 
-@dataclass
 class RosMaster:
-    uri: str
-    env: dict[str, str]
+    """``roscore`` on a port of its own, its logs in ``folder``; stopped and started again at will
+    (a restart: a new master process on the same URI)."""
 
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.port = free_port()
+        self.uri = f"http://127.0.0.1:{self.port}"
+        ros = {"ROS_MASTER_URI": self.uri, "ROS_HOME": str(folder / "ros"), "ROS_IP": "127.0.0.1"}
+        self.env = {**os.environ, **ros}
+        self.env.pop("ROS_HOSTNAME", None)
+        self.core: subprocess.Popen[bytes] | None = None
 
-@pytest.fixture
-def ros_master(ros_installed: None, tmp_path: Path) -> Iterator[RosMaster]:
-    """``roscore`` on a free port, its logs in the test's folder; stopped (with its nodes) after."""
-    port = free_port()
-    uri = f"http://127.0.0.1:{port}"
-    env = {**os.environ, "ROS_MASTER_URI": uri, "ROS_HOME": str(tmp_path / "ros"), "ROS_IP": "127.0.0.1"}
-    env.pop("ROS_HOSTNAME", None)
-    core = subprocess.Popen(
-        ["roscore", "-p", str(port)],
-        env=env,
-        stdout=(tmp_path / "roscore.log").open("wb"),
-        stderr=subprocess.STDOUT,
-        start_new_session=True,
-    )
-
-    def answers() -> bool:
-        assert core.poll() is None, f"roscore ended ({core.returncode}): see {tmp_path / 'roscore.log'}"
+    def answers(self) -> bool:
         try:
-            return xmlrpc.client.ServerProxy(uri).getSystemState("/test")[0] == 1
+            return xmlrpc.client.ServerProxy(self.uri).getSystemState("/test")[0] == 1
         except OSError:
             return False
 
-    try:
-        wait_for(answers, 30, "the ROS master to answer")
-        yield RosMaster(uri, env)
-    finally:
+    def start(self) -> None:
+        log = self.folder / "roscore.log"
+        core = subprocess.Popen(
+            ["roscore", "-p", str(self.port)],
+            env=self.env,
+            stdout=log.open("ab"),
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        self.core = core
+
+        def up() -> bool:
+            assert core.poll() is None, f"roscore ended ({core.returncode}): see {log}"
+            return self.answers()
+
+        wait_for(up, 30, "the ROS master to answer")
+
+    def stop(self) -> None:
+        core, self.core = self.core, None
+        if core is None:
+            return
         os.killpg(core.pid, signal.SIGINT)  # roscore stops its master and rosout
         try:
             core.wait(15)
         except subprocess.TimeoutExpired:
             os.killpg(core.pid, signal.SIGKILL)
             core.wait()
+        wait_for(lambda: not self.answers(), 15, "the ROS master gone")
+
+
+@pytest.fixture
+def ros_master(ros_installed: None, tmp_path: Path) -> Iterator[RosMaster]:
+    """``roscore`` on a free port, its logs in the test's folder; stopped (with its nodes) after."""
+    master = RosMaster(tmp_path)
+    try:
+        master.start()
+        yield master
+    finally:
+        master.stop()
 
 
 @contextmanager
@@ -107,11 +126,19 @@ def ros_peer(master: RosMaster, *args: str) -> Iterator[subprocess.Popen[str]]:
 
 @contextmanager
 def running_bridge(
-    robot: RobotClient, master: RosMaster, state_dir: Path, commands_url: str | None = None, **options: object
+    robot: RobotClient,
+    master: RosMaster,
+    state_dir: Path,
+    commands_url: str | None = None,
+    mapping: Mapping | None = None,
+    node_up: bool = True,
+    **options: object,
 ) -> Iterator[Bridge]:
-    """The bridge for ``robot`` on a thread, with the standard mapping; stopped (and checked) after."""
+    """The bridge for ``robot`` on a thread, with the standard mapping unless given one; once its
+    ROS node is up (``node_up``), else once its ROS side started; stopped (and checked) after."""
     settings = {"discover_every_s": 0.2, "status_every_s": 0.5, "ros_env": master.env, **options}
-    bridge = Bridge(robot, load_mapping(None), BridgeOptions(**settings), state_dir, commands_url)  # type: ignore[arg-type]
+    rules = mapping or load_mapping(None)
+    bridge = Bridge(robot, rules, BridgeOptions(**settings), state_dir, commands_url)  # type: ignore[arg-type]
     result: list[int | BaseException] = []
 
     def run() -> None:
@@ -123,7 +150,9 @@ def running_bridge(
     thread = threading.Thread(target=run, name="ros-bridge", daemon=True)
     thread.start()
     try:
-        wait_for(lambda: bridge.counters.ros_side != "starting" or result, 30, "the ROS side to start")
+        wanted = ("running",) if node_up else ("waiting for the master", "running")
+        wait_for(lambda: bridge.counters.ros_side in wanted or result, 30, "the ROS side to start")
+        assert not result, f"the bridge ended at its start: {result}"
         yield bridge
     finally:
         bridge.stop()

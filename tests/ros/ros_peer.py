@@ -2,16 +2,25 @@
 
     ros_peer.py samples            latched samples: /chatter (std_msgs/String), /robot_pose
                                    (geometry_msgs/PoseStamped), /map (nav_msgs/OccupancyGrid),
-                                   /imu (sensor_msgs/Imu, a type fleetbus has no model of)
+                                   /imu (sensor_msgs/Imu, a type fleetbus has no model of), and on
+                                   topics no rule maps /move_base_simple/goal (a PoseStamped at
+                                   x=42, y=-7) and /move_base/local_costmap/costmap (a grid)
     ros_peer.py burst TOPIC N      N std_msgs/String on TOPIC ("0".."N-1") once someone subscribed,
                                    then "last" (the sentinel)
     ros_peer.py listen TOPIC TYPE  print each message received on TOPIC as a JSON line
+    ros_peer.py record TOPIC...    print each message received on the TOPICs, of whatever type, as a
+                                   JSON line: topic, type, its bytes (base64), when (monotonic s)
+    ros_peer.py scene N            once each topic has N subscribers: /chatter "hello 0".."hello 4"
+                                   then "goodbye"; /tf three tf2_msgs/TFMessage of two transforms
+                                   (map->odom x=i, odom->base_link x=10+i); /odom three
+                                   nav_msgs/Odometry (pose x=i, twist linear x=0.5*i); "sent" after
 
 Prints "ready" once its publishers or subscriber exist; runs until its standard input closes.
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import sys
 import threading
@@ -20,10 +29,11 @@ from typing import Any
 
 import roslib.message
 import rospy
-from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import OccupancyGrid
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 
 STAMP = rospy.Time(1_700_000_000, 250_000_000)
 
@@ -56,7 +66,15 @@ def samples() -> list[rospy.Publisher]:
     imu.orientation_covariance = [0.5] * 9
     imus = rospy.Publisher("/imu", Imu, queue_size=10, latch=True)
     imus.publish(imu)
-    return [chatter, poses, maps, imus]
+    # a pose and a grid on topics no rule names: an operator's goal, a local costmap
+    goal = PoseStamped()
+    goal.header.stamp, goal.header.frame_id = STAMP, "map"
+    goal.pose.position.x, goal.pose.position.y, goal.pose.orientation.w = 42.0, -7.0, 1.0
+    goals = rospy.Publisher("/move_base_simple/goal", PoseStamped, queue_size=1, latch=True)
+    goals.publish(goal)
+    costmaps = rospy.Publisher("/move_base/local_costmap/costmap", OccupancyGrid, queue_size=1, latch=True)
+    costmaps.publish(grid)
+    return [chatter, poses, maps, imus, goals, costmaps]
 
 
 def burst(topic: str, count: int) -> rospy.Publisher:
@@ -73,6 +91,42 @@ def burst(topic: str, count: int) -> rospy.Publisher:
     return publisher
 
 
+def transform(parent: str, child: str, x: float, stamp: rospy.Time) -> TransformStamped:
+    moved = TransformStamped()
+    moved.header.stamp, moved.header.frame_id, moved.child_frame_id = stamp, parent, child
+    moved.transform.translation.x = x
+    moved.transform.rotation.w = 1.0
+    return moved
+
+
+def scene(subscribers: int) -> list[rospy.Publisher]:
+    chatter = rospy.Publisher("/chatter", String, queue_size=100)
+    tf = rospy.Publisher("/tf", TFMessage, queue_size=100)
+    odom = rospy.Publisher("/odom", Odometry, queue_size=100)
+    publishers = [chatter, tf, odom]
+
+    def run() -> None:
+        while any(p.get_num_connections() < subscribers for p in publishers) and not rospy.is_shutdown():
+            time.sleep(0.01)
+        for i in range(5):
+            chatter.publish(String(data=f"hello {i}"))
+        for i in range(3):
+            stamp = rospy.Time(STAMP.secs + i, 0)
+            pair = [transform("map", "odom", i, stamp), transform("odom", "base_link", 10.0 + i, stamp)]
+            tf.publish(TFMessage(pair))
+            moved = Odometry()
+            moved.header.stamp, moved.header.frame_id, moved.child_frame_id = stamp, "odom", "base_link"
+            moved.pose.pose.position.x, moved.pose.pose.orientation.w = float(i), 1.0
+            moved.twist.twist.linear.x = 0.5 * i
+            odom.publish(moved)
+            time.sleep(0.05)  # three distinct log times, for a time window
+        chatter.publish(String(data="goodbye"))
+        say("sent")
+
+    threading.Thread(target=run, daemon=True).start()
+    return publishers
+
+
 def listen(topic: str, type_name: str) -> rospy.Subscriber:
     cls = roslib.message.get_message_class(type_name)
 
@@ -86,12 +140,26 @@ def listen(topic: str, type_name: str) -> rospy.Subscriber:
     return rospy.Subscriber(topic, cls, received)
 
 
+def record(topics: list[str]) -> list[rospy.Subscriber]:
+    def received(raw: rospy.AnyMsg, topic: str) -> None:
+        kind = raw._connection_header["type"]
+        data = base64.b64encode(raw._buff).decode()
+        say({"topic": topic, "type": kind, "data": data, "t": time.monotonic()})
+
+    return [rospy.Subscriber(topic, rospy.AnyMsg, received, callback_args=topic) for topic in topics]
+
+
 def main() -> None:
     rospy.init_node("fleetbus_test_peer", anonymous=True, disable_signals=True)
     mode, args = sys.argv[1], sys.argv[2:]
-    keep = (
-        samples() if mode == "samples" else burst(args[0], int(args[1])) if mode == "burst" else listen(*args)
-    )
+    modes = {
+        "samples": lambda: samples(),
+        "burst": lambda: burst(args[0], int(args[1])),
+        "listen": lambda: listen(*args),
+        "scene": lambda: scene(int(args[0])),
+        "record": lambda: record(args),
+    }
+    keep = modes[mode]()
     say("ready")
     sys.stdin.read()  # until the test closes our input
     del keep

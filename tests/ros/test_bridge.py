@@ -19,6 +19,7 @@ from tests.link import NetworkLink
 from tests.ros.conftest import RosMaster, ros_peer, running_bridge
 from tests.support import Bus, network_link, read_line, wait_for
 
+GOAL, COSTMAP = "/move_base_simple/goal", "/move_base/local_costmap/costmap"
 #: The header stamp ros_peer.py gives its samples.
 SAMPLE_STAMP = datetime.fromtimestamp(1_700_000_000.25, timezone.utc)
 
@@ -42,11 +43,12 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
         ros_peer(ros_master, "listen", "/fleetbus/hazard_pose", "geometry_msgs/PoseStamped") as listener,
         ros_peer(ros_master, "listen", "/fleetbus/goal", "geometry_msgs/PoseStamped") as goals,
         ros_peer(ros_master, "samples"),
-        running_bridge(robot, ros_master, bus.settings.robots_dir, commands_url=account.amqp_url),
+        running_bridge(robot, ros_master, bus.settings.robots_dir, commands_url=account.amqp_url) as bridge,
     ):
+        every_topic = {"/chatter", "/imu", "/robot_pose", "/map", GOAL, COSTMAP}
         records = wait_for(
-            lambda: (r := ros_records(bus, "rosbot1")) and {"/chatter", "/imu"} <= set(r) and r,
-            what="/chatter and /imu stored as ros events",
+            lambda: (r := ros_records(bus, "rosbot1")) and every_topic <= set(r) and r,
+            what="every topic stored as ros events, mapped ones too",
         )
         assert records["/chatter"]["ros_type"] == "std_msgs/msg/String", "named as bag imports name types"
         assert records["/chatter"]["fields"] == {"data": "hello fleetbus"}
@@ -58,15 +60,24 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
         assert imu["fields"]["header"]["stamp"] == {"sec": 1_700_000_000, "nanosec": 250_000_000}
         assert imu["fields"]["linear_acceleration"] == {"x": 0.0, "y": 0.0, "z": 9.81}
         assert imu["fields"]["orientation_covariance"] == [0.5] * 9
-        assert not {"/robot_pose", "/map"} & set(records), "mapped topics are events of their own"
+        # a mapped message is also kept as the ROS message it was: z, its frame, its stamp
+        pose_message = records["/robot_pose"]
+        assert pose_message["ros_type"] == "geometry_msgs/msg/PoseStamped"
+        assert pose_message["fields"]["header"]["frame_id"] == "map"
+        assert datetime.fromisoformat(pose_message["stamp"]) == SAMPLE_STAMP
+        assert pose_message["fields"]["pose"]["position"] == {"x": 3.5, "y": -1.25, "z": 0.0}
+        assert records["/map"]["fields"]["info"]["width"] == 4
+        assert records[GOAL]["fields"]["pose"]["position"]["x"] == 42.0
 
-        # the pose is the robot's localisation (its place on the console's map), the grid a map
+        # the pose is the robot's localisation (its place on the console's map), the grid a map;
+        # the operator's goal and the local costmap are no rule's topics: recorded, not mapped
         [pose] = wait_for(lambda: bus.find(EventQuery(type="localisation", robot_id="rosbot1")), what="pose")
         assert pose.body == {
             "localised": True,
             "pose": {"x": 3.5, "y": -1.25, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
         }
         wait_for(lambda: bus.count("map", "rosbot1"), what="the grid stored as a map")
+        assert bridge.counters.mapped == {"/robot_pose": 1, "/map": 1}, "the goal and the costmap are no map"
         stored = explorer.fetch_map()
         rows = [bytes([254, 254, 254, 0]), bytes([254, 205, 0, 254]), bytes([254, 254, 0, 205])]
         assert stored.pgm == b"P5\n4 3\n255\n" + b"".join(rows), "top row first, map_server's thresholds"

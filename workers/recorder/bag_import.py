@@ -17,7 +17,9 @@ from pathlib import Path
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.ros import ROS_TYPE, ros_record_key
 from fleetbus.workers.recorder.bags import BagMessage, bag_digest, message_count, read_bag
+from fleetbus.workers.recorder.ros_native import schema_record
 from fleetbus.workers.recorder.ros_records import ros_record
+from fleetbus.workers.recorder.ros_tf import transform_records
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 
 BATCH = 500
@@ -65,36 +67,53 @@ async def import_bag(
     robot: str,
     max_bytes: int,
     progress: Progress = lambda phase, done, total: None,
+    blob_max: int = 0,
 ) -> ImportReport:
-    """Store every message of the bag at ``path`` as ``robot``'s, or none (raising why)."""
+    """Store every message of the bag at ``path`` as ``robot``'s, or none (raising why); byte
+    arrays over 64 KiB and up to ``blob_max`` bytes (0: none) whole, in the blob store."""
     validate_name(robot)
     total = message_count(path)
     digest = bag_digest(path)
     trimmed = 0
-    for item in read_bag(path, max_bytes):  # the whole bag is readable before anything is stored
+    for item in read_bag(path, max_bytes, blob_max):  # all readable before anything is stored
         trimmed += item.trimmed
         progress("check", item.index + 1, total)
-    added: list[str] = []
+    added: list[tuple[str, str]] = []  # (type, key) of each record this import stored
     batch: list[RecordedMessage] = []
     written = 0
+    schemas: set[str] = set()
+    blobs_added: list[str] = []
     try:
-        for item in read_bag(path, max_bytes):
-            batch.append(bag_record(robot, digest, path.name, item))
-            if len(batch) == BATCH:
+        for item in read_bag(path, max_bytes, blob_max):
+            for name, data in item.blobs.items():
+                if await store.put_blob(name, data):
+                    blobs_added.append(name)
+            record = bag_record(robot, digest, path.name, item)
+            if item.schema is not None and item.schema.key not in schemas:
+                schemas.add(item.schema.key)  # stored before the first message that names it
+                batch.append(schema_record(item.schema, robot, item.message.topic, record.recorded_at))
+            batch += [record, *transform_records(record)]
+            if len(batch) >= BATCH:
                 written += await _write(store, batch, added)
                 progress("store", written, total)
         written += await _write(store, batch, added)
         progress("store", written, total)
     except BaseException:
-        if added:
-            await store.delete_recorded(ROS_TYPE, added)
+        for type in {type for type, _ in added}:
+            await store.delete_recorded(type, [key for kind, key in added if kind == type])
+        if blobs_added:
+            await store.delete_blobs(blobs_added)
         raise
-    return ImportReport(str(path), digest, written, len(added), trimmed)
+    stored = sum(type == ROS_TYPE for type, _ in added)
+    return ImportReport(str(path), digest, written, stored, trimmed)
 
 
-async def _write(store: RecordingStore, batch: list[RecordedMessage], added: list[str]) -> int:
+async def _write(
+    store: RecordingStore, batch: list[RecordedMessage], added: list[tuple[str, str]]
+) -> int:
+    """Write the batch; how many messages it held (their transforms not counted)."""
     results = await store.write_recorded(batch)
-    added.extend(record.key for record, result in zip(batch, results, strict=True) if result.inserted)
-    count = len(batch)
+    added.extend((r.type, r.key) for r, result in zip(batch, results, strict=True) if result.inserted)
+    count = sum(record.type == ROS_TYPE for record in batch)
     batch.clear()
     return count

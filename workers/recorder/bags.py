@@ -11,12 +11,13 @@ import hashlib
 import sqlite3
 import struct
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fleetbus.schemas.ros import RosMessage
 from fleetbus.workers.recorder.ros_fields import header_stamp, message_fields
+from fleetbus.workers.recorder.ros_native import ROS1, ROS2, RosSchema
 
 #: The typestore (``rosbags.typesys.Stores``) that decodes a bag carrying no message definitions
 #: (ROS 2 bags recorded before Iron): the standard messages of the latest ROS 2 LTS release.
@@ -38,6 +39,10 @@ class BagMessage:
     """Bytes of the serialised message in the bag."""
     trimmed: bool = False
     """Large arrays were described instead of kept, to stay within the size limit."""
+    schema: RosSchema | None = None
+    """Its type's definition (the same object for every message of a connection)."""
+    blobs: dict[str, bytes] = field(default_factory=dict)
+    """Its large byte arrays, by SHA-256 (the fields name them)."""
 
 
 def bag_digest(path: Path) -> str:
@@ -97,7 +102,7 @@ def message_count(path: Path) -> int:
         raise BagError(_explain(path, error)) from error
 
 
-def read_bag(path: Path, max_bytes: int) -> Iterator[BagMessage]:
+def read_bag(path: Path, max_bytes: int, blob_max: int = 0) -> Iterator[BagMessage]:
     """Every message of the bag in log-time order, deserialised, as a :class:`RosMessage`.
 
     Raises :class:`BagError` at the first message (or index) that cannot be read, and when
@@ -105,20 +110,25 @@ def read_bag(path: Path, max_bytes: int) -> Iterator[BagMessage]:
     """
     reader = _reader(path)
     index = 0
+    schemas: dict[int, RosSchema] = {}
     try:
         with reader:
             expected = int(reader.message_count)
             for connection, log_time, raw in reader.messages():
                 decoded = reader.deserialize(raw, connection.msgtype)
-                fields, trimmed = message_fields(decoded, max_bytes)
+                fields, trimmed, blobs = message_fields(decoded, max_bytes, blob_max)
+                schema = schemas.get(connection.id)
+                if schema is None:
+                    schema = schemas[connection.id] = schema_of(reader, connection)
                 message = RosMessage(
                     topic=connection.topic,
                     ros_type=connection.msgtype,
                     log_time_ns=log_time,
                     stamp=header_stamp(fields),
                     fields=fields,
+                    schema_key=schema.key,
                 )
-                yield BagMessage(index, message, len(raw), trimmed)
+                yield BagMessage(index, message, len(raw), trimmed, schema, blobs)
                 index += 1
     except BagError:
         raise
@@ -129,6 +139,18 @@ def read_bag(path: Path, max_bytes: int) -> Iterator[BagMessage]:
             f"{path}: holds {index} readable messages where its index says {expected}: "
             "the file is truncated or damaged"
         )
+
+
+def schema_of(reader: Any, connection: Any) -> RosSchema:
+    """The definition of a connection's type: a ROS 1 bag's own text (what its publisher sent), or
+    for a ROS 2 bag the one ``rosbags`` writes from the type it decoded the messages with."""
+    if reader.is2:
+        text, _ = reader.typestore.generate_msgdef(connection.msgtype, ros_version=2)
+        return RosSchema(connection.msgtype, ROS2, text)
+    text = connection.msgdef.data if connection.msgdef and connection.msgdef.data else None
+    if not text:
+        text, _ = reader.typestore.generate_msgdef(connection.msgtype, ros_version=1)
+    return RosSchema(connection.msgtype, ROS1, text, connection.digest or None)
 
 
 def _explain(path: Path, error: BaseException, index: int | None = None) -> str:

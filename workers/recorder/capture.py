@@ -34,7 +34,7 @@ from datetime import datetime, timezone
 from decimal import Decimal
 from typing import TYPE_CHECKING, Any
 
-from fleetbus.schemas.ros import ROS_TYPE
+from fleetbus.schemas.ros import ROS_SCHEMA_TYPE, ROS_TF_TYPE, ROS_TYPE
 from fleetbus.schemas.routing import (
     BEACON_CODENAME_HEADER,
     BEACON_TYPE,
@@ -57,12 +57,16 @@ REJECTION = "rejection"
 """Where a recorded dead letter keeps why a worker refused it (the store's record of it): the
 broker moved the message itself, unchanged, so its headers cannot say."""
 OTHER = "other"
-#: Types the recorder keeps for itself; ``ros`` holds every ROS message (``fleetbus.schemas.ros``).
-SERVICE_TYPES = (NOTIFICATION, REQUEST, DEAD_LETTER, OTHER, ROS_TYPE)
+#: Types the recorder keeps for itself; ``ros`` holds every ROS message (``fleetbus.schemas.ros``),
+#: ``ros_tf`` each transform of a TF message, ``ros_schema`` the definitions of ROS types.
+SERVICE_TYPES = (NOTIFICATION, REQUEST, DEAD_LETTER, OTHER, ROS_TYPE, ROS_TF_TYPE, ROS_SCHEMA_TYPE)
+#: Types whose records copy what other records hold: left out of an export, a replay or a
+#: timeline unless named.
+COPIES = (DEAD_LETTER, ROS_TF_TYPE, ROS_SCHEMA_TYPE)
 #: What ``fleetbus query`` shows besides recorded types: the workers' sequence ledger.
 LEDGER_VIEWS = ("gaps", "duplicates")
 #: Types whose messages follow a fleetbus schema; everything else is stored as received, flagged unknown.
-KNOWN_TYPES = frozenset({t.value for t in EventType} | {NOTIFICATION, REQUEST, DEAD_LETTER, ROS_TYPE})
+KNOWN_TYPES = frozenset({t.value for t in EventType} | set(SERVICE_TYPES) - {OTHER})
 DEFAULT_MAX_TYPES = 200
 
 

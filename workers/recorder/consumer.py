@@ -33,6 +33,7 @@ from fleetbus.workers.recorder.capture import (
 )
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import Retention, RetentionSweeper, parse_retention
+from fleetbus.workers.recorder.ros_derived import derived_records
 from fleetbus.workers.recorder.source import Delivery, RecorderQueue
 from fleetbus.workers.store.base import StoreUnavailable, WriteResult
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore, StorageSample
@@ -188,6 +189,11 @@ class RecorderConsumer:
                     self._since_sample += 1
                 else:
                     self.stats.duplicates += 1
+            # what a message brings (its transforms, its type's definition) is written again with
+            # it, also when redelivered: it may be what was lost
+            derived = [d for record in records for d in derived_records(record)]
+            if derived:
+                await self._retrying(lambda: self._write(derived))
         last = last_unsettled(batch)
         if last is not None:
             await last.ack(multiple=True)

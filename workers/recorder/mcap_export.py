@@ -12,8 +12,13 @@ service's messages)                Schema                      notification...)
 ``/<robot>/status/pose``,          ``foxglove.PoseInFrame``    the pose of a status or a
 ``/<robot>/localisation/pose``                                 localisation
 ``/<robot>/hazards``               ``foxglove.SceneUpdate``    a sphere and a label per hazard
-the ROS topic                      the ROS type                the ROS message's fields
+``/<robot><topic>``                the ROS type's definition   the ROS message in its native
+(``/explorer1/scan``)              (``ros1msg`` or             encoding (``ros1`` or ``cdr``),
+                                   ``ros2msg``)                serialised again from its fields
 =================================  ==========================  =================================
+
+A ROS message recorded without its type's definition (a recording older than definitions) is
+written as JSON (its fields) with an open JSON Schema instead.
 
 Log time is when the message was recorded (a bag's log time for imported ROS messages, to the
 nanosecond); publish time is when it was sent (the envelope's ``sent_at``, ``header.stamp``
@@ -25,7 +30,7 @@ from __future__ import annotations
 
 import base64
 import json
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, BinaryIO
@@ -37,6 +42,7 @@ from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.ros import ROS_TYPE
 from fleetbus.workers.recorder.capture import NOTIFICATION
 from fleetbus.workers.recorder.foxglove_views import VIEWS
+from fleetbus.workers.recorder.ros_native import Codec, NotEncodable, RosSchema
 from fleetbus.workers.store.recordings import RecordedMessage
 
 PROFILE = ""
@@ -102,19 +108,28 @@ class ExportReport:
     """Foxglove messages written besides them."""
     channels: dict[str, int] = field(default_factory=dict)
     """Messages per topic."""
+    not_encoded: dict[str, int] = field(default_factory=dict)
+    """ROS messages left out, per why: fields that cannot be serialised again (an array the
+    recording kept only as a description)."""
 
 
 class McapExport:
     """One MCAP file being written: schemas and channels registered on first use."""
 
-    def __init__(self, stream: BinaryIO) -> None:
+    def __init__(self, stream: BinaryIO, ros_schemas: Mapping[str, RosSchema] | None = None) -> None:
         from mcap.writer import Writer
 
         self._writer = Writer(stream)
         self._writer.start(profile=PROFILE, library=LIBRARY)
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
+        self._ros_schemas = ros_schemas or {}
+        self._codecs: dict[str, Codec] = {}
         self.report = ExportReport()
+
+    def metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """A metadata record (what the file holds: robots, window), as MCAP readers list them."""
+        self._writer.add_metadata(name, dict(data))
 
     def _schema(self, name: str, schema: Callable[[], dict[str, Any]]) -> int:
         if name not in self._schemas:
@@ -165,15 +180,50 @@ class McapExport:
 
     def _write_ros(self, record: RecordedMessage, document: dict[str, Any]) -> None:
         topic = str(document.get("topic") or record.routing_key)
+        robot = record.robot_id or SERVICE_TOPIC
+        channel_topic = f"/{robot}{topic}" if topic.startswith("/") else f"/{robot}/{topic}"
         ros_type = str(document.get("ros_type") or "ros")
         log_time = document.get("log_time_ns")
         log_time = log_time if isinstance(log_time, int) else nanos(record.recorded_at)
         publish_time = nanos(record.sent_at) if record.sent_at else log_time
-        channel = self._channel(
-            topic, ros_type, lambda: {"title": ros_type, "type": "object"}, robot=record.robot_id or ""
-        )
-        self._add(channel, topic, document.get("fields", {}), log_time, publish_time)
+        meta = {"robot": robot, "ros_topic": topic, "ros_type": ros_type}
+        schema = self._ros_schemas.get(str(document.get("schema_key")))
+        if schema is None:
+            open_schema = {"title": ros_type, "type": "object"}
+            channel = self._channel(channel_topic, ros_type, lambda: open_schema, **meta)
+            self._add(channel, channel_topic, document.get("fields", {}), log_time, publish_time)
+            self.report.messages += 1
+            return
+        try:
+            data = self._codec(schema).serialize(document.get("fields") or {})
+        except NotEncodable as error:
+            why = str(error)
+            self.report.not_encoded[why] = self.report.not_encoded.get(why, 0) + 1
+            return
+        channel = self._native_channel(channel_topic, schema, meta)
+        self._writer.add_message(channel_id=channel, log_time=log_time, data=data, publish_time=publish_time)
+        self.report.channels[channel_topic] = self.report.channels.get(channel_topic, 0) + 1
         self.report.messages += 1
+
+    def _codec(self, schema: RosSchema) -> Codec:
+        if schema.key not in self._codecs:
+            self._codecs[schema.key] = Codec(schema)
+        return self._codecs[schema.key]
+
+    def _native_channel(self, topic: str, schema: RosSchema, meta: dict[str, str]) -> int:
+        if (topic, schema.key) not in self._channels:
+            if schema.key not in self._schemas:
+                name = schema.ros1_type if schema.message_encoding == "ros1" else schema.ros_type
+                self._schemas[schema.key] = self._writer.register_schema(
+                    name=name, encoding=schema.encoding, data=schema.definition.encode()
+                )
+            self._channels[topic, schema.key] = self._writer.register_channel(
+                topic=topic,
+                message_encoding=schema.message_encoding,
+                schema_id=self._schemas[schema.key],
+                metadata=meta,
+            )
+        return self._channels[topic, schema.key]
 
     def finish(self) -> ExportReport:
         self._writer.finish()
@@ -191,9 +241,14 @@ def export_mcap(
     records: Iterable[RecordedMessage],
     stream: BinaryIO,
     on_each: Callable[[RecordedMessage], None] = lambda record: None,
+    ros_schemas: Mapping[str, RosSchema] | None = None,
+    metadata: Mapping[str, str] | None = None,
 ) -> ExportReport:
-    """Write ``records`` (in recording order) to ``stream`` as one MCAP file, reading them as it goes."""
-    export = McapExport(stream)
+    """Write ``records`` (in recording order) to ``stream`` as one MCAP file, reading them as it
+    goes; ROS messages in their native encoding when ``ros_schemas`` has their definition."""
+    export = McapExport(stream, ros_schemas)
+    if metadata:
+        export.metadata("fleetbus.export", metadata)
     for record in records:
         export.write(record)
         on_each(record)

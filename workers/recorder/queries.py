@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 
 from fleetbus.broker.routes import Route, RouteMap
 from fleetbus.broker.topics import topic_matches
+from fleetbus.schemas.ros import MESSAGE_FIELDS, ROS_SCHEMA_TYPE, ROS_TF_TYPE, ROS_TYPE
 from fleetbus.schemas.routing import (
     ANNOUNCED_TO_HEADER,
     EXPRESS_QUEUE,
@@ -29,7 +30,7 @@ from fleetbus.schemas.routing import (
     inbox_queue,
     shard_of_queue,
 )
-from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
+from fleetbus.workers.recorder.capture import COPIES, DEAD_LETTER, NOTIFICATION, refusal
 from fleetbus.workers.store.base import EventQuery, EventRecord, EventStore
 from fleetbus.workers.store.recordings import (
     Condition,
@@ -59,8 +60,12 @@ PAGE = 500
 
 
 def resolve_path(type: str, path: str) -> str:
-    """A field of an event type's body may be named alone: ``name`` is ``body.name`` for behaviours."""
-    if type in EVENT_TYPES and path.split(".", 1)[0] not in ENVELOPE_FIELDS:
+    """A field of an event type's body may be named alone: ``name`` is ``body.name`` for behaviours;
+    a ROS message's field likewise: ``data`` is ``fields.data`` (its ``topic`` is its own)."""
+    first = path.split(".", 1)[0]
+    if type == ROS_TYPE:
+        return path if first in MESSAGE_FIELDS else f"fields.{path}"
+    if type in EVENT_TYPES and first not in ENVELOPE_FIELDS:
         return f"body.{path}"
     return path
 
@@ -135,15 +140,15 @@ async def recorded_between(
     conditions: Sequence[Condition] = (),
     page: int = PAGE,
 ) -> AsyncIterator[RecordedMessage]:
-    """Records of the window in recording order, of ``types`` (default: all but dead letters,
-    which are copies); ``conditions`` need exactly one type, whose fields they name.
+    """Records of the window in recording order, of ``types`` (default: all but the copies, dead
+    letters and transforms); ``conditions`` need exactly one type, whose fields they name.
 
     Streamed: each type is read ``page`` records at a time and the pages merged as they are
     read, so a window of any size takes the memory of one page per type.
     """
     if conditions and len(types) != 1:
         raise RecordingError("field conditions apply to one type: name exactly one")
-    chosen = list(types) or [t for t in await store.recorded_types() if t != DEAD_LETTER]
+    chosen = list(types) or [t for t in await store.recorded_types() if t not in COPIES]
     queries = [
         RecordQuery(
             check_type_name(t), tuple(conditions), robot_id=robot_id, since=since, until=until, limit=page
@@ -212,6 +217,8 @@ async def timeline(
     streams: list[Iterable[TimelineEntry]] = []
     types = await store.recorded_types()
     for type in types:
+        if type in (ROS_TF_TYPE, ROS_SCHEMA_TYPE):
+            continue  # what the ROS messages the timeline shows bring with them
         sent = await store.find_recorded(
             RecordQuery(type, robot_id=robot_id, since=since, until=until, limit=limit + 1)
         )

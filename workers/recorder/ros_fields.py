@@ -21,8 +21,10 @@ import math
 from datetime import datetime, timezone
 from typing import Any
 
-from fleetbus.schemas.ros import BYTES_KEY, TRUNCATED_KEY
+from fleetbus.schemas.ros import BLOB_KEY, BYTES_KEY, TRUNCATED_KEY
 
+BLOB_FROM = 64 * 1024
+"""Bytes above which a byte array goes to the blob store (when there is one)."""
 LARGE_ARRAY = 1024
 """Elements above which an array is described instead of kept, in a message over the size limit."""
 _BYTE_KINDS = {"u1", "i1"}
@@ -75,13 +77,34 @@ def _array(array: Any, cap: int | None) -> Any:
     return [plain(v) for v in array.tolist()] if array.dtype.kind == "f" else array.tolist()
 
 
-def message_fields(message: Any, max_bytes: int) -> tuple[dict[str, Any], bool]:
-    """The message's fields as plain JSON, and whether large arrays had to be left out to keep
-    its JSON within ``max_bytes``."""
-    fields = plain(message)
+def message_fields(
+    message: Any, max_bytes: int, blob_max: int = 0
+) -> tuple[dict[str, Any], bool, dict[str, bytes]]:
+    """The message's fields as plain JSON, whether large arrays had to be left out to keep its
+    JSON within ``max_bytes``, and the blobs: byte arrays over :data:`BLOB_FROM` and up to
+    ``blob_max`` bytes (0: none) are kept whole apart, named in the fields by their SHA-256."""
+    blobs: dict[str, bytes] = {}
+    fields = to_blobs(plain(message), blobs, blob_max) if blob_max else plain(message)
     if len(json.dumps(fields, separators=(",", ":"))) <= max_bytes:
-        return fields, False
-    return plain(message, LARGE_ARRAY), True
+        return fields, False, blobs
+    return plain(message, LARGE_ARRAY), True, {}
+
+
+def to_blobs(value: Any, blobs: dict[str, bytes], blob_max: int) -> Any:
+    """``value`` with its large byte arrays (``{"_base64"}`` over :data:`BLOB_FROM`) moved to
+    ``blobs``: up to ``blob_max`` as ``{"_blob": sha256, "length": n}``, over it only described."""
+    if isinstance(value, list):
+        return [to_blobs(item, blobs, blob_max) for item in value]
+    if not isinstance(value, dict):
+        return value
+    if BYTES_KEY in value and isinstance(value.get("length"), int) and value["length"] > BLOB_FROM:
+        data = base64.b64decode(value[BYTES_KEY])
+        if len(data) > blob_max:
+            return _described(data, len(data))
+        digest = hashlib.sha256(data).hexdigest()
+        blobs[digest] = data
+        return {BLOB_KEY: digest, "length": len(data)}
+    return {key: to_blobs(item, blobs, blob_max) for key, item in value.items()}
 
 
 def header_stamp(fields: dict[str, Any]) -> datetime | None:

@@ -46,4 +46,5 @@ def as_ros_record(record: RecordedMessage) -> RecordedMessage:
         robot, message, key, size=record.size, seq=record.seq, properties={**properties, "headers": headers}
     )
     # what the broker validated and the capture found stay as they were
-    return replace(built, user_id=record.user_id, known=record.known, problem=record.problem)
+    kept = {"user_id": record.user_id, "known": record.known, "problem": record.problem}
+    return replace(built, **kept, message_id=record.message_id)

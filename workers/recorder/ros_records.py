@@ -39,7 +39,7 @@ def ros_record(
         seq=seq,
         known=True,
         problem=TRIMMED if trimmed else None,
-        document=message.model_dump(mode="json"),
+        document=message.model_dump(mode="json", exclude=None if message.definition else {"definition"}),
         properties={"type": message.ros_type, **(properties or {})},
         size=size,
     )

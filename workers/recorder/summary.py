@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from fleetbus.schemas.ros import ROS_TYPE
 from fleetbus.workers.recorder.capture import DEAD_LETTER, NOTIFICATION, refusal
 from fleetbus.workers.recorder.queries import EVENT_TYPES
 from fleetbus.workers.store.recordings import RecordedMessage
@@ -34,6 +35,8 @@ def summarize(record: RecordedMessage, width: int) -> str:
         extra = {k: v for k, v in doc.items() if k in ("hazard_id", "map_version", "late") and v}
         text = f"{doc.get('topic')}: {event.get('robot_id')} seq {event.get('seq')} "
         text += compact(extra) if extra else ""
+    elif record.type == ROS_TYPE and isinstance(doc, dict):
+        text = f"{doc.get('topic')} {doc.get('ros_type')} {compact(doc.get('fields'))}"
     elif isinstance(doc, dict) and record.type in EVENT_TYPES and "body" in doc:
         text = compact(doc["body"])
     else:

@@ -34,6 +34,7 @@ from fleetbus.workers.store.recordings import (
     RecordQuery,
     StorageSample,
     TypeSummary,
+    check_digest,
     check_path,
     check_type_name,
 )
@@ -47,6 +48,10 @@ FIELD_INDEX_PREFIX = "f:"
 #: Below MongoDB's 16 MiB document limit, with room for the provenance.
 MAX_DOCUMENT_BYTES = 16 * 1024 * 1024 - 64 * 1024
 MONGO_OPS = {Op.NE: "$ne", Op.LT: "$lt", Op.LE: "$lte", Op.GT: "$gt", Op.GE: "$gte"}
+
+
+BLOB_BUCKET = "recording_blobs"
+"""The GridFS bucket of the recording's large values, each file named by its digest."""
 
 
 def collection_name(type: str) -> str:
@@ -175,6 +180,35 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
     async def open(self) -> None:
         self._connect()
         await self._collection(SAMPLES).create_index([("sampled_at_us", ASCENDING)])
+
+    def _blobs(self) -> Any:
+        from gridfs import AsyncGridFSBucket
+
+        return AsyncGridFSBucket(self._database(), bucket_name=BLOB_BUCKET)
+
+    async def put_blob(self, digest: str, data: bytes) -> bool:
+        check_digest(digest)
+        bucket = self._blobs()
+        if await self._database()[f"{BLOB_BUCKET}.files"].find_one({"filename": digest}, {"_id": 1}):
+            return False
+        await bucket.upload_from_stream(digest, data)
+        return True
+
+    async def get_blob(self, digest: str) -> bytes | None:
+        from gridfs.errors import NoFile
+
+        try:
+            stream = await self._blobs().open_download_stream_by_name(check_digest(digest))
+        except NoFile:
+            return None
+        data: bytes = await stream.read()
+        return data
+
+    async def delete_blobs(self, digests: Sequence[str]) -> None:
+        files = self._database()[f"{BLOB_BUCKET}.files"]
+        bucket = self._blobs()
+        async for found in files.find({"filename": {"$in": [check_digest(d) for d in digests]}}, {"_id": 1}):
+            await bucket.delete(found["_id"])
 
     def _recorded(self, type: str) -> Any:
         return self._collection(collection_name(type))

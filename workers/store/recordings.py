@@ -29,6 +29,8 @@ Scalar = Union[str, int, float, bool, None]  # noqa: UP007  (a runtime alias; Py
 
 #: Type names become table and collection names: short, lower case, nothing a query could abuse.
 TYPE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,39}$")
+#: A blob's name: the SHA-256 of its bytes, in lower-case hex.
+BLOB_DIGEST = re.compile(r"^[0-9a-f]{64}$")
 #: One segment of a field path: a key (letters, digits, ``_``, ``-``) or an array index.
 PATH_SEGMENT = re.compile(r"^(?:[A-Za-z_][A-Za-z0-9_-]{0,63}|[0-9]{1,6})$")
 
@@ -43,6 +45,12 @@ def check_type_name(name: str) -> str:
             f"invalid type {name!r}: use 1-40 lower-case letters, digits or '_', starting with a letter"
         )
     return name
+
+
+def check_digest(digest: str) -> str:
+    if not BLOB_DIGEST.fullmatch(digest):
+        raise RecordingError(f"invalid blob name {digest!r}: a SHA-256 in lower-case hex")
+    return digest
 
 
 def check_path(path: str) -> tuple[str, ...]:
@@ -247,6 +255,21 @@ class RecordingStore(abc.ABC):
     @abc.abstractmethod
     async def recorded_types(self) -> list[str]:
         """The name of every type recorded so far, sorted."""
+
+    # Large values (an image's pixels) are kept apart from the documents, by their content's
+    # SHA-256 (lower-case hex): the same bytes are kept once.
+    @abc.abstractmethod
+    async def put_blob(self, digest: str, data: bytes) -> bool:
+        """Keep ``data`` under ``digest`` (its SHA-256, checked by the caller); True when it was
+        not kept yet, durably when this returns."""
+
+    @abc.abstractmethod
+    async def get_blob(self, digest: str) -> bytes | None:
+        """The bytes kept under ``digest``, or None."""
+
+    @abc.abstractmethod
+    async def delete_blobs(self, digests: Sequence[str]) -> None:
+        """Forget the bytes kept under ``digests`` (those kept)."""
 
     @abc.abstractmethod
     async def type_summary(self, type: str) -> TypeSummary:

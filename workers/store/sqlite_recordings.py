@@ -7,11 +7,14 @@ other's write lock. Documents are JSON text; field conditions and field indexes 
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import json
 import logging
 import math
+import os
 import sqlite3
+import uuid
 from collections.abc import Iterable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
@@ -29,6 +32,7 @@ from fleetbus.workers.store.recordings import (
     RecordQuery,
     StorageSample,
     TypeSummary,
+    check_digest,
     check_path,
     check_type_name,
 )
@@ -462,6 +466,38 @@ class SQLiteRecordingStore(SQLiteDatabase, RecordingStore):
             return in_transaction(db, work)
 
         return await self._run(delete)
+
+    def blob_folder(self) -> Path:
+        """Where the blobs are: files named by their digest in a folder beside the database."""
+        return self.path.with_name(self.path.name + ".blobs")
+
+    def _blob_path(self, digest: str) -> Path:
+        return self.blob_folder() / check_digest(digest)[:2] / digest
+
+    async def put_blob(self, digest: str, data: bytes) -> bool:
+        path = self._blob_path(digest)
+
+        def put() -> bool:
+            if path.exists():
+                return False
+            path.parent.mkdir(parents=True, exist_ok=True)
+            temporary = path.with_name(f"{digest}.{uuid.uuid4().hex}.tmp")
+            with temporary.open("wb") as stream:
+                stream.write(data)
+                stream.flush()
+                os.fsync(stream.fileno())
+            temporary.replace(path)
+            return True
+
+        return await asyncio.to_thread(put)
+
+    async def get_blob(self, digest: str) -> bytes | None:
+        path = self._blob_path(digest)
+        return await asyncio.to_thread(lambda: path.read_bytes() if path.exists() else None)
+
+    async def delete_blobs(self, digests: Sequence[str]) -> None:
+        paths = [self._blob_path(digest) for digest in digests]
+        await asyncio.to_thread(lambda: [path.unlink(missing_ok=True) for path in paths])
 
     async def database_bytes(self) -> int:
         files = (self.path, self.path.with_name(self.path.name + "-wal"))

@@ -8,7 +8,7 @@ import json
 import os
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -21,7 +21,7 @@ from fleetbus.cli.context import (
     settings,
     with_recording,
 )
-from fleetbus.cli.times import TIME_FORMS, parse_time
+from fleetbus.cli.times import TIME_FORMS, parse_time_ns
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingError
 
 PHASES = {"check": "reading the bag", "store": "storing"}
@@ -62,7 +62,9 @@ def import_bag(
 
         try:
             report = with_recording(
-                lambda store: run_import(store, path, robot, settings().max_message_bytes, advance)
+                lambda store: run_import(
+                    store, path, robot, settings().max_message_bytes, advance, settings().ros_blob_max_bytes
+                )
             )
         except BagError as error:
             fail(f"{error}; nothing was imported")
@@ -82,7 +84,8 @@ def import_bag(
 
 
 def export(
-    mcap: Annotated[Path, typer.Option("--mcap", help="the MCAP file to write")],
+    mcap: Annotated[Path | None, typer.Option("--mcap", help="the MCAP file to write")] = None,
+    bag: Annotated[Path | None, typer.Option("--bag", help="a ROS 1 bag to write (ROS messages)")] = None,
     robots: Annotated[list[str] | None, typer.Option("--robot", help="only this robot (repeatable)")] = None,
     message_types: Annotated[
         list[str] | None,
@@ -90,9 +93,15 @@ def export(
             "--type", help="only this type, e.g. hazard or ros (repeatable; default: all but dead letters)"
         ),
     ] = None,
+    topics: Annotated[
+        list[str] | None,
+        typer.Option("--topic", help="only ROS messages on this topic; `*` and `?` match (repeatable)"),
+    ] = None,
     since: Annotated[
         str | None,
-        typer.Option(help=f"recorded from this time (default: the start): {TIME_FORMS}"),
+        typer.Option(
+            help=f"recorded from this time (default: the start): {TIME_FORMS}; or nanoseconds since 1970"
+        ),
     ] = None,
     until: Annotated[
         str | None, typer.Option(help="recorded before this time (default: now; the same forms)")
@@ -100,38 +109,46 @@ def export(
     force: Annotated[bool, typer.Option("--force", help="replace the file if it exists")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="print the report as JSON")] = False,
 ) -> None:
-    """Write the recorded messages of a window to an MCAP file: each fleetbus type on a JSON
-    channel with its schema, the maps, poses and hazards also as Foxglove messages, imported
-    ROS messages on their topics. Streamed: the window's length does not matter."""
-    from fleetbus.workers.recorder.mcap_export import export_mcap
-    from fleetbus.workers.recorder.queries import recorded_between
+    """Write the recorded messages of a window to an MCAP file (or a ROS 1 bag): ROS messages on
+    `/<robot><topic>` in their native encoding with their definitions; each fleetbus type on a JSON
+    channel with its schema, the maps, poses and hazards also as Foxglove messages. Streamed: the
+    window's length does not matter."""
+    from fleetbus.workers.recorder.export_selection import Selection
 
-    if importlib.util.find_spec("mcap") is None:
-        fail("writing MCAP files needs the mcap package: pip install 'fleetbus[ros]'")
-    if mcap.exists() and not force:
-        fail(f"{mcap} exists; add --force to replace it", code=2)
-    start, end = parse_time(since, "--since"), parse_time(until, "--until")
-    wanted = set(robots or [])
-    partial = mcap.with_name(mcap.name + ".partial")
+    if (mcap is None) == (bag is None):
+        fail("name one file to write: --mcap FILE or --bag FILE", code=2)
+    target = mcap or bag
+    assert target is not None
+    needs = "mcap" if mcap else "rosbags"
+    if importlib.util.find_spec(needs) is None:
+        fail(f"writing this file needs the {needs} package: pip install 'fleetbus[ros]'")
+    if target.exists() and not force:
+        fail(f"{target} exists; add --force to replace it", code=2)
+    try:
+        selection = Selection(
+            tuple(robots or ()),
+            tuple(message_types or ()),
+            tuple(topics or ()),
+            parse_time_ns(since, "--since"),
+            parse_time_ns(until, "--until"),
+        )
+        schemas = with_recording(lambda store: known_robots_and_schemas(store, selection))
+    except RecordingError as error:
+        fail(str(error), code=2)
+    partial = target.with_name(target.name + ".partial")
     columns = (TextColumn("exporting: {task.completed:,.0f} messages"), TimeElapsedColumn())
     try:
         with (
-            recording_stream(
-                lambda store: recorded_between(
-                    store,
-                    start,
-                    end,
-                    types=message_types or [],
-                    robot_id=next(iter(wanted)) if len(wanted) == 1 else None,
-                )
-            ) as records,
+            recording_stream(lambda store: selected(store, selection)) as records,
             Progress(*columns, console=errors, transient=True) as progress,
-            partial.open("wb") as stream,
         ):
             task = progress.add_task("export", total=None)
-            chosen: Iterator[RecordedMessage] = (r for r in records if not wanted or r.robot_id in wanted)
-            report = export_mcap(chosen, stream, on_each=lambda record: progress.advance(task))
-        os.replace(partial, mcap)
+            advance = lambda: progress.advance(task)  # noqa: E731
+            report = write_file(mcap, bag, partial, records, schemas, selection, advance)
+        if report.messages == 0:
+            partial.unlink(missing_ok=True)
+            fail(f"nothing to export: no recorded message matches ({describe(selection)}); no file written")
+        os.replace(partial, target)
     except RecordingError as error:
         partial.unlink(missing_ok=True)
         fail(str(error), code=2)
@@ -139,9 +156,74 @@ def export(
         partial.unlink(missing_ok=True)
         raise
     if as_json:
-        typer.echo(json.dumps({"file": str(mcap), **report.__dict__}))
+        typer.echo(json.dumps({"file": str(target), **report.__dict__}))
         return
-    console.print(
-        f"wrote {report.messages} messages (and {report.views} Foxglove views) on "
-        f"{len(report.channels)} topics to {mcap}"
-    )
+    text = f"wrote {report.messages} messages"
+    text += f" (and {report.views} Foxglove views)" if mcap else ""
+    console.print(f"{text} on {len(report.channels)} topics to {target}")
+    for why, count in report.not_encoded.items():
+        errors.print(f"[yellow]left out {count} ROS messages[/]: {why}", highlight=False)
+
+
+def describe(selection: Any) -> str:
+    said = {name: value for name, value in selection.metadata().items() if not name.endswith("_ns")}
+    return ", ".join(f"{name} {value or 'any'}" for name, value in said.items())
+
+
+async def known_robots_and_schemas(store: Any, selection: Any) -> dict[str, Any]:
+    """The definitions of the recorded ROS types, by key; refuses (RecordingError) a robot that
+    has nothing recorded."""
+    from fleetbus.schemas.ros import ROS_SCHEMA_TYPE
+    from fleetbus.workers.recorder.ros_native import RosSchema
+    from fleetbus.workers.store.recordings import RecordQuery
+
+    types = await store.recorded_types()
+    for robot in selection.robots:
+        for type in types:
+            if await store.find_recorded(RecordQuery(type, robot_id=robot, limit=1)):
+                break
+        else:
+            raise RecordingError(f"nothing is recorded of robot {robot!r}: no such robot here")
+    schemas: dict[str, Any] = {}
+    if ROS_SCHEMA_TYPE in types:
+        for record in await store.find_recorded(RecordQuery(ROS_SCHEMA_TYPE)):
+            schema = RosSchema.of(record.document)
+            if schema is not None:
+                schemas[schema.key] = schema
+    return schemas
+
+
+async def selected(store: Any, selection: Any) -> Any:
+    from fleetbus.workers.recorder.queries import recorded_between
+    from fleetbus.workers.recorder.ros_native import with_blobs
+
+    since, until = selection.store_window()
+    one = selection.robots[0] if len(selection.robots) == 1 else None
+    async for record in recorded_between(store, since, until, types=selection.chosen_types, robot_id=one):
+        if selection.keeps(record):
+            yield await with_blobs(record, store.get_blob)
+
+
+def write_file(
+    mcap: Path | None,
+    bag: Path | None,
+    partial: Path,
+    records: Iterator[RecordedMessage],
+    schemas: dict[str, Any],
+    selection: Any,
+    advance: Any,
+) -> Any:
+    if mcap is not None:
+        from fleetbus.workers.recorder.mcap_export import export_mcap
+
+        with partial.open("wb") as stream:
+            return export_mcap(
+                records,
+                stream,
+                on_each=lambda record: advance(),
+                ros_schemas=schemas,
+                metadata=selection.metadata(),
+            )
+    from fleetbus.workers.recorder.bag_export import export_bag
+
+    return export_bag(records, partial, schemas, on_each=lambda record: advance())

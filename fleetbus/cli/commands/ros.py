@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 from pathlib import Path
 from typing import Annotated
@@ -51,9 +52,11 @@ def bridge(
         exclude=config.ros_exclude,
         max_rate_hz=config.ros_max_rate_hz,
         discover_every_s=config.ros_discover_every_s,
+        retry_most_s=config.ros_retry_most_s,
         queue=config.ros_queue,
         bytes_max=config.ros_bytes_max,
         status_every_s=config.ros_status_every_s,
+        linger_s=config.ros_linger_s,
     )
     amqp_url = robot_url(robot, url)
     client = open_robot(robot, amqp_url, 10.0)
@@ -80,7 +83,22 @@ def status(robot: Annotated[str, typer.Argument(help="the robot's account")]) ->
     path = robot_folder(settings().robots_dir, robot) / STATUS_FILE
     if not path.exists():
         fail(f"no bridge has run for {robot!r} here ({path} does not exist)")
-    console.print_json(json.dumps(json.loads(path.read_text())))
+    status = json.loads(path.read_text())
+    if status.get("ros_side") == "running" and not process_alive(status.get("pid")):
+        status["ros_side"] = f"not running: the bridge (pid {status.get('pid')}) is gone"
+    console.print_json(json.dumps(status))
+
+
+def process_alive(pid: object) -> bool:
+    if not isinstance(pid, int):
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 @app.command("mapping")
@@ -89,3 +107,53 @@ def show_mapping() -> None:
     from fleetbus.publishers.ros.mapping import standard_mapping_text
 
     print(standard_mapping_text(), end="")
+
+
+@app.command()
+def replay(
+    robot: Annotated[str, typer.Argument(help="the robot whose recorded ROS messages are replayed")],
+    since: Annotated[str | None, typer.Option(help="recorded from this time (as `fleetbus export`)")] = None,
+    until: Annotated[str | None, typer.Option(help="recorded before this time")] = None,
+    topics: Annotated[
+        list[str] | None, typer.Option("--topic", help="only this topic; `*` and `?` match (repeatable)")
+    ] = None,
+    speed: Annotated[float, typer.Option(min=0.001, help="faster (2) or slower (0.5) than recorded")] = 1.0,
+    subscribers: Annotated[
+        int, typer.Option(min=0, help="wait until each topic has this many subscribers before starting")
+    ] = 0,
+    delay: Annotated[
+        float, typer.Option(min=0, help="seconds between advertising and the first message (rosbag play's)")
+    ] = 0.2,
+    prefix: Annotated[str, typer.Option(help="publish under this namespace, e.g. /replay")] = "",
+) -> None:
+    """Publish a recorded window of the robot's ROS messages on the ROS master (ROS_MASTER_URI), as
+    their original topics and types, at the recorded pace (or --speed times it)."""
+    from fleetbus.cli.commands.bags import known_robots_and_schemas, selected
+    from fleetbus.cli.context import recording_stream, with_recording
+    from fleetbus.cli.times import parse_time_ns
+    from fleetbus.workers.recorder.export_selection import Selection
+    from fleetbus.workers.recorder.ros_replay import ReplayError, ReplayOptions, replay_into_ros
+    from fleetbus.workers.store.recordings import RecordingError
+
+    if prefix and (not prefix.startswith("/") or prefix.endswith("/")):
+        fail(f"--prefix {prefix!r}: a namespace starts with '/' and does not end with one", code=2)
+    try:
+        window = parse_time_ns(since, "--since"), parse_time_ns(until, "--until")
+        selection = Selection((robot,), ("ros",), tuple(topics or ()), *window)
+        schemas = with_recording(lambda store: known_robots_and_schemas(store, selection))
+    except RecordingError as error:
+        fail(str(error), code=2)
+    python = settings().ros_python
+    options = ReplayOptions(python, speed, subscribers, delay_s=delay, prefix=prefix, env=dict(os.environ))
+    try:
+        with (
+            recording_stream(lambda store: selected(store, selection)) as survey,
+            recording_stream(lambda store: selected(store, selection)) as records,
+        ):
+            report = replay_into_ros(survey, records, schemas, options)
+    except ReplayError as error:
+        fail(str(error))
+    total = sum(report.published.values())
+    console.print(f"replayed {total} messages of {robot} on {len(report.published)} topics")
+    for why, count in report.left_out.items():
+        console.print(f"[yellow]left out {count}[/]: {why}", highlight=False)

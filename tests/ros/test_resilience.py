@@ -1,0 +1,111 @@
+"""A bridge that keeps working: a master that starts after it, a master restarted under it, and a
+ROS side that never outlives it; every failure retried and shown in ``fleetbus ros status``."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from fleetbus.publishers.ros.bridge import ROS_SIDE
+from fleetbus.schemas.routing import RobotKind
+from tests.ros.conftest import ROS_PYTHON, RosMaster, ros_peer, running_bridge
+from tests.support import Bus, read_line, wait_for
+from tests.test_cli import fleetbus
+
+BURST = 50
+TOPICS = ("/before", "/after")
+
+
+def burst_recorded(bridge: object, master: RosMaster, topic: str) -> None:
+    """A ROS node sends BURST messages and a last one on ``topic`` once the bridge subscribed:
+    the bridge records every one of them."""
+    with ros_peer(master, "burst", topic, str(BURST)):
+        wait_for(
+            lambda: bridge.counters.recorded[topic] == BURST + 1,  # type: ignore[attr-defined]
+            60,
+            f"all of {topic} recorded",
+        )
+
+
+def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master: RosMaster) -> None:
+    robot = bus.robot(bus.add("rosres1", kind=RobotKind.EXPLORER))
+    ros_master.stop()  # the bridge starts first
+    with running_bridge(
+        robot, ros_master, bus.settings.robots_dir, node_up=False, retry_most_s=1.0, include=TOPICS
+    ) as bridge:
+        master = wait_for(
+            lambda: (m := bridge.counters.master)["state"] == "unreachable" and m["failures"] >= 2 and m,
+            30,
+            "the bridge trying the absent master again",
+        )
+        assert "ConnectionRefusedError" in master["detail"] and 0 < master["retry_in"] <= 1.0
+        status = fleetbus(bus, "ros", "status", "rosres1")
+        assert status.returncode == 0, status.stderr
+        shown = json.loads(status.stdout)
+        assert shown["master"]["state"] == "unreachable" and shown["ros_side"] == "waiting for the master"
+
+        ros_master.start()
+        wait_for(lambda: bridge.counters.ros_side == "running", 30, "the node up once the master is")
+        burst_recorded(bridge, ros_master, "/before")
+
+        ros_master.stop()
+        wait_for(lambda: bridge.counters.master["state"] == "unreachable", 30, "the master's loss seen")
+        ros_master.start()
+        wait_for(lambda: bridge.counters.master["restarts"] == 1, 30, "the restarted master seen")
+        burst_recorded(bridge, ros_master, "/after")  # a new topic, on the new master
+        assert bridge.counters.snapshot()["topics"]["/after"]["dropped"] == {}
+    assert bridge._process is not None and bridge._process.poll() is not None, "its ROS side ended with it"
+
+
+def test_without_a_master_the_ros_side_ends_when_the_bridge_stops_or_is_killed(
+    ros_installed: None, tmp_path: Path
+) -> None:
+    absent = RosMaster(tmp_path)  # never started
+    # the bridge stops: it closes the ROS side's input
+    side = subprocess.Popen(
+        [ROS_PYTHON, str(ROS_SIDE), "--parent", str(os.getpid())],
+        env=absent.env,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    read_line(side, '{"kind":"master"', 30)  # it started, and found no master
+    assert side.stdin is not None
+    side.stdin.close()
+    assert side.wait(30) == 0
+    # the bridge is killed: the ROS side ends with it, its input still open (another process holds it)
+    parent = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import os, subprocess, sys; "
+            "side = subprocess.Popen([*sys.argv[1:], '--parent', str(os.getpid())], "
+            "stdout=subprocess.DEVNULL); "
+            "print(side.pid, flush=True); sys.stdin.read()",
+            ROS_PYTHON,
+            str(ROS_SIDE),
+        ],
+        env=absent.env,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert parent.stdout is not None
+        pid = int(parent.stdout.readline())
+        parent.kill()  # at once: before or after the ROS side asked to end with it
+        parent.wait()
+        wait_for(lambda: not os.path.exists(f"/proc/{pid}") or zombie(pid), 30, "the ROS side to end")
+    finally:
+        if parent.stdin is not None:
+            parent.stdin.close()
+
+
+def zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ", 1)[1].startswith("Z")
+    except FileNotFoundError:
+        return True
