@@ -27,7 +27,9 @@ class Written:
     """What the message's fields are expected to read as."""
 
 
-def write_bag(path: Path, kind: str, count: int = 30, image_bytes: int = 12) -> list[Written]:
+def write_bag(
+    path: Path, kind: str, count: int = 30, image_bytes: int = 12, start_ns: int = START_NS
+) -> list[Written]:
     """A bag of ``count`` messages on three topics (strings, odometry-like poses, images), in
     log-time order; returns what was written."""
     ros1 = kind == "ros1"
@@ -56,7 +58,7 @@ def write_bag(path: Path, kind: str, count: int = 30, image_bytes: int = 12) -> 
             )
         }
         for i in range(count):
-            at = START_NS + i * 10_000_017
+            at = start_ns + i * 10_000_017
             stamp = types["builtin_interfaces/msg/Time"](sec=at // 10**9 - 1, nanosec=(at % 10**9))
             header_fields = {"seq": i} if ros1 else {}
             header = types["std_msgs/msg/Header"](**header_fields, stamp=stamp, frame_id="map")

@@ -255,3 +255,24 @@ def test_a_large_image_is_kept_whole_in_the_blob_store_and_exported_byte_for_byt
             return [raw for c, _, raw in reader.messages() if c.topic.endswith("image_raw")]
 
     assert images(out) == images(bag), "the image, byte for byte"
+
+
+def test_a_robots_ros_1_and_ros_2_imports_of_one_topic_export_to_one_bag_connection(tmp_path: Path) -> None:
+    """Two imports of one type on one topic (a ROS 1 bag and a ROS 2 bag) are two kept definitions;
+    where their ROS 1 forms are the same (``std_msgs/String``), the exported bag has one connection
+    for the topic (a ROS 2 header has no ``seq``: a stamped type's two forms are two connections)."""
+    from rosbags.rosbag1 import Reader
+
+    write_bag(tmp_path / "run.bag", "ros1", count=6)
+    write_bag(tmp_path / "run2", "ros2-mcap", count=6, start_ns=2_000_000_000_000_000_000)
+    for bag in ("run.bag", "run2"):
+        imported = fleetbus(tmp_path, "import", str(tmp_path / bag), "--robot", "explorer1")
+        assert imported.returncode == 0, imported.stderr
+    out = tmp_path / "out.bag"
+    exported = fleetbus(tmp_path, "export", "--bag", str(out), "--robot", "explorer1")
+    assert exported.returncode == 0, exported.stderr
+    with Reader(out) as reader:
+        topics = [connection.topic for connection in reader.connections]
+        assert set(topics) == {"/explorer1/camera/image_raw", "/explorer1/chatter", "/explorer1/robot/pose"}
+        assert topics.count("/explorer1/chatter") == 1
+        assert reader.message_count == 12

@@ -10,6 +10,7 @@
   is one of the project's extras or outside peers (``tests/peers/requirements.in``);
 - ``bash scripts/NAME``: the script exists;
 - ``sslyze ...``: its options are the pinned sslyze's (``.venv-peers``), its targets HOST:PORT;
+- ``schemathesis ... run ...``: its options are the pinned schemathesis's;
 - shell builtins (``export``, a function definition, ``cp``): nothing to parse.
 
 Any other program has no check here: the test says so, so that one is added with its command.
@@ -203,14 +204,21 @@ def check_curl(args: list[str]) -> str | None:
     return f"the HTTP API has no {method.upper()} {path}"
 
 
-def check_sslyze(args: list[str]) -> str | None:
-    """Every option is one the pinned sslyze (``.venv-peers``) knows, and every target HOST:PORT."""
+def unknown_options(program: str, args: list[str], *command: str) -> list[str]:
+    """The ``--options`` in ``args`` that the pinned peer ``program`` (``.venv-peers``) does not
+    list in ``program COMMAND --help``."""
     from tests.peers import peer_command
 
-    shown = subprocess.run([peer_command("sslyze"), "--help"], capture_output=True, text=True, check=True)
-    known = set(re.findall(r"(--\w+)", shown.stdout))
-    unknown = [word for word in args if word.startswith("--") and word.split("=", 1)[0] not in known]
-    if unknown:
+    shown = subprocess.run(
+        [peer_command(program), *command, "--help"], capture_output=True, text=True, check=True
+    )
+    known = set(re.findall(r"(--[\w-]+)", shown.stdout))
+    return [word for word in args if word.startswith("--") and word.split("=", 1)[0] not in known]
+
+
+def check_sslyze(args: list[str]) -> str | None:
+    """Every option is one the pinned sslyze knows, and every target HOST:PORT."""
+    if unknown := unknown_options("sslyze", args):
         return f"sslyze knows no {unknown}"
     takes_value = {"--certinfo_ca_file", "--json_out", "--targets_in", "--cert", "--key", "--keyform",
                    "--mozilla_config"}
@@ -221,6 +229,18 @@ def check_sslyze(args: list[str]) -> str | None:
     ]
     bad = [word for word in targets if not re.fullmatch(r"[\w.-]+:\d+(\{[\w.-]+\})?", word)]
     return f"sslyze targets are HOST:PORT, not {bad}" if bad or not targets else None
+
+
+def check_schemathesis(args: list[str]) -> str | None:
+    """``schemathesis [--config-file F] run URL OPTIONS``: the options are the pinned release's."""
+    if "run" not in args:
+        return "schemathesis: only `schemathesis run` is checked here"
+    at = args.index("run")
+    unknown = unknown_options("schemathesis", args[:at])
+    unknown += unknown_options("schemathesis", args[at + 1 :], "run")
+    if unknown:
+        return f"schemathesis knows no {unknown}"
+    return None
 
 
 def check_argv(argv: list[str]) -> str | None:
@@ -245,6 +265,8 @@ def check_argv(argv: list[str]) -> str | None:
         return check_curl(args)
     if name == "sslyze":
         return check_sslyze(args)
+    if name == "schemathesis":
+        return check_schemathesis(args)
     if name == "bash" and args and args[0].startswith("scripts/"):
         return None if (ROOT / args[0]).is_file() else f"no {args[0]}"
     return f"{program}: nothing checks this program's arguments here; add a check in tests/docs/checks.py"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import shutil
 import warnings
 from collections.abc import Callable
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
@@ -32,9 +33,10 @@ def ros_bags(folder: Path) -> None:
     (MCAP storage) and its storage file under the name the guide gives it."""
     from tests.ros_bags import storage_file, write_bag
 
-    write_bag(folder / "run-2026-03-02.bag", "ros1", count=6)
+    recorded = int(datetime(2026, 3, 2, 9, 0, 1, tzinfo=timezone.utc).timestamp()) * 10**9  # as named
+    write_bag(folder / "run-2026-03-02.bag", "ros1", count=6, start_ns=recorded)
     ros2 = folder / "rosbag2_2026_03_02"
-    write_bag(ros2, "ros2-mcap", count=6)
+    write_bag(ros2, "ros2-mcap", count=6, start_ns=recorded)
     shutil.copy(storage_file(ros2), ros2 / "rosbag2_0.mcap")
 
 

@@ -34,6 +34,7 @@ def export_bag(
     report = ExportReport()
     codecs: dict[str, Codec] = {}
     connections: dict[tuple[str, str], Any] = {}
+    definitions: dict[str, tuple[str, str]] = {}
     path.unlink(missing_ok=True)  # the writer refuses an existing file: a partial one of before
     with Writer(path) as writer:
         for record in records:
@@ -53,10 +54,14 @@ def export_bag(
                 report.not_encoded[why] = report.not_encoded.get(why, 0) + 1
                 continue
             topic = f"/{record.robot_id or SERVICE_TOPIC}{document.get('topic')}"
-            connection = connections.get((topic, schema.key))
+            # one connection per topic and definition: a ROS 1 and a ROS 2 import of one type on
+            # one topic are two schema records with the same ROS 1 definition
+            definition, md5sum = definitions.get(schema.key) or definitions.setdefault(
+                schema.key, codec.ros1_definition()
+            )
+            connection = connections.get((topic, md5sum))
             if connection is None:
-                definition, md5sum = codec.ros1_definition()
-                connection = connections[topic, schema.key] = writer.add_connection(
+                connection = connections[topic, md5sum] = writer.add_connection(
                     topic, schema.ros_type, msgdef=definition, md5sum=md5sum
                 )
             writer.write(connection, log_time_ns(record), data)
