@@ -8,7 +8,8 @@ It imports rospy and nothing of fleetbus (like ``ros_side.py``). JSON lines on s
                  be ready to read (as ``rosbag play --delay``)
   ``message``    ``topic``, ``at_ns`` (nanoseconds after the first message), ``data`` (base64 of
                  the ROS 1 serialised message): published when its time comes
-and on stdout: ``ready`` (the node is up), ``started`` (``subscribers``: per topic, when the clock
+and on stdout: ``ready`` (the node is up), or ``error`` (``error``: no master answered within
+``MASTER_WAIT_S``, the script then ends), ``started`` (``subscribers``: per topic, when the clock
 started), ``done`` (``published``: per topic) once the input ends and everything is published.
 """
 
@@ -22,8 +23,13 @@ import time
 from typing import Any
 
 import genpy.dynamic
+import rosgraph
 import roslib.message
 import rospy
+
+#: How long a replay waits for the ROS master to answer before it gives up (rospy would wait for
+#: ever, saying nothing the caller sees).
+MASTER_WAIT_S = 10.0
 
 
 def say(item: dict[str, Any]) -> None:
@@ -87,8 +93,26 @@ class Replay:
         self.published[item["topic"]] += 1
 
 
+def master_answers(deadline_s: float) -> bool:
+    """Whether the master of ``ROS_MASTER_URI`` answers within ``deadline_s`` (asked every 0.2 s)."""
+    master = rosgraph.Master("/fleetbus_replay")
+    deadline = time.monotonic() + deadline_s
+    while True:
+        try:
+            master.getPid()
+            return True
+        except OSError:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.2)  # polling the master, as rospy itself does while it waits
+
+
 def main() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches fleetbus, which closes our input
+    if not master_answers(MASTER_WAIT_S):
+        uri = rosgraph.get_master_uri()
+        say({"kind": "error", "error": f"no ROS master answers at {uri} within {MASTER_WAIT_S:.0f} s"})
+        sys.exit(3)
     rospy.init_node("fleetbus_replay", anonymous=True, disable_signals=True)
     replay = Replay()
     say({"kind": "ready"})

@@ -7,6 +7,8 @@ import asyncio
 import base64
 import itertools
 import json
+import os
+import socket
 import statistics
 import subprocess
 import sys
@@ -71,3 +73,25 @@ def test_a_recorded_window_is_published_again_on_ros_at_its_pace(
         gaps = [b["t"] - a["t"] for a, b in itertools.pairwise(got)]
         assert statistics.median(gaps[-3:]) >= APART_S / SPEED * 0.9, f"{topic}: {gaps}"
     assert base64.b64decode(received[0]["data"]), "not empty"
+
+
+def test_a_replay_with_no_master_says_so_instead_of_waiting(
+    bus: Bus, ros_installed: None, tmp_path: Path
+) -> None:
+    """rospy waits for ever for a master; the replay gives up after its wait, naming the master."""
+    bag = tmp_path / "sensors.bag"
+    sensor_bag(bag, 0, 2)
+
+    async def load() -> None:
+        async with open_recording_store(bus.settings) as store:
+            await import_bag(store, bag, ROBOT, bus.settings.max_message_bytes)
+
+    asyncio.run(load())
+    with socket.socket() as closed:
+        closed.bind(("127.0.0.1", 0))  # bound, never listening: no master there
+        uri = f"http://127.0.0.1:{closed.getsockname()[1]}/"
+        env = {**os.environ, **bus.worker_env(), "ROS_MASTER_URI": uri, "COLUMNS": "200"}
+        command = [sys.executable, "-m", "fleetbus", "ros", "replay", ROBOT]
+        done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0
+    assert f"no ROS master answers at {uri}" in done.stderr.replace("\n", ""), done.stderr

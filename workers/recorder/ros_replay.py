@@ -140,4 +140,6 @@ def expect(stream: IO[str], kind: str) -> dict[str, Any]:
         item: dict[str, Any] = json.loads(line)
         if item.get("kind") == kind:
             return item
+        if item.get("kind") == "error":
+            raise ReplayError(str(item.get("error")))
     raise ReplayError(f"it ended before saying {kind!r} (is rospy installed, and ROS_MASTER_URI a master?)")
