@@ -42,6 +42,7 @@ from fleetbus.dev.local_node import (
     pid_alive,
     pids_listening_on,
 )
+from fleetbus.dev.rabbitmq import mount_points
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable as RobotUnreachable
 from fleetbus.schemas.routing import EXPRESS_QUEUE, events_exchange
@@ -142,6 +143,25 @@ def test_listens_only_on_loopback(node: LocalNode) -> None:
     assert {port for _, port in listening_addresses(epmds[0])} == {info.ports["epmd"]}
 
 
+@pytest.mark.rabbitmq_versions
+def test_the_node_runs_its_installation_and_mounts_nothing_on_the_host(node: LocalNode) -> None:
+    """A node in a root (``FLEETBUS_RABBITMQ_ROOT``) runs chrooted with its folders mounted in a
+    namespace of its own; the host's mount table never holds them, so nothing is left behind."""
+    rabbitmq = node.installation()
+    pid = node.pid()
+    assert pid is not None
+    assert os.readlink(f"/proc/{pid}/root") == str(rabbitmq.root)
+    assert rabbitmq.version() in node.rabbitmqctl("status").stdout
+    if rabbitmq.chrooted:  # the node's mount table, as it sees it from inside its root
+        inside = {line.split()[4] for line in Path(f"/proc/{pid}/mountinfo").read_text().splitlines()}
+        assert {"/proc", "/dev", *(str(folder) for folder in mount_points([node.base_dir]))} <= inside
+        assert str(rabbitmq.root) not in Path("/proc/self/mountinfo").read_text()
+    assert json.loads(node.made_with_file.read_text()) == {
+        "root": str(rabbitmq.root),
+        "version": rabbitmq.version(),
+    }
+
+
 def _declare(url: str, queue: str) -> None:
     connection = blocking_connection(url)
     try:
@@ -194,6 +214,7 @@ def _drain(url: str, queue: str) -> list[bytes]:
         connection.close()
 
 
+@pytest.mark.rabbitmq_versions  # a quorum queue's recovery from a crash differs between releases
 def test_kill_then_up_keeps_durable_persistent_messages(node: LocalNode) -> None:
     url = node.status().amqp_url
     assert url is not None
@@ -694,6 +715,7 @@ def _shovel_states(node: LocalNode) -> dict[str, str]:
     return {shovel["name"]: shovel["state"] for shovel in json.loads(listing or "[]")}
 
 
+@pytest.mark.rabbitmq_versions  # rabbitmq-plugins by its path, and the shovel's TLS, differ between releases
 def test_a_shovel_reaches_the_node_over_amqps_only_when_it_can_verify_it(
     node: LocalNode, tmp_path: Path
 ) -> None:

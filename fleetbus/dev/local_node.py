@@ -769,6 +769,8 @@ log.console = false
         with self._lock(timeout):
             # a database made by this start has no queues yet, let alone leaderless ones
             had_database = any((self.base_dir / "mnesia").glob("*"))
+            if self.pid() is None:
+                self._check_release(self.installation())
             self._write_config()
             pid = self.pid()
             started = pid is None
@@ -812,7 +814,6 @@ log.console = false
 
     def _start(self) -> None:
         rabbitmq = self._require_installation()
-        self._check_release(rabbitmq)
         ports = self.ports(create=True)
         assert ports is not None
         self._check_ports(ports)

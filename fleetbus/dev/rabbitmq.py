@@ -31,8 +31,10 @@ ROOT_MARKER = ".fleetbus-rabbitmq-root"
 #: The RabbitMQ tools, inside the installation's root (Debian's layout, both releases).
 BIN = Path("/usr/lib/rabbitmq/bin")
 LIB = Path("/usr/lib/rabbitmq/lib")
-#: The release fleetbus is tested on first; an older one runs, in the compatibility lane.
-TESTED = ("4.0.5", "3.10.8")
+#: The release the test suite runs on (Debian 13's), which compose.yaml pins too.
+TESTED_RELEASE = "4.0.5"
+#: The older release CI runs the tests of what differs between releases on (Debian 12's).
+COMPATIBLE_RELEASE = "3.10.8"
 #: Top-level folders of the root that belong to its system: a node folder under one of them is
 #: mounted itself, never the host's whole folder over the root's.
 SYSTEM_FOLDERS = frozenset("bin boot dev etc lib lib32 lib64 opt proc run sbin srv sys usr var".split())
