@@ -24,6 +24,7 @@ import pika
 import pytest
 
 from fleetbus.broker.accounts import Account
+from fleetbus.broker.dead_letter_actions import discard_dead_letter
 from fleetbus.broker.policies import COMMAND_DELIVERY_LIMIT, WORKER_DELIVERY_LIMIT
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
@@ -105,14 +106,21 @@ def test_the_dead_letters_listed_25_times_are_all_still_there(quorum_bus: Bus) -
         bad.append(message_id)
     with bus.worker():
         wait_for(lambda: len(bus.dead_letters()) == len(bad), what="the two dead letters")
+    first = {letter.letter_id: letter.message_id for letter in bus.dead_letters()}
     for _ in range(ROUNDS):
         assert sorted(letter.message_id or "" for letter in bus.dead_letters()) == sorted(bad)
     letters = bus.dead_letters()
+    # each letter keeps its name however often it was read: `fleetbus dlq requeue ID` finds it
+    assert {letter.letter_id: letter.message_id for letter in letters} == first
     assert all(int(letter.headers.get("x-delivery-count", 0)) >= ROUNDS for letter in letters), [
         letter.headers.get("x-delivery-count") for letter in letters
     ]
     assert {letter.reason for letter in letters} == {"schema"}
     assert bus.ready_messages(OVERFLOW_QUEUE) == 0, "nothing counted as dropped"
+    discarded = discard_dead_letter(bus.admin_url, letters[0].letter_id)
+    assert [letter.message_id for letter in bus.dead_letters()] == [
+        message_id for message_id in bad if message_id != discarded.message_id
+    ]
 
 
 def test_an_inbox_keeps_a_notification_its_robot_held_while_its_link_dropped_25_times(

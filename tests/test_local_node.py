@@ -143,7 +143,6 @@ def test_listens_only_on_loopback(node: LocalNode) -> None:
     assert {port for _, port in listening_addresses(epmds[0])} == {info.ports["epmd"]}
 
 
-@pytest.mark.rabbitmq_versions
 def test_the_node_runs_its_installation_and_mounts_nothing_on_the_host(node: LocalNode) -> None:
     """A node in a root (``FLEETBUS_RABBITMQ_ROOT``) runs chrooted with its folders mounted in a
     namespace of its own; the host's mount table never holds them, so nothing is left behind."""
@@ -715,7 +714,6 @@ def _shovel_states(node: LocalNode) -> dict[str, str]:
     return {shovel["name"]: shovel["state"] for shovel in json.loads(listing or "[]")}
 
 
-@pytest.mark.rabbitmq_versions  # rabbitmq-plugins by its path, and the shovel's TLS, differ between releases
 def test_a_shovel_reaches_the_node_over_amqps_only_when_it_can_verify_it(
     node: LocalNode, tmp_path: Path
 ) -> None:

@@ -15,10 +15,6 @@ from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RobotKind, inbox_queue
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 
-#: RabbitMQ 4 applies the bounds' policies to classic queues only when they carry no key of quorum
-#: queues (broker/policies.py): the bounds are checked on each release.
-pytestmark = pytest.mark.rabbitmq_versions
-
 LOCALISED = {"localised": True, "pose": {"x": 0.0, "y": 0.0}}
 
 
@@ -51,6 +47,9 @@ def fleetbus(bus: Bus, *args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+# RabbitMQ 4 applies a policy to classic queues only when it carries no key of quorum queues
+# (broker/policies.py): the bounds are checked on each release
+@pytest.mark.rabbitmq_versions
 def test_a_full_inbox_drops_its_oldest_notifications_counts_them_and_the_warden_resyncs(
     stored_bus: Bus,
 ) -> None:
