@@ -11,7 +11,9 @@ There is no ``guest`` account: the first boot creates ``fleetbus-admin`` with a 
 kept in ``admin.json`` (mode 0600).
 
 All of the node's environment is built by :meth:`LocalNode.env`; the server and every CLI call
-(:meth:`LocalNode.rabbitmqctl`) use it, which is what makes them find each other.
+(:meth:`LocalNode.rabbitmqctl`) use it, which is what makes them find each other. They run from
+the RabbitMQ installation :meth:`LocalNode.installation` names (:mod:`fleetbus.dev.rabbitmq`: the
+host's package, or Debian 13's in a root of its own).
 """
 
 from __future__ import annotations
@@ -793,10 +795,10 @@ log.console = false
     def heal_quorum_queues(self, deadline: float) -> int:
         """Elect a leader for every quorum queue that came back from a crash without one.
 
-        RabbitMQ 3.10 can restart a single-node quorum queue with no leader (it answers
+        RabbitMQ can restart a single-node quorum queue with no leader (it answers
         ``INTERNAL_ERROR`` to consumers and its messages look gone; rabbitmq-server #10070),
-        mostly one created moments before the crash. Its messages are still on disk: an election
-        brings them back. Returns how many queues needed one.
+        mostly one created moments before the crash: seen on 3.10.8 and on 4.0.5. Its messages
+        are still on disk: an election brings them back. Returns how many queues needed one.
         """
         healed: set[str] = set()
         while True:
