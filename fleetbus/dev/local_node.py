@@ -437,7 +437,13 @@ class LocalNode:
         old, new = version_key(made[1]), version_key(version)
         if new[:2] >= old[:2] and new[0] == old[0]:
             return
-        where = f"FLEETBUS_RABBITMQ_ROOT={made[0].root}" if made[0].exists() else "its release"
+        where = f"FLEETBUS_RABBITMQ_ROOT={made[0].root}"
+        if not made[0].exists():
+            where += (
+                " (`bash scripts/rabbitmq-root` builds Debian 13's there again)"
+                if made[0].chrooted
+                else " (`apt-get install rabbitmq-server` installs it again)"
+            )
         raise LocalNodeError(
             f"the node in {self.base_dir} was last run by RabbitMQ {made[1]}, and {rabbitmq.describe()} "
             f"cannot open its database (RabbitMQ 4 does not read a 3.x database, and no release reads a "
