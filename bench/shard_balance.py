@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import time
 import uuid
 from collections import Counter
@@ -40,7 +39,7 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import RABBITMQCTL, LocalNode
+from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.schemas.routing import EventType
 from fleetbus.settings import load_settings
@@ -71,9 +70,7 @@ def ensure_plugin(endpoint: BrokerEndpoint, url: str) -> None:
         finally:
             if connection.is_open:
                 connection.close()
-        node = LocalNode(load_settings().broker_dir)
-        plugins = RABBITMQCTL.with_name("rabbitmq-plugins")
-        subprocess.run([str(plugins), "enable", PLUGIN], env=node.env(), check=True, capture_output=True)
+        LocalNode(load_settings().broker_dir).rabbitmq_plugins("enable", PLUGIN)
         time.sleep(1)
 
 

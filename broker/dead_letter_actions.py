@@ -27,7 +27,7 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
-from fleetbus.broker.dead_letter_queue import DeadLetter, describe, letter_id
+from fleetbus.broker.dead_letter_queue import DELIVERY_HEADERS, DeadLetter, describe, letter_id
 from fleetbus.broker.tls import blocking_connection, pika_parameter_list
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outcome, Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublisherError
@@ -170,7 +170,8 @@ def _raise_unless_taken(outcome: Outcome, sender: str) -> None:
 
 def _publish_as(url: str, letter: DeadLetter, properties: pika.BasicProperties) -> None:
     again = copy.copy(properties)
-    again.headers = {k: v for k, v in (properties.headers or {}).items() if k not in DEATH_HEADERS}
+    dropped = DEATH_HEADERS | DELIVERY_HEADERS
+    again.headers = {k: v for k, v in (properties.headers or {}).items() if k not in dropped}
     again.user_id = letter.user_id
     parameters = pika_parameter_list(url, connection_attempts=1)
     sender = f"{letter.user_id} to {letter.exchange or '(default exchange)'} with {letter.routing_key!r}"

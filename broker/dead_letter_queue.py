@@ -99,15 +99,24 @@ def _plain(value: Any) -> Any:
     return repr(value)
 
 
+#: What a quorum queue writes on a message at each delivery (how often it was delivered before):
+#: not the message's own, and different at every read of the dead letters on a cluster.
+DELIVERY_HEADERS = frozenset({"x-delivery-count", "x-acquired-count"})
+
+
 def letter_id(properties: pika.BasicProperties, body: bytes) -> str:
     """Which dead letter this is: a digest of the whole message as the queue holds it (every
-    property, the headers with the broker's ``x-death`` record and its times, the body).
+    property, the headers with the broker's ``x-death`` record and its times, the body), but for
+    the count of its deliveries, which each read of a quorum queue raises.
 
     A message id alone would not do: a robot may send none, and a message refused twice (sent
     again after an outage) is in the queue twice with the same one. Two letters share a digest
     only when they are the same bytes, refused at the same second: taking either is the same.
     """
-    described = json.dumps(vars(properties), sort_keys=True, default=_plain, ensure_ascii=False)
+    held = dict(vars(properties))
+    if held.get("headers"):
+        held["headers"] = {k: v for k, v in held["headers"].items() if k not in DELIVERY_HEADERS}
+    described = json.dumps(held, sort_keys=True, default=_plain, ensure_ascii=False)
     digest = hashlib.sha256(described.encode())
     digest.update(b"\0")
     digest.update(body)

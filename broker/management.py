@@ -160,10 +160,17 @@ class ManagementAPI:
 
     # policies
     def put_policy(
-        self, vhost: str, name: str, pattern: str, definition: dict[str, Any], priority: int = 0
+        self,
+        vhost: str,
+        name: str,
+        pattern: str,
+        definition: dict[str, Any],
+        priority: int = 0,
+        apply_to: str = "queues",
     ) -> None:
-        """A policy on the queues whose names match ``pattern`` (idempotent: replaces one of that name)."""
-        body = {"pattern": pattern, "definition": definition, "apply-to": "queues", "priority": priority}
+        """A policy on the queues whose names match ``pattern`` (idempotent: replaces one of that
+        name); ``apply_to``: ``queues``, or on RabbitMQ 4 one type of them (``quorum_queues``...)."""
+        body = {"pattern": pattern, "definition": definition, "apply-to": apply_to, "priority": priority}
         self._request("PUT", f"policies/{_q(vhost)}/{_q(name)}", json=body)
 
     def get_policy(self, vhost: str, name: str) -> dict[str, Any] | None:

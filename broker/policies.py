@@ -22,10 +22,22 @@ own that matches these queues must carry these keys too, or have a lower priorit
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, HAZARD_UPLINK_QUEUE, OVERFLOW_EXCHANGE, UPLINK_QUEUE
+from fleetbus.schemas.routing import (
+    BEACON_DISCARD_QUEUE,
+    DEAD_LETTER_QUEUE,
+    EXPRESS_QUEUE,
+    HAZARD_UPLINK_QUEUE,
+    OVERFLOW_EXCHANGE,
+    OVERFLOW_QUEUE,
+    POISON_EXCHANGE,
+    RECORDER_QUEUE,
+    RPC_QUEUE,
+    SITE_HAZARDS_QUEUE,
+    UPLINK_QUEUE,
+)
 
 if TYPE_CHECKING:  # every process that loads the settings imports this module: httpx is 6 MB
     from fleetbus.broker.management import ManagementAPI
@@ -34,6 +46,14 @@ if TYPE_CHECKING:  # every process that loads the settings imports this module: 
 PRIORITY = 10
 #: Every account's inbox (account names: :data:`fleetbus.schemas.identity.NAME_PATTERN`).
 INBOX_PATTERN = r"^[a-z][a-z0-9_-]{1,31}\.inbox$"
+#: Every robot's commands queue.
+COMMANDS_PATTERN = r"^[a-z][a-z0-9_-]{1,31}\.commands$"
+#: Deliveries of one message after which a queue the workers consume sets it aside: the ingest
+#: shards' argument, and the other queues' policy (:func:`delivery_policies`).
+WORKER_DELIVERY_LIMIT = 50
+#: A command lives 30 s (``COMMAND_TTL_MS``): taken this often in that time and never acknowledged,
+#: it is one its robot cannot handle.
+COMMAND_DELIVERY_LIMIT = 10
 
 
 @dataclass(frozen=True)
@@ -57,6 +77,7 @@ class QueuePolicy:
     name: str
     pattern: str
     definition: dict[str, Any]
+    apply_to: str = "queues"
 
 
 def _exactly(queue: str) -> str:
@@ -72,11 +93,77 @@ def _bounded(limit: QueueLimit) -> dict[str, Any]:
     return definition
 
 
-def bound_policies(inbox: QueueLimit, dead_letters: QueueLimit) -> list[QueuePolicy]:
+def _major(version: str) -> int:
+    head = version.split(".", 1)[0]
+    return int(head) if head.isdigit() else 0
+
+
+def _per_type(
+    name: str, pattern: str, common: dict[str, Any], quorum: dict[str, Any], version: str
+) -> list[QueuePolicy]:
+    """``common`` for the queues ``pattern`` matches, and ``quorum`` besides for the quorum ones.
+
+    RabbitMQ 4 does not apply a policy to a queue whose type ignores one of its keys (a classic
+    queue, ``delivery-limit``): it would leave a classic inbox unbounded. So on 4.x the classic and
+    the quorum queues get a policy each (``apply-to``, which RabbitMQ 3 does not know); RabbitMQ 3
+    applies such a policy to both, each type taking the keys it knows."""
+    if _major(version) < 4:
+        return [QueuePolicy(name, pattern, {**common, **quorum})]
     return [
-        QueuePolicy("fleetbus-inboxes", INBOX_PATTERN, _bounded(inbox)),
-        QueuePolicy("fleetbus-dead-letters", _exactly(DEAD_LETTER_QUEUE), _bounded(dead_letters)),
+        QueuePolicy(name, pattern, common, apply_to="classic_queues"),
+        QueuePolicy(f"{name}-quorum", pattern, {**common, **quorum}, apply_to="quorum_queues"),
     ]
+
+
+def unlimited_deliveries(version: str) -> dict[str, Any]:
+    """The policy key that lets a quorum queue redeliver a message any number of times: RabbitMQ 4
+    limits every quorum queue to 20 deliveries unless told ``-1``; RabbitMQ 3 has no limit unless
+    given one, and refuses ``-1`` in a policy (as a queue argument it takes it as 0)."""
+    return {"delivery-limit": -1} if _major(version) >= 4 else {}
+
+
+def bound_policies(inbox: QueueLimit, dead_letters: QueueLimit, version: str) -> list[QueuePolicy]:
+    """The inboxes and the dead-letter queue (of RabbitMQ ``version``): bounded, and (quorum queues,
+    on a cluster) never a drop for how often a message was delivered. A robot whose link drops
+    while it holds a notification gets it again however often that happens; ``fleetbus dlq`` reads
+    the dead letters and puts them back, which counts as a delivery each time."""
+    unlimited = unlimited_deliveries(version)
+    return [
+        *_per_type("fleetbus-inboxes", INBOX_PATTERN, _bounded(inbox), unlimited, version),
+        *_per_type(
+            "fleetbus-dead-letters", _exactly(DEAD_LETTER_QUEUE), _bounded(dead_letters), unlimited, version
+        ),
+    ]
+
+
+def delivery_policies(version: str) -> list[QueuePolicy]:
+    """Every other quorum queue's delivery limit (they are quorum queues on a cluster; a classic
+    queue has none: the workers keep the express lane's themselves, :mod:`fleetbus.workers.attempts`).
+
+    The queues the workers consume set a message aside once delivered :data:`WORKER_DELIVERY_LIMIT`
+    times, as the ingest shards do (their limit is a queue argument): each time the worker, or its
+    connection, died while it held that message. It goes to the dead letters (the express lane and
+    the sites' hazards by their dead-letter exchange, the rest by ``fleetbus.poison``), where
+    ``fleetbus dlq`` shows it with the reason ``delivery_limit``. A command that its robot took
+    :data:`COMMAND_DELIVERY_LIMIT` times without acknowledging it goes there too; one that expired
+    unread is dropped, as before. What its limit removes from the recorder's backlog is counted
+    with the dropped messages (the recorder's own dead-letter exchange). The overflow queue never
+    drops for deliveries: its counter reads no body, so no message can be poison to it."""
+    limit = {"delivery-limit": WORKER_DELIVERY_LIMIT}
+    poison = {"dead-letter-exchange": POISON_EXCHANGE}
+    quorum_only = "quorum_queues" if _major(version) >= 4 else "queues"
+    policies = [
+        QueuePolicy("fleetbus-express", _exactly(EXPRESS_QUEUE), limit),
+        QueuePolicy("fleetbus-requests", _exactly(RPC_QUEUE), {**limit, **poison}),
+        QueuePolicy("fleetbus-beacon-discards", _exactly(BEACON_DISCARD_QUEUE), {**limit, **poison}),
+        QueuePolicy("fleetbus-site-hazards", _exactly(SITE_HAZARDS_QUEUE), limit),
+        QueuePolicy("fleetbus-recorder", _exactly(RECORDER_QUEUE), limit),
+        QueuePolicy("fleetbus-overflow", _exactly(OVERFLOW_QUEUE), unlimited_deliveries(version)),
+        QueuePolicy(
+            "fleetbus-commands", COMMANDS_PATTERN, {"delivery-limit": COMMAND_DELIVERY_LIMIT, **poison}
+        ),
+    ]
+    return [replace(policy, apply_to=quorum_only) for policy in policies if policy.definition]
 
 
 def uplink_policies(max_messages: int, max_bytes: int) -> list[QueuePolicy]:
@@ -94,4 +181,4 @@ def uplink_policies(max_messages: int, max_bytes: int) -> list[QueuePolicy]:
 def apply_policies(api: ManagementAPI, vhost: str, policies: list[QueuePolicy]) -> None:
     """Set (or change) each policy; idempotent."""
     for policy in policies:
-        api.put_policy(vhost, policy.name, policy.pattern, policy.definition, PRIORITY)
+        api.put_policy(vhost, policy.name, policy.pattern, policy.definition, PRIORITY, policy.apply_to)

@@ -16,6 +16,7 @@ import aio_pika
 from aio_pika.abc import AbstractChannel, ExchangeType
 
 from fleetbus.broker.account_roles import Role
+from fleetbus.broker.policies import WORKER_DELIVERY_LIMIT
 from fleetbus.broker.tls import aio_connect
 from fleetbus.schemas.routing import (
     ALL_TOPICS_BINDING,
@@ -34,6 +35,7 @@ from fleetbus.schemas.routing import (
     NOTIFY_EXCHANGE,
     OVERFLOW_EXCHANGE,
     OVERFLOW_QUEUE,
+    POISON_EXCHANGE,
     RECORDED_EXCHANGES,
     RECORDER_DEAD_LETTER_EXCHANGE,
     RECORDER_QUEUE,
@@ -64,7 +66,7 @@ INBOX_ARGUMENTS: dict[str, Any] = {"x-queue-type": "classic"}
 
 #: A message redelivered this many times (the worker died on it each time) is dead-lettered
 #: by the broker itself, so one poison message cannot stop the ingest forever.
-INGEST_DELIVERY_LIMIT = 50
+INGEST_DELIVERY_LIMIT = WORKER_DELIVERY_LIMIT
 
 #: A command older than this is dropped by the broker: a robot must not act on a stale order.
 COMMAND_TTL_MS = 30_000
@@ -139,6 +141,11 @@ EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
 }
 
 
+#: What fleetbus.poison passes on to the dead letters: a message a delivery limit removed
+#: (:func:`fleetbus.broker.policies.delivery_policies`); an expired one matches nothing and is dropped.
+POISONED = {"x-match": "all-with-x", "x-first-death-reason": "delivery_limit"}
+
+
 def queue_type(cluster: bool) -> dict[str, Any]:
     """The type of every queue that must not lose or reorder what it holds: classic on one node
     (for the reasons given where each is declared), quorum on a cluster, where a classic queue
@@ -176,6 +183,7 @@ def core_topology(shards: int = 1, *, cluster: bool = False) -> Topology:
                 BEACON_CHECK_EXCHANGE, ExchangeType.HEADERS, {"alternate-exchange": BEACON_DISCARD_EXCHANGE}
             ),
             ExchangeSpec(OVERFLOW_EXCHANGE, ExchangeType.FANOUT),
+            ExchangeSpec(POISON_EXCHANGE, ExchangeType.HEADERS),
         ),
         queues=(
             *(QueueSpec(ingest_shard_queue(shard), INGEST_QUEUE_ARGUMENTS) for shard in range(shards)),
@@ -200,6 +208,7 @@ def core_topology(shards: int = 1, *, cluster: bool = False) -> Topology:
             BindingSpec(BEACON_CHECK_EXCHANGE, BEACON_EXCHANGE, "", to_exchange=True, arguments=BEACON_MATCH),
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
             BindingSpec(OVERFLOW_EXCHANGE, OVERFLOW_QUEUE, ""),
+            BindingSpec(POISON_EXCHANGE, DEAD_LETTER_EXCHANGE, "", to_exchange=True, arguments=POISONED),
         ),
     )
 

@@ -116,6 +116,15 @@ class Settings(BaseSettings):
     management_url: str | None = setting(
         None, "that broker's management API", shown="`http://<amqp host>:15672/`"
     )
+    rabbitmq_root: Path | None = setting(
+        None,
+        "the RabbitMQ installation the private node (`fleetbus broker up`, the tests' nodes) runs: `/` for "
+        "the host's Debian package, or a folder holding a Debian root with its `rabbitmq-server`, which the "
+        "node runs in with chroot (`bash scripts/rabbitmq-root` builds Debian 13's there). A node keeps "
+        "the installation it was first started with (docs/operations/rabbitmq.md)",
+        shown="unset: the host's package if it is 4.x, else the Debian 13 root `scripts/setup` built in "
+        "`/var/cache/fleetbus/rabbitmq-trixie`",
+    )
     service_url: str | None = setting(
         None,
         "where `fleetbus worker` and `recorder run` log in, e.g. `amqp://fleetbus@broker:5672/`: as "
@@ -413,7 +422,7 @@ class Settings(BaseSettings):
         "this machine (anyone on the network path reads them); serve HTTPS (`fleetbus api --tls`) instead",
     )
 
-    @field_validator("data_dir", "tls_dir", "tls_ca", "tls_cert", "tls_key")
+    @field_validator("data_dir", "tls_dir", "tls_ca", "tls_cert", "tls_key", "rabbitmq_root")
     @classmethod
     def _absolute(cls, path: Path | None) -> Path | None:
         return path.resolve() if path is not None else None

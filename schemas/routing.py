@@ -86,6 +86,9 @@ BEACON_CODENAME_HEADER = "codename"
 BEACON_MATCH = {"x-match": "all", BEACON_TYPE_HEADER: BEACON_TYPE, BEACON_CODENAME_HEADER: None}
 DEAD_LETTER_EXCHANGE = "fleetbus.dlx"
 DEAD_LETTER_QUEUE = "fleetbus.dead-letters"
+#: The dead-letter exchange of the queues whose messages also expire (service requests, commands):
+#: it passes on to fleetbus.dlx only what a delivery limit removed, and drops what expired.
+POISON_EXCHANGE = "fleetbus.poison"
 RECORDER_QUEUE = "fleetbus.recorder"
 #: The recorder queue's dead-letter exchange (fanout, into fleetbus.dead-letters): not fleetbus.dlx,
 #: which the recorder records, so that a message the recorder cannot store never comes back to it.

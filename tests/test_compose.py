@@ -15,6 +15,7 @@ from urllib.parse import urlsplit
 import yaml
 
 from fleetbus.broker.accounts import SERVICE_USER
+from fleetbus.dev.rabbitmq import TESTED_RELEASE
 
 ROOT = Path(__file__).resolve().parent.parent
 SERVICES: dict[str, Any] = yaml.safe_load((ROOT / "compose.yaml").read_text())["services"]
@@ -137,10 +138,14 @@ def test_a_site_is_started_by_its_services_names_without_central() -> None:
     assert started("site", named=tuple(command.split()[6:])) == SITE
 
 
-def test_the_cluster_profile_adds_two_nodes_of_the_same_pinned_4x_release_sharing_one_cookie() -> None:
+def test_every_broker_runs_the_release_the_suite_tests() -> None:
+    images = {name: SERVICES[name]["image"] for name in BROKERS}
+    assert images == dict.fromkeys(BROKERS, f"rabbitmq:{TESTED_RELEASE}-management")
+
+
+def test_the_cluster_profile_adds_two_nodes_of_the_same_release_sharing_one_cookie() -> None:
     nodes = {name: SERVICES[name] for name in ("rabbitmq", "rabbitmq-2", "rabbitmq-3")}
-    images = {service["image"] for service in nodes.values()}
-    assert len(images) == 1 and re.fullmatch(r"rabbitmq:4\.\d+-management", images.pop())
+    assert len({service["image"] for service in nodes.values()}) == 1
     assert "profiles" not in nodes["rabbitmq"], "node 1 is the single broker too"
     assert all(nodes[name]["profiles"] == ["cluster"] for name in ("rabbitmq-2", "rabbitmq-3"))
     cookies = {service["environment"]["RABBITMQ_SERVER_ADDITIONAL_ERL_ARGS"] for service in nodes.values()}

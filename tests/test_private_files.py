@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from fleetbus.dev.local_node import LocalNode
 from fleetbus.private_files import private_dir, private_file
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import hazard
@@ -92,3 +93,17 @@ def test_a_private_file_is_never_open_to_others_and_an_existing_one_is_narrowed(
     folder.mkdir(mode=0o755)
     folder.chmod(0o755)
     assert others_may(private_dir(folder)) == 0
+
+
+def test_a_private_nodes_folder_is_its_owners_only(killable_node: LocalNode) -> None:
+    """The node's configuration, its administrator's password, its database and its logs, as the
+    node and fleetbus wrote them."""
+    killable_node.up()
+    files = [killable_node.base_dir, *killable_node.base_dir.rglob("*")]
+    assert any(path.name == "admin.json" for path in files) and any("mnesia" in path.parts for path in files)
+    open_to_others = {
+        path.relative_to(killable_node.base_dir).as_posix(): oct(stat.S_IMODE(path.lstat().st_mode))
+        for path in files
+        if not path.is_symlink() and others_may(path)
+    }
+    assert open_to_others == {}

@@ -5,7 +5,8 @@ idempotent, so running it again changes nothing that is in place. It makes the `
 ``fleetbus-recorder`` accounts (their passwords kept in ``$FLEETBUS_DATA_DIR/accounts/``, mode
 0600), the service's exchanges and queues for ``FLEETBUS_INGEST_SHARDS`` shards, and the
 recorder's queue with its bindings, which ``fleetbus-recorder`` may read but not declare, and the
-policies that bound the inboxes and the dead-letter queue (:mod:`fleetbus.broker.policies`).
+policies that bound the inboxes and the dead-letter queue and give every quorum queue its delivery
+limit (:mod:`fleetbus.broker.policies`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.policies import apply_policies, bound_policies
+from fleetbus.broker.policies import apply_policies, bound_policies, delivery_policies
 from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
 from fleetbus.settings import Settings
 from fleetbus.workers.bounds import bounds
@@ -53,4 +54,9 @@ async def set_up_service(settings: Settings, admin: BrokerEndpoint) -> ServiceAc
 def set_queue_bounds(settings: Settings, admin: BrokerEndpoint) -> None:
     limits = bounds(settings)
     with ManagementAPI.from_urls(admin.management_url, admin.amqp_url) as api:
-        apply_policies(api, vhost_of(admin.amqp_url), bound_policies(limits.inbox, limits.dead_letters))
+        version = str(api.overview().get("rabbitmq_version", ""))
+        apply_policies(
+            api,
+            vhost_of(admin.amqp_url),
+            [*bound_policies(limits.inbox, limits.dead_letters, version), *delivery_policies(version)],
+        )

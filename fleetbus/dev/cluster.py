@@ -40,6 +40,7 @@ from fleetbus.dev.local_node import (
     choose_free_ports,
     pid_alive,
 )
+from fleetbus.private_files import private_dir
 
 #: Each node's share of this machine: the broker blocks publishers beyond it (three nodes and the
 #: tests fit a 2-core machine with some GB to spare).
@@ -99,8 +100,8 @@ class LocalCluster:
         return data
 
     def _save(self, data: dict[str, object]) -> None:
-        self.base_dir.mkdir(parents=True, exist_ok=True)
-        self.state_file.write_text(json.dumps(data, indent=2) + "\n")
+        private_dir(self.base_dir)
+        write_private_file(self.state_file, json.dumps(data, indent=2) + "\n")
 
     # ------------------------------------------------------------------ preparation (once)
     def _prepare(self) -> None:
@@ -113,14 +114,14 @@ class LocalCluster:
         cookie = secrets.token_hex(20).upper()
         admin = json.dumps({"username": ADMIN_USER, "password": secrets.token_urlsafe(24)}) + "\n"
         for index, node in enumerate(self.nodes):
-            node.base_dir.mkdir(parents=True, exist_ok=True)
+            private_dir(node.base_dir)
             mine = dict(
                 zip(per_node, ports[index * len(per_node) : (index + 1) * len(per_node)], strict=True)
             )
             mine["epmd"] = epmd
             ordered = {name: mine[name] for name in PORT_NAMES}
-            node.node_file.write_text(
-                json.dumps({"node_name": node.node_name, "ports": ordered}, indent=2) + "\n"
+            write_private_file(
+                node.node_file, json.dumps({"node_name": node.node_name, "ports": ordered}, indent=2) + "\n"
             )
             write_private_file(node.base_dir / ".erlang.cookie", cookie, mode=0o400)
             write_private_file(node.admin_file, admin)
@@ -131,10 +132,10 @@ class LocalCluster:
     def _write_cluster_conf(self) -> None:
         for node in self.nodes:
             folder = node.base_dir / "conf.d"
-            folder.mkdir(parents=True, exist_ok=True)
+            private_dir(folder)
             path = folder / "10-cluster.conf"
             if not path.exists() or path.read_text() != CLUSTER_CONF:
-                path.write_text(CLUSTER_CONF)
+                write_private_file(path, CLUSTER_CONF)
 
     # ------------------------------------------------------------------ up / down
     def up(self, timeout: float = 180.0) -> ClusterInfo:

@@ -32,14 +32,8 @@ from fleetbus.broker.endpoint import (
 )
 from fleetbus.broker.probe import write_private_file
 from fleetbus.dev.cluster import ClusterInfo, LocalCluster
-from fleetbus.dev.local_node import (
-    ADMIN_USER,
-    RABBITMQ_SERVER,
-    SETUP_HINT,
-    LocalNode,
-    LocalNodeError,
-    NodeInfo,
-)
+from fleetbus.dev.local_node import ADMIN_USER, LocalNode, LocalNodeError, NodeInfo
+from fleetbus.dev.rabbitmq import InstallationError
 from fleetbus.settings import Settings
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -166,12 +160,13 @@ def private_endpoint(settings: Settings, start: bool = True) -> BrokerEndpoint:
     cluster = local_cluster(settings)
     if cluster.exists() and cluster.status().running:  # `fleetbus broker up --nodes N` started it
         return cluster_endpoint(cluster.up() if start else cluster.status())
-    if not RABBITMQ_SERVER.exists():
-        raise BrokerUnavailable(
-            f"no broker: FLEETBUS_AMQP_URL is unset, no Docker engine answers, "
-            f"and RabbitMQ is not installed ({RABBITMQ_SERVER} is missing): {SETUP_HINT}"
-        )
     node = local_node(settings)
+    try:
+        node.installation().require()
+    except InstallationError as error:
+        raise BrokerUnavailable(
+            f"no broker: FLEETBUS_AMQP_URL is unset, no Docker engine answers, and {error}"
+        ) from None
     if start:
         info = node.up()
     else:

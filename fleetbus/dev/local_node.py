@@ -11,7 +11,9 @@ There is no ``guest`` account: the first boot creates ``fleetbus-admin`` with a 
 kept in ``admin.json`` (mode 0600).
 
 All of the node's environment is built by :meth:`LocalNode.env`; the server and every CLI call
-(:meth:`LocalNode.rabbitmqctl`) use it, which is what makes them find each other.
+(:meth:`LocalNode.rabbitmqctl`) use it, which is what makes them find each other. They run from
+the RabbitMQ installation :meth:`LocalNode.installation` names (:mod:`fleetbus.dev.rabbitmq`: the
+host's package, or Debian 13's in a root of its own).
 """
 
 from __future__ import annotations
@@ -45,10 +47,10 @@ from fleetbus.broker.probe import (
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.revocation import ensure_crl
 from fleetbus.broker.tls_profile import MANAGEMENT, erlang_terms, rabbitmq_conf
+from fleetbus.dev.rabbitmq import HOST as HOST_ROOT
+from fleetbus.dev.rabbitmq import Installation, InstallationError, default_installation, version_key
+from fleetbus.private_files import OWNER_ONLY, private_dir, private_file
 
-RABBITMQ_BIN = Path("/usr/lib/rabbitmq/bin")
-RABBITMQ_SERVER = RABBITMQ_BIN / "rabbitmq-server"
-RABBITMQCTL = RABBITMQ_BIN / "rabbitmqctl"
 ADMIN_USER = "fleetbus-admin"
 HOST = "127.0.0.1"
 PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream", "amqps", "management_tls")
@@ -82,7 +84,6 @@ auth_mechanisms.2 = AMQPLAIN
 auth_mechanisms.3 = EXTERNAL
 ssl_cert_login_from = common_name
 """
-SETUP_HINT = "run scripts/setup (it installs Debian's rabbitmq-server)"
 
 log = logging.getLogger("fleetbus.broker")
 T = TypeVar("T")
@@ -284,8 +285,9 @@ def _erlang_string(path: Path) -> str:
 
 
 def _write_if_changed(path: Path, text: str) -> None:
+    """``path`` holds ``text`` (its owner's only, as everything in the node's folder)."""
     if not path.exists() or path.read_text() != text:
-        path.write_text(text)
+        write_private_file(path, text)
 
 
 def _tail(path: Path, lines: int = 30) -> str:
@@ -305,17 +307,25 @@ def _tail(path: Path, lines: int = 30) -> str:
 class LocalNode:
     """A private RabbitMQ node under ``base_dir``; see the module docstring."""
 
-    def __init__(self, base_dir: Path | str, tls: TlsFiles | None = None, tls_only: bool = False) -> None:
+    def __init__(
+        self,
+        base_dir: Path | str,
+        tls: TlsFiles | None = None,
+        tls_only: bool = False,
+        rabbitmq: Installation | None = None,
+    ) -> None:
         """``tls``: the CA and server certificate the node serves (default: ``tls/`` beside
         ``base_dir``, which is ``$FLEETBUS_DATA_DIR/tls`` for ``$FLEETBUS_DATA_DIR/broker``);
         made at the first start when missing. ``tls_only``: no plain AMQP or HTTP listener, and
-        the administrator's URLs are the TLS ones (``FLEETBUS_BROKER_TLS_ONLY``)."""
+        the administrator's URLs are the TLS ones (``FLEETBUS_BROKER_TLS_ONLY``). ``rabbitmq``:
+        the installation to run (default: :meth:`installation`)."""
         self.base_dir = Path(base_dir).expanduser().resolve()
         self.tls = tls or TlsFiles.in_folder(self.base_dir.parent / "tls")
         self.tls_only = tls_only
         digest = hashlib.sha1(str(self.base_dir).encode()).hexdigest()[:10]
         self.node_name = f"fleetbus-{digest}@localhost"
         self._proc: subprocess.Popen[bytes] | None = None
+        self._rabbitmq = rabbitmq
 
     # paths
     @property
@@ -343,6 +353,12 @@ class LocalNode:
     def node_log(self) -> Path:
         return self.log_dir / f"{self.node_name}.log"
 
+    @property
+    def made_with_file(self) -> Path:
+        """Which RabbitMQ made the node's database (a release cannot open a newer one's, and 4.x
+        not a 3.x one's): written at each start."""
+        return self.base_dir / "rabbitmq.json"
+
     def __repr__(self) -> str:
         return f"LocalNode({str(self.base_dir)!r})"
 
@@ -364,7 +380,7 @@ class LocalNode:
         fresh = [port for port in choose_free_ports(len(missing) + len(ports)) if port not in ports.values()]
         ports.update(zip(missing, fresh, strict=False))
         ports = {name: ports[name] for name in PORT_NAMES}
-        self.base_dir.mkdir(parents=True, exist_ok=True)
+        private_dir(self.base_dir)
         _write_if_changed(
             self.node_file, json.dumps({"node_name": self.node_name, "ports": ports}, indent=2) + "\n"
         )
@@ -377,9 +393,78 @@ class LocalNode:
         if not create:
             return None
         password = secrets.token_urlsafe(24)
-        self.base_dir.mkdir(parents=True, exist_ok=True)
+        private_dir(self.base_dir)
         write_private_file(self.admin_file, json.dumps({"username": ADMIN_USER, "password": password}) + "\n")
         return ADMIN_USER, password
+
+    # the RabbitMQ it runs
+    def _has_database(self) -> bool:
+        return any((self.base_dir / "mnesia").glob("*"))
+
+    def made_with(self) -> tuple[Installation, str | None] | None:
+        """The installation and the release that last ran the node's database; None for a node
+        never started. A node of an older fleetbus, which always ran the host's package, has no
+        record: the host's it is."""
+        with contextlib.suppress(OSError, ValueError, KeyError):
+            data = json.loads(self.made_with_file.read_text())
+            return Installation(Path(data["root"])), data.get("version")
+        if self._has_database():
+            host = Installation(HOST_ROOT)
+            return host, host.version()
+        return None
+
+    def installation(self) -> Installation:
+        """The RabbitMQ this node runs: the one it was given, else ``FLEETBUS_RABBITMQ_ROOT``'s,
+        else the one that last ran its database (still installed), else the default
+        (:func:`fleetbus.dev.rabbitmq.default_installation`)."""
+        if self._rabbitmq is None:
+            from fleetbus.settings import load_settings
+
+            explicit = load_settings().rabbitmq_root
+            made = self.made_with()
+            if explicit is not None:
+                self._rabbitmq = Installation(explicit)
+            elif made is not None and made[0].exists():
+                self._rabbitmq = made[0]
+            else:
+                self._rabbitmq = default_installation()
+        return self._rabbitmq
+
+    def _check_release(self, rabbitmq: Installation) -> None:
+        """Refuse to start a database with a release that cannot open it: an older one than made
+        it, or one of another major version (4.x does not open a 3.x database)."""
+        made = self.made_with() if self._has_database() else None
+        version = rabbitmq.version()
+        if made is None or made[1] is None or version is None:
+            return
+        old, new = version_key(made[1]), version_key(version)
+        if new[:2] >= old[:2] and new[0] == old[0]:
+            return
+        where = f"FLEETBUS_RABBITMQ_ROOT={made[0].root}"
+        if not made[0].exists():
+            where += (
+                " (`bash scripts/rabbitmq-root` builds Debian 13's there again)"
+                if made[0].chrooted
+                else " (`apt-get install rabbitmq-server` installs it again)"
+            )
+        raise LocalNodeError(
+            f"the node in {self.base_dir} was last run by RabbitMQ {made[1]}, and {rabbitmq.describe()} "
+            f"cannot open its database (RabbitMQ 4 does not read a 3.x database, and no release reads a "
+            f"newer one's). Run it with {where}; or give this RabbitMQ a folder of its own "
+            f"(FLEETBUS_DATA_DIR); or start afresh, losing the node's queues, messages and accounts: "
+            f"`fleetbus broker down`, delete {self.base_dir / 'mnesia'}, then `bash scripts/setup`"
+        )
+
+    def _record_release(self, rabbitmq: Installation) -> None:
+        _write_if_changed(
+            self.made_with_file,
+            json.dumps({"root": str(rabbitmq.root), "version": rabbitmq.version()}, indent=2) + "\n",
+        )
+
+    def _shared_folders(self) -> list[Path]:
+        """What a node in a root must see: its folder and its TLS files' (the CA's revocation list)."""
+        tls = self.tls
+        return [self.base_dir, tls.ca.parent, tls.cert.parent, tls.key.parent, tls.crl_dir]
 
     def _urls(self) -> tuple[str | None, str | None]:
         ports, creds = self.ports(), self.admin_credentials()
@@ -448,6 +533,7 @@ class LocalNode:
             RABBITMQ_CTL_ERL_ARGS="-kernel inet_dist_use_interface {127,0,0,1}",
             RABBITMQ_CTL_DIST_PORT_MIN="0",
             RABBITMQ_CTL_DIST_PORT_MAX="0",
+            **self.installation().env(),
         )
         if not self.tls_only:
             env.update(RABBITMQ_NODE_IP_ADDRESS=HOST, RABBITMQ_NODE_PORT=str(ports["amqp"]))
@@ -460,7 +546,7 @@ class LocalNode:
         user, password = creds
         base = self.base_dir
         for folder in (base, self.log_dir, base / "mnesia", base / "conf.d", base / "plugins-expand"):
-            folder.mkdir(parents=True, exist_ok=True)
+            private_dir(folder)
         _write_if_changed(
             base / "rabbitmq-env.conf",
             "# Shadows /etc/rabbitmq/rabbitmq-env.conf: fleetbus sets everything in the environment.\n",
@@ -537,8 +623,8 @@ log.console = false
     @contextlib.contextmanager
     def _lock(self, timeout: float) -> Iterator[None]:
         """Serialise up/down between processes (a test run and `fleetbus broker up`, say)."""
-        self.base_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.base_dir / ".lock", "w") as handle:
+        private_dir(self.base_dir)
+        with open(private_file(self.base_dir / ".lock"), "w") as handle:
             waiting = retrying(
                 f"the lock {self.base_dir / '.lock'} (another process starts or stops the node)",
                 on=_LockBusy,
@@ -626,10 +712,21 @@ log.console = false
         self, *args: str, timeout: float = 60.0, check: bool = True
     ) -> subprocess.CompletedProcess[str]:
         """Run ``rabbitmqctl ARGS`` against this node; raises LocalNodeError when it fails and ``check``."""
-        self._require_installation()
+        return self._tool("rabbitmqctl", args, timeout, check)
+
+    def rabbitmq_plugins(
+        self, *args: str, timeout: float = 60.0, check: bool = True
+    ) -> subprocess.CompletedProcess[str]:
+        """Run ``rabbitmq-plugins ARGS`` for this node (``enable --online NAME``...)."""
+        return self._tool("rabbitmq-plugins", args, timeout, check)
+
+    def _tool(
+        self, tool: str, args: tuple[str, ...], timeout: float, check: bool
+    ) -> subprocess.CompletedProcess[str]:
+        rabbitmq = self._require_installation()
         try:
             result = subprocess.run(
-                [str(RABBITMQCTL), *args],
+                rabbitmq.command(tool, args, self._shared_folders(), self.base_dir),
                 env=self.env(),
                 cwd=self.base_dir,
                 stdin=subprocess.DEVNULL,
@@ -638,18 +735,21 @@ log.console = false
                 timeout=timeout,
             )
         except subprocess.TimeoutExpired as error:
-            raise LocalNodeError(f"rabbitmqctl {' '.join(args)} did not finish in {timeout:.0f} s") from error
+            raise LocalNodeError(f"{tool} {' '.join(args)} did not finish in {timeout:.0f} s") from error
         if check and result.returncode != 0:
             raise LocalNodeError(
-                f"rabbitmqctl {' '.join(args)} failed ({result.returncode}): "
+                f"{tool} {' '.join(args)} failed ({result.returncode}): "
                 f"{(result.stderr or result.stdout).strip()}"
             )
         return result
 
-    @staticmethod
-    def _require_installation() -> None:
-        if not RABBITMQ_SERVER.exists() or not RABBITMQCTL.exists():
-            raise LocalNodeError(f"RabbitMQ is not installed ({RABBITMQ_SERVER} is missing): {SETUP_HINT}")
+    def _require_installation(self) -> Installation:
+        rabbitmq = self.installation()
+        try:
+            rabbitmq.require()
+        except InstallationError as error:
+            raise LocalNodeError(str(error)) from None
+        return rabbitmq
 
     def _startup_failure(self, message: str) -> LocalNodeError:
         parts = [message]
@@ -682,12 +782,16 @@ log.console = false
         with self._lock(timeout):
             # a database made by this start has no queues yet, let alone leaderless ones
             had_database = any((self.base_dir / "mnesia").glob("*"))
+            if self.pid() is None:
+                self._check_release(self.installation())
             self._write_config()
             pid = self.pid()
             started = pid is None
             if started:
                 self._start()
             self._wait_ready(deadline, started)
+            if started:
+                self._record_release(self.installation())
             if not started and pid is not None and not self._tls_listening(pid):
                 log.warning(
                     "the private node runs without its AMQPS and HTTPS listeners (it was started by an "
@@ -702,10 +806,10 @@ log.console = false
     def heal_quorum_queues(self, deadline: float) -> int:
         """Elect a leader for every quorum queue that came back from a crash without one.
 
-        RabbitMQ 3.10 can restart a single-node quorum queue with no leader (it answers
+        RabbitMQ can restart a single-node quorum queue with no leader (it answers
         ``INTERNAL_ERROR`` to consumers and its messages look gone; rabbitmq-server #10070),
-        mostly one created moments before the crash. Its messages are still on disk: an election
-        brings them back. Returns how many queues needed one.
+        mostly one created moments before the crash: seen on 3.10.8 and on 4.0.5. Its messages
+        are still on disk: an election brings them back. Returns how many queues needed one.
         """
         healed: set[str] = set()
         while True:
@@ -722,22 +826,29 @@ log.console = false
             time.sleep(0.5)  # elections run in the background; then check again
 
     def _start(self) -> None:
+        rabbitmq = self._require_installation()
         ports = self.ports(create=True)
         assert ports is not None
         self._check_ports(ports)
         with contextlib.suppress(FileNotFoundError):
             self.pid_file.unlink()  # stale after a kill -9
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        log.info("starting the private RabbitMQ node %s in %s", self.node_name, self.base_dir)
-        with open(self.console_log, "wb") as console:
+        private_dir(self.log_dir)
+        log.info(
+            "starting the private RabbitMQ node %s in %s (%s)",
+            self.node_name,
+            self.base_dir,
+            rabbitmq.describe(),
+        )
+        with open(private_file(self.console_log), "wb") as console:
             self._proc = subprocess.Popen(
-                [str(RABBITMQ_SERVER)],
+                rabbitmq.command("rabbitmq-server", (), self._shared_folders(), self.base_dir),
                 env=self.env(),
                 cwd=self.base_dir,
                 stdin=subprocess.DEVNULL,
                 stdout=console,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
+                umask=OWNER_ONLY,  # its database, logs and cookie are its owner's only
             )
 
     def _wait_ready(self, deadline: float, started: bool) -> None:

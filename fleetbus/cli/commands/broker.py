@@ -56,7 +56,12 @@ def _show(endpoint: BrokerEndpoint, extra: dict[str, str] | None = None, show_pa
 
 def _node_extra(node: LocalNode) -> dict[str, str]:
     info = node.status()
-    extra = {"pid": str(info.pid), "node": info.node_name, "folder": str(info.base_dir)}
+    extra = {
+        "pid": str(info.pid),
+        "node": info.node_name,
+        "folder": str(info.base_dir),
+        "runs": node.installation().describe(),
+    }
     if info.management_tls_url:
         extra["management TLS"] = info.management_tls_url
     extra["CA"] = str(node.tls.ca)

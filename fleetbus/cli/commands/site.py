@@ -42,18 +42,12 @@ def _enable_shovels(ep: BrokerEndpoint, api: ManagementAPI) -> None:
     if ep.kind != "private":
         plugins = " ".join(SHOVEL_PLUGINS)
         fail(f"enable the shovel plugins on the site's broker first: rabbitmq-plugins enable {plugins}")
-    import subprocess
+    from fleetbus.dev.local_node import LocalNode, LocalNodeError
 
-    from fleetbus.dev.local_node import RABBITMQ_BIN, LocalNode
-
-    node = LocalNode(settings().broker_dir)
-    subprocess.run(
-        [str(RABBITMQ_BIN / "rabbitmq-plugins"), "enable", "--online", *SHOVEL_PLUGINS],
-        env=node.env(),
-        cwd=node.base_dir,
-        check=True,
-        capture_output=True,
-    )
+    try:
+        LocalNode(settings().broker_dir).rabbitmq_plugins("enable", "--online", *SHOVEL_PLUGINS)
+    except LocalNodeError as error:
+        fail(str(error))
 
 
 @app.command()
