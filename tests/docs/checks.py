@@ -38,7 +38,7 @@ from fleetbus.cli import app
 
 ROOT = Path(__file__).resolve().parents[2]
 ASSIGNMENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*=")
-SHELL_BUILTINS = frozenset({"export", "cp", "cd", "mkdir", "source", "."})
+SHELL_BUILTINS = frozenset({"export", "cp", "cd", "mkdir", "rm", "source", "."})
 
 
 def words(command: str) -> list[str]:

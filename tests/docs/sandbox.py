@@ -116,6 +116,10 @@ class Sandbox:
             **{key: value for key, value in bus.worker_env().items() if key != "FLEETBUS_TLS_CA"},
             "FLEETBUS_TLS_DIR": str(tls),
             "PATH": f"{ROOT / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
+            # a page's `bash scripts/setup` (or `demo`) must not install the peers and ROS again
+            # in the checkout the other tests use (`scripts/test` asks for them)
+            "FLEETBUS_WITH_PEERS": "0",
+            "FLEETBUS_WITH_ROS": "0",
             "COLUMNS": "160",
             "NO_COLOR": "1",
         }
