@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+from pathlib import Path
 from typing import Annotated
+from urllib.parse import urlsplit
 
 import typer
 from rich.table import Table
@@ -53,20 +55,40 @@ def _enable_shovels(ep: BrokerEndpoint, api: ManagementAPI) -> None:
 @app.command()
 def up(
     name: Annotated[str, typer.Option("--name", help="the site's name, as central knows it")],
+    central_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--central-file",
+            help="a file holding the site's URL at central (`fleetbus sites add` printed it; keep it "
+            "0600); default FLEETBUS_CENTRAL_URL",
+        ),
+    ] = None,
     central: Annotated[
         str | None,
         typer.Option(
             "--central",
-            help="the site's URL at central (`fleetbus sites add` printed it); default FLEETBUS_CENTRAL_URL",
+            help="the site's URL at central, without a password (a client certificate's, "
+            "auth_mechanism=external): a password on the command line is seen by every user of the machine",
         ),
     ] = None,
 ) -> None:
     """Start the site's links: this broker (started if it is the private one) forwards everything it
     accepts to central, and takes central's changes; run `fleetbus worker` beside it as usual."""
     config = settings()
+    if central is not None and urlsplit(central).password:
+        fail(
+            "--central holds a password, which every user of this machine sees on the command line: "
+            "give it in a file (--central-file) or in FLEETBUS_CENTRAL_URL",
+            code=2,
+        )
+    if central_file is not None:
+        try:
+            central = central_file.read_text().strip()
+        except OSError as error:
+            fail(f"--central-file: {error}", code=2)
     central = central or config.central_url
     if not central:
-        fail("no central URL: give --central or set FLEETBUS_CENTRAL_URL")
+        fail("no central URL: give --central-file or set FLEETBUS_CENTRAL_URL")
     try:
         shovel_uri(central)  # a URL the shovels cannot verify with is refused before anything changes
     except TlsSettingError as error:
