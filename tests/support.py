@@ -170,14 +170,20 @@ class Bus:
             client.close(flush_timeout=0)  # what a test left waiting stays; the test is over
 
     def spawn_robot(self, url: str, *args: str) -> subprocess.Popen[str]:
-        """A robot as its own process (``tests.robot_process``), to be killed for real."""
-        return subprocess.Popen(
-            [sys.executable, "-m", "tests.robot_process", url, str(self.settings.robots_dir), *args],
+        """A robot as its own process (``tests.robot_process``), to be killed for real; its URL (with
+        its password) on its standard input, never in its arguments."""
+        process = subprocess.Popen(
+            [sys.executable, "-m", "tests.robot_process", str(self.settings.robots_dir), *args],
             cwd=PROJECT_ROOT,
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=open(self.settings.data_dir / f"robot-{uuid.uuid4().hex[:6]}.log", "wb"),
             text=True,
         )
+        assert process.stdin is not None
+        process.stdin.write(url + "\n")
+        process.stdin.close()
+        return process
 
     def outbox(self, robot: str) -> Outbox:
         """A robot's outbox as `fleetbus outbox` reads it (read-only; the robot may be running)."""

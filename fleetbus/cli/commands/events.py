@@ -16,6 +16,7 @@ from fleetbus.cli.context import (
     console,
     fail,
     load_data,
+    no_password_in_argv,
     settings,
     with_recording,
 )
@@ -33,6 +34,7 @@ from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, R
 
 
 def robot_url(robot: str, url: str | None) -> str:
+    no_password_in_argv(url, "--url", "in FLEETBUS_ROBOT_URL, or as `users add` kept it")
     url = url or settings().robot_url
     if url:
         return url

@@ -6,7 +6,6 @@ import asyncio
 import json
 from pathlib import Path
 from typing import Annotated
-from urllib.parse import urlsplit
 
 import typer
 from rich.table import Table
@@ -18,7 +17,7 @@ from fleetbus.broker.sites import start_site_links, stop_site_links
 from fleetbus.broker.tls import TlsSettingError, shovel_uri
 from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
-from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.cli.context import admin_api, console, endpoint, fail, no_password_in_argv, settings
 from fleetbus.workers.site_status import site_view
 from fleetbus.workers.store import run_with_repositories
 
@@ -75,12 +74,7 @@ def up(
     """Start the site's links: this broker (started if it is the private one) forwards everything it
     accepts to central, and takes central's changes; run `fleetbus worker` beside it as usual."""
     config = settings()
-    if central is not None and urlsplit(central).password:
-        fail(
-            "--central holds a password, which every user of this machine sees on the command line: "
-            "give it in a file (--central-file) or in FLEETBUS_CENTRAL_URL",
-            code=2,
-        )
+    no_password_in_argv(central, "--central", "in a file (--central-file) or in FLEETBUS_CENTRAL_URL")
     if central_file is not None:
         try:
             central = central_file.read_text().strip()
