@@ -51,7 +51,8 @@ def publish(
     url: Annotated[
         str | None,
         typer.Option(
-            help="the robot's AMQP URL (default: FLEETBUS_ROBOT_URL, else the one `users add` kept)"
+            help="the robot's AMQP URL without a password (a client certificate's; default: "
+            "FLEETBUS_ROBOT_URL, else the one `users add` kept)"
         ),
     ] = None,
     timeout: Annotated[float, typer.Option(help="seconds to wait for the broker's confirm")] = 10.0,
