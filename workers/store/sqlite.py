@@ -185,6 +185,7 @@ def sqlite_repositories(path: Path, busy_timeout: float = 2.0) -> Repositories:
         opener=file.open,
         closer=file.close,
         again=lambda: sqlite_repositories(path, busy_timeout),
+        any_loop=True,
     )
 
 
