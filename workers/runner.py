@@ -54,8 +54,14 @@ from fleetbus.workers.telemetry import BatteryWatch
 log = logging.getLogger("fleetbus.worker")
 
 PREFETCH = 512
-#: Hazards and localisations in hand at once on the express lane: few, and each waits for its write.
-EXPRESS_PREFETCH = 16
+#: Hazards and localisations handled at once on the express lane: few, each batch written on the
+#: caller's thread (:data:`~fleetbus.workers.store.sqlite.SMALL_BATCH`).
+EXPRESS_BATCH = 16
+#: Hazards and localisations delivered and not yet acked on the express lane. Many more than a
+#: batch: a batch is acked only once its operators' copies are confirmed, which took up to a
+#: second while the recorder's queue took a backlog; with 16 the broker could stop delivering
+#: hazards until those confirms came (decision 0014).
+EXPRESS_PREFETCH = 256
 
 
 @dataclass
@@ -177,7 +183,7 @@ async def ingest_consumer(
         checks=checks,
         services=services,
         urgent=GATED,  # the wardens wait for hazards; the gate opens on localisation
-        batch_size=prefetch,
+        batch_size=EXPRESS_BATCH if express else prefetch,
         stats=stats,
         # the express queue is classic: the worker keeps its delivery limit
         attempts=AttemptLimit(repositories.attempts, INGEST_DELIVERY_LIMIT) if express else None,

@@ -157,11 +157,28 @@ class SQLiteDatabase:
                 raise self._unavailable(busy.__cause__) from busy.__cause__
         finally:
             self._thread_busy = False
-            with self._signals:
-                self._thread_calls_ended += 1
-                waiting, self._waiting = self._waiting, []
-            for loop, future in waiting:
-                loop.call_soon_threadsafe(_wake, future)
+            self._let_go()
+
+    def _let_go(self) -> None:
+        """The store's thread let the write lock go: wake the small calls waiting for that."""
+        with self._signals:
+            self._thread_calls_ended += 1
+            waiting, self._waiting = self._waiting, []
+        for loop, future in waiting:
+            loop.call_soon_threadsafe(_wake, future)
+
+    def let_small_calls_in(self, db: sqlite3.Connection) -> None:
+        """Between two parts of a long write on the store's thread (in a transaction of
+        :func:`in_transaction`): when small calls wait for the write lock, commit what is written,
+        let them go first, and begin again. A hazard then waits for one part of a bulk batch, not
+        the whole of it; with nobody waiting it costs nothing."""
+        if not self._small_waiting or db is not self._db:
+            return
+        db.execute("COMMIT")
+        self._let_go()
+        with self._signals:
+            self._signals.wait_for(lambda: not self._small_waiting, self._busy_timeout)
+        db.execute("BEGIN IMMEDIATE")
 
     def _attempt(self, db: sqlite3.Connection, work: Callable[[sqlite3.Connection], T]) -> T:
         try:
