@@ -248,6 +248,12 @@ class Settings(BaseSettings):
         1,
         "on a site: whole seconds the uplink and downlink shovels wait before connecting to central again",
     )
+    outbox_limits: str = setting(
+        "",
+        "on a robot: its outbox's limits by type, read by the robot client (`status=500 localisation=100`); "
+        "telemetry beyond its limit is thinned to the newest (the rest dropped and counted, shown in "
+        "`fleetbus outbox` and the team view), a type never dropped refuses the event past its limit",
+    )
     inbox_max: Words = setting(
         ("10000", "100MB"),
         "each inbox's length, in messages and/or bytes; when full its oldest notifications are dropped, "

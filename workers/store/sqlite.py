@@ -241,6 +241,16 @@ class SQLiteEventLog(SQLiteLedger, EventLog):
             sql += f" LIMIT {int(query.limit)}"
         return await self._run(lambda db: [_record(row) for row in db.execute(sql, params)])
 
+    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
+        of_type = "" if type is None else " AND type = :type"
+        sql = (
+            "SELECT e.* FROM json_each(:robots) r JOIN events e ON (e.robot_id, e.epoch, e.seq) = "
+            f"(SELECT robot_id, epoch, seq FROM events WHERE robot_id = r.value{of_type} "
+            "ORDER BY sent_at DESC LIMIT 1)"
+        )
+        params = {"robots": json.dumps(list(robots)), "type": type}
+        return await self._run(lambda db: {row["robot_id"]: _record(row) for row in db.execute(sql, params)})
+
     async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
         # covered by the events_received index (a WITHOUT ROWID table's index holds the key)
         sql = (
