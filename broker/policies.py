@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from fleetbus.broker.uplink import CLASSES, DROP_OLDEST, REFUSE, UplinkBounds
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, HAZARD_UPLINK_QUEUE, OVERFLOW_EXCHANGE, UPLINK_QUEUE
 
 if TYPE_CHECKING:  # every process that loads the settings imports this module: httpx is 6 MB
@@ -79,16 +80,25 @@ def bound_policies(inbox: QueueLimit, dead_letters: QueueLimit) -> list[QueuePol
     ]
 
 
-def uplink_policies(max_messages: int, max_bytes: int) -> list[QueuePolicy]:
-    """A site's uplink and hazard uplink (:mod:`fleetbus.broker.sites`), each bounded alike: full
-    means the broker refuses the publish (``reject-publish``, a nack), so the event stays in the
-    robot's outbox, or the hazard's state unsent in the site's store, and is sent again; never a
-    drop, since central has not got it yet."""
-    definition = {"overflow": "reject-publish", "max-length": max_messages, "max-length-bytes": max_bytes}
-    return [
-        QueuePolicy("fleetbus-uplink", _exactly(UPLINK_QUEUE), definition),
-        QueuePolicy("fleetbus-hazard-uplink", _exactly(HAZARD_UPLINK_QUEUE), definition),
-    ]
+def uplink_policies(bounds: UplinkBounds) -> list[QueuePolicy]:
+    """A site's uplink classes (:mod:`fleetbus.broker.uplink`) and hazard uplink
+    (:mod:`fleetbus.broker.sites`), each with its own bound. Hazards, events and hazard states
+    are never dropped: full means the broker refuses the publish (``reject-publish``, a nack), so
+    the event stays in the robot's outbox, or the hazard's state unsent in the site's store, and
+    is sent again, since central has not got it yet. Telemetry drops its oldest, counted like the
+    other queues' drops."""
+    policies = []
+    for uplink in CLASSES:
+        definition: dict[str, Any] = {"overflow": uplink.overflow, "max-length": bounds.of(uplink)}
+        if uplink.overflow == DROP_OLDEST:
+            definition["dead-letter-exchange"] = OVERFLOW_EXCHANGE
+        else:
+            definition["max-length-bytes"] = bounds.max_bytes
+        name = "fleetbus-uplink" if uplink.queue == UPLINK_QUEUE else f"fleetbus-uplink-{uplink.name}"
+        policies.append(QueuePolicy(name, _exactly(uplink.queue), definition))
+    states = {"overflow": REFUSE, "max-length": bounds.events, "max-length-bytes": bounds.max_bytes}
+    policies.append(QueuePolicy("fleetbus-hazard-uplink", _exactly(HAZARD_UPLINK_QUEUE), states))
+    return policies
 
 
 def apply_policies(api: ManagementAPI, vhost: str, policies: list[QueuePolicy]) -> None:
