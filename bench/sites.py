@@ -39,6 +39,7 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, forward_robot, local_uri, start_site_links
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import core_topology, declare_with_url
+from fleetbus.broker.uplink import UplinkBounds
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
@@ -48,6 +49,10 @@ from fleetbus.workers.setup import set_up_service
 from fleetbus.workers.sites import assign_robots
 from fleetbus.workers.store import run_with_repositories
 
+#: Bounds no backlog of the bench reaches.
+BENCH_BOUNDS = UplinkBounds(
+    hazards=1_000_000, events=10_000_000, telemetry=10_000_000, max_bytes=16 * 1024**3
+)
 STATUS = {"battery_percent": 80.0, "pose": {"x": 1.0, "y": 2.0}, "processing_rate_hz": 10.0}
 RAW_QUEUE = "bench.raw"
 
@@ -237,8 +242,7 @@ def run(
             site_api,
             "bench-site",
             "amqp://nowhere.invalid/",
-            max_messages=10_000_000,
-            max_bytes=16 * 1024**3,
+            bounds=BENCH_BOUNDS,
             reconnect_delay_s=1,
         )
     )

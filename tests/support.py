@@ -26,6 +26,7 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.retry import retrying
 from fleetbus.broker.tls import blocking_connection
+from fleetbus.broker.uplink import CLASSES
 from fleetbus.broker.urls import without_password
 from fleetbus.cli.registry import register_robot
 from fleetbus.dev.recorder_thread import RecorderThread
@@ -381,20 +382,28 @@ def keys(events: Iterable[Event]) -> list[EventKey]:
     return [(event.epoch, event.seq) for event in events]
 
 
-def assert_stored_once_in_order(bus: Bus, robot: str, sent: Sequence[EventKey]) -> None:
+def worker_lane(event_type: str) -> str:
+    """Hazards and localisations take the express lane: they may overtake the robot's other events."""
+    return "express" if event_type in EXPRESS_TYPE_NAMES else "shard"
+
+
+def site_lane(event_type: str) -> str:
+    """At central, for a site's robot: also the uplink's class it came by (:mod:`fleetbus.broker.uplink`)."""
+    uplink = next(u.name for u in CLASSES if event_type in {t.value for t in u.types})
+    return f"{uplink} uplink, {worker_lane(event_type)}"
+
+
+def assert_stored_once_in_order(
+    bus: Bus, robot: str, sent: Sequence[EventKey], lane_of: Callable[[str], str] = worker_lane
+) -> None:
     """The store holds each of ``sent`` (epoch, seq) exactly once, and received each epoch's
-    events in sequence order within each lane (hazards and localisations take the express lane:
-    they may overtake the robot's other events). Order holds per (robot, epoch): two clients with
-    the robot's account at once number apart."""
+    events in sequence order within each lane (``lane_of`` an event type). Order holds per
+    (robot, epoch): two clients with the robot's account at once number apart."""
     records = sorted(bus.find(EventQuery(robot_id=robot)), key=lambda record: (record.epoch, record.seq))
     assert [(r.epoch, r.seq) for r in records] == sorted(sent), f"{robot}: every event once, nothing else"
     for epoch in {r.epoch for r in records}:
-        for lane, express in (("express", True), ("shard", False)):
-            arrival = [
-                r.received_at
-                for r in records
-                if r.epoch == epoch and (r.type in EXPRESS_TYPE_NAMES) is express
-            ]
+        for lane in {lane_of(r.type) for r in records}:
+            arrival = [r.received_at for r in records if r.epoch == epoch and lane_of(r.type) == lane]
             assert arrival == sorted(arrival), (
                 f"{robot}: a later {lane} event of epoch {epoch} was stored before an earlier one"
             )

@@ -265,6 +265,22 @@ class MongoEventLog(MongoLedger, EventLog):
         found = self._events().find({"received_at_us": {"$gte": to_micros(since)}}, fields)
         return found.sort(order).limit(limit)
 
+    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
+        match: dict[str, Any] = {"robot_id": {"$in": list(robots)}}
+        if type is not None:
+            match["type"] = type
+        # a sort on the (robot_id, sent_at) index and $first: each robot's newest only
+        pipeline = [
+            {"$match": match},
+            {"$sort": {"robot_id": ASCENDING, "sent_at_us": DESCENDING}},
+            {"$group": {"_id": "$robot_id", "newest": {"$first": "$$ROOT"}}},
+        ]
+        try:
+            found = await self._events().aggregate(pipeline)
+            return {doc["_id"]: from_document(doc["newest"]) async for doc in found}
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
+
     async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
         fields = ["robot_id", "epoch", "seq", "received_at_us"]
         try:

@@ -45,6 +45,9 @@ T = TypeVar("T")
 
 #: An urgent batch of up to this many events may be written on the caller's thread (``store_batch``).
 SMALL_BATCH = 16
+#: A bulk batch is written in parts of this many events, letting a waiting small call (a hazard's
+#: write) in between two parts (:meth:`SQLiteDatabase.let_small_calls_in`).
+BULK_PART = 64
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS events (
@@ -203,6 +206,7 @@ def sqlite_repositories(path: Path, busy_timeout: float = 2.0) -> Repositories:
         opener=file.open,
         closer=file.close,
         again=lambda: sqlite_repositories(path, busy_timeout),
+        any_loop=True,
     )
 
 
@@ -222,17 +226,29 @@ class SQLiteEventLog(SQLiteLedger, EventLog):
         be. Bulk batches always take the thread: the event loop keeps receiving while SQLite
         writes, which is what lets the batches grow under load (written on the loop, the drain
         of a backlog fell from about 7,000 to 4,900 events a second in ``python -m bench.ingest``).
+        A bulk batch is written :data:`BULK_PART` events at a time, and when a small call waits
+        (a hazard's write) the parts written are committed first and it goes in between: then the
+        batch is more than one transaction, each part whole (after a crash, the redelivered
+        batch finds the parts written and stores the rest).
         """
+        small = urgent and len(records) <= SMALL_BATCH
 
         def work(db: sqlite3.Connection) -> StoredBatch:
-            stamped = stamp_missions(records, recording_missions(db, {r.robot_id for r in records}))
-            results = _write(db, stamped)
-            observe(db, held_sequences(stamped, results), at)
+            stamped: list[EventRecord] = []
+            results: list[WriteResult] = []
+            step = max(1, len(records)) if small else BULK_PART
+            for start in range(0, len(records), step):
+                if start:
+                    self._database.let_small_calls_in(db)
+                part = records[start : start + step]
+                part = stamp_missions(part, recording_missions(db, {r.robot_id for r in part}))
+                written = _write(db, part)
+                observe(db, held_sequences(part, written), at)
+                stamped += part
+                results += written
             return StoredBatch(stamped, results)
 
-        return await self._run(
-            lambda db: in_transaction(db, lambda: work(db)), small=urgent and len(records) <= SMALL_BATCH
-        )
+        return await self._run(lambda db: in_transaction(db, lambda: work(db)), small=small)
 
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
         where, params = _where(query.type, query.robot_id, query.since, query.until, query.mission_id)
@@ -242,6 +258,16 @@ class SQLiteEventLog(SQLiteLedger, EventLog):
         if query.limit is not None:
             sql += f" LIMIT {int(query.limit)}"
         return await self._run(lambda db: [_record(row) for row in db.execute(sql, params)])
+
+    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
+        of_type = "" if type is None else " AND type = :type"
+        sql = (
+            "SELECT e.* FROM json_each(:robots) r JOIN events e ON (e.robot_id, e.epoch, e.seq) = "
+            f"(SELECT robot_id, epoch, seq FROM events WHERE robot_id = r.value{of_type} "
+            "ORDER BY sent_at DESC LIMIT 1)"
+        )
+        params = {"robots": json.dumps(list(robots)), "type": type}
+        return await self._run(lambda db: {row["robot_id"]: _record(row) for row in db.execute(sql, params)})
 
     async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
         # covered by the events_received index (a WITHOUT ROWID table's index holds the key)

@@ -15,6 +15,7 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import start_site_links, stop_site_links
 from fleetbus.broker.tls import TlsSettingError, shovel_uri
+from fleetbus.broker.uplink import bounds_of
 from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
 from fleetbus.cli.context import admin_api, console, endpoint, fail, no_password_in_argv, settings
@@ -97,14 +98,14 @@ def up(
                 api,
                 name,
                 central,
-                max_messages=config.uplink_max,
-                max_bytes=config.uplink_max_bytes,
+                bounds=bounds_of(config),
                 reconnect_delay_s=config.site_reconnect_delay_s,
             )
         )
     console.print(
-        f"site [bold]{name}[/]: forwarding to {mask_password(central)} (fleetbus-uplink), "
-        "taking central's changes (fleetbus-downlink)",
+        f"site [bold]{name}[/]: forwarding to {mask_password(central)} (fleetbus-uplink-hazards, "
+        "fleetbus-uplink, fleetbus-uplink-telemetry), taking central's changes (fleetbus-downlink, "
+        "fleetbus-downlink-maps)",
         soft_wrap=True,
         highlight=False,
     )
@@ -124,12 +125,17 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     table = Table(title="links to central")
     for column in ("shovel", "state", "since", "reason"):
         table.add_column(column)
-    for shovel in (link.uplink, link.downlink, *([link.hazard_uplink] if link.hazard_uplink else [])):
+    others = [s for name, s in link.shovels.items() if name not in (link.uplink.name, link.downlink.name)]
+    shovels = (link.uplink, link.downlink, *([link.hazard_uplink] if link.hazard_uplink else []), *others)
+    for shovel in shovels:
         colour = "green" if shovel.state == "running" else "red"
         table.add_row(shovel.name, f"[{colour}]{shovel.state}[/]", shovel.since or "-", shovel.reason or "")
     console.print(table)
     waiting = "?" if link.waiting is None else f"{link.waiting:,}"
-    console.print(f"waiting to be forwarded: {waiting} events", highlight=False)
+    by_class = ", ".join(
+        f"{name} {depth.waiting:,} of {depth.bound:,}" for name, depth in link.classes.items()
+    )
+    console.print(f"waiting to be forwarded: {waiting} events ({by_class})", highlight=False)
     if link.hazard_states_waiting:
         console.print(f"hazard states waiting for central: {link.hazard_states_waiting:,}", highlight=False)
     if link.rejected:
