@@ -404,10 +404,11 @@ class Outbox:
         them again.
         """
         with self._lock:
-            entries = self._take_first(limit)
+            entries, stopped = self._take_first(limit, whole_segments)
             flying = Counter(number for number, _ in self._in_flight)
             read: list[_Segment] = []
-            taken_first = len(entries)
+            # the first segment this take reads may be taken in part, unless the first take stopped
+            taken_first = 0 if stopped else len(entries)
             for segment in self._segments:
                 if len(entries) == limit:
                     break
@@ -427,32 +428,34 @@ class Outbox:
                 self._release(segment)
             return entries
 
-    def _take_first(self, limit: int) -> list[Entry]:
-        """Up to ``limit`` waiting entries of :data:`FIRST`'s types that wait behind others, oldest
-        first, marked in flight (those ahead of everything else go first in any case)."""
+    def _take_first(self, limit: int, whole_segments: bool) -> tuple[list[Entry], bool]:
+        """Up to ``limit`` waiting entries of :data:`FIRST`'s types, oldest first, marked in flight.
+
+        All of them, including those that wait behind nothing (the telemetry before them is in
+        flight already): taking only those behind telemetry would send a later hazard before an
+        earlier one, which the express lane receives out of order. True with them if it stopped
+        before a segment of theirs only that it could not take whole."""
         entries: list[Entry] = []
         flying = Counter(number for number, _ in self._first_in_flight)
-        behind = False  # an entry of another type waits before this one
         for segment in self._segments:
             if len(entries) == limit:
                 break
             firsts = sum(segment.counts[t] for t in FIRST)
-            if not behind and firsts == segment.size:
-                continue  # only theirs, and nothing else before: the oldest-first take sends them first
-            if behind and firsts <= flying[segment.number]:
+            waiting = firsts - flying[segment.number]
+            if waiting <= 0:
                 continue  # none of them waits here (or all are being sent)
+            if whole_segments and entries and firsts == segment.size and len(entries) + waiting > limit:
+                return entries, True  # as the oldest-first take does: a segment of theirs only, whole
             for doc_id, doc in self._raw_docs(segment):
                 position = (segment.number, doc_id)
                 if len(entries) == limit:
                     break
-                if doc["type"] not in FIRST:
-                    behind = behind or position not in self._in_flight
-                elif behind and position not in self._in_flight:
+                if doc["type"] in FIRST and position not in self._in_flight:
                     entries.append(self._entry(segment, doc_id, doc))
                     self._in_flight.add(position)
                     self._first_in_flight.add(position)
             self._release(segment)
-        return entries
+        return entries, False
 
     def _entry(self, segment: _Segment, doc_id: int, doc: dict[str, Any]) -> Entry:
         body = (self.folder / doc["blob"]).read_bytes() if "blob" in doc else doc["body"].encode()

@@ -403,9 +403,14 @@ def assert_stored_once_in_order(
     assert [(r.epoch, r.seq) for r in records] == sorted(sent), f"{robot}: every event once, nothing else"
     for epoch in {r.epoch for r in records}:
         for lane in {lane_of(r.type) for r in records}:
-            arrival = [r.received_at for r in records if r.epoch == epoch and lane_of(r.type) == lane]
-            assert arrival == sorted(arrival), (
-                f"{robot}: a later {lane} event of epoch {epoch} was stored before an earlier one"
+            in_lane = [r for r in records if r.epoch == epoch and lane_of(r.type) == lane]
+            overtaken = [
+                f"seq {a.seq} ({a.type}) at {a.received_at:%H:%M:%S.%f}, seq {b.seq} ({b.type}) at {b.received_at:%H:%M:%S.%f}"
+                for a, b in zip(in_lane, in_lane[1:])
+                if b.received_at < a.received_at
+            ]
+            assert not overtaken, (
+                f"{robot}: a later {lane} event of epoch {epoch} was taken before an earlier one: {overtaken[:5]}"
             )
 
 

@@ -204,6 +204,22 @@ def test_hazards_and_localisations_are_taken_before_the_telemetry_waiting_longer
     assert outbox.pending() == 0
 
 
+def test_a_hazard_never_overtakes_an_older_one_when_the_telemetry_before_it_is_in_flight(
+    tmp_path: Path,
+) -> None:
+    """The window in flight ends just before a hazard: the next take sends that hazard before the
+    one behind the next telemetry, as the express lane must receive them (seen with a broker kill)."""
+    outbox = Outbox(tmp_path, segment_events=100)
+    outbox.append(events("status", 0, 3))
+    assert [e.seq for e in outbox.take(3, whole_segments=True)] == [0, 1, 2]
+    outbox.append(events("hazard", 3, 1) + events("status", 4, 3) + events("hazard", 7, 1))
+    assert [(e.type, e.seq) for e in outbox.take(3, whole_segments=True)] == [
+        ("hazard", 3),
+        ("hazard", 7),
+        ("status", 4),
+    ]
+
+
 def test_limits_from_a_setting_keep_each_types_overflow(tmp_path: Path) -> None:
     policies = policies_with_limits("status=3, hazard=2")
     assert policies["status"] == TypePolicy(Overflow.DROP_OLDEST, 3)
