@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import os
 import selectors
 import subprocess
@@ -405,12 +406,14 @@ def assert_stored_once_in_order(
         for lane in {lane_of(r.type) for r in records}:
             in_lane = [r for r in records if r.epoch == epoch and lane_of(r.type) == lane]
             overtaken = [
-                f"seq {a.seq} ({a.type}) at {a.received_at:%H:%M:%S.%f}, seq {b.seq} ({b.type}) at {b.received_at:%H:%M:%S.%f}"
-                for a, b in zip(in_lane, in_lane[1:])
+                f"seq {a.seq} ({a.type}) at {a.received_at:%H:%M:%S.%f}, "
+                f"seq {b.seq} ({b.type}) at {b.received_at:%H:%M:%S.%f}"
+                for a, b in itertools.pairwise(in_lane)
                 if b.received_at < a.received_at
             ]
             assert not overtaken, (
-                f"{robot}: a later {lane} event of epoch {epoch} was taken before an earlier one: {overtaken[:5]}"
+                f"{robot}: a later {lane} event of epoch {epoch} was taken before an earlier one: "
+                f"{overtaken[:5]}"
             )
 
 

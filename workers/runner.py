@@ -219,6 +219,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`fleetbus.workers.setup`)."""
     repositories = repositories_for(settings)
     await repositories.open()
+
     async def connect(name: str) -> AbstractRobustConnection:
         return await aio_connect_robust(
             url, client_properties={"connection_name": name}, reconnect_interval=RECONNECT_INTERVAL_S

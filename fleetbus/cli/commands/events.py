@@ -119,9 +119,7 @@ def query(
     ] = None,
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
     mission: Annotated[str | None, typer.Option(help="only messages recorded under this mission")] = None,
-    since: Annotated[
-        str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")
-    ] = None,
+    since: Annotated[str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")] = None,
     until: Annotated[str | None, typer.Option(help="recorded before this time (the same forms)")] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
     latest: Annotated[bool, typer.Option("--latest", help="only the newest match")] = False,
