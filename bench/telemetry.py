@@ -107,6 +107,8 @@ class TelemetryLoad:
         self._log = bus.settings.data_dir / "telemetry.log"
         self.rate = 0.0
         """The rate achieved, once stopped."""
+        self.published = 0
+        """Events published (and confirmed), once stopped."""
 
     def __enter__(self) -> TelemetryLoad:
         self._process = spawn_until_ready(self._command, self._log, "publishing")
@@ -119,6 +121,7 @@ class TelemetryLoad:
         if self._process.returncode != 0:
             raise RuntimeError(f"the telemetry load failed ({self._process.returncode}); see {self._log}")
         summary = json.loads(output.strip().splitlines()[-1])
+        self.published = summary["published"]
         self.rate = summary["published"] / summary["seconds"]
 
 
