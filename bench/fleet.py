@@ -7,7 +7,7 @@ For each fleet size, in a virtual host and store of its own:
 - **provisioning**: ``fleetbus users add-many`` makes every robot's account (and an explorer's
   and a warden's), timed as an operator runs it;
 - **the fleet**: every robot a real ``RobotClient`` publishing a status event a second (confirmed),
-  250 robots to a process (:mod:`bench.telemetry`); the workers (``fleetbus worker
+  125 robots to a process (:mod:`bench.telemetry`); the workers (``fleetbus worker
   --no-recorder``, as many and with as many shards as ``--workers``/``--shards`` or the sizing
   rule, :func:`sizing`) in processes of their own; the warden a robot process of its own
   (:mod:`bench.warden`);
@@ -35,6 +35,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +61,7 @@ from fleetbus.settings import load_settings
 from tests.api.server import api_process
 from tests.support import Bus, wait_for
 
-PER_PROCESS = 250
+PER_PROCESS = 125
 PING_QUEUE = "bench.ping"
 HAZARD_RATE = 2
 console = Console()
@@ -130,7 +131,7 @@ def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[st
         figures["provisioning s"], urls = provision(bus, names)
         declare_queue(bus.admin_url, ingest_queue_arguments(), PING_QUEUE)
         parts = [names[i : i + PER_PROCESS] for i in range(0, robots, PER_PROCESS)]
-        loads = [TelemetryLoad(bus, [urls[n] for n in part], len(part)) for part in parts]
+        loads = [TelemetryLoad(bus, [urls[n] for n in part], len(part), ready_timeout=900) for part in parts]
         explorer = RobotClient(urls["bench-explorer"], state_dir=bus.settings.robots_dir)
         bus.clients.append(explorer)
         explorer.connect()
@@ -142,8 +143,9 @@ def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[st
             wait_for(lambda: all(w.localised for w in bus.with_store(lambda r: r.hazards.robots("warden"))))
             context.show(f"{robots} robots connecting")
             connect_started = time.monotonic()
-            for load in loads:
-                running.enter_context(load)
+            with ThreadPoolExecutor(len(loads)) as starting:  # the processes connect their robots at once
+                for load in starting.map(lambda load: load.__enter__(), loads):
+                    running.push(load.__exit__)
             figures["connecting s"] = time.monotonic() - connect_started
             pids = {f"worker{i}": pid for i, pid in enumerate(worker_pids)}
             if broker_pid:
@@ -211,6 +213,7 @@ def main() -> None:
         context = Context(endpoint, api, show=lambda text: console.print(text, highlight=False))
         for size in [int(n) for n in args.robots.split(",")]:
             results["sizes"].append(run_size(context, size, args))
+            console.print(results["sizes"][-1], highlight=False)  # each size as soon as measured
     results["load average"] = {"start": started_load, "end": load_average()}
     ended = load_average()
     table = Table(title=f"a fleet on one node; load average {started_load} at the start, {ended} at the end")

@@ -116,7 +116,9 @@ def worker_process(bus: Bus, *args: str) -> FleetbusProcess:
     return FleetbusProcess(["worker", *args], bus.service_env(), log, bus.admin_url, INGEST_QUEUE)
 
 
-def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.Popen[str]:
+def spawn_until_ready(
+    command: list[str], log: Path, ready: str, timeout: float = 60
+) -> subprocess.Popen[str]:
     """A helper process of a measurement, talking on its standard input and output (its errors go
     to ``log``); returned once it printed a line starting with ``ready``, killed if it never does."""
     with log.open("ab") as errors:
@@ -124,7 +126,7 @@ def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.P
             command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, text=True
         )
     try:
-        read_line(process, ready, timeout=60)
+        read_line(process, ready, timeout=timeout)
     except BaseException:
         process.kill()
         raise

@@ -94,7 +94,11 @@ def main() -> None:
 class TelemetryLoad:
     """``python -m bench.telemetry`` for robots (their URLs) of ``bus``, while the ``with`` lasts."""
 
-    def __init__(self, bus: Bus, urls: list[str], rate: float, pose: bool = False) -> None:
+    def __init__(
+        self, bus: Bus, urls: list[str], rate: float, pose: bool = False, ready_timeout: float = 60
+    ) -> None:
+        """``ready_timeout``: seconds its robots may take to connect (many on a loaded machine)."""
+        self._ready_timeout = ready_timeout
         self._command = [
             sys.executable,
             "-m",
@@ -111,7 +115,7 @@ class TelemetryLoad:
         """Events published (and confirmed), once stopped."""
 
     def __enter__(self) -> TelemetryLoad:
-        self._process = spawn_until_ready(self._command, self._log, "publishing")
+        self._process = spawn_until_ready(self._command, self._log, "publishing", self._ready_timeout)
         return self
 
     def __exit__(
