@@ -128,7 +128,9 @@ def worker_process(bus: Bus, *args: str) -> FleetbusProcess:
     return worker
 
 
-def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.Popen[str]:
+def spawn_until_ready(
+    command: list[str], log: Path, ready: str, timeout: float = 60
+) -> subprocess.Popen[str]:
     """A helper process of a measurement, talking on its standard input and output (its errors go
     to ``log``); returned once it printed a line starting with ``ready``, killed if it never does."""
     with log.open("ab") as errors:
@@ -136,7 +138,7 @@ def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.P
             command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, text=True
         )
     try:
-        read_line(process, ready, timeout=60)
+        read_line(process, ready, timeout=timeout)
     except BaseException:
         process.kill()
         raise

@@ -43,11 +43,14 @@ def hazards(
     ctx: typer.Context,
     mission: Mission = DEFAULT_MISSION,
     as_json: Annotated[bool, typer.Option("--json")] = False,
+    offset: Annotated[int, typer.Option(min=0, help="skip this many hazards")] = 0,
+    limit: Annotated[int | None, typer.Option(min=1, help="show at most this many hazards")] = None,
 ) -> None:
     """Hazards not cleared yet, in the order detected: held (and why), announced, claimed or reached."""
     if ctx.invoked_subcommand is not None:
         return
     found = run_with_repositories(settings(), lambda repos: _open_and_why(repos, mission))
+    found = found[offset : None if limit is None else offset + limit]
     if as_json:
         for hazard, why in found:
             typer.echo(json.dumps({**hazard.as_dict(), "held_because": why or None}))
