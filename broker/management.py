@@ -215,8 +215,10 @@ class ManagementAPI:
     def get_vhost(self, vhost: str) -> dict[str, Any]:
         return self._request("GET", f"vhosts/{_q(vhost)}")
 
-    def delete_vhost(self, vhost: str) -> None:
-        self._request("DELETE", f"vhosts/{_q(vhost)}")
+    def delete_vhost(self, vhost: str, timeout: float = 180.0) -> None:
+        """The broker answers once every queue of it is deleted: minutes for thousands of queues,
+        so this waits longer than the other calls."""
+        self._request("DELETE", f"vhosts/{_q(vhost)}", timeout=timeout)
 
     def list_policies(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"policies/{_q(vhost)}")
