@@ -95,3 +95,19 @@ def test_a_password_on_the_command_line_is_refused_naming_where_it_goes(bus: Bus
     said = refused.stderr.replace("\n", " ")
     assert "--url holds a password" in said and "FLEETBUS_ROBOT_URL" in said, said
     assert kept.split("@")[0].rsplit(":", 1)[1] not in refused.stderr, "the password is not repeated"
+    # in the environment it is taken, by the ROS bridge too (it gets as far as starting its ROS side)
+    env = {
+        **os.environ,
+        **bus.worker_env(),
+        "FLEETBUS_ROBOT_URL": kept,
+        "FLEETBUS_ROS_PYTHON": "/nonexistent/python",
+    }
+    bridge = subprocess.run(
+        [sys.executable, "-m", "fleetbus", "ros", "bridge", "argv-explorer"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    said = bridge.stderr.replace("\n", " ")
+    assert bridge.returncode == 1 and "cannot start the ROS side with '/nonexistent/python'" in said, said

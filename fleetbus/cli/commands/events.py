@@ -67,7 +67,7 @@ def publish(
         validate_body(event_type, body)
     except SchemaError as error:
         fail(f"invalid {event_type.value} body: {error}", code=2)
-    client = open_robot(robot, url, timeout)
+    client = open_robot(robot, robot_url(robot, url), timeout)
     try:
         with contextlib.suppress(BrokerUnavailable):
             client.connect(timeout)
@@ -89,9 +89,10 @@ def publish(
     )
 
 
-def open_robot(robot: str, url: str | None, timeout: float) -> RobotClient:
+def open_robot(robot: str, url: str, timeout: float) -> RobotClient:
+    """The robot's client on ``url`` (as :func:`robot_url` found it)."""
     try:
-        client = RobotClient(robot_url(robot, url), state_dir=settings().robots_dir, connect_timeout=timeout)
+        client = RobotClient(url, state_dir=settings().robots_dir, connect_timeout=timeout)
     except RobotStateInUse as error:
         fail(str(error))
     if client.robot_id != robot:
