@@ -15,6 +15,7 @@ from typing import Any
 from pymongo import ASCENDING, DESCENDING
 from pymongo.errors import BulkWriteError, PyMongoError
 
+from fleetbus.workers.store.attempts import Attempts
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
@@ -24,11 +25,12 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
+from fleetbus.workers.store.beacons import Beacons
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.interface import StoredBatch, numbers_of, store_in_turn
-from fleetbus.workers.store.mongo_attempts import MongoAttempts
+from fleetbus.workers.store.leases import Leases
 from fleetbus.workers.store.mongo_channels import MongoChannels
-from fleetbus.workers.store.mongo_coordination import MongoBeacons, MongoCoordination
+from fleetbus.workers.store.mongo_coordination import MongoCoordination
 from fleetbus.workers.store.mongo_database import (
     DUPLICATE_KEY,
     MongoDatabase,
@@ -37,15 +39,15 @@ from fleetbus.workers.store.mongo_database import (
 )
 from fleetbus.workers.store.mongo_discards import MongoDiscards
 from fleetbus.workers.store.mongo_housekeeping import MongoHousekeeping
-from fleetbus.workers.store.mongo_leases import MongoLeases
 from fleetbus.workers.store.mongo_ledger import MongoLedger
 from fleetbus.workers.store.mongo_maps import MongoMaps
 from fleetbus.workers.store.mongo_missions import MongoMissions
-from fleetbus.workers.store.mongo_rejections import MongoRejections
+from fleetbus.workers.store.mongo_port import MongoStore
 from fleetbus.workers.store.mongo_sites import MongoSites
-from fleetbus.workers.store.mongo_statuses import MongoStatuses
-from fleetbus.workers.store.mongo_users import MongoUsers
+from fleetbus.workers.store.rejections import Rejections
 from fleetbus.workers.store.repositories import EventLog, Repositories
+from fleetbus.workers.store.statuses import Statuses
+from fleetbus.workers.store.users import Users
 
 
 class RobotSequenceId:
@@ -99,7 +101,7 @@ def mongo_repositories(
     url: str, database: str | None = None, server_selection_timeout: float = 5.0
 ) -> Repositories:
     """Every repository over one MongoDB database (one client), not yet opened."""
-    shared = MongoDatabase(url, database, server_selection_timeout)
+    shared = MongoStore(url, database, server_selection_timeout)
     channels = MongoChannels(shared)
     events = MongoEventLog(shared, channels)
     hazards = MongoCoordination(shared)
@@ -107,8 +109,11 @@ def mongo_repositories(
     missions = MongoMissions(shared)
     housekeeping = MongoHousekeeping(shared)
 
+    users, rejections, attempts = Users(shared), Rejections(shared), Attempts(shared)
+    leases, statuses, beacons = Leases(shared), Statuses(shared), Beacons(shared)
+
     async def open() -> None:
-        shared._connect()
+        await shared.open()
         try:
             await events.create_event_indexes()
             await events.create_ledger_indexes()
@@ -124,16 +129,16 @@ def mongo_repositories(
         name="mongodb",
         events=events,
         hazards=hazards,
-        beacons=MongoBeacons(shared),
+        beacons=beacons,
         maps=maps,
         missions=missions,
         channels=channels,
-        users=MongoUsers(shared),
+        users=users,
         discards=MongoDiscards(shared),
-        rejections=MongoRejections(shared),
-        attempts=MongoAttempts(shared),
-        leases=MongoLeases(shared),
-        statuses=MongoStatuses(shared),
+        rejections=rejections,
+        attempts=attempts,
+        leases=leases,
+        statuses=statuses,
         housekeeping=housekeeping,
         sites=MongoSites(shared),
         opener=open,

@@ -1,4 +1,4 @@
-"""The coordination (hazards and team) and beacon repositories on MongoDB."""
+"""The coordination (hazards and team) repository on MongoDB."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ from pymongo import ASCENDING, DESCENDING, ReturnDocument
 from pymongo.errors import DuplicateKeyError
 
 from fleetbus.workers.store.base import from_micros, to_micros
-from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
 from fleetbus.workers.store.hazards import (
     MOST_HAZARDS,
     CoordinationStore,
@@ -362,32 +361,3 @@ class MongoCoordination(OnMongo, CoordinationStore):
 
 def _micros(moment: datetime | None) -> int | None:
     return to_micros(moment) if moment else None
-
-
-def _beacon(doc: dict[str, Any]) -> Beacon:
-    visited = doc.get("visited_at_us")
-    return Beacon(doc["_id"], doc["x"], doc["y"], doc["label"], from_micros(visited) if visited else None)
-
-
-@translate_unavailable(BeaconRegistry)
-class MongoBeacons(OnMongo, BeaconRegistry):
-    async def put_beacons(self, beacons: list[Beacon]) -> None:
-        for beacon in beacons:
-            await self._collection("beacons").update_one(
-                {"_id": beacon.beacon_id},
-                {"$set": {"x": beacon.x, "y": beacon.y, "label": beacon.label}},
-                upsert=True,
-            )
-
-    async def beacons(self) -> list[Beacon]:
-        return [_beacon(doc) async for doc in self._collection("beacons").find({}).sort("_id", ASCENDING)]
-
-    async def get_beacon(self, beacon_id: str) -> Beacon | None:
-        doc = await self._collection("beacons").find_one({"_id": beacon_id})
-        return _beacon(doc) if doc else None
-
-    async def mark_visited(self, beacon_id: str, at: datetime) -> Beacon | None:
-        await self._collection("beacons").update_one(
-            {"_id": beacon_id}, {"$set": {"visited_at_us": to_micros(at)}}
-        )
-        return await self.get_beacon(beacon_id)

@@ -15,6 +15,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
+from fleetbus.workers.store.attempts import Attempts
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
@@ -23,23 +24,23 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
+from fleetbus.workers.store.beacons import Beacons
 from fleetbus.workers.store.interface import StoredBatch, held_sequences, numbers_of, stamp_missions
+from fleetbus.workers.store.leases import Leases
+from fleetbus.workers.store.rejections import Rejections
 from fleetbus.workers.store.repositories import EventLog, Repositories
-from fleetbus.workers.store.sqlite_attempts import ATTEMPT_SCHEMA, SQLiteAttempts
-from fleetbus.workers.store.sqlite_beacons import BEACON_SCHEMA, SQLiteBeacons
 from fleetbus.workers.store.sqlite_channels import CHANNEL_SCHEMA, SQLiteChannels, recording_missions
 from fleetbus.workers.store.sqlite_coordination import HAZARD_SCHEMA, SQLiteCoordination, add_hazard_columns
-from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transaction
+from fleetbus.workers.store.sqlite_database import in_transaction
 from fleetbus.workers.store.sqlite_discards import DISCARD_SCHEMA, SQLiteDiscards
 from fleetbus.workers.store.sqlite_housekeeping import HOUSEKEEPING_SCHEMA, SQLiteHousekeeping
-from fleetbus.workers.store.sqlite_leases import LEASE_SCHEMA, SQLiteLeases
 from fleetbus.workers.store.sqlite_ledger import LEDGER_SCHEMA, SQLiteLedger, observe, observed
 from fleetbus.workers.store.sqlite_maps import MAP_SCHEMA, SQLiteMaps
 from fleetbus.workers.store.sqlite_missions import MISSION_SCHEMA, SQLiteMissions
-from fleetbus.workers.store.sqlite_rejections import REJECTION_SCHEMA, SQLiteRejections
+from fleetbus.workers.store.sqlite_port import SQLiteStore
 from fleetbus.workers.store.sqlite_sites import SITE_SCHEMA, SQLiteSites
-from fleetbus.workers.store.sqlite_statuses import STATUS_SCHEMA, SQLiteStatuses
-from fleetbus.workers.store.sqlite_users import USER_SCHEMA, SQLiteUsers
+from fleetbus.workers.store.statuses import Statuses
+from fleetbus.workers.store.users import Users
 
 T = TypeVar("T")
 
@@ -155,24 +156,19 @@ def _record(row: sqlite3.Row) -> EventRecord:
     )
 
 
-class SQLiteFile(SQLiteDatabase):
+class SQLiteFile(SQLiteStore):
     """The file every repository of one :class:`Repositories` shares, with all their tables."""
 
     def _prepare(self, db: sqlite3.Connection) -> None:
+        super()._prepare(db)
         for schema in (
             SCHEMA,
             HAZARD_SCHEMA,
-            BEACON_SCHEMA,
             MAP_SCHEMA,
             LEDGER_SCHEMA,
-            USER_SCHEMA,
             MISSION_SCHEMA,
             CHANNEL_SCHEMA,
             DISCARD_SCHEMA,
-            LEASE_SCHEMA,
-            ATTEMPT_SCHEMA,
-            REJECTION_SCHEMA,
-            STATUS_SCHEMA,
             HOUSEKEEPING_SCHEMA,
             SITE_SCHEMA,
         ):
@@ -188,16 +184,16 @@ def sqlite_repositories(path: Path, busy_timeout: float = 2.0) -> Repositories:
         name="sqlite",
         events=SQLiteEventLog(file),
         hazards=SQLiteCoordination(file),
-        beacons=SQLiteBeacons(file),
+        beacons=Beacons(file),
         maps=SQLiteMaps(file),
         missions=SQLiteMissions(file),
         channels=SQLiteChannels(file),
-        users=SQLiteUsers(file),
+        users=Users(file),
         discards=SQLiteDiscards(file),
-        rejections=SQLiteRejections(file),
-        attempts=SQLiteAttempts(file),
-        leases=SQLiteLeases(file),
-        statuses=SQLiteStatuses(file),
+        rejections=Rejections(file),
+        attempts=Attempts(file),
+        leases=Leases(file),
+        statuses=Statuses(file),
         housekeeping=SQLiteHousekeeping(file),
         sites=SQLiteSites(file),
         opener=file.open,
