@@ -23,7 +23,8 @@ from fleetbus.broker.team_changes import tell_hazard_service
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.schemas.team import TeamChange, TeamChangeKind
 from fleetbus.workers.store.base import EventQuery, EventStore
-from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState
+from fleetbus.workers.store.hazards import Hazard, HazardState, RobotState
+from fleetbus.workers.store.team import TeamStore
 
 NO_WARDEN = "no warden in the team"
 
@@ -144,7 +145,7 @@ def team_member(
 
 
 async def read_team(
-    team: CoordinationStore, events: EventStore, now: datetime, stale_after: timedelta
+    team: TeamStore, events: EventStore, now: datetime, stale_after: timedelta
 ) -> list[TeamMember]:
     """Every robot of the team, by name, with when it was last heard from (a query per robot)."""
     return [
@@ -166,7 +167,7 @@ class NotAWarden(TeamRefused):
 
 
 async def set_in_service(
-    team: CoordinationStore, name: str, in_service: bool, by: str, at: datetime
+    team: TeamStore, name: str, in_service: bool, by: str, at: datetime
 ) -> RobotState:
     """Take a warden out of service, or put it back; refused for a robot not in the team or not a
     warden (only wardens count for the gate and receive announcements)."""
@@ -183,7 +184,7 @@ async def set_in_service(
 
 
 async def change_service(
-    team: CoordinationStore, admin_url: str, name: str, in_service: bool, by: str
+    team: TeamStore, admin_url: str, name: str, in_service: bool, by: str
 ) -> RobotState:
     """Take a warden out of service or put it back (recorded with ``by`` and the time), then tell
     the hazard service: without the warden the gate may open; put back, it is owed what it missed.
@@ -197,7 +198,7 @@ async def change_service(
     return robot
 
 
-async def leave_team(team: CoordinationStore, admin_url: str, name: str, by: str) -> bool:
+async def leave_team(team: TeamStore, admin_url: str, name: str, by: str) -> bool:
     """Take a robot whose account is removed out of the team; a warden's leaving is told to the
     hazard service (the gate may open without it). False: it was not in the team."""
     robot = next((r for r in await team.robots() if r.name == name), None)

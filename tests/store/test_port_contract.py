@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from fleetbus.workers.store.mongo_port import MongoStore
+from fleetbus.workers.store.mongo import MongoStore
 from fleetbus.workers.store.port import (
     BOOL,
     BYTES,
@@ -27,7 +27,7 @@ from fleetbus.workers.store.port import (
     Range,
     Schema,
 )
-from fleetbus.workers.store.sqlite_port import SQLiteStore
+from fleetbus.workers.store.sqlite import SQLiteStore
 from tests.store.conftest import fresh_database
 
 T0 = datetime(2026, 3, 1, 12, 0, 0, 123456, tzinfo=timezone.utc)
