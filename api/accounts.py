@@ -37,7 +37,7 @@ from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.hazards import CoordinationStore
+from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.store.users import User, UserExists, UserStore
 from fleetbus.workers.team import leave_team
 
@@ -74,7 +74,7 @@ class Accounts:
     def __init__(
         self,
         users: UserStore,
-        team: CoordinationStore,
+        team: TeamStore,
         channels: ChannelStore,
         secrets_: Secrets,
         management: ManagementAPI,

@@ -23,7 +23,7 @@ from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.discards import DiscardLog
-from fleetbus.workers.store.hazards import CoordinationStore
+from fleetbus.workers.store.hazards import HazardRegistry
 from fleetbus.workers.store.missions import MissionStore
 from fleetbus.workers.store.users import User, UserStore
 
@@ -62,7 +62,7 @@ def _discards(request: Request) -> DiscardLog:
     return repositories(request).discards
 
 
-def _hazards(request: Request) -> CoordinationStore:
+def _hazards(request: Request) -> HazardRegistry:
     return repositories(request).hazards
 
 
@@ -71,7 +71,7 @@ ChannelsDep = Annotated[ChannelStore, Depends(_channels)]
 MissionsDep = Annotated[MissionStore, Depends(_missions)]
 EventsDep = Annotated[EventStore, Depends(_events)]
 DiscardsDep = Annotated[DiscardLog, Depends(_discards)]
-HazardsDep = Annotated[CoordinationStore, Depends(_hazards)]
+HazardsDep = Annotated[HazardRegistry, Depends(_hazards)]
 
 
 def unauthorized(request: Request, why: str, who: str = "(anonymous)") -> HTTPException:

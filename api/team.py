@@ -11,7 +11,7 @@ from fleetbus.api.errors import BadRequest, NotFound, Unavailable
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.base import EventStore
-from fleetbus.workers.store.hazards import CoordinationStore, RobotState
+from fleetbus.workers.store.team import RobotState, TeamStore
 from fleetbus.workers.team import (
     Gate,
     NotAWarden,
@@ -43,7 +43,7 @@ class TeamView:
 
 class Team:
     def __init__(
-        self, team: CoordinationStore, events: EventStore, admin_url: str, stale_after: timedelta
+        self, team: TeamStore, events: EventStore, admin_url: str, stale_after: timedelta
     ) -> None:
         self._team = team
         self._events = events

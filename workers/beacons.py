@@ -15,7 +15,7 @@ from fleetbus.schemas.routing import EventType
 from fleetbus.workers.rpc import Handler, ServiceError
 from fleetbus.workers.store.base import EventQuery, EventStore
 from fleetbus.workers.store.beacons import BeaconRegistry
-from fleetbus.workers.store.hazards import CoordinationStore
+from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.validation import Accepted, Rejected, RejectReason
 
 DEFAULT_WINDOW = timedelta(minutes=10)
@@ -24,7 +24,7 @@ DEFAULT_WINDOW = timedelta(minutes=10)
 class KnownRobotsOnly:
     """Refuses beacon sightings from robots the team does not know (not registered with the store)."""
 
-    def __init__(self, team: CoordinationStore) -> None:
+    def __init__(self, team: TeamStore) -> None:
         self._team = team
 
     async def check(self, accepted: Sequence[Accepted]) -> dict[int, Rejected]:

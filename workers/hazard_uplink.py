@@ -28,7 +28,7 @@ from aio_pika.abc import AbstractChannel
 from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE
 from fleetbus.schemas.site_hazards import SITE_HAZARD_TYPE, SiteHazardState
 from fleetbus.workers.notifier import CONFIRM_TIMEOUT_S
-from fleetbus.workers.store.hazards import CoordinationStore, Hazard
+from fleetbus.workers.store.hazards import Hazard, SiteHazardSync
 
 log = logging.getLogger("fleetbus.sites")
 
@@ -49,7 +49,7 @@ class HazardUplink:
     def __init__(
         self,
         channel: AbstractChannel,
-        hazards: CoordinationStore,
+        hazards: SiteHazardSync,
         every_s: float = EVERY_S,
         not_a_site_every_s: float = NOT_A_SITE_EVERY_S,
     ) -> None:

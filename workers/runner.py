@@ -55,7 +55,7 @@ log = logging.getLogger("fleetbus.worker")
 
 PREFETCH = 512
 #: Hazards and localisations handled at once on the express lane: few, each batch written on the
-#: caller's thread (:data:`~fleetbus.workers.store.sqlite.SMALL_BATCH`).
+#: caller's thread (:data:`~fleetbus.workers.store.event_log.SMALL_BATCH`).
 EXPRESS_BATCH = 16
 #: Hazards and localisations delivered and not yet acked on the express lane. Many more than a
 #: batch: a batch is acked only once its operators' copies are confirmed, which took up to a

@@ -3,7 +3,7 @@
 A site is the authority for its team's hazards; it sends each new state
 (:class:`~fleetbus.schemas.site_hazards.SiteHazardState`) to its ``<site>.hazards`` exchange
 here, which only its account may write: the exchange a message came by names its site. Central
-keeps the newest version (:meth:`~fleetbus.workers.store.hazards.CoordinationStore.apply_site_hazard`),
+keeps the newest version (:meth:`~fleetbus.workers.store.hazards.SiteHazardSync.apply_site_hazard`),
 so a repeated or overtaken state changes nothing, and then shows the hazard like its own, with
 its site.
 
@@ -29,7 +29,7 @@ from fleetbus.schemas.site_hazards import SiteHazardState
 from fleetbus.workers.dead_letters import move_to_dead_letters, rejection_of
 from fleetbus.workers.queue_consumer import QueueConsumer
 from fleetbus.workers.store.base import StoreUnavailable
-from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState, SiteApplied
+from fleetbus.workers.store.hazards import Hazard, HazardState, SiteApplied, SiteHazardSync
 from fleetbus.workers.store.rejections import RejectionLog
 from fleetbus.workers.store.sites import SiteRegistry
 
@@ -63,7 +63,7 @@ class SiteHazards(QueueConsumer):
         self,
         channel: AbstractChannel,
         queue: AbstractQueue,
-        hazards: CoordinationStore,
+        hazards: SiteHazardSync,
         sites: SiteRegistry,
         rejections: RejectionLog,
     ) -> None:

@@ -23,7 +23,8 @@ from fleetbus.broker.team_changes import tell_hazard_service
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.schemas.team import TeamChange, TeamChangeKind
 from fleetbus.workers.store.base import EventRecord, EventStore
-from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState, RobotState
+from fleetbus.workers.store.hazards import Hazard, HazardState, RobotState
+from fleetbus.workers.store.team import TeamStore
 
 NO_WARDEN = "no warden in the team"
 
@@ -170,7 +171,7 @@ async def team_members(
 
 
 async def read_team(
-    team: CoordinationStore,
+    team: TeamStore,
     events: EventStore,
     now: datetime,
     stale_after: timedelta,
@@ -204,7 +205,7 @@ class NotAWarden(TeamRefused):
 
 
 async def set_in_service(
-    team: CoordinationStore, name: str, in_service: bool, by: str, at: datetime
+    team: TeamStore, name: str, in_service: bool, by: str, at: datetime
 ) -> RobotState:
     """Take a warden out of service, or put it back; refused for a robot not in the team or not a
     warden (only wardens count for the gate and receive announcements)."""
@@ -221,7 +222,7 @@ async def set_in_service(
 
 
 async def change_service(
-    team: CoordinationStore, admin_url: str, name: str, in_service: bool, by: str
+    team: TeamStore, admin_url: str, name: str, in_service: bool, by: str
 ) -> RobotState:
     """Take a warden out of service or put it back (recorded with ``by`` and the time), then tell
     the hazard service: without the warden the gate may open; put back, it is owed what it missed.
@@ -235,7 +236,7 @@ async def change_service(
     return robot
 
 
-async def leave_team(team: CoordinationStore, admin_url: str, name: str, by: str) -> bool:
+async def leave_team(team: TeamStore, admin_url: str, name: str, by: str) -> bool:
     """Take a robot whose account is removed out of the team; a warden's leaving is told to the
     hazard service (the gate may open without it). False: it was not in the team."""
     robot = next((r for r in await team.robots() if r.name == name), None)

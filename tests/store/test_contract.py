@@ -183,20 +183,6 @@ async def test_a_failed_sqlite_batch_writes_nothing_and_leaves_no_transaction(tm
         assert result.inserted
 
 
-async def test_a_sqlite_file_made_before_content_digests_gets_the_column(tmp_path: Path) -> None:
-    """Its events keep no digest (compared by message id); new ones are written with theirs."""
-    path = tmp_path / "store.sqlite3"
-    async with sqlite_repositories(path) as store:
-        await store.events.write_events([record(seq=0)])
-    with sqlite3.connect(path) as db:
-        db.execute("ALTER TABLE events DROP COLUMN digest")
-    async with sqlite_repositories(path) as store:
-        newer = replace(record(seq=1), digest="d" * 64)
-        [result] = await store.events.write_events([newer])
-        assert result.inserted
-        assert [r.digest for r in await store.events.find_events(EventQuery())] == [None, newer.digest]
-
-
 async def test_unreachable_mongodb_is_unavailable() -> None:
     url = "mongodb://fleet:s3cret@127.0.0.1:9,127.0.0.1:11/fleetbus"
     store = mongo_repositories(url, server_selection_timeout=0.5)

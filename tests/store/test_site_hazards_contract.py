@@ -4,15 +4,12 @@ site sends once; central takes a site's hazard newest-wins, and never one that i
 from __future__ import annotations
 
 import dataclasses
-import sqlite3
 from datetime import timedelta
-from pathlib import Path
 
 import pytest
 
 from fleetbus.workers.store.hazards import Hazard, HazardRefused, HazardState, SiteApplied
 from fleetbus.workers.store.repositories import Repositories
-from fleetbus.workers.store.sqlite import sqlite_repositories
 from tests.store.test_coordination_contract import BODY, EPOCH, T0
 
 
@@ -124,35 +121,6 @@ async def test_a_site_cannot_set_a_hazard_that_is_not_its_own(store: Repositorie
     done, _ = await store.hazards.apply_site_hazard("base1", dataclasses.replace(other, version=5))
     assert done is SiteApplied.NOT_THE_SITES
     assert (await _get(store, 2)).site == "base2" and (await _get(store, 2)).version == 1
-
-
-async def test_a_store_made_before_versions_gets_them(tmp_path: Path) -> None:
-    """A SQLite file whose hazards table predates versions gets the new columns on opening; its
-    hazards are unsent (central has none of them)."""
-    path = tmp_path / "old.sqlite3"
-    with sqlite3.connect(path) as db:
-        db.executescript(OLD_HAZARDS)
-        db.execute(
-            "INSERT INTO hazards (mission_id, hazard_id, robot_id, epoch, seq, event, state, received_at) "
-            "VALUES ('m1', 1, 'explorer1', ?, 7, '{}', 'cleared', 0)",
-            (EPOCH,),
-        )
-    db.close()
-    async with sqlite_repositories(path) as store:
-        [old] = await store.hazards.unsent_hazards(10)
-        assert (old.hazard_id, old.version, old.site) == (1, 0, None)
-        await store.hazards.mark_sent([old])
-        assert await store.hazards.unsent_hazards(10) == []
-
-
-OLD_HAZARDS = """
-CREATE TABLE hazards (
-    mission_id TEXT NOT NULL, hazard_id INTEGER NOT NULL, robot_id TEXT NOT NULL, epoch TEXT NOT NULL,
-    seq INTEGER NOT NULL, event TEXT NOT NULL, state TEXT NOT NULL, received_at INTEGER NOT NULL,
-    announced_at INTEGER, claimed_by TEXT, claimed_at INTEGER, reached_at INTEGER, cleared_at INTEGER,
-    held_reason TEXT, PRIMARY KEY (mission_id, hazard_id), UNIQUE (robot_id, epoch, seq)
-);
-"""
 
 
 async def test_a_sites_hazard_takes_no_step_at_central(store: Repositories) -> None:

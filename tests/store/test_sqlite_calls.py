@@ -27,7 +27,7 @@ async def hold_store_thread(store: Repositories, write: bool) -> tuple[asyncio.F
         release.wait(30)
 
     call = asyncio.ensure_future(
-        store.events._run(lambda db: in_transaction(db, lambda: hold(db)) if write else hold(db))
+        store.events._database._run(lambda db: in_transaction(db, lambda: hold(db)) if write else hold(db))
     )
     assert await asyncio.to_thread(running.wait, 30)
     return call, release
@@ -112,7 +112,7 @@ async def test_an_urgent_write_waits_for_the_bulk_write_in_hand_not_for_the_queu
         assert (await asyncio.wait_for(store.hazards.hold_hazards([]), 5)).hazards == []
         urgent = asyncio.create_task(store.events.store_batch([record(seq=0)], T0, urgent=True))
         release_queued = threading.Event()
-        queued = asyncio.ensure_future(store.events._run(lambda db: release_queued.wait(30)))
+        queued = asyncio.ensure_future(store.events._database._run(lambda db: release_queued.wait(30)))
         for _ in range(20):
             await asyncio.sleep(0)
         assert not urgent.done(), "SQLite has one writer: the urgent write waits for the bulk one"
@@ -142,7 +142,7 @@ async def test_an_urgent_write_goes_in_between_two_parts_of_a_bulk_write(tmp_pat
             db.execute("INSERT INTO parts VALUES (2)")
             finish.wait(30)
 
-        writing = asyncio.ensure_future(store.events._run(lambda db: in_transaction(db, lambda: bulk(db))))
+        writing = asyncio.ensure_future(database._run(lambda db: in_transaction(db, lambda: bulk(db))))
         assert await asyncio.to_thread(first_part.wait, 30)
         urgent = asyncio.create_task(store.events.store_batch([record(seq=0)], T0, urgent=True))
         for _ in range(20):
@@ -153,4 +153,4 @@ async def test_an_urgent_write_goes_in_between_two_parts_of_a_bulk_write(tmp_pat
         assert stored.results[0].inserted and not writing.done(), "in before the bulk write's end"
         finish.set()
         await asyncio.wait_for(writing, 30)
-        assert await store.events._run(lambda db: db.execute("SELECT count(*) FROM parts").fetchone()[0]) == 2
+        assert await database._run(lambda db: db.execute("SELECT count(*) FROM parts").fetchone()[0]) == 2

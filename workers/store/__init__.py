@@ -1,5 +1,6 @@
-"""Event storage: narrow repositories (:mod:`fleetbus.workers.store.repositories`), each
-implemented on the embedded SQLite default and on MongoDB for production."""
+"""Event storage: narrow repositories (:mod:`fleetbus.workers.store.repositories`), each written
+once over a persistence port (:mod:`fleetbus.workers.store.port`) that the embedded SQLite default
+and MongoDB for production implement; and the recorder's store."""
 
 from __future__ import annotations
 

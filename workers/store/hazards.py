@@ -1,5 +1,7 @@
-"""The hazard registry and the team (robots, their localisation and service), kept by the
-coordination service.
+"""The hazard registry, its exchange with central (at a site, and at central), and the team it
+follows (:mod:`fleetbus.workers.store.team`): one repository, :class:`CoordinationStore`, whose
+consumers each take the part they use (:class:`~fleetbus.workers.store.team.TeamStore`,
+:class:`HazardRegistry`, :class:`SiteHazardSync`).
 
 Hazards get an id sequential within their mission, assigned atomically by the store. A hazard
 is ``held`` until the gate opens (:mod:`fleetbus.workers.team`) and a warden's inbox took it, ``announced``
@@ -18,6 +20,20 @@ from typing import TYPE_CHECKING, Any
 
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord, StoreError
+from fleetbus.workers.store.port import (
+    BOOL,
+    INTEGER,
+    JSON,
+    TEXT,
+    TIME,
+    Database,
+    Doc,
+    In,
+    Index,
+    Range,
+    Schema,
+)
+from fleetbus.workers.store.team import Robots, RobotState, TeamStore
 
 #: More hazards than any store holds: a page that starts past it is empty, without asking the
 #: database to skip that many (SQLite's OFFSET takes 64 bits, mongoeco's skip 32).
@@ -69,23 +85,6 @@ class Hazard:
         for name in ("received_at", "announced_at", "claimed_at", "reached_at", "cleared_at"):
             out[name] = out[name].isoformat() if out[name] else None
         return out
-
-
-@dataclass(frozen=True)
-class RobotState:
-    name: str
-    kind: str | None
-    localised: bool
-    updated_at: datetime | None
-    """When its localisation state was last reported."""
-    in_service: bool = True
-    """False while an operator has taken it out of service: it neither blocks the hazard gate nor
-    receives announcements."""
-    service_changed_by: str | None = None
-    """Who last took it out of service or put it back, and when (the audit record)."""
-    service_changed_at: datetime | None = None
-    catch_up: bool = False
-    """Put back in service since the hazard service last sent it the open hazards it missed."""
 
 
 @dataclass(frozen=True)
@@ -195,30 +194,8 @@ class SiteApplied(str, Enum):
     """Central has this hazard event as its own, or as another site's: the site may not set it."""
 
 
-class CoordinationStore(abc.ABC):
-    @abc.abstractmethod
-    async def register_robot(self, name: str, kind: str | None) -> None:
-        """Record a robot and its kind (explorer, warden, guide); idempotent."""
-
-    @abc.abstractmethod
-    async def set_localised(self, name: str, localised: bool, at: datetime) -> None:
-        """Record a robot's localisation state (an unknown robot is recorded without a kind)."""
-
-    @abc.abstractmethod
-    async def robots(self, kind: str | None = None) -> list[RobotState]: ...
-
-    @abc.abstractmethod
-    async def set_in_service(self, name: str, in_service: bool, by: str, at: datetime) -> RobotState | None:
-        """Take a robot out of service or put it back, recording who and when; put back, it is
-        owed a catch-up (:attr:`RobotState.catch_up`). None: no such robot in the team."""
-
-    @abc.abstractmethod
-    async def caught_up(self, name: str) -> None:
-        """The hazard service sent ``name`` the open hazards it missed: clear its catch-up."""
-
-    @abc.abstractmethod
-    async def remove_robot(self, name: str) -> bool:
-        """Take a robot out of the team (its account is removed); False when it was not in it."""
+class HazardRegistry(abc.ABC):
+    """The hazards, from their registration to their clearing."""
 
     @abc.abstractmethod
     async def add_hazard(
@@ -245,27 +222,15 @@ class CoordinationStore(abc.ABC):
         """Hazards not marked announced yet, whatever their state (:attr:`HeldHazards.hazards`),
         by mission then id."""
 
+    @abc.abstractmethod
     async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
         """Register ``new`` as held (idempotent, as :meth:`add_hazard`), then say what is held and
-        whether the gate is open.
+        whether the gate is open (the team's wardens).
 
-        The one place a hazard is registered, on every backend: called by the hazard service
-        alone, which runs on the express lane's single active consumer, so a mission's ids are
-        given in the order its hazards were stored (storing a batch registers none). Adapters
-        that can do it in one transaction override this: it is on every hazard's way to the
-        wardens."""
-        for hazard in new:
-            await self.add_hazard(
-                hazard.mission_id,
-                hazard.robot_id,
-                hazard.epoch,
-                hazard.seq,
-                hazard.event,
-                hazard.received_at,
-                held=True,
-            )
-        waiting = await self.unannounced_hazards()
-        return HeldHazards(waiting, await self.robots(RobotKind.WARDEN.value))
+        The one place a hazard is registered: called by the hazard service alone, which runs on
+        the express lane's single active consumer, so a mission's ids are given in the order its
+        hazards were stored (storing a batch registers none). It is on every hazard's way to the
+        wardens: one unit of work, on the caller's thread on SQLite."""
 
     @abc.abstractmethod
     async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
@@ -300,24 +265,6 @@ class CoordinationStore(abc.ABC):
         """The ``limit`` hazards cleared last, of every mission, the last cleared first."""
 
     @abc.abstractmethod
-    async def unsent_hazards(self, limit: int) -> list[Hazard]:
-        """At a site: the store's own hazards (none of another site's) whose newest version is
-        not marked sent (:meth:`mark_sent`), by mission then id, at most ``limit``."""
-
-    @abc.abstractmethod
-    async def mark_sent(self, hazards: Sequence[Hazard]) -> None:
-        """Each of ``hazards`` is on its way to central at its :attr:`Hazard.version`: a version
-        marked before is never marked back, a newer one stays unsent."""
-
-    @abc.abstractmethod
-    async def apply_site_hazard(self, site: str, hazard: Hazard) -> tuple[SiteApplied, Hazard | None]:
-        """At central: take ``hazard`` as ``site`` has it (its id and version there) into the
-        registry, atomically: registered under the mission's next id when central does not have its
-        event yet, updated when its version is newer than central's, left alone when not
-        (:attr:`SiteApplied.STALE`); refused when central has the event as its own hazard or as
-        another site's. Returns what was done and the hazard as central has it now."""
-
-    @abc.abstractmethod
     async def apply_transition(
         self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
     ) -> Hazard:
@@ -341,6 +288,34 @@ class CoordinationStore(abc.ABC):
         return await self.apply_transition(mission_id, hazard_id, warden, CLEAR, at)
 
 
+class SiteHazardSync(abc.ABC):
+    """The hazards a site sends central (its own, newest version first not yet sent), and those
+    central takes in from its sites."""
+
+    @abc.abstractmethod
+    async def unsent_hazards(self, limit: int) -> list[Hazard]:
+        """At a site: the store's own hazards (none of another site's) whose newest version is
+        not marked sent (:meth:`mark_sent`), by mission then id, at most ``limit``."""
+
+    @abc.abstractmethod
+    async def mark_sent(self, hazards: Sequence[Hazard]) -> None:
+        """Each of ``hazards`` is on its way to central at its :attr:`Hazard.version`: a version
+        marked before is never marked back, a newer one stays unsent."""
+
+    @abc.abstractmethod
+    async def apply_site_hazard(self, site: str, hazard: Hazard) -> tuple[SiteApplied, Hazard | None]:
+        """At central: take ``hazard`` as ``site`` has it (its id and version there) into the
+        registry, atomically: registered under the mission's next id when central does not have its
+        event yet, updated when its version is newer than central's, left alone when not
+        (:attr:`SiteApplied.STALE`); refused when central has the event as its own hazard or as
+        another site's. Returns what was done and the hazard as central has it now."""
+
+
+class CoordinationStore(TeamStore, HazardRegistry, SiteHazardSync):
+    """The team, the hazard registry and its exchange with central, on one database (a hazard
+    is held until the team's wardens may have it)."""
+
+
 def refuse_transition(
     hazard: Hazard | None, mission_id: str, hazard_id: int, action: str, warden: str
 ) -> HazardRefused:
@@ -359,3 +334,266 @@ def refuse_transition(
     if hazard.claimed_by and hazard.claimed_by != warden:
         return HazardRefused(f"hazard {hazard_id} is claimed by {hazard.claimed_by}")
     return HazardRefused(f"hazard {hazard_id} is {hazard.state.value}; {warden} cannot have it {action}")
+
+
+HAZARDS = Schema(
+    "hazards",
+    {
+        "mission_id": TEXT,
+        "hazard_id": INTEGER,
+        "robot_id": TEXT,
+        "epoch": TEXT,
+        "seq": INTEGER,
+        "event": JSON,
+        "state": TEXT,
+        "received_at": TIME,
+        "announced_at": TIME.maybe,
+        "claimed_by": TEXT.maybe,
+        "claimed_at": TIME.maybe,
+        "reached_at": TIME.maybe,
+        "cleared_at": TIME.maybe,
+        "held_reason": TEXT.maybe,
+        "version": INTEGER,
+        "site": TEXT.maybe,
+        "site_hazard_id": INTEGER.maybe,
+        "unsent": BOOL,
+    },
+    key=("mission_id", "hazard_id"),
+    indexes=(
+        Index("robot_id", "epoch", "seq", unique=True),
+        Index("mission_id", "hazard_id"),
+        Index("state", "mission_id", "hazard_id"),
+        Index("announced_at", "mission_id", "hazard_id"),
+        Index("unsent", "mission_id", "hazard_id"),
+        Index("received_at"),
+        Index("state", "received_at"),
+        Index("state", "cleared_at"),
+    ),
+)
+"""A hazard, keyed by its mission and its id there, unique by its event; ``unsent`` until its
+newest version is marked sent to central (:meth:`SiteHazardSync.mark_sent`)."""
+FIELDS = [name for name in HAZARDS.fields if name != "unsent"]
+BY_ID = ["mission_id", "hazard_id"]
+OPEN = [state.value for state in HazardState if state is not HazardState.CLEARED]
+STATE_FIELDS = ("announced_at", "claimed_by", "claimed_at", "reached_at", "cleared_at", "held_reason")
+
+
+def _hazard(doc: Doc) -> Hazard:
+    return Hazard(**{name: doc[name] for name in FIELDS if name != "state"}, state=HazardState(doc["state"]))
+
+
+def _key(hazard: Hazard) -> dict[str, Any]:
+    return {"mission_id": hazard.mission_id, "hazard_id": hazard.hazard_id}
+
+
+def _source(robot_id: str, epoch: str, seq: int) -> dict[str, Any]:
+    return {"robot_id": robot_id, "epoch": epoch, "seq": seq}
+
+
+class Coordination(Robots, CoordinationStore):
+    """A hazard takes the next id of its mission by being inserted under it (the event's unique
+    index and the key refuse a second): a worker that dies in between leaves no id unused. Every
+    change of a hazard's state is one update conditional on the state it leaves, and gives it a
+    new version."""
+
+    def __init__(self, database: Database) -> None:
+        super().__init__(database)
+        self._hazards = database.collection(HAZARDS)
+
+    async def _find(self, where: dict[str, Any], **options: Any) -> list[Hazard]:
+        return [_hazard(doc) for doc in await self._hazards.find(where, fields=FIELDS, **options)]
+
+    async def _registered(self, robot_id: str, epoch: str, seq: int) -> Hazard | None:
+        found = await self._find(_source(robot_id, epoch, seq))
+        return found[0] if found else None
+
+    async def _register(
+        self, mission_id: str, source: dict[str, Any], fields: dict[str, Any]
+    ) -> tuple[Hazard, bool]:
+        """The hazard of ``source``'s event: the one registered, or a new one with ``fields`` under
+        the mission's next id; and whether it is new."""
+        while True:
+            found = await self._registered(**source)
+            if found is not None:
+                return found, False
+            last = await self._hazards.find(
+                {"mission_id": mission_id}, order=["-hazard_id"], limit=1, fields=BY_ID
+            )
+            next_id = last[0]["hazard_id"] + 1 if last else 1
+            doc = {"mission_id": mission_id, "hazard_id": next_id, **source, **fields}
+            if (await self._hazards.insert([doc]))[0]:
+                return _hazard(doc), True
+            # the id, or this event, taken meanwhile: look again
+
+    async def add_hazard(
+        self,
+        mission_id: str,
+        robot_id: str,
+        epoch: str,
+        seq: int,
+        event: dict[str, Any],
+        received_at: datetime,
+        held: bool,
+    ) -> Hazard:
+        new = NewHazard(mission_id, robot_id, epoch, seq, event, received_at)
+        return await self._database.transaction(lambda: self._add(new, held))
+
+    async def _add(self, new: NewHazard, held: bool) -> Hazard:
+        fields = {
+            "event": new.event,
+            "state": (HazardState.HELD if held else HazardState.ANNOUNCED).value,
+            "received_at": new.received_at,
+            **dict.fromkeys(STATE_FIELDS),
+            "announced_at": None if held else new.received_at,
+            "version": 0,
+            "site": None,
+            "site_hazard_id": None,
+            "unsent": True,
+        }
+        hazard, _ = await self._register(new.mission_id, _source(new.robot_id, new.epoch, new.seq), fields)
+        return hazard
+
+    async def hold_hazards(self, new: Sequence[NewHazard]) -> HeldHazards:
+        async def held() -> HeldHazards:
+            return HeldHazards(await self.unannounced_hazards(), await self.robots(RobotKind.WARDEN.value))
+
+        async def registered() -> HeldHazards | None:
+            for hazard in new:
+                if await self._registered(hazard.robot_id, hazard.epoch, hazard.seq) is None:
+                    return None
+            return await held()
+
+        async def hold() -> HeldHazards:
+            for hazard in new:
+                await self._add(hazard, held=True)
+            return await held()
+
+        # a hazard held before (a redelivery) only reads: no write lock to wait for
+        found = await self._database.snapshot(registered, urgent=True)
+        return found if found is not None else await self._database.transaction(hold, urgent=True)
+
+    async def held_hazards(self, mission_id: str | None = None) -> list[Hazard]:
+        where = {"state": HazardState.HELD.value}
+        if mission_id is not None:
+            where["mission_id"] = mission_id
+        return await self._find(where, order=BY_ID)
+
+    async def unannounced_hazards(self) -> list[Hazard]:
+        # a site's hazards are announced at their site, never here
+        return await self._find({"announced_at": None, "site": None}, order=BY_ID)
+
+    async def mark_announced(self, hazards: list[Hazard], at: datetime) -> None:
+        async def mark() -> None:
+            for hazard in hazards:
+                key = _key(hazard)
+                announced = {"state": HazardState.ANNOUNCED.value, "announced_at": at, "held_reason": None}
+                changed = {"unsent": True}
+                await self._hazards.update(
+                    {**key, "state": HazardState.HELD.value}, {**announced, **changed}, add={"version": 1}
+                )
+                # one claimed by the first warden to get it, before this mark
+                await self._hazards.update(
+                    {**key, "announced_at": None}, {"announced_at": at, **changed}, add={"version": 1}
+                )
+
+        await self._database.transaction(mark, urgent=True)
+
+    async def note_held(self, hazards: list[Hazard], reason: str) -> None:
+        async def note() -> None:
+            for hazard in hazards:
+                await self._hazards.update(
+                    {**_key(hazard), "state": HazardState.HELD.value}, {"held_reason": reason}
+                )
+
+        await self._database.transaction(note, urgent=True)
+
+    async def get_hazard(self, mission_id: str, hazard_id: int) -> Hazard | None:
+        found = await self._find({"mission_id": mission_id, "hazard_id": hazard_id})
+        return found[0] if found else None
+
+    async def open_hazards(self, mission_id: str | None) -> list[Hazard]:
+        where: dict[str, Any] = {"state": In(OPEN)}
+        if mission_id is not None:
+            where["mission_id"] = mission_id
+        return await self._find(where, order=BY_ID)
+
+    async def recent_hazards(
+        self, limit: int, offset: int = 0, state: HazardState | None = None
+    ) -> list[Hazard]:
+        if offset > MOST_HAZARDS:
+            return []
+        where = {"state": state.value} if state is not None else {}
+        newest_first = ["-received_at", "-mission_id", "-hazard_id"]
+        return await self._find(where, order=newest_first, limit=limit, skip=offset)
+
+    async def hazard_counts(self) -> dict[HazardState, int]:
+        return {
+            HazardState(state): group.count for state, group in (await self._hazards.group("state")).items()
+        }
+
+    async def cleared_hazards(self, limit: int) -> list[Hazard]:
+        where = {"state": HazardState.CLEARED.value}
+        return await self._find(where, order=["-cleared_at", "mission_id", "hazard_id"], limit=limit)
+
+    async def unsent_hazards(self, limit: int) -> list[Hazard]:
+        return await self._find({"unsent": True, "site": None}, order=BY_ID, limit=limit)
+
+    async def mark_sent(self, hazards: Sequence[Hazard]) -> None:
+        async def mark() -> None:
+            for hazard in hazards:
+                # only the version sent: a change since keeps it unsent
+                await self._hazards.update({**_key(hazard), "version": hazard.version}, {"unsent": False})
+
+        await self._database.transaction(mark, urgent=True)
+
+    async def apply_site_hazard(self, site: str, hazard: Hazard) -> tuple[SiteApplied, Hazard | None]:
+        state = {
+            "state": hazard.state.value,
+            **{name: getattr(hazard, name) for name in STATE_FIELDS},
+            "version": hazard.version,
+            "site_hazard_id": hazard.hazard_id,
+        }
+
+        async def apply() -> tuple[SiteApplied, Hazard | None]:
+            source = _source(hazard.robot_id, hazard.epoch, hazard.seq)
+            fields = {"event": hazard.event, "received_at": hazard.received_at, "site": site, "unsent": False}
+            found, new = await self._register(hazard.mission_id, source, {**fields, **state})
+            if new:
+                return SiteApplied.APPLIED, found
+            if found.site != site:
+                return SiteApplied.NOT_THE_SITES, found
+            newer = {**_key(found), "site": site, "version": Range(lt=hazard.version)}
+            applied = await self._hazards.update(newer, state)
+            return (SiteApplied.APPLIED if applied else SiteApplied.STALE), await self.get_hazard(
+                found.mission_id, found.hazard_id
+            )
+
+        return await self._database.transaction(apply)
+
+    async def apply_transition(
+        self, mission_id: str, hazard_id: int, warden: str, transition: Transition, at: datetime
+    ) -> Hazard:
+        where: dict[str, Any] = {
+            "mission_id": mission_id,
+            "hazard_id": hazard_id,
+            "state": In([source.value for source in transition.sources]),
+            "site": None,  # a site's hazard takes its steps at its site (its state here is the site's)
+        }
+        if transition.claimer_only:
+            where["claimed_by"] = warden
+        change: dict[str, Any] = {"state": transition.target.value, "unsent": True}
+        if transition.stamp is None:  # a release gives the claim up
+            change.update(claimed_by=None, claimed_at=None)
+        else:
+            change[transition.stamp] = at
+            if not transition.claimer_only:
+                change["claimed_by"] = warden
+
+        async def apply() -> Hazard:
+            await self._hazards.update(where, change, add={"version": 1})
+            hazard = await self.get_hazard(mission_id, hazard_id)
+            if hazard is None or not transition.done_by(hazard, warden):
+                raise refuse_transition(hazard, mission_id, hazard_id, transition.action, warden)
+            return hazard
+
+        return await self._database.transaction(apply)

@@ -16,6 +16,23 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
+from fleetbus.workers.store.discards import DISCARDS
+from fleetbus.workers.store.event_log import EVENTS
+from fleetbus.workers.store.hazards import HAZARDS, OPEN
+from fleetbus.workers.store.ledger import DUPLICATES
+from fleetbus.workers.store.port import (
+    INTEGER,
+    SERIAL,
+    TEXT,
+    TIME,
+    Collection,
+    Database,
+    In,
+    NotIn,
+    Range,
+    Schema,
+)
+
 
 @dataclass(frozen=True)
 class BoundCount:
@@ -55,3 +72,77 @@ class Housekeeping(abc.ABC):
     @abc.abstractmethod
     async def bound_counts(self) -> list[BoundCount]:
         """Every total, by bound then subject."""
+
+
+BOUND_COUNTS = Schema(
+    "bound_counts",
+    {"bound": TEXT, "subject": TEXT, "count": INTEGER, "first_at": TIME, "last_at": TIME},
+    key=("bound", "subject"),
+)
+
+
+class StoreHousekeeping(Housekeeping):
+    """Each call is one short unit of work, so a worker's batch waits for at most one of them,
+    never for a whole round of pruning."""
+
+    def __init__(self, database: Database) -> None:
+        self._database = database
+        self._events = database.collection(EVENTS)
+        self._hazards = database.collection(HAZARDS)
+        self._duplicates = database.collection(DUPLICATES)
+        self._discards = database.collection(DISCARDS)
+        self._counts = database.collection(BOUND_COUNTS)
+
+    async def prune_events(self, type: str, before: datetime | None, keep: int | None, limit: int) -> int:
+        async def prune() -> int:
+            cut = before
+            if keep is not None:
+                kept = await self._events.find(
+                    {"type": type}, order=["-received_at"], skip=keep - 1, limit=1, fields=["received_at"]
+                )
+                if kept:  # the oldest of the newest ``keep``: everything received before it goes
+                    cut = kept[0]["received_at"] if cut is None else max(cut, kept[0]["received_at"])
+            if cut is None:
+                return 0
+            where: dict[str, Any] = {"type": type, "received_at": Range(lt=cut)}
+            if type == "hazard":  # the event of a hazard not yet cleared stays
+                open_ones = await self._hazards.find({"state": In(OPEN)}, fields=["event"])
+                where["message_id"] = NotIn([doc["event"]["message_id"] for doc in open_ones])
+            return await self._events.delete(where, order=["received_at"], limit=limit)
+
+        return await self._database.transaction(prune)
+
+    async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        return await self._database.transaction(
+            lambda: _prune(self._duplicates, "seen_at", before, keep, limit)
+        )
+
+    async def prune_discards(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        return await self._database.transaction(
+            lambda: _prune(self._discards, "received_at", before, keep, limit)
+        )
+
+    async def count_bounded(self, counts: Mapping[tuple[str, str], int], at: datetime) -> None:
+        async def count() -> None:
+            for (bound, subject), n in counts.items():
+                if n:
+                    row = {"bound": bound, "subject": subject, "count": n, "first_at": at, "last_at": at}
+                    await self._counts.increment(row, "count", overwrite=["last_at"])
+
+        await self._database.transaction(count)
+
+    async def bound_counts(self) -> list[BoundCount]:
+        return [BoundCount(**doc) for doc in await self._counts.find(order=["bound", "subject"])]
+
+
+async def _prune(log: Collection, time: str, before: datetime | None, keep: int | None, limit: int) -> int:
+    """The oldest documents of a serial log, by time, then beyond the newest ``keep`` in the order
+    they were stored (which has no ties)."""
+    deleted = 0
+    if before is not None:
+        deleted += await log.delete({time: Range(lt=before)}, order=[time], limit=limit)
+    if keep is not None and deleted < limit:
+        beyond = await log.count() - keep
+        if beyond > 0:
+            deleted += await log.delete({}, order=[SERIAL], limit=min(beyond, limit - deleted))
+    return deleted

@@ -4,25 +4,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from datetime import datetime
 
 from fleetbus.workers.store.base import EventRecord, WriteResult
-from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.ledger import RobotEpoch
-from fleetbus.workers.store.repositories import EventLog
-
-
-async def store_in_turn(
-    log: EventLog, channels: ChannelStore, records: Sequence[EventRecord], at: datetime
-) -> StoredBatch:
-    """:meth:`EventLog.store_batch` in three calls, each idempotent, for a backend that cannot make
-    them one transaction: the missions the channels record the batch's robots under, the write,
-    the ledger."""
-    missions = await channels.recording_missions({record.robot_id for record in records})
-    stamped = stamp_missions(records, missions)
-    results = await log.write_events(stamped)
-    await log.observe_sequences(held_sequences(stamped, results), at)
-    return StoredBatch(stamped, results)
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,8 @@ import abc
 from dataclasses import dataclass
 from datetime import datetime
 
+from fleetbus.workers.store.port import TEXT, TIME, Database, In, Range, Schema
+
 
 @dataclass(frozen=True)
 class Lease:
@@ -41,3 +43,30 @@ class LeaseStore(abc.ABC):
     @abc.abstractmethod
     async def leases(self, prefix: str = "") -> list[Lease]:
         """Every lease whose name starts with ``prefix`` (expired ones too), by name."""
+
+
+LEASES = Schema("leases", {"name": TEXT, "holder": TEXT, "expires_at": TIME}, key=("name",))
+
+
+class Leases(LeaseStore):
+    """An acquisition is one conditional insert-or-overwrite (:meth:`Collection.put`) per way a
+    lease may be taken: of two workers asking at once, the database lets one win."""
+
+    def __init__(self, database: Database) -> None:
+        self._leases = database.collection(LEASES)
+
+    async def acquire_lease(
+        self, name: str, holder: str, until: datetime, now: datetime, replacing: str | None = None
+    ) -> bool:
+        lease = {"name": name, "holder": holder, "expires_at": until}
+        holders = [holder] if replacing is None else [holder, replacing]
+        return await self._leases.put(lease, where={"holder": In(holders)}) or await self._leases.put(
+            lease, where={"expires_at": Range(le=now)}
+        )
+
+    async def release_lease(self, name: str, holder: str) -> None:
+        await self._leases.delete({"name": name, "holder": holder})
+
+    async def leases(self, prefix: str = "") -> list[Lease]:
+        found = await self._leases.find(order=["name"])
+        return [Lease(**doc) for doc in found if doc["name"].startswith(prefix)]

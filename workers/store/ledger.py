@@ -20,6 +20,9 @@ from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import NamedTuple
 
+from fleetbus.workers.store.base import from_micros, to_micros
+from fleetbus.workers.store.port import BOOL, INTEGER, JSON, SERIAL, TEXT, TIME, Database, Doc, Index, Schema
+
 
 class RobotEpoch(NamedTuple):
     """One numbering: a robot, and the epoch of the client start that numbered the events."""
@@ -116,3 +119,107 @@ class SequenceLedger(abc.ABC):
     @abc.abstractmethod
     async def high_water(self, robot_id: str, epoch: str) -> int | None:
         """The highest sequence number stored for the robot in ``epoch``, None before its first event."""
+
+
+SEQUENCES = Schema(
+    "robot_sequences",
+    {"robot_id": TEXT, "epoch": TEXT, "high_water": INTEGER, "gaps": JSON, "version": INTEGER},
+    key=("robot_id", "epoch"),
+    indexes=(Index("robot_id"),),
+)
+"""One document per numbering: its high-water mark and its open gaps (``[first, last, detected
+at]``), written back only if its version is still the one read, so two workers observing one
+numbering at once lose nothing, and a worker that dies mid-way leaves it as it was. (A robot
+with hundreds of thousands of open gaps would reach MongoDB's 16 MB document limit.)"""
+DUPLICATES = Schema(
+    "duplicates",
+    {
+        "robot_id": TEXT,
+        "epoch": TEXT,
+        "seq": INTEGER,
+        "message_id": TEXT,
+        "seen_at": TIME,
+        "redelivered": BOOL,
+    },
+    serial=True,
+    indexes=(Index("robot_id", "seen_at"), Index("seen_at")),
+)
+
+
+def _gaps(doc: Doc) -> list[Gap]:
+    return [
+        Gap(doc["robot_id"], doc["epoch"], first, last, from_micros(at)) for first, last, at in doc["gaps"]
+    ]
+
+
+class Ledger(SequenceLedger):
+    def __init__(self, database: Database) -> None:
+        self._database = database
+        self._sequences = database.collection(SEQUENCES)
+        self._duplicates = database.collection(DUPLICATES)
+
+    async def high_water(self, robot_id: str, epoch: str) -> int | None:
+        doc = await self._sequences.get(robot_id, epoch)
+        return doc["high_water"] if doc else None
+
+    async def observed(self, wanted: Mapping[RobotEpoch, Sequence[int]]) -> set[tuple[str, str, int]]:
+        """The (robot, epoch, seq) keys of ``wanted`` the ledger has seen."""
+        keys: set[tuple[str, str, int]] = set()
+        numberings = list(wanted)
+        for numbering, doc in zip(numberings, await self._sequences.get_many(numberings), strict=True):
+            if doc is not None:
+                seen = seen_numbers(doc["high_water"], _gaps(doc), wanted[numbering])
+                keys.update((*numbering, seq) for seq in seen)
+        return keys
+
+    async def observe_sequences(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
+        work = {RobotEpoch(*numbering): list(seqs) for numbering, seqs in seen.items() if seqs}
+        if work:
+            await self._database.transaction(lambda: self.observe(work, at))
+
+    async def observe(self, seen: Mapping[RobotEpoch, Sequence[int]], at: datetime) -> None:
+        """:meth:`observe_sequences`, within the caller's unit of work."""
+        for numbering, seqs in seen.items():
+            while not await self._observe(numbering, seqs, at):
+                pass  # another observer changed this numbering's ledger meanwhile: again, from it
+
+    async def _observe(self, numbering: RobotEpoch, seqs: Sequence[int], at: datetime) -> bool:
+        """One attempt; False if another observer wrote the numbering's document first."""
+        doc = await self._sequences.get(*numbering)
+        high_water = doc["high_water"] if doc else None
+        gaps = _gaps(doc) if doc else []
+        low, high = min(seqs), max(seqs)
+        touched = [
+            g for g in gaps if high_water is not None and g.last >= low and g.first <= min(high, high_water)
+        ]
+        change = apply_seqs(numbering, high_water, touched, seqs, at)
+        kept = [g for g in gaps if g not in touched]
+        after = {
+            "high_water": change.high_water,
+            "gaps": [
+                [g.first, g.last, to_micros(g.detected_at)]
+                for g in sorted([*kept, *change.gaps], key=lambda g: g.first)
+            ],
+        }
+        if doc is None:
+            return (await self._sequences.insert([{**numbering._asdict(), **after, "version": 0}]))[0]
+        where = {**numbering._asdict(), "version": doc["version"]}
+        return await self._sequences.update(where, after, add={"version": 1}) == 1
+
+    async def record_duplicates(self, duplicates: Sequence[Duplicate]) -> None:
+        await self._duplicates.insert([duplicate.__dict__ for duplicate in duplicates])
+
+    async def gaps(self, robot_id: str | None = None) -> list[Gap]:
+        found = await self._sequences.find({"robot_id": robot_id} if robot_id else {})
+        return sorted(
+            (gap for doc in found for gap in _gaps(doc)), key=lambda g: (g.robot_id, g.epoch, g.first)
+        )
+
+    async def duplicates(self, robot_id: str | None = None, limit: int | None = None) -> list[Duplicate]:
+        found = await self._duplicates.find(
+            {"robot_id": robot_id} if robot_id else {},
+            order=["-seen_at", "robot_id", "-epoch", "-seq"],
+            limit=limit,
+            fields=[name for name in DUPLICATES.fields if name != SERIAL],
+        )
+        return [Duplicate(**doc) for doc in found]

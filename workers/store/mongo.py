@@ -1,304 +1,354 @@
-"""The production store: MongoDB through pymongo's ``AsyncMongoClient``.
+"""The persistence port on MongoDB: a collection is a collection, its key the ``_id``.
 
-Every repository over one database (:func:`mongo_repositories`). Document ids follow a small
-strategy (``<robot>:<epoch>:<seq>``), so MongoDB's own ``_id`` uniqueness makes writes
-idempotent. Times are kept twice: as BSON dates for people querying MongoDB, and as integer
-microseconds, which round-trip exactly (BSON dates stop at milliseconds).
+A one-field key is the ``_id`` itself; a key of several fields is the ``_id`` as a document of
+them (in the key's order), each kept beside it too, for the indexes and sorts that name them. A
+unit of work runs its steps in turn: each is one atomic operation on one document. A serial
+collection is numbered from a counter (:data:`~fleetbus.workers.store.port.COUNTERS`), one
+increment per insert.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from datetime import datetime
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TypeVar
 
-from pymongo import ASCENDING, DESCENDING
-from pymongo.errors import BulkWriteError, PyMongoError
+from pymongo import ASCENDING, DESCENDING, ReturnDocument
+from pymongo.errors import BulkWriteError, DuplicateKeyError, PyMongoError
 
-from fleetbus.workers.store.base import (
-    EventQuery,
-    EventRecord,
-    Received,
-    StoreUnavailable,
-    WriteResult,
-    from_micros,
-    to_micros,
-)
-from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.interface import StoredBatch, numbers_of, store_in_turn
-from fleetbus.workers.store.mongo_attempts import MongoAttempts
-from fleetbus.workers.store.mongo_channels import MongoChannels
-from fleetbus.workers.store.mongo_coordination import MongoBeacons, MongoCoordination
+from fleetbus.workers.store.base import StoreUnavailable, from_micros, to_micros
+from fleetbus.workers.store.compose import repositories_on
 from fleetbus.workers.store.mongo_database import (
     DUPLICATE_KEY,
     MongoDatabase,
     raise_as_store_error,
     translate_unavailable,
 )
-from fleetbus.workers.store.mongo_discards import MongoDiscards
-from fleetbus.workers.store.mongo_housekeeping import MongoHousekeeping
-from fleetbus.workers.store.mongo_leases import MongoLeases
-from fleetbus.workers.store.mongo_ledger import MongoLedger
-from fleetbus.workers.store.mongo_maps import MongoMaps
-from fleetbus.workers.store.mongo_missions import MongoMissions
-from fleetbus.workers.store.mongo_rejections import MongoRejections
-from fleetbus.workers.store.mongo_sites import MongoSites
-from fleetbus.workers.store.mongo_statuses import MongoStatuses
-from fleetbus.workers.store.mongo_users import MongoUsers
-from fleetbus.workers.store.repositories import EventLog, Repositories
+from fleetbus.workers.store.port import (
+    COUNTERS,
+    SERIAL,
+    TIME,
+    Collection,
+    Database,
+    Doc,
+    Filter,
+    Group,
+    In,
+    Ne,
+    NotIn,
+    Range,
+    Schema,
+    Work,
+    descending,
+    next_number,
+)
+from fleetbus.workers.store.repositories import Repositories
+
+T = TypeVar("T")
+ID = "_id"
+OPERATORS = {"gt": "$gt", "ge": "$gte", "lt": "$lt", "le": "$lte"}
 
 
-class RobotSequenceId:
-    """Document-id strategy: one document per (robot, epoch, sequence number)."""
+class MongoStore(MongoDatabase, Database):
+    """One MongoDB database (one client) and the collections declared on it."""
 
-    @staticmethod
-    def of(robot_id: str, epoch: str, seq: int) -> str:
-        return f"{robot_id}:{epoch}:{seq}"
+    name = "mongodb"
+
+    def __init__(self, url: str, database: str | None = None, server_selection_timeout: float = 5.0) -> None:
+        super().__init__(url, database, server_selection_timeout)
+        self._server_selection_timeout = server_selection_timeout
+        self._schemas: dict[str, Schema] = {}
+        self._counters: MongoCollection | None = None
+
+    def collection(self, schema: Schema) -> MongoCollection:
+        if self._schemas.setdefault(schema.name, schema) != schema:
+            raise ValueError(f"two schemas named {schema.name}")
+        return MongoCollection(self, schema)
+
+    def counters(self) -> MongoCollection:
+        if self._counters is None:
+            self._counters = self.collection(COUNTERS)
+        return self._counters
+
+    async def transaction(self, work: Callable[[], Work[T]], *, urgent: bool = False) -> T:
+        return await work()
+
+    async def snapshot(self, work: Callable[[], Work[T]], *, urgent: bool = False) -> T:
+        return await work()
+
+    async def let_urgent_calls_in(self) -> None:
+        """Each step is a transaction of its own already."""
+
+    async def open(self) -> None:
+        self._connect()
+        try:
+            for schema in self._schemas.values():
+                collection = self._collection(schema.name)
+                for index in schema.indexes:
+                    keys = [(_stored_name(schema, name), ASCENDING) for name in index.fields]
+                    await collection.create_index(keys, unique=index.unique)
+        except PyMongoError as error:
+            raise_as_store_error(error, self._safe_url())
+
+    def again(self) -> MongoStore:
+        return MongoStore(self.url, self._database_name, self._server_selection_timeout)
 
 
-def to_document(record: EventRecord) -> dict[str, Any]:
-    return {
-        "_id": RobotSequenceId.of(record.robot_id, record.epoch, record.seq),
-        "robot_id": record.robot_id,
-        "epoch": record.epoch,
-        "seq": record.seq,
-        "type": record.type,
-        "message_id": record.message_id,
-        "sent_at": record.sent_at,
-        "sent_at_us": to_micros(record.sent_at),
-        "received_at": record.received_at,
-        "received_at_us": to_micros(record.received_at),
-        "body": record.body,
-        "user_id": record.user_id,
-        "exchange": record.exchange,
-        "routing_key": record.routing_key,
-        "mission_id": record.mission_id,
-        "digest": record.digest,
-    }
+def _stored_name(schema: Schema, name: str) -> str:
+    """A field's name in the document: a one-field key is the ``_id``."""
+    schema.kind(name)
+    return ID if schema.key == (name,) else name
 
 
-def from_document(doc: dict[str, Any]) -> EventRecord:
-    return EventRecord(
-        robot_id=doc["robot_id"],
-        epoch=doc["epoch"],
-        seq=doc["seq"],
-        type=doc["type"],
-        message_id=doc["message_id"],
-        sent_at=from_micros(doc["sent_at_us"]),
-        received_at=from_micros(doc["received_at_us"]),
-        body=doc["body"],
-        user_id=doc["user_id"],
-        exchange=doc["exchange"],
-        routing_key=doc["routing_key"],
-        mission_id=doc.get("mission_id"),
-        digest=doc.get("digest"),
-    )
+@translate_unavailable(Collection)
+class MongoCollection(Collection):
+    def __init__(self, store: MongoStore, schema: Schema) -> None:
+        self._store = store
+        self.schema = schema
+        self._times = {name for name, kind in schema.fields.items() if kind.name == TIME.name}
+        self._single = schema.key[0] if len(schema.key) == 1 else None
+
+    def _collection(self) -> Any:
+        return self._store._collection(self.schema.name)
+
+    def _safe_url(self) -> str:
+        return self._store._safe_url()
+
+    # encoding
+
+    def _value(self, name: str, value: Any) -> Any:
+        return to_micros(value) if value is not None and name in self._times else value
+
+    def _id(self, key: Sequence[Any]) -> Any:
+        if self._single is not None:
+            return self._value(self._single, key[0])
+        return {name: self._value(name, value) for name, value in zip(self.schema.key, key, strict=True)}
+
+    def _document(self, doc: Mapping[str, Any]) -> Doc:
+        stored: Doc = {ID: self._id(self.schema.key_of(doc))}
+        for name in self.schema.fields:
+            if name != self._single:
+                stored[name] = self._value(name, doc.get(name))
+        return stored
+
+    def _decode(self, stored: Mapping[str, Any], names: Sequence[str]) -> Doc:
+        doc = {}
+        for name in names:
+            value = stored.get(ID if name == self._single else name)
+            doc[name] = from_micros(value) if value is not None and name in self._times else value
+        return doc
+
+    def _filter(self, where: Filter | None) -> Doc:
+        if not where:
+            return {}
+        query: Doc = {}
+        plain = {
+            name: match for name, match in where.items() if not isinstance(match, In | NotIn | Ne | Range)
+        }
+        if self._single is None and all(name in plain for name in self.schema.key):
+            query[ID] = self._id([plain[name] for name in self.schema.key])
+            where = {name: match for name, match in where.items() if name not in self.schema.key}
+        for name, match in where.items():
+            stored = _stored_name(self.schema, name)
+            if isinstance(match, In):
+                query[stored] = {"$in": [self._value(name, value) for value in match.values]}
+            elif isinstance(match, NotIn):
+                query[stored] = {"$nin": [self._value(name, value) for value in match.values]}
+            elif isinstance(match, Ne):
+                query[stored] = {"$ne": self._value(name, match.value)}
+            elif isinstance(match, Range):
+                bounds = {
+                    operator: self._value(name, getattr(match, bound))
+                    for bound, operator in OPERATORS.items()
+                    if getattr(match, bound) is not None
+                }
+                # a null is in no range (MongoDB's type bracketing says so; not every server does)
+                query[stored] = {**bounds, "$ne": None}
+            else:
+                query[stored] = self._value(name, match)
+        return query
+
+    def _sort(self, order: Sequence[str]) -> list[tuple[str, int]]:
+        sort = []
+        for term in order:
+            name, down = descending(term)
+            sort.append((_stored_name(self.schema, name), DESCENDING if down else ASCENDING))
+        return sort
+
+    def _cursor(
+        self,
+        where: Filter | None,
+        order: Sequence[str] = (),
+        limit: int | None = None,
+        skip: int = 0,
+        fields: Sequence[str] | None = None,
+    ) -> Any:
+        projection = None if fields is None else [_stored_name(self.schema, name) for name in fields]
+        cursor = self._collection().find(self._filter(where), projection)
+        if order:
+            cursor = cursor.sort(self._sort(order))
+        if skip:
+            cursor = cursor.skip(skip)
+        if limit is not None:
+            cursor = cursor.limit(limit)
+        return cursor
+
+    # the port
+
+    async def insert(self, docs: Sequence[Doc]) -> list[bool]:
+        if not docs:
+            return []
+        if self.schema.serial:
+            last = await next_number(self._store.counters(), f"{SERIAL}:{self.schema.name}", len(docs))
+            docs = [{**doc, SERIAL: last - len(docs) + 1 + index} for index, doc in enumerate(docs)]
+        inserted = [True] * len(docs)
+        try:
+            await self._collection().insert_many([self._document(doc) for doc in docs], ordered=False)
+        except BulkWriteError as error:
+            if error.details.get("writeConcernErrors"):
+                # reached the primary but not known durable: not safe to ack (a retry is harmless)
+                raise StoreUnavailable(
+                    f"MongoDB at {self._safe_url()}: write concern not met: "
+                    f"{error.details['writeConcernErrors']}"
+                ) from error
+            errors = error.details.get("writeErrors", [])
+            if any(e.get("code") != DUPLICATE_KEY for e in errors):
+                raise
+            for e in errors:
+                inserted[e["index"]] = False
+        return inserted
+
+    async def get(self, *key: Any) -> Doc | None:
+        stored = await self._collection().find_one({ID: self._id(key)})
+        return None if stored is None else self._decode(stored, list(self.schema.fields))
+
+    async def get_many(self, keys: Sequence[tuple[Any, ...]]) -> list[Doc | None]:
+        if not keys:
+            return []
+        ids = [self._id(key) for key in keys]
+        found = {}
+        async for stored in self._collection().find({ID: {"$in": ids}}):
+            doc = self._decode(stored, list(self.schema.fields))
+            found[self.schema.key_of(doc)] = doc
+        return [found.get(tuple(key)) for key in keys]
+
+    async def find(
+        self,
+        where: Filter | None = None,
+        *,
+        order: Sequence[str] = (),
+        limit: int | None = None,
+        skip: int = 0,
+        fields: Sequence[str] | None = None,
+    ) -> list[Doc]:
+        names = list(self.schema.fields) if fields is None else list(fields)
+        return [
+            self._decode(stored, names) async for stored in self._cursor(where, order, limit, skip, fields)
+        ]
+
+    async def count(self, where: Filter | None = None) -> int:
+        counted: int = await self._collection().count_documents(self._filter(where))
+        return counted
+
+    async def group(
+        self, by: str, where: Filter | None = None, *, highest: Sequence[str] = ()
+    ) -> dict[Any, Group]:
+        stage: Doc = {ID: f"${_stored_name(self.schema, by)}", "n": {"$sum": 1}}
+        for index, name in enumerate(highest):
+            stage[f"h{index}"] = {"$max": f"${_stored_name(self.schema, name)}"}
+        groups = {}
+        async for row in await self._collection().aggregate(
+            [{"$match": self._filter(where)}, {"$group": stage}]
+        ):
+            stored = {_stored_name(self.schema, name): row[f"h{i}"] for i, name in enumerate(highest)}
+            value = self._decode({_stored_name(self.schema, by): row[ID]}, [by])[by]
+            groups[value] = Group(row["n"], self._decode(stored, highest))
+        return groups
+
+    async def first_each(
+        self, by: str, values: Sequence[Any], *, order: Sequence[str], where: Filter | None = None
+    ) -> dict[Any, Doc]:
+        if not values:
+            return {}
+        stored_by = _stored_name(self.schema, by)
+        match = {**self._filter(where), stored_by: {"$in": [self._value(by, value) for value in values]}}
+        # sorted by the index on (by, order...), $first keeps each value's first document
+        pipeline = [
+            {"$match": match},
+            {"$sort": dict([(stored_by, ASCENDING), *self._sort(order)])},
+            {"$group": {ID: f"${stored_by}", "first": {"$first": "$$ROOT"}}},
+        ]
+        names = list(self.schema.fields)
+        found = await self._collection().aggregate(pipeline)
+        docs = [self._decode(row["first"], names) async for row in found]
+        return {doc[by]: doc for doc in docs}
+
+    async def update(
+        self, where: Filter, changes: Mapping[str, Any], *, add: Mapping[str, int] | None = None
+    ) -> int:
+        update: Doc = {}
+        if changes:
+            update["$set"] = {_stored_name(self.schema, n): self._value(n, v) for n, v in changes.items()}
+        if add:
+            update["$inc"] = {_stored_name(self.schema, name): by for name, by in add.items()}
+        result = await self._collection().update_many(self._filter(where), update)
+        matched: int = result.matched_count
+        return matched
+
+    async def put(
+        self, doc: Doc, *, overwrite: Sequence[str] | None = None, where: Filter | None = None
+    ) -> bool:
+        stored = self._document(doc)
+        changed = (
+            [name for name in stored if name != ID and name not in self.schema.key]
+            if overwrite is None
+            else list(overwrite)
+        )
+        if not changed:
+            raise ValueError("put overwrites at least one field (insert() keeps what is stored)")
+        update: Doc = {"$set": {name: stored.pop(name) for name in changed}}
+        stored.pop(ID)
+        if stored:
+            update["$setOnInsert"] = stored
+        # when the stored document does not match, the upsert tries to insert a second one
+        # under the same _id, which the unique _id refuses
+        try:
+            await self._collection().update_one(
+                {**self._filter(where), ID: self._id(self.schema.key_of(doc))}, update, upsert=True
+            )
+        except DuplicateKeyError:
+            return False
+        return True
+
+    async def increment(self, doc: Doc, counter: str, *, overwrite: Sequence[str] = ()) -> int:
+        stored = self._document(doc)
+        key = stored.pop(ID)
+        update: Doc = {"$inc": {counter: stored.pop(counter)}}
+        if overwrite:
+            update["$set"] = {name: stored.pop(name) for name in overwrite}
+        if stored:
+            update["$setOnInsert"] = stored
+        after = await self._collection().find_one_and_update(
+            {ID: key}, update, upsert=True, return_document=ReturnDocument.AFTER
+        )
+        value: int = after[counter]
+        return value
+
+    async def delete(self, where: Filter, *, order: Sequence[str] = (), limit: int | None = None) -> int:
+        query = self._filter(where)
+        if order or limit is not None:
+            ids = [
+                stored[ID] async for stored in self._cursor(where, order, limit, fields=[self.schema.key[0]])
+            ]
+            if not ids:
+                return 0
+            query = {**query, ID: {"$in": ids}}
+        result = await self._collection().delete_many(query)
+        deleted: int = result.deleted_count
+        return deleted
 
 
 def mongo_repositories(
     url: str, database: str | None = None, server_selection_timeout: float = 5.0
 ) -> Repositories:
     """Every repository over one MongoDB database (one client), not yet opened."""
-    shared = MongoDatabase(url, database, server_selection_timeout)
-    channels = MongoChannels(shared)
-    events = MongoEventLog(shared, channels)
-    hazards = MongoCoordination(shared)
-    maps = MongoMaps(shared)
-    missions = MongoMissions(shared)
-    housekeeping = MongoHousekeeping(shared)
-
-    async def open() -> None:
-        shared._connect()
-        try:
-            await events.create_event_indexes()
-            await events.create_ledger_indexes()
-            await hazards.create_coordination_indexes()
-            await maps.create_map_indexes()
-            await housekeeping.create_housekeeping_indexes()
-            await missions.create_mission_indexes()
-            await channels.create_channel_indexes()
-        except PyMongoError as error:
-            raise_as_store_error(error, shared._safe_url())
-
-    return Repositories(
-        name="mongodb",
-        events=events,
-        hazards=hazards,
-        beacons=MongoBeacons(shared),
-        maps=maps,
-        missions=missions,
-        channels=channels,
-        users=MongoUsers(shared),
-        discards=MongoDiscards(shared),
-        rejections=MongoRejections(shared),
-        attempts=MongoAttempts(shared),
-        leases=MongoLeases(shared),
-        statuses=MongoStatuses(shared),
-        housekeeping=housekeeping,
-        sites=MongoSites(shared),
-        opener=open,
-        closer=shared.close,
-        again=lambda: mongo_repositories(url, shared._database_name, server_selection_timeout),
-    )
-
-
-def _result(document: dict[str, Any], stored: dict[str, dict[str, Any]]) -> WriteResult:
-    """The result of a record not inserted: its key taken, or its number seen and pruned."""
-    found = stored.get(document["_id"])
-    if found is None:
-        return WriteResult(inserted=False, pruned=True)
-    same = (found["message_id"], found["received_at_us"]) == (
-        document["message_id"],
-        document["received_at_us"],
-    )
-    return WriteResult(
-        inserted=False,
-        stored_message_id=found["message_id"],
-        stored_digest=found.get("digest"),
-        rewritten=same,
-    )
-
-
-@translate_unavailable(EventLog)
-class MongoEventLog(MongoLedger, EventLog):
-    """The event log and its sequence ledger; the system of record for validated events. A batch
-    is stamped with the missions the channels record its robots under (:func:`store_in_turn`)."""
-
-    def __init__(self, database: MongoDatabase, channels: ChannelStore) -> None:
-        super().__init__(database)
-        self._channels = channels
-
-    def _events(self) -> Any:
-        """The event log: every validated event, one collection (the recording keeps one per type)."""
-        return self._collection("events")
-
-    async def create_event_indexes(self) -> None:
-        events = self._events()
-        await events.create_index([("type", ASCENDING), ("sent_at_us", ASCENDING)])
-        await events.create_index([("robot_id", ASCENDING), ("sent_at_us", ASCENDING)])
-        await events.create_index([("sent_at_us", ASCENDING)])
-        await events.create_index([("message_id", ASCENDING)])
-        await events.create_index([("received_at_us", ASCENDING)])
-
-    async def store_batch(
-        self, records: Sequence[EventRecord], at: datetime, *, urgent: bool = False
-    ) -> StoredBatch:
-        return await store_in_turn(self, self._channels, records, at)
-
-    async def write_events(self, records: Sequence[EventRecord]) -> list[WriteResult]:
-        """Insert each record unless its key is taken or the ledger has seen its number (its event
-        pruned since)."""
-        if not records:
-            return []
-        seen = await self._observed(numbers_of(records))
-        documents = [to_document(record) for record in records]
-        taken = {index for index, record in enumerate(records) if record.key in seen}
-        fresh = [index for index in range(len(documents)) if index not in taken]
-        try:
-            if fresh:
-                await self._events().insert_many([documents[index] for index in fresh], ordered=False)
-        except BulkWriteError as error:
-            errors = error.details.get("writeErrors", [])
-            if any(e.get("code") != DUPLICATE_KEY for e in errors):
-                raise
-            if error.details.get("writeConcernErrors"):
-                # the documents reached the primary but are not known durable: not safe to ack;
-                # a retry is harmless because the ids make it idempotent
-                raise StoreUnavailable(
-                    f"MongoDB at {self._safe_url()}: write concern not met: "
-                    f"{error.details['writeConcernErrors']}"
-                ) from error
-            # a key repeated inside the batch: MongoDB inserts the first copy and reports the others
-            taken.update(fresh[e["index"]] for e in errors)
-        except PyMongoError as error:
-            raise_as_store_error(error, self._safe_url())
-        stored: dict[str, dict[str, Any]] = {}
-        if taken:
-            try:
-                ids = list({documents[index]["_id"] for index in taken})
-                fields = ["message_id", "received_at_us", "digest"]
-                cursor = self._events().find({"_id": {"$in": ids}}, fields)
-                stored = {doc["_id"]: doc async for doc in cursor}
-            except PyMongoError as error:
-                raise_as_store_error(error, self._safe_url())
-        return [
-            _result(documents[index], stored) if index in taken else WriteResult(inserted=True)
-            for index in range(len(documents))
-        ]
-
-    @staticmethod
-    def _filter(type: str | None, robot_id: str | None, query: EventQuery | None = None) -> dict[str, Any]:
-        conditions: dict[str, Any] = {}
-        if type is not None:
-            conditions["type"] = type
-        if robot_id is not None:
-            conditions["robot_id"] = robot_id
-        if query is not None and query.mission_id is not None:
-            conditions["mission_id"] = query.mission_id
-        if query is not None and (query.since or query.until):
-            window: dict[str, int] = {}
-            if query.since:
-                window["$gte"] = to_micros(query.since)
-            if query.until:
-                window["$lt"] = to_micros(query.until)
-            conditions["sent_at_us"] = window
-        return conditions
-
-    async def find_events(self, query: EventQuery) -> list[EventRecord]:
-        direction = DESCENDING if query.newest_first else ASCENDING
-        cursor = (
-            self._events()
-            .find(self._filter(query.type, query.robot_id, query))
-            .sort(
-                [("sent_at_us", direction), ("robot_id", direction), ("epoch", direction), ("seq", direction)]
-            )
-        )
-        if query.limit is not None:
-            cursor = cursor.limit(query.limit)
-        try:
-            return [from_document(doc) async for doc in cursor]
-        except PyMongoError as error:
-            raise_as_store_error(error, self._safe_url())
-
-    def _received_since(self, since: datetime, limit: int, fields: list[str] | None = None) -> Any:
-        order = [(name, ASCENDING) for name in ("received_at_us", "robot_id", "epoch", "seq")]
-        found = self._events().find({"received_at_us": {"$gte": to_micros(since)}}, fields)
-        return found.sort(order).limit(limit)
-
-    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
-        match: dict[str, Any] = {"robot_id": {"$in": list(robots)}}
-        if type is not None:
-            match["type"] = type
-        # a sort on the (robot_id, sent_at) index and $first: each robot's newest only
-        pipeline = [
-            {"$match": match},
-            {"$sort": {"robot_id": ASCENDING, "sent_at_us": DESCENDING}},
-            {"$group": {"_id": "$robot_id", "newest": {"$first": "$$ROOT"}}},
-        ]
-        try:
-            found = await self._events().aggregate(pipeline)
-            return {doc["_id"]: from_document(doc["newest"]) async for doc in found}
-        except PyMongoError as error:
-            raise_as_store_error(error, self._safe_url())
-
-    async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
-        fields = ["robot_id", "epoch", "seq", "received_at_us"]
-        try:
-            return [
-                Received((doc["robot_id"], doc["epoch"], doc["seq"]), from_micros(doc["received_at_us"]))
-                async for doc in self._received_since(since, limit, fields)
-            ]
-        except PyMongoError as error:
-            raise_as_store_error(error, self._safe_url())
-
-    async def events_received_since(self, since: datetime, limit: int) -> list[EventRecord]:
-        try:
-            return [from_document(doc) async for doc in self._received_since(since, limit)]
-        except PyMongoError as error:
-            raise_as_store_error(error, self._safe_url())
-
-    async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int:
-        try:
-            return await self._events().count_documents(self._filter(type, robot_id))
-        except PyMongoError as error:
-            raise_as_store_error(error, self._safe_url())
+    return repositories_on(MongoStore(url, database, server_selection_timeout))

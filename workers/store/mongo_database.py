@@ -114,20 +114,3 @@ class MongoDatabase:
         if self._client is not None:
             await self._client.close()
             self._client = None
-
-
-class OnMongo:
-    """A repository's way to the MongoDB database it shares with the other repositories of one
-    :class:`~fleetbus.workers.store.repositories.Repositories` (one client)."""
-
-    def __init__(self, database: MongoDatabase) -> None:
-        self._shared = database
-
-    def _database(self) -> Any:
-        return self._shared._database()
-
-    def _collection(self, name: str) -> Any:
-        return self._shared._collection(name)
-
-    def _safe_url(self) -> str:
-        return self._shared._safe_url()

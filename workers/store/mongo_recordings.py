@@ -23,8 +23,10 @@ from pymongo.errors import BulkWriteError, OperationFailure
 
 from fleetbus.defaults import DEFAULT_FIELD_INDEXES_MAX
 from fleetbus.workers.store.base import StoreUnavailable, WriteResult, from_micros, to_micros
-from fleetbus.workers.store.mongo_database import DUPLICATE_KEY, MongoDatabase, translate_unavailable
+from fleetbus.workers.store.mongo import MongoStore
+from fleetbus.workers.store.mongo_database import DUPLICATE_KEY, translate_unavailable
 from fleetbus.workers.store.recordings import (
+    Bookkeeping,
     Condition,
     Op,
     OutcomeFields,
@@ -32,7 +34,6 @@ from fleetbus.workers.store.recordings import (
     RecordedMessage,
     RecordingStore,
     RecordQuery,
-    StorageSample,
     TypeSummary,
     check_digest,
     check_path,
@@ -41,9 +42,6 @@ from fleetbus.workers.store.recordings import (
 
 log = logging.getLogger("fleetbus.recording")
 COLLECTION_PREFIX = "recorded."
-SAMPLES = "recorder.samples"
-#: When each field index was last used by a query (the least recently used goes first).
-FIELD_INDEX_USE = "recorder.field_indexes"
 FIELD_INDEX_PREFIX = "f:"
 #: Below MongoDB's 16 MiB document limit, with room for the provenance.
 MAX_DOCUMENT_BYTES = 16 * 1024 * 1024 - 64 * 1024
@@ -163,7 +161,7 @@ def from_document(type: str, doc: dict[str, Any]) -> RecordedMessage:
 
 
 @translate_unavailable(RecordingStore)
-class MongoRecordingStore(MongoDatabase, RecordingStore):
+class MongoRecordingStore(MongoStore, RecordingStore):
     name = "mongodb"
 
     def __init__(
@@ -175,11 +173,7 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
     ) -> None:
         super().__init__(url, database, server_selection_timeout)
         self._indexed: set[str] = set()
-        self.max_field_indexes = max_field_indexes
-
-    async def open(self) -> None:
-        self._connect()
-        await self._collection(SAMPLES).create_index([("sampled_at_us", ASCENDING)])
+        self.bookkeeping = Bookkeeping(self, max_field_indexes)
 
     def _blobs(self) -> Any:
         from gridfs import AsyncGridFSBucket
@@ -308,33 +302,21 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
         keys = [(field(path), ASCENDING) for path in paths] + [("recorded_at_us", ASCENDING)]
         name = FIELD_INDEX_PREFIX + ",".join(paths)
         await self._ensure_collection(type)
-        recorded, uses = self._recorded(type), self._collection(FIELD_INDEX_USE)
-        now = to_micros(datetime.now(timezone.utc))
-        held = [n for n in await recorded.index_information() if n.startswith(FIELD_INDEX_PREFIX)]
-        if name not in held:
-            # a new shape: make room by dropping the least recently used
-            used = {doc["name"]: doc["used_at_us"] async for doc in uses.find({"type": type})}
-            by_use = sorted(held, key=lambda n: (used.get(n, 0), n))
-            for old in by_use[: max(0, len(held) - self.max_field_indexes + 1)]:
+        now = datetime.now(timezone.utc)
+        if await self.bookkeeping.used(type, name, now):
+            return
+        # a new shape: make room by dropping the least recently used
+        recorded = self._recorded(type)
+        for old, old_paths in await self.bookkeeping.make_room(type):
+            if old in await recorded.index_information():
                 await recorded.drop_index(old)
-                await uses.delete_one({"_id": f"{type}|{old}"})
-                log.info("%s: dropped the least recently used field index %s", type, old)
-            try:
-                await recorded.create_index(keys, name=name)
-            except OperationFailure as error:  # e.g. another process filled the last slots: query unindexed
-                log.warning("%s: no field index on %s (%s); the query runs without one", type, paths, error)
-                return
-        await uses.update_one(
-            {"_id": f"{type}|{name}"}, {"$set": {"type": type, "name": name, "used_at_us": now}}, upsert=True
-        )
-
-    async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
-        indexes = await self._recorded(type).index_information()
-        return sorted(
-            tuple(name[len(FIELD_INDEX_PREFIX) :].split(","))
-            for name in indexes
-            if name.startswith(FIELD_INDEX_PREFIX)
-        )
+            log.info("%s: dropped the least recently used field index %s", type, old_paths)
+        try:
+            await recorded.create_index(keys, name=name)
+        except OperationFailure as error:  # e.g. another process filled the last slots: query unindexed
+            log.warning("%s: no field index on %s (%s); the query runs without one", type, paths, error)
+            return
+        await self.bookkeeping.made(type, name, paths, now)
 
     async def outcome_stats(
         self,
@@ -420,26 +402,3 @@ class MongoRecordingStore(MongoDatabase, RecordingStore):
             stats = await self._database().command("collStats", collection_name(type))
             total += int(stats.get("storageSize", 0)) + int(stats.get("totalIndexSize", 0))
         return total
-
-    async def add_sample(self, sample: StorageSample) -> None:
-        document = {
-            "_id": f"{sample.run_id}:{to_micros(sample.sampled_at)}",
-            "run_id": sample.run_id,
-            "sampled_at": sample.sampled_at,
-            "sampled_at_us": to_micros(sample.sampled_at),
-            "database_bytes": sample.database_bytes,
-            "inserted": sample.inserted,
-        }
-        await self._collection(SAMPLES).replace_one({"_id": document["_id"]}, document, upsert=True)
-
-    async def samples(self, since: datetime | None = None) -> list[StorageSample]:
-        query = {"sampled_at_us": {"$gte": to_micros(since)}} if since else {}
-        cursor = (
-            self._collection(SAMPLES).find(query).sort([("sampled_at_us", ASCENDING), ("run_id", ASCENDING)])
-        )
-        return [
-            StorageSample(
-                from_micros(doc["sampled_at_us"]), doc["run_id"], doc["database_bytes"], doc["inserted"]
-            )
-            async for doc in cursor
-        ]

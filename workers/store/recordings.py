@@ -24,6 +24,7 @@ from enum import Enum
 from typing import Any, Union
 
 from fleetbus.workers.store.base import WriteResult
+from fleetbus.workers.store.port import INTEGER, JSON, TEXT, TIME, Database, Index, Range, Schema
 
 Scalar = Union[str, int, float, bool, None]  # noqa: UP007  (a runtime alias; Python 3.10 reads it)
 
@@ -228,10 +229,65 @@ class StorageSample:
     inserted: int
 
 
+SAMPLES = Schema(
+    "recorder_samples",
+    {"run_id": TEXT, "sampled_at": TIME, "database_bytes": INTEGER, "inserted": INTEGER},
+    key=("run_id", "sampled_at"),
+    indexes=(Index("sampled_at"),),
+)
+FIELD_INDEXES = Schema(
+    "recording_field_indexes",
+    {"type": TEXT, "name": TEXT, "paths": JSON, "used_at": TIME},
+    key=("type", "name"),
+)
+"""The field indexes a database holds for each type, by the name it gave them, and when each was
+last asked for (the least recently used is dropped first)."""
+
+
+class Bookkeeping:
+    """What the recording keeps about itself, written once over the persistence port: its storage
+    samples, and its field indexes and their use."""
+
+    def __init__(self, database: Database, max_field_indexes: int) -> None:
+        self.max_field_indexes = max_field_indexes
+        self._samples = database.collection(SAMPLES)
+        self._indexes = database.collection(FIELD_INDEXES)
+
+    async def add_sample(self, sample: StorageSample) -> None:
+        await self._samples.insert([sample.__dict__])
+
+    async def samples(self, since: datetime | None = None) -> list[StorageSample]:
+        where = {} if since is None else {"sampled_at": Range(ge=since)}
+        return [
+            StorageSample(**doc) for doc in await self._samples.find(where, order=["sampled_at", "run_id"])
+        ]
+
+    async def used(self, type: str, name: str, at: datetime) -> bool:
+        """Note that the index ``name`` was asked for; False when there is none by that name."""
+        return await self._indexes.update({"type": type, "name": name}, {"used_at": at}) == 1
+
+    async def make_room(self, type: str) -> list[tuple[str, tuple[str, ...]]]:
+        """Forget the least recently used indexes of ``type`` beyond room for one more; their names
+        and paths (the caller drops them)."""
+        held = await self._indexes.find({"type": type}, order=["used_at", "name"])
+        dropped = held[: max(0, len(held) - self.max_field_indexes + 1)]
+        for index in dropped:
+            await self._indexes.delete({"type": type, "name": index["name"]})
+        return [(index["name"], tuple(index["paths"])) for index in dropped]
+
+    async def made(self, type: str, name: str, paths: Sequence[str], at: datetime) -> None:
+        await self._indexes.put({"type": type, "name": name, "paths": list(paths), "used_at": at})
+
+    async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
+        return sorted(tuple(index["paths"]) for index in await self._indexes.find({"type": type}))
+
+
 class RecordingStore(abc.ABC):
-    """Async storage of recorded messages. Implementations: SQLite (embedded) and MongoDB."""
+    """Async storage of recorded messages. Implementations: SQLite (embedded) and MongoDB; what
+    the recording keeps about itself is written once (:class:`Bookkeeping`)."""
 
     name: str
+    bookkeeping: Bookkeeping
 
     @abc.abstractmethod
     async def open(self) -> None: ...
@@ -279,9 +335,9 @@ class RecordingStore(abc.ABC):
     async def ensure_field_index(self, type: str, paths: Sequence[str]) -> None:
         """An index on these document fields (then ``recorded_at``) of a type; idempotent."""
 
-    @abc.abstractmethod
     async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
         """The field paths of each field index of a type."""
+        return await self.bookkeeping.field_indexes(type)
 
     @abc.abstractmethod
     async def outcome_stats(
@@ -311,11 +367,11 @@ class RecordingStore(abc.ABC):
     async def database_bytes(self) -> int:
         """What the recording takes in the database now (files on disk, or data and indexes)."""
 
-    @abc.abstractmethod
-    async def add_sample(self, sample: StorageSample) -> None: ...
+    async def add_sample(self, sample: StorageSample) -> None:
+        await self.bookkeeping.add_sample(sample)
 
-    @abc.abstractmethod
-    async def samples(self, since: datetime | None = None) -> list[StorageSample]: ...
+    async def samples(self, since: datetime | None = None) -> list[StorageSample]:
+        return await self.bookkeeping.samples(since)
 
     async def __aenter__(self) -> RecordingStore:
         await self.open()

@@ -14,6 +14,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
+from fleetbus.workers.store.port import TEXT, TIME, Database, In, Schema
+
 
 @dataclass(frozen=True)
 class Rejection:
@@ -31,3 +33,21 @@ class RejectionLog(abc.ABC):
     @abc.abstractmethod
     async def rejections(self, keys: Iterable[str]) -> dict[str, Rejection]:
         """The rejections kept under ``keys`` (unknown keys left out)."""
+
+
+REJECTIONS = Schema(
+    "rejections", {"key": TEXT, "reason": TEXT, "detail": TEXT, "rejected_at": TIME}, key=("key",)
+)
+
+
+class Rejections(RejectionLog):
+    def __init__(self, database: Database) -> None:
+        self._rejections = database.collection(REJECTIONS)
+
+    async def record_rejections(self, rejections: Sequence[Rejection]) -> None:
+        await self._rejections.insert([rejection.__dict__ for rejection in rejections])
+
+    async def rejections(self, keys: Iterable[str]) -> dict[str, Rejection]:
+        wanted = list(dict.fromkeys(keys))
+        found = await self._rejections.find({"key": In(wanted)}) if wanted else []
+        return {doc["key"]: Rejection(**doc) for doc in found}

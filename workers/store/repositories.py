@@ -1,4 +1,4 @@
-"""The store's repositories, one per concern, and the composition root that builds them.
+"""The store's repositories, one per concern, and the one place that picks their backend.
 
 A consumer receives the repositories it uses and nothing else, the way a nameko service gets one
 dependency provider per need: the ingest consumer the event log and the rejections; the hazard
@@ -6,12 +6,13 @@ service the hazards and team; the API's accounts the users, the team and the cha
 the housekeeping, the leases and the maps... (the decision record
 ``docs/decisions/0007-store-repositories.md`` lists them all).
 
-Each backend implements each repository once (``sqlite_<concern>.py``, ``mongo_<concern>.py``);
-its composition root (:func:`~fleetbus.workers.store.sqlite.sqlite_repositories`,
-:func:`~fleetbus.workers.store.mongo.mongo_repositories`) builds them all over one database (one
-SQLite file, or one MongoDB client), so that a batch can be stamped with its missions and written
-with the sequence ledger in one transaction where the backend has them. :func:`repositories_for`
-is the one place that picks the backend (MongoDB when ``mongodb_url`` is set, else SQLite).
+Each repository is written once, over the persistence port (:mod:`fleetbus.workers.store.port`),
+which each backend implements (:mod:`~fleetbus.workers.store.sqlite`,
+:mod:`~fleetbus.workers.store.mongo`); :func:`~fleetbus.workers.store.compose.repositories_on`
+builds them all over one database (one SQLite file, or one MongoDB client), so that a batch can be
+stamped with its missions and written with the sequence ledger in one transaction where the
+backend has them. :func:`repositories_for` is the one place that picks the backend (MongoDB when
+``mongodb_url`` is set, else SQLite).
 """
 
 from __future__ import annotations
@@ -25,24 +26,24 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
-from fleetbus.workers.store.attempts import AttemptLog
 from fleetbus.workers.store.base import EventRecord, EventStore
-from fleetbus.workers.store.beacons import BeaconRegistry
-from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.discards import DiscardLog
-from fleetbus.workers.store.hazards import CoordinationStore
-from fleetbus.workers.store.housekeeping import Housekeeping
-from fleetbus.workers.store.leases import LeaseStore
 from fleetbus.workers.store.ledger import SequenceLedger
-from fleetbus.workers.store.maps import MapStore
-from fleetbus.workers.store.missions import MissionStore
-from fleetbus.workers.store.rejections import RejectionLog
-from fleetbus.workers.store.sites import SiteRegistry
-from fleetbus.workers.store.statuses import StatusBoard
-from fleetbus.workers.store.users import UserStore
 
 if TYPE_CHECKING:
+    from fleetbus.workers.store.attempts import AttemptLog
+    from fleetbus.workers.store.beacons import BeaconRegistry
+    from fleetbus.workers.store.channels import ChannelStore
+    from fleetbus.workers.store.discards import DiscardLog
+    from fleetbus.workers.store.hazards import CoordinationStore
+    from fleetbus.workers.store.housekeeping import Housekeeping
     from fleetbus.workers.store.interface import StoredBatch
+    from fleetbus.workers.store.leases import LeaseStore
+    from fleetbus.workers.store.maps import MapStore
+    from fleetbus.workers.store.missions import MissionStore
+    from fleetbus.workers.store.rejections import RejectionLog
+    from fleetbus.workers.store.sites import SiteRegistry
+    from fleetbus.workers.store.statuses import StatusBoard
+    from fleetbus.workers.store.users import UserStore
 
 T = TypeVar("T")
 
@@ -64,8 +65,8 @@ class EventLog(EventStore, SequenceLedger):
 
         The ledger sees a number once the store holds that event: inserted now, or stored before
         under the same message id. A reused number (another message id) is not the robot's event,
-        so it is not observed. SQLite does all of it in one transaction; MongoDB makes the three
-        calls in turn, each idempotent (:func:`~fleetbus.workers.store.interface.store_in_turn`).
+        so it is not observed. One unit of work: one transaction on SQLite; on MongoDB the three
+        steps in turn, each idempotent.
         ``urgent``: someone waits on an event of the batch (a hazard): a backend may trade
         throughput for latency. Storing a batch registers no hazard on any backend: the hazard
         service does, in :meth:`~fleetbus.workers.store.hazards.CoordinationStore.hold_hazards`.
@@ -80,7 +81,8 @@ class Repositories:
     """The backend: ``sqlite`` or ``mongodb``."""
     events: EventLog
     hazards: CoordinationStore
-    """Hazards and the team (robots, their kind, localisation and service)."""
+    """Hazards, their exchange with central, and the team (robots, their kind, localisation and
+    service); a consumer takes the part it uses (``TeamStore``, ``HazardRegistry``, ``SiteHazardSync``)."""
     beacons: BeaconRegistry
     maps: MapStore
     missions: MissionStore

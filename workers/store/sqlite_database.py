@@ -238,15 +238,3 @@ class SQLiteDatabase:
             if self._inline is not None:
                 self._inline.close()
                 self._inline = None
-
-
-class OnSQLite:
-    """A repository's way to the SQLite file it shares with the other repositories of one
-    :class:`~fleetbus.workers.store.repositories.Repositories`: each call runs as
-    :meth:`SQLiteDatabase._run` runs it."""
-
-    def __init__(self, database: SQLiteDatabase) -> None:
-        self._database = database
-
-    async def _run(self, work: Callable[[sqlite3.Connection], T], *, small: bool = False) -> T:
-        return await self._database._run(work, small=small)

@@ -23,6 +23,7 @@ from typing import Any
 from fleetbus.defaults import DEFAULT_FIELD_INDEXES_MAX
 from fleetbus.workers.store.base import WriteResult, from_micros, to_micros
 from fleetbus.workers.store.recordings import (
+    Bookkeeping,
     Condition,
     Op,
     OutcomeFields,
@@ -30,13 +31,13 @@ from fleetbus.workers.store.recordings import (
     RecordedMessage,
     RecordingStore,
     RecordQuery,
-    StorageSample,
     TypeSummary,
     check_digest,
     check_path,
     check_type_name,
 )
-from fleetbus.workers.store.sqlite_database import SQLiteDatabase, in_transaction
+from fleetbus.workers.store.sqlite import SQLiteStore
+from fleetbus.workers.store.sqlite_database import in_transaction
 
 TABLE_PREFIX = "rec_"
 COLUMNS = (
@@ -57,23 +58,6 @@ COLUMNS = (
     "properties",
     "size",
 )
-META_SCHEMA = """
-CREATE TABLE IF NOT EXISTS recording_field_indexes (
-    type    TEXT    NOT NULL,
-    name    TEXT    NOT NULL,
-    paths   TEXT    NOT NULL,
-    used_at INTEGER NOT NULL DEFAULT 0,
-    PRIMARY KEY (type, name)
-);
-CREATE TABLE IF NOT EXISTS recorder_samples (
-    run_id         TEXT    NOT NULL,
-    sampled_at     INTEGER NOT NULL,
-    database_bytes INTEGER NOT NULL,
-    inserted       INTEGER NOT NULL,
-    PRIMARY KEY (run_id, sampled_at)
-);
-CREATE INDEX IF NOT EXISTS recorder_samples_time ON recorder_samples (sampled_at);
-"""
 log = logging.getLogger("fleetbus.recording")
 NUMBER_TYPES = "IN ('integer', 'real')"
 SQL_OPS = {Op.LT: "<", Op.LE: "<=", Op.GT: ">", Op.GE: ">="}
@@ -252,15 +236,15 @@ def _sqrt(value: float | None) -> float | None:
     return None if value is None else math.sqrt(max(0.0, value))
 
 
-class SQLiteRecordingStore(SQLiteDatabase, RecordingStore):
+class SQLiteRecordingStore(SQLiteStore, RecordingStore):
     name = "sqlite"
 
     def __init__(self, path: Path, max_field_indexes: int = DEFAULT_FIELD_INDEXES_MAX) -> None:
         super().__init__(path)
-        self.max_field_indexes = max_field_indexes
+        self.bookkeeping = Bookkeeping(self, max_field_indexes)
 
     def _prepare(self, db: sqlite3.Connection) -> None:
-        db.executescript(META_SCHEMA)
+        super()._prepare(db)
         # SQLite's own sqrt() is a compile-time option; this one is always there.
         db.create_function("fleetbus_sqrt", 1, _sqrt, deterministic=True)
 
@@ -339,51 +323,22 @@ class SQLiteRecordingStore(SQLiteDatabase, RecordingStore):
         name = (
             f"{TABLE_PREFIX}{check_type_name(type)}__f_{hashlib.sha1(repr(paths).encode()).hexdigest()[:12]}"
         )
-        now = to_micros(datetime.now(timezone.utc))
-
-        def ensure(db: sqlite3.Connection) -> list[str]:
-            if not self._exists(db, type):
-                db.executescript(table_schema(type))
-            used = db.execute(
-                "UPDATE recording_field_indexes SET used_at = ? WHERE type = ? AND name = ?",
-                (now, type, name),
-            )
-            if used.rowcount:
-                return []
-            # a new shape: make room by dropping the least recently used
-            held = db.execute(
-                "SELECT name, paths FROM recording_field_indexes WHERE type = ? ORDER BY used_at, name",
-                (type,),
-            ).fetchall()
-            dropped = held[: max(0, len(held) - self.max_field_indexes + 1)]
-            for old_name, _ in dropped:
-                db.execute(f'DROP INDEX IF EXISTS "{old_name}"')
-                db.execute(
-                    "DELETE FROM recording_field_indexes WHERE type = ? AND name = ?", (type, old_name)
-                )
-            db.execute(f'CREATE INDEX IF NOT EXISTS "{name}" ON {table(type)} ({columns})')
-            db.execute(
-                "INSERT INTO recording_field_indexes (type, name, paths, used_at) VALUES (?, ?, ?, ?) "
-                "ON CONFLICT (type, name) DO UPDATE SET used_at = excluded.used_at",
-                (type, name, _dumps(paths), now),
-            )
-            return [old_paths for _, old_paths in dropped]
-
-        for old_paths in await self._run(ensure):
+        now = datetime.now(timezone.utc)
+        await self._run(lambda db: None if self._exists(db, type) else db.executescript(table_schema(type)))
+        if await self.bookkeeping.used(type, name, now):
+            return
+        # a new shape: make room by dropping the least recently used
+        for old_name, old_paths in await self.bookkeeping.make_room(type):
+            await self._run(lambda db, old_name=old_name: db.execute(f'DROP INDEX IF EXISTS "{old_name}"'))
             log.info(
                 "%s: dropped the least recently used field index %s (%d kept)",
                 type,
                 old_paths,
-                self.max_field_indexes,
+                self.bookkeeping.max_field_indexes,
             )
-
-    async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
-        rows = await self._run(
-            lambda db: db.execute(
-                "SELECT paths FROM recording_field_indexes WHERE type = ? ORDER BY name", (type,)
-            ).fetchall()
-        )
-        return sorted(tuple(json.loads(row[0])) for row in rows)
+        create = f'CREATE INDEX IF NOT EXISTS "{name}" ON {table(type)} ({columns})'
+        await self._run(lambda db: db.execute(create))
+        await self.bookkeeping.made(type, name, paths, now)
 
     async def outcome_stats(
         self,
@@ -502,27 +457,3 @@ class SQLiteRecordingStore(SQLiteDatabase, RecordingStore):
     async def database_bytes(self) -> int:
         files = (self.path, self.path.with_name(self.path.name + "-wal"))
         return await self._run(lambda db: sum(path.stat().st_size for path in files if path.exists()))
-
-    async def add_sample(self, sample: StorageSample) -> None:
-        row = (sample.run_id, to_micros(sample.sampled_at), sample.database_bytes, sample.inserted)
-        await self._run(
-            lambda db: db.execute(
-                "INSERT INTO recorder_samples (run_id, sampled_at, database_bytes, inserted) "
-                "VALUES (?, ?, ?, ?) ON CONFLICT DO NOTHING",
-                row,
-            )
-        )
-
-    async def samples(self, since: datetime | None = None) -> list[StorageSample]:
-        rows = await self._run(
-            lambda db: db.execute(
-                "SELECT * FROM recorder_samples WHERE sampled_at >= ? ORDER BY sampled_at, run_id",
-                (to_micros(since) if since else 0,),
-            ).fetchall()
-        )
-        return [
-            StorageSample(
-                from_micros(row["sampled_at"]), row["run_id"], row["database_bytes"], row["inserted"]
-            )
-            for row in rows
-        ]

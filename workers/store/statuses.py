@@ -10,6 +10,8 @@ import abc
 from dataclasses import dataclass, field
 from datetime import datetime
 
+from fleetbus.workers.store.port import JSON, TEXT, TIME, Database, Schema
+
 
 @dataclass(frozen=True)
 class WorkerStatus:
@@ -31,3 +33,28 @@ class StatusBoard(abc.ABC):
     @abc.abstractmethod
     async def statuses(self) -> list[WorkerStatus]:
         """Every worker's latest status, by name."""
+
+
+STATUSES = Schema(
+    "worker_status",
+    {
+        "name": TEXT,
+        "updated_at": TIME,
+        "counters": JSON,
+        "waiting_for": TEXT.maybe,
+        "waiting_since": TIME.maybe,
+        "last_error": TEXT.maybe,
+    },
+    key=("name",),
+)
+
+
+class Statuses(StatusBoard):
+    def __init__(self, database: Database) -> None:
+        self._statuses = database.collection(STATUSES)
+
+    async def put_status(self, status: WorkerStatus) -> None:
+        await self._statuses.put(status.__dict__)
+
+    async def statuses(self) -> list[WorkerStatus]:
+        return [WorkerStatus(**doc) for doc in await self._statuses.find(order=["name"])]

@@ -12,6 +12,7 @@ from datetime import datetime
 
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.base import StoreError
+from fleetbus.workers.store.port import TEXT, TIME, Database, Doc, Index, Schema
 
 
 @dataclass(frozen=True)
@@ -64,3 +65,70 @@ class UserStore(abc.ABC):
     @abc.abstractmethod
     async def remove_user(self, name: str) -> bool:
         """Delete the user; False when there was none."""
+
+
+USERS = Schema(
+    "users",
+    {
+        "name": TEXT,
+        "role": TEXT,
+        "password_hash": TEXT.maybe,
+        "broker_secret": TEXT.maybe,
+        "kind": TEXT.maybe,
+        "created_at": TIME,
+        "created_by": TEXT,
+        "updated_at": TIME,
+    },
+    key=("name",),
+    indexes=(Index("role", "name"),),
+)
+
+
+def _user(doc: Doc) -> User:
+    return User(**{**doc, "role": UserRole(doc["role"])})
+
+
+class Users(UserStore):
+    def __init__(self, database: Database) -> None:
+        self._database = database
+        self._users = database.collection(USERS)
+
+    async def add_user(self, user: User) -> None:
+        if not (await self._users.insert([{**user.__dict__, "role": user.role.value}]))[0]:
+            raise UserExists(f"user {user.name!r} exists")
+
+    async def get_user(self, name: str) -> User | None:
+        doc = await self._users.get(name)
+        return _user(doc) if doc else None
+
+    async def users(self, role: UserRole | None = None) -> list[User]:
+        where = {} if role is None else {"role": role.value}
+        return [_user(doc) for doc in await self._users.find(where, order=["name"])]
+
+    async def update_user(
+        self,
+        name: str,
+        at: datetime,
+        *,
+        role: UserRole | None = None,
+        password_hash: str | None = None,
+        broker_secret: str | None = None,
+    ) -> User:
+        changes = {
+            "role": role.value if role else None,
+            "password_hash": password_hash,
+            "broker_secret": broker_secret,
+        }
+        given = {field: value for field, value in changes.items() if value is not None}
+
+        async def update() -> User:
+            await self._users.update({"name": name}, {**given, "updated_at": at})
+            user = await self.get_user(name)
+            if user is None:
+                raise NoSuchUser(f"no user {name!r}")
+            return user
+
+        return await self._database.transaction(update)
+
+    async def remove_user(self, name: str) -> bool:
+        return await self._users.delete({"name": name}) == 1

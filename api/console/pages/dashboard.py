@@ -31,7 +31,7 @@ from fleetbus.schemas.routing import EventType
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.store.base import EventQuery, EventRecord
-from fleetbus.workers.store.hazards import CoordinationStore, Hazard, HazardState
+from fleetbus.workers.store.hazards import Hazard, HazardRegistry, HazardState
 from fleetbus.workers.store.users import User
 
 router = APIRouter()
@@ -55,7 +55,7 @@ async def team_view(service: Service, latest: Latest) -> TeamView:
 
 
 async def newest_by_state(
-    hazards: CoordinationStore, states: list[HazardState], limit: int
+    hazards: HazardRegistry, states: list[HazardState], limit: int
 ) -> dict[HazardState, list[Hazard]]:
     """The newest ``limit`` hazards of each state: bounded however many are open."""
     return {state: await hazards.recent_hazards(limit, state=state) for state in states}
