@@ -38,7 +38,7 @@ def _session(console: Console, role: UserRole) -> Iterator[httpx.Client]:
     """A client with a session of ``role`` (minted, as the login would) and the browser's CSRF cookie."""
     with httpx.Client(base_url=console.base, timeout=30) as http:
         assert http.get("/console/login").status_code == 200
-        http.cookies.set(SESSION_COOKIE, console.service.secrets.tokens.issue(_name(role)).value)
+        http.cookies.set(SESSION_COOKIE, console.session(_name(role)))
         yield http
 
 
