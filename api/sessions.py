@@ -73,7 +73,8 @@ class Sessions:
             )
         if not session.live(now):
             raise TokenRefused("the session has expired; log in again")
-        await self._store.session_seen(session.id, now, SEEN_EVERY)
+        if now - session.last_seen >= SEEN_EVERY:  # else a read-only request writes nothing
+            await self._store.session_seen(session.id, now, SEEN_EVERY)
         return session
 
     async def of(self, user: str) -> list[Session]:
