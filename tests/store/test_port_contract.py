@@ -222,6 +222,39 @@ async def test_groups_count_and_take_the_highest(database: Database) -> None:
     assert await things.group("flag", {"number": Range(gt=9)}) == {}
 
 
+async def test_first_each_takes_each_values_first_document_in_order(database: Database) -> None:
+    things = database.collection(THINGS)
+    await things.insert(
+        [
+            thing(n, area=area, code=f"{area}{n}", at=T0 + timedelta(n), flag=n != 4)
+            for area in "ab"
+            for n in range(5)
+        ]
+    )
+    newest = await things.first_each("area", ["a", "b", "c", "a"], order=["-at"])
+    assert {area: doc["number"] for area, doc in newest.items()} == {"a": 4, "b": 4}
+    assert newest["a"] == await things.get("a", 4)
+    flagged = await things.first_each("area", ["b"], order=["-at"], where={"flag": True})
+    assert {area: doc["number"] for area, doc in flagged.items()} == {"b": 3}
+    assert await things.first_each("area", [], order=["at"]) == {}
+    log = database.collection(LOG)
+    await log.insert([{"what": what, "at": T0 + timedelta(n)} for n, what in enumerate("xyxy")])
+    first = await log.first_each("what", ["x", "y"], order=["at"])
+    assert {what: doc[SERIAL] for what, doc in first.items()} == {"x": 1, "y": 2}
+
+
+async def test_a_unit_of_work_keeps_what_it_wrote_before_letting_urgent_calls_in(database: Database) -> None:
+    things = database.collection(THINGS)
+
+    async def work() -> None:
+        await things.insert([thing(1)])
+        await database.let_urgent_calls_in()
+        await things.insert([thing(2)])
+
+    await database.transaction(work)
+    assert await things.count() == 2
+
+
 async def test_a_unit_of_work_sees_its_own_writes(database: Database) -> None:
     things = database.collection(THINGS)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 from typing import Annotated
 from urllib.parse import urlsplit
 
@@ -20,11 +21,13 @@ from fleetbus.broker.accounts import (
     save_secret,
 )
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
+from fleetbus.broker.fleet import NewRobot, RobotsExist, provision_robots
 from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
-from fleetbus.cli.registry import register_robot
+from fleetbus.cli.registry import register_robot, register_robots
+from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings
 from fleetbus.workers.store import run_with_repositories
@@ -142,6 +145,69 @@ def _say_certificate(client: ClientFiles, url: str) -> None:
             soft_wrap=True,
             highlight=False,
         )
+
+
+@app.command("add-many")
+def add_many(
+    names: Annotated[
+        Path,
+        typer.Argument(
+            help="a file of robots, one a line: NAME, or NAME KIND (explorer, warden, guide); "
+            "blank lines and lines starting with # are skipped"
+        ),
+    ],
+    urls: Annotated[
+        Path,
+        typer.Option(help="where to write each robot's AMQP URL, one `NAME URL` a line (made mode 0600)"),
+    ],
+    kind: Annotated[RobotKind | None, typer.Option(help="the kind of robots whose line names none")] = None,
+    rotate: Annotated[bool, typer.Option(help="give existing accounts new passwords")] = False,
+) -> None:
+    """Make many robots' accounts at once (one broker import per 500), each with its exchanges,
+    inbox, permissions and shard, as `users add` makes one; their URLs go to the --urls file, never
+    to the screen."""
+    ep, config = endpoint(), settings()
+    try:
+        robots = read_robots(names.read_text(), kind)
+    except (OSError, ValueError) as error:
+        fail(f"{names}: {error}")
+    if urls.exists():
+        fail(f"{urls} exists; give a new file for the URLs")
+    with admin_api(ep) as api:
+        try:
+            accounts = asyncio.run(
+                provision_robots(
+                    ep.amqp_url,
+                    api,
+                    robots,
+                    rotate=rotate,
+                    shards=config.ingest_shards,
+                    cluster=config.cluster,
+                )
+            )
+        except (RobotsExist, ValueError) as error:
+            fail(str(error))
+    register_robots(config, [(robot.name, robot.kind) for robot in robots])
+    save_secret(urls, "\n".join(f"{a.name} {as_public(a.amqp_url, ep.public_url)}" for a in accounts))
+    console.print(f"created {len(accounts):,} robots; their URLs are in {urls}", highlight=False)
+
+
+def read_robots(text: str, kind: RobotKind | None) -> list[NewRobot]:
+    """The robots of a names file; raises ValueError naming the line that does not parse."""
+    robots = []
+    for number, line in enumerate(text.splitlines(), 1):
+        words = line.split()
+        if not words or words[0].startswith("#"):
+            continue
+        if len(words) > 2:
+            raise ValueError(f"line {number}: NAME or NAME KIND, not {line.strip()!r}")
+        try:
+            robots.append(NewRobot(validate_name(words[0]), RobotKind(words[1]) if len(words) == 2 else kind))
+        except ValueError as error:
+            raise ValueError(f"line {number}: {error}") from None
+    if not robots:
+        raise ValueError("no robot named")
+    return robots
 
 
 @app.command("remove")
