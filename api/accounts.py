@@ -6,8 +6,8 @@ written first, so a name is claimed atomically; a broker failure then undoes the
 An ``inactive`` user's broker account has no permissions at all: it cannot even connect.
 Client certificates fleetbus's CA signed for a name are revoked when a user of that name is made or
 removed, as ``fleetbus users add`` and ``remove`` do: a later account of that name must not
-inherit them. A password set, and a user removed, end the user's login sessions (but the one
-that changed its own password).
+inherit them. A password set, a user disabled and a user removed end the user's login sessions
+(but the one that changed its own password).
 """
 
 from __future__ import annotations
@@ -205,6 +205,8 @@ class Accounts:
             raise BadRequest(f"{name} is a robot ({user.kind}); it can be a robot or inactive")
         await self._broker(name, role, user.kind)
         changed = await self._users.update_user(name, datetime.now(timezone.utc), role=role)
+        if role is UserRole.INACTIVE:  # else they would open again when it is given a role
+            await self._sessions.end_all(name)
         log.info("user %s: role %s -> %s, by %s", name, user.role.value, role.value, by)
         return changed
 

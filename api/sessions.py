@@ -40,7 +40,8 @@ class Origin:
     @classmethod
     def of(cls, request: Request) -> Origin:
         agent = request.headers.get("user-agent")
-        return cls(audit.client_address(request), agent[:AGENT_MOST] if agent else None)
+        address = audit.client_address(request) if request.client else None
+        return cls(address, agent[:AGENT_MOST] if agent else None)
 
 
 class Sessions:

@@ -115,6 +115,12 @@ def test_a_logout_a_password_change_an_admin_the_command_line_a_removal_and_the_
     assert nobody.exit_code == 1 and over_http.status_code == 404
     assert over_http.json()["detail"] == "no user 'nobody'" and "no user 'nobody'" in nobody.output
 
+    # disabled: its sessions end, and giving it a role back opens none of them again
+    disabled = _log_in(api, USER)
+    for role in ("inactive", "operator"):
+        assert api.put(f"/users/{USER}/role", json={"role": role}, headers=admin).status_code == 200
+    _refused_as_ended(api, disabled)
+
     # removed, then made again: the new account inherits no session of the old one
     kept = _log_in(api, USER)
     assert api.delete(f"/users/{USER}", headers=admin).status_code == 204
