@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -51,28 +52,26 @@ LOG = Schema("log", {"what": TEXT, "at": TIME}, serial=True, indexes=(Index("at"
 COUNTS = Schema("counts", {"name": TEXT, "n": INTEGER, "first": TIME, "last": TIME}, key=("name",))
 
 
+@asynccontextmanager
+async def opened(store: Database) -> AsyncIterator[Database]:
+    for schema in (THINGS, LOG, COUNTS):
+        store.collection(schema)
+    await store.open()
+    try:
+        yield store
+    finally:
+        await store.close()
+
+
 @pytest.fixture(params=["sqlite", "mongodb"])
 async def database(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Database]:
     if request.param == "sqlite":
-        store: Database = SQLiteStore(tmp_path / "port.sqlite3")
-        for schema in (THINGS, LOG, COUNTS):
-            store.collection(schema)
-        await store.open()
-        try:
+        async with opened(SQLiteStore(tmp_path / "port.sqlite3")) as store:
             yield store
-        finally:
-            await store.close()
         return
     url: str = request.getfixturevalue("mongodb_url")
-    async with fresh_database(url) as name:
-        store = MongoStore(url, name)
-        for schema in (THINGS, LOG, COUNTS):
-            store.collection(schema)
-        await store.open()
-        try:
-            yield store
-        finally:
-            await store.close()
+    async with fresh_database(url) as name, opened(MongoStore(url, name)) as store:
+        yield store
 
 
 def thing(number: int, **fields: object) -> dict[str, object]:
