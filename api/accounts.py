@@ -222,6 +222,12 @@ class Accounts:
         log.info("user %s: password set; %d other session(s) ended", name, ended)
         return changed
 
+    async def change_own_password(self, user: User, current: str, new: str, keep: str) -> User:
+        """``user`` changes its own password, given the current one; its sessions but ``keep`` end."""
+        if not await self._secrets.passwords.verify(user.password_hash, current):
+            raise BadRequest("the current password is wrong")
+        return await self.set_password(user.name, new, keep=keep)
+
     async def end_sessions(self, name: str, by: str, keep: str | None = None) -> int:
         """End every login session of ``name`` (but ``keep``); how many ended."""
         return await end_sessions_of(self._users, self._sessions.store, name, by, keep)

@@ -43,9 +43,7 @@ async def change_my_password(
     body: PasswordChange, user: Anyone, session: Current, svc: ServiceDep
 ) -> Response:
     """Change your password; your other sessions end (this one goes on)."""
-    if not await svc.secrets.passwords.verify(user.password_hash, body.current_password):
-        raise BadRequest("the current password is wrong")
-    await svc.accounts.set_password(user.name, body.new_password, keep=session.id)
+    await svc.accounts.change_own_password(user, body.current_password, body.new_password, keep=session.id)
     return Response(status_code=204)
 
 

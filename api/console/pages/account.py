@@ -18,7 +18,7 @@ from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.session import Allowed, end_session
 from fleetbus.api.console.sitemap import ACCOUNT
 from fleetbus.api.console.templating import render
-from fleetbus.api.errors import BadRequest, ServiceRefusal
+from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
 from fleetbus.workers.store.users import User
 
@@ -31,7 +31,11 @@ NOTICES = {
 
 
 async def _page(
-    request: Request, user: User, svc: Service, status_code: int = 200, problem: str | None = None,
+    request: Request,
+    user: User,
+    svc: Service,
+    status_code: int = 200,
+    problem: str | None = None,
     notice: str | None = None,
 ) -> Response:
     return render(
@@ -66,9 +70,9 @@ async def change_password(
     new_password: Annotated[str, Form()] = "",
 ) -> Response:
     try:
-        if not await svc.secrets.passwords.verify(user.password_hash, current_password):
-            raise BadRequest("the current password is wrong")
-        await svc.accounts.set_password(user.name, new_password, keep=request.state.session.id)
+        await svc.accounts.change_own_password(
+            user, current_password, new_password, keep=request.state.session.id
+        )
     except ServiceRefusal as refusal:
         return await _page(request, user, svc, refusal.status, problem=refusal.detail)
     return _done("password")
