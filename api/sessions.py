@@ -78,6 +78,11 @@ class Sessions:
             await self._store.session_seen(session.id, now, SEEN_EVERY)
         return session
 
+    async def is_open(self, session_id: str) -> bool:
+        """Whether the session is still stored and has not expired (an open stream asks)."""
+        session = await self._store.get_session(session_id)
+        return session is not None and session.live(datetime.now(timezone.utc))
+
     async def of(self, user: str) -> list[Session]:
         """``user``'s live sessions, newest first."""
         return await self._store.sessions_of(user, datetime.now(timezone.utc))

@@ -1,6 +1,7 @@
 """Console sessions end on the server, in a real browser, on the real broker and store: a copy of a
 logged-out cookie opens nothing; an administrator ending a user's sessions shuts that user's open
-console and API token out at once; a user's own account page lists their sessions and ends them."""
+console (its live page goes to the login form by itself) and API token out at once; a user's own
+account page lists their sessions and ends them."""
 
 from __future__ import annotations
 
@@ -62,7 +63,8 @@ def test_logout_ends_the_session_and_an_admin_shuts_a_users_console_and_token_ou
         browser.go(console.url("/console/"))
         _on_login_form(browser, "the login form for the logged-out cookie put back")
 
-        console.log_in(browser, "oper1")  # oper1's console open, and a token of oper1's
+        console.log_in(browser, "oper1")  # oper1's dashboard open and live, and a token of oper1's
+        console.wait_live(browser)
         token = _token(console, "oper1", "script/1")
         with console.http_as("admin1") as admin:
             admin.get("/console/login")  # the CSRF cookie
@@ -75,8 +77,8 @@ def test_logout_ends_the_session_and_an_admin_shuts_a_users_console_and_token_ou
             shown = admin.get(done.headers["location"]).text
             assert "Every session of oper1 has ended" in shown
         assert _api_status(console, token) == 401
-        browser.go(console.url("/console/"))
-        _on_login_form(browser, "oper1's console sent to the login form")
+        # the open page's live stream is told, and the page goes to the login form by itself
+        _on_login_form(browser, "oper1's open dashboard sent to the login form, with no reload by the test")
 
 
 def test_the_own_account_page_lists_and_ends_sessions_and_changes_the_password(
