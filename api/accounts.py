@@ -6,7 +6,8 @@ written first, so a name is claimed atomically; a broker failure then undoes the
 An ``inactive`` user's broker account has no permissions at all: it cannot even connect.
 Client certificates fleetbus's CA signed for a name are revoked when a user of that name is made or
 removed, as ``fleetbus users add`` and ``remove`` do: a later account of that name must not
-inherit them.
+inherit them. A password set, a user disabled and a user removed end the user's login sessions
+(but the one that changed its own password).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from urllib.parse import unquote, urlsplit
 
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
 from fleetbus.api.security import Secrets, Token, password_problem
+from fleetbus.api.sessions import Origin, Sessions, end_sessions_of
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
 from fleetbus.broker.accounts import (
     as_public,
@@ -77,6 +79,7 @@ class Accounts:
         team: TeamStore,
         channels: ChannelStore,
         secrets_: Secrets,
+        sessions: Sessions,
         management: ManagementAPI,
         admin_url: str,
         shards: int = 1,
@@ -96,6 +99,7 @@ class Accounts:
         self._shards = shards
         self._cluster = cluster
         self._secrets = secrets_
+        self._sessions = sessions
         self._management = management
         self._admin_url = admin_url
 
@@ -201,16 +205,32 @@ class Accounts:
             raise BadRequest(f"{name} is a robot ({user.kind}); it can be a robot or inactive")
         await self._broker(name, role, user.kind)
         changed = await self._users.update_user(name, datetime.now(timezone.utc), role=role)
+        if role is UserRole.INACTIVE:  # else they would open again when it is given a role
+            await self._sessions.end_all(name)
         log.info("user %s: role %s -> %s, by %s", name, user.role.value, role.value, by)
         return changed
 
-    async def set_password(self, name: str, password: str) -> User:
+    async def set_password(self, name: str, password: str, keep: str | None = None) -> User:
+        """Set ``name``'s password and end its sessions but ``keep`` (the one that changed it)."""
         if problem := password_problem(password):
             raise BadRequest(problem)
         await self.get(name)
-        return await self._users.update_user(
+        changed = await self._users.update_user(
             name, datetime.now(timezone.utc), password_hash=await self._secrets.passwords.hash(password)
         )
+        ended = await self._sessions.end_all(name, keep=keep)
+        log.info("user %s: password set; %d other session(s) ended", name, ended)
+        return changed
+
+    async def change_own_password(self, user: User, current: str, new: str, keep: str) -> User:
+        """``user`` changes its own password, given the current one; its sessions but ``keep`` end."""
+        if not await self._secrets.passwords.verify(user.password_hash, current):
+            raise BadRequest("the current password is wrong")
+        return await self.set_password(user.name, new, keep=keep)
+
+    async def end_sessions(self, name: str, by: str, keep: str | None = None) -> int:
+        """End every login session of ``name`` (but ``keep``); how many ended."""
+        return await end_sessions_of(self._users, self._sessions.store, name, by, keep)
 
     async def reset_broker_password(self, name: str, by: str) -> BrokerCredentials:
         """Give the user's broker account a new random password; the old one no longer logs in
@@ -238,6 +258,7 @@ class Accounts:
         await self._check_revocable(name)
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
         await self._users.remove_user(name)
+        await self._sessions.end_all(name)
         await self._revoke_certificates(name)
         log.info("user %s removed by %s", name, by)
         try:  # a warden removed no longer holds the hazard gate
@@ -245,7 +266,8 @@ class Accounts:
         except HazardServiceNotTold as error:
             raise Unavailable(f"user {name} removed and taken out of the team, but {error}") from error
 
-    async def login(self, name: str, password: str) -> Login:
+    async def login(self, name: str, password: str, origin: Origin) -> Login:
+        """Check the password and begin a session seen from ``origin``."""
         user = await self._users.get_user(name)
         if (
             not await self._secrets.passwords.verify(user.password_hash if user else None, password)
@@ -254,7 +276,8 @@ class Accounts:
             raise WrongCredentials("wrong user name or password")
         if user.role is UserRole.INACTIVE:
             raise Forbidden(f"user {name} is inactive: an admin must give it a role first")
-        return Login(user, self._secrets.tokens.issue(user.name), self.broker_credentials(user))
+        token = await self._sessions.begin(user.name, origin)
+        return Login(user, token, self.broker_credentials(user))
 
     def broker_credentials(self, user: User) -> BrokerCredentials:
         """What the user is handed: its broker password and URL at the broker's public address."""

@@ -4,8 +4,9 @@
     async def create(user: User = Depends(require_role(UserRole.ADMIN))): ...
 
 :func:`current_user` turns the bearer token into the stored user (401 when there is no valid
-token); :func:`require_role` then admits only the given roles (403 otherwise). Both log each
-refusal on ``fleetbus.api.security``. ``inactive`` is never admitted.
+token, or its login session has ended or expired); :func:`require_role` then admits only the
+given roles (403 otherwise). Both log each refusal on ``fleetbus.api.security``. ``inactive`` is
+never admitted.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.discards import DiscardLog
 from fleetbus.workers.store.hazards import HazardRegistry
 from fleetbus.workers.store.missions import MissionStore
+from fleetbus.workers.store.sessions import Session
 from fleetbus.workers.store.users import User, UserStore
 
 bearer = OAuth2PasswordBearer(tokenUrl="/auth/token", auto_error=False)
@@ -87,14 +89,20 @@ async def current_user(
             request, "not logged in: send 'Authorization: Bearer <token>' from POST /auth/token"
         )
     try:
-        name = svc.secrets.tokens.subject(token)
+        session = await svc.sessions.check(token)
     except TokenRefused as refused:
         raise unauthorized(request, str(refused)) from None
-    user = await users.get_user(name)
+    user = await users.get_user(session.user)
     if user is None:
-        raise unauthorized(request, f"user {name!r} no longer exists", who=name)
+        raise unauthorized(request, f"user {session.user!r} no longer exists", who=session.user)
     request.state.user = user  # for the refusal log of later checks
+    request.state.session = session  # the caller's own, for the routes on its sessions
     return user
+
+
+def current_session(request: Request) -> Session:
+    """The caller's session, once :func:`current_user` (a role check) admitted it."""
+    return request.state.session
 
 
 class RoleCheck:

@@ -10,6 +10,7 @@ from fleetbus.api.accounts import Login, WrongCredentials
 from fleetbus.api.errors import Forbidden
 from fleetbus.api.login_limits import TooManyFailures
 from fleetbus.api.service import Service
+from fleetbus.api.sessions import Origin
 
 
 async def log_in(request: Request, svc: Service, name: str, password: str) -> Login:
@@ -25,7 +26,7 @@ async def log_in(request: Request, svc: Service, name: str, password: str) -> Lo
             429, detail=error.detail, headers={"Retry-After": str(error.retry_after)}
         ) from None
     try:
-        login = await svc.accounts.login(name, password)
+        login = await svc.accounts.login(name, password, Origin.of(request))
     except WrongCredentials as error:
         svc.login_limits.failed(name, address)
         audit.refused(request, 401, name, str(error))

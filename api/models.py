@@ -20,6 +20,7 @@ from fleetbus.workers.store.channels import ChannelChange, CheckIn, Mount
 from fleetbus.workers.store.discards import Discard, DiscardCount
 from fleetbus.workers.store.hazards import Hazard
 from fleetbus.workers.store.missions import Mission, StateChange
+from fleetbus.workers.store.sessions import Session
 from fleetbus.workers.store.users import User
 from fleetbus.workers.team import TeamMember
 
@@ -70,6 +71,37 @@ class PasswordSet(_In):
 class PasswordChange(_In):
     current_password: str
     new_password: str
+
+
+class SessionOut(BaseModel):
+    id: str = Field(description="the session's id (end one with DELETE /users/me/sessions/{session_id})")
+    begun_at: datetime = Field(description="when its login was")
+    last_seen: datetime = Field(description="its latest request (kept to within 30 seconds)")
+    expires_at: datetime = Field(
+        description="when it ends by itself (FLEETBUS_API_TOKEN_MINUTES after login)"
+    )
+    address: str | None = Field(description="the client's address at login, when known")
+    agent: str | None = Field(description="the client's User-Agent at login, when it sent one")
+    current: bool = Field(description="the session of the token this request was sent with")
+
+    @classmethod
+    def of(cls, session: Session, current: Session | None = None) -> SessionOut:
+        return cls(
+            id=session.id,
+            begun_at=session.begun_at,
+            last_seen=session.last_seen,
+            expires_at=session.expires_at,
+            address=session.address,
+            agent=session.agent,
+            current=current is not None and session.id == current.id,
+        )
+
+
+class SessionsEnded(BaseModel):
+    user: str
+    ended: int = Field(
+        description="how many sessions ended (their tokens and console logins are refused now)"
+    )
 
 
 class BrokerOut(BaseModel):

@@ -32,7 +32,8 @@ from fleetbus.schemas.roles import UserRole
 #: What each refusal means, as the document says it.
 MEANINGS = {
     400: "The body cannot be read: not JSON (or not a form), or not in its encoding",
-    401: "Not logged in, or the token has expired, was tampered with or is not ours",
+    401: "Not logged in, or the token has expired, was tampered with, is not ours, or its session has "
+    "ended (a logout, a password change, an admin)",
     403: "The caller's role may not do this (an inactive account may do nothing)",
     404: "Not found: the detail says what",
     409: "What is there now does not allow it (the detail says what is)",

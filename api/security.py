@@ -2,9 +2,10 @@
 
 - Passwords: argon2id (argon2-cffi), salted; only the hash is stored. Hashing and checking run
   on threads of their own, a bounded number at once, never on the event loop.
-- Tokens: JWT (PyJWT, HS256) with ``sub``, ``iat`` and ``exp``; an expired, tampered or foreign
-  token is refused. The caller's role is read from the store on every request, never trusted
-  from the token, so a role change or removal takes effect at once.
+- Tokens: JWT (PyJWT, HS256) with ``sub``, ``iat``, ``exp`` and ``sid``, the login session it
+  belongs to; an expired, tampered or foreign token is refused, and so is one whose session has
+  ended (:mod:`fleetbus.api.sessions`). The caller's role is read from the store on every request,
+  never trusted from the token, so a role change or removal takes effect at once.
 - Broker passwords: the login reply must hand them back, so they are stored encrypted (Fernet:
   AES-128-CBC with HMAC-SHA256) under a key derived from the service's master secret.
 """
@@ -95,6 +96,8 @@ class Token:
     value: str
     subject: str
     expires_at: datetime
+    session: str | None = None
+    """The login session the token belongs to (``sid``)."""
 
 
 class Tokens:
@@ -102,7 +105,15 @@ class Tokens:
         self._key = key
         self.lifetime = lifetime
 
-    def issue(self, subject: str, now: datetime | None = None, lifetime: timedelta | None = None) -> Token:
+    def issue(
+        self,
+        subject: str,
+        now: datetime | None = None,
+        lifetime: timedelta | None = None,
+        session: str | None = None,
+    ) -> Token:
+        """A signed token; it admits nobody until a session ``session`` of ``subject`` is stored
+        (:meth:`fleetbus.api.sessions.Sessions.begin` does both)."""
         issued = now or datetime.now(timezone.utc)
         expires = issued + (lifetime if lifetime is not None else self.lifetime)
         claims = {
@@ -112,10 +123,14 @@ class Tokens:
             "exp": int(expires.timestamp()),
             "jti": secrets.token_hex(8),
         }
-        return Token(jwt.encode(claims, self._key, algorithm=TOKEN_ALGORITHM), subject, expires)
+        if session is not None:
+            claims["sid"] = session
+        value = jwt.encode(claims, self._key, algorithm=TOKEN_ALGORITHM)
+        return Token(value, subject, expires, session)
 
-    def subject(self, value: str) -> str:
-        """The user a token was issued to; raise :class:`TokenRefused` saying why not."""
+    def read(self, value: str) -> Token:
+        """The token's subject, expiry and session, when it is ours and has not expired; raise
+        :class:`TokenRefused` saying why not."""
         try:
             claims = jwt.decode(
                 value,
@@ -130,7 +145,9 @@ class Tokens:
             raise TokenRefused("the token's signature is not valid (tampered with, or not ours)") from None
         except jwt.InvalidTokenError as error:
             raise TokenRefused(f"the token is not valid: {error}") from None
-        return str(claims["sub"])
+        session = claims.get("sid")
+        expires = datetime.fromtimestamp(claims["exp"], timezone.utc)
+        return Token(value, str(claims["sub"]), expires, session if isinstance(session, str) else None)
 
 
 class SecretBox:

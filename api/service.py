@@ -15,6 +15,7 @@ from fleetbus.api.login_limits import LoginLimits
 from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
+from fleetbus.api.sessions import Sessions
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.certificates import TlsFiles
@@ -33,6 +34,8 @@ class Service:
     repositories: Repositories
     """The repositories the routes read directly (users, channels, missions, events, discards)."""
     secrets: Secrets
+    sessions: Sessions
+    """Login sessions: begun at login, checked on every request, ended server-side."""
     accounts: Accounts
     missions: Missions
     channels: Channels
@@ -71,17 +74,20 @@ async def open_service(
     management = ManagementAPI.from_urls(management_url, admin_url)
     to_sites = MissionsToSites(lambda mission: send_mission_to_sites(repositories.sites, admin_url, mission))
     to_sites.start()
+    sessions = Sessions(repositories.sessions, secrets_.tokens, settings.api_sessions_per_user)
     try:
         missions = Missions(repositories.missions, repositories.channels, to_sites.changed)
         yield Service(
             settings=settings,
             repositories=repositories,
             secrets=secrets_,
+            sessions=sessions,
             accounts=Accounts(
                 repositories.users,
                 repositories.hazards,
                 repositories.channels,
                 secrets_,
+                sessions,
                 management,
                 admin_url,
                 settings.ingest_shards,

@@ -63,7 +63,10 @@ def main() -> None:
         tempfile.TemporaryDirectory() as tmp,
     ):
         admin_url = fresh_vhost(api, endpoint.amqp_url, BENCH_VHOST)
-        settings = load_settings().updated(data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None)
+        # one user logs in again and again while its first token is used: no bound ends that session
+        settings = load_settings().updated(
+            data_dir=Path(tmp), amqp_url=admin_url, mongodb_url=None, api_sessions_per_user=1_000_000
+        )
         app = create_app(settings, admin_url, endpoint.management_url)
         try:
             with TestClient(app) as client:

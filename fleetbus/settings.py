@@ -319,7 +319,14 @@ class Settings(BaseSettings):
         "replica needs the same",
         shown="random, in `$FLEETBUS_DATA_DIR/api/secret` (0600)",
     )
-    api_token_minutes: float = setting(60.0, "how long a login token is valid")
+    api_token_minutes: float = setting(
+        60.0,
+        "how long a login session (a console login, an API token) lasts from its login; ending it "
+        "earlier (logout, an admin, a password change) refuses its token at once",
+    )
+    api_sessions_per_user: Annotated[int, Positive] = setting(
+        10, "login sessions one user may hold at once; a login beyond them ends the user's oldest"
+    )
     api_hash_threads: Annotated[int, Positive] = setting(
         1, "password hashes the API computes at once, on threads of their own (never on its event loop)"
     )

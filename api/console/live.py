@@ -10,6 +10,10 @@ or, for a fragment with ``data-into``, adds it to that list. So a fragment sent 
 A fragment of the state (the snapshot's) that did not change since this page was last sent it is
 not sent again; an event's fragments are sent as they come (remembering each would grow with
 every event an open page is shown).
+
+An open stream outlives no session: once a second at most it asks whether the session that opened
+it is still open, and when it has ended (a logout elsewhere, an administrator) it tells the page
+to reload, which then lands on the login form.
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ MISSED_LIMIT = 10_000
 """At most this many missed events are replayed to a reconnecting page; one that missed more is
 told to reload (a replay of the oldest would show them as the newest, and leave a gap after)."""
 _ID = re.compile(r'\bid="([^"]+)"')
+SESSION_CHECK_S = 1.0
+"""How often at most an open stream checks that its session is still open."""
 
 
 class LiveView(Protocol):
@@ -81,13 +87,26 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
                 return
             first += await view.events(missed)
         yield ServerSentEvent(data=json.dumps(first), event=FRAGMENT_EVENT, id=cursor)
+        checked = asyncio.get_running_loop().time()
         while True:
             batch: Batch | None = await subscription.queue.get()
             if batch is None:  # dropped for falling behind: the browser reconnects and catches up
                 return
+            if asyncio.get_running_loop().time() - checked >= SESSION_CHECK_S:
+                checked = asyncio.get_running_loop().time()
+                if not await _session_open(request):
+                    yield ServerSentEvent(data="the session has ended", event=RELOAD_EVENT)
+                    return
             news = [*await events_of(view, batch), *changed(await view.snapshot())]
             if news:
                 yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
+
+
+async def _session_open(request: Request) -> bool:
+    """Whether the session the stream was opened with (the console's check put it on the
+    request) is still open."""
+    session = getattr(request.state, "session", None)
+    return session is None or await request.app.state.service.sessions.is_open(session.id)
 
 
 async def events_of(view: LiveView, batch: Batch) -> list[str]:

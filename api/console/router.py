@@ -84,9 +84,9 @@ async def login(
 
 
 @router.post("/console/logout")
-async def logout() -> RedirectResponse:
+async def logout(request: Request, svc: ServiceDep) -> RedirectResponse:
     response = RedirectResponse("/console/login", status_code=303)
-    end_session(response)
+    await end_session(request, svc, response)
     return response
 
 

@@ -2,7 +2,9 @@
 
 - The session is the API's own login token in a cookie: HttpOnly (no script reads it),
   SameSite=Strict (no other site's page sends it), Secure when the console is served over HTTPS,
-  expiring with the token. The role is read from the store on every request, as for the API.
+  expiring with the token. The token names a login session in the store, checked on every
+  request (:mod:`fleetbus.api.sessions`): logging out ends it there, so a copy of the cookie
+  opens nothing afterwards. The role is read from the store on every request, as for the API.
 - CSRF: a random value in a second cookie (HttpOnly, SameSite=Strict), which every form of the
   console carries back as a hidden field and every htmx request as the ``X-CSRF-Token`` header.
   A POST whose value does not match is refused with 403 before anything runs.
@@ -21,6 +23,7 @@ from fleetbus.api import audit
 from fleetbus.api.auth import ServiceDep, UsersDep
 from fleetbus.api.console.sitemap import Page
 from fleetbus.api.security import Token, TokenRefused
+from fleetbus.api.service import Service
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.users import User
 
@@ -65,7 +68,11 @@ def start_session(request: Request, response: Response, token: Token) -> None:
     )
 
 
-def end_session(response: Response) -> None:
+async def end_session(request: Request, svc: Service, response: Response) -> None:
+    """End the browser's session in the store (its cookie refused from now on) and drop the cookie."""
+    token = request.cookies.get(SESSION_COOKIE)
+    if token:
+        await svc.sessions.end_token(token)
     response.delete_cookie(SESSION_COOKIE, path="/")
 
 
@@ -107,13 +114,14 @@ async def console_user(request: Request, svc: ServiceDep, users: UsersDep) -> Us
     if not token:
         raise LoginRequired("please log in")
     try:
-        name = svc.secrets.tokens.subject(token)
+        session = await svc.sessions.check(token)
     except TokenRefused as refused:
         raise LoginRequired(str(refused)) from None
-    user = await users.get_user(name)
+    user = await users.get_user(session.user)
     if user is None:
-        raise LoginRequired(f"user {name!r} no longer exists")
+        raise LoginRequired(f"user {session.user!r} no longer exists")
     request.state.user = user
+    request.state.session = session
     return user
 
 

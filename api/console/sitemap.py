@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fleetbus.schemas.roles import EVALUATORS, WATCHERS
+from fleetbus.schemas.roles import ACTIVE_ROLES, EVALUATORS, WATCHERS
 from fleetbus.schemas.roles import UserRole as R
 
 
@@ -33,6 +33,9 @@ MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
 DEAD_LETTERS = Page("dead-letters", "Dead letters", "/console/dead-letters", WATCHERS)
 EVALUATION = Page("evaluation", "Evaluation", "/console/evaluation", EVALUATORS)
 ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS)
+
+#: Everyone's own account (not in the navigation: the user's name in the header links to it).
+ACCOUNT = Page("account", "My account", "/console/account", ACTIVE_ROLES - {R.ROBOT})
 
 #: Every page, in the navigation's order.
 PAGES: tuple[Page, ...] = (DASHBOARD, MAP, HAZARDS, MISSIONS, MESSAGES, DEAD_LETTERS, EVALUATION, ACCOUNTS)

@@ -1,10 +1,11 @@
-"""Log in: a password for a token that expires, and the caller's broker credentials."""
+"""Log in: a password for a token that expires, and the caller's broker credentials; log out:
+revoke a token (RFC 7009), which ends its session on the server."""
 
 from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Form, Request, Response
 from fastapi.security import OAuth2PasswordRequestForm
 
 from fleetbus.api import audit
@@ -38,3 +39,14 @@ async def login(
         broker=None if withheld else BrokerOut.of(login.broker),
         broker_withheld=withheld,
     )
+
+
+@router.post("/revoke", status_code=200, response_class=Response, responses={200: {"description": "Done"}})
+async def revoke_token(
+    token: Annotated[str, Form(description="the token to revoke")], svc: ServiceDep
+) -> Response:
+    """Log out (OAuth 2.0 token revocation, RFC 7009): end the session of the token sent in the form,
+    on the server, so that it is refused from now on wherever it is held. Answered 200 with no body
+    whether or not the token was valid (an expired, foreign or revoked one ends nothing)."""
+    await svc.sessions.end_token(token)
+    return Response(status_code=200)

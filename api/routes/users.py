@@ -1,4 +1,7 @@
-"""Users and roles: admins manage everyone; supervisors see the robots; everyone sees themself."""
+"""Users and roles: admins manage everyone; supervisors see the robots; everyone sees themself.
+
+Login sessions: everyone lists and ends their own (``/users/me/sessions``); an admin lists and
+ends anyone's (``/users/{name}/sessions``). An ended session's token is refused at its next request."""
 
 from __future__ import annotations
 
@@ -6,11 +9,20 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Response
 
-from fleetbus.api.auth import ServiceDep, UsersDep, require_role
+from fleetbus.api.auth import ServiceDep, UsersDep, current_session, require_role
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
-from fleetbus.api.models import PasswordChange, PasswordSet, RoleChange, UserCreate, UserOut
+from fleetbus.api.models import (
+    PasswordChange,
+    PasswordSet,
+    RoleChange,
+    SessionOut,
+    SessionsEnded,
+    UserCreate,
+    UserOut,
+)
 from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
+from fleetbus.workers.store.sessions import Session
 from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["users"])
@@ -18,6 +30,7 @@ R = UserRole
 Anyone = Annotated[User, Depends(require_role(*ACTIVE_ROLES))]
 Admin = Annotated[User, Depends(require_role(R.ADMIN))]
 AdminOrSupervisor = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR))]
+Current = Annotated[Session, Depends(current_session)]
 
 
 @router.get("/users/me", response_model=UserOut)
@@ -26,10 +39,25 @@ async def me(user: Anyone) -> UserOut:
 
 
 @router.put("/users/me/password", status_code=204, responses=refusals(NotFound))
-async def change_my_password(body: PasswordChange, user: Anyone, svc: ServiceDep) -> Response:
-    if not await svc.secrets.passwords.verify(user.password_hash, body.current_password):
-        raise BadRequest("the current password is wrong")
-    await svc.accounts.set_password(user.name, body.new_password)
+async def change_my_password(
+    body: PasswordChange, user: Anyone, session: Current, svc: ServiceDep
+) -> Response:
+    """Change your password; your other sessions end (this one goes on)."""
+    await svc.accounts.change_own_password(user, body.current_password, body.new_password, keep=session.id)
+    return Response(status_code=204)
+
+
+@router.get("/users/me/sessions", response_model=list[SessionOut])
+async def my_sessions(user: Anyone, session: Current, svc: ServiceDep) -> list[SessionOut]:
+    """Your login sessions (console logins and API tokens), newest first; ``current`` is this one."""
+    return [SessionOut.of(s, session) for s in await svc.sessions.of(user.name)]
+
+
+@router.delete("/users/me/sessions/{session_id}", status_code=204)
+async def end_my_session(session_id: str, user: Anyone, svc: ServiceDep) -> Response:
+    """End one of your sessions (this one too: that is a logout); its token is refused from now on."""
+    if not await svc.sessions.end(user.name, session_id):
+        raise NotFound(f"you have no session {session_id!r} (it may have ended already)")
     return Response(status_code=204)
 
 
@@ -64,9 +92,28 @@ async def set_role(name: str, body: RoleChange, admin: Admin, svc: ServiceDep) -
 
 
 @router.put("/users/{name}/password", status_code=204)
-async def reset_password(name: str, body: PasswordSet, admin: Admin, svc: ServiceDep) -> Response:
-    await svc.accounts.set_password(name, body.password)
+async def reset_password(
+    name: str, body: PasswordSet, admin: Admin, session: Current, svc: ServiceDep
+) -> Response:
+    """Set the user's password; every session of the user ends (the admin's own goes on)."""
+    await svc.accounts.set_password(name, body.password, keep=session.id if name == admin.name else None)
     return Response(status_code=204)
+
+
+@router.get("/users/{name}/sessions", response_model=list[SessionOut])
+async def user_sessions(name: str, admin: Admin, session: Current, svc: ServiceDep) -> list[SessionOut]:
+    """The user's login sessions, newest first."""
+    await svc.accounts.get(name)
+    return [SessionOut.of(s, session) for s in await svc.sessions.of(name)]
+
+
+@router.delete("/users/{name}/sessions", response_model=SessionsEnded)
+async def end_user_sessions(name: str, admin: Admin, session: Current, svc: ServiceDep) -> SessionsEnded:
+    """End every session of the user (an admin ending its own keeps the one it sends this with):
+    its console logins and API tokens are refused from the next request on. As `fleetbus api
+    end-sessions NAME`."""
+    keep = session.id if name == admin.name else None
+    return SessionsEnded(user=name, ended=await svc.accounts.end_sessions(name, admin.name, keep=keep))
 
 
 @router.delete("/users/{name}", status_code=204, responses=refusals(BadRequest, Conflict))

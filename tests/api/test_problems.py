@@ -63,6 +63,7 @@ def test_the_services_own_refusals_are_problems_without_field_errors(api: Api) -
 
 def test_a_locked_store_is_a_503_problem_and_changes_nothing(api: Api) -> None:
     before = api.run(lambda: api.service.repositories.users.get_user("admin1"))
+    api.token("admin1")  # logged in before the lock (a login writes its session)
     locker = sqlite3.connect(api.bus.settings.sqlite_path, isolation_level=None)
     locker.execute("BEGIN EXCLUSIVE")
     try:

@@ -194,6 +194,22 @@ def hazard_claim(api: Api, role: UserRole) -> Call:
     )
 
 
+def own_session(api: Api, role: UserRole) -> Call:
+    """Another session of the caller's own, to end."""
+    token = api.session(USERS[role])
+    sid = api.service.secrets.tokens.read(token).session
+    alive = lambda: api.run(lambda: api.service.repositories.sessions.get_session(sid)) is not None  # noqa: E731
+    return Call("DELETE", f"/users/me/sessions/{sid}", unchanged=alive)
+
+
+def users_sessions(api: Api, role: UserRole) -> Call:
+    """A throwaway user with a session, whose sessions are to end."""
+    name = throwaway(api, role)
+    sid = api.service.secrets.tokens.read(api.session(name)).session
+    alive = lambda: api.run(lambda: api.service.repositories.sessions.get_session(sid)) is not None  # noqa: E731
+    return Call("DELETE", f"/users/{name}/sessions", unchanged=alive)
+
+
 READERS = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 ANALYSTS = frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR})
 CASES = [
@@ -205,6 +221,8 @@ CASES = [
         204,
         fixed("PUT", "/users/me/password", {"current_password": PASSWORD, "new_password": PASSWORD}),
     ),
+    Case("GET", "/users/me/sessions", ACTIVE_ROLES, 200, fixed("GET", "/users/me/sessions")),
+    Case("DELETE", "/users/me/sessions/{session_id}", ACTIVE_ROLES, 204, own_session),
     Case("GET", "/users", frozenset({R.ADMIN, R.SUPERVISOR}), 200, fixed("GET", "/users")),
     Case(
         "POST",
@@ -234,6 +252,8 @@ CASES = [
         user_change("PUT", "/password", {"password": "another long one"}),
     ),
     Case("DELETE", "/users/{name}", frozenset({R.ADMIN}), 204, user_change("DELETE", "", None)),
+    Case("GET", "/users/{name}/sessions", frozenset({R.ADMIN}), 200, fixed("GET", "/users/robot1/sessions")),
+    Case("DELETE", "/users/{name}/sessions", frozenset({R.ADMIN}), 200, users_sessions),
     Case("GET", "/use-cases", ACTIVE_ROLES, 200, fixed("GET", "/use-cases")),
     Case(
         "POST",
@@ -392,4 +412,9 @@ def test_the_table_covers_every_endpoint_and_matches_the_openapi_document(api: A
     public = {
         (m.upper(), p) for p, ops in document["paths"].items() for m, op in ops.items() if "x-roles" not in op
     }
-    assert public == {("POST", "/auth/token"), ("GET", "/health"), ("GET", "/ca.pem")}
+    assert public == {
+        ("POST", "/auth/token"),
+        ("POST", "/auth/revoke"),
+        ("GET", "/health"),
+        ("GET", "/ca.pem"),
+    }

@@ -150,7 +150,7 @@ def test_the_consoles_broker_password_reset_is_refused_over_plain_http_before_th
         api.user("alice", UserRole.OPERATOR)
         before = _broker_password(api, "alice")
         api.client.get("/console/login")  # the CSRF cookie
-        api.client.cookies.set(SESSION_COOKIE, api.service.secrets.tokens.issue("admin1").value)
+        api.client.cookies.set(SESSION_COOKIE, api.session("admin1"))
         reply = api.client.post(
             "/console/accounts/alice/broker-password", headers={CSRF_HEADER: api.client.cookies[CSRF_COOKIE]}
         )

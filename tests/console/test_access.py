@@ -13,7 +13,7 @@ import pika
 import pytest
 
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD, SESSION_COOKIE
-from fleetbus.api.console.sitemap import PAGES
+from fleetbus.api.console.sitemap import ACCOUNT, PAGES
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, RobotKind
@@ -38,7 +38,7 @@ def _session(console: Console, role: UserRole) -> Iterator[httpx.Client]:
     """A client with a session of ``role`` (minted, as the login would) and the browser's CSRF cookie."""
     with httpx.Client(base_url=console.base, timeout=30) as http:
         assert http.get("/console/login").status_code == 200
-        http.cookies.set(SESSION_COOKIE, console.service.secrets.tokens.issue(_name(role)).value)
+        http.cookies.set(SESSION_COOKIE, console.session(_name(role)))
         yield http
 
 
@@ -55,7 +55,7 @@ def test_each_page_answers_each_role_as_the_sitemap_says_and_links_exactly_its_p
     for role in UserRole:
         admitted = [page.path for page in PAGES if role in page.roles]
         with _session(console, role) as http:
-            for page in PAGES:
+            for page in (*PAGES, ACCOUNT):  # the own account page is linked from the name, not the nav
                 answer = http.get(page.path)
                 expected = 200 if role in page.roles else 403
                 if answer.status_code != expected:
@@ -81,11 +81,14 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
     letter = _dead_letter(console.bus)
     users = console.service.repositories.users
     before = console.run(lambda: users.get_user("target1"))
+    console.session("target1")
+    sessions = console.service.sessions
     actions = {
         "create a user": ("/console/accounts", {"name": "made1", "role": "admin", "password": PASSWORD}),
         "change a role": ("/console/accounts/target1/role", {"role": "inactive"}),
         "disable a user": ("/console/accounts/target1/disable", {}),
         "reset a broker password": ("/console/accounts/target1/broker-password", {}),
+        "end a user's sessions": ("/console/accounts/target1/sessions/end", {}),
         "requeue a dead letter": (f"/console/dead-letters/{letter}/requeue", {}),
         "discard a dead letter": (f"/console/dead-letters/{letter}/discard", {}),
     }
@@ -100,6 +103,7 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
             assert shown.status_code == 403
     assert console.run(lambda: users.get_user("made1")) is None
     assert console.run(lambda: users.get_user("target1")) == before, "role and broker password unchanged"
+    assert len(console.run(lambda: sessions.of("target1"))) == 1, "its session goes on"
     assert console.bus.ready_messages(DEAD_LETTER_QUEUE) == 1
 
     # the same requests from an administrator do what they say (so the 403s above were the role's)
@@ -111,6 +115,7 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
         "change a role": 303,
         "disable a user": 303,
         "reset a broker password": 303,
+        "end a user's sessions": 303,
         "requeue a dead letter": 502,  # this letter names no sender to publish it as
         "discard a dead letter": 303,
     }
@@ -120,4 +125,5 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
     after = console.run(lambda: users.get_user("target1"))
     assert after is not None and before is not None
     assert after.role is UserRole.INACTIVE and after.broker_secret != before.broker_secret
+    assert console.run(lambda: sessions.of("target1")) == []
     assert console.bus.ready_messages(DEAD_LETTER_QUEUE) == 0

@@ -117,7 +117,7 @@ def test_the_page_with_the_new_password_is_never_stored_by_a_cache(bus: Bus) -> 
         console.user("admin1", UserRole.ADMIN)
         console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
         http.get("/console/login")
-        http.cookies.set(SESSION_COOKIE, console.service.secrets.tokens.issue("admin1").value)
+        http.cookies.set(SESSION_COOKIE, console.session("admin1"))
         csrf = {CSRF_FIELD: http.cookies[CSRF_COOKIE]}
         reset = http.post("/console/accounts/explorer1/broker-password", data=csrf)
         assert reset.status_code == 303 and reset.headers["cache-control"] == "no-store"

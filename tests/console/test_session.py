@@ -85,7 +85,7 @@ def test_a_role_without_the_page_gets_403_and_no_link_to_it(console: Console) ->
     console.user("robot1", UserRole.ROBOT)
     with client(console) as http:
         # a planner's session (minted: the pages a planner may open come with them), not the dashboard's
-        http.cookies.set(SESSION_COOKIE, console.service.secrets.tokens.issue("plan1").value)
+        http.cookies.set(SESSION_COOKIE, console.session("plan1"))
         refused = http.get("/console/")
         assert refused.status_code == 403 and "may not use the dashboard page" in refused.text
         nav = refused.text.split("<nav>")[1].split("</nav>")[0]

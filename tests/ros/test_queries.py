@@ -128,7 +128,7 @@ def test_ros_messages_are_found_by_topic_field_and_time_and_transforms_by_frames
 def assert_same_over_http(
     console: Console, odom: list[RecordedMessage], live_tf: list[RecordedMessage]
 ) -> None:
-    token = console.service.secrets.tokens.issue("rosq-super").value
+    token = console.session("rosq-super")
     bearer = {"Authorization": f"Bearer {token}"}
     with httpx.Client(base_url=console.base, headers=bearer, timeout=30) as api:
         reply = api.get(

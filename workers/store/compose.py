@@ -15,6 +15,7 @@ from fleetbus.workers.store.missions import Missions
 from fleetbus.workers.store.port import Database
 from fleetbus.workers.store.rejections import Rejections
 from fleetbus.workers.store.repositories import Repositories
+from fleetbus.workers.store.sessions import Sessions
 from fleetbus.workers.store.sites import Sites
 from fleetbus.workers.store.statuses import Statuses
 from fleetbus.workers.store.users import Users
@@ -32,6 +33,7 @@ def repositories_on(database: Database) -> Repositories:
         missions=Missions(database),
         channels=channels,
         users=Users(database),
+        sessions=Sessions(database),
         discards=Discards(database),
         rejections=Rejections(database),
         attempts=Attempts(database),

@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from fleetbus.workers.store.maps import MapStore
     from fleetbus.workers.store.missions import MissionStore
     from fleetbus.workers.store.rejections import RejectionLog
+    from fleetbus.workers.store.sessions import SessionStore
     from fleetbus.workers.store.sites import SiteRegistry
     from fleetbus.workers.store.statuses import StatusBoard
     from fleetbus.workers.store.users import UserStore
@@ -89,6 +90,8 @@ class Repositories:
     channels: ChannelStore
     """Who is mounted on and checked in to which mission."""
     users: UserStore
+    sessions: SessionStore
+    """The users' login sessions (the console's and the API's tokens)."""
     discards: DiscardLog
     rejections: RejectionLog
     attempts: AttemptLog

@@ -5,6 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from fleetbus.api.console.pages import (
+    account,
     accounts,
     dashboard,
     dead_letters,
@@ -16,5 +17,5 @@ from fleetbus.api.console.pages import (
 )
 
 router = APIRouter()
-for page in (dashboard, live_map, hazards, missions, messages, dead_letters, evaluation, accounts):
+for page in (dashboard, live_map, hazards, missions, messages, dead_letters, evaluation, accounts, account):
     router.include_router(page.router)

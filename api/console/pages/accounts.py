@@ -1,6 +1,6 @@
 """Accounts (administrators only): every user and robot with its role; create one, change its role,
 disable it (the ``inactive`` role, as ``PUT /users/{name}/role`` does), give its broker account a
-new password, shown once.
+new password, shown once, end all its login sessions (as ``DELETE /users/{name}/sessions``).
 
 Every rule is the accounts service's (``svc.accounts``, which ``/users`` calls too): the page passes
 what the form says and shows the service's refusal as it is.
@@ -38,6 +38,7 @@ Viewer = Annotated[User, Depends(Allowed.page(ACCOUNTS))]
 Creator = Annotated[User, Depends(Allowed(ADMINS, "create users"))]
 RoleSetter = Annotated[User, Depends(Allowed(ADMINS, "change roles or disable users"))]
 Rekeyer = Annotated[User, Depends(Allowed(ADMINS, "reset broker passwords"))]
+SessionEnder = Annotated[User, Depends(Allowed(ADMINS, "end users' sessions"))]
 
 SHOWN_ONCE_COOKIE = "fleetbus_shown_once"
 SHOWN_ONCE_S = 120
@@ -46,6 +47,7 @@ NOTICES = {
     "created": "User {name} created.",
     "role": "{name} has a new role.",
     "disabled": "{name} is disabled (role inactive): it can neither log in nor reach the broker.",
+    "sessions": "Every session of {name} has ended: its console logins and API tokens are refused.",
 }
 
 
@@ -141,6 +143,16 @@ async def set_role(
 @router.post("/console/accounts/{name}/disable", response_class=HTMLResponse)
 async def disable(request: Request, name: str, admin: RoleSetter, svc: ServiceDep) -> Response:
     return await _set_role(request, admin, svc, name, UserRole.INACTIVE.value, "disabled")
+
+
+@router.post("/console/accounts/{name}/sessions/end", response_class=HTMLResponse)
+async def end_sessions(request: Request, name: str, admin: SessionEnder, svc: ServiceDep) -> Response:
+    keep = request.state.session.id if name == admin.name else None  # an admin's own stays open
+    try:
+        await svc.accounts.end_sessions(name, admin.name, keep=keep)
+    except ServiceRefusal as refusal:
+        return await _page(request, admin, svc, refusal.status, problem=refusal.detail)
+    return _done("sessions", name)
 
 
 @router.post("/console/accounts/{name}/broker-password", response_class=HTMLResponse)

@@ -62,7 +62,8 @@
       main.dataset.lastEventId = lastId;
     });
     source.addEventListener("reload", function () {
-      // it missed more than the server replays: the page as rendered now shows the newest
+      // it missed more than the server replays: the page as rendered now shows the newest;
+      // or its session ended: loaded again, it goes to the login form
       source.close();
       window.location.reload();
     });

@@ -4,6 +4,7 @@ fleetbus api [--host 127.0.0.1] [--port 8000]   # serve (uvicorn) until Ctrl-C
 fleetbus api create-admin NAME                  # the first admin, password typed twice
 fleetbus api openapi openapi.json
 fleetbus api login NAME [--api http://127.0.0.1:8000]   # keeps the broker URL for `tail`
+fleetbus api end-sessions NAME                  # every login session of NAME ends
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Annotated, Any
 import typer
 
 from fleetbus.broker.accounts import save_secret
-from fleetbus.cli.context import console, endpoint, fail, settings
+from fleetbus.cli.context import actor, console, endpoint, fail, settings
 from fleetbus.private_files import owner_only_umask
 from fleetbus.schemas.roles import UserRole
 
@@ -159,3 +160,26 @@ def login(
     else:
         console.print(f"[yellow]no broker URL[/]: {reply.get('broker_withheld')}", soft_wrap=True)
     console.print(f"token: {reply['access_token']}", soft_wrap=True, highlight=False)
+
+
+@app.command("end-sessions")
+def end_sessions(
+    name: str,
+    by: Annotated[
+        str | None, typer.Option(help="who ends them, for the record (default: your login)")
+    ] = None,
+) -> None:
+    """End every login session of NAME in this server's store, as DELETE /users/NAME/sessions
+    does: its console logins and API tokens are refused from their next request on."""
+    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.api.sessions import end_sessions_of
+    from fleetbus.workers.store import run_with_repositories
+
+    who = actor(by)
+    try:
+        ended = run_with_repositories(
+            settings(), lambda repos: end_sessions_of(repos.users, repos.sessions, name, who)
+        )
+    except ServiceRefusal as refusal:
+        fail(refusal.detail)
+    console.print(f"ended {ended} session(s) of {name}")
