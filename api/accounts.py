@@ -36,7 +36,10 @@ from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.settings import Settings
+from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.store.users import User, UserExists, UserStore
 from fleetbus.workers.team import leave_team
@@ -64,6 +67,15 @@ class BrokerCredentials:
 
 
 @dataclass(frozen=True)
+class Provisioned:
+    user: User
+    internal_url: str
+    """Its broker URL as this service reaches the broker (no password for a certificate's login)."""
+    public_url: str
+    """The same login at the broker's public address: what the user or robot is handed, once."""
+
+
+@dataclass(frozen=True)
 class Login:
     user: User
     token: Token
@@ -84,6 +96,7 @@ class Accounts:
         *,
         cluster: bool = False,
         certificates: TlsFiles | None = None,
+        sites: SiteRegistry | None = None,
     ) -> None:
         """``public_url``: the broker as users and robots reach it (no credentials), for the URLs
         handed out; None: ``admin_url``'s broker. ``certificates``: fleetbus's CA, whose
@@ -99,12 +112,23 @@ class Accounts:
         self._management = management
         self._admin_url = admin_url
 
-    async def _broker(self, name: str, role: UserRole, kind: str | None, password: str | None = None) -> None:
-        """Bring the broker account in line with the role (and set its password when given)."""
+    async def _broker(
+        self,
+        name: str,
+        role: UserRole,
+        kind: str | None,
+        password: str | None = None,
+        *,
+        certificate: bool = False,
+    ) -> None:
+        """Bring the broker account in line with the role (and set its password when given;
+        ``certificate``: make it log in without one)."""
 
         def apply() -> None:
             if password is not None:
                 self._management.put_user(name, password, ROLE_TAGS[broker_role(role)])
+            elif certificate:
+                self._management.put_user_without_password(name, ROLE_TAGS[broker_role(role)])
             if role is UserRole.INACTIVE:
                 revoke_account(self._admin_url, self._management, name)
             else:
@@ -142,49 +166,92 @@ class Accounts:
         if revoked:
             log.warning("%s", revoked_summary(name, revoked))
 
-    async def create(
-        self, name: str, password: str | None, role: UserRole, kind: RobotKind | None, by: str
-    ) -> User:
-        """A new user and its broker account; ``password`` ``None``: cannot log in until one is set."""
+    async def _check_name(self, name: str) -> None:
+        """Refuse a name no user may have: an invalid or reserved one (``fleetbus*``, ``amq*``,
+        ``guest*``), the broker administrator's own, or a site's account at central."""
         try:
             validate_name(name)
         except ValueError as error:
             raise BadRequest(str(error)) from None
+        if name == unquote(urlsplit(self._admin_url).username or ""):
+            raise BadRequest(f"{name!r} is the broker administrator's account: no user may have that name")
+        if self._sites is not None and name in await self._sites.sites():
+            raise BadRequest(f"{name!r} is a site's account at central: no user may have that name")
+
+    async def create(
+        self, name: str, password: str | None, role: UserRole, kind: RobotKind | None, by: str
+    ) -> User:
+        """A new user and its broker account; ``password`` ``None``: cannot log in until one is set."""
+        return (await self.provision(name, role, kind, by, password=password)).user
+
+    async def provision(
+        self,
+        name: str,
+        role: UserRole,
+        kind: RobotKind | None,
+        by: str,
+        *,
+        password: str | None = None,
+        rotate: bool = False,
+        certificate: bool = False,
+    ) -> Provisioned:
+        """Record ``name`` in the registry and make its broker account (with its permissions,
+        exchanges, inbox, and a robot's shard and place in the team); revoke the certificates the
+        CA signed for the name. ``rotate``: an existing user (or a broker account made outside the
+        registry, which it then records) gets a new broker password, and the role and kind given.
+        ``certificate``: the broker account has no password (it logs in with a client certificate).
+        ``password`` is the HTTP API login's (``None``: none yet)."""
+        await self._check_name(name)
         if kind is not None and role is not UserRole.ROBOT:
             raise BadRequest("kind applies to robots only")
         if password is not None and (problem := password_problem(password)):
             raise BadRequest(problem)
-        if await asyncio.to_thread(self._management.get_user, name) is not None:
-            if await self._users.get_user(name) is None:
-                raise Conflict(f"a broker account named {name!r} exists outside the service; remove it first")
+        existing = await self._users.get_user(name)
+        if not rotate:
+            if existing is not None:
+                raise Conflict(f"user {name!r} exists")
+            if await asyncio.to_thread(self._management.get_user, name) is not None:
+                raise Conflict(
+                    f"a broker account named {name!r} exists outside the service; remove it first "
+                    "(or give it a new password with `fleetbus users add NAME --rotate`)"
+                )
         await self._check_revocable(name)
         now = datetime.now(timezone.utc)
-        broker_password = secrets.token_urlsafe(24)
+        broker_password = None if certificate else secrets.token_urlsafe(24)
         user = User(
             name=name,
             role=role,
-            password_hash=await self._secrets.passwords.hash(password) if password is not None else None,
-            broker_secret=self._secrets.box.seal(broker_password),
+            password_hash=(
+                await self._secrets.passwords.hash(password)
+                if password is not None
+                else existing.password_hash if existing else None
+            ),
+            broker_secret=self._secrets.box.seal(broker_password) if broker_password else None,
             kind=kind.value if kind else None,
-            created_at=now,
-            created_by=by,
+            created_at=existing.created_at if existing else now,
+            created_by=existing.created_by if existing else by,
             updated_at=now,
         )
+        if existing is None:
+            try:
+                await self._users.add_user(user)
+            except UserExists:
+                raise Conflict(f"user {name!r} exists") from None
         try:
-            await self._users.add_user(user)
-        except UserExists:
-            raise Conflict(f"user {name!r} exists") from None
-        try:
-            await self._broker(name, role, user.kind, password=broker_password)
+            await self._broker(name, role, user.kind, password=broker_password, certificate=certificate)
         except Unavailable:
-            await self._users.remove_user(name)
-            await asyncio.to_thread(self._management.delete_user, name)
+            if existing is None:
+                await self._users.remove_user(name)
+                await asyncio.to_thread(self._management.delete_user, name)
             raise
+        if existing is not None:
+            await self._users.put_user(user)
         if role is UserRole.ROBOT:
             await self._team.register_robot(name, user.kind)
         await self._revoke_certificates(name)
-        log.info("user %s created by %s with role %s", name, by, role.value)
-        return user
+        log.info("user %s %s by %s with role %s", name, "re-keyed" if existing else "created", by, role.value)
+        url = url_for(self._admin_url, name, broker_password)
+        return Provisioned(user, url, as_public(url, self._public_url))
 
     async def get(self, name: str) -> User:
         user = await self._users.get_user(name)
@@ -229,8 +296,14 @@ class Accounts:
         log.info("user %s: broker password reset by %s", name, by)
         return self.broker_credentials(rekeyed)
 
-    async def remove(self, name: str, by: str) -> None:
-        await self.get(name)
+    async def remove(self, name: str, by: str) -> bool:
+        """Remove the user from the registry and its broker account (a broker account made outside
+        the registry too); refused while it is mounted or checked in. Its certificates are revoked
+        and it leaves the team. True: it was in the team."""
+        await self._check_name(name)
+        recorded = await self._users.get_user(name)
+        if recorded is None and await asyncio.to_thread(self._management.get_user, name) is None:
+            raise NotFound(f"no user {name!r}")
         mounts = await self._channels.mounts(operator=name) + await self._channels.mounts(robot=name)
         if mounts or await self._channels.check_ins(operator=name):
             held = ", ".join(f"{m.robot} mounted by {m.operator} for {m.mission_id}" for m in mounts)
@@ -241,7 +314,7 @@ class Accounts:
         await self._revoke_certificates(name)
         log.info("user %s removed by %s", name, by)
         try:  # a warden removed no longer holds the hazard gate
-            await leave_team(self._team, self._admin_url, name, by)
+            return await leave_team(self._team, self._admin_url, name, by)
         except HazardServiceNotTold as error:
             raise Unavailable(f"user {name} removed and taken out of the team, but {error}") from error
 
@@ -269,6 +342,30 @@ class Accounts:
         if user.broker_secret is None:
             raise Unavailable(f"user {user.name} has no broker password on record")
         return url_for(self._admin_url, user.name, self._secrets.box.open(user.broker_secret))
+
+
+def accounts_for(
+    settings: Settings,
+    repositories: Repositories,
+    secrets_: Secrets,
+    management: ManagementAPI,
+    admin_url: str,
+    public_url: str | None = None,
+) -> Accounts:
+    """The accounts service as the HTTP API, the console and the command line all use it."""
+    return Accounts(
+        repositories.users,
+        repositories.hazards,
+        repositories.channels,
+        secrets_,
+        management,
+        admin_url,
+        settings.ingest_shards,
+        public_url or settings.public_amqp_url,
+        cluster=settings.cluster,
+        certificates=TlsFiles.for_settings(settings),
+        sites=repositories.sites,
+    )
 
 
 class WrongCredentials(Exception):

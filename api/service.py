@@ -8,7 +8,7 @@ from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import timedelta
 
-from fleetbus.api.accounts import Accounts
+from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.login_limits import LoginLimits
@@ -17,7 +17,6 @@ from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
-from fleetbus.broker.certificates import TlsFiles
 from fleetbus.broker.dead_letter_queue import DeadLetter, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
@@ -77,18 +76,7 @@ async def open_service(
             settings=settings,
             repositories=repositories,
             secrets=secrets_,
-            accounts=Accounts(
-                repositories.users,
-                repositories.hazards,
-                repositories.channels,
-                secrets_,
-                management,
-                admin_url,
-                settings.ingest_shards,
-                public_url or settings.public_amqp_url,
-                cluster=settings.cluster,
-                certificates=TlsFiles.for_settings(settings),
-            ),
+            accounts=accounts_for(settings, repositories, secrets_, management, admin_url, public_url),
             missions=missions,
             channels=Channels(
                 repositories.channels, repositories.users, management, vhost_of(admin_url), missions

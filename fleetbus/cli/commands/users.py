@@ -1,8 +1,8 @@
-"""``fleetbus users add | remove | list``: broker accounts confined to their own names."""
+"""``fleetbus users add | remove | list | check``: the account registry's users and robots, each
+with a broker account confined to its own name, through the accounts service."""
 
 from __future__ import annotations
 
-import asyncio
 from typing import Annotated
 from urllib.parse import urlsplit
 
@@ -10,25 +10,14 @@ import pika.exceptions
 import typer
 from rich.table import Table
 
-from fleetbus.broker.accounts import (
-    AccountExists,
-    Role,
-    as_public,
-    can_login,
-    delete_account,
-    provision_account,
-    save_secret,
-)
+from fleetbus.broker.accounts import can_login, save_secret
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
-from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
-from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import split_tls, with_client_certificate
+from fleetbus.cli.accounts import with_accounts
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
-from fleetbus.cli.registry import register_robot
+from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings
-from fleetbus.workers.store import run_with_repositories
-from fleetbus.workers.team import leave_team
 
 app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
 
@@ -36,7 +25,7 @@ app = typer.Typer(help="Broker accounts for users, robots and services.", no_arg
 @app.command("add")
 def add(
     name: str,
-    role: Annotated[Role, typer.Option(help="what the account is for")] = Role.ROBOT,
+    role: Annotated[UserRole, typer.Option(help="its role (as the HTTP API's users have)")] = UserRole.ROBOT,
     kind: Annotated[RobotKind | None, typer.Option(help="robot kind; decides its notifications")] = None,
     rotate: Annotated[bool, typer.Option(help="give an existing account a new password")] = False,
     save: Annotated[
@@ -50,39 +39,25 @@ def add(
             "signed by fleetbus's CA (docs/operations/tls.md)",
         ),
     ] = False,
+    by: Annotated[str | None, typer.Option(help="who makes it, for the record (default: your login)")] = None,
 ) -> None:
-    """Create an account with a random password (or, with --cert, none and a client certificate);
-    its URL is printed once. Certificates fleetbus's CA signed earlier for NAME are revoked: the
-    account logs in only with what this command hands out."""
+    """Record a user or robot in the account registry (as `POST /users` does) and make its broker
+    account with a random password (or, with --cert, none and a client certificate); its URL is
+    printed once. Certificates fleetbus's CA signed earlier for NAME are revoked: the account logs
+    in only with what this command hands out."""
     ep, config = endpoint(), settings()
     if cert and urlsplit(ep.public_url or ep.amqp_url).scheme != "amqps":
         fail("--cert needs a broker reached over TLS (amqps://): see docs/operations/tls.md")
     files = TlsFiles.for_settings(config)
     if cert and not files.ca_key.exists():
         fail(f"--cert signs the robot's certificate with the CA's key {files.ca_key}, which is missing")
-    if problem := cannot_revoke(files, name):
-        fail(problem)
-    with admin_api(ep) as api:
-        try:
-            account = asyncio.run(
-                provision_account(
-                    ep.amqp_url,
-                    api,
-                    name,
-                    role,
-                    kind,
-                    rotate=rotate,
-                    shards=config.ingest_shards,
-                    cluster=config.cluster,
-                    password_login=not cert,
-                )
-            )
-        except (AccountExists, ValueError) as error:
-            fail(str(error))
-    if role is Role.ROBOT:
-        register_robot(config, name, kind)
-    _revoke(files, name)
-    url = as_public(account.amqp_url, ep.public_url)
+    made = with_accounts(
+        ep,
+        lambda accounts, _repos, _api: accounts.provision(
+            name, role, kind, actor(by), rotate=rotate, certificate=cert
+        ),
+    )
+    url = made.public_url
     client = _issue_certificate(config, name) if cert else None
     if client is not None:
         url = with_client_certificate(url, client.cert, client.key)
@@ -100,16 +75,6 @@ def add(
             soft_wrap=True,
             highlight=False,
         )
-
-
-def _revoke(files: TlsFiles, name: str) -> None:
-    """Revoke every certificate of ``name`` the CA signed; say so when there were any."""
-    try:
-        revoked = revoke_certificates_of(files, name)
-    except CertificateError as error:
-        fail(f"could not revoke the certificates of {name}: {error}")
-    if revoked:
-        console.print(revoked_summary(name, revoked))
 
 
 def _issue_certificate(config: Settings, name: str) -> ClientFiles:
@@ -151,27 +116,14 @@ def remove(
         str | None, typer.Option(help="who removes it, for the record (default: your login)")
     ] = None,
 ) -> None:
-    """Delete an account and take it out of the hazard gate's team (its exchange and inbox stay,
-    with whatever they hold); a warden removed no longer holds the gate. Its client certificates
-    are revoked."""
-    ep, files = endpoint(), TlsFiles.for_settings(settings())
-    if problem := cannot_revoke(files, name):
-        fail(problem)
-    with admin_api(ep) as api:
-        try:
-            delete_account(ep.amqp_url, api, name)
-        except ValueError as error:
-            fail(str(error))
+    """Remove a user or robot (as `DELETE /users/NAME` does): from the registry, its broker
+    account, and the hazard gate's team (its exchange and inbox stay, with whatever they hold); a
+    warden removed no longer holds the gate. Refused while it is mounted or checked in. Its client
+    certificates are revoked."""
+    ep = endpoint()
+    left = with_accounts(ep, lambda accounts, _repos, _api: accounts.remove(name, actor(by)))
     (settings().accounts_dir / f"{name}.url").unlink(missing_ok=True)
-    who = actor(by)
-    try:
-        left = run_with_repositories(
-            settings(), lambda repos: leave_team(repos.hazards, ep.amqp_url, name, who)
-        )
-    except HazardServiceNotTold as error:
-        fail(f"removed {name} and took it out of the team, but {error}")
     console.print(f"removed {name}" + (" and took it out of the team" if left else ""))
-    _revoke(files, name)  # a later account of that name must not inherit them
 
 
 @app.command("list")
