@@ -150,6 +150,36 @@ class Accounts:
         except (ManagementError, OSError) as error:
             raise Unavailable(f"the broker refused or failed to set up account {name!r}: {error}") from error
 
+    async def align(self, user: User, by: str) -> None:
+        """Bring ``user``'s broker account in line with the registry: remake it when it is missing
+        (a new broker password, kept sealed in the registry, or none for a certificate's login),
+        else its tags, permissions, exchanges and shard as its role has them."""
+        if await asyncio.to_thread(self._management.get_user, user.name) is None:
+            password = None if user.broker_secret is None else secrets.token_urlsafe(24)
+            certificate = password is None
+            await self._broker(user.name, user.role, user.kind, password=password, certificate=certificate)
+            if password is not None:
+                await self._users.update_user(
+                    user.name, datetime.now(timezone.utc), broker_secret=self._secrets.box.seal(password)
+                )
+            log.warning("user %s: broker account made again by %s", user.name, by)
+        else:
+            await self._broker(user.name, user.role, user.kind)
+
+    async def adopt(self, name: str, role: UserRole, kind: str | None, by: str) -> User:
+        """Record a broker account made outside the registry, as it is (its password stays: the
+        URL handed out before still logs in; the registry has none to hand out until a reset)."""
+        now = datetime.now(timezone.utc)
+        user = User(name, role, None, None, kind, now, f"{by} (taken in from the broker)", now)
+        try:
+            await self._users.add_user(user)
+        except UserExists:
+            raise Conflict(f"user {name!r} exists") from None
+        if role is UserRole.ROBOT:
+            await self._team.register_robot(name, kind)
+        log.warning("user %s: broker account taken into the registry by %s", name, by)
+        return user
+
     async def _check_revocable(self, name: str) -> None:
         """Refuse before anything changes when ``name``'s certificates could not be revoked."""
         if self._certificates is not None:

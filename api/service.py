@@ -8,6 +8,7 @@ from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import timedelta
 
+from fleetbus.api.account_check import AccountCheck, account_check_for
 from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
@@ -33,6 +34,8 @@ class Service:
     """The repositories the routes read directly (users, channels, missions, events, discards)."""
     secrets: Secrets
     accounts: Accounts
+    account_check: AccountCheck
+    """The registry against the broker, the team and the sites: drift, and its repair."""
     missions: Missions
     channels: Channels
     team: Team
@@ -72,11 +75,15 @@ async def open_service(
     to_sites.start()
     try:
         missions = Missions(repositories.missions, repositories.channels, to_sites.changed)
+        accounts = accounts_for(settings, repositories, secrets_, management, admin_url, public_url)
         yield Service(
             settings=settings,
             repositories=repositories,
             secrets=secrets_,
-            accounts=accounts_for(settings, repositories, secrets_, management, admin_url, public_url),
+            accounts=accounts,
+            account_check=account_check_for(
+                accounts, repositories, management, admin_url, settings.ingest_shards
+            ),
             missions=missions,
             channels=Channels(
                 repositories.channels, repositories.users, management, vhost_of(admin_url), missions

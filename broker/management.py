@@ -154,6 +154,14 @@ class ManagementAPI:
     def delete_permissions(self, vhost: str, user: str) -> None:
         self._request("DELETE", f"permissions/{_q(vhost)}/{_q(user)}")
 
+    def list_permissions(self, vhost: str) -> list[dict[str, Any]]:
+        """Every account's permissions in ``vhost``: ``user``, ``configure``, ``write``, ``read``."""
+        return self._request("GET", f"vhosts/{_q(vhost)}/permissions")
+
+    def list_topic_permissions(self, vhost: str) -> list[dict[str, Any]]:
+        """Every topic permission in ``vhost``: ``user``, ``exchange``, ``write``, ``read``."""
+        return self._request("GET", f"vhosts/{_q(vhost)}/topic-permissions")
+
     def put_topic_permissions(self, vhost: str, user: str, exchange: str, write: str, read: str) -> None:
         body = {"exchange": exchange, "write": write, "read": read}
         self._request("PUT", f"topic-permissions/{_q(vhost)}/{_q(user)}", json=body)

@@ -8,7 +8,14 @@ from fastapi import APIRouter, Depends, Response
 
 from fleetbus.api.auth import ServiceDep, UsersDep, require_role
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
-from fleetbus.api.models import PasswordChange, PasswordSet, RoleChange, UserCreate, UserOut
+from fleetbus.api.models import (
+    PasswordChange,
+    PasswordSet,
+    RegistryCheck,
+    RoleChange,
+    UserCreate,
+    UserOut,
+)
 from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.workers.store.users import User
@@ -18,6 +25,20 @@ R = UserRole
 Anyone = Annotated[User, Depends(require_role(*ACTIVE_ROLES))]
 Admin = Annotated[User, Depends(require_role(R.ADMIN))]
 AdminOrSupervisor = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR))]
+
+
+@router.get("/registry/drift", response_model=RegistryCheck, tags=["registry"])
+async def registry_drift(admin: Admin, svc: ServiceDep) -> RegistryCheck:
+    """What differs between the account registry and the broker's accounts, permissions, topic
+    permissions and shard bindings, the team and the sites' accounts (`fleetbus users check`)."""
+    return RegistryCheck.of([], await svc.account_check.drift())
+
+
+@router.post("/registry/repair", response_model=RegistryCheck, tags=["registry"])
+async def registry_repair(admin: Admin, svc: ServiceDep) -> RegistryCheck:
+    """Repair every drift (`fleetbus users check --repair`): what was repaired, and what is left."""
+    repaired = await svc.account_check.repair(admin.name)
+    return RegistryCheck.of(repaired, await svc.account_check.drift())
 
 
 @router.get("/users/me", response_model=UserOut)

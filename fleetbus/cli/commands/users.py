@@ -3,7 +3,8 @@ with a broker account confined to its own name, through the accounts service."""
 
 from __future__ import annotations
 
-from typing import Annotated
+import json
+from typing import TYPE_CHECKING, Annotated
 from urllib.parse import urlsplit
 
 import pika.exceptions
@@ -18,6 +19,12 @@ from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, sett
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings
+
+if TYPE_CHECKING:
+    from fleetbus.api.account_check import Drift
+    from fleetbus.api.accounts import Accounts
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.workers.store import Repositories
 
 app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
 
@@ -139,3 +146,39 @@ def list_users() -> None:
         login = "password" if user.get("password_hash") else "certificate"
         table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags), login)
     console.print(table)
+
+
+@app.command("check")
+def check(
+    repair: Annotated[bool, typer.Option("--repair", help="repair what differs")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False,
+    by: Annotated[str | None, typer.Option(help="who repairs, for the record (default: your login)")] = None,
+) -> None:
+    """Compare the account registry with what derives from it (the broker's accounts, permissions,
+    topic permissions and shard bindings, the team, the sites' accounts at central), as the
+    console's dashboard and `GET /users/check` do; with --repair, make those the registry's again
+    (`POST /users/check/repair`). Exits 1 when something differs (after --repair: still differs)."""
+    from fleetbus.api.account_check import account_check_for
+
+    ep, config = endpoint(), settings()
+
+    async def run(
+        accounts: Accounts, repos: Repositories, api: ManagementAPI
+    ) -> tuple[list[Drift], list[Drift]]:
+        checker = account_check_for(accounts, repos, api, ep.amqp_url, config.ingest_shards)
+        repaired = await checker.repair(actor(by)) if repair else []
+        return repaired, await checker.drift()
+
+    repaired, left = with_accounts(ep, run)
+    if as_json:
+        document = {"repaired": [d.as_dict() for d in repaired], "drift": [d.as_dict() for d in left]}
+        console.print_json(json.dumps(document))
+    else:
+        for drift in repaired:
+            console.print(f"repaired {drift.kind} {drift.name}: {drift.problem}", highlight=False)
+        for drift in left:
+            console.print(f"[yellow]{drift.kind}[/] {drift.name}: {drift.problem} (repair: {drift.repair})")
+        if not left:
+            console.print("the broker, the team and the sites agree with the account registry")
+    if left:
+        raise typer.Exit(1)
