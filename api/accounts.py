@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from urllib.parse import unquote, urlsplit
@@ -30,6 +31,7 @@ from fleetbus.broker.accounts import (
     vhost_of,
 )
 from fleetbus.broker.certificates import CertificateError, TlsFiles
+from fleetbus.broker.fleet import NewRobot, provision_robots
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
 from fleetbus.broker.team_changes import HazardServiceNotTold
@@ -246,22 +248,9 @@ class Accounts:
                     "(or give it a new password with `fleetbus users add NAME --rotate`)"
                 )
         await self._check_revocable(name)
-        now = datetime.now(timezone.utc)
         broker_password = None if certificate else secrets.token_urlsafe(24)
-        user = User(
-            name=name,
-            role=role,
-            password_hash=(
-                await self._secrets.passwords.hash(password)
-                if password is not None
-                else existing.password_hash if existing else None
-            ),
-            broker_secret=self._secrets.box.seal(broker_password) if broker_password else None,
-            kind=kind.value if kind else None,
-            created_at=existing.created_at if existing else now,
-            created_by=existing.created_by if existing else by,
-            updated_at=now,
-        )
+        hashed = await self._secrets.passwords.hash(password) if password is not None else None
+        user = self._record(name, role, kind, broker_password, existing, by, hashed)
         if existing is None:
             try:
                 await self._users.add_user(user)
@@ -282,6 +271,75 @@ class Accounts:
         log.info("user %s %s by %s with role %s", name, "re-keyed" if existing else "created", by, role.value)
         url = url_for(self._admin_url, name, broker_password)
         return Provisioned(user, url, as_public(url, self._public_url))
+
+    async def provision_robots(
+        self, robots: Sequence[NewRobot], by: str, *, rotate: bool = False
+    ) -> list[Provisioned]:
+        """Many robots at once, each as :meth:`provision` makes one (its registry record, broker
+        account, shard and place in the team; its certificates revoked), their broker accounts in
+        one definitions import per 500. Refused, changing nothing, when a name is invalid or
+        reserved, or (without ``rotate``) taken."""
+        for robot in robots:
+            await self._check_name(robot.name)
+        names = {robot.name for robot in robots}
+        recorded = {user.name: user for user in await self._users.users() if user.name in names}
+        if not rotate:
+            on_broker = {u["name"] for u in await asyncio.to_thread(self._management.list_users)}
+            if taken := sorted(recorded.keys() | (on_broker & names)):
+                shown = ", ".join(taken[:5]) + (", ..." if len(taken) > 5 else "")
+                raise Conflict(
+                    f"{len(taken)} exist already ({shown}); use --rotate to give them new passwords"
+                )
+        for robot in robots:
+            await self._check_revocable(robot.name)
+        try:
+            accounts = await provision_robots(
+                self._admin_url,
+                self._management,
+                robots,
+                rotate=rotate,
+                shards=self._shards,
+                cluster=self._cluster,
+            )
+        except ValueError as error:
+            raise BadRequest(str(error)) from None
+        except (ManagementError, OSError) as error:
+            raise Unavailable(f"the broker refused or failed to make the accounts: {error}") from error
+        kinds = {robot.name: robot.kind for robot in robots}
+        made = []
+        for account in accounts:
+            kind = kinds[account.name]
+            password = unquote(urlsplit(account.amqp_url).password or "")
+            user = self._record(account.name, UserRole.ROBOT, kind, password, recorded.get(account.name), by)
+            await self._users.put_user(user)
+            await self._team.register_robot(account.name, user.kind)
+            await self._revoke_certificates(account.name)
+            made.append(Provisioned(user, account.amqp_url, as_public(account.amqp_url, self._public_url)))
+        log.info("%d robots made by %s", len(made), by)
+        return made
+
+    def _record(
+        self,
+        name: str,
+        role: UserRole,
+        kind: RobotKind | None,
+        broker_password: str | None,
+        existing: User | None,
+        by: str,
+        password_hash: str | None = None,
+    ) -> User:
+        """The registry's record of ``name`` (a new one, or ``existing`` re-keyed)."""
+        now = datetime.now(timezone.utc)
+        return User(
+            name=name,
+            role=role,
+            password_hash=password_hash or (existing.password_hash if existing else None),
+            broker_secret=self._secrets.box.seal(broker_password) if broker_password else None,
+            kind=kind.value if kind else None,
+            created_at=existing.created_at if existing else now,
+            created_by=existing.created_by if existing else by,
+            updated_at=now,
+        )
 
     async def get(self, name: str) -> User:
         user = await self._users.get_user(name)

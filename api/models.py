@@ -340,6 +340,10 @@ class TeamMemberOut(BaseModel):
     counts_for_gate: bool = Field(description="a warden in service: the hazard gate waits for it")
     service_changed_by: str | None = Field(description="who last took it out of service or put it back")
     service_changed_at: datetime | None
+    outbox_dropped: dict[str, int] = Field(
+        default_factory=dict,
+        description="what its outbox dropped so far by type (its thinning policy), as its newest status said",
+    )
 
     @classmethod
     def of(cls, member: TeamMember) -> TeamMemberOut:
@@ -353,13 +357,15 @@ class GateOut(BaseModel):
 
 
 class TeamOut(BaseModel):
-    robots: list[TeamMemberOut]
+    robots: list[TeamMemberOut] = Field(description="the page asked for, by name")
+    total: int = Field(description="robots in the team")
     gate: GateOut
 
     @classmethod
     def of(cls, view: TeamView) -> TeamOut:
         return cls(
             robots=[TeamMemberOut.of(member) for member in view.members],
+            total=view.total,
             gate=GateOut(
                 open=view.gate.open, announces_to=view.gate.wardens, closed_because=view.closed_because
             ),

@@ -19,8 +19,9 @@ from fleetbus.workers.team import (
     TeamMember,
     change_service,
     gate,
-    read_team,
+    last_seen_of,
     team_member,
+    team_members,
     why_closed,
 )
 
@@ -33,8 +34,11 @@ DISPATCHERS = frozenset({UserRole.SUPERVISOR, UserRole.OPERATOR})
 @dataclass(frozen=True)
 class TeamView:
     members: list[TeamMember]
+    """The page asked for."""
     gate: Gate
     closed_because: str | None
+    total: int
+    """Robots in the team."""
 
 
 class Team:
@@ -46,19 +50,24 @@ class Team:
         self._admin_url = admin_url
         self._stale_after = stale_after
 
-    async def view(self, last_seen: Mapping[str, datetime] | None = None) -> TeamView:
-        """The team and its gate; ``last_seen``: when each robot was last heard from, for a caller
-        that keeps it (the console, from its live feed), else read from the store (a query per robot)."""
+    async def view(
+        self, last_seen: Mapping[str, datetime] | None = None, offset: int = 0, limit: int | None = None
+    ) -> TeamView:
+        """The team (``limit`` robots from ``offset``, by name) and its gate, which counts them all;
+        ``last_seen``: when each robot was last heard from, for a caller that keeps it (the console,
+        from its live feed), else read from the store (a few queries, however large the team)."""
         now = datetime.now(timezone.utc)
+        robots = await self._team.robots()
+        page = robots[offset : None if limit is None else offset + limit]
+        state = gate(robots)
         if last_seen is None:
-            members = await read_team(self._team, self._events, now, self._stale_after)
+            members = await team_members(page, self._events, now, self._stale_after)
+            seen = await last_seen_of(self._events, state.waiting_for)
         else:
-            members = [
-                team_member(robot, last_seen.get(robot.name), now, self._stale_after)
-                for robot in await self._team.robots()
-            ]
-        state = gate([member.robot for member in members])
-        return TeamView(members, state, why_closed(state, {m.robot.name: m.last_seen for m in members}, now))
+            stale_after = self._stale_after
+            members = [team_member(robot, last_seen.get(robot.name), now, stale_after) for robot in page]
+            seen = dict(last_seen)
+        return TeamView(members, state, why_closed(state, seen, now), len(robots))
 
     async def member(self, name: str) -> TeamMember:
         found = next((m for m in (await self.view()).members if m.robot.name == name), None)

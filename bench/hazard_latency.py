@@ -49,9 +49,9 @@ LOADERS = 4
 PING_QUEUE = "bench.ping"
 PERSISTENT = pika.BasicProperties(delivery_mode=2)
 #: Where a hazard's time goes, by the product's own stamps: the explorer's outbox, the broker and
-#: the ingest queue up to the worker's batch; the worker's store writes and hazard service; the
-#: notification's publish and delivery to the warden.
-STAGES = ("to the worker", "in the worker", "to the warden")
+#: the express queue until the worker takes it; in the worker until it is stored, then until the
+#: hazard service has built the notification; its publish and delivery to the warden.
+STAGES = ("to the worker", "in the worker, until stored", "stored to notified", "to the warden")
 
 
 def hazard(i: int) -> dict[str, Any]:
@@ -132,19 +132,28 @@ class Paced:
     """From the publish call to the event's ``sent_at``: building it."""
 
 
-def publish_paced(explorer: RobotClient, ping: BlockingChannel, numbers: range) -> Paced:
-    """The explorer publishes hazards ``numbers`` at HAZARD_RATE a second (as robot code does), and
-    half-way between two hazards a raw message of the same number goes to PING_QUEUE."""
+def publish_paced(
+    explorer: RobotClient,
+    ping: BlockingChannel,
+    numbers: range,
+    rate: float = HAZARD_RATE,
+    before_each: Callable[[int], None] | None = None,
+) -> Paced:
+    """The explorer publishes hazards ``numbers`` at ``rate`` a second (as robot code does), and
+    half-way between two hazards a raw message of the same number goes to PING_QUEUE;
+    ``before_each(i)`` is called just before hazard ``i`` is published."""
     paced = Paced()
     start = time.monotonic()
     for k, i in enumerate(numbers):
-        time.sleep(max(0.0, start + k / HAZARD_RATE - time.monotonic()))  # the schedule
+        time.sleep(max(0.0, start + k / rate - time.monotonic()))  # the schedule
+        if before_each is not None:
+            before_each(i)
         paced.sent[i] = time.monotonic()
         wall = time.time()
         event = explorer.publish(EventType.HAZARD, hazard(i))
         paced.stamped.append(event.sent_at.timestamp() - wall)
         paced.confirmed.append(time.monotonic() - paced.sent[i])
-        time.sleep(max(0.0, start + (k + 0.5) / HAZARD_RATE - time.monotonic()))
+        time.sleep(max(0.0, start + (k + 0.5) / rate - time.monotonic()))
         paced.pinged[i] = time.monotonic()
         ping.basic_publish("", PING_QUEUE, str(i).encode(), PERSISTENT)
     return paced

@@ -19,7 +19,7 @@ from pika.adapters.blocking_connection import BlockingChannel
 
 from bench.profile import record
 from fleetbus.broker.tls import blocking_connection
-from fleetbus.schemas.routing import INGEST_QUEUE
+from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE
 from tests.support import Bus, read_line, wait_for
 
 
@@ -111,12 +111,26 @@ class FleetbusProcess:
 
 
 def worker_process(bus: Bus, *args: str) -> FleetbusProcess:
-    """`fleetbus worker ARGS` on the bus's virtual host and store, consuming the ingest queue."""
+    """`fleetbus worker ARGS` on the bus's virtual host and store, consuming the ingest queue and
+    the express lane (its own connection, which may come up later)."""
     log = bus.settings.data_dir / "worker.log"
-    return FleetbusProcess(["worker", *args], bus.service_env(), log, bus.admin_url, INGEST_QUEUE)
+    worker = FleetbusProcess(["worker", *args], bus.service_env(), log, bus.admin_url, INGEST_QUEUE)
+    express = ConsumerCount(bus.admin_url, EXPRESS_QUEUE)
+    try:
+        wait_for(
+            lambda: worker.process.poll() is not None or express() >= 1, 60, "the express lane's consumer"
+        )
+    except BaseException:
+        worker.kill()
+        raise
+    finally:
+        express.close()
+    return worker
 
 
-def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.Popen[str]:
+def spawn_until_ready(
+    command: list[str], log: Path, ready: str, timeout: float = 60
+) -> subprocess.Popen[str]:
     """A helper process of a measurement, talking on its standard input and output (its errors go
     to ``log``); returned once it printed a line starting with ``ready``, killed if it never does."""
     with log.open("ab") as errors:
@@ -124,7 +138,7 @@ def spawn_until_ready(command: list[str], log: Path, ready: str) -> subprocess.P
             command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors, text=True
         )
     try:
-        read_line(process, ready, timeout=60)
+        read_line(process, ready, timeout=timeout)
     except BaseException:
         process.kill()
         raise

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from bench import (
     api_logins,
+    hazard_backlog,
     hazard_latency,
     ingest,
     map_transfer,
@@ -39,6 +40,13 @@ SCENARIOS: tuple[Scenario, ...] = (
             Target("hazard p50 ms", 5, at_most=True, unit=" ms"),
             Target("hazard p99 ms", 20, at_most=True, unit=" ms"),
         ),
+    ),
+    Scenario(
+        "hazard-backlog",
+        f"hazards to two wardens while {hazard_backlog.ROBOTS} robots drain "
+        f"{hazard_backlog.ROBOTS * hazard_backlog.PER_ROBOT:,} status events after an outage",
+        hazard_backlog.figures,
+        (Target("hazard p99 in raw hops", 10, at_most=True),),
     ),
     Scenario("hazard-idle", "the same with no telemetry beside", hazard_latency.figures_idle),
     Scenario("hazard-recorder", "as hazard, with the recorder child", hazard_latency.figures_with_recorder),

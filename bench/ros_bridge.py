@@ -137,9 +137,10 @@ def run(seconds: float, small_hz: float, image_hz: float, small_bytes: int = 0) 
                     **{k: v for k, v in env.items() if k.startswith("ROS_")},
                     "FLEETBUS_ROS_INCLUDE": " ".join(TOPICS),
                     "FLEETBUS_ROS_STATUS_EVERY_S": "1",
+                    "FLEETBUS_ROBOT_URL": account.amqp_url,  # a password is never an argument
                 }
                 bridge = subprocess.Popen(
-                    [sys.executable, "-m", "fleetbus", "ros", "bridge", ROBOT, "--url", account.amqp_url],
+                    [sys.executable, "-m", "fleetbus", "ros", "bridge", ROBOT],
                     env=bridge_env,
                     stdout=subprocess.DEVNULL,
                     stderr=(tmp / "bridge.log").open("wb"),

@@ -1,22 +1,24 @@
 """Central catching up after an outage of its link to a site, against the raw shovel rate.
 
-    .venv/bin/python -m bench.sites [--robots 100] [--seconds 600] [--hz 1]
+    .venv/bin/python -m bench.sites [--robots 100] [--seconds 600] [--hz 1] [--hazard-every 60]
 
 Two private RabbitMQ nodes on loopback, a site and central, each a fleetbus (central's worker on
 SQLite here; MongoDB in production). While the link is down the site's robots publish
-``robots x seconds x hz`` status events (60,000 by default: 100 robots at 1 Hz for 10 minutes);
-they wait in the site's uplink. Then, in the same run:
+``robots x seconds x hz`` status events (60,000 by default: 100 robots at 1 Hz for 10 minutes),
+and each robot a hazard every ``--hazard-every`` of its events (1,000 by default); they wait in
+the site's uplink, each in its class. Then, in the same run:
 
 - **raw**: the same number of messages of the same size, shovelled from a plain queue on the site
   to a plain queue at central (no exchange, no worker): the most the link between the two nodes
   carries;
-- **catch-up**: the site's uplink shovel started with central's worker running: the time until
-  central's store holds every event.
+- **catch-up**: the site's uplink shovels started with central's worker running: the time until
+  central's store holds every event, and whether every hazard was at central (by its
+  ``received_at`` there) before the first status event queued at the site after it.
 
-It prints both rates and their ratio (catch-up / raw). Not a test: nothing is asserted. The
-backlog is loaded by an account tagged ``impersonator`` publishing in the robots' names (one
-connection rather than a hundred), with send times spread over the outage; the site's own worker
-is not running (it is not on the path being measured).
+It prints both rates and their ratio (catch-up / raw), and the hazards' order. Not a test:
+nothing is asserted. The backlog is loaded by an account tagged ``impersonator`` publishing in
+the robots' names (one connection rather than a hundred), with send times spread over the
+outage; the site's own worker is not running (it is not on the path being measured).
 """
 
 from __future__ import annotations
@@ -39,16 +41,23 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, forward_robot, local_uri, start_site_links
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import core_topology, declare_with_url
+from fleetbus.broker.uplink import CLASSES, UplinkBounds
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
-from fleetbus.schemas.routing import UPLINK_QUEUE, RobotKind, event_routing_key, events_exchange
+from fleetbus.schemas.routing import RobotKind, event_routing_key, events_exchange
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.setup import set_up_service
 from fleetbus.workers.sites import assign_robots
 from fleetbus.workers.store import run_with_repositories
+from fleetbus.workers.store.base import EventQuery
 
+#: Bounds no backlog of the bench reaches.
+BENCH_BOUNDS = UplinkBounds(
+    hazards=1_000_000, events=10_000_000, telemetry=10_000_000, max_bytes=16 * 1024**3
+)
 STATUS = {"battery_percent": 80.0, "pose": {"x": 1.0, "y": 2.0}, "processing_rate_hz": 10.0}
+HAZARD = {"pose": {"x": 3.0, "y": 4.0}, "description": "smoke", "detected_at": "2026-11-27T00:00:00+00:00"}
 RAW_QUEUE = "bench.raw"
 
 
@@ -76,25 +85,33 @@ def wait_until(condition, what: str, timeout: float = 3600.0, interval: float = 
     return time.monotonic() - start
 
 
-def load_backlog(url: str, robots: list[str], seconds: int, hz: float) -> tuple[int, int]:
-    """Publish the outage's events in the robots' names (confirmed in windows); (count, bytes of one)."""
+def load_backlog(
+    url: str, robots: list[str], seconds: int, hz: float, hazard_every: int
+) -> tuple[list[tuple[str, str, int, str]], int]:
+    """Publish the outage's events in the robots' names (confirmed); each robot's every
+    ``hazard_every``-th event a hazard. Returns (robot, epoch, seq, type) in the order queued, and
+    the bytes of one status event."""
     epochs = {robot: new_epoch() for robot in robots}
     start = datetime.now(timezone.utc) - timedelta(seconds=seconds)
     ticks = int(seconds * hz)
     connection = blocking_connection(url)
     size = 0
+    queued: list[tuple[str, str, int, str]] = []
     try:
         channel = connection.channel()
         channel.confirm_delivery()
         for tick in range(ticks):
             sent_at = start + timedelta(seconds=tick / hz)
-            for robot in robots:
-                event = build_event("status", robot, epochs[robot], tick, STATUS, sent_at=sent_at)
+            for number, robot in enumerate(robots):
+                hazard = hazard_every and (tick + number) % hazard_every == hazard_every - 1
+                kind = "hazard" if hazard else "status"
+                body_of = HAZARD if kind == "hazard" else STATUS
+                event = build_event(kind, robot, epochs[robot], tick, body_of, sent_at=sent_at)
                 body = encode_event(event)
-                size = len(body)
+                size = len(body) if kind == "status" else size
                 channel.basic_publish(
                     events_exchange(robot),
-                    event_routing_key(robot, "status"),
+                    event_routing_key(robot, kind),
                     body,
                     pika.BasicProperties(
                         user_id=robot,
@@ -103,9 +120,26 @@ def load_backlog(url: str, robots: list[str], seconds: int, hz: float) -> tuple[
                         content_type="application/json",
                     ),
                 )
+                queued.append((robot, epochs[robot], tick, kind))
     finally:
         connection.close()
-    return ticks * len(robots), size
+    return queued, size
+
+
+def hazards_first(
+    queued: list[tuple[str, str, int, str]], received: dict[tuple[str, str, int], datetime]
+) -> int:
+    """Hazards that reached central after the first status event queued at the site after them."""
+    late = 0
+    first_status_after: datetime | None = None
+    # from the end: the earliest central arrival of the statuses queued after each position
+    for robot, epoch, seq, kind in reversed(queued):
+        at = received[(robot, epoch, seq)]
+        if kind == "status":
+            first_status_after = at if first_status_after is None else min(first_status_after, at)
+        elif first_status_after is not None and at > first_status_after:
+            late += 1
+    return late
 
 
 def raw_rate(
@@ -148,6 +182,9 @@ def main() -> None:
     parser.add_argument("--robots", type=int, default=100)
     parser.add_argument("--seconds", type=int, default=600, help="the outage's length")
     parser.add_argument("--hz", type=float, default=1.0, help="each robot's events a second")
+    parser.add_argument(
+        "--hazard-every", type=int, default=60, help="a hazard every N events of a robot (0: none)"
+    )
     args = parser.parse_args()
     console = Console()
     with tempfile.TemporaryDirectory(prefix="fleetbus-bench-sites-") as folder:
@@ -187,7 +224,10 @@ def main() -> None:
     )
     console.print(table)
     console.print(
-        f"catch-up rate / raw shovel rate: {result['catch_up_rate'] / result['raw_rate']:.2f}",
+        f"catch-up rate / raw shovel rate: {result['catch_up_rate'] / result['raw_rate']:.2f} "
+        f"(catch-up time / raw: {result['caught_up_s'] / result['raw_s']:.2f}); "
+        f"hazards at central after a status queued after them: "
+        f"{result['hazards after a later status']} of {result['hazards']}",
         highlight=False,
     )
 
@@ -237,18 +277,22 @@ def run(
             site_api,
             "bench-site",
             "amqp://nowhere.invalid/",
-            max_messages=10_000_000,
-            max_bytes=16 * 1024**3,
+            bounds=BENCH_BOUNDS,
             reconnect_delay_s=1,
         )
     )
     for robot in robots:
         forward_robot(site_api, vhost_of(site.amqp_url), robot)
     console.print("loading the outage's backlog at the site ...", highlight=False)
-    count, size = load_backlog(
-        url_for(site.amqp_url, "bench-loader", loader_password), robots, args.seconds, args.hz
+    queued, size = load_backlog(
+        url_for(site.amqp_url, "bench-loader", loader_password),
+        robots,
+        args.seconds,
+        args.hz,
+        args.hazard_every,
     )
-    wait_until(lambda: queue_count(site.amqp_url, UPLINK_QUEUE) >= count, "the backlog in the uplink")
+    count = len(queued)
+    wait_until(lambda: uplink_count(site.amqp_url) >= count, "the backlog in the uplink")
     console.print(
         f"{count:,} events of {size} bytes wait in the uplink; measuring the raw shovel ...", highlight=False
     )
@@ -260,16 +304,18 @@ def run(
                 site_api,
                 "bench-site",
                 site_account.amqp_url,
-                max_messages=10_000_000,
-                max_bytes=16 * 1024**3,
+                bounds=BENCH_BOUNDS,
                 reconnect_delay_s=1,
             )
         )
-        drained = wait_until(lambda: queue_count(site.amqp_url, UPLINK_QUEUE) == 0, "the uplink drained")
+        drained = wait_until(lambda: uplink_count(site.amqp_url) == 0, "the uplink drained")
         caught_up = drained + wait_until(
             lambda: _stored(central_settings) >= count, "central caught up", interval=0.5
         )
+    received = run_with_repositories(central_settings, _received)
     return {
+        "hazards": sum(1 for *_, kind in queued if kind == "hazard"),
+        "hazards after a later status": hazards_first(queued, received),
         "events": count,
         "raw_s": count / raw,
         "raw_rate": raw,
@@ -282,6 +328,14 @@ def run(
 async def _register(repos, robots: list[str]) -> None:  # type: ignore[no-untyped-def]
     for robot in robots:
         await repos.hazards.register_robot(robot, RobotKind.EXPLORER.value)
+
+
+async def _received(repos) -> dict[tuple[str, str, int], datetime]:  # type: ignore[no-untyped-def]
+    return {record.key: record.received_at for record in await repos.events.find_events(EventQuery())}
+
+
+def uplink_count(url: str) -> int:
+    return sum(queue_count(url, uplink.queue) for uplink in CLASSES)
 
 
 def _stored(settings: Settings) -> int:

@@ -94,7 +94,11 @@ def main() -> None:
 class TelemetryLoad:
     """``python -m bench.telemetry`` for robots (their URLs) of ``bus``, while the ``with`` lasts."""
 
-    def __init__(self, bus: Bus, urls: list[str], rate: float, pose: bool = False) -> None:
+    def __init__(
+        self, bus: Bus, urls: list[str], rate: float, pose: bool = False, ready_timeout: float = 60
+    ) -> None:
+        """``ready_timeout``: seconds its robots may take to connect (many on a loaded machine)."""
+        self._ready_timeout = ready_timeout
         self._command = [
             sys.executable,
             "-m",
@@ -107,9 +111,11 @@ class TelemetryLoad:
         self._log = bus.settings.data_dir / "telemetry.log"
         self.rate = 0.0
         """The rate achieved, once stopped."""
+        self.published = 0
+        """Events published (and confirmed), once stopped."""
 
     def __enter__(self) -> TelemetryLoad:
-        self._process = spawn_until_ready(self._command, self._log, "publishing")
+        self._process = spawn_until_ready(self._command, self._log, "publishing", self._ready_timeout)
         return self
 
     def __exit__(
@@ -119,6 +125,7 @@ class TelemetryLoad:
         if self._process.returncode != 0:
             raise RuntimeError(f"the telemetry load failed ({self._process.returncode}); see {self._log}")
         summary = json.loads(output.strip().splitlines()[-1])
+        self.published = summary["published"]
         self.rate = summary["published"] / summary["seconds"]
 
 

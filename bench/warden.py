@@ -4,11 +4,13 @@
 
 It connects as the warden at URL, publishes that it is localised (so the gate is open), prints
 ``listening``, then one JSON line per hazard notification until its standard input closes:
-``{"i": 7, "at": <time.monotonic()>, "stages": [to the worker, in the worker, to the warden]}``,
+``{"i": 7, "at": <time.monotonic()>, "stages": [to the worker, until stored, until notified, to the
+warden]}``,
 hazards numbered by the last word of their description. ``at`` is read on receipt, before
 anything else is done. CLOCK_MONOTONIC is one clock for every process of a machine, so the
 parent compares it with its own ``time.monotonic()`` at publish; the stages are differences of the
-product's wall-clock stamps (``sent_at``, ``received_at``, ``notified_at``) and the receipt.
+product's wall-clock stamps (``sent_at``; ``received_at``, when the worker took it from the broker;
+``stored_at``; ``notified_at``) and the receipt.
 
 A process of its own, as a warden is: in the explorer's process it would wait for that process's
 interpreter lock while the explorer writes its outbox and settles its confirms.
@@ -35,10 +37,11 @@ def listen(warden: RobotClient, stop: threading.Event) -> None:
         for note in warden.notifications(timeout=0.5):
             at, now = time.monotonic(), time.time()
             if note.topic is Topic.HAZARD:
-                sent, received, notified = (
-                    t.timestamp() for t in (note.event.sent_at, note.received_at, note.notified_at)
+                stored_at = note.stored_at or note.notified_at
+                sent, received, stored, notified = (
+                    t.timestamp() for t in (note.event.sent_at, note.received_at, stored_at, note.notified_at)
                 )
-                stages = [received - sent, notified - received, now - notified]
+                stages = [received - sent, stored - received, notified - stored, now - notified]
                 i = int(note.event.body.description.split()[-1])
                 print(json.dumps({"i": i, "at": at, "stages": stages}), flush=True)
             if stop.is_set():
@@ -74,7 +77,7 @@ class WardenProcess:
         self._command = [sys.executable, "-m", "bench.warden", str(bus.settings.robots_dir), url]
         self._log = bus.settings.data_dir / "warden.log"
         self.at: dict[int, float] = {}
-        self.stages: dict[int, tuple[float, float, float]] = {}
+        self.stages: dict[int, tuple[float, ...]] = {}
         self._reader = threading.Thread(target=self._read, name="warden-reader", daemon=True)
 
     def __enter__(self) -> WardenProcess:

@@ -143,6 +143,15 @@ class ManagementAPI:
         return self._request("GET", "users")
 
     # permissions
+    def topic_permissions(self, user: str) -> list[dict[str, Any]]:
+        """``user``'s topic permissions, in every virtual host."""
+        return list(self._request("GET", f"users/{_q(user)}/topic-permissions") or [])
+
+    def import_definitions(self, definitions: dict[str, Any]) -> None:
+        """RabbitMQ's definitions import: users, permissions, exchanges, queues and bindings of a
+        document at once (each item names its virtual host); what exists is updated."""
+        self._request("POST", "definitions", json=definitions)
+
     def put_permissions(self, vhost: str, user: str, configure: str, write: str, read: str) -> None:
         body = {"configure": configure, "write": write, "read": read}
         self._request("PUT", f"permissions/{_q(vhost)}/{_q(user)}", json=body)

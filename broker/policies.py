@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
+from fleetbus.broker.uplink import CLASSES, DROP_OLDEST, REFUSE, UplinkBounds
 from fleetbus.schemas.routing import (
     BEACON_DISCARD_QUEUE,
     DEAD_LETTER_QUEUE,
@@ -166,16 +167,25 @@ def delivery_policies(version: str) -> list[QueuePolicy]:
     return [replace(policy, apply_to=quorum_only) for policy in policies if policy.definition]
 
 
-def uplink_policies(max_messages: int, max_bytes: int) -> list[QueuePolicy]:
-    """A site's uplink and hazard uplink (:mod:`fleetbus.broker.sites`), each bounded alike: full
-    means the broker refuses the publish (``reject-publish``, a nack), so the event stays in the
-    robot's outbox, or the hazard's state unsent in the site's store, and is sent again; never a
-    drop, since central has not got it yet."""
-    definition = {"overflow": "reject-publish", "max-length": max_messages, "max-length-bytes": max_bytes}
-    return [
-        QueuePolicy("fleetbus-uplink", _exactly(UPLINK_QUEUE), definition),
-        QueuePolicy("fleetbus-hazard-uplink", _exactly(HAZARD_UPLINK_QUEUE), definition),
-    ]
+def uplink_policies(bounds: UplinkBounds) -> list[QueuePolicy]:
+    """A site's uplink classes (:mod:`fleetbus.broker.uplink`) and hazard uplink
+    (:mod:`fleetbus.broker.sites`), each with its own bound. Hazards, events and hazard states
+    are never dropped: full means the broker refuses the publish (``reject-publish``, a nack), so
+    the event stays in the robot's outbox, or the hazard's state unsent in the site's store, and
+    is sent again, since central has not got it yet. Telemetry drops its oldest, counted like the
+    other queues' drops."""
+    policies = []
+    for uplink in CLASSES:
+        definition: dict[str, Any] = {"overflow": uplink.overflow, "max-length": bounds.of(uplink)}
+        if uplink.overflow == DROP_OLDEST:
+            definition["dead-letter-exchange"] = OVERFLOW_EXCHANGE
+        else:
+            definition["max-length-bytes"] = bounds.max_bytes
+        name = "fleetbus-uplink" if uplink.queue == UPLINK_QUEUE else f"fleetbus-uplink-{uplink.name}"
+        policies.append(QueuePolicy(name, _exactly(uplink.queue), definition))
+    states = {"overflow": REFUSE, "max-length": bounds.events, "max-length-bytes": bounds.max_bytes}
+    policies.append(QueuePolicy("fleetbus-hazard-uplink", _exactly(HAZARD_UPLINK_QUEUE), states))
+    return policies
 
 
 def apply_policies(api: ManagementAPI, vhost: str, policies: list[QueuePolicy]) -> None:

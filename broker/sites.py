@@ -3,21 +3,24 @@ central.
 
 A site runs a whole fleetbus of its own; RabbitMQ forwards it to central:
 
-* **uplink** (on the site): ``fleetbus.uplink``, a durable queue bound to ``fleetbus.ingest`` with
-  ``<robot>.#`` for each robot central sent the site (:func:`forward_robot`), keeps a copy of
+* **uplink** (on the site): three durable queues, one per class of event
+  (:mod:`fleetbus.broker.uplink`: hazards, events, telemetry), bound to ``fleetbus.ingest`` by
+  ``<robot>.<type>`` for each robot central sent the site (:func:`forward_robot`), keep a copy of
   every event of theirs the site's broker accepted (beacons that passed the header check
-  included), bounded by a policy whose overflow refuses new events (they stay in the robots'
-  outboxes). The dynamic shovel ``fleetbus-uplink`` moves it to central in order, acking a message
-  only once central confirmed it (``ack-mode: on-confirm``). It names no destination exchange, so
+  included), each bounded by a policy of its own: hazards and events refuse new ones when full
+  (they stay in the robots' outboxes), telemetry drops its oldest. A dynamic shovel per class
+  moves each to central in order, acking a message only once central confirmed it (``ack-mode:
+  on-confirm``), so a hazard never waits behind telemetry. They name no destination exchange, so
   central receives each message on the exchange the robot published it to, with the robot's
   routing key and properties, ``user_id`` included: the site logs in to central as its own
   account, tagged ``impersonator``, which RabbitMQ lets publish with another user's ``user_id``.
-* **downlink** (central to site): central publishes what a site needs (its robots' accounts, the
-  team's missions) to
-  ``fleetbus.sites`` with keys ``<site>.<kind>``; ``<site>.downlink`` holds the site's share
-  until the shovel ``fleetbus-downlink``, running on the site, moves it into the site's
-  ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies it (what it cannot parse
-  it moves to ``fleetbus.downlink.rejected``).
+* **downlink** (central to site): central publishes what a site needs (its robots' accounts, its
+  missions, the team's maps) to ``fleetbus.sites`` with keys ``<site>.<kind>``;
+  ``<site>.downlink`` holds the site's accounts and missions, ``<site>.downlink.maps`` its maps,
+  until the shovels ``fleetbus-downlink`` and ``fleetbus-downlink-maps``, running on the site,
+  move them into the site's ``fleetbus.downlink``, where :mod:`fleetbus.workers.downlink` applies
+  them (what it cannot parse it moves to ``fleetbus.downlink.rejected``). Two queues, so that a
+  large map on its way does not hold a mission back.
 * **hazard states** (on the site): the site's worker puts each new state of its hazards in
   ``fleetbus.hazard-uplink`` (:mod:`fleetbus.workers.hazard_uplink`); the shovel
   ``fleetbus-hazard-uplink`` moves them, confirmed, to the site's ``<site>.hazards`` at central,
@@ -54,9 +57,11 @@ from fleetbus.broker.topology import (
     inbox_bindings,
     replicated,
 )
+from fleetbus.broker.uplink import BY_QUEUE, CLASSES, UplinkBounds
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
     DEAD_LETTER_EXCHANGE,
+    DOWNLINK_MAPS_SHOVEL,
     DOWNLINK_QUEUE,
     DOWNLINK_REJECTED_QUEUE,
     DOWNLINK_SHOVEL,
@@ -68,17 +73,22 @@ from fleetbus.schemas.routing import (
     SITE_REPORTS_QUEUE,
     SITES_EXCHANGE,
     UPLINK_QUEUE,
-    UPLINK_SHOVEL,
     RobotKind,
     beacon_exchange,
     events_exchange,
     inbox_queue,
     owner_pattern,
+    site_downlink_key,
     site_downlink_queue,
     site_hazards_exchange,
+    site_maps_queue,
     site_status_exchange,
 )
 
+#: The downlink's kinds of change (:mod:`fleetbus.schemas.site_changes`): small ones in one queue,
+#: maps in another, each with its shovel.
+DOWNLINK_KINDS = ("account", "mission")
+MAP_KINDS = ("map", "map_chunk")
 #: The tag that lets a site's account publish its robots' events with their own ``user_id``.
 SITE_TAGS = "impersonator"
 #: Central's queue of the sites' hazard states: what its worker refuses goes to the dead letters.
@@ -89,11 +99,11 @@ SITE_HAZARDS_QUEUE_ARGUMENTS = {"x-queue-type": "classic", "x-dead-letter-exchan
 
 
 def site_topology() -> Topology:
-    """The uplink, downlink and hazard uplink queues; the uplinks' bounds are policies
+    """The uplink classes', downlink and hazard uplink queues; the uplinks' bounds are policies
     (:func:`~fleetbus.broker.policies.uplink_policies`), so that changing them needs no new queue."""
     return Topology(
         queues=(
-            QueueSpec(UPLINK_QUEUE, {"x-queue-type": "classic"}),
+            *(QueueSpec(uplink.queue, {"x-queue-type": "classic"}) for uplink in CLASSES),
             QueueSpec(DOWNLINK_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(DOWNLINK_REJECTED_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(HAZARD_UPLINK_QUEUE, {"x-queue-type": "classic"}),
@@ -101,23 +111,24 @@ def site_topology() -> Topology:
     )
 
 
-def uplink_key(robot: str) -> str:
-    return f"{robot}.#"
-
-
 def forward_robot(api: ManagementAPI, vhost: str, robot: str) -> None:
-    """Forward ``robot``'s events to central from now on: its binding into the uplink. Only robots
-    central knows are bound (``fleetbus site apply`` binds each account central sends): an event
-    of a robot central does not know would be refused there and stop the uplink for everyone."""
-    api.bind(vhost, INGEST_EXCHANGE, UPLINK_QUEUE, uplink_key(robot))
+    """Forward ``robot``'s events to central from now on: its bindings into the uplink's classes,
+    one per event type. Only robots central knows are bound (``fleetbus site apply`` binds each
+    account central sends): an event of a robot central does not know would be refused there and
+    stop its class's uplink for everyone. A binding of an older site (``<robot>.#``, everything
+    into one queue) is removed."""
+    for uplink in CLASSES:
+        for key in uplink.keys(robot):
+            api.bind(vhost, INGEST_EXCHANGE, uplink.queue, key)
+    api.unbind_keys(vhost, INGEST_EXCHANGE, UPLINK_QUEUE, [f"{robot}.#"])
 
 
 def forwarded_robots(api: ManagementAPI, vhost: str) -> set[str]:
     """The robots whose events the uplink takes."""
     return {
-        b["routing_key"].removesuffix(".#")
+        b["routing_key"].split(".", 1)[0]
         for b in api.exchange_bindings(vhost, INGEST_EXCHANGE)
-        if b["destination"] == UPLINK_QUEUE and b["destination_type"] == "queue"
+        if b["destination"] in BY_QUEUE and b["destination_type"] == "queue"
     }
 
 
@@ -141,26 +152,32 @@ def _confirmed_shovel(source: str, destination: str, reconnect_delay_s: int, **e
     }
 
 
-def uplink_shovel(central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int) -> dict[str, Any]:
-    """The uplink's definition. An ``amqps://`` ``central_url`` is verified as fleetbus's own
-    clients verify (:func:`~fleetbus.broker.tls.shovel_uri`: certificate and host name). No
-    destination exchange: each message goes to the exchange it was published to, with its key."""
+def uplink_shovel(
+    central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int, queue: str = UPLINK_QUEUE
+) -> dict[str, Any]:
+    """The definition of the uplink class of ``queue``. An ``amqps://`` ``central_url`` is verified
+    as fleetbus's own clients verify (:func:`~fleetbus.broker.tls.shovel_uri`: certificate and host
+    name). No destination exchange: each message goes to the exchange it was published to, with
+    its key."""
     return _confirmed_shovel(
         local_uri(vhost),
         shovel_uri(central_url),
         reconnect_delay_s,
-        src_queue=UPLINK_QUEUE,
+        src_queue=queue,
         src_prefetch_count=prefetch,
         dest_add_forward_headers=True,
     )
 
 
-def downlink_shovel(central_url: str, site: str, vhost: str, reconnect_delay_s: int) -> dict[str, Any]:
+def downlink_shovel(
+    central_url: str, site: str, vhost: str, reconnect_delay_s: int, maps: bool = False
+) -> dict[str, Any]:
+    """The downlink of the site's accounts and missions, or (``maps``) of its maps."""
     return _confirmed_shovel(
         shovel_uri(central_url),
         local_uri(vhost),
         reconnect_delay_s,
-        src_queue=site_downlink_queue(site),
+        src_queue=site_maps_queue(site) if maps else site_downlink_queue(site),
         dest_queue=DOWNLINK_QUEUE,
     )
 
@@ -182,20 +199,25 @@ async def start_site_links(
     site: str,
     central_url: str,
     *,
-    max_messages: int,
-    max_bytes: int,
+    bounds: UplinkBounds,
     reconnect_delay_s: int,
     prefetch: int = 1000,
 ) -> None:
-    """On the site's broker, as its administrator: the uplink, downlink and hazard uplink queues
-    and shovels (idempotent; a new ``central_url`` replaces the old one)."""
+    """On the site's broker, as its administrator: the uplink classes', downlink and hazard uplink
+    queues and shovels (idempotent; a new ``central_url`` replaces the old one)."""
     validate_name(site)
     # the ingest exchange first (declaring what exists changes nothing; one shard is what it needs)
     vhost = vhost_of(admin_url)
-    apply_policies(api, vhost, uplink_policies(max_messages, max_bytes))
+    apply_policies(api, vhost, uplink_policies(bounds))
     await declare_with_url(admin_url, [core_topology(1), site_topology()])
-    api.put_shovel(vhost, UPLINK_SHOVEL, uplink_shovel(central_url, vhost, reconnect_delay_s, prefetch))
+    for uplink in CLASSES:
+        api.put_shovel(
+            vhost, uplink.shovel, uplink_shovel(central_url, vhost, reconnect_delay_s, prefetch, uplink.queue)
+        )
     api.put_shovel(vhost, DOWNLINK_SHOVEL, downlink_shovel(central_url, site, vhost, reconnect_delay_s))
+    api.put_shovel(
+        vhost, DOWNLINK_MAPS_SHOVEL, downlink_shovel(central_url, site, vhost, reconnect_delay_s, maps=True)
+    )
     api.put_shovel(
         vhost, HAZARD_UPLINK_SHOVEL, hazard_uplink_shovel(central_url, site, vhost, reconnect_delay_s)
     )
@@ -203,8 +225,10 @@ async def start_site_links(
 
 def stop_site_links(api: ManagementAPI, vhost: str) -> None:
     """Delete the shovels; the queues (and what waits in them) stay."""
-    api.delete_shovel(vhost, UPLINK_SHOVEL)
+    for uplink in CLASSES:
+        api.delete_shovel(vhost, uplink.shovel)
     api.delete_shovel(vhost, DOWNLINK_SHOVEL)
+    api.delete_shovel(vhost, DOWNLINK_MAPS_SHOVEL)
     api.delete_shovel(vhost, HAZARD_UPLINK_SHOVEL)
 
 
@@ -224,6 +248,7 @@ def central_site_topology(site: str, cluster: bool = False) -> Topology:
     exchange into the hazard states' queue (replicated on a cluster, as the worker declares it:
     a state the broker confirmed to the site's shovel must not be lost with a node)."""
     queue = site_downlink_queue(site)
+    maps = site_maps_queue(site)
     status = site_status_exchange(site)
     hazards = site_hazards_exchange(site)
     return Topology(
@@ -234,11 +259,13 @@ def central_site_topology(site: str, cluster: bool = False) -> Topology:
         ),
         queues=(
             QueueSpec(queue, {"x-queue-type": "classic"}),
+            QueueSpec(maps, {"x-queue-type": "classic"}),
             QueueSpec(SITE_REPORTS_QUEUE, {"x-queue-type": "classic"}),
             QueueSpec(SITE_HAZARDS_QUEUE, replicated(SITE_HAZARDS_QUEUE_ARGUMENTS, cluster)),
         ),
         bindings=(
-            BindingSpec(SITES_EXCHANGE, queue, f"{site}.#"),
+            *(BindingSpec(SITES_EXCHANGE, queue, site_downlink_key(site, kind)) for kind in DOWNLINK_KINDS),
+            *(BindingSpec(SITES_EXCHANGE, maps, site_downlink_key(site, kind)) for kind in MAP_KINDS),
             BindingSpec(status, SITE_REPORTS_QUEUE, ""),
             BindingSpec(hazards, SITE_HAZARDS_QUEUE, ""),
         ),
@@ -255,8 +282,11 @@ async def add_site_account(
         raise ValueError(f"the account {site!r} exists at central; use --rotate to give it a new password")
     password = secrets.token_urlsafe(24)
     api.put_user(site, password, SITE_TAGS)
-    grant_site_robots(api, vhost_of(admin_url), site, ())
+    vhost = vhost_of(admin_url)
+    grant_site_robots(api, vhost, site, ())
     await declare_with_url(admin_url, [central_site_topology(site, cluster)])
+    # a site added before maps had a queue of their own took everything by one binding
+    api.unbind_keys(vhost, SITES_EXCHANGE, site_downlink_queue(site), [f"{site}.#"])
     return Account(site, Role.SERVICE, url_for(admin_url, site, password))
 
 

@@ -243,14 +243,32 @@ class Settings(BaseSettings):
     )
     uplink_max: Annotated[int, Positive] = setting(
         1_000_000,
-        "on a site: the most events waiting to be forwarded to central (`fleetbus.uplink`); when it is full "
-        "the site's broker refuses robots' events, which stay in their outboxes (set by `fleetbus site up`); "
-        "the hazard states waiting for central (`fleetbus.hazard-uplink`) have the same bound",
+        "on a site: the most events other than hazards and telemetry (maps, behaviour, beacons, ROS) "
+        "waiting to be forwarded to central (`fleetbus.uplink`); when it is full the site's broker refuses "
+        "robots' events of that class, which stay in their outboxes (set by `fleetbus site up`); the hazard "
+        "states waiting for central (`fleetbus.hazard-uplink`) have the same bound",
+    )
+    uplink_hazards_max: Annotated[int, Positive] = setting(
+        100_000,
+        "on a site: the most hazard events waiting to be forwarded to central (`fleetbus.uplink.hazards`, "
+        "a queue and shovel of their own, never behind telemetry); full, the site refuses new hazards, "
+        "which stay in the robots' outboxes",
+    )
+    uplink_telemetry_max: Annotated[int, Positive] = setting(
+        200_000,
+        "on a site: the most status and localisation events waiting to be forwarded to central "
+        "(`fleetbus.uplink.telemetry`); full, its oldest are dropped and counted (`fleetbus stats`), "
+        "never refused",
     )
     uplink_max_bytes: Annotated[int, Positive] = setting(
         4 * 1024**3,
-        "on a site: the most bytes waiting to be forwarded to central, with the same refusal when full",
+        "on a site: the most bytes each class never dropped may hold, with the same refusal when full",
         shown="4 GiB",
+    )
+    uplink_alert_at: Annotated[float, Field(gt=0, le=1)] = setting(
+        0.8,
+        "at central: the share of a class's bound at which a site's uplink is reported as near full "
+        "(`fleetbus sites`, the console's dashboard, the workers' log)",
     )
     central_url: str | None = setting(
         None,
@@ -269,6 +287,12 @@ class Settings(BaseSettings):
     site_reconnect_delay_s: Annotated[int, Positive] = setting(
         1,
         "on a site: whole seconds the uplink and downlink shovels wait before connecting to central again",
+    )
+    outbox_limits: str = setting(
+        "",
+        "on a robot: its outbox's limits by type, read by the robot client (`status=500 localisation=100`); "
+        "telemetry beyond its limit is thinned to the newest (the rest dropped and counted, shown in "
+        "`fleetbus outbox` and the team view), a type never dropped refuses the event past its limit",
     )
     inbox_max: Words = setting(
         ("10000", "100MB"),

@@ -19,6 +19,7 @@ Right after the client started, the sender's first connection attempt is still u
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -37,7 +38,7 @@ from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outgoing
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError, PublishRefused
 from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
-from fleetbus.publishers.outbox import DEFAULT_POLICIES, Entry, Outbox, TypePolicy
+from fleetbus.publishers.outbox import LIMITS_VARIABLE, Entry, Outbox, TypePolicy, policies_with_limits
 from fleetbus.publishers.rpc import RpcChannel
 from fleetbus.publishers.sender import Sender
 from fleetbus.publishers.sequence import SequenceCounter
@@ -116,6 +117,10 @@ class RobotClient:
     ``max_reconnect_delay``: the cap of the waits between connection attempts (and between tries
     of what the broker nacked), which are drawn at random below an exponentially growing bound
     (:mod:`fleetbus.publishers.backoff`) so that a team does not reconnect in lockstep.
+    ``outbox_policies``: each type's overflow and limit in the outbox; by default the outbox's
+    defaults with the limits of ``FLEETBUS_OUTBOX_LIMITS`` (``status=500 localisation=100``).
+    A status event the robot publishes carries, in ``outbox_dropped``, what its outbox dropped so
+    far by type (unless the robot code set it), so that the operators see it in the team view.
     """
 
     def __init__(
@@ -127,7 +132,7 @@ class RobotClient:
         confirm_timeout: float = 10.0,
         close_timeout: float = 5.0,
         max_reconnect_delay: float = 5.0,
-        outbox_policies: Mapping[str, TypePolicy] = DEFAULT_POLICIES,
+        outbox_policies: Mapping[str, TypePolicy] | None = None,
         durable: bool = True,
     ) -> None:
         self.robot_id = validate_name(unquote(urlsplit(amqp_url).username or ""))
@@ -148,7 +153,10 @@ class RobotClient:
         self._lock = StateLock(folder)
         self._lock.acquire()
         try:
-            self.outbox = Outbox(folder / "outbox", outbox_policies, durable=durable)
+            policies = outbox_policies
+            if policies is None:
+                policies = policies_with_limits(os.environ.get(LIMITS_VARIABLE, ""))
+            self.outbox = Outbox(folder / "outbox", policies, durable=durable)
         except BaseException:
             self._lock.release()
             raise
@@ -247,6 +255,15 @@ class RobotClient:
         """Validate bodies, then give them this client's epoch and consecutive sequence numbers in it
         (none wasted on bad input)."""
         bodies = [(event_type, validate_body(event_type, body)) for event_type, body in items]
+        if any(EventType(t) is EventType.STATUS and b.outbox_dropped is None for t, b in bodies):
+            dropped = dict(self.outbox.dropped())
+            if dropped:
+                bodies = [
+                    (t, b.model_copy(update={"outbox_dropped": dropped}))
+                    if EventType(t) is EventType.STATUS and b.outbox_dropped is None
+                    else (t, b)
+                    for t, b in bodies
+                ]
         first = self._sequence.reserve(len(bodies)) if bodies else 0
         return [
             build_event(t, self.robot_id, self.epoch, first + i, body) for i, (t, body) in enumerate(bodies)

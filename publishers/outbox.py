@@ -11,6 +11,11 @@ beacon sightings) are never dropped, and an append that would pass their limit r
 :class:`OutboxFull` instead; ``drop-oldest`` types (telemetry) lose their oldest waiting entries
 when the limit is reached, and the outbox counts what it dropped.
 
+The sender takes hazards and localisations (the express lane's types) before everything else
+that waits, each kind oldest first: after an outage a hazard does not wait behind the telemetry
+queued before it, and the localisations that open the hazard gate come with it. Each type keeps
+its own order, and so does everything that is neither (a map's chunks before its map).
+
 Entries the broker refused for good (access refused, unroutable) move to ``refused.json`` with
 the reason, so one bad event cannot block the ones behind it.
 """
@@ -32,7 +37,7 @@ from tinydb.table import Document
 
 from fleetbus.publishers.storage import AtomicJSONStorage, own_folder, write_atomically
 from fleetbus.schemas.envelope import Event, encode_event
-from fleetbus.schemas.routing import EventType
+from fleetbus.schemas.routing import EXPRESS_TYPES, EventType
 
 SEGMENT_NAME = re.compile(r"^seg-(\d{12})\.json$")
 BLOB_PREFIX = "blob-"
@@ -56,6 +61,8 @@ SEGMENT_EVENTS = 256
 #: larger ones are bulk and go the ordinary way, from the outbox.
 EXPRESS_MAX = 16
 KEEP_LIMIT = 100_000
+#: What the sender takes first from what waits: the express lane's types.
+FIRST = frozenset(t.value for t in EXPRESS_TYPES)
 DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
     EventType.STATUS.value: TypePolicy(Overflow.DROP_OLDEST, 10_000),
     EventType.LOCALISATION.value: TypePolicy(Overflow.DROP_OLDEST, 1_000),
@@ -67,6 +74,28 @@ DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
     EventType.ROS.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
 }
 DEFAULT_POLICY = TypePolicy(Overflow.KEEP, KEEP_LIMIT)
+#: The environment variable a robot's client reads its outbox limits from (:func:`policies_with_limits`).
+LIMITS_VARIABLE = "FLEETBUS_OUTBOX_LIMITS"
+
+
+def policies_with_limits(
+    text: str, base: Mapping[str, TypePolicy] = DEFAULT_POLICIES
+) -> dict[str, TypePolicy]:
+    """``base`` with the limits ``text`` sets: ``status=500 localisation=100`` (commas or spaces
+    between). Each named type keeps its overflow: telemetry thinned to its newest ``N`` waiting
+    (the older dropped, and counted), a type never dropped refusing the ``N+1``-th (``OutboxFull``).
+    Raises ValueError naming what does not parse."""
+    policies = dict(base)
+    known = {t.value for t in EventType}
+    for word in text.replace(",", " ").split():
+        name, _, number = word.partition("=")
+        if name not in known:
+            known_list = ", ".join(sorted(known))
+            raise ValueError(f"{LIMITS_VARIABLE}: unknown type {name!r} in {word!r}; known: {known_list}")
+        if not number.isdigit() or int(number) < 1:
+            raise ValueError(f"{LIMITS_VARIABLE}: {word!r} needs a whole number, 1 or more, after '='")
+        policies[name] = TypePolicy(_policy(base, name).overflow, int(number))
+    return policies
 
 
 class ExpressJob(Protocol):
@@ -171,6 +200,8 @@ class Outbox:
         self._read_only = read_only
         self._lock = threading.RLock()
         self._in_flight: set[tuple[int, int]] = set()
+        self._first_in_flight: set[tuple[int, int]] = set()
+        """Those of :data:`FIRST`'s types (a segment holding none waiting is not read for them)."""
         if not read_only:
             own_folder(folder)
         elif not folder.is_dir():
@@ -178,6 +209,7 @@ class Outbox:
         self._meta = TinyDB(folder / "meta.json", storage=AtomicJSONStorage, durable=durable)
         self._refused = TinyDB(folder / "refused.json", storage=AtomicJSONStorage, durable=durable)
         self._segments: list[_Segment] = []
+        self._dropped: Counter[str] | None = None
         self._recover()
 
     # ------------------------------------------------------------------ opening and recovery
@@ -363,23 +395,27 @@ class Outbox:
     # ------------------------------------------------------------------ draining
 
     def take(self, limit: int, whole_segments: bool = False) -> list[Entry]:
-        """The oldest ``limit`` entries not in flight yet, marked in flight until :meth:`settle`.
+        """The ``limit`` entries to send next, not in flight yet, marked in flight until :meth:`settle`:
+        the waiting ones of :data:`FIRST`'s types, oldest first, then the others, oldest first.
 
         A sender may take the next window while the broker still confirms the last one. With
-        ``whole_segments`` the take stops before a segment it could only take part of (unless that
-        is the first): settling it then deletes segment files without reading them again.
+        ``whole_segments`` the take of the others stops before a segment it could only take part
+        of (unless that is the first): settling it then deletes segment files without reading
+        them again.
         """
         with self._lock:
-            entries: list[Entry] = []
+            entries, stopped = self._take_first(limit, whole_segments)
             flying = Counter(number for number, _ in self._in_flight)
             read: list[_Segment] = []
+            # the first segment this take reads may be taken in part, unless the first take stopped
+            taken_first = 0 if stopped else len(entries)
             for segment in self._segments:
                 if len(entries) == limit:
                     break
                 waiting = segment.size - flying[segment.number]
                 if waiting <= 0:
                     continue  # all of it is being sent already
-                if whole_segments and entries and len(entries) + waiting > limit:
+                if whole_segments and len(entries) > taken_first and len(entries) + waiting > limit:
                     break
                 read.append(segment)
                 for doc_id, doc in self._raw_docs(segment):
@@ -387,10 +423,39 @@ class Outbox:
                         break
                     if (segment.number, doc_id) not in self._in_flight:
                         entries.append(self._entry(segment, doc_id, doc))
-            self._in_flight |= {entry.position for entry in entries}
+                        self._in_flight.add((segment.number, doc_id))
             for segment in read:
                 self._release(segment)
             return entries
+
+    def _take_first(self, limit: int, whole_segments: bool) -> tuple[list[Entry], bool]:
+        """Up to ``limit`` waiting entries of :data:`FIRST`'s types, oldest first, marked in flight.
+
+        All of them, including those that wait behind nothing (the telemetry before them is in
+        flight already): taking only those behind telemetry would send a later hazard before an
+        earlier one, which the express lane receives out of order. True with them if it stopped
+        before a segment of theirs only that it could not take whole."""
+        entries: list[Entry] = []
+        flying = Counter(number for number, _ in self._first_in_flight)
+        for segment in self._segments:
+            if len(entries) == limit:
+                break
+            firsts = sum(segment.counts[t] for t in FIRST)
+            waiting = firsts - flying[segment.number]
+            if waiting <= 0:
+                continue  # none of them waits here (or all are being sent)
+            if whole_segments and entries and firsts == segment.size and len(entries) + waiting > limit:
+                return entries, True  # as the oldest-first take does: a segment of theirs only, whole
+            for doc_id, doc in self._raw_docs(segment):
+                position = (segment.number, doc_id)
+                if len(entries) == limit:
+                    break
+                if doc["type"] in FIRST and position not in self._in_flight:
+                    entries.append(self._entry(segment, doc_id, doc))
+                    self._in_flight.add(position)
+                    self._first_in_flight.add(position)
+            self._release(segment)
+        return entries, False
 
     def _entry(self, segment: _Segment, doc_id: int, doc: dict[str, Any]) -> Entry:
         body = (self.folder / doc["blob"]).read_bytes() if "blob" in doc else doc["body"].encode()
@@ -450,6 +515,7 @@ class Outbox:
                 else:
                     self._remove(segment, [doc for doc in self._docs(segment) if doc.doc_id in ids])
             self._in_flight = set() if done is None else self._in_flight - done
+            self._first_in_flight &= self._in_flight
 
     def release(self) -> None:
         """Nothing of the last take was settled (the connection broke): it waits again, and counts
@@ -457,6 +523,7 @@ class Outbox:
         with self._lock:
             types = {t for segment in self._segments for t, n in segment.counts.items() if n}
             self._in_flight = set()
+            self._first_in_flight = set()
             for event_type in types:
                 self._enforce_drop_limit(event_type)
 
@@ -534,7 +601,11 @@ class Outbox:
             ]
 
     def dropped(self) -> Counter[str]:
-        return self._counter("dropped")
+        """What the thinning dropped, by type, since the outbox was made (kept on disk)."""
+        with self._lock:
+            if self._dropped is None:
+                self._dropped = self._counter("dropped")
+            return Counter(self._dropped)
 
     def summary(self) -> dict[str, TypeSummary]:
         """Per type: how many wait, the oldest one's time, how many were dropped or refused."""
@@ -567,3 +638,5 @@ class Outbox:
         counts[event_type] = counts.get(event_type, 0) + n
         doc[name] = counts
         table.upsert(Document(doc, doc_id=1))
+        if name == "dropped":
+            self._dropped = Counter(counts)

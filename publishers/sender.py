@@ -18,6 +18,13 @@ What goes wrong is one of two kinds, told apart here:
   nothing about the message itself. The events stay in the outbox, in their place, and are sent
   again after a wait drawn by :func:`fleetbus.publishers.backoff.reconnect_delay`: exponential, with full
   jitter, capped at ``max_reconnect_delay``. A connection loss never marks a message refused.
+
+After a nack the sender does not send its whole backlog again: it sends one event (the first to
+go) and doubles the window with each window the broker takes whole, back up to
+:data:`PUBLISH_WINDOW` (a TCP-like slow start). A site whose uplink is full nacks what is routed
+there, but its other queues have taken the copies already, so every event sent again is a
+duplicate there: with the backlog resent every few seconds, a robot made thirteen duplicates for
+each real event in a 30-second outage of its site's uplink, with the probe about one per try.
 """
 
 from __future__ import annotations
@@ -57,6 +64,8 @@ WINDOWS_IN_FLIGHT = 4
 NACKS_BEFORE_RECONNECT = 3
 #: How often an idle sender lets pika answer heartbeats.
 IDLE_TICK = 1.0
+#: The window after a nack: one event, to learn whether the broker takes messages again.
+PROBE_WINDOW = 1
 
 
 def _abort(connection: pika.BlockingConnection) -> None:
@@ -152,6 +161,8 @@ class Sender:
         self._confirms: PipelinedConfirms | None = None
         self.last_error: str | None = None
         self.sent = 0
+        self._window = PUBLISH_WINDOW
+        """Events a window takes now: :data:`PROBE_WINDOW` after a nack, doubling back up."""
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
     # ------------------------------------------------------------------ control (any thread)
@@ -407,8 +418,9 @@ class Sender:
         nacked = 0
         try:
             while True:
-                if len(outstanding) < WINDOWS_IN_FLIGHT and not nacked:
-                    entries = self._outbox.take(PUBLISH_WINDOW, whole_segments=True)
+                probing = self._window < PUBLISH_WINDOW
+                if len(outstanding) < (1 if probing else WINDOWS_IN_FLIGHT) and not nacked:
+                    entries = self._outbox.take(self._window, whole_segments=True)
                     if entries:
                         messages = [self._to_outgoing(entry) for entry in entries]
                         outstanding.append((entries, messages, confirms.write(messages)))
@@ -421,7 +433,12 @@ class Sender:
                 entries, messages, window = outstanding[0]
                 outcome = confirms.wait(window, self._confirm_timeout)
                 outstanding.popleft()
-                nacked += self._settle_outcome(entries, outcome, entries)
+                refused_now = self._settle_outcome(entries, outcome, entries)
+                nacked += refused_now
+                if refused_now:
+                    self._window = PROBE_WINDOW
+                elif len(entries) >= self._window:
+                    self._window = min(PUBLISH_WINDOW, 2 * self._window)
         except PublishRefused:
             # The broker closed the channel on one of them: every window written is in doubt. Send
             # the oldest again one message at a time to find which; the rest go again after it.
@@ -455,6 +472,7 @@ class Sender:
         nacked = self._settle_outcome(positioned, outcome)
         self._outbox.release()
         if nacked:
+            self._window = PROBE_WINDOW
             raise Nacked(nacked)
 
     def _settle_one_by_one(self, entries: list[Entry], messages: list[Outgoing]) -> None:

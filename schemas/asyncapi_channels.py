@@ -288,9 +288,7 @@ def service_side_channels(robot: dict[str, Any]) -> dict[str, Any]:
             "parameters": {"user": robot},
             "subscribe": {
                 "operationId": "followStream",
-                "message": {
-                    "oneOf": [{"$ref": f"#/components/messages/{t.value}_event"} for t in EventType]
-                },
+                "message": {"oneOf": [{"$ref": f"#/components/messages/{t.value}_event"} for t in EventType]},
             },
             "bindings": _queue("{user}.stream"),
         },

@@ -137,6 +137,12 @@ class RobotStatus(Strict):
     pose: Pose
     current_waypoint: str | None = Field(default=None, max_length=128)
     processing_rate_hz: float = Field(ge=0)
+    outbox_dropped: dict[str, Annotated[int, Field(ge=0)]] | None = Field(
+        default=None,
+        max_length=16,
+        description="events the robot's outbox dropped by its thinning policy since it was made, by type "
+        "(the robot client fills it in)",
+    )
 
 
 class LocalisationState(Strict):

@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, model_validator
 
+from fleetbus.schemas.identity import NAME_PATTERN
 from fleetbus.schemas.mission_states import MissionState
 
 __all__ = ["MissionState"]
@@ -101,6 +102,11 @@ class RiskAssessment(_Strict):
 class MissionPlan(_Strict):
     """What a client and a planner fill in while the mission is in planning."""
 
+    site: str | None = Field(
+        default=None,
+        pattern=NAME_PATTERN.pattern,
+        description="the site the mission belongs to: it goes to that site only; none: to every site",
+    )
     geofence: Geofence | None = None
     points_of_interest: list[PointOfInterest] = []
     itinerary: list[ItineraryStop] = []

@@ -18,7 +18,10 @@ class Notification(BaseModel):
     event: Event
     """The event exactly as the robot sent it."""
     received_at: AwareDatetime
-    """When the service received the event."""
+    """When the service took the event from the broker."""
+    stored_at: AwareDatetime | None = None
+    """When the service had stored it, for a notification sent right after (None when it was
+    sent later: a hazard held until the wardens localised, or one a warden missed)."""
     notified_at: AwareDatetime
     hazard_id: int | None = None
     """For hazards: the id the service gave it, sequential within its mission."""

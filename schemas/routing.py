@@ -112,6 +112,7 @@ UPLINK_QUEUE = "fleetbus.uplink"
 UPLINK_SHOVEL = "fleetbus-uplink"
 DOWNLINK_QUEUE = "fleetbus.downlink"
 DOWNLINK_SHOVEL = "fleetbus-downlink"
+DOWNLINK_MAPS_SHOVEL = "fleetbus-downlink-maps"
 #: On a site: downlink messages ``fleetbus site apply`` could not parse, kept for a look.
 DOWNLINK_REJECTED_QUEUE = "fleetbus.downlink.rejected"
 SITES_EXCHANGE = "fleetbus.sites"
@@ -130,6 +131,11 @@ SHOVELLED_HEADER = "x-shovelled"
 def site_downlink_queue(site: str) -> str:
     """Central's queue of what one site is sent (its robots' accounts, missions, maps)."""
     return f"{site}.downlink"
+
+
+def site_maps_queue(site: str) -> str:
+    """Central's queue of the maps one site is sent: apart, so a large map never holds a mission back."""
+    return f"{site}.downlink.maps"
 
 
 def site_status_exchange(site: str) -> str:

@@ -78,8 +78,11 @@ def _hazard_step(name: str, what: str) -> Method:
 
 METHODS: tuple[Method, ...] = (
     Method(
-        "hazard.get", "one hazard of the mission", {"hazard_id": HAZARD_ID, "mission_id": MISSION},
-        ("hazard_id",), HAZARD,
+        "hazard.get",
+        "one hazard of the mission",
+        {"hazard_id": HAZARD_ID, "mission_id": MISSION},
+        ("hazard_id",),
+        HAZARD,
     ),
     Method(
         "hazard.open",

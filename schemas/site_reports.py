@@ -5,9 +5,24 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 SITE_REPORT_TYPE = "fleetbus.site-report"
+
+
+class UplinkDepth(BaseModel):
+    """What waits in one class of the site's uplink, and its bound."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    waiting: int = Field(ge=0)
+    bound: int = Field(ge=1)
+    overflow: str
+    """``reject-publish`` (full: the site refuses the robots' events of the class) or ``drop-head``."""
+
+    @property
+    def share(self) -> float:
+        return self.waiting / self.bound
 
 
 class SiteReport(BaseModel):
@@ -17,7 +32,11 @@ class SiteReport(BaseModel):
     at: datetime
     """When the site measured it (its clock)."""
     waiting: int | None
-    """Events in the site's uplink not yet confirmed by central; None when it could not tell."""
+    """Events in the site's uplink not yet confirmed by central, every class; None when it could
+    not tell."""
+    classes: dict[str, UplinkDepth] | None = None
+    """Each class of the uplink (hazards, events, telemetry): what waits and its bound; None from
+    an older site."""
     uplink: str
     """The uplink shovel's state (``running``, ``starting``, ``terminated``, ``absent``)."""
     downlink: str

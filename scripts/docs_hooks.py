@@ -70,9 +70,8 @@ def http_api_page() -> str:
         "Every route of `fleetbus api`, from the OpenAPI document the service serves at "
         "`/openapi.json` ([download it](openapi.json), or `fleetbus api openapi FILE`). Routes say "
         "which roles may call them (`x-roles`). Log in with `POST /auth/token` and send the token "
-        "as `Authorization: Bearer <token>`.\n\n" + rest.replace("\n# ", "\n## ").replace(
-            "<hr />", REFUSALS + "<hr />", 1
-        )
+        "as `Authorization: Bearer <token>`.\n\n"
+        + rest.replace("\n# ", "\n## ").replace("<hr />", REFUSALS + "<hr />", 1)
     )
 
 

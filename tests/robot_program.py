@@ -1,6 +1,6 @@
 """A short robot program, written the way the README shows one: publish, then leave the ``with`` block.
 
-    python -m tests.robot_program URL STATE_DIR [--hazards N] [--status N] [--wait-for-go]
+    FLEETBUS_ROBOT_URL=URL python -m tests.robot_program STATE_DIR [--hazards N] [--status N] [--wait-for-go]
                                   [--close-timeout S]
 
 Publishes N hazards one ``publish`` at a time (as robot code does), then M status events in
@@ -14,6 +14,7 @@ is left.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -23,7 +24,6 @@ from tests.factories import hazard, status
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("url")
     parser.add_argument("state_dir", type=Path)
     parser.add_argument("--hazards", type=int, default=0)
     parser.add_argument("--status", type=int, default=0)
@@ -31,7 +31,8 @@ def main() -> None:
     parser.add_argument("--close-timeout", type=float, default=None)
     args = parser.parse_args()
     options = {} if args.close_timeout is None else {"close_timeout": args.close_timeout}
-    with RobotClient(args.url, state_dir=args.state_dir, **options) as robot:
+    url = os.environ["FLEETBUS_ROBOT_URL"]  # it holds a password: never an argument
+    with RobotClient(url, state_dir=args.state_dir, **options) as robot:
         print(f"ready {robot.epoch}", flush=True)
         if args.wait_for_go:
             sys.stdin.readline()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import os
 import selectors
 import subprocess
@@ -26,6 +27,7 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.retry import retrying
 from fleetbus.broker.tls import blocking_connection
+from fleetbus.broker.uplink import CLASSES
 from fleetbus.broker.urls import without_password
 from fleetbus.cli.registry import register_robot
 from fleetbus.dev.recorder_thread import RecorderThread
@@ -170,14 +172,20 @@ class Bus:
             client.close(flush_timeout=0)  # what a test left waiting stays; the test is over
 
     def spawn_robot(self, url: str, *args: str) -> subprocess.Popen[str]:
-        """A robot as its own process (``tests.robot_process``), to be killed for real."""
-        return subprocess.Popen(
-            [sys.executable, "-m", "tests.robot_process", url, str(self.settings.robots_dir), *args],
+        """A robot as its own process (``tests.robot_process``), to be killed for real; its URL (with
+        its password) on its standard input, never in its arguments."""
+        process = subprocess.Popen(
+            [sys.executable, "-m", "tests.robot_process", str(self.settings.robots_dir), *args],
             cwd=PROJECT_ROOT,
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=open(self.settings.data_dir / f"robot-{uuid.uuid4().hex[:6]}.log", "wb"),
             text=True,
         )
+        assert process.stdin is not None
+        process.stdin.write(url + "\n")
+        process.stdin.close()
+        return process
 
     def outbox(self, robot: str) -> Outbox:
         """A robot's outbox as `fleetbus outbox` reads it (read-only; the robot may be running)."""
@@ -375,22 +383,37 @@ def keys(events: Iterable[Event]) -> list[EventKey]:
     return [(event.epoch, event.seq) for event in events]
 
 
-def assert_stored_once_in_order(bus: Bus, robot: str, sent: Sequence[EventKey]) -> None:
+def worker_lane(event_type: str) -> str:
+    """Hazards and localisations take the express lane: they may overtake the robot's other events."""
+    return "express" if event_type in EXPRESS_TYPE_NAMES else "shard"
+
+
+def site_lane(event_type: str) -> str:
+    """At central, for a site's robot: also the uplink's class it came by (:mod:`fleetbus.broker.uplink`)."""
+    uplink = next(u.name for u in CLASSES if event_type in {t.value for t in u.types})
+    return f"{uplink} uplink, {worker_lane(event_type)}"
+
+
+def assert_stored_once_in_order(
+    bus: Bus, robot: str, sent: Sequence[EventKey], lane_of: Callable[[str], str] = worker_lane
+) -> None:
     """The store holds each of ``sent`` (epoch, seq) exactly once, and received each epoch's
-    events in sequence order within each lane (hazards and localisations take the express lane:
-    they may overtake the robot's other events). Order holds per (robot, epoch): two clients with
-    the robot's account at once number apart."""
+    events in sequence order within each lane (``lane_of`` an event type). Order holds per
+    (robot, epoch): two clients with the robot's account at once number apart."""
     records = sorted(bus.find(EventQuery(robot_id=robot)), key=lambda record: (record.epoch, record.seq))
     assert [(r.epoch, r.seq) for r in records] == sorted(sent), f"{robot}: every event once, nothing else"
     for epoch in {r.epoch for r in records}:
-        for lane, express in (("express", True), ("shard", False)):
-            arrival = [
-                r.received_at
-                for r in records
-                if r.epoch == epoch and (r.type in EXPRESS_TYPE_NAMES) is express
+        for lane in {lane_of(r.type) for r in records}:
+            in_lane = [r for r in records if r.epoch == epoch and lane_of(r.type) == lane]
+            overtaken = [
+                f"seq {a.seq} ({a.type}) at {a.received_at:%H:%M:%S.%f}, "
+                f"seq {b.seq} ({b.type}) at {b.received_at:%H:%M:%S.%f}"
+                for a, b in itertools.pairwise(in_lane)
+                if b.received_at < a.received_at
             ]
-            assert arrival == sorted(arrival), (
-                f"{robot}: a later {lane} event of epoch {epoch} was stored before an earlier one"
+            assert not overtaken, (
+                f"{robot}: a later {lane} event of epoch {epoch} was taken before an earlier one: "
+                f"{overtaken[:5]}"
             )
 
 

@@ -13,7 +13,7 @@ import yaml
 
 from fleetbus.schemas.routing import EventType
 from fleetbus.schemas.services import METHODS
-from tests.factories import hazard
+from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 
 
@@ -82,3 +82,16 @@ def test_schema_export(bus: Bus, tmp_path: Path) -> None:
         for name in asyncapi["components"][kind]
     }
     assert set(re.findall(r'"\$ref": "([^"]+)"', text)) <= targets, "every $ref resolves"
+
+
+def test_a_password_on_the_command_line_is_refused_naming_where_it_goes(bus: Bus) -> None:
+    """Every user of the machine sees a command's arguments: a robot's URL with its password is
+    taken from FLEETBUS_ROBOT_URL or the kept file, never from --url."""
+    bus.accounts.append("argv-explorer")
+    assert fleetbus(bus, "users", "add", "argv-explorer", "--kind", "explorer").returncode == 0
+    kept = (bus.settings.accounts_dir / "argv-explorer.url").read_text().strip()
+    refused = fleetbus(bus, "publish", "argv-explorer", "status", json.dumps(status()), "--url", kept)
+    assert refused.returncode == 2
+    said = refused.stderr.replace("\n", " ")
+    assert "--url holds a password" in said and "FLEETBUS_ROBOT_URL" in said, said
+    assert kept.split("@")[0].rsplit(":", 1)[1] not in refused.stderr, "the password is not repeated"

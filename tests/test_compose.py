@@ -7,7 +7,10 @@ the service accounts alone, which the one-shot `setup` service makes as the admi
 
 from __future__ import annotations
 
+import importlib.util
+import os
 import re
+import stat
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -87,7 +90,8 @@ def test_a_site_is_its_own_profile_and_its_worker_holds_the_service_accounts_alo
     service_url = urlsplit(worker["environment"]["FLEETBUS_SERVICE_URL"])
     assert service_url.username == SERVICE_USER and service_url.password is None
     assert site["site-up"]["command"][:3] == ["fleetbus", "site", "up"]
-    assert required_variable(site["site-up"]["command"][-1]) == "FLEETBUS_CENTRAL_URL"
+    assert "--central" not in site["site-up"]["command"], "the URL holds a password: never in argv"
+    assert required_variable(site["site-up"]["environment"]["FLEETBUS_CENTRAL_URL"]) == "FLEETBUS_CENTRAL_URL"
     plugins = (ROOT / "compose" / "site-enabled-plugins").read_text()
     assert "rabbitmq_shovel," in plugins and "rabbitmq_shovel_management" in plugins
 
@@ -148,13 +152,36 @@ def test_the_cluster_profile_adds_two_nodes_of_the_same_release_sharing_one_cook
     assert len({service["image"] for service in nodes.values()}) == 1
     assert "profiles" not in nodes["rabbitmq"], "node 1 is the single broker too"
     assert all(nodes[name]["profiles"] == ["cluster"] for name in ("rabbitmq-2", "rabbitmq-3"))
-    cookies = {service["environment"]["RABBITMQ_SERVER_ADDITIONAL_ERL_ARGS"] for service in nodes.values()}
-    assert cookies == {"-setcookie ${FLEETBUS_ERLANG_COOKIE:-fleetbus-single-node}"}
+    # the cookie is no argument and has no default: `certs` writes one into each node's data volume
+    text = (ROOT / "compose.yaml").read_text()
+    assert "setcookie" not in text and "ERLANG_COOKIE" not in text
+    certs = SERVICES["certs"]
+    homes = {volume.split(":")[0]: volume.split(":")[1] for volume in certs["volumes"]}
+    data = {name: service["volumes"][0].split(":")[0] for name, service in nodes.items()}
+    assert all(service["volumes"][0].endswith(":/var/lib/rabbitmq") for service in nodes.values())
+    assert f"erlang_cookie.py {' '.join(homes[data[name]] for name in nodes)}" in certs["command"][-1]
     for name in ("setup", "worker", "api"):
         environment = SERVICES[name]["environment"]
         url = environment.get("FLEETBUS_AMQP_URL") or environment["FLEETBUS_SERVICE_URL"]
         assert "@${FLEETBUS_BROKER_HOSTS:-rabbitmq:5671}/" in url, f"{name} lists every node"
         assert environment["FLEETBUS_CLUSTER"] == "${FLEETBUS_CLUSTER:-false}"
+
+
+def test_the_nodes_cookie_is_made_once_kept_and_shared_owner_only(tmp_path: Path) -> None:
+    """compose/erlang_cookie.py, as `certs` runs it, on three node folders: a random cookie in all,
+    0400 and RabbitMQ's; run again, the same; a new node's folder gets the cookie the others have."""
+    spec = importlib.util.spec_from_file_location("erlang_cookie", ROOT / "compose" / "erlang_cookie.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    homes = [tmp_path / name for name in ("rabbitmq", "rabbitmq-2", "rabbitmq-3")]
+    module.share_cookie(homes[:2], uid=os.getuid())
+    first = (homes[0] / ".erlang.cookie").read_text()
+    assert len(first) == 64 and (homes[1] / ".erlang.cookie").read_text() == first
+    said = module.share_cookie(homes, uid=os.getuid())
+    assert [(home / ".erlang.cookie").read_text() for home in homes] == [first] * 3
+    assert first not in said, "the cookie is never printed"
+    assert {stat.S_IMODE((home / ".erlang.cookie").stat().st_mode) for home in homes} == {0o400}
 
 
 #: The brokers and who makes their certificates; the fleetbus services of each side.

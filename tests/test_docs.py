@@ -115,7 +115,9 @@ def test_the_documented_services_are_the_workers_own() -> None:
 
 
 def test_the_server_is_the_one_robots_are_handed() -> None:
-    [server] = asyncapi_document(broker_url="amqps://broker.example:5999/?cacertfile=/ca.pem")["servers"].values()
+    [server] = asyncapi_document(broker_url="amqps://broker.example:5999/?cacertfile=/ca.pem")[
+        "servers"
+    ].values()
     assert (server["protocol"], server["url"]) == ("amqps", "{host}:{port}")
     assert {name: v["default"] for name, v in server["variables"].items()} == {
         "host": "broker.example",

@@ -19,6 +19,7 @@ import aio_pika
 import aio_pika.abc
 import pytest
 
+from fleetbus.broker.accounts import Role
 from fleetbus.broker.tls import aio_connect, blocking_connection
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.schemas.envelope import Event
@@ -31,10 +32,11 @@ from fleetbus.schemas.routing import (
 )
 from fleetbus.workers.attempts import AttemptLimit, attempt_key
 from fleetbus.workers.ingest import IngestConsumer
-from fleetbus.workers.store import Repositories, repositories_for
+from fleetbus.workers.store import HazardState, Repositories, repositories_for
+from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.validation import Accepted, Rejected
 from tests.factories import hazard, status
-from tests.support import Bus, notifications_until, wait_for
+from tests.support import Bus, notifications_until, read_inbox, wait_for
 
 REFUSING_QUEUE = "test.refuses-battery-warnings"
 
@@ -298,3 +300,78 @@ def test_a_worker_handing_the_express_lane_over_finishes_its_batch_before_the_ne
         "leaving done",
         *(f"next:{event.seq}" for event in [first[1], *later]),
     ], "the next consumer began only once the one leaving was done, and took the rest in order"
+
+
+@contextmanager
+def operators_copies_refused(bus: Bus) -> Iterator[None]:
+    """While it lasts, the broker nacks every hazard announcement's copy for the operators."""
+    connection = blocking_connection(bus.admin_url)
+    try:
+        channel = connection.channel()
+        channel.queue_declare(REFUSING_QUEUE, arguments={"x-max-length": 0, "x-overflow": "reject-publish"})
+        channel.queue_bind(REFUSING_QUEUE, NOTIFY_EXCHANGE, notification_routing_key("hazard"))
+        yield
+        channel.queue_delete(REFUSING_QUEUE)
+    finally:
+        connection.close()
+
+
+def test_the_wardens_hear_of_hazards_while_the_copies_for_the_operators_wait(bus: Bus) -> None:
+    """Only the wardens' copies are on a hazard's way: the operators' copy and the mark follow, and
+    the lane is acked once they are done. While the broker refuses the operators' copies, both
+    hazards reach the warden, once each; they stay held and unacked until the copies go through."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    operator = bus.add("operator1", role=Role.OPERATOR)
+    with bus.worker() as worker:
+        warden.publish("localisation", {"localised": True})
+        wait_for(lambda: localised(bus), what="warden1 localised")
+        assert worker.context is not None
+        stats = worker.context.stats
+        with operators_copies_refused(bus):
+            first = explorer.publish("hazard", hazard(0))
+            [note] = warden.receive(1, timeout=30)
+            assert note.event == first and note.received_at <= note.stored_at <= note.notified_at
+            wait_for(lambda: stats.store_retries >= 1, what="the operators' copy refused and tried again")
+            second = explorer.publish("hazard", hazard(1))
+            [note] = warden.receive(1, timeout=30)
+            assert note.event == second, "the next hazard did not wait for the first one's copy"
+            wait_for(lambda: in_queue(bus, EXPRESS_QUEUE) == (0, 2), what="both hazards in hand, unacked")
+            states = [h.state for h in bus.with_store(lambda store: store.hazards.open_hazards(None))]
+            assert states == [HazardState.HELD, HazardState.HELD], "marked only once the copies are confirmed"
+        wait_for(lambda: in_queue(bus, EXPRESS_QUEUE) == (0, 0), what="both acked once the copies went")
+        states = [h.state for h in bus.with_store(lambda store: store.hazards.open_hazards(None))]
+        assert states == [HazardState.ANNOUNCED, HazardState.ANNOUNCED]
+        sentinel = explorer.publish("hazard", hazard(2))
+        after = notifications_until(warden, lambda note: note.event == sentinel)
+        assert [n.event for n in after] == [sentinel], "neither was announced to the warden again"
+    # a copy the broker nacked reached the queues that took it: the operators' inbox may hold a
+    # repeat (the same message id, which consumers skip), never a hazard missing or out of order
+    copies = read_inbox(
+        operator.amqp_url, operator.name, lambda got: any(c.event == sentinel for c in got), 30
+    )
+    firsts = list(dict.fromkeys(c.event.seq for c in copies if c.topic.value == "hazard"))
+    assert firsts == [first.seq, second.seq, sentinel.seq]
+
+
+def test_a_hazard_behind_a_backlog_of_telemetry_is_stored_and_announced_before_it(bus: Bus) -> None:
+    """After an outage: 10,000 status events wait in the shard, then a hazard. The hazard reaches
+    the warden, announced before the last of the telemetry queued ahead of it was even taken from
+    the broker (the store's ``announced_at`` and ``received_at``)."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        wait_for(lambda: localised(bus), what="warden1 localised")
+    backlog = 10_000
+    for _ in range(backlog // 1000):
+        explorer.publish_many([("status", status())] * 1000)
+    sent = explorer.publish("hazard", hazard(0))
+    with bus.worker():
+        [note] = warden.receive(1, timeout=60)
+        assert note.event == sent
+        wait_for(lambda: bus.count("status") == backlog, 120, "the backlog stored")
+    [announced] = bus.with_store(lambda store: store.hazards.open_hazards(None))
+    last = bus.find(EventQuery(type="status", newest_first=True, limit=1))[0]
+    assert announced.announced_at is not None
+    assert announced.announced_at < last.received_at, "the hazard waited for the telemetry ahead of it"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from fleetbus.publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy
+from fleetbus.publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy, policies_with_limits
 from fleetbus.publishers.sequence import SequenceCounter
 from fleetbus.publishers.storage import AtomicJSONStorage
 from fleetbus.schemas.envelope import Event, build_event, new_epoch, parse_event
@@ -179,3 +179,57 @@ def test_epochs_sort_in_the_order_they_began_and_numbers_count_from_0() -> None:
     counter = SequenceCounter()
     assert counter.reserve(3) == 0
     assert counter.reserve() == 3
+
+
+def test_hazards_and_localisations_are_taken_before_the_telemetry_waiting_longer(tmp_path: Path) -> None:
+    """After an outage: the express lane's types first, each kind in its own order, then the rest
+    in theirs; settling the windows removes each once."""
+    outbox = Outbox(tmp_path, segment_events=10)
+    located = [build_event("localisation", "explorer1", EPOCH, 30, {"localised": True})]
+    outbox.append(events("status", 0, 25) + events("hazard", 25, 2) + events("status", 27, 3) + located)
+    outbox.append(events("hazard", 31, 1) + events("status", 32, 5))
+    first = outbox.take(4, whole_segments=True)
+    assert [(e.type, e.seq) for e in first] == [
+        ("hazard", 25),
+        ("hazard", 26),
+        ("localisation", 30),
+        ("hazard", 31),
+    ]
+    second = outbox.take(12, whole_segments=True)
+    assert [e.seq for e in second] == list(range(10)), "then the oldest, whole segments"
+    outbox.settle(first + second)
+    rest = outbox.take(100)
+    assert [e.seq for e in rest] == [*range(10, 25), 27, 28, 29, *range(32, 37)]
+    outbox.settle(rest)
+    assert outbox.pending() == 0
+
+
+def test_a_hazard_never_overtakes_an_older_one_when_the_telemetry_before_it_is_in_flight(
+    tmp_path: Path,
+) -> None:
+    """The window in flight ends just before a hazard: the next take sends that hazard before the
+    one behind the next telemetry, as the express lane must receive them (seen with a broker kill)."""
+    outbox = Outbox(tmp_path, segment_events=100)
+    outbox.append(events("status", 0, 3))
+    assert [e.seq for e in outbox.take(3, whole_segments=True)] == [0, 1, 2]
+    outbox.append(events("hazard", 3, 1) + events("status", 4, 3) + events("hazard", 7, 1))
+    assert [(e.type, e.seq) for e in outbox.take(3, whole_segments=True)] == [
+        ("hazard", 3),
+        ("hazard", 7),
+        ("status", 4),
+    ]
+
+
+def test_limits_from_a_setting_keep_each_types_overflow(tmp_path: Path) -> None:
+    policies = policies_with_limits("status=3, hazard=2")
+    assert policies["status"] == TypePolicy(Overflow.DROP_OLDEST, 3)
+    assert policies["hazard"] == TypePolicy(Overflow.KEEP, 2)
+    outbox = Outbox(tmp_path, policies)
+    outbox.append(events("status", 0, 5))
+    assert seqs(outbox) == [2, 3, 4] and outbox.dropped() == {"status": 2}
+    assert Outbox(tmp_path, policies, read_only=True).dropped() == {"status": 2}, "kept on disk"
+    with pytest.raises(OutboxFull):
+        outbox.append(events("hazard", 5, 3))
+    for text, error in (("stats=3", "unknown type 'stats'"), ("status=0", "a whole number, 1 or more")):
+        with pytest.raises(ValueError, match=error):
+            policies_with_limits(text)

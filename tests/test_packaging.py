@@ -26,8 +26,8 @@ THEIRS = {"pydantic-core", "annotated-types", "typing-extensions", "typing-inspe
 ROBOT_PROGRAM = """
 import json, sys
 from fleetbus.publishers.client import RobotClient
-with RobotClient(sys.argv[1], state_dir=sys.argv[2]) as robot:
-    event = robot.publish("hazard", json.loads(sys.argv[3]))
+with RobotClient(sys.stdin.readline().strip(), state_dir=sys.argv[1]) as robot:  # the URL: stdin
+    event = robot.publish("hazard", json.loads(sys.argv[2]))
 print(json.dumps({"message_id": str(event.message_id), "modules": sorted(sys.modules)}))
 """
 
@@ -96,10 +96,10 @@ def test_a_robot_publishes_through_the_base_install(base_install: Path, bus: Bus
                 str(base_install),
                 "-c",
                 ROBOT_PROGRAM,
-                account.amqp_url,
                 str(tmp_path / "robot"),
                 json.dumps(hazard()),
             ],
+            input=account.amqp_url + "\n",  # a password is never an argument
             capture_output=True,
             text=True,
             timeout=120,

@@ -69,8 +69,11 @@ def test_a_client_resending_without_message_ids_gets_duplicates_counted_never_de
         reused = event(1, "status", status(12.0))
         publish(account, [*resends, reused])
         duplicates = wait_for(
-            lambda: (found := bus.with_store(lambda s: s.events.duplicates("explorer1"))) and len(found) == 4
-            and found,
+            lambda: (
+                (found := bus.with_store(lambda s: s.events.duplicates("explorer1")))
+                and len(found) == 4
+                and found
+            ),
             what="the four resends counted as duplicates",
         )
         [letter] = wait_for(lambda: bus.dead_letters(), what="the reused number dead-lettered")

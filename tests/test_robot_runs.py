@@ -7,6 +7,7 @@ registry, a warden's inbox and the dead-letter queue after the runs.
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -36,8 +37,9 @@ def start_program(bus: Bus, url: str, *args: str, state_dir: Path | None = None)
     the test's robots folder)."""
     folder = state_dir or bus.settings.robots_dir
     return subprocess.Popen(
-        [sys.executable, "-m", "tests.robot_program", url, str(folder), *args],
+        [sys.executable, "-m", "tests.robot_program", str(folder), *args],
         cwd=PROJECT_ROOT,
+        env={**os.environ, "FLEETBUS_ROBOT_URL": url},  # a password is never an argument
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=open(bus.settings.data_dir / f"program-{uuid.uuid4().hex[:6]}.log", "wb"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import threading
 from collections.abc import Awaitable, Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -79,9 +80,20 @@ class IngestStats:
     """What a consumer is retrying now (a transient failure), shown in its status."""
     waiting_since: datetime | None = None
     last_error: str | None = None
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
+    """The express lane counts on a thread of its own (:mod:`fleetbus.workers.express`)."""
+
+    def add(self, counter: str, n: int = 1) -> None:
+        with self._lock:
+            setattr(self, counter, getattr(self, counter) + n)
+
+    def rejected_for(self, reason: str) -> None:
+        with self._lock:
+            self.rejected += 1
+            self.by_reason[reason] = self.by_reason.get(reason, 0) + 1
 
     def retrying(self, what: str, error: BaseException | None) -> None:
-        self.store_retries += 1
+        self.add("store_retries")
         if self.waiting_for is None:
             self.waiting_since = datetime.now(timezone.utc)
         self.waiting_for, self.last_error = what, f"{type(error).__name__}: {error}" if error else None
@@ -108,7 +120,11 @@ class IngestConsumer:
         attempts: AttemptLimit | None = None,
         exclusive: bool = False,
         control: ControlMessages | None = None,
+        finishing: Callable[[], list[Callable[[], Awaitable[None]]]] | None = None,
     ) -> None:
+        """``finishing``: after a batch's services, what they left to finish before it is acked
+        (:meth:`~fleetbus.workers.coordination.HazardCoordinator.take_finishing`): the batch is
+        acked once that is done, and the next batch begins meanwhile."""
         self._channel = channel
         self._queue = queue
         self._events = events
@@ -118,11 +134,17 @@ class IngestConsumer:
         self._urgent = frozenset(urgent)
         self._max_bytes = max_message_bytes
         self._inbox = BatchInbox(batch_size, linger)
+        self._taken: dict[int, datetime] = {}
+        """When each message in hand was taken from the broker (its ``received_at``), by ``id``."""
         self._stopping = asyncio.Event()
         self._consumer_tag: str | None = None
         self._attempts = attempts
         """A classic queue's delivery limit, kept here (a quorum queue keeps its own)."""
         self._control = control
+        self._finishing = finishing
+        self._acking: asyncio.Task[None] | None = None
+        """The last batch's ack, waiting for what was left to finish; each waits for the one
+        before, so batches are acked in order."""
         self._exclusive = exclusive
         """The queue's work must never overlap with the next consumer's (its single active consumer
         is the only lock): on stop, this consumer finishes the batch in hand and leaves the rest
@@ -133,12 +155,14 @@ class IngestConsumer:
 
     async def run(self) -> None:
         """Consume until :meth:`stop`; then finish what was received and return."""
-        self._consumer_tag = await self._queue.consume(self._inbox.put, no_ack=False)
+        self._consumer_tag = await self._queue.consume(self._take, no_ack=False)
         while not (self._stopping.is_set() and (self._exclusive or self._inbox.empty())):
             batch = await self._inbox.next_batch(self._stopping)
             if batch:
                 try:
                     await self._handle_or_isolate(batch)
+                    if self._acking is not None and self._acking.done():
+                        await self._acked()
                 except Stopped:
                     log.warning("stopping with the store down: %d messages left for redelivery", len(batch))
                     return
@@ -149,6 +173,36 @@ class IngestConsumer:
                         len(batch),
                     )
                     await self._give_back(batch)
+        try:
+            await self._acked()
+        except Stopped:
+            log.warning("stopping with the store down: the last batches are left for redelivery")
+        except BROKER_ERRORS as error:
+            log.warning("broker connection lost finishing the last batches (%r); they come again", error)
+
+    async def _acked(self) -> None:
+        """Wait until the batches handled so far are acked (raise what kept one from it)."""
+        acking, self._acking = self._acking, None
+        if acking is not None:
+            await acking
+
+    async def _ack_after(
+        self,
+        before: asyncio.Task[None] | None,
+        finishing: list[Callable[[], Awaitable[None]]],
+        last: AbstractIncomingMessage | None,
+    ) -> None:
+        if before is not None:
+            await before
+        for finish in finishing:
+            await self._retrying(finish)
+        if last is not None:
+            await last.ack(multiple=True)
+
+    async def _take(self, message: AbstractIncomingMessage) -> None:
+        """The consumer callback: from now the message is the worker's, whatever waits before it."""
+        self._taken[id(message)] = datetime.now(timezone.utc)
+        await self._inbox.put(message)
 
     async def _handle_or_isolate(self, batch: list[AbstractIncomingMessage]) -> None:
         try:
@@ -172,7 +226,7 @@ class IngestConsumer:
                 raise
             except Exception as error:
                 log.exception("unexpected error handling %s from %s", message.message_id, message.user_id)
-                self.stats.internal_errors += 1
+                self.stats.add("internal_errors")
                 detail = f"the worker failed on it: {type(error).__name__}: {error}"
                 await self._reject(message, Rejected(RejectReason.INTERNAL_ERROR, detail))
 
@@ -183,6 +237,8 @@ class IngestConsumer:
         (the error was elsewhere), an unacked message would stay with this consumer forever, so
         it is nacked back to the queue, after a pause that keeps a persistent fault from spinning.
         """
+        for message in batch:
+            self._taken.pop(id(message), None)
         if self._channel.is_closed:
             return
         with contextlib.suppress(asyncio.TimeoutError):
@@ -205,8 +261,7 @@ class IngestConsumer:
         rejection = rejection_of(message, verdict.reason.value, verdict.detail)
         await self._retrying(lambda: self._rejections.record_rejections([rejection]))
         await move_to_dead_letters(message)
-        self.stats.rejected += 1
-        self.stats.by_reason[verdict.reason.value] = self.stats.by_reason.get(verdict.reason.value, 0) + 1
+        self.stats.rejected_for(verdict.reason.value)
         log.warning(
             "dead-lettered %s from %s: %s: %s",
             message.message_id,
@@ -233,10 +288,12 @@ class IngestConsumer:
         control = self._control
         instructions = [message for message in batch if control is not None and control.accepts(message)]
         candidates: list[tuple[AbstractIncomingMessage, Accepted]] = []
+        now = datetime.now(timezone.utc)
+        taken = {id(message): self._taken.pop(id(message), now) for message in batch}
         for message in batch:
             if message in instructions:
                 continue
-            verdict = classify(message, self._max_bytes)
+            verdict = classify(message, self._max_bytes, taken[id(message)])
             if isinstance(verdict, Rejected):
                 await self._reject(message, verdict)
             else:
@@ -253,22 +310,26 @@ class IngestConsumer:
             records = [item.record for _, item in candidates]
             urgent = any(item.event.type in self._urgent for _, item in candidates)
             stored = await self._retrying(lambda: self._events.store_batch(records, at, urgent=urgent))
+            stored_at = datetime.now(timezone.utc)
             candidates = [
-                (message, Accepted(item.event, record, item.forwarded))
+                (message, Accepted(item.event, record, item.forwarded, stored_at))
                 for (message, item), record in zip(candidates, stored.records, strict=True)
             ]
             accepted, duplicates = await self._sort_out(candidates, stored.results, at)
             for service in self._services:
                 # awaited before adding: another consumer sharing the stats may count meanwhile
                 notified = await self._retrying(lambda service=service: service.handle(accepted))
-                self.stats.notified += notified
+                self.stats.add("notified", notified)
             # bookkeeping after the services, so that it does not delay notifications
             await self._retrying(lambda: self._events.record_duplicates(duplicates))
-            self.stats.duplicates += len(duplicates)  # counted once the ledger holds them
+            self.stats.add("duplicates", len(duplicates))  # counted once the ledger holds them
         if control is not None and instructions:
-            self.stats.notified += await self._retrying(lambda: control.handle(instructions))
+            self.stats.add("notified", await self._retrying(lambda: control.handle(instructions)))
         last = last_unsettled(batch)
-        if last is not None:
+        finishing = self._finishing() if self._finishing is not None else []
+        if finishing or self._acking is not None:
+            self._acking = asyncio.create_task(self._ack_after(self._acking, finishing, last))
+        elif last is not None:
             await last.ack(multiple=True)
 
     async def _sort_out(
@@ -294,7 +355,7 @@ class IngestConsumer:
                 continue
             accepted.append(item)
             if result.inserted or result.rewritten:
-                self.stats.stored += 1
+                self.stats.add("stored")
             else:
                 duplicates.append(
                     Duplicate(

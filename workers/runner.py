@@ -8,6 +8,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import timedelta
+from typing import Protocol
 
 from aio_pika.abc import AbstractChannel, AbstractRobustConnection
 
@@ -33,6 +34,7 @@ from fleetbus.workers.beacon_discards import DiscardCounter
 from fleetbus.workers.beacons import KnownRobotsOnly, beacon_services
 from fleetbus.workers.bounds import bounds
 from fleetbus.workers.coordination import GATED, HazardCoordinator, TeamChanges
+from fleetbus.workers.express import ExpressLane
 from fleetbus.workers.forwards import ForwardLog, SiteLocalOnly
 from fleetbus.workers.hazard_uplink import HazardUplink
 from fleetbus.workers.ingest import BROKER_ERRORS, BatchCheck, BatchService, IngestConsumer, IngestStats
@@ -52,8 +54,14 @@ from fleetbus.workers.telemetry import BatteryWatch
 log = logging.getLogger("fleetbus.worker")
 
 PREFETCH = 512
-#: Hazards and localisations in hand at once on the express lane: few, and each waits for its write.
-EXPRESS_PREFETCH = 16
+#: Hazards and localisations handled at once on the express lane: few, each batch written on the
+#: caller's thread (:data:`~fleetbus.workers.store.event_log.SMALL_BATCH`).
+EXPRESS_BATCH = 16
+#: Hazards and localisations delivered and not yet acked on the express lane. Many more than a
+#: batch: a batch is acked only once its operators' copies are confirmed, which took up to a
+#: second while the recorder's queue took a backlog; with 16 the broker could stop delivering
+#: hazards until those confirms came (decision 0014).
+EXPRESS_PREFETCH = 256
 
 
 @dataclass
@@ -90,13 +98,25 @@ class QueueConsumer:
             await self.channel.close()
 
 
+class Lane(Protocol):
+    """A queue being consumed: a shard's on the worker's connection, or the express lane on a
+    thread of its own (:class:`~fleetbus.workers.express.ExpressLane`)."""
+
+    @property
+    def task(self) -> asyncio.Future[None]:
+        """Completes when consuming ended by itself (with its error, if it failed)."""
+        ...
+
+    async def stop(self) -> None: ...
+
+
 @dataclass
 class ShardConsumer:
     """A shard's queue; the holder of shard 0 also takes the express lane, so the two move together.
     The express lane's single active consumer is the only one to run the hazard service."""
 
     shard: int
-    queues: list[QueueConsumer]
+    queues: list[Lane]
     done: asyncio.Future[None] = field(init=False)
     """Completes when one of its queues stopped being consumed by itself."""
 
@@ -107,10 +127,71 @@ class ShardConsumer:
         await asyncio.gather(*(queue.stop() for queue in self.queues))
 
 
-async def _first_to_end(tasks: list[asyncio.Task[None]]) -> None:
+async def _first_to_end(tasks: list[asyncio.Future[None]]) -> None:
     done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
     for task in done:
         task.result()  # its error, if it failed
+
+
+async def ingest_consumer(
+    settings: Settings,
+    channel: AbstractChannel,
+    queue_name: str,
+    repositories: Repositories,
+    stats: IngestStats,
+    *,
+    express: bool,
+) -> IngestConsumer:
+    """The consumer of an ingest shard, or (``express``) of the express lane, on ``channel``."""
+    prefetch = EXPRESS_PREFETCH if express else PREFETCH
+    await channel.set_qos(prefetch_count=prefetch)
+    # fetched (not just named) so the robust channel re-consumes it after a broker restart
+    queue = await channel.get_queue(queue_name)
+    notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
+    forward_log = ForwardLog(repositories.sites, timedelta(seconds=settings.late_after_s))
+    checks: list[BatchCheck] = []
+    control: TeamChanges | None = None
+    finishing = None
+    if express:
+        # the hazard service runs on the express lane only: its single active consumer is the
+        # one party that registers hazards and announces them, so it needs no lock across workers
+        late_after = timedelta(seconds=settings.late_after_s)
+        coordinator = HazardCoordinator(
+            repositories.hazards, notify_exchange, channel.default_exchange, SERVICE_USER, late_after
+        )
+        services: list[BatchService] = [SiteLocalOnly(coordinator, repositories.sites), forward_log]
+        control = TeamChanges(coordinator)
+        finishing = coordinator.take_finishing
+    else:
+        checks = [KnownRobotsOnly(repositories.hazards), MapCheck(repositories.maps)]
+        services = [
+            MapService(
+                repositories.maps,
+                notify_exchange,
+                SERVICE_USER,
+                SiteMapRelay(repositories.sites, repositories.maps, channel).relay,
+            ),
+            BatteryWatch(repositories.events, notify_exchange, SERVICE_USER, settings.battery_low_percent),
+            forward_log,
+        ]
+    return IngestConsumer(
+        channel,
+        queue,
+        repositories.events,
+        repositories.rejections,
+        max_message_bytes=settings.max_message_bytes,
+        checks=checks,
+        services=services,
+        urgent=GATED,  # the wardens wait for hazards; the gate opens on localisation
+        batch_size=EXPRESS_BATCH if express else prefetch,
+        stats=stats,
+        # the express queue is classic: the worker keeps its delivery limit
+        attempts=AttemptLimit(repositories.attempts, INGEST_DELIVERY_LIMIT) if express else None,
+        # on stop, the next worker gets the express lane only once this batch is done
+        exclusive=express,
+        control=control,
+        finishing=finishing,
+    )
 
 
 #: Seconds between the worker's reconnection attempts (aio-pika's default is 5); on a cluster each
@@ -138,72 +219,39 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     """Consuming, as the ``fleetbus`` account of ``url`` alone (made by :mod:`fleetbus.workers.setup`)."""
     repositories = repositories_for(settings)
     await repositories.open()
-    connection = await aio_connect_robust(
-        url, client_properties={"connection_name": "fleetbus-worker"}, reconnect_interval=RECONNECT_INTERVAL_S
-    )
+
+    async def connect(name: str) -> AbstractRobustConnection:
+        return await aio_connect_robust(
+            url, client_properties={"connection_name": name}, reconnect_interval=RECONNECT_INTERVAL_S
+        )
+
+    connection = await connect("fleetbus-worker")
     setup = await connection.channel()
     await declare(setup, [core_topology(settings.ingest_shards, cluster=settings.cluster)])
     await setup.close()
     stats = IngestStats()
-    forward_log = ForwardLog(repositories.sites, timedelta(seconds=settings.late_after_s))
 
-    async def consume(queue_name: str, prefetch: int, express: bool) -> QueueConsumer:
+    async def consume(queue_name: str) -> QueueConsumer:
         channel = await connection.channel(publisher_confirms=True)
-        await channel.set_qos(prefetch_count=prefetch)
-        # fetched (not just named) so the robust channel re-consumes it after a broker restart
-        queue = await channel.get_queue(queue_name)
-        notify_exchange = await channel.get_exchange(NOTIFY_EXCHANGE)
-        checks: list[BatchCheck] = []
-        control: TeamChanges | None = None
-        if express:
-            # the hazard service runs on the express lane only: its single active consumer is the
-            # one party that registers hazards and announces them, so it needs no lock across workers
-            late_after = timedelta(seconds=settings.late_after_s)
-            coordinator = HazardCoordinator(
-                repositories.hazards, notify_exchange, channel.default_exchange, SERVICE_USER, late_after
-            )
-            services: list[BatchService] = [SiteLocalOnly(coordinator, repositories.sites), forward_log]
-            control = TeamChanges(coordinator)
-        else:
-            checks = [KnownRobotsOnly(repositories.hazards), MapCheck(repositories.maps)]
-            services = [
-                MapService(
-                    repositories.maps,
-                    notify_exchange,
-                    SERVICE_USER,
-                    SiteMapRelay(repositories.sites, repositories.maps, channel).relay,
-                ),
-                BatteryWatch(
-                    repositories.events, notify_exchange, SERVICE_USER, settings.battery_low_percent
-                ),
-                forward_log,
-            ]
-        consumer = IngestConsumer(
-            channel,
-            queue,
-            repositories.events,
-            repositories.rejections,
-            max_message_bytes=settings.max_message_bytes,
-            checks=checks,
-            services=services,
-            urgent=GATED,  # the wardens wait for hazards; the gate opens on localisation
-            batch_size=prefetch,
-            stats=stats,
-            # the express queue is classic: the worker keeps its delivery limit
-            attempts=AttemptLimit(repositories.attempts, INGEST_DELIVERY_LIMIT) if express else None,
-            # on stop, the next worker gets the express lane only once this batch is done
-            exclusive=express,
-            control=control,
-        )
+        consumer = await ingest_consumer(settings, channel, queue_name, repositories, stats, express=False)
         task = asyncio.create_task(consumer.run(), name=f"fleetbus-{queue_name}")
         log.info("consuming %s", queue_name)
         return QueueConsumer(queue_name, channel, consumer, task)
 
+    async def consume_express(own: AbstractRobustConnection, store: Repositories) -> IngestConsumer:
+        """The express lane's consumer, on its own connection and store (:mod:`.express`)."""
+        channel = await own.channel(publisher_confirms=True)
+        consumer = await ingest_consumer(settings, channel, EXPRESS_QUEUE, store, stats, express=True)
+        log.info("consuming %s", EXPRESS_QUEUE)
+        return consumer
+
     async def consume_shard(shard: int) -> ShardConsumer:
-        queues = [await consume(ingest_shard_queue(shard), PREFETCH, express=False)]
+        lanes: list[Lane] = [await consume(ingest_shard_queue(shard))]
         if shard == 0:
-            queues.append(await consume(EXPRESS_QUEUE, EXPRESS_PREFETCH, express=True))
-        return ShardConsumer(shard, queues)
+            express = ExpressLane(repositories, connect, consume_express)
+            await express.start()
+            lanes.append(express)
+        return ShardConsumer(shard, lanes)
 
     shards = ShardPool(repositories.leases, settings.ingest_shards, consume_shard)
     await shards.start()

@@ -27,6 +27,7 @@ def site_report(api: ManagementAPI, vhost: str, site: str, team: Collection[str]
         site=site,
         at=datetime.now(timezone.utc),
         waiting=link.waiting,
+        classes=link.classes or None,
         uplink=link.uplink.state,
         downlink=link.downlink.state,
         rejected=link.rejected,

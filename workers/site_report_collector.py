@@ -11,14 +11,18 @@ from pydantic import ValidationError
 from fleetbus.broker.tls import aio_connect
 from fleetbus.schemas.routing import SITE_REPORTS_QUEUE
 from fleetbus.schemas.site_reports import SiteReport
+from fleetbus.workers.site_status import near_full
 from fleetbus.workers.store.sites import SiteRegistry
 
 log = logging.getLogger("fleetbus.sites")
 
 
-async def collect_site_reports(admin_url: str, sites: SiteRegistry, limit: int = 10_000) -> int:
+async def collect_site_reports(
+    admin_url: str, sites: SiteRegistry, limit: int = 10_000, alert_at: float = 0.8
+) -> int:
     """Store what waits in the reports queue (up to ``limit``); how many were read. A report that
-    does not parse is logged and counted as read."""
+    does not parse is logged and counted as read; one whose uplink is near full (``alert_at`` of a
+    class's bound) is logged as an alert."""
     read = 0
     connection = await aio_connect(admin_url)
     try:
@@ -38,6 +42,8 @@ async def collect_site_reports(admin_url: str, sites: SiteRegistry, limit: int =
                 log.error("a site report that does not parse, skipped: %s", error)
             else:
                 await sites.put_report(report)
+                if full := near_full(report, alert_at):
+                    log.warning("alert: site %s's uplink is near full: %s", report.site, "; ".join(full))
             await message.ack()
     finally:
         await connection.close()

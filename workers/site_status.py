@@ -5,21 +5,22 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import forwarded_robots
+from fleetbus.broker.uplink import CLASSES
 from fleetbus.schemas.routing import (
+    DOWNLINK_MAPS_SHOVEL,
     DOWNLINK_REJECTED_QUEUE,
     DOWNLINK_SHOVEL,
     HAZARD_UPLINK_QUEUE,
     HAZARD_UPLINK_SHOVEL,
-    UPLINK_QUEUE,
     UPLINK_SHOVEL,
 )
-from fleetbus.schemas.site_reports import SiteReport
+from fleetbus.schemas.site_reports import SiteReport, UplinkDepth
 from fleetbus.workers.store.sites import SiteSummary
 
 
@@ -46,14 +47,30 @@ class SiteRow:
     """How old that report is: while the link is down it grows, and ``waiting`` is that old."""
     hazard_states_waiting: int | None = None
     """Hazard states made at the site waiting to be forwarded, as its newest report said."""
+    near_full: tuple[str, ...] = ()
+    """The classes of its uplink at ``FLEETBUS_UPLINK_ALERT_AT`` of their bound or more, as its
+    newest report said (described: ``telemetry 85 % of 200,000``): an alert."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
             **self.__dict__,
             "robots": list(self.robots),
+            "near_full": list(self.near_full),
             "since": self.since.isoformat() if self.since else None,
             "reported_at": self.reported_at.isoformat() if self.reported_at else None,
         }
+
+
+def near_full(report: SiteReport | None, alert_at: float) -> tuple[str, ...]:
+    """The classes of a site's uplink the report says are at ``alert_at`` of their bound or more."""
+    if report is None or not report.classes:
+        return ()
+    return tuple(
+        f"{name} {depth.share:.0%} of {depth.bound:,}"
+        + (" (new ones refused when full)" if depth.overflow == "reject-publish" else " (oldest dropped)")
+        for name, depth in report.classes.items()
+        if depth.share >= alert_at
+    )
 
 
 def central_view(
@@ -62,6 +79,7 @@ def central_view(
     summaries: list[SiteSummary],
     now: datetime,
     reports: dict[str, SiteReport] | None = None,
+    alert_at: float = 0.8,
 ) -> list[SiteRow]:
     opened: dict[str, datetime] = {}
     for connection in api.list_vhost_connections(vhost):
@@ -86,6 +104,7 @@ def central_view(
                 report.at if report else None,
                 max(0.0, (now - report.at).total_seconds()) if report else None,
                 report.hazard_states_waiting if report else None,
+                near_full(report, alert_at),
             )
         )
     return rows
@@ -107,9 +126,10 @@ class SiteLink:
     """The site's own view: its shovels, and what waits in its uplink."""
 
     uplink: ShovelState
+    """The events class's shovel (``fleetbus-uplink``); the others are in ``classes``."""
     downlink: ShovelState
     waiting: int | None
-    """Events in ``fleetbus.uplink`` not yet confirmed by central (ready and in flight)."""
+    """Events in the uplink's classes not yet confirmed by central (ready and in flight)."""
     not_forwarded: list[str]
     """Robots of the site's team whose events are not forwarded (central did not send them)."""
     rejected: int | None = None
@@ -118,9 +138,15 @@ class SiteLink:
     """The shovel of the hazards' states."""
     hazard_states_waiting: int | None = None
     """Hazard states in ``fleetbus.hazard-uplink`` not yet confirmed by central."""
+    classes: dict[str, UplinkDepth] = field(default_factory=dict)
+    """Each class of the uplink: what waits, its bound and overflow (the classes the broker told)."""
+    shovels: dict[str, ShovelState] = field(default_factory=dict)
+    """Each class's shovel and the maps' downlink."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
+            "classes": {name: depth.model_dump() for name, depth in self.classes.items()},
+            "shovels": {name: shovel.__dict__ for name, shovel in self.shovels.items()},
             "uplink": self.uplink.__dict__,
             "downlink": self.downlink.__dict__,
             "hazard_uplink": self.hazard_uplink.__dict__ if self.hazard_uplink else None,
@@ -151,13 +177,27 @@ def site_view(api: ManagementAPI, vhost: str, team: Collection[str]) -> SiteLink
             return int(queue.get("messages_ready", 0)) + int(queue.get("messages_unacknowledged", 0))
         return None
 
+    def bound(queue_name: str) -> int | None:
+        with contextlib.suppress(ManagementError):
+            policy = api.get_queue(vhost, queue_name).get("effective_policy_definition") or {}
+            return int(policy["max-length"]) if "max-length" in policy else None
+        return None
+
     not_forwarded = sorted(set(team) - forwarded_robots(api, vhost))
+    classes: dict[str, UplinkDepth] = {}
+    for uplink in CLASSES:
+        waiting, limit = held(uplink.queue), bound(uplink.queue)
+        if waiting is not None and limit:
+            classes[uplink.name] = UplinkDepth(waiting=waiting, bound=limit, overflow=uplink.overflow)
+    counts = [held(uplink.queue) for uplink in CLASSES]
     return SiteLink(
         state(UPLINK_SHOVEL),
         state(DOWNLINK_SHOVEL),
-        held(UPLINK_QUEUE),
+        None if any(n is None for n in counts) else sum(n or 0 for n in counts),
         not_forwarded,
         held(DOWNLINK_REJECTED_QUEUE),
         state(HAZARD_UPLINK_SHOVEL),
         held(HAZARD_UPLINK_QUEUE),
+        classes,
+        {name: state(name) for name in (*(u.shovel for u in CLASSES), DOWNLINK_MAPS_SHOVEL)},
     )

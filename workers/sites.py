@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import logging
 from collections.abc import Collection, Sequence
 
 import pika
@@ -21,6 +22,8 @@ from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.team import change_service
+
+log = logging.getLogger("fleetbus.sites")
 
 
 async def assign_robots(
@@ -83,14 +86,32 @@ def mission_change(mission: Mission) -> MissionChange:
     return MissionChange(**dataclasses.asdict(mission))
 
 
-async def mission_changes(repositories: Repositories) -> list[MissionChange]:
-    """Every mission as central's store has it, in creation order."""
-    return [mission_change(m) for m in await repositories.missions.missions()]
+def site_of(mission: Mission) -> str | None:
+    """The site the mission belongs to (its plan's ``site``); None: every site's."""
+    site = mission.plan.get("site")
+    return str(site) if site else None
+
+
+def goes_to(mission: Mission, sites: Collection[str]) -> list[str]:
+    """Of ``sites``, those ``mission`` is sent to: its own site only, or every one."""
+    site = site_of(mission)
+    return sorted(sites) if site is None else [s for s in sorted(sites) if s == site]
+
+
+async def mission_changes(repositories: Repositories, site: str | None = None) -> list[MissionChange]:
+    """Every mission as central's store has it (those ``site`` is sent), in creation order."""
+    missions = await repositories.missions.missions()
+    return [mission_change(m) for m in missions if site is None or goes_to(m, [site])]
 
 
 async def send_mission_to_sites(sites_: SiteRegistry, admin_url: str, mission: Mission) -> list[str]:
-    """Send every site the mission as it is now (after central created or changed it); the sites."""
-    sites = sorted(await sites_.sites())
+    """Send the mission as it is now (after central created or changed it) to its site, or to
+    every site when it names none; the sites it went to. A mission naming a site central does not
+    know goes nowhere (logged)."""
+    known = await sites_.sites()
+    sites = goes_to(mission, known)
+    if not sites and site_of(mission) is not None:
+        log.warning("mission %s names site %s, unknown at central", mission.mission_id, site_of(mission))
     await asyncio.to_thread(send_to_sites, admin_url, sites, [mission_change(mission)])
     return sites
 

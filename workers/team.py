@@ -20,9 +20,9 @@ from datetime import datetime, timedelta, timezone
 from typing import Any
 
 from fleetbus.broker.team_changes import tell_hazard_service
-from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.schemas.team import TeamChange, TeamChangeKind
-from fleetbus.workers.store.base import EventQuery, EventStore
+from fleetbus.workers.store.base import EventRecord, EventStore
 from fleetbus.workers.store.hazards import Hazard, HazardState, RobotState
 from fleetbus.workers.store.team import TeamStore
 
@@ -111,6 +111,8 @@ class TeamMember:
     """When the service last received an event of it (any type; its newest event's arrival)."""
     stale: bool
     """Silent longer than ``FLEETBUS_STALE_AFTER_S`` (or never heard)."""
+    outbox_dropped: dict[str, int] = field(default_factory=dict)
+    """What the robot's outbox dropped so far by type (its thinning policy), as its newest status said."""
 
     @property
     def counts_for_gate(self) -> bool:
@@ -128,30 +130,66 @@ class TeamMember:
             "counts_for_gate": self.counts_for_gate,
             "service_changed_by": robot.service_changed_by,
             "service_changed_at": robot.service_changed_at.isoformat() if robot.service_changed_at else None,
+            "outbox_dropped": self.outbox_dropped,
         }
 
 
-async def last_seen(events: EventStore, name: str) -> datetime | None:
-    """When the newest event ``name`` sent arrived (the events' (robot, sent_at) index)."""
-    newest = await events.find_events(EventQuery(robot_id=name, limit=1, newest_first=True))
-    return newest[0].received_at if newest else None
-
-
 def team_member(
-    robot: RobotState, seen: datetime | None, now: datetime, stale_after: timedelta
+    robot: RobotState,
+    seen: datetime | None,
+    now: datetime,
+    stale_after: timedelta,
+    outbox_dropped: dict[str, int] | None = None,
 ) -> TeamMember:
     """``robot``, last heard from at ``seen``: stale when silent over ``stale_after`` or never heard."""
-    return TeamMember(robot, seen, seen is None or now - seen > stale_after)
+    return TeamMember(robot, seen, seen is None or now - seen > stale_after, outbox_dropped or {})
+
+
+def dropped_by(status: EventRecord | None) -> dict[str, int]:
+    """What a robot's outbox dropped, as its status event ``status`` says."""
+    return dict((status.body.get("outbox_dropped") or {}) if status is not None else {})
+
+
+async def team_members(
+    robots: Sequence[RobotState], events: EventStore, now: datetime, stale_after: timedelta
+) -> list[TeamMember]:
+    """``robots`` (a page of the team) with when each was last heard from and what its outbox
+    dropped: two queries however many robots and events (:meth:`EventStore.newest_events`)."""
+    names = [robot.name for robot in robots]
+    newest = await events.newest_events(names)
+    statuses = await events.newest_events(names, EventType.STATUS.value)
+    return [
+        team_member(
+            robot,
+            newest[robot.name].received_at if robot.name in newest else None,
+            now,
+            stale_after,
+            dropped_by(statuses.get(robot.name)),
+        )
+        for robot in robots
+    ]
 
 
 async def read_team(
-    team: TeamStore, events: EventStore, now: datetime, stale_after: timedelta
+    team: TeamStore,
+    events: EventStore,
+    now: datetime,
+    stale_after: timedelta,
+    *,
+    offset: int = 0,
+    limit: int | None = None,
 ) -> list[TeamMember]:
-    """Every robot of the team, by name, with when it was last heard from (a query per robot)."""
-    return [
-        team_member(robot, await last_seen(events, robot.name), now, stale_after)
-        for robot in await team.robots()
-    ]
+    """The robots of the team, by name (``limit`` of them from ``offset``: a page), each with
+    when it was last heard from and what its outbox dropped; three queries in all."""
+    robots = await team.robots()
+    page = robots[offset : None if limit is None else offset + limit]
+    return await team_members(page, events, now, stale_after)
+
+
+async def last_seen_of(events: EventStore, names: Sequence[str]) -> dict[str, datetime | None]:
+    """When each of ``names`` was last heard from (one query)."""
+    newest = await events.newest_events(names)
+    return {name: newest[name].received_at if name in newest else None for name in names}
 
 
 class TeamRefused(Exception):

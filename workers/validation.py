@@ -22,6 +22,9 @@ class Accepted:
     forwarded: bool = False
     """It came through a site's uplink (the shovel's ``x-shovelled`` header): a claim, believed
     only for the robots of the site (:mod:`fleetbus.workers.forwards`)."""
+    stored_at: datetime | None = None
+    """When the worker stored it (its ``record.received_at`` is when it took it from the broker);
+    None before."""
 
 
 @dataclass(frozen=True)
@@ -39,8 +42,11 @@ def record_body(event: Event) -> dict[str, Any]:
     return event.body.model_dump(mode="json")
 
 
-def classify(message: AbstractIncomingMessage, max_bytes: int) -> Accepted | Rejected:
-    received_at = datetime.now(timezone.utc)
+def classify(
+    message: AbstractIncomingMessage, max_bytes: int, received_at: datetime | None = None
+) -> Accepted | Rejected:
+    """``received_at``: when the worker took the message from the broker (default: now)."""
+    received_at = received_at or datetime.now(timezone.utc)
     body = message.body
     if len(body) > max_bytes:
         return Rejected(RejectReason.TOO_LARGE, f"body is {len(body)} bytes; the limit is {max_bytes}")

@@ -1,11 +1,12 @@
 """The newest of each robot, as the console shows it: when it was last heard from, its newest
 status (battery) and its newest pose, kept in memory.
 
-Read from the store on every refresh, these cost three queries per robot (100 robots: 300 queries
-every half second). Instead each robot is read from the store once, the first time a page shows
-it (:meth:`Latest.seed`), and from then on follows the live feed's batches (:meth:`Feed.watch`),
-which carry everything the store received since. Values only move forward (the newest wins), so
-it does not matter whether the store's answer or a batch arrives first.
+Read from the store on every refresh, these would cost three queries per robot (100 robots: 300
+queries every half second). Instead the robots are read from the store once, the first time a
+page shows them (:meth:`Latest.seed`: three queries for all of them), and from then on follow
+the live feed's batches (:meth:`Feed.watch`), which carry everything the store received since.
+Values only move forward (the newest wins), so it does not matter whether the store's answer or
+a batch arrives first.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Any
 from fastapi import Request
 
 from fleetbus.schemas.routing import EventType
-from fleetbus.workers.store.base import EventQuery, EventRecord, EventStore
+from fleetbus.workers.store.base import EventRecord, EventStore
 
 #: The events that say where their robot is.
 POSE_TYPES = (EventType.STATUS.value, EventType.LOCALISATION.value)
@@ -111,16 +112,12 @@ class Latest:
                 del self._robots[gone]
             self._seeded &= set(team)
             new = sorted(set(team) - self._seeded)
-            for name in new:
-                await self._seed(name)
-                self._seeded.add(name)
+            if new:
+                # three queries for all of them: the newest event of any type, status, localisation
+                for type in (None, *POSE_TYPES):
+                    self.observe(list((await self._events.newest_events(new, type)).values()))
+                self._seeded.update(new)
             return bool(new)
-
-    async def _seed(self, name: str) -> None:
-        """Three queries: its newest event of any type, its newest status, its newest localisation."""
-        for type in (None, *POSE_TYPES):
-            query = EventQuery(type=type, robot_id=name, limit=1, newest_first=True)
-            self.observe(await self._events.find_events(query))
 
 
 def latest_for(request: Request) -> Latest:

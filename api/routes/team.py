@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.errors import BadRequest
@@ -21,10 +21,16 @@ Dispatcher = Annotated[User, Depends(require_role(*DISPATCHERS))]
 
 
 @router.get("/team", response_model=TeamOut)
-async def team(user: Watcher, svc: ServiceDep) -> TeamOut:
-    """Every robot of the team (kind, localised, last seen, stale, in service, counts for the gate)
-    and the hazard gate: open, or why it holds hazards."""
-    return TeamOut.of(await svc.team.view())
+async def team(
+    user: Watcher,
+    svc: ServiceDep,
+    offset: Annotated[int, Query(ge=0, description="skip this many robots (by name)")] = 0,
+    limit: Annotated[int | None, Query(ge=1, le=1000, description="at most this many robots")] = None,
+) -> TeamOut:
+    """The robots of the team, by name (kind, localised, last seen, stale, in service, counts for
+    the gate, what its outbox dropped; a page with ``offset`` and ``limit``) and the hazard gate:
+    open, or why it holds hazards."""
+    return TeamOut.of(await svc.team.view(offset=offset, limit=limit))
 
 
 @router.post("/team/{robot}/out", response_model=TeamMemberOut, responses=refusals(BadRequest))

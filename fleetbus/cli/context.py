@@ -35,6 +35,19 @@ def fail(message: str, code: int = 1) -> NoReturn:
     raise typer.Exit(code)
 
 
+def no_password_in_argv(url: str | None, option: str, instead: str) -> None:
+    """End the command (status 2) when ``url``, given as ``option`` on the command line, holds a
+    password: every user of the machine sees a command's arguments. ``instead``: where it goes."""
+    from urllib.parse import urlsplit
+
+    if url is not None and urlsplit(url).password:
+        fail(
+            f"{option} holds a password, which every user of this machine sees on the command line: "
+            f"give it {instead}",
+            code=2,
+        )
+
+
 def settings() -> Settings:
     """The settings; one that does not parse ends the command, naming its variable."""
     from fleetbus.settings import load_settings

@@ -11,3 +11,4 @@ def register_robot(settings: Settings, name: str, kind: RobotKind | None) -> Non
     run_with_repositories(
         settings, lambda repos: repos.hazards.register_robot(name, kind.value if kind else None)
     )
+

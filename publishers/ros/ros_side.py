@@ -352,9 +352,7 @@ def main() -> None:
     out.write({"kind": "started"})
     ended = threading.Event()
     recorder, publishers = Recorder(out, args), Publishers(out)
-    threading.Thread(
-        target=start_node, args=(args, out, recorder, publishers, ended), daemon=True
-    ).start()
+    threading.Thread(target=start_node, args=(args, out, recorder, publishers, ended), daemon=True).start()
     for line in sys.stdin:  # ends when the bridge closes our stdin (or dies)
         try:
             item = json.loads(line)

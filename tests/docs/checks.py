@@ -220,8 +220,15 @@ def check_sslyze(args: list[str]) -> str | None:
     """Every option is one the pinned sslyze knows, and every target HOST:PORT."""
     if unknown := unknown_options("sslyze", args):
         return f"sslyze knows no {unknown}"
-    takes_value = {"--certinfo_ca_file", "--json_out", "--targets_in", "--cert", "--key", "--keyform",
-                   "--mozilla_config"}
+    takes_value = {
+        "--certinfo_ca_file",
+        "--json_out",
+        "--targets_in",
+        "--cert",
+        "--key",
+        "--keyform",
+        "--mozilla_config",
+    }
     targets = [
         word
         for word, before in zip(args, ["", *args[:-1]], strict=True)

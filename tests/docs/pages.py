@@ -94,8 +94,7 @@ def read_page(path: Path) -> Page:
             end += 1
         indent = len(opening["indent"])
         body = [
-            text[indent:] if not text[:indent].strip() else text.lstrip()
-            for text in lines[body_start:end]
+            text[indent:] if not text[:indent].strip() else text.lstrip() for text in lines[body_start:end]
         ]
         _read_block(page, opening["info"].lower(), body, body_start + 1, markers)
         index = end + 1

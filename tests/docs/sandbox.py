@@ -218,9 +218,7 @@ class Sandbox:
                 f"{command.where}: `{command.text}` exited with {done.returncode}:\n{output[-4000:]}"
             )
         if argv and argv[0] not in self.tools:
-            self.env = dict(
-                entry.split("=", 1) for entry in env_file.read_text().split("\0") if "=" in entry
-            )
+            self.env = dict(entry.split("=", 1) for entry in env_file.read_text().split("\0") if "=" in entry)
         if tuple(path) == ("publish",):
             self.after_publish(command, output)
 
@@ -290,8 +288,8 @@ class Sandbox:
         if server.path == ("worker",):
             count = sum(1 for each in self.servers if each.path == ("worker",))
             recorder = bool(server.params.get("recorder"))
-            return lambda: self.live_workers() >= count and (
-                not recorder or self.consumers("fleetbus.recorder") > 0
+            return lambda: (
+                self.live_workers() >= count and (not recorder or self.consumers("fleetbus.recorder") > 0)
             )
         if server.path == ("recorder", "run"):
             return lambda: self.consumers("fleetbus.recorder") > 0
@@ -354,8 +352,10 @@ class Sandbox:
             except subprocess.TimeoutExpired:
                 os.killpg(job.process.pid, signal.SIGKILL)
                 job.process.wait()
-                problems.append(f"{job.command.where}: `{job.command.text}` did not end within "
-                                f"{COMMAND_TIMEOUT_S:.0f} s:\n{job.output()}")
+                problems.append(
+                    f"{job.command.where}: `{job.command.text}` did not end within "
+                    f"{COMMAND_TIMEOUT_S:.0f} s:\n{job.output()}"
+                )
                 continue
             if status != 0:
                 problems.append(

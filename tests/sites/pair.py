@@ -15,8 +15,9 @@ from fleetbus.broker.accounts import Account, Role
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, forward_robot, start_site_links, stop_site_links
+from fleetbus.broker.uplink import CLASSES, bounds_of
 from fleetbus.dev.local_node import LocalNode
-from fleetbus.schemas.routing import UPLINK_QUEUE, UPLINK_SHOVEL, RobotKind
+from fleetbus.schemas.routing import UPLINK_SHOVEL, RobotKind
 from fleetbus.workers.sites import assign_robots
 from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.base import EventQuery
@@ -70,8 +71,7 @@ class SitePair:
             self.site.api,
             self.name,
             self.central_url,
-            max_messages=settings.uplink_max,
-            max_bytes=settings.uplink_max_bytes,
+            bounds=bounds_of(settings),
             reconnect_delay_s=settings.site_reconnect_delay_s,
         )
 
@@ -105,7 +105,8 @@ class SitePair:
         return self.central_store(lambda repos: repos.sites.forwards(robot))
 
     def uplink_waiting(self) -> int:
-        return self.site.ready_messages(UPLINK_QUEUE)
+        """Events ready in the site's uplink, every class."""
+        return sum(self.site.ready_messages(uplink.queue) for uplink in CLASSES)
 
     def uplink_state(self) -> str | None:
         for shovel in self.site.api.shovel_status(self.site.vhost):

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import json
 
+from fleetbus.broker.accounts import save_secret
 from fleetbus.broker.sites import forward_robot
-from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.routing import UPLINK_SHOVEL, RobotKind
 from tests.factories import status
 from tests.sites.pair import SitePair
 from tests.support import wait_for
@@ -19,7 +20,12 @@ def test_sites_add_site_up_and_both_views_of_the_link(pair: SitePair) -> None:
     assert added.returncode == 0, added.stderr
     central.accounts.append("base2")
     url = next(line for line in added.stdout.splitlines() if line.startswith("amqp://base2:"))
-    up = fleetbus(site, "site", "up", "--name", "base2", "--central", pair.over_tls(url))
+    in_argv = fleetbus(site, "site", "up", "--name", "base2", "--central", pair.over_tls(url))
+    assert in_argv.returncode == 2 and "--central-file" in in_argv.stderr, "no password in argv"
+    assert "base2" not in json.dumps(site.api.get_shovel(site.vhost, UPLINK_SHOVEL)), "nothing changed"
+    url_file = site.settings.data_dir / "central.url"
+    save_secret(url_file, pair.over_tls(url))
+    up = fleetbus(site, "site", "up", "--name", "base2", "--central-file", str(url_file))
     assert up.returncode == 0, up.stderr
     assert "****" in up.stdout and url.split("@")[0].split(":")[-1] not in up.stdout, "the password masked"
 
@@ -66,7 +72,9 @@ def test_site_up_refuses_a_central_url_its_shovels_could_not_verify(pair: SitePa
     unverifiable = pair.over_tls(pair.link.url("amqp://base1:secret@127.0.0.1/")).replace(
         "&server_name_indication=localhost", ""
     )
-    refused = fleetbus(pair.site, "site", "up", "--name", "base1", "--central", unverifiable)
+    url_file = pair.site.settings.data_dir / "unverifiable.url"
+    save_secret(url_file, unverifiable)
+    refused = fleetbus(pair.site, "site", "up", "--name", "base1", "--central-file", str(url_file))
     assert refused.returncode != 0
     assert "server_name_indication" in refused.stderr + refused.stdout
     assert "secret" not in refused.stderr + refused.stdout, "the password is never shown"

@@ -3,6 +3,7 @@ message the site cannot parse is kept aside and counted, and the next one still 
 
 from __future__ import annotations
 
+import asyncio
 from datetime import datetime, timedelta, timezone
 
 import pika
@@ -11,7 +12,13 @@ from fleetbus.api.missions import Missions
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
-from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, SITES_EXCHANGE
+from fleetbus.schemas.routing import (
+    DOWNLINK_QUEUE,
+    DOWNLINK_REJECTED_QUEUE,
+    SITES_EXCHANGE,
+    site_downlink_queue,
+    site_maps_queue,
+)
 from fleetbus.workers.downlink import apply_downlink
 from fleetbus.workers.site_status import site_view
 from fleetbus.workers.sites import mission_change, send_mission_to_sites, send_to_sites
@@ -76,7 +83,7 @@ def test_a_bad_downlink_message_is_kept_aside_and_counted_and_the_next_applies(p
         channel = connection.channel()
         channel.confirm_delivery()
         channel.basic_publish(
-            SITES_EXCHANGE, f"{pair.name}.mystery", b'{"change": "mystery"}', mandatory=True
+            SITES_EXCHANGE, f"{pair.name}.mission", b'{"change": "mission", "title": 7}', mandatory=True
         )
     finally:
         connection.close()
@@ -91,3 +98,32 @@ def test_a_bad_downlink_message_is_kept_aside_and_counted_and_the_next_applies(p
         lambda: site_view(pair.site.api, pair.site.vhost, []).rejected == 1,
         what="counted where `fleetbus site status` shows it",
     )
+
+
+def test_a_mission_goes_to_the_site_it_names_only_and_no_map_holds_it_back(pair: SitePair) -> None:
+    """A mission naming another site does not come here; one naming this site does. Maps go down
+    a queue of their own at central: a map waiting there does not hold a mission back."""
+    now = datetime.now(timezone.utc)
+
+    def create(title: str, site: str) -> Mission:
+        plan = MissionPlan(site=site).model_dump(mode="json")
+        return pair.central_store(
+            lambda repos: repos.missions.create_mission("survey", title, "client1", plan, now)
+        )
+
+    elsewhere, here = create("west shaft", "base2"), create("east shaft", pair.name)
+    pair.stop()  # the shovels stopped: what central sends waits in its queues for the site
+    with pair.central.admin_channel() as channel:  # a map on its way down, first
+        channel.confirm_delivery()
+        channel.basic_publish(SITES_EXCHANGE, f"{pair.name}.map", b"a large map", mandatory=True)
+    for mission in (elsewhere, here):
+        sent = pair.central_store(
+            lambda repos, m=mission: send_mission_to_sites(repos.sites, pair.central.admin_url, m)
+        )
+        assert sent == ([pair.name] if mission is here else [])
+    assert pair.central.ready_messages(site_maps_queue(pair.name)) == 1
+    assert pair.central.ready_messages(site_downlink_queue(pair.name)) == 1, "the mission not behind it"
+    asyncio.run(pair.start_links())
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="both down, by two shovels")
+    with pair.site.admin_channel() as channel:
+        channel.queue_purge(DOWNLINK_QUEUE)  # the test's map is not one to apply

@@ -7,7 +7,7 @@ from collections import Counter
 
 from fleetbus.schemas.routing import RobotKind
 from tests.sites.pair import SitePair
-from tests.support import Publishing, assert_stored_once_in_order, wait_for
+from tests.support import Publishing, assert_stored_once_in_order, site_lane, wait_for
 
 #: The link flaps for a minute, up and down in turn every few seconds.
 FLAPPING_S = 60.0
@@ -32,6 +32,6 @@ def test_a_flapping_link_loses_and_doubles_nothing(pair: SitePair) -> None:
         wait_for(lambda: pair.uplink_waiting() == 0, what="the uplink empty")
     assert flaps >= FLAPPING_S / (2 * PERIOD_S) - 1
     for robot, keys in sent.items():
-        assert_stored_once_in_order(pair.central, robot, keys)
+        assert_stored_once_in_order(pair.central, robot, keys, site_lane)
         assert pair.site_keys(robot) == Counter(keys), f"{robot}: each once at the site"
     assert pair.central.dead_letters() == []

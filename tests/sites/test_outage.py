@@ -19,7 +19,7 @@ from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import hazard, status
 from tests.sites.pair import SitePair
-from tests.support import assert_stored_once_in_order, wait_for
+from tests.support import assert_stored_once_in_order, site_lane, wait_for
 from tests.test_maps import TABLE2, pgm
 
 #: How long the link stays cut: a few seconds in the default suite, ten minutes under ``slow``.
@@ -100,7 +100,7 @@ def test_outage_the_site_serves_its_team_then_central_gets_everything_once(
         wait_for(lambda: pair.uplink_waiting() == 0, what="the uplink empty")
 
     for robot, keys in sent.items():
-        assert_stored_once_in_order(pair.central, robot, keys)
+        assert_stored_once_in_order(pair.central, robot, keys, site_lane)
         assert pair.site_keys(robot) == Counter(keys), f"{robot}: each event once at the site"
     forwards = {f.key: f for f in pair.forwards()}
     assert {f.site for f in forwards.values()} == {"base1"}

@@ -7,11 +7,13 @@ import json
 import os
 import subprocess
 import sys
+from datetime import datetime, timezone
 from urllib.parse import urlsplit
 
 from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE, RobotKind
+from fleetbus.schemas.site_reports import SiteReport, UplinkDepth
 from fleetbus.workers.site_report import report_to_central
-from fleetbus.workers.site_status import SiteLink, site_view
+from fleetbus.workers.site_status import SiteLink, near_full, site_view
 from tests.factories import hazard, status
 from tests.sites.pair import SitePair
 from tests.support import wait_for
@@ -96,3 +98,19 @@ def test_central_shows_the_hazard_states_waiting_at_the_site(pair: SitePair) -> 
     shown = fleetbus(pair.central, "sites")
     assert shown.returncode == 0, shown.stderr
     assert "states" in shown.stdout
+
+
+def test_central_alerts_on_a_class_near_its_bound() -> None:
+    report = SiteReport(
+        site="base1",
+        at=datetime.now(timezone.utc),
+        waiting=180_010,
+        uplink="starting",
+        downlink="starting",
+        classes={
+            "hazards": UplinkDepth(waiting=10, bound=100_000, overflow="reject-publish"),
+            "telemetry": UplinkDepth(waiting=180_000, bound=200_000, overflow="drop-head"),
+        },
+    )
+    assert near_full(report, 0.8) == ("telemetry 90% of 200,000 (oldest dropped)",)
+    assert near_full(report, 0.95) == ()

@@ -4,8 +4,10 @@ user, and recorded as forwarded by the site."""
 from __future__ import annotations
 
 import asyncio
-from collections import Counter
+import time
 
+from fleetbus.broker.uplink import CLASSES, TELEMETRY
+from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import hazard, status
 from tests.sites.pair import SitePair
@@ -33,20 +35,57 @@ def test_link_up_events_reach_central_once_with_their_site_and_user(pair: SitePa
     assert pair.uplink_waiting() == 0
 
 
-def test_a_full_uplink_refuses_new_events_which_wait_in_the_robots_outbox(pair: SitePair) -> None:
-    pair.site.settings = pair.site.settings.updated(uplink_max=5)
-    asyncio.run(pair.start_links())  # what `fleetbus site up` does again after a change of the bound
+def test_the_uplink_classes_drop_telemetry_refuse_hazards_and_the_refused_robot_backs_off(
+    pair: SitePair,
+) -> None:
+    """With the link cut: telemetry beyond its class's bound drops its oldest, counted at the site;
+    hazards have a queue of their own, and beyond its bound the site refuses them: the robot then
+    tries one event at a time, backing off, instead of sending its backlog again (each resend is
+    a duplicate at the site). When the link is back, every hazard reaches central once, and every
+    status either reaches it once or is counted as dropped."""
+    pair.site.settings = pair.site.settings.updated(uplink_hazards_max=2, uplink_telemetry_max=20)
+    asyncio.run(pair.start_links())  # what `fleetbus site up` does again after a change of the bounds
     explorer = pair.site.robot(pair.add_robot("explorer1", RobotKind.EXPLORER))
     with pair.site.worker(), pair.central.worker():
         pair.link.cut()
-        sent = explorer.publish_many([("status", status(80)) for _ in range(8)], wait=False)
-        wait_for(lambda: pair.uplink_waiting() == 5, what="the uplink full")
-        wait_for(lambda: explorer.outbox.pending() == 3, what="the refused three kept in the outbox")
-        assert pair.uplink_waiting() == 5
+        telemetry = explorer.publish_many([("status", status(80)) for _ in range(50)])
+        hazards = explorer.publish_many([("hazard", hazard(i)) for i in range(2)])
+        assert [pair.site.ready_messages(uplink.queue) for uplink in CLASSES] == [2, 0, 20]
+        wait_for(lambda: dropped(pair) == 30, what="the 30 oldest status events dropped, counted")
+        # the site refuses these; the robot's live events wait behind them while it probes
+        refused = explorer.publish_many([("hazard", hazard(i)) for i in range(2, 22)], wait=False)
+        later: list[Event] = []
+        started = time.monotonic()
+        while time.monotonic() - started < 6:
+            later.append(explorer.publish("status", status(80), wait=False))
+            time.sleep(0.05)
+        resends, real = duplicates_at_site(pair), len(refused) + len(later)
+        assert resends < real / 10, f"{resends} resends for {real} events published meanwhile"
+        assert explorer.outbox.refused() == [], "a nack refuses nothing for good"
         pair.link.restore()
-        expected = Counter((event.epoch, event.seq) for event in sent)
-        wait_for(lambda: pair.central_keys("explorer1") == expected, timeout=60, what="all 8 at central")
+        pair.site.settings = pair.site.settings.updated(uplink_hazards_max=100)
+        asyncio.run(pair.start_links())  # room again: the robot's next try finds it
+        sent = [*hazards, *refused]
+        wait_for(
+            lambda: set(pair.central_keys("explorer1")) >= {(e.epoch, e.seq) for e in sent},
+            timeout=90,
+            what="every hazard at central",
+        )
         assert explorer.flush(30)
-    assert pair.site_keys("explorer1") == expected, (
-        "the resent three recognised at the site, not stored twice"
-    )
+        statuses = len(telemetry) + len(later)
+        # a full telemetry class keeps dropping its oldest while the link catches up
+        wait_for(
+            lambda: pair.central.count("status") + dropped(pair) == statuses,
+            timeout=90,
+            what="every status at central or counted as dropped at the site",
+        )
+        assert set(pair.central_keys("explorer1").values()) == {1}, "nothing twice at central"
+
+
+def dropped(pair: SitePair) -> int:
+    counts = pair.site.with_store(lambda repos: repos.housekeeping.bound_counts())
+    return sum(c.count for c in counts if c.bound == "overflow" and c.subject.startswith(TELEMETRY.queue))
+
+
+def duplicates_at_site(pair: SitePair) -> int:
+    return len(pair.site.with_store(lambda repos: repos.events.duplicates("explorer1")))

@@ -124,3 +124,33 @@ async def test_an_urgent_write_waits_for_the_bulk_write_in_hand_not_for_the_queu
         assert stored.results[0].inserted and not queued.done()
         release_queued.set()
         await queued
+
+
+async def test_an_urgent_write_goes_in_between_two_parts_of_a_bulk_write(tmp_path: Path) -> None:
+    """A bulk batch is written in parts; a hazard's write waiting for the lock goes between two
+    (the parts before it committed), not after the whole batch."""
+    async with sqlite_repositories(tmp_path / "store.sqlite3") as store:
+        database = store.events._database
+        first_part, release, finish = threading.Event(), threading.Event(), threading.Event()
+
+        def bulk(db: sqlite3.Connection) -> None:
+            db.execute("CREATE TABLE IF NOT EXISTS parts (n INTEGER)")
+            db.execute("INSERT INTO parts VALUES (1)")
+            first_part.set()
+            release.wait(30)  # the urgent write is waiting by now
+            database.let_small_calls_in(db)
+            db.execute("INSERT INTO parts VALUES (2)")
+            finish.wait(30)
+
+        writing = asyncio.ensure_future(database._run(lambda db: in_transaction(db, lambda: bulk(db))))
+        assert await asyncio.to_thread(first_part.wait, 30)
+        urgent = asyncio.create_task(store.events.store_batch([record(seq=0)], T0, urgent=True))
+        for _ in range(20):
+            await asyncio.sleep(0)
+        assert not urgent.done(), "the first part holds the write lock"
+        release.set()
+        stored = await asyncio.wait_for(urgent, 5)
+        assert stored.results[0].inserted and not writing.done(), "in before the bulk write's end"
+        finish.set()
+        await asyncio.wait_for(writing, 30)
+        assert await database._run(lambda db: db.execute("SELECT count(*) FROM parts").fetchone()[0]) == 2

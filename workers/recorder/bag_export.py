@@ -68,4 +68,3 @@ def export_bag(
             report.channels[topic] = report.channels.get(topic, 0) + 1
             report.messages += 1
     return report
-

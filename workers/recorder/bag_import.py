@@ -108,9 +108,7 @@ async def import_bag(
     return ImportReport(str(path), digest, written, stored, trimmed)
 
 
-async def _write(
-    store: RecordingStore, batch: list[RecordedMessage], added: list[tuple[str, str]]
-) -> int:
+async def _write(store: RecordingStore, batch: list[RecordedMessage], added: list[tuple[str, str]]) -> int:
     """Write the batch; how many messages it held (their transforms not counted)."""
     results = await store.write_recorded(batch)
     added.extend((r.type, r.key) for r, result in zip(batch, results, strict=True) if result.inserted)

@@ -58,9 +58,7 @@ def ros_messages(records: Iterable[RecordedMessage]) -> Iterable[tuple[RecordedM
             yield record, record.document
 
 
-def topics_of(
-    records: Iterable[RecordedMessage], schemas: Mapping[str, RosSchema]
-) -> dict[str, RosSchema]:
+def topics_of(records: Iterable[RecordedMessage], schemas: Mapping[str, RosSchema]) -> dict[str, RosSchema]:
     """The first pass: each topic of the window and its type's definition."""
     topics: dict[str, RosSchema] = {}
     for _, document in ros_messages(records):

@@ -140,6 +140,12 @@ class EventStore(abc.ABC):
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int: ...
 
     @abc.abstractmethod
+    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
+        """Each of ``robots``' newest event (by ``sent_at``; of ``type`` if given), for those that
+        sent one: one query for all of them (a page of the team), each read by the events'
+        (robot, sent_at) index however many events it sent."""
+
+    @abc.abstractmethod
     async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
         """What :meth:`events_received_since` finds, without the events: only their keys and
         receive times, from the index (the console's feed reads its overlap this way, cheaply)."""

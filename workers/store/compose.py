@@ -42,4 +42,5 @@ def repositories_on(database: Database) -> Repositories:
         opener=database.open,
         closer=database.close,
         again=lambda: repositories_on(database.again()),
+        any_loop=database.any_loop,
     )

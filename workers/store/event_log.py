@@ -43,6 +43,9 @@ EVENTS = Schema(
 )
 #: An urgent batch of up to this many events may be written on the caller's thread (``store_batch``).
 SMALL_BATCH = 16
+#: A bulk batch is written in parts of this many events, letting a waiting urgent call (a hazard's
+#: write) in between two parts (:meth:`~fleetbus.workers.store.port.Database.let_urgent_calls_in`).
+BULK_PART = 64
 KEY = ["robot_id", "epoch", "seq"]
 
 
@@ -107,16 +110,30 @@ class Events(Ledger, EventLog):
         be. Bulk batches always take the thread: the event loop keeps receiving while SQLite
         writes, which is what lets the batches grow under load (written on the loop, the drain
         of a backlog fell from about 7,000 to 4,900 events a second in ``python -m bench.ingest``).
+        A bulk batch is written :data:`BULK_PART` events at a time, and when an urgent call waits
+        (a hazard's write) the parts written are committed first and it goes in between: then the
+        batch is more than one transaction, each part whole (after a crash, the redelivered
+        batch finds the parts written and stores the rest).
         """
+        small = urgent and len(records) <= SMALL_BATCH
+        step = max(1, len(records)) if small else BULK_PART
 
         async def store() -> StoredBatch:
-            missions = await self._channels.recording_missions({record.robot_id for record in records})
-            stamped = stamp_missions(records, missions)
-            results = await self._write(stamped)
-            await self.observe(held_sequences(stamped, results), at)
+            stamped: list[EventRecord] = []
+            results: list[WriteResult] = []
+            for start in range(0, len(records), step):
+                if start:
+                    await self._database.let_urgent_calls_in()
+                part = records[start : start + step]
+                missions = await self._channels.recording_missions({record.robot_id for record in part})
+                part = stamp_missions(part, missions)
+                written = await self._write(part)
+                await self.observe(held_sequences(part, written), at)
+                stamped += part
+                results += written
             return StoredBatch(stamped, results)
 
-        return await self._database.transaction(store, urgent=urgent and len(records) <= SMALL_BATCH)
+        return await self._database.transaction(store, urgent=small)
 
     async def find_events(self, query: EventQuery) -> list[EventRecord]:
         order = [("-" if query.newest_first else "") + name for name in ("sent_at", *KEY)]
@@ -124,6 +141,11 @@ class Events(Ledger, EventLog):
             _where(query.type, query.robot_id, query), order=order, limit=query.limit
         )
         return [_record(doc) for doc in found]
+
+    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
+        where = None if type is None else {"type": type}
+        found = await self._events.first_each("robot_id", robots, order=["-sent_at"], where=where)
+        return {robot: _record(doc) for robot, doc in found.items()}
 
     async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:
         # only what the received_at index holds (on SQLite it covers the query)

@@ -39,9 +39,5 @@ def held_sequences(
 ) -> dict[RobotEpoch, list[int]]:
     """By robot and epoch, the numbers whose events the store holds after a write (not the reused ones)."""
     return numbers_of(
-        [
-            record
-            for record, result in zip(records, results, strict=True)
-            if result.holds(record)
-        ]
+        [record for record, result in zip(records, results, strict=True) if result.holds(record)]
     )

@@ -75,6 +75,9 @@ class MongoStore(MongoDatabase, Database):
     async def snapshot(self, work: Callable[[], Work[T]], *, urgent: bool = False) -> T:
         return await work()
 
+    async def let_urgent_calls_in(self) -> None:
+        """Each step is a transaction of its own already."""
+
     async def open(self) -> None:
         self._connect()
         try:
@@ -260,6 +263,24 @@ class MongoCollection(Collection):
             value = self._decode({_stored_name(self.schema, by): row[ID]}, [by])[by]
             groups[value] = Group(row["n"], self._decode(stored, highest))
         return groups
+
+    async def first_each(
+        self, by: str, values: Sequence[Any], *, order: Sequence[str], where: Filter | None = None
+    ) -> dict[Any, Doc]:
+        if not values:
+            return {}
+        stored_by = _stored_name(self.schema, by)
+        match = {**self._filter(where), stored_by: {"$in": [self._value(by, value) for value in values]}}
+        # sorted by the index on (by, order...), $first keeps each value's first document
+        pipeline = [
+            {"$match": match},
+            {"$sort": dict([(stored_by, ASCENDING), *self._sort(order)])},
+            {"$group": {ID: f"${stored_by}", "first": {"$first": "$$ROOT"}}},
+        ]
+        names = list(self.schema.fields)
+        found = await self._collection().aggregate(pipeline)
+        docs = [self._decode(row["first"], names) async for row in found]
+        return {doc[by]: doc for doc in docs}
 
     async def update(
         self, where: Filter, changes: Mapping[str, Any], *, add: Mapping[str, int] | None = None

@@ -203,6 +203,14 @@ class Collection(abc.ABC):
         each of ``highest``."""
 
     @abc.abstractmethod
+    async def first_each(
+        self, by: str, values: Sequence[Any], *, order: Sequence[str], where: Filter | None = None
+    ) -> dict[Any, Doc]:
+        """For each of ``values`` of the field ``by``, the first matching document in ``order``
+        (for those that have one): one query however many values, each read by an index on
+        ``by`` and ``order``'s fields however many documents it has."""
+
+    @abc.abstractmethod
     async def update(
         self, where: Filter, changes: Mapping[str, Any], *, add: Mapping[str, int] | None = None
     ) -> int:
@@ -232,6 +240,9 @@ class Database(abc.ABC):
 
     name: str
     """``sqlite`` or ``mongodb``."""
+    any_loop: bool = False
+    """Another thread's event loop may call this very database (see
+    :attr:`~fleetbus.workers.store.repositories.Repositories.any_loop`)."""
 
     @abc.abstractmethod
     def collection(self, schema: Schema) -> Collection:
@@ -243,6 +254,12 @@ class Database(abc.ABC):
         module's docstring). ``urgent``: someone waits on it (a hazard on its way to the
         wardens): SQLite runs it on the caller's thread when it can. May run ``work()`` again
         after a conflict (it is written to be run again). Nested, it runs in the outer one."""
+
+    @abc.abstractmethod
+    async def let_urgent_calls_in(self) -> None:
+        """Between two parts of a long unit of work: where urgent calls wait for it (SQLite's
+        write lock), end the transaction with what is written, let them go first and begin
+        again; each part is then whole on its own. Elsewhere nothing."""
 
     @abc.abstractmethod
     async def snapshot(self, work: Callable[[], Work[T]], *, urgent: bool = False) -> T:

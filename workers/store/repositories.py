@@ -102,6 +102,15 @@ class Repositories:
     closer: Callable[[], Awaitable[None]] = field(repr=False)
     again: Callable[[], Repositories] = field(repr=False)
     """Another connection to the same database, not yet opened (what a second process would have)."""
+    any_loop: bool = False
+    """Another thread's event loop may call these very repositories: SQLite's are (each call on a
+    thread-safe connection, waiting for another's transaction without blocking any loop); a
+    MongoDB client belongs to the loop it was opened on."""
+
+    def for_another_loop(self) -> Repositories:
+        """What a thread with an event loop of its own uses: these, or (not :attr:`any_loop`) a new
+        connection to the same database, which that thread opens and closes."""
+        return self if self.any_loop else self.again()
 
     async def open(self) -> None:
         await self.opener()

@@ -133,6 +133,7 @@ class SQLiteStore(SQLiteDatabase, Database):
     """One SQLite file and the tables of the collections declared on it."""
 
     name = "sqlite"
+    any_loop = True
 
     def __init__(self, path: Path, busy_timeout: float = 2.0) -> None:
         super().__init__(path, busy_timeout)
@@ -171,6 +172,11 @@ class SQLiteStore(SQLiteDatabase, Database):
 
     async def snapshot(self, work: Callable[[], Work[T]], *, urgent: bool = False) -> T:
         return await self._unit_of_work(work, urgent, "BEGIN")
+
+    async def let_urgent_calls_in(self) -> None:
+        db = self._connection()
+        if db is not None:
+            self.let_small_calls_in(db)
 
     async def _unit_of_work(self, work: Callable[[], Work[T]], urgent: bool, begin: str) -> T:
         if self._connection() is not None:
@@ -368,6 +374,26 @@ class SQLiteCollection(Collection):
             return groups
 
         return await self._store.call(group, write=False)
+
+    async def first_each(
+        self, by: str, values: Sequence[Any], *, order: Sequence[str], where: Filter | None = None
+    ) -> dict[Any, Doc]:
+        if not values:
+            return {}
+        wanted = json.dumps([self._value(by, value) for value in dict.fromkeys(values)])
+        clause, params = self._where(where)
+        of_value = f"{self._table}.{quoted(by)} = wanted.value"
+        clause = f"{clause} AND {of_value}" if clause else f" WHERE {of_value}"
+        # each value's first row by a correlated subquery: one index seek a value
+        found = ", ".join(f"found.{column.strip()}" for column in self._row_id.split(","))
+        columns = ", ".join(f"found.{quoted(name)}" for name in self._names)
+        sql = (
+            f"SELECT {columns} FROM json_each(?) wanted JOIN {self._table} AS found ON ({found}) = "
+            f"(SELECT {self._row_id} FROM {self._table}{clause}{self._order(order)} LIMIT 1)"
+        )
+        rows = await self._store.call(lambda db: db.execute(sql, [wanted, *params]).fetchall(), write=False)
+        docs = [self._decode(self._names, row) for row in rows]
+        return {doc[by]: doc for doc in docs}
 
     async def update(
         self, where: Filter, changes: Mapping[str, Any], *, add: Mapping[str, int] | None = None

@@ -1,5 +1,6 @@
 """One SQLite file and two connections: the store's thread runs the calls that may wait, off the
-event loop; small urgent calls run on the caller's thread, on a connection that never waits.
+event loop; small urgent calls run on the caller's thread, on a connection that never waits, and
+go before the store's thread's next call.
 
 ``synchronous=FULL`` in WAL mode makes each commit durable before the call returns, which is
 what a worker's ack waits for. A failed call never leaves its transaction open, and a locked or
@@ -22,8 +23,10 @@ from fleetbus.workers.store.base import StoreUnavailable
 T = TypeVar("T")
 
 TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
-#: How often a small call tries again on the caller's thread after waiting for the store's thread.
-INLINE_TRIES = 3
+#: Seconds a small call waits before trying again while another process (or another caller's
+#: small call) holds what it needs. SQLite's own busy handler sleeps 1, 2, 5, 10, 15, 20, 25 ms
+#: and more between tries, and a process that writes in a loop takes the lock again in between.
+RETRY_S = 0.001
 
 
 class _Busy(Exception):
@@ -67,10 +70,12 @@ class SQLiteDatabase:
         """The callers' connection (busy timeout 0), used by one thread at a time."""
         self._inline_in_use = threading.Lock()
         # the store's thread's calls, counted as they end, and the callers waiting for one to end
-        self._signals = threading.Lock()
+        self._signals = threading.Condition()
         self._thread_busy = False
         self._thread_calls_ended = 0
         self._waiting: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]] = []
+        self._small_waiting = 0
+        """Small calls trying to run: the store's thread begins no call meanwhile."""
 
     def _prepare(self, db: sqlite3.Connection) -> None:
         """Create tables and indexes on a new connection; idempotent."""
@@ -82,27 +87,39 @@ class SQLiteDatabase:
         Handing a call to the store's thread and back costs more than a small call itself on two
         shared cores, and a hazard's way to the wardens makes several. So a ``small`` call runs
         right here, on a connection of its own: its reads never wait (WAL), and its writes never
-        wait here for the write lock (busy timeout 0). When the store's thread holds that lock (a
-        bulk batch), the call waits, without blocking the event loop, for that one transaction to
-        end and tries again: not for the whole queue of the store's thread. When another process
-        holds it, the call goes to the store's thread, which waits as long as it may. Large calls
-        (a batch under load) go to the store's thread, so that the event loop keeps receiving.
+        wait here for the write lock (busy timeout 0). While it tries, the store's thread begins no
+        new call; when that thread holds the lock (a bulk batch), the small call waits, without
+        blocking its event loop, for that one transaction to end and goes next, ahead of the
+        thread's queue: a hazard waits for one batch of telemetry, not for all of them. When another
+        process holds the lock, it tries again every :data:`RETRY_S` until the busy timeout, then
+        hands the call to the store's thread. Large calls (a batch under load) go to the store's
+        thread, so that the event loop keeps receiving.
         """
         if self._executor is None:
             raise RuntimeError("the store is not open")
         if small:
-            for _ in range(INLINE_TRIES):
-                ended = self._thread_calls_ended
-                try:
-                    return self._run_inline(work)
-                except _Taken:
-                    break  # another thread's caller: take the store's thread
-                except _Busy:
-                    if self._thread_calls_ended != ended:
-                        continue  # the store's thread just let go: at once again
-                    if not self._thread_busy:
-                        break  # another process writes: wait for it on the store's thread
-                    await self._thread_call_ended(ended)
+            loop = asyncio.get_running_loop()
+            deadline = loop.time() + self._busy_timeout
+            with self._signals:
+                self._small_waiting += 1
+            try:
+                while loop.time() < deadline:
+                    ended = self._thread_calls_ended
+                    try:
+                        return self._run_inline(work)
+                    except _Taken:
+                        await asyncio.sleep(RETRY_S)  # another thread's small call: next
+                    except _Busy:
+                        if self._thread_calls_ended != ended:
+                            continue  # the store's thread just let go: at once again
+                        if self._thread_busy:
+                            await self._thread_call_ended(ended)
+                        else:
+                            await asyncio.sleep(RETRY_S)  # another process writes
+            finally:
+                with self._signals:
+                    self._small_waiting -= 1
+                    self._signals.notify_all()
         return await asyncio.get_running_loop().run_in_executor(self._executor, self._call, work)
 
     def _run_inline(self, work: Callable[[sqlite3.Connection], T]) -> T:
@@ -126,8 +143,11 @@ class SQLiteDatabase:
         await future
 
     def _call(self, work: Callable[[sqlite3.Connection], T]) -> T:
-        """On the store's thread: wait for the write lock up to the busy timeout."""
-        self._thread_busy = True
+        """On the store's thread: after the small calls trying now, wait for the write lock up to
+        the busy timeout."""
+        with self._signals:
+            self._signals.wait_for(lambda: not self._small_waiting, self._busy_timeout)
+            self._thread_busy = True
         try:
             if self._db is None:
                 self._db = self._connect(timeout=self._busy_timeout)
@@ -138,11 +158,28 @@ class SQLiteDatabase:
                 raise self._unavailable(busy.__cause__) from busy.__cause__
         finally:
             self._thread_busy = False
-            with self._signals:
-                self._thread_calls_ended += 1
-                waiting, self._waiting = self._waiting, []
-            for loop, future in waiting:
-                loop.call_soon_threadsafe(_wake, future)
+            self._let_go()
+
+    def _let_go(self) -> None:
+        """The store's thread let the write lock go: wake the small calls waiting for that."""
+        with self._signals:
+            self._thread_calls_ended += 1
+            waiting, self._waiting = self._waiting, []
+        for loop, future in waiting:
+            loop.call_soon_threadsafe(_wake, future)
+
+    def let_small_calls_in(self, db: sqlite3.Connection) -> None:
+        """Between two parts of a long write on the store's thread (in a transaction of
+        :func:`in_transaction`): when small calls wait for the write lock, commit what is written,
+        let them go first, and begin again. A hazard then waits for one part of a bulk batch, not
+        the whole of it; with nobody waiting it costs nothing."""
+        if not self._small_waiting or db is not self._db:
+            return
+        db.execute("COMMIT")
+        self._let_go()
+        with self._signals:
+            self._signals.wait_for(lambda: not self._small_waiting, self._busy_timeout)
+        db.execute("BEGIN IMMEDIATE")
 
     def _attempt(self, db: sqlite3.Connection, work: Callable[[sqlite3.Connection], T]) -> T:
         try:

@@ -115,6 +115,7 @@ class DashboardView:
                 sites=await repositories.sites.summaries(),
                 reports=await self._site_reports(),
                 health=health,
+                alert_at=self._service.settings.uplink_alert_at,
             ),
             fragment("dashboard/broker.html", health=health),
             fragment("dashboard/feed.html", feed=self._feed),
@@ -124,7 +125,9 @@ class DashboardView:
         """Each site's newest report (those waiting in the broker taken into the store first)."""
         sites = self._service.repositories.sites
         try:
-            await collect_site_reports(self._service.admin_url, sites)
+            await collect_site_reports(
+                self._service.admin_url, sites, alert_at=self._service.settings.uplink_alert_at
+            )
         except Exception as error:  # the broker is away: the stored reports still show, aged
             log.warning("site reports not collected: %s", type(error).__name__)
         return await sites.reports()

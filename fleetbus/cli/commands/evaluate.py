@@ -17,9 +17,7 @@ from fleetbus.workers.store.recordings import OutcomeFields, RecordingError
 
 
 def evaluate(
-    since: Annotated[
-        str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")
-    ] = None,
+    since: Annotated[str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")] = None,
     until: Annotated[str | None, typer.Option(help="recorded before this time (the same forms)")] = None,
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
     message_type: Annotated[str, typer.Option("--type", help="the type holding outcomes")] = BEHAVIOUR,

@@ -16,6 +16,7 @@ from fleetbus.cli.context import (
     console,
     fail,
     load_data,
+    no_password_in_argv,
     settings,
     with_recording,
 )
@@ -33,6 +34,7 @@ from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, R
 
 
 def robot_url(robot: str, url: str | None) -> str:
+    no_password_in_argv(url, "--url", "in FLEETBUS_ROBOT_URL, or as `users add` kept it")
     url = url or settings().robot_url
     if url:
         return url
@@ -49,7 +51,8 @@ def publish(
     url: Annotated[
         str | None,
         typer.Option(
-            help="the robot's AMQP URL (default: FLEETBUS_ROBOT_URL, else the one `users add` kept)"
+            help="the robot's AMQP URL without a password (a client certificate's; default: "
+            "FLEETBUS_ROBOT_URL, else the one `users add` kept)"
         ),
     ] = None,
     timeout: Annotated[float, typer.Option(help="seconds to wait for the broker's confirm")] = 10.0,
@@ -116,9 +119,7 @@ def query(
     ] = None,
     robot: Annotated[str | None, typer.Option(help="only this robot")] = None,
     mission: Annotated[str | None, typer.Option(help="only messages recorded under this mission")] = None,
-    since: Annotated[
-        str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")
-    ] = None,
+    since: Annotated[str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")] = None,
     until: Annotated[str | None, typer.Option(help="recorded before this time (the same forms)")] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
     latest: Annotated[bool, typer.Option("--latest", help="only the newest match")] = False,

@@ -13,7 +13,7 @@ from rich.table import Table
 from fleetbus.cli.context import actor, console, endpoint, fail, settings
 from fleetbus.workers.store import Hazard, HazardState, Repositories, run_with_repositories
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
-from fleetbus.workers.team import gate, last_seen, why_held
+from fleetbus.workers.team import gate, last_seen_of, why_held
 
 if TYPE_CHECKING:
     from fleetbus.workers.hazard_steps import StepTaken
@@ -25,8 +25,8 @@ async def _open_and_why(repos: Repositories, mission: str) -> list[tuple[Hazard,
     if not any(hazard.state is HazardState.HELD for hazard in found):
         return [(hazard, "") for hazard in found]
     team = await repos.hazards.robots()
-    seen = {robot.name: await last_seen(repos.events, robot.name) for robot in team}
     state, now = gate(team), datetime.now(timezone.utc)
+    seen = await last_seen_of(repos.events, state.waiting_for)
     return [(hazard, why_held(hazard, state, seen, now)) for hazard in found]
 
 
@@ -43,11 +43,14 @@ def hazards(
     ctx: typer.Context,
     mission: Mission = DEFAULT_MISSION,
     as_json: Annotated[bool, typer.Option("--json")] = False,
+    offset: Annotated[int, typer.Option(min=0, help="skip this many hazards")] = 0,
+    limit: Annotated[int | None, typer.Option(min=1, help="show at most this many hazards")] = None,
 ) -> None:
     """Hazards not cleared yet, in the order detected: held (and why), announced, claimed or reached."""
     if ctx.invoked_subcommand is not None:
         return
     found = run_with_repositories(settings(), lambda repos: _open_and_why(repos, mission))
+    found = found[offset : None if limit is None else offset + limit]
     if as_json:
         for hazard, why in found:
             typer.echo(json.dumps({**hazard.as_dict(), "held_because": why or None}))

@@ -23,7 +23,8 @@ def bridge(
     url: Annotated[
         str | None,
         typer.Option(
-            help="the robot's AMQP URL (default: FLEETBUS_ROBOT_URL, else the one `users add` kept)"
+            help="the robot's AMQP URL without a password (a client certificate's; default: "
+            "FLEETBUS_ROBOT_URL, else the one `users add` kept)"
         ),
     ] = None,
     mapping: Annotated[

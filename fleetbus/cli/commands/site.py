@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -14,9 +15,10 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import start_site_links, stop_site_links
 from fleetbus.broker.tls import TlsSettingError, shovel_uri
+from fleetbus.broker.uplink import bounds_of
 from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
-from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.cli.context import admin_api, console, endpoint, fail, no_password_in_argv, settings
 from fleetbus.workers.site_status import site_view
 from fleetbus.workers.store import run_with_repositories
 
@@ -53,20 +55,35 @@ def _enable_shovels(ep: BrokerEndpoint, api: ManagementAPI) -> None:
 @app.command()
 def up(
     name: Annotated[str, typer.Option("--name", help="the site's name, as central knows it")],
+    central_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--central-file",
+            help="a file holding the site's URL at central (`fleetbus sites add` printed it; keep it "
+            "0600); default FLEETBUS_CENTRAL_URL",
+        ),
+    ] = None,
     central: Annotated[
         str | None,
         typer.Option(
             "--central",
-            help="the site's URL at central (`fleetbus sites add` printed it); default FLEETBUS_CENTRAL_URL",
+            help="the site's URL at central, without a password (a client certificate's, "
+            "auth_mechanism=external): a password on the command line is seen by every user of the machine",
         ),
     ] = None,
 ) -> None:
     """Start the site's links: this broker (started if it is the private one) forwards everything it
     accepts to central, and takes central's changes; run `fleetbus worker` beside it as usual."""
     config = settings()
+    no_password_in_argv(central, "--central", "in a file (--central-file) or in FLEETBUS_CENTRAL_URL")
+    if central_file is not None:
+        try:
+            central = central_file.read_text().strip()
+        except OSError as error:
+            fail(f"--central-file: {error}", code=2)
     central = central or config.central_url
     if not central:
-        fail("no central URL: give --central or set FLEETBUS_CENTRAL_URL")
+        fail("no central URL: give --central-file or set FLEETBUS_CENTRAL_URL")
     try:
         shovel_uri(central)  # a URL the shovels cannot verify with is refused before anything changes
     except TlsSettingError as error:
@@ -81,14 +98,14 @@ def up(
                 api,
                 name,
                 central,
-                max_messages=config.uplink_max,
-                max_bytes=config.uplink_max_bytes,
+                bounds=bounds_of(config),
                 reconnect_delay_s=config.site_reconnect_delay_s,
             )
         )
     console.print(
-        f"site [bold]{name}[/]: forwarding to {mask_password(central)} (fleetbus-uplink), "
-        "taking central's changes (fleetbus-downlink)",
+        f"site [bold]{name}[/]: forwarding to {mask_password(central)} (fleetbus-uplink-hazards, "
+        "fleetbus-uplink, fleetbus-uplink-telemetry), taking central's changes (fleetbus-downlink, "
+        "fleetbus-downlink-maps)",
         soft_wrap=True,
         highlight=False,
     )
@@ -108,12 +125,17 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     table = Table(title="links to central")
     for column in ("shovel", "state", "since", "reason"):
         table.add_column(column)
-    for shovel in (link.uplink, link.downlink, *([link.hazard_uplink] if link.hazard_uplink else [])):
+    others = [s for name, s in link.shovels.items() if name not in (link.uplink.name, link.downlink.name)]
+    shovels = (link.uplink, link.downlink, *([link.hazard_uplink] if link.hazard_uplink else []), *others)
+    for shovel in shovels:
         colour = "green" if shovel.state == "running" else "red"
         table.add_row(shovel.name, f"[{colour}]{shovel.state}[/]", shovel.since or "-", shovel.reason or "")
     console.print(table)
     waiting = "?" if link.waiting is None else f"{link.waiting:,}"
-    console.print(f"waiting to be forwarded: {waiting} events", highlight=False)
+    by_class = ", ".join(
+        f"{name} {depth.waiting:,} of {depth.bound:,}" for name, depth in link.classes.items()
+    )
+    console.print(f"waiting to be forwarded: {waiting} events ({by_class})", highlight=False)
     if link.hazard_states_waiting:
         console.print(f"hazard states waiting for central: {link.hazard_states_waiting:,}", highlight=False)
     if link.rejected:

@@ -55,15 +55,16 @@ def sites(
     if ctx.invoked_subcommand is not None:
         return
     ep = endpoint()
+    config = settings()
 
     async def read(repos: Repositories) -> tuple[list[SiteSummary], dict[str, SiteReport]]:
-        await collect_site_reports(ep.amqp_url, repos.sites)
+        await collect_site_reports(ep.amqp_url, repos.sites, alert_at=config.uplink_alert_at)
         return await repos.sites.summaries(), await repos.sites.reports()
 
-    summaries, reports = run_with_repositories(settings(), read)
+    summaries, reports = run_with_repositories(config, read)
     now = datetime.now(timezone.utc)
     with admin_api(ep) as api:
-        rows = central_view(api, vhost_of(ep.amqp_url), summaries, now, reports)
+        rows = central_view(api, vhost_of(ep.amqp_url), summaries, now, reports, config.uplink_alert_at)
     if as_json:
         console.print_json(json.dumps([row.as_dict() for row in rows]))
         return
@@ -86,6 +87,12 @@ def sites(
             _ago(row.report_age_s) + " ago" if row.reported_at else "never",
         )
     console.print(table)
+    for row in rows:
+        if row.near_full:
+            console.print(
+                f"[red]alert[/]: site {row.site}'s uplink is near full: {'; '.join(row.near_full)}",
+                highlight=False,
+            )
     console.print(
         "waiting: events to be forwarded, as the site's newest report said (states: the hazard states "
         "made at the site; reported: how old that is; while the link is down it ages); "
@@ -151,7 +158,7 @@ def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
     asyncio.run(declare_with_url(ep.amqp_url, [central_site_topology(site, settings().cluster)]))
     with admin_api(ep) as api:
         _send_accounts(api, ep.amqp_url, site, known[site])
-        missions = run_with_repositories(settings(), mission_changes)
+        missions = run_with_repositories(settings(), lambda repos: mission_changes(repos, site))
         send_to_sites(ep.amqp_url, [site], missions)
     console.print(f"sent {site} {len(missions)} missions", highlight=False)
 

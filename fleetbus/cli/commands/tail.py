@@ -44,9 +44,7 @@ def tail(
         str | None, typer.Option(help="follow as this user (credentials kept by `api login`)")
     ] = None,
     url: Annotated[str | None, typer.Option(help="your broker URL (default: FLEETBUS_USER_URL)")] = None,
-    since: Annotated[
-        str | None, typer.Option(help=f"replay from this time first: {TIME_FORMS}")
-    ] = None,
+    since: Annotated[str | None, typer.Option(help=f"replay from this time first: {TIME_FORMS}")] = None,
     count: Annotated[int | None, typer.Option(help="stop after this many messages")] = None,
     idle: Annotated[float | None, typer.Option(help="stop after this many seconds without one")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="one JSON object per line")] = False,

@@ -12,7 +12,19 @@ from rich.table import Table
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.cli.context import actor, clock, console, endpoint, fail, settings
 from fleetbus.workers.store import Repositories, run_with_repositories
-from fleetbus.workers.team import TeamMember, TeamRefused, ago, change_service, gate, read_team, why_closed
+from fleetbus.workers.store.hazards import RobotState
+from fleetbus.workers.team import (
+    TeamMember,
+    TeamRefused,
+    ago,
+    change_service,
+    gate,
+    last_seen_of,
+    team_members,
+    why_closed,
+)
+
+Seen = dict[str, datetime | None]
 
 app = typer.Typer(
     help="The team the hazard gate follows. Alone: every robot with its kind, localised or not, "
@@ -27,6 +39,8 @@ app = typer.Typer(
 def team(
     ctx: typer.Context,
     as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False,
+    offset: Annotated[int, typer.Option(min=0, help="skip this many robots (by name)")] = 0,
+    limit: Annotated[int | None, typer.Option(min=1, help="show at most this many robots")] = None,
 ) -> None:
     """Every robot of the team: its kind, localised or not, when it was last heard from (any event),
     stale (silent longer than FLEETBUS_STALE_AFTER_S), in service or not (who changed it, when),
@@ -35,20 +49,38 @@ def team(
         return
     config = settings()
     now = datetime.now(timezone.utc)
-    members = run_with_repositories(
-        config,
-        lambda repos: read_team(repos.hazards, repos.events, now, timedelta(seconds=config.stale_after_s)),
-    )
-    state = gate([member.robot for member in members])
-    closed = why_closed(state, {m.robot.name: m.last_seen for m in members}, now)
+    stale_after = timedelta(seconds=config.stale_after_s)
+
+    async def read(repos: Repositories) -> tuple[list[RobotState], list[TeamMember], Seen]:
+        robots = await repos.hazards.robots()
+        page = robots[offset : None if limit is None else offset + limit]
+        members = await team_members(page, repos.events, now, stale_after)
+        waiting = await last_seen_of(repos.events, gate(robots).waiting_for)
+        return robots, members, waiting
+
+    robots, members, waiting = run_with_repositories(config, read)
+    state = gate(robots)
+    closed = why_closed(state, waiting, now)
     if as_json:
         document = {
             "robots": [member.as_dict() for member in members],
+            "total": len(robots),
+            "offset": offset,
             "gate": {"open": state.open, "announces_to": state.wardens, "closed_because": closed},
         }
         typer.echo(json.dumps(document))
         return
-    table = Table("robot", "kind", "localised", "last seen", "stale", "in service", "counts for the gate")
+    table = Table(
+        "robot",
+        "kind",
+        "localised",
+        "last seen",
+        "stale",
+        "in service",
+        "counts for the gate",
+        "outbox dropped",
+        caption=f"robots {offset + 1} to {offset + len(members)} of {len(robots)}" if members else None,
+    )
     for member in members:
         table.add_row(
             member.robot.name,
@@ -58,6 +90,7 @@ def team(
             f"[red]stale[/] (> {config.stale_after_s:g} s)" if member.stale else "",
             _service(member),
             "yes" if member.counts_for_gate else "",
+            ", ".join(f"{kind} {n:,}" for kind, n in sorted(member.outbox_dropped.items())),
         )
     console.print(table)
     if closed:

@@ -37,9 +37,7 @@ def registered_subscriptions(robot: str) -> list[str]:
 def timeline(
     robot: Annotated[str, typer.Argument(help="the robot (or operator) account")],
     since: Annotated[str, typer.Option(help=f"from this time: {TIME_FORMS}")] = "1h",
-    until: Annotated[
-        str | None, typer.Option(help="until this time (default: now; the same forms)")
-    ] = None,
+    until: Annotated[str | None, typer.Option(help="until this time (default: now; the same forms)")] = None,
     limit: Annotated[int, typer.Option(help="at most this many, the oldest first")] = 500,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:

@@ -4,6 +4,7 @@ with a broker account confined to its own name, through the accounts service."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 from urllib.parse import urlsplit
 
@@ -13,9 +14,11 @@ from rich.table import Table
 
 from fleetbus.broker.accounts import can_login, save_secret
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
+from fleetbus.broker.fleet import NewRobot
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.accounts import with_accounts
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
+from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings
@@ -114,6 +117,60 @@ def _say_certificate(client: ClientFiles, url: str) -> None:
             soft_wrap=True,
             highlight=False,
         )
+
+
+@app.command("add-many")
+def add_many(
+    names: Annotated[
+        Path,
+        typer.Argument(
+            help="a file of robots, one a line: NAME, or NAME KIND (explorer, warden, guide); "
+            "blank lines and lines starting with # are skipped"
+        ),
+    ],
+    urls: Annotated[
+        Path,
+        typer.Option(help="where to write each robot's AMQP URL, one `NAME URL` a line (made mode 0600)"),
+    ],
+    kind: Annotated[RobotKind | None, typer.Option(help="the kind of robots whose line names none")] = None,
+    rotate: Annotated[bool, typer.Option(help="give existing accounts new passwords")] = False,
+    by: Annotated[
+        str | None, typer.Option(help="who makes them, for the record (default: your login)")
+    ] = None,
+) -> None:
+    """Make many robots at once (one broker import per 500), each recorded in the account registry
+    with its exchanges, inbox, permissions and shard, as `users add` makes one; their URLs go to
+    the --urls file, never to the screen."""
+    ep = endpoint()
+    try:
+        robots = read_robots(names.read_text(), kind)
+    except (OSError, ValueError) as error:
+        fail(f"{names}: {error}")
+    if urls.exists():
+        fail(f"{urls} exists; give a new file for the URLs")
+    made = with_accounts(
+        ep, lambda accounts, _repos, _api: accounts.provision_robots(robots, actor(by), rotate=rotate)
+    )
+    save_secret(urls, "\n".join(f"{m.user.name} {m.public_url}" for m in made))
+    console.print(f"created {len(made):,} robots; their URLs are in {urls}", highlight=False)
+
+
+def read_robots(text: str, kind: RobotKind | None) -> list[NewRobot]:
+    """The robots of a names file; raises ValueError naming the line that does not parse."""
+    robots = []
+    for number, line in enumerate(text.splitlines(), 1):
+        words = line.split()
+        if not words or words[0].startswith("#"):
+            continue
+        if len(words) > 2:
+            raise ValueError(f"line {number}: NAME or NAME KIND, not {line.strip()!r}")
+        try:
+            robots.append(NewRobot(validate_name(words[0]), RobotKind(words[1]) if len(words) == 2 else kind))
+        except ValueError as error:
+            raise ValueError(f"line {number}: {error}") from None
+    if not robots:
+        raise ValueError("no robot named")
+    return robots
 
 
 @app.command("remove")
