@@ -105,9 +105,12 @@ class AccountCheck:
         broker = await asyncio.to_thread(self._read_broker)
         found: list[Drift] = []
         skip = self._not_users(sites)
-        for name in sorted(broker.permissions.keys() - registry.keys() - skip):
-            if name.startswith(SERVICE_PREFIX) or name not in broker.users:
-                continue
+        outside = {
+            name
+            for name in broker.permissions.keys() - registry.keys() - skip
+            if not name.startswith(SERVICE_PREFIX) and name in broker.users
+        }
+        for name in sorted(outside):
             role, _ = self._guess_role(name, broker)
             found.append(
                 Drift(
@@ -120,7 +123,8 @@ class AccountCheck:
         for user in registry.values():
             found.extend(self._user_drift(user, broker))
         robots = {name for name, user in registry.items() if user.role is UserRole.ROBOT}
-        for name in sorted(broker.shards.keys() - robots):
+        # what an account outside the registry has comes with it when it is taken in
+        for name in sorted(broker.shards.keys() - robots - outside):
             found.append(
                 Drift("shard", name, f"{name} is bound to an ingest shard but is no robot", "unbind it")
             )
@@ -137,7 +141,7 @@ class AccountCheck:
                         "give the team the registry's kind",
                     )
                 )
-        for name in sorted(team.keys() - robots):
+        for name in sorted(team.keys() - robots - outside):
             found.append(
                 Drift("team", name, f"{name} is in the team but is no robot", "take it out of the team")
             )

@@ -102,8 +102,10 @@ class Accounts:
     ) -> None:
         """``public_url``: the broker as users and robots reach it (no credentials), for the URLs
         handed out; None: ``admin_url``'s broker. ``certificates``: fleetbus's CA, whose
-        certificates for a name are revoked when a user of that name is made or removed."""
+        certificates for a name are revoked when a user of that name is made or removed.
+        ``sites``: the sites, whose accounts at central no user may take the name of."""
         self._certificates = certificates
+        self._sites = sites
         self._public_url = public_url
         self._users = users
         self._team = team

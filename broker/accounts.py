@@ -190,6 +190,8 @@ async def configure_account(
     )
     if role is Role.ROBOT:
         assign_shard(api, vhost, name, shards)
+    else:  # a robot given another role publishes no events of its own
+        unassign_shard(api, vhost, name)
 
 
 def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:
