@@ -5,38 +5,18 @@ check finds what drifted from it and repairs it, the same from each."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
-from typer.testing import CliRunner
-
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
 from fleetbus.broker.accounts import can_login, url_for
 from fleetbus.broker.shards import read_shard_map
-from fleetbus.cli import app
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import SHARD_EXCHANGE, RobotKind, ingest_shard_queue, shard_binding_keys
 from tests.api.support import PASSWORD, Api, running_api
+from tests.commands import fleetbus
 from tests.support import Bus
-
-
-@dataclass(frozen=True)
-class Ran:
-    returncode: int
-    stdout: str
-    stderr: str
-
-
-def fleetbus(bus: Bus, *args: str) -> Ran:
-    """The command as typed, run in this process (the interpreter's start would cost a second or
-    two a command): the same Typer app, environment and exit code."""
-    env = {**bus.worker_env(), "COLUMNS": "200"}
-    result = CliRunner().invoke(app, list(args), env=env)
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return Ran(result.exit_code, result.stdout, result.stderr)
 
 
 def _console(api: Api, name: str) -> str:
