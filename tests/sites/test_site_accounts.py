@@ -13,7 +13,7 @@ from fleetbus.broker.addresses import join_addresses
 from fleetbus.broker.management import ManagementError
 from fleetbus.broker.sites import local_uri
 from fleetbus.schemas.routing import DOWNLINK_SHOVEL, UPLINK_SHOVEL, site_downlink_queue
-from tests.commands import fleetbus
+from tests.commands import Ran, fleetbus
 from tests.sites.pair import SitePair
 from tests.support import Bus, wait_for
 
@@ -28,15 +28,24 @@ def _on_port(url: str, port: int) -> str:
     return urlunsplit((parts.scheme, f"{login}@127.0.0.1:{port}", parts.path, parts.query, ""))
 
 
-def test_sites_add_with_robots_sends_their_accounts_and_a_cluster_central_connects(pair: SitePair) -> None:
-    central, site = pair.central, pair.site
-    assert fleetbus(central, "users", "add", "roamer1", "--kind", "explorer").returncode == 0
-    added = fleetbus(central, "sites", "add", "base7", "--robots", "roamer1")
+def _add_site(central: Bus, site: str, *robots: str) -> Ran:
+    for robot in robots:
+        assert fleetbus(central, "users", "add", robot, "--kind", "explorer").returncode == 0
+    added = fleetbus(central, "sites", "add", site, "--robots", ",".join(robots))
     assert added.returncode == 0, added.stderr
-    central.accounts.append("base7")
-    assert "sent base7 the accounts of roamer1" in added.stdout
-    assert central.ready_messages(site_downlink_queue("base7")) == 1, "roamer1's account waits for the site"
+    central.accounts.append(site)
+    return added
 
+
+def test_sites_add_with_robots_sends_the_site_their_accounts(pair: SitePair) -> None:
+    added = _add_site(pair.central, "base6", "roamer1")
+    assert "sent base6 the accounts of roamer1" in added.stdout
+    assert pair.central.ready_messages(site_downlink_queue("base6")) == 1, "its account waits for the site"
+
+
+def test_a_site_whose_central_is_a_cluster_connects_to_it(pair: SitePair) -> None:
+    central, site = pair.central, pair.site
+    added = _add_site(central, "base7", "roamer2")
     # central as a cluster of two nodes: the link's address and the node's own, one URL
     url = next(line for line in added.stdout.splitlines() if line.startswith("amqp://base7:"))
     over_link = pair.over_tls(url)
@@ -60,7 +69,7 @@ def test_sites_add_with_robots_sends_their_accounts_and_a_cluster_central_connec
     assert downlink is not None and len(downlink["src-uri"]) == 2
     wait_for(
         lambda: central.ready_messages(site_downlink_queue("base7")) == 0,
-        what="the site's downlink to take roamer1's account from the cluster",
+        what="the site's downlink to take roamer2's account from the cluster",
     )
 
 
