@@ -234,6 +234,8 @@ CASES = [
         user_change("PUT", "/password", {"password": "another long one"}),
     ),
     Case("DELETE", "/users/{name}", frozenset({R.ADMIN}), 204, user_change("DELETE", "", None)),
+    Case("GET", "/registry/drift", frozenset({R.ADMIN}), 200, fixed("GET", "/registry/drift")),
+    Case("POST", "/registry/repair", frozenset({R.ADMIN}), 200, fixed("POST", "/registry/repair")),
     Case("GET", "/use-cases", ACTIVE_ROLES, 200, fixed("GET", "/use-cases")),
     Case(
         "POST",
