@@ -34,6 +34,7 @@ from fleetbus.broker.certificates import CertificateError, TlsFiles
 from fleetbus.broker.fleet import NewRobot, provision_robots
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
+from fleetbus.broker.sites import grant_site_robots
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
@@ -401,12 +402,25 @@ class Accounts:
         await self._check_revocable(name)
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
         await self._users.remove_user(name)
+        await self._leave_sites(name)
         await self._revoke_certificates(name)
         log.info("user %s removed by %s", name, by)
         try:  # a warden removed no longer holds the hazard gate
             return await leave_team(self._team, self._admin_url, name, by)
         except HazardServiceNotTold as error:
             raise Unavailable(f"user {name} removed and taken out of the team, but {error}") from error
+
+    async def _leave_sites(self, name: str) -> None:
+        """Take a removed robot from its site: the site's account at central may no longer write
+        for it (the site keeps its copy of the account until its operator removes it there)."""
+        if self._sites is None:
+            return
+        for site, members in (await self._sites.sites()).items():
+            if name in members:
+                rest = [member for member in members if member != name]
+                await self._sites.set_robots(site, rest)
+                vhost = vhost_of(self._admin_url)
+                await asyncio.to_thread(grant_site_robots, self._management, vhost, site, rest)
 
     async def login(self, name: str, password: str) -> Login:
         user = await self._users.get_user(name)

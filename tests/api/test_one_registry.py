@@ -19,6 +19,14 @@ from tests.commands import fleetbus
 from tests.support import Bus
 
 
+def _fresh(bus: Bus, *names: str) -> None:
+    """Names the commands will make: broker users are broker-wide, so one an aborted run left is
+    removed first, and each is removed after the test."""
+    for name in names:
+        bus.api.delete_user(name)
+        bus.accounts.append(name)
+
+
 def _console(api: Api, name: str) -> str:
     """Log ``name``'s browser in to the console (a minted session, as a login makes); its CSRF value."""
     api.client.get("/console/login")
@@ -27,6 +35,7 @@ def _console(api: Api, name: str) -> str:
 
 
 def test_users_add_and_add_many_record_the_user_as_post_users_does(bus: Bus, tmp_path: Path) -> None:
+    _fresh(bus, "cli-robot", "many-a", "many-b")
     added = fleetbus(bus, "users", "add", "cli-robot", "--kind", "explorer")
     assert added.returncode == 0, added.stderr
     names = tmp_path / "robots.txt"
@@ -83,6 +92,7 @@ def test_the_command_line_refuses_to_remove_a_mounted_user_as_the_api_does(bus: 
 
 
 def test_shards_list_the_registrys_robots_only(bus: Bus) -> None:
+    _fresh(bus, "shard-a", "shard-b")
     for name in ("shard-a", "shard-b"):
         assert fleetbus(bus, "users", "add", name).returncode == 0
     with running_api(bus) as api:

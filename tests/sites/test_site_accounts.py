@@ -30,6 +30,8 @@ def _on_port(url: str, port: int) -> str:
 
 def _add_site(central: Bus, site: str, *robots: str) -> Ran:
     for robot in robots:
+        central.api.delete_user(robot)  # broker-wide: one an aborted run left
+        central.accounts.append(robot)
         assert fleetbus(central, "users", "add", robot, "--kind", "explorer").returncode == 0
     added = fleetbus(central, "sites", "add", site, "--robots", ",".join(robots))
     assert added.returncode == 0, added.stderr
@@ -37,10 +39,14 @@ def _add_site(central: Bus, site: str, *robots: str) -> Ran:
     return added
 
 
-def test_sites_add_with_robots_sends_the_site_their_accounts(pair: SitePair) -> None:
+def test_sites_add_sends_its_robots_accounts_and_a_removed_robot_leaves_it(pair: SitePair) -> None:
     added = _add_site(pair.central, "base6", "roamer1")
     assert "sent base6 the accounts of roamer1" in added.stdout
     assert pair.central.ready_messages(site_downlink_queue("base6")) == 1, "its account waits for the site"
+    assert pair.central.api.get_permissions(pair.central.vhost, "base6")["write"] == "^(base6|roamer1)\\."
+    assert fleetbus(pair.central, "users", "remove", "roamer1").returncode == 0
+    assert pair.central.api.get_permissions(pair.central.vhost, "base6")["write"] == "^(base6)\\."
+    assert fleetbus(pair.central, "users", "check").returncode == 0, "the site no longer has it"
 
 
 def test_a_site_whose_central_is_a_cluster_connects_to_it(pair: SitePair) -> None:
