@@ -3,13 +3,14 @@ the feed's batches (the real SQLite store, its reads counted)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import timedelta
 from pathlib import Path
 
 import pytest
 
 from fleetbus.api.console.latest import Latest
-from fleetbus.workers.store.base import EventQuery, EventRecord
+from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.sqlite import sqlite_repositories
 from tests.store.test_contract import T0, record
 
@@ -33,25 +34,27 @@ async def test_robots_are_read_from_the_store_once_then_follow_the_feed(
                     record(robot, 2, "localisation", T0 + timedelta(seconds=20), localised=True),
                 ]
             )
-        reads: list[EventQuery] = []
-        find = store.events.find_events
+        reads: list[tuple[list[str], str | None]] = []
+        newest_events = store.events.newest_events
 
-        async def counted(query: EventQuery) -> list[EventRecord]:
-            reads.append(query)
-            return await find(query)
+        async def counted(robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
+            reads.append((sorted(robots), type))
+            return await newest_events(robots, type)
 
-        monkeypatch.setattr(store.events, "find_events", counted)
+        monkeypatch.setattr(store.events, "newest_events", counted)
         latest = Latest(store.events)
 
         assert await latest.seed(ROBOTS)
-        assert len(reads) == 3 * len(ROBOTS), "the newest event, status and localisation of each, once"
+        assert reads == [(ROBOTS, None), (ROBOTS, "status"), (ROBOTS, "localisation")], (
+            "the newest event, status and localisation of all of them: three queries, each robot once"
+        )
         newest = latest.of("explorer3")
         assert (newest.battery, newest.pose and newest.pose.x) == (80.0, 2.0)
         assert newest.last_seen == T0 + timedelta(seconds=20, microseconds=1234)
 
         for _ in range(10):  # every refresh after: no read at all, whatever the team's size
             assert not await latest.seed(ROBOTS)
-        assert len(reads) == 3 * len(ROBOTS)
+        assert len(reads) == 3
 
         latest.observe([status("explorer3", 3, 15.0, 7.5, 30)])  # a batch of the feed
         latest.observe([status("explorer3", 1, 80.0, 2.0, 10)])  # a late copy of an older one
@@ -59,4 +62,4 @@ async def test_robots_are_read_from_the_store_once_then_follow_the_feed(
 
         assert not await latest.seed(ROBOTS[:-1])  # explorer4 left the team: forgotten
         assert latest.of("explorer4").last_seen is None and "explorer4" not in latest.last_seen()
-        assert len(reads) == 3 * len(ROBOTS)
+        assert len(reads) == 3

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -51,28 +52,26 @@ LOG = Schema("log", {"what": TEXT, "at": TIME}, serial=True, indexes=(Index("at"
 COUNTS = Schema("counts", {"name": TEXT, "n": INTEGER, "first": TIME, "last": TIME}, key=("name",))
 
 
+@asynccontextmanager
+async def opened(store: Database) -> AsyncIterator[Database]:
+    for schema in (THINGS, LOG, COUNTS):
+        store.collection(schema)
+    await store.open()
+    try:
+        yield store
+    finally:
+        await store.close()
+
+
 @pytest.fixture(params=["sqlite", "mongodb"])
 async def database(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Database]:
     if request.param == "sqlite":
-        store: Database = SQLiteStore(tmp_path / "port.sqlite3")
-        for schema in (THINGS, LOG, COUNTS):
-            store.collection(schema)
-        await store.open()
-        try:
+        async with opened(SQLiteStore(tmp_path / "port.sqlite3")) as store:
             yield store
-        finally:
-            await store.close()
         return
     url: str = request.getfixturevalue("mongodb_url")
-    async with fresh_database(url) as name:
-        store = MongoStore(url, name)
-        for schema in (THINGS, LOG, COUNTS):
-            store.collection(schema)
-        await store.open()
-        try:
-            yield store
-        finally:
-            await store.close()
+    async with fresh_database(url) as name, opened(MongoStore(url, name)) as store:
+        yield store
 
 
 def thing(number: int, **fields: object) -> dict[str, object]:
@@ -220,6 +219,39 @@ async def test_groups_count_and_take_the_highest(database: Database) -> None:
         False: (2, {"at": T0 + timedelta(3), "number": 3}),
     }
     assert await things.group("flag", {"number": Range(gt=9)}) == {}
+
+
+async def test_first_each_takes_each_values_first_document_in_order(database: Database) -> None:
+    things = database.collection(THINGS)
+    await things.insert(
+        [
+            thing(n, area=area, code=f"{area}{n}", at=T0 + timedelta(n), flag=n != 4)
+            for area in "ab"
+            for n in range(5)
+        ]
+    )
+    newest = await things.first_each("area", ["a", "b", "c", "a"], order=["-at"])
+    assert {area: doc["number"] for area, doc in newest.items()} == {"a": 4, "b": 4}
+    assert newest["a"] == await things.get("a", 4)
+    flagged = await things.first_each("area", ["b"], order=["-at"], where={"flag": True})
+    assert {area: doc["number"] for area, doc in flagged.items()} == {"b": 3}
+    assert await things.first_each("area", [], order=["at"]) == {}
+    log = database.collection(LOG)
+    await log.insert([{"what": what, "at": T0 + timedelta(n)} for n, what in enumerate("xyxy")])
+    first = await log.first_each("what", ["x", "y"], order=["at"])
+    assert {what: doc[SERIAL] for what, doc in first.items()} == {"x": 1, "y": 2}
+
+
+async def test_a_unit_of_work_keeps_what_it_wrote_before_letting_urgent_calls_in(database: Database) -> None:
+    things = database.collection(THINGS)
+
+    async def work() -> None:
+        await things.insert([thing(1)])
+        await database.let_urgent_calls_in()
+        await things.insert([thing(2)])
+
+    await database.transaction(work)
+    assert await things.count() == 2
 
 
 async def test_a_unit_of_work_sees_its_own_writes(database: Database) -> None:
