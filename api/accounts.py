@@ -1,12 +1,14 @@
-"""Users of the service layer: create, change role, remove, log in; each with its broker account.
+"""The account registry's one application service: create, change role, remove, log in; each user
+with its broker account. The command line (``fleetbus users``), the HTTP API (``/users``) and the
+console's Accounts page are adapters of it: the same checks, the same refusals
+(:mod:`fleetbus.api.errors`), the same outcome.
 
 The store holds the user (role, password hash, encrypted broker password); the broker holds an
 account of the same name with a random password, confined to ``^<name>\\.``. The store is
 written first, so a name is claimed atomically; a broker failure then undoes the store write.
 An ``inactive`` user's broker account has no permissions at all: it cannot even connect.
 Client certificates fleetbus's CA signed for a name are revoked when a user of that name is made or
-removed, as ``fleetbus users add`` and ``remove`` do: a later account of that name must not
-inherit them.
+removed: a later account of that name must not inherit them.
 """
 
 from __future__ import annotations
