@@ -78,6 +78,16 @@ class Provisioned:
     """Its broker URL as this service reaches the broker (no password for a certificate's login)."""
     public_url: str
     """The same login at the broker's public address: what the user or robot is handed, once."""
+    revoked: str | None = None
+    """The certificates of the name revoked, said in a sentence (None: there were none)."""
+
+
+@dataclass(frozen=True)
+class Removed:
+    left_team: bool
+    """It was a robot of the team."""
+    revoked: str | None = None
+    """The certificates of the name revoked, said in a sentence (None: there were none)."""
 
 
 @dataclass(frozen=True)
@@ -193,15 +203,19 @@ class Accounts:
             if problem := await asyncio.to_thread(cannot_revoke, self._certificates, name):
                 raise Unavailable(problem)
 
-    async def _revoke_certificates(self, name: str) -> None:
+    async def _revoke_certificates(self, name: str) -> str | None:
+        """Revoke ``name``'s certificates; what was revoked, said in a sentence (None: none)."""
         if self._certificates is None:
-            return
+            return None
         try:
             revoked = await asyncio.to_thread(revoke_certificates_of, self._certificates, name)
         except CertificateError as error:
             raise Unavailable(f"could not revoke the certificates of {name}: {error}") from error
-        if revoked:
-            log.warning("%s", revoked_summary(name, revoked))
+        if not revoked:
+            return None
+        summary = revoked_summary(name, revoked)
+        log.info("%s", summary)
+        return summary
 
     async def _check_name(self, name: str) -> None:
         """Refuse a name no user may have: an invalid or reserved one (``fleetbus*``, ``amq*``,
@@ -272,10 +286,10 @@ class Accounts:
             await self._users.put_user(user)
         if role is UserRole.ROBOT:
             await self._team.register_robot(name, user.kind)
-        await self._revoke_certificates(name)
+        revoked = await self._revoke_certificates(name)
         log.info("user %s %s by %s with role %s", name, "re-keyed" if existing else "created", by, role.value)
         url = url_for(self._admin_url, name, broker_password)
-        return Provisioned(user, url, as_public(url, self._public_url))
+        return Provisioned(user, url, as_public(url, self._public_url), revoked)
 
     async def provision_robots(
         self, robots: Sequence[NewRobot], by: str, *, rotate: bool = False
@@ -318,8 +332,9 @@ class Accounts:
             user = self._record(account.name, UserRole.ROBOT, kind, password, recorded.get(account.name), by)
             await self._users.put_user(user)
             await self._team.register_robot(account.name, user.kind)
-            await self._revoke_certificates(account.name)
-            made.append(Provisioned(user, account.amqp_url, as_public(account.amqp_url, self._public_url)))
+            revoked = await self._revoke_certificates(account.name)
+            public = as_public(account.amqp_url, self._public_url)
+            made.append(Provisioned(user, account.amqp_url, public, revoked))
         log.info("%d robots made by %s", len(made), by)
         return made
 
@@ -389,10 +404,10 @@ class Accounts:
         log.info("user %s: broker password reset by %s", name, by)
         return self.broker_credentials(rekeyed)
 
-    async def remove(self, name: str, by: str) -> bool:
+    async def remove(self, name: str, by: str) -> Removed:
         """Remove the user from the registry and its broker account (a broker account made outside
         the registry too); refused while it is mounted or checked in. Its certificates are revoked
-        and it leaves the team. True: it was in the team."""
+        and it leaves the team and its site."""
         await self._check_name(name)
         recorded = await self._users.get_user(name)
         if recorded is None and await asyncio.to_thread(self._management.get_user, name) is None:
@@ -405,10 +420,10 @@ class Accounts:
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
         await self._users.remove_user(name)
         await self._leave_sites(name)
-        await self._revoke_certificates(name)
+        revoked = await self._revoke_certificates(name)
         log.info("user %s removed by %s", name, by)
         try:  # a warden removed no longer holds the hazard gate
-            return await leave_team(self._team, self._admin_url, name, by)
+            return Removed(await leave_team(self._team, self._admin_url, name, by), revoked)
         except HazardServiceNotTold as error:
             raise Unavailable(f"user {name} removed and taken out of the team, but {error}") from error
 

@@ -67,6 +67,8 @@ def add(
             name, role, kind, actor(by), rotate=rotate, certificate=cert
         ),
     )
+    if made.revoked:
+        console.print(made.revoked, highlight=False)
     url = made.public_url
     client = _issue_certificate(config, name) if cert else None
     if client is not None:
@@ -185,9 +187,11 @@ def remove(
     warden removed no longer holds the gate. Refused while it is mounted or checked in. Its client
     certificates are revoked."""
     ep = endpoint()
-    left = with_accounts(ep, lambda accounts, _repos, _api: accounts.remove(name, actor(by)))
+    removed = with_accounts(ep, lambda accounts, _repos, _api: accounts.remove(name, actor(by)))
     (settings().accounts_dir / f"{name}.url").unlink(missing_ok=True)
-    console.print(f"removed {name}" + (" and took it out of the team" if left else ""))
+    console.print(f"removed {name}" + (" and took it out of the team" if removed.left_team else ""))
+    if removed.revoked:
+        console.print(removed.revoked, highlight=False)
 
 
 @app.command("list")
