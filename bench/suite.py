@@ -6,7 +6,9 @@ Runs are interleaved (run 1 of every scenario, then run 2, ...), so a slow spell
 machine hits them alike and a target measured against the raw broker compares figures taken
 minutes apart at most. Each scenario reports the median and the spread (min-max) of its
 figures; the targets are checked on them. Results go to ``bench/results/suite-<UTC time>.json``
-and ``.md`` (the Markdown the README's performance section shows).
+and ``.md`` (the Markdown the README's performance section shows). Interrupted (Ctrl-C) or stopped
+(SIGTERM, as a CI job's timeout or a supervisor stops it), it reports and writes what it measured
+so far.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import argparse
 import json
 import os
 import shlex
+import signal
 import sys
 import time
 import traceback
@@ -121,8 +124,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = machine(api, endpoint)
         context = Context(endpoint, api, quick=args.quick)
         columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-        with Progress(*columns, console=console) as progress:
-            outcomes = run(scenarios, context, args.runs, progress)
+        # SIGTERM ends the suite as Ctrl-C does: the scenario in hand stops (its processes are
+        # stopped by its own cleanup) and the runs measured so far are written
+        previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+        try:
+            with Progress(*columns, console=console) as progress:
+                outcomes = run(scenarios, context, args.runs, progress)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
     found = verdicts(outcomes)
     meta = {
         "command": command,

@@ -23,6 +23,7 @@ from fleetbus.broker.addresses import join_addresses, split_addresses
 from fleetbus.broker.probe import NoAnswer, NotVerified, amqp_login, check_amqp_login, management_answers
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.urls import mask_password
+from fleetbus.publishers.errors import BrokerUnavailable
 from fleetbus.settings import Settings
 
 MANAGEMENT_PORT = 15672
@@ -33,10 +34,6 @@ BROKER_BACKOFF = Backoff(initial=0.5, maximum=5.0, jitter=0.5)
 log = logging.getLogger("fleetbus.broker")
 
 Kind = Literal["external", "docker", "private"]
-
-
-class BrokerUnavailable(RuntimeError):
-    """No broker could be found or started; the message says what to do."""
 
 
 @dataclass(frozen=True)

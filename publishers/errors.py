@@ -8,7 +8,9 @@ class PublisherError(Exception):
 
 
 class BrokerUnavailable(PublisherError):
-    """The broker could not be reached, or the connection broke before the confirms came."""
+    """The broker could not be reached (or found, or started), or the connection broke before the
+    confirms came; the message says which, and what to do. One class for the robot client and the
+    server side alike."""
 
 
 class PublishRefused(PublisherError):

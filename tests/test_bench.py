@@ -6,6 +6,8 @@ import importlib
 import io
 import json
 import math
+import os
+import signal
 from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
@@ -15,7 +17,7 @@ from pymongo import MongoClient
 from rich.console import Console
 from rich.progress import Progress
 
-from bench import ingest, scaling
+from bench import ingest, scaling, suite
 from bench.profile import PROJECT_ROOT, busiest
 from bench.registry import SCENARIOS, by_name
 from bench.report import Outcome, as_json, markdown, verdicts
@@ -169,6 +171,28 @@ def test_the_command_writes_json_and_markdown(endpoint: BrokerEndpoint, tmp_path
     assert report["command"] == ".venv/bin/python -m bench --only raw --runs 2 --quick --out " + str(tmp_path)
     table = written.with_suffix(".md").read_text()
     assert "| raw | consume msg/s |" in table and report["machine"]["cpu"] in table
+
+
+def test_stopped_by_sigterm_the_suite_writes_the_runs_measured_so_far(
+    endpoint: BrokerEndpoint, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls: list[int] = []
+
+    def measure(context: Context) -> Figures:
+        calls.append(1)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)  # as a CI job's timeout stops it
+        return {"consume msg/s": 1000.0}
+
+    stopped = Scenario("raw", "raw", measure)
+    monkeypatch.setattr(suite, "SCENARIOS", (stopped,))
+    monkeypatch.setattr(suite, "by_name", lambda: {"raw": stopped})
+    handler = signal.getsignal(signal.SIGTERM)
+    assert main(["--only", "raw", "--runs", "3", "--out", str(tmp_path)]) == 1
+    assert signal.getsignal(signal.SIGTERM) is handler, "the suite's handler ends with it"
+    (written,) = tmp_path.glob("suite-*.json")
+    report = json.loads(written.read_text())["scenarios"]["raw"]
+    assert sorted(report["runs"]) == ["0"] and report["errors"] == ["interrupted"]
 
 
 def test_the_registry_names_are_unique_and_every_baseline_exists() -> None:

@@ -16,7 +16,7 @@ import pytest
 
 from fleetbus.broker.accounts import RECORDER_USER, url_for
 from fleetbus.broker.tls import blocking_connection
-from fleetbus.dev.local_node import pid_alive
+from fleetbus.processes import pid_alive
 from fleetbus.schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from fleetbus.workers.recorder.capture import refusal
 from fleetbus.workers.recorder.filters import RoutingFilter

@@ -11,6 +11,8 @@ import os
 import socket
 import uuid
 
+from fleetbus.processes import pid_alive
+
 #: Holders created by this process that are still running (a token each), so that a second
 #: worker in the same process is not mistaken for a dead one.
 _LIVE_HERE: set[str] = set()
@@ -27,16 +29,6 @@ def retire(holder: str) -> None:
     _LIVE_HERE.discard(holder)
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process: alive
-        return True
-    return True
-
-
 def known_dead(holder: str) -> bool:
     """Whether ``holder`` ran on this host in a process that no longer runs it.
 
@@ -49,4 +41,4 @@ def known_dead(holder: str) -> bool:
     pid = int(pid_text)
     if pid == os.getpid():
         return holder not in _LIVE_HERE
-    return not _pid_alive(pid)
+    return not pid_alive(pid)

@@ -38,9 +38,9 @@ from fleetbus.dev.local_node import (
     NodeInfo,
     _signal,
     choose_free_ports,
-    pid_alive,
 )
 from fleetbus.private_files import private_dir
+from fleetbus.processes import pid_alive
 
 #: Each node's share of this machine: the broker blocks publishers beyond it (three nodes and the
 #: tests fit a 2-core machine with some GB to spare).

@@ -38,6 +38,8 @@ from pathlib import Path
 from typing import IO, TypeVar
 from urllib.parse import quote
 
+import psutil
+
 from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.probe import (
     amqp_login,
@@ -50,6 +52,7 @@ from fleetbus.broker.tls_profile import MANAGEMENT, erlang_terms, rabbitmq_conf
 from fleetbus.dev.rabbitmq import HOST as HOST_ROOT
 from fleetbus.dev.rabbitmq import Installation, InstallationError, default_installation, version_key
 from fleetbus.private_files import OWNER_ONLY, private_dir, private_file
+from fleetbus.processes import pid_alive
 
 ADMIN_USER = "fleetbus-admin"
 HOST = "127.0.0.1"
@@ -113,109 +116,49 @@ class NodeInfo:
     """``https://127.0.0.1:<port>/``, its certificate signed by ``tls.ca``."""
 
 
-# --------------------------------------------------------------------------- processes (/proc)
-
-
-def pid_alive(pid: int | None) -> bool:
-    """Whether ``pid`` is a live process (zombies count as gone: nobody may reap them here)."""
-    if not pid or pid <= 0:
-        return False
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    except OSError:
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        except PermissionError:
-            return True
-        return True
-    state = stat.rpartition(")")[2].split()[0]
-    return state not in ("Z", "X")
+# --------------------------------------------------------------------------- processes
 
 
 def _comm(pid: int) -> str:
     try:
-        return Path(f"/proc/{pid}/comm").read_text().strip()
-    except OSError:
+        return psutil.Process(pid).name()
+    except psutil.Error:
         return ""
 
 
 def _environ(pid: int) -> dict[str, str] | None:
     try:
-        raw = Path(f"/proc/{pid}/environ").read_bytes()
-    except OSError:
+        return psutil.Process(pid).environ()
+    except psutil.Error:
         return None
-    env: dict[str, str] = {}
-    for item in raw.split(b"\0"):
-        key, sep, value = item.partition(b"=")
-        if sep:
-            env[key.decode(errors="replace")] = value.decode(errors="replace")
-    return env
 
 
-def _all_pids() -> Iterator[int]:
-    for entry in os.scandir("/proc"):
-        if entry.name.isdigit():
-            yield int(entry.name)
-
-
-def _socket_inodes(pid: int) -> set[str]:
-    inodes: set[str] = set()
+def _is_escript(pid: int) -> bool:
+    """A beam started through escript: one of RabbitMQ's CLI tools, not a server."""
     try:
-        fds = os.listdir(f"/proc/{pid}/fd")
-    except OSError:
-        return inodes
-    for fd in fds:
-        try:
-            target = os.readlink(f"/proc/{pid}/fd/{fd}")
-        except OSError:
-            continue
-        if target.startswith("socket:["):
-            inodes.add(target[8:-1])
-    return inodes
-
-
-def _decode_address(text: str) -> tuple[str, int]:
-    address, port = text.split(":")
-    raw = bytes.fromhex(address)
-    if len(raw) == 4:
-        host = socket.inet_ntop(socket.AF_INET, raw[::-1])
-    else:  # four little-endian 32-bit words
-        words = b"".join(raw[i : i + 4][::-1] for i in range(0, 16, 4))
-        host = socket.inet_ntop(socket.AF_INET6, words)
-    return host, int(port, 16)
-
-
-def _listening_table() -> dict[str, tuple[str, int]]:
-    """inode -> (address, port) of every listening TCP socket on the machine."""
-    table: dict[str, tuple[str, int]] = {}
-    for name in ("/proc/net/tcp", "/proc/net/tcp6"):
-        try:
-            lines = Path(name).read_text().splitlines()[1:]
-        except OSError:
-            continue
-        for line in lines:
-            fields = line.split()
-            if len(fields) > 9 and fields[3] == "0A":  # TCP_LISTEN
-                table[fields[9]] = _decode_address(fields[1])
-    return table
+        return any("escript" in part for part in psutil.Process(pid).cmdline())
+    except psutil.Error:
+        return False
 
 
 def listening_addresses(pid: int) -> list[tuple[str, int]]:
     """The ``(address, port)`` pairs process ``pid`` listens on (TCP, IPv4 and IPv6)."""
-    table = _listening_table()
-    return sorted(table[inode] for inode in _socket_inodes(pid) if inode in table)
+    try:
+        connections = psutil.Process(pid).net_connections(kind="tcp")
+    except psutil.Error:
+        return []
+    return sorted((c.laddr.ip, c.laddr.port) for c in connections if c.status == psutil.CONN_LISTEN)
 
 
 def pids_listening_on(port: int) -> list[int]:
     """Processes with a TCP socket listening on ``port`` (any address)."""
-    inodes = {inode for inode, (_, p) in _listening_table().items() if p == port}
-    if not inodes:
-        return []
-    return [pid for pid in _all_pids() if _socket_inodes(pid) & inodes]
+    return sorted(
+        {
+            c.pid
+            for c in psutil.net_connections(kind="tcp")
+            if c.pid and c.status == psutil.CONN_LISTEN and c.laddr.port == port
+        }
+    )
 
 
 def _wait_until(condition: Callable[[], T], timeout: float, interval: float = 0.1) -> T | None:
@@ -649,9 +592,8 @@ log.console = false
         (rabbitmqctl runs in a beam with the same environment, started through escript)."""
         if not pid_alive(pid) or not _comm(pid).startswith("beam"):
             return False
-        with contextlib.suppress(OSError):
-            if b"escript" in Path(f"/proc/{pid}/cmdline").read_bytes():
-                return False
+        if _is_escript(pid):
+            return False
         env = _environ(pid)
         if env is None:
             return not require_env
@@ -664,7 +606,7 @@ log.console = false
             if self._is_our_beam(pid):
                 return pid
         # no (or a stale) pid file: the node may still run, e.g. while it is starting
-        for pid in _all_pids():
+        for pid in psutil.pids():
             if self._is_our_beam(pid, require_env=True):
                 return pid
         return None

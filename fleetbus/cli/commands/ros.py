@@ -13,6 +13,7 @@ import typer
 
 from fleetbus.cli.commands.events import open_robot, robot_url
 from fleetbus.cli.context import console, fail, settings
+from fleetbus.processes import pid_alive
 
 app = typer.Typer(help="The live ROS 1 bridge: ROS topics into fleetbus, notifications out as ROS topics.")
 
@@ -85,21 +86,9 @@ def status(robot: Annotated[str, typer.Argument(help="the robot's account")]) ->
     if not path.exists():
         fail(f"no bridge has run for {robot!r} here ({path} does not exist)")
     status = json.loads(path.read_text())
-    if status.get("ros_side") == "running" and not process_alive(status.get("pid")):
+    if status.get("ros_side") == "running" and not pid_alive(status.get("pid")):
         status["ros_side"] = f"not running: the bridge (pid {status.get('pid')}) is gone"
     console.print_json(json.dumps(status))
-
-
-def process_alive(pid: object) -> bool:
-    if not isinstance(pid, int):
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 @app.command("mapping")
