@@ -1,13 +1,15 @@
-"""Users of the service layer: create, change role, remove, log in; each with its broker account.
+"""The account registry's one application service: create, change role, remove, log in; each user
+with its broker account. The command line (``fleetbus users``), the HTTP API (``/users``) and the
+console's Accounts page are adapters of it: the same checks, the same refusals
+(:mod:`fleetbus.api.errors`), the same outcome.
 
 The store holds the user (role, password hash, encrypted broker password); the broker holds an
 account of the same name with a random password, confined to ``^<name>\\.``. The store is
 written first, so a name is claimed atomically; a broker failure then undoes the store write.
 An ``inactive`` user's broker account has no permissions at all: it cannot even connect.
 Client certificates fleetbus's CA signed for a name are revoked when a user of that name is made or
-removed, as ``fleetbus users add`` and ``remove`` do: a later account of that name must not
-inherit them. A password set, a user disabled and a user removed end the user's login sessions
-(but the one that changed its own password).
+removed: a later account of that name must not inherit them. A password set, a user disabled and
+a user removed end the user's login sessions (but the one that changed its own password).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from urllib.parse import unquote, urlsplit
@@ -32,13 +35,18 @@ from fleetbus.broker.accounts import (
     vhost_of,
 )
 from fleetbus.broker.certificates import CertificateError, TlsFiles
+from fleetbus.broker.fleet import NewRobot, provision_robots
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
+from fleetbus.broker.sites import grant_site_robots
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.settings import Settings
+from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.store.users import User, UserExists, UserStore
 from fleetbus.workers.team import leave_team
@@ -66,6 +74,25 @@ class BrokerCredentials:
 
 
 @dataclass(frozen=True)
+class Provisioned:
+    user: User
+    internal_url: str
+    """Its broker URL as this service reaches the broker (no password for a certificate's login)."""
+    public_url: str
+    """The same login at the broker's public address: what the user or robot is handed, once."""
+    revoked: str | None = None
+    """The certificates of the name revoked, said in a sentence (None: there were none)."""
+
+
+@dataclass(frozen=True)
+class Removed:
+    left_team: bool
+    """It was a robot of the team."""
+    revoked: str | None = None
+    """The certificates of the name revoked, said in a sentence (None: there were none)."""
+
+
+@dataclass(frozen=True)
 class Login:
     user: User
     token: Token
@@ -87,11 +114,14 @@ class Accounts:
         *,
         cluster: bool = False,
         certificates: TlsFiles | None = None,
+        sites: SiteRegistry | None = None,
     ) -> None:
         """``public_url``: the broker as users and robots reach it (no credentials), for the URLs
         handed out; None: ``admin_url``'s broker. ``certificates``: fleetbus's CA, whose
-        certificates for a name are revoked when a user of that name is made or removed."""
+        certificates for a name are revoked when a user of that name is made or removed.
+        ``sites``: the sites, whose accounts at central no user may take the name of."""
         self._certificates = certificates
+        self._sites = sites
         self._public_url = public_url
         self._users = users
         self._team = team
@@ -103,12 +133,23 @@ class Accounts:
         self._management = management
         self._admin_url = admin_url
 
-    async def _broker(self, name: str, role: UserRole, kind: str | None, password: str | None = None) -> None:
-        """Bring the broker account in line with the role (and set its password when given)."""
+    async def _broker(
+        self,
+        name: str,
+        role: UserRole,
+        kind: str | None,
+        password: str | None = None,
+        *,
+        certificate: bool = False,
+    ) -> None:
+        """Bring the broker account in line with the role (and set its password when given;
+        ``certificate``: make it log in without one)."""
 
         def apply() -> None:
             if password is not None:
                 self._management.put_user(name, password, ROLE_TAGS[broker_role(role)])
+            elif certificate:
+                self._management.put_user_without_password(name, ROLE_TAGS[broker_role(role)])
             if role is UserRole.INACTIVE:
                 revoke_account(self._admin_url, self._management, name)
             else:
@@ -130,65 +171,199 @@ class Accounts:
         except (ManagementError, OSError) as error:
             raise Unavailable(f"the broker refused or failed to set up account {name!r}: {error}") from error
 
+    async def align(self, user: User, by: str) -> None:
+        """Bring ``user``'s broker account in line with the registry: remake it when it is missing
+        (a new broker password, kept sealed in the registry, or none for a certificate's login),
+        else its tags, permissions, exchanges and shard as its role has them."""
+        if await asyncio.to_thread(self._management.get_user, user.name) is None:
+            password = None if user.broker_secret is None else secrets.token_urlsafe(24)
+            certificate = password is None
+            await self._broker(user.name, user.role, user.kind, password=password, certificate=certificate)
+            if password is not None:
+                await self._users.update_user(
+                    user.name, datetime.now(timezone.utc), broker_secret=self._secrets.box.seal(password)
+                )
+            log.warning("user %s: broker account made again by %s", user.name, by)
+        else:
+            await self._broker(user.name, user.role, user.kind)
+
+    async def adopt(self, name: str, role: UserRole, kind: str | None, by: str) -> User:
+        """Record a broker account made outside the registry, as it is (its password stays: the
+        URL handed out before still logs in; the registry has none to hand out until a reset)."""
+        now = datetime.now(timezone.utc)
+        user = User(name, role, None, None, kind, now, f"{by} (taken in from the broker)", now)
+        try:
+            await self._users.add_user(user)
+        except UserExists:
+            raise Conflict(f"user {name!r} exists") from None
+        if role is UserRole.ROBOT:
+            await self._team.register_robot(name, kind)
+        log.warning("user %s: broker account taken into the registry by %s", name, by)
+        return user
+
     async def _check_revocable(self, name: str) -> None:
         """Refuse before anything changes when ``name``'s certificates could not be revoked."""
         if self._certificates is not None:
             if problem := await asyncio.to_thread(cannot_revoke, self._certificates, name):
                 raise Unavailable(problem)
 
-    async def _revoke_certificates(self, name: str) -> None:
+    async def _revoke_certificates(self, name: str) -> str | None:
+        """Revoke ``name``'s certificates; what was revoked, said in a sentence (None: none)."""
         if self._certificates is None:
-            return
+            return None
         try:
             revoked = await asyncio.to_thread(revoke_certificates_of, self._certificates, name)
         except CertificateError as error:
             raise Unavailable(f"could not revoke the certificates of {name}: {error}") from error
-        if revoked:
-            log.warning("%s", revoked_summary(name, revoked))
+        if not revoked:
+            return None
+        summary = revoked_summary(name, revoked)
+        log.info("%s", summary)
+        return summary
+
+    async def _check_name(self, name: str) -> None:
+        """Refuse a name no user may have: an invalid or reserved one (``fleetbus*``, ``amq*``,
+        ``guest*``), the broker administrator's own, or a site's account at central."""
+        try:
+            validate_name(name)
+        except ValueError as error:
+            raise BadRequest(str(error)) from None
+        if name == unquote(urlsplit(self._admin_url).username or ""):
+            raise BadRequest(f"{name!r} is the broker administrator's account: no user may have that name")
+        if self._sites is not None and name in await self._sites.sites():
+            raise BadRequest(f"{name!r} is a site's account at central: no user may have that name")
 
     async def create(
         self, name: str, password: str | None, role: UserRole, kind: RobotKind | None, by: str
     ) -> User:
         """A new user and its broker account; ``password`` ``None``: cannot log in until one is set."""
-        try:
-            validate_name(name)
-        except ValueError as error:
-            raise BadRequest(str(error)) from None
+        return (await self.provision(name, role, kind, by, password=password)).user
+
+    async def provision(
+        self,
+        name: str,
+        role: UserRole,
+        kind: RobotKind | None,
+        by: str,
+        *,
+        password: str | None = None,
+        rotate: bool = False,
+        certificate: bool = False,
+    ) -> Provisioned:
+        """Record ``name`` in the registry and make its broker account (with its permissions,
+        exchanges, inbox, and a robot's shard and place in the team); revoke the certificates the
+        CA signed for the name. ``rotate``: an existing user (or a broker account made outside the
+        registry, which it then records) gets a new broker password, and the role and kind given.
+        ``certificate``: the broker account has no password (it logs in with a client certificate).
+        ``password`` is the HTTP API login's (``None``: none yet)."""
+        await self._check_name(name)
         if kind is not None and role is not UserRole.ROBOT:
             raise BadRequest("kind applies to robots only")
         if password is not None and (problem := password_problem(password)):
             raise BadRequest(problem)
-        if await asyncio.to_thread(self._management.get_user, name) is not None:
-            if await self._users.get_user(name) is None:
-                raise Conflict(f"a broker account named {name!r} exists outside the service; remove it first")
+        existing = await self._users.get_user(name)
+        if not rotate:
+            if existing is not None:
+                raise Conflict(f"user {name!r} exists")
+            if await asyncio.to_thread(self._management.get_user, name) is not None:
+                raise Conflict(
+                    f"a broker account named {name!r} exists outside the service; remove it first "
+                    "(or give it a new password with `fleetbus users add NAME --rotate`)"
+                )
         await self._check_revocable(name)
-        now = datetime.now(timezone.utc)
-        broker_password = secrets.token_urlsafe(24)
-        user = User(
-            name=name,
-            role=role,
-            password_hash=await self._secrets.passwords.hash(password) if password is not None else None,
-            broker_secret=self._secrets.box.seal(broker_password),
-            kind=kind.value if kind else None,
-            created_at=now,
-            created_by=by,
-            updated_at=now,
-        )
+        broker_password = None if certificate else secrets.token_urlsafe(24)
+        hashed = await self._secrets.passwords.hash(password) if password is not None else None
+        user = self._record(name, role, kind, broker_password, existing, by, hashed)
+        if existing is None:
+            try:
+                await self._users.add_user(user)
+            except UserExists:
+                raise Conflict(f"user {name!r} exists") from None
         try:
-            await self._users.add_user(user)
-        except UserExists:
-            raise Conflict(f"user {name!r} exists") from None
-        try:
-            await self._broker(name, role, user.kind, password=broker_password)
+            await self._broker(name, role, user.kind, password=broker_password, certificate=certificate)
         except Unavailable:
-            await self._users.remove_user(name)
-            await asyncio.to_thread(self._management.delete_user, name)
+            if existing is None:
+                await self._users.remove_user(name)
+                await asyncio.to_thread(self._management.delete_user, name)
             raise
+        if existing is not None:
+            await self._users.put_user(user)
         if role is UserRole.ROBOT:
             await self._team.register_robot(name, user.kind)
-        await self._revoke_certificates(name)
-        log.info("user %s created by %s with role %s", name, by, role.value)
-        return user
+        revoked = await self._revoke_certificates(name)
+        log.info("user %s %s by %s with role %s", name, "re-keyed" if existing else "created", by, role.value)
+        url = url_for(self._admin_url, name, broker_password)
+        return Provisioned(user, url, as_public(url, self._public_url), revoked)
+
+    async def provision_robots(
+        self, robots: Sequence[NewRobot], by: str, *, rotate: bool = False
+    ) -> list[Provisioned]:
+        """Many robots at once, each as :meth:`provision` makes one (its registry record, broker
+        account, shard and place in the team; its certificates revoked), their broker accounts in
+        one definitions import per 500. Refused, changing nothing, when a name is invalid or
+        reserved, or (without ``rotate``) taken."""
+        for robot in robots:
+            await self._check_name(robot.name)
+        names = {robot.name for robot in robots}
+        recorded = {user.name: user for user in await self._users.users() if user.name in names}
+        if not rotate:
+            on_broker = {u["name"] for u in await asyncio.to_thread(self._management.list_users)}
+            if taken := sorted(recorded.keys() | (on_broker & names)):
+                shown = ", ".join(taken[:5]) + (", ..." if len(taken) > 5 else "")
+                raise Conflict(
+                    f"{len(taken)} exist already ({shown}); use --rotate to give them new passwords"
+                )
+        for robot in robots:
+            await self._check_revocable(robot.name)
+        try:
+            accounts = await provision_robots(
+                self._admin_url,
+                self._management,
+                robots,
+                rotate=rotate,
+                shards=self._shards,
+                cluster=self._cluster,
+            )
+        except ValueError as error:
+            raise BadRequest(str(error)) from None
+        except (ManagementError, OSError) as error:
+            raise Unavailable(f"the broker refused or failed to make the accounts: {error}") from error
+        kinds = {robot.name: robot.kind for robot in robots}
+        made = []
+        for account in accounts:
+            kind = kinds[account.name]
+            password = unquote(urlsplit(account.amqp_url).password or "")
+            user = self._record(account.name, UserRole.ROBOT, kind, password, recorded.get(account.name), by)
+            await self._users.put_user(user)
+            await self._team.register_robot(account.name, user.kind)
+            revoked = await self._revoke_certificates(account.name)
+            public = as_public(account.amqp_url, self._public_url)
+            made.append(Provisioned(user, account.amqp_url, public, revoked))
+        log.info("%d robots made by %s", len(made), by)
+        return made
+
+    def _record(
+        self,
+        name: str,
+        role: UserRole,
+        kind: RobotKind | None,
+        broker_password: str | None,
+        existing: User | None,
+        by: str,
+        password_hash: str | None = None,
+    ) -> User:
+        """The registry's record of ``name`` (a new one, or ``existing`` re-keyed)."""
+        now = datetime.now(timezone.utc)
+        return User(
+            name=name,
+            role=role,
+            password_hash=password_hash or (existing.password_hash if existing else None),
+            broker_secret=self._secrets.box.seal(broker_password) if broker_password else None,
+            kind=kind.value if kind else None,
+            created_at=existing.created_at if existing else now,
+            created_by=existing.created_by if existing else by,
+            updated_at=now,
+        )
 
     async def get(self, name: str) -> User:
         user = await self._users.get_user(name)
@@ -249,8 +424,14 @@ class Accounts:
         log.info("user %s: broker password reset by %s", name, by)
         return self.broker_credentials(rekeyed)
 
-    async def remove(self, name: str, by: str) -> None:
-        await self.get(name)
+    async def remove(self, name: str, by: str) -> Removed:
+        """Remove the user from the registry and its broker account (a broker account made outside
+        the registry too); refused while it is mounted or checked in. Its certificates are revoked
+        and it leaves the team and its site."""
+        await self._check_name(name)
+        recorded = await self._users.get_user(name)
+        if recorded is None and await asyncio.to_thread(self._management.get_user, name) is None:
+            raise NotFound(f"no user {name!r}")
         mounts = await self._channels.mounts(operator=name) + await self._channels.mounts(robot=name)
         if mounts or await self._channels.check_ins(operator=name):
             held = ", ".join(f"{m.robot} mounted by {m.operator} for {m.mission_id}" for m in mounts)
@@ -259,12 +440,25 @@ class Accounts:
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
         await self._users.remove_user(name)
         await self._sessions.end_all(name)
-        await self._revoke_certificates(name)
+        await self._leave_sites(name)
+        revoked = await self._revoke_certificates(name)
         log.info("user %s removed by %s", name, by)
         try:  # a warden removed no longer holds the hazard gate
-            await leave_team(self._team, self._admin_url, name, by)
+            return Removed(await leave_team(self._team, self._admin_url, name, by), revoked)
         except HazardServiceNotTold as error:
             raise Unavailable(f"user {name} removed and taken out of the team, but {error}") from error
+
+    async def _leave_sites(self, name: str) -> None:
+        """Take a removed robot from its site: the site's account at central may no longer write
+        for it (the site keeps its copy of the account until its operator removes it there)."""
+        if self._sites is None:
+            return
+        for site, members in (await self._sites.sites()).items():
+            if name in members:
+                rest = [member for member in members if member != name]
+                await self._sites.set_robots(site, rest)
+                vhost = vhost_of(self._admin_url)
+                await asyncio.to_thread(grant_site_robots, self._management, vhost, site, rest)
 
     async def login(self, name: str, password: str, origin: Origin) -> Login:
         """Check the password and begin a session seen from ``origin``."""
@@ -292,6 +486,33 @@ class Accounts:
         if user.broker_secret is None:
             raise Unavailable(f"user {user.name} has no broker password on record")
         return url_for(self._admin_url, user.name, self._secrets.box.open(user.broker_secret))
+
+
+def accounts_for(
+    settings: Settings,
+    repositories: Repositories,
+    secrets_: Secrets,
+    management: ManagementAPI,
+    admin_url: str,
+    public_url: str | None = None,
+    sessions: Sessions | None = None,
+) -> Accounts:
+    """The accounts service as the HTTP API, the console and the command line all use it
+    (``sessions``: the API's own; by default the store's sessions as the API keeps them)."""
+    return Accounts(
+        repositories.users,
+        repositories.hazards,
+        repositories.channels,
+        secrets_,
+        sessions or Sessions(repositories.sessions, secrets_.tokens, settings.api_sessions_per_user),
+        management,
+        admin_url,
+        settings.ingest_shards,
+        public_url or settings.public_amqp_url,
+        cluster=settings.cluster,
+        certificates=TlsFiles.for_settings(settings),
+        sites=repositories.sites,
+    )
 
 
 class WrongCredentials(Exception):

@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from fleetbus.api.account_check import Drift, DriftKind
 from fleetbus.api.accounts import BrokerCredentials
 from fleetbus.api.channels import BindingReport, CheckOut
 from fleetbus.api.team import TeamView
@@ -48,6 +49,32 @@ class UserOut(BaseModel):
             created_at=user.created_at,
             created_by=user.created_by,
             updated_at=user.updated_at,
+        )
+
+
+class DriftOut(BaseModel):
+    """One difference between the account registry and what derives from it."""
+
+    kind: DriftKind = Field(
+        description="what differs: a broker account outside the registry, a registry user's broker "
+        "account, its permissions, topic permissions or ingest shard, the team, a site's account"
+    )
+    name: str = Field(description="the user, robot or site it is about")
+    problem: str = Field(description="what differs, for a person to read")
+    repair: str = Field(description="what a repair does about it")
+
+
+class RegistryCheck(BaseModel):
+    """The account registry against the broker, the team and the sites."""
+
+    repaired: list[DriftOut] = Field(description="what this request repaired (none for a check)")
+    drift: list[DriftOut] = Field(description="what differs now (after a repair: what is left)")
+
+    @classmethod
+    def of(cls, repaired: list[Drift], drift: list[Drift]) -> RegistryCheck:
+        return cls(
+            repaired=[DriftOut(**d.as_dict()) for d in repaired],
+            drift=[DriftOut(**d.as_dict()) for d in drift],
         )
 
 

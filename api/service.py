@@ -8,7 +8,8 @@ from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import timedelta
 
-from fleetbus.api.accounts import Accounts
+from fleetbus.api.account_check import AccountCheck, account_check_for
+from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.login_limits import LoginLimits
@@ -18,7 +19,6 @@ from fleetbus.api.security import Secrets
 from fleetbus.api.sessions import Sessions
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
-from fleetbus.broker.certificates import TlsFiles
 from fleetbus.broker.dead_letter_queue import DeadLetter, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
@@ -37,6 +37,8 @@ class Service:
     sessions: Sessions
     """Login sessions: begun at login, checked on every request, ended server-side."""
     accounts: Accounts
+    account_check: AccountCheck
+    """The registry against the broker, the team and the sites: drift, and its repair."""
     missions: Missions
     channels: Channels
     team: Team
@@ -77,23 +79,17 @@ async def open_service(
     sessions = Sessions(repositories.sessions, secrets_.tokens, settings.api_sessions_per_user)
     try:
         missions = Missions(repositories.missions, repositories.channels, to_sites.changed)
+        accounts = accounts_for(
+            settings, repositories, secrets_, management, admin_url, public_url, sessions=sessions
+        )
         yield Service(
             settings=settings,
             repositories=repositories,
             secrets=secrets_,
             sessions=sessions,
-            accounts=Accounts(
-                repositories.users,
-                repositories.hazards,
-                repositories.channels,
-                secrets_,
-                sessions,
-                management,
-                admin_url,
-                settings.ingest_shards,
-                public_url or settings.public_amqp_url,
-                cluster=settings.cluster,
-                certificates=TlsFiles.for_settings(settings),
+            accounts=accounts,
+            account_check=account_check_for(
+                accounts, repositories, management, admin_url, settings.ingest_shards
             ),
             missions=missions,
             channels=Channels(

@@ -42,9 +42,7 @@ class TeamView:
 
 
 class Team:
-    def __init__(
-        self, team: TeamStore, events: EventStore, admin_url: str, stale_after: timedelta
-    ) -> None:
+    def __init__(self, team: TeamStore, events: EventStore, admin_url: str, stale_after: timedelta) -> None:
         self._team = team
         self._events = events
         self._admin_url = admin_url

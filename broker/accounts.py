@@ -112,11 +112,25 @@ def fresh_vhost(api: ManagementAPI, admin_url: str, vhost: str) -> str:
     return with_vhost(admin_url, vhost)
 
 
-def _grant(api: ManagementAPI, vhost: str, name: str, *, replies: bool = False) -> None:
-    """Confine ``name`` to its prefix; ``replies`` also lets it answer requests by direct reply-to."""
+def confined_permissions(name: str, *, replies: bool = False) -> tuple[str, str, str]:
+    """(configure, write, read) of an account confined to its prefix; ``replies`` also lets it
+    answer requests by direct reply-to."""
     pattern = owner_pattern(name)
     write = f"{pattern}|^amq\\.default$" if replies else pattern
-    api.put_permissions(vhost, name, configure=pattern, write=write, read=pattern)
+    return pattern, write, pattern
+
+
+def keyed_exchanges(name: str, role: Role) -> list[str]:
+    """The exchanges on which the account may use only routing keys that start with its name."""
+    keyed = [events_exchange(name), requests_exchange(name)]
+    if role is Role.ROBOT:
+        keyed.append(beacon_exchange(name))
+    return keyed
+
+
+def _grant(api: ManagementAPI, vhost: str, name: str, *, replies: bool = False) -> None:
+    configure, write, read = confined_permissions(name, replies=replies)
+    api.put_permissions(vhost, name, configure=configure, write=write, read=read)
 
 
 async def provision_account(
@@ -168,10 +182,7 @@ async def configure_account(
     vhost = vhost_of(admin_url)
     api.put_user_tags(name, ROLE_TAGS[role])
     _grant(api, vhost, name)
-    keyed = [events_exchange(name), requests_exchange(name)]
-    if role is Role.ROBOT:
-        keyed.append(beacon_exchange(name))
-    for exchange in keyed:
+    for exchange in keyed_exchanges(name, role):
         api.put_topic_permissions(vhost, name, exchange, write=TOPIC_PATTERN, read=TOPIC_PATTERN)
     await declare_with_url(
         admin_url,
@@ -179,6 +190,8 @@ async def configure_account(
     )
     if role is Role.ROBOT:
         assign_shard(api, vhost, name, shards)
+    else:  # a robot given another role publishes no events of its own
+        unassign_shard(api, vhost, name)
 
 
 def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:

@@ -16,10 +16,12 @@ from urllib.parse import quote, urlsplit
 import httpx
 
 from fleetbus.broker.addresses import split_addresses
+from fleetbus.broker.urls import masked_in_text
 
 
 class ManagementError(RuntimeError):
-    """The management API refused or failed a request; the message quotes its answer."""
+    """The management API refused or failed a request; the message quotes its answer (with any
+    URL's password masked: a refused shovel's answer quotes its URIs)."""
 
 
 @functools.cache
@@ -106,7 +108,8 @@ class ManagementAPI:
         if response.status_code == 404 and method == "DELETE":
             return None
         if response.status_code >= 400:
-            raise ManagementError(f"{method} /api/{path} -> {response.status_code}: {response.text.strip()}")
+            answer = masked_in_text(response.text.strip())
+            raise ManagementError(f"{method} /api/{path} -> {response.status_code}: {answer}")
         return response.json() if response.content else None
 
     # accounts
@@ -162,6 +165,14 @@ class ManagementAPI:
 
     def delete_permissions(self, vhost: str, user: str) -> None:
         self._request("DELETE", f"permissions/{_q(vhost)}/{_q(user)}")
+
+    def list_permissions(self, vhost: str) -> list[dict[str, Any]]:
+        """Every account's permissions in ``vhost``: ``user``, ``configure``, ``write``, ``read``."""
+        return self._request("GET", f"vhosts/{_q(vhost)}/permissions")
+
+    def list_topic_permissions(self, vhost: str) -> list[dict[str, Any]]:
+        """Every topic permission in ``vhost``: ``user``, ``exchange``, ``write``, ``read``."""
+        return self._request("GET", f"vhosts/{_q(vhost)}/topic-permissions")
 
     def put_topic_permissions(self, vhost: str, user: str, exchange: str, write: str, read: str) -> None:
         body = {"exchange": exchange, "write": write, "read": read}

@@ -23,22 +23,17 @@ old shard could store them out of order. ``fleetbus shards rebalance`` moves rob
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.schemas.routing import (
-    BEACON_CHECK_EXCHANGE,
-    BEACON_EXCHANGE,
     SHARD_EXCHANGE,
     SHARD_TYPES,
-    beacon_exchange,
     ingest_shard_queue,
     shard_binding_keys,
     shard_of_queue,
 )
-
-BEACON_SUFFIX = beacon_exchange("")  # ".beacon"
 
 
 @dataclass(frozen=True)
@@ -50,7 +45,7 @@ class ShardMap:
     bindings: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
     """Each bound robot's shards: one, unless a move was interrupted."""
     unassigned: tuple[str, ...] = ()
-    """Robot accounts with no shard binding: their messages go to shard 0 by the alternate exchange."""
+    """The registry's robots with no shard binding: their messages go to shard 0 by the alternate exchange."""
 
     def shard_of(self, robot: str) -> int | None:
         """The shard ``robot``'s messages go to (shard 0 for an unassigned robot); None: several."""
@@ -88,7 +83,9 @@ def _robot_of(binding_key: str) -> str | None:
     return robot if robot and rest in SHARD_KEY_ENDS else None
 
 
-def read_shard_map(api: ManagementAPI, vhost: str, shards: int) -> ShardMap:
+def read_shard_map(api: ManagementAPI, vhost: str, shards: int, robots: Collection[str] = ()) -> ShardMap:
+    """The broker's shard bindings; ``robots`` (the account registry's) not bound to any shard are
+    the unassigned ones."""
     bound: dict[str, set[int]] = {}
     for binding in api.exchange_bindings(vhost, SHARD_EXCHANGE):
         shard = shard_of_queue(binding.get("destination", ""))
@@ -98,19 +95,8 @@ def read_shard_map(api: ManagementAPI, vhost: str, shards: int) -> ShardMap:
     return ShardMap(
         shards,
         {robot: tuple(sorted(found)) for robot, found in sorted(bound.items())},
-        tuple(sorted(_robot_accounts(api, vhost) - bound.keys())),
+        tuple(sorted(set(robots) - bound.keys())),
     )
-
-
-def _robot_accounts(api: ManagementAPI, vhost: str) -> set[str]:
-    """Robot accounts: only a robot owns a beacon exchange, bound into ``fleetbus.beacon.check``
-    (into ``fleetbus.beacon`` before ``fleetbus setup`` upgraded it)."""
-    return {
-        b["source"].removesuffix(BEACON_SUFFIX)
-        for exchange in (BEACON_CHECK_EXCHANGE, BEACON_EXCHANGE)
-        for b in api.exchange_bindings(vhost, exchange, side="destination")
-        if b.get("source", "").endswith(BEACON_SUFFIX)
-    }
 
 
 def _bind(api: ManagementAPI, vhost: str, robot: str, shard: int) -> None:

@@ -46,7 +46,7 @@ from aio_pika.abc import ExchangeType
 from fleetbus.broker.accounts import Account, Role, url_for, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.policies import apply_policies, uplink_policies
-from fleetbus.broker.tls import shovel_uri
+from fleetbus.broker.tls import shovel_uris
 from fleetbus.broker.topology import (
     BindingSpec,
     ExchangeSpec,
@@ -137,10 +137,13 @@ def local_uri(vhost: str) -> str:
     return "amqp:///" + quote(vhost, safe="")
 
 
-def _confirmed_shovel(source: str, destination: str, reconnect_delay_s: int, **ends: Any) -> dict[str, Any]:
+def _confirmed_shovel(
+    source: str | list[str], destination: str | list[str], reconnect_delay_s: int, **ends: Any
+) -> dict[str, Any]:
     """A shovel as fleetbus runs each of its links: AMQP 0-9-1 at both ends, a message acked at
     its source only once the destination confirmed it, and tried again every
-    ``reconnect_delay_s`` while the other side is away; ``ends`` names the queues and exchanges."""
+    ``reconnect_delay_s`` while the other side is away; ``ends`` names the queues and exchanges.
+    An end given as a list is a cluster's nodes, one URI each."""
     return {
         "src-protocol": "amqp091",
         "src-uri": source,
@@ -156,12 +159,12 @@ def uplink_shovel(
     central_url: str, vhost: str, reconnect_delay_s: int, prefetch: int, queue: str = UPLINK_QUEUE
 ) -> dict[str, Any]:
     """The definition of the uplink class of ``queue``. An ``amqps://`` ``central_url`` is verified
-    as fleetbus's own clients verify (:func:`~fleetbus.broker.tls.shovel_uri`: certificate and host
+    as fleetbus's own clients verify (:func:`~fleetbus.broker.tls.shovel_uris`: certificate and host
     name). No destination exchange: each message goes to the exchange it was published to, with
     its key."""
     return _confirmed_shovel(
         local_uri(vhost),
-        shovel_uri(central_url),
+        shovel_uris(central_url),
         reconnect_delay_s,
         src_queue=queue,
         src_prefetch_count=prefetch,
@@ -174,7 +177,7 @@ def downlink_shovel(
 ) -> dict[str, Any]:
     """The downlink of the site's accounts and missions, or (``maps``) of its maps."""
     return _confirmed_shovel(
-        shovel_uri(central_url),
+        shovel_uris(central_url),
         local_uri(vhost),
         reconnect_delay_s,
         src_queue=site_maps_queue(site) if maps else site_downlink_queue(site),
@@ -186,7 +189,7 @@ def hazard_uplink_shovel(central_url: str, site: str, vhost: str, reconnect_dela
     """The hazard states' way to central: into the site's own ``<site>.hazards`` there."""
     return _confirmed_shovel(
         local_uri(vhost),
-        shovel_uri(central_url),
+        shovel_uris(central_url),
         reconnect_delay_s,
         src_queue=HAZARD_UPLINK_QUEUE,
         dest_exchange=site_hazards_exchange(site),

@@ -269,6 +269,13 @@ def shovel_uri(url: str) -> str:
     return urlunsplit((parts.scheme, parts.netloc, path, urlencode(query, safe="/"), ""))
 
 
+def shovel_uris(url: str) -> list[str]:
+    """``url`` as a shovel's ``src-uri`` or ``dest-uri``: one URI per node of a cluster (the
+    shovel tries them in turn; the Erlang client parses one address a URI, so a comma-joined list
+    is refused), each as :func:`shovel_uri` writes it."""
+    return [shovel_uri(single) for single in split_addresses(url)]
+
+
 def _without_login(url: str) -> str:
     parts = urlsplit(url)
     return urlunsplit(

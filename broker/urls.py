@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from urllib.parse import urlsplit, urlunsplit
 
 MASK = "****"
@@ -21,6 +22,15 @@ def mask_password(url: str) -> str:
     """``amqp://user:****@host:5672/vhost`` for ``amqp://user:secret@host:5672/vhost``; a URL
     without a password is returned as it is."""
     return _replace_password(url, MASK)
+
+
+#: A password in a URL anywhere in a text: ``scheme://user:PASSWORD@``.
+URL_PASSWORD = re.compile(r"(?P<start>[a-z][a-z0-9+.-]*://[^:/@\s\"']*:)[^@\s\"']*@", re.IGNORECASE)
+
+
+def masked_in_text(text: str) -> str:
+    """``text`` (an error a server sent, say) with the password of every URL in it masked."""
+    return URL_PASSWORD.sub(rf"\g<start>{MASK}@", text)
 
 
 def without_password(url: str) -> str:

@@ -56,7 +56,7 @@ def test_a_robot_bound_to_no_shard_goes_to_shard_0_and_trace_shows_the_way(bus: 
     second = bus.robot(bus.add("robot-b"))
     assert read_shard_map(bus.api, bus.vhost, 2).bindings == {"robot-a": (0,), "robot-b": (1,)}
     bus.api.unbind_keys(bus.vhost, SHARD_EXCHANGE, ingest_shard_queue(1), shard_binding_keys("robot-b"))
-    shard_map = read_shard_map(bus.api, bus.vhost, 2)
+    shard_map = read_shard_map(bus.api, bus.vhost, 2, ["robot-a", "robot-b"])
     assert shard_map.unassigned == ("robot-b",) and shard_map.shard_of("robot-b") == 0
 
     second.publish("status", status())

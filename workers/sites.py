@@ -59,6 +59,18 @@ async def assign_robots(
     return tuple(sorted(new))
 
 
+async def set_site_robots(
+    repositories: Repositories, api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]
+) -> tuple[tuple[str, ...], list[RobotAccount]]:
+    """:func:`assign_robots`, then send the site the accounts of the robots new to it (the site
+    applies them with ``fleetbus site apply``). Returns the robots and the accounts sent."""
+    before = set((await repositories.sites.sites()).get(site, ()))
+    names = await assign_robots(repositories, api, admin_url, site, robots)
+    accounts = await robot_accounts(repositories, api, set(names) - before)
+    await asyncio.to_thread(send_to_sites, admin_url, [site], accounts)
+    return names, accounts
+
+
 async def robot_accounts(
     repositories: Repositories, api: ManagementAPI, robots: Collection[str]
 ) -> list[RobotAccount]:

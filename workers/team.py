@@ -204,9 +204,7 @@ class NotAWarden(TeamRefused):
     pass
 
 
-async def set_in_service(
-    team: TeamStore, name: str, in_service: bool, by: str, at: datetime
-) -> RobotState:
+async def set_in_service(team: TeamStore, name: str, in_service: bool, by: str, at: datetime) -> RobotState:
     """Take a warden out of service, or put it back; refused for a robot not in the team or not a
     warden (only wardens count for the gate and receive announcements)."""
     known = {robot.name: robot for robot in await team.robots()}
@@ -221,9 +219,7 @@ async def set_in_service(
     return changed
 
 
-async def change_service(
-    team: TeamStore, admin_url: str, name: str, in_service: bool, by: str
-) -> RobotState:
+async def change_service(team: TeamStore, admin_url: str, name: str, in_service: bool, by: str) -> RobotState:
     """Take a warden out of service or put it back (recorded with ``by`` and the time), then tell
     the hazard service: without the warden the gate may open; put back, it is owed what it missed.
     Raises :class:`TeamRefused`, or ``HazardServiceNotTold`` (the change is stored; repeat it)."""

@@ -14,6 +14,7 @@ from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
 from fleetbus.api.models import (
     PasswordChange,
     PasswordSet,
+    RegistryCheck,
     RoleChange,
     SessionOut,
     SessionsEnded,
@@ -31,6 +32,20 @@ Anyone = Annotated[User, Depends(require_role(*ACTIVE_ROLES))]
 Admin = Annotated[User, Depends(require_role(R.ADMIN))]
 AdminOrSupervisor = Annotated[User, Depends(require_role(R.ADMIN, R.SUPERVISOR))]
 Current = Annotated[Session, Depends(current_session)]
+
+
+@router.get("/registry/drift", response_model=RegistryCheck, tags=["registry"])
+async def registry_drift(admin: Admin, svc: ServiceDep) -> RegistryCheck:
+    """What differs between the account registry and the broker's accounts, permissions, topic
+    permissions and shard bindings, the team and the sites' accounts (`fleetbus users check`)."""
+    return RegistryCheck.of([], await svc.account_check.drift())
+
+
+@router.post("/registry/repair", response_model=RegistryCheck, tags=["registry"])
+async def registry_repair(admin: Admin, svc: ServiceDep) -> RegistryCheck:
+    """Repair every drift (`fleetbus users check --repair`): what was repaired, and what is left."""
+    repaired = await svc.account_check.repair(admin.name)
+    return RegistryCheck.of(repaired, await svc.account_check.drift())
 
 
 @router.get("/users/me", response_model=UserOut)

@@ -254,6 +254,8 @@ CASES = [
     Case("DELETE", "/users/{name}", frozenset({R.ADMIN}), 204, user_change("DELETE", "", None)),
     Case("GET", "/users/{name}/sessions", frozenset({R.ADMIN}), 200, fixed("GET", "/users/robot1/sessions")),
     Case("DELETE", "/users/{name}/sessions", frozenset({R.ADMIN}), 200, users_sessions),
+    Case("GET", "/registry/drift", frozenset({R.ADMIN}), 200, fixed("GET", "/registry/drift")),
+    Case("POST", "/registry/repair", frozenset({R.ADMIN}), 200, fixed("POST", "/registry/repair")),
     Case("GET", "/use-cases", ACTIVE_ROLES, 200, fixed("GET", "/use-cases")),
     Case(
         "POST",

@@ -44,6 +44,10 @@ class UserStore(abc.ABC):
         """Store a new user; raise :class:`UserExists` when the name is taken."""
 
     @abc.abstractmethod
+    async def put_user(self, user: User) -> None:
+        """Store ``user`` whole, over the one of its name if there is one."""
+
+    @abc.abstractmethod
     async def get_user(self, name: str) -> User | None: ...
 
     @abc.abstractmethod
@@ -96,6 +100,9 @@ class Users(UserStore):
     async def add_user(self, user: User) -> None:
         if not (await self._users.insert([{**user.__dict__, "role": user.role.value}]))[0]:
             raise UserExists(f"user {user.name!r} exists")
+
+    async def put_user(self, user: User) -> None:
+        await self._users.put({**user.__dict__, "role": user.role.value})
 
     async def get_user(self, name: str) -> User | None:
         doc = await self._users.get(name)

@@ -15,18 +15,23 @@ import logging
 from collections import Counter
 from typing import Annotated
 
+import httpx
 from fastapi import APIRouter, Depends, Request
-from fastapi.responses import HTMLResponse, Response
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.broker_health import BrokerWatch, broker_watch
 from fleetbus.api.console.feed import Feed
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
 from fleetbus.api.console.session import Allowed
-from fleetbus.api.console.sitemap import DASHBOARD
+from fleetbus.api.console.sitemap import ADMINS, DASHBOARD
 from fleetbus.api.console.templating import fragment, render
+from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
 from fleetbus.api.team import TeamView
+from fleetbus.broker.management import ManagementError
+from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EventType
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.site_report_collector import collect_site_reports
@@ -36,6 +41,7 @@ from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(DASHBOARD))]
+Repairer = Annotated[User, Depends(Allowed(ADMINS, "repair the account registry's drift"))]
 log = logging.getLogger("fleetbus.console")
 #: Hazard ids listed per state; the rest are counted.
 IDS_SHOWN = 12
@@ -147,8 +153,20 @@ def dashboard_view(request: Request) -> DashboardView:
 View = Annotated[DashboardView, Depends(dashboard_view)]
 
 
+async def _registry(svc: Service) -> dict[str, object]:
+    """The registry panel's drift (an admin's only: it names every account)."""
+    try:
+        return {"drift": await svc.account_check.drift(), "problem": None}
+    except ServiceRefusal as refusal:
+        return {"drift": [], "problem": refusal.detail}
+    except (ManagementError, httpx.TransportError) as error:
+        return {"drift": [], "problem": f"the broker's management API failed: {error}"}
+
+
 @router.get("/console/", response_class=HTMLResponse)
-async def dashboard(request: Request, user: Viewer, view: View) -> Response:
+async def dashboard(
+    request: Request, user: Viewer, view: View, svc: ServiceDep, repaired: int | None = None
+) -> Response:
     return render(
         request,
         "dashboard/page.html",
@@ -158,7 +176,16 @@ async def dashboard(request: Request, user: Viewer, view: View) -> Response:
         fragments=await view.snapshot(),
         events=await view.newest(),
         recent_limit=view.recent_limit,
+        registry=await _registry(svc) if user.role is UserRole.ADMIN else None,
+        repaired=repaired,
     )
+
+
+@router.post("/console/registry/repair", response_class=HTMLResponse)
+async def repair_registry(admin: Repairer, svc: ServiceDep) -> Response:
+    """Repair the registry's drift (as `POST /registry/repair`), then back to the dashboard."""
+    repaired = await svc.account_check.repair(admin.name)
+    return RedirectResponse(f"/console/?repaired={len(repaired)}#registry", status_code=303)
 
 
 @router.get("/console/stream/dashboard")

@@ -16,10 +16,11 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import ShardMap, apply_move, read_shard_map, rebalance_plan
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EXPRESS_QUEUE, EXPRESS_TYPES, ingest_shard_queue
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX
-from fleetbus.workers.store import run_with_repositories
+from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.leases import Lease
 
 app = typer.Typer(
@@ -67,6 +68,15 @@ def _leases() -> list[Lease]:
     return run_with_repositories(settings(), lambda repos: repos.leases.leases())
 
 
+def _robots() -> list[str]:
+    """The account registry's robots: the only names a shard is for."""
+
+    async def read(repos: Repositories) -> list[str]:
+        return [user.name for user in await repos.users.users(UserRole.ROBOT)]
+
+    return run_with_repositories(settings(), read)
+
+
 @app.callback()
 def shards(
     ctx: typer.Context,
@@ -77,9 +87,9 @@ def shards(
         return
     config, ep = settings(), endpoint()
     vhost = vhost_of(ep.amqp_url)
-    leases = _leases()
+    leases, robots = _leases(), _robots()
     with admin_api(ep) as api:
-        shard_map = read_shard_map(api, vhost, config.ingest_shards)
+        shard_map = read_shard_map(api, vhost, config.ingest_shards, robots)
         states = _states(api, vhost, shard_map, leases)
         ready, unacked = _queue_counts(api, vhost, EXPRESS_QUEUE)
     # the worker that holds shard 0 consumes the express lane beside it
@@ -162,7 +172,7 @@ def rebalance(
             asyncio.run(
                 declare_with_url(ep.amqp_url, [core_topology(config.ingest_shards, cluster=config.cluster)])
             )
-        shard_map = read_shard_map(api, vhost, config.ingest_shards)
+        shard_map = read_shard_map(api, vhost, config.ingest_shards, _robots())
         moves = rebalance_plan(shard_map)
         if not moves:
             console.print(f"balanced: {shard_map.load()} robots on {config.ingest_shards} shards")

@@ -14,7 +14,7 @@ from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import start_site_links, stop_site_links
-from fleetbus.broker.tls import TlsSettingError, shovel_uri
+from fleetbus.broker.tls import TlsSettingError, shovel_uris
 from fleetbus.broker.uplink import bounds_of
 from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
@@ -85,7 +85,7 @@ def up(
     if not central:
         fail("no central URL: give --central-file or set FLEETBUS_CENTRAL_URL")
     try:
-        shovel_uri(central)  # a URL the shovels cannot verify with is refused before anything changes
+        shovel_uris(central)  # a URL the shovels cannot verify with is refused before anything changes
     except TlsSettingError as error:
         fail(f"the central URL cannot be used for the site's links: {error}")
     ep = endpoint()

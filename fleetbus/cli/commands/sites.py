@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from datetime import datetime, timezone
 from typing import Annotated
 
@@ -16,11 +16,12 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, central_site_topology
 from fleetbus.broker.topology import declare_with_url
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.schemas.site_changes import RobotAccount
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import assign_robots, mission_changes, robot_accounts, send_to_sites
+from fleetbus.workers.sites import mission_changes, robot_accounts, send_to_sites, set_site_robots
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.sites import SiteSummary
 
@@ -110,16 +111,19 @@ def add(
     """Make a site's account at central (tagged impersonator, confined to its robots); its URL,
     for `fleetbus site up --central`, is printed once."""
     ep = endpoint()
+    if run_with_repositories(settings(), lambda repos: repos.users.get_user(site)) is not None:
+        fail(f"{site!r} is a user in the account registry: a site needs a name of its own")
     with admin_api(ep) as api:
         try:
             account = asyncio.run(
                 add_site_account(ep.amqp_url, api, site, rotate=rotate, cluster=settings().cluster)
             )
-            names = run_with_repositories(
-                settings(), lambda repos: assign_robots(repos, api, ep.amqp_url, site, _names(robots))
+            names, sent = run_with_repositories(
+                settings(), lambda repos: set_site_robots(repos, api, ep.amqp_url, site, _names(robots))
             )
         except ValueError as error:
             fail(str(error))
+    _say_sent(site, sent)
     console.print(
         f"site [bold]{site}[/] with robots {', '.join(names) or 'none yet'}; its central URL (shown once):"
     )
@@ -139,10 +143,10 @@ def robots_command(
         fail(f"no site {site!r}; make it with `fleetbus sites add {site}`")
     wanted = (set(known[site]) | set(_names(add_))) - set(_names(remove))
     with admin_api(ep) as api:
-        names = run_with_repositories(
-            settings(), lambda repos: assign_robots(repos, api, ep.amqp_url, site, wanted)
+        names, sent = run_with_repositories(
+            settings(), lambda repos: set_site_robots(repos, api, ep.amqp_url, site, wanted)
         )
-        _send_accounts(api, ep.amqp_url, site, set(names) - set(known[site]))
+    _say_sent(site, sent)
     console.print(f"site [bold]{site}[/]: {', '.join(names) or 'no robots'}")
 
 
@@ -166,6 +170,10 @@ def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
 def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:
     accounts = run_with_repositories(settings(), lambda repos: robot_accounts(repos, api, robots))
     send_to_sites(admin_url, [site], accounts)
+    _say_sent(site, accounts)
+
+
+def _say_sent(site: str, accounts: Sequence[RobotAccount]) -> None:
     if accounts:
         names = ", ".join(account.name for account in accounts)
         console.print(

@@ -1,37 +1,33 @@
-"""``fleetbus users add | remove | list``: broker accounts confined to their own names."""
+"""``fleetbus users add | remove | list | check``: the account registry's users and robots, each
+with a broker account confined to its own name, through the accounts service."""
 
 from __future__ import annotations
 
-import asyncio
+import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 from urllib.parse import urlsplit
 
 import pika.exceptions
 import typer
 from rich.table import Table
 
-from fleetbus.broker.accounts import (
-    AccountExists,
-    Role,
-    as_public,
-    can_login,
-    delete_account,
-    provision_account,
-    save_secret,
-)
+from fleetbus.broker.accounts import can_login, save_secret
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
-from fleetbus.broker.fleet import NewRobot, RobotsExist, provision_robots
-from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
-from fleetbus.broker.team_changes import HazardServiceNotTold
+from fleetbus.broker.fleet import NewRobot
 from fleetbus.broker.tls import split_tls, with_client_certificate
+from fleetbus.cli.accounts import with_accounts
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
-from fleetbus.cli.registry import register_robot, register_robots
 from fleetbus.schemas.identity import validate_name
+from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings
-from fleetbus.workers.store import run_with_repositories
-from fleetbus.workers.team import leave_team
+
+if TYPE_CHECKING:
+    from fleetbus.api.account_check import Drift
+    from fleetbus.api.accounts import Accounts
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.workers.store import Repositories
 
 app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
 
@@ -39,7 +35,7 @@ app = typer.Typer(help="Broker accounts for users, robots and services.", no_arg
 @app.command("add")
 def add(
     name: str,
-    role: Annotated[Role, typer.Option(help="what the account is for")] = Role.ROBOT,
+    role: Annotated[UserRole, typer.Option(help="its role (as the HTTP API's users have)")] = UserRole.ROBOT,
     kind: Annotated[RobotKind | None, typer.Option(help="robot kind; decides its notifications")] = None,
     rotate: Annotated[bool, typer.Option(help="give an existing account a new password")] = False,
     save: Annotated[
@@ -53,39 +49,27 @@ def add(
             "signed by fleetbus's CA (docs/operations/tls.md)",
         ),
     ] = False,
+    by: Annotated[str | None, typer.Option(help="who makes it, for the record (default: your login)")] = None,
 ) -> None:
-    """Create an account with a random password (or, with --cert, none and a client certificate);
-    its URL is printed once. Certificates fleetbus's CA signed earlier for NAME are revoked: the
-    account logs in only with what this command hands out."""
+    """Record a user or robot in the account registry (as `POST /users` does) and make its broker
+    account with a random password (or, with --cert, none and a client certificate); its URL is
+    printed once. Certificates fleetbus's CA signed earlier for NAME are revoked: the account logs
+    in only with what this command hands out."""
     ep, config = endpoint(), settings()
     if cert and urlsplit(ep.public_url or ep.amqp_url).scheme != "amqps":
         fail("--cert needs a broker reached over TLS (amqps://): see docs/operations/tls.md")
     files = TlsFiles.for_settings(config)
     if cert and not files.ca_key.exists():
         fail(f"--cert signs the robot's certificate with the CA's key {files.ca_key}, which is missing")
-    if problem := cannot_revoke(files, name):
-        fail(problem)
-    with admin_api(ep) as api:
-        try:
-            account = asyncio.run(
-                provision_account(
-                    ep.amqp_url,
-                    api,
-                    name,
-                    role,
-                    kind,
-                    rotate=rotate,
-                    shards=config.ingest_shards,
-                    cluster=config.cluster,
-                    password_login=not cert,
-                )
-            )
-        except (AccountExists, ValueError) as error:
-            fail(str(error))
-    if role is Role.ROBOT:
-        register_robot(config, name, kind)
-    _revoke(files, name)
-    url = as_public(account.amqp_url, ep.public_url)
+    made = with_accounts(
+        ep,
+        lambda accounts, _repos, _api: accounts.provision(
+            name, role, kind, actor(by), rotate=rotate, certificate=cert
+        ),
+    )
+    if made.revoked:
+        console.print(made.revoked, highlight=False)
+    url = made.public_url
     client = _issue_certificate(config, name) if cert else None
     if client is not None:
         url = with_client_certificate(url, client.cert, client.key)
@@ -103,16 +87,6 @@ def add(
             soft_wrap=True,
             highlight=False,
         )
-
-
-def _revoke(files: TlsFiles, name: str) -> None:
-    """Revoke every certificate of ``name`` the CA signed; say so when there were any."""
-    try:
-        revoked = revoke_certificates_of(files, name)
-    except CertificateError as error:
-        fail(f"could not revoke the certificates of {name}: {error}")
-    if revoked:
-        console.print(revoked_summary(name, revoked))
 
 
 def _issue_certificate(config: Settings, name: str) -> ClientFiles:
@@ -162,34 +136,25 @@ def add_many(
     ],
     kind: Annotated[RobotKind | None, typer.Option(help="the kind of robots whose line names none")] = None,
     rotate: Annotated[bool, typer.Option(help="give existing accounts new passwords")] = False,
+    by: Annotated[
+        str | None, typer.Option(help="who makes them, for the record (default: your login)")
+    ] = None,
 ) -> None:
-    """Make many robots' accounts at once (one broker import per 500), each with its exchanges,
-    inbox, permissions and shard, as `users add` makes one; their URLs go to the --urls file, never
-    to the screen."""
-    ep, config = endpoint(), settings()
+    """Make many robots at once (one broker import per 500), each recorded in the account registry
+    with its exchanges, inbox, permissions and shard, as `users add` makes one; their URLs go to
+    the --urls file, never to the screen."""
+    ep = endpoint()
     try:
         robots = read_robots(names.read_text(), kind)
     except (OSError, ValueError) as error:
         fail(f"{names}: {error}")
     if urls.exists():
         fail(f"{urls} exists; give a new file for the URLs")
-    with admin_api(ep) as api:
-        try:
-            accounts = asyncio.run(
-                provision_robots(
-                    ep.amqp_url,
-                    api,
-                    robots,
-                    rotate=rotate,
-                    shards=config.ingest_shards,
-                    cluster=config.cluster,
-                )
-            )
-        except (RobotsExist, ValueError) as error:
-            fail(str(error))
-    register_robots(config, [(robot.name, robot.kind) for robot in robots])
-    save_secret(urls, "\n".join(f"{a.name} {as_public(a.amqp_url, ep.public_url)}" for a in accounts))
-    console.print(f"created {len(accounts):,} robots; their URLs are in {urls}", highlight=False)
+    made = with_accounts(
+        ep, lambda accounts, _repos, _api: accounts.provision_robots(robots, actor(by), rotate=rotate)
+    )
+    save_secret(urls, "\n".join(f"{m.user.name} {m.public_url}" for m in made))
+    console.print(f"created {len(made):,} robots; their URLs are in {urls}", highlight=False)
 
 
 def read_robots(text: str, kind: RobotKind | None) -> list[NewRobot]:
@@ -217,27 +182,16 @@ def remove(
         str | None, typer.Option(help="who removes it, for the record (default: your login)")
     ] = None,
 ) -> None:
-    """Delete an account and take it out of the hazard gate's team (its exchange and inbox stay,
-    with whatever they hold); a warden removed no longer holds the gate. Its client certificates
-    are revoked."""
-    ep, files = endpoint(), TlsFiles.for_settings(settings())
-    if problem := cannot_revoke(files, name):
-        fail(problem)
-    with admin_api(ep) as api:
-        try:
-            delete_account(ep.amqp_url, api, name)
-        except ValueError as error:
-            fail(str(error))
+    """Remove a user or robot (as `DELETE /users/NAME` does): from the registry, its broker
+    account, and the hazard gate's team (its exchange and inbox stay, with whatever they hold); a
+    warden removed no longer holds the gate. Refused while it is mounted or checked in. Its client
+    certificates are revoked."""
+    ep = endpoint()
+    removed = with_accounts(ep, lambda accounts, _repos, _api: accounts.remove(name, actor(by)))
     (settings().accounts_dir / f"{name}.url").unlink(missing_ok=True)
-    who = actor(by)
-    try:
-        left = run_with_repositories(
-            settings(), lambda repos: leave_team(repos.hazards, ep.amqp_url, name, who)
-        )
-    except HazardServiceNotTold as error:
-        fail(f"removed {name} and took it out of the team, but {error}")
-    console.print(f"removed {name}" + (" and took it out of the team" if left else ""))
-    _revoke(files, name)  # a later account of that name must not inherit them
+    console.print(f"removed {name}" + (" and took it out of the team" if removed.left_team else ""))
+    if removed.revoked:
+        console.print(removed.revoked, highlight=False)
 
 
 @app.command("list")
@@ -253,3 +207,39 @@ def list_users() -> None:
         login = "password" if user.get("password_hash") else "certificate"
         table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags), login)
     console.print(table)
+
+
+@app.command("check")
+def check(
+    repair: Annotated[bool, typer.Option("--repair", help="repair what differs")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False,
+    by: Annotated[str | None, typer.Option(help="who repairs, for the record (default: your login)")] = None,
+) -> None:
+    """Compare the account registry with what derives from it (the broker's accounts, permissions,
+    topic permissions and shard bindings, the team, the sites' accounts at central), as the
+    console's dashboard and `GET /users/check` do; with --repair, make those the registry's again
+    (`POST /users/check/repair`). Exits 1 when something differs (after --repair: still differs)."""
+    from fleetbus.api.account_check import account_check_for
+
+    ep, config = endpoint(), settings()
+
+    async def run(
+        accounts: Accounts, repos: Repositories, api: ManagementAPI
+    ) -> tuple[list[Drift], list[Drift]]:
+        checker = account_check_for(accounts, repos, api, ep.amqp_url, config.ingest_shards)
+        repaired = await checker.repair(actor(by)) if repair else []
+        return repaired, await checker.drift()
+
+    repaired, left = with_accounts(ep, run)
+    if as_json:
+        document = {"repaired": [d.as_dict() for d in repaired], "drift": [d.as_dict() for d in left]}
+        console.print_json(json.dumps(document))
+    else:
+        for drift in repaired:
+            console.print(f"repaired {drift.kind} {drift.name}: {drift.problem}", highlight=False)
+        for drift in left:
+            console.print(f"[yellow]{drift.kind}[/] {drift.name}: {drift.problem} (repair: {drift.repair})")
+        if not left:
+            console.print("the broker, the team and the sites agree with the account registry")
+    if left:
+        raise typer.Exit(1)

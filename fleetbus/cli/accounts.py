@@ -1,0 +1,50 @@
+"""The accounts service (:class:`fleetbus.api.accounts.Accounts`) for a command: the rules of the
+HTTP API and the console, on the same registry and broker. Its refusals end the command with their
+``detail`` (the HTTP API's problem ``detail``) and an exit code: 2 for bad input, 1 otherwise."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING, TypeVar
+
+from fleetbus.cli.context import fail, settings
+
+if TYPE_CHECKING:
+    from fleetbus.api.accounts import Accounts
+    from fleetbus.broker.endpoint import BrokerEndpoint
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.workers.store import Repositories
+
+T = TypeVar("T")
+
+#: The exit code of each refusal's HTTP status (bad input as a usage error; the rest 1).
+EXIT_CODES = {422: 2}
+
+
+def with_accounts(
+    ep: BrokerEndpoint, work: Callable[[Accounts, Repositories, ManagementAPI], Awaitable[T]]
+) -> T:
+    """Run ``work`` with the accounts service, the repositories and the management API it uses."""
+    from fleetbus.api.accounts import accounts_for
+    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.api.security import Secrets
+    from fleetbus.broker.management import ManagementAPI
+    from fleetbus.workers.store import open_repositories
+
+    config = settings()
+
+    async def go() -> T:
+        secrets_ = Secrets.for_settings(config)
+        try:
+            async with open_repositories(config) as repositories:
+                with ManagementAPI.from_urls(ep.management_url, ep.amqp_url) as api:
+                    accounts = accounts_for(config, repositories, secrets_, api, ep.amqp_url, ep.public_url)
+                    return await work(accounts, repositories, api)
+        finally:
+            secrets_.passwords.close()
+
+    try:
+        return asyncio.run(go())
+    except ServiceRefusal as refusal:
+        fail(refusal.detail, EXIT_CODES.get(refusal.status, 1))
