@@ -197,7 +197,7 @@ async def _detail(
     mounts = await channels.mounts(mission_id=mission_id)
     check_ins = await channels.check_ins(mission_id=mission_id)
     operating = user.role in OPERATING
-    robots = await svc.repositories.users.users(UserRole.ROBOT) if operating else []
+    team, robots = await _mountable(svc) if operating else (0, [])
     return render(
         request,
         "missions/detail.html",
@@ -218,10 +218,19 @@ async def _detail(
         and mission.state in CHECK_IN_STATES
         and all(c.operator != user.name for c in check_ins),
         may_check_out=operating and any(c.operator == user.name for c in check_ins),
-        robots=[r.name for r in robots if all(m.robot != r.name for m in mounts)],
+        robots=robots,
+        team_size=team,
         problem=problem,
         done=DONE.get(request.query_params.get("done", "")) if problem is None else None,
     )
+
+
+async def _mountable(svc: Service) -> tuple[int, list[str]]:
+    """How many robots the team has, and those an operator can mount: the robots not mounted for
+    any mission (a robot is mounted for one mission at a time)."""
+    booked = {m.robot for m in await svc.repositories.channels.mounts()}
+    robots = await svc.repositories.users.users(UserRole.ROBOT)
+    return len(robots), [robot.name for robot in robots if robot.name not in booked]
 
 
 @router.get("/console/missions/{mission_id}", response_class=HTMLResponse)
