@@ -11,11 +11,12 @@ SIZES = ((1280, 800), (768, 1024))
 
 #: Runs in the page: each problem as a sentence naming the control and what hides it. Controls
 #: inside the map's panes (markers panned out of view) are the map's content, not its controls.
-CHECK = """
+CHECK = r"""
 const width = document.documentElement.clientWidth;
 const problems = [];
 function name(el) {
-  const text = (el.innerText || el.value || el.getAttribute('aria-label') || el.name || '').trim();
+  const text = (el.innerText || el.value || el.getAttribute('aria-label') || el.name || '')
+    .replace(/\s+/g, ' ').trim();
   const id = el.id ? '#' + el.id : '';
   return el.tagName.toLowerCase() + id + (text ? ' "' + text.slice(0, 40) + '"' : '');
 }
