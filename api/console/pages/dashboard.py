@@ -19,6 +19,8 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, Response
 
 from fleetbus.api.console.broker_health import BrokerWatch, broker_watch
+from fleetbus.api.console.broker_rates import RATES, Rates
+from fleetbus.api.console.charts import TimeChart, time_chart
 from fleetbus.api.console.feed import Feed
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
@@ -60,6 +62,18 @@ async def newest_by_state(
     """The newest ``limit`` hazards of each state: bounded however many are open."""
     return {state: await hazards.recent_hazards(limit, state=state) for state in states}
 
+
+
+def rate_charts(rates: Rates | None) -> list[tuple[str, TimeChart]]:
+    """The broker panel's charts: each message rate over the last hour (none before the broker
+    has two samples of it)."""
+    if rates is None:
+        return []
+    return [
+        (f"rate-{counter}", time_chart(f"messages {what}", "msg/s", rates.spans[counter], height=160))
+        for counter, what in RATES.items()
+        if rates.spans.get(counter)
+    ]
 
 class DashboardView:
     """What every open dashboard shows live; one per API process, shared by all of them."""
@@ -111,7 +125,7 @@ class DashboardView:
                 health=health,
                 alert_at=self._service.settings.uplink_alert_at,
             ),
-            fragment("dashboard/broker.html", health=health),
+            fragment("dashboard/broker.html", health=health, charts=rate_charts(health.rates)),
             fragment("dashboard/feed.html", feed=self._feed),
         ]
 
