@@ -74,6 +74,7 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         stored_maps(bus, 1)
         now = datetime.now(timezone.utc)
         _reported_path(console, "explorer1", now)
+        browser.console_errors()  # what earlier tests' pages logged, read and set aside
         open_map(console, browser)
         browser.until(lambda: drawn(browser, "mark-robot-explorer1"), "the explorer on the map")
         assert browser.find("#map-time")[0].get_attribute("disabled") is not None, "no slider without trails"
