@@ -4,7 +4,7 @@
 // The server renders what the map shows as data: #map-frame names the stored image and the world
 // rectangle it covers; #map-marks lists the robots, beacons and hazards with their coordinates.
 // The live stream (live.js) and the version select (htmx) replace those elements; this redraws
-// the map from them, keeping the view. Clicking a robot centres the map on it and follows it
+// the map from them, keeping the view (the first shows where the team is, or else the whole map). Clicking a robot centres the map on it and follows it
 // until the map is dragged. Trails over a chosen window come from /console/map/trails (the stored
 // localisations); the time slider replays them: the team as it stood at a past moment.
 (function () {
@@ -62,10 +62,6 @@
     overlay.addTo(map);
     overlay.bringToBack();
     overlay.getElement().id = "map-image";
-    if (!fitted) {
-      map.fitBounds(bounds);
-      fitted = true;
-    }
   }
 
   function icon(item) {
@@ -138,9 +134,11 @@
         markers.delete(id);
       }
     }
-    if (!fitted && points.length) {
-      map.fitBounds(L.latLngBounds(points).pad(0.5), { maxZoom: 4 });
-      fitted = true;
+    if (!fitted) {
+      // first view: where the team is (robots, hazards, beacons), else the whole map
+      if (points.length) map.fitBounds(L.latLngBounds(points).pad(0.3), { maxZoom: 5 });
+      else if (overlay) map.fitBounds(overlay.getBounds());
+      fitted = points.length > 0 || overlay !== null;
     }
     if (following) {
       const marker = markers.get("mark-robot-" + following);
