@@ -138,7 +138,13 @@ def test_the_map_is_refused_to_planners_and_clients(bus: Bus) -> None:
     with bus.worker(), running_console(bus) as console:
         explorer.publish("map", small_map())
         stored_maps(bus, 1)
-        paths = ("/console/map", "/console/map/frame?version=1", "/console/map/1.png", "/console/stream/map")
+        paths = (
+            "/console/map",
+            "/console/map/frame?version=1",
+            "/console/map/1.png",
+            "/console/map/trails",
+            "/console/stream/map",
+        )
         for name, role in (("plan1", UserRole.PLANNER), ("client1", UserRole.CLIENT)):
             console.user(name, role)
             with console.http_as(name) as http:
