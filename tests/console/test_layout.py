@@ -72,14 +72,15 @@ def test_every_page_holds_at_1280x800_and_at_a_tablets_width_for_every_role(
                 browser.driver.add_cookie(
                     {"name": SESSION_COOKIE, "value": console.service.secrets.tokens.issue(name).value}
                 )
-                for width, height in SIZES:
-                    set_viewport(browser, width, height)
-                    for path in _paths(role):
-                        browser.go(console.url(path))
-                        assert name in browser.text(".who"), f"{path} as {role.value}: not its page"
-                        problems += [
-                            f"{path} as {role.value} at {width}x{height}: {p}" for p in overflows(browser)
-                        ]
+                sizes = list(SIZES)
+                for path in _paths(role):
+                    browser.go(console.url(path))
+                    assert name in browser.text(".who"), f"{path} as {role.value}: not its page"
+                    for width, height in sizes:  # the page laid out again at each size, not reloaded
+                        set_viewport(browser, width, height)
+                        where = f"{path} as {role.value} at {width}x{height}"
+                        problems += [f"{where}: {problem}" for problem in overflows(browser)]
+                    sizes.reverse()  # the next page starts at the size this one ended at
         finally:
             reset_viewport(browser)
     assert problems == [], "\n".join(problems)
