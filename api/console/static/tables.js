@@ -139,7 +139,16 @@
     document.querySelectorAll("[data-sortable-list]").forEach(applyList);
   }
 
-  const observer = new MutationObserver(() => quietly(applyAll));
+  // at most once a frame, however many changes (the map's panes change often while it moves)
+  let pending = false;
+  const observer = new MutationObserver(function () {
+    if (pending) return;
+    pending = true;
+    requestAnimationFrame(function () {
+      pending = false;
+      quietly(applyAll);
+    });
+  });
 
   function quietly(work) {
     observer.disconnect();
