@@ -231,6 +231,14 @@ class ManagementAPI:
         so this waits longer than the other calls."""
         self._request("DELETE", f"vhosts/{_q(vhost)}", timeout=timeout)
 
+    def vhost_rate_samples(self, vhost: str, age_s: int, every_s: int) -> dict[str, Any]:
+        """The virtual host with its ``message_stats`` sampled: each ``*_details`` carries
+        ``samples`` (the cumulative count, newest first) every ``every_s`` over the last ``age_s``
+        seconds, as far as the broker's retention policy keeps them (an hour at one a minute, by
+        default)."""
+        params = {"msg_rates_age": age_s, "msg_rates_incr": every_s}
+        return self._request("GET", f"vhosts/{_q(vhost)}", params=params)
+
     def list_policies(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"policies/{_q(vhost)}")
 

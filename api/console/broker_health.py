@@ -23,6 +23,7 @@ from typing import Any
 
 from fastapi import Request
 
+from fleetbus.api.console.broker_rates import AGE_S, EVERY_S, Rates, rates_of
 from fleetbus.api.service import Service
 from fleetbus.broker.dead_letter_queue import DeadLetter
 from fleetbus.broker.served_certificate import ServedCertificate, served_certificate
@@ -167,6 +168,9 @@ class BrokerHealth:
     connected_since: dict[str, datetime] = field(default_factory=dict)
     """When each user's oldest open connection opened (a site's: its link up since)."""
     certificate: CertificateCheck | None = None
+    rates: Rates | None = None
+    """Messages a second published and delivered over the last hour (None: not asked, or the
+    broker did not say)."""
 
     @property
     def known(self) -> bool:
@@ -260,6 +264,7 @@ class BrokerWatch:
             nodes = management.list_nodes()
             queues = management.list_queues(vhost)
             connections = management.list_vhost_connections(vhost)
+            rates = rates_of(management.vhost_rate_samples(vhost, AGE_S, EVERY_S))
             return BrokerHealth(
                 datetime.now(timezone.utc),
                 [Node.of(node) for node in nodes],
@@ -270,6 +275,7 @@ class BrokerWatch:
                 Counter(connection.get("user", "?") for connection in connections),
                 None,
                 _oldest_by_user(connections),
+                rates=rates,
             )
 
         try:

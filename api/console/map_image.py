@@ -43,8 +43,8 @@ def png_of(pgm: bytes, max_side: int) -> bytes:
 
 @dataclass(frozen=True)
 class Frame:
-    """Where a version's image lies in the world: its SVG ``viewBox`` in metres (y pointing down,
-    as SVG's does: a world point (x, y) is drawn at (x, -y)) and the size of its markers."""
+    """Where a version's image lies in the world, in metres: the lower-left pixel at the map's
+    origin (map_server's YAML), the top row at origin y + height x resolution."""
 
     version: MapVersion
     width: int
@@ -61,17 +61,11 @@ class Frame:
         return float(x), float(y), float(yaw)
 
     @property
-    def view_box(self) -> str:
-        """``min-x min-y width height``: the lower-left pixel is at the origin (map_server's YAML),
-        and the image's top row at origin y + height x resolution."""
+    def bounds(self) -> str:
+        """``west south east north`` in metres: the world rectangle the image covers (the map's
+        Leaflet image overlay, in its simple CRS where a point is (y, x))."""
         x, y, _ = self.origin
-        width, height = self.width * self.resolution, self.height * self.resolution
-        return f"{x:g} {-(y + height):g} {width:g} {height:g}"
-
-    @property
-    def marker(self) -> float:
-        """A marker's radius in metres: a seventieth of the map's longer side, whatever its scale."""
-        return max(self.width, self.height) * self.resolution / 70
+        return f"{x:g} {y:g} {x + self.width * self.resolution:g} {y + self.height * self.resolution:g}"
 
 
 #: Image sizes remembered (a version's size is read from its first chunk's PGM header).

@@ -36,6 +36,17 @@ def natural_width(browser: Browser) -> int:
     )
 
 
+def where(browser: Browser, mark: str) -> tuple[str | None, str | None]:
+    """Where the page puts the mark ``mark`` (its world x and y, as the server rendered them)."""
+    found = browser.find(f"#{mark}")
+    return (found[0].get_attribute("data-x"), found[0].get_attribute("data-y")) if found else (None, None)
+
+
+def drawn(browser: Browser, mark: str) -> bool:
+    """Whether the map draws the mark ``mark`` (a Leaflet marker)."""
+    return bool(browser.find(f".leaflet-marker-icon[data-mark='{mark}']"))
+
+
 def stored_maps(bus: Bus, count: int) -> None:
     wait_for(
         lambda: len(bus.with_store(lambda store: store.maps.map_versions())) == count,
@@ -61,34 +72,38 @@ def test_a_published_hazard_appears_on_the_map_within_2_s_with_its_id(bus: Bus, 
         stored_maps(bus, 1)
         open_map(console, browser)
         browser.until(lambda: natural_width(browser) == 64, "the map's image loaded")
-        browser.until(lambda: browser.find("#mark-robot-explorer1"), "the explorer's last pose")
-        assert (
-            browser.find("#mark-robot-explorer1")[0].get_attribute("transform") == "translate(4.000 -5.000)"
-        )
+        browser.until(lambda: drawn(browser, "mark-robot-explorer1"), "the explorer's last pose")
+        assert where(browser, "mark-robot-explorer1") == ("4.000", "5.000")
         browser.driver.execute_script("document.body.dataset.marker = 'not reloaded'")
 
         published = time.monotonic()
         explorer.publish("hazard", at(hazard(0, description="Gas leak"), INSIDE["x"], INSIDE["y"]))
-        browser.until(lambda: browser.find("#mark-hazard-default-1"), "the hazard's marker")
+        browser.until(lambda: drawn(browser, "mark-hazard-default-1"), "the hazard's marker")
         shown = time.monotonic() - published
-        marker = browser.find("#mark-hazard-default-1")[0]
-        assert marker.find_element("css selector", "text").get_attribute("textContent") == "1", "its id"
-        assert marker.get_attribute("transform") == "translate(5.000 -6.000)", "where the robot saw it"
+        marker = browser.find(".leaflet-marker-icon[data-mark='mark-hazard-default-1']")[0]
+        assert marker.text == "1", "its id"
+        assert where(browser, "mark-hazard-default-1") == ("5.000", "6.000"), "where the robot saw it"
         assert "state-held" in marker.get_attribute("class")
         assert shown < LIVE_WITHIN_S, shown
         assert "Gas leak" in browser.text("#map-hazard-default-1")
 
         explorer.publish("status", at(status(79.0), 6.5, 4.0))  # the explorer moves
         browser.until(
+            lambda: where(browser, "mark-robot-explorer1") == ("6.500", "4.000"), "the explorer's new pose"
+        )
+        browser.until(
             lambda: (
-                browser.find("#mark-robot-explorer1")[0].get_attribute("transform")
-                == "translate(6.500 -4.000)"
+                browser.attributes(".leaflet-marker-icon[data-mark='mark-robot-explorer1']", "data-x")
+                == ["6.500"]
             ),
-            "the explorer's new pose",
+            "the explorer's marker moved",
         )
         guide.publish("beacon", {"beacon_id": "b1", "rssi": -60, "pose": {"x": 7.5, "y": 7.0}})
         browser.until(
-            lambda: "stranded" in browser.find("#mark-beacon-b1")[0].get_attribute("class"),
+            lambda: (
+                "stranded"
+                in browser.find(".leaflet-marker-icon[data-mark='mark-beacon-b1']")[0].get_attribute("class")
+            ),
             "people likely stranded at beacon b1",
         )
         assert "room 101" in browser.text("#map-stranded-b1")
@@ -106,14 +121,14 @@ def test_an_older_map_version_can_be_chosen(bus: Bus, browser: Browser) -> None:
         open_map(console, browser)
         browser.until(lambda: natural_width(browser) == 80, "the newest version shown")
         assert browser.find("#map-image")[0].get_attribute("src").endswith("/console/map/2.png")
-        browser.until(lambda: browser.find("#mark-hazard-default-1"), "the hazard's marker")
+        browser.until(lambda: drawn(browser, "mark-hazard-default-1"), "the hazard's marker")
 
         Select(browser.find("select[name=version]")[0]).select_by_value("1")
         browser.until(lambda: natural_width(browser) == 64, "version 1 shown")
         assert browser.find("#map-image")[0].get_attribute("src").endswith("/console/map/1.png")
         assert browser.text(".map-caption").startswith("Version 1 from explorer1")
         assert browser.driver.current_url.endswith("/console/map?version=1"), "the address says which"
-        assert browser.find("#mark-hazard-default-1"), "the markers stay over the other version"
+        assert drawn(browser, "mark-hazard-default-1"), "the markers stay over the other version"
         browser.go(console.url("/console/map?version=1"))
         browser.until(lambda: natural_width(browser) == 64, "version 1 from its address")
 
@@ -123,7 +138,13 @@ def test_the_map_is_refused_to_planners_and_clients(bus: Bus) -> None:
     with bus.worker(), running_console(bus) as console:
         explorer.publish("map", small_map())
         stored_maps(bus, 1)
-        paths = ("/console/map", "/console/map/frame?version=1", "/console/map/1.png", "/console/stream/map")
+        paths = (
+            "/console/map",
+            "/console/map/frame?version=1",
+            "/console/map/1.png",
+            "/console/map/trails",
+            "/console/stream/map",
+        )
         for name, role in (("plan1", UserRole.PLANNER), ("client1", UserRole.CLIENT)):
             console.user(name, role)
             with console.http_as(name) as http:
@@ -156,9 +177,8 @@ def test_the_frame_puts_the_lower_left_pixel_at_the_maps_origin() -> None:
     metadata = {"resolution": 0.5, "origin": [-3.0, 2.0, 0.0]}
     version = MapVersion(1, "explorer1", "e", 0, metadata, None, 0, "", 0, 1)  # type: ignore[arg-type]
     frame = Frame(version, width=40, height=20)
-    # x from -3 to 17; y from 2 to 12, drawn at -y: the top row (y 12) at -12
-    assert frame.view_box == "-3 -12 20 10"
-    assert frame.marker == 20 / 70
+    # x from -3 to 17; y from 2 to 12
+    assert frame.bounds == "-3 2 17 12"
 
 
 def test_a_session_less_request_for_the_image_is_sent_to_log_in(bus: Bus) -> None:

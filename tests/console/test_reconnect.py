@@ -7,7 +7,9 @@ carry on.
 
 from __future__ import annotations
 
+import re
 import time
+from datetime import datetime, timezone
 from urllib.parse import urlsplit
 
 import pytest
@@ -51,6 +53,14 @@ def test_a_dashboard_cut_off_shows_all_it_missed_once_back(bus: Bus, browser: Br
             link.cut()
             cut_ends = time.monotonic() + cut_s
             browser.until(lambda: live_state(browser) == "reconnecting", "the page to say it is reconnecting")
+            said = browser.text("#live-status")
+            since = re.fullmatch(r"reconnecting… \(since (\d\d:\d\d:\d\d) UTC\)", said)
+            assert since, f"the time it went down, in UTC: {said!r}"
+            went = datetime.strptime(since.group(1), "%H:%M:%S")
+            now = datetime.now(timezone.utc)
+            seconds = [t.hour * 3600 + t.minute * 60 + t.second for t in (now, went)]
+            apart = abs(seconds[0] - seconds[1])
+            assert min(apart, 86_400 - apart) < 60, f"{said!r} at {now:%H:%M:%S} UTC"
             stored = bus.count()
             sent = explorer.publish_many(
                 ("hazard", hazard(i, description=f"during the cut {i}")) for i in range(EVENTS_DURING_CUT)

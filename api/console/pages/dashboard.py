@@ -21,6 +21,8 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.broker_health import BrokerWatch, broker_watch
+from fleetbus.api.console.broker_rates import RATES, Rates
+from fleetbus.api.console.charts import TimeChart, time_chart
 from fleetbus.api.console.feed import Feed
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
@@ -65,6 +67,18 @@ async def newest_by_state(
 ) -> dict[HazardState, list[Hazard]]:
     """The newest ``limit`` hazards of each state: bounded however many are open."""
     return {state: await hazards.recent_hazards(limit, state=state) for state in states}
+
+
+def rate_charts(rates: Rates | None) -> list[tuple[str, TimeChart]]:
+    """The broker panel's charts: each message rate over the last hour (none before the broker
+    has two samples of it)."""
+    if rates is None:
+        return []
+    return [
+        (f"rate-{counter}", time_chart(f"messages {what}", "msg/s", rates.spans[counter], height=160))
+        for counter, what in RATES.items()
+        if rates.spans.get(counter)
+    ]
 
 
 class DashboardView:
@@ -117,7 +131,7 @@ class DashboardView:
                 health=health,
                 alert_at=self._service.settings.uplink_alert_at,
             ),
-            fragment("dashboard/broker.html", health=health),
+            fragment("dashboard/broker.html", health=health, charts=rate_charts(health.rates)),
             fragment("dashboard/feed.html", feed=self._feed),
         ]
 

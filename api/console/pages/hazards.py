@@ -102,6 +102,7 @@ def card_html(card: Card, team: TeamView, acts: bool, oob: bool = False) -> str:
         steps=steps_from(card.hazard) if acts else [],
         wardens=_wardens(team),
         held=HazardState.HELD,
+        stage=list(HazardState).index(card.hazard.state),
         oob=oob,
     )
 

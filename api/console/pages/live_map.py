@@ -14,11 +14,11 @@ markers stay.
 from __future__ import annotations
 
 import asyncio
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request
-from fastapi.responses import HTMLResponse, Response
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
@@ -27,6 +27,7 @@ from fleetbus.api.console.pages.dashboard import OPEN, newest_by_state
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
+from fleetbus.api.console.trails import WINDOWS, trails
 from fleetbus.api.service import Service
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.beacons import DEFAULT_WINDOW, stranded
@@ -144,6 +145,7 @@ async def live_map(request: Request, user: Viewer, view: View, version: Version 
         MAP,
         cursor=request.app.state.feed.cursor,
         versions=versions,
+        windows=WINDOWS,
         lists=[parts["hazards"], parts["robots"], parts["beacons"]],
         newest=parts["newest"],
         **await _frame_context(view, version),
@@ -156,6 +158,20 @@ async def map_frame(user: Viewer, view: View, version: Version = None) -> Respon
     body = fragment("map/frame.html", **await _frame_context(view, version))
     where = "/console/map" if version is None else f"/console/map?version={version}"
     return HTMLResponse(body, headers={"HX-Push-Url": where})
+
+
+@router.get("/console/map/trails")
+async def map_trails(
+    request: Request,
+    user: Viewer,
+    minutes: Annotated[int, Query(ge=1, le=max(WINDOWS))] = 60,
+    until: Annotated[datetime | None, Query(description="the window's end (UTC); now by default")] = None,
+) -> Response:
+    """Each robot's trail over the last ``minutes`` before ``until``, from its stored localisations."""
+    end = until or datetime.now(timezone.utc)
+    end = end.replace(tzinfo=timezone.utc) if end.tzinfo is None else end.astimezone(timezone.utc)
+    found = await trails(request.app.state.service.repositories.events, end, timedelta(minutes=minutes))
+    return JSONResponse(found, headers={"Cache-Control": "no-store"})
 
 
 @router.get("/console/map/{version}.png")

@@ -18,15 +18,17 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
 
 from fleetbus.api.channels import OPERATING, UNMOUNTERS
+from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
-from fleetbus.api.console.templating import render
+from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import Conflict, ServiceRefusal
-from fleetbus.api.missions import AUTHORS, MOVERS
+from fleetbus.api.missions import AUTHORS, MOVERS, SEE_ALL
 from fleetbus.api.service import Service
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.use_cases import CHECK_IN_STATES, USE_CASES, machine_for
+from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.users import User
 
 router = APIRouter()
@@ -51,18 +53,72 @@ def _service(request: Request) -> Service:
     return request.app.state.service
 
 
+class MissionRows:
+    """Every mission's row of the list, newest first, read at most every half second however
+    many lists are open (one per API process); each page keeps the rows its user may see."""
+
+    def __init__(self, service: Service) -> None:
+        self._service = service
+        self._rows = Shared(self._render)
+        self._owners: list[str] = []
+
+    async def _render(self) -> list[str]:
+        found = list(reversed(await self._service.repositories.missions.missions()))
+        self._owners = [mission.owner for mission in found]
+        return [fragment("missions/row.html", mission=mission) for mission in found]
+
+    async def visible_to(self, user: User) -> list[str]:
+        rows = await self._rows()
+        owners = self._owners  # of the render that made these rows (no await in between)
+        everyone = user.role in SEE_ALL
+        return [row for row, owner in zip(rows, owners, strict=True) if everyone or owner == user.name]
+
+
+def mission_rows(request: Request) -> MissionRows:
+    state = request.app.state
+    if getattr(state, "mission_rows", None) is None:
+        state.mission_rows = MissionRows(state.service)
+    return state.mission_rows
+
+
+Rows = Annotated[MissionRows, Depends(mission_rows)]
+
+
+@dataclass
+class MissionList:
+    """One open list's live view: its user's rows, as one fragment (the list's body)."""
+
+    rows: MissionRows
+    user: User
+
+    async def snapshot(self) -> list[str]:
+        return [fragment("missions/rows.html", rows=await self.rows.visible_to(self.user))]
+
+    async def events(self, records: list[EventRecord]) -> list[str]:
+        return []  # missions change through the service, not the robots' events: each tick shows them
+
+
 @router.get("/console/missions", response_class=HTMLResponse)
-async def missions(request: Request, user: Viewer) -> Response:
+async def missions(request: Request, user: Viewer, rows: Rows) -> Response:
     found = await _service(request).missions.visible(user)
     return render(
         request,
         "missions/list.html",
         user,
         MISSIONS,
-        missions=list(reversed(found)),
+        cursor=request.app.state.feed.cursor,
+        rows=fragment("missions/rows.html", rows=await rows.visible_to(user)),
+        states=list(dict.fromkeys(state.value for machine in USE_CASES.values() for state in machine.states)),
+        use_cases=list(USE_CASES),
+        clients=sorted({mission.owner for mission in found}),
         may_create=user.role in AUTHORS,
         done=DONE.get(request.query_params.get("done", "")),
     )
+
+
+@router.get("/console/stream/missions")
+async def missions_stream(request: Request, user: Viewer, rows: Rows) -> Response:
+    return live_stream(MissionList(rows, user), request.app.state.feed, request)
 
 
 # --- a new mission ------------------------------------------------------------------------------
@@ -197,7 +253,7 @@ async def _detail(
     mounts = await channels.mounts(mission_id=mission_id)
     check_ins = await channels.check_ins(mission_id=mission_id)
     operating = user.role in OPERATING
-    robots = await svc.repositories.users.users(UserRole.ROBOT) if operating else []
+    team, robots = await _mountable(svc) if operating else (0, [])
     return render(
         request,
         "missions/detail.html",
@@ -218,10 +274,19 @@ async def _detail(
         and mission.state in CHECK_IN_STATES
         and all(c.operator != user.name for c in check_ins),
         may_check_out=operating and any(c.operator == user.name for c in check_ins),
-        robots=[r.name for r in robots if all(m.robot != r.name for m in mounts)],
+        robots=robots,
+        team_size=team,
         problem=problem,
         done=DONE.get(request.query_params.get("done", "")) if problem is None else None,
     )
+
+
+async def _mountable(svc: Service) -> tuple[int, list[str]]:
+    """How many robots the team has, and those an operator can mount: the robots not mounted for
+    any mission (a robot is mounted for one mission at a time)."""
+    booked = {m.robot for m in await svc.repositories.channels.mounts()}
+    robots = await svc.repositories.users.users(UserRole.ROBOT)
+    return len(robots), [robot.name for robot in robots if robot.name not in booked]
 
 
 @router.get("/console/missions/{mission_id}", response_class=HTMLResponse)

@@ -68,7 +68,10 @@
       window.location.reload();
     });
     source.addEventListener("error", function () {
-      show("reconnecting", "reconnecting… (since " + new Date().toLocaleTimeString() + ")");
+      if (status && status.dataset.state !== "reconnecting") {
+        // UTC, as every time the console shows
+        show("reconnecting", "reconnecting… (since " + new Date().toISOString().slice(11, 19) + " UTC)");
+      }
       if (source.readyState === EventSource.CLOSED) {
         source.close();
         setTimeout(connect, retry);

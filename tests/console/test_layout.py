@@ -1,0 +1,102 @@
+"""Every page of the console, as every role that may open it sees it, holds at a laptop's 1280x800
+and at a tablet's 768-px width: no button, link or field cut off, hidden behind a scrollbar or off
+the screen. The team has a mission in progress with a robot mounted and one free, so the pages
+show their buttons (the mission's steps, Unmount, Mount with its robots) and their tables."""
+
+from __future__ import annotations
+
+import pika
+
+from fleetbus.api.console.session import SESSION_COOKIE
+from fleetbus.api.console.sitemap import MISSION_ROLES, pages_for
+from fleetbus.api.missions import AUTHORS
+from fleetbus.schemas.missions import MissionState
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, RobotKind
+from tests.console.layout import SIZES, overflows, reset_viewport, set_viewport
+from tests.console.support import Browser, Console, running_console
+from tests.console.test_missions import PLAN
+from tests.support import Bus
+
+#: Every role with a page in the console, by the name of its user here.
+ROLES = {role: f"as-{role.value}" for role in UserRole if role is not UserRole.ROBOT and pages_for(role)}
+
+
+def _team(console: Console) -> None:
+    """A mission in progress, owned by the client, with explorer1 mounted by the operator; explorer2
+    free; a dead letter."""
+    for role, name in ROLES.items():
+        console.user(name, role)
+    console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
+    console.user("explorer2", UserRole.ROBOT, RobotKind.EXPLORER)
+    svc = console.service
+
+    async def in_progress() -> None:
+        users = svc.repositories.users
+        client, supervisor, operator = [
+            await users.get_user(ROLES[role])
+            for role in (UserRole.CLIENT, UserRole.SUPERVISOR, UserRole.OPERATOR)
+        ]
+        assert client and supervisor and operator
+        created = await svc.missions.create(client, "hazard-response", "Survey the north yard", PLAN)
+        await svc.missions.transition(client, created.mission_id, MissionState.FILED)
+        for state in (MissionState.APPROVED, MissionState.IN_PROGRESS):
+            await svc.missions.transition(supervisor, created.mission_id, state)
+        await svc.channels.mount(operator, "explorer1", created.mission_id)
+
+    console.run(in_progress)
+    with console.bus.admin_channel() as channel:
+        channel.confirm_delivery()
+        channel.basic_publish(DEAD_LETTER_EXCHANGE, "", b"refused", pika.BasicProperties(delivery_mode=2))
+
+
+def _paths(role: UserRole) -> list[str]:
+    paths = [page.path for page in pages_for(role)]
+    if role in MISSION_ROLES:
+        paths.append("/console/missions/m-1")
+    if role in AUTHORS:
+        paths.append("/console/missions/new")
+    return paths
+
+
+def test_every_page_holds_at_1280x800_and_at_a_tablets_width_for_every_role(
+    bus: Bus, browser: Browser
+) -> None:
+    problems: list[str] = []
+    with running_console(bus) as console:
+        _team(console)
+        try:
+            for role, name in ROLES.items():
+                browser.reset()
+                browser.go(console.url("/console/login"))
+                browser.driver.add_cookie(
+                    {"name": SESSION_COOKIE, "value": console.service.secrets.tokens.issue(name).value}
+                )
+                sizes = list(SIZES)
+                for path in _paths(role):
+                    browser.go(console.url(path))
+                    assert name in browser.text(".who"), f"{path} as {role.value}: not its page"
+                    for width, height in sizes:  # the page laid out again at each size, not reloaded
+                        set_viewport(browser, width, height)
+                        where = f"{path} as {role.value} at {width}x{height}"
+                        problems += [f"{where}: {problem}" for problem in overflows(browser)]
+                    sizes.reverse()  # the next page starts at the size this one ended at
+        finally:
+            reset_viewport(browser)
+    assert problems == [], "\n".join(problems)
+
+
+def test_the_mission_page_offers_the_robots_that_can_be_mounted_or_says_there_are_none(
+    bus: Bus, browser: Browser
+) -> None:
+    with running_console(bus) as console:
+        _team(console)
+        operator = ROLES[UserRole.OPERATOR]
+        console.log_in(browser, operator)
+        browser.go(console.url("/console/missions/m-1"))
+        options = browser.texts("#mount-form select[name=robot] option")
+        assert options == ["explorer2"], "explorer1 is mounted already"
+        browser.click("button[data-action=mount]")
+        browser.until(lambda: browser.find("#mount-explorer2"), "explorer2 mounted")
+        assert browser.find("#mount-form") == []
+        assert "each of the team's 2 robots is mounted" in browser.text("#mount-none")

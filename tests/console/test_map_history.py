@@ -1,0 +1,139 @@
+"""The live map's Leaflet view in a real browser: a robot's trail over a chosen window from its
+stored localisations (finding a lost robot by the path it reported), the time slider that shows
+the team at a past moment, and a clicked robot followed as it moves; the map's files all from
+fleetbus itself."""
+
+from __future__ import annotations
+
+import re
+import uuid
+from datetime import datetime, timedelta, timezone
+
+from selenium.webdriver.support.select import Select
+
+from fleetbus.broker.accounts import Role
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventRecord
+from tests.console.support import Browser, Console, running_console
+from tests.console.test_map import at, drawn, open_map, stored_maps
+from tests.factories import small_map, status
+from tests.support import Bus
+
+#: The lost robot's reported path: a pose every two minutes from 40 minutes ago to 2 minutes ago,
+#: walking along x (x = 0, 1, 2, ... 19) at y = 2.
+STEPS = 20
+
+
+def _reported_path(console: Console, robot: str, now: datetime) -> None:
+    """Its localisations, stored as the worker stores them."""
+    records = [
+        EventRecord(
+            robot_id=robot,
+            epoch="e-path",
+            seq=step,
+            type="localisation",
+            message_id=str(uuid.uuid4()),
+            sent_at=now - timedelta(minutes=40 - 2 * step),
+            received_at=now - timedelta(minutes=40 - 2 * step),
+            body={"localised": True, "pose": {"x": float(step), "y": 2.0}},
+            user_id=robot,
+            exchange=f"{robot}.events",
+            routing_key=f"{robot}.localisation",
+        )
+        for step in range(STEPS)
+    ]
+    console.run(lambda: console.service.repositories.events.write_events(records))
+
+
+def _slide(browser: Browser, value: int) -> None:
+    browser.driver.execute_script(
+        "const s = document.getElementById('map-time'); s.value = arguments[0];"
+        "s.dispatchEvent(new Event('input'));",
+        value,
+    )
+
+
+def _offset_from_centre(browser: Browser, mark: str) -> float:
+    """How far (px) the mark's glyph is from the map's centre."""
+    return browser.driver.execute_script(
+        "const v = document.getElementById('map-view').getBoundingClientRect();"
+        "const mark = document.querySelector(`.leaflet-marker-icon[data-mark='${arguments[0]}'] .glyph`);"
+        "const g = mark.getBoundingClientRect();"
+        "const dx = g.x + g.width / 2 - (v.x + v.width / 2), dy = g.y + g.height / 2 - (v.y + v.height / 2);"
+        "return Math.hypot(dx, dy);",
+        mark,
+    )
+
+
+def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser) -> None:
+    explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
+    with bus.worker(), running_console(bus) as console:
+        explorer.publish("map", small_map())
+        explorer.publish("status", at(status(80.0), 4.0, 5.0))
+        stored_maps(bus, 1)
+        now = datetime.now(timezone.utc)
+        _reported_path(console, "explorer1", now)
+        browser.console_errors()  # what earlier tests' pages logged, read and set aside
+        open_map(console, browser)
+        browser.until(lambda: drawn(browser, "mark-robot-explorer1"), "the explorer on the map")
+        assert browser.find("#map-time")[0].get_attribute("disabled") is not None, "no slider without trails"
+
+        Select(browser.find("#trail-window")[0]).select_by_value("60")
+        browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+        trail = browser.find("path.trail")
+        assert len(trail) == 1 and trail[0].get_attribute("data-robot") == "explorer1"
+        assert len(re.findall(r"[ML]", trail[0].get_attribute("d"))) >= 2, "a path, not a point"
+
+        # three quarters along the last hour: 15 minutes ago, after the pose of 16 minutes ago (x 12)
+        _slide(browser, 750)
+        browser.until(lambda: browser.find("[data-past=explorer1]"), "the explorer as it stood then")
+        shown = browser.find("[data-past=explorer1]")[0].get_attribute("title")
+        assert "explorer1 at (12.00, 2.00)" in shown, shown
+        moment = browser.text("#map-moment")
+        assert moment.endswith(" UTC"), moment
+        then = datetime.strptime(moment, "%Y-%m-%d %H:%M:%S UTC").replace(tzinfo=timezone.utc)
+        assert abs((now - timedelta(minutes=15) - then).total_seconds()) < 60, (moment, now)
+        assert "in-past" in browser.find("#map-view")[0].get_attribute("class")
+        _slide(browser, 1000)
+        browser.until(lambda: browser.text("#map-moment") == "now", "back to now")
+        assert browser.find("[data-past]") == []
+
+        # click the robot: the map centres on it and follows it as it moves
+        browser.click(".leaflet-marker-icon[data-mark='mark-robot-explorer1'] .glyph")
+        browser.until(lambda: "Following explorer1" in browser.text("#map-following"), "following explorer1")
+        browser.until(
+            lambda: _offset_from_centre(browser, "mark-robot-explorer1") < 3, "centred on explorer1"
+        )
+        explorer.publish("status", at(status(79.0), 8.5, 8.0))
+        browser.until(
+            lambda: (
+                browser.attributes(".leaflet-marker-icon[data-mark='mark-robot-explorer1']", "data-x")
+                == ["8.500"]
+            ),
+            "the explorer moved",
+        )
+        browser.until(lambda: _offset_from_centre(browser, "mark-robot-explorer1") < 3, "still centred on it")
+
+        # everything the map loaded came from the console's own server
+        loaded = browser.driver.execute_script(
+            "return performance.getEntriesByType('resource').map((entry) => entry.name)"
+        )
+        assert loaded and all(url.startswith(console.base) for url in loaded), loaded
+        assert any("/static/console/vendor/leaflet-1.9.4/leaflet.js" in url for url in loaded)
+        assert [line for line in browser.console_errors() if "favicon" not in line] == []
+
+
+def test_the_trails_of_a_window_come_from_the_stored_localisations(bus: Bus) -> None:
+    with running_console(bus) as console:
+        console.user("oper1", UserRole.OPERATOR)
+        now = datetime.now(timezone.utc)
+        _reported_path(console, "explorer9", now)
+        with console.http_as("oper1") as http:
+            answer = http.get("/console/map/trails", params={"minutes": 10})
+            assert answer.status_code == 200
+            found = answer.json()
+            # the last 10 minutes hold the poses of 8, 6, 4 and 2 minutes ago: x 16 to 19
+            assert [point[1] for point in found["robots"]["explorer9"]] == [16.0, 17.0, 18.0, 19.0]
+            assert found["truncated"] is False
+            assert http.get("/console/map/trails", params={"minutes": 0}).status_code == 422
