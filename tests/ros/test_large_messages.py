@@ -21,6 +21,7 @@ from fleetbus.schemas.ros import BLOB_KEY, TRUNCATED_KEY, to_blobs
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.workers.recorder.ros_blobs import piece_name
 from fleetbus.workers.store import open_recording_store
+from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests.ros.conftest import ROS_PYTHON, RosMaster, ros_peer, running_bridge
 from tests.ros.test_foxglove_export import foxglove_read
@@ -73,6 +74,10 @@ def test_images_and_point_clouds_are_recorded_whole_and_export_whole(
             what="every image and cloud recorded",
         )
         wait_for(lambda: bridge.counters.over_bound[HUGE] == 1, what="the huge image counted")
+        # the event log keeps each piece (2 of each image, 2 of each cloud) without its bytes
+        wait_for(lambda: bus.count("ros_chunk", "camrobot") == 16, what="the chunks in the event log")
+        [chunk] = bus.find(EventQuery(type="ros_chunk", robot_id="camrobot", limit=1))
+        assert "data" not in chunk.body and chunk.body["size"] == CHUNK_BYTES
         bridge.report()
         status = json.loads(bridge.status_file.read_text())
     assert len(sent) == 9
@@ -133,9 +138,11 @@ def ros_message(topic: str, seq: int, data: bytes) -> tuple[list[Any], str]:
     return events, hashlib.sha256(data).hexdigest()
 
 
-def test_a_recorder_killed_amid_the_pieces_loses_and_doubles_nothing(bus: Bus) -> None:
+def test_a_recorder_killed_amid_the_pieces_loses_and_doubles_nothing(stored_bus: Bus) -> None:
     """Pieces sent again, a recorder killed with pieces kept but no record yet, and a message whose
-    pieces never all arrived: each message recorded once, whole or said missing, never half."""
+    pieces never all arrived: each message recorded once, whole or said missing, never half (in
+    the SQLite recording's blob folder and in MongoDB's GridFS)."""
+    bus = stored_bus
     robot = bus.robot(bus.add("killcam", kind=RobotKind.EXPLORER))
     first, first_sha = ros_message("/camera/image_raw", 0, bytes(range(256)) * 4000)  # 2 pieces
     second, second_sha = ros_message("/camera/image_raw", 1, b"\x01" * (CHUNK_BYTES * 2 + 5))  # 3
