@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -29,6 +30,7 @@ from fleetbus.schemas.ros import BLOB_KEY, ROS_TYPE, TRUNCATED_KEY
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 
+log = logging.getLogger("fleetbus.recorder")
 CHUNK_TYPE = EventType.ROS_CHUNK.value
 Retrying = Callable[[Callable[[], Awaitable[Any]]], Awaitable[Any]]
 
@@ -128,4 +130,6 @@ class RosBlobs:
             done.extend(name for name, piece in zip(names, pieces, strict=True) if piece is not None)
             return None  # made already (this is a redelivery)
         self.stats.missing += 1
-        return f"the byte array {digest} ({length} bytes) is not kept: {wrong}"
+        said = f"the byte array {digest} ({length} bytes) is not kept: {wrong}"
+        log.warning("a ROS message recorded without its data: %s", said)
+        return said
