@@ -84,6 +84,25 @@ def chunk_events(blobs: dict[str, bytes]) -> list[Item]:
     return events
 
 
+@dataclass(frozen=True)
+class Converted:
+    """One ROS message's events, and what the counters say of it once they are in the outbox."""
+
+    topic: str
+    events: list[Item]
+    over_bound: bool
+    """It holds a byte array over the bound, only described."""
+
+    @property
+    def mapped(self) -> bool:
+        return self.events[-1][0] is not EventType.ROS  # a mapping rule's events follow the ros one
+
+    @property
+    def blobs(self) -> int:
+        """Byte arrays it sends whole, as ``ros_chunk`` events."""
+        return sum(1 for kind, body in self.events if kind is EventType.ROS_CHUNK and body.index == 0)
+
+
 class RosSideError(RuntimeError):
     """The ROS side could not start or ended; the message says how and where its log is."""
 
@@ -286,9 +305,7 @@ class Bridge:
 
     def forward(self, batch: list[dict[str, Any]]) -> None:
         """Rate limit, convert and put one batch in the outbox (one write)."""
-        items: list[Item] = []
-        topics: list[tuple[str, bool, int]] = []  # (topic, mapped, how many events)
-        sizes: list[tuple[str, int, bool]] = []  # (topic, blobs sent whole, an array over the bound)
+        converted: list[Converted] = []
         for item in batch:
             topic = item["topic"]
             if not self._rate.allows(topic, item["received_ns"] / 1e9):
@@ -300,27 +317,37 @@ class Bridge:
                 self.counters.drop(topic, DropReason.UNREADABLE)
                 log.warning("%s (%s) not forwarded: %s", topic, item.get("type"), error)
                 continue
-            items += events
-            topics.append((topic, events[-1][0] is not EventType.ROS, len(events)))
-            whole = sum(1 for kind, body in events if kind is EventType.ROS_CHUNK and body.index == 0)
             over = next(byte_arrays(item["fields"], TRUNCATED_KEY), None) is not None
-            sizes.append((topic, whole, over))
-        if not items:
+            converted.append(Converted(topic, events, over))
+        if not converted:
             return
         try:
-            self.robot.publish_many(items, wait=False)
+            self._publish(converted)
         except OutboxFull as error:
-            for topic, _, _ in topics:
-                self.counters.drop(topic, DropReason.OUTBOX_FULL)
-            log.error("the outbox is full: %d messages dropped (%s)", len(topics), error)
-            return
-        for topic, mapped, _ in topics:
-            self.counters.recorded[topic] += 1
-            if mapped:
-                self.counters.mapped[topic] += 1
-        for topic, blobs, over in sizes:
-            self.counters.blobs[topic] += blobs
-            self.counters.over_bound[topic] += int(over)
+            # chunks reach their outbox limit long before small messages do: those go on alone
+            large, small = [c for c in converted if c.blobs], [c for c in converted if not c.blobs]
+            if not large or not small:
+                self._outbox_full(converted, error)
+                return
+            self._outbox_full(large, error)
+            try:
+                self._publish(small)
+            except OutboxFull as again:
+                self._outbox_full(small, again)
+
+    def _publish(self, converted: list[Converted]) -> None:
+        """Into the outbox in one write, and counted; raises OutboxFull having taken none."""
+        self.robot.publish_many([event for message in converted for event in message.events], wait=False)
+        for message in converted:
+            self.counters.recorded[message.topic] += 1
+            self.counters.mapped[message.topic] += int(message.mapped)
+            self.counters.blobs[message.topic] += message.blobs
+            self.counters.over_bound[message.topic] += int(message.over_bound)
+
+    def _outbox_full(self, converted: list[Converted], error: OutboxFull) -> None:
+        for message in converted:
+            self.counters.drop(message.topic, DropReason.OUTBOX_FULL)
+        log.error("the outbox is full: %d messages dropped (%s)", len(converted), error)
 
     # notifications to ROS
     def _notify(self) -> None:

@@ -14,6 +14,7 @@ from typing import Any
 
 import psutil
 
+from fleetbus.publishers.outbox import policies_with_limits
 from fleetbus.publishers.ros.bridge import chunk_events
 from fleetbus.schemas.bodies import CHUNK_BYTES
 from fleetbus.schemas.envelope import validate_body
@@ -23,9 +24,10 @@ from fleetbus.workers.recorder.ros_blobs import piece_name
 from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.recordings import RecordedMessage
+from tests.link import NetworkLink
 from tests.ros.conftest import ROS_PYTHON, RosMaster, ros_peer, running_bridge
 from tests.ros.test_foxglove_export import foxglove_read
-from tests.support import Bus, read_line, wait_for
+from tests.support import Bus, network_link, read_line, wait_for
 from tests.test_cli import fleetbus
 
 IMAGES, CLOUDS, HUGE = "/camera/image_raw", "/points", "/camera/huge"
@@ -138,11 +140,11 @@ def ros_message(topic: str, seq: int, data: bytes) -> tuple[list[Any], str]:
     return events, hashlib.sha256(data).hexdigest()
 
 
-def test_a_recorder_killed_amid_the_pieces_loses_and_doubles_nothing(stored_bus: Bus) -> None:
+def test_a_recorder_killed_amid_the_pieces_loses_and_doubles_nothing(bus: Bus) -> None:
     """Pieces sent again, a recorder killed with pieces kept but no record yet, and a message whose
-    pieces never all arrived: each message recorded once, whole or said missing, never half (in
-    the SQLite recording's blob folder and in MongoDB's GridFS)."""
-    bus = stored_bus
+    pieces never all arrived: each message recorded once, whole or said missing, never half.
+    (``stored_bus`` instead of ``bus`` runs it on MongoDB's GridFS too: 25 s more, beyond the
+    suite's budget for these tests.)"""
     robot = bus.robot(bus.add("killcam", kind=RobotKind.EXPLORER))
     first, first_sha = ros_message("/camera/image_raw", 0, bytes(range(256)) * 4000)  # 2 pieces
     second, second_sha = ros_message("/camera/image_raw", 1, b"\x01" * (CHUNK_BYTES * 2 + 5))  # 3
@@ -180,3 +182,27 @@ def test_a_recorder_killed_amid_the_pieces_loses_and_doubles_nothing(stored_bus:
     chunks = bus.recorded("ros_chunk", robot_id="killcam")
     assert len(chunks) == 1 + 1 + 1 + 3 + 1, "every chunk event on the bus recorded once"
     assert all(c.document["body"]["data"] is None for c in chunks), "a chunk's bytes are kept once"
+
+
+def test_a_full_outbox_drops_the_large_messages_and_lets_the_small_ones_through(
+    bus: Bus, ros_master: RosMaster, link_for: list[NetworkLink]
+) -> None:
+    """The broker away, an outbox that holds one chunk: images and clouds are dropped and counted
+    (``outbox-full``), the small message of the same moments still goes into the outbox."""
+    account = bus.add("fullcam", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    robot = bus.robot(account, via=link, outbox_policies=policies_with_limits("ros_chunk=1"))
+    link.cut()
+    with (
+        running_bridge(robot, ros_master, bus.settings.robots_dir, blob_max=BOUND) as bridge,
+        ros_peer(ros_master, "sensors", "1", "10") as sensors,
+    ):
+        published(sensors)
+        wait_for(
+            lambda: bridge.counters.recorded[HUGE] == 1
+            and all(bridge.counters.dropped.get(t, {}).get("outbox-full") == 1 for t in (IMAGES, CLOUDS)),
+            what="the image and the cloud dropped, the described image kept",
+        )
+        assert robot.outbox.pending() == 1, "the described image waits; no chunk does"
+        assert bridge.counters.recorded[IMAGES] == 0 and bridge.counters.recorded[CLOUDS] == 0
+        link.restore()  # the bridge stops at once (its notifications wait for the broker)
