@@ -340,9 +340,12 @@ class Bridge:
         self.robot.publish_many([event for message in converted for event in message.events], wait=False)
         for message in converted:
             self.counters.recorded[message.topic] += 1
-            self.counters.mapped[message.topic] += int(message.mapped)
-            self.counters.blobs[message.topic] += message.blobs
-            self.counters.over_bound[message.topic] += int(message.over_bound)
+            if message.mapped:
+                self.counters.mapped[message.topic] += 1
+            if message.blobs:
+                self.counters.blobs[message.topic] += message.blobs
+            if message.over_bound:
+                self.counters.over_bound[message.topic] += 1
 
     def _outbox_full(self, converted: list[Converted], error: OutboxFull) -> None:
         for message in converted:
