@@ -9,9 +9,8 @@ with a robot account on a fresh virtual host and a worker storing what arrives) 
 `rosbag record` both subscribe to the two topics. Reported per topic: messages sent, recorded by
 each (the bridge's counts, the bag's contents), the bridge's drops by reason, messages per second
 recorded; and the CPU (% of one core) and peak resident memory of each recorder (the bridge with
-its ROS side; rosbag with its recorder process). The bridge keeps images' pixels only up to
-``FLEETBUS_ROS_BYTES_MAX`` (256 KiB by default: the image's pixels are described, not kept);
-rosbag keeps them whole. Measured, not asserted.
+its ROS side; rosbag with its recorder process). Both keep images' pixels whole (the bridge up to
+``FLEETBUS_ROS_BLOB_MAX_BYTES``, as ``ros_chunk`` events). Measured, not asserted.
 """
 
 from __future__ import annotations

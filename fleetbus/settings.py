@@ -181,15 +181,11 @@ class Settings(BaseSettings):
         "messages the ROS bridge holds between ROS and the outbox, on each side; beyond, they are "
         "dropped and counted",
     )
-    ros_bytes_max: Annotated[int, Positive] = setting(
-        256 * 1024,
-        "bytes of a `uint8[]` field (an image's pixels) the ROS bridge records; the rest is cut "
-        "and the field named in `truncated`",
-    )
     ros_blob_max_bytes: Annotated[int, Field(ge=0)] = setting(
         16 * 1024 * 1024,
-        "the largest byte array of a ROS message (an image's pixels) a bag import keeps whole, in "
-        "the recording's blob store; a larger one is described (length, SHA-256); 0: none kept",
+        "the largest byte array of a ROS message (an image's pixels, a point cloud's data) a bag "
+        "import or the ROS bridge keeps whole, in the recording's blob store; a larger one is "
+        "described (length, SHA-256) and counted; 0: none over 64 KiB kept",
     )
     ros_linger_s: Annotated[float, Field(ge=0)] = setting(
         0.25,

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, Protocol
 
-from fleetbus.schemas.bodies import MAP_CHUNK_BYTES, MAP_INLINE_BYTES, MapMetadata
+from fleetbus.schemas.bodies import MAP_INLINE_BYTES, MapMetadata, split_chunks
 from fleetbus.schemas.pgm import check_pgm
 from fleetbus.schemas.routing import EventType
 
@@ -27,18 +27,14 @@ def map_events(
     if len(pgm) <= MAP_INLINE_BYTES:
         return [(EventType.MAP, {**body, "pgm": base64.b64encode(pgm).decode()})]
     map_id = str(uuid.uuid4())
-    count = (len(pgm) + MAP_CHUNK_BYTES - 1) // MAP_CHUNK_BYTES
+    pieces = split_chunks(pgm)
+    count = len(pieces)
     chunks = [
         (
             EventType.MAP_CHUNK,
-            {
-                "map_id": map_id,
-                "index": i,
-                "count": count,
-                "data": base64.b64encode(pgm[i * MAP_CHUNK_BYTES : (i + 1) * MAP_CHUNK_BYTES]).decode(),
-            },
+            {"map_id": map_id, "index": i, "count": count, "data": base64.b64encode(piece).decode()},
         )
-        for i in range(count)
+        for i, piece in enumerate(pieces)
     ]
     image = {"map_id": map_id, "size": len(pgm), "sha256": hashlib.sha256(pgm).hexdigest(), "chunks": count}
     return [*chunks, (EventType.MAP, {**body, "image": image})]

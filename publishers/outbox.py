@@ -72,6 +72,7 @@ DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
     EventType.BEHAVIOUR.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
     EventType.BEACON.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
     EventType.ROS.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
+    EventType.ROS_CHUNK.value: TypePolicy(Overflow.KEEP, 20_000),
 }
 DEFAULT_POLICY = TypePolicy(Overflow.KEEP, KEEP_LIMIT)
 #: The environment variable a robot's client reads its outbox limits from (:func:`policies_with_limits`).

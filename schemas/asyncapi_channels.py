@@ -85,7 +85,12 @@ EVENT_NOTES: dict[EventType, str] = {
     "before it. Once complete it is stored and announced on the topic `map`.",
     EventType.MAP_CHUNK: "One piece of a large map image, before the `map` event that names it.",
     EventType.BEHAVIOUR: "The outcome of a behaviour (what was tried on what, success, duration).",
-    EventType.ROS: "A ROS message, recorded (the ROS bridge publishes them).",
+    EventType.ROS: "A ROS message, recorded (the ROS bridge publishes them). A byte array over 64 KiB "
+    '(an image\'s pixels) is named as `{"_blob": sha256, "length": n}` and travels before it as '
+    "`ros_chunk` events; one over the robot's bound (`FLEETBUS_ROS_BLOB_MAX_BYTES`) is only described "
+    '(`{"_truncated": true, "length": n, "sha256": ...}`).',
+    EventType.ROS_CHUNK: "One piece (at most 512 KiB) of a large byte array of a ROS message, before the "
+    "`ros` event that names its `blob`; `index` of `count`, in order. Sent again, it is kept once.",
 }
 
 

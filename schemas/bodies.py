@@ -71,8 +71,21 @@ class MapMetadata(Strict):
 
 #: Largest map image sent inside its ``map`` event; larger ones travel as ``map_chunk`` events.
 MAP_INLINE_BYTES = 256 * 1024
-#: Bytes of image per ``map_chunk`` event (about 700 KB as base64: below the broker's limits).
-MAP_CHUNK_BYTES = 512 * 1024
+#: Bytes per chunk event (``map_chunk``, ``ros_chunk``): about 700 KB as base64, below the broker's
+#: message limit. Whatever is too large for one event travels as chunks of this size, in order,
+#: before the event that names them.
+CHUNK_BYTES = 512 * 1024
+MAP_CHUNK_BYTES = CHUNK_BYTES
+
+
+def chunk_count(size: int) -> int:
+    """How many chunks of :data:`CHUNK_BYTES` carry ``size`` bytes (at least one)."""
+    return max(1, (size + CHUNK_BYTES - 1) // CHUNK_BYTES)
+
+
+def split_chunks(data: bytes) -> list[bytes]:
+    """``data`` in the pieces its chunk events carry, in order."""
+    return [data[i * CHUNK_BYTES : (i + 1) * CHUNK_BYTES] for i in range(chunk_count(len(data)))]
 
 
 class ChunkedImage(Strict):
@@ -110,26 +123,38 @@ class MapUpdate(Strict):
         return self
 
 
-class MapChunk(Strict):
-    """One piece of a large map image; the ``map`` event naming its ``map_id`` follows the last."""
+class _Chunk(Strict):
+    """One piece of a byte string too large for one event, ``index`` of ``count``."""
 
-    map_id: uuid.UUID
     index: int = Field(ge=0)
     count: int = Field(ge=1)
-    data: Base64Bytes = Field(description=f"at most {MAP_CHUNK_BYTES} bytes of the PGM file")
+    data: Base64Bytes = Field(description=f"at most {CHUNK_BYTES} bytes")
 
     @field_validator("data")
     @classmethod
     def _bounded(cls, value: bytes) -> bytes:
-        if len(value) > MAP_CHUNK_BYTES:
-            raise ValueError(f"a chunk holds at most {MAP_CHUNK_BYTES} bytes, not {len(value)}")
+        if len(value) > CHUNK_BYTES:
+            raise ValueError(f"a chunk holds at most {CHUNK_BYTES} bytes, not {len(value)}")
         return value
 
     @model_validator(mode="after")
-    def _index_in_range(self) -> MapChunk:
+    def _index_in_range(self) -> _Chunk:
         if self.index >= self.count:
             raise ValueError(f"chunk index {self.index} is not below count {self.count}")
         return self
+
+
+class MapChunk(_Chunk):
+    """One piece of a large map image; the ``map`` event naming its ``map_id`` follows the last."""
+
+    map_id: uuid.UUID
+
+
+class RosChunk(_Chunk):
+    """One piece of a large byte array of a ROS message (an image's pixels, a point cloud's data);
+    the ``ros`` event naming ``blob`` (``{"_blob": blob, "length": n}``) follows the last."""
+
+    blob: str = Field(pattern=r"^[0-9a-f]{64}$", description="the SHA-256 of the whole array")
 
 
 class RobotStatus(Strict):

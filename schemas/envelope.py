@@ -40,6 +40,7 @@ from fleetbus.schemas.bodies import (
     MapChunk,
     MapUpdate,
     RobotStatus,
+    RosChunk,
 )
 from fleetbus.schemas.identity import RobotId
 from fleetbus.schemas.ros import RosMessage
@@ -153,6 +154,11 @@ class RosEvent(_EnvelopeBase):
     body: RosMessage
 
 
+class RosChunkEvent(_EnvelopeBase):
+    type: Literal[EventType.ROS_CHUNK] = EventType.ROS_CHUNK
+    body: RosChunk
+
+
 Event = Annotated[
     Union[  # noqa: UP007
         HazardEvent,
@@ -163,6 +169,7 @@ Event = Annotated[
         BeaconEvent,
         BehaviourEvent,
         RosEvent,
+        RosChunkEvent,
     ],
     Field(discriminator="type"),
 ]
@@ -175,6 +182,7 @@ EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
     EventType.BEACON: BeaconEvent,
     EventType.BEHAVIOUR: BehaviourEvent,
     EventType.ROS: RosEvent,
+    EventType.ROS_CHUNK: RosChunkEvent,
 }
 BODY_MODELS: dict[EventType, type[BaseModel]] = {
     t: m.model_fields["body"].annotation

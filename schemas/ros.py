@@ -24,7 +24,9 @@ document       a :class:`RosMessage`: topic, ROS type, log time in ns, stamp, fi
 
 from __future__ import annotations
 
+import base64
 import hashlib
+from collections.abc import Iterator
 from datetime import datetime
 from typing import Any
 
@@ -46,9 +48,12 @@ ROUTING_SEGMENT = "ros"
 BYTES_KEY = "_base64"
 """A byte array (``uint8[]``) is kept as ``{"_base64": "...", "length": n}``."""
 TRUNCATED_KEY = "_truncated"
+"""A byte array over the size cap is kept as ``{"_truncated": true, "length": n, "sha256": "..."}``."""
 BLOB_KEY = "_blob"
 """A large byte array kept whole in the recording's blob store: ``{"_blob": "<sha256>", "length": n}``."""
-"""A byte array over the size cap is kept as ``{"_truncated": true, "length": n, "sha256": "..."}``."""
+BLOB_FROM = 64 * 1024
+"""Bytes above which a byte array is kept apart, in the recording's blob store (a bag import), or
+travels apart as ``ros_chunk`` events (the live bridge) on its way there."""
 
 
 class RosDefinition(BaseModel):
@@ -115,3 +120,40 @@ def ros_record_key(source: str, index: int) -> str:
     session's id): the same message imported twice is stored once."""
     digest = hashlib.sha256(f"ros\0{source}\0{index}".encode()).hexdigest()
     return digest[:32]
+
+
+def described(data: bytes, length: int) -> dict[str, Any]:
+    """An array kept only described: its length and the SHA-256 of its bytes."""
+    return {TRUNCATED_KEY: True, "length": length, "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def to_blobs(value: Any, blobs: dict[str, bytes], blob_max: int) -> Any:
+    """``value`` (fields as plain JSON) with its large byte arrays (``{"_base64"}`` over
+    :data:`BLOB_FROM`) moved to ``blobs``: up to ``blob_max`` bytes as ``{"_blob": sha256,
+    "length": n}``, over it only described."""
+    if isinstance(value, list):
+        return [to_blobs(item, blobs, blob_max) for item in value]
+    if not isinstance(value, dict):
+        return value
+    if BYTES_KEY in value and isinstance(value.get("length"), int) and value["length"] > BLOB_FROM:
+        data = base64.b64decode(value[BYTES_KEY])
+        if len(data) > blob_max:
+            return described(data, len(data))
+        digest = hashlib.sha256(data).hexdigest()
+        blobs[digest] = data
+        return {BLOB_KEY: digest, "length": len(data)}
+    return {key: to_blobs(item, blobs, blob_max) for key, item in value.items()}
+
+
+def byte_arrays(value: Any, key: str) -> Iterator[dict[str, Any]]:
+    """Every kept or described byte array of ``value`` whose marker is ``key`` (:data:`BLOB_KEY`,
+    :data:`TRUNCATED_KEY`)."""
+    if isinstance(value, list):
+        for item in value:
+            yield from byte_arrays(item, key)
+    elif isinstance(value, dict):
+        if key in value:
+            yield value
+        else:
+            for item in value.values():
+                yield from byte_arrays(item, key)

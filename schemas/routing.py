@@ -167,6 +167,7 @@ class EventType(str, Enum):
     BEACON = "beacon"
     BEHAVIOUR = "behaviour"
     ROS = "ros"
+    ROS_CHUNK = "ros_chunk"
 
 
 #: The express lane's types: the hazards the wardens wait for, and the localisations that open their

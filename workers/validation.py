@@ -34,8 +34,9 @@ class Rejected:
 
 
 def record_body(event: Event) -> dict[str, Any]:
-    """The body as stored with the event; map images go to the map store, not the event log."""
-    if event.type is EventType.MAP_CHUNK:
+    """The body as stored with the event; the bytes of chunks (a large map image, a ROS message's
+    large byte array) are kept by the map store or the recording, not the event log."""
+    if event.type in (EventType.MAP_CHUNK, EventType.ROS_CHUNK):
         return {**event.body.model_dump(mode="json", exclude={"data"}), "size": len(event.body.data)}
     if event.type is EventType.MAP and event.body.pgm is not None:
         return {**event.body.model_dump(mode="json", exclude={"pgm"}), "pgm_size": len(event.body.pgm)}

@@ -11,6 +11,7 @@ its reason, in the log's status lines and the status file.
 
 from __future__ import annotations
 
+import base64
 import json
 import logging
 import os
@@ -40,8 +41,9 @@ from fleetbus.publishers.ros.convert import (
 )
 from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
 from fleetbus.publishers.ros.mapping import Mapping, Rule
+from fleetbus.schemas.bodies import split_chunks
 from fleetbus.schemas.envelope import SchemaError, validate_body
-from fleetbus.schemas.ros import schema_key
+from fleetbus.schemas.ros import BLOB_FROM, TRUNCATED_KEY, byte_arrays, schema_key, to_blobs
 from fleetbus.schemas.routing import EventType
 
 log = logging.getLogger("fleetbus.ros")
@@ -69,6 +71,38 @@ def now() -> datetime:
     return datetime.now(timezone.utc)
 
 
+def chunk_events(blobs: dict[str, bytes]) -> list[Item]:
+    """The ``ros_chunk`` events carrying ``blobs`` (by SHA-256), each blob's in order: they go
+    before the ``ros`` event that names them."""
+    events: list[Item] = []
+    for digest, data in blobs.items():
+        pieces = split_chunks(data)
+        for index, piece in enumerate(pieces):
+            data64 = base64.b64encode(piece).decode()
+            body = {"blob": digest, "index": index, "count": len(pieces), "data": data64}
+            events.append((EventType.ROS_CHUNK, validate_body(EventType.ROS_CHUNK, body)))
+    return events
+
+
+@dataclass(frozen=True)
+class Converted:
+    """One ROS message's events, and what the counters say of it once they are in the outbox."""
+
+    topic: str
+    events: list[Item]
+    over_bound: bool
+    """It holds a byte array over the bound, only described."""
+
+    @property
+    def mapped(self) -> bool:
+        return self.events[-1][0] is not EventType.ROS  # a mapping rule's events follow the ros one
+
+    @property
+    def blobs(self) -> int:
+        """Byte arrays it sends whole, as ``ros_chunk`` events."""
+        return sum(1 for kind, body in self.events if kind is EventType.ROS_CHUNK and body.index == 0)
+
+
 class RosSideError(RuntimeError):
     """The ROS side could not start or ended; the message says how and where its log is."""
 
@@ -83,7 +117,8 @@ class BridgeOptions:
     retry_most_s: float = 10.0
     """The longest wait between two tries of a master that does not answer (backing off)."""
     queue: int = 10_000
-    bytes_max: int = 256 * 1024
+    blob_max: int = 16 * 1024 * 1024
+    """The largest byte array kept whole (``FLEETBUS_ROS_BLOB_MAX_BYTES``); a larger one is described."""
     status_every_s: float = 10.0
     linger_s: float = 0.25
     """How long the bridge gathers messages into one outbox write (``FLEETBUS_ROS_LINGER_S``)."""
@@ -96,8 +131,8 @@ class BridgeOptions:
         command = [self.python, str(ROS_SIDE), "--discover-every", str(self.discover_every_s)]
         command += ["--retry-most", str(self.retry_most_s), "--parent", str(os.getpid())]
         command += [
-            "--bytes-max",
-            str(self.bytes_max),
+            "--bytes-max",  # arrays up to BLOB_FROM travel inline whatever the bound
+            str(max(self.blob_max, BLOB_FROM)),
             "--queue",
             str(self.queue),
             "--own-prefix",
@@ -222,27 +257,30 @@ class Bridge:
 
     # messages to events
     def events_of(self, item: dict[str, Any]) -> list[Item]:
-        """The fleetbus events of one ROS message (validated): the message itself as a ``ros``
-        event, then what its mapping rule makes of it; raises ConversionError or SchemaError."""
+        """The fleetbus events of one ROS message (validated): the ``ros_chunk`` events of its
+        large byte arrays, the message itself as a ``ros`` event naming them, then what its
+        mapping rule makes of it; raises ConversionError or SchemaError."""
         topic, type_name, fields = item["topic"], item["type"], item["fields"]
         stamp = ros_stamp(item.get("stamp_ns"))
         ros_type = ros2_type_name(type_name)
+        blobs: dict[str, bytes] = {}
+        kept = to_blobs(fields, blobs, self.options.blob_max)
         body = {
             "topic": topic,
             "ros_type": ros_type,
             "log_time_ns": item["received_ns"],
             "stamp": stamp.isoformat() if stamp else None,
-            "fields": fields,
+            "fields": kept,
             "schema_key": self._schema_key(topic, ros_type, item),
         }
         if item.get("definition"):
             text, md5sum = item["definition"], item.get("md5sum")
             body["definition"] = {"encoding": ROS1_DEFINITION, "text": text, "md5sum": md5sum}
-        recorded: Item = (EventType.ROS, validate_body(EventType.ROS, body))
+        recorded = [*chunk_events(blobs), (EventType.ROS, validate_body(EventType.ROS, body))]
         rule = self.mapping.rule_for(topic, type_name)
         if rule is None:
-            return [recorded]
-        return [recorded, *self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))]
+            return recorded
+        return [*recorded, *self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))]
 
     def _schema_key(self, topic: str, ros_type: str, item: dict[str, Any]) -> str | None:
         """The key of the message's type definition: made from the first message of its kind,
@@ -267,8 +305,7 @@ class Bridge:
 
     def forward(self, batch: list[dict[str, Any]]) -> None:
         """Rate limit, convert and put one batch in the outbox (one write)."""
-        items: list[Item] = []
-        topics: list[tuple[str, bool, int]] = []  # (topic, mapped, how many events)
+        converted: list[Converted] = []
         for item in batch:
             topic = item["topic"]
             if not self._rate.allows(topic, item["received_ns"] / 1e9):
@@ -280,21 +317,40 @@ class Bridge:
                 self.counters.drop(topic, DropReason.UNREADABLE)
                 log.warning("%s (%s) not forwarded: %s", topic, item.get("type"), error)
                 continue
-            items += events
-            topics.append((topic, len(events) > 1, len(events)))
-        if not items:
+            over = next(byte_arrays(item["fields"], TRUNCATED_KEY), None) is not None
+            converted.append(Converted(topic, events, over))
+        if not converted:
             return
         try:
-            self.robot.publish_many(items, wait=False)
+            self._publish(converted)
         except OutboxFull as error:
-            for topic, _, _ in topics:
-                self.counters.drop(topic, DropReason.OUTBOX_FULL)
-            log.error("the outbox is full: %d messages dropped (%s)", len(topics), error)
-            return
-        for topic, mapped, _ in topics:
-            self.counters.recorded[topic] += 1
-            if mapped:
-                self.counters.mapped[topic] += 1
+            # chunks reach their outbox limit long before small messages do: those go on alone
+            large, small = [c for c in converted if c.blobs], [c for c in converted if not c.blobs]
+            if not large or not small:
+                self._outbox_full(converted, error)
+                return
+            self._outbox_full(large, error)
+            try:
+                self._publish(small)
+            except OutboxFull as again:
+                self._outbox_full(small, again)
+
+    def _publish(self, converted: list[Converted]) -> None:
+        """Into the outbox in one write, and counted; raises OutboxFull having taken none."""
+        self.robot.publish_many([event for message in converted for event in message.events], wait=False)
+        for message in converted:
+            self.counters.recorded[message.topic] += 1
+            if message.mapped:
+                self.counters.mapped[message.topic] += 1
+            if message.blobs:
+                self.counters.blobs[message.topic] += message.blobs
+            if message.over_bound:
+                self.counters.over_bound[message.topic] += 1
+
+    def _outbox_full(self, converted: list[Converted], error: OutboxFull) -> None:
+        for message in converted:
+            self.counters.drop(message.topic, DropReason.OUTBOX_FULL)
+        log.error("the outbox is full: %d messages dropped (%s)", len(converted), error)
 
     # notifications to ROS
     def _notify(self) -> None:

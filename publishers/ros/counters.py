@@ -32,6 +32,10 @@ class Counters:
     started: float = field(default_factory=time.time)
     recorded: Counter[str] = field(default_factory=Counter)
     mapped: Counter[str] = field(default_factory=Counter)
+    over_bound: Counter[str] = field(default_factory=Counter)
+    """Messages recorded with a byte array over ``FLEETBUS_ROS_BLOB_MAX_BYTES``: only described."""
+    blobs: Counter[str] = field(default_factory=Counter)
+    """Byte arrays sent whole as ``ros_chunk`` events."""
     dropped: dict[str, Counter[str]] = field(default_factory=dict)
     types: dict[str, str] = field(default_factory=dict)
     notifications: int = 0
@@ -66,7 +70,8 @@ class Counters:
 
     def snapshot(self) -> dict[str, Any]:
         with self._lock:
-            topics = sorted(set(self.types) | set(self.recorded) | set(self.mapped) | set(self.dropped))
+            named = (self.types, self.recorded, self.mapped, self.dropped, self.over_bound)
+            topics = sorted(set().union(*named))
             return {
                 "pid": os.getpid(),
                 "started": self.started,
@@ -79,6 +84,8 @@ class Counters:
                         "type": self.types.get(topic),
                         "recorded": self.recorded[topic],
                         "mapped": self.mapped[topic],
+                        "blobs": self.blobs[topic],
+                        "over_bound": self.over_bound[topic],
                         "dropped": dict(self.dropped.get(topic, {})),
                     }
                     for topic in topics
@@ -94,6 +101,7 @@ class Counters:
             for topic, t in snap["topics"].items()
             if t["dropped"]
         ]
+        over = [f"{topic} {t['over_bound']}" for topic, t in snap["topics"].items() if t["over_bound"]]
         master = snap["master"]
         said = f"master {master['state']}"
         if master["state"] == "unreachable":
@@ -101,6 +109,7 @@ class Counters:
         return (
             f"{said}; {len(snap['topics'])} topics, {recorded} recorded, {mapped} as events, "
             f"dropped: {'; '.join(drops) if drops else 'none'}"
+            + (f"; byte arrays over the bound, described only: {'; '.join(over)}" if over else "")
         )
 
     def write(self, path: Path) -> None:

@@ -340,7 +340,7 @@ def main() -> None:
     parser.add_argument("--retry-most", type=float, default=10.0, help="longest wait between tries")
     parser.add_argument("--include", action="append", default=[])
     parser.add_argument("--exclude", action="append", default=[])
-    parser.add_argument("--bytes-max", type=int, default=256 * 1024)
+    parser.add_argument("--bytes-max", type=int, default=16 * 1024 * 1024)  # FLEETBUS_ROS_BLOB_MAX_BYTES
     parser.add_argument("--queue", type=int, default=10_000)
     parser.add_argument("--own-prefix", default="/fleetbus")
     parser.add_argument("--parent", type=int, help="the bridge's pid: this process ends with it")

@@ -14,6 +14,11 @@
                                    then "goodbye"; /tf three tf2_msgs/TFMessage of two transforms
                                    (map->odom x=i, odom->base_link x=10+i); /odom three
                                    nav_msgs/Odometry (pose x=i, twist linear x=0.5*i); "sent" after
+    ros_peer.py sensors N HZ       once each topic has a subscriber: N 640x480 rgb8 sensor_msgs/Image
+                                   on /camera/image_raw and N sensor_msgs/PointCloud2 of 65,536
+                                   points (1 MiB) on /points, at HZ, then one 1280x720 image on
+                                   /camera/huge; then one line {"sent": [...]}: each message's
+                                   topic, seq, and its data's length and SHA-256
 
 Prints "ready" once its publishers or subscriber exist; runs until its standard input closes.
 """
@@ -21,7 +26,9 @@ Prints "ready" once its publishers or subscriber exist; runs until its standard 
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
+import os
 import sys
 import threading
 import time
@@ -31,7 +38,7 @@ import roslib.message
 import rospy
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
-from sensor_msgs.msg import Imu
+from sensor_msgs.msg import Image, Imu, PointCloud2, PointField
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
@@ -127,6 +134,54 @@ def scene(subscribers: int) -> list[rospy.Publisher]:
     return publishers
 
 
+def image(seq: int, width: int, height: int) -> Image:
+    frame = Image(height=height, width=width, encoding="rgb8", is_bigendian=0, step=width * 3)
+    frame.header.seq, frame.header.stamp, frame.header.frame_id = seq, STAMP, "camera"
+    frame.data = os.urandom(width * height * 3)
+    return frame
+
+
+def cloud(seq: int, points: int) -> PointCloud2:
+    fields = [PointField(name, 4 * i, PointField.FLOAT32, 1) for i, name in enumerate("xyz")]
+    fields.append(PointField("rgb", 12, PointField.FLOAT32, 1))
+    made = PointCloud2(height=1, width=points, fields=fields, is_bigendian=False, point_step=16)
+    made.header.seq, made.header.stamp, made.header.frame_id = seq, STAMP, "lidar"
+    made.row_step, made.is_dense = 16 * points, True
+    made.data = os.urandom(16 * points)
+    return made
+
+
+def sensors(count: int, hz: float) -> list[rospy.Publisher]:
+    images = rospy.Publisher("/camera/image_raw", Image, queue_size=count + 1)
+    points = rospy.Publisher("/points", PointCloud2, queue_size=count + 1)
+    huge = rospy.Publisher("/camera/huge", Image, queue_size=1)
+    publishers = [images, points, huge]
+
+    said: list[dict[str, object]] = []
+
+    def sent(topic: str, seq: int, data: bytes) -> None:
+        digest = hashlib.sha256(data).hexdigest()
+        said.append({"topic": topic, "seq": seq, "length": len(data), "sha256": digest})
+
+    def run() -> None:
+        while any(p.get_num_connections() < 1 for p in publishers) and not rospy.is_shutdown():
+            time.sleep(0.01)
+        for seq in range(count):
+            frame, made = image(seq, 640, 480), cloud(seq, 65_536)
+            images.publish(frame)
+            sent("/camera/image_raw", seq, frame.data)
+            points.publish(made)
+            sent("/points", seq, made.data)
+            time.sleep(1.0 / hz)
+        frame = image(0, 1280, 720)
+        huge.publish(frame)
+        sent("/camera/huge", 0, frame.data)
+        say({"sent": said})
+
+    threading.Thread(target=run, daemon=True).start()
+    return publishers
+
+
 def listen(topic: str, type_name: str) -> rospy.Subscriber:
     cls = roslib.message.get_message_class(type_name)
 
@@ -158,6 +213,7 @@ def main() -> None:
         "listen": lambda: listen(*args),
         "scene": lambda: scene(int(args[0])),
         "record": lambda: record(args),
+        "sensors": lambda: sensors(int(args[0]), float(args[1])),
     }
     keep = modes[mode]()
     say("ready")

@@ -62,7 +62,8 @@ OTHER = "other"
 SERVICE_TYPES = (NOTIFICATION, REQUEST, DEAD_LETTER, OTHER, ROS_TYPE, ROS_TF_TYPE, ROS_SCHEMA_TYPE)
 #: Types whose records copy what other records hold: left out of an export, a replay or a
 #: timeline unless named.
-COPIES = (DEAD_LETTER, ROS_TF_TYPE, ROS_SCHEMA_TYPE)
+#: (``ros_chunk``: the pieces of a ROS message's large byte array, kept whole in the blob store.)
+COPIES = (DEAD_LETTER, ROS_TF_TYPE, ROS_SCHEMA_TYPE, EventType.ROS_CHUNK.value)
 #: What ``fleetbus query`` shows besides recorded types: the workers' sequence ledger.
 LEDGER_VIEWS = ("gaps", "duplicates")
 #: Types whose messages follow a fleetbus schema; everything else is stored as received, flagged unknown.

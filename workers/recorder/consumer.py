@@ -33,6 +33,7 @@ from fleetbus.workers.recorder.capture import (
 )
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.retention import Retention, RetentionSweeper, parse_retention
+from fleetbus.workers.recorder.ros_blobs import RosBlobs
 from fleetbus.workers.recorder.ros_derived import derived_records
 from fleetbus.workers.recorder.source import Delivery, RecorderQueue
 from fleetbus.workers.store.base import StoreUnavailable, WriteResult
@@ -105,6 +106,8 @@ class RecorderConsumer:
         self._stopping = asyncio.Event()
         self._sweeper = RetentionSweeper(store, options.retention)
         self._run_id = uuid.uuid4().hex[:12]
+        self.blobs = RosBlobs(store, self._retrying)
+        """The large byte arrays of live ROS messages, put together from their ``ros_chunk`` events."""
         self._since_sample = 0
         self.stats = RecorderStats()
 
@@ -178,7 +181,9 @@ class RecorderConsumer:
             records = await self._with_reasons(records, letters)
         if records and self._missions is not None:
             records = await self._stamp_missions(records)
+        pieces: list[str] = []
         if records:
+            records, pieces = await self.blobs.prepare(records)
             results = await self._retrying(lambda: self._write(records))
             for message, record, result in zip(kept, records, results, strict=True):
                 if isinstance(result, Unstorable):
@@ -194,6 +199,7 @@ class RecorderConsumer:
             derived = [d for record in records for d in derived_records(record)]
             if derived:
                 await self._retrying(lambda: self._write(derived))
+            await self.blobs.settle(pieces)  # the blobs they made are kept and named: their pieces go
         last = last_unsettled(batch)
         if last is not None:
             await last.ack(multiple=True)

@@ -15,16 +15,13 @@ from __future__ import annotations
 
 import base64
 import dataclasses
-import hashlib
 import json
 import math
 from datetime import datetime, timezone
 from typing import Any
 
-from fleetbus.schemas.ros import BLOB_KEY, BYTES_KEY, TRUNCATED_KEY
+from fleetbus.schemas.ros import BYTES_KEY, described, to_blobs
 
-BLOB_FROM = 64 * 1024
-"""Bytes above which a byte array goes to the blob store (when there is one)."""
 LARGE_ARRAY = 1024
 """Elements above which an array is described instead of kept, in a message over the size limit."""
 _BYTE_KINDS = {"u1", "i1"}
@@ -48,7 +45,7 @@ def plain(value: Any, cap: int | None = None) -> Any:
         return _array(value, cap)
     if isinstance(value, (list, tuple)):
         if cap is not None and len(value) > cap:
-            return _described(json.dumps([plain(v) for v in value]).encode(), len(value))
+            return described(json.dumps([plain(v) for v in value]).encode(), len(value))
         return [plain(v, cap) for v in value]
     return str(value)
 
@@ -57,13 +54,9 @@ def _non_finite(value: float) -> str:
     return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
 
 
-def _described(data: bytes, length: int) -> dict[str, Any]:
-    return {TRUNCATED_KEY: True, "length": length, "sha256": hashlib.sha256(data).hexdigest()}
-
-
 def _bytes(data: bytes, cap: int | None) -> dict[str, Any]:
     if cap is not None and len(data) > cap:
-        return _described(data, len(data))
+        return described(data, len(data))
     return {BYTES_KEY: base64.b64encode(data).decode(), "length": len(data)}
 
 
@@ -73,7 +66,7 @@ def _array(array: Any, cap: int | None) -> Any:
     if array.dtype.str[1:] in _BYTE_KINDS:
         return _bytes(array.tobytes(), cap)
     if cap is not None and array.size > cap:
-        return _described(array.tobytes(), int(array.size))
+        return described(array.tobytes(), int(array.size))
     return [plain(v) for v in array.tolist()] if array.dtype.kind == "f" else array.tolist()
 
 
@@ -88,23 +81,6 @@ def message_fields(
     if len(json.dumps(fields, separators=(",", ":"))) <= max_bytes:
         return fields, False, blobs
     return plain(message, LARGE_ARRAY), True, {}
-
-
-def to_blobs(value: Any, blobs: dict[str, bytes], blob_max: int) -> Any:
-    """``value`` with its large byte arrays (``{"_base64"}`` over :data:`BLOB_FROM`) moved to
-    ``blobs``: up to ``blob_max`` as ``{"_blob": sha256, "length": n}``, over it only described."""
-    if isinstance(value, list):
-        return [to_blobs(item, blobs, blob_max) for item in value]
-    if not isinstance(value, dict):
-        return value
-    if BYTES_KEY in value and isinstance(value.get("length"), int) and value["length"] > BLOB_FROM:
-        data = base64.b64decode(value[BYTES_KEY])
-        if len(data) > blob_max:
-            return _described(data, len(data))
-        digest = hashlib.sha256(data).hexdigest()
-        blobs[digest] = data
-        return {BLOB_KEY: digest, "length": len(data)}
-    return {key: to_blobs(item, blobs, blob_max) for key, item in value.items()}
 
 
 def header_stamp(fields: dict[str, Any]) -> datetime | None:

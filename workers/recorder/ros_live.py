@@ -15,12 +15,13 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from fleetbus.schemas.ros import RosMessage, ros_record_key
+from fleetbus.schemas.ros import TRUNCATED_KEY, RosMessage, byte_arrays, ros_record_key
 from fleetbus.workers.recorder.ros_records import ros_record
 from fleetbus.workers.store.recordings import RecordedMessage
 
 BUS_EXCHANGE_HEADER = "x-fleetbus-exchange"
 BUS_ROUTING_KEY_HEADER = "x-fleetbus-routing-key"
+OVER_BOUND = "byte arrays over the robot's bound (FLEETBUS_ROS_BLOB_MAX_BYTES) described, not kept: {sizes}"
 
 
 def as_ros_record(record: RecordedMessage) -> RecordedMessage:
@@ -46,5 +47,8 @@ def as_ros_record(record: RecordedMessage) -> RecordedMessage:
         robot, message, key, size=record.size, seq=record.seq, properties={**properties, "headers": headers}
     )
     # what the broker validated and the capture found stay as they were
-    kept = {"user_id": record.user_id, "known": record.known, "problem": record.problem}
+    over = [str(array.get("length")) for array in byte_arrays(message.fields, TRUNCATED_KEY)]
+    said = OVER_BOUND.format(sizes=", ".join(f"{size} bytes" for size in over)) if over else None
+    problem = "; ".join(p for p in (record.problem, said) if p) or None
+    kept = {"user_id": record.user_id, "known": record.known, "problem": problem}
     return replace(built, **kept, message_id=record.message_id)
