@@ -30,7 +30,7 @@ def _fresh(bus: Bus, *names: str) -> None:
 def _console(api: Api, name: str) -> str:
     """Log ``name``'s browser in to the console (a minted session, as a login makes); its CSRF value."""
     api.client.get("/console/login")
-    api.client.cookies.set(SESSION_COOKIE, api.service.secrets.tokens.issue(name).value)
+    api.client.cookies.set(SESSION_COOKIE, api.session(name))
     return api.client.cookies[CSRF_COOKIE]
 
 

@@ -70,7 +70,7 @@ def test_every_page_holds_at_1280x800_and_at_a_tablets_width_for_every_role(
                 browser.reset()
                 browser.go(console.url("/console/login"))
                 browser.driver.add_cookie(
-                    {"name": SESSION_COOKIE, "value": console.service.secrets.tokens.issue(name).value}
+                    {"name": SESSION_COOKIE, "value": console.session(name)}
                 )
                 sizes = list(SIZES)
                 for path in _paths(role):
