@@ -2,7 +2,9 @@
 
 Each program (``tests.robot_program``) is the README's snippet: a ``with RobotClient(...)``
 block that publishes and ends. What arrived is counted in the store, the outbox, the hazard
-registry, a warden's inbox and the dead-letter queue after the runs.
+registry, a warden's inbox and the dead-letter queue after the runs. What is tested is the robot's
+side, so the server's store is SQLite: the store's behaviour is one implementation over the
+persistence port, whose contract runs on both databases (decision 0020).
 """
 
 from __future__ import annotations
@@ -72,10 +74,9 @@ def waiting(bus: Bus, robot: str) -> int:
         outbox.close()
 
 
-def test_three_short_robot_programs_each_deliver_their_hazard(stored_bus: Bus) -> None:
+def test_three_short_robot_programs_each_deliver_their_hazard(bus: Bus) -> None:
     """``publish`` waits for the first connection, so a program that publishes right after it
     started and ends at once leaves nothing in its outbox."""
-    bus = stored_bus
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     with bus.worker():
         for run in (1, 2, 3):
@@ -140,10 +141,9 @@ def assert_hazards_delivered(bus: Bus, warden: RobotClient, runs: dict[str, int]
     assert bus.gaps() == []
 
 
-def test_a_robot_that_lost_its_personal_database_keeps_publishing(stored_bus: Bus) -> None:
+def test_a_robot_that_lost_its_personal_database_keeps_publishing(bus: Bus) -> None:
     """Before epochs, the second run counted from 0 again and all five were dead-lettered as
     ``sequence-reused``: the robot was muted."""
-    bus = stored_bus
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     with bus.worker():
         warden = localised_warden(bus)
@@ -155,11 +155,11 @@ def test_a_robot_that_lost_its_personal_database_keeps_publishing(stored_bus: Bu
 
 
 def test_a_robot_that_lost_its_personal_database_while_the_broker_is_down_keeps_publishing(
-    stored_killable_bus: Bus, killable_node: LocalNode
+    killable_bus: Bus, killable_node: LocalNode
 ) -> None:
     """The second run, without its database, publishes while the broker is dead: its five hazards
     wait in the new outbox with its new epoch, and go with the next run, as they were built."""
-    bus = stored_killable_bus
+    bus = killable_bus
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     with bus.worker():
         warden = localised_warden(bus)
@@ -175,10 +175,9 @@ def test_a_robot_that_lost_its_personal_database_while_the_broker_is_down_keeps_
         assert_hazards_delivered(bus, warden, {epoch_of(first): 5, epoch_of(second): 5})
 
 
-def test_two_processes_with_one_robot_account_publish_at_once(stored_bus: Bus, tmp_path: Path) -> None:
+def test_two_processes_with_one_robot_account_publish_at_once(bus: Bus, tmp_path: Path) -> None:
     """Two personal databases, one account (a spare running with the robot's credentials): each
     process numbers in its own epoch, so neither reuses the other's numbers."""
-    bus = stored_bus
     # fewer on the emulated MongoDB, whose inserts slow down as a collection grows (not MongoDB's)
     each = 1000 if bus.settings.mongodb_url is None else 400
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)

@@ -113,9 +113,13 @@ class Counters:
         )
 
     def write(self, path: Path) -> None:
-        """The snapshot as JSON, replaced atomically (``fleetbus ros status`` reads it)."""
-        temporary = path.with_suffix(".tmp")
-        temporary.write_text(json.dumps(self.snapshot(), indent=1))
+        """The snapshot as JSON, replaced atomically (``fleetbus ros status`` reads it). The
+        bridge's threads write it at once (the master's reader, the status ticker): each through a
+        temporary file of its own, or one thread's rename takes the other's file away and the
+        other dies on it."""
+        text = json.dumps(self.snapshot(), indent=1)
+        temporary = path.with_name(f"{path.stem}.{threading.get_ident()}.tmp")
+        temporary.write_text(text)
         temporary.replace(path)
 
 

@@ -35,7 +35,7 @@ def test_the_dashboard_charts_the_last_hours_rates_from_the_broker(bus: Bus, bro
         console.user("oper1", UserRole.OPERATOR)
         console.log_in(browser, "oper1")
         console.wait_live(browser)
-        browser.until(lambda: browser.find("svg#rate-publish"), "the published rate charted", timeout=30)
+        browser.until(lambda: browser.find("svg#rate-publish"), "the published rate charted", timeout=90)
         for chart in ("rate-publish", "rate-deliver_get"):
             points = browser.find(f"svg#{chart} circle.point")
             assert 55 <= len(points) <= 60, f"{chart}: a rate a minute for an hour, not {len(points)}"

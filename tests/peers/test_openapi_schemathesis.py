@@ -36,7 +36,7 @@ CHECKS = (
 )
 PHASES = "examples,coverage,fuzzing"
 SEED = 20261127
-MAX_EXAMPLES = 8
+MAX_EXAMPLES = 4
 CONFIG = PEERS / "schemathesis.toml"
 #: Who runs the operations no role check guards.
 PUBLIC_RUNNER = "guest"

@@ -7,7 +7,11 @@ fleetbus tail 'explorer1.*' --user ops1 --since 10m   # history first, then live
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import os
+import signal
+import sys
 from datetime import timezone
 from typing import Annotated
 
@@ -18,6 +22,9 @@ from rich.markup import escape
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.tail import Seen, follow
+
+#: Seconds Ctrl-C waits for the broker to close the follow before the command ends anyway.
+STOP_S = 3.0
 
 
 def user_url(user: str | None, url: str | None) -> str:
@@ -63,8 +70,30 @@ def tail(
         console.print(
             f"following {pattern!r}" + (f" since {start.isoformat()}" if start else "") + " (Ctrl-C stops)"
         )
+
+    async def following() -> None:
+        task = asyncio.ensure_future(
+            follow(amqp_url, pattern, since=start, on_message=show, count=count, idle_timeout=idle)
+        )
+        loop = asyncio.get_running_loop()
+
+        def stop() -> None:
+            # Ctrl-C ends the follow at once: the stream consumer and the connection are closed,
+            # and if the broker does not answer their close within STOP_S (a loaded broker, a link
+            # gone) the command still ends: nothing of a follower waits to be written
+            task.cancel()
+            loop.call_later(STOP_S, gone)
+
+        def gone() -> None:
+            sys.stdout.flush()
+            os._exit(130)  # as a shell reports Ctrl-C
+
+        loop.add_signal_handler(signal.SIGINT, stop)
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
     try:
-        asyncio.run(follow(amqp_url, pattern, since=start, on_message=show, count=count, idle_timeout=idle))
+        asyncio.run(following())
     except KeyboardInterrupt:
         pass
     except aiormq.exceptions.ChannelNotFoundEntity as error:
