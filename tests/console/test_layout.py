@@ -69,9 +69,7 @@ def test_every_page_holds_at_1280x800_and_at_a_tablets_width_for_every_role(
             for role, name in ROLES.items():
                 browser.reset()
                 browser.go(console.url("/console/login"))
-                browser.driver.add_cookie(
-                    {"name": SESSION_COOKIE, "value": console.session(name)}
-                )
+                browser.driver.add_cookie({"name": SESSION_COOKIE, "value": console.session(name)})
                 sizes = list(SIZES)
                 for path in _paths(role):
                     browser.go(console.url(path))
