@@ -104,7 +104,7 @@ in for it):
 .venv-peers/bin/schemathesis --config-file tests/peers/schemathesis.toml run \\
     http://127.0.0.1:8000/openapi.json --header "Authorization: Bearer $TOKEN" \\
     --checks CHECKS \\
-    --phases examples,coverage,fuzzing --seed 20261127 --max-examples 8
+    --phases examples,coverage,fuzzing --seed 20261127 --max-examples 4
 ```
 
 """.replace(

@@ -75,6 +75,7 @@ def test_a_site_whose_central_is_a_cluster_connects_to_it(pair: SitePair) -> Non
     assert downlink is not None and len(downlink["src-uri"]) == 2
     wait_for(
         lambda: central.ready_messages(site_downlink_queue("base7")) == 0,
+        timeout=90,  # the shovel's first connection to a three-node cluster on a loaded machine
         what="the site's downlink to take roamer2's account from the cluster",
     )
 
