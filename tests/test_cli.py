@@ -17,8 +17,9 @@ from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 
 
-def fleetbus(bus: Bus, *args: str) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, **bus.worker_env(), "COLUMNS": "200"}
+def fleetbus(bus: Bus, *args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``python -m fleetbus ARGS`` in the bus's environment (and ``env``'s variables on top)."""
+    env = {**os.environ, **bus.worker_env(), "COLUMNS": "200", **(env or {})}
     return subprocess.run(
         [sys.executable, "-m", "fleetbus", *args], env=env, capture_output=True, text=True, timeout=120
     )
@@ -96,18 +97,12 @@ def test_a_password_on_the_command_line_is_refused_naming_where_it_goes(bus: Bus
     assert "--url holds a password" in said and "FLEETBUS_ROBOT_URL" in said, said
     assert kept.split("@")[0].rsplit(":", 1)[1] not in refused.stderr, "the password is not repeated"
     # in the environment it is taken, by the ROS bridge too (it gets as far as starting its ROS side)
-    env = {
-        **os.environ,
-        **bus.worker_env(),
-        "FLEETBUS_ROBOT_URL": kept,
-        "FLEETBUS_ROS_PYTHON": "/nonexistent/python",
-    }
-    bridge = subprocess.run(
-        [sys.executable, "-m", "fleetbus", "ros", "bridge", "argv-explorer"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
+    bridge = fleetbus(
+        bus,
+        "ros",
+        "bridge",
+        "argv-explorer",
+        env={"FLEETBUS_ROBOT_URL": kept, "FLEETBUS_ROS_PYTHON": "/nonexistent/python"},
     )
     said = bridge.stderr.replace("\n", " ")
     assert bridge.returncode == 1 and "cannot start the ROS side with '/nonexistent/python'" in said, said
