@@ -7,16 +7,20 @@ For each fleet size, in a virtual host and store of its own:
 - **provisioning**: ``fleetbus users add-many`` makes every robot's account (and an explorer's
   and a warden's), timed as an operator runs it;
 - **the fleet**: every robot a real ``RobotClient`` publishing a status event a second (confirmed),
-  125 robots to a process (:mod:`bench.telemetry`); the workers (``fleetbus worker
-  --no-recorder``, as many and with as many shards as ``--workers``/``--shards`` or the sizing
-  rule, :func:`sizing`) in processes of their own; the warden a robot process of its own
-  (:mod:`bench.warden`);
+  ``--per-process`` robots (125) to a process (:mod:`bench.telemetry`); with ``--lean``, robots that
+  speak the AMQP contract themselves, 500 to an asyncio process (:mod:`bench.lean_robots`: a
+  ``RobotClient`` per robot costs this 2-core machine more than the broker and the workers do);
+  the workers (``fleetbus worker --no-recorder``, as many and with as many shards as
+  ``--workers``/``--shards`` or the sizing rule, :func:`sizing`) in processes of their own; the
+  warden a robot process of its own (:mod:`bench.warden`);
 - **steady state**, ``--seconds`` long: the broker's and the workers' CPU (from ``/proc``, in %
   of one core), and ``--hazards`` hazards, 2 a second, from the explorer's ``publish`` to the
   warden's receipt, a raw broker hop between two (one queue declared like the ingest's);
 - **the views** while the fleet publishes: ``fleetbus team`` and ``fleetbus hazards`` (wall time
   of the command, its start included), and the console's dashboard (``fleetbus api`` in a process
   of its own; the median of 5 renders after the first);
+- **the broker's share**: its resident memory at the peak of the steady state and what the fleet's
+  virtual host holds (connections, queues, exchanges, bindings), the figures a larger fleet scales;
 - **nothing lost or doubled**: once the fleet stops, the store holds exactly the status events
   the robots had confirmed.
 
@@ -62,6 +66,7 @@ from tests.api.server import api_process
 from tests.support import Bus, wait_for
 
 PER_PROCESS = 125
+LEAN_PER_PROCESS = 500
 PING_QUEUE = "bench.ping"
 HAZARD_RATE = 2
 console = Console()
@@ -86,13 +91,13 @@ def fleetbus(bus: Bus, *args: str) -> float:
     return took
 
 
-def provision(bus: Bus, robots: list[str]) -> tuple[float, dict[str, str]]:
+def provision(bus: Bus, robots: list[str], explorer: str, warden: str) -> tuple[float, dict[str, str]]:
     """``fleetbus users add-many`` for ``robots``, an explorer and a warden: (seconds, URLs)."""
     folder = bus.settings.data_dir
     names = folder / "fleet.txt"
-    names.write_text("\n".join(["bench-explorer explorer", "bench-warden warden", *robots]) + "\n")
+    names.write_text("\n".join([f"{explorer} explorer", f"{warden} warden", *robots]) + "\n")
     urls = folder / "fleet-urls.txt"
-    bus.accounts += ["bench-explorer", "bench-warden", *robots]
+    bus.accounts += [explorer, warden, *robots]
     took = fleetbus(bus, "users", "add-many", str(names), "--urls", str(urls))
     found = dict(line.split(" ", 1) for line in urls.read_text().splitlines())
     return took, found
@@ -119,25 +124,41 @@ async def dashboard_ms(base: str, renders: int = 5) -> float:
         await client.aclose()
 
 
+def broker_objects(api: ManagementAPI, vhost: str) -> dict[str, float]:
+    """What the fleet's virtual host holds on the broker: the per-robot cost a larger fleet scales."""
+    return {
+        "connections": len(api.list_vhost_connections(vhost)),
+        "queues": len(api.list_queues(vhost)),
+        "exchanges": len(api.list_exchanges(vhost)),
+        "bindings": len(api.list_bindings(vhost)),
+    }
+
+
 def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[str, float]:
     shards, worker_count = (args.shards, args.workers) if args.shards else sizing(robots)
-    names = [f"fleet{i:04d}" for i in range(robots)]
     figures: dict[str, float] = {"robots": robots, "shards": shards, "workers": worker_count}
     private = context.endpoint.kind == "private"
     broker_pid = LocalNode(load_settings().broker_dir).pid() if private else None
     with context.bus() as bus:
         bus.settings = bus.settings.updated(ingest_shards=shards)
         context.show(f"{robots} robots: provisioning")
-        figures["provisioning s"], urls = provision(bus, names)
+        prefix = f"fleet-{bus.vhost[-6:]}"  # accounts are the node's: a run that was killed leaves its own
+        names = [f"{prefix}-{i:04d}" for i in range(robots)]
+        explorer_name, warden_name = f"{prefix}-explorer", f"{prefix}-warden"
+        figures["provisioning s"], urls = provision(bus, names, explorer_name, warden_name)
         declare_queue(bus.admin_url, ingest_queue_arguments(), PING_QUEUE)
-        parts = [names[i : i + PER_PROCESS] for i in range(0, robots, PER_PROCESS)]
-        loads = [TelemetryLoad(bus, [urls[n] for n in part], len(part), ready_timeout=900) for part in parts]
-        explorer = RobotClient(urls["bench-explorer"], state_dir=bus.settings.robots_dir)
+        per = args.per_process or (LEAN_PER_PROCESS if args.lean else PER_PROCESS)
+        parts = [names[i : i + per] for i in range(0, robots, per)]
+        loads = [
+            TelemetryLoad(bus, [urls[n] for n in part], len(part), ready_timeout=900, lean=args.lean)
+            for part in parts
+        ]
+        explorer = RobotClient(urls[explorer_name], state_dir=bus.settings.robots_dir)
         bus.clients.append(explorer)
         explorer.connect()
         with (
             workers(bus, worker_count) as worker_pids,
-            WardenProcess(bus, urls["bench-warden"]) as warden,
+            WardenProcess(bus, urls[warden_name]) as warden,
             contextlib.ExitStack() as running,
         ):
             wait_for(lambda: all(w.localised for w in bus.with_store(lambda r: r.hazards.robots("warden"))))
@@ -165,6 +186,9 @@ def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[st
                 pings.wait(args.hazards, 60)
             ping.close()
             [paced] = done
+            if broker_pid:
+                figures["broker RSS MB"] = max(watch.rss["broker"], default=float("nan"))
+            figures.update(broker_objects(context.api, bus.vhost))
             context.show(f"{robots} robots: the views")
             figures["fleetbus team s"] = fleetbus(bus, "team")
             figures["fleetbus hazards s"] = fleetbus(bus, "hazards")
@@ -204,6 +228,12 @@ def main() -> None:
     parser.add_argument("--hazards", type=int, default=40)
     parser.add_argument("--shards", type=int, default=0, help="ingest shards (0: the sizing rule)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes, with --shards")
+    parser.add_argument("--per-process", type=int, default=0, help="robots a process (125; lean 500)")
+    parser.add_argument(
+        "--lean",
+        action="store_true",
+        help="the fleet as bench.lean_robots (one asyncio process speaks for many robots), not RobotClients",
+    )
     args = parser.parse_args()
     endpoint = resolve_broker(load_settings(), start=True)
     started_load = load_average()

@@ -1,12 +1,14 @@
 """Background telemetry: robots publishing status events at a steady total rate, in a process of its own.
 
-    python -m bench.telemetry STATE_DIR RATE [--pose] URL [URL ...]
+    python -m bench.telemetry STATE_DIR RATE [--pose] URLS_FILE
 
-Each URL is a robot's account. Every robot publishes its share of RATE events a second with
-``publish_many`` (robot code's call, confirmed), in small batches ``TICKS`` times a second on an
-absolute schedule: status events, or with ``--pose`` a status and a localisation (its pose) in
-turn. The process prints ``publishing`` once every robot is connected, runs until
-its standard input closes, then prints one JSON line: ``{"published": N, "seconds": S}``.
+Each line of URLS_FILE (mode 0600: the URLs hold passwords, which argv would show to every
+user of the machine) is a robot's account. Every robot publishes its share of RATE events a
+second with ``publish_many`` (robot code's call, confirmed), in small batches on an absolute
+schedule (at most ``TICKS`` times a second, and no more often than an event is due): status
+events, or with ``--pose`` a status and a localisation (its pose) in turn. The process prints
+``publishing`` once every robot is connected, runs until its standard input closes, then prints
+one JSON line: ``{"published": N, "seconds": S}``.
 
 :class:`TelemetryLoad` runs it beside a measurement.
 """
@@ -15,14 +17,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import random
 import sys
 import threading
 import time
+import uuid
 from pathlib import Path
 from types import TracebackType
 
 from bench.ingest import status_items
 from bench.processes import spawn_until_ready
+from fleetbus.broker.accounts import save_secret
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import EventType
 from tests.support import Bus
@@ -39,9 +44,15 @@ def publish_steadily(
     errors: list[BaseException],
     pose: bool = False,
 ) -> None:
-    """By time t, ``rate * t`` events published (and confirmed), a batch every 1/TICKS s; with
-    ``pose``, a status and a localisation in turn."""
+    """By time t, ``rate * t`` events published (and confirmed), in batches at most TICKS times a
+    second and no more often than an event is due; with ``pose``, a status and a localisation in
+    turn. Each robot starts at a random phase of its tick, so that a fleet does not publish in
+    lockstep (and a thousand robots at 1 Hz wake their process a thousand times a second, not
+    fifty thousand)."""
     items = [status_items(1)[0], *([POSE] if pose else [])]
+    tick = 1 / min(TICKS, max(rate, 1.0))
+    if stop.wait(random.uniform(0, tick)):
+        return
     started = time.monotonic()
     published = 0
     try:
@@ -51,7 +62,7 @@ def publish_steadily(
                 robot.publish_many([items[(published + i) % len(items)] for i in range(due)])
                 published += due
                 counts.append(due)
-            stop.wait(1 / TICKS)  # the schedule's tick; the count catches up with the clock
+            stop.wait(tick)  # the schedule's tick; the count catches up with the clock
     except BaseException as error:  # reported by main
         errors.append(error)
 
@@ -61,9 +72,9 @@ def main() -> None:
     parser.add_argument("state_dir", type=Path)
     parser.add_argument("rate", type=float, help="events a second, all robots together")
     parser.add_argument("--pose", action="store_true", help="a status and a localisation in turn")
-    parser.add_argument("urls", nargs="+", help="the robots' AMQP URLs")
+    parser.add_argument("urls", type=Path, help="a file of the robots' AMQP URLs, one a line")
     args = parser.parse_args()
-    robots = [RobotClient(url, state_dir=args.state_dir) for url in args.urls]
+    robots = [RobotClient(url, state_dir=args.state_dir) for url in args.urls.read_text().split()]
     for robot in robots:
         robot.connect()
     stop = threading.Event()
@@ -95,19 +106,34 @@ class TelemetryLoad:
     """``python -m bench.telemetry`` for robots (their URLs) of ``bus``, while the ``with`` lasts."""
 
     def __init__(
-        self, bus: Bus, urls: list[str], rate: float, pose: bool = False, ready_timeout: float = 60
+        self,
+        bus: Bus,
+        urls: list[str],
+        rate: float,
+        pose: bool = False,
+        ready_timeout: float = 60,
+        lean: bool = False,
     ) -> None:
-        """``ready_timeout``: seconds its robots may take to connect (many on a loaded machine)."""
+        """``ready_timeout``: seconds its robots may take to connect (many on a loaded machine);
+        ``lean``: status events from :mod:`bench.lean_robots` instead of a ``RobotClient`` each."""
         self._ready_timeout = ready_timeout
-        self._command = [
-            sys.executable,
-            "-m",
-            "bench.telemetry",
-            str(bus.settings.robots_dir),
-            str(rate),
-            *(["--pose"] if pose else []),
-            *urls,
-        ]
+        urls_file = bus.settings.data_dir / f"telemetry-{uuid.uuid4().hex[:8]}.urls"
+        save_secret(urls_file, "\n".join(urls))
+        if lean and pose:
+            raise ValueError("lean robots publish status events only")
+        self._command = (
+            [sys.executable, "-m", "bench.lean_robots", str(rate), str(urls_file)]
+            if lean
+            else [
+                sys.executable,
+                "-m",
+                "bench.telemetry",
+                str(bus.settings.robots_dir),
+                str(rate),
+                *(["--pose"] if pose else []),
+                str(urls_file),
+            ]
+        )
         self._log = bus.settings.data_dir / "telemetry.log"
         self.rate = 0.0
         """The rate achieved, once stopped."""

@@ -1,16 +1,16 @@
 """The hazard benchmark's warden, a robot process of its own that reports each hazard's receipt.
 
-    python -m bench.warden STATE_DIR URL
+    python -m bench.warden STATE_DIR URL_FILE
 
-It connects as the warden at URL, publishes that it is localised (so the gate is open), prints
-``listening``, then one JSON line per hazard notification until its standard input closes:
-``{"i": 7, "at": <time.monotonic()>, "stages": [to the worker, until stored, until notified, to the
-warden]}``,
-hazards numbered by the last word of their description. ``at`` is read on receipt, before
-anything else is done. CLOCK_MONOTONIC is one clock for every process of a machine, so the
-parent compares it with its own ``time.monotonic()`` at publish; the stages are differences of the
-product's wall-clock stamps (``sent_at``; ``received_at``, when the worker took it from the broker;
-``stored_at``; ``notified_at``) and the receipt.
+It connects as the warden whose URL is in URL_FILE (mode 0600), publishes that it is localised
+(so the gate is open), prints ``listening``, then one JSON line per hazard notification until its
+standard input closes: ``{"i": 7, "at": <time.monotonic()>, "stages": [to the worker, until
+stored, until notified, to the warden]}``, hazards numbered by the last word of their
+description. ``at`` is read on receipt, before anything else is done. CLOCK_MONOTONIC is one
+clock for every process of a machine, so the parent compares it with its own
+``time.monotonic()`` at publish; the stages are differences of the product's wall-clock stamps
+(``sent_at``; ``received_at``, when the worker took it from the broker; ``stored_at``;
+``notified_at``) and the receipt.
 
 A process of its own, as a warden is: in the explorer's process it would wait for that process's
 interpreter lock while the explorer writes its outbox and settles its confirms.
@@ -27,6 +27,7 @@ from pathlib import Path
 from types import TracebackType
 
 from bench.processes import spawn_until_ready
+from fleetbus.broker.accounts import save_secret
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import EventType, Topic
 from tests.support import Bus, wait_for
@@ -49,7 +50,7 @@ def listen(warden: RobotClient, stop: threading.Event) -> None:
 
 
 def main() -> None:
-    state_dir, url = Path(sys.argv[1]), sys.argv[2]
+    state_dir, url = Path(sys.argv[1]), Path(sys.argv[2]).read_text().strip()
     warden = RobotClient(url, state_dir=state_dir)
     warden.connect()
     warden.publish(EventType.LOCALISATION, {"localised": True})
@@ -74,7 +75,9 @@ class WardenProcess:
     """
 
     def __init__(self, bus: Bus, url: str) -> None:
-        self._command = [sys.executable, "-m", "bench.warden", str(bus.settings.robots_dir), url]
+        url_file = bus.settings.data_dir / "warden.url"  # mode 0600: argv would show the password
+        save_secret(url_file, url)
+        self._command = [sys.executable, "-m", "bench.warden", str(bus.settings.robots_dir), str(url_file)]
         self._log = bus.settings.data_dir / "warden.log"
         self.at: dict[int, float] = {}
         self.stages: dict[int, tuple[float, ...]] = {}
