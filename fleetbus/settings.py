@@ -353,6 +353,17 @@ class Settings(BaseSettings):
     console_recent_events: Annotated[int, Positive] = setting(
         200, "how many of the newest events the dashboard lists (older ones are in Messages)"
     )
+    console_team_rows: Annotated[int, Positive] = setting(
+        100,
+        "robots the dashboard's team panel lists: those that need attention first (stale, not localised, "
+        "out of service, battery low), then by name; the rest are counted (`fleetbus team` and GET /team "
+        "page through all)",
+    )
+    console_registry_check_s: Annotated[float, Positive] = setting(
+        30.0,
+        "how long the dashboard shows one check of the account registry against the broker (an "
+        "administrator's panel) before it checks again; the check lists every account of the broker",
+    )
     console_hazards_page: Annotated[int, Positive] = setting(
         50, "how many hazards one page of the console's hazards list shows (newest first; then older pages)"
     )

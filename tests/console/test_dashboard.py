@@ -191,3 +191,16 @@ def test_a_management_api_that_does_not_answer_is_shown_as_such(bus: Bus, browse
         finally:
             console.service.management.close()
             console.service.management = answering
+
+
+def test_the_team_panel_lists_a_bounded_page_those_that_need_attention_first(bus: Bus) -> None:
+    with running_console(bus, bus.settings.updated(console_team_rows=2)) as console:
+        for name in ("rank-a", "rank-b", "rank-c"):
+            console.user(name, UserRole.ROBOT, RobotKind.WARDEN)
+        console.run(lambda: console.service.team.set_in_service("rank-c", False, "test"))
+        console.user("oper2", UserRole.OPERATOR)
+        with console.http_as("oper2") as http:
+            page = http.get("/console/").text
+        rows = re.findall(r'<tr id="robot-([a-z0-9-]+)"', page)
+        assert rows == ["rank-c", "rank-a"], rows  # out of service first, then by name; rank-b counted
+        assert "3 robots (the 2 that need attention first" in page
