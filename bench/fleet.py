@@ -47,7 +47,7 @@ from rich.console import Console
 from rich.table import Table
 
 from bench.console import ADMIN, PASSWORD, logged_in
-from bench.hazard_latency import Arrivals, Paced, ping_receiver, publish_paced
+from bench.hazard_latency import STAGES, Arrivals, Paced, ping_receiver, publish_paced
 from bench.proc import Watch
 from bench.processes import worker_process
 from bench.raw import declare_queue, ingest_queue_arguments
@@ -205,6 +205,10 @@ def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[st
             {
                 "hazard p50 ms": percentile(hazard_ms, 50),
                 "hazard p99 ms": percentile(hazard_ms, 99),
+                **{
+                    f"hazard {stage} p99 ms": percentile([1000 * t[k] for t in warden.stages.values()], 99)
+                    for k, stage in enumerate(STAGES)
+                },
                 "raw hop p50 ms": percentile(ping_ms, 50),
                 "raw hop p99 ms": percentile(ping_ms, 99),
                 "broker CPU %": cpu.get("broker", float("nan")),
