@@ -30,7 +30,7 @@ from pika.adapters.blocking_connection import BlockingChannel
 from fleetbus.broker.dead_letter_queue import DELIVERY_HEADERS, DeadLetter, describe, letter_id
 from fleetbus.broker.tls import blocking_connection, pika_parameter_list
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outcome, Outgoing, PipelinedConfirms
-from fleetbus.publishers.errors import PublisherError
+from fleetbus.publishers.errors import CONNECTION_FAILED, PublisherError
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 
 #: What the broker (or an earlier fleetbus) wrote on the letter about its refusal: not part of
@@ -183,7 +183,7 @@ def _publish_as(url: str, letter: DeadLetter, properties: pika.BasicProperties) 
         finally:
             if connection.is_open:
                 connection.close()
-    except (pika.exceptions.AMQPError, OSError, PublisherError) as error:
+    except (pika.exceptions.AMQPError, OSError, PublisherError, *CONNECTION_FAILED) as error:
         raise RequeueRefused(
             f"the broker refused it as {sender} ({type(error).__name__}: {error}); it stays a dead letter"
         ) from None

@@ -12,7 +12,7 @@ import pika.exceptions
 
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
-from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
+from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublishRefused, PublishTimeout
 
 
 class NoSuchQueue(RuntimeError):
@@ -28,7 +28,7 @@ def put_in_queue(admin_url: str, queue: str, body: bytes, properties: pika.Basic
     properties.delivery_mode = pika.DeliveryMode.Persistent.value
     try:
         connection = blocking_connection(admin_url)
-    except pika.exceptions.AMQPError as error:
+    except (pika.exceptions.AMQPError, *CONNECTION_FAILED) as error:
         raise NotTaken(f"the broker does not answer ({error!r})") from error
     try:
         confirms = PipelinedConfirms(connection, connection.channel(), SERVICE_CONFIRM_TIMEOUT_S)

@@ -67,9 +67,9 @@ def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
     :class:`NotVerified` when TLS verification failed."""
     import pika
     import pika.exceptions
-    from pika.adapters.utils.connection_workflow import AMQPConnectorException
 
     from fleetbus.broker.tls import TlsSettingError, pika_parameter_list
+    from fleetbus.publishers.errors import CONNECTION_FAILED
 
     try:
         parameters = pika_parameter_list(
@@ -89,9 +89,7 @@ def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
             return False
         except pika.exceptions.ProbableAccessDeniedError:
             return True  # the login worked; only the virtual host is refused
-        except (pika.exceptions.AMQPError, AMQPConnectorException, OSError) as error:
-            # AMQPConnectorException: with one attempt, pika raises the connector's own error (a
-            # handshake timeout on a loaded broker, say), which is no AMQPError
+        except (pika.exceptions.AMQPError, *CONNECTION_FAILED, OSError) as error:
             if isinstance(_innermost(error), ssl.SSLCertVerificationError):
                 raise NotVerified(_reason(error)) from None
             raise NoAnswer(_reason(error)) from None

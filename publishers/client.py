@@ -36,7 +36,7 @@ from pika.adapters.blocking_connection import BlockingChannel
 from fleetbus.broker.tls import pika_parameter_list
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outgoing
-from fleetbus.publishers.errors import BrokerUnavailable, PublisherError, PublishRefused
+from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublisherError, PublishRefused
 from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
 from fleetbus.publishers.outbox import LIMITS_VARIABLE, Entry, Outbox, TypePolicy, policies_with_limits
 from fleetbus.publishers.rpc import RpcChannel
@@ -441,7 +441,7 @@ class RobotClient:
                 return self._connection
             except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
                 raise
-            except pika.exceptions.AMQPConnectionError as error:
+            except CONNECTION_FAILED as error:
                 delay = reconnect_delay(attempt, self._max_reconnect_delay)
                 attempt += 1
                 if time.monotonic() + delay > deadline:

@@ -19,3 +19,16 @@ class PublishRefused(PublisherError):
 
 class PublishTimeout(PublisherError):
     """The broker did not confirm in time; the messages may or may not have been queued."""
+
+
+def _connection_failures() -> tuple[type[Exception], ...]:
+    import pika.exceptions
+    from pika.adapters.utils.connection_workflow import AMQPConnectorException
+
+    return (pika.exceptions.AMQPConnectionError, AMQPConnectorException)
+
+
+#: What ``pika.BlockingConnection(...)`` raises when it could not connect. With one connection attempt
+#: (pika's default) pika raises the connector's own error, a handshake timeout on a loaded broker
+#: say, which is no ``AMQPError``: catch this tuple, not ``AMQPError``, around opening a connection.
+CONNECTION_FAILED: tuple[type[Exception], ...] = _connection_failures()

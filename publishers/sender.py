@@ -42,7 +42,7 @@ import pika.exceptions
 
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
-from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
+from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublishRefused, PublishTimeout
 from fleetbus.publishers.handshake import broker_unverified, certificate_refusal
 from fleetbus.publishers.outbox import SEGMENT_EVENTS, Entry, Outbox
 
@@ -64,6 +64,8 @@ WINDOWS_IN_FLIGHT = 4
 NACKS_BEFORE_RECONNECT = 3
 #: How often an idle sender lets pika answer heartbeats.
 IDLE_TICK = 1.0
+#: What ends a connection or a try to make one: the sender connects again after its backoff.
+BROKER_LOST = (BrokerUnavailable, PublishTimeout, OSError, pika.exceptions.AMQPError, *CONNECTION_FAILED)
 #: The window after a nack: one event, to learn whether the broker takes messages again.
 PROBE_WINDOW = 1
 
@@ -312,7 +314,7 @@ class Sender:
                     continue
                 log.warning("%s; they stay in the outbox, next try in %.1f s", nacked, delay)
                 self._pause(delay)
-            except (BrokerUnavailable, PublishTimeout, pika.exceptions.AMQPError, OSError) as error:
+            except BROKER_LOST as error:
                 self._outbox.release()
                 connecting = self._connection is None
                 self._unverified = connecting and broker_unverified(error)

@@ -19,6 +19,7 @@ import pika
 import pika.exceptions
 
 from fleetbus.broker.tls import pika_parameters
+from fleetbus.publishers.errors import CONNECTION_FAILED
 from fleetbus.schemas.routing import commands_queue
 
 log = logging.getLogger("fleetbus.ros")
@@ -73,7 +74,7 @@ def follow_commands(
     while not stop.is_set():
         try:
             connection = pika.BlockingConnection(parameters)
-        except pika.exceptions.AMQPError as error:
+        except (pika.exceptions.AMQPError, *CONNECTION_FAILED) as error:
             log.warning("commands: cannot reach the broker (%s); trying again", error)
             stop.wait(2.0)  # the broker is away: try again later
             continue

@@ -23,6 +23,7 @@ from pika.spec import Basic, BasicProperties
 
 from fleetbus.broker.retry import Backoff, Stopped, async_retrying
 from fleetbus.broker.tls import pika_parameter_list
+from fleetbus.publishers.errors import CONNECTION_FAILED
 
 log = logging.getLogger("fleetbus.recorder")
 
@@ -208,7 +209,9 @@ class RecorderQueue:
                 return
             reconnect = async_retrying(
                 "the broker",
-                on=(pika.exceptions.AMQPError, ConnectionError, OSError),
+                # CONNECTION_FAILED: a TLS handshake reset while the broker starts ends pika's
+                # connection workflow with its own error, which is no AMQPError
+                on=(pika.exceptions.AMQPError, ConnectionError, OSError, *CONNECTION_FAILED),
                 backoff=RECONNECT_BACKOFF,
                 stop=self._closing,
                 logger=log,

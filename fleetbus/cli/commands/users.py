@@ -18,6 +18,7 @@ from fleetbus.broker.fleet import NewRobot
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.accounts import with_accounts
 from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
+from fleetbus.publishers.errors import CONNECTION_FAILED
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
@@ -109,7 +110,7 @@ def _say_certificate(client: ClientFiles, url: str) -> None:
     )
     try:
         accepted = can_login(url)
-    except pika.exceptions.AMQPError as error:
+    except (pika.exceptions.AMQPError, *CONNECTION_FAILED) as error:
         console.print(f"[yellow]could not try the certificate's login: {error}[/]", soft_wrap=True)
         return
     if not accepted:
