@@ -100,7 +100,8 @@ def shoot(browser: Browser, path: Path, width: int) -> None:
 
 
 def new_mission(running: RunningConsole, browser: Browser, out: Path, width: int) -> None:
-    """The new mission form with a plan on the map, and its summary, as the demo's planner sees them."""
+    """A new mission's summary, then its form (back from the summary: the map fitted to the plan),
+    as the demo's planner sees them."""
     browser.reset()
     running.log_in(browser, f"demo-{UserRole.PLANNER.value}")
     browser.go(running.url("/console/missions/new"))
@@ -112,10 +113,15 @@ def new_mission(running: RunningConsole, browser: Browser, out: Path, width: int
         "return !!(v && v.dataset.ready) && (!image || image.complete)"
     )
     browser.click("button[data-action=summary]")
-    browser.until(lambda: browser.driver.execute_script(ready), "the summary's map")
+    browser.until(
+        lambda: browser.find("#confirm-form") and browser.driver.execute_script(ready), "the summary's map"
+    )
     shoot(browser, out / "missions-summary.png", width)
     browser.click("button[data-action=edit]")  # back: the form's map fitted to the plan
-    browser.until(lambda: browser.driver.execute_script(ready), "the plan drawn on the map")
+    browser.until(
+        lambda: browser.find("form.mission-form") and browser.driver.execute_script(ready),
+        "the plan drawn on the form's map",
+    )
     shoot(browser, out / "missions-new.png", width)
 
 

@@ -128,7 +128,7 @@ def test_a_mission_drawn_on_the_map_is_created_only_on_confirm_with_its_coordina
             reset_viewport(browser)
 
         browser.click("button[data-action=edit]")
-        browser.until(lambda: _ready(browser), "back on the form")
+        browser.until(lambda: browser.find("form.mission-form") and _ready(browser), "back on the form")
         assert browser.find("input[name=title]")[0].get_attribute("value") == "North yard sweep"
         assert _points(_field(browser, "geofence")) == fence
         assert browser.find("path.geofence[data-vertices='4']"), "the geofence drawn again"
