@@ -8,6 +8,7 @@ import re
 
 from selenium.webdriver.support.ui import Select
 
+from fleetbus.api.console.session import CSRF_HEADER
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
@@ -226,6 +227,9 @@ def test_a_plan_that_is_not_valid_is_refused_with_its_reason_and_nothing_is_crea
             assert summary.status_code == 200 and 'data-action="confirm"' in summary.text
             assert 'name="geofence" value="0 0\n50 0\n0 40"' in summary.text, "Confirm sends the same"
             assert console.run(console.service.repositories.missions.missions) == [], "not before Confirm"
+            forged = planner.post("/console/missions", data=valid, headers={CSRF_HEADER: "not ours"})
+            assert forged.status_code == 403 and "CSRF" in forged.text, "Confirm is CSRF-checked"
+            assert console.run(console.service.repositories.missions.missions) == []
             created = planner.post("/console/missions", data=valid)
             assert created.status_code == 303
             assert created.headers["location"] == "/console/missions/m-1?done=created"
