@@ -9,7 +9,8 @@ more: the robots connected again with a status each, a message the worker refuse
 claimed and reached, two missions (one in progress), a user of each role; the worker and the
 recorder run meanwhile. The console (`fleetbus api`'s app) is served on that store; headless chromium
 (as in the browser tests) logs in as an administrator and saves the login form and each page of
-``sitemap.PAGES`` (pages added later are included), 1280 pixels wide and up to 1,600 tall.
+``sitemap.PAGES`` (pages added later are included), then, as the planner, the new mission form
+with a plan drawn on the map and its summary; 1280 pixels wide and up to 1,600 tall.
 """
 
 from __future__ import annotations
@@ -98,6 +99,32 @@ def shoot(browser: Browser, path: Path, width: int) -> None:
     console.print(f"wrote {path}")
 
 
+def new_mission(running: RunningConsole, browser: Browser, out: Path, width: int) -> None:
+    """A new mission's summary, then its form (back from the summary: the map fitted to the plan),
+    as the demo's planner sees them."""
+    browser.reset()
+    running.log_in(browser, f"demo-{UserRole.PLANNER.value}")
+    browser.go(running.url("/console/missions/new"))
+    browser.fill("input[name=title]", "Sweep of the east wing")
+    browser.fill("textarea[name=geofence]", "2 2\n30 2\n30 20\n2 20")
+    browser.fill("textarea[name=points_of_interest]", "lab, 8, 3, gas cylinders\nstairs, 4, 9")
+    ready = (
+        "const v = document.getElementById('plan-map'), image = document.getElementById('plan-image');"
+        "return !!(v && v.dataset.ready) && (!image || image.complete)"
+    )
+    browser.click("button[data-action=summary]")
+    browser.until(
+        lambda: browser.find("#confirm-form") and browser.driver.execute_script(ready), "the summary's map"
+    )
+    shoot(browser, out / "missions-summary.png", width)
+    browser.click("button[data-action=edit]")  # back: the form's map fitted to the plan
+    browser.until(
+        lambda: browser.find("form.mission-form") and browser.driver.execute_script(ready),
+        "the plan drawn on the form's map",
+    )
+    shoot(browser, out / "missions-new.png", width)
+
+
 def screenshots(running: RunningConsole, out: Path, width: int) -> None:
     out.mkdir(parents=True, exist_ok=True)
     browser = Browser(start_chromium())
@@ -112,6 +139,7 @@ def screenshots(running: RunningConsole, out: Path, width: int) -> None:
                 # two ticks of the feed: the page's first updates are in (its own stream counted)
                 time.sleep(2 * running.service.settings.console_tick_s)
             shoot(browser, out / f"{page.name}.png", width)
+        new_mission(running, browser, out, width)
     finally:
         browser.driver.quit()
 

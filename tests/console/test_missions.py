@@ -8,6 +8,7 @@ import re
 
 from selenium.webdriver.support.ui import Select
 
+from fleetbus.api.console.session import CSRF_HEADER
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
@@ -61,6 +62,9 @@ def test_a_new_mission_walks_its_states_through_the_buttons_of_each_role(bus: Bu
         Select(browser.find("select[name=risk_level]")[0]).select_by_value("medium")
         browser.fill("textarea[name=risk_summary]", "forklifts in the yard")
         browser.click(".mission-form button[type=submit]")
+        browser.until(lambda: browser.find("#confirm-form"), "the summary")
+        assert "gate (5.0, 5.0) north entrance" in browser.text("#summary-pois")
+        browser.click("button[data-action=confirm]")
         browser.until(lambda: state(browser) == "planning", "the new mission's page")
         assert browser.driver.current_url.startswith(console.url("/console/missions/m-1"))
         assert "gate (5.0, 5.0) north entrance" in browser.text("#mission-plan")
@@ -160,6 +164,8 @@ def test_a_role_that_may_not_take_a_step_sees_no_button_and_gets_403(bus: Bus) -
             assert guest.get("/console/missions/new").status_code == 403
             new = {"title": "x", "use_case": "survey"}
             assert guest.post("/console/missions", data=new).status_code == 403
+            assert guest.post("/console/missions/summary", data=new).status_code == 403
+            assert guest.get("/console/missions/new/map/1.png").status_code == 403
             assert guest.post(mounts, data={"robot": "explorer1"}).status_code == 403
         with http_session(console, "client2") as other:
             assert other.get(detail).status_code == 403, "another client's mission"
@@ -181,7 +187,33 @@ def test_a_plan_that_is_not_valid_is_refused_with_its_reason_and_nothing_is_crea
         console.user("plan1", UserRole.PLANNER)
         with http_session(console, "plan1") as planner:
             form = {"title": "Yard", "use_case": "survey", "geofence": "0 0\n50 0", "risk_level": ""}
-            refused = planner.post("/console/missions", data=form)
+            outside = {**form, "geofence": "0 0\n50 0\n0 40", "points_of_interest": "gate, 60, 5"}
+            # the summary refuses what the HTTP API refuses, with the API's reason, storing nothing
+            api = {"Authorization": f"Bearer {console.session('plan1')}"}
+            for bad, polygon, pois, reason in (
+                (form, [[0, 0], [50, 0]], [], "geofence.polygon: List should have at least 3 items"),
+                (
+                    outside,
+                    [[0, 0], [50, 0], [0, 40]],
+                    [{"name": "gate", "x": 60, "y": 5}],
+                    "points_of_interest.0 'gate' (60.0, 5.0) is outside the geofence",
+                ),
+            ):
+                plan = {
+                    "geofence": {"polygon": [{"x": x, "y": y} for x, y in polygon]},
+                    "points_of_interest": pois,
+                }
+                body = {"title": "Yard", "use_case": "survey", "plan": plan}
+                by_api = planner.post("/missions", json=body, headers=api)
+                assert by_api.status_code == 422 and reason in by_api.json()["detail"]
+                summary = planner.post("/console/missions/summary", data=bad)
+                assert summary.status_code == 422 and "confirm-form" not in summary.text
+                assert reason.replace("'", "&#39;") in summary.text
+                assert 'action="/console/missions/summary"' in summary.text, "the form again"
+            assert "0 0\n50 0" in summary.text and "gate, 60, 5" in summary.text, "what was typed is kept"
+            assert console.run(console.service.repositories.missions.missions) == []
+
+            refused = planner.post("/console/missions", data=form)  # Confirm checks again
             assert refused.status_code == 422
             assert "geofence.polygon: List should have at least 3 items" in refused.text
             assert "0 0\n50 0" in refused.text, "what was typed is kept"
@@ -190,7 +222,15 @@ def test_a_plan_that_is_not_valid_is_refused_with_its_reason_and_nothing_is_crea
             unknown = planner.post("/console/missions", data={**form, "geofence": "", "use_case": "joyride"})
             assert unknown.status_code == 422 and "unknown use case &#39;joyride&#39;" in unknown.text
             assert console.run(console.service.repositories.missions.missions) == []
-            created = planner.post("/console/missions", data={**form, "geofence": "0 0\n50 0\n0 40"})
+            valid = {**form, "geofence": "0 0\n50 0\n0 40"}
+            summary = planner.post("/console/missions/summary", data=valid)
+            assert summary.status_code == 200 and 'data-action="confirm"' in summary.text
+            assert 'name="geofence" value="0 0\n50 0\n0 40"' in summary.text, "Confirm sends the same"
+            assert console.run(console.service.repositories.missions.missions) == [], "not before Confirm"
+            forged = planner.post("/console/missions", data=valid, headers={CSRF_HEADER: "not ours"})
+            assert forged.status_code == 403 and "CSRF" in forged.text, "Confirm is CSRF-checked"
+            assert console.run(console.service.repositories.missions.missions) == []
+            created = planner.post("/console/missions", data=valid)
             assert created.status_code == 303
             assert created.headers["location"] == "/console/missions/m-1?done=created"
         assert mission(console).plan["geofence"]["polygon"][2] == {"x": 0.0, "y": 40.0}

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import uuid
 from datetime import datetime, timedelta, timezone
+from functools import partial
 
 from selenium.webdriver.support.select import Select
 
@@ -24,6 +25,23 @@ def shown(browser: Browser, rows: str) -> list[str]:
         "const found = Array.from(document.querySelectorAll(arguments[0]));"
         "return found.filter((r) => !r.hidden).map((r) => r.id)",
         rows,
+    )
+
+
+def _shown_as(browser: Browser, rows: str, expected: list[str]) -> bool:
+    return shown(browser, rows) == expected
+
+
+def _sorted_by(browser: Browser, column: int, order: str) -> bool:
+    """Whether the mission list is sorted by ``column`` in ``order``, as its header says."""
+    header = browser.find(f"#missions-table th:nth-child({column + 1})")[0]
+    values = browser.driver.execute_script(
+        "return Array.from(document.querySelectorAll('#missions-rows tr')).filter((r) => !r.hidden)"
+        ".map((r) => r.cells[arguments[0]]).map((c) => c.dataset.sort ?? c.textContent.trim())",
+        column,
+    )
+    return header.get_attribute("aria-sort") == order and values == sorted(
+        values, reverse=order == "descending"
     )
 
 
@@ -56,6 +74,19 @@ def test_the_mission_list_is_live_sorted_and_filtered_by_state_use_case_and_clie
         console.wait_live(browser)
         rows = "#missions-rows tr"
         assert shown(browser, rows) == ["mission-m-3", "mission-m-2", "mission-m-1"], "newest first"
+        headers = browser.texts("#missions-table thead th")
+        assert headers == ["mission", "title", "use case", "state", "client", "last change"]
+        for index, header in enumerate(headers):
+            for order in ("ascending", "descending"):
+                browser.click(f"#missions-table th:nth-child({index + 1}) button.sort")
+                browser.until(partial(_sorted_by, browser, index, order), f"sorted by {header}, {order}")
+                known = {  # the orders without ties
+                    "title": ["mission-m-3", "mission-m-1", "mission-m-2"],  # East, North, South yard
+                    "last change": ["mission-m-1", "mission-m-2", "mission-m-3"],  # m-1 filed first
+                }.get(header)
+                if known:  # a live update may have just replaced the rows: sorted again next frame
+                    expected = known if order == "ascending" else known[::-1]
+                    browser.until(partial(_shown_as, browser, rows, expected), f"{expected}")
 
         Select(browser.find("select[name=client]")[0]).select_by_value("client1")
         browser.until(lambda: shown(browser, rows) == ["mission-m-3", "mission-m-1"], "client1's missions")

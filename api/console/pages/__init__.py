@@ -14,8 +14,21 @@ from fleetbus.api.console.pages import (
     live_map,
     messages,
     missions,
+    new_mission,
 )
 
 router = APIRouter()
-for page in (dashboard, live_map, hazards, missions, messages, dead_letters, evaluation, accounts, account):
+# new_mission before missions: its /console/missions/new is no mission id
+for page in (
+    dashboard,
+    live_map,
+    hazards,
+    new_mission,
+    missions,
+    messages,
+    dead_letters,
+    evaluation,
+    accounts,
+    account,
+):
     router.include_router(page.router)

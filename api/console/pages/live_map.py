@@ -174,8 +174,8 @@ async def map_trails(
     return JSONResponse(found, headers={"Cache-Control": "no-store"})
 
 
-@router.get("/console/map/{version}.png")
-async def map_png(user: Viewer, view: View, version: int) -> Response:
+async def png_answer(view: MapView, version: int) -> Response:
+    """A stored version's image as a PNG (the live map's, and the new mission form's)."""
     found = await view.stored(version)
     if isinstance(found, str):
         raise HTTPException(404, detail=found)
@@ -187,6 +187,11 @@ async def map_png(user: Viewer, view: View, version: int) -> Response:
     return Response(
         png, media_type="image/png", headers={"Cache-Control": "private, max-age=86400, immutable"}
     )
+
+
+@router.get("/console/map/{version}.png")
+async def map_png(user: Viewer, view: View, version: int) -> Response:
+    return await png_answer(view, version)
 
 
 @router.get("/console/stream/map")

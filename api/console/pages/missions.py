@@ -1,4 +1,5 @@
-"""Missions: the list, a form for a new one, and each mission's detail with its state machine.
+"""Missions: the list and each mission's detail with its state machine (a new one:
+:mod:`.new_mission`).
 
 Everything a button does goes through the services the HTTP API calls (``svc.missions``,
 ``svc.channels``), so the rules are theirs: the role that may take each step is the use case's
@@ -11,11 +12,10 @@ from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
-from pydantic import ValidationError
 
 from fleetbus.api.channels import OPERATING, UNMOUNTERS
 from fleetbus.api.console.live import Shared, live_stream
@@ -33,7 +33,6 @@ from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(MISSIONS))]
-Author = Annotated[User, Depends(Allowed(AUTHORS, "the new mission form"))]
 Mover = Annotated[User, Depends(Allowed(MOVERS, "the mission state buttons"))]
 Mounter = Annotated[User, Depends(Allowed(OPERATING, "mounting robots and checking in"))]
 Unmounter = Annotated[User, Depends(Allowed(UNMOUNTERS, "unmounting robots"))]
@@ -119,120 +118,6 @@ async def missions(request: Request, user: Viewer, rows: Rows) -> Response:
 @router.get("/console/stream/missions")
 async def missions_stream(request: Request, user: Viewer, rows: Rows) -> Response:
     return live_stream(MissionList(rows, user), request.app.state.feed, request)
-
-
-# --- a new mission ------------------------------------------------------------------------------
-
-
-@dataclass
-class PlanForm:
-    """The plan as the form takes it: one vertex or point of interest a line."""
-
-    geofence: str = ""
-    points_of_interest: str = ""
-    risk_level: str = ""
-    risk_summary: str = ""
-    mitigations: str = ""
-
-    def plan(self) -> MissionPlan:
-        """The plan, or ValueError naming every line or field that is wrong."""
-        problems: list[str] = []
-        plan: dict[str, Any] = {}
-        vertices = [_numbers(line, 2, f"geofence line {n}", problems) for n, line in _lines(self.geofence)]
-        if vertices:
-            plan["geofence"] = {"polygon": [{"x": v[0], "y": v[1]} for v in vertices if v]}
-        plan["points_of_interest"] = [
-            poi for n, line in _lines(self.points_of_interest) if (poi := _poi(n, line, problems))
-        ]
-        if self.risk_level or self.risk_summary.strip():
-            plan["risk_assessment"] = {
-                "level": self.risk_level,
-                "summary": self.risk_summary.strip(),
-                "mitigations": [line for _, line in _lines(self.mitigations)],
-            }
-        if problems:
-            raise ValueError("; ".join(problems))
-        try:
-            return MissionPlan.model_validate(plan)
-        except ValidationError as error:
-            raise ValueError(_readable(error)) from None
-
-
-def _lines(text: str) -> list[tuple[int, str]]:
-    return [(n, line.strip()) for n, line in enumerate(text.splitlines(), 1) if line.strip()]
-
-
-def _numbers(text: str, count: int, where: str, problems: list[str]) -> list[float] | None:
-    parts = text.replace(",", " ").split()
-    try:
-        if len(parts) != count:
-            raise ValueError
-        return [float(part) for part in parts]
-    except ValueError:
-        problems.append(f"{where}: expected {count} numbers, got {text!r}")
-        return None
-
-
-def _poi(number: int, line: str, problems: list[str]) -> dict[str, Any] | None:
-    name, *rest = [part.strip() for part in line.split(",", 3)]
-    where = _numbers(" ".join(rest[:2]), 2, f"point of interest line {number} ({name})", problems)
-    if where is None:
-        return None
-    return {"name": name, "x": where[0], "y": where[1], "note": rest[2] if len(rest) > 2 else ""}
-
-
-def _readable(error: ValidationError) -> str:
-    """pydantic's errors as one line: where, then what."""
-    parts = []
-    for item in error.errors():
-        where = ".".join(str(step) for step in item["loc"])
-        message = str(item["msg"]).removeprefix("Value error, ")
-        parts.append(f"{where}: {message}" if where else message)
-    return "; ".join(parts)
-
-
-def _new_form(request: Request, user: User, status: int = 200, **context: Any) -> Response:
-    return render(
-        request,
-        "missions/new.html",
-        user,
-        MISSIONS,
-        status_code=status,
-        use_cases=list(USE_CASES.values()),
-        **{"form": PlanForm(), "title": "", "use_case": "", "problem": None, **context},
-    )
-
-
-@router.get("/console/missions/new", response_class=HTMLResponse)
-async def new_mission(request: Request, user: Author) -> Response:
-    return _new_form(request, user)
-
-
-@router.post("/console/missions", response_class=HTMLResponse)
-async def create_mission(
-    request: Request,
-    user: Author,
-    title: Annotated[str, Form()],
-    use_case: Annotated[str, Form()],
-    geofence: Annotated[str, Form()] = "",
-    points_of_interest: Annotated[str, Form()] = "",
-    risk_level: Annotated[str, Form()] = "",
-    risk_summary: Annotated[str, Form()] = "",
-    mitigations: Annotated[str, Form()] = "",
-) -> Response:
-    form = PlanForm(geofence, points_of_interest, risk_level, risk_summary, mitigations)
-    again = {"form": form, "title": title, "use_case": use_case}
-    if not title.strip():
-        return _new_form(request, user, 422, problem="the mission needs a title", **again)
-    try:
-        plan = form.plan()
-    except ValueError as problem:
-        return _new_form(request, user, 422, problem=f"the plan is not valid: {problem}", **again)
-    try:
-        mission = await _service(request).missions.create(user, use_case, title.strip(), plan)
-    except ServiceRefusal as refused:
-        return _new_form(request, user, refused.status, problem=refused.detail, **again)
-    return RedirectResponse(f"/console/missions/{mission.mission_id}?done=created", status_code=303)
 
 
 # --- one mission --------------------------------------------------------------------------------
