@@ -150,3 +150,20 @@ def test_tables_6_and_7_hazards_detected_while_the_server_is_down(
     assert late.event == detected, "Table 6: the hazard reaches the warden exactly as detected"
     assert late.late and late.event.body.detected_at == detected.body.detected_at
     assert late.received_at > detected.sent_at + timedelta(seconds=1)
+
+
+def test_a_recorder_that_gives_up_on_the_broker_ends_instead_of_staying_half_alive(bus: Bus) -> None:
+    """Its parent (``fleetbus worker``) starts a recorder that ended again: one that lost its
+    connection for good must end, not stay up recording nothing."""
+    with pytest.raises(RuntimeError, match="injected"), bus.recorder() as recorder:
+        assert recorder.context is not None and recorder._loop is not None
+        queue = recorder.context.connection
+
+        async def broken() -> None:
+            raise RuntimeError("injected: a reconnection that fails in a way nobody retries")
+
+        queue._reconnect = broken  # type: ignore[method-assign]
+        connection = queue._connection
+        assert connection is not None
+        recorder._loop.call_soon_threadsafe(connection.close)  # as if the broker had dropped it
+        wait_for(lambda: not recorder._thread.is_alive(), 30, "the recorder ending")

@@ -119,11 +119,16 @@ async def run_recorder(
         on_started(context)
     consuming = asyncio.create_task(context.consumer.run())
     stopping = asyncio.create_task(stop.wait())
+    kept = asyncio.create_task(context.connection.kept())
     try:
-        await asyncio.wait({consuming, stopping}, return_when=asyncio.FIRST_COMPLETED)
+        await asyncio.wait({consuming, stopping, kept}, return_when=asyncio.FIRST_COMPLETED)
+        if kept.done() and kept.exception() is not None:
+            error = kept.exception()
+            log.error("recorder gave up on the broker: %r; it stops (its parent starts it again)", error)
         await context.consumer.stop()
         await consuming
     finally:
         stopping.cancel()
+        kept.cancel()
         await context.close()
         log.info("recorder stopped: %s", context.consumer.stats)

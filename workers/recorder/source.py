@@ -96,6 +96,7 @@ class RecorderQueue:
         self._closing = asyncio.Event()
         self._lost = asyncio.Event()
         self._keeper: asyncio.Task[None] | None = None
+        self._keeping = asyncio.Event()
         self._closed_by: BaseException | None = None
 
     async def open(self) -> None:
@@ -107,6 +108,14 @@ class RecorderQueue:
         self._deliver = deliver
         await self._start_consuming()
         self._keeper = asyncio.create_task(self._keep_connected())
+        self._keeping.set()
+
+    async def kept(self) -> None:
+        """Return when the connection is no longer kept: closed, or given up on (then raises what
+        ended it, so that the recorder ends and its parent starts it again, never half-alive)."""
+        await self._keeping.wait()
+        assert self._keeper is not None
+        await asyncio.shield(self._keeper)
 
     async def cancel(self) -> None:
         """Take no more messages (those in hand can still be settled)."""
