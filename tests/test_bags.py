@@ -33,18 +33,20 @@ def bag_path(tmp_path: Path, kind: str) -> Path:
     return tmp_path / ("run.bag" if kind == "ros1" else f"run-{kind}")
 
 
-def recorded(path: Path) -> list[RecordedMessage]:
+def recorded(path: Path, robot: str | None = None) -> list[RecordedMessage]:
     async def go() -> list[RecordedMessage]:
         async with SQLiteRecordingStore(path) as store:
-            return await store.find_recorded(RecordQuery(ROS_TYPE))
+            return await store.find_recorded(RecordQuery(ROS_TYPE, robot_id=robot))
 
     return asyncio.run(go())
 
 
-def run_import(store_path: Path, bag: Path, max_bytes: int = LIMIT) -> bag_import.ImportReport:
+def run_import(
+    store_path: Path, bag: Path, max_bytes: int = LIMIT, robot: str = ROBOT
+) -> bag_import.ImportReport:
     async def go() -> bag_import.ImportReport:
         async with SQLiteRecordingStore(store_path) as store:
-            return await import_bag(store, bag, ROBOT, max_bytes)
+            return await import_bag(store, bag, robot, max_bytes)
 
     return asyncio.run(go())
 
@@ -103,6 +105,12 @@ def test_importing_a_bag_again_stores_nothing_twice(tmp_path: Path, kind: str) -
 
     assert (again.messages, again.stored, again.already) == (12, 0, 12)
     assert_imported(recorded(store), written)
+    # the same bag for a second robot (the same run seen by two robots) is that robot's own
+    other = run_import(store, bag, robot="bag-other")
+    assert (other.messages, other.stored, other.already) == (12, 12, 0)
+    assert len(recorded(store, "bag-other")) == 12
+    assert (run_import(store, bag, robot="bag-other").stored, run_import(store, bag).stored) == (0, 0)
+    assert_imported(recorded(store, ROBOT), written)
 
 
 def fleetbus(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:

@@ -2,8 +2,9 @@
 
 Two passes over the bag. The first reads and converts every message and stores nothing, so a
 truncated or corrupt bag is refused before anything is written. The second writes the messages
-in batches, each under a key made of the bag's content digest and the message's position
-(:func:`fleetbus.schemas.ros.ros_record_key`): importing the same bag again stores nothing new.
+in batches, each under a key made of the robot, the bag's content digest and the message's
+position (:func:`fleetbus.schemas.ros.ros_record_key`): importing the same bag again for the same
+robot stores nothing new, and the same bag imported for another robot is that robot's own run.
 Should a write fail half-way (the database gone), the messages this import added are deleted
 again before the error is raised.
 """
@@ -46,11 +47,11 @@ class ImportReport:
 
 
 def bag_record(robot: str, digest: str, bag_file: str, item: BagMessage) -> RecordedMessage:
-    """The record of one bag message: keyed by the bag's digest and the message's index."""
+    """The record of one bag message: keyed by the robot, the bag's digest and the message's index."""
     return ros_record(
         robot,
         item.message,
-        ros_record_key(digest, item.index),
+        ros_record_key(f"{robot}\0{digest}", item.index),
         size=item.size,
         seq=item.index,
         trimmed=item.trimmed,
