@@ -237,6 +237,11 @@ class Settings(BaseSettings):
     map_staging_ttl: str = setting(
         "1h", "staged map chunks that no map event named this long after their last chunk are deleted"
     )
+    ros_pieces_ttl: str = setting(
+        "1h",
+        "the recorder deletes the pieces of a large ROS message (`ros_chunk`) that no ROS message named "
+        "this long after they came, and counts them (`fleetbus stats`, bound `ros-pieces`)",
+    )
     uplink_max: Annotated[int, Positive] = setting(
         1_000_000,
         "on a site: the most events other than hazards and telemetry (maps, behaviour, beacons, ROS) "

@@ -33,18 +33,20 @@ def bag_path(tmp_path: Path, kind: str) -> Path:
     return tmp_path / ("run.bag" if kind == "ros1" else f"run-{kind}")
 
 
-def recorded(path: Path) -> list[RecordedMessage]:
+def recorded(path: Path, robot: str | None = None) -> list[RecordedMessage]:
     async def go() -> list[RecordedMessage]:
         async with SQLiteRecordingStore(path) as store:
-            return await store.find_recorded(RecordQuery(ROS_TYPE))
+            return await store.find_recorded(RecordQuery(ROS_TYPE, robot_id=robot))
 
     return asyncio.run(go())
 
 
-def run_import(store_path: Path, bag: Path, max_bytes: int = LIMIT) -> bag_import.ImportReport:
+def run_import(
+    store_path: Path, bag: Path, max_bytes: int = LIMIT, robot: str = ROBOT
+) -> bag_import.ImportReport:
     async def go() -> bag_import.ImportReport:
         async with SQLiteRecordingStore(store_path) as store:
-            return await import_bag(store, bag, ROBOT, max_bytes)
+            return await import_bag(store, bag, robot, max_bytes)
 
     return asyncio.run(go())
 
@@ -92,6 +94,19 @@ def test_every_message_of_a_bag_is_imported_with_its_times(tmp_path: Path, kind:
     assert_imported(recorded(store), written)
 
 
+def test_a_bag_imported_before_keys_named_the_robot_is_not_stored_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    bag = bag_path(tmp_path, "ros1")
+    write_bag(bag, "ros1", count=5)
+    store = tmp_path / "recording.sqlite3"
+    with monkeypatch.context() as before:  # keys made of the bag alone, as they were
+        before.setattr(bag_import, "record_source", lambda robot, digest: digest)
+        assert run_import(store, bag).stored == 5
+    assert run_import(store, bag).stored == 0, "its first import's keys are recognised"
+    assert run_import(store, bag, robot="bag-other").stored == 5
+
+
 @pytest.mark.parametrize("kind", FORMATS)
 def test_importing_a_bag_again_stores_nothing_twice(tmp_path: Path, kind: str) -> None:
     bag = bag_path(tmp_path, kind)
@@ -103,6 +118,12 @@ def test_importing_a_bag_again_stores_nothing_twice(tmp_path: Path, kind: str) -
 
     assert (again.messages, again.stored, again.already) == (12, 0, 12)
     assert_imported(recorded(store), written)
+    # the same bag for a second robot (the same run seen by two robots) is that robot's own
+    other = run_import(store, bag, robot="bag-other")
+    assert (other.messages, other.stored, other.already) == (12, 12, 0)
+    assert len(recorded(store, "bag-other")) == 12
+    assert (run_import(store, bag, robot="bag-other").stored, run_import(store, bag).stored) == (0, 0)
+    assert_imported(recorded(store, ROBOT), written)
 
 
 def fleetbus(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:

@@ -14,7 +14,7 @@ from datetime import timedelta
 
 from fleetbus.broker.policies import QueueLimit
 from fleetbus.settings import Settings
-from fleetbus.workers.recorder.retention import Retention, parse_limit, parse_retention
+from fleetbus.workers.recorder.retention import Retention, parse_limit, parse_retention, parse_ttl
 
 #: MongoDB refuses a 65th index on a collection; a recorded type has five of its own (``_id``,
 #: time, robot, message id, mission), and two processes may add one at the same moment.
@@ -74,10 +74,7 @@ def queue_limit(words: Iterable[str], variable: str) -> QueueLimit:
 
 
 def age(text: str, variable: str) -> timedelta:
-    limit = parse_limit(text, variable)
-    if limit.max_age is None:
-        raise ValueError(f"{variable}: write an age (30m, 1h, 2d), not {text!r}")
-    return limit.max_age
+    return parse_ttl(text, variable)
 
 
 def field_index_cap(value: int, variable: str = "FLEETBUS_FIELD_INDEXES_MAX") -> int:

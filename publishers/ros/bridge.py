@@ -32,7 +32,6 @@ from fleetbus.publishers.maps import map_events
 from fleetbus.publishers.outbox import OutboxFull
 from fleetbus.publishers.ros.commands import follow_commands
 from fleetbus.publishers.ros.convert import (
-    ConversionError,
     hazard_body,
     localisation_body,
     notification_messages,
@@ -41,8 +40,9 @@ from fleetbus.publishers.ros.convert import (
 )
 from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
 from fleetbus.publishers.ros.mapping import Mapping, Rule
+from fleetbus.publishers.ros.parts import supervised
 from fleetbus.schemas.bodies import split_chunks
-from fleetbus.schemas.envelope import SchemaError, validate_body
+from fleetbus.schemas.envelope import validate_body
 from fleetbus.schemas.ros import BLOB_FROM, TRUNCATED_KEY, byte_arrays, schema_key, to_blobs
 from fleetbus.schemas.routing import EventType
 
@@ -56,6 +56,9 @@ NOTIFY_PREFIX = "/fleetbus"
 STATUS_FILE = "ros-bridge.json"
 ROS1_DEFINITION = "ros1msg"
 """A live connection's definition: ROS 1's message definition text (MCAP's schema encoding)."""
+#: The parts of the bridge, as ``fleetbus ros status`` names them (:mod:`.parts`).
+ROS_SIDE_PART, WRITER_PART = "ros-side", "writer"
+NOTIFICATIONS_PART, COMMANDS_PART = "notifications", "commands"
 
 Item = tuple[EventType, Any]
 
@@ -167,8 +170,10 @@ class Bridge:
         self._queue: queue.Queue[dict[str, Any]] = queue.Queue(options.queue)
         self._rate = RateLimit(options.max_rate_hz)
         self._stop = threading.Event()
-        self._started = threading.Event()
         self._ended = threading.Event()
+        """Set when the running ROS side's output ended (it ended, or its reader did)."""
+        self._side_failure: str | None = None
+        """What the running ROS side said of its own failure, before it ended."""
         self._stdin_lock = threading.Lock()
         self._process: subprocess.Popen[bytes] | None = None
         self._last_pose: dict[str, Any] | None = None
@@ -176,8 +181,11 @@ class Bridge:
 
     # the ROS side
     def start_ros_side(self) -> None:
+        """Start the ROS side and wait until it runs; RosSideError (it is ended) when it does not."""
+        started, ended = threading.Event(), threading.Event()
+        self._side_failure = None
         try:
-            self._process = subprocess.Popen(
+            process = subprocess.Popen(
                 self.options.ros_side_command(),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
@@ -189,49 +197,60 @@ class Bridge:
             raise RosSideError(
                 f"cannot start the ROS side with {self.options.python!r} (FLEETBUS_ROS_PYTHON): {error}"
             ) from None
+        self._process, self._ended = process, ended
         threading.Thread(
-            target=self._read, args=(self._process.stdout,), name="ros-reader", daemon=True
+            target=self._read, args=(process.stdout, started, ended), name="ros-reader", daemon=True
         ).start()
         deadline = time.monotonic() + self.options.ready_timeout_s
-        while not self._started.wait(0.1):
-            if self._ended.is_set() or time.monotonic() > deadline:
-                self._stop.set()
+        while not started.wait(0.1):
+            if ended.is_set() or time.monotonic() > deadline or self._stop.is_set():
                 self._end_ros_side()
                 raise RosSideError(
                     f"the ROS side did not start (is ROS installed for {self.options.python}?): "
                     f"see {self.ros_log}"
                 )
+        self.counters.parts.started(ROS_SIDE_PART)
 
-    def _read(self, stream: IO[bytes]) -> None:
-        for line in stream:
-            try:
-                item = json.loads(line)
-            except ValueError:
-                log.warning("the ROS side wrote a line that is not JSON: %r", line[:200])
-                continue
-            kind = item.get("kind")
-            if kind == "message":
+    def _read(self, stream: IO[bytes], started: threading.Event, ended: threading.Event) -> None:
+        """Every line of the ROS side, until its output ends: then ``ended`` (the bridge starts it
+        again, or ends). A line it cannot take is logged and counted, never the reader's end."""
+        try:
+            for line in stream:
                 try:
-                    self._queue.put_nowait(item)
-                except queue.Full:
-                    self.counters.drop(item["topic"], DropReason.BRIDGE_QUEUE)
-            elif kind == "subscribed":
-                self.counters.types[item["topic"]] = item["type"]
-                log.info("recording %s (%s)", item["topic"], item["type"])
-            elif kind == "dropped":
-                for topic, count in item["counts"].items():
-                    self.counters.drop(topic, DropReason.ROS_QUEUE, count)
-            elif kind == "error":
-                self.counters.drop(item.get("topic") or "(publish)", DropReason.UNREADABLE)
-                log.warning("ROS side: %s: %s", item.get("topic"), item.get("detail"))
-            elif kind == "master":
-                self._master(item)
-            elif kind == "started":
-                self.counters.ros_side = "waiting for the master"
-                self._started.set()
-            elif kind == "ready":
-                self.counters.ros_side = "running"
-        self._ended.set()
+                    self._take_line(line, started)
+                except Exception as error:  # a line we did not expect must not stop the reading
+                    self.counters.drop("(ros side)", DropReason.UNREADABLE)
+                    log.warning("the ROS side wrote a line the bridge cannot take (%r): %r", error, line[:90])
+        finally:
+            ended.set()
+
+    def _take_line(self, line: bytes, started: threading.Event) -> None:
+        item = json.loads(line)
+        kind = item.get("kind")
+        if kind == "message":
+            try:
+                self._queue.put_nowait(item)
+            except queue.Full:
+                self.counters.drop(item["topic"], DropReason.BRIDGE_QUEUE)
+        elif kind == "subscribed":
+            self.counters.types[item["topic"]] = item["type"]
+            log.info("recording %s (%s)", item["topic"], item["type"])
+        elif kind == "dropped":
+            for topic, count in item["counts"].items():
+                self.counters.drop(topic, DropReason.ROS_QUEUE, count)
+        elif kind == "error":
+            self.counters.drop(item.get("topic") or "(publish)", DropReason.UNREADABLE)
+            log.warning("ROS side: %s: %s", item.get("topic"), item.get("detail"))
+        elif kind == "master":
+            self._master(item)
+        elif kind == "started":
+            self.counters.ros_side = "waiting for the master"
+            started.set()
+        elif kind == "ready":
+            self.counters.ros_side = "running"
+        elif kind == "failed":
+            self._side_failure = f"its {item.get('part')} failed: {item.get('detail')}"
+            log.error("the ROS side's %s failed: %s", item.get("part"), item.get("detail"))
 
     def _master(self, item: dict[str, Any]) -> None:
         state, uri, restarted = item["state"], item.get("uri") or "", bool(item.get("restarted"))
@@ -253,6 +272,8 @@ class Bridge:
                 process.stdin.write(data)
                 process.stdin.flush()
             except (BrokenPipeError, ValueError):
+                for item in items:  # a ROS side that restarts: counted, as every other drop
+                    self.counters.drop(item.get("topic") or "(publish)", DropReason.ROS_SIDE_GONE)
                 log.warning("the ROS side is gone: %d messages for ROS not published", len(items))
 
     # messages to events
@@ -313,7 +334,7 @@ class Bridge:
                 continue
             try:
                 events = self.events_of(item)
-            except (ConversionError, SchemaError, KeyError, TypeError, ValueError) as error:
+            except Exception as error:  # (ConversionError, SchemaError...): one message, not the writer
                 self.counters.drop(topic, DropReason.UNREADABLE)
                 log.warning("%s (%s) not forwarded: %s", topic, item.get("type"), error)
                 continue
@@ -367,43 +388,75 @@ class Bridge:
 
     # the loop
     def run(self) -> int:
-        """Forward until the ROS side ends (its exit code) or :meth:`stop` (0)."""
+        """Forward until :meth:`stop` (0), restarting whatever part fails; 1 when the bridge cannot
+        go on (why: in the status file, ``ended``). RosSideError when the ROS side cannot start at all."""
+        parts = self.counters.parts
         self.start_ros_side()
-        notifier = threading.Thread(target=self._notify, name="ros-notifications", daemon=True)
-        notifier.start()
-        commands = None
+        parts.started(WRITER_PART)
+        threads = [supervised(NOTIFICATIONS_PART, self._notify, parts, self._stop)]
         if self.commands_url:
-            commands = threading.Thread(
-                target=follow_commands,
-                args=(self.commands_url, self.robot.robot_id, NOTIFY_PREFIX, self.send_to_ros, self._stop),
-                name="ros-commands",
-                daemon=True,
-            )
-            commands.start()
+            url, robot = self.commands_url, self.robot.robot_id
+            follow = lambda: follow_commands(url, robot, NOTIFY_PREFIX, self.send_to_ros, self._stop)  # noqa: E731
+            threads.append(supervised(COMMANDS_PART, follow, parts, self._stop))
         next_status = time.monotonic() + self.options.status_every_s
-        died = False
+        code = 0
         try:
             while not self._stop.is_set():
                 batch = self._take()
                 if batch:
-                    self.forward(batch)
+                    self._write(batch)
                 elif self._ended.is_set():
-                    died = True  # it ended by itself, and everything it wrote is forwarded
-                    break
+                    self._restart_ros_side()  # everything the last one wrote is forwarded
                 if time.monotonic() >= next_status:
                     self.report()
                     next_status = time.monotonic() + self.options.status_every_s
+        except Exception as error:
+            log.exception("the ROS bridge cannot go on")
+            self.counters.ended = f"{type(error).__name__}: {error}"
+            code = 1
         finally:
             self._stop.set()
-            code = self._end_ros_side()
-            notifier.join(10)
-            if commands is not None:
-                commands.join(10)
+            self._end_ros_side()
+            for thread in threads:
+                thread.join(10)
+            self.counters.parts.stopped(ROS_SIDE_PART)
+            self.counters.parts.stopped(WRITER_PART)
             self.report()
-        if died:
-            log.error("the ROS side ended by itself (status %s): see %s", code, self.ros_log)
-            return code or 1
-        return 0
+        return code
+
+    def _restart_ros_side(self) -> None:
+        """The ROS side ended by itself (killed, or one of its threads failed): start it again
+        after a backoff, which grows while it keeps failing; each try is noted in the status."""
+        status = self._end_ros_side()
+        detail = self._side_failure or f"it ended by itself (status {status}); see {self.ros_log}"
+        delay = self.counters.parts.failed(ROS_SIDE_PART, detail)
+        self.counters.ros_side = f"restarting in {delay:.1f} s: {detail}"
+        self.report()
+        if self._stop.wait(delay):
+            return
+        try:
+            self.start_ros_side()
+        except RosSideError as error:  # self._ended is set: the next round tries again
+            self._side_failure = str(error)
+
+    def _write(self, batch: list[dict[str, Any]]) -> None:
+        """Forward ``batch``, again after a backoff while the outbox cannot be written (a full
+        disk): the batch waits, it is not lost. Stopped while it still fails, its messages are
+        counted as dropped (``write-failed``) and the error raised: the bridge ends with 1."""
+        parts = self.counters.parts
+        while True:
+            try:
+                self.forward(batch)
+            except Exception as error:
+                detail = f"{type(error).__name__}: {error}"
+                if self._stop.wait(parts.failed(WRITER_PART, detail)):
+                    for item in batch:
+                        self.counters.drop(item["topic"], DropReason.WRITE_FAILED)
+                    raise
+                continue
+            if WRITER_PART in parts.failing():
+                parts.started(WRITER_PART)
+            return
 
     def _take(self) -> list[dict[str, Any]]:
         """The next batch: what comes within ``linger_s`` of its first message (up to BATCH), so that
@@ -425,6 +478,7 @@ class Bridge:
         return self.mapping.rule_for(item["topic"], item["type"]) is not None
 
     def report(self) -> None:
+        self.counters.broker = {"connected": self.robot.connected, "last_error": self.robot.last_error}
         self.counters.write(self.status_file)
         log.info("ROS bridge: %s", self.counters.status_line())
 

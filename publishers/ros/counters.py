@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fleetbus.publishers.ros.parts import Parts
+
 
 class DropReason:
     ROS_QUEUE = "ros-queue"
@@ -23,6 +25,10 @@ class DropReason:
     """The robot's outbox held as many events as it may keep while the broker was away."""
     UNREADABLE = "unreadable"
     """The ROS side could not read the message, or it did not hold what its mapping rule needs."""
+    WRITE_FAILED = "write-failed"
+    """The outbox could not be written (its error is in the status's parts) until the bridge stopped."""
+    ROS_SIDE_GONE = "ros-side-gone"
+    """A notification or command for ROS came while the ROS side was down (restarting)."""
 
 
 @dataclass
@@ -43,6 +49,12 @@ class Counters:
     master: dict[str, Any] = field(default_factory=lambda: {"state": "unknown"})
     """How the ROS master answers: ``state`` (``running``, ``unreachable``), ``detail``, ``since``,
     ``failures`` (tries in a row that failed), ``retry_in``, ``restarts`` (seen since the start)."""
+    parts: Parts = field(default_factory=Parts)
+    """The bridge's threads and its ROS side: each ``running`` or ``restarting`` (after a failure)."""
+    broker: dict[str, Any] = field(default_factory=dict)
+    """The robot client's sender (outbox to broker; it retries by itself): ``connected``, ``last_error``."""
+    ended: str | None = None
+    """Why the bridge itself ended, when it could not go on (its exit code is not 0 then)."""
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def drop(self, topic: str, reason: str, count: int = 1) -> None:
@@ -78,6 +90,9 @@ class Counters:
                 "updated": time.time(),
                 "ros_side": self.ros_side,
                 "master": dict(self.master),
+                "parts": self.parts.snapshot(),
+                "broker": dict(self.broker),
+                **({"ended": self.ended} if self.ended else {}),
                 "notifications_published": self.notifications,
                 "topics": {
                     topic: {
@@ -106,8 +121,14 @@ class Counters:
         said = f"master {master['state']}"
         if master["state"] == "unreachable":
             said += f" ({master['failures']} tries, next in {master['retry_in']:.0f} s: {master['detail']})"
+        failing = [
+            f"{name} {part['state']} ({part['restarts']} restarts; last: {part['last_failure']})"
+            for name, part in snap["parts"].items()
+            if part.get("last_failure")
+        ]
         return (
-            f"{said}; {len(snap['topics'])} topics, {recorded} recorded, {mapped} as events, "
+            (f"parts that failed: {'; '.join(failing)}; " if failing else "")
+            + f"{said}; {len(snap['topics'])} topics, {recorded} recorded, {mapped} as events, "
             f"dropped: {'; '.join(drops) if drops else 'none'}"
             + (f"; byte arrays over the bound, described only: {'; '.join(over)}" if over else "")
         )

@@ -16,6 +16,8 @@ stdout, one object a line (``kind`` says which):
                   type's full definition, as its publisher sent it)
   ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
   ``error``       ``topic``, ``detail``: a message that could not be read
+  ``failed``      ``part``, ``detail``: one of its threads failed; the process ends (status 70) and
+                  the bridge starts it again
 stdin, one object a line:
   ``publish``     ``topic``, ``type``, ``fields``: publish this message (latched) on the ROS side
 
@@ -228,6 +230,28 @@ class Publishers:
         publisher.publish(msg)
 
 
+FAILED_STATUS = 70  # EX_SOFTWARE
+
+
+def guarded(out: Output, part: str, target: Any, *args: Any) -> threading.Thread:
+    """A daemon thread running ``target(*args)``; should it raise, the process says so and ends
+    (the bridge starts it again): never a process with one of its threads gone."""
+
+    def run() -> None:
+        try:
+            target(*args)
+        except BaseException as error:
+            out.write({"kind": "failed", "part": part, "detail": f"{type(error).__name__}: {error}"})
+            leaving = threading.Thread(target=rospy.signal_shutdown, args=(f"{part} failed",), daemon=True)
+            leaving.start()  # unregister from the master, if it answers soon
+            leaving.join(2.0)
+            os._exit(FAILED_STATUS)
+
+    thread = threading.Thread(target=run, name=part, daemon=True)
+    thread.start()
+    return thread
+
+
 def every(seconds: float, action: Any) -> None:
     while not rospy.is_shutdown():
         action()
@@ -324,8 +348,8 @@ def start_node(
         return
     rospy.init_node(args.node, anonymous=True, disable_signals=True)
     watch.master = rosgraph.masterapi.Master(rospy.get_name())
-    threading.Thread(target=every, args=(1.0, recorder.report_drops), daemon=True).start()
-    threading.Thread(target=recorder.convert_forever, daemon=True).start()
+    guarded(out, "drop counter", every, 1.0, recorder.report_drops)
+    guarded(out, "reader", recorder.convert_forever)
     publishers.start()
     out.write({"kind": "ready"})
     watch.watch(recorder)
@@ -352,7 +376,7 @@ def main() -> None:
     out.write({"kind": "started"})
     ended = threading.Event()
     recorder, publishers = Recorder(out, args), Publishers(out)
-    threading.Thread(target=start_node, args=(args, out, recorder, publishers, ended), daemon=True).start()
+    guarded(out, "discovery", start_node, args, out, recorder, publishers, ended)
     for line in sys.stdin:  # ends when the bridge closes our stdin (or dies)
         try:
             item = json.loads(line)

@@ -9,6 +9,7 @@ import base64
 import hashlib
 import json
 import subprocess
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
@@ -182,6 +183,27 @@ def test_a_recorder_killed_amid_the_pieces_loses_and_doubles_nothing(bus: Bus) -
     chunks = bus.recorded("ros_chunk", robot_id="killcam")
     assert len(chunks) == 1 + 1 + 1 + 3 + 1, "every chunk event on the bus recorded once"
     assert all(c.document["body"]["data"] is None for c in chunks), "a chunk's bytes are kept once"
+
+
+def test_pieces_whose_message_never_comes_are_swept_and_counted(bus: Bus) -> None:
+    """A bridge killed mid-message: the pieces it sent wait for a record that never comes. The
+    recorder removes them once older than FLEETBUS_ROS_PIECES_TTL and counts them where
+    `fleetbus stats` shows them; a whole message's blob stays."""
+    robot = bus.robot(bus.add("sweepcam", kind=RobotKind.EXPLORER))
+    whole, whole_sha = ros_message("/camera/image_raw", 0, b"\x03" * (CHUNK_BYTES + 9))  # 2 pieces
+    cut, cut_sha = ros_message("/camera/image_raw", 1, b"\x04" * (CHUNK_BYTES * 2 + 1))  # 3 pieces
+    with bus.recorder(ros_pieces_ttl=timedelta(seconds=1), retention_interval=0.2) as recorder:
+        robot.publish_many([*whole, *cut[:2]], wait=True)  # the bridge killed after 2 of its 3 pieces
+        wait_for(lambda: recorder.stats().pieces_swept >= 2, what="the two pieces swept")
+        assert bus.recorded("ros", robot_id="sweepcam")[0].document["fields"]["data"][BLOB_KEY] == whole_sha
+    assert recorder.stats().pieces_swept == 2, "only the pieces no message named"
+    assert not any(blobs(bus, [piece_name(cut_sha, i) for i in range(3)]).values())
+    assert blobs(bus, [whole_sha])[whole_sha] == b"\x03" * (CHUNK_BYTES + 9)
+    stats = fleetbus(bus, "stats", "--json")
+    assert stats.returncode == 0, stats.stderr
+    rows = [json.loads(line) for line in stats.stdout.splitlines()]
+    swept = [(r["subject"], r["count"]) for r in rows if r.get("bound") == "ros-pieces"]
+    assert swept == [("sweepcam", 2)]
 
 
 def test_a_full_outbox_drops_the_large_messages_and_lets_the_small_ones_through(

@@ -1,10 +1,13 @@
-"""A bridge that keeps working: a master that starts after it, a master restarted under it, and a
-ROS side that never outlives it; every failure retried and shown in ``fleetbus ros status``."""
+"""A bridge that keeps working: a master that starts after it, a master restarted under it, a ROS
+side killed under it, and a ROS side that never outlives it; every failure retried and shown in
+``fleetbus ros status``."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -16,7 +19,7 @@ from tests.support import Bus, read_line, wait_for
 from tests.test_cli import fleetbus
 
 BURST = 50
-TOPICS = ("/before", "/after")
+TOPICS = ("/before", "/after", "/again")
 
 
 def burst_recorded(bridge: object, master: RosMaster, topic: str) -> None:
@@ -57,6 +60,37 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
         wait_for(lambda: bridge.counters.master["restarts"] == 1, 30, "the restarted master seen")
         burst_recorded(bridge, ros_master, "/after")  # a new topic, on the new master
         assert bridge.counters.snapshot()["topics"]["/after"]["dropped"] == {}
+
+        # the ROS side killed, and unable to start for a while (its Python gone): restarted with
+        # backoff, and `ros status` says so (exit 1) until it runs again
+        options = bridge.options
+        bridge.options = dataclasses.replace(options, python="/nonexistent/python3")
+        assert bridge._process is not None
+        os.kill(bridge._process.pid, signal.SIGKILL)
+        wait_for(
+            lambda: (p := bridge.counters.parts.snapshot()["ros-side"])["state"] == "restarting"
+            and "/nonexistent/python3" in p.get("last_failure", ""),
+            30,
+            "the failed restart noted",
+        )
+        status = fleetbus(bus, "ros", "status", "rosres1")
+        assert status.returncode == 1, status.stdout + status.stderr
+        part = json.loads(status.stdout)["parts"]["ros-side"]
+        assert part["state"] == "restarting" and part["failures"] >= 2, part  # killed, then not started
+        assert 0 < part["retry_in"] <= 30 and "cannot start the ROS side" in part["last_failure"]
+        bridge.options = options
+        wait_for(lambda: bridge.counters.parts.snapshot()["ros-side"]["state"] == "running", 60, "restarted")
+        assert bridge.counters.parts.snapshot()["ros-side"]["restarts"] == 1
+        burst_recorded(bridge, ros_master, "/again")  # recording resumes
+        bridge.report()
+        status = fleetbus(bus, "ros", "status", "rosres1")
+        assert status.returncode == 0, status.stdout + status.stderr
+        shown = json.loads(status.stdout)
+        assert {name: part["state"] for name, part in shown["parts"].items()} == {
+            "ros-side": "running",
+            "writer": "running",
+            "notifications": "running",
+        }
     assert bridge._process is not None and bridge._process.poll() is not None, "its ROS side ended with it"
 
 

@@ -13,7 +13,7 @@ import logging
 import uuid
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field, replace
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from typing import TypeVar
 
 import pika.exceptions
@@ -44,6 +44,10 @@ log = logging.getLogger("fleetbus.recorder")
 T = TypeVar("T")
 MissionLookup = Callable[[set[str]], Awaitable[dict[str, str]]]
 """The mission each of these robots is being recorded under now (robots under none left out)."""
+BoundCounter = Callable[[Mapping[tuple[str, str], int], datetime], Awaitable[None]]
+"""Adds what a bound removed, by bound and subject, to the counts ``fleetbus stats`` shows
+(:meth:`~fleetbus.workers.store.housekeeping.Housekeeping.count_bounded`)."""
+ROS_PIECES_BOUND = "ros-pieces"
 CONNECTION_LOST = (pika.exceptions.AMQPError, ConnectionError)
 
 
@@ -58,6 +62,8 @@ class RecorderOptions:
     sample_interval: float = 60.0
     """Seconds between two looks at the database's size (``fleetbus stats``)."""
     retention_interval: float = 30.0
+    ros_pieces_ttl: timedelta = timedelta(hours=1)
+    """Pieces of a large ROS message (``ros_chunk``) that no record named this long are removed."""
     batch_size: int = 256
     linger: float = 0.05
     """Seconds a batch waits for more messages: recording is not urgent, and fewer, larger
@@ -73,6 +79,8 @@ class RecorderStats:
     """Messages not stored even raw: each dead-lettered (reason ``unstorable``) and logged."""
     store_retries: int = 0
     swept: int = 0
+    pieces_swept: int = 0
+    """``ros_chunk`` pieces removed because their message never came (``FLEETBUS_ROS_PIECES_TTL``)."""
     by_type: dict[str, int] = field(default_factory=dict)
 
 
@@ -95,8 +103,11 @@ class RecorderConsumer:
         names: TypeNames,
         missions: MissionLookup | None = None,
         rejections: RejectionLog | None = None,
+        bounded: BoundCounter | None = None,
     ) -> None:
+        """``bounded``: where what the sweeps remove is counted for operators (else only logged)."""
         self._rejections = rejections
+        self._bounded = bounded
         self._queue = queue
         self._store = store
         self._options = options
@@ -298,3 +309,25 @@ class RecorderConsumer:
         if deleted:
             self.stats.swept += sum(deleted.values())
             log.info("retention deleted %s", ", ".join(f"{n} {t}" for t, n in sorted(deleted.items())))
+        await self._sweep_pieces()
+
+    async def _sweep_pieces(self) -> None:
+        """The pieces of large ROS messages whose message never came: removed, and counted."""
+        now = datetime.now(timezone.utc)
+        try:
+            removed = await self.blobs.sweep(now - self._options.ros_pieces_ttl)
+        except StoreUnavailable as error:
+            log.warning("sweep of ros_chunk pieces skipped: %s", error)
+            return
+        if not removed:
+            return
+        self.stats.pieces_swept += sum(removed.values())
+        log.warning(
+            "removed ros_chunk pieces no ROS message named within %s (FLEETBUS_ROS_PIECES_TTL): %s",
+            self._options.ros_pieces_ttl,
+            ", ".join(f"{n} of {robot}" for robot, n in sorted(removed.items())),
+        )
+        if self._bounded is not None:
+            bounded = self._bounded
+            counts = {(ROS_PIECES_BOUND, robot): n for robot, n in removed.items()}
+            await self._retrying(lambda: bounded(counts, now))

@@ -7,35 +7,30 @@ replaces itself (``exec``: same process id, so the same signals reach it, and th
 only what recording needs. The process that records for hours never carries the command line
 (``python -m bench.recorder --against REF`` compares its memory with an earlier commit's).
 
-What the command resolved goes to the new image through an inherited pipe, as JSON: the URL holds
-the account's password, which must not appear in the process's arguments (``ps``) or environment.
-The settings go resolved, as plain values: the settings model (pydantic, pydantic-settings and the
-schemas it names: about 12 MB) stays out of the recording process.
+What the command resolved goes to the new image through an inherited pipe, as JSON
+(:mod:`fleetbus.launch_pipe`): the URL holds the account's password. The settings go resolved,
+as plain values: the settings model (pydantic, pydantic-settings and the schemas it names: about
+12 MB) stays out of the recording process.
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import json
-import os
-import sys
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fleetbus.launch_pipe import exec_module, read_launch
 from fleetbus.workers.logs import configure_logging
 from fleetbus.workers.recorder.consumer import RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
-from fleetbus.workers.recorder.retention import parse_retention
+from fleetbus.workers.recorder.retention import parse_retention, parse_ttl
 from fleetbus.workers.recorder.runner import run_recorder
 
 if TYPE_CHECKING:
     from fleetbus.settings import Settings
-
-#: A pipe's buffer on Linux; the launch is written whole before the ``exec``, so it must fit.
-PIPE_BUFFER = 65536
 
 
 @dataclass(frozen=True)
@@ -67,6 +62,7 @@ class Launch:
     keep: list[str] = field(default_factory=list)
     max_message_bytes: int = 0
     sample_interval: float = 60.0
+    ros_pieces_ttl: str = "1h"
     verbose: bool = False
 
     @classmethod
@@ -90,6 +86,7 @@ class Launch:
             keep=list(keep or settings.recorder_keep),
             max_message_bytes=settings.max_message_bytes,
             sample_interval=sample_interval,
+            ros_pieces_ttl=settings.ros_pieces_ttl,
             verbose=verbose,
         )
         launch.options()
@@ -102,6 +99,7 @@ class Launch:
             retention=parse_retention(self.keep),
             max_message_bytes=self.max_message_bytes,
             sample_interval=self.sample_interval,
+            ros_pieces_ttl=parse_ttl(self.ros_pieces_ttl, "FLEETBUS_ROS_PIECES_TTL"),
         )
 
     def to_json(self) -> bytes:
@@ -118,29 +116,16 @@ class Launch:
 
 def exec_recorder(launch: Launch) -> None:
     """Replace this process with the recording process (does not return)."""
-    data = launch.to_json()
-    if len(data) >= PIPE_BUFFER:
-        raise ValueError(f"the recorder's options are too long ({len(data)} bytes)")
-    reading, writing = os.pipe()
-    os.write(writing, data)
-    os.close(writing)
-    os.set_inheritable(reading, True)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os.execv(
-        sys.executable,
-        [sys.executable, "-m", "fleetbus.workers.recorder", "--launch-fd", str(reading)],
-    )
+    exec_module("fleetbus.workers.recorder", launch.to_json())
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m fleetbus.workers.recorder",
-        description="The recording process; started by `fleetbus recorder run`, which checks its options.",
+    launch = Launch.from_json(
+        read_launch(
+            "python -m fleetbus.workers.recorder",
+            "The recording process; started by `fleetbus recorder run`, which checks its options.",
+            argv,
+        )
     )
-    parser.add_argument("--launch-fd", type=int, required=True, help="the pipe the launch is read from")
-    args = parser.parse_args(argv)
-    with os.fdopen(args.launch_fd, "rb") as pipe:
-        launch = Launch.from_json(pipe.read())
     configure_logging(launch.verbose)
     asyncio.run(run_recorder(launch.stores, launch.url, launch.options()))

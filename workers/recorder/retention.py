@@ -91,6 +91,14 @@ def parse_limit(text: str, what: str = "limit") -> Retention:
     raise ValueError(f"{what}: unknown unit {unit!r}; use s, m, h, d, KB, MB, GB or none")
 
 
+def parse_ttl(text: str, variable: str) -> timedelta:
+    """An age (``30m``, ``1h``, ``2d``) as a time span; ValueError naming ``variable`` otherwise."""
+    limit = parse_limit(text, variable)
+    if limit.max_age is None:
+        raise ValueError(f"{variable}: write an age (30m, 1h, 2d), not {text!r}")
+    return limit.max_age
+
+
 def policy_for(policies: Mapping[str, Retention], type: str) -> Retention | None:
     return policies.get(type) or policies.get(ANY_TYPE)
 

@@ -12,6 +12,11 @@ as ``ros_chunk`` events, in order, before the ``ros`` event that names it as ``{
   and the record's problem says so: a record never names a blob the store does not hold;
 - once the records are written, forgets the pieces of the blobs it made.
 
+Each piece is noted in the recording's bookkeeping before it is written, and forgotten with it:
+the pieces of a message whose record never came (its bridge killed mid-message, a resent piece
+of a message recorded already) are swept once they are older than ``FLEETBUS_ROS_PIECES_TTL``
+(:meth:`RosBlobs.sweep`), and counted.
+
 Each step may be done again (a redelivery after a crash) with the same outcome: a piece or a blob
 kept already is not written twice, and a blob made already is found whole when its pieces are gone.
 """
@@ -23,6 +28,7 @@ import hashlib
 import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.schemas.bodies import chunk_count
@@ -33,6 +39,8 @@ from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 log = logging.getLogger("fleetbus.recorder")
 CHUNK_TYPE = EventType.ROS_CHUNK.value
 Retrying = Callable[[Callable[[], Awaitable[Any]]], Awaitable[Any]]
+#: Pieces a sweep forgets in one step.
+SWEEP_BATCH = 500
 
 
 def piece_name(blob: str, index: int) -> str:
@@ -46,6 +54,8 @@ class BlobStats:
     """Blobs put together from their pieces."""
     missing: int = 0
     """Blobs a record named whose pieces did not all arrive: described, not kept."""
+    swept: int = 0
+    """Pieces removed because no record named them in time."""
 
 
 @dataclass
@@ -70,6 +80,26 @@ class RosBlobs:
     async def settle(self, pieces: list[str]) -> None:
         if pieces:
             await self.retrying(lambda: self.store.delete_blobs(pieces))
+            await self.retrying(lambda: self.store.bookkeeping.pieces_settled(pieces))
+
+    async def sweep(self, before: datetime) -> dict[str, int]:
+        """Remove the pieces noted before ``before`` (no record named them since); how many of
+        them the blob store still held, by robot."""
+        removed: dict[str, int] = {}
+        bookkeeping = self.store.bookkeeping
+        while stale := await bookkeeping.pieces_staged_before(before, SWEEP_BATCH):
+            by_robot: dict[str, list[str]] = {}
+            for name, robot in stale:
+                by_robot.setdefault(robot or "(unknown)", []).append(name)
+            for robot, names in sorted(by_robot.items()):
+                count = await self.store.delete_blobs(names)
+                if count:
+                    removed[robot] = removed.get(robot, 0) + count
+            await bookkeeping.pieces_settled([name for name, _ in stale])
+            if len(stale) < SWEEP_BATCH:
+                break
+        self.stats.swept += sum(removed.values())
+        return removed
 
     async def _stage(self, record: RecordedMessage) -> RecordedMessage:
         envelope = record.document
@@ -82,6 +112,8 @@ class RosBlobs:
         except (ValueError, KeyError, TypeError) as error:
             problem = f"a ros_chunk that cannot be read: {error}"
             return replace(record, problem="; ".join(p for p in (record.problem, problem) if p))
+        at = datetime.now(timezone.utc)
+        await self.retrying(lambda: self.store.bookkeeping.piece_staged(name, record.robot_id, at))
         await self.retrying(lambda: self.store.put_blob(name, data))
         kept = {**body, "data": None, "size": len(data)}
         return replace(record, document={**envelope, "body": kept})

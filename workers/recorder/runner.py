@@ -12,7 +12,7 @@ from fleetbus.schemas.routing import RECORDER_QUEUE
 from fleetbus.workers.recorder.capture import TypeNames
 from fleetbus.workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
-from fleetbus.workers.recorder.retention import parse_retention
+from fleetbus.workers.recorder.retention import parse_retention, parse_ttl
 from fleetbus.workers.recorder.source import RecorderQueue
 from fleetbus.workers.signals import stop_on_signals
 from fleetbus.workers.store import Repositories, StoreSettings, open_recording_store, repositories_for
@@ -47,6 +47,7 @@ def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions
         filter=RoutingFilter(settings.recorder_include, settings.recorder_exclude),
         retention=parse_retention(settings.recorder_keep),
         max_message_bytes=settings.max_message_bytes,
+        ros_pieces_ttl=parse_ttl(settings.ros_pieces_ttl, "FLEETBUS_ROS_PIECES_TTL"),
     )
     return RecorderOptions(**{**options.__dict__, **overrides})  # type: ignore[arg-type]
 
@@ -94,7 +95,13 @@ async def start_recorder(
     return RecorderContext(
         queue,
         RecorderConsumer(
-            queue, store, options, names, missions, repositories.rejections if repositories else None
+            queue,
+            store,
+            options,
+            names,
+            missions,
+            repositories.rejections if repositories else None,
+            repositories.housekeeping.count_bounded if repositories else None,
         ),
         store,
         repositories,

@@ -198,11 +198,19 @@ class MongoRecordingStore(MongoStore, RecordingStore):
         data: bytes = await stream.read()
         return data
 
-    async def delete_blobs(self, digests: Sequence[str]) -> None:
+    async def delete_blobs(self, digests: Sequence[str]) -> int:
+        from gridfs.errors import NoFile
+
         files = self._database()[f"{BLOB_BUCKET}.files"]
         bucket = self._blobs()
+        deleted = 0
         async for found in files.find({"filename": {"$in": [check_digest(d) for d in digests]}}, {"_id": 1}):
-            await bucket.delete(found["_id"])
+            try:
+                await bucket.delete(found["_id"])
+                deleted += 1
+            except NoFile:  # another process deleted it meanwhile
+                pass
+        return deleted
 
     def _recorded(self, type: str) -> Any:
         return self._collection(collection_name(type))

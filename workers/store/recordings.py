@@ -24,7 +24,7 @@ from enum import Enum
 from typing import Any, Union
 
 from fleetbus.workers.store.base import WriteResult
-from fleetbus.workers.store.port import INTEGER, JSON, TEXT, TIME, Database, Index, Range, Schema
+from fleetbus.workers.store.port import INTEGER, JSON, TEXT, TIME, Database, In, Index, Range, Schema
 
 Scalar = Union[str, int, float, bool, None]  # noqa: UP007  (a runtime alias; Python 3.10 reads it)
 
@@ -242,6 +242,14 @@ FIELD_INDEXES = Schema(
 )
 """The field indexes a database holds for each type, by the name it gave them, and when each was
 last asked for (the least recently used is dropped first)."""
+PIECES = Schema(
+    "recording_pieces",
+    {"name": TEXT, "robot_id": TEXT.maybe, "staged_at": TIME},
+    key=("name",),
+    indexes=(Index("staged_at"),),
+)
+"""The pieces of large ROS byte arrays (``ros_chunk``) waiting in the blob store for the message
+that names them, by their name there, from when: those whose message never came are swept."""
 
 
 class Bookkeeping:
@@ -252,6 +260,7 @@ class Bookkeeping:
         self.max_field_indexes = max_field_indexes
         self._samples = database.collection(SAMPLES)
         self._indexes = database.collection(FIELD_INDEXES)
+        self._pieces = database.collection(PIECES)
 
     async def add_sample(self, sample: StorageSample) -> None:
         await self._samples.insert([sample.__dict__])
@@ -277,6 +286,20 @@ class Bookkeeping:
 
     async def made(self, type: str, name: str, paths: Sequence[str], at: datetime) -> None:
         await self._indexes.put({"type": type, "name": name, "paths": list(paths), "used_at": at})
+
+    async def piece_staged(self, name: str, robot_id: str | None, at: datetime) -> None:
+        """Note a piece in the blob store (before it is written); a piece noted already keeps its time."""
+        await self._pieces.insert([{"name": name, "robot_id": robot_id, "staged_at": at}])
+
+    async def pieces_settled(self, names: Sequence[str]) -> None:
+        if names:
+            await self._pieces.delete({"name": In(list(names))})
+
+    async def pieces_staged_before(self, before: datetime, limit: int) -> list[tuple[str, str | None]]:
+        """``(name, robot)`` of the oldest pieces noted before ``before``, ``limit`` at most."""
+        where = {"staged_at": Range(lt=before)}
+        found = await self._pieces.find(where, order=["staged_at", "name"], limit=limit)
+        return [(doc["name"], doc["robot_id"]) for doc in found]
 
     async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
         return sorted(tuple(index["paths"]) for index in await self._indexes.find({"type": type}))
@@ -324,8 +347,8 @@ class RecordingStore(abc.ABC):
         """The bytes kept under ``digest``, or None."""
 
     @abc.abstractmethod
-    async def delete_blobs(self, digests: Sequence[str]) -> None:
-        """Forget the bytes kept under ``digests`` (those kept)."""
+    async def delete_blobs(self, digests: Sequence[str]) -> int:
+        """Forget the bytes kept under ``digests`` (those kept); how many were kept."""
 
     @abc.abstractmethod
     async def type_summary(self, type: str) -> TypeSummary:

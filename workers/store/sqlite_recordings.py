@@ -450,9 +450,20 @@ class SQLiteRecordingStore(SQLiteStore, RecordingStore):
         path = self._blob_path(digest)
         return await asyncio.to_thread(lambda: path.read_bytes() if path.exists() else None)
 
-    async def delete_blobs(self, digests: Sequence[str]) -> None:
+    async def delete_blobs(self, digests: Sequence[str]) -> int:
         paths = [self._blob_path(digest) for digest in digests]
-        await asyncio.to_thread(lambda: [path.unlink(missing_ok=True) for path in paths])
+
+        def delete() -> int:
+            deleted = 0
+            for path in paths:
+                try:
+                    path.unlink()
+                    deleted += 1
+                except FileNotFoundError:
+                    pass
+            return deleted
+
+        return await asyncio.to_thread(delete)
 
     async def database_bytes(self) -> int:
         files = (self.path, self.path.with_name(self.path.name + "-wal"))

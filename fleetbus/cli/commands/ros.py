@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import json
-import logging
 import os
-import signal
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from fleetbus.cli.commands.events import open_robot, robot_url
+from fleetbus.cli.commands.events import robot_url
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.processes import pid_alive
 
@@ -37,15 +35,20 @@ def bridge(
 
     Runs beside the ROS master (ROS_MASTER_URI), with the robot's credentials and state folder:
     what the broker has not confirmed waits in the outbox. Mapped topics become fleetbus events;
-    this robot's notifications are published on /fleetbus/... topics. Runs until interrupted.
+    this robot's notifications are published on /fleetbus/... topics. A part that fails (its ROS
+    side, a thread) is started again, and `fleetbus ros status` shows it. Runs until interrupted;
+    exits 1 when it cannot go on.
     """
-    from fleetbus.publishers.ros.bridge import Bridge, BridgeOptions, RosSideError
+    from dataclasses import asdict
+
+    from fleetbus.publishers.ros.bridge import BridgeOptions
+    from fleetbus.publishers.ros.launch import BridgeLaunch, exec_bridge
     from fleetbus.publishers.ros.mapping import MappingError, load_mapping
 
     config = settings()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    mapping_file = mapping or config.ros_mapping
     try:
-        rules = load_mapping(mapping or config.ros_mapping)
+        load_mapping(mapping_file)
     except MappingError as error:
         fail(str(error), code=2)
     options = BridgeOptions(
@@ -61,24 +64,22 @@ def bridge(
         linger_s=config.ros_linger_s,
     )
     amqp_url = robot_url(robot, url)
-    client = open_robot(robot, amqp_url, 10.0)
-    runner = Bridge(client, rules, options, config.robots_dir, commands_url=amqp_url)
-    signal.signal(signal.SIGTERM, lambda *_: runner.stop())
-    try:
-        code = runner.run()
-    except RosSideError as error:
-        fail(str(error))
-    except KeyboardInterrupt:
-        runner.stop()
-        code = 0
-    finally:
-        client.close()
-    raise typer.Exit(code)
+    launch = BridgeLaunch(
+        robot,
+        amqp_url,
+        str(config.robots_dir),
+        str(mapping_file) if mapping_file else None,
+        asdict(options),
+    )
+    # the same process bridges on without the command line's imports
+    exec_bridge(launch)
 
 
 @app.command()
 def status(robot: Annotated[str, typer.Argument(help="the robot's account")]) -> None:
-    """The counts of a robot's running (or last) bridge: per topic, recorded, as events, dropped and why."""
+    """The counts of a robot's running (or last) bridge: per topic, recorded, as events, dropped and
+    why; each part of the bridge (its ROS side, its writer, its notifications and commands), running
+    or restarting after a failure. Exits 1 when a part is restarting, or the bridge failed or is gone."""
     from fleetbus.publishers.client import robot_folder
     from fleetbus.publishers.ros.bridge import STATUS_FILE
 
@@ -86,9 +87,14 @@ def status(robot: Annotated[str, typer.Argument(help="the robot's account")]) ->
     if not path.exists():
         fail(f"no bridge has run for {robot!r} here ({path} does not exist)")
     status = json.loads(path.read_text())
-    if status.get("ros_side") == "running" and not pid_alive(status.get("pid")):
+    ended = str(status.get("ros_side", "")).startswith("ended")
+    gone = not ended and not pid_alive(status.get("pid"))
+    if gone:
         status["ros_side"] = f"not running: the bridge (pid {status.get('pid')}) is gone"
     console.print_json(json.dumps(status))
+    failing = [name for name, part in status.get("parts", {}).items() if part.get("state") == "restarting"]
+    if failing or gone or status.get("ended"):
+        raise typer.Exit(1)
 
 
 @app.command("mapping")

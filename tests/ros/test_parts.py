@@ -1,0 +1,51 @@
+"""A thread of the bridge that fails is started again, with a growing wait, and the status says so."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from fleetbus.publishers.ros import parts
+from fleetbus.publishers.ros.counters import Counters
+from tests.support import wait_for
+
+
+def test_a_failing_thread_is_restarted_with_backoff_and_shown(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(parts, "RESTART_FIRST_S", 0.01)
+    counters, stop = Counters(), threading.Event()
+    runs: list[int] = []
+    failing = threading.Event()
+    failing.set()
+
+    def notifications() -> None:  # a fault injected: it fails three times, then runs until stopped
+        runs.append(len(runs))
+        if len(runs) <= 3:
+            raise RuntimeError(f"injected fault {len(runs)}")
+        failing.clear()
+        stop.wait()
+
+    thread = parts.supervised("notifications", notifications, counters.parts, stop)
+    wait_for(lambda: not failing.is_set(), 10, "the thread running again")
+    shown = counters.snapshot()["parts"]["notifications"]
+    assert shown["state"] == "running" and shown["restarts"] == 3 and shown["failures"] == 3
+    assert shown["last_failure"] == "RuntimeError: injected fault 3"
+    assert "parts that failed: notifications running (3 restarts" in counters.status_line()
+    stop.set()
+    thread.join(5)
+    assert not thread.is_alive() and counters.parts.snapshot()["notifications"]["state"] == "stopped"
+
+
+def test_the_wait_doubles_up_to_its_most() -> None:
+    waits = [parts.restart_delay(n) for n in range(1, 10)]
+    assert waits[:4] == [0.5, 1.0, 2.0, 4.0]
+    assert waits[-1] == parts.RESTART_MOST_S and waits == sorted(waits)
+
+
+def test_a_thread_that_ends_by_itself_counts_as_failed() -> None:
+    counters, stop = Counters(), threading.Event()
+    thread = parts.supervised("commands", lambda: None, counters.parts, stop)
+    wait_for(lambda: counters.parts.failing() == ["commands"], 10, "the early end noted")
+    assert counters.parts.snapshot()["commands"]["last_failure"] == "it ended by itself"
+    stop.set()
+    thread.join(5)
