@@ -17,7 +17,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
-from collections.abc import Sequence
+from collections.abc import AsyncIterator, Sequence
+from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from urllib.parse import unquote, urlsplit
@@ -44,7 +45,7 @@ from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings
-from fleetbus.workers.store import Repositories
+from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
@@ -513,6 +514,31 @@ def accounts_for(
         certificates=TlsFiles.for_settings(settings),
         sites=repositories.sites,
     )
+
+
+@dataclass(frozen=True)
+class AccountsContext:
+    """The accounts service open for a block, with the repositories and the management API it uses."""
+
+    accounts: Accounts
+    repositories: Repositories
+    management: ManagementAPI
+
+
+@asynccontextmanager
+async def open_accounts(
+    settings: Settings, admin_url: str, management_url: str, public_url: str | None = None
+) -> AsyncIterator[AccountsContext]:
+    """The accounts service of a process that has no HTTP API of its own (the command line, the
+    demo, the tests' helpers): the same service on the settings' store and ``admin_url``'s broker."""
+    secrets_ = Secrets.for_settings(settings)
+    try:
+        async with open_repositories(settings) as repositories:
+            with ManagementAPI.from_urls(management_url, admin_url) as management:
+                accounts = accounts_for(settings, repositories, secrets_, management, admin_url, public_url)
+                yield AccountsContext(accounts, repositories, management)
+    finally:
+        secrets_.passwords.close()
 
 
 class WrongCredentials(Exception):
