@@ -96,6 +96,8 @@ def test_a_password_on_the_command_line_is_refused_naming_where_it_goes(bus: Bus
     said = refused.stderr.replace("\n", " ")
     assert "--url holds a password" in said and "FLEETBUS_ROBOT_URL" in said, said
     assert kept.split("@")[0].rsplit(":", 1)[1] not in refused.stderr, "the password is not repeated"
+    by_bridge = fleetbus(bus, "ros", "bridge", "argv-explorer", "--url", kept)
+    assert by_bridge.returncode == 2 and "--url holds a password" in by_bridge.stderr.replace("\n", " ")
     # in the environment it is taken, by the ROS bridge too (it gets as far as starting its ROS side)
     bridge = fleetbus(
         bus,

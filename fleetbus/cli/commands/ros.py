@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from fleetbus.cli.commands.events import open_robot, robot_url
+from fleetbus.cli.commands.events import check_url_option, open_robot, robot_url
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.processes import pid_alive
 
@@ -42,6 +42,7 @@ def bridge(
     from fleetbus.publishers.ros.bridge import Bridge, BridgeOptions, RosSideError
     from fleetbus.publishers.ros.mapping import MappingError, load_mapping
 
+    check_url_option(url)
     config = settings()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
