@@ -257,8 +257,8 @@ def check(
 ) -> None:
     """Compare the account registry with what derives from it (the broker's accounts, permissions,
     topic permissions and shard bindings, the team, the sites' accounts at central), as the
-    console's dashboard and `GET /users/check` do; with --repair, make those the registry's again
-    (`POST /users/check/repair`). Exits 1 when something differs (after --repair: still differs)."""
+    console's dashboard and `GET /registry/drift` do; with --repair, make those the registry's again
+    (`POST /registry/repair`). Exits 1 when something differs (after --repair: still differs)."""
     from fleetbus.api.account_check import account_check_for
 
     ep, config = endpoint(), settings()
