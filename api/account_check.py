@@ -1,5 +1,7 @@
 """The account registry against what derives from it: the broker's accounts, permissions, topic
-permissions and ingest-shard bindings, the team, and each site's account at central. Each
+permissions and ingest-shard bindings, the team, each site's account at central, and the
+robots' accounts each site has (as its newest report says: central does not reach the sites'
+brokers; a site reports from ``fleetbus site apply``). Each
 difference is a :class:`Drift`; :meth:`AccountCheck.repair` makes the derived state the
 registry's again (the registry itself changes only to take in a broker account made outside it).
 
@@ -23,6 +25,8 @@ from fleetbus.broker.shards import read_shard_map, unassign_shard
 from fleetbus.broker.sites import grant_site_robots, site_permissions
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import SERVICE_PREFIX, beacon_exchange
+from fleetbus.schemas.site_reports import SiteReport
+from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
@@ -102,6 +106,7 @@ class AccountCheck:
         registry = {user.name: user for user in await self._users.users()}
         team = {robot.name: robot.kind for robot in await self._team.robots()}
         sites = await self._sites.sites()
+        copies = await self._site_copies()
         broker = await asyncio.to_thread(self._read_broker)
         found: list[Drift] = []
         skip = self._not_users(sites)
@@ -146,6 +151,7 @@ class AccountCheck:
                 Drift("team", name, f"{name} is in the team but is no robot", "take it out of the team")
             )
         for site, members in sorted(sites.items()):
+            found.extend(self._copies_drift(site, members, copies.get(site)))
             found.extend(self._site_drift(site, members, robots, broker))
         return sorted(found, key=lambda d: (KINDS.index(d.kind), d.name))
 
@@ -209,6 +215,29 @@ class AccountCheck:
                 )
         return found
 
+    async def _site_copies(self) -> dict[str, SiteReport]:
+        """Each site's newest report (those waiting at central taken in first): the robots'
+        accounts it has, as it last said."""
+        await collect_site_reports(self._admin_url, self._sites)
+        return await self._sites.reports()
+
+    def _copies_drift(self, site: str, members: Collection[str], report: SiteReport | None) -> list[Drift]:
+        """The copies of robots' accounts the site has (as its newest report says) but should not:
+        robots removed at central, or taken from the site."""
+        extra = extra_copies(members, report)
+        if not extra:
+            return []
+        assert report is not None
+        return [
+            Drift(
+                "site",
+                site,
+                f"site {site} keeps the accounts of {', '.join(extra)}, which are not its robots "
+                f"(its report of {report.at:%Y-%m-%d %H:%M:%S} UTC)",
+                "tell the site to remove them",
+            )
+        ]
+
     def _site_drift(
         self, site: str, members: Collection[str], robots: set[str], broker: _Broker
     ) -> list[Drift]:
@@ -249,8 +278,12 @@ class AccountCheck:
         registry = {user.name: user for user in await self._users.users()}
         sites = await self._sites.sites()
         broker = await asyncio.to_thread(self._read_broker)
+        reports = await self._sites.reports()
+        repaired: set[tuple[str, str]] = set()
         for drift in found:
-            await self._repair(drift, registry, sites, broker, by)
+            if (drift.kind, drift.name) not in repaired:  # a site's drifts are repaired at once
+                await self._repair(drift, registry, sites, reports, broker, by)
+                repaired.add((drift.kind, drift.name))
         return found
 
     async def _repair(
@@ -258,6 +291,7 @@ class AccountCheck:
         drift: Drift,
         registry: dict[str, User],
         sites: dict[str, tuple[str, ...]],
+        reports: dict[str, SiteReport],
         broker: _Broker,
         by: str,
     ) -> None:
@@ -277,15 +311,25 @@ class AccountCheck:
                 await self._team.register_robot(name, user.kind)
             else:
                 await leave_team(self._team, self._admin_url, name, by)
-        elif drift.kind == "site" and site_exists(name, broker):
+        elif drift.kind == "site":
             robots = {n for n, u in registry.items() if u.role is UserRole.ROBOT}
             members = [robot for robot in sites.get(name, ()) if robot in robots]
-            await self._sites.set_robots(name, members)
-            await asyncio.to_thread(grant_site_robots, self._management, self._vhost, name, members)
+            if site_exists(name, broker):
+                await self._sites.set_robots(name, members)
+                await asyncio.to_thread(grant_site_robots, self._management, self._vhost, name, members)
+            if extra := extra_copies(members, reports.get(name)):
+                await self._accounts.tell_site_to_remove(name, extra)
 
 
 def site_exists(site: str, broker: _Broker) -> bool:
     return site in broker.users
+
+
+def extra_copies(members: Collection[str], report: SiteReport | None) -> list[str]:
+    """The robots whose accounts the site has, as ``report`` says, that are not its ``members``."""
+    if report is None or report.accounts is None:
+        return []
+    return sorted(set(report.accounts) - set(members))
 
 
 def account_check_for(

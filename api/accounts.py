@@ -1,7 +1,9 @@
 """The account registry's one application service: create, change role, remove, log in; each user
 with its broker account. The command line (``fleetbus users``), the HTTP API (``/users``) and the
 console's Accounts page are adapters of it: the same checks, the same refusals
-(:mod:`fleetbus.api.errors`), the same outcome.
+(:mod:`fleetbus.api.errors`), the same outcome. So is ``fleetbus sites add | robots``: a site's
+account at central forwards for robots of the registry, and a robot removed or taken from a site
+is removed from the site's broker too (over the downlink).
 
 The store holds the user (role, password hash, encrypted broker password); the broker holds an
 account of the same name with a random password, confined to ``^<name>\\.``. The store is
@@ -17,10 +19,13 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
-from collections.abc import Sequence
+from collections.abc import AsyncIterator, Collection, Sequence
+from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from urllib.parse import unquote, urlsplit
+
+from pika.exceptions import AMQPError
 
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
 from fleetbus.api.security import Secrets, Token, password_problem
@@ -38,13 +43,15 @@ from fleetbus.broker.certificates import CertificateError, TlsFiles
 from fleetbus.broker.fleet import NewRobot, provision_robots
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
-from fleetbus.broker.sites import grant_site_robots
+from fleetbus.broker.sites import add_site_account, grant_site_robots
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.site_changes import RobotAccount
 from fleetbus.settings import Settings
-from fleetbus.workers.store import Repositories
+from fleetbus.workers.sites import send_removals, set_site_robots
+from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
@@ -90,6 +97,22 @@ class Removed:
     """It was a robot of the team."""
     revoked: str | None = None
     """The certificates of the name revoked, said in a sentence (None: there were none)."""
+
+
+@dataclass(frozen=True)
+class SiteRobots:
+    robots: tuple[str, ...]
+    """The site's robots now, sorted."""
+    sent: list[RobotAccount]
+    """The accounts sent to the site (of the robots new to it)."""
+    removed: list[str]
+    """The robots the site was told to remove its copies of."""
+
+
+@dataclass(frozen=True)
+class SiteAdded(SiteRobots):
+    public_url: str = ""
+    """The site's login at central's public address: what its operator is handed, once."""
 
 
 @dataclass(frozen=True)
@@ -450,7 +473,7 @@ class Accounts:
 
     async def _leave_sites(self, name: str) -> None:
         """Take a removed robot from its site: the site's account at central may no longer write
-        for it (the site keeps its copy of the account until its operator removes it there)."""
+        for it, and the site is told to remove its copy of the account."""
         if self._sites is None:
             return
         for site, members in (await self._sites.sites()).items():
@@ -459,6 +482,87 @@ class Accounts:
                 await self._sites.set_robots(site, rest)
                 vhost = vhost_of(self._admin_url)
                 await asyncio.to_thread(grant_site_robots, self._management, vhost, site, rest)
+                await self.tell_site_to_remove(site, [name])
+
+    async def tell_site_to_remove(self, site: str, robots: Collection[str]) -> bool:
+        """Send ``site`` the removal of its copies of ``robots``' accounts; False (logged) when
+        central's broker did not take it: the site keeps them, and the registry check reports
+        them once the site says so (its repair sends the removal again)."""
+        try:
+            await asyncio.to_thread(send_removals, self._admin_url, site, robots)
+        except (AMQPError, OSError) as error:
+            log.warning("site %s not told to remove %s: %s", site, ", ".join(robots), error)
+            return False
+        return True
+
+    def _site_registry(self) -> SiteRegistry:
+        if self._sites is None:
+            raise Unavailable("this accounts service has no site registry")
+        return self._sites
+
+    async def _check_robots(self, robots: Collection[str]) -> None:
+        """Refuse names that are no robots of the registry: a site forwards for robots only."""
+        registry = {user.name: user for user in await self._users.users()}
+        wrong = sorted(r for r in robots if r not in registry or registry[r].role is not UserRole.ROBOT)
+        if wrong:
+            raise BadRequest(
+                f"not robots of the account registry: {', '.join(wrong)} "
+                "(make them with `fleetbus users add NAME`)"
+            )
+
+    async def _assign_site(self, site: str, robots: Collection[str]) -> SiteRobots:
+        try:
+            names, sent, removed = await set_site_robots(
+                self._site_registry(), self._team, self._management, self._admin_url, site, robots
+            )
+        except ValueError as error:
+            raise BadRequest(str(error)) from None
+        except (ManagementError, AMQPError, OSError) as error:
+            problem = f"the broker refused or failed to give site {site} its robots: {error}"
+            raise Unavailable(problem) from error
+        return SiteRobots(names, sent, removed)
+
+    async def add_site(
+        self, site: str, robots: Collection[str], by: str, *, rotate: bool = False
+    ) -> SiteAdded:
+        """Make ``site``'s account at central (tagged impersonator, a new password), confined to
+        ``robots`` (robots of the registry), and send the site their accounts. ``rotate``: an
+        existing site gets a new password. A site's name is no user's."""
+        try:
+            validate_name(site)
+        except ValueError as error:
+            raise BadRequest(str(error)) from None
+        if site == unquote(urlsplit(self._admin_url).username or ""):
+            raise BadRequest(f"{site!r} is the broker administrator's account: no site may have that name")
+        if await self._users.get_user(site) is not None:
+            raise BadRequest(f"{site!r} is a user in the account registry: a site needs a name of its own")
+        await self._check_robots(robots)
+        try:
+            account = await add_site_account(
+                self._admin_url, self._management, site, rotate=rotate, cluster=self._cluster
+            )
+        except ValueError as error:
+            raise Conflict(str(error)) from None
+        except (ManagementError, AMQPError, OSError) as error:
+            problem = f"the broker refused or failed to make site {site}'s account: {error}"
+            raise Unavailable(problem) from error
+        assigned = await self._assign_site(site, robots)
+        log.info("site %s %s by %s", site, "re-keyed" if rotate else "made", by)
+        public = as_public(account.amqp_url, self._public_url)
+        return SiteAdded(assigned.robots, assigned.sent, assigned.removed, public)
+
+    async def change_site_robots(
+        self, site: str, add: Collection[str], remove: Collection[str], by: str
+    ) -> SiteRobots:
+        """Add robots of the registry to ``site`` and take others from it: its account at central
+        follows, the site is sent the new ones' accounts and told to remove the others' copies."""
+        known = await self._site_registry().sites()
+        if site not in known:
+            raise NotFound(f"no site {site!r}; make it with `fleetbus sites add {site}`")
+        await self._check_robots(add)
+        changed = await self._assign_site(site, (set(known[site]) | set(add)) - set(remove))
+        log.info("site %s: robots %s, by %s", site, ", ".join(changed.robots) or "none", by)
+        return changed
 
     async def login(self, name: str, password: str, origin: Origin) -> Login:
         """Check the password and begin a session seen from ``origin``."""
@@ -513,6 +617,31 @@ def accounts_for(
         certificates=TlsFiles.for_settings(settings),
         sites=repositories.sites,
     )
+
+
+@dataclass(frozen=True)
+class AccountsContext:
+    """The accounts service open for a block, with the repositories and the management API it uses."""
+
+    accounts: Accounts
+    repositories: Repositories
+    management: ManagementAPI
+
+
+@asynccontextmanager
+async def open_accounts(
+    settings: Settings, admin_url: str, management_url: str, public_url: str | None = None
+) -> AsyncIterator[AccountsContext]:
+    """The accounts service of a process that has no HTTP API of its own (the command line, the
+    demo, the tests' helpers): the same service on the settings' store and ``admin_url``'s broker."""
+    secrets_ = Secrets.for_settings(settings)
+    try:
+        async with open_repositories(settings) as repositories:
+            with ManagementAPI.from_urls(management_url, admin_url) as management:
+                accounts = accounts_for(settings, repositories, secrets_, management, admin_url, public_url)
+                yield AccountsContext(accounts, repositories, management)
+    finally:
+        secrets_.passwords.close()
 
 
 class WrongCredentials(Exception):

@@ -263,7 +263,9 @@ def run(
     site_account = asyncio.run(add_site_account(central.amqp_url, central_api, "bench-site", rotate=True))
     run_with_repositories(
         central_settings,
-        lambda repos: assign_robots(repos, central_api, central.amqp_url, "bench-site", robots),
+        lambda repos: assign_robots(
+            repos.sites, repos.hazards, central_api, central.amqp_url, "bench-site", robots
+        ),
     )
     # the loader: one connection publishing in every robot's name, as a site's shovel does
     loader_password = "bench-loader-password"

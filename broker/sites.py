@@ -87,7 +87,7 @@ from fleetbus.schemas.routing import (
 
 #: The downlink's kinds of change (:mod:`fleetbus.schemas.site_changes`): small ones in one queue,
 #: maps in another, each with its shovel.
-DOWNLINK_KINDS = ("account", "mission")
+DOWNLINK_KINDS = ("account", "account_removed", "mission")
 MAP_KINDS = ("map", "map_chunk")
 #: The tag that lets a site's account publish its robots' events with their own ``user_id``.
 SITE_TAGS = "impersonator"
@@ -120,6 +120,13 @@ def forward_robot(api: ManagementAPI, vhost: str, robot: str) -> None:
     for uplink in CLASSES:
         for key in uplink.keys(robot):
             api.bind(vhost, INGEST_EXCHANGE, uplink.queue, key)
+    api.unbind_keys(vhost, INGEST_EXCHANGE, UPLINK_QUEUE, [f"{robot}.#"])
+
+
+def stop_forwarding(api: ManagementAPI, vhost: str, robot: str) -> None:
+    """No longer forward ``robot``'s events (its account at the site is removed)."""
+    for uplink in CLASSES:
+        api.unbind_keys(vhost, INGEST_EXCHANGE, uplink.queue, uplink.keys(robot))
     api.unbind_keys(vhost, INGEST_EXCHANGE, UPLINK_QUEUE, [f"{robot}.#"])
 
 

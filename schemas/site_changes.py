@@ -1,4 +1,5 @@
-"""What central sends a site over its downlink: the accounts of the site's robots, and the
+"""What central sends a site over its downlink: the accounts of the site's robots (and the removal
+of those it no longer has), and the
 team's missions as central's store has them, and each new map central stores that a robot of
 another site (or of central) made. A map larger than one chunk (``MAP_CHUNK_BYTES``) travels as
 its chunks (:class:`MapChunk`) followed by its :class:`MapChange`, so no message comes near the
@@ -31,6 +32,16 @@ class RobotAccount(BaseModel):
     kind: RobotKind | None
     password_hash: str
     hashing_algorithm: str
+
+
+class RobotAccountRemoved(BaseModel):
+    """A robot the site no longer has (removed at central, or taken from the site): the site
+    removes its copy of the account, stops forwarding its events and takes it out of its team."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    change: Literal["account_removed"] = "account_removed"
+    name: str
 
 
 class MissionChange(BaseModel):
@@ -90,8 +101,10 @@ class MapChange(BaseModel):
         return self
 
 
-SiteChange = Annotated[RobotAccount | MissionChange | MapChunk | MapChange, Field(discriminator="change")]
-AnySiteChange = RobotAccount | MissionChange | MapChunk | MapChange
+SiteChange = Annotated[
+    RobotAccount | RobotAccountRemoved | MissionChange | MapChunk | MapChange, Field(discriminator="change")
+]
+AnySiteChange = RobotAccount | RobotAccountRemoved | MissionChange | MapChunk | MapChange
 _SITE_CHANGE: TypeAdapter[AnySiteChange] = TypeAdapter(SiteChange)
 
 

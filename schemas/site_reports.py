@@ -47,3 +47,7 @@ class SiteReport(BaseModel):
     None when it could not tell, or the site's fleetbus is older."""
     hazard_uplink: str | None = None
     """The hazard states' shovel's state; None from an older site."""
+    accounts: list[str] | None = None
+    """The robots whose accounts the site has (those in its team or whose events it forwards,
+    with an account on its broker), sorted: central finds copies the site should no longer
+    have. None from an older site."""

@@ -21,7 +21,8 @@ from urllib.parse import urlsplit
 
 import pika
 
-from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_account
+from fleetbus.api.accounts import Accounts, open_accounts
+from fleetbus.broker.accounts import Account, Role, fresh_vhost
 from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
@@ -29,13 +30,13 @@ from fleetbus.broker.retry import retrying
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.uplink import CLASSES
 from fleetbus.broker.urls import without_password
-from fleetbus.cli.registry import register_robot
 from fleetbus.dev.recorder_thread import RecorderThread
 from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.publishers.client import RobotClient, outbox_folder
 from fleetbus.publishers.outbox import Outbox
 from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EXPRESS_TYPES, RobotKind, inbox_queue
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.recorder.consumer import MissionLookup
@@ -51,6 +52,8 @@ from tests.link import NetworkLink
 T = TypeVar("T")
 EXPRESS_TYPE_NAMES = frozenset(event_type.value for event_type in EXPRESS_TYPES)
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
+#: The registry's role of a test's account of each broker role.
+USER_ROLES = {Role.ROBOT: UserRole.ROBOT, Role.OPERATOR: UserRole.OPERATOR, Role.USER: UserRole.GUEST}
 
 
 def wait_for(
@@ -137,23 +140,23 @@ class Bus:
         return self._service
 
     def add(self, name: str, role: Role = Role.ROBOT, kind: RobotKind | None = None) -> Account:
-        """A new account; users are broker-wide, so one left by an aborted run is re-keyed."""
+        """A new user or robot, recorded in the test's account registry with its broker account
+        (through the accounts service, as `fleetbus users add` makes one); users are broker-wide,
+        so one left by an aborted run is re-keyed."""
         self.accounts.append(name)
-        account = asyncio.run(
-            provision_account(
-                self.admin_url,
-                self.api,
-                name,
-                role,
-                kind,
-                rotate=True,
-                shards=self.settings.ingest_shards,
-                cluster=self.settings.cluster,
-            )
+        made = self.with_accounts(
+            lambda accounts: accounts.provision(name, USER_ROLES[role], kind, "tests", rotate=True)
         )
-        if role is Role.ROBOT:
-            register_robot(self.settings, name, kind)
-        return account
+        return Account(name, role, made.internal_url)
+
+    def with_accounts(self, work: Callable[[Accounts], Awaitable[T]]) -> T:
+        """Run ``work`` with the accounts service on the test's registry and virtual host."""
+
+        async def go() -> T:
+            async with open_accounts(self.settings, self.admin_url, self.endpoint.management_url) as opened:
+                return await work(opened.accounts)
+
+        return asyncio.run(go())
 
     def remove_accounts(self) -> None:
         for name in self.accounts:

@@ -13,6 +13,7 @@ import yaml
 
 from fleetbus.schemas.routing import EventType
 from fleetbus.schemas.services import METHODS
+from tests.commands import fleetbus as in_process
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 
@@ -96,6 +97,8 @@ def test_a_password_on_the_command_line_is_refused_naming_where_it_goes(bus: Bus
     said = refused.stderr.replace("\n", " ")
     assert "--url holds a password" in said and "FLEETBUS_ROBOT_URL" in said, said
     assert kept.split("@")[0].rsplit(":", 1)[1] not in refused.stderr, "the password is not repeated"
+    by_bridge = in_process(bus, "ros", "bridge", "argv-explorer", "--url", kept)  # refused first thing
+    assert by_bridge.returncode == 2 and "--url holds a password" in by_bridge.stderr.replace("\n", " ")
     # in the environment it is taken, by the ROS bridge too (it gets as far as starting its ROS side)
     bridge = fleetbus(
         bus,

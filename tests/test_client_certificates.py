@@ -4,15 +4,13 @@ hazard reaches the worker and is stored as the robot's."""
 
 from __future__ import annotations
 
-import asyncio
-
 import pytest
 
-from fleetbus.broker.accounts import Role, can_login, provision_account
+from fleetbus.broker.accounts import can_login
 from fleetbus.broker.certificates import ClientFiles, issue_client_certificate
 from fleetbus.broker.tls import split_tls, with_client_certificate
-from fleetbus.cli.registry import register_robot
 from fleetbus.publishers.client import RobotClient
+from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import hazard
 from tests.run_tls import BROKER_TLS, run_tls_files
@@ -24,23 +22,14 @@ pytestmark = pytest.mark.skipif(not BROKER_TLS, reason="certificate logins need 
 def certificate_robot(bus: Bus, name: str) -> str:
     """A robot account with no password, and the URL that logs in with its client certificate."""
     bus.accounts.append(name)
-    account = asyncio.run(
-        provision_account(
-            bus.admin_url,
-            bus.api,
-            name,
-            Role.ROBOT,
-            RobotKind.EXPLORER,
-            rotate=True,
-            shards=bus.settings.ingest_shards,
-            cluster=bus.settings.cluster,
-            password_login=False,
+    made = bus.with_accounts(
+        lambda accounts: accounts.provision(
+            name, UserRole.ROBOT, RobotKind.EXPLORER, "tests", rotate=True, certificate=True
         )
     )
-    register_robot(bus.settings, name, RobotKind.EXPLORER)
     client = ClientFiles.in_folder(bus.settings.data_dir / "clients", name)
     issue_client_certificate(run_tls_files(), client, name)
-    return with_client_certificate(account.amqp_url, client.cert, client.key)
+    return with_client_certificate(made.internal_url, client.cert, client.key)
 
 
 def test_a_robot_with_its_client_certificate_publishes_and_the_worker_stores_it(killable_bus: Bus) -> None:

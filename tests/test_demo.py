@@ -7,8 +7,10 @@ from pathlib import Path
 from rich.console import Console
 
 from fleetbus.broker.endpoint import BrokerEndpoint
-from fleetbus.dev.demo import WARDENS, run_demo
+from fleetbus.dev.demo import TEAM, WARDENS, run_demo
+from fleetbus.schemas.roles import UserRole
 from fleetbus.settings import load_settings
+from fleetbus.workers.store import run_with_repositories
 
 
 def test_demo_scenario(endpoint: BrokerEndpoint, tmp_path: Path) -> None:
@@ -29,3 +31,8 @@ def test_demo_scenario(endpoint: BrokerEndpoint, tmp_path: Path) -> None:
         assert report.delivered[warden] == {"hazard": 7, "map": 1}
     assert report.dead_letters == 0
     assert report.steps[0][0] == "2 hazards detected before the wardens localised"
+    # its robots were made through the accounts service: recorded in the demo's registry
+    demo_settings = settings.updated(data_dir=tmp_path / "demo", mongodb_url=None)
+    users = run_with_repositories(demo_settings, lambda repos: repos.users.users())
+    made = {(user.name, user.role, user.kind, user.broker_secret is not None) for user in users}
+    assert made == {(name, UserRole.ROBOT, kind.value, True) for name, kind in TEAM}

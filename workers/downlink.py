@@ -2,7 +2,8 @@
 
 Each robot account is made here with central's password hash (so the robot's central password
 works at its site), granted and given its topology as ``fleetbus users add`` would, entered in the
-team with its kind, and its events bound into the uplink (forwarded to central). Each mission is
+team with its kind, and its events bound into the uplink (forwarded to central); a robot the site
+no longer has loses its account here, its forwarding and its place in the team. Each mission is
 written into the site's missions as central has it, unless the site already has that version or a
 newer one. Each map is stored as a new version of the site's maps (once per map event), so the
 site's map service hands it to the site's robots; a large map's chunks are kept in the site's
@@ -25,17 +26,26 @@ import pika
 from pika.adapters.blocking_connection import BlockingChannel
 from pydantic import ValidationError
 
-from fleetbus.broker.accounts import Role, configure_account, vhost_of
+from fleetbus.broker.accounts import Role, configure_account, delete_account, vhost_of
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.sites import forward_robot
+from fleetbus.broker.sites import forward_robot, stop_forwarding
+from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.pgm import check_pgm
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE
-from fleetbus.schemas.site_changes import MapChange, MapChunk, MissionChange, RobotAccount, parse_site_change
+from fleetbus.schemas.site_changes import (
+    MapChange,
+    MapChunk,
+    MissionChange,
+    RobotAccount,
+    RobotAccountRemoved,
+    parse_site_change,
+)
 from fleetbus.settings import Settings
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.missions import Mission
+from fleetbus.workers.team import leave_team
 
 log = logging.getLogger("fleetbus.sites")
 
@@ -51,6 +61,20 @@ def apply_account(settings: Settings, admin_url: str, api: ManagementAPI, accoun
     run_with_repositories(settings, lambda repos: repos.hazards.register_robot(account.name, kind))
     forward_robot(api, vhost_of(admin_url), account.name)
     log.info("account %s (%s) applied from central", account.name, kind or "no kind")
+
+
+def remove_account(settings: Settings, admin_url: str, api: ManagementAPI, name: str) -> None:
+    """Remove the site's copy of a robot's account (central removed the robot, or took it from
+    this site): it no longer logs in here, its events are no longer forwarded, and it leaves the
+    site's team (a warden's leaving is told to the site's hazard service). Its exchange and inbox
+    stay, with whatever they hold. Removing one the site does not have changes nothing."""
+    stop_forwarding(api, vhost_of(admin_url), name)
+    delete_account(admin_url, api, name)
+    try:
+        run_with_repositories(settings, lambda repos: leave_team(repos.hazards, admin_url, name, "central"))
+    except HazardServiceNotTold as error:  # the team has changed: the gate learns it at its next start
+        log.warning("account %s removed as central asked, but %s", name, error)
+    log.info("account %s removed as central asked", name)
 
 
 def apply_mission(settings: Settings, change: MissionChange) -> bool:
@@ -166,6 +190,8 @@ def apply_downlink(
             else:
                 if isinstance(change, RobotAccount):
                     apply_account(settings, admin_url, api, change)
+                elif isinstance(change, RobotAccountRemoved):
+                    remove_account(settings, admin_url, api, change.name)
                 elif isinstance(change, MissionChange):
                     apply_mission(settings, change)
                 applied += 1

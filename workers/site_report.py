@@ -12,6 +12,7 @@ from datetime import datetime, timezone
 import pika
 
 from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.sites import forwarded_robots
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.routing import site_status_exchange
 from fleetbus.schemas.site_reports import SITE_REPORT_TYPE, SiteReport
@@ -21,8 +22,11 @@ log = logging.getLogger("fleetbus.sites")
 
 
 def site_report(api: ManagementAPI, vhost: str, site: str, team: Collection[str] = ()) -> SiteReport:
-    """The site's links now, as ``fleetbus site status`` shows them."""
+    """The site's links now, as ``fleetbus site status`` shows them, and the robots' accounts it
+    has (``team``: the robots of the site's team)."""
     link = site_view(api, vhost, team)
+    robots = forwarded_robots(api, vhost) | set(team)
+    accounts = sorted(robots & {user["name"] for user in api.list_users()})
     return SiteReport(
         site=site,
         at=datetime.now(timezone.utc),
@@ -33,6 +37,7 @@ def site_report(api: ManagementAPI, vhost: str, site: str, team: Collection[str]
         rejected=link.rejected,
         hazard_states_waiting=link.hazard_states_waiting,
         hazard_uplink=link.hazard_uplink.state if link.hazard_uplink else None,
+        accounts=accounts,
     )
 
 
@@ -53,9 +58,11 @@ def send_report(central_url: str, report: SiteReport) -> None:
         connection.close()
 
 
-def report_to_central(api: ManagementAPI, vhost: str, site: str, central_url: str) -> bool:
+def report_to_central(
+    api: ManagementAPI, vhost: str, site: str, central_url: str, team: Collection[str] = ()
+) -> bool:
     """Measure and send one report; False (logged, without the URL's password) when it could not go."""
-    report = site_report(api, vhost, site)
+    report = site_report(api, vhost, site, team)
     try:
         send_report(central_url, report)
     except Exception as error:  # the link is down: the next report tries again

@@ -17,17 +17,29 @@ from fleetbus.broker.sites import grant_site_robots
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
-from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, AnySiteChange, MissionChange, RobotAccount
+from fleetbus.schemas.site_changes import (
+    SITE_CHANGE_TYPE,
+    AnySiteChange,
+    MissionChange,
+    RobotAccount,
+    RobotAccountRemoved,
+)
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.store.sites import SiteRegistry
+from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.team import change_service
 
 log = logging.getLogger("fleetbus.sites")
 
 
 async def assign_robots(
-    repositories: Repositories, api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]
+    sites: SiteRegistry,
+    team: TeamStore,
+    api: ManagementAPI,
+    admin_url: str,
+    site: str,
+    robots: Collection[str],
 ) -> tuple[str, ...]:
     """Make ``robots`` exactly the robots of ``site`` (a robot of another site moves here; the
     other site's account loses it). At central, a site's wardens are out of service (the site's
@@ -36,46 +48,65 @@ async def assign_robots(
     validate_name(site)
     for robot in robots:
         validate_name(robot)
-    before = await repositories.sites.sites()
+    before = await sites.sites()
     old = set(before.get(site, ()))
     new = set(robots)
     moved_from = {other for other, members in before.items() if other != site and new & set(members)}
-    await repositories.sites.set_robots(site, sorted(new))
-    kinds = {robot.name: robot.kind for robot in await repositories.hazards.robots()}
+    await sites.set_robots(site, sorted(new))
+    kinds = {robot.name: robot.kind for robot in await team.robots()}
     returning = {r: RobotKind(kinds[r]) if kinds.get(r) else None for r in old - new}
     vhost = vhost_of(admin_url)
     grant_site_robots(api, vhost, site, sorted(new), returning)
-    after = await repositories.sites.sites()
+    after = await sites.sites()
     for other in moved_from:
         grant_site_robots(api, vhost, other, after.get(other, ()))
     # central's hazard gate must not wait for wardens that localise at their site only
     by = f"site {site}"
     for robot in sorted(new - old):
         if kinds.get(robot) == RobotKind.WARDEN.value:
-            await change_service(repositories.hazards, admin_url, robot, False, by)
+            await change_service(team, admin_url, robot, False, by)
     for robot in sorted(old - new):
         if kinds.get(robot) == RobotKind.WARDEN.value:
-            await change_service(repositories.hazards, admin_url, robot, True, by)
+            await change_service(team, admin_url, robot, True, by)
     return tuple(sorted(new))
 
 
 async def set_site_robots(
-    repositories: Repositories, api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]
-) -> tuple[tuple[str, ...], list[RobotAccount]]:
-    """:func:`assign_robots`, then send the site the accounts of the robots new to it (the site
-    applies them with ``fleetbus site apply``). Returns the robots and the accounts sent."""
-    before = set((await repositories.sites.sites()).get(site, ()))
-    names = await assign_robots(repositories, api, admin_url, site, robots)
-    accounts = await robot_accounts(repositories, api, set(names) - before)
+    sites: SiteRegistry,
+    team: TeamStore,
+    api: ManagementAPI,
+    admin_url: str,
+    site: str,
+    robots: Collection[str],
+) -> tuple[tuple[str, ...], list[RobotAccount], list[str]]:
+    """:func:`assign_robots`, then send each site concerned what changed for it: the accounts of
+    the robots new to ``site``, and the removal of the robots a site no longer has (taken from
+    ``site``, or moved here from another), whose copies the site then removes (``fleetbus site
+    apply`` applies both). Returns the robots, the accounts sent and the robots removed from
+    ``site``."""
+    before = await sites.sites()
+    names = await assign_robots(sites, team, api, admin_url, site, robots)
+    accounts = await robot_accounts(team, api, set(names) - set(before.get(site, ())))
     await asyncio.to_thread(send_to_sites, admin_url, [site], accounts)
-    return names, accounts
+    gone: list[str] = []
+    for other, members in before.items():
+        left = sorted(set(members) - set(names)) if other == site else sorted(set(members) & set(names))
+        await asyncio.to_thread(send_removals, admin_url, other, left)
+        if other == site:
+            gone = left
+    return names, accounts, gone
 
 
-async def robot_accounts(
-    repositories: Repositories, api: ManagementAPI, robots: Collection[str]
-) -> list[RobotAccount]:
+def send_removals(admin_url: str, site: str, robots: Collection[str]) -> None:
+    """Tell ``site`` to remove its copies of ``robots``' accounts (they are no longer its own)."""
+    if robots:
+        send_to_sites(admin_url, [site], [RobotAccountRemoved(name=name) for name in sorted(robots)])
+        log.info("site %s told to remove the accounts of %s", site, ", ".join(sorted(robots)))
+
+
+async def robot_accounts(team: TeamStore, api: ManagementAPI, robots: Collection[str]) -> list[RobotAccount]:
     """The accounts of ``robots`` as central has them (those without an account are left out)."""
-    kinds = {robot.name: robot.kind for robot in await repositories.hazards.robots()}
+    kinds = {robot.name: robot.kind for robot in await team.robots()}
     accounts = []
     for name in sorted(robots):
         user = api.get_user(name)

@@ -26,23 +26,12 @@ def with_accounts(
     ep: BrokerEndpoint, work: Callable[[Accounts, Repositories, ManagementAPI], Awaitable[T]]
 ) -> T:
     """Run ``work`` with the accounts service, the repositories and the management API it uses."""
-    from fleetbus.api.accounts import accounts_for
+    from fleetbus.api.accounts import open_accounts
     from fleetbus.api.errors import ServiceRefusal
-    from fleetbus.api.security import Secrets
-    from fleetbus.broker.management import ManagementAPI
-    from fleetbus.workers.store import open_repositories
-
-    config = settings()
 
     async def go() -> T:
-        secrets_ = Secrets.for_settings(config)
-        try:
-            async with open_repositories(config) as repositories:
-                with ManagementAPI.from_urls(ep.management_url, ep.amqp_url) as api:
-                    accounts = accounts_for(config, repositories, secrets_, api, ep.amqp_url, ep.public_url)
-                    return await work(accounts, repositories, api)
-        finally:
-            secrets_.passwords.close()
+        async with open_accounts(settings(), ep.amqp_url, ep.management_url, ep.public_url) as opened:
+            return await work(opened.accounts, opened.repositories, opened.management)
 
     try:
         return asyncio.run(go())

@@ -21,20 +21,19 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from fleetbus.api.accounts import open_accounts
 from fleetbus.broker.accounts import (
     RECORDER_USER,
     SERVICE_USER,
-    Role,
     fresh_vhost,
     kept_password,
     kept_password_file,
-    provision_account,
     save_secret,
 )
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
+from fleetbus.broker.fleet import NewRobot
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.cli.registry import register_robot
 from fleetbus.dev.recorder_thread import RecorderThread
 from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.publishers.client import RobotClient
@@ -257,6 +256,16 @@ def count_recorded(settings: Settings, types: list[str]) -> dict[str, int]:
     return asyncio.run(count())
 
 
+async def _provision_team(settings: Settings, admin_url: str, management_url: str) -> dict[str, str]:
+    """The team's robots, recorded in the demo's account registry with their broker accounts (through
+    the accounts service, as `fleetbus users add-many` makes them); their URLs by name. Broker users
+    are broker-wide: those an earlier run left are re-keyed."""
+    robots = [NewRobot(name, kind) for name, kind in TEAM]
+    async with open_accounts(settings, admin_url, management_url) as opened:
+        made = await opened.accounts.provision_robots(robots, "fleetbus demo", rotate=True)
+    return {m.user.name: m.internal_url for m in made}
+
+
 def run_demo(
     settings: Settings,
     endpoint: BrokerEndpoint,
@@ -283,31 +292,13 @@ def run_demo(
         task = progress.add_task("setting up the team", total=7)
         admin_url = fresh_vhost(api, endpoint.amqp_url, DEMO_VHOST)
         demo_settings = demo_settings.updated(amqp_url=admin_url, management_url=endpoint.management_url)
-        accounts = {
-            name: asyncio.run(
-                provision_account(
-                    admin_url,
-                    api,
-                    name,
-                    Role.ROBOT,
-                    kind,
-                    rotate=True,
-                    shards=demo_settings.ingest_shards,
-                    cluster=demo_settings.cluster,
-                )
-            )
-            for name, kind in TEAM
-        }
-        for name, kind in TEAM:
-            register_robot(demo_settings, name, kind)
+        urls = asyncio.run(_provision_team(demo_settings, admin_url, endpoint.management_url))
+        for name, _ in TEAM:
             run_with_repositories(
                 demo_settings,
                 lambda repos, name=name: repos.hazards.set_localised(name, False, datetime.now(timezone.utc)),
             )
-        clients = {
-            name: RobotClient(account.amqp_url, state_dir=demo_settings.robots_dir)
-            for name, account in accounts.items()
-        }
+        clients = {name: RobotClient(url, state_dir=demo_settings.robots_dir) for name, url in urls.items()}
         try:
             for client in clients.values():
                 client.connect()
@@ -341,7 +332,7 @@ def run_demo(
         finally:
             for client in clients.values():
                 client.close()
-            for name in accounts:  # broker users are global: leave none behind to clash with a real team's
+            for name in urls:  # broker users are global: leave none behind to clash with a real team's
                 api.delete_user(name)
     report.seconds = time.monotonic() - started
     return report

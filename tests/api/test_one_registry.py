@@ -4,13 +4,14 @@ check finds what drifted from it and repairs it, the same from each."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 from datetime import datetime, timezone
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
-from fleetbus.broker.accounts import can_login, url_for
+from fleetbus.broker.accounts import Role, can_login, provision_account, url_for
 from fleetbus.broker.shards import read_shard_map
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import SHARD_EXCHANGE, RobotKind, ingest_shard_queue, shard_binding_keys
@@ -113,7 +114,9 @@ def test_the_registry_check_finds_drift_and_repairs_it_alike_everywhere(bus: Bus
         api.user("admin1", UserRole.ADMIN)
         api.user("drift-r", UserRole.ROBOT, RobotKind.WARDEN)
         api.user("drift-o", UserRole.OPERATOR)
-        bus.add("outsider1")  # a broker account made beside the registry
+        # a broker account made beside the registry
+        bus.accounts.append("outsider1")
+        asyncio.run(provision_account(bus.admin_url, bus.api, "outsider1", Role.ROBOT, rotate=True))
         bus.api.delete_permissions(bus.vhost, "drift-o")
         [shard] = read_shard_map(bus.api, bus.vhost, 1).bindings["drift-r"]
         bus.api.unbind_keys(
@@ -133,6 +136,25 @@ def test_the_registry_check_finds_drift_and_repairs_it_alike_everywhere(bus: Bus
         assert [(d["kind"], d["name"]) for d in cli_drift] == expected
         by_api = api.call("admin1", "GET", "/registry/drift")
         assert by_api.status_code == 200 and by_api.json()["drift"] == cli_drift
+        # `users list` lists the registry, each user's drift flagged, the rest after them
+        listed = fleetbus(bus, "users", "list", "--json")
+        assert listed.returncode == 0, listed.stderr
+        users = json.loads(listed.stdout)["users"]
+        assert {u["name"]: [(d["kind"], d["name"]) for d in u["drift"]] for u in users} == {
+            "admin1": [],
+            "drift-o": [("permissions", "drift-o")],
+            "drift-r": [("shard", "drift-r"), ("team", "drift-r")],
+        }
+        assert [d for u in users for d in u["drift"]] == [d for d in cli_drift if d["name"] != "outsider1"]
+        assert json.loads(listed.stdout)["other_drift"] == [d for d in cli_drift if d["name"] == "outsider1"]
+        assert [(u["role"], u["kind"], u["login"]) for u in users] == [
+            ("admin", None, "password"),
+            ("operator", None, "password"),
+            ("robot", "warden", "password"),
+        ]
+        table = fleetbus(bus, "users", "list").stdout
+        assert "broker account outsider1 is not in the registry" in table
+        assert all(f"│ {name} " in table for name in ("admin1", "drift-o", "drift-r"))
         csrf = _console(api, "admin1")
         page = api.client.get("/console/")
         assert all(d["problem"] in page.text.replace("&#39;", "'") for d in cli_drift)
@@ -147,6 +169,11 @@ def test_the_registry_check_finds_drift_and_repairs_it_alike_everywhere(bus: Bus
         assert api.client.get(repaired.headers["location"]).text.count("registry-agrees") == 1
         assert fleetbus(bus, "users", "check").returncode == 0
         assert api.call("admin1", "GET", "/registry/drift").json()["drift"] == []
+        after = json.loads(fleetbus(bus, "users", "list", "--json").stdout)
+        assert [(u["name"], u["drift"]) for u in after["users"]] == [
+            (name, []) for name in ("admin1", "drift-o", "drift-r", "outsider1")
+        ]
+        assert after["other_drift"] == []
         outsider = api.call("admin1", "GET", "/users/outsider1").json()
         assert (outsider["role"], bus.api.get_user("outsider1") is not None) == ("robot", True)
         assert read_shard_map(bus.api, bus.vhost, 1).bindings["drift-r"] == (0,)
@@ -164,3 +191,14 @@ def test_a_repair_from_the_command_line_is_a_repair_through_the_api(bus: Bus) ->
         token = api.client.post("/auth/token", data={"username": "gone-r", "password": PASSWORD})
         assert token.status_code == 200
         assert can_login(url_for(bus.admin_url, "gone-r", token.json()["broker"]["password"]))
+
+
+def test_the_tests_accounts_are_made_as_users_make_them(bus: Bus) -> None:
+    """`Bus.add` goes through the accounts service: its users are the registry's, nothing drifts."""
+    bus.add("reg-warden", kind=RobotKind.WARDEN)
+    bus.add("reg-oper", Role.OPERATOR)
+    listed = fleetbus(bus, "users", "list", "--json")
+    assert listed.returncode == 0, listed.stderr
+    users = [(u["name"], u["role"], u["kind"], u["drift"]) for u in json.loads(listed.stdout)["users"]]
+    assert users == [("reg-oper", "operator", None, []), ("reg-warden", "robot", "warden", [])]
+    assert fleetbus(bus, "users", "check").returncode == 0

@@ -47,7 +47,9 @@ class SitePair:
         self.account = await add_site_account(central.admin_url, central.api, self.name, rotate=True)
         self.central.accounts.append(self.name)
         async with open_repositories(central.settings) as repositories:
-            await assign_robots(repositories, central.api, central.admin_url, self.name, ())
+            await assign_robots(
+                repositories.sites, repositories.hazards, central.api, central.admin_url, self.name, ()
+            )
         await self.start_links()
 
     @property
@@ -85,7 +87,9 @@ class SitePair:
         self.robots.append(name)
         central = self.central
         self.central_store(
-            lambda repos: assign_robots(repos, central.api, central.admin_url, self.name, self.robots)
+            lambda repos: assign_robots(
+                repos.sites, repos.hazards, central.api, central.admin_url, self.name, self.robots
+            )
         )
         account = self.site.add(name, Role.ROBOT, kind)
         forward_robot(self.site.api, self.site.vhost, name)  # as `fleetbus site apply` does

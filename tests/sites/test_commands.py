@@ -7,6 +7,7 @@ import json
 from fleetbus.broker.accounts import save_secret
 from fleetbus.broker.sites import forward_robot
 from fleetbus.schemas.routing import UPLINK_SHOVEL, RobotKind
+from tests.commands import fleetbus as run
 from tests.factories import status
 from tests.sites.pair import SitePair
 from tests.support import wait_for
@@ -61,8 +62,12 @@ def test_sites_add_site_up_and_both_views_of_the_link(pair: SitePair) -> None:
         table = fleetbus(central, "sites")
         assert "base2" in table.stdout and "down" in table.stdout
 
-    robots = fleetbus(central, "sites", "robots", "base2", "--add", "explorer3", "--remove", "explorer2")
+    unknown = run(central, "sites", "robots", "base2", "--add", "nobody3")
+    assert unknown.returncode == 2 and "not robots of the account registry: nobody3" in unknown.stderr
+    central.add("explorer3", kind=RobotKind.EXPLORER)
+    robots = run(central, "sites", "robots", "base2", "--add", "explorer3", "--remove", "explorer2")
     assert robots.returncode == 0, robots.stderr
+    assert "told base2 to remove its copies of the accounts of explorer2" in robots.stdout
     assert central.api.get_permissions(central.vhost, "base2")["write"] == "^(base2|explorer3)\\."
 
 

@@ -51,7 +51,9 @@ def test_a_site_cannot_write_as_robots_not_its_own_nor_as_another_site(pair: Sit
     pair.central.accounts.append("base2")
     central = pair.central
     pair.central_store(
-        lambda repos: assign_robots(repos, central.api, central.admin_url, "base2", ["explorer8"])
+        lambda repos: assign_robots(
+            repos.sites, repos.hazards, central.api, central.admin_url, "base2", ["explorer8"]
+        )
     )
 
     for robot in ("explorer9", "explorer8", "base2"):

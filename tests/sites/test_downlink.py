@@ -1,12 +1,17 @@
 """Central's accounts reach the site: a robot registered centrally logs in to its site with the
-password central gave it, and works there."""
+password central gave it, and works there; removed at central, it is removed at the site, and
+central's registry check reports the site's copy until then."""
 
 from __future__ import annotations
 
+import json
 from urllib.parse import unquote, urlsplit
 
 from fleetbus.broker.accounts import Account, Role, url_for
+from fleetbus.broker.sites import forwarded_robots
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, RobotKind
+from fleetbus.workers.site_report import report_to_central
+from tests.commands import fleetbus as run
 from tests.sites.pair import SitePair
 from tests.support import wait_for
 from tests.test_cli import fleetbus
@@ -34,3 +39,37 @@ def test_a_robot_registered_centrally_works_at_its_site(pair: SitePair) -> None:
     robots = pair.site.with_store(lambda store: store.hazards.robots("warden"))
     assert [(r.name, r.localised) for r in robots] == [("warden5", True)], "in the site's team, as a warden"
     assert [f.site for f in pair.forwards("warden5")] == ["base1"]
+
+
+def _report(pair: SitePair) -> None:
+    """The site's report to central, as `fleetbus site apply --name` sends it."""
+    team = [robot.name for robot in pair.site.with_store(lambda store: store.hazards.robots())]
+    assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url, team)
+
+
+def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> None:
+    pair.central.add("guide5", kind=RobotKind.GUIDE)
+    pair.site.accounts.append("guide5")
+    assert run(pair.central, "sites", "robots", "base1", "--add", "guide5").returncode == 0
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 1, what="the account through the downlink")
+    assert run(pair.site, "site", "apply", "--once").returncode == 0
+    _report(pair)
+    assert run(pair.central, "users", "check").returncode == 0, "the site has its own robot's copy"
+
+    removed = run(pair.central, "users", "remove", "guide5")
+    assert removed.returncode == 0, removed.stderr
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 1, what="the removal through the downlink")
+    _report(pair)  # before the site applied it: it still has the copy
+    check = run(pair.central, "users", "check", "--json")
+    assert check.returncode == 1, check.stdout
+    [drift] = json.loads(check.stdout)["drift"]
+    assert (drift["kind"], drift["name"]) == ("site", "base1")
+    assert "site base1 keeps the accounts of guide5, which are not its robots" in drift["problem"]
+
+    applied = run(pair.site, "site", "apply", "--once")
+    assert applied.returncode == 0 and "applied 1 changes" in applied.stdout, applied.stdout
+    assert pair.site.api.get_user("guide5") is None, "it no longer logs in at the site"
+    assert "guide5" not in forwarded_robots(pair.site.api, pair.site.vhost)
+    assert pair.site.with_store(lambda store: store.hazards.robots()) == []
+    _report(pair)
+    assert run(pair.central, "users", "check").returncode == 0

@@ -176,7 +176,9 @@ def test_a_site_sets_no_state_of_a_hazard_not_its_own(pair: SitePair) -> None:
     pair.central.accounts.append("base2")
     central = pair.central
     pair.central_store(
-        lambda repos: assign_robots(repos, central.api, central.admin_url, "base2", ["explorer8"])
+        lambda repos: assign_robots(
+            repos.sites, repos.hazards, central.api, central.admin_url, "base2", ["explorer8"]
+        )
     )
     # another site's exchange: refused by central's broker
     with pytest.raises(pika.exceptions.ChannelClosedByBroker) as refused:

@@ -33,8 +33,14 @@ from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
 
 
-def robot_url(robot: str, url: str | None) -> str:
+def check_url_option(url: str | None) -> None:
+    """Refuse a robot's ``--url`` that holds a password (every user of the machine sees it)."""
     no_password_in_argv(url, "--url", "in FLEETBUS_ROBOT_URL, or as `users add` kept it")
+
+
+def robot_url(robot: str, url: str | None) -> str:
+    """The robot's AMQP URL: ``url`` (its ``--url``), else FLEETBUS_ROBOT_URL, else the one
+    `users add` kept; the command ends when there is none."""
     url = url or settings().robot_url
     if url:
         return url
@@ -67,6 +73,7 @@ def publish(
         validate_body(event_type, body)
     except SchemaError as error:
         fail(f"invalid {event_type.value} body: {error}", code=2)
+    check_url_option(url)
     client = open_robot(robot, robot_url(robot, url), timeout)
     try:
         with contextlib.suppress(BrokerUnavailable):

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from fleetbus.cli.commands.events import robot_url
+from fleetbus.cli.commands.events import check_url_option, robot_url
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.processes import pid_alive
 
@@ -45,6 +45,7 @@ def bridge(
     from fleetbus.publishers.ros.launch import BridgeLaunch, exec_bridge
     from fleetbus.publishers.ros.mapping import MappingError, load_mapping
 
+    check_url_option(url)
     config = settings()
     mapping_file = mapping or config.ros_mapping
     try:

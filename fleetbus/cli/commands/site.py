@@ -171,7 +171,13 @@ def apply(
     site, central = name or config.site_name, config.central_url
     with admin_api(ep) as api:
         vhost = vhost_of(ep.amqp_url)
-        tick = (lambda: report_to_central(api, vhost, site, central)) if site and central else None
+
+        def report() -> bool:
+            assert site and central
+            team = run_with_repositories(config, lambda repos: repos.hazards.robots())
+            return report_to_central(api, vhost, site, central, [robot.name for robot in team])
+
+        tick = report if site and central else None
         if tick is None:
             console.print("not reporting to central: no site name (--name) or no FLEETBUS_CENTRAL_URL")
         try:

@@ -11,17 +11,18 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.broker.accounts import as_public, vhost_of
+from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.sites import add_site_account, central_site_topology
+from fleetbus.broker.sites import central_site_topology
 from fleetbus.broker.topology import declare_with_url
-from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
+from fleetbus.cli.accounts import with_accounts
+from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
 from fleetbus.schemas.site_changes import RobotAccount
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import mission_changes, robot_accounts, send_to_sites, set_site_robots
+from fleetbus.workers.sites import mission_changes, robot_accounts, send_to_sites
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.sites import SiteSummary
 
@@ -107,27 +108,20 @@ def add(
     site: Annotated[str, typer.Argument(help="the site's name (its account at central)")],
     robots: Robots = "",
     rotate: Annotated[bool, typer.Option("--rotate", help="give an existing site a new password")] = False,
+    by: Annotated[str | None, typer.Option(help="who makes it, for the record (default: your login)")] = None,
 ) -> None:
-    """Make a site's account at central (tagged impersonator, confined to its robots); its URL,
-    for `fleetbus site up --central`, is printed once."""
+    """Make a site's account at central (tagged impersonator, confined to its robots, which must
+    be robots of the account registry) and send the site their accounts; its URL, for `fleetbus
+    site up --central-file`, is printed once."""
     ep = endpoint()
-    if run_with_repositories(settings(), lambda repos: repos.users.get_user(site)) is not None:
-        fail(f"{site!r} is a user in the account registry: a site needs a name of its own")
-    with admin_api(ep) as api:
-        try:
-            account = asyncio.run(
-                add_site_account(ep.amqp_url, api, site, rotate=rotate, cluster=settings().cluster)
-            )
-            names, sent = run_with_repositories(
-                settings(), lambda repos: set_site_robots(repos, api, ep.amqp_url, site, _names(robots))
-            )
-        except ValueError as error:
-            fail(str(error))
-    _say_sent(site, sent)
-    console.print(
-        f"site [bold]{site}[/] with robots {', '.join(names) or 'none yet'}; its central URL (shown once):"
+    added = with_accounts(
+        ep, lambda accounts, _repos, _api: accounts.add_site(site, _names(robots), actor(by), rotate=rotate)
     )
-    console.print(as_public(account.amqp_url, ep.public_url), soft_wrap=True, highlight=False)
+    _say_sent(site, added.sent)
+    _say_removed(site, added.removed)
+    robots_ = ", ".join(added.robots) or "none yet"
+    console.print(f"site [bold]{site}[/] with robots {robots_}; its central URL (shown once):")
+    console.print(added.public_url, soft_wrap=True, highlight=False)
 
 
 @app.command("robots")
@@ -135,19 +129,22 @@ def robots_command(
     site: Annotated[str, typer.Argument(help="the site")],
     add_: Annotated[str, typer.Option("--add", help="robots to add, comma separated")] = "",
     remove: Annotated[str, typer.Option("--remove", help="robots to remove, comma separated")] = "",
+    by: Annotated[
+        str | None, typer.Option(help="who changes it, for the record (default: your login)")
+    ] = None,
 ) -> None:
-    """Change which robots a site forwards for (its account's permissions follow)."""
+    """Change which robots a site forwards for (its account's permissions follow): the site is sent
+    the accounts of those added and told to remove its copies of those removed."""
     ep = endpoint()
-    known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
-    if site not in known:
-        fail(f"no site {site!r}; make it with `fleetbus sites add {site}`")
-    wanted = (set(known[site]) | set(_names(add_))) - set(_names(remove))
-    with admin_api(ep) as api:
-        names, sent = run_with_repositories(
-            settings(), lambda repos: set_site_robots(repos, api, ep.amqp_url, site, wanted)
-        )
-    _say_sent(site, sent)
-    console.print(f"site [bold]{site}[/]: {', '.join(names) or 'no robots'}")
+    changed = with_accounts(
+        ep,
+        lambda accounts, _repos, _api: accounts.change_site_robots(
+            site, _names(add_), _names(remove), actor(by)
+        ),
+    )
+    _say_sent(site, changed.sent)
+    _say_removed(site, changed.removed)
+    console.print(f"site [bold]{site}[/]: {', '.join(changed.robots) or 'no robots'}")
 
 
 @app.command()
@@ -168,9 +165,18 @@ def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
 
 
 def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:
-    accounts = run_with_repositories(settings(), lambda repos: robot_accounts(repos, api, robots))
+    accounts = run_with_repositories(settings(), lambda repos: robot_accounts(repos.hazards, api, robots))
     send_to_sites(admin_url, [site], accounts)
     _say_sent(site, accounts)
+
+
+def _say_removed(site: str, robots: Sequence[str]) -> None:
+    if robots:
+        console.print(
+            f"told {site} to remove its copies of the accounts of {', '.join(robots)} "
+            "(`fleetbus site apply` removes them)",
+            highlight=False,
+        )
 
 
 def _say_sent(site: str, accounts: Sequence[RobotAccount]) -> None:

@@ -3,21 +3,23 @@ with a broker account confined to its own name, through the accounts service."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 from urllib.parse import urlsplit
 
 import pika.exceptions
 import typer
 from rich.table import Table
+from rich.text import Text
 
 from fleetbus.broker.accounts import can_login, save_secret
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
 from fleetbus.broker.fleet import NewRobot
 from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.accounts import with_accounts
-from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
+from fleetbus.cli.context import actor, console, endpoint, fail, settings
 from fleetbus.publishers.errors import CONNECTION_FAILED
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
@@ -29,6 +31,7 @@ if TYPE_CHECKING:
     from fleetbus.api.accounts import Accounts
     from fleetbus.broker.management import ManagementAPI
     from fleetbus.workers.store import Repositories
+    from fleetbus.workers.store.users import User
 
 app = typer.Typer(help="Broker accounts for users, robots and services.", no_args_is_help=True)
 
@@ -196,18 +199,55 @@ def remove(
 
 
 @app.command("list")
-def list_users() -> None:
-    """The broker's accounts, their tags and how they log in (a password, or a client certificate
-    only)."""
-    ep = endpoint()
-    with admin_api(ep) as api:
-        users = api.list_users()
-    table = Table("user", "tags", "login")
-    for user in sorted(users, key=lambda u: u["name"]):
-        tags = user.get("tags") or []
-        login = "password" if user.get("password_hash") else "certificate"
-        table.add_row(user["name"], ",".join(tags) if isinstance(tags, list) else str(tags), login)
+def list_users(as_json: Annotated[bool, typer.Option("--json", help="one JSON document")] = False) -> None:
+    """The account registry's users and robots (the one record of each), how each logs in to the
+    broker (a password, or a client certificate only), and what of it drifted from the registry, as
+    `users check` finds it. Drift about no user of the registry (a broker account made outside it,
+    a site's account) is listed after them."""
+    from fleetbus.api.account_check import account_check_for
+
+    ep, config = endpoint(), settings()
+
+    async def run(
+        accounts: Accounts, repos: Repositories, api: ManagementAPI
+    ) -> tuple[list[User], dict[str, dict[str, Any]], list[Drift]]:
+        checker = account_check_for(accounts, repos, api, ep.amqp_url, config.ingest_shards)
+        drift = await checker.drift()
+        broker = {user["name"]: user for user in await asyncio.to_thread(api.list_users)}
+        return await repos.users.users(), broker, drift
+
+    users, broker, drift = with_accounts(ep, run)
+    listed = [
+        {
+            "name": user.name,
+            "role": user.role.value,
+            "kind": user.kind,
+            "login": _login(broker.get(user.name)),
+            "drift": [d.as_dict() for d in drift if d.name == user.name],
+        }
+        for user in sorted(users, key=lambda u: u.name)
+    ]
+    names = {user.name for user in users}
+    other = [d.as_dict() for d in drift if d.name not in names]
+    if as_json:
+        console.print_json(json.dumps({"users": listed, "other_drift": other}))
+        return
+    table = Table("user", "role", "kind", "login", "drift")
+    for row in listed:
+        problems = "; ".join(d["problem"] for d in row["drift"])
+        table.add_row(row["name"], row["role"], row["kind"] or "", row["login"], Text(problems, "yellow"))
     console.print(table)
+    for d in other:
+        console.print(Text.assemble((d["kind"], "yellow"), f" {d['name']}: {d['problem']}"))
+    if drift:
+        console.print("`fleetbus users check --repair` makes the broker and the sites the registry's again")
+
+
+def _login(account: dict[str, Any] | None) -> str:
+    """How a broker account logs in: a password, or (none set) a client certificate only."""
+    if account is None:
+        return "none"
+    return "password" if account.get("password_hash") else "certificate"
 
 
 @app.command("check")
@@ -218,8 +258,8 @@ def check(
 ) -> None:
     """Compare the account registry with what derives from it (the broker's accounts, permissions,
     topic permissions and shard bindings, the team, the sites' accounts at central), as the
-    console's dashboard and `GET /users/check` do; with --repair, make those the registry's again
-    (`POST /users/check/repair`). Exits 1 when something differs (after --repair: still differs)."""
+    console's dashboard and `GET /registry/drift` do; with --repair, make those the registry's again
+    (`POST /registry/repair`). Exits 1 when something differs (after --repair: still differs)."""
     from fleetbus.api.account_check import account_check_for
 
     ep, config = endpoint(), settings()
