@@ -23,7 +23,7 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import Conflict, ServiceRefusal
-from fleetbus.api.missions import AUTHORS, MOVERS, SEE_ALL
+from fleetbus.api.missions import AUTHORS, MOVERS, SEE_ALL, use_case_refusal
 from fleetbus.api.service import Service
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
@@ -198,7 +198,7 @@ def _new_form(request: Request, user: User, status: int = 200, **context: Any) -
         user,
         MISSIONS,
         status_code=status,
-        use_cases=list(USE_CASES.values()),
+        use_cases=[m for m in USE_CASES.values() if use_case_refusal(user, m.use_case) is None],
         **{"form": PlanForm(), "title": "", "use_case": "", "problem": None, **context},
     )
 
