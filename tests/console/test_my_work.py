@@ -10,6 +10,7 @@ from datetime import datetime, timezone
 import pika.exceptions
 import pytest
 
+from fleetbus.api.console.session import SESSION_COOKIE
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.missions import MissionPlan
 from fleetbus.schemas.roles import UserRole
@@ -18,9 +19,13 @@ from tests.console.support import Browser, Console, running_console
 from tests.support import Bus
 
 
-def _log_out(browser: Browser) -> None:
-    browser.click("form.logout button")
-    browser.until(lambda: browser.find("input[name=username]"), "the login form")
+def _open_as(console: Console, browser: Browser, name: str, path: str) -> None:
+    """``path`` in a fresh browser with a session of ``name`` (minted, as the login form makes one)."""
+    browser.reset()
+    browser.go(console.url("/console/login"))
+    browser.driver.add_cookie({"name": SESSION_COOKIE, "value": console.session(name)})
+    browser.go(console.url(path))
+    browser.until(lambda: name in browser.text(".who"), f"{path} as {name}")
 
 
 def _broker_url(console: Console, name: str) -> str:
@@ -90,10 +95,7 @@ def test_each_role_sees_its_own_work_and_its_broker_password_once_on_request(
         with pytest.raises(pika.exceptions.ProbableAuthenticationError):
             blocking_connection(old_url)
 
-        browser.go(console.url("/console/"))
-        _log_out(browser)
-        console.log_in(browser, "client1")
-        assert browser.driver.current_url == console.url("/console/"), "the dashboard is every role's home"
+        _open_as(console, browser, "client1", "/console/")
         assert browser.text(f"{row} .why").startswith("yours")
         assert browser.find("#team") == [] and browser.find("#my-mounts") == []
         assert browser.find("#my-work a[href='/console/missions/new']"), "a client creates missions"
@@ -111,8 +113,7 @@ def test_an_admin_sets_use_cases_and_a_supervisor_sees_the_robots_read_only(
         ):
             console.user(name, role)
         console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
-        console.log_in(browser, "admin1")
-        browser.go(console.url("/console/accounts"))
+        _open_as(console, browser, "admin1", "/console/accounts")
         assert browser.text("#user-client1 .use-cases").startswith("every")
         browser.click("#user-client1 details.use-cases-edit summary")
         browser.click("#user-client1 input[name=scope][value=only]")
@@ -122,10 +123,8 @@ def test_an_admin_sets_use_cases_and_a_supervisor_sees_the_robots_read_only(
         assert browser.text("#user-client1 .use-cases").startswith("survey")
         client = console.run(lambda: console.service.repositories.users.get_user("client1"))
         assert client is not None and client.use_cases == ("survey",)
-        _log_out(browser)
 
-        console.log_in(browser, "super1")
-        browser.go(console.url("/console/accounts"))
+        _open_as(console, browser, "super1", "/console/accounts")
         browser.until(lambda: browser.find("#read-only"), "the supervisor's view")
         assert browser.attributes("table.accounts tbody tr", "id") == ["user-explorer1"]
         assert browser.find("table.accounts form") == [] and browser.find("#create-user") == []
