@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
-from collections.abc import AsyncIterator, Collection, Sequence
+from collections.abc import AsyncIterator, Collection, Iterable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -49,6 +49,7 @@ from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.schemas.site_changes import RobotAccount
+from fleetbus.schemas.use_cases import USE_CASES
 from fleetbus.settings import Settings
 from fleetbus.workers.sites import send_removals, set_site_robots
 from fleetbus.workers.store import Repositories, open_repositories
@@ -386,12 +387,24 @@ class Accounts:
             created_at=existing.created_at if existing else now,
             created_by=existing.created_by if existing else by,
             updated_at=now,
+            use_cases=existing.use_cases if existing else None,
         )
 
     async def get(self, name: str) -> User:
         user = await self._users.get_user(name)
         if user is None:
             raise NotFound(f"no user {name!r}")
+        return user
+
+    async def listed(self, viewer: User, role: UserRole | None = None) -> list[User]:
+        """The accounts ``viewer`` may see, by name (optionally of one role): every one for an
+        admin, the robots for a supervisor (whose missions they serve)."""
+        return await self._users.users(_seen_role(viewer, role))
+
+    async def seen(self, viewer: User, name: str) -> User:
+        """``name``'s account, if ``viewer`` may see it (as :meth:`listed`)."""
+        user = await self.get(name)
+        _seen_role(viewer, user.role)
         return user
 
     async def set_role(self, name: str, role: UserRole, by: str) -> User:
@@ -406,6 +419,16 @@ class Accounts:
         if role is UserRole.INACTIVE:  # else they would open again when it is given a role
             await self._sessions.end_all(name)
         log.info("user %s: role %s -> %s, by %s", name, user.role.value, role.value, by)
+        return changed
+
+    async def set_use_cases(self, name: str, use_cases: Sequence[str] | None, by: str) -> User:
+        """Let ``name`` create missions of these use cases only (``None``: of every one, those
+        added later too); :func:`fleetbus.api.missions.use_case_refusal` is the rule that reads them."""
+        allowed = None if use_cases is None else known_use_cases(use_cases)
+        await self.get(name)
+        changed = await self._users.set_use_cases(name, allowed, datetime.now(timezone.utc))
+        shown = "every use case" if allowed is None else ", ".join(allowed) or "no use case"
+        log.info("user %s: allowed %s, by %s", name, shown, by)
         return changed
 
     async def set_password(self, name: str, password: str, keep: str | None = None) -> User:
@@ -585,11 +608,36 @@ class Accounts:
             user.name, password, vhost_of(self._admin_url), as_public(internal, self._public_url)
         )
 
+    def broker_address(self, user: User) -> str:
+        """The user's broker URL at the public address without its password: what may be on a page."""
+        return as_public(url_for(self._admin_url, user.name, None), self._public_url)
+
     def internal_broker_url(self, user: User) -> str:
         """The user's login at the broker as this service reaches it (to publish as the user)."""
         if user.broker_secret is None:
             raise Unavailable(f"user {user.name} has no broker password on record")
         return url_for(self._admin_url, user.name, self._secrets.box.open(user.broker_secret))
+
+
+def _seen_role(viewer: User, role: UserRole | None) -> UserRole | None:
+    """The role of the accounts ``viewer`` may see when it asks for ``role`` (None: any)."""
+    if viewer.role is UserRole.ADMIN:
+        return role
+    if viewer.role is UserRole.SUPERVISOR:
+        if role not in (None, UserRole.ROBOT):
+            raise Forbidden("a supervisor sees robots only")
+        return UserRole.ROBOT
+    raise Forbidden(f"role {viewer.role.value} sees no other accounts")
+
+
+def known_use_cases(names: Iterable[str]) -> tuple[str, ...]:
+    """``names`` in the order the service lists its use cases; :class:`BadRequest` naming an unknown one."""
+    wanted = {name.strip() for name in names if name.strip()}
+    if unknown := sorted(wanted - USE_CASES.keys()):
+        raise BadRequest(
+            f"no use case {', '.join(map(repr, unknown))}; use cases: {', '.join(USE_CASES)}"
+        )
+    return tuple(name for name in USE_CASES if name in wanted)
 
 
 def accounts_for(

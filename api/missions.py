@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from datetime import datetime, timezone
 
 from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
@@ -31,8 +32,29 @@ SERVICE_ACTOR = "fleetbus"
 
 log = logging.getLogger("fleetbus.api")
 
+
+def use_case_refusal(user: User, use_case: str) -> str | None:
+    """Why ``user`` may not create a mission of ``use_case`` (None: it may): the one rule for the
+    HTTP API, the command line and the console. An account none were set for may use every one."""
+    if user.use_cases is None or use_case in user.use_cases:
+        return None
+    allowed = ", ".join(user.use_cases) or "none"
+    return (
+        f"{user.name} may not create {use_case!r} missions; its use cases: {allowed} "
+        f"(an admin changes them: `fleetbus users use-cases {user.name} --allow ...`)"
+    )
+
+
 #: Told each mission as it is after a change (central sends it to its sites).
 MissionListener = Callable[[Mission], Awaitable[object]]
+
+
+@dataclass(frozen=True)
+class MyMission:
+    """A mission on a user's dashboard, and why it is there."""
+
+    mission: Mission
+    why: str
 
 
 class Missions:
@@ -55,10 +77,17 @@ class Missions:
         return mission
 
     async def create(self, user: User, use_case: str, title: str, plan: MissionPlan) -> Mission:
+        """A new mission of ``user``'s, in planning; refused to a role that does not create missions
+        and for a use case the user is not allowed (:func:`use_case_refusal`)."""
+        if user.role not in AUTHORS:
+            who = " or ".join(sorted(role.value for role in AUTHORS))
+            raise Forbidden(f"{user.name} is {user.role.value}: missions are created by a {who}")
         try:
             machine_for(use_case)
         except InvalidTransition as error:
             raise BadRequest(str(error)) from None
+        if refusal := use_case_refusal(user, use_case):
+            raise Forbidden(refusal)
         created = await self._missions.create_mission(
             use_case, title, user.name, plan.model_dump(mode="json"), datetime.now(timezone.utc)
         )
@@ -71,6 +100,34 @@ class Missions:
         if user.role not in SEE_ALL and mission.owner != user.name:
             raise Forbidden(f"mission {mission_id} belongs to another client")
         return mission
+
+    async def active_for(self, user: User) -> list[MyMission]:
+        """The missions not yet closed that are ``user``'s work, by number: those it owns, those it
+        mounted robots for or is checked in to, and those waiting for a step its role may take (a
+        client's own only, as it sees no other)."""
+        mine: dict[str, list[str]] = {}
+        for mount in await self._channels.mounts(operator=user.name):
+            mine.setdefault(mount.mission_id, []).append(f"you mounted {mount.robot}")
+        for check_in in await self._channels.check_ins(operator=user.name):
+            mine.setdefault(check_in.mission_id, []).append("you are checked in")
+        owner = None if user.role in SEE_ALL else user.name
+        candidates = [
+            mission
+            for state in MissionState
+            if state is not MissionState.CLOSED
+            for mission in await self._missions.missions(owner=owner, state=state)
+        ]
+        found = []
+        for mission in sorted(candidates, key=lambda m: m.number):
+            why = list(mine.get(mission.mission_id, []))
+            if mission.owner == user.name:
+                why.insert(0, "yours")
+            steps = machine_for(mission.use_case).steps_from(mission.state)
+            if waiting := [step.target.value for step in steps if user.role in step.roles]:
+                why.append(f"next for you: {', '.join(waiting)}")
+            if why:
+                found.append(MyMission(mission, "; ".join(why)))
+        return found
 
     async def get_any(self, mission_id: str) -> Mission:
         mission = await self._missions.get_mission(mission_id)

@@ -38,6 +38,9 @@ class UserOut(BaseModel):
     created_at: datetime
     created_by: str
     updated_at: datetime
+    use_cases: list[str] | None = Field(
+        description="the use cases the user may create missions of; null: every one (the default)"
+    )
 
     @classmethod
     def of(cls, user: User) -> UserOut:
@@ -49,6 +52,7 @@ class UserOut(BaseModel):
             created_at=user.created_at,
             created_by=user.created_by,
             updated_at=user.updated_at,
+            use_cases=None if user.use_cases is None else list(user.use_cases),
         )
 
 
@@ -89,6 +93,13 @@ class UserCreate(_In):
 
 class RoleChange(_In):
     role: UserRole
+
+
+class UseCasesSet(_In):
+    use_cases: list[str] | None = Field(
+        description="the use cases (`GET /use-cases`) the user may create missions of; null: every "
+        "one, those added later too; []: none"
+    )
 
 
 class PasswordSet(_In):

@@ -56,9 +56,14 @@ def refusals(*kinds: int | type[ServiceRefusal]) -> dict[int | str, dict[str, An
     return {status: _problem_response(status) for status in sorted(statuses)}
 
 
-def _problem_response(status: int) -> dict[str, Any]:
+def refusal_meaning(status: int, meaning: str) -> dict[int | str, dict[str, Any]]:
+    """``responses=`` for a route whose refusal with ``status`` means more than :data:`MEANINGS` says."""
+    return {status: _problem_response(status, meaning)}
+
+
+def _problem_response(status: int, meaning: str | None = None) -> dict[str, Any]:
     response: dict[str, Any] = {
-        "description": MEANINGS.get(status, HTTPStatus(status).phrase),
+        "description": meaning or MEANINGS.get(status, HTTPStatus(status).phrase),
         "content": {PROBLEM_JSON: {"schema": {"$ref": "#/components/schemas/Problem"}}},
     }
     if status in HEADERS:

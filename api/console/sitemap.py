@@ -25,17 +25,21 @@ ADMINS = frozenset({R.ADMIN})
 #: Every role that may read missions.
 MISSION_ROLES = frozenset({R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST})
 
-DASHBOARD = Page("dashboard", "Dashboard", "/console/", WATCHERS)
+#: Every role that logs in to the console (a robot only fetches its broker credentials).
+CONSOLE_ROLES = ACTIVE_ROLES - {R.ROBOT}
+
+#: Everyone's work is on it; the team, hazards, broker and events are the watchers' only.
+DASHBOARD = Page("dashboard", "Dashboard", "/console/", CONSOLE_ROLES)
 MAP = Page("map", "Live map", "/console/map", WATCHERS)
 HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)
 MISSIONS = Page("missions", "Missions", "/console/missions", MISSION_ROLES)
 MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
 DEAD_LETTERS = Page("dead-letters", "Dead letters", "/console/dead-letters", WATCHERS)
 EVALUATION = Page("evaluation", "Evaluation", "/console/evaluation", EVALUATORS)
-ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS)
+ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS | {R.SUPERVISOR})
 
 #: Everyone's own account (not in the navigation: the user's name in the header links to it).
-ACCOUNT = Page("account", "My account", "/console/account", ACTIVE_ROLES - {R.ROBOT})
+ACCOUNT = Page("account", "My account", "/console/account", CONSOLE_ROLES)
 
 #: Every page, in the navigation's order.
 PAGES: tuple[Page, ...] = (DASHBOARD, MAP, HAZARDS, MISSIONS, MESSAGES, DEAD_LETTERS, EVALUATION, ACCOUNTS)

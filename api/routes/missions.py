@@ -22,7 +22,7 @@ from fleetbus.api.models import (
     TransitionIn,
     UseCaseOut,
 )
-from fleetbus.api.openapi import refusals
+from fleetbus.api.openapi import refusal_meaning, refusals
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.use_cases import USE_CASES
@@ -47,8 +47,19 @@ async def use_cases(user: Anyone) -> list[UseCaseOut]:
     return [UseCaseOut.of(machine) for machine in USE_CASES.values()]
 
 
-@router.post("/missions", response_model=MissionOut, status_code=201)
+@router.post(
+    "/missions",
+    response_model=MissionOut,
+    status_code=201,
+    responses=refusal_meaning(
+        403,
+        "The caller's role may not create missions, or the caller may not create missions of this "
+        "use case (an admin sets each user's: `PUT /users/{name}/use-cases`)",
+    ),
+)
 async def create_mission(body: MissionCreate, user: Author, svc: ServiceDep) -> MissionOut:
+    """A new mission, in planning, of a use case the caller is allowed (every one unless an admin
+    restricted them)."""
     return MissionOut.of(await svc.missions.create(user, body.use_case, body.title, body.plan))
 
 

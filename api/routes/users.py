@@ -9,8 +9,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Response
 
-from fleetbus.api.auth import ServiceDep, UsersDep, current_session, require_role
-from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
+from fleetbus.api.auth import ServiceDep, current_session, require_role
+from fleetbus.api.errors import BadRequest, Conflict, NotFound
 from fleetbus.api.models import (
     PasswordChange,
     PasswordSet,
@@ -18,6 +18,7 @@ from fleetbus.api.models import (
     RoleChange,
     SessionOut,
     SessionsEnded,
+    UseCasesSet,
     UserCreate,
     UserOut,
 )
@@ -77,13 +78,9 @@ async def end_my_session(session_id: str, user: Anyone, svc: ServiceDep) -> Resp
 
 
 @router.get("/users", response_model=list[UserOut])
-async def list_users(user: AdminOrSupervisor, users: UsersDep, role: UserRole | None = None) -> list[UserOut]:
+async def list_users(user: AdminOrSupervisor, svc: ServiceDep, role: UserRole | None = None) -> list[UserOut]:
     """Every user for an admin; the robots for a supervisor."""
-    if user.role is R.SUPERVISOR:
-        if role not in (None, R.ROBOT):
-            raise Forbidden("a supervisor sees robots only")
-        role = R.ROBOT
-    return [UserOut.of(u) for u in await users.users(role)]
+    return [UserOut.of(u) for u in await svc.accounts.listed(user, role)]
 
 
 @router.post("/users", response_model=UserOut, status_code=201, responses=refusals(Conflict))
@@ -94,16 +91,20 @@ async def create_user(body: UserCreate, admin: Admin, svc: ServiceDep) -> UserOu
 
 @router.get("/users/{name}", response_model=UserOut)
 async def get_user(name: str, user: AdminOrSupervisor, svc: ServiceDep) -> UserOut:
-    found = await svc.accounts.get(name)
-    if user.role is R.SUPERVISOR and found.role is not R.ROBOT:
-        raise Forbidden("a supervisor sees robots only")
-    return UserOut.of(found)
+    return UserOut.of(await svc.accounts.seen(user, name))
 
 
 @router.put("/users/{name}/role", response_model=UserOut)
 async def set_role(name: str, body: RoleChange, admin: Admin, svc: ServiceDep) -> UserOut:
     """Change a user's role; its broker account follows (``inactive``: no broker access at all)."""
     return UserOut.of(await svc.accounts.set_role(name, body.role, admin.name))
+
+
+@router.put("/users/{name}/use-cases", response_model=UserOut)
+async def set_use_cases(name: str, body: UseCasesSet, admin: Admin, svc: ServiceDep) -> UserOut:
+    """Set the use cases the user may create missions of (null: every one); a mission of another
+    is refused with 403. As `fleetbus users use-cases NAME --allow ...`."""
+    return UserOut.of(await svc.accounts.set_use_cases(name, body.use_cases, admin.name))
 
 
 @router.put("/users/{name}/password", status_code=204)

@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "broker": ("broker", "app"),
     "certs": ("certs", "app"),
     "users": ("users", "app"),
+    "missions": ("missions", "app"),
     "beacons": ("beacons", "app"),
     "map": ("maps", "app"),
     "recorder": ("recorder", "app"),

@@ -251,6 +251,13 @@ CASES = [
         204,
         user_change("PUT", "/password", {"password": "another long one"}),
     ),
+    Case(
+        "PUT",
+        "/users/{name}/use-cases",
+        frozenset({R.ADMIN}),
+        200,
+        user_change("PUT", "/use-cases", {"use_cases": ["survey"]}),
+    ),
     Case("DELETE", "/users/{name}", frozenset({R.ADMIN}), 204, user_change("DELETE", "", None)),
     Case("GET", "/users/{name}/sessions", frozenset({R.ADMIN}), 200, fixed("GET", "/users/robot1/sessions")),
     Case("DELETE", "/users/{name}/sessions", frozenset({R.ADMIN}), 200, users_sessions),

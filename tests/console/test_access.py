@@ -89,6 +89,7 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
         "disable a user": ("/console/accounts/target1/disable", {}),
         "reset a broker password": ("/console/accounts/target1/broker-password", {}),
         "end a user's sessions": ("/console/accounts/target1/sessions/end", {}),
+        "set a user's use cases": ("/console/accounts/target1/use-cases", {"scope": "only"}),
         "requeue a dead letter": (f"/console/dead-letters/{letter}/requeue", {}),
         "discard a dead letter": (f"/console/dead-letters/{letter}/discard", {}),
     }
@@ -116,6 +117,7 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
         "disable a user": 303,
         "reset a broker password": 303,
         "end a user's sessions": 303,
+        "set a user's use cases": 303,
         "requeue a dead letter": 502,  # this letter names no sender to publish it as
         "discard a dead letter": 303,
     }
@@ -125,5 +127,6 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
     after = console.run(lambda: users.get_user("target1"))
     assert after is not None and before is not None
     assert after.role is UserRole.INACTIVE and after.broker_secret != before.broker_secret
+    assert (before.use_cases, after.use_cases) == (None, ())
     assert console.run(lambda: sessions.of("target1")) == []
     assert console.bus.ready_messages(DEAD_LETTER_QUEUE) == 0

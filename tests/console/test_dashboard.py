@@ -158,18 +158,21 @@ def test_what_a_robot_sent_shows_as_text_never_as_markup(bus: Bus, browser: Brow
         assert not any("alert" in line for line in browser.console_errors())
 
 
-def test_the_dashboard_is_refused_to_planners_and_clients(bus: Bus) -> None:
+def test_planners_and_clients_see_their_own_work_and_not_the_live_team(bus: Bus) -> None:
     with running_console(bus) as console:
         for name, role in (("plan1", UserRole.PLANNER), ("client1", UserRole.CLIENT)):
             console.user(name, role)
             with console.http_as(name) as http:
-                for path in ("/console/", "/console/stream/dashboard"):
-                    refused = http.get(path)
-                    assert refused.status_code == 403, (name, path, refused.status_code)
-                assert "may not use the dashboard page" in http.get("/console/").text
+                page = http.get("/console/")
+                assert page.status_code == 200 and 'id="my-work"' in page.text
+                assert 'id="team"' not in page.text and "data-stream" not in page.text
+                refused = http.get("/console/stream/dashboard")
+                assert refused.status_code == 403
+                assert "may not use the live team on the dashboard" in refused.text
         console.user("oper1", UserRole.OPERATOR)
         with console.http_as("oper1") as http:
-            assert http.get("/console/").status_code == 200
+            page = http.get("/console/")
+            assert page.status_code == 200 and 'id="my-work"' in page.text and 'id="team"' in page.text
 
 
 def test_a_management_api_that_does_not_answer_is_shown_as_such(bus: Bus, browser: Browser) -> None:

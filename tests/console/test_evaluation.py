@@ -38,7 +38,7 @@ def test_the_table_counts_each_behaviour_and_the_charts_draw_each(bus: Bus, brow
         )
 
         console.log_in(browser, "planner1")
-        assert browser.texts("header nav a") == ["Missions", "Evaluation"], "the pages a planner may open"
+        assert browser.texts("header nav a") == ["Dashboard", "Missions", "Evaluation"], "a planner's pages"
         browser.go(console.url("/console/evaluation"))
 
         def row(name: str) -> dict[str, str]:
@@ -84,7 +84,7 @@ def test_a_planner_may_open_evaluation_but_not_messages(bus: Bus) -> None:
         console.user("planner1", UserRole.PLANNER)
         http.get("/console/login")
         form = {"username": "planner1", "password": PASSWORD, "csrf": http.cookies[CSRF_COOKIE]}
-        assert http.post("/console/login", data=form).headers["location"] == "/console/missions"
+        assert http.post("/console/login", data=form).headers["location"] == "/console/"
         assert http.get("/console/evaluation").status_code == 200
         for path in (
             "/console/messages",

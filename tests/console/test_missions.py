@@ -54,7 +54,7 @@ def test_a_new_mission_walks_its_states_through_the_buttons_of_each_role(bus: Bu
         console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
 
         console.log_in(browser, "client1")
-        assert browser.driver.current_url == console.url("/console/missions"), "a client's home"
+        assert browser.driver.current_url == console.url("/console/"), "every role lands on the dashboard"
         browser.click("a[href='/console/missions/new']")
         browser.fill("input[name=title]", "Survey the north yard")
         browser.fill("textarea[name=geofence]", "0 0\n50 0\n50 40\n0 40")

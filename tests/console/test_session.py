@@ -84,12 +84,12 @@ def test_a_role_without_the_page_gets_403_and_no_link_to_it(console: Console) ->
     console.user("plan1", UserRole.PLANNER)
     console.user("robot1", UserRole.ROBOT)
     with client(console) as http:
-        # a planner's session (minted: the pages a planner may open come with them), not the dashboard's
+        # a planner's session (minted: the pages a planner may open come with them), not the messages'
         http.cookies.set(SESSION_COOKIE, console.session("plan1"))
-        refused = http.get("/console/")
-        assert refused.status_code == 403 and "may not use the dashboard page" in refused.text
+        refused = http.get("/console/messages")
+        assert refused.status_code == 403 and "may not use the messages page" in refused.text
         nav = refused.text.split("<nav>")[1].split("</nav>")[0]
-        assert 'href="/console/"' not in nav
+        assert 'href="/console/messages"' not in nav
         assert http.get("/console/stream/dashboard").status_code == 403
     with client(console) as http:
         robot = log_in(console, http, "robot1")

@@ -120,6 +120,7 @@ def test_the_mission_list_is_live_sorted_and_filtered_by_state_use_case_and_clie
         # a client's list shows its own missions only
         browser.reset()
         console.log_in(browser, "client1")
+        browser.go(console.url("/console/missions"))  # a login lands on the dashboard
         console.wait_live(browser)
         browser.until(
             lambda: shown(browser, rows) == ["mission-m-5", "mission-m-3", "mission-m-1"],

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
+from contextlib import AsyncExitStack, asynccontextmanager
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -281,3 +281,42 @@ async def test_sqlite_rolls_a_failed_unit_back(tmp_path: Path) -> None:
         assert await things.count() == 0
     finally:
         await store.close()
+
+
+@pytest.mark.parametrize("kind", ["sqlite", "mongodb"])
+async def test_an_optional_field_added_later_reads_null_in_what_was_stored(
+    kind: str, request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
+    before = Schema("grown", {"name": TEXT, "n": INTEGER}, key=("name",))
+    after = Schema("grown", {**before.fields, "extra": JSON.maybe}, key=("name",))
+    required = Schema("grown", {**before.fields, "needed": TEXT}, key=("name",))
+
+    @asynccontextmanager
+    async def store_with(schema: Schema, name: str) -> AsyncIterator[Collection]:
+        if kind == "sqlite":
+            store: Database = SQLiteStore(tmp_path / "grown.sqlite3")
+        else:
+            store = MongoStore(request.getfixturevalue("mongodb_url"), name)
+        collection = store.collection(schema)
+        await store.open()
+        try:
+            yield collection
+        finally:
+            await store.close()
+
+    async with AsyncExitStack() as stack:
+        name = ""
+        if kind == "mongodb":
+            name = await stack.enter_async_context(fresh_database(request.getfixturevalue("mongodb_url")))
+        async with store_with(before, name) as grown:
+            await grown.insert([{"name": "old", "n": 1}])
+        async with store_with(after, name) as grown:
+            assert await grown.get("old") == {"name": "old", "n": 1, "extra": None}
+            await grown.insert([{"name": "new", "n": 2, "extra": ["a"]}])
+            assert await grown.get("new") == {"name": "new", "n": 2, "extra": ["a"]}
+            assert await grown.update({"name": "old"}, {"extra": {"b": 1}}) == 1
+            assert (await grown.get("old"))["extra"] == {"b": 1}
+        if kind == "sqlite":  # MongoDB has no columns: a required field is the repository's to fill
+            with pytest.raises(ValueError, match="required field 'needed'"):
+                async with store_with(required, name) as grown:
+                    await grown.get("old")

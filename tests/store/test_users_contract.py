@@ -68,3 +68,20 @@ async def test_remove_user(store: Repositories) -> None:
     assert await store.users.remove_user("alice") is True
     assert await store.users.remove_user("alice") is False
     assert await store.users.get_user("alice") is None
+
+
+async def test_allowed_use_cases_round_trip_and_every_one_is_the_default(store: Repositories) -> None:
+    await store.users.add_user(user())
+    assert (await store.users.get_user("alice")).use_cases is None, "every use case until restricted"
+    later = T0 + timedelta(minutes=5)
+    restricted = await store.users.set_use_cases("alice", ("survey",), later)
+    assert restricted == user(use_cases=("survey",), updated_at=later)
+    assert await store.users.get_user("alice") == restricted
+    kept = await store.users.update_user("alice", later, role=UserRole.CLIENT)
+    assert kept.use_cases == ("survey",), "other changes keep them"
+    assert (await store.users.set_use_cases("alice", (), later)).use_cases == (), "none at all"
+    assert (await store.users.set_use_cases("alice", None, later)).use_cases is None
+    await store.users.put_user(user(use_cases=("hazard-response", "survey")))
+    assert (await store.users.get_user("alice")).use_cases == ("hazard-response", "survey")
+    with pytest.raises(NoSuchUser, match="nobody"):
+        await store.users.set_use_cases("nobody", ("survey",), later)

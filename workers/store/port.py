@@ -75,7 +75,9 @@ class Schema:
     """A collection (a table on SQLite): its fields, its key, and the indexes its queries use.
 
     A query that filters or sorts on fields other than a prefix of the key needs an index
-    declared here; a database leaves out an index its key already gives it."""
+    declared here; a database leaves out an index its key already gives it. A field added to a
+    schema after its collection holds documents must be optional: those documents read it as null
+    on every database (SQLite adds the column when it opens the file)."""
 
     name: str
     fields: Mapping[str, Kind]

@@ -119,6 +119,30 @@ def ddl(schema: Schema) -> str:
     return ";\n".join(statements) + ";\n"
 
 
+def added_fields(db: sqlite3.Connection, schema: Schema) -> list[str]:
+    """Add to an existing table the optional fields its schema gained since it was made (null in
+    the rows already there, as MongoDB reads a field its documents lack); the names added."""
+    table = quoted(schema.name)
+    present = {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
+    added = []
+    for name, kind in schema.fields.items():
+        if name in present:
+            continue
+        if not kind.optional:
+            raise ValueError(
+                f"{schema.name}: the table lacks the required field {name!r} "
+                "(a field added later must be optional)"
+            )
+        try:
+            db.execute(f"ALTER TABLE {table} ADD COLUMN {quoted(name)} {COLUMN_TYPES[kind.name]}")
+        except sqlite3.OperationalError as error:
+            if "duplicate column" not in str(error):  # another process added it first
+                raise
+            continue
+        added.append(name)
+    return added
+
+
 def _finish(work: Work[T]) -> T:
     """Run a unit of work's coroutine to its end here: on SQLite the port's calls never wait."""
     try:
@@ -149,6 +173,7 @@ class SQLiteStore(SQLiteDatabase, Database):
     def _prepare(self, db: sqlite3.Connection) -> None:
         for schema in self._schemas.values():
             db.executescript(ddl(schema))
+            added_fields(db, schema)
 
     def again(self) -> SQLiteStore:
         return SQLiteStore(self.path, self._busy_timeout)

@@ -12,7 +12,7 @@ from datetime import datetime
 
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.base import StoreError
-from fleetbus.workers.store.port import TEXT, TIME, Database, Doc, Index, Schema
+from fleetbus.workers.store.port import JSON, TEXT, TIME, Database, Doc, Index, Schema
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,9 @@ class User:
     created_at: datetime
     created_by: str
     updated_at: datetime
+    use_cases: tuple[str, ...] | None = None
+    """The use cases the user may create missions of; ``None``: every one, those added later too
+    (as every account made before use cases were kept has it)."""
 
 
 class UserExists(StoreError):
@@ -67,6 +70,11 @@ class UserStore(abc.ABC):
         """Change the given fields (``None`` leaves one as it is); raise :class:`NoSuchUser`."""
 
     @abc.abstractmethod
+    async def set_use_cases(self, name: str, use_cases: tuple[str, ...] | None, at: datetime) -> User:
+        """Keep the use cases ``name`` may create missions of (``None``: every one); raise
+        :class:`NoSuchUser`."""
+
+    @abc.abstractmethod
     async def remove_user(self, name: str) -> bool:
         """Delete the user; False when there was none."""
 
@@ -82,6 +90,7 @@ USERS = Schema(
         "created_at": TIME,
         "created_by": TEXT,
         "updated_at": TIME,
+        "use_cases": JSON.maybe,
     },
     key=("name",),
     indexes=(Index("role", "name"),),
@@ -89,7 +98,15 @@ USERS = Schema(
 
 
 def _user(doc: Doc) -> User:
-    return User(**{**doc, "role": UserRole(doc["role"])})
+    use_cases = doc["use_cases"]
+    return User(
+        **{**doc, "role": UserRole(doc["role"]), "use_cases": None if use_cases is None else tuple(use_cases)}
+    )
+
+
+def _doc(user: User) -> Doc:
+    use_cases = None if user.use_cases is None else list(user.use_cases)
+    return {**user.__dict__, "role": user.role.value, "use_cases": use_cases}
 
 
 class Users(UserStore):
@@ -98,11 +115,11 @@ class Users(UserStore):
         self._users = database.collection(USERS)
 
     async def add_user(self, user: User) -> None:
-        if not (await self._users.insert([{**user.__dict__, "role": user.role.value}]))[0]:
+        if not (await self._users.insert([_doc(user)]))[0]:
             raise UserExists(f"user {user.name!r} exists")
 
     async def put_user(self, user: User) -> None:
-        await self._users.put({**user.__dict__, "role": user.role.value})
+        await self._users.put(_doc(user))
 
     async def get_user(self, name: str) -> User | None:
         doc = await self._users.get(name)
@@ -127,9 +144,15 @@ class Users(UserStore):
             "broker_secret": broker_secret,
         }
         given = {field: value for field, value in changes.items() if value is not None}
+        return await self._change(name, {**given, "updated_at": at})
 
+    async def set_use_cases(self, name: str, use_cases: tuple[str, ...] | None, at: datetime) -> User:
+        kept = None if use_cases is None else list(use_cases)
+        return await self._change(name, {"use_cases": kept, "updated_at": at})
+
+    async def _change(self, name: str, changes: Doc) -> User:
         async def update() -> User:
-            await self._users.update({"name": name}, {**given, "updated_at": at})
+            await self._users.update({"name": name}, changes)
             user = await self.get_user(name)
             if user is None:
                 raise NoSuchUser(f"no user {name!r}")

@@ -1,5 +1,7 @@
-"""My account (every user who may log in to the console): name and role, change the password, and
-the user's own login sessions (when begun, last seen, from where), each of which it may end.
+"""My account (every user who may log in to the console): name and role, change the password, the
+user's own login sessions (when begun, last seen, from where), each of which it may end, and its
+broker login: the URL, the password shown once on request (:mod:`..shown_once`), a new password
+(the accounts service's reset, as an administrator's on the Accounts page).
 
 The rules are the services' (``svc.accounts``, ``svc.sessions``), as ``/users/me`` and
 ``/users/me/sessions`` use them: a password change ends the user's other sessions; ending the
@@ -15,6 +17,8 @@ from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
 from fleetbus.api.auth import ServiceDep
+from fleetbus.api.console import shown_once
+from fleetbus.api.console.my_work import broker_login
 from fleetbus.api.console.session import Allowed, end_session
 from fleetbus.api.console.sitemap import ACCOUNT
 from fleetbus.api.console.templating import render
@@ -47,6 +51,7 @@ async def _page(
         sessions=await svc.sessions.of(user.name),
         current=request.state.session.id,
         most=svc.sessions.per_user,
+        broker=broker_login(svc, user),
         problem=problem,
         notice=notice,
     )
@@ -88,3 +93,47 @@ async def end_one(request: Request, session_id: str, user: Owner, svc: ServiceDe
         problem = "you have no such session (it may have ended already)"
         return await _page(request, user, svc, 404, problem=problem)
     return _done("ended")
+
+
+SHOWN_AT = "/console/account/broker-password"
+
+
+def _not_handed(request: Request, user: User, problem: str, status_code: int) -> Response:
+    response = render(
+        request, "account/broker_password.html", user, ACCOUNT, status_code=status_code, problem=problem
+    )
+    return shown_once.forget(response, SHOWN_AT)
+
+
+@router.post("/console/account/broker-password/show", response_class=HTMLResponse)
+async def show_broker_password(request: Request, user: Owner, svc: ServiceDep) -> Response:
+    """The user's broker password as it is, on the page that shows it once."""
+    if refusal := shown_once.refusal(request, svc, user.name):
+        return _not_handed(request, user, refusal, 403)
+    try:
+        credentials = svc.accounts.broker_credentials(user)
+    except ServiceRefusal as refusal:
+        return _not_handed(request, user, refusal.detail, refusal.status)
+    return shown_once.hand_over(request, svc, credentials, SHOWN_AT)
+
+
+@router.post("/console/account/broker-password/new", response_class=HTMLResponse)
+async def new_broker_password(request: Request, user: Owner, svc: ServiceDep) -> Response:
+    """A new broker password for the user (the old one stops logging in), shown once."""
+    if refusal := shown_once.refusal(request, svc, user.name):  # before the password changes
+        return _not_handed(request, user, refusal, 403)
+    try:
+        credentials = await svc.accounts.reset_broker_password(user.name, user.name)
+    except ServiceRefusal as refusal:
+        return _not_handed(request, user, refusal.detail, refusal.status)
+    return shown_once.hand_over(request, svc, credentials, SHOWN_AT, "new=1")
+
+
+@router.get(SHOWN_AT, response_class=HTMLResponse)
+async def broker_password(request: Request, user: Owner, svc: ServiceDep, new: bool = False) -> Response:
+    """The password handed over, once: a reload finds the cookie gone."""
+    credentials = shown_once.take(request, svc, user.name)
+    response = render(
+        request, "account/broker_password.html", user, ACCOUNT, credentials=credentials, new=new
+    )
+    return shown_once.forget(response, SHOWN_AT)

@@ -1,36 +1,34 @@
-"""Accounts (administrators only): every user and robot with its role; create one, change its role,
+"""Accounts (administrators): every user and robot with its role; create one, change its role,
 disable it (the ``inactive`` role, as ``PUT /users/{name}/role`` does), give its broker account a
 new password, shown once, end all its login sessions (as ``DELETE /users/{name}/sessions``).
 
 Every rule is the accounts service's (``svc.accounts``, which ``/users`` calls too): the page passes
 what the form says and shows the service's refusal as it is.
 
-The new broker password goes from the reset (a POST) to the page that shows it (a GET, so that
-a reload cannot reset it again) in a cookie sealed with the service's key, readable only by that
-page, for two minutes; the page deletes it as it shows it, and answers ``Cache-Control: no-store``.
+Supervisors open the page too and see the registered robots only (as ``GET /users`` shows them), with
+no control: every action here is an administrator's.
+
+The new broker password is shown once (:mod:`..shown_once`).
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict
 from typing import Annotated
 from urllib.parse import urlencode
 
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from fleetbus.api import audit
-from fleetbus.api.accounts import BrokerCredentials
 from fleetbus.api.auth import ServiceDep
+from fleetbus.api.console import shown_once
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ACCOUNTS, ADMINS
 from fleetbus.api.console.templating import render
 from fleetbus.api.errors import BadRequest, ServiceRefusal
 from fleetbus.api.service import Service
-from fleetbus.api.transport import broker_password_refusal
 from fleetbus.schemas.roles import ROLE_PURPOSE, UserRole
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.use_cases import USE_CASES
 from fleetbus.workers.store.users import User
 
 router = APIRouter()
@@ -39,15 +37,13 @@ Creator = Annotated[User, Depends(Allowed(ADMINS, "create users"))]
 RoleSetter = Annotated[User, Depends(Allowed(ADMINS, "change roles or disable users"))]
 Rekeyer = Annotated[User, Depends(Allowed(ADMINS, "reset broker passwords"))]
 SessionEnder = Annotated[User, Depends(Allowed(ADMINS, "end users' sessions"))]
-
-SHOWN_ONCE_COOKIE = "fleetbus_shown_once"
-SHOWN_ONCE_S = 120
-NO_STORE = {"Cache-Control": "no-store"}
+UseCaseSetter = Annotated[User, Depends(Allowed(ADMINS, "change users' use cases"))]
 NOTICES = {
     "created": "User {name} created.",
     "role": "{name} has a new role.",
     "disabled": "{name} is disabled (role inactive): it can neither log in nor reach the broker.",
     "sessions": "Every session of {name} has ended: its console logins and API tokens are refused.",
+    "use-cases": "{name}'s use cases are set.",
 }
 
 
@@ -70,7 +66,9 @@ async def _page(
         user,
         ACCOUNTS,
         status_code=status_code,
-        users=await svc.repositories.users.users(),
+        users=await svc.accounts.listed(user),
+        may_edit=user.role in ADMINS,
+        use_cases=list(USE_CASES),
         roles=list(UserRole),
         purposes=ROLE_PURPOSE,
         kinds=list(RobotKind),
@@ -145,6 +143,24 @@ async def disable(request: Request, name: str, admin: RoleSetter, svc: ServiceDe
     return await _set_role(request, admin, svc, name, UserRole.INACTIVE.value, "disabled")
 
 
+@router.post("/console/accounts/{name}/use-cases", response_class=HTMLResponse)
+async def set_use_cases(
+    request: Request,
+    name: str,
+    admin: UseCaseSetter,
+    svc: ServiceDep,
+    scope: Annotated[str, Form()] = "every",
+    use_case: Annotated[list[str] | None, Form()] = None,
+) -> Response:
+    """``scope`` ``every``: every use case; else only those ticked (none ticked: none)."""
+    allowed = None if scope == "every" else (use_case or [])
+    try:
+        await svc.accounts.set_use_cases(name, allowed, admin.name)
+    except ServiceRefusal as refusal:
+        return await _page(request, admin, svc, refusal.status, problem=refusal.detail)
+    return _done("use-cases", name)
+
+
 @router.post("/console/accounts/{name}/sessions/end", response_class=HTMLResponse)
 async def end_sessions(request: Request, name: str, admin: SessionEnder, svc: ServiceDep) -> Response:
     keep = request.state.session.id if name == admin.name else None  # an admin's own stays open
@@ -157,49 +173,24 @@ async def end_sessions(request: Request, name: str, admin: SessionEnder, svc: Se
 
 @router.post("/console/accounts/{name}/broker-password", response_class=HTMLResponse)
 async def reset_broker_password(request: Request, name: str, admin: Rekeyer, svc: ServiceDep) -> Response:
-    if refusal := broker_password_refusal(request, svc.settings):  # before the password changes
-        audit.refused(request, 403, admin.name, refusal)
+    if refusal := shown_once.refusal(request, svc, admin.name):  # before the password changes
         return await _page(request, admin, svc, 403, problem=refusal)
     try:
         credentials = await svc.accounts.reset_broker_password(name, admin.name)
     except ServiceRefusal as refusal:
         return await _page(request, admin, svc, refusal.status, problem=refusal.detail)
-    shown_at = _shown_once_path(credentials.username)
-    response = RedirectResponse(shown_at, status_code=303, headers=NO_STORE)
-    response.set_cookie(
-        SHOWN_ONCE_COOKIE,
-        svc.secrets.box.seal(json.dumps(asdict(credentials))),
-        max_age=SHOWN_ONCE_S,
-        path=shown_at,
-        httponly=True,
-        samesite="strict",
-        secure=request.url.scheme == "https",  # as the session's cookie
-    )
-    return response
-
-
-def _opened(svc: Service, sealed: str | None, name: str) -> BrokerCredentials | None:
-    if not sealed:
-        return None
-    try:
-        credentials = BrokerCredentials(**json.loads(svc.secrets.box.open(sealed, max_age_s=SHOWN_ONCE_S)))
-    except (ValueError, TypeError):  # too old, or not sealed by this service
-        return None
-    return credentials if credentials.username == name else None
+    return shown_once.hand_over(request, svc, credentials, _shown_once_path(credentials.username))
 
 
 @router.get("/console/accounts/{name}/broker-password", response_class=HTMLResponse)
-async def new_broker_password(request: Request, name: str, admin: Viewer, svc: ServiceDep) -> Response:
+async def new_broker_password(request: Request, name: str, admin: Rekeyer, svc: ServiceDep) -> Response:
     """The password the reset just made, once: a reload finds the cookie gone."""
-    credentials = _opened(svc, request.cookies.get(SHOWN_ONCE_COOKIE), name)
     response = render(
         request,
         "accounts/broker_password.html",
         admin,
         ACCOUNTS,
-        headers=NO_STORE,
         name=name,
-        credentials=credentials,
+        credentials=shown_once.take(request, svc, name),
     )
-    response.delete_cookie(SHOWN_ONCE_COOKIE, path=_shown_once_path(name))
-    return response
+    return shown_once.forget(response, _shown_once_path(name))

@@ -1,5 +1,6 @@
-"""The dashboard: the team (a row per robot, those that need attention first, bounded), the hazards
-by state, the broker's health, the dead letters of the last hour, on central its sites' links, the
+"""The dashboard: the signed-in user's own work (:mod:`..my_work`, every role); for those who watch
+the team, the team (a row per robot, those that need attention first, bounded), the hazards by
+state, the broker's health, the dead letters of the last hour, on central its sites' links, the
 newest events; live.
 
 What one refresh costs, whatever the number of open dashboards (they share it, :class:`Shared`)
@@ -30,6 +31,7 @@ from fleetbus.api.console.charts import TimeChart, time_chart
 from fleetbus.api.console.feed import Feed
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
+from fleetbus.api.console.my_work import my_work
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ADMINS, DASHBOARD
 from fleetbus.api.console.templating import fragment, render
@@ -37,7 +39,7 @@ from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
 from fleetbus.api.team import TeamView
 from fleetbus.broker.management import ManagementError
-from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.roles import WATCHERS, UserRole
 from fleetbus.schemas.routing import EventType
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.site_report_collector import collect_site_reports
@@ -48,6 +50,7 @@ from fleetbus.workers.team import TeamMember
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(DASHBOARD))]
+Watcher = Annotated[User, Depends(Allowed(WATCHERS, "the live team on the dashboard"))]
 Repairer = Annotated[User, Depends(Allowed(ADMINS, "repair the account registry's drift"))]
 log = logging.getLogger("fleetbus.console")
 #: Hazard ids listed per state; the rest are counted.
@@ -226,6 +229,9 @@ async def _registry(svc: Service) -> dict[str, object]:
 async def dashboard(
     request: Request, user: Viewer, view: View, svc: ServiceDep, repaired: int | None = None
 ) -> Response:
+    mine = await my_work(svc, user)
+    if user.role not in WATCHERS:
+        return render(request, "dashboard/mine.html", user, DASHBOARD, **mine)
     return render(
         request,
         "dashboard/page.html",
@@ -239,6 +245,7 @@ async def dashboard(
         if user.role is UserRole.ADMIN
         else None,
         repaired=repaired,
+        **mine,
     )
 
 
@@ -250,5 +257,5 @@ async def repair_registry(admin: Repairer, svc: ServiceDep) -> Response:
 
 
 @router.get("/console/stream/dashboard")
-async def dashboard_stream(request: Request, user: Viewer, view: View) -> Response:
+async def dashboard_stream(request: Request, user: Watcher, view: View) -> Response:
     return live_stream(view, request.app.state.feed, request)

@@ -27,7 +27,7 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import render
 from fleetbus.api.errors import ServiceRefusal
-from fleetbus.api.missions import AUTHORS
+from fleetbus.api.missions import AUTHORS, use_case_refusal
 from fleetbus.api.service import Service
 from fleetbus.schemas.missions import MissionPlan
 from fleetbus.schemas.use_cases import USE_CASES, InvalidTransition, machine_for
@@ -161,7 +161,7 @@ async def _form(
         user,
         MISSIONS,
         status_code=status,
-        use_cases=list(USE_CASES.values()),
+        use_cases=[m for m in USE_CASES.values() if use_case_refusal(user, m.use_case) is None],
         draft=draft,
         frame=frame,
         image=MAP_IMAGE.format(frame.version.version) if frame else None,

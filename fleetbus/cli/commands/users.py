@@ -1,5 +1,5 @@
-"""``fleetbus users add | remove | list | check``: the account registry's users and robots, each
-with a broker account confined to its own name, through the accounts service."""
+"""``fleetbus users add | remove | use-cases | list | check``: the account registry's users and
+robots, each with a broker account confined to its own name, through the accounts service."""
 
 from __future__ import annotations
 
@@ -196,6 +196,37 @@ def remove(
     console.print(f"removed {name}" + (" and took it out of the team" if removed.left_team else ""))
     if removed.revoked:
         console.print(removed.revoked, highlight=False)
+
+
+@app.command("use-cases")
+def use_cases(
+    name: str,
+    allow: Annotated[
+        str | None,
+        typer.Option(help="the use cases NAME may create missions of, comma-separated (\"\": none)"),
+    ] = None,
+    every: Annotated[
+        bool, typer.Option("--all", help="every use case, those added later too (the default)")
+    ] = False,
+    by: Annotated[
+        str | None, typer.Option(help="who changes them, for the record (default: your login)")
+    ] = None,
+) -> None:
+    """Show or set the use cases NAME may create missions of (as `PUT /users/NAME/use-cases`); a
+    mission of another is refused, through the HTTP API, the console and `fleetbus missions create`.
+    An account none were set for may use every use case."""
+    if allow is not None and every:
+        fail("give --allow or --all, not both", 2)
+    ep = endpoint()
+    if allow is None and not every:
+        user = with_accounts(ep, lambda accounts, _repos, _api: accounts.get(name))
+    else:
+        wanted = None if every else allow.split(",") if allow else []
+        user = with_accounts(
+            ep, lambda accounts, _repos, _api: accounts.set_use_cases(name, wanted, actor(by))
+        )
+    allowed = "every use case" if user.use_cases is None else ", ".join(user.use_cases) or "none"
+    console.print(f"{name} may create missions of: {allowed}", highlight=False)
 
 
 @app.command("list")
