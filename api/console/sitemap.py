@@ -30,6 +30,7 @@ MAP = Page("map", "Live map", "/console/map", WATCHERS)
 HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)
 MISSIONS = Page("missions", "Missions", "/console/missions", MISSION_ROLES)
 MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
+ALERTS = Page("alerts", "Alerts", "/console/alerts", WATCHERS)
 DEAD_LETTERS = Page("dead-letters", "Dead letters", "/console/dead-letters", WATCHERS)
 EVALUATION = Page("evaluation", "Evaluation", "/console/evaluation", EVALUATORS)
 ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS)
@@ -38,7 +39,17 @@ ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS)
 ACCOUNT = Page("account", "My account", "/console/account", ACTIVE_ROLES - {R.ROBOT})
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD, MAP, HAZARDS, MISSIONS, MESSAGES, DEAD_LETTERS, EVALUATION, ACCOUNTS)
+PAGES: tuple[Page, ...] = (
+    DASHBOARD,
+    ALERTS,
+    MAP,
+    HAZARDS,
+    MISSIONS,
+    MESSAGES,
+    DEAD_LETTERS,
+    EVALUATION,
+    ACCOUNTS,
+)
 
 
 def pages_for(role: R) -> list[Page]:

@@ -7,6 +7,7 @@ from fastapi import APIRouter
 from fleetbus.api.console.pages import (
     account,
     accounts,
+    alerts,
     dashboard,
     dead_letters,
     evaluation,
@@ -17,5 +18,6 @@ from fleetbus.api.console.pages import (
 )
 
 router = APIRouter()
-for page in (dashboard, live_map, hazards, missions, messages, dead_letters, evaluation, accounts, account):
+MODULES = (dashboard, alerts, live_map, hazards, missions, messages, dead_letters, evaluation, accounts)
+for page in (*MODULES, account):
     router.include_router(page.router)
