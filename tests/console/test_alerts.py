@@ -18,6 +18,7 @@ def test_an_alert_shows_live_and_an_operator_acknowledges_it(bus: Bus, browser: 
     explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
     with bus.worker(), running_console(bus, bus.settings.updated(alerts_check_s=0.2)) as console:
         console.user("oper1", UserRole.OPERATOR)
+        browser.console_errors()  # what earlier tests left in the browser's log, read and left out
         console.log_in(browser, "oper1")
         browser.go(console.url("/console/alerts"))
         console.wait_live(browser)
