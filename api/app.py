@@ -20,7 +20,7 @@ from fleetbus.api.console.feed import running_feed
 from fleetbus.api.console.router import install_console
 from fleetbus.api.openapi import document, refusals, with_problem_schemas
 from fleetbus.api.problems import install_problem_handlers
-from fleetbus.api.routes import auth, beacons, channels, hazards, missions, recording, team, users
+from fleetbus.api.routes import alerts, auth, beacons, channels, hazards, missions, recording, team, users
 from fleetbus.api.service import open_service
 from fleetbus.broker.certificates import TlsFiles
 from fleetbus.settings import Settings
@@ -59,6 +59,7 @@ def create_app(
         recording.router,
         team.router,
         hazards.router,
+        alerts.router,
     ):
         app.include_router(document(router))
 

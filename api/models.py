@@ -16,6 +16,7 @@ from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.schemas.use_cases import MissionMachine, machine_for
+from fleetbus.workers.store.alerts import Alert
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.channels import ChannelChange, CheckIn, Mount
 from fleetbus.workers.store.discards import Discard, DiscardCount
@@ -444,3 +445,44 @@ class HazardStepOut(BaseModel):
     hazard: HazardOut = Field(description="the hazard after the step")
     warden_told: bool = Field(description="the warden's inbox took the news of the step")
     not_told: str | None = Field(description="why the warden was not told")
+
+
+class AlertOut(BaseModel):
+    """One occurrence of a condition the operators acknowledge."""
+
+    id: int = Field(description="what `POST /alerts/{alert_id}/acknowledge` and `fleetbus alerts ack` take")
+    kind: str = Field(
+        description="hazard-announced, hazard-unclaimed, battery-low, robot-stale, uplink-near-full or "
+        "dead-letters-growing"
+    )
+    subject: str = Field(
+        description="what it is about: `robot NAME`, `hazard MISSION/ID`, `site NAME`, `queue NAME`"
+    )
+    detail: str
+    since: datetime = Field(description="when the condition began, as the store says (else when first seen)")
+    raised_at: datetime
+    ended_at: datetime | None = Field(description="when the condition was seen to end; null while it holds")
+    acknowledged_by: str | None
+    acknowledged_at: datetime | None = Field(description="UTC")
+
+    @classmethod
+    def of(cls, alert: Alert) -> AlertOut:
+        return cls(
+            id=alert.id,
+            kind=alert.kind,
+            subject=alert.subject,
+            detail=alert.detail,
+            since=alert.since,
+            raised_at=alert.raised_at,
+            ended_at=alert.ended_at,
+            acknowledged_by=alert.acknowledged_by,
+            acknowledged_at=alert.acknowledged_at,
+        )
+
+
+class AlertsOut(BaseModel):
+    unacknowledged: list[AlertOut] = Field(description="every alert not acknowledged yet, oldest first")
+    acknowledged: list[AlertOut] = Field(
+        description="with `acknowledged=true`: the last acknowledged (FLEETBUS_ALERTS_ACKNOWLEDGED_SHOWN), "
+        "the last first; else empty"
+    )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
@@ -10,6 +11,7 @@ from datetime import timedelta
 
 from fleetbus.api.account_check import AccountCheck, account_check_for
 from fleetbus.api.accounts import Accounts, accounts_for
+from fleetbus.api.alerts import Alerts, alerts_for
 from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.login_limits import LoginLimits
@@ -19,7 +21,7 @@ from fleetbus.api.security import Secrets
 from fleetbus.api.sessions import Sessions
 from fleetbus.api.team import Team
 from fleetbus.broker.accounts import vhost_of
-from fleetbus.broker.dead_letter_queue import DeadLetter, read_dead_letters
+from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
@@ -50,6 +52,9 @@ class Service:
     """The administrator's AMQP URL (the console reads and changes the dead-letter queue with it)."""
     vhost: str
     login_limits: LoginLimits
+    alerts: Alerts
+    """The alerts raised for the operators from the store (checked in the background) and their
+    acknowledgements."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -77,6 +82,11 @@ async def open_service(
     to_sites = MissionsToSites(lambda mission: send_mission_to_sites(repositories.sites, admin_url, mission))
     to_sites.start()
     sessions = Sessions(repositories.sessions, secrets_.tokens, settings.api_sessions_per_user)
+    vhost = vhost_of(admin_url)
+    alerts = alerts_for(
+        settings, repositories, lambda: asyncio.to_thread(dead_letters_waiting, management, vhost)
+    )
+    checking = asyncio.create_task(alerts.keep_checking(settings.alerts_check_s), name="alerts-check")
     try:
         missions = Missions(repositories.missions, repositories.channels, to_sites.changed)
         accounts = accounts_for(
@@ -107,8 +117,12 @@ async def open_service(
             admin_url=admin_url,
             vhost=vhost_of(admin_url),
             login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
+            alerts=alerts,
         )
     finally:
+        checking.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await checking
         await to_sites.stop()
         secrets_.passwords.close()
         management.close()

@@ -22,12 +22,15 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from decimal import Decimal
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import pika
 
 from fleetbus.broker.tls import blocking_connection
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RECORDER_QUEUE
+
+if TYPE_CHECKING:
+    from fleetbus.broker.management import ManagementAPI
 
 
 @dataclass(frozen=True)
@@ -226,3 +229,10 @@ def _peek(amqp_url: str, limit: int) -> tuple[int, Fetched]:
         return available, fetched
     finally:
         connection.close()
+
+
+def dead_letters_waiting(management: ManagementAPI, vhost: str) -> int:
+    """How many letters the dead-letter queue holds (ready, or being read), as the management API
+    counts them (its statistics lag the broker by a few seconds)."""
+    queue = management.get_queue(vhost, DEAD_LETTER_QUEUE)
+    return int(queue.get("messages_ready") or 0) + int(queue.get("messages_unacknowledged") or 0)

@@ -204,6 +204,20 @@ class Settings(BaseSettings):
         60.0,
         "a robot silent this long (no event of any type) is shown stale by `fleetbus team` and `GET /team`",
     )
+    alerts_unclaimed_after_s: Annotated[float, Positive] = setting(
+        120.0,
+        "an announced hazard no warden claimed this long raises an alert for the operators (`fleetbus "
+        "alerts`, `GET /alerts`, the console's alert banner)",
+    )
+    alerts_check_s: Annotated[float, Positive] = setting(
+        5.0,
+        "how often the API process looks at the store for alerts to raise or end (hazards announced or "
+        "unclaimed, batteries below `FLEETBUS_BATTERY_LOW_PERCENT`, robots stale after "
+        "`FLEETBUS_STALE_AFTER_S`, uplinks at `FLEETBUS_UPLINK_ALERT_AT`, dead letters growing)",
+    )
+    alerts_acknowledged_shown: Annotated[int, Positive] = setting(
+        50, "how many of the last acknowledged alerts `fleetbus alerts --all` and the console show"
+    )
     ingest_shards: int = setting(
         1,
         f"ingest shard queues (1 to {MAX_INGEST_SHARDS}): each robot's events go through one, and the "

@@ -7,7 +7,7 @@ reading: the robot's previous stored status decides.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 
 from aio_pika.abc import AbstractExchange
@@ -17,6 +17,20 @@ from fleetbus.schemas.routing import EventType, Topic
 from fleetbus.workers.notifier import publish_notification
 from fleetbus.workers.store.base import EventQuery, EventStore
 from fleetbus.workers.validation import Accepted
+
+#: The field of a status event that carries the robot's battery.
+BATTERY_FIELD = "battery_percent"
+
+
+def battery_of(body: Mapping[str, object]) -> float | None:
+    """The battery a status event's body reports (None when it does not say)."""
+    value = body.get(BATTERY_FIELD)
+    return float(value) if isinstance(value, (int, float)) else None
+
+
+def battery_low(percent: float, threshold: float) -> bool:
+    """Whether a battery at ``percent`` is low (``FLEETBUS_BATTERY_LOW_PERCENT``: below it)."""
+    return percent < threshold
 
 
 class BatteryWatch:
@@ -38,13 +52,15 @@ class BatteryWatch:
                 limit=1,
             )
         )
-        return bool(previous) and previous[0].body["battery_percent"] < self.threshold
+        return bool(previous) and battery_low(previous[0].body[BATTERY_FIELD], self.threshold)
 
     async def handle(self, accepted: Sequence[Accepted]) -> int:
         sent = 0
         for item in accepted:
             event = item.event
-            if event.type is not EventType.STATUS or event.body.battery_percent >= self.threshold:
+            if event.type is not EventType.STATUS:
+                continue
+            if not battery_low(event.body.battery_percent, self.threshold):
                 continue
             if await self._was_low_before(item):
                 continue

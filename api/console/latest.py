@@ -22,6 +22,7 @@ from fastapi import Request
 
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.store.base import EventRecord, EventStore
+from fleetbus.workers.telemetry import battery_of
 
 #: The events that say where their robot is.
 POSE_TYPES = (EventType.STATUS.value, EventType.LOCALISATION.value)
@@ -71,7 +72,7 @@ class RobotLatest:
 
     @property
     def battery(self) -> float | None:
-        return None if self.status is None else self.status.body.get("battery_percent")
+        return None if self.status is None else battery_of(self.status.body)
 
     def observe(self, record: EventRecord) -> None:
         if self.last_seen is None or record.received_at > self.last_seen:

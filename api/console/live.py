@@ -78,7 +78,7 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
 
     async with feed.subscribe() as subscription:
         cursor = feed.cursor
-        first = changed(await view.snapshot())
+        first = changed(await _state(view, request))
         since = moment_of(last_event_id(request))
         if since is not None:
             missed = await feed.missed(since, MISSED_LIMIT)
@@ -97,9 +97,16 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
                 if not await _session_open(request):
                     yield ServerSentEvent(data="the session has ended", event=RELOAD_EVENT)
                     return
-            news = [*await events_of(view, batch), *changed(await view.snapshot())]
+            news = [*await events_of(view, batch), *changed(await _state(view, request))]
             if news:
                 yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
+
+
+async def _state(view: LiveView, request: Request) -> list[str]:
+    """The view's state and what every live page shows besides (the alerts banner: the app's
+    ``on_every_live_page``, given the request, which says who looks)."""
+    every_page = getattr(request.app.state, "on_every_live_page", None)
+    return [*await view.snapshot(), *(await every_page(request) if every_page else [])]
 
 
 async def _session_open(request: Request) -> bool:

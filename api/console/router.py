@@ -14,6 +14,7 @@ from fastapi.staticfiles import StaticFiles
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.headers import ConsoleHeaders
 from fleetbus.api.console.pages import router as page_routers
+from fleetbus.api.console.pages.alerts import banner_fragments
 from fleetbus.api.console.session import (
     LoginRequired,
     PageForbidden,
@@ -93,6 +94,7 @@ async def logout(request: Request, svc: ServiceDep) -> RedirectResponse:
 def install_console(app: FastAPI) -> None:
     """Serve the console from ``app``: its routes, its files, its headers and its refusals."""
     app.add_middleware(ConsoleHeaders)
+    app.state.on_every_live_page = banner_fragments
     app.mount("/static/console", StaticFiles(directory=STATIC), name="console-static")
     app.include_router(router)
     app.include_router(page_routers, dependencies=[Depends(check_csrf)], include_in_schema=False)

@@ -34,6 +34,7 @@ MAP = Page("map", "Live map", "/console/map", WATCHERS)
 HAZARDS = Page("hazards", "Hazards", "/console/hazards", WATCHERS)
 MISSIONS = Page("missions", "Missions", "/console/missions", MISSION_ROLES)
 MESSAGES = Page("messages", "Messages", "/console/messages", WATCHERS)
+ALERTS = Page("alerts", "Alerts", "/console/alerts", WATCHERS)
 DEAD_LETTERS = Page("dead-letters", "Dead letters", "/console/dead-letters", WATCHERS)
 EVALUATION = Page("evaluation", "Evaluation", "/console/evaluation", EVALUATORS)
 ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS | {R.SUPERVISOR})
@@ -42,7 +43,17 @@ ACCOUNTS = Page("accounts", "Accounts", "/console/accounts", ADMINS | {R.SUPERVI
 ACCOUNT = Page("account", "My account", "/console/account", CONSOLE_ROLES)
 
 #: Every page, in the navigation's order.
-PAGES: tuple[Page, ...] = (DASHBOARD, MAP, HAZARDS, MISSIONS, MESSAGES, DEAD_LETTERS, EVALUATION, ACCOUNTS)
+PAGES: tuple[Page, ...] = (
+    DASHBOARD,
+    ALERTS,
+    MAP,
+    HAZARDS,
+    MISSIONS,
+    MESSAGES,
+    DEAD_LETTERS,
+    EVALUATION,
+    ACCOUNTS,
+)
 
 
 def pages_for(role: R) -> list[Page]:

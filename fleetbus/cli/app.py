@@ -44,6 +44,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "api": ("api", "app"),
     "shards": ("shards", "app"),
     "team": ("team", "app"),
+    "alerts": ("alerts", "app"),
     "site": ("site", "app"),
     "sites": ("sites", "app"),
     "ros": ("ros", "app"),

@@ -19,6 +19,7 @@ from fleetbus.schemas.envelope import build_event
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.alerts import NewAlert
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests import factories
 from tests.api.support import PASSWORD, PROBLEM_JSON, READY_PLAN, Api, running_api
@@ -194,6 +195,19 @@ def hazard_claim(api: Api, role: UserRole) -> Call:
     )
 
 
+def raised_alert(api: Api, role: UserRole) -> Call:
+    """An alert of its own, raised in the store, to acknowledge."""
+    store = api.service.repositories.alerts
+    now = datetime.now(timezone.utc)
+    new = NewAlert("robot-stale", f"robot ack-{role.value}", now, "never heard from")
+    [alert] = api.run(lambda: store.raise_alerts([new], now))
+    return Call(
+        "POST",
+        f"/alerts/{alert.id}/acknowledge",
+        unchanged=lambda: api.run(lambda: store.get_alert(alert.id)) == alert,
+    )
+
+
 def own_session(api: Api, role: UserRole) -> Call:
     """Another session of the caller's own, to end."""
     token = api.session(USERS[role])
@@ -364,6 +378,14 @@ CASES = [
         frozenset({R.SUPERVISOR, R.OPERATOR}),
         200,
         hazard_claim,
+    ),
+    Case("GET", "/alerts", frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR}), 200, fixed("GET", "/alerts")),
+    Case(
+        "POST",
+        "/alerts/{alert_id}/acknowledge",
+        frozenset({R.ADMIN, R.SUPERVISOR, R.OPERATOR}),
+        200,
+        raised_alert,
     ),
 ]
 

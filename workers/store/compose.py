@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from fleetbus.workers.store.alerts import Alerts
 from fleetbus.workers.store.attempts import Attempts
 from fleetbus.workers.store.beacons import Beacons
 from fleetbus.workers.store.channels import Channels
@@ -41,6 +42,7 @@ def repositories_on(database: Database) -> Repositories:
         statuses=Statuses(database),
         housekeeping=StoreHousekeeping(database),
         sites=Sites(database),
+        alerts=Alerts(database),
         opener=database.open,
         closer=database.close,
         again=lambda: repositories_on(database.again()),

@@ -30,6 +30,7 @@ from fleetbus.workers.store.base import EventRecord, EventStore
 from fleetbus.workers.store.ledger import SequenceLedger
 
 if TYPE_CHECKING:
+    from fleetbus.workers.store.alerts import AlertStore
     from fleetbus.workers.store.attempts import AttemptLog
     from fleetbus.workers.store.beacons import BeaconRegistry
     from fleetbus.workers.store.channels import ChannelStore
@@ -100,6 +101,8 @@ class Repositories:
     housekeeping: Housekeeping
     sites: SiteRegistry
     """On central: which robots live at which site, and what each site forwarded."""
+    alerts: AlertStore
+    """The alerts raised for the operators, and who acknowledged each."""
     opener: Callable[[], Awaitable[None]] = field(repr=False)
     """Connects and creates the tables or indexes (idempotent)."""
     closer: Callable[[], Awaitable[None]] = field(repr=False)

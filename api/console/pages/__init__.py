@@ -7,6 +7,7 @@ from fastapi import APIRouter
 from fleetbus.api.console.pages import (
     account,
     accounts,
+    alerts,
     dashboard,
     dead_letters,
     evaluation,
@@ -21,6 +22,7 @@ router = APIRouter()
 # new_mission before missions: its /console/missions/new is no mission id
 for page in (
     dashboard,
+    alerts,
     live_map,
     hazards,
     new_mission,

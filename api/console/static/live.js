@@ -80,5 +80,11 @@
     });
   }
 
+  // leaving the page ends its stream at once: a stream left open would hold one of the browser's
+  // few connections to the console (six per host) until the server next writes to it
+  window.addEventListener("pagehide", function () {
+    if (source) source.close();
+  });
+
   connect();
 })();

@@ -1,0 +1,110 @@
+"""Alerts on every adapter: an occurrence raised once however often it is checked, a new one after
+its condition ended, acknowledged once (who and when kept exactly); and the checks of the
+application layer over the store: a hazard unclaimed, a site's uplink near its bound, dead letters
+growing after an acknowledgement."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta, timezone
+
+from fleetbus.api.alerts import AlertKind, Alerts, Thresholds
+from fleetbus.schemas.envelope import build_event
+from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.site_reports import SiteReport, UplinkDepth
+from fleetbus.workers.store.alerts import NewAlert
+from fleetbus.workers.store.repositories import Repositories
+from tests import factories
+
+T0 = datetime(2026, 11, 28, 2, 0, 0, 123456, tzinfo=timezone.utc)
+SECOND = timedelta(seconds=1)
+EPOCH = "20261128T000000000Z-0000beef"
+
+
+def stale(name: str, since: datetime = T0) -> NewAlert:
+    return NewAlert("robot-stale", f"robot {name}", since, "never heard from")
+
+
+async def test_an_open_condition_is_raised_once_and_again_only_after_it_ended(store: Repositories) -> None:
+    alerts = store.alerts
+    [first] = await alerts.raise_alerts([stale("explorer1"), stale("explorer1")], T0)
+    assert (first.kind, first.subject, first.since) == ("robot-stale", "robot explorer1", T0)
+    assert first.raised_at == T0
+    assert (first.ended_at, first.acknowledged_by, first.acknowledged_at) == (None, None, None)
+    assert await alerts.raise_alerts([stale("explorer1", T0 + SECOND)], T0 + SECOND) == [], "still open"
+    [other] = await alerts.raise_alerts([stale("warden1")], T0)
+    assert other.id > first.id
+    assert [a.id for a in await alerts.open_alerts()] == [first.id, other.id]
+
+    assert await alerts.end_alert(first.id, T0 + 2 * SECOND)
+    assert not await alerts.end_alert(first.id, T0 + 3 * SECOND), "ended once"
+    [again] = await alerts.raise_alerts([stale("explorer1", T0 + 4 * SECOND)], T0 + 4 * SECOND)
+    assert again.id > other.id and again.since == T0 + 4 * SECOND
+    ended = await alerts.get_alert(first.id)
+    assert ended is not None and ended.ended_at == T0 + 2 * SECOND
+    assert [a.id for a in await alerts.open_alerts()] == [other.id, again.id]
+    assert [a.id for a in await alerts.unacknowledged()] == [first.id, other.id, again.id]
+
+
+async def test_an_alert_is_acknowledged_once_and_the_first_acknowledgement_stays(store: Repositories) -> None:
+    alerts = store.alerts
+    [one, two] = await alerts.raise_alerts([stale("a"), stale("b")], T0)
+    assert await alerts.acknowledge(one.id, "oper1", T0 + SECOND)
+    assert not await alerts.acknowledge(one.id, "super1", T0 + 2 * SECOND)
+    assert not await alerts.acknowledge(999_999, "oper1", T0)
+    assert await alerts.acknowledge(two.id, "super1", T0 + 3 * SECOND)
+    kept = await alerts.get_alert(one.id)
+    assert kept is not None and (kept.acknowledged_by, kept.acknowledged_at) == ("oper1", T0 + SECOND)
+    assert [a.id for a in await alerts.acknowledged(10)] == [two.id, one.id], "the last acknowledged first"
+    assert [a.id for a in await alerts.acknowledged(1)] == [two.id]
+    assert await alerts.unacknowledged() == []
+
+
+class Counter:
+    """The dead-letter queue's depth, as a test sets it."""
+
+    def __init__(self) -> None:
+        self.waiting = 0
+
+    async def __call__(self) -> int:
+        return self.waiting
+
+
+async def test_the_checks_raise_each_occurrence_once_and_dead_letters_again_when_they_grow(
+    store: Repositories,
+) -> None:
+    dead = Counter()
+    thresholds = Thresholds(timedelta(seconds=60), 20.0, timedelta(seconds=60), 0.8)
+    alerts = Alerts(store.alerts, store.hazards, store.hazards, store.events, store.sites, thresholds, dead)
+    sent = build_event("hazard", "explorer1", EPOCH, 0, factories.hazard(0, "Smoke")).model_dump(mode="json")
+    await store.hazards.add_hazard("default", "explorer1", EPOCH, 0, sent, T0, held=False)
+    full = UplinkDepth(waiting=90, bound=100, overflow="reject-publish")
+    report = SiteReport(
+        site="north", at=T0, waiting=90, classes={"hazards": full}, uplink="running", downlink="running"
+    )
+    await store.sites.put_report(report)
+
+    raised = await alerts.check(T0 + SECOND)
+    assert sorted((a.kind, a.subject) for a in raised) == [
+        (AlertKind.HAZARD_ANNOUNCED.value, "hazard default/1"),
+        (AlertKind.UPLINK_NEAR_FULL.value, "site north"),
+    ]
+    assert "Smoke" in raised[0].detail or "Smoke" in raised[1].detail
+    unclaimed = await alerts.check(T0 + 61 * SECOND)
+    assert [(a.kind, a.since) for a in unclaimed] == [(AlertKind.HAZARD_UNCLAIMED.value, T0 + 60 * SECOND)]
+    assert await alerts.check(T0 + 62 * SECOND) == [], "one alert per occurrence, however often checked"
+
+    dead.waiting = 3
+    [letters] = await alerts.check(T0 + 63 * SECOND)
+    assert (letters.kind, letters.level) == (AlertKind.DEAD_LETTERS.value, 3)
+    dead.waiting = 5
+    assert await alerts.check(T0 + 64 * SECOND) == [], "growing while not acknowledged: the same alert"
+    await alerts.acknowledge(letters.id, "oper1", UserRole.OPERATOR)
+    assert await alerts.check(T0 + 65 * SECOND) == [], "as many as when acknowledged"
+    dead.waiting = 6
+    [grown] = await alerts.check(T0 + 66 * SECOND)
+    assert grown.kind == AlertKind.DEAD_LETTERS.value and "6 dead letters" in grown.detail
+    first = await store.alerts.get_alert(letters.id)
+    assert first is not None and first.ended_at == T0 + 66 * SECOND and first.acknowledged_by == "oper1"
+    dead.waiting = 0
+    await alerts.check(T0 + 67 * SECOND)
+    assert AlertKind.DEAD_LETTERS.value not in {a.kind for a in await store.alerts.open_alerts()}
