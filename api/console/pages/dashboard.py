@@ -47,6 +47,7 @@ from fleetbus.workers.store.base import EventQuery, EventRecord
 from fleetbus.workers.store.hazards import Hazard, HazardRegistry, HazardState
 from fleetbus.workers.store.users import User
 from fleetbus.workers.team import TeamMember
+from fleetbus.workers.telemetry import battery_low as is_battery_low
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(DASHBOARD))]
@@ -80,7 +81,7 @@ def attention_first(members: list[TeamMember], latest: Latest, battery_low: floa
             not member.stale,
             member.robot.localised,
             member.robot.in_service,
-            battery is None or battery >= battery_low,
+            battery is None or not is_battery_low(battery, battery_low),
             member.robot.name,
         )
 
@@ -161,7 +162,7 @@ class DashboardView:
                 gaps=gaps,
                 missing=missing,
                 mounts=mounts,
-                battery_low=settings.battery_low_percent,
+                battery_is_low=lambda percent: is_battery_low(percent, settings.battery_low_percent),
             ),
             fragment(
                 "dashboard/hazards.html",
