@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dlq": ("dlq", "dlq"),
     "outbox": ("outbox", "outbox"),
     "hazards": ("hazards", "app"),
+    "missions": ("missions", "app"),
     "demo": ("demo", "demo"),
     "schemas": ("schemas_export", "export_schemas"),
     "tail": ("tail", "tail"),
