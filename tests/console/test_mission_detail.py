@@ -94,6 +94,7 @@ def test_readings_are_mapped_clustered_and_live_and_comments_reach_other_roles(
         page = console.url(f"/console/missions/{mission}")
 
         with bus.worker():  # users made first: explorer1's events have their shard
+            browser.console_errors()  # read (and so cleared): an earlier test's pages' are not ours
             console.log_in(browser, "client1")
             browser.go(page)
             browser.until(lambda: points(browser) == RECORDED, f"the {RECORDED} recorded readings mapped")

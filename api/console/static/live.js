@@ -80,5 +80,14 @@
     });
   }
 
+  // A page left for another is closed: Chrome may keep it (back/forward cache) with its stream
+  // open, and six open connections to one server stall every further request to it.
+  window.addEventListener("pagehide", function () {
+    if (source) source.close();
+  });
+  window.addEventListener("pageshow", function (event) {
+    if (event.persisted) connect(); // back again: live from what it saw last
+  });
+
   connect();
 })();
