@@ -20,7 +20,18 @@ from fleetbus.api.console.feed import running_feed
 from fleetbus.api.console.router import install_console
 from fleetbus.api.openapi import document, refusals, with_problem_schemas
 from fleetbus.api.problems import install_problem_handlers
-from fleetbus.api.routes import alerts, auth, beacons, channels, hazards, missions, recording, team, users
+from fleetbus.api.routes import (
+    alerts,
+    auth,
+    beacons,
+    channels,
+    hazards,
+    mission_comments,
+    missions,
+    recording,
+    team,
+    users,
+)
 from fleetbus.api.service import open_service
 from fleetbus.broker.certificates import TlsFiles
 from fleetbus.settings import Settings
@@ -54,6 +65,7 @@ def create_app(
         auth.router,
         users.router,
         missions.router,
+        mission_comments.router,
         channels.router,
         beacons.router,
         recording.router,

@@ -435,6 +435,11 @@ class Settings(BaseSettings):
     console_map_hazards: Annotated[int, Positive] = setting(
         300, "hazards of each open state the live map draws and lists (the newest); the rest are counted"
     )
+    console_mission_points: Annotated[int, Positive] = setting(
+        5000,
+        "sensor readings (`measurement` events) a mission's page maps: the newest this many recorded "
+        "under the mission, clustered in the browser; the page says when older ones are left out",
+    )
     user_url: str | None = setting(
         None, "the broker URL `fleetbus tail` follows as (else `--user NAME`, from `api login`)"
     )

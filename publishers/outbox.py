@@ -73,6 +73,7 @@ DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
     EventType.BEACON.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
     EventType.ROS.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
     EventType.ROS_CHUNK.value: TypePolicy(Overflow.KEEP, 20_000),
+    EventType.MEASUREMENT.value: TypePolicy(Overflow.KEEP, KEEP_LIMIT),
 }
 DEFAULT_POLICY = TypePolicy(Overflow.KEEP, KEEP_LIMIT)
 #: The environment variable a robot's client reads its outbox limits from (:func:`policies_with_limits`).

@@ -91,6 +91,9 @@ EVENT_NOTES: dict[EventType, str] = {
     '(`{"_truncated": true, "length": n, "sha256": ...}`).',
     EventType.ROS_CHUNK: "One piece (at most 512 KiB) of a large byte array of a ROS message, before the "
     "`ros` event that names its `blob`; `index` of `count`, in order. Sent again, it is kept once.",
+    EventType.MEASUREMENT: "A sensor reading (`quantity`, `value`, `unit`) taken at `pose`. Recorded under "
+    "the mission the robot is checked in to, it is the mission's sensor data: the mission's page maps it, "
+    "coloured by value.",
 }
 
 

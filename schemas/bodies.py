@@ -181,6 +181,20 @@ class BeaconSighting(Strict):
     pose: Pose | None = Field(default=None, description="where the robot was when it heard the beacon")
 
 
+class Measurement(Strict):
+    """One sensor reading taken at a place: a depth sounding, a gas concentration, a temperature.
+    The readings a robot takes while recorded under a mission are that mission's sensor data
+    (the mission's map shows them, coloured by value)."""
+
+    quantity: str = Field(
+        min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$", description="what was measured, e.g. depth"
+    )
+    value: float = Field(allow_inf_nan=False)
+    unit: str = Field(default="", max_length=16, description="e.g. m, ppm, degC")
+    pose: Pose = Field(description="where, in the map frame's metres")
+    measured_at: AwareDatetime | None = Field(default=None, description="when, if not when sent")
+
+
 class BehaviourOutcome(Strict):
     name: str = Field(min_length=1, max_length=128)
     object: str | None = Field(default=None, max_length=128, description="what it acted on, e.g. bottle")

@@ -39,6 +39,7 @@ from fleetbus.schemas.bodies import (
     LocalisationState,
     MapChunk,
     MapUpdate,
+    Measurement,
     RobotStatus,
     RosChunk,
 )
@@ -159,6 +160,11 @@ class RosChunkEvent(_EnvelopeBase):
     body: RosChunk
 
 
+class MeasurementEvent(_EnvelopeBase):
+    type: Literal[EventType.MEASUREMENT] = EventType.MEASUREMENT
+    body: Measurement
+
+
 Event = Annotated[
     Union[  # noqa: UP007
         HazardEvent,
@@ -170,6 +176,7 @@ Event = Annotated[
         BehaviourEvent,
         RosEvent,
         RosChunkEvent,
+        MeasurementEvent,
     ],
     Field(discriminator="type"),
 ]
@@ -183,6 +190,7 @@ EVENT_MODELS: dict[EventType, type[_EnvelopeBase]] = {
     EventType.BEHAVIOUR: BehaviourEvent,
     EventType.ROS: RosEvent,
     EventType.ROS_CHUNK: RosChunkEvent,
+    EventType.MEASUREMENT: MeasurementEvent,
 }
 BODY_MODELS: dict[EventType, type[BaseModel]] = {
     t: m.model_fields["body"].annotation

@@ -168,6 +168,7 @@ class EventType(str, Enum):
     BEHAVIOUR = "behaviour"
     ROS = "ros"
     ROS_CHUNK = "ros_chunk"
+    MEASUREMENT = "measurement"
 
 
 #: The express lane's types: the hazards the wardens wait for, and the localisations that open their

@@ -6,16 +6,18 @@ A private demo on this checkout's broker node: `fleetbus demo`'s team (an explor
 and a guide: hazards held until the wardens localised, then announced, claimed and cleared; a
 map; beacons) in a virtual host and a store of its own (a temporary folder), then a few steps
 more: the robots connected again with a status each, a message the worker refuses, hazards left
-claimed and reached, two missions (one in progress), a user of each role; the worker and the
-recorder run meanwhile. The console (`fleetbus api`'s app) is served on that store; headless chromium
-(as in the browser tests) logs in as an administrator and saves the login form and each page of
-``sitemap.PAGES`` (pages added later are included), then, as the planner, the new mission form
-with a plan drawn on the map and its summary; 1280 pixels wide and up to 1,600 tall.
+claimed and reached, two missions (one in progress, with depth soundings and a discussion), a user
+of each role; the worker and the recorder run meanwhile. The console (`fleetbus api`'s app) is
+served on that store; headless chromium (as in the browser tests) logs in as an administrator and
+saves the login form, each page of ``sitemap.PAGES`` (pages added later are included) and the
+survey's page (``mission.png``), then, as the planner, the new mission form with a plan drawn on
+the map and its summary; 1280 pixels wide and up to 1,600 tall.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import tempfile
 import time
 from datetime import datetime, timezone
@@ -24,14 +26,16 @@ from pathlib import Path
 from rich.console import Console
 
 from fleetbus.api.console.sitemap import PAGES
+from fleetbus.api.mission_comments import comments_of
 from fleetbus.broker.accounts import Role, with_vhost
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.cli.context import endpoint as resolved_broker
-from fleetbus.dev.demo import DEMO_VHOST, TEAM, WARDENS, demo_status, run_demo
+from fleetbus.dev.demo import DEMO_VHOST, EXPLORER, TEAM, WARDENS, demo_status, run_demo
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.settings import load_settings
+from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
 from tests.console.support import Browser, running_console, start_chromium
 from tests.console.support import Console as RunningConsole
@@ -60,14 +64,32 @@ def back_online(bus: Bus) -> None:
     wait_for(lambda: bus.dead_letters(), what="the refused message dead-lettered")
 
 
-def stage(running: RunningConsole) -> None:
-    """Beyond the demo: a user of each role, two missions, hazards left claimed and reached."""
+def soundings(mission_id: str, count: int = 800) -> list[EventRecord]:
+    """Depth soundings the explorer took over the survey's area, recorded under the mission."""
+    at = datetime.now(timezone.utc)
+    records = []
+    for i in range(count):
+        x, y = (i * 7919 % 997) / 997 * 40, (i * 104729 % 991) / 991 * 25
+        depth = 2 + 6 * x / 40 + 2 * math.sin(y / 4)
+        body = {"quantity": "depth", "value": round(depth, 2), "unit": "m", "pose": {"x": x, "y": y}}
+        records.append(
+            EventRecord(
+                EXPLORER, "20261128T000000000Z-5ca1ab1e", i, EventType.MEASUREMENT.value, f"sounding-{i}",
+                at, at, body, EXPLORER, f"{EXPLORER}.events", f"{EXPLORER}.measurement", mission_id,
+            )
+        )  # fmt: skip
+    return records
+
+
+def stage(running: RunningConsole) -> str:
+    """Beyond the demo: a user of each role, two missions, hazards left claimed and reached; the
+    survey's soundings and discussion. The survey's id."""
     people = [role for role in UserRole if role not in (UserRole.ROBOT, UserRole.INACTIVE)]
     users = {role: running.user(f"demo-{role.value}", role) for role in people}
     service = running.service
     now = datetime.now(timezone.utc)
 
-    async def steps() -> None:
+    async def steps() -> str:
         accounts = service.repositories.users
         planner = await accounts.get_user(users[UserRole.PLANNER])
         supervisor = await accounts.get_user(users[UserRole.SUPERVISOR])
@@ -80,12 +102,23 @@ def stage(running: RunningConsole) -> None:
             supervisor, survey.mission_id, MissionState.IN_PROGRESS, "team ready"
         )
         await service.missions.create(client, "hazard-response", "Gas leak, east wing", MissionPlan())
+        await service.repositories.events.write_events(soundings(survey.mission_id))
+        operator = await accounts.get_user(users[UserRole.OPERATOR])
+        assert operator
+        discussion = comments_of(service)
+        for who, text in (
+            (planner, "Sweep the lab first, then the stairs."),
+            (operator, "Soundings of the whole floor are in; the east side is deeper."),
+            (supervisor, "Good. Keep away from the stairs until they are checked."),
+        ):
+            await discussion.add(who, survey.mission_id, text)
         hazards = service.repositories.hazards
         await hazards.claim(DEFAULT_MISSION, 2, WARDENS[0], now)
         await hazards.claim(DEFAULT_MISSION, 3, WARDENS[1], now)
         await hazards.mark_reached(DEFAULT_MISSION, 3, WARDENS[1], now)
+        return survey.mission_id
 
-    running.run(steps)
+    return running.run(steps)
 
 
 def shoot(browser: Browser, path: Path, width: int) -> None:
@@ -125,7 +158,7 @@ def new_mission(running: RunningConsole, browser: Browser, out: Path, width: int
     shoot(browser, out / "missions-new.png", width)
 
 
-def screenshots(running: RunningConsole, out: Path, width: int) -> None:
+def screenshots(running: RunningConsole, out: Path, width: int, mission_id: str) -> None:
     out.mkdir(parents=True, exist_ok=True)
     browser = Browser(start_chromium())
     try:
@@ -139,6 +172,11 @@ def screenshots(running: RunningConsole, out: Path, width: int) -> None:
                 # two ticks of the feed: the page's first updates are in (its own stream counted)
                 time.sleep(2 * running.service.settings.console_tick_s)
             shoot(browser, out / f"{page.name}.png", width)
+        # a mission's page (not in the navigation): its sensor data mapped, its discussion
+        browser.go(running.url(f"/console/missions/{mission_id}"))
+        running.wait_live(browser)
+        browser.until(lambda: browser.attributes("#mission-map", "data-loaded-ms")[0], "the soundings mapped")
+        shoot(browser, out / "mission.png", width)
         new_mission(running, browser, out, width)
     finally:
         browser.driver.quit()
@@ -168,8 +206,8 @@ def main() -> None:
             try:
                 with bus.worker(), bus.recorder(), running_console(bus) as running:
                     back_online(bus)
-                    stage(running)
-                    screenshots(running, args.out, args.width)
+                    survey = stage(running)
+                    screenshots(running, args.out, args.width, survey)
             finally:
                 bus.close_robots()
                 bus.remove_accounts()

@@ -138,6 +138,13 @@ def owned_mission(
     return lambda api, role: Call(method, f"/missions/{api.mission(state).mission_id}{suffix}", json)
 
 
+def comment(api: Api, role: UserRole) -> Call:
+    """A comment on a mission of client1's, which a refused one leaves without."""
+    mission = api.mission(S.PLANNING).mission_id
+    count = lambda: api.run(lambda: api.service.repositories.comments.count_comments(mission))  # noqa: E731
+    return Call("POST", f"/missions/{mission}/comments", {"text": f"by {role.value}"}, lambda: count() == 0)
+
+
 def recorded_message(api: Api, role: UserRole) -> Call:
     """A message in the recording, to be traced."""
     record = RecordedMessage(
@@ -302,6 +309,8 @@ CASES = [
         step_for,
     ),
     Case("GET", "/missions/{mission_id}/events", READERS - {R.GUEST}, 200, owned_mission("/events")),
+    Case("GET", "/missions/{mission_id}/comments", READERS, 200, owned_mission("/comments")),
+    Case("POST", "/missions/{mission_id}/comments", READERS - {R.GUEST}, 201, comment),
     Case(
         "POST",
         "/missions/{mission_id}/check-in",

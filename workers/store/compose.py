@@ -6,6 +6,7 @@ from fleetbus.workers.store.alerts import Alerts
 from fleetbus.workers.store.attempts import Attempts
 from fleetbus.workers.store.beacons import Beacons
 from fleetbus.workers.store.channels import Channels
+from fleetbus.workers.store.comments import Comments
 from fleetbus.workers.store.discards import Discards
 from fleetbus.workers.store.event_log import Events
 from fleetbus.workers.store.hazards import Coordination
@@ -43,6 +44,7 @@ def repositories_on(database: Database) -> Repositories:
         housekeeping=StoreHousekeeping(database),
         sites=Sites(database),
         alerts=Alerts(database),
+        comments=Comments(database),
         opener=database.open,
         closer=database.close,
         again=lambda: repositories_on(database.again()),

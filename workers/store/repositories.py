@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from fleetbus.workers.store.attempts import AttemptLog
     from fleetbus.workers.store.beacons import BeaconRegistry
     from fleetbus.workers.store.channels import ChannelStore
+    from fleetbus.workers.store.comments import CommentStore
     from fleetbus.workers.store.discards import DiscardLog
     from fleetbus.workers.store.hazards import CoordinationStore
     from fleetbus.workers.store.housekeeping import Housekeeping
@@ -103,6 +104,8 @@ class Repositories:
     """On central: which robots live at which site, and what each site forwarded."""
     alerts: AlertStore
     """The alerts raised for the operators, and who acknowledged each."""
+    comments: CommentStore
+    """Each mission's discussion."""
     opener: Callable[[], Awaitable[None]] = field(repr=False)
     """Connects and creates the tables or indexes (idempotent)."""
     closer: Callable[[], Awaitable[None]] = field(repr=False)

@@ -19,10 +19,13 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
 from fleetbus.api.channels import OPERATING, UNMOUNTERS
 from fleetbus.api.console.live import Shared, live_stream
+from fleetbus.api.console.pages import mission_detail
+from fleetbus.api.console.pages.mission_detail import thread_fragment
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import Conflict, ServiceRefusal
+from fleetbus.api.mission_comments import COMMENT_MAX, may_comment
 from fleetbus.api.missions import AUTHORS, MOVERS, SEE_ALL
 from fleetbus.api.service import Service
 from fleetbus.schemas.missions import MissionPlan, MissionState
@@ -32,6 +35,7 @@ from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.users import User
 
 router = APIRouter()
+router.include_router(mission_detail.router)  # the mission page's map, stream and discussion
 Viewer = Annotated[User, Depends(Allowed.page(MISSIONS))]
 Mover = Annotated[User, Depends(Allowed(MOVERS, "the mission state buttons"))]
 Mounter = Annotated[User, Depends(Allowed(OPERATING, "mounting robots and checking in"))]
@@ -45,6 +49,7 @@ DONE = {
     "unmounted": "Robot unmounted.",
     "checked-in": "Checked in: the data of the robots you mounted for this mission is recorded under it.",
     "checked-out": "Checked out.",
+    "commented": "Comment added.",
 }
 
 
@@ -123,9 +128,16 @@ async def missions_stream(request: Request, user: Viewer, rows: Rows) -> Respons
 # --- one mission --------------------------------------------------------------------------------
 
 
-async def _detail(
-    request: Request, user: User, mission_id: str, problem: str | None = None, status: int = 200
+async def show_detail(
+    request: Request,
+    user: User,
+    mission_id: str,
+    problem: str | None = None,
+    status: int = 200,
+    comment: str = "",
 ) -> Response:
+    """The mission's page; with ``problem``, the reason an action was refused (and, for a
+    comment, its text, to be sent again)."""
     svc = _service(request)
     try:
         mission = await svc.missions.get(user, mission_id)
@@ -161,6 +173,12 @@ async def _detail(
         may_check_out=operating and any(c.operator == user.name for c in check_ins),
         robots=robots,
         team_size=team,
+        cursor=request.app.state.feed.cursor,
+        thread=await thread_fragment(svc, mission_id),
+        may_comment=may_comment(user, mission),
+        comment=comment,
+        comment_max=COMMENT_MAX,
+        points_limit=svc.settings.console_mission_points,
         problem=problem,
         done=DONE.get(request.query_params.get("done", "")) if problem is None else None,
     )
@@ -176,7 +194,7 @@ async def _mountable(svc: Service) -> tuple[int, list[str]]:
 
 @router.get("/console/missions/{mission_id}", response_class=HTMLResponse)
 async def mission(request: Request, user: Viewer, mission_id: str) -> Response:
-    return await _detail(request, user, mission_id)
+    return await show_detail(request, user, mission_id)
 
 
 async def _act(
@@ -187,7 +205,7 @@ async def _act(
     try:
         await work()
     except ServiceRefusal as refused:
-        return await _detail(request, user, mission_id, refused.detail, refused.status)
+        return await show_detail(request, user, mission_id, refused.detail, refused.status)
     return RedirectResponse(f"/console/missions/{mission_id}?done={done}", status_code=303)
 
 

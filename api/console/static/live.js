@@ -80,10 +80,13 @@
     });
   }
 
-  // leaving the page ends its stream at once: a stream left open would hold one of the browser's
-  // few connections to the console (six per host) until the server next writes to it
+  // A page left for another is closed: Chrome may keep it (back/forward cache) with its stream
+  // open, and six open connections to one server stall every further request to it.
   window.addEventListener("pagehide", function () {
     if (source) source.close();
+  });
+  window.addEventListener("pageshow", function (event) {
+    if (event.persisted) connect(); // back again: live from what it saw last
   });
 
   connect();

@@ -1,6 +1,10 @@
-"""``fleetbus missions create``: a mission made for a client or planner, through the missions service
-the HTTP API's ``POST /missions`` and the console's New mission page use (the same checks: the
-owner's role and its allowed use cases, the same refusal)."""
+"""``fleetbus missions``: missions of the service layer from the server's shell, through the services
+the HTTP API and the console use (the same checks, the same refusals).
+
+fleetbus missions create --owner client1 --use-case survey --title "East wing"   # for a client or planner
+fleetbus missions comment m-1 "the survey is done" --as ops1   # comment as the account ops1
+fleetbus missions comments m-1 [--json]                       # the thread, oldest first
+"""
 
 from __future__ import annotations
 
@@ -9,17 +13,24 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
+from rich.table import Table
+from rich.text import Text
 
 from fleetbus.cli.accounts import with_accounts
-from fleetbus.cli.context import console, endpoint, fail
+from fleetbus.cli.context import clock, console, endpoint, fail, settings
 
 if TYPE_CHECKING:
     from fleetbus.api.accounts import Accounts
+    from fleetbus.api.mission_comments import MissionComments
     from fleetbus.broker.management import ManagementAPI
     from fleetbus.workers.store import Repositories
+    from fleetbus.workers.store.comments import Comment
     from fleetbus.workers.store.missions import Mission
 
-app = typer.Typer(help="Missions of the service layer.", no_args_is_help=True)
+app = typer.Typer(
+    help="Missions of the service layer: create one for a client; a mission's discussion.",
+    no_args_is_help=True,
+)
 
 
 @app.command("create")
@@ -62,3 +73,76 @@ def create(
         f"created mission {mission.mission_id} ({mission.use_case}) for {mission.owner}: {mission.title}",
         highlight=False,
     )
+
+
+def _discussions(repos: Repositories) -> MissionComments:
+    from fleetbus.api.mission_comments import MissionComments
+    from fleetbus.api.missions import Missions
+
+    return MissionComments(Missions(repos.missions, repos.channels), repos.comments)
+
+
+@app.command("comment")
+def comment(
+    mission_id: Annotated[str, typer.Argument(metavar="ID", help="the mission, e.g. m-1")],
+    text: Annotated[str, typer.Argument(help="the comment (quote it)")],
+    author: Annotated[
+        str,
+        typer.Option(
+            "--as",
+            help="the account that comments: the rule is the API's (the mission's client, planners, "
+            "supervisors, operators, admins)",
+        ),
+    ],
+    as_json: Annotated[bool, typer.Option("--json", help="print the comment as JSON")] = False,
+) -> None:
+    """Comment on mission ID as the account --as, as POST /missions/ID/comments does for it."""
+    from fleetbus.api.errors import NotFound, ServiceRefusal
+    from fleetbus.workers.store import run_with_repositories
+
+    async def add(repos: Repositories) -> Comment:
+        user = await repos.users.get_user(author)
+        if user is None:
+            raise NotFound(f"no user {author!r}")
+        return await _discussions(repos).add(user, mission_id, text)
+
+    try:
+        made = run_with_repositories(settings(), add)
+    except ServiceRefusal as refusal:
+        fail(refusal.detail)
+    if as_json:
+        typer.echo(json.dumps(made.as_dict()))
+        return
+    console.print(
+        f"comment {made.number} on {made.mission_id} by {made.author} ({made.role}) at {clock(made.at)} UTC"
+    )
+
+
+@app.command("comments")
+def comments(
+    mission_id: Annotated[str, typer.Argument(metavar="ID", help="the mission, e.g. m-1")],
+    limit: Annotated[int, typer.Option(min=1, help="the newest this many comments")] = 500,
+    as_json: Annotated[bool, typer.Option("--json", help="one JSON object a line")] = False,
+) -> None:
+    """Mission ID's discussion, oldest first: who (and in which role), when (UTC), what."""
+    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.workers.store import run_with_repositories
+
+    async def read(repos: Repositories) -> list[Comment]:
+        await _discussions(repos).mission(mission_id)
+        return await repos.comments.comments(mission_id, limit)
+
+    try:
+        found = run_with_repositories(settings(), read)
+    except ServiceRefusal as refusal:
+        fail(refusal.detail)
+    if as_json:
+        for each in found:
+            typer.echo(json.dumps(each.as_dict()))
+        return
+    table = Table("#", "when (UTC)", "author", "role", "comment", title=f"mission {mission_id}")
+    for each in found:
+        table.add_row(str(each.number), clock(each.at), each.author, each.role, Text(each.text))  # as typed
+    console.print(table)
+    if not found:
+        console.print("no comments yet")
