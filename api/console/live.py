@@ -105,7 +105,8 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
 async def _state(view: LiveView, request: Request) -> list[str]:
     """The view's state and what every live page shows besides (the alerts banner: the app's
     ``on_every_live_page``, given the request, which says who looks)."""
-    every_page = getattr(request.app.state, "on_every_live_page", None)
+    app = request.scope.get("app")  # none for a view streamed outside the app (its tests)
+    every_page = getattr(app.state, "on_every_live_page", None) if app is not None else None
     return [*await view.snapshot(), *(await every_page(request) if every_page else [])]
 
 
