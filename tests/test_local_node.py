@@ -793,3 +793,29 @@ def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> Non
     if not docker_engine_answers():
         with pytest.raises(BrokerUnavailable, match="not running"):
             resolve_broker(node_settings.updated(amqp_url=None), start=False)
+
+
+def test_a_new_node_whose_port_another_process_takes_before_it_listens_starts_on_new_ports(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The race a loaded machine runs: a port checked free is bound by another process before the
+    node listens on it. A new node then starts on new ports instead of failing."""
+    fresh = LocalNode(tmp_path / "broker")
+    ports = fresh.ports(create=True)
+    assert ports is not None
+    monkeypatch.setattr(LocalNode, "_check_ports", lambda self, ports: None)  # the check ran before the take
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taker:
+        taker.bind(("127.0.0.1", ports["management"]))
+        taker.listen()
+        try:
+            with caplog.at_level(logging.WARNING, logger="fleetbus.dev.local_node"):
+                info = fresh.up(timeout=180)
+            assert "was taken before it could listen" in caplog.text, "the first start met the taken port"
+            assert info.ports["management"] != ports["management"]
+            assert info.ports["epmd"] == ports["epmd"], "a cluster's nodes share epmd's port"
+            assert json.loads(fresh.node_file.read_text())["ports"] == info.ports
+            assert amqp_login(info.amqp_url or "", timeout=10)
+            creds = admin(fresh)
+            assert httpx.get(f"{info.management_url}api/overview", auth=creds, timeout=10).status_code == 200
+        finally:
+            fresh.down()

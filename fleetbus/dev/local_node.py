@@ -60,6 +60,9 @@ PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream", "amqps", "manageme
 #: The ports a node made by an older version lacks: chosen at its next start, listened on once it
 #: starts again (a running node keeps the configuration it started with).
 TLS_PORT_NAMES = ("amqps", "management_tls")
+#: How many times a new node starts on new ports when another process took one of its ports
+#: between their choice and the node's listen.
+PORT_RACE_ATTEMPTS = 3
 #: The shovel plugins carry a site's events to central and central's changes back (docs/guides/sites.md);
 #: rabbitmq_auth_mechanism_ssl lets robots log in with a client certificate (EXTERNAL).
 PLUGINS = (
@@ -730,8 +733,9 @@ log.console = false
             pid = self.pid()
             started = pid is None
             if started:
-                self._start()
-            self._wait_ready(deadline, started)
+                self._start_on_free_ports(deadline, fresh=not had_database)
+            else:
+                self._wait_ready(deadline, started)
             if started:
                 self._record_release(self.installation())
             if not started and pid is not None and not self._tls_listening(pid):
@@ -744,6 +748,44 @@ log.console = false
                 if had_database:
                     self.heal_quorum_queues(deadline)
         return self.status()
+
+    def _start_on_free_ports(self, deadline: float, fresh: bool) -> None:
+        """Start the node and wait for it. A port is checked free before the start, but another
+        process can bind it before the node does; a new node (no database yet, so nobody has been
+        given its addresses) then takes new ports and starts again, instead of failing."""
+        for attempt in range(1, PORT_RACE_ATTEMPTS + 1):
+            self._start()
+            try:
+                self._wait_ready(deadline, True)
+                return
+            except LocalNodeError:
+                lost = self._proc is None and self._lost_a_port()
+                if not (fresh and lost and attempt < PORT_RACE_ATTEMPTS and time.monotonic() < deadline):
+                    raise
+            log.warning(
+                "a port of the private node %s was taken before it could listen; starting again on new ports",
+                self.node_name,
+            )
+            self._choose_new_ports()
+            self._write_config()
+
+    def _lost_a_port(self) -> bool:
+        """Whether the last start ended because a listener's port was in use (its console log is
+        written afresh by every start)."""
+        try:
+            return "eaddrinuse" in self.console_log.read_text(errors="replace")
+        except OSError:
+            return False
+
+    def _choose_new_ports(self) -> None:
+        """New ports for every listener; epmd's is kept (a cluster's nodes share it)."""
+        old = self.ports()
+        assert old is not None
+        fresh = iter(port for port in choose_free_ports(len(PORT_NAMES) * 2) if port not in old.values())
+        ports = {name: (old[name] if name == "epmd" else next(fresh)) for name in PORT_NAMES}
+        _write_if_changed(
+            self.node_file, json.dumps({"node_name": self.node_name, "ports": ports}, indent=2) + "\n"
+        )
 
     def heal_quorum_queues(self, deadline: float) -> int:
         """Elect a leader for every quorum queue that came back from a crash without one.
