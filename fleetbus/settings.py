@@ -181,6 +181,11 @@ class Settings(BaseSettings):
         "messages the ROS bridge holds between ROS and the outbox, on each side; beyond, they are "
         "dropped and counted",
     )
+    ros_queue_bytes: Annotated[int, Positive] = setting(
+        64 * 1024 * 1024,
+        "bytes of messages the ROS bridge holds between ROS and the outbox, on each side (camera "
+        "images fill a count long before it is reached); beyond, they are dropped and counted",
+    )
     ros_blob_max_bytes: Annotated[int, Field(ge=0)] = setting(
         16 * 1024 * 1024,
         "the largest byte array of a ROS message (an image's pixels, a point cloud's data) a bag "

@@ -39,6 +39,7 @@ from fleetbus.publishers.ros.convert import (
     ros_stamp,
 )
 from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
+from fleetbus.publishers.ros.held import HeldQueue
 from fleetbus.publishers.ros.mapping import Mapping, Rule
 from fleetbus.publishers.ros.parts import supervised
 from fleetbus.schemas.bodies import split_chunks
@@ -120,6 +121,8 @@ class BridgeOptions:
     retry_most_s: float = 10.0
     """The longest wait between two tries of a master that does not answer (backing off)."""
     queue: int = 10_000
+    queue_bytes: int = 64 * 1024 * 1024
+    """The bytes held on each side of the pipe at most (``FLEETBUS_ROS_QUEUE_BYTES``)."""
     blob_max: int = 16 * 1024 * 1024
     """The largest byte array kept whole (``FLEETBUS_ROS_BLOB_MAX_BYTES``); a larger one is described."""
     status_every_s: float = 10.0
@@ -138,6 +141,8 @@ class BridgeOptions:
             str(max(self.blob_max, BLOB_FROM)),
             "--queue",
             str(self.queue),
+            "--queue-bytes",
+            str(self.queue_bytes),
             "--own-prefix",
             NOTIFY_PREFIX,
         ]
@@ -167,7 +172,7 @@ class Bridge:
         self.counters = Counters()
         self.status_file = robot_folder(state_dir, robot.robot_id) / STATUS_FILE
         self.ros_log = robot_folder(state_dir, robot.robot_id) / "ros-side.log"
-        self._queue: queue.Queue[dict[str, Any]] = queue.Queue(options.queue)
+        self._queue: HeldQueue[dict[str, Any]] = HeldQueue(options.queue, options.queue_bytes)
         self._rate = RateLimit(options.max_rate_hz)
         self._stop = threading.Event()
         self._ended = threading.Event()
@@ -228,9 +233,7 @@ class Bridge:
         item = json.loads(line)
         kind = item.get("kind")
         if kind == "message":
-            try:
-                self._queue.put_nowait(item)
-            except queue.Full:
+            if not self._queue.offer(item, len(line)):  # its parsed size, about
                 self.counters.drop(item["topic"], DropReason.BRIDGE_QUEUE)
         elif kind == "subscribed":
             self.counters.types[item["topic"]] = item["type"]

@@ -52,6 +52,7 @@ import rosgraph.masterapi
 import roslib.message
 import rospy
 import rospy.impl.registration
+from held import HeldQueue  # beside this file: the script's folder is first on its path
 
 #: Array types kept as bytes (``{"_base64": ..., "length": n}``), as fleetbus keeps imported bags.
 BYTE_ARRAYS = ("uint8[", "int8[", "char[", "byte[")
@@ -116,7 +117,7 @@ class Recorder:
     def __init__(self, out: Output, args: argparse.Namespace) -> None:
         self.out = out
         self.args = args
-        self.queue: queue.Queue[tuple[str, Any, int]] = queue.Queue(args.queue)
+        self.queue: HeldQueue[tuple[str, Any, int]] = HeldQueue(args.queue, args.queue_bytes)
         self.subscribed: dict[str, rospy.Subscriber] = {}
         self.dropped: dict[str, int] = {}
         self.dropped_lock = threading.Lock()
@@ -139,9 +140,7 @@ class Recorder:
                 self.out.write({"kind": "subscribed", "topic": topic, "type": type_name})
 
     def received(self, raw: Any, topic: str) -> None:
-        try:
-            self.queue.put_nowait((topic, raw, time.time_ns()))
-        except queue.Full:
+        if not self.queue.offer((topic, raw, time.time_ns()), len(raw._buff)):
             with self.dropped_lock:
                 self.dropped[topic] = self.dropped.get(topic, 0) + 1
 
@@ -366,6 +365,7 @@ def main() -> None:
     parser.add_argument("--exclude", action="append", default=[])
     parser.add_argument("--bytes-max", type=int, default=16 * 1024 * 1024)  # FLEETBUS_ROS_BLOB_MAX_BYTES
     parser.add_argument("--queue", type=int, default=10_000)
+    parser.add_argument("--queue-bytes", type=int, default=64 * 1024 * 1024)
     parser.add_argument("--own-prefix", default="/fleetbus")
     parser.add_argument("--parent", type=int, help="the bridge's pid: this process ends with it")
     args = parser.parse_args()

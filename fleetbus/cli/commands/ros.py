@@ -60,6 +60,7 @@ def bridge(
         discover_every_s=config.ros_discover_every_s,
         retry_most_s=config.ros_retry_most_s,
         queue=config.ros_queue,
+        queue_bytes=config.ros_queue_bytes,
         blob_max=config.ros_blob_max_bytes,
         status_every_s=config.ros_status_every_s,
         linger_s=config.ros_linger_s,
