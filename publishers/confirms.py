@@ -53,6 +53,8 @@ class Window:
 #: it publishes before it gives up on it: a quorum queue without a leader, or a node cut off from
 #: its cluster's majority, never confirms, and must not hold a thread for ever.
 SERVICE_CONFIRM_TIMEOUT_S = 30.0
+#: How many timeouts a wait goes on while the broker answers, only slowly.
+SLOW_BROKER_PERIODS = 6
 
 
 class PipelinedConfirms:
@@ -122,17 +124,37 @@ class PipelinedConfirms:
         return BrokerUnavailable(f"the channel closed with its connection: {self._closed_reason}")
 
     def _pump_until(self, done: Callable[[], bool], timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
+        """Pump pika until ``done``. ``timeout`` is how long the broker may stay silent: a broker
+        that answers, only slowly (a loaded node confirms late), is waited for, up to
+        ``SLOW_BROKER_PERIODS`` timeouts, rather than taken for lost. Reconnecting to a loaded
+        broker adds to its load, and a team of robots doing it at once is a reconnect storm.
+        Halfway through a silent period the channel is asked something cheap (``basic.qos``,
+        answered by the channel itself, not by the queues that confirm): its answer shows the
+        broker alive. A frozen or unreachable broker is still given up after ``timeout``."""
+        started = time.monotonic()
+        deadline, last = started + timeout, started + timeout * SLOW_BROKER_PERIODS
+        heard, probed = self._heard(), False
         while not done():
             if self._closed_reason is not None:
                 raise self._closed_error()
-            remaining = deadline - time.monotonic()
+            now = time.monotonic()
+            remaining = deadline - now
             if remaining <= 0:
-                raise PublishTimeout(f"no {what} from the broker within {timeout:.0f} s")
+                if self._heard() == heard or now >= last:
+                    raise PublishTimeout(f"no {what} from the broker within {now - started:.0f} s")
+                deadline, heard, probed = now + timeout, self._heard(), False  # alive: wait on
+                continue
+            if not probed and remaining <= timeout / 2 and self._heard() == heard:
+                self._impl.basic_qos(prefetch_count=0, callback=lambda _frame: self._wake())
+                probed = True
             try:
                 self._connection.process_data_events(time_limit=min(_SLICE, remaining))
             except pika.exceptions.AMQPError as error:
                 raise BrokerUnavailable(f"connection lost while waiting for {what}: {error!r}") from error
+
+    def _heard(self) -> int:
+        """Bytes received from the broker on this connection so far."""
+        return int(getattr(self._connection._impl, "bytes_received", 0))
 
     def send(self, messages: Sequence[Outgoing], timeout: float) -> Outcome:
         """Publish all messages, then wait until the broker answered each; say which it did not take.

@@ -5,6 +5,7 @@
     link.cut()                           # connections dropped, new ones refused: the robot is cut off
     link.restore()                       # it can connect again
     link.mute_replies()                  # the broker's answers (confirms) are lost on the way back
+    link.hold_confirms(5)                # the broker's confirms arrive 5 s late, its other answers at once
     link.drop_connections()              # the open connections break; the link stays up
     link.attempts                        # when each connection attempt reached the link
 
@@ -30,6 +31,10 @@ class NetworkLink:
         self._lock = threading.Lock()
         self._pairs: list[tuple[socket.socket, socket.socket]] = []
         self._muted = False
+        self._hold_confirms_s = 0.0
+        self._partial: dict[socket.socket, bytearray] = {}
+        self._held: list[tuple[float, socket.socket, bytes]] = []
+        """Confirm frames on their way back, with when each goes on (in order)."""
         self._stopped = threading.Event()
         self._selector = selectors.DefaultSelector()
         self._thread = threading.Thread(target=self._pump, name="network-link", daemon=True)
@@ -80,6 +85,11 @@ class NetworkLink:
         """Keep forwarding what the robot sends; lose everything the broker answers."""
         self._muted = True
 
+    def hold_confirms(self, seconds: float) -> None:
+        """Hold each confirm (``basic.ack``, ``basic.nack``) the broker sends for ``seconds``, and
+        pass its other frames at once: a broker that is alive, and slow to confirm."""
+        self._hold_confirms_s = seconds
+
     def drop_connections(self) -> None:
         with self._lock:
             pairs, self._pairs = self._pairs, []
@@ -107,6 +117,9 @@ class NetworkLink:
                     self._accept(key.fileobj)  # type: ignore[arg-type]
                 else:
                     self._forward(key.fileobj, *key.data)  # type: ignore[arg-type]
+            while self._held and self._held[0][0] <= time.monotonic():
+                _, destination, frame = self._held.pop(0)
+                self._send(destination, frame)
 
     def _accept(self, listener: socket.socket) -> None:
         try:
@@ -139,12 +152,39 @@ class NetworkLink:
             return
         if is_reply and self._muted:
             return
+        if is_reply and self._hold_confirms_s:
+            self._pass_frames(source, destination, data)
+            return
+        if not self._send(destination, data):
+            self._close_pair(source)
+
+    def _pass_frames(self, source: socket.socket, destination: socket.socket, data: bytes) -> None:
+        """Each whole AMQP frame of the broker's on, a confirm only after the hold (type 1, a
+        method, of class 60 with method 80 or 120: basic.ack, basic.nack)."""
+        buffer = self._partial.setdefault(source, bytearray())
+        buffer += data
+        while len(buffer) >= 7:
+            end = 7 + int.from_bytes(buffer[3:7], "big") + 1
+            if len(buffer) < end:
+                return
+            frame, buffer[:] = bytes(buffer[:end]), buffer[end:]
+            confirm = frame[0] == 1 and frame[7:9] == (60).to_bytes(2, "big") and frame[9:11] in (
+                (80).to_bytes(2, "big"),
+                (120).to_bytes(2, "big"),
+            )
+            if confirm:
+                self._held.append((time.monotonic() + self._hold_confirms_s, destination, frame))
+            else:
+                self._send(destination, frame)
+
+    def _send(self, destination: socket.socket, data: bytes) -> bool:
         try:
             destination.setblocking(True)
             destination.sendall(data)
             destination.setblocking(False)
         except OSError:
-            self._close_pair(source)
+            return False
+        return True
 
     def _close_pair(self, sock: socket.socket) -> None:
         with self._lock:

@@ -9,11 +9,13 @@ from __future__ import annotations
 import json
 import signal
 import time
+from dataclasses import replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
 import pytest
 
+from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.outbox import Overflow, TypePolicy
 from fleetbus.schemas.envelope import build_event, encode_event
 from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
@@ -125,6 +127,38 @@ def test_a_lost_confirm_makes_a_resend_not_a_second_record(bus: Bus, link_for: l
     assert sorted(d.seq for d in duplicates) == [e.seq for e in sent]
     assert not any(d.redelivered for d in duplicates), "sent again by the robot, not redelivered"
     assert bus.gaps() == []
+
+
+def test_a_broker_slow_to_confirm_is_waited_for_and_a_silent_one_is_left(
+    bus: Bus, link_for: list[NetworkLink], broker_node: LocalNode | None
+) -> None:
+    """A loaded broker confirms late but answers: the robot keeps its connection (reconnecting
+    would add to the load, a storm with a whole team). One that answers nothing is given up on
+    after the confirm timeout, as before. (The link reads the broker's frames to hold its
+    confirms, so the robot comes in over the node's plain AMQP listener.)"""
+    if broker_node is None:
+        pytest.skip("needs the private node's plain AMQP listener; the run's broker is a configured one")
+    ports = broker_node.ports()
+    assert ports is not None
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = NetworkLink(ports["amqp"]).start()
+    link_for.append(link)
+    plain = urlsplit(account.amqp_url)._replace(scheme="amqp", query="")
+    explorer = bus.robot(replace(account, amqp_url=plain.geturl()), via=link, confirm_timeout=2.0)
+    with bus.worker() as worker:
+        link.hold_confirms(5)  # two and a half confirm timeouts
+        explorer.publish_many([("status", status(90 - i)) for i in range(20)], wait=False)
+        assert explorer.flush(60)
+        assert link.connections == 1, "the robot waited for the slow confirms on its connection"
+        link.hold_confirms(0)
+        link.mute_replies()  # now silent
+        explorer.publish_many([("status", status(50))], wait=False)
+        wait_for(lambda: len(link.attempts) > 1, 30, "the robot leaving the silent broker")
+        link.restore()
+        assert explorer.flush(60)
+        stats = worker.stats()
+        assert bus.count() == 21
+        assert stats.duplicates <= 1, "only the event in doubt when the broker went silent was sent again"
 
 
 def test_gaps_are_recorded_and_cleared_when_the_missing_events_arrive(bus: Bus) -> None:
