@@ -29,6 +29,7 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.settings import load_settings
+from tests import reaper
 from tests.link import NetworkLink
 from tests.run_tls import run_tls_files, suite_endpoint
 from tests.store.conftest import fresh_database
@@ -108,6 +109,13 @@ def pytest_configure(config: pytest.Config) -> None:
         files = run_tls_files()
         if not files.server_ready():
             make_certificates(files)
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Nodes of a run that is killed are stopped anyway (``tests/reaper.py``): the controlling
+    process has a watcher for the run's temporary folder, where every test node lives."""
+    if not hasattr(session.config, "workerinput"):
+        reaper.start(os.getpid(), session.config._tmp_path_factory.getbasetemp())  # type: ignore[attr-defined]
 
 
 def has_own_node() -> bool:
