@@ -49,10 +49,13 @@ def test_services(bus: Bus) -> None:
         assert warden2.release_hazard(2)["state"] == "announced"
         hazard_1 = explorer.hazard(1)
         assert hazard_1["event"]["body"] == sent[0].body.model_dump(mode="json")
-        assert [(h["hazard_id"], h["state"]) for h in explorer.open_hazards()] == [
+        # a hazard another warden holds is its own: each robot is given the unclaimed ones and its own
+        assert [(h["hazard_id"], h["state"]) for h in warden1.open_hazards()] == [
             (1, "reached"),
             (2, "announced"),
         ]
+        for robot in (warden2, explorer):
+            assert [(h["hazard_id"], h["state"]) for h in robot.open_hazards()] == [(2, "announced")]
 
 
 def test_two_wardens_claim_at_the_same_instant_one_gets_it(bus: Bus) -> None:
