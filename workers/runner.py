@@ -332,6 +332,7 @@ async def run_worker(
             reported,
             lambda: {
                 "rpc_internal_errors": context.rpc.internal_errors,
+                "rpc_bad_requests": context.rpc.bad_requests,
                 "hazard_states_sent": context.hazard_uplink.sent,
                 **{f"site_hazards.{what}": n for what, n in context.site_hazards.counts.items()},
             },
