@@ -274,7 +274,12 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     )
     await discards.start()
     pruner = Pruner(
-        repositories.housekeeping, repositories.leases, repositories.maps, bounds(settings), shards.holder
+        repositories.housekeeping,
+        repositories.leases,
+        repositories.maps,
+        repositories.alerts,
+        bounds(settings),
+        shards.holder,
     )
     pruner.start()
     overflow = OverflowCounter(
