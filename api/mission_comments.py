@@ -37,6 +37,13 @@ def may_comment(user: User, mission: Mission) -> bool:
     return user.role in COMMENTERS
 
 
+def _not_for(user: User, mission_id: str) -> str:
+    return (
+        f"role {user.role.value} may not comment on mission {mission_id}; "
+        "its client, planners, supervisors, operators and admins may"
+    )
+
+
 class MissionComments:
     def __init__(self, missions: Missions, comments: CommentStore) -> None:
         self._missions = missions
@@ -52,12 +59,14 @@ class MissionComments:
         return await self._comments.comments(mission_id, limit)
 
     async def add(self, user: User, mission_id: str, text: str) -> Comment:
+        """``user``'s comment on the mission; refused to a role that does not comment (before the
+        mission is looked at: a robot is told its role, not whose mission it is), to a client on
+        another's mission, and for an empty or too long text. Nothing is stored when refused."""
+        if user.role not in COMMENTERS:
+            raise Forbidden(_not_for(user, mission_id))
         mission = await self._missions.get(user, mission_id)
         if not may_comment(user, mission):
-            raise Forbidden(
-                f"role {user.role.value} may not comment on mission {mission_id}; "
-                "its client, planners, supervisors, operators and admins may"
-            )
+            raise Forbidden(_not_for(user, mission_id))
         text = text.strip()
         if not text:
             raise BadRequest("the comment is empty")

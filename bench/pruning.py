@@ -97,6 +97,7 @@ async def measure(folder: Path, old: int, seconds: float) -> dict[str, object]:
             repositories.housekeeping,
             repositories.leases,
             repositories.maps,
+            repositories.alerts,
             bounds(load_settings({})),
             "bench",
         )

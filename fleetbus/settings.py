@@ -223,6 +223,11 @@ class Settings(BaseSettings):
     alerts_acknowledged_shown: Annotated[int, Positive] = setting(
         50, "how many of the last acknowledged alerts `fleetbus alerts --all` and the console show"
     )
+    alerts_keep_days: Annotated[float, Positive] = setting(
+        30.0,
+        "an alert acknowledged longer ago than this many days, and whose condition ended, is removed by "
+        "the workers' pruning (an open alert stays); counted as the bound `alerts` in `fleetbus stats`",
+    )
     ingest_shards: int = setting(
         1,
         f"ingest shard queues (1 to {MAX_INGEST_SHARDS}): each robot's events go through one, and the "

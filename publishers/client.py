@@ -370,7 +370,8 @@ class RobotClient:
         A warden in service first gets the open hazards it missed: on its first call and after
         every reconnect, the client asks the service (``hazard.open``) and hands out, in order,
         each announced hazard it has not handed out yet (its inbox lost or purged, or filled
-        while it was away), with its state (``hazard_state``: claimed by another warden, say).
+        while it was away), with its state; the service leaves out those another warden holds
+        (claimed or reached), and gives back those this warden holds.
         """
         channel = self._open_consumer_channel()
         try:

@@ -152,13 +152,15 @@ def _request_trait() -> dict[str, Any]:
             "description": "the AMQP `correlation_id` property: the reply carries it back",
             "location": "$message.header#/correlation_id",
         },
-        "description": "A service call: the parameters as a JSON object, published to the caller's "
+        "description": "A service call: the parameters as a JSON object (`content_type` "
+        f"`{EVENT_CONTENT_TYPE}`: a call of another content type, or none, is refused without being "
+        "processed), published to the caller's "
         f"own exchange with `user_id` = the caller, `reply_to` = `{REPLY_TO}` (consume it, with "
         "`no_ack`, on the same channel before publishing), a `correlation_id`, and an `expiration` "
         "(milliseconds) no longer than the caller waits. The reply comes on the reply-to channel.",
         "x-amqp-properties": {
             "type": "object",
-            "required": ["user_id", "reply_to", "correlation_id"],
+            "required": ["user_id", "reply_to", "correlation_id", "content_type"],
             "properties": {
                 "user_id": {"type": "string", "description": "the caller's account name"},
                 "reply_to": {"const": REPLY_TO},

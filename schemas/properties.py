@@ -21,15 +21,16 @@ EVENT_CONTENT_TYPE = "application/json"
 PERSISTENT = 2
 
 
-def content_type_problem(content_type: str | None) -> str | None:
-    """Why ``content_type`` is not an event's, or None when it is."""
+def content_type_problem(content_type: str | None, what: str = "events") -> str | None:
+    """Why ``content_type`` is not that of ``what`` (events, service requests: both JSON), or
+    None when it is."""
     if not content_type:
-        return f"the message has no content_type property; events are {EVENT_CONTENT_TYPE}"
+        return f"the message has no content_type property; {what} are {EVENT_CONTENT_TYPE}"
     parsed = Message()  # the standard library's MIME header parser
     parsed["content-type"] = content_type
     charset = parsed.get_param("charset", "utf-8")
     if parsed.get_content_type() != EVENT_CONTENT_TYPE or str(charset).lower() != "utf-8":
-        return f"content_type is {content_type!r}; events are {EVENT_CONTENT_TYPE} (UTF-8)"
+        return f"content_type is {content_type!r}; {what} are {EVENT_CONTENT_TYPE} (UTF-8)"
     return None
 
 

@@ -86,8 +86,10 @@ METHODS: tuple[Method, ...] = (
     ),
     Method(
         "hazard.open",
-        "the mission's hazards not yet cleared, in id order, held ones included (their `state` says): "
-        "what a warden rebuilds its list from (a site's hazards are its own wardens', left out)",
+        "the mission's hazards not yet cleared that are open to the caller, in id order: those no "
+        "warden holds (held ones included, their `state` says) and those the caller claimed; what a "
+        "warden rebuilds its list from. A hazard another warden claimed or reached is left out, as "
+        "is a site's (its own wardens')",
         {"mission_id": MISSION},
         (),
         {"type": "array", "items": HAZARD},

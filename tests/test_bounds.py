@@ -1,7 +1,10 @@
 """Every bound on what grows holds while the worker runs, against the real broker and both stores:
-the event log, the duplicates register, the beacon discards, map versions and staged chunks."""
+the event log, the duplicates register, the beacon discards, map versions and staged chunks, the
+acknowledged alerts."""
 
 from __future__ import annotations
+
+from datetime import datetime, timedelta, timezone
 
 import pytest
 
@@ -10,6 +13,8 @@ from fleetbus.schemas.bodies import MAP_INLINE_BYTES
 from fleetbus.schemas.envelope import encode_event
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import load_settings
+from fleetbus.workers.store.alerts import NewAlert
+from fleetbus.workers.store.repositories import Repositories
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 from tests.test_beacon_exchange import publish_raw as publish_beacon
@@ -36,6 +41,18 @@ def test_the_event_log_duplicates_and_discards_keep_to_their_bounds(stored_bus: 
     )
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     explorer = bus.robot(account)
+    long_ago = datetime.now(timezone.utc) - timedelta(days=bus.settings.alerts_keep_days + 1)
+
+    async def old_alerts(store: Repositories) -> list[int]:
+        """Two alerts acknowledged long ago: one whose condition ended, one that still holds."""
+        new = [NewAlert("robot-stale", f"robot {name}", long_ago, "never heard from") for name in "ab"]
+        raised = await store.alerts.raise_alerts(new, long_ago)
+        for alert in raised:
+            await store.alerts.acknowledge(alert.id, "oper1", long_ago)
+        await store.alerts.end_alert(raised[0].id, long_ago)
+        return [alert.id for alert in raised]
+
+    ended, still_open = bus.with_store(old_alerts)
     with bus.worker():
         sent = [explorer.publish("status", status(80)) for _ in range(6)]
         for event in sent[:4]:  # the robot sends four again, as after a lost confirm
@@ -52,6 +69,9 @@ def test_the_event_log_duplicates_and_discards_keep_to_their_bounds(stored_bus: 
             what="duplicates and discards pruned to their bounds",
         )
         wait_for(lambda: counted(bus).get(("events", "status")) == 3, what="the oldest statuses pruned")
+        wait_for(lambda: counted(bus).get(("alerts", "acknowledged")) == 1, what="the old alert pruned")
+    assert bus.with_store(lambda store: store.alerts.get_alert(ended)) is None
+    assert bus.with_store(lambda store: store.alerts.get_alert(still_open)) is not None, "open: kept"
     kept = sorted(r.seq for r in bus.find() if r.type == "status")
     assert kept == [e.seq for e in sent[-3:]], "the newest three statuses stay"
     assert len(bus.with_store(lambda store: store.events.duplicates())) == 2

@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
 from typing import Any
 
+import pika
 import pytest
 
 import fleetbus.workers.runner
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.rpc import ServiceFailed, ServiceRefused, ServiceTimeout
-from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.routing import RobotKind, request_routing_key, requests_exchange
+from fleetbus.schemas.services import REPLY_TO
 from tests.factories import hazard
 from tests.support import Bus
 
@@ -22,9 +26,38 @@ def team(bus: Bus) -> tuple:
     return explorer, wardens
 
 
+def raw_calls(amqp_url: str, robot: str, method: str, requests: list[tuple[str | None, bytes]]) -> list[Any]:
+    """The replies to ``requests`` (each a content_type and a body) to ``method``, published as a
+    robot in another language might, in order, on one connection."""
+    connection = blocking_connection(amqp_url)
+    try:
+        channel = connection.channel()
+        replies: dict[str, Any] = {}
+        channel.basic_consume(
+            REPLY_TO,
+            lambda _ch, _m, props, body: replies.__setitem__(props.correlation_id, json.loads(body)),
+            auto_ack=True,
+        )
+        for n, (content_type, body) in enumerate(requests):
+            properties = pika.BasicProperties(
+                content_type=content_type, reply_to=REPLY_TO, correlation_id=str(n), user_id=robot
+            )
+            channel.basic_publish(
+                requests_exchange(robot), request_routing_key(robot, method), body, properties
+            )
+        deadline = time.monotonic() + 30
+        while len(replies) < len(requests) and time.monotonic() < deadline:
+            connection.process_data_events(time_limit=0.2)
+        return [replies.get(str(n)) for n in range(len(requests))]
+    finally:
+        connection.close()
+
+
 def test_services(bus: Bus) -> None:
-    explorer, (warden1, warden2) = team(bus)
-    with bus.worker():
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    account1, account2 = (bus.add(name, kind=RobotKind.WARDEN) for name in ("warden1", "warden2"))
+    warden1, warden2 = bus.robot(account1), bus.robot(account2)
+    with bus.worker() as worker:
         for warden in (warden1, warden2):
             warden.publish("localisation", {"localised": True})
         sent = explorer.publish_many([("hazard", hazard(0, "Fire")), ("hazard", hazard(1, "Gas leak"))])
@@ -49,10 +82,34 @@ def test_services(bus: Bus) -> None:
         assert warden2.release_hazard(2)["state"] == "announced"
         hazard_1 = explorer.hazard(1)
         assert hazard_1["event"]["body"] == sent[0].body.model_dump(mode="json")
-        assert [(h["hazard_id"], h["state"]) for h in explorer.open_hazards()] == [
+        # a hazard another warden holds is its own: each robot is given the unclaimed ones and its own
+        assert [(h["hazard_id"], h["state"]) for h in warden1.open_hazards()] == [
             (1, "reached"),
             (2, "announced"),
         ]
+        for robot in (warden2, explorer):
+            assert [(h["hazard_id"], h["state"]) for h in robot.open_hazards()] == [(2, "announced")]
+
+        # a request that is not JSON by its content type is refused, counted, and changes nothing
+        claim = json.dumps({"hazard_id": 2}).encode()
+        sent: list[tuple[str | None, bytes]] = [
+            ("text/plain", claim),
+            (None, claim),
+            ("application/json; charset=latin-1", claim),
+            (None, b"\xff"),
+        ]
+        replies = raw_calls(account2.amqp_url, "warden2", "hazard.claim", sent)
+        wanted = "service requests are application/json"
+        none = f"the message has no content_type property; {wanted}"
+        assert replies == [
+            {"ok": False, "error": f"content_type is 'text/plain'; {wanted} (UTF-8)"},
+            {"ok": False, "error": none},
+            {"ok": False, "error": f"content_type is 'application/json; charset=latin-1'; {wanted} (UTF-8)"},
+            {"ok": False, "error": none},
+        ]
+        assert warden2.hazard(2)["state"] == "announced", "no request of them was processed"
+        assert worker.context is not None and worker.context.rpc.bad_requests == 4
+        assert worker.context.rpc.internal_errors == 0
 
 
 def test_two_wardens_claim_at_the_same_instant_one_gets_it(bus: Bus) -> None:

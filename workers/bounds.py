@@ -34,6 +34,8 @@ class Bounds:
     inbox: QueueLimit
     field_indexes: int
     prune_every_s: float
+    acknowledged_alerts: timedelta
+    """How long an acknowledged alert whose condition ended is kept."""
 
 
 def _by_age_or_count(policy: Retention, variable: str) -> Retention:
@@ -96,4 +98,5 @@ def bounds(settings: Settings) -> Bounds:
         inbox=queue_limit(settings.inbox_max, "FLEETBUS_INBOX_MAX"),
         field_indexes=field_index_cap(settings.field_indexes_max),
         prune_every_s=settings.prune_every_s,
+        acknowledged_alerts=timedelta(days=settings.alerts_keep_days),
     )

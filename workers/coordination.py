@@ -173,17 +173,15 @@ class HazardCoordinator:
         return finishing
 
     async def _catch_up(self, wardens: list[RobotState]) -> int:
-        """Send each warden put back in service the open hazards announced meanwhile, in order."""
+        """Send each warden put back in service the open hazards announced meanwhile that are open
+        to it (:meth:`~fleetbus.workers.store.hazards.Hazard.open_to`), in order."""
         sent = 0
         if not wardens:
             return sent
         now = datetime.now(timezone.utc)
-        missed = [
-            h
-            for h in await self._hazards.open_hazards(None)
-            if h.state is not HazardState.HELD and h.site is None  # a site's are its wardens'
-        ]
+        announced = [h for h in await self._hazards.open_hazards(None) if h.state is not HazardState.HELD]
         for warden in wardens:
+            missed = [h for h in announced if h.open_to(warden.name)]
             for hazard in missed:
                 note = self.notification(hazard, now, hazard.state)
                 if not await deliver_to_inbox(self._inboxes, note, warden.name, self._service_user):

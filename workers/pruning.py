@@ -1,5 +1,6 @@
 """The worker's background pruning: the event log, the duplicates register, the beacon discards,
-map versions and staged map chunks, each held to its bound (:mod:`fleetbus.workers.bounds`).
+map versions and staged map chunks, and the acknowledged alerts whose condition ended, each held to
+its bound (:mod:`fleetbus.workers.bounds`).
 
 A round runs every ``FLEETBUS_PRUNE_EVERY_S`` seconds, in one worker at a time (a lease in the
 store), as a task beside the consumers. It deletes in small batches, each its own short write,
@@ -23,6 +24,7 @@ from datetime import datetime, timedelta, timezone
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.bounds import Bounds
 from fleetbus.workers.recorder.retention import Retention, policy_for
+from fleetbus.workers.store.alerts import AlertStore
 from fleetbus.workers.store.base import StoreError
 from fleetbus.workers.store.housekeeping import Housekeeping
 from fleetbus.workers.store.leases import LeaseStore
@@ -50,6 +52,7 @@ class Pruner:
         housekeeping: Housekeeping,
         leases: LeaseStore,
         maps: MapStore,
+        alerts: AlertStore,
         bounds: Bounds,
         holder: str,
         *,
@@ -59,6 +62,7 @@ class Pruner:
         self._housekeeping = housekeeping
         self._leases = leases
         self._maps = maps
+        self._alerts = alerts
         self._bounds = bounds
         self._holder = holder
         self._batch = batch
@@ -114,6 +118,11 @@ class Pruner:
             )
             counts.update(await self._prune_maps(now))
             counts[("map-staging", "chunks")] = await self._expire_staged_chunks(now)
+            counts[("alerts", "acknowledged")] = await self._apply(
+                Retention(max_age=bounds.acknowledged_alerts),
+                now,
+                lambda before, _keep, limit: self._alerts.prune_alerts(before or now, limit),
+            )
         finally:
             counts = {key: count for key, count in counts.items() if count}
             if counts:

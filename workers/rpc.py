@@ -3,7 +3,9 @@
 A request is published by a robot to its own ``<robot>.requests`` exchange with the routing key
 ``<robot>.<method>``, ``reply_to = amq.rabbitmq.reply-to``, a correlation id and an expiration.
 The broker-validated ``user_id`` is the caller. Replies are JSON: ``{"ok": true, "result": ...}``,
-``{"ok": false, "error": "..."}`` for a request the service refuses (the caller's to fix), or
+``{"ok": false, "error": "..."}`` for a request the service refuses (the caller's to fix: a
+request that breaks the contract, not JSON by its ``content_type`` or its body, not from the robot
+it names, is refused so before any service sees it, and counted), or
 ``{"ok": false, "error": "...", "internal": true}`` when the service failed on it (a bug: logged
 with its traceback and a reference the reply repeats, and counted; not the caller's fault).
 """
@@ -19,6 +21,7 @@ from typing import Any
 import aio_pika
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 
+from fleetbus.schemas.properties import content_type_problem
 from fleetbus.workers.notifier import CONFIRM_TIMEOUT_S
 
 log = logging.getLogger("fleetbus.rpc")
@@ -38,6 +41,8 @@ class RpcServer:
         self._tag: str | None = None
         self.internal_errors = 0
         """Requests a handler failed on unexpectedly (each logged with its traceback)."""
+        self.bad_requests = 0
+        """Requests refused for breaking the contract before any handler saw them."""
 
     async def start(self) -> None:
         self._tag = await self._queue.consume(self._on_request)
@@ -46,14 +51,17 @@ class RpcServer:
         if self._tag is not None and not self._channel.is_closed:
             await self._queue.cancel(self._tag)
 
+    def _bad(self, error: str) -> dict[str, Any]:
+        self.bad_requests += 1  # counted, not logged: a robot sending many would flood the log
+        return {"ok": False, "error": error}
+
     async def answer(self, message: AbstractIncomingMessage) -> dict[str, Any]:
         caller = message.user_id or ""
         robot, _, method = (message.routing_key or "").partition(".")
         if not caller or robot != caller:
-            return {
-                "ok": False,
-                "error": f"requests must come from the robot they name ({robot!r} != {caller!r})",
-            }
+            return self._bad(f"requests must come from the robot they name ({robot!r} != {caller!r})")
+        if problem := content_type_problem(message.content_type, "service requests"):
+            return self._bad(problem)
         handler = self._handlers.get(method)
         if handler is None:
             return {
@@ -62,11 +70,12 @@ class RpcServer:
             }
         try:
             params = json.loads(message.body or b"{}")
-            if not isinstance(params, dict):
-                raise ServiceError("parameters must be a JSON object")
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            return self._bad(f"parameters are not JSON: {error}")
+        if not isinstance(params, dict):
+            return self._bad("parameters must be a JSON object")
+        try:
             return {"ok": True, "result": await handler(caller, params)}
-        except json.JSONDecodeError as error:
-            return {"ok": False, "error": f"parameters are not JSON: {error}"}
         except ServiceError as error:
             return {"ok": False, "error": str(error)}
         except Exception:

@@ -274,7 +274,12 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     )
     await discards.start()
     pruner = Pruner(
-        repositories.housekeeping, repositories.leases, repositories.maps, bounds(settings), shards.holder
+        repositories.housekeeping,
+        repositories.leases,
+        repositories.maps,
+        repositories.alerts,
+        bounds(settings),
+        shards.holder,
     )
     pruner.start()
     overflow = OverflowCounter(
@@ -332,6 +337,7 @@ async def run_worker(
             reported,
             lambda: {
                 "rpc_internal_errors": context.rpc.internal_errors,
+                "rpc_bad_requests": context.rpc.bad_requests,
                 "hazard_states_sent": context.hazard_uplink.sent,
                 **{f"site_hazards.{what}": n for what, n in context.site_hazards.counts.items()},
             },

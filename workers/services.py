@@ -41,9 +41,8 @@ def hazard_services(hazards: CoordinationStore, channels: ChannelStore) -> dict[
         return hazard.as_dict()
 
     async def open_hazards(caller: str, params: dict[str, Any]) -> Any:
-        # a site's hazards are its wardens' (central shows them, its robots are not given them)
         found = await hazards.open_hazards(await _mission(caller, params))
-        return [h.as_dict() for h in found if h.site is None]
+        return [h.as_dict() for h in found if h.open_to(caller)]
 
     async def claim_announced(mission: str, hazard_id: int, caller: str, now: datetime) -> Hazard:
         """A claim; of a hazard still held, too, when the gate is open: its announcement reached the

@@ -10,6 +10,7 @@ from typing import Any
 
 from fleetbus.api.mission_comments import COMMENT_MAX
 from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
 from tests.api.support import PROBLEM_JSON, Api, problem, refusal, running_api
 from tests.commands import fleetbus
 from tests.support import Bus
@@ -39,6 +40,8 @@ def test_the_api_and_the_command_line_comment_by_one_rule_with_the_same_outcome(
     with running_api(bus) as api:
         for name, role in USERS.items():
             api.user(name, role)
+        api.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
+        api.user("new1", UserRole.INACTIVE)
         mission = api.mission().mission_id  # client1's
         path = f"/missions/{mission}/comments"
 
@@ -46,6 +49,8 @@ def test_the_api_and_the_command_line_comment_by_one_rule_with_the_same_outcome(
         # rule from the shell: both name the role), nothing stored by either
         refused = [
             ("visitor1", "text", 403, "role guest may not"),
+            ("explorer1", "text", 403, "role robot may not"),
+            ("new1", "text", 403, "role inactive may not"),
             ("client2", "text", 403, f"mission {mission} belongs to another client"),
             ("oper1", "   \n ", 422, "the comment is empty"),
             ("oper1", "x" * (COMMENT_MAX + 1), 422, f"the comment has {COMMENT_MAX + 1} characters; at most"),
@@ -56,6 +61,9 @@ def test_the_api_and_the_command_line_comment_by_one_rule_with_the_same_outcome(
             assert reply.headers["content-type"] == PROBLEM_JSON
             ran = fleetbus(bus, "missions", "comment", mission, text, "--as", who)
             assert ran.returncode == 1 and detail in " ".join(ran.stderr.split()), (who, ran)
+        # the shell comments as an account of the registry, never as a name of its own
+        ran = fleetbus(bus, "missions", "comment", mission, "text", "--as", "nobody")
+        assert ran.returncode == 1 and "no account 'nobody'" in ran.stderr, ran
         assert count(api, mission) == 0
         unknown = api.call("oper1", "POST", "/missions/m-404/comments", json={"text": "hello"})
         assert refusal(unknown) == (

@@ -134,10 +134,12 @@ def test_an_older_map_version_can_be_chosen(bus: Bus, browser: Browser) -> None:
 
 
 def test_the_map_is_refused_to_planners_and_clients(bus: Bus) -> None:
+    """Authors see only the newest version, on the new mission form; the watchers every one."""
     explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
     with bus.worker(), running_console(bus) as console:
         explorer.publish("map", small_map())
-        stored_maps(bus, 1)
+        explorer.publish("map", small_map(80, 60))
+        stored_maps(bus, 2)
         paths = (
             "/console/map",
             "/console/map/frame?version=1",
@@ -151,6 +153,12 @@ def test_the_map_is_refused_to_planners_and_clients(bus: Bus) -> None:
                 for path in paths:
                     assert http.get(path).status_code == 403, (name, path)
                 assert "may not use the live map page" in http.get("/console/map").text
+                newest = http.get("/console/missions/new/map/2.png")
+                assert newest.status_code == 200 and newest.headers["content-type"] == "image/png"
+                assert Image.open(io.BytesIO(newest.content)).size == (80, 60)
+                older = http.get("/console/missions/new/map/1.png")
+                assert older.status_code == 403 and "the newest map version only (2)" in older.text, name
+                assert http.get("/console/missions/new/map/7.png").status_code == 404
         console.user("oper1", UserRole.OPERATOR)
         with console.http_as("oper1") as http:
             png = http.get("/console/map/1.png")

@@ -58,6 +58,16 @@ async def test_an_alert_is_acknowledged_once_and_the_first_acknowledgement_stays
     assert [a.id for a in await alerts.acknowledged(1)] == [two.id]
     assert await alerts.unacknowledged() == []
 
+    # pruned: only an alert both acknowledged before the bound and ended (an open one holds its slot)
+    assert await alerts.prune_alerts(T0 + 10 * SECOND, 100) == 0, "open alerts stay, acknowledged or not"
+    [unseen] = await alerts.raise_alerts([stale("c")], T0)
+    for alert in (one, two, unseen):
+        assert await alerts.end_alert(alert.id, T0 + 4 * SECOND)
+    assert await alerts.prune_alerts(T0 + 2 * SECOND, 100) == 1
+    assert await alerts.get_alert(one.id) is None
+    assert [a.id for a in await alerts.acknowledged(10)] == [two.id], "acknowledged after the bound: kept"
+    assert [a.id for a in await alerts.unacknowledged()] == [unseen.id], "never acknowledged: kept"
+
 
 class Counter:
     """The dead-letter queue's depth, as a test sets it."""

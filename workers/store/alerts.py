@@ -4,7 +4,8 @@ robot gone stale...) kept once, numbered, with who acknowledged it and when.
 A condition is one ``kind`` of one ``subject`` (a robot, a hazard, a site); while it holds it has at
 most one open alert, whose ``slot`` (``kind:subject``) a unique index keeps to one however many
 processes raise it at once. Ended (the condition no longer holds), the alert gives its slot up, so
-the next occurrence is a new alert; acknowledged or not, it stays listed for the record.
+the next occurrence is a new alert; acknowledged or not, it stays listed for the record, until the
+workers' pruning removes it once it has been acknowledged longer than ``FLEETBUS_ALERTS_KEEP_DAYS``.
 """
 
 from __future__ import annotations
@@ -94,6 +95,12 @@ class AlertStore(abc.ABC):
         """Record that ``by`` acknowledged the alert ``at``; False when it is not there or was
         acknowledged before (by anyone: the first acknowledgement stays)."""
 
+    @abc.abstractmethod
+    async def prune_alerts(self, acknowledged_before: datetime, limit: int) -> int:
+        """Delete up to ``limit`` alerts acknowledged before ``acknowledged_before`` whose condition
+        ended, the earliest acknowledged first; how many went. An open alert stays, acknowledged
+        or not: it holds its condition's slot, and without it the condition would be raised again."""
+
 
 ALERTS = Schema(
     "alerts",
@@ -181,3 +188,7 @@ class Alerts(AlertStore):
     async def acknowledge(self, alert_id: int, by: str, at: datetime) -> bool:
         where = {SERIAL: alert_id, "acknowledged_at": None}
         return await self._alerts.update(where, {"acknowledged_by": by, "acknowledged_at": at}) == 1
+
+    async def prune_alerts(self, acknowledged_before: datetime, limit: int) -> int:
+        where = {"acknowledged_at": Range(lt=acknowledged_before), "ended_at": Range(ge=EPOCH)}
+        return await self._alerts.delete(where, order=["acknowledged_at", SERIAL], limit=limit)

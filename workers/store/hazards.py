@@ -79,6 +79,14 @@ class Hazard:
     site_hazard_id: int | None = None
     """At central: the hazard's id at its site (central gives it an id of its own in the mission)."""
 
+    def open_to(self, robot: str) -> bool:
+        """Whether ``robot`` is given this hazard as open work (``hazard.open``, a warden's catch-up):
+        not cleared, central's own (a site's are its wardens'), and not occupied by another warden
+        (claimed or reached: the service keeps which hazards are occupied so that no other warden
+        is sent to them)."""
+        unclaimed_or_own = self.claimed_by is None or self.claimed_by == robot
+        return self.state is not HazardState.CLEARED and self.site is None and unclaimed_or_own
+
     def as_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
         out["state"] = self.state.value

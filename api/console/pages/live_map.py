@@ -28,6 +28,7 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.console.trails import WINDOWS, trails
+from fleetbus.api.maps import map_version_for
 from fleetbus.api.service import Service
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.beacons import DEFAULT_WINDOW, stranded
@@ -115,6 +116,10 @@ class MapView:
         found = await maps.map_version(version)
         return found if found is not None else await missing_version(maps, version)
 
+    async def visible(self, user: User, version: int) -> MapVersion:
+        """The stored version if ``user`` may see it (:func:`~fleetbus.api.maps.map_version_for`)."""
+        return await map_version_for(self._service.repositories.maps, user, version)
+
 
 def map_view(request: Request) -> MapView:
     state = request.app.state
@@ -174,11 +179,10 @@ async def map_trails(
     return JSONResponse(found, headers={"Cache-Control": "no-store"})
 
 
-async def png_answer(view: MapView, version: int) -> Response:
-    """A stored version's image as a PNG (the live map's, and the new mission form's)."""
-    found = await view.stored(version)
-    if isinstance(found, str):
-        raise HTTPException(404, detail=found)
+async def png_answer(view: MapView, user: User, version: int) -> Response:
+    """A stored version's image as a PNG (the live map's, and the new mission form's), if ``user``
+    may see that version: 404 when there is none, 403 when it is not for ``user``'s role."""
+    found = await view.visible(user, version)
     try:
         png = await view.images.png(found)
     except ImageUnreadable as error:
@@ -191,7 +195,7 @@ async def png_answer(view: MapView, version: int) -> Response:
 
 @router.get("/console/map/{version}.png")
 async def map_png(user: Viewer, view: View, version: int) -> Response:
-    return await png_answer(view, version)
+    return await png_answer(view, user, version)
 
 
 @router.get("/console/stream/map")

@@ -9,7 +9,8 @@ the CLI create them; Back takes them to the form. A plan that does not hold toge
 with the model's reasons (those the HTTP API gives) and nothing is stored.
 
 Authors (clients and planners) may not open the live map, which shows where the team is; this
-form shows them the map's image only, served here.
+form shows them the image of the map's newest version only, served here (older versions are
+refused: :mod:`fleetbus.api.maps`).
 """
 
 from __future__ import annotations
@@ -182,7 +183,8 @@ async def edit_again(request: Request, user: Author, view: View, draft: Posted) 
 
 @router.get("/console/missions/new/map/{version}.png")
 async def map_image(user: Author, view: View, version: int) -> Response:
-    return await png_answer(view, version)
+    """The newest version's image only (:mod:`fleetbus.api.maps`): what the form draws on."""
+    return await png_answer(view, user, version)
 
 
 @router.post("/console/missions/summary", response_class=HTMLResponse)

@@ -90,8 +90,8 @@ def comment(
         str,
         typer.Option(
             "--as",
-            help="the account that comments: the rule is the API's (the mission's client, planners, "
-            "supervisors, operators, admins)",
+            help="the account that comments, one of the registry (`fleetbus users list`): the rule "
+            "is the API's (the mission's client, planners, supervisors, operators, admins)",
         ),
     ],
     as_json: Annotated[bool, typer.Option("--json", help="print the comment as JSON")] = False,
@@ -103,7 +103,7 @@ def comment(
     async def add(repos: Repositories) -> Comment:
         user = await repos.users.get_user(author)
         if user is None:
-            raise NotFound(f"no user {author!r}")
+            raise NotFound(f"no account {author!r} in the registry (`fleetbus users list`); nothing stored")
         return await _discussions(repos).add(user, mission_id, text)
 
     try:

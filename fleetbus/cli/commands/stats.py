@@ -60,7 +60,8 @@ def _workers() -> None:
         return
     now = datetime.now(timezone.utc)
     table = Table(title="workers")
-    for column in ("worker", "seen", "stored", "dead-lettered", "internal errors", "retries", "waiting for"):
+    columns = ("worker", "seen", "stored", "dead-lettered", "internal errors", "bad requests", "retries")
+    for column in (*columns, "waiting for"):
         table.add_column(column, justify="left" if column in ("worker", "seen", "waiting for") else "right")
     for status in statuses:
         count = status.counters.get
@@ -75,6 +76,7 @@ def _workers() -> None:
             str(count("stored", 0)),
             str(count("rejected", 0)),
             str(count("internal_errors", 0) + count("rpc_internal_errors", 0)),
+            str(count("rpc_bad_requests", 0)),
             str(count("store_retries", 0)),
             waiting,
         )

@@ -1,0 +1,35 @@
+"""Which stored versions of the team's map a user may see: the one rule for every image of it.
+
+The watchers (admins, supervisors, operators) follow the team on the live map: every stored
+version. Authors (clients and planners) may not see where the team is; they draw a mission's
+plan on the team's map, so they see its newest version only, the one the new mission form shows.
+No other role sees the map.
+"""
+
+from __future__ import annotations
+
+from fleetbus.api.errors import Forbidden, NotFound
+from fleetbus.api.missions import AUTHORS
+from fleetbus.schemas.roles import WATCHERS
+from fleetbus.workers.maps import missing_version
+from fleetbus.workers.store.maps import MapStore, MapVersion
+from fleetbus.workers.store.users import User
+
+
+async def map_version_for(maps: MapStore, user: User, version: int | None) -> MapVersion:
+    """The stored ``version`` (the newest for None) if ``user`` may see it; else NotFound (no
+    such version) or Forbidden (an author asking for another than the newest)."""
+    if user.role not in WATCHERS | AUTHORS:
+        raise Forbidden(f"role {user.role.value} may not see the team's map")
+    found = await maps.map_version(version)
+    if found is None:
+        raise NotFound(await missing_version(maps, version))
+    if user.role in WATCHERS or version is None:
+        return found
+    newest = await maps.map_version(None)
+    if newest is not None and newest.version != found.version:
+        raise Forbidden(
+            f"{user.name} is {user.role.value}: clients and planners see the newest map version "
+            f"only ({newest.version}), to draw a mission's plan on"
+        )
+    return found
