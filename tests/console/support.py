@@ -23,6 +23,7 @@ from selenium.common.exceptions import StaleElementReferenceException, WebDriver
 from selenium.webdriver.chrome.service import Service as DriverService
 from selenium.webdriver.common.by import By
 from selenium.webdriver.remote.webelement import WebElement
+from sse_starlette.sse import AppStatus
 
 from fleetbus.api.app import create_app
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
@@ -198,7 +199,7 @@ def running_console(bus: Bus, settings: Settings | None = None) -> Iterator[Cons
     app = create_app(settings or bus.settings, bus.admin_url, bus.endpoint.management_url)
     port = free_port()
     config = uvicorn.Config(
-        app, host="127.0.0.1", port=port, log_level="warning", timeout_graceful_shutdown=1
+        app, host="127.0.0.1", port=port, log_level="warning", timeout_graceful_shutdown=5
     )
     server = uvicorn.Server(config)
     loop = asyncio.new_event_loop()
@@ -221,8 +222,12 @@ def running_console(bus: Bus, settings: Settings | None = None) -> Iterator[Cons
     finally:
         for user in console.run(console.service.repositories.users.users):
             bus.api.delete_user(user.name)
+        # what uvicorn's signal handler does in `fleetbus api` (no handler in a thread): tell the
+        # open live streams, which then end at once (api/console/live.py), and stop the server
+        AppStatus.should_exit = True
         server.should_exit = True
         thread.join(30)
+        AppStatus.should_exit = False  # for the next server of this process
         left = asyncio.all_tasks(loop)
         if left:
             for task in left:
