@@ -6,6 +6,9 @@ from enum import Enum
 
 
 class MissionState(str, Enum):
+    """Declared in life-cycle order: the order every list of states and every sort by state uses
+    (:attr:`rank`)."""
+
     PLANNING = "planning"
     FILED = "filed"
     APPROVED = "approved"
@@ -13,3 +16,8 @@ class MissionState(str, Enum):
     INTERRUPTED = "interrupted"
     REVIEWING = "reviewing"
     CLOSED = "closed"
+
+    @property
+    def rank(self) -> int:
+        """The state's place in the life cycle, from 0 (planning) to 6 (closed)."""
+        return list(MissionState).index(self)

@@ -79,7 +79,7 @@ class MissionMachine:
     @property
     def states(self) -> list[MissionState]:
         present = {S.PLANNING} | {s.source for s in self.steps} | {s.target for s in self.steps}
-        return [state for state in MissionState if state in present]
+        return sorted(present, key=lambda state: state.rank)
 
     def steps_from(self, state: MissionState) -> list[Step]:
         return [step for step in self.steps if step.source is state]

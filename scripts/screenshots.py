@@ -6,12 +6,14 @@ A private demo on this checkout's broker node: `fleetbus demo`'s team (an explor
 and a guide: hazards held until the wardens localised, then announced, claimed and cleared; a
 map; beacons) in a virtual host and a store of its own (a temporary folder), then a few steps
 more: the robots connected again with a status each, a message the worker refuses, hazards left
-claimed and reached, two missions (one in progress, with depth soundings and a discussion), a user
-of each role; the worker and the recorder run meanwhile. The console (`fleetbus api`'s app) is
-served on that store; headless chromium (as in the browser tests) logs in as an administrator and
-saves the login form, each page of ``sitemap.PAGES`` (pages added later are included) and the
-survey's page (``mission.png``), then, as the planner, the new mission form with a plan drawn on
-the map and its summary; 1280 pixels wide and up to 1,600 tall.
+claimed and reached, two missions (one in progress, with depth soundings, a discussion and the
+explorer mounted by the operator, who is checked in), a user of each role (the client limited to
+hazard responses); the worker and the recorder run meanwhile. The console (`fleetbus api`'s app)
+is served on that store; headless chromium (as in the browser tests) logs in as an administrator
+and saves the login form, each page of ``sitemap.PAGES`` (pages added later are included) and the
+survey's page (``mission.png``), then the operator's dashboard (``dashboard-operator.png``: its
+own work), then, as the planner, the new mission form with a plan drawn on the map and its
+summary; 1280 pixels wide and up to 1,600 tall.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from fleetbus.api.console.sitemap import PAGES
+from fleetbus.api.console.sitemap import DASHBOARD, PAGES
 from fleetbus.api.mission_comments import comments_of
 from fleetbus.broker.accounts import Role, with_vhost
 from fleetbus.broker.management import ManagementAPI
@@ -102,9 +104,13 @@ def stage(running: RunningConsole) -> str:
             supervisor, survey.mission_id, MissionState.IN_PROGRESS, "team ready"
         )
         await service.missions.create(client, "hazard-response", "Gas leak, east wing", MissionPlan())
+        # the client may create hazard responses only (the accounts page shows whose use cases are limited)
+        await service.accounts.set_use_cases(client.name, ["hazard-response"], by=ADMIN)
         await service.repositories.events.write_events(soundings(survey.mission_id))
         operator = await accounts.get_user(users[UserRole.OPERATOR])
         assert operator
+        await service.channels.mount(operator, EXPLORER, survey.mission_id)  # the soundings' robot
+        await service.channels.check_in(operator, survey.mission_id)
         discussion = comments_of(service)
         for who, text in (
             (planner, "Sweep the lab first, then the stairs."),
@@ -130,6 +136,31 @@ def shoot(browser: Browser, path: Path, width: int) -> None:
     browser.driver.set_window_size(width, max(600, min(int(height), MAX_HEIGHT)) + int(frame))
     path.write_bytes(browser.driver.get_screenshot_as_png())
     console.print(f"wrote {path}")
+
+
+def settled(browser: Browser) -> None:
+    """Until the dashboard shows what the broker's management API tells a few seconds late: the
+    robots connected, the worker and the recorder consuming."""
+    consuming = (
+        "return ['fleetbus.ingest.events', 'fleetbus.recorder'].every((name) => {"
+        "  const row = document.getElementById('queue-' + name);"
+        "  return row && !row.classList.contains('idle') })"
+    )
+    browser.until(
+        lambda: browser.texts("#team td.connected") == ["yes"] * len(TEAM)
+        and browser.driver.execute_script(consuming),
+        "the robots connected and the worker and recorder consuming, on the dashboard",
+        timeout=60,
+    )
+
+
+def my_work(running: RunningConsole, browser: Browser, out: Path, width: int) -> None:
+    """The operator's dashboard: its own work (the survey, the robot it mounted, its check-in)."""
+    browser.reset()
+    running.log_in(browser, f"demo-{UserRole.OPERATOR.value}")
+    running.wait_live(browser)
+    settled(browser)
+    shoot(browser, out / "dashboard-operator.png", width)
 
 
 def new_mission(running: RunningConsole, browser: Browser, out: Path, width: int) -> None:
@@ -171,12 +202,15 @@ def screenshots(running: RunningConsole, out: Path, width: int, mission_id: str)
                 running.wait_live(browser)
                 # two ticks of the feed: the page's first updates are in (its own stream counted)
                 time.sleep(2 * running.service.settings.console_tick_s)
+            if page is DASHBOARD:
+                settled(browser)
             shoot(browser, out / f"{page.name}.png", width)
         # a mission's page (not in the navigation): its sensor data mapped, its discussion
         browser.go(running.url(f"/console/missions/{mission_id}"))
         running.wait_live(browser)
         browser.until(lambda: browser.attributes("#mission-map", "data-loaded-ms")[0], "the soundings mapped")
         shoot(browser, out / "mission.png", width)
+        my_work(running, browser, out, width)
         new_mission(running, browser, out, width)
     finally:
         browser.driver.quit()

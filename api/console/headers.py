@@ -33,7 +33,9 @@ HEADERS = [
 
 
 class ConsoleHeaders:
-    def __init__(self, app: ASGIApp, prefixes: tuple[str, ...] = ("/console", "/static/console")) -> None:
+    def __init__(
+        self, app: ASGIApp, prefixes: tuple[str, ...] = ("/console", "/static/console", "/favicon.ico")
+    ) -> None:
         self.app = app
         self.prefixes = prefixes
 

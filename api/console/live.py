@@ -23,8 +23,10 @@ import hashlib
 import json
 import re
 from collections.abc import AsyncIterator, Awaitable, Callable, Collection
+from contextlib import suppress
 from typing import Protocol
 
+import anyio
 from fastapi import Request
 from sse_starlette import EventSourceResponse, ServerSentEvent
 
@@ -40,6 +42,9 @@ told to reload (a replay of the oldest would show them as the newest, and leave 
 _ID = re.compile(r'\bid="([^"]+)"')
 SESSION_CHECK_S = 1.0
 """How often at most an open stream checks that its session is still open."""
+SHUTDOWN_GRACE_S = 2.0
+"""How long a stream has to end by itself once the server shuts down (it takes a moment) before
+sse-starlette cancels it: less than the server's graceful shutdown timeout."""
 
 
 class LiveView(Protocol):
@@ -64,7 +69,9 @@ def last_event_id(request: Request) -> str | None:
     return request.headers.get("last-event-id") or request.query_params.get("last_event_id")
 
 
-async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncIterator[ServerSentEvent]:
+async def _fragments(
+    view: LiveView, feed: Feed, request: Request, closing: anyio.Event
+) -> AsyncIterator[ServerSentEvent]:
     sent: dict[str, str] = {}
 
     def changed(fragments: list[str]) -> list[str]:
@@ -77,29 +84,41 @@ async def _fragments(view: LiveView, feed: Feed, request: Request) -> AsyncItera
         return fresh
 
     async with feed.subscribe() as subscription:
-        cursor = feed.cursor
-        first = changed(await _state(view, request))
-        since = moment_of(last_event_id(request))
-        if since is not None:
-            missed = await feed.missed(since, MISSED_LIMIT)
-            if missed is None:
-                yield ServerSentEvent(data=f"more than {MISSED_LIMIT:,} events missed", event=RELOAD_EVENT)
-                return
-            first += await view.events(missed)
-        yield ServerSentEvent(data=json.dumps(first), event=FRAGMENT_EVENT, id=cursor)
-        checked = asyncio.get_running_loop().time()
-        while True:
-            batch: Batch | None = await subscription.queue.get()
-            if batch is None:  # dropped for falling behind: the browser reconnects and catches up
-                return
-            if asyncio.get_running_loop().time() - checked >= SESSION_CHECK_S:
-                checked = asyncio.get_running_loop().time()
-                if not await _session_open(request):
-                    yield ServerSentEvent(data="the session has ended", event=RELOAD_EVENT)
+        waker = asyncio.create_task(_end_on(closing, subscription.queue))
+        try:
+            cursor = feed.cursor
+            first = changed(await _state(view, request))
+            since = moment_of(last_event_id(request))
+            if since is not None:
+                missed = await feed.missed(since, MISSED_LIMIT)
+                if missed is None:
+                    too_many = f"more than {MISSED_LIMIT:,} events missed"
+                    yield ServerSentEvent(data=too_many, event=RELOAD_EVENT)
                     return
-            news = [*await events_of(view, batch), *changed(await _state(view, request))]
-            if news:
-                yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
+                first += await view.events(missed)
+            yield ServerSentEvent(data=json.dumps(first), event=FRAGMENT_EVENT, id=cursor)
+            checked = asyncio.get_running_loop().time()
+            while True:
+                batch: Batch | None = await subscription.queue.get()
+                if batch is None:  # dropped for falling behind (the browser reconnects and catches
+                    return  # up), or the server shuts down
+                if asyncio.get_running_loop().time() - checked >= SESSION_CHECK_S:
+                    checked = asyncio.get_running_loop().time()
+                    if not await _session_open(request):
+                        yield ServerSentEvent(data="the session has ended", event=RELOAD_EVENT)
+                        return
+                news = [*await events_of(view, batch), *changed(await _state(view, request))]
+                if news:
+                    yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
+        finally:
+            waker.cancel()
+
+
+async def _end_on(closing: anyio.Event, queue: asyncio.Queue[Batch | None]) -> None:
+    """Once the server shuts down, the end-of-stream marker (a dropped page's) wakes the stream."""
+    await closing.wait()
+    with suppress(asyncio.QueueFull):  # full: the marker is there already
+        queue.put_nowait(None)
 
 
 async def _state(view: LiveView, request: Request) -> list[str]:
@@ -128,8 +147,13 @@ async def events_of(view: LiveView, batch: Batch) -> list[str]:
 
 def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResponse:
     """The answer to a page's ``EventSource``: its fragments until the browser goes away."""
+    closing = anyio.Event()  # set by sse-starlette when the server shuts down
     return EventSourceResponse(
-        _fragments(view, feed, request), ping=15, headers={"Cache-Control": "no-store"}
+        _fragments(view, feed, request, closing),
+        ping=15,
+        headers={"Cache-Control": "no-store"},
+        shutdown_event=closing,
+        shutdown_grace_period=SHUTDOWN_GRACE_S,
     )
 
 

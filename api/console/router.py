@@ -8,7 +8,7 @@ from typing import Annotated
 from urllib.parse import quote
 
 from fastapi import APIRouter, Depends, FastAPI, Form, HTTPException, Request
-from fastapi.responses import HTMLResponse, RedirectResponse, Response
+from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from fleetbus.api.auth import ServiceDep
@@ -29,6 +29,8 @@ from fleetbus.api.login import log_in
 from fleetbus.schemas.roles import UserRole
 
 STATIC = Path(__file__).parent / "static"
+#: The console's icon: linked from every page, and at the address browsers ask for without a link.
+ICON = STATIC / "favicon.svg"
 router = APIRouter(dependencies=[Depends(check_csrf)], include_in_schema=False)
 
 
@@ -42,6 +44,11 @@ def _safe_next(target: str | None) -> str | None:
 @router.get("/")
 async def root() -> RedirectResponse:
     return RedirectResponse("/console/", status_code=303)
+
+
+@router.get("/favicon.ico")
+async def favicon() -> FileResponse:
+    return FileResponse(ICON, media_type="image/svg+xml")
 
 
 @router.get("/console/login", response_class=HTMLResponse)

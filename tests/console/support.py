@@ -8,8 +8,10 @@ thread, and the test helpers that set up the broker run their own (``asyncio.run
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import shutil
+import sys
 import threading
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
@@ -23,6 +25,7 @@ from selenium.common.exceptions import StaleElementReferenceException, WebDriver
 from selenium.webdriver.chrome.service import Service as DriverService
 from selenium.webdriver.common.by import By
 from selenium.webdriver.remote.webelement import WebElement
+from sse_starlette.sse import AppStatus
 
 from fleetbus.api.app import create_app
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
@@ -198,9 +201,11 @@ def running_console(bus: Bus, settings: Settings | None = None) -> Iterator[Cons
     app = create_app(settings or bus.settings, bus.admin_url, bus.endpoint.management_url)
     port = free_port()
     config = uvicorn.Config(
-        app, host="127.0.0.1", port=port, log_level="warning", timeout_graceful_shutdown=1
+        app, host="127.0.0.1", port=port, log_level="warning", timeout_graceful_shutdown=5
     )
     server = uvicorn.Server(config)
+    cut = _Cut()  # after Config, which configures uvicorn's loggers
+    logging.getLogger("uvicorn.error").addHandler(cut)
     loop = asyncio.new_event_loop()
     thread = threading.Thread(target=loop.run_until_complete, args=(server.serve(),), daemon=True)
     thread.start()
@@ -221,8 +226,13 @@ def running_console(bus: Bus, settings: Settings | None = None) -> Iterator[Cons
     finally:
         for user in console.run(console.service.repositories.users.users):
             bus.api.delete_user(user.name)
+        # what uvicorn's signal handler does in `fleetbus api` (no handler in a thread): tell the
+        # open live streams, which then end at once (api/console/live.py), and stop the server
+        AppStatus.should_exit = True
         server.should_exit = True
         thread.join(30)
+        AppStatus.should_exit = False  # for the next server of this process
+        logging.getLogger("uvicorn.error").removeHandler(cut)
         left = asyncio.all_tasks(loop)
         if left:
             for task in left:
@@ -233,6 +243,21 @@ def running_console(bus: Bus, settings: Settings | None = None) -> Iterator[Cons
 
             loop.run_until_complete(settle())
         loop.close()
+        if cut.messages and sys.exc_info()[0] is None:  # a test's own failure says more
+            raise AssertionError(f"the console's server did not stop cleanly: {cut.messages}")
+
+
+class _Cut(logging.Handler):
+    """uvicorn's word that it cancelled what had not ended by its graceful shutdown timeout (an
+    open page's stream that did not end when told)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if "graceful shutdown" in record.getMessage():
+            self.messages.append(record.getMessage())
 
 
 @contextmanager

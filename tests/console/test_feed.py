@@ -7,6 +7,7 @@ import asyncio
 import json
 from datetime import datetime, timedelta, timezone
 
+import anyio
 import pytest
 from sse_starlette import ServerSentEvent
 from starlette.requests import Request
@@ -118,7 +119,7 @@ def reconnecting(seen: datetime) -> Request:
 
 
 async def first_event(view: RowsView, feed: Feed, request: Request) -> ServerSentEvent:
-    stream = _fragments(view, feed, request)
+    stream = _fragments(view, feed, request, anyio.Event())
     try:
         return await anext(stream)
     finally:
@@ -159,8 +160,9 @@ async def test_a_replay_leaves_the_snapshot_other_pages_are_shown_as_it_was(stor
 async def test_a_batch_is_rendered_once_for_every_open_page_of_a_view(store: Repositories) -> None:  # noqa: F811
     view = RowsView()
     opened = Request({"type": "http", "headers": [], "query_string": b""})
+    closing = anyio.Event()  # what sse-starlette sets when the server shuts down
     async with running(Feed(store.events, poll_s=0.01)) as feed:
-        pages = [_fragments(view, feed, opened) for _ in range(3)]
+        pages = [_fragments(view, feed, opened, closing) for _ in range(3)]
         try:
             for page in pages:
                 assert (await anext(page)).event == FRAGMENT_EVENT  # subscribed, the state sent
@@ -168,6 +170,11 @@ async def test_a_batch_is_rendered_once_for_every_open_page_of_a_view(store: Rep
             async with asyncio.timeout(DEADLINE_S):
                 for page in pages:
                     assert '<tr id="event-0"><td>0</td></tr>' in json.loads((await anext(page)).data)
+            closing.set()  # the server shuts down: every open page's stream ends, no batch needed
+            async with asyncio.timeout(DEADLINE_S):
+                for page in pages:
+                    with pytest.raises(StopAsyncIteration):
+                        await anext(page)
         finally:
             for page in pages:
                 await page.aclose()

@@ -121,7 +121,7 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         )
         assert loaded and all(url.startswith(console.base) for url in loaded), loaded
         assert any("/static/console/vendor/leaflet-1.9.4/leaflet.js" in url for url in loaded)
-        assert [line for line in browser.console_errors() if "favicon" not in line] == []
+        assert browser.console_errors() == []
 
 
 def test_the_trails_of_a_window_come_from_the_stored_localisations(bus: Bus) -> None:

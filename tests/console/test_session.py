@@ -48,6 +48,10 @@ def test_a_page_needs_a_session_and_the_session_cookie_is_locked_down(console: C
         )
         assert page.headers["x-frame-options"] == "DENY"
         assert "<script>" not in page.text  # every script is a file of ours (no inline script)
+        assert '<link rel="icon" href="/static/console/favicon.svg"' in page.text
+        icon = http.get("/favicon.ico")  # where a browser looks without the link (no login needed)
+        assert icon.status_code == 200 and icon.headers["content-type"] == "image/svg+xml"
+        assert icon.content == http.get("/static/console/favicon.svg").content
         assert http.post("/console/logout", data={"csrf": http.cookies[CSRF_COOKIE]}).status_code == 303
         assert http.get("/console/").status_code == 303
 

@@ -45,6 +45,10 @@ def _sorted_by(browser: Browser, column: int, order: str) -> bool:
     )
 
 
+def _states_shown(browser: Browser, expected: list[str]) -> bool:
+    return browser.texts("#missions-rows tr:not([hidden]) .badge") == expected
+
+
 def _mission(console: Console, owner: str, use_case: str, title: str, filed: bool = False) -> None:
     async def create() -> None:
         user = await console.service.repositories.users.get_user(owner)
@@ -76,6 +80,8 @@ def test_the_mission_list_is_live_sorted_and_filtered_by_state_use_case_and_clie
         assert shown(browser, rows) == ["mission-m-3", "mission-m-2", "mission-m-1"], "newest first"
         headers = browser.texts("#missions-table thead th")
         assert headers == ["mission", "title", "use case", "state", "client", "last change"]
+        states = [o.get_attribute("value") for o in browser.find("select[name=state] option")][1:]
+        assert states == [state.value for state in MissionState], "the state filter in life-cycle order"
         for index, header in enumerate(headers):
             for order in ("ascending", "descending"):
                 browser.click(f"#missions-table th:nth-child({index + 1}) button.sort")
@@ -87,6 +93,10 @@ def test_the_mission_list_is_live_sorted_and_filtered_by_state_use_case_and_clie
                 if known:  # a live update may have just replaced the rows: sorted again next frame
                     expected = known if order == "ascending" else known[::-1]
                     browser.until(partial(_shown_as, browser, rows, expected), f"{expected}")
+                if header == "state":  # in life-cycle order (planning before filed), not by name
+                    expected = ["planning", "planning", "filed"]
+                    expected = expected if order == "ascending" else expected[::-1]
+                    browser.until(partial(_states_shown, browser, expected), f"states {expected}")
 
         Select(browser.find("select[name=client]")[0]).select_by_value("client1")
         browser.until(lambda: shown(browser, rows) == ["mission-m-3", "mission-m-1"], "client1's missions")

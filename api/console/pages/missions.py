@@ -105,6 +105,7 @@ class MissionList:
 @router.get("/console/missions", response_class=HTMLResponse)
 async def missions(request: Request, user: Viewer, rows: Rows) -> Response:
     found = await _service(request).missions.visible(user)
+    states = {state for machine in USE_CASES.values() for state in machine.states}
     return render(
         request,
         "missions/list.html",
@@ -112,7 +113,7 @@ async def missions(request: Request, user: Viewer, rows: Rows) -> Response:
         MISSIONS,
         cursor=request.app.state.feed.cursor,
         rows=fragment("missions/rows.html", rows=await rows.visible_to(user)),
-        states=list(dict.fromkeys(state.value for machine in USE_CASES.values() for state in machine.states)),
+        states=sorted(states, key=lambda state: state.rank),
         use_cases=list(USE_CASES),
         clients=sorted({mission.owner for mission in found}),
         may_create=user.role in AUTHORS,

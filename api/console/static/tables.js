@@ -24,10 +24,17 @@
     return chosen.get(key);
   }
 
+  function cellText(row, column) {
+    const cell = row.cells[column];
+    return cell ? cell.textContent.trim() : "";
+  }
+
+  // what a row sorts by: the cell's data-sort (a time to the microsecond, a mission state's place
+  // in its life cycle) where it has one, else what it shows
   function cellValue(row, column) {
     const cell = row.cells[column];
     if (!cell) return "";
-    return cell.dataset.sort !== undefined ? cell.dataset.sort : cell.textContent.trim();
+    return cell.dataset.sort !== undefined ? cell.dataset.sort : cellText(row, column);
   }
 
   function byValue(a, b) {
@@ -63,7 +70,7 @@
     for (const row of rows) {
       let keep = matches(row, wanted);
       for (const select of selects) {
-        if (select.value && cellValue(row, Number(select.dataset.column)) !== select.value) keep = false;
+        if (select.value && cellText(row, Number(select.dataset.column)) !== select.value) keep = false;
       }
       row.hidden = !keep;
       if (keep) shown += 1;

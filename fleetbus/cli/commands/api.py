@@ -75,7 +75,7 @@ def serve(
         host=host,
         port=port,
         log_level="info",
-        timeout_graceful_shutdown=5,  # open console pages stream until closed
+        timeout_graceful_shutdown=5,  # for requests under way (open console pages' streams end at once)
         ssl_certfile=str(files.cert) if tls else None,
         ssl_keyfile=str(files.key) if tls else None,
         ssl_context_factory=_profiled_context if tls else None,
