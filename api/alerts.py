@@ -70,6 +70,10 @@ GROWING = frozenset({AlertKind.DEAD_LETTERS.value})
 DeadLetterCount = Callable[[], Awaitable[int]]
 
 
+#: The kinds a hazards-only check looks at.
+HAZARD_KINDS = frozenset({AlertKind.HAZARD_ANNOUNCED.value, AlertKind.HAZARD_UNCLAIMED.value})
+
+
 @dataclass(frozen=True)
 class Thresholds:
     unclaimed_after: timedelta
@@ -128,9 +132,12 @@ class Alerts:
         """How many acknowledged alerts :meth:`listing` gives."""
         self._lock = asyncio.Lock()
 
-    async def conditions(self, now: datetime) -> tuple[list[NewAlert], set[str]]:
+    async def conditions(self, now: datetime, hazards_only: bool = False) -> tuple[list[NewAlert], set[str]]:
         """Every condition that holds at ``now``; and the kinds that could not be looked at (their
-        open alerts are left as they are)."""
+        open alerts are left as they are). ``hazards_only``: the hazards' conditions, every other
+        kind left as it is."""
+        if hazards_only:
+            return await self._hazard_conditions(now), {kind.value for kind in AlertKind} - HAZARD_KINDS
         found = [*await self._hazard_conditions(now), *await self._robot_conditions(now)]
         found += await self._uplink_conditions()
         unknown: set[str] = set()
@@ -202,12 +209,12 @@ class Alerts:
                 found.append(NewAlert(kind, f"site {site}", report.at, detail, share))
         return found
 
-    async def check(self, now: datetime | None = None) -> list[Alert]:
+    async def check(self, now: datetime | None = None, hazards_only: bool = False) -> list[Alert]:
         """Raise an alert for each condition that holds without one open, end those whose condition
-        ended; the alerts raised."""
+        ended; the alerts raised. ``hazards_only``: only the hazards' alerts (a cheap look)."""
         now = now or datetime.now(timezone.utc)
         async with self._lock:
-            current, unknown = await self.conditions(now)
+            current, unknown = await self.conditions(now, hazards_only)
             by_slot = {condition.slot: condition for condition in current}
             held: set[str] = set()
             for alert in await self._alerts.open_alerts():
@@ -229,14 +236,23 @@ class Alerts:
             log.info("alert %d raised: %s %s: %s", alert.id, alert.kind, alert.subject, alert.detail)
         return raised
 
-    async def keep_checking(self, every: float) -> None:
-        """:meth:`check` every ``every`` seconds until cancelled; a failure is logged and retried."""
+    async def keep_checking(self, every: float, hazards_every: float | None = None) -> None:
+        """:meth:`check` every ``every`` seconds until cancelled, and the hazards' alerts alone every
+        ``hazards_every`` between (one count and the announced hazards: an operator learns of a
+        hazard within that, while the team's and the broker's looks stay rarer); a failure is logged
+        and retried."""
+        loop = asyncio.get_running_loop()
+        step = min(every, hazards_every or every)
+        next_full = loop.time()
         while True:
+            full = loop.time() >= next_full
             try:
-                await self.check()
+                await self.check(hazards_only=not full)
             except Exception:  # the store is away: the next check tries again
-                log.exception("alerts: the check failed; trying again in %g s", every)
-            await asyncio.sleep(every)
+                log.exception("alerts: the check failed; trying again in %g s", step)
+            if full:
+                next_full = loop.time() + every
+            await asyncio.sleep(step)
 
     async def listing(self, acknowledged: bool = False) -> AlertList:
         """The alerts to acknowledge; with ``acknowledged``, also the last acknowledged."""

@@ -86,7 +86,9 @@ async def open_service(
     alerts = alerts_for(
         settings, repositories, lambda: asyncio.to_thread(dead_letters_waiting, management, vhost)
     )
-    checking = asyncio.create_task(alerts.keep_checking(settings.alerts_check_s), name="alerts-check")
+    checking = asyncio.create_task(
+        alerts.keep_checking(settings.alerts_check_s, settings.alerts_hazard_check_s), name="alerts-check"
+    )
     try:
         missions = Missions(repositories.missions, repositories.channels, to_sites.changed)
         accounts = accounts_for(

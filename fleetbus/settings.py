@@ -220,6 +220,11 @@ class Settings(BaseSettings):
         "unclaimed, batteries below `FLEETBUS_BATTERY_LOW_PERCENT`, robots stale after "
         "`FLEETBUS_STALE_AFTER_S`, uplinks at `FLEETBUS_UPLINK_ALERT_AT`, dead letters growing)",
     )
+    alerts_hazard_check_s: Annotated[float, Positive] = setting(
+        0.5,
+        "how often, between those looks, the API process looks at the hazards alone, so that an "
+        "announced hazard is an alert within this (one count of the hazards, and the announced ones)",
+    )
     alerts_acknowledged_shown: Annotated[int, Positive] = setting(
         50, "how many of the last acknowledged alerts `fleetbus alerts --all` and the console show"
     )

@@ -15,7 +15,7 @@ from fleetbus.workers.store.base import EventQuery
 from tests.api.support import PROBLEM_JSON, Api, running_api
 from tests.api.test_channels import robot_url
 from tests.commands import fleetbus
-from tests.factories import status
+from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 
 
@@ -94,3 +94,20 @@ def test_a_low_battery_is_one_alert_per_drop_acknowledged_once_through_api_and_c
             (first["id"], "oper1"),
         ]
         assert battery_alerts(api) == []
+
+
+def test_an_announced_hazard_is_an_alert_at_the_next_quick_look_of_the_hazards(bus: Bus) -> None:
+    """The full look is an hour away here: the alert comes from the look at the hazards alone."""
+    settings = bus.settings.updated(alerts_check_s=3600, alerts_hazard_check_s=0.2)
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with running_api(bus, settings) as api, bus.worker():
+        warden.publish("localisation", {"localised": True})
+        explorer.publish("hazard", hazard(0, "Fire"))
+        alerts = api.service.repositories.alerts
+
+        def announced() -> list[str]:
+            return [a.detail for a in api.run(alerts.open_alerts) if a.kind == "hazard-announced"]
+
+        [detail] = wait_for(announced, 30, "the hazard's alert, without a GET /alerts")
+        assert detail == "Fire (detected by explorer1)"

@@ -102,6 +102,7 @@ async def alerts_page(request: Request, user: Viewer) -> Response:
         cursor=request.app.state.feed.cursor,
         panel=panel_html(listing, acts(user)),
         every=service.settings.alerts_check_s,
+        hazards_every=service.settings.alerts_hazard_check_s,
     )
 
 
