@@ -75,6 +75,17 @@ def test_everything_installs_under_the_fleetbus_namespace(wheel: Path) -> None:
         assert f"fleetbus/{package}/__init__.py" in names
 
 
+def test_an_installed_fleetbus_run_from_the_checkout_is_the_installed_one(base_install: Path) -> None:
+    """No folder of the checkout shadows the installed package: run from the checkout's root (the
+    current folder first on the path), ``fleetbus`` and its subpackages are the installed ones."""
+    program = "import fleetbus, fleetbus.publishers.client, fleetbus.schemas; print(fleetbus.__file__)"
+    ran = subprocess.run(
+        [str(base_install), "-c", program], cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=60
+    )
+    assert ran.returncode == 0, ran.stderr
+    assert Path(ran.stdout.strip()).is_relative_to(base_install.parent.parent), ran.stdout
+
+
 def test_the_base_install_pulls_only_what_a_robot_needs(base_install: Path) -> None:
     listed = subprocess.run(
         [*pip_for(base_install), "list", "--format=json", "--disable-pip-version-check"],

@@ -49,7 +49,7 @@ NODE_MEMORY = "512MiB"
 NET_TICKTIME = 10
 
 CLUSTER_CONF = f"""\
-# Written by fleetbus (fleetbus/dev/cluster.py); read after rabbitmq.conf.
+# Written by fleetbus (src/fleetbus/dev/cluster.py); read after rabbitmq.conf.
 vm_memory_high_watermark.absolute = {NODE_MEMORY}
 cluster_partition_handling = pause_minority
 net_ticktime = {NET_TICKTIME}

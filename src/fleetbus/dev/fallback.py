@@ -36,7 +36,7 @@ from fleetbus.dev.local_node import ADMIN_USER, LocalNode, LocalNodeError, NodeI
 from fleetbus.dev.rabbitmq import InstallationError
 from fleetbus.settings import Settings
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
+PROJECT_ROOT = Path(__file__).resolve().parents[3]
 COMPOSE_FILE = PROJECT_ROOT / "compose.yaml"
 COMPOSE_SERVICE = "rabbitmq"
 DOCKER_AMQP_PORT = 5672

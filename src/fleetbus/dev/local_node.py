@@ -506,7 +506,7 @@ class LocalNode:
             else f"management.tcp.ip = {HOST}\nmanagement.tcp.port = {ports['management']}\n"
         )
         conf = f"""\
-# Written by fleetbus (fleetbus/dev/local_node.py) on every start; edits are overwritten.
+# Written by fleetbus (src/fleetbus/dev/local_node.py) on every start; edits are overwritten.
 {plain}management.ssl.ip = {HOST}
 management.ssl.port = {ports["management_tls"]}
 management.ssl.cacertfile = {tls.ca}
@@ -562,7 +562,7 @@ log.console = false
             options += ["{crl_check, peer}", cache]
         joined = ",\n    ".join(options)
         return (
-            "%% Written by fleetbus (fleetbus/dev/local_node.py) on every start; edits are overwritten.\n"
+            "%% Written by fleetbus (src/fleetbus/dev/local_node.py) on every start; edits are overwritten.\n"
             f"[{{rabbit, [{{ssl_options, [\n    {joined}\n]}}]}}].\n"
         )
 
