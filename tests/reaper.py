@@ -5,11 +5,11 @@ a test can kill them for real; the fixtures stop them when the run ends. A run t
 (SIGKILL, a CI timeout) never gets there, and its nodes would run on, holding ports and memory on
 a shared machine. The run's controlling process therefore starts this watcher:
 
-    python -m tests.reaper PID FOLDER
+    python -m tests.reaper PID FOLDER SECONDS
 
 It waits until process PID is gone, then kills every process whose working folder or ``HOME`` is
 under FOLDER (the run's temporary folder, where every test node lives; a node's epmd keeps only the
-``HOME`` it was started with), twice a few seconds apart (xdist's workers may outlive their
+``HOME`` it was started with), twice, SECONDS apart (xdist's workers may outlive their
 controller by a moment).
 """
 
@@ -27,10 +27,12 @@ POLL_S = 1.0
 SECOND_SWEEP_AFTER_S = 5.0
 
 
-def start(pid: int, folder: Path) -> subprocess.Popen[bytes]:
+def start(
+    pid: int, folder: Path, second_sweep_after: float = SECOND_SWEEP_AFTER_S
+) -> subprocess.Popen[bytes]:
     """The watcher, in a session of its own: what kills the run's process group leaves it."""
     return subprocess.Popen(
-        [sys.executable, "-m", "tests.reaper", str(pid), str(folder)],
+        [sys.executable, "-m", "tests.reaper", str(pid), str(folder), str(second_sweep_after)],
         cwd=Path(__file__).resolve().parent.parent,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
@@ -59,13 +61,13 @@ def sweep(folder: Path) -> int:
     return len(found)
 
 
-def main(pid: int, folder: Path) -> None:
+def main(pid: int, folder: Path, second_sweep_after: float) -> None:
     while psutil.pid_exists(pid) and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
         time.sleep(POLL_S)
     sweep(folder)
-    time.sleep(SECOND_SWEEP_AFTER_S)
+    time.sleep(second_sweep_after)
     sweep(folder)
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]), Path(sys.argv[2]).resolve())
+    main(int(sys.argv[1]), Path(sys.argv[2]).resolve(), float(sys.argv[3]))

@@ -26,7 +26,7 @@ def test_the_processes_of_a_killed_run_are_killed_and_no_other(tmp_path: Path) -
     epmd = _sleeper(elsewhere, home=run / "node")  # its epmd keeps only its HOME
     other = _sleeper(elsewhere)
     pytest_run = _sleeper(elsewhere)
-    watcher = reaper.start(pytest_run.pid, run)
+    watcher = reaper.start(pytest_run.pid, run, second_sweep_after=0.1)
     try:
         assert node.poll() is None and epmd.poll() is None
         pytest_run.kill()
