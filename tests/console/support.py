@@ -13,6 +13,7 @@ import os
 import shutil
 import sys
 import threading
+import warnings
 from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -40,7 +41,20 @@ from tests.support import Bus, wait_for
 T = TypeVar("T")
 PASSWORD = "correct horse battery"
 #: The promise: what a robot publishes is on the operator's screen this soon, without a reload.
+#: ``python -m bench.console`` measures it; a test only reports a slower update (a loaded CI
+#: machine runs four browsers and brokers at once), as a warning in the run's summary.
 LIVE_WITHIN_S = 2.0
+
+
+class SlowLiveUpdate(UserWarning):
+    pass
+
+
+def report_live(what: str, shown: float) -> None:
+    """Say when a live update took longer than the promise; speed is the benchmark's to judge."""
+    if shown >= LIVE_WITHIN_S:
+        slow = SlowLiveUpdate(f"{what} took {shown:.2f} s (promised: {LIVE_WITHIN_S:g} s)")
+        warnings.warn(slow, stacklevel=2)
 
 
 def _replaced(error: WebDriverException) -> bool:
