@@ -3,7 +3,8 @@
 The watchers (admins, supervisors, operators) follow the team on the live map: every stored
 version. Authors (clients and planners) may not see where the team is; they draw a mission's
 plan on the team's map, so they see its newest version only, the one the new mission form shows.
-No other role sees the map.
+No other role sees the map. The server's own tools (the command line) see every version
+(:class:`Maps`).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 from fleetbus.api.errors import Forbidden, NotFound
 from fleetbus.api.missions import AUTHORS
 from fleetbus.schemas.roles import WATCHERS
-from fleetbus.workers.maps import missing_version
+from fleetbus.workers.maps import map_image, missing_version
 from fleetbus.workers.store.maps import MapStore, MapVersion
 from fleetbus.workers.store.users import User
 
@@ -21,9 +22,7 @@ async def map_version_for(maps: MapStore, user: User, version: int | None) -> Ma
     such version) or Forbidden (an author asking for another than the newest)."""
     if user.role not in WATCHERS | AUTHORS:
         raise Forbidden(f"role {user.role.value} may not see the team's map")
-    found = await maps.map_version(version)
-    if found is None:
-        raise NotFound(await missing_version(maps, version))
+    found = await _stored(maps, version)
     if user.role in WATCHERS or version is None:
         return found
     newest = await maps.map_version(None)
@@ -33,3 +32,31 @@ async def map_version_for(maps: MapStore, user: User, version: int | None) -> Ma
             f"only ({newest.version}), to draw a mission's plan on"
         )
     return found
+
+
+async def _stored(maps: MapStore, version: int | None) -> MapVersion:
+    """The stored ``version`` (the newest for None); NotFound saying why there is none."""
+    found = await maps.map_version(version)
+    if found is None:
+        raise NotFound(await missing_version(maps, version))
+    return found
+
+
+class Maps:
+    """The stored versions of the team's map for the server's own tools (the command line), which
+    see them all."""
+
+    def __init__(self, maps: MapStore) -> None:
+        self._maps = maps
+
+    async def versions(self) -> list[MapVersion]:
+        """Every stored version, newest first."""
+        return await self._maps.map_versions()
+
+    async def version(self, version: int | None) -> MapVersion:
+        """The stored ``version`` (the newest for None); NotFound saying why there is none."""
+        return await _stored(self._maps, version)
+
+    async def image(self, version: MapVersion) -> bytes:
+        """The version's whole PGM file."""
+        return await map_image(self._maps, version)

@@ -7,7 +7,6 @@ import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
-from datetime import timedelta
 
 from fleetbus.api.account_check import AccountCheck, account_check_for
 from fleetbus.api.accounts import Accounts, accounts_for
@@ -19,7 +18,7 @@ from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
 from fleetbus.api.sessions import Sessions
-from fleetbus.api.team import Team
+from fleetbus.api.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
@@ -107,12 +106,7 @@ async def open_service(
             channels=Channels(
                 repositories.channels, repositories.users, management, vhost_of(admin_url), missions
             ),
-            team=Team(
-                repositories.hazards,
-                repositories.events,
-                admin_url,
-                timedelta(seconds=settings.stale_after_s),
-            ),
+            team=team_for(settings, repositories.hazards, repositories.events, admin_url),
             hazard_steps=HazardSteps(repositories.hazards, repositories.channels, admin_url),
             recording=recording,
             management=management,

@@ -10,6 +10,7 @@ from datetime import datetime, timedelta, timezone
 from fleetbus.api.errors import BadRequest, NotFound, Unavailable
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.roles import UserRole
+from fleetbus.settings import Settings
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.team import RobotState, TeamStore
 from fleetbus.workers.team import (
@@ -42,7 +43,11 @@ class TeamView:
 
 
 class Team:
-    def __init__(self, team: TeamStore, events: EventStore, admin_url: str, stale_after: timedelta) -> None:
+    def __init__(
+        self, team: TeamStore, events: EventStore, admin_url: str | None, stale_after: timedelta
+    ) -> None:
+        """``admin_url``: the broker the hazard service is told of changes through; None for a
+        reader that changes nothing."""
         self._team = team
         self._events = events
         self._admin_url = admin_url
@@ -75,6 +80,8 @@ class Team:
 
     async def set_in_service(self, name: str, in_service: bool, by: str) -> RobotState:
         """Take a warden out of service or put it back, recorded with ``by``; the hazard service is told."""
+        if self._admin_url is None:
+            raise RuntimeError("the team was opened without a broker: it cannot change the service")
         try:
             robot = await change_service(self._team, self._admin_url, name, in_service, by)
         except NotInTeam as refused:
@@ -85,3 +92,8 @@ class Team:
             raise Unavailable(str(error)) from error
         log.info("%s %s by %s", name, "back in service" if in_service else "taken out of service", by)
         return robot
+
+
+def team_for(settings: Settings, team: TeamStore, events: EventStore, admin_url: str | None) -> Team:
+    """The team service on the settings' staleness (``FLEETBUS_STALE_AFTER_S``)."""
+    return Team(team, events, admin_url, timedelta(seconds=settings.stale_after_s))

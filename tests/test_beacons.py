@@ -3,24 +3,32 @@
 from __future__ import annotations
 
 import asyncio
+import json
+from pathlib import Path
 
 import pytest
+import yaml
 
+from fleetbus.api.beacons import beacons_of
+from fleetbus.api.errors import BadRequest
 from fleetbus.broker.accounts import Role, provision_account
 from fleetbus.publishers.rpc import ServiceRefused
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.beacons import Beacon
 from tests.support import Bus, wait_for
+from tests.test_cli import fleetbus
 
 
 def sighting(beacon_id: str, rssi: int, x: float = 0.0) -> dict:
     return {"beacon_id": beacon_id, "rssi": rssi, "pose": {"x": x, "y": 1.0}}
 
 
-def test_sightings_stranded_people_and_the_guides_goal(bus: Bus) -> None:
-    bus.with_store(
-        lambda s: s.beacons.put_beacons([Beacon("b1", 1.0, 2.0, "room 101"), Beacon("b2", 8.0, 3.0, "lab")])
-    )
+def test_sightings_stranded_people_and_the_guides_goal(bus: Bus, tmp_path: Path) -> None:
+    registry = tmp_path / "beacons.yaml"
+    b1, b2 = {"id": "b1", "x": 1, "y": 2, "label": "room 101"}, {"id": "b2", "x": 8, "y": 3, "label": "lab"}
+    registry.write_text(yaml.safe_dump([b1, b2]))
+    loaded = fleetbus(bus, "beacons", "load", str(registry))
+    assert (loaded.returncode, loaded.stdout) == (0, "2 beacons in the registry\n"), loaded.stderr
     guide = bus.robot(bus.add("guide1", kind=RobotKind.GUIDE))
     with bus.worker():
         guide.publish_many([("beacon", sighting("b2", -70, 7.0)), ("beacon", sighting("b1", -60, 1.5))])
@@ -38,6 +46,9 @@ def test_sightings_stranded_people_and_the_guides_goal(bus: Bus) -> None:
         )
         assert b2["seen_by"] == "guide1" and b2["robot_pose"]["x"] == 7.5
         assert people[2]["location"] is None, "an unregistered beacon is still reported"
+        listed = fleetbus(bus, "beacons", "stranded", "--since", "5m", "--json")
+        assert listed.returncode == 0, listed.stderr
+        assert json.loads(listed.stdout) == people, "the command line reads the same registry and sightings"
 
         assert guide.beacon_goal()["beacon_id"] == "b2"
         guide.beacon_visited("b2")
@@ -67,3 +78,27 @@ def test_sighting_from_an_unknown_robot_is_dead_lettered(bus: Bus) -> None:
     assert (letter.reason, letter.user_id) == ("unknown-robot", "stranger1")
     assert "not a registered robot" in letter.detail
     assert [r.robot_id for r in bus.find()] == ["guide1"]
+
+
+@pytest.mark.parametrize(
+    ("entries", "detail"),
+    [
+        ({"id": "b1", "x": 1, "y": 2}, "expected a list of beacons with id, x, y and label"),
+        ([{"id": "b1", "x": 1, "y": 2}, {"id": "b2", "x": 1}], "beacon 2: needs id, x and y (KeyError('y'))"),
+        ([{"id": "b1", "x": "east", "y": 2}], "beacon 1: needs id, x and y"),
+        (["b1"], "beacon 1: needs id, x and y"),
+    ],
+)
+def test_a_beacon_list_that_is_not_one_is_refused_whole_naming_the_first_bad_entry(
+    entries: object, detail: str
+) -> None:
+    with pytest.raises(BadRequest) as refused:
+        beacons_of(entries)
+    assert refused.value.detail.startswith(detail)
+
+
+def test_a_beacon_list_gives_each_beacon_its_label_or_none() -> None:
+    assert beacons_of([{"id": 7, "x": 1, "y": "2.5", "label": "hall"}, {"id": "b2", "x": 0, "y": 0}]) == [
+        Beacon("7", 1.0, 2.5, "hall"),
+        Beacon("b2", 0.0, 0.0, ""),
+    ]

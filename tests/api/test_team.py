@@ -16,6 +16,7 @@ from tests.api.support import Api, running_api_on_each_store
 from tests.api.test_channels import robot_url
 from tests.factories import hazard
 from tests.support import Bus, wait_for
+from tests.test_cli import fleetbus
 
 
 @pytest.fixture(params=["sqlite", "mongodb"])
@@ -79,6 +80,9 @@ def test_an_operator_takes_a_warden_out_of_service_and_back_on_record(api: Api) 
             "explorer1 is an explorer: only wardens are taken out of service",
         )
         assert api.call("oper1", "POST", "/team/nobody/out").status_code == 404
+        # the command line asks the same service: the same refusal, as its error (bad input: 2)
+        cli = fleetbus(api.bus, "team", "out", "explorer1", "--by", "oper1")
+        assert (cli.returncode, cli.stderr) == (2, f"error: {refused.json()['detail']}\n")
 
 
 def test_deleting_a_warden_takes_it_out_of_the_team_in_the_same_operation(api: Api) -> None:

@@ -3,53 +3,36 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import Annotated, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 import yaml
 from rich.table import Table
 
-from fleetbus.cli.context import console, fail, settings
+from fleetbus.cli.context import console, fail
+from fleetbus.cli.services import with_services
 from fleetbus.cli.times import TIME_FORMS, parse_time
-from fleetbus.workers.beacons import stranded
-from fleetbus.workers.store import Repositories, run_with_repositories
-from fleetbus.workers.store.beacons import Beacon
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from fleetbus.api.standalone import Services
+    from fleetbus.workers.store.beacons import Beacon
+
 app = typer.Typer(help="BLE beacons: the registry and the people likely stranded.", no_args_is_help=True)
-
-
-def _with_repositories(operation: Callable[[Repositories], Awaitable[T]]) -> T:
-    return run_with_repositories(settings(), operation)
-
-
-def parse_beacons(path: Path) -> list[Beacon]:
-    """A YAML or JSON list of ``{id, x, y, label}``."""
-    try:
-        entries = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as error:
-        fail(f"cannot read {path}: {error}")
-    if not isinstance(entries, list):
-        fail(f"{path}: expected a list of beacons with id, x, y and label")
-    beacons = []
-    for number, entry in enumerate(entries, 1):
-        try:
-            beacons.append(
-                Beacon(str(entry["id"]), float(entry["x"]), float(entry["y"]), str(entry.get("label", "")))
-            )
-        except (KeyError, TypeError, ValueError) as error:
-            fail(f"{path}: beacon {number}: needs id, x and y ({error!r})")
-    return beacons
 
 
 @app.command("load")
 def load(path: Path) -> None:
     """Add or update beacons from a YAML or JSON list of {id, x, y, label}."""
-    beacons = parse_beacons(path)
+    try:
+        entries = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as error:
+        fail(f"cannot read {path}: {error}")
 
-    _with_repositories(lambda repos: repos.beacons.put_beacons(beacons))
+    async def work(services: Services) -> list[Beacon]:
+        return await services.beacons.load(entries)
+
+    beacons = with_services(work, refused=f"{path}: ")
     console.print(f"{len(beacons)} beacons in the registry")
 
 
@@ -57,7 +40,11 @@ def load(path: Path) -> None:
 def list_beacons() -> None:
     """The registry."""
     table = Table("beacon", "x", "y", "label", "visited at")
-    for beacon in _with_repositories(lambda repos: repos.beacons.beacons()):
+
+    async def read(services: Services) -> list[Beacon]:
+        return await services.beacons.registry()
+
+    for beacon in with_services(read):
         table.add_row(
             beacon.beacon_id, f"{beacon.x:g}", f"{beacon.y:g}", beacon.label, str(beacon.visited_at or "")
         )
@@ -72,7 +59,11 @@ def stranded_people(
     """Beacons heard recently: where people are likely stranded, and when they were last heard."""
     start = parse_time(since, "--since")
     assert start is not None
-    entries = _with_repositories(lambda repos: stranded(repos.beacons, repos.events, start))
+
+    async def read(services: Services) -> list[dict[str, Any]]:
+        return await services.beacons.stranded(start)
+
+    entries = with_services(read)
     if as_json:
         typer.echo(json.dumps(entries, indent=2))
         return

@@ -4,31 +4,19 @@
 from __future__ import annotations
 
 import json
-from datetime import datetime, timezone
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from fleetbus.cli.context import actor, console, endpoint, fail, settings
-from fleetbus.workers.store import Hazard, HazardState, Repositories, run_with_repositories
-from fleetbus.workers.store.hazards import DEFAULT_MISSION
-from fleetbus.workers.team import gate, last_seen_of, why_held
+from fleetbus.api.hazards import DEFAULT_MISSION
+from fleetbus.cli.context import actor, console, endpoint
+from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
+    from fleetbus.api.hazards import OpenHazard
+    from fleetbus.api.standalone import Services
     from fleetbus.workers.hazard_steps import StepTaken
-
-
-async def _open_and_why(repos: Repositories, mission: str) -> list[tuple[Hazard, str]]:
-    """The mission's open hazards, each with why it is held ("" once announced)."""
-    found = await repos.hazards.open_hazards(mission)
-    if not any(hazard.state is HazardState.HELD for hazard in found):
-        return [(hazard, "") for hazard in found]
-    team = await repos.hazards.robots()
-    state, now = gate(team), datetime.now(timezone.utc)
-    seen = await last_seen_of(repos.events, state.waiting_for)
-    return [(hazard, why_held(hazard, state, seen, now)) for hazard in found]
-
 
 app = typer.Typer(
     help="Hazards not cleared yet, in the order detected: held (and why), announced, claimed or "
@@ -49,11 +37,14 @@ def hazards(
     """Hazards not cleared yet, in the order detected: held (and why), announced, claimed or reached."""
     if ctx.invoked_subcommand is not None:
         return
-    found = run_with_repositories(settings(), lambda repos: _open_and_why(repos, mission))
-    found = found[offset : None if limit is None else offset + limit]
+
+    async def read(services: Services) -> list[OpenHazard]:
+        return await services.hazards.open(mission)
+
+    found = with_services(read)[offset : None if limit is None else offset + limit]
     if as_json:
-        for hazard, why in found:
-            typer.echo(json.dumps({**hazard.as_dict(), "held_because": why or None}))
+        for each in found:
+            typer.echo(json.dumps({**each.hazard.as_dict(), "held_because": each.held_because or None}))
         return
     table = Table(
         "id",
@@ -67,8 +58,8 @@ def hazards(
         "held because",
         title=f"mission {mission}",
     )
-    for hazard, why in found:
-        body = hazard.event["body"]
+    for each in found:
+        hazard, body = each.hazard, each.hazard.event["body"]
         table.add_row(
             str(hazard.hazard_id),
             hazard.state.value,
@@ -78,7 +69,7 @@ def hazards(
             hazard.robot_id,
             f"{hazard.site} (#{hazard.site_hazard_id})" if hazard.site else "",
             hazard.claimed_by or "",
-            why,
+            each.held_because,
         )
     console.print(table)
 
@@ -89,19 +80,13 @@ By = Annotated[str | None, typer.Option(help="who takes the step, for the record
 
 
 def _step(step: str, hazard_id: int, warden: str, mission: str, by: str | None) -> None:
-    from fleetbus.workers.hazard_steps import StepRefused, take_step
+    """As ``POST /hazards/MISSION/ID/STEP`` does: the same checks and refusals."""
+    who = actor(by)
 
-    who, admin_url = actor(by), endpoint().amqp_url
+    async def work(services: Services) -> StepTaken:
+        return await services.hazard_steps.take(mission, hazard_id, warden, step, who)
 
-    async def work(repos: Repositories) -> StepTaken:
-        return await take_step(
-            repos.hazards, repos.channels, admin_url, mission, hazard_id, warden, step, who
-        )
-
-    try:
-        taken = run_with_repositories(settings(), work)
-    except StepRefused as refused:
-        fail(str(refused))
+    taken = with_services(work, endpoint().amqp_url)
     console.print(f"hazard {hazard_id}: {taken.hazard.state.value} for {warden} (by {who})", highlight=False)
     if taken.not_told:
         console.print(f"[yellow]{taken.not_told}[/]", highlight=False)

@@ -3,26 +3,20 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 import yaml
 from rich.table import Table
 
-from fleetbus.cli.context import console, fail, settings
-from fleetbus.workers.maps import map_image, missing_version
-from fleetbus.workers.store import run_with_repositories
-from fleetbus.workers.store.maps import MapStore, MapVersion
+from fleetbus.cli.context import console
+from fleetbus.cli.services import with_services
+
+if TYPE_CHECKING:
+    from fleetbus.api.standalone import Services
+    from fleetbus.workers.store.maps import MapVersion
 
 app = typer.Typer(help="The team's map, every version.", no_args_is_help=True)
-
-
-async def _read(maps: MapStore, version: int | None) -> tuple[MapVersion, bytes] | str:
-    """The version and its image, or why there is none."""
-    found = await maps.map_version(version)
-    if found is None:
-        return await missing_version(maps, version)
-    return found, await map_image(maps, found)
 
 
 def map_yaml(metadata: dict, image_name: str) -> str:
@@ -39,10 +33,12 @@ def export(
     version: Annotated[int | None, typer.Option(help="a version; default the latest")] = None,
 ) -> None:
     """Write a stored map (the latest by default) to map.pgm and map.yaml."""
-    found = run_with_repositories(settings(), lambda repos: _read(repos.maps, version))
-    if isinstance(found, str):
-        fail(found)
-    info, pgm = found
+
+    async def read(services: Services) -> tuple[MapVersion, bytes]:
+        found = await services.maps.version(version)
+        return found, await services.maps.image(found)
+
+    info, pgm = with_services(read)
     out.mkdir(parents=True, exist_ok=True)
     (out / "map.pgm").write_bytes(pgm)
     (out / "map.yaml").write_text(map_yaml(info.metadata, "map.pgm"))
@@ -55,8 +51,11 @@ def export(
 def list_maps() -> None:
     """Every stored version, newest first (each robot's newest FLEETBUS_MAP_VERSIONS_KEEP are kept)."""
 
+    async def read(services: Services) -> list[MapVersion]:
+        return await services.maps.versions()
+
     table = Table("version", "from", "created at", "bytes", "resolution", "origin")
-    for info in run_with_repositories(settings(), lambda repos: repos.maps.map_versions()):
+    for info in with_services(read):
         table.add_row(
             str(info.version),
             f"{info.robot_id} #{info.seq}",

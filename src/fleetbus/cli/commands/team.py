@@ -3,28 +3,19 @@
 from __future__ import annotations
 
 import json
-from datetime import datetime, timedelta, timezone
-from typing import Annotated
+from datetime import datetime, timezone
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from fleetbus.broker.team_changes import HazardServiceNotTold
-from fleetbus.cli.context import actor, clock, console, endpoint, fail, settings
-from fleetbus.workers.store import Repositories, run_with_repositories
-from fleetbus.workers.store.hazards import RobotState
-from fleetbus.workers.team import (
-    TeamMember,
-    TeamRefused,
-    ago,
-    change_service,
-    gate,
-    last_seen_of,
-    team_members,
-    why_closed,
-)
+from fleetbus.cli.context import actor, clock, console, endpoint, settings
+from fleetbus.cli.services import with_services
+from fleetbus.workers.team import TeamMember, ago
 
-Seen = dict[str, datetime | None]
+if TYPE_CHECKING:
+    from fleetbus.api.standalone import Services
+    from fleetbus.api.team import TeamView
 
 app = typer.Typer(
     help="The team the hazard gate follows. Alone: every robot with its kind, localised or not, "
@@ -48,23 +39,17 @@ def team(
     if ctx.invoked_subcommand is not None:
         return
     config = settings()
+
+    async def read(services: Services) -> TeamView:
+        return await services.team.view(offset=offset, limit=limit)
+
+    view = with_services(read)
+    members, state, closed = view.members, view.gate, view.closed_because
     now = datetime.now(timezone.utc)
-    stale_after = timedelta(seconds=config.stale_after_s)
-
-    async def read(repos: Repositories) -> tuple[list[RobotState], list[TeamMember], Seen]:
-        robots = await repos.hazards.robots()
-        page = robots[offset : None if limit is None else offset + limit]
-        members = await team_members(page, repos.events, now, stale_after)
-        waiting = await last_seen_of(repos.events, gate(robots).waiting_for)
-        return robots, members, waiting
-
-    robots, members, waiting = run_with_repositories(config, read)
-    state = gate(robots)
-    closed = why_closed(state, waiting, now)
     if as_json:
         document = {
             "robots": [member.as_dict() for member in members],
-            "total": len(robots),
+            "total": view.total,
             "offset": offset,
             "gate": {"open": state.open, "announces_to": state.wardens, "closed_because": closed},
         }
@@ -79,7 +64,7 @@ def team(
         "in service",
         "counts for the gate",
         "outbox dropped",
-        caption=f"robots {offset + 1} to {offset + len(members)} of {len(robots)}" if members else None,
+        caption=f"robots {offset + 1} to {offset + len(members)} of {view.total}" if members else None,
     )
     for member in members:
         table.add_row(
@@ -109,18 +94,13 @@ def _service(member: TeamMember) -> str:
 
 
 def _change(name: str, in_service: bool, by: str | None) -> None:
+    """As ``POST /team/NAME/out`` and ``/in`` do: the same checks and refusals."""
     who = actor(by)
-    admin_url = endpoint().amqp_url
 
-    async def work(repos: Repositories) -> None:
-        await change_service(repos.hazards, admin_url, name, in_service, who)
+    async def work(services: Services) -> None:
+        await services.team.set_in_service(name, in_service, who)
 
-    try:
-        run_with_repositories(settings(), work)
-    except TeamRefused as refused:
-        fail(str(refused))
-    except HazardServiceNotTold as error:
-        fail(str(error))
+    with_services(work, endpoint().amqp_url)
     console.print(f"{name} {'back in service' if in_service else 'out of service'} (by {who})")
 
 

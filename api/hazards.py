@@ -1,0 +1,36 @@
+"""A mission's open hazards as the command line shows them, each with why a held one waits (the
+hazard gate's rule, :func:`fleetbus.workers.team.why_held`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timezone
+
+from fleetbus.workers.store.base import EventStore
+from fleetbus.workers.store.hazards import DEFAULT_MISSION, CoordinationStore, Hazard, HazardState
+from fleetbus.workers.team import gate, last_seen_of, why_held
+
+__all__ = ["DEFAULT_MISSION", "Hazards", "OpenHazard"]
+
+
+@dataclass(frozen=True)
+class OpenHazard:
+    hazard: Hazard
+    held_because: str
+    """Why it is held; "" once announced."""
+
+
+class Hazards:
+    def __init__(self, hazards: CoordinationStore, events: EventStore) -> None:
+        self._hazards = hazards
+        self._events = events
+
+    async def open(self, mission: str) -> list[OpenHazard]:
+        """The mission's hazards not cleared yet, in the order detected; the team and when its
+        awaited wardens were last heard from are read only when one is held."""
+        found = await self._hazards.open_hazards(mission)
+        if not any(hazard.state is HazardState.HELD for hazard in found):
+            return [OpenHazard(hazard, "") for hazard in found]
+        state, now = gate(await self._hazards.robots()), datetime.now(timezone.utc)
+        seen = await last_seen_of(self._events, state.waiting_for)
+        return [OpenHazard(hazard, why_held(hazard, state, seen, now)) for hazard in found]

@@ -1,0 +1,57 @@
+"""The application services for a process without an HTTP API of its own (the command line): the
+services the routes and the console use, on the settings' store, opened for one operation."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fleetbus.api.beacons import Beacons
+from fleetbus.api.hazard_steps import HazardSteps
+from fleetbus.api.hazards import Hazards
+from fleetbus.api.maps import Maps
+from fleetbus.api.team import Team, team_for
+from fleetbus.settings import Settings
+from fleetbus.workers.store import Repositories, open_repositories
+
+
+class Services:
+    """Each service built when first asked for, on one set of repositories."""
+
+    def __init__(self, settings: Settings, repositories: Repositories, admin_url: str | None) -> None:
+        self._settings = settings
+        self._repos = repositories
+        self._admin_url = admin_url
+
+    def _broker(self) -> str:
+        if self._admin_url is None:
+            raise RuntimeError("the services were opened without a broker: open them with its admin_url")
+        return self._admin_url
+
+    @property
+    def team(self) -> Team:
+        return team_for(self._settings, self._repos.hazards, self._repos.events, self._admin_url)
+
+    @property
+    def hazards(self) -> Hazards:
+        return Hazards(self._repos.hazards, self._repos.events)
+
+    @property
+    def hazard_steps(self) -> HazardSteps:
+        return HazardSteps(self._repos.hazards, self._repos.channels, self._broker())
+
+    @property
+    def beacons(self) -> Beacons:
+        return Beacons(self._repos.beacons, self._repos.events)
+
+    @property
+    def maps(self) -> Maps:
+        return Maps(self._repos.maps)
+
+
+@asynccontextmanager
+async def open_services(settings: Settings, admin_url: str | None = None) -> AsyncIterator[Services]:
+    """The services on the settings' store; ``admin_url``: the administrator's broker, which the
+    changes that tell the robots or the hazard service need (none to only read)."""
+    async with open_repositories(settings) as repositories:
+        yield Services(settings, repositories, admin_url)
