@@ -116,6 +116,8 @@ class SiteRobots:
 class SiteAdded(SiteRobots):
     public_url: str = ""
     """The site's login at central's public address: what its operator is handed, once."""
+    internal_url: str = ""
+    """The same login as this service reaches central's broker."""
 
 
 @dataclass(frozen=True)
@@ -572,7 +574,7 @@ class Accounts:
         assigned = await self._assign_site(site, robots)
         log.info("site %s %s by %s", site, "re-keyed" if rotate else "made", by)
         public = as_public(account.amqp_url, self._public_url)
-        return SiteAdded(assigned.robots, assigned.sent, assigned.removed, public)
+        return SiteAdded(assigned.robots, assigned.sent, assigned.removed, public, account.amqp_url)
 
     async def change_site_robots(
         self, site: str, add: Collection[str], remove: Collection[str], by: str
