@@ -228,12 +228,14 @@ class AccountCheck:
         if not extra:
             return []
         assert report is not None
+        held = [report.in_use[name] for name in extra if name in (report.in_use or {})]
+        refused = f"; it refuses to remove them while they are in use: {'; '.join(held)}" if held else ""
         return [
             Drift(
                 "site",
                 site,
                 f"site {site} keeps the accounts of {', '.join(extra)}, which are not its robots "
-                f"(its report of {report.at:%Y-%m-%d %H:%M:%S} UTC)",
+                f"(its report of {report.at:%Y-%m-%d %H:%M:%S} UTC){refused}",
                 "tell the site to remove them",
             )
         ]

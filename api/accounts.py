@@ -43,15 +43,17 @@ from fleetbus.broker.certificates import CertificateError, TlsFiles
 from fleetbus.broker.fleet import NewRobot, provision_robots
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
-from fleetbus.broker.sites import add_site_account, grant_site_robots
+from fleetbus.broker.sites import add_site_account, central_site_topology, grant_site_robots
 from fleetbus.broker.team_changes import HazardServiceNotTold
+from fleetbus.broker.topology import declare_with_url
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
-from fleetbus.schemas.site_changes import RobotAccount
+from fleetbus.schemas.site_changes import RobotAccount, RobotRoster
 from fleetbus.schemas.use_cases import USE_CASES
 from fleetbus.settings import Settings
-from fleetbus.workers.sites import send_removals, set_site_robots
+from fleetbus.workers.account_use import in_use
+from fleetbus.workers.sites import robot_accounts, send_removals, send_to_sites, set_site_robots
 from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.sites import SiteRegistry
@@ -114,6 +116,8 @@ class SiteRobots:
 class SiteAdded(SiteRobots):
     public_url: str = ""
     """The site's login at central's public address: what its operator is handed, once."""
+    internal_url: str = ""
+    """The same login as this service reaches central's broker."""
 
 
 @dataclass(frozen=True)
@@ -478,10 +482,8 @@ class Accounts:
         recorded = await self._users.get_user(name)
         if recorded is None and await asyncio.to_thread(self._management.get_user, name) is None:
             raise NotFound(f"no user {name!r}")
-        mounts = await self._channels.mounts(operator=name) + await self._channels.mounts(robot=name)
-        if mounts or await self._channels.check_ins(operator=name):
-            held = ", ".join(f"{m.robot} mounted by {m.operator} for {m.mission_id}" for m in mounts)
-            raise Conflict(f"{name} is in use ({held or 'checked in'}); unmount and check out first")
+        if problem := await in_use(self._channels, name):
+            raise Conflict(problem)
         await self._check_revocable(name)
         await asyncio.to_thread(delete_account, self._admin_url, self._management, name)
         await self._users.remove_user(name)
@@ -572,7 +574,7 @@ class Accounts:
         assigned = await self._assign_site(site, robots)
         log.info("site %s %s by %s", site, "re-keyed" if rotate else "made", by)
         public = as_public(account.amqp_url, self._public_url)
-        return SiteAdded(assigned.robots, assigned.sent, assigned.removed, public)
+        return SiteAdded(assigned.robots, assigned.sent, assigned.removed, public, account.amqp_url)
 
     async def change_site_robots(
         self, site: str, add: Collection[str], remove: Collection[str], by: str
@@ -586,6 +588,27 @@ class Accounts:
         changed = await self._assign_site(site, (set(known[site]) | set(add)) - set(remove))
         log.info("site %s: robots %s, by %s", site, ", ".join(changed.robots) or "none", by)
         return changed
+
+    async def sync_site(self, site: str) -> SiteRobots:
+        """Declare central's side of ``site``'s links again, and send the site every one of its
+        robots' accounts as central has them, then the list of its robots: the site removes its
+        copies of the accounts central gave it that are not on it (robots removed at central or
+        taken from the site, whose removal it missed), so a sync with nothing changed changes
+        nothing there."""
+        known = await self._site_registry().sites()
+        if site not in known:
+            raise NotFound(f"no site {site!r}; make it with `fleetbus sites add {site}`")
+        robots = tuple(sorted(known[site]))
+        accounts = await robot_accounts(self._team, self._management, robots)
+        try:  # what central takes from the site and sends it (an older fleetbus's site lacks some)
+            await declare_with_url(self._admin_url, [central_site_topology(site, self._cluster)])
+            await asyncio.to_thread(
+                send_to_sites, self._admin_url, [site], [*accounts, RobotRoster(names=list(robots))]
+            )
+        except (AMQPError, OSError) as error:
+            raise Unavailable(f"central's broker did not take site {site}'s accounts: {error}") from error
+        log.info("site %s sent its robots' accounts and list: %s", site, ", ".join(robots) or "none")
+        return SiteRobots(robots, accounts, [])
 
     async def login(self, name: str, password: str, origin: Origin) -> Login:
         """Check the password and begin a session seen from ``origin``."""

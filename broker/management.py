@@ -202,7 +202,12 @@ class ManagementAPI:
     # shovels (the rabbitmq_shovel plugin's runtime parameters; their status needs
     # rabbitmq_shovel_management)
     def put_shovel(self, vhost: str, name: str, definition: dict[str, Any]) -> None:
-        """Create or replace the dynamic shovel ``name`` (RabbitMQ restarts it with the new definition)."""
+        """Create or replace the dynamic shovel ``name``, started with ``definition``. One that
+        exists is deleted first: RabbitMQ 3.10 replacing a running shovel's definition in place
+        can keep the old one running, its new definition stored but not started, for as long as
+        the old one's connections stay open."""
+        if self.get_shovel(vhost, name) is not None:
+            self.delete_shovel(vhost, name)
         self._request("PUT", f"parameters/shovel/{_q(vhost)}/{_q(name)}", json={"value": definition})
 
     def get_shovel(self, vhost: str, name: str) -> dict[str, Any] | None:

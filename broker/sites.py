@@ -87,7 +87,7 @@ from fleetbus.schemas.routing import (
 
 #: The downlink's kinds of change (:mod:`fleetbus.schemas.site_changes`): small ones in one queue,
 #: maps in another, each with its shovel.
-DOWNLINK_KINDS = ("account", "account_removed", "mission")
+DOWNLINK_KINDS = ("account", "account_removed", "robots", "mission")
 MAP_KINDS = ("map", "map_chunk")
 #: The tag that lets a site's account publish its robots' events with their own ``user_id``.
 SITE_TAGS = "impersonator"

@@ -1,5 +1,5 @@
 """What central sends a site over its downlink: the accounts of the site's robots (and the removal
-of those it no longer has), and the
+of those it no longer has, one by one or as the whole list of its robots), and the
 team's missions as central's store has them, and each new map central stores that a robot of
 another site (or of central) made. A map larger than one chunk (``MAP_CHUNK_BYTES``) travels as
 its chunks (:class:`MapChunk`) followed by its :class:`MapChange`, so no message comes near the
@@ -42,6 +42,18 @@ class RobotAccountRemoved(BaseModel):
 
     change: Literal["account_removed"] = "account_removed"
     name: str
+
+
+class RobotRoster(BaseModel):
+    """Every robot of the site, as central's registry has them (``fleetbus sites sync`` sends it
+    after their accounts): the site removes its copies of the accounts central gave it (the robots
+    whose events it forwards) that are not named, as it removes one :class:`RobotAccountRemoved`
+    names. Robots made at the site alone are not central's to remove."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    change: Literal["robots"] = "robots"
+    names: list[str]
 
 
 class MissionChange(BaseModel):
@@ -102,9 +114,10 @@ class MapChange(BaseModel):
 
 
 SiteChange = Annotated[
-    RobotAccount | RobotAccountRemoved | MissionChange | MapChunk | MapChange, Field(discriminator="change")
+    RobotAccount | RobotAccountRemoved | RobotRoster | MissionChange | MapChunk | MapChange,
+    Field(discriminator="change"),
 ]
-AnySiteChange = RobotAccount | RobotAccountRemoved | MissionChange | MapChunk | MapChange
+AnySiteChange = RobotAccount | RobotAccountRemoved | RobotRoster | MissionChange | MapChunk | MapChange
 _SITE_CHANGE: TypeAdapter[AnySiteChange] = TypeAdapter(SiteChange)
 
 

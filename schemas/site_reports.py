@@ -51,3 +51,6 @@ class SiteReport(BaseModel):
     """The robots whose accounts the site has (those in its team or whose events it forwards,
     with an account on its broker), sorted: central finds copies the site should no longer
     have. None from an older site."""
+    in_use: dict[str, str] | None = None
+    """Of ``accounts``, those in use at the site (a robot mounted there), with why: a copy central
+    asked the site to remove stays while it is. None from an older site."""

@@ -3,15 +3,18 @@
 Each robot account is made here with central's password hash (so the robot's central password
 works at its site), granted and given its topology as ``fleetbus users add`` would, entered in the
 team with its kind, and its events bound into the uplink (forwarded to central); a robot the site
-no longer has loses its account here, its forwarding and its place in the team. Each mission is
-written into the site's missions as central has it, unless the site already has that version or a
-newer one. Each map is stored as a new version of the site's maps (once per map event), so the
-site's map service hands it to the site's robots; a large map's chunks are kept in the site's
-store until the change that names them commits them. A message is acked once applied; applying one
-again changes nothing. A message that is no change this version knows (or a map whose image is
-not what its checksum says) is moved, unchanged, to ``fleetbus.downlink.rejected`` (confirmed
-there before it leaves the downlink): ``fleetbus site status`` counts it. Run as the site's
-administrator (``fleetbus site apply``): the workers' account may not make users."""
+no longer has loses its account here, its forwarding and its place in the team (the list of the
+site's robots that ``fleetbus sites sync`` sends removes every copy central gave that it does not
+name), unless it is in use at the site (mounted). Each mission is written into the site's missions
+as central has it, unless the site already has that version or a newer one. Each map is stored as
+a new version of the site's maps (once per map event), so the site's map service hands it to the
+site's robots; a large map's chunks are kept in the site's store until the change that names them
+commits them. A message is acked once applied; applying one again changes nothing. A message that
+is no change this version knows (or a map whose image is not what its checksum says, or the
+removal of an account in use at the site) is moved, unchanged, to ``fleetbus.downlink.rejected``
+with the reason (confirmed there before it leaves the downlink): ``fleetbus site status`` counts
+it. Run as the site's administrator (``fleetbus site apply``): the workers' account may not make
+users."""
 
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ from pydantic import ValidationError
 
 from fleetbus.broker.accounts import Role, configure_account, delete_account, vhost_of
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.sites import forward_robot, stop_forwarding
+from fleetbus.broker.sites import forward_robot, forwarded_robots, stop_forwarding
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
@@ -40,9 +43,11 @@ from fleetbus.schemas.site_changes import (
     MissionChange,
     RobotAccount,
     RobotAccountRemoved,
+    RobotRoster,
     parse_site_change,
 )
 from fleetbus.settings import Settings
+from fleetbus.workers.account_use import in_use
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.team import leave_team
@@ -63,11 +68,19 @@ def apply_account(settings: Settings, admin_url: str, api: ManagementAPI, accoun
     log.info("account %s (%s) applied from central", account.name, kind or "no kind")
 
 
+class RemovalRefused(ValueError):
+    """Central asked the site to remove a robot's account that is in use at the site."""
+
+
 def remove_account(settings: Settings, admin_url: str, api: ManagementAPI, name: str) -> None:
     """Remove the site's copy of a robot's account (central removed the robot, or took it from
     this site): it no longer logs in here, its events are no longer forwarded, and it leaves the
     site's team (a warden's leaving is told to the site's hazard service). Its exchange and inbox
-    stay, with whatever they hold. Removing one the site does not have changes nothing."""
+    stay, with whatever they hold. Removing one the site does not have changes nothing. Refused
+    (:class:`RemovalRefused`, nothing changed) while the robot is in use at the site, as central
+    refuses to remove one in use there."""
+    if problem := run_with_repositories(settings, lambda repos: in_use(repos.channels, name)):
+        raise RemovalRefused(f"the site keeps the account of {name}, which central removed: {problem}")
     stop_forwarding(api, vhost_of(admin_url), name)
     delete_account(admin_url, api, name)
     try:
@@ -75,6 +88,23 @@ def remove_account(settings: Settings, admin_url: str, api: ManagementAPI, name:
     except HazardServiceNotTold as error:  # the team has changed: the gate learns it at its next start
         log.warning("account %s removed as central asked, but %s", name, error)
     log.info("account %s removed as central asked", name)
+
+
+def apply_roster(settings: Settings, admin_url: str, api: ManagementAPI, roster: RobotRoster) -> list[str]:
+    """Remove the site's copies of the accounts central gave it (the robots whose events it
+    forwards) that are not on central's list of the site's robots; the robots removed. Those in
+    use stay, and :class:`RemovalRefused` names them once the others are removed."""
+    removed, refused = [], []
+    for name in sorted(forwarded_robots(api, vhost_of(admin_url)) - set(roster.names)):
+        try:
+            remove_account(settings, admin_url, api, name)
+        except RemovalRefused as refusal:
+            refused.append(str(refusal))
+        else:
+            removed.append(name)
+    if refused:
+        raise RemovalRefused("; ".join(refused))
+    return removed
 
 
 def apply_mission(settings: Settings, change: MissionChange) -> bool:
@@ -180,6 +210,10 @@ def apply_downlink(
                     apply_map_chunk(settings, change)
                 elif isinstance(change, MapChange):
                     apply_map(settings, change)
+                elif isinstance(change, RobotAccountRemoved):
+                    remove_account(settings, admin_url, api, change.name)
+                elif isinstance(change, RobotRoster):
+                    apply_roster(settings, admin_url, api, change)
             except (ValidationError, ValueError) as error:
                 log.error(
                     "a downlink message that cannot be applied, moved to %s: %s",
@@ -190,8 +224,6 @@ def apply_downlink(
             else:
                 if isinstance(change, RobotAccount):
                     apply_account(settings, admin_url, api, change)
-                elif isinstance(change, RobotAccountRemoved):
-                    remove_account(settings, admin_url, api, change.name)
                 elif isinstance(change, MissionChange):
                     apply_mission(settings, change)
                 applied += 1

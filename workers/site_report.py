@@ -6,7 +6,7 @@ the last one it got, with its age."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from datetime import datetime, timezone
 
 import pika
@@ -16,14 +16,22 @@ from fleetbus.broker.sites import forwarded_robots
 from fleetbus.broker.tls import pika_parameters
 from fleetbus.schemas.routing import site_status_exchange
 from fleetbus.schemas.site_reports import SITE_REPORT_TYPE, SiteReport
+from fleetbus.workers.account_use import in_use
 from fleetbus.workers.site_status import site_view
+from fleetbus.workers.store import Repositories
 
 log = logging.getLogger("fleetbus.sites")
 
 
-def site_report(api: ManagementAPI, vhost: str, site: str, team: Collection[str] = ()) -> SiteReport:
+def site_report(
+    api: ManagementAPI,
+    vhost: str,
+    site: str,
+    team: Collection[str] = (),
+    in_use: Mapping[str, str] | None = None,
+) -> SiteReport:
     """The site's links now, as ``fleetbus site status`` shows them, and the robots' accounts it
-    has (``team``: the robots of the site's team)."""
+    has (``team``: the robots of the site's team; ``in_use``: those in use at the site, with why)."""
     link = site_view(api, vhost, team)
     robots = forwarded_robots(api, vhost) | set(team)
     accounts = sorted(robots & {user["name"] for user in api.list_users()})
@@ -38,7 +46,15 @@ def site_report(api: ManagementAPI, vhost: str, site: str, team: Collection[str]
         hazard_states_waiting=link.hazard_states_waiting,
         hazard_uplink=link.hazard_uplink.state if link.hazard_uplink else None,
         accounts=accounts,
+        in_use={name: why for name, why in (in_use or {}).items() if name in accounts},
     )
+
+
+async def team_in_use(repos: Repositories) -> tuple[list[str], dict[str, str]]:
+    """The robots of the site's team, and those of them in use at the site (with why)."""
+    team = [robot.name for robot in await repos.hazards.robots()]
+    held = {name: why for name in team if (why := await in_use(repos.channels, name))}
+    return team, held
 
 
 def send_report(central_url: str, report: SiteReport) -> None:
@@ -59,10 +75,15 @@ def send_report(central_url: str, report: SiteReport) -> None:
 
 
 def report_to_central(
-    api: ManagementAPI, vhost: str, site: str, central_url: str, team: Collection[str] = ()
+    api: ManagementAPI,
+    vhost: str,
+    site: str,
+    central_url: str,
+    team: Collection[str] = (),
+    in_use: Mapping[str, str] | None = None,
 ) -> bool:
     """Measure and send one report; False (logged, without the URL's password) when it could not go."""
-    report = site_report(api, vhost, site, team)
+    report = site_report(api, vhost, site, team, in_use)
     try:
         send_report(central_url, report)
     except Exception as error:  # the link is down: the next report tries again

@@ -9,22 +9,22 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
-from urllib.parse import urlencode, urlsplit, urlunsplit
+from urllib.parse import unquote, urlencode, urlsplit, urlunsplit
 
-from fleetbus.broker.accounts import Account, Role
+from fleetbus.broker.accounts import Account, Role, url_for
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.sites import add_site_account, forward_robot, start_site_links, stop_site_links
+from fleetbus.broker.sites import start_site_links, stop_site_links
 from fleetbus.broker.uplink import CLASSES, bounds_of
 from fleetbus.dev.local_node import LocalNode
-from fleetbus.schemas.routing import UPLINK_SHOVEL, RobotKind
-from fleetbus.workers.sites import assign_robots
-from fleetbus.workers.store import Repositories, open_repositories
+from fleetbus.schemas.routing import DOWNLINK_QUEUE, UPLINK_SHOVEL, RobotKind
+from fleetbus.workers.downlink import apply_downlink
+from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.sites import Forward
 from tests.link import NetworkLink
 from tests.run_tls import plain_endpoint
-from tests.support import Bus, fresh_bus
+from tests.support import Bus, fresh_bus, wait_for
 
 T = TypeVar("T")
 
@@ -42,14 +42,14 @@ class SitePair:
     robots: list[str] = field(default_factory=list)
 
     async def join(self) -> None:
-        """Central makes the site's account; the site starts its links through :attr:`link`."""
-        central = self.central
-        self.account = await add_site_account(central.admin_url, central.api, self.name, rotate=True)
+        """Central makes the site's account (through the accounts service, as `fleetbus sites add`
+        does); the site starts its links through :attr:`link`."""
         self.central.accounts.append(self.name)
-        async with open_repositories(central.settings) as repositories:
-            await assign_robots(
-                repositories.sites, repositories.hazards, central.api, central.admin_url, self.name, ()
-            )
+        added = await asyncio.to_thread(
+            self.central.with_accounts,
+            lambda accounts: accounts.add_site(self.name, (), "tests", rotate=True),
+        )
+        self.account = Account(self.name, Role.SERVICE, added.internal_url)
         await self.start_links()
 
     @property
@@ -81,19 +81,20 @@ class SitePair:
         stop_site_links(self.site.api, self.site.vhost)
 
     def add_robot(self, name: str, kind: RobotKind) -> Account:
-        """A robot of the site: registered at central (and assigned to the site), and at the site,
-        where it connects and its events are forwarded. Returns its site account."""
-        self.central.add(name, Role.ROBOT, kind)
+        """A robot of the site, as in the field: registered at central and given to the site
+        (through the accounts service, as `fleetbus users add` and `fleetbus sites robots --add`
+        do), its account made at the site from the downlink (as `fleetbus site apply` does), where
+        it connects with central's password and its events are forwarded. Returns its site account."""
+        central_account = self.central.add(name, Role.ROBOT, kind)
         self.robots.append(name)
-        central = self.central
-        self.central_store(
-            lambda repos: assign_robots(
-                repos.sites, repos.hazards, central.api, central.admin_url, self.name, self.robots
-            )
+        self.site.accounts.append(name)
+        self.central.with_accounts(
+            lambda accounts: accounts.change_site_robots(self.name, [name], (), "tests")
         )
-        account = self.site.add(name, Role.ROBOT, kind)
-        forward_robot(self.site.api, self.site.vhost, name)  # as `fleetbus site apply` does
-        return account
+        wait_for(lambda: self.site.ready_messages(DOWNLINK_QUEUE) == 1, what=f"{name}'s account, down")
+        assert apply_downlink(self.site.settings, self.site.admin_url, self.site.api, idle_s=0.1) == 1
+        password = unquote(urlsplit(central_account.amqp_url).password or "")
+        return Account(name, Role.ROBOT, url_for(self.site.admin_url, name, password))
 
     def central_store(self, operation: Callable[[Repositories], Awaitable[T]]) -> T:
         return self.central.with_store(operation)

@@ -1,16 +1,19 @@
 """Central's accounts reach the site: a robot registered centrally logs in to its site with the
-password central gave it, and works there; removed at central, it is removed at the site, and
-central's registry check reports the site's copy until then."""
+password central gave it, and works there; removed at central, it is removed at the site (a removal
+the site missed, by the next `fleetbus sites sync`, unless the robot is in use there), and central's
+registry check reports the site's copy until then."""
 
 from __future__ import annotations
 
 import json
+from datetime import datetime, timezone
 from urllib.parse import unquote, urlsplit
 
 from fleetbus.broker.accounts import Account, Role, url_for
 from fleetbus.broker.sites import forwarded_robots
-from fleetbus.schemas.routing import DOWNLINK_QUEUE, RobotKind
-from fleetbus.workers.site_report import report_to_central
+from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, RobotKind
+from fleetbus.workers.downlink import apply_downlink
+from fleetbus.workers.site_report import report_to_central, team_in_use
 from tests.commands import fleetbus as run
 from tests.sites.pair import SitePair
 from tests.support import wait_for
@@ -43,33 +46,96 @@ def test_a_robot_registered_centrally_works_at_its_site(pair: SitePair) -> None:
 
 def _report(pair: SitePair) -> None:
     """The site's report to central, as `fleetbus site apply --name` sends it."""
-    team = [robot.name for robot in pair.site.with_store(lambda store: store.hazards.robots())]
-    assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url, team)
+    team, held = pair.site.with_store(team_in_use)
+    assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url, team, held)
+
+
+def _apply(pair: SitePair, waiting: int) -> int:
+    """What `fleetbus site apply --once` does, in this process, once ``waiting`` messages are down."""
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == waiting, what="the changes down the link")
+    applied = apply_downlink(pair.site.settings, pair.site.admin_url, pair.site.api, idle_s=0.2)
+    assert pair.site.ready_messages(DOWNLINK_QUEUE) == 0
+    return applied
+
+
+def _copies(pair: SitePair) -> tuple[object, ...]:
+    """The robots' accounts at the site, as they derive from central's: broker accounts (with
+    their password hashes and permissions), forwarding, team."""
+    api, vhost = pair.site.api, pair.site.vhost
+    team = pair.site.with_store(lambda store: store.hazards.robots())
+    names = {robot.name for robot in team} | forwarded_robots(api, vhost)
+    return (
+        sorted((u["name"], u["password_hash"], str(u["tags"])) for u in api.list_users()
+               if u["name"] in names),
+        sorted(str(p) for p in api.list_permissions(vhost) if p["user"] in names),
+        sorted(forwarded_robots(api, vhost)),
+        sorted((robot.name, robot.kind) for robot in team),
+    )
+
+
+def _site_drift(pair: SitePair) -> str:
+    check = run(pair.central, "users", "check", "--json")
+    assert check.returncode == 1, check.stdout
+    [drift] = json.loads(check.stdout)["drift"]
+    assert (drift["kind"], drift["name"]) == ("site", "base1")
+    return str(drift["problem"])
 
 
 def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> None:
     pair.central.add("guide5", kind=RobotKind.GUIDE)
-    pair.site.accounts.append("guide5")
-    assert run(pair.central, "sites", "robots", "base1", "--add", "guide5").returncode == 0
-    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 1, what="the account through the downlink")
+    pair.central.add("explorer5", kind=RobotKind.EXPLORER)
+    pair.site.accounts.extend(["guide5", "explorer5"])
+    assert run(pair.central, "sites", "robots", "base1", "--add", "guide5,explorer5").returncode == 0
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="the accounts through the downlink")
     assert run(pair.site, "site", "apply", "--once").returncode == 0
     _report(pair)
-    assert run(pair.central, "users", "check").returncode == 0, "the site has its own robot's copy"
+    assert run(pair.central, "users", "check").returncode == 0, "the site has its own robots' copies"
+
+    # a sync with nothing changed changes nothing at the site
+    before = _copies(pair)
+    synced = run(pair.central, "sites", "sync", "base1")
+    assert synced.returncode == 0, synced.stderr
+    assert "sent base1 the list of its robots: explorer5, guide5" in synced.stdout
+    assert _apply(pair, 3) == 3, "both accounts and the list"
+    assert _copies(pair) == before
+    assert pair.site.ready_messages(DOWNLINK_REJECTED_QUEUE) == 0
 
     removed = run(pair.central, "users", "remove", "guide5")
     assert removed.returncode == 0, removed.stderr
     wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 1, what="the removal through the downlink")
     _report(pair)  # before the site applied it: it still has the copy
-    check = run(pair.central, "users", "check", "--json")
-    assert check.returncode == 1, check.stdout
-    [drift] = json.loads(check.stdout)["drift"]
-    assert (drift["kind"], drift["name"]) == ("site", "base1")
-    assert "site base1 keeps the accounts of guide5, which are not its robots" in drift["problem"]
+    assert "site base1 keeps the accounts of guide5, which are not its robots" in _site_drift(pair)
 
     applied = run(pair.site, "site", "apply", "--once")
     assert applied.returncode == 0 and "applied 1 changes" in applied.stdout, applied.stdout
     assert pair.site.api.get_user("guide5") is None, "it no longer logs in at the site"
     assert "guide5" not in forwarded_robots(pair.site.api, pair.site.vhost)
+    assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == ["explorer5"]
+    _report(pair)
+    assert run(pair.central, "users", "check").returncode == 0
+
+    # a removal the site missed (lost on its way): the next sync removes the copy, but not while
+    # the robot is mounted at the site, which refuses and says why
+    now = datetime.now(timezone.utc)
+    pair.site.with_store(lambda store: store.channels.mount("explorer5", "operator5", "M-5", now))
+    assert run(pair.central, "users", "remove", "explorer5").returncode == 0
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 1, what="the removal through the downlink")
+    with pair.site.admin_channel() as channel:
+        channel.queue_purge(DOWNLINK_QUEUE)
+    pair.central.with_accounts(lambda accounts: accounts.sync_site("base1"))
+    assert _apply(pair, 1) == 0, "the list, refused"
+    assert pair.site.api.get_user("explorer5") is not None
+    assert pair.site.ready_messages(DOWNLINK_REJECTED_QUEUE) == 1, "kept aside, with the reason"
+    _report(pair)
+    problem = _site_drift(pair)
+    assert "site base1 keeps the accounts of explorer5" in problem
+    assert "explorer5 is in use (explorer5 mounted by operator5 for M-5)" in problem
+
+    pair.site.with_store(lambda store: store.channels.unmount("explorer5"))
+    pair.central.with_accounts(lambda accounts: accounts.sync_site("base1"))
+    assert _apply(pair, 1) == 1
+    assert pair.site.api.get_user("explorer5") is None
+    assert forwarded_robots(pair.site.api, pair.site.vhost) == set()
     assert pair.site.with_store(lambda store: store.hazards.robots()) == []
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0

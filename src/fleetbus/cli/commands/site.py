@@ -140,8 +140,8 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
         console.print(f"hazard states waiting for central: {link.hazard_states_waiting:,}", highlight=False)
     if link.rejected:
         console.print(
-            f"[red]downlink messages not understood: {link.rejected:,}[/] "
-            "(kept in fleetbus.downlink.rejected)",
+            f"[red]downlink messages not applied: {link.rejected:,}[/] "
+            "(kept in fleetbus.downlink.rejected, each with the reason in its x-fleetbus-rejected header)",
             highlight=False,
         )
     if link.not_forwarded:
@@ -164,7 +164,7 @@ def apply(
     in the uplink and how the links fare to central every FLEETBUS_SITE_REPORT_EVERY_S (`fleetbus
     sites` there shows it)."""
     from fleetbus.workers.downlink import apply_downlink
-    from fleetbus.workers.site_report import report_to_central
+    from fleetbus.workers.site_report import report_to_central, team_in_use
 
     config = settings()
     ep = endpoint()
@@ -174,8 +174,8 @@ def apply(
 
         def report() -> bool:
             assert site and central
-            team = run_with_repositories(config, lambda repos: repos.hazards.robots())
-            return report_to_central(api, vhost, site, central, [robot.name for robot in team])
+            team, held = run_with_repositories(config, team_in_use)
+            return report_to_central(api, vhost, site, central, team, held)
 
         tick = report if site and central else None
         if tick is None:

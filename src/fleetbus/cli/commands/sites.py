@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
-from collections.abc import Collection, Sequence
+from collections.abc import Sequence
 from datetime import datetime, timezone
 from typing import Annotated
 
@@ -12,17 +11,14 @@ import typer
 from rich.table import Table
 
 from fleetbus.broker.accounts import vhost_of
-from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.sites import central_site_topology
-from fleetbus.broker.topology import declare_with_url
 from fleetbus.cli.accounts import with_accounts
-from fleetbus.cli.context import actor, admin_api, console, endpoint, fail, settings
+from fleetbus.cli.context import actor, admin_api, console, endpoint, settings
 from fleetbus.schemas.site_changes import RobotAccount
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.site_report_collector import collect_site_reports
 from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import mission_changes, robot_accounts, send_to_sites
+from fleetbus.workers.sites import mission_changes, send_to_sites
 from fleetbus.workers.store import Repositories, run_with_repositories
 from fleetbus.workers.store.sites import SiteSummary
 
@@ -149,25 +145,22 @@ def robots_command(
 
 @app.command()
 def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
-    """Send the site every one of its robots' accounts and every mission again (after a re-key, to a
-    new site node, or when a change could not be sent); declare what central takes from the site
-    (its status and hazards exchanges: a site added by an older fleetbus gets the latter)."""
+    """Send the site every one of its robots' accounts, the list of its robots (the site removes
+    its copies of the accounts central gave it that are not on it: robots removed at central or
+    taken from the site) and every mission again (after a re-key, to a new site node, or when a
+    change could not be sent); declare what central takes from the site (its status and hazards
+    exchanges: a site added by an older fleetbus gets the latter)."""
     ep = endpoint()
-    known = run_with_repositories(settings(), lambda repos: repos.sites.sites())
-    if site not in known:
-        fail(f"no site {site!r}")
-    asyncio.run(declare_with_url(ep.amqp_url, [central_site_topology(site, settings().cluster)]))
-    with admin_api(ep) as api:
-        _send_accounts(api, ep.amqp_url, site, known[site])
-        missions = run_with_repositories(settings(), lambda repos: mission_changes(repos, site))
-        send_to_sites(ep.amqp_url, [site], missions)
+    synced = with_accounts(ep, lambda accounts, _repos, _api: accounts.sync_site(site))
+    _say_sent(site, synced.sent)
+    console.print(
+        f"sent {site} the list of its robots: {', '.join(synced.robots) or 'none'} (`fleetbus site "
+        "apply` removes its copies of the accounts of any other robot central gave it)",
+        highlight=False,
+    )
+    missions = run_with_repositories(settings(), lambda repos: mission_changes(repos, site))
+    send_to_sites(ep.amqp_url, [site], missions)
     console.print(f"sent {site} {len(missions)} missions", highlight=False)
-
-
-def _send_accounts(api: ManagementAPI, admin_url: str, site: str, robots: Collection[str]) -> None:
-    accounts = run_with_repositories(settings(), lambda repos: robot_accounts(repos.hazards, api, robots))
-    send_to_sites(admin_url, [site], accounts)
-    _say_sent(site, accounts)
 
 
 def _say_removed(site: str, robots: Sequence[str]) -> None:
