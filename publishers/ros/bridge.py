@@ -181,6 +181,9 @@ class Bridge:
         """What the running ROS side said of its own failure, before it ended."""
         self._stdin_lock = threading.Lock()
         self._process: subprocess.Popen[bytes] | None = None
+        self._latched: dict[str, dict[str, Any]] = {}
+        """The last message sent for each ROS topic (the ROS side latches them all): a new ROS
+        side is handed these first, so that a node subscribing after a restart gets them."""
         self._last_pose: dict[str, Any] | None = None
         self._schema_keys: dict[tuple[str, str], str] = {}
 
@@ -202,7 +205,9 @@ class Bridge:
             raise RosSideError(
                 f"cannot start the ROS side with {self.options.python!r} (FLEETBUS_ROS_PYTHON): {error}"
             ) from None
-        self._process, self._ended = process, ended
+        with self._stdin_lock:  # before any newer message, so that the newest stays latched
+            self._process, self._ended = process, ended
+            self._write_to_ros(process, list(self._latched.values()))
         threading.Thread(
             target=self._read, args=(process.stdout, started, ended), name="ros-reader", daemon=True
         ).start()
@@ -266,18 +271,25 @@ class Bridge:
             log.warning("the ROS master at %s does not answer (%s); next in %.1f s", uri, detail, retry_in)
 
     def send_to_ros(self, items: list[dict[str, Any]]) -> None:
-        process = self._process
-        if process is None or process.stdin is None:
+        with self._stdin_lock:
+            for item in items:
+                self._latched[item["topic"]] = item
+            if self._process is not None:
+                self._write_to_ros(self._process, items)
+
+    def _write_to_ros(self, process: subprocess.Popen[bytes], items: list[dict[str, Any]]) -> None:
+        """Under ``_stdin_lock``. What a ROS side that is gone did not get is counted; the newest
+        of each topic is still handed to the next one."""
+        if not items or process.stdin is None:
             return
         data = "".join(json.dumps(item) + "\n" for item in items).encode()
-        with self._stdin_lock:
-            try:
-                process.stdin.write(data)
-                process.stdin.flush()
-            except (BrokenPipeError, ValueError):
-                for item in items:  # a ROS side that restarts: counted, as every other drop
-                    self.counters.drop(item.get("topic") or "(publish)", DropReason.ROS_SIDE_GONE)
-                log.warning("the ROS side is gone: %d messages for ROS not published", len(items))
+        try:
+            process.stdin.write(data)
+            process.stdin.flush()
+        except (BrokenPipeError, ValueError):
+            for item in items:  # a ROS side that restarts: counted, as every other drop
+                self.counters.drop(item.get("topic") or "(publish)", DropReason.ROS_SIDE_GONE)
+            log.warning("the ROS side is gone: %d messages for ROS not published", len(items))
 
     # messages to events
     def events_of(self, item: dict[str, Any]) -> list[Item]:

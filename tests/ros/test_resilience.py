@@ -12,6 +12,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pika
+
+from fleetbus.broker.accounts import Role
+from fleetbus.broker.mounts import bind_all, mount_bindings
+from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.ros.bridge import ROS_SIDE
 from fleetbus.schemas.routing import RobotKind
 from tests.ros.conftest import ROS_PYTHON, RosMaster, ros_peer, running_bridge
@@ -33,11 +38,40 @@ def burst_recorded(bridge: object, master: RosMaster, topic: str) -> None:
         )
 
 
+def send_command(operator_url: str, body: dict[str, object]) -> None:
+    """The operator who mounted rosres1 sends it a command (the bridge latches it on /fleetbus/command)."""
+    connection = blocking_connection(operator_url)
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        properties = pika.BasicProperties(user_id="operres1")
+        data = json.dumps(body).encode()
+        channel.basic_publish("operres1.commands", "rosres1.say", data, properties, mandatory=True)
+    finally:
+        connection.close()
+
+
+def latched_command(master: RosMaster) -> object:
+    """What a ROS node that subscribes now gets on /fleetbus/command: the latched command's body."""
+    with ros_peer(master, "listen", "/fleetbus/command", "std_msgs/String") as listener:
+        line = json.loads(read_line(listener, '{"topic": "/fleetbus/command"', 30))
+    return json.loads(line["data"])["body"]
+
+
 def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master: RosMaster) -> None:
-    robot = bus.robot(bus.add("rosres1", kind=RobotKind.EXPLORER))
+    account = bus.add("rosres1", kind=RobotKind.EXPLORER)
+    robot = bus.robot(account)
+    operator = bus.add("operres1", Role.OPERATOR)
+    bind_all(bus.api, bus.vhost, mount_bindings("rosres1", "operres1"))  # what a mount does
     ros_master.stop()  # the bridge starts first
     with running_bridge(
-        robot, ros_master, bus.settings.robots_dir, node_up=False, retry_most_s=1.0, include=TOPICS
+        robot,
+        ros_master,
+        bus.settings.robots_dir,
+        commands_url=account.amqp_url,
+        node_up=False,
+        retry_most_s=1.0,
+        include=TOPICS,
     ) as bridge:
         master = wait_for(
             lambda: (m := bridge.counters.master)["state"] == "unreachable" and m["failures"] >= 2 and m,
@@ -53,12 +87,17 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
         ros_master.start()
         wait_for(lambda: bridge.counters.ros_side == "running", 30, "the node up once the master is")
         burst_recorded(bridge, ros_master, "/before")
+        send_command(operator.amqp_url, {"state": "first"})
+        assert latched_command(ros_master) == {"state": "first"}
 
         ros_master.stop()
         wait_for(lambda: bridge.counters.master["state"] == "unreachable", 30, "the master's loss seen")
         ros_master.start()
         wait_for(lambda: bridge.counters.master["restarts"] == 1, 30, "the restarted master seen")
         burst_recorded(bridge, ros_master, "/after")  # a new topic, on the new master
+        assert latched_command(ros_master) == {"state": "first"}, "a late subscriber gets the latched one"
+        send_command(operator.amqp_url, {"state": "current"})
+        assert latched_command(ros_master) == {"state": "current"}
         assert bridge.counters.snapshot()["topics"]["/after"]["dropped"] == {}
 
         # the ROS side killed, and unable to start for a while (its Python gone): restarted with
@@ -82,6 +121,8 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
         wait_for(lambda: bridge.counters.parts.snapshot()["ros-side"]["state"] == "running", 60, "restarted")
         assert bridge.counters.parts.snapshot()["ros-side"]["restarts"] == 1
         burst_recorded(bridge, ros_master, "/again")  # recording resumes
+        # the new ROS side latches what the last one had: a node subscribing now gets it
+        assert latched_command(ros_master) == {"state": "current"}
         bridge.report()
         status = fleetbus(bus, "ros", "status", "rosres1")
         assert status.returncode == 0, status.stdout + status.stderr
@@ -90,6 +131,7 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
             "ros-side": "running",
             "writer": "running",
             "notifications": "running",
+            "commands": "running",
         }
     assert bridge._process is not None and bridge._process.poll() is not None, "its ROS side ended with it"
 
