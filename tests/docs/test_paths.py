@@ -13,7 +13,7 @@ def named_in_rows(page: str) -> list[tuple[str, str]]:
     """(package folder, name) for each file or folder a ``| `package/` | ... |`` row names."""
     found = []
     for line in (ROOT / page).read_text().splitlines():
-        if match := re.match(r"\| `(\w+)/` \|(.*)", line):
+        if match := re.match(r"\| `([\w/]+)/` \|(.*)", line):
             found += [(match[1], name) for name in NAME.findall(match[2])]
     return found
 
