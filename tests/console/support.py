@@ -93,6 +93,10 @@ class Browser:
     def reset(self) -> None:
         self.driver.get("about:blank")
         self.driver.delete_all_cookies()
+        # what the last test's pages logged once its server was gone (a live page's stream trying
+        # to reconnect, until the blank page replaced it) is read and left out: each test's
+        # console-error checks see only its own pages
+        self.driver.get_log("browser")
 
     def go(self, url: str) -> None:
         self.driver.get(url)
