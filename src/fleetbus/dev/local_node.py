@@ -327,10 +327,13 @@ class LocalNode:
         ports.update(zip(missing, fresh, strict=False))
         ports = {name: ports[name] for name in PORT_NAMES}
         private_dir(self.base_dir)
+        self._save_ports(ports)
+        return ports
+
+    def _save_ports(self, ports: dict[str, int]) -> None:
         _write_if_changed(
             self.node_file, json.dumps({"node_name": self.node_name, "ports": ports}, indent=2) + "\n"
         )
-        return ports
 
     def admin_credentials(self, create: bool = False) -> tuple[str, str] | None:
         if self.admin_file.exists():
@@ -782,10 +785,7 @@ log.console = false
         old = self.ports()
         assert old is not None
         fresh = iter(port for port in choose_free_ports(len(PORT_NAMES) * 2) if port not in old.values())
-        ports = {name: (old[name] if name == "epmd" else next(fresh)) for name in PORT_NAMES}
-        _write_if_changed(
-            self.node_file, json.dumps({"node_name": self.node_name, "ports": ports}, indent=2) + "\n"
-        )
+        self._save_ports({name: (old[name] if name == "epmd" else next(fresh)) for name in PORT_NAMES})
 
     def heal_quorum_queues(self, deadline: float) -> int:
         """Elect a leader for every quorum queue that came back from a crash without one.
