@@ -16,6 +16,7 @@ from typing import Any
 from urllib.parse import urlencode
 
 import httpx
+import psutil
 
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
@@ -57,7 +58,21 @@ def rosbag_record(master: RosMaster, bag: Path, *topics: str) -> Iterator[None]:
     finally:
         os.killpg(recorder.pid, signal.SIGINT)
         recorder.wait(30)
+        # the ``rosbag`` wrapper exits on SIGINT at once; its ``record`` child closes the bag
+        # (renames ``.active``) after, so the bag is whole only once the whole group is gone
+        wait_for(lambda: not group_alive(recorder.pid), what="rosbag record to close its bag")
     assert bag.exists(), f"rosbag record wrote no {bag}"
+
+
+def group_alive(group: int) -> bool:
+    """Whether a process of ``group`` still runs (a zombie nobody reaped has closed its files)."""
+    for process in psutil.process_iter(["status"]):
+        try:
+            if os.getpgid(process.pid) == group and process.info["status"] != psutil.STATUS_ZOMBIE:
+                return True
+        except (ProcessLookupError, psutil.Error):
+            continue
+    return False
 
 
 def lines(result: subprocess.CompletedProcess[str]) -> list[dict[str, Any]]:
