@@ -45,12 +45,12 @@ from bench.scaling import Options, drain
 from fleetbus.broker.accounts import Role, fresh_vhost, provision_account
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from fleetbus.broker.urls import without_password
 from fleetbus.dev.cluster import LocalCluster
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import EXPRESS_QUEUE
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.setup import set_up_service

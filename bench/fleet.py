@@ -57,10 +57,10 @@ from bench.scenario import Context
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.settings import load_settings
 from tests.api.server import api_process
 from tests.support import Bus, wait_for

@@ -29,7 +29,7 @@ from bench.raw import declare_queue, ingest_queue_arguments
 from bench.results import percentile
 from bench.scenario import Context, Figures
 from bench.warden import WardenProcess
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import INGEST_QUEUE, RobotKind
 from tests.support import wait_for
 

@@ -38,8 +38,8 @@ from bench.results import percentile
 from bench.scenario import Context, Figures
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import EventType, RobotKind
 from tests.support import wait_for
 

@@ -18,7 +18,7 @@ import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
 from bench.profile import record
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE
 from tests.support import Bus, read_line, wait_for
 

@@ -22,8 +22,8 @@ from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
+from fleetbus.bounds import bounds
 from fleetbus.settings import load_settings
-from fleetbus.workers.bounds import bounds
 from fleetbus.workers.pruning import Pruner
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.repositories import EventLog

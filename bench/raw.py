@@ -15,9 +15,10 @@ import aio_pika
 import pika
 
 from bench.scenario import Context, Figures
-from fleetbus.broker.tls import aio_connect, blocking_connection
+from fleetbus.broker.tls import aio_connect
 from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.tls import blocking_connection
 
 RAW_QUEUE = "bench.raw"
 SIZE = 512

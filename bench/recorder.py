@@ -47,11 +47,11 @@ from bench.scenario import Context, Figures
 from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_account
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.urls import without_password
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RECORDER_QUEUE, events_exchange
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.setup import set_up_service

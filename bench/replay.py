@@ -25,7 +25,7 @@ from datetime import datetime, timedelta, timezone
 from bench.proc import rss_megabytes
 from bench.scenario import Context, Figures
 from bench.worker_memory import SAMPLE_EVERY, peak_megabytes
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.recordings import RecordedMessage
 from tests.factories import status

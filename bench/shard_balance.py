@@ -37,10 +37,10 @@ from bench.results import save
 from fleetbus.broker.accounts import fresh_vhost
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.fallback import resolve_broker
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import EventType
 from fleetbus.settings import load_settings
 

@@ -54,8 +54,8 @@ from bench.results import percentile, save
 from bench.scenario import Figures
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.local_node import LocalNode
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from tests.sites.pair import SitePair, open_pair
 from tests.support import wait_for

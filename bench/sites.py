@@ -39,11 +39,11 @@ from fleetbus.broker.accounts import Role, fresh_vhost, provision_account, url_f
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, forward_robot, local_uri, start_site_links
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.broker.uplink import CLASSES, UplinkBounds
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.dev.worker_thread import WorkerThread
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind, event_routing_key, events_exchange
 from fleetbus.settings import Settings, load_settings

@@ -25,10 +25,10 @@ from bench.proc import rss_megabytes
 from bench.processes import worker_process
 from bench.raw import WINDOW
 from bench.scenario import Context, Figures
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.client import outgoing
 from fleetbus.publishers.confirms import PipelinedConfirms
 from fleetbus.publishers.outbox import Entry
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch, parse_event
 from fleetbus.schemas.routing import INGEST_QUEUE, EventType
 from tests.support import Bus, wait_for

@@ -22,12 +22,12 @@ import pika
 import pika.exceptions
 
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
-from fleetbus.broker.addresses import address_count, map_addresses
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import assign_shard, unassign_shard
-from fleetbus.broker.tls import pika_parameter_list
 from fleetbus.broker.topology import account_topology, core_topology, declare_with_url
 from fleetbus.private_files import private_dir
+from fleetbus.publishers.addresses import address_count, map_addresses
+from fleetbus.publishers.tls import pika_parameter_list
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
     RECORDER_QUEUE,

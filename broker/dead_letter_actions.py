@@ -28,9 +28,9 @@ import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
 from fleetbus.broker.dead_letter_queue import DELIVERY_HEADERS, DeadLetter, describe, letter_id
-from fleetbus.broker.tls import blocking_connection, pika_parameter_list
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outcome, Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import CONNECTION_FAILED, PublisherError
+from fleetbus.publishers.tls import blocking_connection, pika_parameter_list
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 
 #: What the broker (or an earlier fleetbus) wrote on the letter about its refusal: not part of

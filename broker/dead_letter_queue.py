@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import pika
 
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RECORDER_QUEUE
 
 if TYPE_CHECKING:

@@ -10,9 +10,9 @@ from __future__ import annotations
 import pika
 import pika.exceptions
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublishRefused, PublishTimeout
+from fleetbus.publishers.tls import blocking_connection
 
 
 class NoSuchQueue(RuntimeError):

@@ -19,10 +19,10 @@ from typing import Literal
 from urllib.parse import unquote, urlsplit
 
 from fleetbus.broker.accounts import SERVICE_USER, kept_password, url_for
-from fleetbus.broker.addresses import join_addresses, split_addresses
 from fleetbus.broker.probe import NoAnswer, NotVerified, amqp_login, check_amqp_login, management_answers
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.urls import mask_password
+from fleetbus.publishers.addresses import join_addresses, split_addresses
 from fleetbus.publishers.errors import BrokerUnavailable
 from fleetbus.settings import Settings
 

@@ -15,8 +15,8 @@ from urllib.parse import quote, urlsplit
 
 import httpx
 
-from fleetbus.broker.addresses import split_addresses
 from fleetbus.broker.urls import masked_in_text
+from fleetbus.publishers.addresses import split_addresses
 
 
 class ManagementError(RuntimeError):
@@ -52,7 +52,7 @@ def _q(part: str) -> str:
 
 class ManagementAPI:
     """The management API of one broker, or of a cluster: ``base_url`` may list several nodes
-    (``http://h1:15672,h2:15672/``, as :mod:`fleetbus.broker.addresses` writes broker URLs). A
+    (``http://h1:15672,h2:15672/``, as :mod:`fleetbus.publishers.addresses` writes broker URLs). A
     request that cannot reach the node in use (refused, timed out) goes to the next one, and the
     client stays there; an answer, even a refusal, is the cluster's answer."""
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 from fleetbus.broker.uplink import CLASSES, DROP_OLDEST, REFUSE, UplinkBounds
+from fleetbus.limits import QueueLimit
 from fleetbus.schemas.routing import (
     BEACON_DISCARD_QUEUE,
     DEAD_LETTER_QUEUE,
@@ -55,22 +56,6 @@ WORKER_DELIVERY_LIMIT = 50
 #: A command lives 30 s (``COMMAND_TTL_MS``): taken this often in that time and never acknowledged,
 #: it is one its robot cannot handle.
 COMMAND_DELIVERY_LIMIT = 10
-
-
-@dataclass(frozen=True)
-class QueueLimit:
-    """A queue's length: the broker drops its oldest messages beyond either."""
-
-    messages: int | None = None
-    bytes: int | None = None
-
-    def describe(self) -> str:
-        parts = []
-        if self.messages is not None:
-            parts.append(f"{self.messages:,} messages")
-        if self.bytes is not None:
-            parts.append(f"{self.bytes / 1e9:g} GB" if self.bytes >= 1e9 else f"{self.bytes / 1e6:g} MB")
-        return " or ".join(parts)
 
 
 @dataclass(frozen=True)

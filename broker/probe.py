@@ -68,8 +68,8 @@ def check_amqp_login(url: str, timeout: float = 3.0) -> bool:
     import pika
     import pika.exceptions
 
-    from fleetbus.broker.tls import TlsSettingError, pika_parameter_list
     from fleetbus.publishers.errors import CONNECTION_FAILED
+    from fleetbus.publishers.tls import TlsSettingError, pika_parameter_list
 
     try:
         parameters = pika_parameter_list(

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.topics import topic_matches
+from fleetbus.schemas.topics import topic_matches
 
 UNREPORTED = "user not reported by the broker yet"
 

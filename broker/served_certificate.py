@@ -14,9 +14,9 @@ from urllib.parse import urlsplit
 
 from cryptography import x509
 
-from fleetbus.broker.addresses import first_address
 from fleetbus.broker.management import verification
-from fleetbus.broker.tls import client_context, split_tls
+from fleetbus.publishers.addresses import first_address
+from fleetbus.publishers.tls import client_context, split_tls
 
 DEFAULT_PORTS = {"amqps": 5671, "https": 443}
 

@@ -33,7 +33,6 @@ import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
 
-from fleetbus.broker.tls import pika_parameter_list
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outgoing
 from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublisherError, PublishRefused
@@ -43,6 +42,7 @@ from fleetbus.publishers.rpc import RpcChannel
 from fleetbus.publishers.sender import Sender
 from fleetbus.publishers.sequence import SequenceCounter
 from fleetbus.publishers.state_lock import StateLock
+from fleetbus.publishers.tls import pika_parameter_list
 from fleetbus.schemas.bodies import MapMetadata
 from fleetbus.schemas.envelope import EVENT_ADAPTER, Event, build_event, new_epoch, validate_body
 from fleetbus.schemas.identity import validate_name

@@ -27,13 +27,13 @@ from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.retry import retrying
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.uplink import CLASSES
 from fleetbus.broker.urls import without_password
 from fleetbus.dev.recorder_thread import RecorderThread
 from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.publishers.client import RobotClient, outbox_folder
 from fleetbus.publishers.outbox import Outbox
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.roles import UserRole

@@ -12,7 +12,7 @@ import threading
 import pika
 
 from fleetbus.broker.accounts import Role
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery

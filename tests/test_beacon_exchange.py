@@ -7,9 +7,9 @@ import pika
 import pika.exceptions
 import pytest
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.discards import Discard

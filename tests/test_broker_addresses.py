@@ -9,12 +9,13 @@ import socket
 import pytest
 
 from fleetbus.broker.accounts import url_for
-from fleetbus.broker.addresses import first_address, join_addresses, split_addresses
 from fleetbus.broker.endpoint import BrokerEndpoint, derive_management_url
 from fleetbus.broker.failover import FailoverConnection
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import aio_connect, aio_connect_robust, blocking_connection
+from fleetbus.broker.tls import aio_connect, aio_connect_robust
 from fleetbus.broker.urls import mask_password
+from fleetbus.publishers.addresses import first_address, join_addresses, split_addresses
+from fleetbus.publishers.tls import blocking_connection
 
 CLUSTER = "amqp://u:p%40w@10.0.0.1:5672,10.0.0.2:5673,node3/fleet?heartbeat=5"
 

@@ -8,8 +8,8 @@ import pytest
 
 from fleetbus.broker.accounts import can_login
 from fleetbus.broker.certificates import ClientFiles, issue_client_certificate
-from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.tls import split_tls, with_client_certificate
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from tests.factories import hazard

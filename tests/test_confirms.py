@@ -7,9 +7,9 @@ import time
 import pika
 import pytest
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers import confirms
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
+from fleetbus.publishers.tls import blocking_connection
 from tests.support import Bus
 
 SLICE = 60.0

@@ -19,7 +19,7 @@ from fleetbus.broker.dead_letter_actions import (
     requeue_dead_letter,
 )
 from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, INGEST_QUEUE, RobotKind
 from tests.support import Bus, wait_for
 

@@ -26,7 +26,7 @@ import pytest
 from fleetbus.broker.accounts import Account
 from fleetbus.broker.dead_letter_actions import discard_dead_letter
 from fleetbus.broker.policies import COMMAND_DELIVERY_LIMIT, WORKER_DELIVERY_LIMIT
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import (
     DEAD_LETTER_QUEUE,

@@ -20,8 +20,9 @@ import aio_pika.abc
 import pytest
 
 from fleetbus.broker.accounts import Role
-from fleetbus.broker.tls import aio_connect, blocking_connection
+from fleetbus.broker.tls import aio_connect
 from fleetbus.broker.topology import core_topology, declare_with_url
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.routing import (
     EXPRESS_QUEUE,

@@ -30,7 +30,7 @@ from fleetbus.broker.accounts import can_login
 from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_certificate, make_certificates
 from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.tls import TlsSettingError, aio_connect, blocking_connection, shovel_uri
+from fleetbus.broker.tls import aio_connect, shovel_uri
 from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
 from fleetbus.dev.local_node import (
     ADMIN_USER,
@@ -44,6 +44,7 @@ from fleetbus.dev.local_node import (
 )
 from fleetbus.dev.rabbitmq import mount_points
 from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.tls import TlsSettingError, blocking_connection
 from fleetbus.schemas.routing import EXPRESS_QUEUE, events_exchange
 from fleetbus.settings import Settings, load_settings
 from tests.factories import hazard

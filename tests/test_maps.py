@@ -12,8 +12,8 @@ import uuid
 import pika
 import yaml
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.maps import map_events
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.envelope import new_epoch
 from fleetbus.schemas.routing import RobotKind

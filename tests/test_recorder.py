@@ -15,13 +15,13 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.accounts import RECORDER_USER, url_for
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.limits import parse_retention
 from fleetbus.processes import pid_alive
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from fleetbus.workers.recorder.capture import refusal
 from fleetbus.workers.recorder.filters import RoutingFilter
 from fleetbus.workers.recorder.process import PARENT_ENV
-from fleetbus.workers.recorder.retention import parse_retention
 from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.base import WriteResult
 from fleetbus.workers.store.recordings import Condition, Op, RecordedMessage, RecordingStore

@@ -16,10 +16,10 @@ from itertools import pairwise
 
 import pytest
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import PublishRefused
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import INGEST_EXCHANGE, RobotKind
 from tests.factories import hazard, status
 from tests.link import NetworkLink

@@ -11,7 +11,7 @@ from typing import Any
 import pika
 import pytest
 
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.replay import schedule
 from fleetbus.workers.store import open_recording_store

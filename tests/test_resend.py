@@ -13,7 +13,7 @@ from typing import Any
 import pika
 
 from fleetbus.broker.accounts import Account
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import new_epoch
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery

@@ -18,10 +18,10 @@ import pytest
 
 from fleetbus.broker.accounts import Account, Role
 from fleetbus.broker.shards import read_shard_map
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable
 from fleetbus.publishers.rpc import ServiceRefused, ServiceTimeout
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import RobotKind, Topic, inbox_queue
 from fleetbus.workers.runner import EXPRESS_PREFETCH

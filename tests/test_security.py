@@ -9,9 +9,9 @@ import pika.exceptions
 import pytest
 import yaml
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from tests.support import Bus
 

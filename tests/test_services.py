@@ -12,8 +12,8 @@ import pika
 import pytest
 
 import fleetbus.workers.runner
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.rpc import ServiceFailed, ServiceRefused, ServiceTimeout
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind, request_routing_key, requests_exchange
 from fleetbus.schemas.services import REPLY_TO
 from tests.factories import hazard

@@ -11,7 +11,7 @@ import pytest
 from fleetbus.broker.accounts import Role, delete_account
 from fleetbus.broker.routes import RouteMap
 from fleetbus.broker.shards import Move, ShardMap, apply_move, read_shard_map, rebalance_plan
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import (
     EXPRESS_QUEUE,
     INGEST_EXCHANGE,

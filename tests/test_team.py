@@ -16,8 +16,8 @@ from urllib.parse import urlsplit
 import pytest
 
 from fleetbus.broker.accounts import Role
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.broker.topology import account_topology, declare_with_url
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind, inbox_queue
 from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN
 from tests.factories import hazard

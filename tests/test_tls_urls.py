@@ -11,14 +11,8 @@ import pika.credentials
 import pytest
 
 from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_certificate, make_certificates
-from fleetbus.broker.tls import (
-    TlsSettingError,
-    aio_pika_arguments,
-    pika_parameters,
-    shovel_uri,
-    split_tls,
-    with_client_certificate,
-)
+from fleetbus.broker.tls import aio_pika_arguments, shovel_uri
+from fleetbus.publishers.tls import TlsSettingError, pika_parameters, split_tls, with_client_certificate
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from fleetbus.broker.tls import blocking_connection
-from fleetbus.broker.topics import topic_matches
+from fleetbus.publishers.tls import blocking_connection
+from fleetbus.schemas.topics import topic_matches
 from tests.support import Bus
 
 
@@ -93,7 +93,7 @@ def test_the_matcher_routes_as_rabbitmq_does_on_every_pattern_and_key(bus: Bus) 
 
 @pytest.mark.parametrize(("pattern", "key"), [("x.#.#", "x"), ("a..b", "a..b"), ("#", ""), ("a.", "a.")])
 def test_the_tail_uses_the_one_matcher(pattern: str, key: str) -> None:
-    import fleetbus.publishers.tail
+    import fleetbus.broker.tail
 
-    assert fleetbus.publishers.tail.topic_matches is topic_matches
+    assert fleetbus.broker.tail.topic_matches is topic_matches
     assert topic_matches(pattern, key)

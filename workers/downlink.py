@@ -33,7 +33,7 @@ from fleetbus.broker.accounts import Role, configure_account, delete_account, vh
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import forward_robot, forwarded_robots, stop_forwarding
 from fleetbus.broker.team_changes import HazardServiceNotTold
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.publishers.tls import pika_parameters
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.pgm import check_pgm
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE

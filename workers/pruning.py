@@ -1,6 +1,6 @@
 """The worker's background pruning: the event log, the duplicates register, the beacon discards,
 map versions and staged map chunks, and the acknowledged alerts whose condition ended, each held to
-its bound (:mod:`fleetbus.workers.bounds`).
+its bound (:mod:`fleetbus.bounds`).
 
 A round runs every ``FLEETBUS_PRUNE_EVERY_S`` seconds, in one worker at a time (a lease in the
 store), as a task beside the consumers. It deletes in small batches, each its own short write,
@@ -21,9 +21,9 @@ import logging
 from collections.abc import Awaitable, Callable
 from datetime import datetime, timedelta, timezone
 
+from fleetbus.bounds import Bounds
+from fleetbus.limits import Retention, policy_for
 from fleetbus.schemas.routing import EventType
-from fleetbus.workers.bounds import Bounds
-from fleetbus.workers.recorder.retention import Retention, policy_for
 from fleetbus.workers.store.alerts import AlertStore
 from fleetbus.workers.store.base import StoreError
 from fleetbus.workers.store.housekeeping import Housekeeping

@@ -12,6 +12,7 @@ from typing import Protocol
 
 from aio_pika.abc import AbstractChannel, AbstractRobustConnection
 
+from fleetbus.bounds import bounds
 from fleetbus.broker.accounts import SERVICE_USER, ensure_service_account, vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
@@ -32,7 +33,6 @@ from fleetbus.settings import Settings
 from fleetbus.workers.attempts import AttemptLimit
 from fleetbus.workers.beacon_discards import DiscardCounter
 from fleetbus.workers.beacons import KnownRobotsOnly, beacon_services
-from fleetbus.workers.bounds import bounds
 from fleetbus.workers.coordination import GATED, HazardCoordinator, TeamChanges
 from fleetbus.workers.express import ExpressLane
 from fleetbus.workers.forwards import ForwardLog, SiteLocalOnly

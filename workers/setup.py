@@ -15,13 +15,13 @@ import asyncio
 import logging
 from dataclasses import dataclass
 
+from fleetbus.bounds import bounds
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.policies import apply_policies, bound_policies, delivery_policies
 from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
 from fleetbus.settings import Settings
-from fleetbus.workers.bounds import bounds
 from fleetbus.workers.recorder.runner import recorder_url
 from fleetbus.workers.runner import service_url
 

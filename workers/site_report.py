@@ -13,7 +13,7 @@ import pika
 
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import forwarded_robots
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.publishers.tls import pika_parameters
 from fleetbus.schemas.routing import site_status_exchange
 from fleetbus.schemas.site_reports import SITE_REPORT_TYPE, SiteReport
 from fleetbus.workers.account_use import in_use

@@ -14,7 +14,7 @@ import pika
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import grant_site_robots
-from fleetbus.broker.tls import pika_parameters
+from fleetbus.publishers.tls import pika_parameters
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import SITES_EXCHANGE, RobotKind, site_downlink_key
 from fleetbus.schemas.site_changes import (

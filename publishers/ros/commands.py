@@ -18,8 +18,8 @@ from typing import Any
 import pika
 import pika.exceptions
 
-from fleetbus.broker.tls import pika_parameters
 from fleetbus.publishers.errors import CONNECTION_FAILED
+from fleetbus.publishers.tls import pika_parameters
 from fleetbus.schemas.routing import commands_queue
 
 log = logging.getLogger("fleetbus.ros")

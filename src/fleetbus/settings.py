@@ -617,7 +617,7 @@ def load_settings(environ: Mapping[str, str] | None = None) -> Settings:
             )
     except ValidationError as error:
         raise ValueError(_explain(error)) from None
-    from fleetbus.workers.bounds import bounds  # the bounds' grammar lives with the rules that apply them
+    from fleetbus.bounds import bounds  # bounds reads Settings: imported here, not at the top
 
     bounds(settings)  # a bound that does not parse stops the process now, naming its variable
     return settings

@@ -14,7 +14,7 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.accounts import can_login
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.roles import UserRole
 from tests.api.support import PASSWORD, PROBLEM_JSON, Api, problem, refusal, running_api
 from tests.support import Bus

@@ -15,9 +15,9 @@ import pytest
 
 from fleetbus.broker.accounts import Account, Role
 from fleetbus.broker.mounts import QueueBinding, mount_bindings_on_broker
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind

@@ -11,8 +11,8 @@ import httpx
 import pytest
 from typer.testing import CliRunner
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.cli import app
+from fleetbus.publishers.tls import blocking_connection
 from tests.api.server import free_port, wait_until_serving
 from tests.support import Bus
 

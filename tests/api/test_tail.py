@@ -11,8 +11,8 @@ from datetime import datetime, timedelta, timezone
 from typer.testing import CliRunner
 
 from fleetbus.broker.accounts import Account, Role
+from fleetbus.broker.tail import Seen, follow
 from fleetbus.cli import app
-from fleetbus.publishers.tail import Seen, follow
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind

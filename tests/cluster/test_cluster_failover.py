@@ -16,9 +16,9 @@ from contextlib import contextmanager
 import pika
 import pika.exceptions
 
-from fleetbus.broker.addresses import join_addresses, split_addresses
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.dev.cluster import LocalCluster
+from fleetbus.publishers.addresses import join_addresses, split_addresses
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import EXPRESS_QUEUE
 from fleetbus.workers.store.base import EventQuery

@@ -10,8 +10,8 @@ import uuid
 
 import pytest
 
-from fleetbus.broker.addresses import join_addresses, split_addresses
 from fleetbus.broker.urls import without_password
+from fleetbus.publishers.addresses import join_addresses, split_addresses
 from fleetbus.workers.shards import share
 from tests.cluster.test_cluster_failover import drain_and_check, stop_worker
 from tests.support import Bus, Publishing, wait_for

@@ -11,7 +11,7 @@ import pika.exceptions
 import pytest
 
 from fleetbus.api.console.session import SESSION_COOKIE
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.missions import MissionPlan
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind

@@ -41,7 +41,7 @@ from urllib.parse import urlsplit
 
 import httpx
 
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.workers.store.base import EventQuery
 from tests.docs.checks import fleetbus_path, words
 from tests.docs.pages import ROOT, Command, Page

@@ -16,8 +16,8 @@ import pika
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.ros.bridge import ROS_SIDE
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from tests.ros.conftest import ROS_PYTHON, RosMaster, ros_peer, running_bridge
 from tests.support import Bus, read_line, wait_for

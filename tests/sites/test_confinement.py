@@ -10,7 +10,7 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.sites import add_site_account
-from fleetbus.broker.tls import blocking_connection
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind, site_downlink_queue
 from fleetbus.workers.sites import assign_robots

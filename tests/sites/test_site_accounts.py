@@ -9,9 +9,9 @@ from urllib.parse import urlsplit, urlunsplit
 import pytest
 
 from fleetbus.broker.accounts import save_secret
-from fleetbus.broker.addresses import join_addresses
 from fleetbus.broker.management import ManagementError
 from fleetbus.broker.sites import local_uri
+from fleetbus.publishers.addresses import join_addresses
 from fleetbus.schemas.routing import DOWNLINK_SHOVEL, UPLINK_SHOVEL, site_downlink_queue
 from tests.commands import Ran, fleetbus
 from tests.sites.pair import SitePair

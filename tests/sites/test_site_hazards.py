@@ -15,8 +15,8 @@ import pika.exceptions
 import pytest
 
 from fleetbus.broker.sites import add_site_account
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.publishers.rpc import ServiceRefused
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, new_epoch
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.roles import UserRole

@@ -21,6 +21,7 @@ import pika.exceptions
 from fleetbus.broker.dead_letter_queue import moved_letter_key
 from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
 from fleetbus.defaults import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
+from fleetbus.limits import Retention, parse_retention
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
 from fleetbus.workers.recorder.capture import (
@@ -32,7 +33,7 @@ from fleetbus.workers.recorder.capture import (
     capture,
 )
 from fleetbus.workers.recorder.filters import RoutingFilter
-from fleetbus.workers.recorder.retention import Retention, RetentionSweeper, parse_retention
+from fleetbus.workers.recorder.retention import RetentionSweeper
 from fleetbus.workers.recorder.ros_blobs import RosBlobs
 from fleetbus.workers.recorder.ros_derived import derived_records
 from fleetbus.workers.recorder.source import Delivery, RecorderQueue

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from fleetbus.broker.topics import topic_matches
+from fleetbus.schemas.topics import topic_matches
 
 
 @dataclass(frozen=True)

@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fleetbus.launch_pipe import exec_module, read_launch
+from fleetbus.limits import parse_retention, parse_ttl
 from fleetbus.workers.logs import configure_logging
 from fleetbus.workers.recorder.consumer import RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
-from fleetbus.workers.recorder.retention import parse_retention, parse_ttl
 from fleetbus.workers.recorder.runner import run_recorder
 
 if TYPE_CHECKING:

@@ -19,7 +19,6 @@ from datetime import datetime, timedelta
 from typing import Any, TypeVar
 
 from fleetbus.broker.routes import Route, RouteMap
-from fleetbus.broker.topics import topic_matches
 from fleetbus.schemas.ros import MESSAGE_FIELDS, ROS_SCHEMA_TYPE, ROS_TF_TYPE, ROS_TYPE
 from fleetbus.schemas.routing import (
     ANNOUNCED_TO_HEADER,
@@ -30,6 +29,7 @@ from fleetbus.schemas.routing import (
     inbox_queue,
     shard_of_queue,
 )
+from fleetbus.schemas.topics import topic_matches
 from fleetbus.workers.recorder.capture import COPIES, DEAD_LETTER, NOTIFICATION, refusal
 from fleetbus.workers.store.base import EventQuery, EventRecord, EventStore
 from fleetbus.workers.store.recordings import (

@@ -1,106 +1,18 @@
-"""Bounded recording: per type, keep records for a time, or up to a size or a number of them.
-
-Specs read like ``status=7d``, ``map_chunk=500MB``, ``tf=100000`` and ``*=1GB`` (any type with
-no spec of its own). Several specs for one type all apply. Sizes count the bodies as received;
-the database holds them with its own overhead (indexes, JSON text or BSON).
-"""
+"""Bounded recording: per type, keep records for a time, or up to a size or a number of them
+(the policies as :mod:`fleetbus.limits` reads them from specs like ``status=7d`` or ``*=1GB``)."""
 
 from __future__ import annotations
 
-import re
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, replace
-from datetime import datetime, timedelta, timezone
+from collections.abc import Mapping
+from datetime import datetime, timezone
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # the bounds' grammar is read by every process at start: no store imported for it
+from fleetbus.limits import Retention, policy_for
+
+if TYPE_CHECKING:
     from fleetbus.workers.store.recordings import RecordingStore
 
-ANY_TYPE = "*"
-AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
-SIZE_UNITS = {"B": 1, "KB": 1000, "MB": 1000**2, "GB": 1000**3, "KIB": 1024, "MIB": 1024**2, "GIB": 1024**3}
-SPEC = re.compile(r"^(?P<type>\*|[a-z][a-z0-9_]{0,39})=(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
-LIMIT = re.compile(r"^(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
 SWEEP_CHUNK = 1000
-
-
-@dataclass(frozen=True)
-class Retention:
-    max_age: timedelta | None = None
-    max_bytes: int | None = None
-    max_records: int | None = None
-
-    def merged(self, other: Retention) -> Retention:
-        return replace(
-            self,
-            max_age=other.max_age or self.max_age,
-            max_bytes=other.max_bytes or self.max_bytes,
-            max_records=other.max_records or self.max_records,
-        )
-
-    def describe(self) -> str:
-        parts = []
-        if self.max_age:
-            parts.append(_age(self.max_age))
-        if self.max_bytes:
-            parts.append(
-                f"{self.max_bytes / 1e9:g} GB" if self.max_bytes >= 1e9 else f"{self.max_bytes / 1e6:g} MB"
-            )
-        if self.max_records:
-            parts.append(f"{self.max_records} records")
-        return ", ".join(parts) or "everything"
-
-
-def _age(age: timedelta) -> str:
-    seconds = age.total_seconds()
-    for unit, size in sorted(AGE_UNITS.items(), key=lambda item: -item[1]):
-        if seconds >= size and seconds % size == 0:
-            return f"{seconds / size:g}{unit}"
-    return f"{seconds:g}s"
-
-
-def parse_retention(specs: Iterable[str]) -> dict[str, Retention]:
-    """``["status=7d", "*=1GB"]`` as policies by type; a spec that does not parse raises ValueError."""
-    policies: dict[str, Retention] = {}
-    for spec in specs:
-        match = SPEC.fullmatch(spec.strip())
-        if not match:
-            raise ValueError(
-                f"retention {spec!r}: write TYPE=LIMIT with LIMIT an age (30s, 10m, 12h, 7d), a size "
-                "(500KB, 200MB, 1GB) or a number of records; TYPE may be * for every other type"
-            )
-        policy = parse_limit(f"{match['amount']}{match['unit']}", what=f"retention {spec!r}")
-        policies[match["type"]] = policies.get(match["type"], Retention()).merged(policy)
-    return policies
-
-
-def parse_limit(text: str, what: str = "limit") -> Retention:
-    """One limit without a type: an age (``30d``), a size (``1GB``) or a number of records (``100000``)."""
-    match = LIMIT.fullmatch(text.strip())
-    if not match:
-        raise ValueError(
-            f"{what}: write an age (30s, 10m, 12h, 7d), a size (500KB, 1GB) or a number, not {text!r}"
-        )
-    amount, unit = float(match["amount"]), match["unit"]
-    if unit in AGE_UNITS:
-        return Retention(max_age=timedelta(seconds=amount * AGE_UNITS[unit]))
-    if unit.upper() in SIZE_UNITS:
-        return Retention(max_bytes=int(amount * SIZE_UNITS[unit.upper()]))
-    if not unit and amount.is_integer():
-        return Retention(max_records=int(amount))
-    raise ValueError(f"{what}: unknown unit {unit!r}; use s, m, h, d, KB, MB, GB or none")
-
-
-def parse_ttl(text: str, variable: str) -> timedelta:
-    """An age (``30m``, ``1h``, ``2d``) as a time span; ValueError naming ``variable`` otherwise."""
-    limit = parse_limit(text, variable)
-    if limit.max_age is None:
-        raise ValueError(f"{variable}: write an age (30m, 1h, 2d), not {text!r}")
-    return limit.max_age
-
-
-def policy_for(policies: Mapping[str, Retention], type: str) -> Retention | None:
-    return policies.get(type) or policies.get(ANY_TYPE)
 
 
 class RetentionSweeper:

@@ -8,11 +8,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from fleetbus.limits import parse_retention, parse_ttl
 from fleetbus.schemas.routing import RECORDER_QUEUE
 from fleetbus.workers.recorder.capture import TypeNames
 from fleetbus.workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
-from fleetbus.workers.recorder.retention import parse_retention, parse_ttl
 from fleetbus.workers.recorder.source import RecorderQueue
 from fleetbus.workers.signals import stop_on_signals
 from fleetbus.workers.store import Repositories, StoreSettings, open_recording_store, repositories_for

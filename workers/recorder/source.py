@@ -22,8 +22,8 @@ from pika.channel import Channel
 from pika.spec import Basic, BasicProperties
 
 from fleetbus.broker.retry import Backoff, Stopped, async_retrying
-from fleetbus.broker.tls import pika_parameter_list
 from fleetbus.publishers.errors import CONNECTION_FAILED
+from fleetbus.publishers.tls import pika_parameter_list
 
 log = logging.getLogger("fleetbus.recorder")
 

@@ -25,6 +25,7 @@ from fleetbus.api.console.sitemap import ADMINS, DEAD_LETTERS
 from fleetbus.api.console.templating import render
 from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
+from fleetbus.bounds import bounds
 from fleetbus.broker.dead_letter_actions import (
     DeadLetterGone,
     RemovalUnconfirmed,
@@ -34,7 +35,6 @@ from fleetbus.broker.dead_letter_actions import (
 )
 from fleetbus.broker.dead_letter_queue import DeadLetter, Listing, read_dead_letters
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
-from fleetbus.workers.bounds import bounds
 from fleetbus.workers.overflow import dropped_from_queue
 from fleetbus.workers.store.users import User
 

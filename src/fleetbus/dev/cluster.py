@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
-from fleetbus.broker.addresses import join_addresses
 from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.probe import write_private_file
 from fleetbus.dev.local_node import (
@@ -41,6 +40,7 @@ from fleetbus.dev.local_node import (
 )
 from fleetbus.private_files import private_dir
 from fleetbus.processes import pid_alive
+from fleetbus.publishers.addresses import join_addresses
 
 #: Each node's share of this machine: the broker blocks publishers beyond it (three nodes and the
 #: tests fit a 2-core machine with some GB to spare).

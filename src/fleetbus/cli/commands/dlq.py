@@ -8,9 +8,9 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from fleetbus.bounds import bounds
 from fleetbus.cli.context import console, dead_letters, settings
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
-from fleetbus.workers.bounds import bounds
 from fleetbus.workers.overflow import dropped_from_queue
 from fleetbus.workers.store import run_with_repositories
 

@@ -11,11 +11,11 @@ from rich.table import Table
 
 from fleetbus.broker.accounts import RECORDER_USER
 from fleetbus.cli.context import clock, console, fail, service_account, settings, with_recording
+from fleetbus.limits import parse_retention, policy_for
 from fleetbus.private_files import owner_only_umask
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
 from fleetbus.workers.recorder.launch import Launch, exec_recorder
 from fleetbus.workers.recorder.process import die_with_parent
-from fleetbus.workers.recorder.retention import parse_retention, policy_for
 from fleetbus.workers.store.recordings import RecordingStore, TypeSummary
 
 app = typer.Typer(help="The recorder of every message on the bus.", no_args_is_help=True)

@@ -10,11 +10,11 @@ import pika.exceptions
 import typer
 from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
-from fleetbus.broker.tls import blocking_connection
 from fleetbus.cli.context import console, endpoint, errors, fail, recording_stream
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.workers.recorder.queries import parse_condition, recorded_between
 from fleetbus.workers.recorder.replay import ReplayReport
 from fleetbus.workers.recorder.replay import replay as replay_records

@@ -8,12 +8,12 @@ from typing import Annotated
 
 import typer
 
+from fleetbus.bounds import bounds
 from fleetbus.broker.accounts import RECORDER_USER, SERVICE_USER, kept_password_file, vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.urls import mask_password, without_password
 from fleetbus.cli.context import console, endpoint, fail, settings
 from fleetbus.settings import Settings
-from fleetbus.workers.bounds import bounds
 from fleetbus.workers.setup import set_up_service
 
 ShowPassword = Annotated[

@@ -14,11 +14,12 @@ from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.sites import start_site_links, stop_site_links
-from fleetbus.broker.tls import TlsSettingError, shovel_uris
+from fleetbus.broker.tls import shovel_uris
 from fleetbus.broker.uplink import bounds_of
 from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
 from fleetbus.cli.context import admin_api, console, endpoint, fail, no_password_in_argv, settings
+from fleetbus.publishers.tls import TlsSettingError
 from fleetbus.workers.site_status import site_view
 from fleetbus.workers.store import run_with_repositories
 

@@ -19,9 +19,9 @@ import aiormq.exceptions
 import typer
 from rich.markup import escape
 
+from fleetbus.broker.tail import Seen, follow
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.cli.times import TIME_FORMS, parse_time
-from fleetbus.publishers.tail import Seen, follow
 
 #: Seconds Ctrl-C waits for the broker to close the follow before the command ends anyway.
 STOP_S = 3.0

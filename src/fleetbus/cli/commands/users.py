@@ -17,10 +17,10 @@ from rich.text import Text
 from fleetbus.broker.accounts import can_login, save_secret
 from fleetbus.broker.certificates import CertificateError, ClientFiles, TlsFiles, issue_client_certificate
 from fleetbus.broker.fleet import NewRobot
-from fleetbus.broker.tls import split_tls, with_client_certificate
 from fleetbus.cli.accounts import with_accounts
 from fleetbus.cli.context import actor, console, endpoint, fail, settings
 from fleetbus.publishers.errors import CONNECTION_FAILED
+from fleetbus.publishers.tls import split_tls, with_client_certificate
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind

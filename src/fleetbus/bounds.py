@@ -1,6 +1,6 @@
 """The bounds on everything that grows with time or traffic, read from the settings.
 
-Every limit is written in the recorder's retention grammar (:mod:`fleetbus.workers.recorder.retention`):
+Every limit is written in the recorder's retention grammar (:mod:`fleetbus.limits`):
 an age (``30d``), a size (``1GB``) or a number (``100000``). Each bound takes the kinds of limit
 it can hold to, and refuses the others with the variable's name, so that a typo stops the
 process at start rather than leaving something unbounded.
@@ -11,10 +11,12 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import timedelta
+from typing import TYPE_CHECKING
 
-from fleetbus.broker.policies import QueueLimit
-from fleetbus.settings import Settings
-from fleetbus.workers.recorder.retention import Retention, parse_limit, parse_retention, parse_ttl
+from fleetbus.limits import QueueLimit, Retention, parse_limit, parse_retention, parse_ttl
+
+if TYPE_CHECKING:
+    from fleetbus.settings import Settings
 
 #: MongoDB refuses a 65th index on a collection; a recorded type has five of its own (``_id``,
 #: time, robot, message id, mission), and two processes may add one at the same moment.

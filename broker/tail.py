@@ -21,8 +21,8 @@ from urllib.parse import unquote, urlsplit
 from aio_pika.abc import AbstractIncomingMessage
 
 from fleetbus.broker.tls import aio_connect
-from fleetbus.broker.topics import topic_matches
 from fleetbus.schemas.routing import stream_queue
+from fleetbus.schemas.topics import topic_matches
 
 #: Stream offsets by time are found per chunk, so a replay may start a little early: messages
 #: stamped more than this before the requested time are left out.
