@@ -100,8 +100,8 @@ def figures(context: Context) -> Figures:
 
 def main() -> None:
     from fleetbus.broker.management import ManagementAPI
-    from fleetbus.dev.fallback import resolve_broker
     from fleetbus.settings import load_settings
+    from fleetbus_dev.fallback import resolve_broker
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gets", type=int, default=300)

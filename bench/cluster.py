@@ -4,7 +4,7 @@ the express lane's leader is killed; both brokers started by the bench, measured
     .venv/bin/python -m bench.cluster [--events 20000] [--robots 4] [--shards 2] [--workers 1] [--kills 5]
 
 In a temporary folder the bench starts one private node and a private three-node cluster
-(:mod:`fleetbus.dev.cluster`, 512 MiB each), then on each:
+(:mod:`fleetbus_dev.cluster`, 512 MiB each), then on each:
 
   raw consume   pika, one BlockingConnection, manual acks, prefetch 256, from a quorum queue
                 declared like an ingest shard, filled first with --events messages of an event's size
@@ -47,8 +47,6 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from fleetbus.broker.urls import without_password
-from fleetbus.dev.cluster import LocalCluster
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import EXPRESS_QUEUE
@@ -56,6 +54,8 @@ from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.setup import set_up_service
 from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.base import EventQuery
+from fleetbus_dev.cluster import LocalCluster
+from fleetbus_dev.local_node import LocalNode
 
 RAW_QUEUE = "bench.cluster.raw"
 KILL_VHOST = "fleetbus-bench-cluster"

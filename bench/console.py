@@ -370,8 +370,8 @@ def part_table(title: str, figures: Figures) -> Table:
 
 def main() -> None:
     from fleetbus.broker.management import ManagementAPI
-    from fleetbus.dev.fallback import resolve_broker
     from fleetbus.settings import load_settings
+    from fleetbus_dev.fallback import resolve_broker
 
     parser = argparse.ArgumentParser(
         description="The operator console under a team's traffic (a few minutes; --help's end says how).",

@@ -33,11 +33,11 @@ from bench.results import medians, save, spread
 from fleetbus.broker.accounts import fresh_vhost
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.settings import load_settings
+from fleetbus_dev.fallback import resolve_broker
+from fleetbus_dev.local_node import LocalNode
 
 VHOST = "fleetbus-bench-firehose"
 EXCHANGE, QUEUE, COPY, TRACE = "bench.events", "bench.main", "bench.copy", "bench.trace"

@@ -57,11 +57,11 @@ from bench.scenario import Context
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.settings import load_settings
+from fleetbus_dev.fallback import resolve_broker
+from fleetbus_dev.local_node import LocalNode
 from tests.api.server import api_process
 from tests.support import Bus, wait_for
 

@@ -2,7 +2,7 @@
 
     .venv/bin/python -m bench.fleet_cluster [--steps 250,500,1000] [--connections 300]
 
-In a temporary folder the bench starts a private three-node cluster (:mod:`fleetbus.dev.cluster`)
+In a temporary folder the bench starts a private three-node cluster (:mod:`fleetbus_dev.cluster`)
 and a virtual host on it, then makes robots' accounts in steps, as ``fleetbus users add-many``
 makes them with ``FLEETBUS_CLUSTER=true`` (each robot's inbox and commands queue a quorum queue
 with a member on every node). After each step it reads every node's resident memory from /proc
@@ -32,8 +32,8 @@ from bench.results import save
 from fleetbus.broker.accounts import fresh_vhost
 from fleetbus.broker.fleet import NewRobot, provision_robots
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.cluster import LocalCluster
 from fleetbus.schemas.routing import RobotKind
+from fleetbus_dev.cluster import LocalCluster
 
 console = Console()
 VHOST = "fleet-cluster"

@@ -44,11 +44,11 @@ from fleetbus.broker.accounts import fresh_vhost
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import INGEST_QUEUE, EventType
 from fleetbus.settings import load_settings
 from fleetbus.workers.store.base import EventQuery
+from fleetbus_dev.fallback import resolve_broker
 from tests.support import Bus, fresh_bus, wait_for
 
 BENCH_VHOST = "fleetbus-bench"

@@ -28,8 +28,8 @@ import pika.exceptions
 from rich.console import Console
 from rich.table import Table
 
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.tls import blocking_connection
+from fleetbus_dev.local_node import LocalNode
 
 QUEUES = {"quorum": {"x-queue-type": "quorum"}, "classic": {"x-queue-type": "classic"}}
 

@@ -23,9 +23,9 @@ import time
 from bench.processes import worker_process
 from bench.raw import RAW_QUEUE, declare_queue, ingest_queue_arguments, publish_bodies, raw_consume
 from bench.scenario import Context, Figures
-from fleetbus.dev.demo import MAP_YAML
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.routing import RobotKind, Topic
+from fleetbus_dev.demo import MAP_YAML
 
 SIDE = 4000
 

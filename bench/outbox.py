@@ -35,12 +35,12 @@ from bench.results import percentile, save
 from bench.scenario import Context, Figures
 from fleetbus.broker.accounts import Role, fresh_vhost, provision_account
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
 from fleetbus.publishers import sender
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.outbox import Outbox, Overflow, TypePolicy
 from fleetbus.schemas.envelope import build_event, new_epoch
 from fleetbus.settings import load_settings
+from fleetbus_dev.fallback import resolve_broker
 
 ROBOT = "bench-outbox"
 WAITING = (0, 10_000, 50_000)

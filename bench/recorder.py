@@ -48,14 +48,14 @@ from fleetbus.broker.accounts import Account, Role, fresh_vhost, provision_accou
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.urls import without_password
-from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RECORDER_QUEUE, events_exchange
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.setup import set_up_service
 from fleetbus.workers.store.sqlite_recordings import SQLiteRecordingStore
+from fleetbus_dev.fallback import resolve_broker
+from fleetbus_dev.local_node import LocalNode
 from tests.support import wait_for
 
 VHOST = "fleetbus-bench-recorder"

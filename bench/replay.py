@@ -146,8 +146,8 @@ def main() -> None:
     parser.add_argument("--messages", type=int, default=1_000_000)
     options = parser.parse_args()
     from fleetbus.broker.management import ManagementAPI
-    from fleetbus.dev.fallback import resolve_broker
     from fleetbus.settings import load_settings
+    from fleetbus_dev.fallback import resolve_broker
 
     endpoint = resolve_broker(load_settings(), start=True)
     with ManagementAPI.from_urls(endpoint.management_url, endpoint.amqp_url) as api:

@@ -33,9 +33,9 @@ from rich.table import Table
 
 from bench.proc import cpu_seconds, rss_megabytes
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import load_settings
+from fleetbus_dev.fallback import resolve_broker
 from tests.support import fresh_bus, wait_for
 
 ROS_PYTHON = "/usr/bin/python3"

@@ -60,14 +60,14 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.topology import INGEST_QUEUE_ARGUMENTS, QueueSpec, Topology, declare_with_url
 from fleetbus.broker.urls import without_password
-from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.settings import Settings, load_settings
 from fleetbus.workers.setup import set_up_service
 from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX, shard_lease, share
 from fleetbus.workers.store import Repositories, repositories_for
 from fleetbus.workers.store.base import EventQuery, EventRecord
+from fleetbus_dev.fallback import resolve_broker
+from fleetbus_dev.local_node import LocalNode
 
 VHOST = "fleetbus-bench-scaling"
 POLL_SECONDS = 0.05

@@ -28,11 +28,11 @@ from rich.table import Table
 from fleetbus.api.app import create_app
 from fleetbus.broker.accounts import fresh_vhost
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import load_settings
+from fleetbus_dev.fallback import resolve_broker
 
 BENCH_VHOST = "fleetbus-bench-api"
 PASSWORD = "bench password 1"

@@ -54,9 +54,9 @@ from bench.results import percentile, save
 from bench.scenario import Figures
 from bench.telemetry import TelemetryLoad
 from bench.warden import WardenProcess
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
+from fleetbus_dev.local_node import LocalNode
 from tests.sites.pair import SitePair, open_pair
 from tests.support import wait_for
 

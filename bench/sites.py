@@ -41,8 +41,6 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import add_site_account, forward_robot, local_uri, start_site_links
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.broker.uplink import CLASSES, UplinkBounds
-from fleetbus.dev.local_node import LocalNode
-from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind, event_routing_key, events_exchange
@@ -51,6 +49,8 @@ from fleetbus.workers.setup import set_up_service
 from fleetbus.workers.sites import assign_robots
 from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.base import EventQuery
+from fleetbus_dev.local_node import LocalNode
+from fleetbus_dev.worker_thread import WorkerThread
 
 #: Bounds no backlog of the bench reaches.
 BENCH_BOUNDS = UplinkBounds(

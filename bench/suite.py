@@ -33,8 +33,8 @@ from bench.registry import SCENARIOS, by_name
 from bench.report import Outcome, as_json, load_average, machine, markdown, tables, verdicts
 from bench.scenario import Context, Scenario, Skip
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
 from fleetbus.settings import load_settings
+from fleetbus_dev.fallback import resolve_broker
 
 console = Console()
 

@@ -6,7 +6,7 @@ waits with backoff for ``FLEETBUS_BROKER_WAIT_S`` and then fails; it never start
 another broker, which would split the fleet between two (robots on one, workers on the other).
 
 Only when nothing is configured does the command line look for one (Docker's, else a private
-node): that is development tooling, :mod:`fleetbus.dev.fallback`.
+node): that is development tooling, :mod:`fleetbus_dev.fallback`.
 """
 
 from __future__ import annotations

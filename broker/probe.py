@@ -1,7 +1,7 @@
 """Whether a broker answers: an AMQP login, the management API, a private file for credentials.
 
 Used by every command that waits for a configured broker (:mod:`fleetbus.broker.endpoint`) and by
-the development tooling that starts one (:mod:`fleetbus.dev`).
+the development tooling that starts one (:mod:`fleetbus_dev`).
 """
 
 from __future__ import annotations

@@ -32,13 +32,13 @@ from fleetbus.api.mission_comments import comments_of
 from fleetbus.broker.accounts import Role, with_vhost
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.cli.context import endpoint as resolved_broker
-from fleetbus.dev.demo import DEMO_VHOST, EXPLORER, TEAM, WARDENS, demo_status, run_demo
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.settings import load_settings
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
+from fleetbus_dev.demo import DEMO_VHOST, EXPLORER, TEAM, WARDENS, demo_status, run_demo
 from tests.console.support import Browser, running_console, start_chromium
 from tests.console.support import Console as RunningConsole
 from tests.support import Bus, wait_for

@@ -26,9 +26,9 @@ import pytest
 from fleetbus.broker.certificates import make_certificates
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.fallback import resolve_broker
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.settings import load_settings
+from fleetbus_dev.fallback import resolve_broker
+from fleetbus_dev.local_node import LocalNode
 from tests import reaper
 from tests.link import NetworkLink
 from tests.run_tls import run_tls_files, suite_endpoint

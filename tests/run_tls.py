@@ -6,8 +6,8 @@ import os
 
 from fleetbus.broker.certificates import TlsFiles
 from fleetbus.broker.endpoint import BrokerEndpoint
-from fleetbus.dev.local_node import NodeInfo
 from fleetbus.settings import load_settings
+from fleetbus_dev.local_node import NodeInfo
 
 #: The suite reaches its brokers over TLS: AMQPS, and the management API over HTTPS, each verified
 #: with the run's CA (``FLEETBUS_TEST_TLS=0``: plain AMQP and HTTP). Every node the suite starts

@@ -29,8 +29,6 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.retry import retrying
 from fleetbus.broker.uplink import CLASSES
 from fleetbus.broker.urls import without_password
-from fleetbus.dev.recorder_thread import RecorderThread
-from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.publishers.client import RobotClient, outbox_folder
 from fleetbus.publishers.outbox import Outbox
 from fleetbus.publishers.tls import blocking_connection
@@ -46,6 +44,8 @@ from fleetbus.workers.store import Repositories, open_recording_store, run_with_
 from fleetbus.workers.store.base import EventQuery, EventRecord, StoreUnavailable
 from fleetbus.workers.store.ledger import Gap
 from fleetbus.workers.store.recordings import RecordedMessage, RecordQuery
+from fleetbus_dev.recorder_thread import RecorderThread
+from fleetbus_dev.worker_thread import WorkerThread
 from tests.factories import hazard, status
 from tests.link import NetworkLink
 

@@ -10,10 +10,10 @@ from datetime import timedelta
 
 import pytest
 
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
+from fleetbus_dev.local_node import LocalNode
 from tests.factories import hazard, status
 from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for
 

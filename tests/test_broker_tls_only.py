@@ -12,8 +12,8 @@ import pytest
 
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.probe import amqp_login
-from fleetbus.dev.local_node import HOST, LocalNode, listening_addresses
 from fleetbus.schemas.routing import RobotKind
+from fleetbus_dev.local_node import HOST, LocalNode, listening_addresses
 from tests.factories import status
 from tests.run_tls import run_tls_files, suite_endpoint
 from tests.support import fresh_bus, wait_for

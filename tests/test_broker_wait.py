@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 from fleetbus.broker.accounts import RECORDER_USER, SERVICE_USER, save_secret
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.settings import load_settings
+from fleetbus_dev.local_node import LocalNode
 from tests.support import PROJECT_ROOT
 
 WAIT_S = 3.0
@@ -114,4 +114,26 @@ def test_an_administrator_command_with_only_another_broker_setting_does_not_look
     result, _ = run(COMMANDS["users add"], environment(tmp_path, **{setting: value}))
     assert result.returncode != 0
     assert f"{setting} is set but FLEETBUS_AMQP_URL is not" in result.stderr, result.stderr
+    assert_started_nothing(tmp_path)
+
+
+#: ``fleetbus`` as the runtime wheel alone runs it: no ``fleetbus.local_broker`` entry point (the
+#: development tooling's private node) is installed.
+WITHOUT_DEV_TOOLING = """
+import importlib.metadata as metadata, sys
+found = metadata.entry_points
+metadata.entry_points = lambda **kw: [] if kw.get("group") == "fleetbus.local_broker" else found(**kw)
+from fleetbus.cli import app
+sys.argv[0] = "fleetbus"
+app()
+"""
+
+
+def test_without_the_development_tooling_an_unconfigured_broker_is_an_error_naming_the_setting(
+    tmp_path: Path,
+) -> None:
+    command = [sys.executable, "-c", WITHOUT_DEV_TOOLING, "users", "add", "nobody-here"]
+    result, _ = run(command, environment(tmp_path))
+    assert result.returncode != 0
+    assert "no broker is configured: set FLEETBUS_AMQP_URL" in result.stderr, result.stderr
     assert_started_nothing(tmp_path)

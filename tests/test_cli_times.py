@@ -6,7 +6,8 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from fleetbus.cli.times import read_duration, read_time
+from fleetbus.cli.times import read_time
+from fleetbus.limits import read_duration
 
 NOW = datetime(2026, 3, 2, 9, 30, tzinfo=timezone.utc)
 PLUS_TWO = timezone(timedelta(hours=2))

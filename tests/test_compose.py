@@ -18,7 +18,7 @@ from urllib.parse import urlsplit
 import yaml
 
 from fleetbus.broker.accounts import SERVICE_USER
-from fleetbus.dev.rabbitmq import TESTED_RELEASE
+from fleetbus_dev.rabbitmq import TESTED_RELEASE
 
 ROOT = Path(__file__).resolve().parent.parent
 SERVICES: dict[str, Any] = yaml.safe_load((ROOT / "compose.yaml").read_text())["services"]

@@ -7,10 +7,10 @@ from pathlib import Path
 from rich.console import Console
 
 from fleetbus.broker.endpoint import BrokerEndpoint
-from fleetbus.dev.demo import TEAM, WARDENS, run_demo
 from fleetbus.schemas.roles import UserRole
 from fleetbus.settings import load_settings
 from fleetbus.workers.store import run_with_repositories
+from fleetbus_dev.demo import TEAM, WARDENS, run_demo
 
 
 def test_demo_scenario(endpoint: BrokerEndpoint, tmp_path: Path) -> None:

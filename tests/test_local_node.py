@@ -31,8 +31,12 @@ from fleetbus.broker.certificates import ClientFiles, TlsFiles, issue_client_cer
 from fleetbus.broker.endpoint import BrokerUnavailable, wait_for_login
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.tls import aio_connect, shovel_uri
-from fleetbus.dev.fallback import docker_engine_answers, resolve_broker
-from fleetbus.dev.local_node import (
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.tls import TlsSettingError, blocking_connection
+from fleetbus.schemas.routing import EXPRESS_QUEUE, events_exchange
+from fleetbus.settings import Settings, load_settings
+from fleetbus_dev.fallback import docker_engine_answers, resolve_broker
+from fleetbus_dev.local_node import (
     ADMIN_USER,
     PLUGINS,
     TLS_PORT_NAMES,
@@ -42,11 +46,7 @@ from fleetbus.dev.local_node import (
     pid_alive,
     pids_listening_on,
 )
-from fleetbus.dev.rabbitmq import mount_points
-from fleetbus.publishers.client import RobotClient
-from fleetbus.publishers.tls import TlsSettingError, blocking_connection
-from fleetbus.schemas.routing import EXPRESS_QUEUE, events_exchange
-from fleetbus.settings import Settings, load_settings
+from fleetbus_dev.rabbitmq import mount_points
 from tests.factories import hazard
 from tests.support import wait_for
 from tests.test_revocation import refused_as_revoked
@@ -652,7 +652,7 @@ def test_a_node_started_without_certificate_logins_offers_them_after_its_next_st
     """As after an upgrade: the running node was started by a version without EXTERNAL. Passwords
     keep working, `users add --cert` still makes the account and says the node needs a restart;
     after `down` and `up` the certificate logs in."""
-    import fleetbus.dev.local_node as local_node
+    import fleetbus_dev.local_node as local_node
 
     node.down()
     with monkeypatch.context() as older:
@@ -809,7 +809,7 @@ def test_a_new_node_whose_port_another_process_takes_before_it_listens_starts_on
         taker.bind(("127.0.0.1", ports["management"]))
         taker.listen()
         try:
-            with caplog.at_level(logging.WARNING, logger="fleetbus.dev.local_node"):
+            with caplog.at_level(logging.WARNING, logger="fleetbus_dev.local_node"):
                 info = fresh.up(timeout=180)
             assert "was taken before it could listen" in caplog.text, "the first start met the taken port"
             assert info.ports["management"] != ports["management"]

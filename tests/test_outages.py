@@ -15,11 +15,11 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.outbox import Overflow, TypePolicy
 from fleetbus.schemas.envelope import build_event, encode_event
 from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
 from fleetbus.workers.store.base import EventQuery
+from fleetbus_dev.local_node import LocalNode
 from tests.factories import hazard, status
 from tests.link import NetworkLink
 from tests.store.mongodb import MONGOECO_PYTHON, NO_MONGODB, MongoecoServer

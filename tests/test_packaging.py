@@ -67,12 +67,16 @@ def base_install(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     return python
 
 
-def test_everything_installs_under_the_fleetbus_namespace(wheel: Path) -> None:
+def test_everything_installs_under_the_fleetbus_namespace_without_the_development_tooling(
+    wheel: Path,
+) -> None:
     names = zipfile.ZipFile(wheel).namelist()
     top = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
-    assert top == {"fleetbus"}
-    for package in ("schemas", "publishers", "broker", "workers", "api", "cli", "dev"):
+    assert top == {"fleetbus"}, "the development tooling (fleetbus_dev) is a distribution of its own"
+    for package in ("schemas", "publishers", "broker", "workers", "api", "cli"):
         assert f"fleetbus/{package}/__init__.py" in names
+    assert not [name for name in names if name.startswith("fleetbus/dev/")]
+    assert not [name for name in names if "commands/broker.py" in name or "commands/demo.py" in name]
 
 
 def test_an_installed_fleetbus_run_from_the_checkout_is_the_installed_one(base_install: Path) -> None:

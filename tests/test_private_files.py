@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.private_files import private_dir, private_file
 from fleetbus.schemas.routing import RobotKind
+from fleetbus_dev.local_node import LocalNode
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from fleetbus.dev.local_node import LocalNode, LocalNodeError
-from fleetbus.dev.rabbitmq import HOST, Installation, mount_points, version_key
+from fleetbus_dev.local_node import LocalNode, LocalNodeError
+from fleetbus_dev.rabbitmq import HOST, Installation, mount_points, version_key
 
 
 def test_a_root_gets_the_top_level_folders_of_the_nodes_files_but_never_over_its_own_system() -> None:

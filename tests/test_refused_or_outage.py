@@ -16,11 +16,11 @@ from itertools import pairwise
 
 import pytest
 
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import INGEST_EXCHANGE, RobotKind
+from fleetbus_dev.local_node import LocalNode
 from tests.factories import hazard, status
 from tests.link import NetworkLink
 from tests.support import Bus, network_link, wait_for

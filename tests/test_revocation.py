@@ -33,9 +33,9 @@ from fleetbus.broker.revocation import (
     revoke_certificates_of,
     subject_hash,
 )
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable
+from fleetbus_dev.local_node import LocalNode
 from tests.factories import hazard
 from tests.run_tls import BROKER_TLS, run_tls_files
 from tests.support import Bus, wait_for

@@ -18,10 +18,10 @@ import uuid
 from pathlib import Path
 
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.client import RobotClient, robot_folder
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.hazards import DEFAULT_MISSION, Hazard, HazardState
+from fleetbus_dev.local_node import LocalNode
 from tests.link import NetworkLink
 from tests.support import (
     PROJECT_ROOT,

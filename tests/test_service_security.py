@@ -15,11 +15,11 @@ from pika.adapters.blocking_connection import BlockingChannel
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings, unbind_all
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.publishers.confirms import Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
+from fleetbus_dev.local_node import LocalNode
 from tests.support import Bus, wait_for
 
 Attempt = Callable[[BlockingChannel], object]

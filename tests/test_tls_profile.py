@@ -13,7 +13,7 @@ import yaml
 
 from fleetbus.broker import tls_profile
 from fleetbus.broker.tls_profile import AMQPS, MANAGEMENT, erlang_terms, rabbitmq_conf
-from fleetbus.dev.local_node import LocalNode
+from fleetbus_dev.local_node import LocalNode
 from tests.peers.tls_scan import weakness
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -3,4 +3,4 @@
 The runtime packages live under this namespace (installed from the repository's top-level
 folders): `fleetbus.schemas`, `fleetbus.publishers` (the robot client), `fleetbus.broker`,
 `fleetbus.workers`, `fleetbus.api`; `fleetbus.settings` is every setting; `fleetbus.cli` is the
-command line and `fleetbus.dev` the development tooling."""
+command line and `fleetbus_dev` the development tooling."""

@@ -77,10 +77,6 @@ def queue_limit(words: Iterable[str], variable: str) -> QueueLimit:
     return QueueLimit(messages, size)
 
 
-def age(text: str, variable: str) -> timedelta:
-    return parse_ttl(text, variable)
-
-
 def field_index_cap(value: int, variable: str = "FLEETBUS_FIELD_INDEXES_MAX") -> int:
     if not 1 <= value <= MAX_FIELD_INDEXES:
         raise ValueError(
@@ -95,7 +91,7 @@ def bounds(settings: Settings) -> Bounds:
         duplicates=register_retention(settings.duplicates_keep, "FLEETBUS_DUPLICATES_KEEP"),
         discards=register_retention(settings.discards_keep, "FLEETBUS_DISCARDS_KEEP"),
         map_versions=settings.map_versions_keep,
-        map_staging_ttl=age(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
+        map_staging_ttl=parse_ttl(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),
         inbox=queue_limit(settings.inbox_max, "FLEETBUS_INBOX_MAX"),
         field_indexes=field_index_cap(settings.field_indexes_max),

@@ -18,6 +18,7 @@ ANY_TYPE = "*"
 AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
 SIZE_UNITS = {"B": 1, "KB": 1000, "MB": 1000**2, "GB": 1000**3, "KIB": 1024, "MIB": 1024**2, "GIB": 1024**3}
 SPEC = re.compile(r"^(?P<type>\*|[a-z][a-z0-9_]{0,39})=(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
+DURATION = re.compile(r"(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[smhd])")
 LIMIT = re.compile(r"^(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
 
 @dataclass(frozen=True)
@@ -79,12 +80,21 @@ def parse_limit(text: str, what: str = "limit") -> Retention:
         )
     amount, unit = float(match["amount"]), match["unit"]
     if unit in AGE_UNITS:
-        return Retention(max_age=timedelta(seconds=amount * AGE_UNITS[unit]))
+        return Retention(max_age=read_duration(text))
     if unit.upper() in SIZE_UNITS:
         return Retention(max_bytes=int(amount * SIZE_UNITS[unit.upper()]))
     if not unit and amount.is_integer():
         return Retention(max_records=int(amount))
     raise ValueError(f"{what}: unknown unit {unit!r}; use s, m, h, d, KB, MB, GB or none")
+
+
+def read_duration(text: str) -> timedelta:
+    """``90s``, ``10m``, ``2h``, ``1d`` (a fraction allowed: ``1.5h``), the one way fleetbus reads a
+    span of time, in a setting or an option; ValueError otherwise."""
+    match = DURATION.fullmatch(text.strip())
+    if not match:
+        raise ValueError(f"{text!r} is not a duration: write a number and s, m, h or d (90s, 10m, 2h, 1d)")
+    return timedelta(seconds=float(match["amount"]) * AGE_UNITS[match["unit"]])
 
 
 def parse_ttl(text: str, variable: str) -> timedelta:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import httpx
 
-from fleetbus.dev.local_node import choose_free_ports
+from fleetbus_dev.local_node import choose_free_ports
 from tests.support import Bus, wait_for
 
 

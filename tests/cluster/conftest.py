@@ -14,7 +14,7 @@ import pytest
 
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.cluster import LocalCluster
+from fleetbus_dev.cluster import LocalCluster
 from tests.support import Bus, fresh_bus
 
 #: Nodes in the test cluster: the smallest that keeps a majority with one node gone.

@@ -17,11 +17,11 @@ import pika
 import pika.exceptions
 
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.cluster import LocalCluster
 from fleetbus.publishers.addresses import join_addresses, split_addresses
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.routing import EXPRESS_QUEUE
 from fleetbus.workers.store.base import EventQuery
+from fleetbus_dev.cluster import LocalCluster
 from tests.cluster.conftest import management_of
 from tests.factories import hazard
 from tests.support import Bus, Publishing, assert_stored_once_in_order, wait_for

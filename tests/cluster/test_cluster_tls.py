@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fleetbus.dev.cluster import LocalCluster
+from fleetbus_dev.cluster import LocalCluster
 from tests.peers.tls_scan import Listener, assert_profile, scan
 
 

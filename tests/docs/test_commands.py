@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from fleetbus.dev.local_node import LocalNode
+from fleetbus_dev.local_node import LocalNode
 from tests.docs.checks import check_without_running, words
 from tests.docs.pages import Page, documentation_pages, read_page
 from tests.docs.sandbox import Sandbox

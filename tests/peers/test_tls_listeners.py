@@ -12,7 +12,7 @@ from urllib.parse import urlsplit
 import pytest
 
 from fleetbus.broker.certificates import TlsFiles, make_certificates
-from fleetbus.dev.local_node import LocalNode
+from fleetbus_dev.local_node import LocalNode
 from tests.api.server import api_process
 from tests.peers.tls_scan import NODE_NAMES, Finding, Listener, assert_profile, scan, weakness
 from tests.run_tls import run_tls_files

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from fleetbus.dev.local_node import LocalNode
+from fleetbus_dev.local_node import LocalNode
 from tests.console.conftest import browser, chromium  # noqa: F401  (the console's browser fixtures)
 from tests.sites.pair import SitePair, open_pair
 

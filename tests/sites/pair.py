@@ -16,12 +16,12 @@ from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.sites import start_site_links, stop_site_links
 from fleetbus.broker.uplink import CLASSES, bounds_of
-from fleetbus.dev.local_node import LocalNode
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, UPLINK_SHOVEL, RobotKind
 from fleetbus.workers.downlink import apply_downlink
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.sites import Forward
+from fleetbus_dev.local_node import LocalNode
 from tests.link import NetworkLink
 from tests.run_tls import plain_endpoint
 from tests.support import Bus, fresh_bus, wait_for

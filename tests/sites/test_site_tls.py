@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fleetbus.dev.local_node import LocalNode
+from fleetbus_dev.local_node import LocalNode
 from tests.peers.tls_scan import Listener, assert_profile, scan
 
 

@@ -3,12 +3,17 @@
 A command's module is imported when that command runs (or a help page lists it), not at every
 start: `fleetbus hazards` does not load what `fleetbus api` or `fleetbus worker` need (FastAPI,
 aio-pika, the workers), and starts in a fraction of the time.
+
+Other distributions add commands through the ``fleetbus.commands`` entry points, each naming a
+function or a Typer app: the development tooling (``dev/``) adds ``broker`` and ``demo`` so.
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
+from importlib.metadata import entry_points
+from typing import Any
 
 import click
 import typer
@@ -25,7 +30,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "outbox": ("outbox", "outbox"),
     "hazards": ("hazards", "app"),
     "missions": ("missions", "app"),
-    "demo": ("demo", "demo"),
     "schemas": ("schemas_export", "export_schemas"),
     "tail": ("tail", "tail"),
     "timeline": ("timeline", "timeline"),
@@ -35,7 +39,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "import": ("bags", "import_bag"),
     "export": ("bags", "export"),
     "stats": ("stats", "stats"),
-    "broker": ("broker", "app"),
     "certs": ("certs", "app"),
     "users": ("users", "app"),
     "beacons": ("beacons", "app"),
@@ -51,22 +54,40 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: The entry point group other distributions add commands with.
+PLUGIN_GROUP = "fleetbus.commands"
+
+
+@functools.cache
+def plugin_commands() -> dict[str, Any]:
+    """The commands installed distributions add, by name (their entry points, not yet loaded); a
+    name of fleetbus's own is never replaced."""
+    return {ep.name: ep for ep in entry_points(group=PLUGIN_GROUP) if ep.name not in COMMANDS}
+
+
+def command_names() -> list[str]:
+    return [*COMMANDS, *plugin_commands()]
+
+
 class LazyCommands(TyperGroup):
     """The top-level group: knows its commands by name, imports one when it is asked for."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return list(COMMANDS)
+        return command_names()
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        return load_command(cmd_name) if cmd_name in COMMANDS else None
+        return load_command(cmd_name) if cmd_name in command_names() else None
 
 
 @functools.cache
 def load_command(name: str) -> click.Command:
     """The click command ``name`` is, built as registering it on the app would (``command`` for
     a function, ``add_typer`` for an app), with the app's settings."""
-    module, attribute = COMMANDS[name]
-    target = getattr(importlib.import_module(f"fleetbus.cli.commands.{module}"), attribute)
+    if name in COMMANDS:
+        module, attribute = COMMANDS[name]
+        target = getattr(importlib.import_module(f"fleetbus.cli.commands.{module}"), attribute)
+    else:
+        target = plugin_commands()[name].load()
     holder = typer.Typer(rich_markup_mode=app.rich_markup_mode, pretty_exceptions_show_locals=False)
     if isinstance(target, typer.Typer):
         holder.add_typer(target, name=name)

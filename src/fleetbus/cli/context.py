@@ -64,7 +64,7 @@ def actor(by: str | None) -> str:
 
 
 def endpoint(start: bool = True) -> BrokerEndpoint:
-    from fleetbus.dev.fallback import resolve_broker
+    from fleetbus.cli.local_broker import resolve_broker
 
     try:
         return resolve_broker(settings(), start=start)
@@ -90,7 +90,7 @@ def service_account(account: str | None = None) -> str:
     logs in with: never the administrator's."""
     from fleetbus.broker.accounts import SERVICE_USER
     from fleetbus.broker.endpoint import service_account_url
-    from fleetbus.dev.fallback import resolve_broker
+    from fleetbus.cli.local_broker import resolve_broker
 
     try:
         current = settings()
@@ -156,7 +156,7 @@ def route_map() -> RouteMap | None:
     from fleetbus.broker.accounts import vhost_of
     from fleetbus.broker.endpoint import BrokerEndpoint, derive_management_url
     from fleetbus.broker.routes import RouteMap
-    from fleetbus.dev.fallback import resolve_broker
+    from fleetbus.cli.local_broker import resolve_broker
 
     config = settings()
     try:

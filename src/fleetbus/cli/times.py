@@ -18,23 +18,14 @@ import re
 from datetime import datetime, time, timedelta, timezone
 
 from fleetbus.cli.context import fail
+from fleetbus.limits import DURATION, read_duration
 
 #: What a time option takes, for its help: every option says the same.
 TIME_FORMS = (
     "2026-03-02T09:00, 10:00 (today) or a duration back from now: 90s, 10m, 2h, 1d; "
     "UTC unless an offset is given"
 )
-UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
-DURATION = re.compile(r"(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[smhd])")
 TIME_OF_DAY = re.compile(r"[0-9]{2}:[0-9]{2}(:[0-9]{2}(\.[0-9]+)?)?([+-][0-9]{2}:[0-9]{2}|Z)?")
-
-
-def read_duration(text: str) -> timedelta:
-    """``90s``, ``10m``, ``2h``, ``1d`` (a fraction allowed: ``1.5h``); ValueError otherwise."""
-    match = DURATION.fullmatch(text.strip())
-    if not match:
-        raise ValueError(f"{text!r} is not a duration: write a number and s, m, h or d (90s, 10m, 2h, 1d)")
-    return timedelta(seconds=float(match["amount"]) * UNITS[match["unit"]])
 
 
 def read_time(text: str, now: datetime | None = None) -> datetime:

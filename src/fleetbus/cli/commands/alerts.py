@@ -32,7 +32,7 @@ def _alerts(repos: Repositories) -> Alerts:
     from fleetbus.api.alerts import alerts_for
     from fleetbus.broker.accounts import vhost_of
     from fleetbus.broker.dead_letter_queue import dead_letters_waiting
-    from fleetbus.dev.fallback import resolve_broker
+    from fleetbus.cli.local_broker import resolve_broker
 
     config = settings()
 

@@ -15,12 +15,14 @@ from fleetbus.settings import Settings
 def robots_broker(config: Settings) -> str | None:
     """The broker address `fleetbus users add` hands robots, from the settings and the private
     node's state alone (nothing is started or asked): ``FLEETBUS_PUBLIC_AMQP_URL``, else
-    ``FLEETBUS_AMQP_URL``'s, else the private node's AMQPS listener once it has run."""
+    ``FLEETBUS_AMQP_URL``'s, else the private node's AMQPS listener once it has run (none
+    without the development tooling)."""
     if config.public_amqp_url or config.amqp_url:
         return config.public_amqp_url or config.amqp_url
-    from fleetbus.dev.fallback import local_node
+    from fleetbus.cli.local_broker import local_broker
 
-    return local_node(config).public_url()
+    local = local_broker()
+    return local.public_url(config) if local is not None else None
 
 
 def export_schemas(

@@ -45,11 +45,11 @@ def _enable_shovels(ep: BrokerEndpoint, api: ManagementAPI) -> None:
     if ep.kind != "private":
         plugins = " ".join(SHOVEL_PLUGINS)
         fail(f"enable the shovel plugins on the site's broker first: rabbitmq-plugins enable {plugins}")
-    from fleetbus.dev.local_node import LocalNode, LocalNodeError
+    from fleetbus.cli.local_broker import require_local_broker
 
     try:
-        LocalNode(settings().broker_dir).rabbitmq_plugins("enable", "--online", *SHOVEL_PLUGINS)
-    except LocalNodeError as error:
+        require_local_broker().enable_plugins(settings(), SHOVEL_PLUGINS)
+    except Exception as error:  # the node's own error names what failed
         fail(str(error))
 
 

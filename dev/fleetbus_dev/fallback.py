@@ -6,7 +6,7 @@ Only when nothing names a broker (``FLEETBUS_AMQP_URL``, ``FLEETBUS_SERVICE_URL`
 1. the ``rabbitmq`` service of ``compose.yaml``, when a Docker engine answers
    (``docker compose up -d rabbitmq``; administrator ``fleetbus-admin`` with the password in
    ``FLEETBUS_BROKER_PASSWORD``, generated and kept in the data folder when unset);
-2. else the private node of :mod:`fleetbus.dev.local_node` under ``settings.broker_dir``.
+2. else the private node of :mod:`fleetbus_dev.local_node` under ``settings.broker_dir``.
 
 A configured broker is the only one used (:func:`fleetbus.broker.endpoint.external_endpoint`).
 """
@@ -19,6 +19,7 @@ import secrets
 import shutil
 import subprocess
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import quote
 
@@ -31,12 +32,12 @@ from fleetbus.broker.endpoint import (
     external_endpoint,
 )
 from fleetbus.broker.probe import write_private_file
-from fleetbus.dev.cluster import ClusterInfo, LocalCluster
-from fleetbus.dev.local_node import ADMIN_USER, LocalNode, LocalNodeError, NodeInfo
-from fleetbus.dev.rabbitmq import InstallationError
 from fleetbus.settings import Settings
+from fleetbus_dev.cluster import ClusterInfo, LocalCluster
+from fleetbus_dev.local_node import ADMIN_USER, LocalNode, LocalNodeError, NodeInfo
+from fleetbus_dev.rabbitmq import InstallationError
 
-PROJECT_ROOT = Path(__file__).resolve().parents[3]
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
 COMPOSE_FILE = PROJECT_ROOT / "compose.yaml"
 COMPOSE_SERVICE = "rabbitmq"
 DOCKER_AMQP_PORT = 5672
@@ -180,8 +181,11 @@ def resolve_broker(settings: Settings, start: bool = True) -> BrokerEndpoint:
     """The broker to use, as administrator (see the module docstring); with ``start=False``
     nothing is started and a broker that does not run is an error."""
     endpoint = external_endpoint(settings)
-    if endpoint is not None:
-        return endpoint
+    return endpoint if endpoint is not None else unconfigured_broker(settings, start)
+
+
+def unconfigured_broker(settings: Settings, start: bool = True) -> BrokerEndpoint:
+    """Docker's broker when a Docker engine answers, else the private node (or cluster)."""
     if docker_engine_answers():
         if start:
             return compose_up(settings)
@@ -193,3 +197,20 @@ def resolve_broker(settings: Settings, start: bool = True) -> BrokerEndpoint:
         return private_endpoint(settings, start=start)
     except LocalNodeError as error:
         raise BrokerUnavailable(str(error)) from error
+
+
+class PrivateBroker:
+    """The command line's broker when none is configured (:mod:`fleetbus.cli.local_broker`)."""
+
+    def resolve(self, settings: Settings, start: bool) -> BrokerEndpoint:
+        return unconfigured_broker(settings, start)
+
+    def public_url(self, settings: Settings) -> str | None:
+        return local_node(settings).public_url()
+
+    def enable_plugins(self, settings: Settings, plugins: Sequence[str]) -> None:
+        local_node(settings).rabbitmq_plugins("enable", "--online", *plugins)
+
+
+#: The ``fleetbus.local_broker`` entry point of ``dev/pyproject.toml``.
+LOCAL_BROKER = PrivateBroker()

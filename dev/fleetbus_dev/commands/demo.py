@@ -7,7 +7,7 @@ from typing import Annotated
 import typer
 
 from fleetbus.cli.context import console, endpoint, fail, settings
-from fleetbus.dev.demo import report_table, run_demo, steps_table
+from fleetbus_dev.demo import report_table, run_demo, steps_table
 
 
 def demo(

@@ -12,7 +12,7 @@ kept in ``admin.json`` (mode 0600).
 
 All of the node's environment is built by :meth:`LocalNode.env`; the server and every CLI call
 (:meth:`LocalNode.rabbitmqctl`) use it, which is what makes them find each other. They run from
-the RabbitMQ installation :meth:`LocalNode.installation` names (:mod:`fleetbus.dev.rabbitmq`: the
+the RabbitMQ installation :meth:`LocalNode.installation` names (:mod:`fleetbus_dev.rabbitmq`: the
 host's package, or Debian 13's in a root of its own).
 """
 
@@ -49,10 +49,10 @@ from fleetbus.broker.probe import (
 from fleetbus.broker.retry import Backoff, GaveUp, retrying
 from fleetbus.broker.revocation import ensure_crl
 from fleetbus.broker.tls_profile import MANAGEMENT, erlang_terms, rabbitmq_conf
-from fleetbus.dev.rabbitmq import HOST as HOST_ROOT
-from fleetbus.dev.rabbitmq import Installation, InstallationError, default_installation, version_key
 from fleetbus.private_files import OWNER_ONLY, private_dir, private_file
 from fleetbus.processes import pid_alive
+from fleetbus_dev.rabbitmq import HOST as HOST_ROOT
+from fleetbus_dev.rabbitmq import Installation, InstallationError, default_installation, version_key
 
 ADMIN_USER = "fleetbus-admin"
 HOST = "127.0.0.1"
@@ -365,7 +365,7 @@ class LocalNode:
     def installation(self) -> Installation:
         """The RabbitMQ this node runs: the one it was given, else ``FLEETBUS_RABBITMQ_ROOT``'s,
         else the one that last ran its database (still installed), else the default
-        (:func:`fleetbus.dev.rabbitmq.default_installation`)."""
+        (:func:`fleetbus_dev.rabbitmq.default_installation`)."""
         if self._rabbitmq is None:
             from fleetbus.settings import load_settings
 
@@ -509,7 +509,7 @@ class LocalNode:
             else f"management.tcp.ip = {HOST}\nmanagement.tcp.port = {ports['management']}\n"
         )
         conf = f"""\
-# Written by fleetbus (src/fleetbus/dev/local_node.py) on every start; edits are overwritten.
+# Written by fleetbus (dev/fleetbus_dev/local_node.py) on every start; edits are overwritten.
 {plain}management.ssl.ip = {HOST}
 management.ssl.port = {ports["management_tls"]}
 management.ssl.cacertfile = {tls.ca}
@@ -565,7 +565,7 @@ log.console = false
             options += ["{crl_check, peer}", cache]
         joined = ",\n    ".join(options)
         return (
-            "%% Written by fleetbus (src/fleetbus/dev/local_node.py) on every start; edits are overwritten.\n"
+            "%% Written by fleetbus (dev/fleetbus_dev/local_node.py) on every start; edits are overwritten.\n"
             f"[{{rabbit, [{{ssl_options, [\n    {joined}\n]}}]}}].\n"
         )
 

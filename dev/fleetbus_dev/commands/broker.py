@@ -3,7 +3,7 @@
 ``up`` waits for the broker of ``FLEETBUS_AMQP_URL`` when it is set (and fails when it does not
 answer); otherwise it starts the ``rabbitmq`` service of ``compose.yaml`` (when a Docker engine
 answers) or the project's private node under ``.fleetbus/broker/``; ``up --nodes 3`` starts a
-private three-node cluster under ``.fleetbus/cluster/`` instead (:mod:`fleetbus.dev.cluster`).
+private three-node cluster under ``.fleetbus/cluster/`` instead (:mod:`fleetbus_dev.cluster`).
 Then it runs ``fleetbus setup``. ``down`` stops the private node and every node of the cluster;
 ``status`` exits 1 when no broker runs. URLs are shown with their passwords masked unless
 ``--show-password`` is given.
@@ -19,8 +19,8 @@ import typer
 from fleetbus.broker.endpoint import BrokerEndpoint, BrokerUnavailable, endpoint_ready, external_endpoint
 from fleetbus.cli.commands.setup import ShowPassword, set_up, show_url
 from fleetbus.cli.context import console, fail, settings
-from fleetbus.dev.cluster import LocalCluster
-from fleetbus.dev.fallback import (
+from fleetbus_dev.cluster import LocalCluster
+from fleetbus_dev.fallback import (
     cluster_endpoint,
     compose_up,
     docker_endpoint,
@@ -30,7 +30,7 @@ from fleetbus.dev.fallback import (
     node_endpoint,
     resolve_broker,
 )
-from fleetbus.dev.local_node import LocalNode, LocalNodeError
+from fleetbus_dev.local_node import LocalNode, LocalNodeError
 
 app = typer.Typer(
     help="The broker: FLEETBUS_AMQP_URL, Docker, or a private RabbitMQ node.", no_args_is_help=True

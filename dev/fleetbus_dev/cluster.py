@@ -28,7 +28,10 @@ from urllib.parse import quote
 
 from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.probe import write_private_file
-from fleetbus.dev.local_node import (
+from fleetbus.private_files import private_dir
+from fleetbus.processes import pid_alive
+from fleetbus.publishers.addresses import join_addresses
+from fleetbus_dev.local_node import (
     ADMIN_USER,
     HOST,
     PORT_NAMES,
@@ -38,9 +41,6 @@ from fleetbus.dev.local_node import (
     _signal,
     choose_free_ports,
 )
-from fleetbus.private_files import private_dir
-from fleetbus.processes import pid_alive
-from fleetbus.publishers.addresses import join_addresses
 
 #: Each node's share of this machine: the broker blocks publishers beyond it (three nodes and the
 #: tests fit a 2-core machine with some GB to spare).
@@ -49,7 +49,7 @@ NODE_MEMORY = "512MiB"
 NET_TICKTIME = 10
 
 CLUSTER_CONF = f"""\
-# Written by fleetbus (src/fleetbus/dev/cluster.py); read after rabbitmq.conf.
+# Written by fleetbus (dev/fleetbus_dev/cluster.py); read after rabbitmq.conf.
 vm_memory_high_watermark.absolute = {NODE_MEMORY}
 cluster_partition_handling = pause_minority
 net_ticktime = {NET_TICKTIME}

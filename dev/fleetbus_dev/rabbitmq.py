@@ -10,7 +10,7 @@ would on the host. Those mounts exist in that namespace only, so they need no cl
 with the last process in it (the node, or its epmd).
 
 :meth:`Installation.command` is the one place that turns a RabbitMQ tool and its arguments into
-a command line; :class:`~fleetbus.dev.local_node.LocalNode` runs the server, ``rabbitmqctl`` and
+a command line; :class:`~fleetbus_dev.local_node.LocalNode` runs the server, ``rabbitmqctl`` and
 ``rabbitmq-plugins`` through it.
 """
 

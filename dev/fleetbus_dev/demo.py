@@ -34,8 +34,6 @@ from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.fleet import NewRobot
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.dev.recorder_thread import RecorderThread
-from fleetbus.dev.worker_thread import WorkerThread
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.rpc import ServiceRefused
 from fleetbus.schemas.routing import EventType, RobotKind
@@ -46,6 +44,8 @@ from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.beacons import Beacon
 from fleetbus.workers.store.hazards import HazardState
 from fleetbus.workers.store.recordings import RecordQuery
+from fleetbus_dev.recorder_thread import RecorderThread
+from fleetbus_dev.worker_thread import WorkerThread
 
 T = TypeVar("T")
 DEMO_VHOST = "fleetbus-demo"

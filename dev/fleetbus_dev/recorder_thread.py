@@ -1,11 +1,11 @@
-"""The recorder on a thread of its own, for the demo and the tests (see :mod:`fleetbus.dev.worker_thread`)."""
+"""The recorder on a thread of its own, for the demo and the tests (see :mod:`fleetbus_dev.worker_thread`)."""
 
 from __future__ import annotations
 
-from fleetbus.dev.worker_thread import LoopThread
 from fleetbus.settings import Settings
 from fleetbus.workers.recorder.consumer import MissionLookup, RecorderOptions, RecorderStats
 from fleetbus.workers.recorder.runner import RecorderContext, recorder_options, run_recorder
+from fleetbus_dev.worker_thread import LoopThread
 
 
 class RecorderThread(LoopThread[RecorderContext]):

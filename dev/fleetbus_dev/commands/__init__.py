@@ -1,0 +1,1 @@
+"""The commands the development tooling adds to ``fleetbus``: ``broker`` and ``demo``."""
