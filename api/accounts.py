@@ -600,7 +600,7 @@ class Accounts:
             raise NotFound(f"no site {site!r}; make it with `fleetbus sites add {site}`")
         robots = tuple(sorted(known[site]))
         accounts = await robot_accounts(self._team, self._management, robots)
-        try:  # what central takes from the site and sends it (an older fleetbus's site lacks some)
+        try:  # what central takes from the site (made again if it went), then what it sends it
             await declare_with_url(self._admin_url, [central_site_topology(site, self._cluster)])
             await asyncio.to_thread(
                 send_to_sites, self._admin_url, [site], [*accounts, RobotRoster(names=list(robots))]

@@ -94,19 +94,6 @@ def test_every_message_of_a_bag_is_imported_with_its_times(tmp_path: Path, kind:
     assert_imported(recorded(store), written)
 
 
-def test_a_bag_imported_before_keys_named_the_robot_is_not_stored_again(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    bag = bag_path(tmp_path, "ros1")
-    write_bag(bag, "ros1", count=5)
-    store = tmp_path / "recording.sqlite3"
-    with monkeypatch.context() as before:  # keys made of the bag alone, as they were
-        before.setattr(bag_import, "record_source", lambda robot, digest: digest)
-        assert run_import(store, bag).stored == 5
-    assert run_import(store, bag).stored == 0, "its first import's keys are recognised"
-    assert run_import(store, bag, robot="bag-other").stored == 5
-
-
 @pytest.mark.parametrize("kind", FORMATS)
 def test_importing_a_bag_again_stores_nothing_twice(tmp_path: Path, kind: str) -> None:
     bag = bag_path(tmp_path, kind)

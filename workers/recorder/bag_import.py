@@ -13,17 +13,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import timedelta
 from pathlib import Path
 
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.ros import ROS_TYPE, ros_record_key
 from fleetbus.workers.recorder.bags import BagMessage, bag_digest, message_count, read_bag
-from fleetbus.workers.recorder.ros_fields import nanos_to_datetime
 from fleetbus.workers.recorder.ros_native import schema_record
 from fleetbus.workers.recorder.ros_records import ros_record
 from fleetbus.workers.recorder.ros_tf import transform_records
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore, RecordQuery
+from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
 
 BATCH = 500
 """Messages written at once."""
@@ -53,27 +51,14 @@ def record_source(robot: str, digest: str) -> str:
     return f"{robot}\0{digest}"
 
 
-async def source_for(store: RecordingStore, robot: str, digest: str, first: BagMessage | None) -> str:
-    """:func:`record_source`; or the bag's digest alone, as keys were made before they named the
-    robot, when this robot has the bag's first message recorded under such a key already: then
-    importing it again still stores nothing new."""
-    if first is not None:
-        legacy = ros_record_key(digest, first.index)
-        at = nanos_to_datetime(first.message.log_time_ns)  # when its record was recorded
-        query = RecordQuery(ROS_TYPE, robot_id=robot, since=at, until=at + timedelta(microseconds=1))
-        if any(record.key == legacy for record in await store.find_recorded(query)):
-            return digest
-    return record_source(robot, digest)
-
-
 def bag_record(
-    robot: str, digest: str, bag_file: str, item: BagMessage, source: str | None = None
+    robot: str, digest: str, bag_file: str, item: BagMessage
 ) -> RecordedMessage:
-    """The record of one bag message: keyed by ``source`` (:func:`source_for`) and its index."""
+    """The record of one bag message: keyed by its robot, its bag and its index."""
     return ros_record(
         robot,
         item.message,
-        ros_record_key(source or record_source(robot, digest), item.index),
+        ros_record_key(record_source(robot, digest), item.index),
         size=item.size,
         seq=item.index,
         trimmed=item.trimmed,
@@ -98,12 +83,9 @@ async def import_bag(
     total = message_count(path)
     digest = bag_digest(path)
     trimmed = 0
-    first: BagMessage | None = None
     for item in read_bag(path, max_bytes, blob_max):  # all readable before anything is stored
         trimmed += item.trimmed
-        first = first or item
         progress("check", item.index + 1, total)
-    source = await source_for(store, robot, digest, first)
     added: list[tuple[str, str]] = []  # (type, key) of each record this import stored
     batch: list[RecordedMessage] = []
     written = 0
@@ -114,7 +96,7 @@ async def import_bag(
             for name, data in item.blobs.items():
                 if await store.put_blob(name, data):
                     blobs_added.append(name)
-            record = bag_record(robot, digest, path.name, item, source)
+            record = bag_record(robot, digest, path.name, item)
             if item.schema is not None and item.schema.key not in schemas:
                 schemas.add(item.schema.key)  # stored before the first message that names it
                 batch.append(schema_record(item.schema, robot, item.message.topic, record.recorded_at))

@@ -149,7 +149,7 @@ def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
     its copies of the accounts central gave it that are not on it: robots removed at central or
     taken from the site) and every mission again (after a re-key, to a new site node, or when a
     change could not be sent); declare what central takes from the site (its status and hazards
-    exchanges: a site added by an older fleetbus gets the latter)."""
+    exchanges, made again if they went)."""
     ep = endpoint()
     synced = with_accounts(ep, lambda accounts, _repos, _api: accounts.sync_site(site))
     _say_sent(site, synced.sent)
