@@ -195,10 +195,6 @@ class ManagementAPI:
         body = {"pattern": pattern, "definition": definition, "apply-to": apply_to, "priority": priority}
         self._request("PUT", f"policies/{_q(vhost)}/{_q(name)}", json=body)
 
-    def get_policy(self, vhost: str, name: str) -> dict[str, Any] | None:
-        response = self._send("GET", f"policies/{_q(vhost)}/{_q(name)}")
-        return response.json() if response.status_code == 200 else None
-
     # shovels (the rabbitmq_shovel plugin's runtime parameters; their status needs
     # rabbitmq_shovel_management)
     def put_shovel(self, vhost: str, name: str, definition: dict[str, Any]) -> None:
@@ -245,9 +241,6 @@ class ManagementAPI:
         default)."""
         params = {"msg_rates_age": age_s, "msg_rates_incr": every_s}
         return self._request("GET", f"vhosts/{_q(vhost)}", params=params)
-
-    def list_policies(self, vhost: str) -> list[dict[str, Any]]:
-        return self._request("GET", f"policies/{_q(vhost)}")
 
     # bindings (mount and unmount change them while the service runs)
     def bind(
@@ -318,9 +311,6 @@ class ManagementAPI:
     def get_exchange(self, vhost: str, name: str) -> dict[str, Any] | None:
         response = self._send("GET", f"exchanges/{_q(vhost)}/{_q(name)}")
         return response.json() if response.status_code == 200 else None
-
-    def delete_exchange(self, vhost: str, name: str) -> None:
-        self._request("DELETE", f"exchanges/{_q(vhost)}/{_q(name)}")
 
     def list_consumers(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"consumers/{_q(vhost)}")

@@ -17,9 +17,6 @@ class SequenceCounter:
         self._next = 0
         self._lock = threading.Lock()
 
-    def peek(self) -> int:
-        return self._next
-
     def reserve(self, count: int = 1) -> int:
         """Reserve ``count`` consecutive numbers and return the first."""
         with self._lock:

@@ -54,10 +54,8 @@ class ExpressLane:
         self._repositories = repositories
         self._connect = connect
         self._make_consumer = make_consumer
-        self._caller: asyncio.AbstractEventLoop | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
-        self._consumer: IngestConsumer | None = None
         self._started: concurrent.futures.Future[None] = concurrent.futures.Future()
         self._ended: concurrent.futures.Future[None] = concurrent.futures.Future()
         self.task: asyncio.Future[None]
@@ -65,7 +63,6 @@ class ExpressLane:
 
     async def start(self) -> None:
         """Start the thread; return once it consumes the lane (raise what kept it from it)."""
-        self._caller = asyncio.get_running_loop()
         self.task = asyncio.wrap_future(self._ended)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
         self._thread.start()

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import logging
 import secrets
-import signal
 import threading
 import time
 from dataclasses import dataclass
@@ -29,7 +28,6 @@ from urllib.parse import quote
 from fleetbus.broker.certificates import TlsFiles, make_certificates
 from fleetbus.broker.probe import write_private_file
 from fleetbus.private_files import private_dir
-from fleetbus.processes import pid_alive
 from fleetbus.publishers.addresses import join_addresses
 from fleetbus_dev.local_node import (
     ADMIN_USER,
@@ -38,7 +36,6 @@ from fleetbus_dev.local_node import (
     LocalNode,
     LocalNodeError,
     NodeInfo,
-    _signal,
     choose_free_ports,
 )
 
@@ -175,18 +172,6 @@ class LocalCluster:
     def kill(self, index: int) -> None:
         """SIGKILL one node's VM and wait until it is gone."""
         self.nodes[index].kill()
-
-    def pause(self, index: int) -> int:
-        """SIGSTOP one node's VM: it stops answering, as a node cut off by the network does."""
-        pid = self.nodes[index].pid()
-        if pid is None:
-            raise LocalNodeError(f"{self.nodes[index].node_name} is not running")
-        _signal(pid, signal.SIGSTOP)
-        return pid
-
-    def resume(self, pid: int) -> None:
-        if pid_alive(pid):
-            _signal(pid, signal.SIGCONT)
 
     def partition(self, index: int) -> None:
         """Cut one node off from the others, as a network partition of the distribution does: it

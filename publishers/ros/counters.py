@@ -76,10 +76,6 @@ class Counters:
                 "restarts": before.get("restarts", 0) + int(restarted),
             }
 
-    def total_dropped(self) -> int:
-        with self._lock:
-            return sum(sum(c.values()) for c in self.dropped.values())
-
     def snapshot(self) -> dict[str, Any]:
         with self._lock:
             named = (self.types, self.recorded, self.mapped, self.dropped, self.over_bound)
