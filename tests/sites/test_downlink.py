@@ -88,6 +88,7 @@ def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> No
     assert run(pair.central, "sites", "robots", "base1", "--add", "guide5,explorer5").returncode == 0
     wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="the accounts through the downlink")
     assert run(pair.site, "site", "apply", "--once").returncode == 0
+    pair.site.add("scout5", kind=RobotKind.EXPLORER)  # the site's own robot: not central's copy
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0, "the site has its own robots' copies"
 
@@ -110,7 +111,10 @@ def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> No
     assert applied.returncode == 0 and "applied 1 changes" in applied.stdout, applied.stdout
     assert pair.site.api.get_user("guide5") is None, "it no longer logs in at the site"
     assert "guide5" not in forwarded_robots(pair.site.api, pair.site.vhost)
-    assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == ["explorer5"]
+    assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == [
+        "explorer5",
+        "scout5",
+    ]
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0
 
@@ -136,6 +140,7 @@ def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> No
     assert _apply(pair, 1) == 1
     assert pair.site.api.get_user("explorer5") is None
     assert forwarded_robots(pair.site.api, pair.site.vhost) == set()
-    assert pair.site.with_store(lambda store: store.hazards.robots()) == []
+    assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == ["scout5"]
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0
+    assert pair.site.api.get_user("scout5") is not None, "central never told the site to remove it"
