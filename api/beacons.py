@@ -6,25 +6,49 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
+from pydantic import BaseModel, ConfigDict, FiniteFloat, ValidationError
+from pydantic_core import ErrorDetails
+
 from fleetbus.api.errors import BadRequest
 from fleetbus.workers.beacons import stranded
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
 
 
+class BeaconEntry(BaseModel):
+    """One beacon of a list to load: where it is, in the map frame's metres (finite: a beacon at
+    NaN or infinity is nowhere a guide can go)."""
+
+    model_config = ConfigDict(coerce_numbers_to_str=True)
+
+    id: str
+    x: FiniteFloat
+    y: FiniteFloat
+    label: str | None = None
+
+
+def _problem(error: ErrorDetails) -> str:
+    field = ".".join(str(part) for part in error["loc"])
+    if error["type"] == "missing":
+        return f"{field} is missing (a beacon needs id, x and y)"
+    return f"{field} must be {error['msg'].removeprefix('Input should be ')}, not {error['input']!r}"
+
+
 def beacons_of(entries: object) -> list[Beacon]:
     """The beacons of a list of ``{id, x, y, label}`` (a label is optional); :class:`BadRequest`
-    naming the first entry that is not one."""
+    naming the first entry that is not one, and its field."""
     if not isinstance(entries, list):
         raise BadRequest("expected a list of beacons with id, x, y and label")
     beacons = []
     for number, entry in enumerate(entries, 1):
+        if not isinstance(entry, dict):
+            raise BadRequest(f"beacon {number}: expected {{id, x, y, label}}, not {entry!r}")
         try:
-            beacons.append(
-                Beacon(str(entry["id"]), float(entry["x"]), float(entry["y"]), str(entry.get("label", "")))
-            )
-        except (KeyError, TypeError, ValueError) as error:
-            raise BadRequest(f"beacon {number}: needs id, x and y ({error!r})") from None
+            valid = BeaconEntry.model_validate(entry)
+        except ValidationError as error:
+            problems = "; ".join(_problem(e) for e in error.errors(include_url=False))
+            raise BadRequest(f"beacon {number}: {problems}") from None
+        beacons.append(Beacon(valid.id, valid.x, valid.y, valid.label or ""))
     return beacons
 
 

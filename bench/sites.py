@@ -280,6 +280,7 @@ def run(
             "bench-site",
             "amqp://nowhere.invalid/",
             bounds=BENCH_BOUNDS,
+            rejected_max=central_settings.downlink_rejected_max,
             reconnect_delay_s=1,
         )
     )
@@ -307,6 +308,7 @@ def run(
                 "bench-site",
                 site_account.amqp_url,
                 bounds=BENCH_BOUNDS,
+                rejected_max=central_settings.downlink_rejected_max,
                 reconnect_delay_s=1,
             )
         )

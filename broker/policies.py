@@ -30,6 +30,7 @@ from fleetbus.limits import QueueLimit
 from fleetbus.schemas.routing import (
     BEACON_DISCARD_QUEUE,
     DEAD_LETTER_QUEUE,
+    DOWNLINK_REJECTED_QUEUE,
     EXPRESS_QUEUE,
     HAZARD_UPLINK_QUEUE,
     OVERFLOW_EXCHANGE,
@@ -171,6 +172,15 @@ def uplink_policies(bounds: UplinkBounds) -> list[QueuePolicy]:
     states = {"overflow": REFUSE, "max-length": bounds.events, "max-length-bytes": bounds.max_bytes}
     policies.append(QueuePolicy("fleetbus-hazard-uplink", _exactly(HAZARD_UPLINK_QUEUE), states))
     return policies
+
+
+def downlink_rejected_policy(limit: int) -> QueuePolicy:
+    """A site's ``fleetbus.downlink.rejected``: what ``fleetbus site apply`` could not apply, kept
+    for a look. A refused removal comes again with each ``fleetbus sites sync`` while its robot is
+    mounted, so the queue keeps the newest ``limit`` and drops (and counts) the oldest."""
+    return QueuePolicy(
+        "fleetbus-downlink-rejected", _exactly(DOWNLINK_REJECTED_QUEUE), _bounded(QueueLimit(limit))
+    )
 
 
 def apply_policies(api: ManagementAPI, vhost: str, policies: list[QueuePolicy]) -> None:

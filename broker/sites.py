@@ -45,7 +45,7 @@ from aio_pika.abc import ExchangeType
 
 from fleetbus.broker.accounts import Account, Role, url_for, vhost_of
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.policies import apply_policies, uplink_policies
+from fleetbus.broker.policies import apply_policies, downlink_rejected_policy, uplink_policies
 from fleetbus.broker.tls import shovel_uris
 from fleetbus.broker.topology import (
     BindingSpec,
@@ -210,15 +210,17 @@ async def start_site_links(
     central_url: str,
     *,
     bounds: UplinkBounds,
+    rejected_max: int,
     reconnect_delay_s: int,
     prefetch: int = 1000,
 ) -> None:
     """On the site's broker, as its administrator: the uplink classes', downlink and hazard uplink
-    queues and shovels (idempotent; a new ``central_url`` replaces the old one)."""
+    queues and shovels (idempotent; a new ``central_url`` replaces the old one); ``rejected_max``:
+    the bound of what the downlink could not apply (:func:`downlink_rejected_policy`)."""
     validate_name(site)
     # the ingest exchange first (declaring what exists changes nothing; one shard is what it needs)
     vhost = vhost_of(admin_url)
-    apply_policies(api, vhost, uplink_policies(bounds))
+    apply_policies(api, vhost, [*uplink_policies(bounds), downlink_rejected_policy(rejected_max)])
     await declare_with_url(admin_url, [core_topology(1), site_topology()])
     for uplink in CLASSES:
         api.put_shovel(

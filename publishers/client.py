@@ -314,6 +314,8 @@ class RobotClient:
         return self._rpc.call(method, params, timeout)
 
     def hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
+        """One hazard this robot reported, or one open to it as :meth:`open_hazards` would list
+        it; ServiceRefused for another warden's, a cleared one or a site's."""
         return self.call("hazard.get", timeout, hazard_id=hazard_id)
 
     def open_hazards(self, timeout: float = 5.0) -> list[dict[str, Any]]:

@@ -79,7 +79,8 @@ def _hazard_step(name: str, what: str) -> Method:
 METHODS: tuple[Method, ...] = (
     Method(
         "hazard.get",
-        "one hazard of the mission",
+        "one hazard of the mission, if the caller reported it or it is open to the caller as "
+        "`hazard.open` has it; another warden's, a cleared one or a site's is refused (`ok: false`)",
         {"hazard_id": HAZARD_ID, "mission_id": MISSION},
         ("hazard_id",),
         HAZARD,

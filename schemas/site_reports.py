@@ -48,9 +48,9 @@ class SiteReport(BaseModel):
     hazard_uplink: str | None = None
     """The hazard states' shovel's state; None from an older site."""
     accounts: list[str] | None = None
-    """The robots whose accounts the site has (those in its team or whose events it forwards,
-    with an account on its broker), sorted: central finds copies the site should no longer
-    have. None from an older site."""
+    """The robots whose accounts central gave the site and the site still has (those whose events
+    it forwards, with an account on its broker; not the robots made at the site alone), sorted:
+    central finds copies the site should no longer have. None from an older site."""
     in_use: dict[str, str] | None = None
     """Of ``accounts``, those in use at the site (a robot mounted there), with why: a copy central
     asked the site to remove stays while it is. None from an older site."""

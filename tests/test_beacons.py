@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -80,13 +81,27 @@ def test_sighting_from_an_unknown_robot_is_dead_lettered(bus: Bus) -> None:
     assert [r.robot_id for r in bus.find()] == ["guide1"]
 
 
+def test_a_beacon_that_is_not_at_a_finite_place_is_refused_and_nothing_of_its_file_stored(
+    stored_bus: Bus, tmp_path: Path
+) -> None:
+    registry = tmp_path / "beacons.yaml"
+    registry.write_text("- {id: b1, x: 1, y: 2}\n- {id: b2, x: .nan, y: 2}\n- {id: b3, x: 3, y: 4}\n")
+    loaded = fleetbus(stored_bus, "beacons", "load", str(registry))
+    assert loaded.returncode == 2, loaded.stderr
+    assert f"{registry}: beacon 2: x must be a finite number, not nan" in " ".join(loaded.stderr.split())
+    assert stored_bus.with_store(lambda store: store.beacons.beacons()) == [], "no beacon of the file stored"
+
+
 @pytest.mark.parametrize(
     ("entries", "detail"),
     [
         ({"id": "b1", "x": 1, "y": 2}, "expected a list of beacons with id, x, y and label"),
-        ([{"id": "b1", "x": 1, "y": 2}, {"id": "b2", "x": 1}], "beacon 2: needs id, x and y (KeyError('y'))"),
-        ([{"id": "b1", "x": "east", "y": 2}], "beacon 1: needs id, x and y"),
-        (["b1"], "beacon 1: needs id, x and y"),
+        ([{"id": "b1", "x": 1, "y": 2}, {"id": "b2", "x": 1}], "beacon 2: y is missing"),
+        ([{"id": "b1", "x": "east", "y": 2}], "beacon 1: x must be a valid number, unable to parse string"),
+        ([{"id": "b1", "x": 1, "y": "NaN"}], "beacon 1: y must be a finite number, not 'NaN'"),
+        ([{"id": "b1", "x": 0, "y": 0}, {"id": "b2", "x": -math.inf, "y": 0}], "beacon 2: x must be"),
+        ([{"id": "b1", "x": 1, "y": "1e999"}], "beacon 1: y must be a finite number, not '1e999'"),
+        (["b1"], "beacon 1: expected {id, x, y, label}, not 'b1'"),
     ],
 )
 def test_a_beacon_list_that_is_not_one_is_refused_whole_naming_the_first_bad_entry(

@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import yaml
@@ -109,3 +110,12 @@ def test_a_password_on_the_command_line_is_refused_naming_where_it_goes(bus: Bus
     )
     said = bridge.stderr.replace("\n", " ")
     assert bridge.returncode == 1 and "cannot start the ROS side with '/nonexistent/python'" in said, said
+
+
+def test_a_robots_url_option_is_declared_once_for_every_command_that_takes_it() -> None:
+    from fleetbus.cli.commands.events import publish
+    from fleetbus.cli.commands.ros import bridge
+    from fleetbus.cli.options import RobotUrl
+
+    for command in (publish, bridge):
+        assert typing.get_type_hints(command, include_extras=True)["url"] == RobotUrl, command.__name__

@@ -6,6 +6,7 @@ import json
 import logging
 import threading
 import time
+from datetime import datetime, timezone
 from typing import Any
 
 import pika
@@ -14,8 +15,11 @@ import pytest
 import fleetbus.workers.runner
 from fleetbus.publishers.rpc import ServiceFailed, ServiceRefused, ServiceTimeout
 from fleetbus.publishers.tls import blocking_connection
+from fleetbus.schemas.envelope import build_event
 from fleetbus.schemas.routing import RobotKind, request_routing_key, requests_exchange
 from fleetbus.schemas.services import REPLY_TO
+from fleetbus.workers.store.hazards import Hazard, HazardState, SiteApplied
+from fleetbus.workers.store.repositories import Repositories
 from tests.factories import hazard
 from tests.support import Bus
 
@@ -74,13 +78,13 @@ def test_services(bus: Bus) -> None:
             warden2.call("hazard.claim", hazard_id="one")
         with pytest.raises(ServiceRefused, match=r"no service 'hazard\.teleport'"):
             warden2.call("hazard.teleport")
-        assert warden2.hazard(1)["claimed_by"] == "warden1", "a refused claim changes nothing"
+        assert warden1.hazard(1)["claimed_by"] == "warden1", "a refused claim changes nothing"
 
         reached = warden1.hazard_reached(1)
         assert reached["state"] == "reached" and reached["reached_at"]
         warden2.claim_hazard(2)
         assert warden2.release_hazard(2)["state"] == "announced"
-        hazard_1 = explorer.hazard(1)
+        hazard_1 = warden1.hazard(1)
         assert hazard_1["event"]["body"] == sent[0].body.model_dump(mode="json")
         # a hazard another warden holds is its own: each robot is given the unclaimed ones and its own
         assert [(h["hazard_id"], h["state"]) for h in warden1.open_hazards()] == [
@@ -136,7 +140,8 @@ def test_two_wardens_claim_at_the_same_instant_one_gets_it(bus: Bus) -> None:
             thread.join(30)
         winners = [name for name, outcome in outcomes.items() if outcome == name]
         assert len(winners) == 1, outcomes
-        assert explorer.hazard(1)["claimed_by"] == winners[0]
+        winner = dict(zip(("warden1", "warden2"), wardens, strict=True))[winners[0]]
+        assert winner.hazard(1)["claimed_by"] == winners[0]
 
 
 def test_a_service_that_is_down_times_out_clearly(bus: Bus) -> None:
@@ -171,3 +176,40 @@ def test_a_bug_in_a_service_is_an_internal_error_not_the_callers_fault(
     reference = str(failed.value).rsplit(" ", 1)[-1].rstrip(")")
     [logged] = [r for r in caplog.records if reference in r.getMessage()]
     assert logged.exc_info is not None and logged.exc_info[0] is KeyError, "logged with its traceback"
+
+
+def test_a_robot_is_answered_only_the_hazards_it_reported_or_that_are_open_to_it(stored_bus: Bus) -> None:
+    """``hazard.get`` answers what ``hazard.open`` would give the caller, and the hazards it
+    reported: not another warden's hazard, not a cleared one, not a site's; refused as any other
+    request the service refuses."""
+    bus = stored_bus
+    explorer, (warden1, warden2) = team(bus)
+
+    epoch = "20261128T000000000Z-0000beef"
+
+    def event(robot: str, seq: int) -> dict[str, Any]:
+        return build_event("hazard", robot, epoch, seq, hazard(seq)).model_dump(mode="json")
+
+    async def hazards(store: Repositories) -> None:
+        hazards, at = store.hazards, datetime.now(timezone.utc)
+        for seq in range(3):
+            await hazards.add_hazard("default", "explorer1", epoch, seq, event("explorer1", seq), at, False)
+        await hazards.claim("default", 2, "warden1", at)
+        await hazards.claim("default", 3, "warden1", at)
+        await hazards.mark_reached("default", 3, "warden1", at)
+        await hazards.mark_cleared("default", 3, "warden1", at)
+        announced = HazardState.ANNOUNCED
+        at_site = Hazard("default", 1, "explorer9", epoch, 0, event("explorer9", 0), announced, at)
+        assert (await hazards.apply_site_hazard("site-a", at_site))[0] is SiteApplied.APPLIED
+
+    bus.with_store(hazards)
+    with bus.worker():
+        assert warden2.hazard(1)["state"] == "announced", "nobody holds it: open to every robot"
+        assert warden1.hazard(2)["claimed_by"] == "warden1", "its own claim"
+        for robot, hazard_id in ((warden2, 2), (warden1, 3), (warden1, 4), (explorer, 4)):
+            with pytest.raises(ServiceRefused, match=f"hazard {hazard_id} in mission 'default' is not open"):
+                robot.hazard(hazard_id)
+        reported = [explorer.hazard(hazard_id)["state"] for hazard_id in (1, 2, 3)]
+        assert reported == ["announced", "claimed", "cleared"], "its reporter follows each hazard"
+        with pytest.raises(ServiceRefused, match="no hazard 5 in mission 'default'"):
+            warden1.hazard(5)

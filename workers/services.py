@@ -34,10 +34,17 @@ def hazard_services(hazards: CoordinationStore, channels: ChannelStore) -> dict[
         return (await channels.recording_missions([caller])).get(caller, DEFAULT_MISSION)
 
     async def get(caller: str, params: dict[str, Any]) -> Any:
-        mission = await _mission(caller, params)
-        hazard = await hazards.get_hazard(mission, _hazard_id(params))
+        """A hazard the caller may look up (:meth:`Hazard.shown_to`): the one it reported, or one
+        open to it; a robot sees no more by asking than that."""
+        mission, hazard_id = await _mission(caller, params), _hazard_id(params)
+        hazard = await hazards.get_hazard(mission, hazard_id)
         if hazard is None:
-            raise ServiceError(f"no hazard {params['hazard_id']} in mission {mission!r}")
+            raise ServiceError(f"no hazard {hazard_id} in mission {mission!r}")
+        if not hazard.shown_to(caller):
+            raise ServiceError(
+                f"hazard {hazard_id} in mission {mission!r} is not open to {caller} (a robot is "
+                "answered only the hazards it reported and those hazard.open gives it)"
+            )
         return hazard.as_dict()
 
     async def open_hazards(caller: str, params: dict[str, Any]) -> Any:

@@ -30,11 +30,13 @@ def site_report(
     team: Collection[str] = (),
     in_use: Mapping[str, str] | None = None,
 ) -> SiteReport:
-    """The site's links now, as ``fleetbus site status`` shows them, and the robots' accounts it
-    has (``team``: the robots of the site's team; ``in_use``: those in use at the site, with why)."""
+    """The site's links now, as ``fleetbus site status`` shows them, and the copies it has of the
+    accounts central gave it (``team``: the robots of the site's team; ``in_use``: those in use at
+    the site, with why). Central's copies are the robots whose events the site forwards, as the
+    downlink's list of the site's robots judges them: a robot made at the site alone is in its team
+    but not central's, and is left out."""
     link = site_view(api, vhost, team)
-    robots = forwarded_robots(api, vhost) | set(team)
-    accounts = sorted(robots & {user["name"] for user in api.list_users()})
+    accounts = sorted(forwarded_robots(api, vhost) & {user["name"] for user in api.list_users()})
     return SiteReport(
         site=site,
         at=datetime.now(timezone.utc),

@@ -134,6 +134,8 @@ class SiteLink:
     """Robots of the site's team whose events are not forwarded (central did not send them)."""
     rejected: int | None = None
     """Downlink messages ``fleetbus site apply`` could not parse (in ``fleetbus.downlink.rejected``)."""
+    rejected_bound: int | None = None
+    """How many of those the queue keeps (its policy's, set by ``fleetbus site up``); None: unbounded."""
     hazard_uplink: ShovelState | None = None
     """The shovel of the hazards' states."""
     hazard_states_waiting: int | None = None
@@ -154,6 +156,7 @@ class SiteLink:
             "hazard_states_waiting": self.hazard_states_waiting,
             "not_forwarded": self.not_forwarded,
             "rejected": self.rejected,
+            "rejected_bound": self.rejected_bound,
         }
 
 
@@ -196,6 +199,7 @@ def site_view(api: ManagementAPI, vhost: str, team: Collection[str]) -> SiteLink
         None if any(n is None for n in counts) else sum(n or 0 for n in counts),
         not_forwarded,
         held(DOWNLINK_REJECTED_QUEUE),
+        bound(DOWNLINK_REJECTED_QUEUE),
         state(HAZARD_UPLINK_SHOVEL),
         held(HAZARD_UPLINK_QUEUE),
         classes,

@@ -314,6 +314,13 @@ class Settings(BaseSettings):
         "on a site: seconds between `fleetbus site apply`'s reports to central (what waits in the uplink, "
         "how the links fare); central shows the newest with its age",
     )
+    downlink_rejected_max: Annotated[int, Positive] = setting(
+        1000,
+        "on a site: the most downlink messages `fleetbus site apply` could not apply that "
+        "`fleetbus.downlink.rejected` keeps (each `fleetbus sites sync` adds one more refused list while a "
+        "robot stays mounted); full, the oldest are dropped and counted (`fleetbus site status`, "
+        "`fleetbus stats`) (set by `fleetbus site up`)",
+    )
     site_reconnect_delay_s: Annotated[int, Positive] = setting(
         1,
         "on a site: whole seconds the uplink and downlink shovels wait before connecting to central again",

@@ -74,6 +74,7 @@ class SitePair:
             self.name,
             self.central_url,
             bounds=bounds_of(settings),
+            rejected_max=settings.downlink_rejected_max,
             reconnect_delay_s=settings.site_reconnect_delay_s,
         )
 

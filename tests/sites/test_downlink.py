@@ -5,6 +5,7 @@ registry check reports the site's copy until then."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 from datetime import datetime, timezone
 from urllib.parse import unquote, urlsplit
@@ -73,6 +74,12 @@ def _copies(pair: SitePair) -> tuple[object, ...]:
     )
 
 
+def _site_status(pair: SitePair) -> dict[str, object]:
+    shown = run(pair.site, "site", "status", "--json")
+    assert shown.returncode == 0, shown.stderr
+    return dict(json.loads(shown.stdout))
+
+
 def _site_drift(pair: SitePair) -> str:
     check = run(pair.central, "users", "check", "--json")
     assert check.returncode == 1, check.stdout
@@ -82,12 +89,15 @@ def _site_drift(pair: SitePair) -> str:
 
 
 def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> None:
+    pair.site.settings = pair.site.settings.updated(downlink_rejected_max=2)
+    asyncio.run(pair.start_links())  # as `fleetbus site up` sets the bound of what it cannot apply
     pair.central.add("guide5", kind=RobotKind.GUIDE)
     pair.central.add("explorer5", kind=RobotKind.EXPLORER)
     pair.site.accounts.extend(["guide5", "explorer5"])
     assert run(pair.central, "sites", "robots", "base1", "--add", "guide5,explorer5").returncode == 0
     wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="the accounts through the downlink")
     assert run(pair.site, "site", "apply", "--once").returncode == 0
+    pair.site.add("scout5", kind=RobotKind.EXPLORER)  # the site's own robot: not central's copy
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0, "the site has its own robots' copies"
 
@@ -110,7 +120,10 @@ def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> No
     assert applied.returncode == 0 and "applied 1 changes" in applied.stdout, applied.stdout
     assert pair.site.api.get_user("guide5") is None, "it no longer logs in at the site"
     assert "guide5" not in forwarded_robots(pair.site.api, pair.site.vhost)
-    assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == ["explorer5"]
+    assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == [
+        "explorer5",
+        "scout5",
+    ]
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0
 
@@ -131,11 +144,29 @@ def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> No
     assert "site base1 keeps the accounts of explorer5" in problem
     assert "explorer5 is in use (explorer5 mounted by operator5 for M-5)" in problem
 
+    # each sync while the robot stays mounted is refused again: the site keeps the newest refusals
+    # up to its bound (FLEETBUS_DOWNLINK_REJECTED_MAX, set by `site up`) and counts those it dropped
+    with pair.site.worker():
+        for _ in range(2):
+            pair.central.with_accounts(lambda accounts: accounts.sync_site("base1"))
+            assert _apply(pair, 1) == 0, "the list, refused again"
+        assert pair.site.ready_messages(DOWNLINK_REJECTED_QUEUE) == 2
+        wait_for(lambda: _site_status(pair)["rejected_dropped"] == 1, what="the oldest refusal counted")
+    # `site status` reads the queue from the management API, which shows it with its next statistics
+    wait_for(
+        lambda: (s := _site_status(pair))["rejected"] == s["rejected_bound"] == 2, what="2 kept of 2 shown"
+    )
+    shown = " ".join(run(pair.site, "site", "status").stdout.split())
+    assert "downlink messages not applied: 2 " in shown, shown
+    dropped = "1 older downlink messages not applied were dropped: fleetbus.downlink.rejected keeps"
+    assert f"{dropped} the newest 2 (FLEETBUS_DOWNLINK_REJECTED_MAX)" in shown, shown
+
     pair.site.with_store(lambda store: store.channels.unmount("explorer5"))
     pair.central.with_accounts(lambda accounts: accounts.sync_site("base1"))
     assert _apply(pair, 1) == 1
     assert pair.site.api.get_user("explorer5") is None
     assert forwarded_robots(pair.site.api, pair.site.vhost) == set()
-    assert pair.site.with_store(lambda store: store.hazards.robots()) == []
+    assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == ["scout5"]
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0
+    assert pair.site.api.get_user("scout5") is not None, "central never told the site to remove it"

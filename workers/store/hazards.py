@@ -87,6 +87,11 @@ class Hazard:
         unclaimed_or_own = self.claimed_by is None or self.claimed_by == robot
         return self.state is not HazardState.CLEARED and self.site is None and unclaimed_or_own
 
+    def shown_to(self, robot: str) -> bool:
+        """Whether ``robot`` may look this hazard up (``hazard.get``): the robot that reported it,
+        to follow what became of it, or a robot it is open to (:meth:`open_to`)."""
+        return self.robot_id == robot or self.open_to(robot)
+
     def as_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
         out["state"] = self.state.value

@@ -23,7 +23,8 @@ app = typer.Typer(help="BLE beacons: the registry and the people likely stranded
 
 @app.command("load")
 def load(path: Path) -> None:
-    """Add or update beacons from a YAML or JSON list of {id, x, y, label}."""
+    """Add or update beacons from a YAML or JSON list of {id, x, y, label} (x, y: finite numbers,
+    metres in the map frame); a file with one bad entry is refused whole."""
     try:
         entries = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as error:

@@ -16,10 +16,10 @@ from fleetbus.cli.context import (
     console,
     fail,
     load_data,
-    no_password_in_argv,
     settings,
     with_recording,
 )
+from fleetbus.cli.options import RobotUrl, check_url_option, robot_url
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError
@@ -33,34 +33,11 @@ from fleetbus.workers.store import run_with_repositories
 from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
 
 
-def check_url_option(url: str | None) -> None:
-    """Refuse a robot's ``--url`` that holds a password (every user of the machine sees it)."""
-    no_password_in_argv(url, "--url", "in FLEETBUS_ROBOT_URL, or as `users add` kept it")
-
-
-def robot_url(robot: str, url: str | None) -> str:
-    """The robot's AMQP URL: ``url`` (its ``--url``), else FLEETBUS_ROBOT_URL, else the one
-    `users add` kept; the command ends when there is none."""
-    url = url or settings().robot_url
-    if url:
-        return url
-    saved = settings().accounts_dir / f"{robot}.url"
-    if saved.exists():
-        return saved.read_text().strip()
-    fail(f"no credentials for {robot!r}: use --url, FLEETBUS_ROBOT_URL or `fleetbus users add {robot}`")
-
-
 def publish(
     robot: str,
     event_type: Annotated[EventType, typer.Argument(metavar="TYPE")],
     data: Annotated[str, typer.Argument(help="JSON, or @file.json / @file.yaml")],
-    url: Annotated[
-        str | None,
-        typer.Option(
-            help="the robot's AMQP URL without a password (a client certificate's; default: "
-            "FLEETBUS_ROBOT_URL, else the one `users add` kept)"
-        ),
-    ] = None,
+    url: RobotUrl = None,
     timeout: Annotated[float, typer.Option(help="seconds to wait for the broker's confirm")] = 10.0,
 ) -> None:
     """Publish one event as ROBOT, through its outbox; it returns once the broker confirmed it.

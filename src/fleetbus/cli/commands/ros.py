@@ -9,8 +9,8 @@ from typing import Annotated
 
 import typer
 
-from fleetbus.cli.commands.events import check_url_option, robot_url
 from fleetbus.cli.context import console, fail, settings
+from fleetbus.cli.options import RobotUrl, check_url_option, robot_url
 from fleetbus.processes import pid_alive
 
 app = typer.Typer(help="The live ROS 1 bridge: ROS topics into fleetbus, notifications out as ROS topics.")
@@ -19,13 +19,7 @@ app = typer.Typer(help="The live ROS 1 bridge: ROS topics into fleetbus, notific
 @app.command()
 def bridge(
     robot: Annotated[str, typer.Argument(help="the robot's account (its fleetbus name)")],
-    url: Annotated[
-        str | None,
-        typer.Option(
-            help="the robot's AMQP URL without a password (a client certificate's; default: "
-            "FLEETBUS_ROBOT_URL, else the one `users add` kept)"
-        ),
-    ] = None,
+    url: RobotUrl = None,
     mapping: Annotated[
         Path | None,
         typer.Option(help="the mapping file (default: FLEETBUS_ROS_MAPPING, else the standard mapping)"),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
@@ -20,8 +20,15 @@ from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
 from fleetbus.cli.context import admin_api, console, endpoint, fail, no_password_in_argv, settings
 from fleetbus.publishers.tls import TlsSettingError
+from fleetbus.schemas.routing import DOWNLINK_REJECTED_QUEUE
+from fleetbus.workers.overflow import dropped_from_queue
 from fleetbus.workers.site_status import site_view
 from fleetbus.workers.store import run_with_repositories
+
+if TYPE_CHECKING:
+    from fleetbus.workers.store import Repositories
+    from fleetbus.workers.store.housekeeping import BoundCount
+    from fleetbus.workers.store.team import RobotState
 
 app = typer.Typer(
     help="On a site: its links to central (the uplink and downlink shovels).", no_args_is_help=True
@@ -100,6 +107,7 @@ def up(
                 name,
                 central,
                 bounds=bounds_of(config),
+                rejected_max=config.downlink_rejected_max,
                 reconnect_delay_s=config.site_reconnect_delay_s,
             )
         )
@@ -117,11 +125,16 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     """The uplink, downlink and hazard uplink: running or not, since when, and what waits to be
     forwarded."""
     ep = endpoint()
-    team = run_with_repositories(settings(), lambda repos: repos.hazards.robots())
+
+    async def read(repos: Repositories) -> tuple[list[RobotState], list[BoundCount]]:
+        return await repos.hazards.robots(), await repos.housekeeping.bound_counts()
+
+    team, counts = run_with_repositories(settings(), read)
+    dropped = dropped_from_queue(counts, DOWNLINK_REJECTED_QUEUE)
     with admin_api(ep) as api:
         link = site_view(api, vhost_of(ep.amqp_url), [robot.name for robot in team])
     if as_json:
-        console.print_json(json.dumps(link.as_dict()))
+        console.print_json(json.dumps({**link.as_dict(), "rejected_dropped": dropped}))
         return
     table = Table(title="links to central")
     for column in ("shovel", "state", "since", "reason"):
@@ -143,6 +156,12 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
         console.print(
             f"[red]downlink messages not applied: {link.rejected:,}[/] "
             "(kept in fleetbus.downlink.rejected, each with the reason in its x-fleetbus-rejected header)",
+            highlight=False,
+        )
+    if dropped:
+        console.print(
+            f"{dropped:,} older downlink messages not applied were dropped: fleetbus.downlink.rejected "
+            f"keeps the newest {link.rejected_bound or '?'} (FLEETBUS_DOWNLINK_REJECTED_MAX)",
             highlight=False,
         )
     if link.not_forwarded:
