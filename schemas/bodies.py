@@ -20,7 +20,7 @@ from fleetbus.schemas.pgm import check_pgm
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Quaternion(Strict):

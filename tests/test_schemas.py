@@ -35,6 +35,8 @@ def test_map_keeps_pgm_bytes_and_yaml_fields() -> None:
     [
         ("hazard", {**hazard(), "pose": {"x": "north", "y": 1}}, "body.pose.x"),
         ("hazard", {**hazard(), "description": "  "}, "body.description"),
+        ("hazard", {**hazard(), "pose": {"x": float("nan"), "y": 1}}, "body.pose.x"),
+        ("localisation", {"pose": {"x": 1, "y": float("inf")}, "localised": True}, "body.pose.y"),
         ("status", {**status(), "battery_percent": 140}, "body.battery_percent"),
         ("map", {**small_map(), "pgm": "aGVsbG8="}, "body.pgm"),
         ("beacon", {"beacon_id": "b1", "rssi": -60, "colour": "red"}, "body.colour"),
