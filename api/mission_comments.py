@@ -49,9 +49,11 @@ class MissionComments:
         self._missions = missions
         self._comments = comments
 
-    async def mission(self, mission_id: str) -> Mission:
-        """The mission, for a reader who may see every one (the server's own shell)."""
-        return await self._missions.get_any(mission_id)
+    async def any_thread(self, mission_id: str, limit: int = THREAD_LIMIT) -> list[Comment]:
+        """The mission's newest ``limit`` comments, oldest first, for a reader who may see every
+        mission (the server's own shell)."""
+        await self._missions.get_any(mission_id)
+        return await self._comments.comments(mission_id, limit)
 
     async def thread(self, user: User, mission_id: str, limit: int = THREAD_LIMIT) -> list[Comment]:
         """The mission's newest ``limit`` comments, oldest first."""

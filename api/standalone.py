@@ -10,9 +10,12 @@ from fleetbus.api.beacons import Beacons
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.hazards import Hazards
 from fleetbus.api.maps import Maps
+from fleetbus.api.mission_comments import MissionComments
+from fleetbus.api.missions import Missions
 from fleetbus.api.team import Team, team_for
 from fleetbus.settings import Settings
 from fleetbus.workers.store import Repositories, open_repositories
+from fleetbus.workers.store.users import UserStore
 
 
 class Services:
@@ -47,6 +50,15 @@ class Services:
     @property
     def maps(self) -> Maps:
         return Maps(self._repos.maps)
+
+    @property
+    def mission_comments(self) -> MissionComments:
+        return MissionComments(Missions(self._repos.missions, self._repos.channels), self._repos.comments)
+
+    @property
+    def users(self) -> UserStore:
+        """The account registry, for a command that acts as one of its accounts."""
+        return self._repos.users
 
 
 @asynccontextmanager

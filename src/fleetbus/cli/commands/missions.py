@@ -17,11 +17,12 @@ from rich.table import Table
 from rich.text import Text
 
 from fleetbus.cli.accounts import with_accounts
-from fleetbus.cli.context import clock, console, endpoint, fail, settings
+from fleetbus.cli.context import clock, console, endpoint, fail
+from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
     from fleetbus.api.accounts import Accounts
-    from fleetbus.api.mission_comments import MissionComments
+    from fleetbus.api.standalone import Services
     from fleetbus.broker.management import ManagementAPI
     from fleetbus.workers.store import Repositories
     from fleetbus.workers.store.comments import Comment
@@ -75,13 +76,6 @@ def create(
     )
 
 
-def _discussions(repos: Repositories) -> MissionComments:
-    from fleetbus.api.mission_comments import MissionComments
-    from fleetbus.api.missions import Missions
-
-    return MissionComments(Missions(repos.missions, repos.channels), repos.comments)
-
-
 @app.command("comment")
 def comment(
     mission_id: Annotated[str, typer.Argument(metavar="ID", help="the mission, e.g. m-1")],
@@ -97,19 +91,15 @@ def comment(
     as_json: Annotated[bool, typer.Option("--json", help="print the comment as JSON")] = False,
 ) -> None:
     """Comment on mission ID as the account --as, as POST /missions/ID/comments does for it."""
-    from fleetbus.api.errors import NotFound, ServiceRefusal
-    from fleetbus.workers.store import run_with_repositories
+    from fleetbus.api.errors import NotFound
 
-    async def add(repos: Repositories) -> Comment:
-        user = await repos.users.get_user(author)
+    async def add(services: Services) -> Comment:
+        user = await services.users.get_user(author)
         if user is None:
             raise NotFound(f"no account {author!r} in the registry (`fleetbus users list`); nothing stored")
-        return await _discussions(repos).add(user, mission_id, text)
+        return await services.mission_comments.add(user, mission_id, text)
 
-    try:
-        made = run_with_repositories(settings(), add)
-    except ServiceRefusal as refusal:
-        fail(refusal.detail)
+    made = with_services(add)
     if as_json:
         typer.echo(json.dumps(made.as_dict()))
         return
@@ -125,17 +115,11 @@ def comments(
     as_json: Annotated[bool, typer.Option("--json", help="one JSON object a line")] = False,
 ) -> None:
     """Mission ID's discussion, oldest first: who (and in which role), when (UTC), what."""
-    from fleetbus.api.errors import ServiceRefusal
-    from fleetbus.workers.store import run_with_repositories
 
-    async def read(repos: Repositories) -> list[Comment]:
-        await _discussions(repos).mission(mission_id)
-        return await repos.comments.comments(mission_id, limit)
+    async def read(services: Services) -> list[Comment]:
+        return await services.mission_comments.any_thread(mission_id, limit)
 
-    try:
-        found = run_with_repositories(settings(), read)
-    except ServiceRefusal as refusal:
-        fail(refusal.detail)
+    found = with_services(read)
     if as_json:
         for each in found:
             typer.echo(json.dumps(each.as_dict()))
