@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+from fleetbus.api.alerts import Alerts, DeadLetterCount, alerts_for
 from fleetbus.api.beacons import Beacons
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.hazards import Hazards
@@ -50,6 +51,11 @@ class Services:
     @property
     def maps(self) -> Maps:
         return Maps(self._repos.maps)
+
+    def alerts(self, dead_letters: DeadLetterCount | None = None) -> Alerts:
+        """The alerts, with the settings' thresholds; ``dead_letters`` counts the dead-letter queue
+        (None: its alerts are left as they are)."""
+        return alerts_for(self._settings, self._repos, dead_letters)
 
     @property
     def mission_comments(self) -> MissionComments:
