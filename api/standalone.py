@@ -8,6 +8,7 @@ from contextlib import asynccontextmanager
 
 from fleetbus.api.alerts import Alerts, DeadLetterCount, alerts_for
 from fleetbus.api.beacons import Beacons
+from fleetbus.api.dead_letters import DeadLetters
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.hazards import Hazards
 from fleetbus.api.maps import Maps
@@ -56,6 +57,10 @@ class Services:
         """The alerts, with the settings' thresholds; ``dead_letters`` counts the dead-letter queue
         (None: its alerts are left as they are)."""
         return alerts_for(self._settings, self._repos, dead_letters)
+
+    @property
+    def dead_letters(self) -> DeadLetters:
+        return DeadLetters(self._repos.rejections, self._repos.housekeeping, self._broker())
 
     @property
     def mission_comments(self) -> MissionComments:

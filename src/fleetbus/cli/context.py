@@ -17,7 +17,6 @@ from rich.console import Console
 # What only some commands need is imported in the functions that need it: every command loads
 # this module, and one that reads the store should not wait for the broker's clients to load.
 if TYPE_CHECKING:
-    from fleetbus.broker.dead_letter_queue import DeadLetter
     from fleetbus.broker.endpoint import BrokerEndpoint
     from fleetbus.broker.management import ManagementAPI
     from fleetbus.broker.routes import RouteMap
@@ -70,19 +69,6 @@ def endpoint(start: bool = True) -> BrokerEndpoint:
         return resolve_broker(settings(), start=start)
     except Exception as error:  # any failure to find a broker ends the command with its reason
         fail(f"no broker: {error}")
-
-
-def dead_letters(limit: int = 1000) -> list[DeadLetter]:
-    """The dead-letter queue, each letter with the reason the workers kept in the store."""
-    from fleetbus.broker.dead_letter_queue import peek_dead_letters
-    from fleetbus.workers.store import run_with_repositories
-
-    config = settings()
-    return peek_dead_letters(
-        endpoint().amqp_url,
-        limit,
-        reasons=lambda keys: run_with_repositories(config, lambda repos: repos.rejections.rejections(keys)),
-    )
 
 
 def service_account(account: str | None = None) -> str:

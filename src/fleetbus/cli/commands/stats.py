@@ -8,25 +8,22 @@ import json
 from collections import Counter
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from fleetbus.cli.context import (
-    clock,
-    console,
-    dead_letters,
-    errors,
-    fail,
-    settings,
-    with_recording,
-)
+from fleetbus.cli.context import clock, console, endpoint, errors, fail, settings, with_recording
+from fleetbus.cli.services import with_services
 from fleetbus.cli.times import TIME_FORMS, parse_duration, parse_time
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
 from fleetbus.workers.store import StoreError, run_with_repositories
 from fleetbus.workers.store.housekeeping import BoundCount
 from fleetbus.workers.store.statuses import WorkerStatus
+
+if TYPE_CHECKING:
+    from fleetbus.api.dead_letters import DeadLetter
+    from fleetbus.api.standalone import Services
 
 
 def _view(item: Growth) -> dict[str, object]:
@@ -84,7 +81,11 @@ def _workers() -> None:
 
 
 def _dead_letters() -> None:
-    letters = dead_letters()
+
+    async def read(services: Services) -> list[DeadLetter]:
+        return (await services.dead_letters.listing(1000)).letters
+
+    letters = with_services(read, endpoint().amqp_url)
     reasons = Counter(letter.reason for letter in letters)
     shown = ", ".join(f"{reason} {count}" for reason, count in reasons.most_common())
     console.print(
