@@ -14,6 +14,7 @@ from fleetbus.api.hazards import Hazards
 from fleetbus.api.maps import Maps
 from fleetbus.api.mission_comments import MissionComments
 from fleetbus.api.missions import Missions
+from fleetbus.api.stats import Stats
 from fleetbus.api.team import Team, team_for
 from fleetbus.settings import Settings
 from fleetbus.workers.store import Repositories, open_repositories
@@ -48,6 +49,10 @@ class Services:
     @property
     def beacons(self) -> Beacons:
         return Beacons(self._repos.beacons, self._repos.events)
+
+    @property
+    def stats(self) -> Stats:
+        return Stats(self._repos.statuses, self._repos.housekeeping)
 
     @property
     def maps(self) -> Maps:
