@@ -14,6 +14,7 @@ from fleetbus.api.hazards import Hazards
 from fleetbus.api.maps import Maps
 from fleetbus.api.mission_comments import MissionComments
 from fleetbus.api.missions import Missions
+from fleetbus.api.sites import Sites, SiteTeam
 from fleetbus.api.stats import Stats
 from fleetbus.api.team import Team, team_for
 from fleetbus.settings import Settings
@@ -49,6 +50,15 @@ class Services:
     @property
     def beacons(self) -> Beacons:
         return Beacons(self._repos.beacons, self._repos.events)
+
+    @property
+    def sites(self) -> Sites:
+        """Central's sites; needs the broker (their reports wait there, missions go there)."""
+        return Sites(self._repos.sites, self._repos.missions, self._broker(), self._settings.uplink_alert_at)
+
+    @property
+    def site_team(self) -> SiteTeam:
+        return SiteTeam(self._repos.hazards, self._repos.channels)
 
     @property
     def stats(self) -> Stats:
