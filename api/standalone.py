@@ -14,6 +14,7 @@ from fleetbus.api.hazards import Hazards
 from fleetbus.api.maps import Maps
 from fleetbus.api.mission_comments import MissionComments
 from fleetbus.api.missions import Missions
+from fleetbus.api.sessions import UserSessions
 from fleetbus.api.sites import Sites, SiteTeam
 from fleetbus.api.stats import Stats
 from fleetbus.api.team import Team, team_for
@@ -50,6 +51,10 @@ class Services:
     @property
     def beacons(self) -> Beacons:
         return Beacons(self._repos.beacons, self._repos.events)
+
+    @property
+    def sessions(self) -> UserSessions:
+        return UserSessions(self._repos.users, self._repos.sessions)
 
     @property
     def sites(self) -> Sites:
