@@ -15,6 +15,7 @@ from fleetbus.api.maps import Maps
 from fleetbus.api.mission_comments import MissionComments
 from fleetbus.api.missions import Missions
 from fleetbus.api.sessions import UserSessions
+from fleetbus.api.shards import Shards
 from fleetbus.api.sites import Sites, SiteTeam
 from fleetbus.api.stats import Stats
 from fleetbus.api.team import Team, team_for
@@ -55,6 +56,10 @@ class Services:
     @property
     def sessions(self) -> UserSessions:
         return UserSessions(self._repos.users, self._repos.sessions)
+
+    @property
+    def shards(self) -> Shards:
+        return Shards(self._repos.leases, self._repos.users)
 
     @property
     def sites(self) -> Sites:
