@@ -15,7 +15,7 @@ from fleetbus.api.mission_comments import MissionComments
 from fleetbus.api.missions import Missions
 from fleetbus.api.team import Team, team_for
 from fleetbus.settings import Settings
-from fleetbus.workers.store import Repositories, open_repositories
+from fleetbus.workers.store import Repositories, open_recording_store, open_repositories
 from fleetbus.workers.store.users import UserStore
 
 # The services only some commands use are imported when asked for: every command that opens the
@@ -23,6 +23,7 @@ from fleetbus.workers.store.users import UserStore
 if TYPE_CHECKING:
     from fleetbus.api.alerts import Alerts, DeadLetterCount
     from fleetbus.api.dead_letters import DeadLetters
+    from fleetbus.api.recording import Recording
     from fleetbus.api.sessions import UserSessions
     from fleetbus.api.shards import Shards
     from fleetbus.api.sites import Sites, SiteTeam
@@ -122,3 +123,15 @@ async def open_services(settings: Settings, admin_url: str | None = None) -> Asy
     async with open_repositories(settings) as repositories:
         yield Services(settings, repositories, admin_url)
 
+
+@asynccontextmanager
+async def open_recording(settings: Settings, events: bool = False) -> AsyncIterator[Recording]:
+    """The recording the settings select; ``events``: with the event log, which a trace reads."""
+    from fleetbus.api.recording import Recording
+
+    async with open_recording_store(settings) as store:
+        if not events:
+            yield Recording(store)
+            return
+        async with open_repositories(settings) as repositories:
+            yield Recording(store, repositories.events)

@@ -6,7 +6,7 @@ import contextlib
 import json
 from dataclasses import asdict
 from datetime import datetime
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
@@ -18,8 +18,8 @@ from fleetbus.cli.context import (
     load_data,
     no_password_in_argv,
     settings,
-    with_recording,
 )
+from fleetbus.cli.services import with_recording
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError
@@ -27,10 +27,12 @@ from fleetbus.publishers.state_lock import RobotStateInUse
 from fleetbus.schemas.envelope import SchemaError, validate_body
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.capture import LEDGER_VIEWS
-from fleetbus.workers.recorder.queries import find, parse_condition, record_view
+from fleetbus.workers.recorder.queries import record_view
 from fleetbus.workers.recorder.summary import summarize
 from fleetbus.workers.store import run_with_repositories
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
+
+if TYPE_CHECKING:
+    from fleetbus.api.recording import RecordedMessage, Recording
 
 
 def check_url_option(url: str | None) -> None:
@@ -138,27 +140,22 @@ def query(
     if message_type in LEDGER_VIEWS:
         show_ledger(message_type, robot, limit, as_json)
         return
-    try:
-        conditions = [parse_condition(text, message_type) for text in where or []]
-        limit = 1 if latest else limit
+    limit = 1 if latest else limit
 
-        async def run(store: RecordingStore) -> tuple[list[RecordedMessage], list[str]]:
-            found = await find(
-                store,
-                message_type,
-                conditions,
-                robot_id=robot,
-                since=parse_time(since, "--since"),
-                until=parse_time(until, "--until"),
-                limit=limit,
-                newest_first=True,
-                mission_id=mission,
-            )
-            return found, await store.recorded_types()
+    async def run(recording: Recording) -> tuple[list[RecordedMessage], list[str]]:
+        found = await recording.find(
+            message_type,
+            recording.conditions(where or [], message_type),
+            robot_id=robot,
+            since=parse_time(since, "--since"),
+            until=parse_time(until, "--until"),
+            limit=limit,
+            newest_first=True,
+            mission_id=mission,
+        )
+        return found, await recording.types()
 
-        records, types = with_recording(run)
-    except RecordingError as error:
-        fail(str(error), code=2)
+    records, types = with_recording(run)
     records.reverse()
     if as_json:
         for record in records:

@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.cli.context import clock, console, endpoint, errors, fail, with_recording
-from fleetbus.cli.services import with_services
+from fleetbus.cli.context import clock, console, endpoint, errors, fail
+from fleetbus.cli.services import with_recording, with_services
 from fleetbus.cli.times import TIME_FORMS, parse_duration, parse_time
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
 
@@ -112,7 +112,7 @@ def stats(
     if not as_json:
         _workers()
         _dead_letters()
-    rows = growth(with_recording(lambda store: store.samples(start)), bucket)
+    rows = growth(with_recording(lambda recording: recording.samples(start)), bucket)
     removed = with_services(lambda services: services.stats.removed())
     if as_json:
         for row in rows:

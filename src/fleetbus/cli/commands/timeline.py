@@ -9,19 +9,12 @@ import typer
 from rich.table import Table
 
 from fleetbus.broker.topology import inbox_bindings
-from fleetbus.cli.context import (
-    clock,
-    console,
-    fail,
-    route_map,
-    settings,
-    with_recording,
-)
+from fleetbus.cli.context import clock, console, fail, route_map, settings
+from fleetbus.cli.services import with_recording
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, RobotKind, inbox_queue
 from fleetbus.workers.recorder.queries import record_view
-from fleetbus.workers.recorder.queries import timeline as build_timeline
 from fleetbus.workers.recorder.summary import summarize
 from fleetbus.workers.store import run_with_repositories
 
@@ -55,16 +48,8 @@ def timeline(
     inbound = (
         routes.keys_into(inbox_queue(robot), NOTIFY_EXCHANGE) if routes else registered_subscriptions(robot)
     )
-    result = with_recording(
-        lambda store: build_timeline(
-            store,
-            robot,
-            parse_time(since, "--since"),
-            parse_time(until, "--until"),
-            inbound=inbound,
-            limit=limit,
-        )
-    )
+    start, end = parse_time(since, "--since"), parse_time(until, "--until")
+    result = with_recording(lambda recording: recording.timeline(robot, start, end, inbound, limit))
     if as_json:
         for entry in result.entries:
             typer.echo(json.dumps({"sent": entry.sent, **record_view(entry.record)}, ensure_ascii=False))
