@@ -23,6 +23,7 @@ from fleetbus.workers.store.users import UserStore
 if TYPE_CHECKING:
     from fleetbus.api.alerts import Alerts, DeadLetterCount
     from fleetbus.api.dead_letters import DeadLetters
+    from fleetbus.api.ledger import Ledger
     from fleetbus.api.recording import Recording
     from fleetbus.api.sessions import UserSessions
     from fleetbus.api.shards import Shards
@@ -74,6 +75,12 @@ class Services:
         from fleetbus.api.dead_letters import DeadLetters
 
         return DeadLetters(self._repos.rejections, self._repos.housekeeping, self._broker())
+
+    @property
+    def ledger(self) -> Ledger:
+        from fleetbus.api.ledger import Ledger
+
+        return Ledger(self._repos.events)
 
     @property
     def sessions(self) -> UserSessions:

@@ -19,7 +19,7 @@ from fleetbus.cli.context import (
     no_password_in_argv,
     settings,
 )
-from fleetbus.cli.services import with_recording
+from fleetbus.cli.services import with_recording, with_services
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError
@@ -29,7 +29,6 @@ from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.capture import LEDGER_VIEWS
 from fleetbus.workers.recorder.queries import record_view
 from fleetbus.workers.recorder.summary import summarize
-from fleetbus.workers.store import run_with_repositories
 
 if TYPE_CHECKING:
     from fleetbus.api.recording import RecordedMessage, Recording
@@ -190,7 +189,7 @@ def query(
 def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None:
     """Open gaps in the robots' sequence numbers, or the duplicates the workers recognised."""
     if view == "gaps":
-        gaps = run_with_repositories(settings(), lambda repos: repos.events.gaps(robot))
+        gaps = with_services(lambda services: services.ledger.gaps(robot))
         if as_json:
             for gap in gaps:
                 typer.echo(json.dumps({**asdict(gap), "missing": gap.size}, default=datetime.isoformat))
@@ -203,7 +202,7 @@ def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None
             table.add_row(gap.robot_id, gap.epoch, span, str(gap.size), clock(gap.detected_at))
         console.print(table)
         return
-    duplicates = run_with_repositories(settings(), lambda repos: repos.events.duplicates(robot, limit))
+    duplicates = with_services(lambda services: services.ledger.duplicates(robot, limit))
     if as_json:
         for duplicate in duplicates:
             typer.echo(json.dumps(asdict(duplicate), default=datetime.isoformat))
