@@ -114,6 +114,21 @@ class Services:
         return Stats(self._repos.statuses, self._repos.housekeeping)
 
     @property
+    def missions(self) -> Missions:
+        """The missions; opened with a broker, each change is sent to the sites (else `fleetbus
+        sites sync` sends them)."""
+        if self._admin_url is None:
+            return Missions(self._repos.missions, self._repos.channels)
+        from fleetbus.workers.sites import send_mission_to_sites
+
+        sites, admin_url = self._repos.sites, self._admin_url
+        return Missions(
+            self._repos.missions,
+            self._repos.channels,
+            lambda mission: send_mission_to_sites(sites, admin_url, mission),
+        )
+
+    @property
     def mission_comments(self) -> MissionComments:
         return MissionComments(Missions(self._repos.missions, self._repos.channels), self._repos.comments)
 
