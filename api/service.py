@@ -12,6 +12,7 @@ from fleetbus.api.account_check import AccountCheck, account_check_for
 from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.alerts import Alerts, alerts_for
 from fleetbus.api.channels import Channels
+from fleetbus.api.dead_letters import DeadLetters
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.login_limits import LoginLimits
 from fleetbus.api.missions import Missions
@@ -20,7 +21,7 @@ from fleetbus.api.security import Secrets
 from fleetbus.api.sessions import Sessions
 from fleetbus.api.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
-from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting, read_dead_letters
+from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
@@ -58,8 +59,13 @@ class Service:
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
         ``fleetbus dlq`` lists them (nothing is removed from the queue)."""
-        listing = await read_dead_letters(self.admin_url, limit, self.repositories.rejections.rejections)
-        return listing.letters
+        return (await self.dead_letter_queue.listing(limit)).letters
+
+    @property
+    def dead_letter_queue(self) -> DeadLetters:
+        """The dead-letter queue's service (its letters and what the full queue dropped), as the
+        command line has it."""
+        return DeadLetters(self.repositories.rejections, self.repositories.housekeeping, self.admin_url)
 
     async def route_map(self) -> RouteMap:
         """The broker's exchanges, bindings and consumers now (the management API, off the loop)."""

@@ -115,3 +115,15 @@ async def end_sessions_of(
     ended = await store.end_sessions(name, keep)
     log.info("user %s: %d session(s) ended by %s", name, ended, by)
     return ended
+
+
+class UserSessions:
+    """Ending a user's sessions, for a process that begins none (the command line)."""
+
+    def __init__(self, users: UserStore, store: SessionStore) -> None:
+        self._users = users
+        self._store = store
+
+    async def end(self, name: str, by: str) -> int:
+        """:func:`end_sessions_of`: every session of ``name``; how many ended."""
+        return await end_sessions_of(self._users, self._store, name, by)

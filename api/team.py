@@ -72,6 +72,10 @@ class Team:
             seen = dict(last_seen)
         return TeamView(members, state, why_closed(state, seen, now), len(robots))
 
+    async def robot(self, name: str) -> RobotState | None:
+        """``name``'s entry in the team (its kind, whether in service), None when not in it."""
+        return next((robot for robot in await self._team.robots() if robot.name == name), None)
+
     async def member(self, name: str) -> TeamMember:
         found = next((m for m in (await self.view()).members if m.robot.name == name), None)
         if found is None:

@@ -18,7 +18,8 @@ from fleetbus.schemas.routing import site_status_exchange
 from fleetbus.schemas.site_reports import SITE_REPORT_TYPE, SiteReport
 from fleetbus.workers.account_use import in_use
 from fleetbus.workers.site_status import site_view
-from fleetbus.workers.store import Repositories
+from fleetbus.workers.store.channels import ChannelStore
+from fleetbus.workers.store.team import TeamStore
 
 log = logging.getLogger("fleetbus.sites")
 
@@ -52,10 +53,10 @@ def site_report(
     )
 
 
-async def team_in_use(repos: Repositories) -> tuple[list[str], dict[str, str]]:
+async def team_in_use(robots: TeamStore, channels: ChannelStore) -> tuple[list[str], dict[str, str]]:
     """The robots of the site's team, and those of them in use at the site (with why)."""
-    team = [robot.name for robot in await repos.hazards.robots()]
-    held = {name: why for name in team if (why := await in_use(repos.channels, name))}
+    team = [robot.name for robot in await robots.robots()]
+    held = {name: why for name in team if (why := await in_use(channels, name))}
     return team, held
 
 

@@ -24,8 +24,7 @@ from fleetbus.schemas.site_changes import (
     RobotAccount,
     RobotAccountRemoved,
 )
-from fleetbus.workers.store import Repositories
-from fleetbus.workers.store.missions import Mission
+from fleetbus.workers.store.missions import Mission, MissionStore
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.team import change_service
@@ -141,9 +140,9 @@ def goes_to(mission: Mission, sites: Collection[str]) -> list[str]:
     return sorted(sites) if site is None else [s for s in sorted(sites) if s == site]
 
 
-async def mission_changes(repositories: Repositories, site: str | None = None) -> list[MissionChange]:
+async def mission_changes(store: MissionStore, site: str | None = None) -> list[MissionChange]:
     """Every mission as central's store has it (those ``site`` is sent), in creation order."""
-    missions = await repositories.missions.missions()
+    missions = await store.missions()
     return [mission_change(m) for m in missions if site is None or goes_to(m, [site])]
 
 

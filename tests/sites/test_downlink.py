@@ -47,7 +47,7 @@ def test_a_robot_registered_centrally_works_at_its_site(pair: SitePair) -> None:
 
 def _report(pair: SitePair) -> None:
     """The site's report to central, as `fleetbus site apply --name` sends it."""
-    team, held = pair.site.with_store(team_in_use)
+    team, held = pair.site.with_store(lambda store: team_in_use(store.hazards, store.channels))
     assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url, team, held)
 
 

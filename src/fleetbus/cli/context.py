@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import asyncio
 import getpass
 import json
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import typer
 from rich.console import Console
@@ -17,14 +16,10 @@ from rich.console import Console
 # What only some commands need is imported in the functions that need it: every command loads
 # this module, and one that reads the store should not wait for the broker's clients to load.
 if TYPE_CHECKING:
-    from fleetbus.broker.dead_letter_queue import DeadLetter
     from fleetbus.broker.endpoint import BrokerEndpoint
     from fleetbus.broker.management import ManagementAPI
     from fleetbus.broker.routes import RouteMap
     from fleetbus.settings import Settings
-    from fleetbus.workers.store.recordings import RecordingStore
-
-T = TypeVar("T")
 
 console = Console()
 errors = Console(stderr=True)
@@ -72,19 +67,6 @@ def endpoint(start: bool = True) -> BrokerEndpoint:
         fail(f"no broker: {error}")
 
 
-def dead_letters(limit: int = 1000) -> list[DeadLetter]:
-    """The dead-letter queue, each letter with the reason the workers kept in the store."""
-    from fleetbus.broker.dead_letter_queue import peek_dead_letters
-    from fleetbus.workers.store import run_with_repositories
-
-    config = settings()
-    return peek_dead_letters(
-        endpoint().amqp_url,
-        limit,
-        reasons=lambda keys: run_with_repositories(config, lambda repos: repos.rejections.rejections(keys)),
-    )
-
-
 def service_account(account: str | None = None) -> str:
     """The URL the worker (``fleetbus``, the default) or the recorder (``fleetbus-recorder``)
     logs in with: never the administrator's."""
@@ -109,46 +91,6 @@ def admin_api(ep: BrokerEndpoint) -> Iterator[ManagementAPI]:
 
 def clock(moment: datetime) -> str:
     return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
-
-
-def with_recording(operation: Callable[[RecordingStore], Awaitable[T]]) -> T:
-    """Open the recording the settings select, run one operation, close it."""
-    from fleetbus.workers.store import open_recording_store
-
-    async def go() -> T:
-        async with open_recording_store(settings()) as store:
-            return await operation(store)
-
-    return asyncio.run(go())
-
-
-@contextmanager
-def recording_stream(open_stream: Callable[[RecordingStore], AsyncIterator[T]]) -> Iterator[Iterator[T]]:
-    """Open the recording and iterate ``open_stream(store)`` from synchronous code (pika's blocking
-    publishing, say), one item at a time on an event loop of its own; closed on leaving."""
-    from fleetbus.workers.store import open_recording_store
-
-    loop = asyncio.new_event_loop()
-    store = open_recording_store(settings())
-    stream: AsyncIterator[T] | None = None
-    try:
-        loop.run_until_complete(store.open())
-        stream = open_stream(store)
-
-        def items() -> Iterator[T]:
-            assert stream is not None
-            while True:
-                try:
-                    yield loop.run_until_complete(anext(stream))
-                except StopAsyncIteration:
-                    return
-
-        yield items()
-    finally:
-        if stream is not None and hasattr(stream, "aclose"):
-            loop.run_until_complete(stream.aclose())
-        loop.run_until_complete(store.close())
-        loop.close()
 
 
 def route_map() -> RouteMap | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -12,7 +13,8 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 
-from fleetbus.workers.store.recordings import OutcomeStats
+if TYPE_CHECKING:
+    from fleetbus.api.recording import OutcomeStats
 
 
 def plot_growth(

@@ -10,12 +10,12 @@ import typer
 from rich.table import Table
 
 from fleetbus.cli.context import actor, admin_api, clock, console, fail, settings
+from fleetbus.cli.services import with_services
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store import Repositories, run_with_repositories
 
 if TYPE_CHECKING:
-    from fleetbus.api.alerts import AlertList, Alerts
-    from fleetbus.workers.store.alerts import Alert
+    from fleetbus.api.alerts import Alert, AlertList, Alerts
+    from fleetbus.api.standalone import Services
 
 app = typer.Typer(
     help="Alerts the operators acknowledge: a hazard announced or unclaimed, a robot's battery low, a "
@@ -25,11 +25,10 @@ app = typer.Typer(
 )
 
 
-def _alerts(repos: Repositories) -> Alerts:
-    """The alerts over ``repos``, counting the dead letters through the broker's management API."""
+def _alerts(services: Services) -> Alerts:
+    """The alerts, counting the dead letters through the broker's management API."""
     import asyncio
 
-    from fleetbus.api.alerts import alerts_for
     from fleetbus.broker.accounts import vhost_of
     from fleetbus.broker.dead_letter_queue import dead_letters_waiting
     from fleetbus.cli.local_broker import resolve_broker
@@ -44,7 +43,7 @@ def _alerts(repos: Repositories) -> Alerts:
 
         return await asyncio.to_thread(count)
 
-    return alerts_for(config, repos, waiting)
+    return services.alerts(waiting)
 
 
 def _row(alert: Alert) -> dict[str, object]:
@@ -74,12 +73,12 @@ def alerts(
     if ctx.invoked_subcommand is not None:
         return
 
-    async def read(repos: Repositories) -> AlertList:
-        found = _alerts(repos)
+    async def read(services: Services) -> AlertList:
+        found = _alerts(services)
         await found.check()
         return await found.listing(show_all)
 
-    listing = run_with_repositories(settings(), read)
+    listing = with_services(read)
     if as_json:
         document = {
             "unacknowledged": [_row(alert) for alert in listing.unacknowledged],
@@ -110,20 +109,16 @@ def acknowledge(
     ] = None,
 ) -> None:
     """Acknowledge alert ALERT_ID: who (--by, else your login) and when (UTC) are recorded."""
-    from fleetbus.api.alerts import acknowledged_text, alerts_for
-    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.api.alerts import acknowledged_text
 
-    async def ack(repos: Repositories) -> Alert:
+    async def ack(services: Services) -> Alert:
         role = UserRole.ADMIN  # the command line holds the store: an administrator's
         if by is not None:
-            user = await repos.users.get_user(by)
+            user = await services.users.get_user(by)
             if user is None:
                 fail(f"no user {by!r}")
             role = user.role
-        return await alerts_for(settings(), repos, None).acknowledge(alert_id, actor(by), role)
+        return await services.alerts().acknowledge(alert_id, actor(by), role)
 
-    try:
-        alert = run_with_repositories(settings(), ack)
-    except ServiceRefusal as refused:
-        fail(refused.detail)
+    alert = with_services(ack)
     console.print(acknowledged_text(alert), highlight=False)

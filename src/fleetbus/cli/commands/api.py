@@ -21,6 +21,7 @@ import typer
 
 from fleetbus.broker.accounts import save_secret
 from fleetbus.cli.context import actor, console, endpoint, fail, settings
+from fleetbus.cli.services import with_services
 from fleetbus.private_files import owner_only_umask
 from fleetbus.schemas.roles import UserRole
 
@@ -171,15 +172,6 @@ def end_sessions(
 ) -> None:
     """End every login session of NAME in this server's store, as DELETE /users/NAME/sessions
     does: its console logins and API tokens are refused from their next request on."""
-    from fleetbus.api.errors import ServiceRefusal
-    from fleetbus.api.sessions import end_sessions_of
-    from fleetbus.workers.store import run_with_repositories
-
     who = actor(by)
-    try:
-        ended = run_with_repositories(
-            settings(), lambda repos: end_sessions_of(repos.users, repos.sessions, name, who)
-        )
-    except ServiceRefusal as refusal:
-        fail(refusal.detail)
+    ended = with_services(lambda services: services.sessions.end(name, who))
     console.print(f"ended {ended} session(s) of {name}")

@@ -8,21 +8,17 @@ import json
 import os
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from fleetbus.cli.context import (
-    console,
-    errors,
-    fail,
-    recording_stream,
-    settings,
-    with_recording,
-)
+from fleetbus.cli.context import console, errors, fail, settings
+from fleetbus.cli.services import fail_refused, recording_stream, with_recording
 from fleetbus.cli.times import TIME_FORMS, parse_time_ns
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingError
+
+if TYPE_CHECKING:
+    from fleetbus.api.recording import RecordedMessage
 
 PHASES = {"check": "reading the bag", "store": "storing"}
 
@@ -39,7 +35,6 @@ def import_bag(
     The bag is read to the end before anything is stored, so a truncated or corrupt bag stores
     nothing; importing the same bag again stores nothing twice."""
     from fleetbus.schemas.identity import validate_name
-    from fleetbus.workers.recorder.bag_import import import_bag as run_import
     from fleetbus.workers.recorder.bags import BagError
 
     try:
@@ -62,8 +57,8 @@ def import_bag(
 
         try:
             report = with_recording(
-                lambda store: run_import(
-                    store, path, robot, settings().max_message_bytes, advance, settings().ros_blob_max_bytes
+                lambda recording: recording.import_bag(
+                    path, robot, settings().max_message_bytes, advance, settings().ros_blob_max_bytes
                 )
             )
         except BagError as error:
@@ -113,6 +108,7 @@ def export(
     `/<robot><topic>` in their native encoding with their definitions; each fleetbus type on a JSON
     channel with its schema, the maps, poses and hazards also as Foxglove messages. Streamed: the
     window's length does not matter."""
+    from fleetbus.api.errors import ServiceRefusal
     from fleetbus.workers.recorder.export_selection import Selection
 
     if (mcap is None) == (bag is None):
@@ -132,14 +128,14 @@ def export(
             parse_time_ns(since, "--since"),
             parse_time_ns(until, "--until"),
         )
-        schemas = with_recording(lambda store: known_robots_and_schemas(store, selection))
-    except RecordingError as error:
+    except ValueError as error:  # the recording's refusal of the window
         fail(str(error), code=2)
+    schemas = with_recording(lambda recording: recording.ros_schemas(selection))
     partial = target.with_name(target.name + ".partial")
     columns = (TextColumn("exporting: {task.completed:,.0f} messages"), TimeElapsedColumn())
     try:
         with (
-            recording_stream(lambda store: selected(store, selection)) as records,
+            recording_stream(lambda recording: recording.selected(selection)) as records,
             Progress(*columns, console=errors, transient=True) as progress,
         ):
             task = progress.add_task("export", total=None)
@@ -149,9 +145,9 @@ def export(
             partial.unlink(missing_ok=True)
             fail(f"nothing to export: no recorded message matches ({describe(selection)}); no file written")
         os.replace(partial, target)
-    except RecordingError as error:
+    except ServiceRefusal as refusal:
         partial.unlink(missing_ok=True)
-        fail(str(error), code=2)
+        fail_refused(refusal)
     except BaseException:
         partial.unlink(missing_ok=True)
         raise
@@ -168,40 +164,6 @@ def export(
 def describe(selection: Any) -> str:
     said = {name: value for name, value in selection.metadata().items() if not name.endswith("_ns")}
     return ", ".join(f"{name} {value or 'any'}" for name, value in said.items())
-
-
-async def known_robots_and_schemas(store: Any, selection: Any) -> dict[str, Any]:
-    """The definitions of the recorded ROS types, by key; refuses (RecordingError) a robot that
-    has nothing recorded."""
-    from fleetbus.schemas.ros import ROS_SCHEMA_TYPE
-    from fleetbus.workers.recorder.ros_native import RosSchema
-    from fleetbus.workers.store.recordings import RecordQuery
-
-    types = await store.recorded_types()
-    for robot in selection.robots:
-        for type in types:
-            if await store.find_recorded(RecordQuery(type, robot_id=robot, limit=1)):
-                break
-        else:
-            raise RecordingError(f"nothing is recorded of robot {robot!r}: no such robot here")
-    schemas: dict[str, Any] = {}
-    if ROS_SCHEMA_TYPE in types:
-        for record in await store.find_recorded(RecordQuery(ROS_SCHEMA_TYPE)):
-            schema = RosSchema.of(record.document)
-            if schema is not None:
-                schemas[schema.key] = schema
-    return schemas
-
-
-async def selected(store: Any, selection: Any) -> Any:
-    from fleetbus.workers.recorder.queries import recorded_between
-    from fleetbus.workers.recorder.ros_native import with_blobs
-
-    since, until = selection.store_window()
-    one = selection.robots[0] if len(selection.robots) == 1 else None
-    async for record in recorded_between(store, since, until, types=selection.chosen_types, robot_id=one):
-        if selection.keeps(record):
-            yield await with_blobs(record, store.get_blob)
 
 
 def write_file(

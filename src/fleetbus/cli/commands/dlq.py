@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
 from fleetbus.bounds import bounds
-from fleetbus.cli.context import console, dead_letters, settings
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
-from fleetbus.workers.overflow import dropped_from_queue
-from fleetbus.workers.store import run_with_repositories
+from fleetbus.cli.context import console, endpoint, settings
+from fleetbus.cli.services import with_services
+
+if TYPE_CHECKING:
+    from fleetbus.api.dead_letters import DeadLetter
+    from fleetbus.api.standalone import Services
 
 
 def dlq(
@@ -21,7 +23,13 @@ def dlq(
 ) -> None:
     """List the dead-letter queue without removing anything from it, and how many older dead
     letters the queue dropped when full (FLEETBUS_DEAD_LETTERS_MAX)."""
-    letters = dead_letters(limit)
+
+    async def read(services: Services) -> tuple[list[DeadLetter], int]:
+        queue = services.dead_letters
+        letters = (await queue.listing(limit)).letters
+        return letters, 0 if as_json else await queue.dropped()
+
+    letters, dropped = with_services(read, endpoint().amqp_url)
     if as_json:
         for letter in letters:
             typer.echo(json.dumps(letter.as_dict()))
@@ -34,7 +42,6 @@ def dlq(
             letter.reason, letter.user_id or "?", letter.routing_key, letter.rejected_at or "", letter.detail
         )
     console.print(table)
-    dropped = dropped_dead_letters()
     if dropped:
         kept = bounds(settings()).dead_letters.describe()
         console.print(
@@ -42,9 +49,3 @@ def dlq(
             "(FLEETBUS_DEAD_LETTERS_MAX); the recording keeps them all (`fleetbus query dead_letter`)",
             soft_wrap=True,
         )
-
-
-def dropped_dead_letters() -> int:
-    """What the full queue dropped, as the workers counted it."""
-    counts = run_with_repositories(settings(), lambda repos: repos.housekeeping.bound_counts())
-    return dropped_from_queue(counts, DEAD_LETTER_QUEUE)

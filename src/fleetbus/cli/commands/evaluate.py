@@ -9,11 +9,10 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.cli.context import console, errors, fail, with_recording
+from fleetbus.cli.context import console, errors
+from fleetbus.cli.services import with_recording
 from fleetbus.cli.times import TIME_FORMS, parse_time
-from fleetbus.workers.recorder.queries import BEHAVIOUR, resolve_path
-from fleetbus.workers.recorder.queries import evaluate as evaluate_outcomes
-from fleetbus.workers.store.recordings import OutcomeFields, RecordingError
+from fleetbus.workers.recorder.queries import BEHAVIOUR
 
 
 def evaluate(
@@ -28,18 +27,11 @@ def evaluate(
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
     """Per behaviour: successes, failures, success rate, mean and standard deviation of its duration."""
-    try:
-        fields = OutcomeFields(
-            *(resolve_path(message_type, f) for f in (name_field, success_field, duration_field))
-        )
-        start, end = parse_time(since, "--since"), parse_time(until, "--until")
-        stats = with_recording(
-            lambda store: evaluate_outcomes(
-                store, start, end, robot_id=robot, type=message_type, fields=fields
-            )
-        )
-    except RecordingError as error:
-        fail(str(error), code=2)
+    start, end = parse_time(since, "--since"), parse_time(until, "--until")
+    fields = (name_field, success_field, duration_field)
+    stats = with_recording(
+        lambda recording: recording.evaluate(start, end, robot_id=robot, type=message_type, fields=fields)
+    )
     if as_json:
         for s in stats:
             typer.echo(json.dumps({**s.__dict__, "runs": s.runs, "success_rate": s.success_rate}))

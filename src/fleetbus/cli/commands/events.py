@@ -6,7 +6,7 @@ import contextlib
 import json
 from dataclasses import asdict
 from datetime import datetime
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
@@ -17,9 +17,9 @@ from fleetbus.cli.context import (
     fail,
     load_data,
     settings,
-    with_recording,
 )
 from fleetbus.cli.options import RobotUrl, check_url_option, robot_url
+from fleetbus.cli.services import with_recording, with_services
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, PublisherError
@@ -27,10 +27,11 @@ from fleetbus.publishers.state_lock import RobotStateInUse
 from fleetbus.schemas.envelope import SchemaError, validate_body
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.capture import LEDGER_VIEWS
-from fleetbus.workers.recorder.queries import find, parse_condition, record_view
+from fleetbus.workers.recorder.queries import record_view
 from fleetbus.workers.recorder.summary import summarize
-from fleetbus.workers.store import run_with_repositories
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingError, RecordingStore
+
+if TYPE_CHECKING:
+    from fleetbus.api.recording import RecordedMessage, Recording
 
 
 def publish(
@@ -115,27 +116,22 @@ def query(
     if message_type in LEDGER_VIEWS:
         show_ledger(message_type, robot, limit, as_json)
         return
-    try:
-        conditions = [parse_condition(text, message_type) for text in where or []]
-        limit = 1 if latest else limit
+    limit = 1 if latest else limit
 
-        async def run(store: RecordingStore) -> tuple[list[RecordedMessage], list[str]]:
-            found = await find(
-                store,
-                message_type,
-                conditions,
-                robot_id=robot,
-                since=parse_time(since, "--since"),
-                until=parse_time(until, "--until"),
-                limit=limit,
-                newest_first=True,
-                mission_id=mission,
-            )
-            return found, await store.recorded_types()
+    async def run(recording: Recording) -> tuple[list[RecordedMessage], list[str]]:
+        found = await recording.find(
+            message_type,
+            recording.conditions(where or [], message_type),
+            robot_id=robot,
+            since=parse_time(since, "--since"),
+            until=parse_time(until, "--until"),
+            limit=limit,
+            newest_first=True,
+            mission_id=mission,
+        )
+        return found, await recording.types()
 
-        records, types = with_recording(run)
-    except RecordingError as error:
-        fail(str(error), code=2)
+    records, types = with_recording(run)
     records.reverse()
     if as_json:
         for record in records:
@@ -170,7 +166,7 @@ def query(
 def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None:
     """Open gaps in the robots' sequence numbers, or the duplicates the workers recognised."""
     if view == "gaps":
-        gaps = run_with_repositories(settings(), lambda repos: repos.events.gaps(robot))
+        gaps = with_services(lambda services: services.ledger.gaps(robot))
         if as_json:
             for gap in gaps:
                 typer.echo(json.dumps({**asdict(gap), "missing": gap.size}, default=datetime.isoformat))
@@ -183,7 +179,7 @@ def show_ledger(view: str, robot: str | None, limit: int, as_json: bool) -> None
             table.add_row(gap.robot_id, gap.epoch, span, str(gap.size), clock(gap.detected_at))
         console.print(table)
         return
-    duplicates = run_with_repositories(settings(), lambda repos: repos.events.duplicates(robot, limit))
+    duplicates = with_services(lambda services: services.ledger.duplicates(robot, limit))
     if as_json:
         for duplicate in duplicates:
             typer.echo(json.dumps(asdict(duplicate), default=datetime.isoformat))

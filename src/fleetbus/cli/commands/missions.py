@@ -16,15 +16,11 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
-from fleetbus.cli.accounts import with_accounts
 from fleetbus.cli.context import clock, console, endpoint, fail
 from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
-    from fleetbus.api.accounts import Accounts
     from fleetbus.api.standalone import Services
-    from fleetbus.broker.management import ManagementAPI
-    from fleetbus.workers.store import Repositories
     from fleetbus.workers.store.comments import Comment
     from fleetbus.workers.store.missions import Mission
 
@@ -51,25 +47,21 @@ def create(
     OWNER may not create missions or may not use the use case (`fleetbus users use-cases`)."""
     from pydantic import ValidationError
 
-    from fleetbus.api.missions import Missions
+    from fleetbus.api.errors import NotFound
     from fleetbus.schemas.missions import MissionPlan
-    from fleetbus.workers.sites import send_mission_to_sites
 
     try:
         body = MissionPlan.model_validate(json.loads(plan.read_text())) if plan else MissionPlan()
     except (OSError, ValueError, ValidationError) as error:
         fail(f"{plan}: {error}", 2)
-    ep = endpoint()
 
-    async def run(accounts: Accounts, repos: Repositories, _api: ManagementAPI) -> Mission:
-        missions = Missions(
-            repos.missions,
-            repos.channels,
-            lambda mission: send_mission_to_sites(repos.sites, ep.amqp_url, mission),
-        )
-        return await missions.create(await accounts.get(owner), use_case, title, body)
+    async def run(services: Services) -> Mission:
+        user = await services.users.get_user(owner)
+        if user is None:
+            raise NotFound(f"no user {owner!r}")
+        return await services.missions.create(user, use_case, title, body)
 
-    mission = with_accounts(ep, run)
+    mission = with_services(run, endpoint().amqp_url)
     console.print(
         f"created mission {mission.mission_id} ({mission.use_case}) for {mission.owner}: {mission.title}",
         highlight=False,

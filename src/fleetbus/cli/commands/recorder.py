@@ -10,13 +10,13 @@ import typer
 from rich.table import Table
 
 from fleetbus.broker.accounts import RECORDER_USER
-from fleetbus.cli.context import clock, console, fail, service_account, settings, with_recording
+from fleetbus.cli.context import clock, console, fail, service_account, settings
+from fleetbus.cli.services import with_recording
 from fleetbus.limits import parse_retention, policy_for
 from fleetbus.private_files import owner_only_umask
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
 from fleetbus.workers.recorder.launch import Launch, exec_recorder
 from fleetbus.workers.recorder.process import die_with_parent
-from fleetbus.workers.store.recordings import RecordingStore, TypeSummary
 
 app = typer.Typer(help="The recorder of every message on the bus.", no_args_is_help=True)
 
@@ -62,13 +62,7 @@ def types(
 ) -> None:
     """Every recorded type: known or not, how many records and bytes, from when to when, its indexes."""
 
-    async def gather(store: RecordingStore) -> list[tuple[TypeSummary, list[tuple[str, ...]]]]:
-        return [
-            (await store.type_summary(name), await store.field_indexes(name))
-            for name in await store.recorded_types()
-        ]
-
-    rows = with_recording(gather)
+    rows = [(view.summary, view.field_indexes) for view in with_recording(lambda r: r.type_views())]
     retention = parse_retention(settings().recorder_keep)
     if as_json:
         for summary, indexes in rows:

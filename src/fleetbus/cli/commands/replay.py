@@ -3,22 +3,26 @@
 from __future__ import annotations
 
 import json
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import pika
 import pika.exceptions
 import typer
 from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
-from fleetbus.cli.context import console, endpoint, errors, fail, recording_stream
+from fleetbus.api.errors import ServiceRefusal
+from fleetbus.cli.context import console, endpoint, errors, fail
+from fleetbus.cli.services import fail_refused, recording_stream
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
 from fleetbus.publishers.errors import PublishRefused
 from fleetbus.publishers.tls import blocking_connection
-from fleetbus.workers.recorder.queries import parse_condition, recorded_between
+from fleetbus.workers.recorder.queries import parse_condition
 from fleetbus.workers.recorder.replay import ReplayReport
 from fleetbus.workers.recorder.replay import replay as replay_records
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingError
+
+if TYPE_CHECKING:
+    from fleetbus.api.recording import RecordedMessage
 
 
 class Publisher:
@@ -79,9 +83,9 @@ def replay(
     try:
         conditions = [parse_condition(text, types[0]) for text in where or []] if types else []
         if where and len(types) != 1:
-            raise RecordingError("--where needs exactly one --type")
+            raise ValueError("--where needs exactly one --type")
         start, end = parse_time(since, "--since"), parse_time(until, "--until")
-    except (RecordingError, ValueError) as error:
+    except ValueError as error:  # the recording's refusal of a condition (a RecordingError) too
         fail(str(error), code=2)
     if speed < 0:
         fail("--speed must be 0 or more", code=2)
@@ -90,16 +94,16 @@ def replay(
     try:
         with (
             recording_stream(
-                lambda store: recorded_between(
-                    store, start, end, types=types, robot_id=robot, conditions=conditions
+                lambda recording: recording.between(
+                    start, end, types=types, robot_id=robot, conditions=conditions
                 )
             ) as records,
             Progress(*columns, console=errors, transient=as_json) as progress,
         ):
             task = progress.add_task("replay", total=None)
             report = replay_records(records, publish, speed, on_each=lambda r: progress.advance(task))
-    except RecordingError as error:
-        fail(str(error), code=2)
+    except ServiceRefusal as refusal:
+        fail_refused(refusal)
     finally:
         publish.close()
     if as_json:

@@ -120,31 +120,32 @@ def replay(
 ) -> None:
     """Publish a recorded window of the robot's ROS messages on the ROS master (ROS_MASTER_URI), as
     their original topics and types, at the recorded pace (or --speed times it)."""
-    from fleetbus.cli.commands.bags import known_robots_and_schemas, selected
-    from fleetbus.cli.context import recording_stream, with_recording
+    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.cli.services import fail_refused, recording_stream, with_recording
     from fleetbus.cli.times import parse_time_ns
     from fleetbus.workers.recorder.export_selection import Selection
     from fleetbus.workers.recorder.ros_replay import ReplayError, ReplayOptions, replay_into_ros
-    from fleetbus.workers.store.recordings import RecordingError
 
     if prefix and (not prefix.startswith("/") or prefix.endswith("/")):
         fail(f"--prefix {prefix!r}: a namespace starts with '/' and does not end with one", code=2)
     try:
         window = parse_time_ns(since, "--since"), parse_time_ns(until, "--until")
         selection = Selection((robot,), ("ros",), tuple(topics or ()), *window)
-        schemas = with_recording(lambda store: known_robots_and_schemas(store, selection))
-    except RecordingError as error:
+    except ValueError as error:  # the recording's refusal of the window
         fail(str(error), code=2)
+    schemas = with_recording(lambda recording: recording.ros_schemas(selection))
     python = settings().ros_python
     options = ReplayOptions(python, speed, subscribers, delay_s=delay, prefix=prefix, env=dict(os.environ))
     try:
         with (
-            recording_stream(lambda store: selected(store, selection)) as survey,
-            recording_stream(lambda store: selected(store, selection)) as records,
+            recording_stream(lambda recording: recording.selected(selection)) as survey,
+            recording_stream(lambda recording: recording.selected(selection)) as records,
         ):
             report = replay_into_ros(survey, records, schemas, options)
     except ReplayError as error:
         fail(str(error))
+    except ServiceRefusal as refusal:
+        fail_refused(refusal)
     total = sum(report.published.values())
     console.print(f"replayed {total} messages of {robot} on {len(report.published)} topics")
     for why, count in report.left_out.items():

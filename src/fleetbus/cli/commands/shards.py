@@ -6,7 +6,7 @@ import asyncio
 import json
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.table import Table
@@ -16,12 +16,13 @@ from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import ShardMap, apply_move, read_shard_map, rebalance_plan
 from fleetbus.broker.topology import core_topology, declare_with_url
 from fleetbus.cli.context import admin_api, console, endpoint, fail, settings
-from fleetbus.schemas.roles import UserRole
+from fleetbus.cli.services import with_services
 from fleetbus.schemas.routing import EXPRESS_QUEUE, EXPRESS_TYPES, ingest_shard_queue
 from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX
-from fleetbus.workers.store import Repositories, run_with_repositories
-from fleetbus.workers.store.leases import Lease
+
+if TYPE_CHECKING:
+    from fleetbus.api.shards import Lease
 
 app = typer.Typer(
     help="The ingest shards: which robots go through each, which worker consumes it.",
@@ -65,16 +66,12 @@ def _states(api: ManagementAPI, vhost: str, shard_map: ShardMap, leases: list[Le
 
 
 def _leases() -> list[Lease]:
-    return run_with_repositories(settings(), lambda repos: repos.leases.leases())
+    return with_services(lambda services: services.shards.leases())
 
 
 def _robots() -> list[str]:
     """The account registry's robots: the only names a shard is for."""
-
-    async def read(repos: Repositories) -> list[str]:
-        return [user.name for user in await repos.users.users(UserRole.ROBOT)]
-
-    return run_with_repositories(settings(), read)
+    return with_services(lambda services: services.shards.robots())
 
 
 @app.callback()

@@ -19,16 +19,15 @@ from fleetbus.broker.uplink import bounds_of
 from fleetbus.broker.urls import mask_password
 from fleetbus.cli.commands.setup import set_up
 from fleetbus.cli.context import admin_api, console, endpoint, fail, no_password_in_argv, settings
+from fleetbus.cli.services import with_services
 from fleetbus.publishers.tls import TlsSettingError
 from fleetbus.schemas.routing import DOWNLINK_REJECTED_QUEUE
 from fleetbus.workers.overflow import dropped_from_queue
 from fleetbus.workers.site_status import site_view
-from fleetbus.workers.store import run_with_repositories
 
 if TYPE_CHECKING:
-    from fleetbus.workers.store import Repositories
+    from fleetbus.api.standalone import Services
     from fleetbus.workers.store.housekeeping import BoundCount
-    from fleetbus.workers.store.team import RobotState
 
 app = typer.Typer(
     help="On a site: its links to central (the uplink and downlink shovels).", no_args_is_help=True
@@ -126,13 +125,13 @@ def status(as_json: Annotated[bool, typer.Option("--json", help="one JSON docume
     forwarded."""
     ep = endpoint()
 
-    async def read(repos: Repositories) -> tuple[list[RobotState], list[BoundCount]]:
-        return await repos.hazards.robots(), await repos.housekeeping.bound_counts()
+    async def read(services: Services) -> tuple[list[str], list[BoundCount]]:
+        return await services.site_team.names(), await services.stats.removed()
 
-    team, counts = run_with_repositories(settings(), read)
+    team, counts = with_services(read)
     dropped = dropped_from_queue(counts, DOWNLINK_REJECTED_QUEUE)
     with admin_api(ep) as api:
-        link = site_view(api, vhost_of(ep.amqp_url), [robot.name for robot in team])
+        link = site_view(api, vhost_of(ep.amqp_url), team)
     if as_json:
         console.print_json(json.dumps({**link.as_dict(), "rejected_dropped": dropped}))
         return
@@ -184,7 +183,7 @@ def apply(
     in the uplink and how the links fare to central every FLEETBUS_SITE_REPORT_EVERY_S (`fleetbus
     sites` there shows it)."""
     from fleetbus.workers.downlink import apply_downlink
-    from fleetbus.workers.site_report import report_to_central, team_in_use
+    from fleetbus.workers.site_report import report_to_central
 
     config = settings()
     ep = endpoint()
@@ -194,7 +193,7 @@ def apply(
 
         def report() -> bool:
             assert site and central
-            team, held = run_with_repositories(config, team_in_use)
+            team, held = with_services(lambda services: services.site_team.in_use())
             return report_to_central(api, vhost, site, central, team, held)
 
         tick = report if site and central else None

@@ -5,22 +5,20 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from datetime import datetime, timezone
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from fleetbus.broker.accounts import vhost_of
 from fleetbus.cli.accounts import with_accounts
-from fleetbus.cli.context import actor, admin_api, console, endpoint, settings
+from fleetbus.cli.context import actor, admin_api, console, endpoint
+from fleetbus.cli.services import with_services
 from fleetbus.schemas.site_changes import RobotAccount
-from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.recorder.summary import shorten
-from fleetbus.workers.site_report_collector import collect_site_reports
-from fleetbus.workers.site_status import central_view
-from fleetbus.workers.sites import mission_changes, send_to_sites
-from fleetbus.workers.store import Repositories, run_with_repositories
-from fleetbus.workers.store.sites import SiteSummary
+
+if TYPE_CHECKING:
+    from fleetbus.api.sites import SiteRow
+    from fleetbus.api.standalone import Services
 
 app = typer.Typer(
     help="On central: the sites, their robots, and how their links fare.", invoke_without_command=True
@@ -53,16 +51,13 @@ def sites(
     if ctx.invoked_subcommand is not None:
         return
     ep = endpoint()
-    config = settings()
-
-    async def read(repos: Repositories) -> tuple[list[SiteSummary], dict[str, SiteReport]]:
-        await collect_site_reports(ep.amqp_url, repos.sites, alert_at=config.uplink_alert_at)
-        return await repos.sites.summaries(), await repos.sites.reports()
-
-    summaries, reports = run_with_repositories(config, read)
-    now = datetime.now(timezone.utc)
     with admin_api(ep) as api:
-        rows = central_view(api, vhost_of(ep.amqp_url), summaries, now, reports, config.uplink_alert_at)
+
+        async def read(services: Services) -> list[SiteRow]:
+            return await services.sites.view(api)
+
+        rows = with_services(read, ep.amqp_url)
+    now = datetime.now(timezone.utc)
     if as_json:
         console.print_json(json.dumps([row.as_dict() for row in rows]))
         return
@@ -158,9 +153,8 @@ def sync(site: Annotated[str, typer.Argument(help="the site")]) -> None:
         "apply` removes its copies of the accounts of any other robot central gave it)",
         highlight=False,
     )
-    missions = run_with_repositories(settings(), lambda repos: mission_changes(repos, site))
-    send_to_sites(ep.amqp_url, [site], missions)
-    console.print(f"sent {site} {len(missions)} missions", highlight=False)
+    missions = with_services(lambda services: services.sites.send_missions(site), ep.amqp_url)
+    console.print(f"sent {site} {missions} missions", highlight=False)
 
 
 def _say_removed(site: str, robots: Sequence[str]) -> None:

@@ -8,25 +8,20 @@ import json
 from collections import Counter
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
-from fleetbus.cli.context import (
-    clock,
-    console,
-    dead_letters,
-    errors,
-    fail,
-    settings,
-    with_recording,
-)
+from fleetbus.cli.context import clock, console, endpoint, errors, fail
+from fleetbus.cli.services import with_recording, with_services
 from fleetbus.cli.times import TIME_FORMS, parse_duration, parse_time
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
-from fleetbus.workers.store import StoreError, run_with_repositories
-from fleetbus.workers.store.housekeeping import BoundCount
-from fleetbus.workers.store.statuses import WorkerStatus
+
+if TYPE_CHECKING:
+    from fleetbus.api.dead_letters import DeadLetter
+    from fleetbus.api.standalone import Services
+    from fleetbus.api.stats import BoundCount, WorkerStatus
 
 
 def _view(item: Growth) -> dict[str, object]:
@@ -48,12 +43,17 @@ def _ago(moment: datetime | None, now: datetime) -> str:
 
 def _workers() -> None:
     """Each worker's latest status: what it handled and failed on, and what it is retrying now."""
-    try:
-        statuses: list[WorkerStatus] = run_with_repositories(
-            settings(), lambda repos: repos.statuses.statuses()
-        )
-    except StoreError as error:
-        console.print(f"workers: the store did not answer ({error})")
+    from fleetbus.api.errors import Unavailable
+
+    async def read(services: Services) -> list[WorkerStatus] | str:
+        try:
+            return await services.stats.workers()
+        except Unavailable as unavailable:  # the rest is still shown
+            return unavailable.detail
+
+    statuses = with_services(read)
+    if isinstance(statuses, str):
+        console.print(f"workers: {statuses}")
         return
     if not statuses:
         console.print("workers: none has reported yet (a worker writes its status every few seconds)")
@@ -84,7 +84,11 @@ def _workers() -> None:
 
 
 def _dead_letters() -> None:
-    letters = dead_letters()
+
+    async def read(services: Services) -> list[DeadLetter]:
+        return (await services.dead_letters.listing(1000)).letters
+
+    letters = with_services(read, endpoint().amqp_url)
     reasons = Counter(letter.reason for letter in letters)
     shown = ", ".join(f"{reason} {count}" for reason, count in reasons.most_common())
     console.print(
@@ -108,8 +112,8 @@ def stats(
     if not as_json:
         _workers()
         _dead_letters()
-    rows = growth(with_recording(lambda store: store.samples(start)), bucket)
-    removed = run_with_repositories(settings(), lambda repos: repos.housekeeping.bound_counts())
+    rows = growth(with_recording(lambda recording: recording.samples(start)), bucket)
+    removed = with_services(lambda services: services.stats.removed())
     if as_json:
         for row in rows:
             typer.echo(json.dumps(_view(row)))

@@ -9,28 +9,20 @@ import typer
 from rich.table import Table
 
 from fleetbus.broker.topology import inbox_bindings
-from fleetbus.cli.context import (
-    clock,
-    console,
-    fail,
-    route_map,
-    settings,
-    with_recording,
-)
+from fleetbus.cli.context import clock, console, fail, route_map
+from fleetbus.cli.services import with_recording, with_services
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, RobotKind, inbox_queue
 from fleetbus.workers.recorder.queries import record_view
-from fleetbus.workers.recorder.queries import timeline as build_timeline
 from fleetbus.workers.recorder.summary import summarize
-from fleetbus.workers.store import run_with_repositories
 
 
 def registered_subscriptions(robot: str) -> list[str]:
     """Without a broker to ask: the topics the team registry says a robot of its kind follows."""
 
-    robots = run_with_repositories(settings(), lambda repos: repos.hazards.robots())
-    kind = next((r.kind for r in robots if r.name == robot), None)
+    found = with_services(lambda services: services.team.robot(robot))
+    kind = found.kind if found else None
     return inbox_bindings(robot, RobotKind(kind) if kind else None, operator=False)
 
 
@@ -55,16 +47,8 @@ def timeline(
     inbound = (
         routes.keys_into(inbox_queue(robot), NOTIFY_EXCHANGE) if routes else registered_subscriptions(robot)
     )
-    result = with_recording(
-        lambda store: build_timeline(
-            store,
-            robot,
-            parse_time(since, "--since"),
-            parse_time(until, "--until"),
-            inbound=inbound,
-            limit=limit,
-        )
-    )
+    start, end = parse_time(since, "--since"), parse_time(until, "--until")
+    result = with_recording(lambda recording: recording.timeline(robot, start, end, inbound, limit))
     if as_json:
         for entry in result.entries:
             typer.echo(json.dumps({"sent": entry.sent, **record_view(entry.record)}, ensure_ascii=False))

@@ -3,17 +3,18 @@
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.table import Table
 
 from fleetbus.broker.routes import Route
-from fleetbus.cli.context import clock, console, fail, route_map, settings, with_recording
-from fleetbus.workers.recorder.queries import Trace, record_view
-from fleetbus.workers.recorder.queries import trace as trace_message
-from fleetbus.workers.store import open_repositories
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingStore
+from fleetbus.cli.context import clock, console, fail, route_map
+from fleetbus.cli.services import with_recording
+from fleetbus.workers.recorder.queries import record_view
+
+if TYPE_CHECKING:
+    from fleetbus.api.recording import RecordedMessage, Recording, Trace
 
 
 def _consumers(route: Route) -> str:
@@ -94,11 +95,10 @@ def trace(
     what the service made of it, and the queues and consumers that receive such a message."""
     routes = route_map()
 
-    async def run(store: RecordingStore) -> Trace:
-        async with open_repositories(settings()) as repos:
-            return await trace_message(store, message_id, events=repos.events, route_map=routes)
+    async def run(recording: Recording) -> Trace:
+        return await recording.trace(message_id, routes)
 
-    result = with_recording(run)
+    result = with_recording(run, events=True)
     origin = result.origin
     if origin is None:
         fail(
