@@ -78,7 +78,11 @@ def remove_account(settings: Settings, admin_url: str, api: ManagementAPI, name:
     site's team (a warden's leaving is told to the site's hazard service). Its exchange and inbox
     stay, with whatever they hold. Removing one the site does not have changes nothing. Refused
     (:class:`RemovalRefused`, nothing changed) while the robot is in use at the site, as central
-    refuses to remove one in use there."""
+    refuses to remove one in use there. A robot of the site's own (not forwarded for central) is
+    not central's to remove: left as it is."""
+    if name not in forwarded_robots(api, vhost_of(admin_url)):
+        log.warning("central asked to remove %s, which is not a robot central gave this site: left", name)
+        return
     if problem := run_with_repositories(settings, lambda repos: in_use(repos.channels, name)):
         raise RemovalRefused(f"the site keeps the account of {name}, which central removed: {problem}")
     stop_forwarding(api, vhost_of(admin_url), name)

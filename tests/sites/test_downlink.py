@@ -13,8 +13,10 @@ from urllib.parse import unquote, urlsplit
 from fleetbus.broker.accounts import Account, Role, url_for
 from fleetbus.broker.sites import forwarded_robots
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, RobotKind
+from fleetbus.schemas.site_changes import RobotAccountRemoved
 from fleetbus.workers.downlink import apply_downlink
 from fleetbus.workers.site_report import report_to_central, team_in_use
+from fleetbus.workers.sites import send_to_sites
 from tests.commands import fleetbus as run
 from tests.sites.pair import SitePair
 from tests.support import wait_for
@@ -170,3 +172,7 @@ def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> No
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0
     assert pair.site.api.get_user("scout5") is not None, "central never told the site to remove it"
+    # and were central to tell it, the site's own robot is not central's to remove
+    send_to_sites(pair.central.admin_url, ["base1"], [RobotAccountRemoved(name="scout5")])
+    assert _apply(pair, 1) == 1
+    assert pair.site.api.get_user("scout5") is not None, "the site's own robot stays"
