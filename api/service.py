@@ -18,6 +18,7 @@ from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
 from fleetbus.api.sessions import Sessions
+from fleetbus.api.stored_events import MissionEvents, StoredEvents
 from fleetbus.api.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting, read_dead_letters
@@ -54,6 +55,10 @@ class Service:
     alerts: Alerts
     """The alerts raised for the operators from the store (checked in the background) and their
     acknowledgements."""
+    events: StoredEvents
+    """The event log's reads behind the console's live parts (its feed, each robot's newest)."""
+    mission_events: MissionEvents
+    """A mission's recorded events, for whoever may see the mission."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -114,6 +119,8 @@ async def open_service(
             vhost=vhost_of(admin_url),
             login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
             alerts=alerts,
+            events=StoredEvents(repositories.events),
+            mission_events=MissionEvents(missions, repositories.events),
         )
     finally:
         checking.cancel()

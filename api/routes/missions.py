@@ -6,7 +6,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.auth import ChannelsDep, EventsDep, MissionsDep, ServiceDep, require_role
+from fleetbus.api.accounts import User
+from fleetbus.api.auth import ChannelsDep, MissionsDep, ServiceDep, require_role
 from fleetbus.api.channels import OPERATING
 from fleetbus.api.errors import Conflict
 from fleetbus.api.missions import AUTHORS, MOVERS
@@ -26,8 +27,6 @@ from fleetbus.api.openapi import refusal_meaning, refusals
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.use_cases import USE_CASES
-from fleetbus.workers.store.base import EventQuery
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["missions"])
 R = UserRole
@@ -99,13 +98,11 @@ async def mission_events(
     mission_id: str,
     user: DataReader,
     svc: ServiceDep,
-    events: EventsDep,
     type: str | None = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
 ) -> list[EventOut]:
     """The events recorded under the mission, each with its provenance."""
-    await svc.missions.get(user, mission_id)
-    records = await events.find_events(EventQuery(type=type, mission_id=mission_id, limit=limit))
+    records = await svc.mission_events.recorded(user, mission_id, type, limit)
     return [EventOut.of(r) for r in records]
 
 

@@ -175,7 +175,7 @@ async def show_detail(
         robots=robots,
         team_size=team,
         cursor=request.app.state.feed.cursor,
-        thread=await thread_fragment(svc, mission_id),
+        thread=await thread_fragment(svc, user, mission_id),
         may_comment=may_comment(user, mission),
         comment=comment,
         comment_max=COMMENT_MAX,
