@@ -175,7 +175,7 @@ async def map_trails(
     """Each robot's trail over the last ``minutes`` before ``until``, from its stored localisations."""
     end = until or datetime.now(timezone.utc)
     end = end.replace(tzinfo=timezone.utc) if end.tzinfo is None else end.astimezone(timezone.utc)
-    found = await trails(request.app.state.service.repositories.events, end, timedelta(minutes=minutes))
+    found = await trails(request.app.state.service.events, end, timedelta(minutes=minutes))
     return JSONResponse(found, headers={"Cache-Control": "no-store"})
 
 
