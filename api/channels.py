@@ -110,6 +110,16 @@ class Channels:
         except (ManagementError, OSError) as error:
             raise Unavailable(f"the broker failed to {work}: {error}") from error
 
+    async def mounts(
+        self, operator: str | None = None, mission_id: str | None = None, robot: str | None = None
+    ) -> list[Mount]:
+        """The robots mounted now, by robot (an operator's, a mission's or a robot's if given)."""
+        return await self._channels.mounts(operator=operator, mission_id=mission_id, robot=robot)
+
+    async def check_ins(self, mission_id: str | None = None, operator: str | None = None) -> list[CheckIn]:
+        """The operators checked in now, by operator (to a mission, or one operator's, if given)."""
+        return await self._channels.check_ins(mission_id=mission_id, operator=operator)
+
     async def mount(self, operator: User, robot: str, mission_id: str) -> Mount:
         target = await self._users.get_user(robot)
         if target is None or target.role is not UserRole.ROBOT:
