@@ -108,7 +108,7 @@ async def route_map(svc: Service) -> tuple[RouteMap | None, str | None]:
 def mount_book(request: Request) -> MountBook:
     state = request.app.state
     if getattr(state, "mount_book", None) is None:
-        state.mount_book = MountBook(state.service.repositories.channels)
+        state.mount_book = MountBook(state.service.channels)
     return state.mount_book
 
 
@@ -149,7 +149,7 @@ async def messages(
         status_code=422 if result is not None and result.problem else 200,
         cursor=request.app.state.feed.cursor,
         following=await view.snapshot(),
-        tail=await view.recent(svc.repositories.events),
+        tail=await view.recent(svc.events),
         tail_rows=svc.settings.console_tail_rows,
         **context,
     )
