@@ -20,12 +20,12 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, Response
 
 from fleetbus.api import audit
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, UsersDep
 from fleetbus.api.console.sitemap import Page
 from fleetbus.api.security import Token, TokenRefused
 from fleetbus.api.service import Service
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.users import User
 
 SESSION_COOKIE = "fleetbus_session"
 CSRF_COOKIE = "fleetbus_csrf"
