@@ -13,6 +13,7 @@ from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.alerts import Alerts, alerts_for
 from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
+from fleetbus.api.hazards import Hazards
 from fleetbus.api.login_limits import LoginLimits
 from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
@@ -59,6 +60,8 @@ class Service:
     """The event log's reads behind the console's live parts (its feed, each robot's newest)."""
     mission_events: MissionEvents
     """A mission's recorded events, for whoever may see the mission."""
+    hazards: Hazards
+    """The hazards of every mission as the lists, the dashboard and the map show them."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -121,6 +124,7 @@ async def open_service(
             alerts=alerts,
             events=StoredEvents(repositories.events),
             mission_events=MissionEvents(missions, repositories.events),
+            hazards=Hazards(repositories.hazards, repositories.events),
         )
     finally:
         checking.cancel()

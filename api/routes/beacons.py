@@ -6,10 +6,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import DiscardsDep, require_role
 from fleetbus.api.models import DiscardCountOut, DiscardOut, DiscardsOut
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["beacons"])
 Watcher = Annotated[User, Depends(require_role(UserRole.OPERATOR, UserRole.SUPERVISOR, UserRole.ADMIN))]

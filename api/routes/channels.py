@@ -6,13 +6,13 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ChannelsDep, ServiceDep, require_role
 from fleetbus.api.channels import OPERATING, UNMOUNTERS
 from fleetbus.api.errors import Conflict, NotFound
 from fleetbus.api.models import BindingReportOut, ChannelChangeOut, MountIn, MountOut
 from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["channels"])
 R = UserRole
@@ -30,10 +30,10 @@ async def mount(body: MountIn, user: Operator, svc: ServiceDep) -> MountOut:
 
 
 @router.get("/mounts", response_model=list[MountOut])
-async def mounts(user: Watcher, channels: ChannelsDep) -> list[MountOut]:
+async def mounts(user: Watcher, svc: ServiceDep) -> list[MountOut]:
     """An operator's own mounts; every mount for supervisors and admins."""
     operator = user.name if user.role is R.OPERATOR else None
-    return [MountOut.of(m) for m in await channels.mounts(operator=operator)]
+    return [MountOut.of(m) for m in await svc.channels.mounts(operator=operator)]
 
 
 @router.delete("/mounts/{robot}", response_model=MountOut)

@@ -8,13 +8,12 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query
 from pydantic import BaseModel, ConfigDict, Field
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.errors import BadRequest
-from fleetbus.api.mission_comments import COMMENT_MAX, COMMENTERS, THREAD_LIMIT, comments_of
+from fleetbus.api.mission_comments import COMMENT_MAX, COMMENTERS, THREAD_LIMIT, Comment, comments_of
 from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.comments import Comment
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["missions"])
 Reader = Annotated[User, Depends(require_role(*COMMENTERS, UserRole.GUEST))]

@@ -15,6 +15,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query
 from pydantic import BaseModel, BeforeValidator, Field
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import EventsDep, ServiceDep, require_role
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import EVALUATORS, WATCHERS
@@ -23,7 +24,6 @@ from fleetbus.workers.recorder.capture import KNOWN_TYPES
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, growth
 from fleetbus.workers.recorder.queries import evaluate, find, parse_condition, timeline, trace
 from fleetbus.workers.store.recordings import OutcomeStats, RecordedMessage, RecordingError
-from fleetbus.workers.store.users import User
 
 router = APIRouter(prefix="/recording", tags=["recording"])
 Analyst = Annotated[User, Depends(require_role(*WATCHERS))]
