@@ -19,6 +19,7 @@ from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
 from fleetbus.api.sessions import Sessions
+from fleetbus.api.site_links import SiteLinks
 from fleetbus.api.stored_events import MissionEvents, StoredEvents
 from fleetbus.api.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
@@ -62,6 +63,8 @@ class Service:
     """A mission's recorded events, for whoever may see the mission."""
     hazards: Hazards
     """The hazards of every mission as the lists, the dashboard and the map show them."""
+    site_links: SiteLinks
+    """Central's sites: what each forwarded and its newest report (none elsewhere)."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -125,6 +128,7 @@ async def open_service(
             events=StoredEvents(repositories.events),
             mission_events=MissionEvents(missions, repositories.events),
             hazards=Hazards(repositories.hazards, repositories.events),
+            site_links=SiteLinks(repositories.sites, admin_url, settings.uplink_alert_at),
         )
     finally:
         checking.cancel()

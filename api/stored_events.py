@@ -21,10 +21,12 @@ from fleetbus.workers.store.base import (
     from_micros,
     to_micros,
 )
+from fleetbus.workers.store.ledger import Gap
 from fleetbus.workers.store.users import User
 
 __all__ = [
     "EventRecord",
+    "Gap",
     "MissionEvents",
     "Received",
     "StoreError",
@@ -57,6 +59,10 @@ class StoredEvents:
     async def newest_of(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
         """Each of ``robots``' newest event (of ``type`` if given), for those that sent one."""
         return await self._events.newest_events(robots, type)
+
+    async def gaps(self, robot_id: str | None = None) -> list[Gap]:
+        """The open sequence gaps (of ``robot_id`` if given), by robot, epoch, then first missing number."""
+        return await self._events.gaps(robot_id)
 
     async def received_since(self, since: datetime, limit: int) -> list[EventRecord]:
         """The first ``limit`` events received since ``since``, in the order they were received."""

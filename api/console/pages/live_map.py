@@ -23,7 +23,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
 from fleetbus.api.console.map_image import ImageUnreadable, MapImages
-from fleetbus.api.console.pages.dashboard import OPEN, newest_by_state
+from fleetbus.api.console.pages.dashboard import OPEN
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
@@ -85,7 +85,7 @@ class MapView:
         robots = await repositories.hazards.robots()
         await self._latest.seed([robot.name for robot in robots])
         settings = self._service.settings
-        grouped = await newest_by_state(repositories.hazards, OPEN, settings.console_map_hazards)
+        grouped = await self._service.hazards.newest_by_state(OPEN, settings.console_map_hazards)
         cleared = await repositories.hazards.cleared_hazards(settings.console_map_cleared)
         grouped[HazardState.CLEARED] = cleared
         counts = await repositories.hazards.hazard_counts()
