@@ -11,10 +11,12 @@ from dataclasses import dataclass
 from fleetbus.api.account_check import AccountCheck, account_check_for
 from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.alerts import Alerts, alerts_for
+from fleetbus.api.beacons import Beacons
 from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.hazards import Hazards
 from fleetbus.api.login_limits import LoginLimits
+from fleetbus.api.maps import Maps
 from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.security import Secrets
@@ -65,6 +67,10 @@ class Service:
     """The hazards of every mission as the lists, the dashboard and the map show them."""
     site_links: SiteLinks
     """Central's sites: what each forwarded and its newest report (none elsewhere)."""
+    maps: Maps
+    """The stored versions of the team's map (:meth:`Maps.visible`: those a user may see)."""
+    beacons: Beacons
+    """The beacon registry and where people are likely stranded."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -129,6 +135,8 @@ async def open_service(
             mission_events=MissionEvents(missions, repositories.events),
             hazards=Hazards(repositories.hazards, repositories.events),
             site_links=SiteLinks(repositories.sites, admin_url, settings.uplink_alert_at),
+            maps=Maps(repositories.maps),
+            beacons=Beacons(repositories.beacons, repositories.events),
         )
     finally:
         checking.cancel()

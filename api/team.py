@@ -72,6 +72,10 @@ class Team:
             seen = dict(last_seen)
         return TeamView(members, state, why_closed(state, seen, now), len(robots))
 
+    async def robots(self) -> list[RobotState]:
+        """Every robot of the team, by name, as the hazard gate follows it."""
+        return await self._team.robots()
+
     async def member(self, name: str) -> TeamMember:
         found = next((m for m in (await self.view()).members if m.robot.name == name), None)
         if found is None:
