@@ -120,6 +120,13 @@ class Channels:
         """The operators checked in now, by operator (to a mission, or one operator's, if given)."""
         return await self._channels.check_ins(mission_id=mission_id, operator=operator)
 
+    async def mountable(self) -> tuple[int, list[str]]:
+        """How many robots the team has, and those an operator can mount: the robots not mounted
+        for any mission (a robot is mounted for one mission at a time)."""
+        booked = {m.robot for m in await self._channels.mounts()}
+        robots = await self._users.users(UserRole.ROBOT)
+        return len(robots), [robot.name for robot in robots if robot.name not in booked]
+
     async def mount(self, operator: User, robot: str, mission_id: str) -> Mount:
         target = await self._users.get_user(robot)
         if target is None or target.role is not UserRole.ROBOT:

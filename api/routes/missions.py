@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.accounts import User
-from fleetbus.api.auth import ChannelsDep, MissionsDep, ServiceDep, require_role
+from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.channels import OPERATING
 from fleetbus.api.errors import Conflict
 from fleetbus.api.missions import AUTHORS, MOVERS
@@ -69,15 +69,13 @@ async def list_missions(user: Reader, svc: ServiceDep, state: MissionState | Non
 
 
 @router.get("/missions/{mission_id}", response_model=MissionDetail)
-async def get_mission(
-    mission_id: str, user: Reader, svc: ServiceDep, channels: ChannelsDep, missions: MissionsDep
-) -> MissionDetail:
-    mission = await svc.missions.get(user, mission_id)
+async def get_mission(mission_id: str, user: Reader, svc: ServiceDep) -> MissionDetail:
+    detail = await svc.missions.detail(user, mission_id)
     return MissionDetail(
-        **MissionOut.of(mission).model_dump(),
-        mounts=[MountOut.of(m) for m in await channels.mounts(mission_id=mission_id)],
-        checked_in=[CheckInOut.of(c) for c in await channels.check_ins(mission_id=mission_id)],
-        history=[StateChangeOut.of(c) for c in await missions.mission_history(mission_id)],
+        **MissionOut.of(detail.mission).model_dump(),
+        mounts=[MountOut.of(m) for m in detail.mounts],
+        checked_in=[CheckInOut.of(c) for c in detail.check_ins],
+        history=[StateChangeOut.of(c) for c in detail.history],
     )
 
 
