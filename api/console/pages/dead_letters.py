@@ -19,11 +19,12 @@ import pika.exceptions
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ADMINS, DEAD_LETTERS
 from fleetbus.api.console.templating import render
-from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.errors import NotFound, ServiceRefusal
 from fleetbus.api.service import Service
 from fleetbus.bounds import bounds
 from fleetbus.broker.dead_letter_actions import (
@@ -36,7 +37,6 @@ from fleetbus.broker.dead_letter_actions import (
 from fleetbus.broker.dead_letter_queue import DeadLetter, Listing, read_dead_letters
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 from fleetbus.workers.overflow import dropped_from_queue
-from fleetbus.workers.store.users import User
 
 log = logging.getLogger("fleetbus.api.console")
 router = APIRouter()
@@ -110,12 +110,13 @@ async def dead_letters(
 
 async def _sender_url(svc: Service, user_id: str) -> str:
     """The AMQP URL of the account that sent a letter, logged in as itself."""
-    user = await svc.repositories.users.get_user(user_id)
-    if user is None:
+    try:
+        user = await svc.accounts.get(user_id)
+    except NotFound:
         raise RequeueRefused(
             f"{user_id} is not an account of the service: its broker password is unknown here, so its "
             "message cannot be published again as it"
-        )
+        ) from None
     try:
         return svc.accounts.internal_broker_url(user)
     except (ServiceRefusal, ValueError) as error:
