@@ -19,6 +19,7 @@ from fleetbus.api.login_limits import LoginLimits
 from fleetbus.api.maps import Maps
 from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
+from fleetbus.api.recording_queries import RecordingQueries
 from fleetbus.api.security import Secrets
 from fleetbus.api.sessions import Sessions
 from fleetbus.api.site_links import SiteLinks
@@ -71,6 +72,8 @@ class Service:
     """The stored versions of the team's map (:meth:`Maps.visible`: those a user may see)."""
     beacons: Beacons
     """The beacon registry and where people are likely stranded."""
+    recording_queries: RecordingQueries
+    """The recording's search, timelines, traces, evaluation and growth."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -137,6 +140,7 @@ async def open_service(
             site_links=SiteLinks(repositories.sites, admin_url, settings.uplink_alert_at),
             maps=Maps(repositories.maps),
             beacons=Beacons(repositories.beacons, repositories.events),
+            recording_queries=RecordingQueries(recording, repositories.events),
         )
     finally:
         checking.cancel()

@@ -17,6 +17,7 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.following import MountBook, TailView
 from fleetbus.api.console.forms import FormProblem, limit_of, moment, robot_name
@@ -24,14 +25,13 @@ from fleetbus.api.console.live import live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MESSAGES
 from fleetbus.api.console.templating import fragment, render
+from fleetbus.api.recording_queries import RecordedMessage, RecordingError, Timeline, Trace
 from fleetbus.api.service import Service
 from fleetbus.broker.management import ManagementError
 from fleetbus.broker.routes import RouteMap
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
-from fleetbus.workers.recorder.queries import Timeline, Trace, find, parse_condition, timeline, trace
+from fleetbus.workers.recorder.queries import parse_condition
 from fleetbus.workers.recorder.summary import summarize
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingError
-from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(MESSAGES))]
@@ -82,8 +82,7 @@ async def search(svc: Service, form: SearchForm) -> SearchResult:
     try:
         limit = limit_of(form.limit, DEFAULT_LIMIT, most)
         conditions = [parse_condition(text, form.type) for text in form.conditions]
-        found = await find(
-            svc.recording,
+        found = await svc.recording_queries.find(
             form.type,
             conditions,
             robot_id=robot_name(form.robot),
@@ -132,7 +131,7 @@ async def messages(
     context = {
         "form": form,
         "result": result,
-        "types": await svc.recording.recorded_types(),
+        "types": await svc.recording_queries.type_names(),
         "most": svc.settings.console_search_limit,
         "summarize": summarize,
         "width": SUMMARY_WIDTH,
@@ -169,7 +168,7 @@ async def message_trace(request: Request, user: Viewer, svc: ServiceDep, message
     routes_unknown = None
     if message_id:
         routes, routes_unknown = await route_map(svc)
-        result = await trace(svc.recording, message_id, events=svc.repositories.events, route_map=routes)
+        result = await svc.recording_queries.trace(message_id, routes)
     found = result is not None and result.origin is not None
     return render(
         request,
@@ -206,7 +205,7 @@ async def robot_timeline(
     if name is not None:
         routes, routes_unknown = await route_map(svc)
         inbound = routes.keys_into(inbox_queue(name), NOTIFY_EXCHANGE) if routes else []
-        result = await timeline(svc.recording, name, start, end, inbound=inbound, limit=most)
+        result = await svc.recording_queries.timeline(name, start, end, inbound=inbound, limit=most)
     return render(
         request,
         "messages/timeline.html",
