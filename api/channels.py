@@ -127,6 +127,11 @@ class Channels:
         robots = await self._users.users(UserRole.ROBOT)
         return len(robots), [robot.name for robot in robots if robot.name not in booked]
 
+    async def changes(self, mission_id: str | None = None, limit: int | None = None) -> list[ChannelChange]:
+        """Every mount, unmount, check-in and check-out recorded (of a mission, if given), oldest
+        first (the newest ``limit`` when given)."""
+        return await self._channels.channel_changes(mission_id, limit)
+
     async def mount(self, operator: User, robot: str, mission_id: str) -> Mount:
         target = await self._users.get_user(robot)
         if target is None or target.role is not UserRole.ROBOT:

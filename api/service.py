@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from fleetbus.api.account_check import AccountCheck, account_check_for
 from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.alerts import Alerts, alerts_for
-from fleetbus.api.beacons import Beacons
+from fleetbus.api.beacons import BeaconDiscards, Beacons
 from fleetbus.api.channels import Channels
 from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.hazards import Hazards
@@ -74,6 +74,8 @@ class Service:
     """The beacon registry and where people are likely stranded."""
     recording_queries: RecordingQueries
     """The recording's search, timelines, traces, evaluation and growth."""
+    beacon_discards: BeaconDiscards
+    """The beacon messages the broker discarded, counted by publishing exchange."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -141,6 +143,7 @@ async def open_service(
             maps=Maps(repositories.maps),
             beacons=Beacons(repositories.beacons, repositories.events),
             recording_queries=RecordingQueries(recording, repositories.events),
+            beacon_discards=BeaconDiscards(repositories.discards),
         )
     finally:
         checking.cancel()
