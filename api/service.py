@@ -21,7 +21,7 @@ from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.recording_queries import RecordingQueries
 from fleetbus.api.security import Secrets
-from fleetbus.api.sessions import Sessions
+from fleetbus.api.sessions import Sessions, SignedIn
 from fleetbus.api.site_links import SiteLinks
 from fleetbus.api.stored_events import MissionEvents, StoredEvents
 from fleetbus.api.team import Team, team_for
@@ -76,6 +76,8 @@ class Service:
     """The recording's search, timelines, traces, evaluation and growth."""
     beacon_discards: BeaconDiscards
     """The beacon messages the broker discarded, counted by publishing exchange."""
+    signed_in: SignedIn
+    """Who a request's token signs in (the API's bearer token, the console's cookie)."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -144,6 +146,7 @@ async def open_service(
             beacons=Beacons(repositories.beacons, repositories.events),
             recording_queries=RecordingQueries(recording, repositories.events),
             beacon_discards=BeaconDiscards(repositories.discards),
+            signed_in=SignedIn(sessions, repositories.users),
         )
     finally:
         checking.cancel()
