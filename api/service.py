@@ -17,6 +17,7 @@ from fleetbus.api.hazard_steps import HazardSteps
 from fleetbus.api.hazards import Hazards
 from fleetbus.api.login_limits import LoginLimits
 from fleetbus.api.maps import Maps
+from fleetbus.api.mission_comments import MissionComments
 from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
 from fleetbus.api.recording_queries import RecordingQueries
@@ -39,7 +40,9 @@ from fleetbus.workers.store.recordings import RecordingStore
 class Service:
     settings: Settings
     repositories: Repositories
-    """The repositories the routes read directly (users, channels, missions, events, discards)."""
+    """The repositories the services below are built on; the routes and the console call the
+    services (the dead-letter page and the broker panel still read the rejections and the bound
+    counts here)."""
     secrets: Secrets
     sessions: Sessions
     """Login sessions: begun at login, checked on every request, ended server-side."""
@@ -78,6 +81,8 @@ class Service:
     """The beacon messages the broker discarded, counted by publishing exchange."""
     signed_in: SignedIn
     """Who a request's token signs in (the API's bearer token, the console's cookie)."""
+    mission_comments: MissionComments
+    """The missions' discussions: who reads and who adds to them."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -147,6 +152,7 @@ async def open_service(
             recording_queries=RecordingQueries(recording, repositories.events),
             beacon_discards=BeaconDiscards(repositories.discards),
             signed_in=SignedIn(sessions, repositories.users),
+            mission_comments=MissionComments(missions, repositories.comments),
         )
     finally:
         checking.cancel()

@@ -26,7 +26,6 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment
 from fleetbus.api.errors import ServiceRefusal
-from fleetbus.api.mission_comments import comments_of
 from fleetbus.api.service import Service
 from fleetbus.api.stored_events import EventRecord, to_micros
 from fleetbus.schemas.routing import EventType
@@ -69,7 +68,7 @@ def measured_at(record: EventRecord) -> datetime:
 
 async def thread_fragment(service: Service, user: User, mission_id: str) -> str:
     """The mission's discussion as ``user`` may read it (:meth:`MissionComments.thread`)."""
-    comments = await comments_of(service).thread(user, mission_id)
+    comments = await service.mission_comments.thread(user, mission_id)
     return fragment("missions/thread.html", comments=comments)
 
 
@@ -162,7 +161,7 @@ async def add_comment(
     from fleetbus.api.console.pages.missions import show_detail
 
     try:
-        await comments_of(_service(request)).add(user, mission_id, text)
+        await _service(request).mission_comments.add(user, mission_id, text)
     except ServiceRefusal as refused:
         return await show_detail(request, user, mission_id, refused.detail, refused.status, comment=text)
     return RedirectResponse(
