@@ -27,10 +27,12 @@ from fleetbus.api.site_links import SiteLinks
 from fleetbus.api.stored_events import MissionEvents, StoredEvents
 from fleetbus.api.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
-from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting, read_dead_letters
+from fleetbus.broker.dead_letter_queue import DeadLetter, Listing, dead_letters_waiting, read_dead_letters
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.routes import RouteMap
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 from fleetbus.settings import Settings
+from fleetbus.workers.overflow import dropped_from_queue
 from fleetbus.workers.sites import send_mission_to_sites
 from fleetbus.workers.store import Repositories, open_recording_store, repositories_for
 from fleetbus.workers.store.recordings import RecordingStore
@@ -41,8 +43,7 @@ class Service:
     settings: Settings
     repositories: Repositories
     """The repositories the services below are built on; the routes and the console call the
-    services (the dead-letter page and the broker panel still read the rejections and the bound
-    counts here)."""
+    services."""
     secrets: Secrets
     sessions: Sessions
     """Login sessions: begun at login, checked on every request, ended server-side."""
@@ -89,6 +90,14 @@ class Service:
         ``fleetbus dlq`` lists them (nothing is removed from the queue)."""
         listing = await read_dead_letters(self.admin_url, limit, self.repositories.rejections.rejections)
         return listing.letters
+
+    async def dead_letter_listing(self, limit: int) -> Listing:
+        """:meth:`dead_letters`, with how many letters the queue holds (the console's page)."""
+        return await read_dead_letters(self.admin_url, limit, self.repositories.rejections.rejections)
+
+    async def dead_letters_dropped(self) -> int:
+        """How many dead letters the full dead-letter queue dropped, as the workers counted them."""
+        return dropped_from_queue(await self.repositories.housekeeping.bound_counts(), DEAD_LETTER_QUEUE)
 
     async def route_map(self) -> RouteMap:
         """The broker's exchanges, bindings and consumers now (the management API, off the loop)."""

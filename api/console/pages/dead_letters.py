@@ -34,9 +34,7 @@ from fleetbus.broker.dead_letter_actions import (
     discard_dead_letter,
     requeue_dead_letter,
 )
-from fleetbus.broker.dead_letter_queue import DeadLetter, Listing, read_dead_letters
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
-from fleetbus.workers.overflow import dropped_from_queue
+from fleetbus.broker.dead_letter_queue import DeadLetter, Listing
 
 log = logging.getLogger("fleetbus.api.console")
 router = APIRouter()
@@ -75,14 +73,11 @@ async def _page(
     settings = svc.settings
     listing: Listing | None = None
     try:
-        listing = await read_dead_letters(
-            svc.admin_url, settings.console_dead_letters, svc.repositories.rejections.rejections
-        )
+        listing = await svc.dead_letter_listing(settings.console_dead_letters)
     except BROKER_FAILURES as error:
         unread = f"the dead-letter queue cannot be read ({type(error).__name__}: {error})"
         problem = f"{problem}; {unread}" if problem else unread
         status_code = 503
-    counts = await svc.repositories.housekeeping.bound_counts()
     letters = listing.letters if listing else []
     return render(
         request,
@@ -92,7 +87,7 @@ async def _page(
         status_code=status_code,
         letters=[_shown(letter, settings.console_dead_letter_body) for letter in letters],
         in_queue=listing.in_queue if listing else None,
-        dropped=dropped_from_queue(counts, DEAD_LETTER_QUEUE),
+        dropped=await svc.dead_letters_dropped(),
         kept=bounds(settings).dead_letters.describe(),
         can_change=user.role in ADMINS,
         problem=problem,
