@@ -44,7 +44,7 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         async with open_service(settings, admin_url, management_url, public_url) as service:
             app.state.service = service
-            async with running_feed(service.repositories.events, settings) as feed:
+            async with running_feed(service.events, settings) as feed:
                 app.state.feed = feed
                 yield
 

@@ -19,6 +19,7 @@ from fastapi.security import OAuth2PasswordBearer
 from fleetbus.api import audit
 from fleetbus.api.security import TokenRefused
 from fleetbus.api.service import Service
+from fleetbus.api.sessions import UserGone
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.base import EventStore
@@ -82,19 +83,18 @@ def unauthorized(request: Request, why: str, who: str = "(anonymous)") -> HTTPEx
 
 
 async def current_user(
-    request: Request, svc: ServiceDep, users: UsersDep, token: Annotated[str | None, Depends(bearer)]
+    request: Request, svc: ServiceDep, token: Annotated[str | None, Depends(bearer)]
 ) -> User:
     if not token:
         raise unauthorized(
             request, "not logged in: send 'Authorization: Bearer <token>' from POST /auth/token"
         )
     try:
-        session = await svc.sessions.check(token)
+        session, user = await svc.signed_in.check(token)
+    except UserGone as gone:
+        raise unauthorized(request, str(gone), who=gone.name) from None
     except TokenRefused as refused:
         raise unauthorized(request, str(refused)) from None
-    user = await users.get_user(session.user)
-    if user is None:
-        raise unauthorized(request, f"user {session.user!r} no longer exists", who=session.user)
     request.state.user = user  # for the refusal log of later checks
     request.state.session = session  # the caller's own, for the routes on its sessions
     return user

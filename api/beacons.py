@@ -1,5 +1,6 @@
 """The beacon registry and where people are likely stranded (:mod:`fleetbus.workers.beacons`), as
-the command line loads and shows them."""
+the command line loads and shows them and the console maps them; and what the beacon exchange
+discarded (:class:`BeaconDiscards`)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from fleetbus.api.errors import BadRequest
 from fleetbus.workers.beacons import stranded
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
+from fleetbus.workers.store.discards import Discard, DiscardCount, DiscardLog
 
 
 class BeaconEntry(BaseModel):
@@ -70,3 +72,19 @@ class Beacons:
     async def stranded(self, since: datetime) -> list[dict[str, Any]]:
         """Beacons heard since ``since``: where people are likely stranded, first heard first."""
         return await stranded(self._registry, self._events, since)
+
+
+class BeaconDiscards:
+    """The beacon messages the broker discarded (without the ``type: beacon`` and ``codename``
+    headers), as the workers logged them."""
+
+    def __init__(self, discards: DiscardLog) -> None:
+        self._discards = discards
+
+    async def counts(self) -> list[DiscardCount]:
+        """Per publishing exchange: how many, and the latest one's time and reason; by exchange."""
+        return await self._discards.discard_counts()
+
+    async def recent(self, limit: int) -> list[Discard]:
+        """The latest ``limit`` discards, newest first."""
+        return await self._discards.recent_discards(limit)

@@ -110,6 +110,28 @@ class Channels:
         except (ManagementError, OSError) as error:
             raise Unavailable(f"the broker failed to {work}: {error}") from error
 
+    async def mounts(
+        self, operator: str | None = None, mission_id: str | None = None, robot: str | None = None
+    ) -> list[Mount]:
+        """The robots mounted now, by robot (an operator's, a mission's or a robot's if given)."""
+        return await self._channels.mounts(operator=operator, mission_id=mission_id, robot=robot)
+
+    async def check_ins(self, mission_id: str | None = None, operator: str | None = None) -> list[CheckIn]:
+        """The operators checked in now, by operator (to a mission, or one operator's, if given)."""
+        return await self._channels.check_ins(mission_id=mission_id, operator=operator)
+
+    async def mountable(self) -> tuple[int, list[str]]:
+        """How many robots the team has, and those an operator can mount: the robots not mounted
+        for any mission (a robot is mounted for one mission at a time)."""
+        booked = {m.robot for m in await self._channels.mounts()}
+        robots = await self._users.users(UserRole.ROBOT)
+        return len(robots), [robot.name for robot in robots if robot.name not in booked]
+
+    async def changes(self, mission_id: str | None = None, limit: int | None = None) -> list[ChannelChange]:
+        """Every mount, unmount, check-in and check-out recorded (of a mission, if given), oldest
+        first (the newest ``limit`` when given)."""
+        return await self._channels.channel_changes(mission_id, limit)
+
     async def mount(self, operator: User, robot: str, mission_id: str) -> Mount:
         target = await self._users.get_user(robot)
         if target is None or target.role is not UserRole.ROBOT:

@@ -3,6 +3,7 @@ hazard gate's rule, :func:`fleetbus.workers.team.why_held`)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
@@ -10,7 +11,7 @@ from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.hazards import DEFAULT_MISSION, CoordinationStore, Hazard, HazardState
 from fleetbus.workers.team import gate, last_seen_of, why_held
 
-__all__ = ["DEFAULT_MISSION", "Hazards", "OpenHazard"]
+__all__ = ["DEFAULT_MISSION", "Hazard", "HazardState", "Hazards", "OpenHazard"]
 
 
 @dataclass(frozen=True)
@@ -34,3 +35,21 @@ class Hazards:
         state, now = gate(await self._hazards.robots()), datetime.now(timezone.utc)
         seen = await last_seen_of(self._events, state.waiting_for)
         return [OpenHazard(hazard, why_held(hazard, state, seen, now)) for hazard in found]
+
+    async def recent(self, limit: int, offset: int = 0, state: HazardState | None = None) -> list[Hazard]:
+        """Every hazard of every mission (or those in ``state``), cleared ones too, newest first."""
+        return await self._hazards.recent_hazards(limit, offset, state)
+
+    async def newest_by_state(
+        self, states: Sequence[HazardState], limit: int
+    ) -> dict[HazardState, list[Hazard]]:
+        """The newest ``limit`` hazards of each of ``states``: bounded however many there are."""
+        return {state: await self._hazards.recent_hazards(limit, state=state) for state in states}
+
+    async def cleared(self, limit: int) -> list[Hazard]:
+        """The ``limit`` hazards cleared last, of every mission, the last cleared first."""
+        return await self._hazards.cleared_hazards(limit)
+
+    async def counts(self) -> dict[HazardState, int]:
+        """How many hazards are in each state, of every mission (a state with none is left out)."""
+        return await self._hazards.hazard_counts()

@@ -11,10 +11,13 @@ from __future__ import annotations
 
 from fleetbus.api.errors import Forbidden, NotFound
 from fleetbus.api.missions import AUTHORS
+from fleetbus.schemas.pgm import read_pgm_header
 from fleetbus.schemas.roles import WATCHERS
 from fleetbus.workers.maps import map_image, missing_version
 from fleetbus.workers.store.maps import MapStore, MapVersion
 from fleetbus.workers.store.users import User
+
+__all__ = ["MapVersion", "Maps", "map_version_for"]
 
 
 async def map_version_for(maps: MapStore, user: User, version: int | None) -> MapVersion:
@@ -43,8 +46,8 @@ async def _stored(maps: MapStore, version: int | None) -> MapVersion:
 
 
 class Maps:
-    """The stored versions of the team's map for the server's own tools (the command line), which
-    see them all."""
+    """The stored versions of the team's map: every one for the server's own tools (the command
+    line) and the console's images of a version already chosen; :meth:`visible` for a user."""
 
     def __init__(self, maps: MapStore) -> None:
         self._maps = maps
@@ -53,6 +56,10 @@ class Maps:
         """Every stored version, newest first."""
         return await self._maps.map_versions()
 
+    async def newest(self) -> MapVersion | None:
+        """The newest stored version; None before the first."""
+        return await self._maps.map_version(None)
+
     async def version(self, version: int | None) -> MapVersion:
         """The stored ``version`` (the newest for None); NotFound saying why there is none."""
         return await _stored(self._maps, version)
@@ -60,3 +67,12 @@ class Maps:
     async def image(self, version: MapVersion) -> bytes:
         """The version's whole PGM file."""
         return await map_image(self._maps, version)
+
+    async def visible(self, user: User, version: int | None) -> MapVersion:
+        """The stored ``version`` if ``user`` may see it (:func:`map_version_for`)."""
+        return await map_version_for(self._maps, user, version)
+
+    async def size(self, version: MapVersion) -> tuple[int, int]:
+        """The version's image's width and height in pixels, read from its first chunk's header."""
+        header = read_pgm_header(await self._maps.map_chunk(version.version, 0))
+        return header.width, header.height

@@ -9,7 +9,6 @@ read only; robots neither.
 from __future__ import annotations
 
 from datetime import datetime, timezone
-from typing import TYPE_CHECKING
 
 from fleetbus.api.errors import BadRequest, Forbidden
 from fleetbus.api.missions import Missions
@@ -17,9 +16,6 @@ from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.comments import Comment, CommentStore
 from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.store.users import User
-
-if TYPE_CHECKING:
-    from fleetbus.api.service import Service
 
 #: Who comments on any mission they see; a client comments on the missions it owns.
 COMMENTERS = frozenset(
@@ -77,8 +73,3 @@ class MissionComments:
         return await self._comments.add_comment(
             mission_id, user.name, user.role.value, text, datetime.now(timezone.utc)
         )
-
-
-def comments_of(service: Service) -> MissionComments:
-    """The discussions, over the service's missions and store."""
-    return MissionComments(service.missions, service.repositories.comments)

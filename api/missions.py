@@ -16,8 +16,8 @@ from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.use_cases import STEPS, InvalidTransition, RoleNotAllowed, machine_for, readiness
-from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore
+from fleetbus.workers.store.channels import ChannelStore, CheckIn, Mount
+from fleetbus.workers.store.missions import Mission, MissionConflict, MissionStore, StateChange
 from fleetbus.workers.store.users import User
 
 #: Who sees every mission; a client sees its own.
@@ -43,6 +43,22 @@ def use_case_refusal(user: User, use_case: str) -> str | None:
         f"{user.name} may not create {use_case!r} missions; its use cases: {allowed} "
         f"(an admin changes them: `fleetbus users use-cases {user.name} --allow ...`)"
     )
+
+
+@dataclass(frozen=True)
+class MissionDetail:
+    """A mission as its page shows it: the robots mounted for it, the operators checked in, and
+    every state it went through (oldest first)."""
+
+    mission: Mission
+    mounts: list[Mount]
+    check_ins: list[CheckIn]
+    history: list[StateChange]
+
+
+def may_see(user: User, owner: str) -> bool:
+    """Whether ``user`` sees a mission of ``owner``'s (as :meth:`Missions.get` admits it)."""
+    return user.role in SEE_ALL or owner == user.name
 
 
 #: Told each mission as it is after a change (central sends it to its sites).
@@ -100,6 +116,21 @@ class Missions:
         if user.role not in SEE_ALL and mission.owner != user.name:
             raise Forbidden(f"mission {mission_id} belongs to another client")
         return mission
+
+    async def detail(self, user: User, mission_id: str) -> MissionDetail:
+        """The mission, if ``user`` may see it (:meth:`get`), with its mounts, check-ins and history."""
+        mission = await self.get(user, mission_id)
+        return MissionDetail(
+            mission,
+            await self._channels.mounts(mission_id=mission_id),
+            await self._channels.check_ins(mission_id=mission_id),
+            await self._missions.mission_history(mission_id),
+        )
+
+    async def every(self) -> list[Mission]:
+        """Every mission, in creation order, for a view shared by its users, each of whom is shown
+        those :func:`may_see` admits."""
+        return await self._missions.missions()
 
     async def active_for(self, user: User) -> list[MyMission]:
         """The missions not yet closed that are ``user``'s work, by number: those it owns, those it

@@ -1,7 +1,7 @@
-"""The recording's use cases for the command line (and the HTTP API's and console's queries, which
-ask the same of :mod:`fleetbus.workers.recorder.queries`): what is recorded, the messages of a type
-meeting conditions, a robot's timeline, a message's trace, the behaviours' outcomes, the database's
-growth, a window streamed in recording order (replay, export), and a ROS bag imported.
+"""The recording's use cases, for the command line, the HTTP API and the console alike: what is
+recorded, the messages of a type meeting conditions, a robot's timeline, a message's trace, the
+behaviours' outcomes, the database's growth, a window streamed in recording order (replay,
+export), and a ROS bag imported.
 
 A query the recording refuses (a type or field that cannot be, a condition that does not parse, a
 robot with nothing recorded) is refused as bad input (:class:`~fleetbus.api.errors.BadRequest`),
@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from pathlib import Path
 
 from fleetbus.api.errors import BadRequest
@@ -21,6 +21,7 @@ from fleetbus.schemas.ros import ROS_SCHEMA_TYPE
 from fleetbus.workers.recorder.bag_import import ImportReport, Progress
 from fleetbus.workers.recorder.bag_import import import_bag as import_bag_into
 from fleetbus.workers.recorder.export_selection import Selection
+from fleetbus.workers.recorder.growth import Growth, growth
 from fleetbus.workers.recorder.queries import (
     BEHAVIOUR,
     Timeline,
@@ -49,6 +50,7 @@ from fleetbus.workers.store.recordings import (
 
 __all__ = [
     "Condition",
+    "Growth",
     "ImportReport",
     "OutcomeStats",
     "RecordedMessage",
@@ -62,8 +64,14 @@ __all__ = [
 
 @dataclass(frozen=True)
 class TypeView:
+    """A recorded type: how much of it, from when to when, and the fields indexed for its queries."""
+
     summary: TypeSummary
     field_indexes: list[tuple[str, ...]]
+
+    @property
+    def name(self) -> str:
+        return self.summary.type
 
 
 @contextmanager
@@ -152,6 +160,10 @@ class Recording:
         with _refused():
             outcome = OutcomeFields(*(resolve_path(type, name) for name in fields))
             return await evaluate(self._store, since, until, robot_id=robot_id, type=type, fields=outcome)
+
+    async def growth(self, since: datetime | None, every: timedelta) -> list[Growth]:
+        """The recording's growth and inserts since ``since``, one row per ``every``."""
+        return growth(await self._store.samples(since), every)
 
     async def samples(self, since: datetime) -> list[StorageSample]:
         """The recorders' samples of the database's size since ``since``."""

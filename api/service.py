@@ -11,14 +11,22 @@ from dataclasses import dataclass
 from fleetbus.api.account_check import AccountCheck, account_check_for
 from fleetbus.api.accounts import Accounts, accounts_for
 from fleetbus.api.alerts import Alerts, alerts_for
+from fleetbus.api.beacons import BeaconDiscards, Beacons
 from fleetbus.api.channels import Channels
 from fleetbus.api.dead_letters import DeadLetters
 from fleetbus.api.hazard_steps import HazardSteps
+from fleetbus.api.hazards import Hazards
+from fleetbus.api.ledger import Ledger
 from fleetbus.api.login_limits import LoginLimits
+from fleetbus.api.maps import Maps
+from fleetbus.api.mission_comments import MissionComments
 from fleetbus.api.missions import Missions
 from fleetbus.api.missions_to_sites import MissionsToSites
+from fleetbus.api.recording import Recording
 from fleetbus.api.security import Secrets
-from fleetbus.api.sessions import Sessions
+from fleetbus.api.sessions import Sessions, SignedIn
+from fleetbus.api.sites import Sites
+from fleetbus.api.stored_events import MissionEvents, StoredEvents
 from fleetbus.api.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting
@@ -34,7 +42,8 @@ from fleetbus.workers.store.recordings import RecordingStore
 class Service:
     settings: Settings
     repositories: Repositories
-    """The repositories the routes read directly (users, channels, missions, events, discards)."""
+    """The repositories the services below are built on; the routes and the console call the
+    services."""
     secrets: Secrets
     sessions: Sessions
     """Login sessions: begun at login, checked on every request, ended server-side."""
@@ -55,6 +64,28 @@ class Service:
     alerts: Alerts
     """The alerts raised for the operators from the store (checked in the background) and their
     acknowledgements."""
+    events: StoredEvents
+    """The event log's reads behind the console's live parts (its feed, each robot's newest)."""
+    mission_events: MissionEvents
+    """A mission's recorded events, for whoever may see the mission."""
+    hazards: Hazards
+    """The hazards of every mission as the lists, the dashboard and the map show them."""
+    sites: Sites
+    """Central's sites: what each forwarded and its newest report (none elsewhere)."""
+    ledger: Ledger
+    """The open gaps in the robots' sequence numbers, and the duplicates the workers recognised."""
+    maps: Maps
+    """The stored versions of the team's map (:meth:`Maps.visible`: those a user may see)."""
+    beacons: Beacons
+    """The beacon registry and where people are likely stranded."""
+    recording_queries: Recording
+    """The recording's search, timelines, traces, evaluation and growth."""
+    beacon_discards: BeaconDiscards
+    """The beacon messages the broker discarded, counted by publishing exchange."""
+    signed_in: SignedIn
+    """Who a request's token signs in (the API's bearer token, the console's cookie)."""
+    mission_comments: MissionComments
+    """The missions' discussions: who reads and who adds to them."""
 
     async def dead_letters(self, limit: int) -> list[DeadLetter]:
         """Up to ``limit`` dead letters, oldest first, each with the reason the store kept, as
@@ -120,6 +151,17 @@ async def open_service(
             vhost=vhost_of(admin_url),
             login_limits=LoginLimits(settings.api_account_failures, settings.api_address_failures),
             alerts=alerts,
+            events=StoredEvents(repositories.events),
+            mission_events=MissionEvents(missions, repositories.events),
+            hazards=Hazards(repositories.hazards, repositories.events),
+            sites=Sites(repositories.sites, repositories.missions, admin_url, settings.uplink_alert_at),
+            ledger=Ledger(repositories.events),
+            maps=Maps(repositories.maps),
+            beacons=Beacons(repositories.beacons, repositories.events),
+            recording_queries=Recording(recording, repositories.events),
+            beacon_discards=BeaconDiscards(repositories.discards),
+            signed_in=SignedIn(sessions, repositories.users),
+            mission_comments=MissionComments(missions, repositories.comments),
         )
     finally:
         checking.cancel()

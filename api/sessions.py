@@ -21,7 +21,7 @@ from fleetbus.api import audit
 from fleetbus.api.errors import NotFound
 from fleetbus.api.security import Token, TokenRefused, Tokens
 from fleetbus.workers.store.sessions import Session, SessionStore
-from fleetbus.workers.store.users import UserStore
+from fleetbus.workers.store.users import User, UserStore
 
 log = logging.getLogger("fleetbus.api.sessions")
 
@@ -103,6 +103,32 @@ class Sessions:
         except TokenRefused:
             return False
         return token.session is not None and await self._store.end_session(token.session, token.subject)
+
+
+class UserGone(TokenRefused):
+    """The session is live but its user was removed; the message names the user."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(f"user {name!r} no longer exists")
+        self.name = name
+
+
+class SignedIn:
+    """Who a request's token signs in: the one check of the HTTP API and the console."""
+
+    def __init__(self, sessions: Sessions, users: UserStore) -> None:
+        self._sessions = sessions
+        self._users = users
+
+    async def check(self, token: str) -> tuple[Session, User]:
+        """The live session ``token`` names and its user, read from the store now (so a role
+        changed since the login applies); :class:`TokenRefused` saying why not, :class:`UserGone`
+        when the user was removed."""
+        session = await self._sessions.check(token)
+        user = await self._users.get_user(session.user)
+        if user is None:
+            raise UserGone(session.user)
+        return session, user
 
 
 async def end_sessions_of(

@@ -1,4 +1,4 @@
-"""The sites as central and a site see them, for the command line and the console: on central,
+"""The sites as central and a site see them, for the command line, the HTTP API and the console: on central,
 each site's link, what it forwarded and its newest report (``fleetbus sites``), and the missions a
 site is sent again (``fleetbus sites sync``); on a site, the robots of its team and those in use
 there (``fleetbus site status``, the reports to central)."""
@@ -6,6 +6,7 @@ there (``fleetbus site status``, the reports to central)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 from datetime import datetime, timezone
 
 from fleetbus.broker.accounts import vhost_of
@@ -17,10 +18,12 @@ from fleetbus.workers.site_status import SiteRow, central_view
 from fleetbus.workers.sites import mission_changes, send_to_sites
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.missions import MissionStore
-from fleetbus.workers.store.sites import SiteRegistry
+from fleetbus.workers.store.sites import SiteRegistry, SiteSummary
 from fleetbus.workers.store.team import TeamStore
 
-__all__ = ["SiteRow", "SiteTeam", "Sites"]
+__all__ = ["SiteReport", "SiteRow", "SiteSummary", "SiteTeam", "Sites"]
+
+log = logging.getLogger("fleetbus.sites")
 
 
 class Sites:
@@ -34,16 +37,24 @@ class Sites:
         self._admin_url = admin_url
         self._alert_at = alert_at
 
+    async def summaries(self) -> list[SiteSummary]:
+        """Each known site: its robots, how much it forwarded, the newest, by name."""
+        return await self._sites.summaries()
+
     async def reports(self) -> dict[str, SiteReport]:
-        """Each site's newest report, those waiting in the broker taken into the store first."""
-        await collect_site_reports(self._admin_url, self._sites, alert_at=self._alert_at)
+        """Each site's newest report, those waiting in the broker taken into the store first; the
+        broker away, the stored ones (aged)."""
+        try:
+            await collect_site_reports(self._admin_url, self._sites, alert_at=self._alert_at)
+        except Exception as error:  # the broker is away: the stored reports still show, aged
+            log.warning("site reports not collected: %s", type(error).__name__)
         return await self._sites.reports()
 
     async def view(self, management: ManagementAPI) -> list[SiteRow]:
         """Each site: its link (``management``: central's broker's management API), what it
         forwarded, how far behind central is, and its newest report."""
         reports = await self.reports()
-        summaries = await self._sites.summaries()
+        summaries = await self.summaries()
         vhost, now = vhost_of(self._admin_url), datetime.now(timezone.utc)
         return await asyncio.to_thread(
             central_view, management, vhost, summaries, now, reports, self._alert_at

@@ -76,6 +76,10 @@ class Team:
         """``name``'s entry in the team (its kind, whether in service), None when not in it."""
         return next((robot for robot in await self._team.robots() if robot.name == name), None)
 
+    async def robots(self) -> list[RobotState]:
+        """Every robot of the team, by name, as the hazard gate follows it."""
+        return await self._team.robots()
+
     async def member(self, name: str) -> TeamMember:
         found = next((m for m in (await self.view()).members if m.robot.name == name), None)
         if found is None:

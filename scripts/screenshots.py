@@ -28,7 +28,6 @@ from pathlib import Path
 from rich.console import Console
 
 from fleetbus.api.console.sitemap import DASHBOARD, PAGES
-from fleetbus.api.mission_comments import comments_of
 from fleetbus.broker.accounts import Role, with_vhost
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.cli.context import endpoint as resolved_broker
@@ -111,7 +110,7 @@ def stage(running: RunningConsole) -> str:
         assert operator
         await service.channels.mount(operator, EXPLORER, survey.mission_id)  # the soundings' robot
         await service.channels.check_in(operator, survey.mission_id)
-        discussion = comments_of(service)
+        discussion = service.mission_comments
         for who, text in (
             (planner, "Sweep the lab first, then the stairs."),
             (operator, "Soundings of the whole floor are in; the east side is deeper."),

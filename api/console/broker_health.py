@@ -28,7 +28,6 @@ from fleetbus.api.service import Service
 from fleetbus.broker.dead_letter_queue import DeadLetter
 from fleetbus.broker.served_certificate import ServedCertificate, served_certificate
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
-from fleetbus.workers.overflow import dropped_from_queue
 
 log = logging.getLogger("fleetbus.api.console")
 
@@ -299,8 +298,7 @@ class BrokerWatch:
         now = datetime.now(timezone.utc)
         try:
             letters = await self._service.dead_letters(self._peek)
-            counts = await self._service.repositories.housekeeping.bound_counts()
-            dropped = dropped_from_queue(counts, DEAD_LETTER_QUEUE)
+            dropped = await self._service.dead_letter_queue.dropped()
         except Exception as error:  # any failure to read is shown, never raised into the pages
             log.warning("console: the dead letters could not be read: %s", error)
             return DeadLetterCount(now, problem=f"could not be read: {error}")

@@ -28,8 +28,8 @@ from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 
+from fleetbus.api.stored_events import EventRecord, StoredEvents, StoreError, from_micros, to_micros
 from fleetbus.settings import Settings
-from fleetbus.workers.store.base import EventRecord, EventStore, StoreError, from_micros, to_micros
 
 log = logging.getLogger("fleetbus.api.console")
 
@@ -65,7 +65,7 @@ class Subscription:
 
 @dataclass
 class Feed:
-    events: EventStore
+    events: StoredEvents
     poll_s: float = 0.1
     tick_s: float = 1.0
     overlap: timedelta = timedelta(seconds=5)
@@ -113,7 +113,7 @@ class Feed:
         if since is None:
             return fresh
         while True:
-            found = await self.events.events_received_since(since, self.batch_limit)
+            found = await self.events.received_since(since, self.batch_limit)
             for record in found:
                 if record.key not in self._seen:
                     self._remember(record.key)
@@ -173,10 +173,10 @@ class Feed:
         """What a page that saw everything up to ``since`` may have missed, from the store: the
         events received since (``None`` when there are ``limit`` or more), after those received in
         the ``overlap`` before it (committed late, they may be new to the page too)."""
-        after = await self.events.events_received_since(since, limit)
+        after = await self.events.received_since(since, limit)
         if len(after) >= limit:
             return None
-        around = await self.events.events_received_since(since - self.overlap, limit)
+        around = await self.events.received_since(since - self.overlap, limit)
         return [record for record in around if record.received_at < since] + after
 
 
@@ -193,7 +193,7 @@ async def running(feed: Feed) -> AsyncIterator[Feed]:
 
 
 @contextlib.asynccontextmanager
-async def running_feed(events: EventStore, settings: Settings) -> AsyncIterator[Feed]:
+async def running_feed(events: StoredEvents, settings: Settings) -> AsyncIterator[Feed]:
     """The process's feed, reading the store until the app stops."""
     feed = Feed(
         events,

@@ -18,15 +18,14 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Sequence
 
-from fleetbus.api.accounts import broker_role
+from fleetbus.api.accounts import User, broker_role
+from fleetbus.api.channels import Channels, Mount
 from fleetbus.api.console.templating import fragment
+from fleetbus.api.stored_events import EventRecord, StoredEvents
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import mount_bindings
 from fleetbus.schemas.routing import beacon_exchange, stream_queue
 from fleetbus.workers.recorder.summary import compact, shorten
-from fleetbus.workers.store.base import EventQuery, EventRecord, EventStore
-from fleetbus.workers.store.channels import ChannelStore, Mount
-from fleetbus.workers.store.users import User
 
 SUMMARY_WIDTH = 140
 
@@ -61,7 +60,7 @@ class MountBook:
     open page. A batch's mounts are read after its events were, so a mount made before one of them
     was published is among them; a mount ended since is not (its robot is no longer followed)."""
 
-    def __init__(self, channels: ChannelStore) -> None:
+    def __init__(self, channels: Channels) -> None:
         self._channels = channels
         self._lock = asyncio.Lock()
         self._batch: object = None
@@ -116,16 +115,14 @@ class TailView:
     def row(self, record: EventRecord) -> str:
         return fragment("messages/tail_row.html", event=record, summary=summary(record))
 
-    async def recent(self, events: EventStore) -> list[str]:
+    async def recent(self, events: StoredEvents) -> list[str]:
         """The newest rows the stream received, for the page as first rendered (newest first)."""
         if not has_stream(self._user):
             return []
         mounts = await self._book.latest()
-        queries = [EventQuery(type="beacon", limit=self._rows, newest_first=True)] + [
-            EventQuery(robot_id=mount.robot, limit=self._rows, newest_first=True)
-            for mount in mounted_sources(self._user, mounts).values()
-        ]
-        found = {record.key: record for query in queries for record in await events.find_events(query)}
+        found = {record.key: record for record in await events.newest(self._rows, type="beacon")}
+        for mount in mounted_sources(self._user, mounts).values():
+            found.update((r.key, r) for r in await events.newest(self._rows, robot_id=mount.robot))
         shown = [
             record for record in newest_first(list(found.values())) if follows(self._user, mounts, record)
         ]

@@ -20,8 +20,8 @@ from typing import Any
 
 from fastapi import Request
 
+from fleetbus.api.stored_events import EventRecord, StoredEvents
 from fleetbus.schemas.routing import EventType
-from fleetbus.workers.store.base import EventRecord, EventStore
 from fleetbus.workers.telemetry import battery_of
 
 #: The events that say where their robot is.
@@ -88,7 +88,7 @@ class RobotLatest:
 class Latest:
     """Every robot's newest values, for every page of one API process."""
 
-    def __init__(self, events: EventStore) -> None:
+    def __init__(self, events: StoredEvents) -> None:
         self._events = events
         self._robots: dict[str, RobotLatest] = {}
         self._seeded: set[str] = set()
@@ -116,7 +116,7 @@ class Latest:
             if new:
                 # three queries for all of them: the newest event of any type, status, localisation
                 for type in (None, *POSE_TYPES):
-                    self.observe(list((await self._events.newest_events(new, type)).values()))
+                    self.observe(list((await self._events.newest_of(new, type)).values()))
                 self._seeded.update(new)
             return bool(new)
 
@@ -125,6 +125,6 @@ def latest_for(request: Request) -> Latest:
     """The process's :class:`Latest`, following its feed from the first page that asks."""
     state = request.app.state
     if getattr(state, "latest", None) is None:
-        state.latest = Latest(state.service.repositories.events)
+        state.latest = Latest(state.service.events)
         state.feed.watch(state.latest.observe)
     return state.latest

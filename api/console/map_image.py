@@ -16,9 +16,7 @@ from dataclasses import dataclass
 
 from PIL import Image, UnidentifiedImageError
 
-from fleetbus.schemas.pgm import read_pgm_header
-from fleetbus.workers.maps import map_image
-from fleetbus.workers.store.maps import MapStore, MapVersion
+from fleetbus.api.maps import Maps, MapVersion
 
 
 class ImageUnreadable(Exception):
@@ -75,7 +73,7 @@ SIZES_KEPT = 256
 class MapImages:
     """The PNGs of the versions last shown, made on a thread (one at a time) and kept."""
 
-    def __init__(self, maps: MapStore, max_side: int, keep: int) -> None:
+    def __init__(self, maps: Maps, max_side: int, keep: int) -> None:
         self._maps = maps
         self._max_side = max_side
         self._keep = keep
@@ -86,8 +84,7 @@ class MapImages:
     async def frame(self, version: MapVersion) -> Frame:
         size = self._sizes.get(version.version)
         if size is None:
-            header = read_pgm_header(await self._maps.map_chunk(version.version, 0))
-            size = self._sizes[version.version] = (header.width, header.height)
+            size = self._sizes[version.version] = await self._maps.size(version)
             while len(self._sizes) > SIZES_KEPT:
                 self._sizes.popitem(last=False)
         return Frame(version, *size)
@@ -97,7 +94,7 @@ class MapImages:
             if version.version in self._made:
                 self._made.move_to_end(version.version)
                 return self._made[version.version]
-            pgm = await map_image(self._maps, version)
+            pgm = await self._maps.image(version)
             made = await asyncio.to_thread(png_of, pgm, self._max_side)
             self._made[version.version] = made
             while len(self._made) > self._keep:

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from fleetbus.api.accounts import User
 from fleetbus.api.missions import AUTHORS
 from fleetbus.api.service import Service
-from fleetbus.workers.store.users import User
 
 #: Missions listed; the rest are counted.
 MISSIONS_SHOWN = 20
@@ -20,7 +20,7 @@ async def my_work(svc: Service, user: User) -> dict[str, Any]:
     return {
         "my_missions": missions[:MISSIONS_SHOWN],
         "my_missions_more": max(0, len(missions) - MISSIONS_SHOWN),
-        "my_mounts": await svc.repositories.channels.mounts(operator=user.name),
+        "my_mounts": await svc.channels.mounts(operator=user.name),
         "may_create": user.role in AUTHORS,
         "broker": broker_login(svc, user),
     }

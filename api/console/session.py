@@ -20,12 +20,12 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, Response
 
 from fleetbus.api import audit
-from fleetbus.api.auth import ServiceDep, UsersDep
+from fleetbus.api.accounts import User
+from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.sitemap import Page
 from fleetbus.api.security import Token, TokenRefused
 from fleetbus.api.service import Service
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.users import User
 
 SESSION_COOKIE = "fleetbus_session"
 CSRF_COOKIE = "fleetbus_csrf"
@@ -108,18 +108,15 @@ async def check_csrf(request: Request) -> None:
         raise HTTPException(403, detail="the form's CSRF token is missing or does not match; reload the page")
 
 
-async def console_user(request: Request, svc: ServiceDep, users: UsersDep) -> User:
+async def console_user(request: Request, svc: ServiceDep) -> User:
     """The logged-in user, from the session cookie; :class:`LoginRequired` when there is none."""
     token = request.cookies.get(SESSION_COOKIE)
     if not token:
         raise LoginRequired("please log in")
     try:
-        session = await svc.sessions.check(token)
-    except TokenRefused as refused:
+        session, user = await svc.signed_in.check(token)
+    except TokenRefused as refused:  # UserGone too: "user ... no longer exists"
         raise LoginRequired(str(refused)) from None
-    user = await users.get_user(session.user)
-    if user is None:
-        raise LoginRequired(f"user {session.user!r} no longer exists")
     request.state.user = user
     request.state.session = session
     return user

@@ -10,8 +10,8 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from fleetbus.api.console.latest import Pose
+from fleetbus.api.stored_events import StoredEvents
 from fleetbus.schemas.routing import EventType
-from fleetbus.workers.store.base import EventQuery, EventStore
 
 #: At most this many poses in one answer (all robots together).
 TRAIL_POINTS = 20_000
@@ -19,20 +19,12 @@ TRAIL_POINTS = 20_000
 WINDOWS = (10, 60, 360, 1440)
 
 
-async def trails(events: EventStore, until: datetime, window: timedelta) -> dict[str, Any]:
+async def trails(events: StoredEvents, until: datetime, window: timedelta) -> dict[str, Any]:
     """``{"since", "until", "truncated", "robots": {name: [[ms, x, y, heading°], ...]}}``: each
     robot's localised poses sent in [until - window, until), oldest first; times in milliseconds
     since the epoch (UTC)."""
     since = until - window
-    found = await events.find_events(
-        EventQuery(
-            type=EventType.LOCALISATION.value,
-            since=since,
-            until=until,
-            limit=TRAIL_POINTS + 1,
-            newest_first=True,
-        )
-    )
+    found = await events.sent_between(EventType.LOCALISATION.value, since, until, TRAIL_POINTS + 1)
     truncated = len(found) > TRAIL_POINTS
     robots: dict[str, list[list[float]]] = {}
     for record in reversed(found[:TRAIL_POINTS]):

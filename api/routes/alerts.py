@@ -6,19 +6,18 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path, Query
 
-from fleetbus.api.alerts import ACKNOWLEDGERS
+from fleetbus.api.accounts import User
+from fleetbus.api.alerts import ACKNOWLEDGERS, ALERT_ID_MAX
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.errors import Conflict
 from fleetbus.api.models import AlertOut, AlertsOut
 from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import WATCHERS
-from fleetbus.workers.store.base import LARGEST_INTEGER
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["alerts"])
 Watcher = Annotated[User, Depends(require_role(*WATCHERS))]
 Acknowledger = Annotated[User, Depends(require_role(*ACKNOWLEDGERS))]
-AlertId = Annotated[int, Path(ge=1, le=LARGEST_INTEGER, description="the alert's id")]
+AlertId = Annotated[int, Path(ge=1, le=ALERT_ID_MAX, description="the alert's id")]
 
 
 @router.get("/alerts", response_model=AlertsOut)

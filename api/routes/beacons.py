@@ -6,10 +6,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.auth import DiscardsDep, require_role
+from fleetbus.api.accounts import User
+from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.models import DiscardCountOut, DiscardOut, DiscardsOut
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["beacons"])
 Watcher = Annotated[User, Depends(require_role(UserRole.OPERATOR, UserRole.SUPERVISOR, UserRole.ADMIN))]
@@ -17,10 +17,10 @@ Watcher = Annotated[User, Depends(require_role(UserRole.OPERATOR, UserRole.SUPER
 
 @router.get("/beacons/discards", response_model=DiscardsOut)
 async def discards(
-    user: Watcher, discards: DiscardsDep, recent: Annotated[int, Query(ge=0, le=1000)] = 20
+    user: Watcher, svc: ServiceDep, recent: Annotated[int, Query(ge=0, le=1000)] = 20
 ) -> DiscardsOut:
     """Beacon messages without the ``type: beacon`` and ``codename`` headers, which the broker discarded."""
     return DiscardsOut(
-        counts=[DiscardCountOut.of(c) for c in await discards.discard_counts()],
-        recent=[DiscardOut.of(d) for d in await discards.recent_discards(recent)] if recent else [],
+        counts=[DiscardCountOut.of(c) for c in await svc.beacon_discards.counts()],
+        recent=[DiscardOut.of(d) for d in await svc.beacon_discards.recent(recent)] if recent else [],
     )

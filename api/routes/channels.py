@@ -6,13 +6,13 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.auth import ChannelsDep, ServiceDep, require_role
+from fleetbus.api.accounts import User
+from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.channels import OPERATING, UNMOUNTERS
 from fleetbus.api.errors import Conflict, NotFound
 from fleetbus.api.models import BindingReportOut, ChannelChangeOut, MountIn, MountOut
 from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["channels"])
 R = UserRole
@@ -30,10 +30,10 @@ async def mount(body: MountIn, user: Operator, svc: ServiceDep) -> MountOut:
 
 
 @router.get("/mounts", response_model=list[MountOut])
-async def mounts(user: Watcher, channels: ChannelsDep) -> list[MountOut]:
+async def mounts(user: Watcher, svc: ServiceDep) -> list[MountOut]:
     """An operator's own mounts; every mount for supervisors and admins."""
     operator = user.name if user.role is R.OPERATOR else None
-    return [MountOut.of(m) for m in await channels.mounts(operator=operator)]
+    return [MountOut.of(m) for m in await svc.channels.mounts(operator=operator)]
 
 
 @router.delete("/mounts/{robot}", response_model=MountOut)
@@ -45,12 +45,12 @@ async def unmount(robot: str, user: Unmounter, svc: ServiceDep) -> MountOut:
 @router.get("/channels/changes", response_model=list[ChannelChangeOut])
 async def changes(
     user: Overseer,
-    channels: ChannelsDep,
+    svc: ServiceDep,
     mission_id: str | None = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 200,
 ) -> list[ChannelChangeOut]:
     """Every mount, unmount, check-in and check-out: who, what, when (oldest first)."""
-    return [ChannelChangeOut.of(c) for c in await channels.channel_changes(mission_id, limit)]
+    return [ChannelChangeOut.of(c) for c in await svc.channels.changes(mission_id, limit)]
 
 
 @router.get("/channels/bindings", response_model=BindingReportOut)

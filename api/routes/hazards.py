@@ -6,15 +6,15 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.auth import HazardsDep, ServiceDep, require_role
+from fleetbus.api.accounts import User
+from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.errors import Conflict
 from fleetbus.api.hazard_steps import HazardId
+from fleetbus.api.hazards import HazardState
 from fleetbus.api.models import HazardOut, HazardStepIn, HazardStepOut
 from fleetbus.api.openapi import refusals
 from fleetbus.api.team import DISPATCHERS
 from fleetbus.schemas.roles import WATCHERS
-from fleetbus.workers.store.hazards import HazardState
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["hazards"])
 Watcher = Annotated[User, Depends(require_role(*WATCHERS))]
@@ -25,13 +25,13 @@ Step = Literal["claim", "reached", "cleared", "release"]
 @router.get("/hazards", response_model=list[HazardOut])
 async def list_hazards(
     user: Watcher,
-    hazards: HazardsDep,
+    svc: ServiceDep,
     state: HazardState | None = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> list[HazardOut]:
     """Every hazard of every mission (or those in ``state``), cleared ones too, newest first."""
-    return [HazardOut.of(hazard) for hazard in await hazards.recent_hazards(limit, offset, state)]
+    return [HazardOut.of(hazard) for hazard in await svc.hazards.recent(limit, offset, state)]
 
 
 @router.post(

@@ -8,13 +8,12 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query
 from pydantic import BaseModel, ConfigDict, Field
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.errors import BadRequest
-from fleetbus.api.mission_comments import COMMENT_MAX, COMMENTERS, THREAD_LIMIT, comments_of
+from fleetbus.api.mission_comments import COMMENT_MAX, COMMENTERS, THREAD_LIMIT, Comment
 from fleetbus.api.openapi import refusals
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store.comments import Comment
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["missions"])
 Reader = Annotated[User, Depends(require_role(*COMMENTERS, UserRole.GUEST))]
@@ -60,7 +59,7 @@ async def list_comments(
 ) -> list[CommentOut]:
     """The mission's discussion, oldest first (the newest `limit` comments): whoever may see the
     mission reads it (a client its own missions)."""
-    return [CommentOut.of(c) for c in await comments_of(svc).thread(user, mission_id, limit)]
+    return [CommentOut.of(c) for c in await svc.mission_comments.thread(user, mission_id, limit)]
 
 
 @router.post(
@@ -72,4 +71,4 @@ async def list_comments(
 async def add_comment(mission_id: str, body: CommentIn, user: Commenter, svc: ServiceDep) -> CommentOut:
     """Comment on the mission: its client, planners, supervisors, operators and admins may
     (a guest reads only). 422: the text is empty or longer than the bound."""
-    return CommentOut.of(await comments_of(svc).add(user, mission_id, body.text))
+    return CommentOut.of(await svc.mission_comments.add(user, mission_id, body.text))

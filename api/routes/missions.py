@@ -6,7 +6,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.auth import ChannelsDep, EventsDep, MissionsDep, ServiceDep, require_role
+from fleetbus.api.accounts import User
+from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.channels import OPERATING
 from fleetbus.api.errors import Conflict
 from fleetbus.api.missions import AUTHORS, MOVERS
@@ -26,8 +27,6 @@ from fleetbus.api.openapi import refusal_meaning, refusals
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.use_cases import USE_CASES
-from fleetbus.workers.store.base import EventQuery
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["missions"])
 R = UserRole
@@ -70,15 +69,13 @@ async def list_missions(user: Reader, svc: ServiceDep, state: MissionState | Non
 
 
 @router.get("/missions/{mission_id}", response_model=MissionDetail)
-async def get_mission(
-    mission_id: str, user: Reader, svc: ServiceDep, channels: ChannelsDep, missions: MissionsDep
-) -> MissionDetail:
-    mission = await svc.missions.get(user, mission_id)
+async def get_mission(mission_id: str, user: Reader, svc: ServiceDep) -> MissionDetail:
+    detail = await svc.missions.detail(user, mission_id)
     return MissionDetail(
-        **MissionOut.of(mission).model_dump(),
-        mounts=[MountOut.of(m) for m in await channels.mounts(mission_id=mission_id)],
-        checked_in=[CheckInOut.of(c) for c in await channels.check_ins(mission_id=mission_id)],
-        history=[StateChangeOut.of(c) for c in await missions.mission_history(mission_id)],
+        **MissionOut.of(detail.mission).model_dump(),
+        mounts=[MountOut.of(m) for m in detail.mounts],
+        checked_in=[CheckInOut.of(c) for c in detail.check_ins],
+        history=[StateChangeOut.of(c) for c in detail.history],
     )
 
 
@@ -99,13 +96,11 @@ async def mission_events(
     mission_id: str,
     user: DataReader,
     svc: ServiceDep,
-    events: EventsDep,
     type: str | None = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
 ) -> list[EventOut]:
     """The events recorded under the mission, each with its provenance."""
-    await svc.missions.get(user, mission_id)
-    records = await events.find_events(EventQuery(type=type, mission_id=mission_id, limit=limit))
+    records = await svc.mission_events.recorded(user, mission_id, type, limit)
     return [EventOut.of(r) for r in records]
 
 

@@ -15,15 +15,14 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query
 from pydantic import BaseModel, BeforeValidator, Field
 
-from fleetbus.api.auth import EventsDep, ServiceDep, require_role
+from fleetbus.api.accounts import User
+from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.recording import OutcomeStats, RecordedMessage
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import EVALUATORS, WATCHERS
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
-from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, growth
-from fleetbus.workers.recorder.queries import evaluate, find, parse_condition, timeline, trace
-from fleetbus.workers.store.recordings import OutcomeStats, RecordedMessage, RecordingError
-from fleetbus.workers.store.users import User
+from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET
 
 router = APIRouter(prefix="/recording", tags=["recording"])
 Analyst = Annotated[User, Depends(require_role(*WATCHERS))]
@@ -151,18 +150,14 @@ class GrowthOut(BaseModel):
     inserts_per_minute: float
 
 
-def refused(error: RecordingError) -> HTTPException:
-    return HTTPException(422, detail=str(error))
-
-
 @router.get("/types", response_model=list[TypeOut])
 async def recorded_types(user: Analyst, svc: ServiceDep) -> list[TypeOut]:
     """Every recorded type: known to fleetbus or not, how much of it, from when to when, its field indexes."""
     out = []
-    for name in await svc.recording.recorded_types():
-        summary = await svc.recording.type_summary(name)
-        indexes = [list(paths) for paths in await svc.recording.field_indexes(name)]
-        out.append(TypeOut(**summary.__dict__, known=name in KNOWN_TYPES, field_indexes=indexes))
+    for recorded in await svc.recording_queries.type_views():
+        summary = recorded.summary
+        indexes = [list(paths) for paths in recorded.field_indexes]
+        out.append(TypeOut(**summary.__dict__, known=recorded.name in KNOWN_TYPES, field_indexes=indexes))
     return out
 
 
@@ -183,21 +178,16 @@ async def records(
 ) -> list[RecordOut]:
     """Recorded messages of a type meeting every condition, oldest first (the newest ``limit``);
     ``latest`` gives only the newest, as in "the latest failed grab of a bottle"."""
-    try:
-        conditions = [parse_condition(text, message_type) for text in where or []]
-        found = await find(
-            svc.recording,
-            message_type,
-            conditions,
-            robot_id=robot,
-            mission_id=mission,
-            since=since,
-            until=until,
-            limit=1 if latest else limit,
-            newest_first=True,
-        )
-    except RecordingError as error:
-        raise refused(error) from None
+    found = await svc.recording_queries.find(
+        message_type,
+        svc.recording_queries.conditions(where or [], message_type),
+        robot_id=robot,
+        mission_id=mission,
+        since=since,
+        until=until,
+        limit=1 if latest else limit,
+        newest_first=True,
+    )
     return [RecordOut.of(record) for record in reversed(found)]
 
 
@@ -218,7 +208,7 @@ async def robot_timeline(
     start = since or datetime.now(timezone.utc) - timedelta(hours=1)
     routes = await svc.route_map()
     inbound = routes.keys_into(inbox_queue(robot), NOTIFY_EXCHANGE)
-    result = await timeline(svc.recording, robot, start, until, inbound=inbound, limit=limit)
+    result = await svc.recording_queries.timeline(robot, start, until, inbound=inbound, limit=limit)
     return TimelineOut(
         robot_id=robot,
         truncated=result.truncated,
@@ -227,10 +217,10 @@ async def robot_timeline(
 
 
 @router.get("/trace/{message_id}", response_model=TraceOut)
-async def trace_message(message_id: str, user: Analyst, svc: ServiceDep, events: EventsDep) -> TraceOut:
+async def trace_message(message_id: str, user: Analyst, svc: ServiceDep) -> TraceOut:
     """Where a message came from (broker-validated user, exchange, routing key, mission, times), what
     the service made of it, the queues that receive it and their consumers now, what it caused."""
-    result = await trace(svc.recording, message_id, events=events, route_map=await svc.route_map())
+    result = await svc.recording_queries.trace(message_id, await svc.route_map())
     if not result.records:
         raise HTTPException(404, detail=f"message {message_id!r} was never recorded")
 
@@ -268,7 +258,7 @@ async def evaluation(
 ) -> list[OutcomeOut]:
     """Per behaviour: successes, failures, success rate, mean and standard deviation of the duration,
     computed by the database."""
-    stats = await evaluate(svc.recording, since, until, robot_id=robot)
+    stats = await svc.recording_queries.evaluate(since, until, robot_id=robot)
     return [OutcomeOut.of(s) for s in stats]
 
 
@@ -281,7 +271,7 @@ async def recording_growth(
 ) -> list[GrowthOut]:
     """The recording's growth (MB per minute) and inserts per minute, one row per ``every_minutes``."""
     start = since or datetime.now(timezone.utc) - timedelta(hours=1)
-    rows = growth(await svc.recording.samples(start), timedelta(minutes=every_minutes))
+    rows = await svc.recording_queries.growth(start, timedelta(minutes=every_minutes))
     return [
         GrowthOut(
             start=r.start,

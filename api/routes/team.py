@@ -6,13 +6,13 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.errors import BadRequest
 from fleetbus.api.models import TeamMemberOut, TeamOut
 from fleetbus.api.openapi import refusals
 from fleetbus.api.team import DISPATCHERS
 from fleetbus.schemas.roles import WATCHERS, UserRole
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["team"])
 R = UserRole

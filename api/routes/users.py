@@ -9,6 +9,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, current_session, require_role
 from fleetbus.api.errors import BadRequest, Conflict, NotFound
 from fleetbus.api.models import (
@@ -23,9 +24,8 @@ from fleetbus.api.models import (
     UserOut,
 )
 from fleetbus.api.openapi import refusals
+from fleetbus.api.sessions import Session
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
-from fleetbus.workers.store.sessions import Session
-from fleetbus.workers.store.users import User
 
 router = APIRouter(tags=["users"])
 R = UserRole

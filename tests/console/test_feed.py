@@ -15,6 +15,7 @@ from starlette.requests import Request
 from fleetbus.api.console import live
 from fleetbus.api.console.feed import Batch, Feed, Subscription, cursor_of, running
 from fleetbus.api.console.live import FRAGMENT_EVENT, RELOAD_EVENT, Shared, _fragments
+from fleetbus.api.stored_events import StoredEvents
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.repositories import Repositories
 from tests.store.conftest import store  # noqa: F401  (every repository on each backend)
@@ -54,7 +55,7 @@ async def handed_out_until(subscription: Subscription, last: Key) -> list[Key]:
 
 
 async def test_an_event_committed_after_a_later_one_is_handed_out_once(store: Repositories) -> None:  # noqa: F811
-    feed = Feed(store.events, poll_s=0.01, overlap=timedelta(seconds=5))
+    feed = Feed(StoredEvents(store.events), poll_s=0.01, overlap=timedelta(seconds=5))
     now = datetime.now(timezone.utc)
     async with running(feed), feed.subscribe() as subscription:
         await store.events.write_events([received(1, now)])
@@ -68,7 +69,7 @@ async def test_an_event_committed_after_a_later_one_is_handed_out_once(store: Re
 
 
 async def test_an_overlap_holding_more_than_a_read_is_read_page_by_page(store: Repositories) -> None:  # noqa: F811
-    feed = Feed(store.events, poll_s=0.01, overlap=timedelta(seconds=5), batch_limit=5)
+    feed = Feed(StoredEvents(store.events), poll_s=0.01, overlap=timedelta(seconds=5), batch_limit=5)
     now = datetime.now(timezone.utc)
     async with running(feed), feed.subscribe() as subscription:
         twelve = [received(seq, now + timedelta(milliseconds=seq)) for seq in range(12)]
@@ -82,7 +83,7 @@ async def test_an_overlap_holding_more_than_a_read_is_read_page_by_page(store: R
 
 
 async def test_a_subscriber_that_falls_behind_is_dropped_and_counted(store: Repositories) -> None:  # noqa: F811
-    feed = Feed(store.events, poll_s=0.01, tick_s=0.01, queue_size=3)
+    feed = Feed(StoredEvents(store.events), poll_s=0.01, tick_s=0.01, queue_size=3)
     async with running(feed), feed.subscribe() as keeping_up, feed.subscribe() as lagging:
         async with asyncio.timeout(DEADLINE_S):
             for _ in range(4):  # a batch (a tick) each: the fourth finds the lagging queue full
@@ -133,12 +134,13 @@ async def test_a_page_that_missed_more_than_a_replay_is_told_to_reload(
     monkeypatch.setattr(live, "MISSED_LIMIT", 3)
     now = datetime.now(timezone.utc)
     await store.events.write_events([received(seq, now + timedelta(milliseconds=seq)) for seq in range(3)])
-    told = await first_event(RowsView(), Feed(store.events), reconnecting(now - timedelta(seconds=1)))
+    feed = Feed(StoredEvents(store.events))
+    told = await first_event(RowsView(), feed, reconnecting(now - timedelta(seconds=1)))
     assert told.event == RELOAD_EVENT
     await store.events.write_events([received(3, now + timedelta(milliseconds=3))])
     # one that saw the first two missed two: replayed, with those of the overlap before (the
     # count is of the events after what the page saw, or a busy overlap would reload every page)
-    replay = await first_event(RowsView(), Feed(store.events), reconnecting(now + timedelta(milliseconds=2)))
+    replay = await first_event(RowsView(), feed, reconnecting(now + timedelta(milliseconds=2)))
     assert replay.event == FRAGMENT_EVENT
     assert [row for row in json.loads(replay.data) if row.startswith("<tr")] == [
         f'<tr id="event-{seq}"><td>{seq}</td></tr>' for seq in range(4)
@@ -150,7 +152,8 @@ async def test_a_replay_leaves_the_snapshot_other_pages_are_shown_as_it_was(stor
     await store.events.write_events([received(0, now)])
     view = RowsView()
     shown = await view.snapshot()  # as a page rendered a moment before its stream opens
-    first = await first_event(view, Feed(store.events), reconnecting(now - timedelta(seconds=1)))
+    feed = Feed(StoredEvents(store.events))
+    first = await first_event(view, feed, reconnecting(now - timedelta(seconds=1)))
     assert first.event == FRAGMENT_EVENT
     assert json.loads(first.data) == [*shown, '<tr id="event-0"><td>0</td></tr>'], "the page's replay"
     # the next page rendered within the interval is given the same snapshot, not the replay's rows
@@ -161,7 +164,7 @@ async def test_a_batch_is_rendered_once_for_every_open_page_of_a_view(store: Rep
     view = RowsView()
     opened = Request({"type": "http", "headers": [], "query_string": b""})
     closing = anyio.Event()  # what sse-starlette sets when the server shuts down
-    async with running(Feed(store.events, poll_s=0.01)) as feed:
+    async with running(Feed(StoredEvents(store.events), poll_s=0.01)) as feed:
         pages = [_fragments(view, feed, opened, closing) for _ in range(3)]
         try:
             for page in pages:

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from fleetbus.api.console.latest import Latest
+from fleetbus.api.stored_events import StoredEvents
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.sqlite import sqlite_repositories
 from tests.store.test_contract import T0, record
@@ -42,7 +43,7 @@ async def test_robots_are_read_from_the_store_once_then_follow_the_feed(
             return await newest_events(robots, type)
 
         monkeypatch.setattr(store.events, "newest_events", counted)
-        latest = Latest(store.events)
+        latest = Latest(StoredEvents(store.events))
 
         assert await latest.seed(ROBOTS)
         assert reads == [(ROBOTS, None), (ROBOTS, "status"), (ROBOTS, "localisation")], (

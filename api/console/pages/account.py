@@ -16,6 +16,7 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console import shown_once
 from fleetbus.api.console.my_work import broker_login
@@ -24,7 +25,6 @@ from fleetbus.api.console.sitemap import ACCOUNT
 from fleetbus.api.console.templating import render
 from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
-from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Owner = Annotated[User, Depends(Allowed.page(ACCOUNT))]

@@ -19,6 +19,7 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console import shown_once
 from fleetbus.api.console.session import Allowed
@@ -29,7 +30,6 @@ from fleetbus.api.service import Service
 from fleetbus.schemas.roles import ROLE_PURPOSE, UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.schemas.use_cases import USE_CASES
-from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(ACCOUNTS))]

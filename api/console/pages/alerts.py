@@ -17,6 +17,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.alerts import ACKNOWLEDGERS, MEANING, AlertList, acknowledged_text
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
@@ -24,8 +25,7 @@ from fleetbus.api.console.sitemap import ALERTS
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
-from fleetbus.workers.store.base import EventRecord
-from fleetbus.workers.store.users import User
+from fleetbus.api.stored_events import EventRecord
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(ALERTS))]

@@ -14,7 +14,6 @@ Each robot's last-seen time, battery and pose are kept in memory from the live f
 from __future__ import annotations
 
 import asyncio
-import logging
 import time
 from collections import Counter
 from datetime import datetime, timezone
@@ -24,6 +23,7 @@ import httpx
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.broker_health import BrokerWatch, broker_watch
 from fleetbus.api.console.broker_rates import RATES, Rates
@@ -36,16 +36,13 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ADMINS, DASHBOARD
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.hazards import HazardState
 from fleetbus.api.service import Service
+from fleetbus.api.stored_events import EventRecord
 from fleetbus.api.team import TeamView
 from fleetbus.broker.management import ManagementError
 from fleetbus.schemas.roles import WATCHERS, UserRole
 from fleetbus.schemas.routing import EventType
-from fleetbus.schemas.site_reports import SiteReport
-from fleetbus.workers.site_report_collector import collect_site_reports
-from fleetbus.workers.store.base import EventQuery, EventRecord
-from fleetbus.workers.store.hazards import Hazard, HazardRegistry, HazardState
-from fleetbus.workers.store.users import User
 from fleetbus.workers.team import TeamMember
 from fleetbus.workers.telemetry import battery_low as is_battery_low
 
@@ -53,7 +50,6 @@ router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(DASHBOARD))]
 Watcher = Annotated[User, Depends(Allowed(WATCHERS, "the live team on the dashboard"))]
 Repairer = Annotated[User, Depends(Allowed(ADMINS, "repair the account registry's drift"))]
-log = logging.getLogger("fleetbus.console")
 #: Hazard ids listed per state; the rest are counted.
 IDS_SHOWN = 12
 OPEN = [state for state in HazardState if state is not HazardState.CLEARED]
@@ -105,13 +101,6 @@ class RegistryCheck:
             return self._checked[1]
 
 
-async def newest_by_state(
-    hazards: HazardRegistry, states: list[HazardState], limit: int
-) -> dict[HazardState, list[Hazard]]:
-    """The newest ``limit`` hazards of each state: bounded however many are open."""
-    return {state: await hazards.recent_hazards(limit, state=state) for state in states}
-
-
 def rate_charts(rates: Rates | None) -> list[tuple[str, TimeChart]]:
     """The broker panel's charts: each message rate over the last hour (none before the broker
     has two samples of it)."""
@@ -137,20 +126,20 @@ class DashboardView:
         self.recent_limit = service.settings.console_recent_events
 
     async def _render(self) -> list[str]:
-        repositories = self._service.repositories
+        service = self._service
         team = await team_view(self._service, self._latest)
         settings = self._service.settings
         shown = attention_first(team.members, self._latest, settings.battery_low_percent)[
             : settings.console_team_rows
         ]
-        hazards = await newest_by_state(repositories.hazards, OPEN, IDS_SHOWN)
-        counts = await repositories.hazards.hazard_counts()
+        hazards = await service.hazards.newest_by_state(OPEN, IDS_SHOWN)
+        counts = await service.hazards.counts()
         gaps: Counter[str] = Counter()
         missing: Counter[str] = Counter()
-        for gap in await repositories.events.gaps(None):
+        for gap in await service.ledger.gaps():
             gaps[gap.robot_id] += 1
             missing[gap.robot_id] += gap.size
-        mounts = {mount.robot: mount for mount in await repositories.channels.mounts()}
+        mounts = {mount.robot: mount for mount in await service.channels.mounts()}
         health, dead_letters = self._broker.current()
         return [
             fragment(
@@ -175,8 +164,8 @@ class DashboardView:
             # central's sites (none elsewhere): link up while the site's account is connected
             fragment(
                 "dashboard/sites.html",
-                sites=await repositories.sites.summaries(),
-                reports=await self._site_reports(),
+                sites=await service.sites.summaries(),
+                reports=await service.sites.reports(),
                 health=health,
                 alert_at=self._service.settings.uplink_alert_at,
             ),
@@ -184,25 +173,13 @@ class DashboardView:
             fragment("dashboard/feed.html", feed=self._feed),
         ]
 
-    async def _site_reports(self) -> dict[str, SiteReport]:
-        """Each site's newest report (those waiting in the broker taken into the store first)."""
-        sites = self._service.repositories.sites
-        try:
-            await collect_site_reports(
-                self._service.admin_url, sites, alert_at=self._service.settings.uplink_alert_at
-            )
-        except Exception as error:  # the broker is away: the stored reports still show, aged
-            log.warning("site reports not collected: %s", type(error).__name__)
-        return await sites.reports()
-
     async def events(self, records: list[EventRecord]) -> list[str]:
         self.snapshot.want(newest_of(records, NEWS))
         return [fragment("dashboard/event.html", event=record) for record in records[-self.recent_limit :]]
 
     async def newest(self) -> list[str]:
         """The newest events, for the page as first rendered (the stream adds the later ones)."""
-        query = EventQuery(limit=self.recent_limit, newest_first=True)
-        found = await self._service.repositories.events.find_events(query)
+        found = await self._service.events.newest(self.recent_limit)
         return [fragment("dashboard/event.html", event=record) for record in found]
 
 

@@ -19,11 +19,12 @@ import pika.exceptions
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ADMINS, DEAD_LETTERS
 from fleetbus.api.console.templating import render
-from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.errors import NotFound, ServiceRefusal
 from fleetbus.api.service import Service
 from fleetbus.bounds import bounds
 from fleetbus.broker.dead_letter_actions import (
@@ -33,10 +34,7 @@ from fleetbus.broker.dead_letter_actions import (
     discard_dead_letter,
     requeue_dead_letter,
 )
-from fleetbus.broker.dead_letter_queue import DeadLetter, Listing, read_dead_letters
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
-from fleetbus.workers.overflow import dropped_from_queue
-from fleetbus.workers.store.users import User
+from fleetbus.broker.dead_letter_queue import DeadLetter, Listing
 
 log = logging.getLogger("fleetbus.api.console")
 router = APIRouter()
@@ -75,14 +73,11 @@ async def _page(
     settings = svc.settings
     listing: Listing | None = None
     try:
-        listing = await read_dead_letters(
-            svc.admin_url, settings.console_dead_letters, svc.repositories.rejections.rejections
-        )
+        listing = await svc.dead_letter_queue.listing(settings.console_dead_letters)
     except BROKER_FAILURES as error:
         unread = f"the dead-letter queue cannot be read ({type(error).__name__}: {error})"
         problem = f"{problem}; {unread}" if problem else unread
         status_code = 503
-    counts = await svc.repositories.housekeeping.bound_counts()
     letters = listing.letters if listing else []
     return render(
         request,
@@ -92,7 +87,7 @@ async def _page(
         status_code=status_code,
         letters=[_shown(letter, settings.console_dead_letter_body) for letter in letters],
         in_queue=listing.in_queue if listing else None,
-        dropped=dropped_from_queue(counts, DEAD_LETTER_QUEUE),
+        dropped=await svc.dead_letter_queue.dropped(),
         kept=bounds(settings).dead_letters.describe(),
         can_change=user.role in ADMINS,
         problem=problem,
@@ -110,12 +105,13 @@ async def dead_letters(
 
 async def _sender_url(svc: Service, user_id: str) -> str:
     """The AMQP URL of the account that sent a letter, logged in as itself."""
-    user = await svc.repositories.users.get_user(user_id)
-    if user is None:
+    try:
+        user = await svc.accounts.get(user_id)
+    except NotFound:
         raise RequeueRefused(
             f"{user_id} is not an account of the service: its broker password is unknown here, so its "
             "message cannot be published again as it"
-        )
+        ) from None
     try:
         return svc.accounts.internal_broker_url(user)
     except (ServiceRefusal, ValueError) as error:

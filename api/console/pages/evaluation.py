@@ -12,16 +12,15 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.charts import BarChart, TimeChart, bar_chart, time_chart
 from fleetbus.api.console.forms import FormProblem, moment, robot_name
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import EVALUATION
 from fleetbus.api.console.templating import render
-from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
-from fleetbus.workers.recorder.queries import evaluate
-from fleetbus.workers.store.recordings import OutcomeStats
-from fleetbus.workers.store.users import User
+from fleetbus.api.recording import OutcomeStats
+from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(EVALUATION))]
@@ -101,8 +100,8 @@ async def evaluation(
     except FormProblem as error:
         problem = str(error)
     else:
-        stats = await evaluate(svc.recording, *window, robot_id=robot_id)
-        rows = growth(await svc.recording.samples(start), timedelta(minutes=minutes))
+        stats = await svc.recording_queries.evaluate(*window, robot_id=robot_id)
+        rows = await svc.recording_queries.growth(start, timedelta(minutes=minutes))
     rates, durations = outcome_charts(stats)
     grown, inserts = growth_charts(rows)
     return render(

@@ -16,19 +16,19 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Query, Request
 from fastapi.responses import HTMLResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import HAZARDS
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.hazard_steps import HazardId
+from fleetbus.api.hazards import Hazard, HazardState
 from fleetbus.api.service import Service
+from fleetbus.api.stored_events import EventRecord
 from fleetbus.api.team import DISPATCHERS, TeamView
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.hazard_steps import steps_from
-from fleetbus.workers.store.base import EventRecord
-from fleetbus.workers.store.hazards import Hazard, HazardState
-from fleetbus.workers.store.users import User
 from fleetbus.workers.team import why_held
 
 router = APIRouter()
@@ -84,7 +84,7 @@ class Listing:
 
 async def listing(service: Service, page: int, size: int) -> Listing:
     """Page ``page`` (from 1) of every hazard, newest first, and the team that explains them."""
-    found = await service.repositories.hazards.recent_hazards(size + 1, (page - 1) * size)
+    found = await service.hazards.recent(size + 1, (page - 1) * size)
     team = await service.team.view()
     now = datetime.now(timezone.utc)
     return Listing([Card.of(hazard, team, now) for hazard in found[:size]], len(found) > size, team)

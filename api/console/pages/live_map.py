@@ -20,23 +20,22 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
 from fleetbus.api.console.map_image import ImageUnreadable, MapImages
-from fleetbus.api.console.pages.dashboard import OPEN, newest_by_state
+from fleetbus.api.console.pages.dashboard import OPEN
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.console.trails import WINDOWS, trails
-from fleetbus.api.maps import map_version_for
+from fleetbus.api.errors import NotFound
+from fleetbus.api.hazards import Hazard, HazardState
+from fleetbus.api.maps import MapVersion
 from fleetbus.api.service import Service
+from fleetbus.api.stored_events import EventRecord
 from fleetbus.schemas.routing import EventType
-from fleetbus.workers.beacons import DEFAULT_WINDOW, stranded
-from fleetbus.workers.maps import missing_version
-from fleetbus.workers.store.base import EventRecord
-from fleetbus.workers.store.hazards import Hazard, HazardState
-from fleetbus.workers.store.maps import MapVersion
-from fleetbus.workers.store.users import User
+from fleetbus.workers.beacons import DEFAULT_WINDOW
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(MAP))]
@@ -64,7 +63,7 @@ class MapView:
         self._service = service
         self._latest = latest
         self.images = MapImages(
-            service.repositories.maps, service.settings.console_map_pixels, service.settings.console_map_cache
+            service.maps, service.settings.console_map_pixels, service.settings.console_map_cache
         )
         self.snapshot = Shared(self._render)
         self._heard: list[dict[str, Any]] = []
@@ -75,23 +74,22 @@ class MapView:
         now = asyncio.get_running_loop().time()
         if now - self._heard_at >= SIGHTINGS_EVERY_S:
             since = datetime.now(timezone.utc) - DEFAULT_WINDOW
-            repositories = self._service.repositories
-            self._heard = await stranded(repositories.beacons, repositories.events, since)
+            self._heard = await self._service.beacons.stranded(since)
             self._heard_at = now
         return self._heard
 
     async def _render(self) -> list[str]:
-        repositories = self._service.repositories
-        robots = await repositories.hazards.robots()
+        service = self._service
+        robots = await service.team.robots()
         await self._latest.seed([robot.name for robot in robots])
         settings = self._service.settings
-        grouped = await newest_by_state(repositories.hazards, OPEN, settings.console_map_hazards)
-        cleared = await repositories.hazards.cleared_hazards(settings.console_map_cleared)
+        grouped = await self._service.hazards.newest_by_state(OPEN, settings.console_map_hazards)
+        cleared = await service.hazards.cleared(settings.console_map_cleared)
         grouped[HazardState.CLEARED] = cleared
-        counts = await repositories.hazards.hazard_counts()
-        beacons = await repositories.beacons.beacons()
+        counts = await service.hazards.counts()
+        beacons = await service.beacons.registry()
         heard = await self._stranded()
-        newest = await repositories.maps.map_version(None)
+        newest = await service.maps.newest()
         context = {
             "robots": robots,
             "latest": self._latest,
@@ -112,13 +110,14 @@ class MapView:
 
     async def stored(self, version: int | None) -> MapVersion | str:
         """The stored version (the newest for None), or why there is none."""
-        maps = self._service.repositories.maps
-        found = await maps.map_version(version)
-        return found if found is not None else await missing_version(maps, version)
+        try:
+            return await self._service.maps.version(version)
+        except NotFound as missing:
+            return missing.detail
 
     async def visible(self, user: User, version: int) -> MapVersion:
         """The stored version if ``user`` may see it (:func:`~fleetbus.api.maps.map_version_for`)."""
-        return await map_version_for(self._service.repositories.maps, user, version)
+        return await self._service.maps.visible(user, version)
 
 
 def map_view(request: Request) -> MapView:
@@ -141,7 +140,7 @@ async def _frame_context(view: MapView, version: int | None) -> dict[str, Any]:
 
 @router.get("/console/map", response_class=HTMLResponse)
 async def live_map(request: Request, user: Viewer, view: View, version: Version = None) -> Response:
-    versions = await request.app.state.service.repositories.maps.map_versions()
+    versions = await request.app.state.service.maps.versions()
     parts = dict(zip(PARTS, await view.snapshot(), strict=True))
     return render(
         request,
@@ -175,7 +174,7 @@ async def map_trails(
     """Each robot's trail over the last ``minutes`` before ``until``, from its stored localisations."""
     end = until or datetime.now(timezone.utc)
     end = end.replace(tzinfo=timezone.utc) if end.tzinfo is None else end.astimezone(timezone.utc)
-    found = await trails(request.app.state.service.repositories.events, end, timedelta(minutes=minutes))
+    found = await trails(request.app.state.service.events, end, timedelta(minutes=minutes))
     return JSONResponse(found, headers={"Cache-Control": "no-store"})
 
 

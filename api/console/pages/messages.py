@@ -17,6 +17,7 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel
 
+from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.following import MountBook, TailView
 from fleetbus.api.console.forms import FormProblem, limit_of, moment, robot_name
@@ -24,14 +25,13 @@ from fleetbus.api.console.live import live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MESSAGES
 from fleetbus.api.console.templating import fragment, render
+from fleetbus.api.errors import BadRequest
+from fleetbus.api.recording import RecordedMessage, Timeline, Trace
 from fleetbus.api.service import Service
 from fleetbus.broker.management import ManagementError
 from fleetbus.broker.routes import RouteMap
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
-from fleetbus.workers.recorder.queries import Timeline, Trace, find, parse_condition, timeline, trace
 from fleetbus.workers.recorder.summary import summarize
-from fleetbus.workers.store.recordings import RecordedMessage, RecordingError
-from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(MESSAGES))]
@@ -81,9 +81,8 @@ async def search(svc: Service, form: SearchForm) -> SearchResult:
     most = svc.settings.console_search_limit
     try:
         limit = limit_of(form.limit, DEFAULT_LIMIT, most)
-        conditions = [parse_condition(text, form.type) for text in form.conditions]
-        found = await find(
-            svc.recording,
+        conditions = svc.recording_queries.conditions(form.conditions, form.type)
+        found = await svc.recording_queries.find(
             form.type,
             conditions,
             robot_id=robot_name(form.robot),
@@ -92,7 +91,7 @@ async def search(svc: Service, form: SearchForm) -> SearchResult:
             limit=limit,
             newest_first=True,
         )
-    except (RecordingError, FormProblem) as error:
+    except (BadRequest, FormProblem) as error:
         return SearchResult(problem=str(error))
     return SearchResult(list(reversed(found)), limit)
 
@@ -108,7 +107,7 @@ async def route_map(svc: Service) -> tuple[RouteMap | None, str | None]:
 def mount_book(request: Request) -> MountBook:
     state = request.app.state
     if getattr(state, "mount_book", None) is None:
-        state.mount_book = MountBook(state.service.repositories.channels)
+        state.mount_book = MountBook(state.service.channels)
     return state.mount_book
 
 
@@ -132,7 +131,7 @@ async def messages(
     context = {
         "form": form,
         "result": result,
-        "types": await svc.recording.recorded_types(),
+        "types": await svc.recording_queries.types(),
         "most": svc.settings.console_search_limit,
         "summarize": summarize,
         "width": SUMMARY_WIDTH,
@@ -149,7 +148,7 @@ async def messages(
         status_code=422 if result is not None and result.problem else 200,
         cursor=request.app.state.feed.cursor,
         following=await view.snapshot(),
-        tail=await view.recent(svc.repositories.events),
+        tail=await view.recent(svc.events),
         tail_rows=svc.settings.console_tail_rows,
         **context,
     )
@@ -169,7 +168,7 @@ async def message_trace(request: Request, user: Viewer, svc: ServiceDep, message
     routes_unknown = None
     if message_id:
         routes, routes_unknown = await route_map(svc)
-        result = await trace(svc.recording, message_id, events=svc.repositories.events, route_map=routes)
+        result = await svc.recording_queries.trace(message_id, routes)
     found = result is not None and result.origin is not None
     return render(
         request,
@@ -206,7 +205,7 @@ async def robot_timeline(
     if name is not None:
         routes, routes_unknown = await route_map(svc)
         inbound = routes.keys_into(inbox_queue(name), NOTIFY_EXCHANGE) if routes else []
-        result = await timeline(svc.recording, name, start, end, inbound=inbound, limit=most)
+        result = await svc.recording_queries.timeline(name, start, end, inbound=inbound, limit=most)
     return render(
         request,
         "messages/timeline.html",

@@ -20,16 +20,15 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import JSONResponse, RedirectResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment
 from fleetbus.api.errors import ServiceRefusal
-from fleetbus.api.mission_comments import THREAD_LIMIT, comments_of
 from fleetbus.api.service import Service
+from fleetbus.api.stored_events import EventRecord, to_micros
 from fleetbus.schemas.routing import EventType
-from fleetbus.workers.store.base import EventQuery, EventRecord, to_micros
-from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(MISSIONS))]
@@ -67,8 +66,9 @@ def measured_at(record: EventRecord) -> datetime:
     return datetime.fromisoformat(stamp) if stamp else record.sent_at
 
 
-async def thread_fragment(service: Service, mission_id: str) -> str:
-    comments = await service.repositories.comments.comments(mission_id, THREAD_LIMIT)
+async def thread_fragment(service: Service, user: User, mission_id: str) -> str:
+    """The mission's discussion as ``user`` may read it (:meth:`MissionComments.thread`)."""
+    comments = await service.mission_comments.thread(user, mission_id)
     return fragment("missions/thread.html", comments=comments)
 
 
@@ -77,6 +77,7 @@ class MissionPage:
     """One open mission page's live view: its discussion (state), its new readings (events)."""
 
     service: Service
+    user: User
     mission_id: str
     _thread: Shared = field(init=False)
 
@@ -84,7 +85,7 @@ class MissionPage:
         self._thread = Shared(self._render_thread, THREAD_EVERY_S)
 
     async def _render_thread(self) -> list[str]:
-        return [await thread_fragment(self.service, self.mission_id)]
+        return [await thread_fragment(self.service, self.user, self.mission_id)]
 
     async def snapshot(self) -> list[str]:
         return await self._thread()
@@ -101,7 +102,7 @@ class MissionPage:
 async def mission_stream(request: Request, user: Viewer, mission_id: str) -> Response:
     svc = _service(request)
     await svc.missions.get(user, mission_id)  # a client streams its own missions only
-    return live_stream(MissionPage(svc, mission_id), request.app.state.feed, request)
+    return live_stream(MissionPage(svc, user, mission_id), request.app.state.feed, request)
 
 
 def points_document(records: list[EventRecord], limit: int) -> dict[str, Any]:
@@ -144,11 +145,8 @@ def points_document(records: list[EventRecord], limit: int) -> dict[str, Any]:
 async def points(request: Request, user: Viewer, mission_id: str) -> Response:
     """The newest readings recorded under the mission (at most the setting), as JSON."""
     svc = _service(request)
-    await svc.missions.get(user, mission_id)
     limit = svc.settings.console_mission_points
-    found = await svc.repositories.events.find_events(
-        EventQuery(type=MEASUREMENT, mission_id=mission_id, newest_first=True, limit=limit + 1)
-    )
+    found = await svc.mission_events.recorded(user, mission_id, MEASUREMENT, limit + 1, newest_first=True)
     return JSONResponse(points_document(found, limit), headers={"Cache-Control": "no-store"})
 
 
@@ -163,7 +161,7 @@ async def add_comment(
     from fleetbus.api.console.pages.missions import show_detail
 
     try:
-        await comments_of(_service(request)).add(user, mission_id, text)
+        await _service(request).mission_comments.add(user, mission_id, text)
     except ServiceRefusal as refused:
         return await show_detail(request, user, mission_id, refused.detail, refused.status, comment=text)
     return RedirectResponse(

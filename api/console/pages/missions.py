@@ -17,6 +17,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from fleetbus.api.accounts import User
 from fleetbus.api.channels import OPERATING, UNMOUNTERS
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.pages import mission_detail
@@ -26,13 +27,11 @@ from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.errors import Conflict, ServiceRefusal
 from fleetbus.api.mission_comments import COMMENT_MAX, may_comment
-from fleetbus.api.missions import AUTHORS, MOVERS, SEE_ALL
+from fleetbus.api.missions import AUTHORS, MOVERS, may_see
 from fleetbus.api.service import Service
+from fleetbus.api.stored_events import EventRecord
 from fleetbus.schemas.missions import MissionPlan, MissionState
-from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.use_cases import CHECK_IN_STATES, USE_CASES, machine_for
-from fleetbus.workers.store.base import EventRecord
-from fleetbus.workers.store.users import User
 
 router = APIRouter()
 router.include_router(mission_detail.router)  # the mission page's map, stream and discussion
@@ -67,15 +66,14 @@ class MissionRows:
         self._owners: list[str] = []
 
     async def _render(self) -> list[str]:
-        found = list(reversed(await self._service.repositories.missions.missions()))
+        found = list(reversed(await self._service.missions.every()))
         self._owners = [mission.owner for mission in found]
         return [fragment("missions/row.html", mission=mission) for mission in found]
 
     async def visible_to(self, user: User) -> list[str]:
         rows = await self._rows()
         owners = self._owners  # of the render that made these rows (no await in between)
-        everyone = user.role in SEE_ALL
-        return [row for row, owner in zip(rows, owners, strict=True) if everyone or owner == user.name]
+        return [row for row, owner in zip(rows, owners, strict=True) if may_see(user, owner)]
 
 
 def mission_rows(request: Request) -> MissionRows:
@@ -141,17 +139,15 @@ async def show_detail(
     comment, its text, to be sent again)."""
     svc = _service(request)
     try:
-        mission = await svc.missions.get(user, mission_id)
+        detail = await svc.missions.detail(user, mission_id)
     except ServiceRefusal as refused:
         return render(
             request, "missions/missing.html", user, MISSIONS, refused.status, problem=refused.detail
         )
+    mission, mounts, check_ins = detail.mission, detail.mounts, detail.check_ins
     machine = machine_for(mission.use_case)
-    channels = svc.repositories.channels
-    mounts = await channels.mounts(mission_id=mission_id)
-    check_ins = await channels.check_ins(mission_id=mission_id)
     operating = user.role in OPERATING
-    team, robots = await _mountable(svc) if operating else (0, [])
+    team, robots = await svc.channels.mountable() if operating else (0, [])
     return render(
         request,
         "missions/detail.html",
@@ -163,7 +159,7 @@ async def show_detail(
         machine=machine,
         steps=machine.steps_from(mission.state),
         role=user.role,
-        history=await svc.repositories.missions.mission_history(mission_id),
+        history=detail.history,
         mounts=mounts,
         check_ins=[(c, [m.robot for m in mounts if m.operator == c.operator]) for c in check_ins],
         may_mount=operating and machine.mountable(mission.state),
@@ -175,7 +171,7 @@ async def show_detail(
         robots=robots,
         team_size=team,
         cursor=request.app.state.feed.cursor,
-        thread=await thread_fragment(svc, mission_id),
+        thread=await thread_fragment(svc, user, mission_id),
         may_comment=may_comment(user, mission),
         comment=comment,
         comment_max=COMMENT_MAX,
@@ -183,14 +179,6 @@ async def show_detail(
         problem=problem,
         done=DONE.get(request.query_params.get("done", "")) if problem is None else None,
     )
-
-
-async def _mountable(svc: Service) -> tuple[int, list[str]]:
-    """How many robots the team has, and those an operator can mount: the robots not mounted for
-    any mission (a robot is mounted for one mission at a time)."""
-    booked = {m.robot for m in await svc.repositories.channels.mounts()}
-    robots = await svc.repositories.users.users(UserRole.ROBOT)
-    return len(robots), [robot.name for robot in robots if robot.name not in booked]
 
 
 @router.get("/console/missions/{mission_id}", response_class=HTMLResponse)
@@ -235,7 +223,7 @@ async def unmount(
     svc = _service(request)
 
     async def work() -> object:
-        if not await svc.repositories.channels.mounts(robot=robot, mission_id=mission_id):
+        if not await svc.channels.mounts(robot=robot, mission_id=mission_id):
             raise Conflict(f"robot {robot} is not mounted for mission {mission_id}")
         return await svc.channels.unmount(user, robot)
 

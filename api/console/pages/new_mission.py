@@ -22,18 +22,18 @@ from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
 
+from fleetbus.api.accounts import User
 from fleetbus.api.console.map_image import Frame
 from fleetbus.api.console.pages.live_map import View, png_answer
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import render
 from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.maps import MapVersion
 from fleetbus.api.missions import AUTHORS, use_case_refusal
 from fleetbus.api.service import Service
 from fleetbus.schemas.missions import MissionPlan
 from fleetbus.schemas.use_cases import USE_CASES, InvalidTransition, machine_for
-from fleetbus.workers.store.maps import MapVersion
-from fleetbus.workers.store.users import User
 
 router = APIRouter()
 Author = Annotated[User, Depends(Allowed(AUTHORS, "the new mission form"))]
