@@ -21,14 +21,8 @@ from fleetbus.api.security import TokenRefused
 from fleetbus.api.service import Service
 from fleetbus.api.sessions import UserGone
 from fleetbus.schemas.roles import UserRole
-from fleetbus.workers.store import Repositories
-from fleetbus.workers.store.base import EventStore
-from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.discards import DiscardLog
-from fleetbus.workers.store.hazards import HazardRegistry
-from fleetbus.workers.store.missions import MissionStore
 from fleetbus.workers.store.sessions import Session
-from fleetbus.workers.store.users import User, UserStore
+from fleetbus.workers.store.users import User
 
 bearer = OAuth2PasswordBearer(tokenUrl="/auth/token", auto_error=False)
 
@@ -38,43 +32,6 @@ def service(request: Request) -> Service:
 
 
 ServiceDep = Annotated[Service, Depends(service)]
-
-
-def repositories(request: Request) -> Repositories:
-    """The service's repositories; a route takes the one it reads through the aliases below."""
-    return service(request).repositories
-
-
-def _users(request: Request) -> UserStore:
-    return repositories(request).users
-
-
-def _channels(request: Request) -> ChannelStore:
-    return repositories(request).channels
-
-
-def _missions(request: Request) -> MissionStore:
-    return repositories(request).missions
-
-
-def _events(request: Request) -> EventStore:
-    return repositories(request).events
-
-
-def _discards(request: Request) -> DiscardLog:
-    return repositories(request).discards
-
-
-def _hazards(request: Request) -> HazardRegistry:
-    return repositories(request).hazards
-
-
-UsersDep = Annotated[UserStore, Depends(_users)]
-ChannelsDep = Annotated[ChannelStore, Depends(_channels)]
-MissionsDep = Annotated[MissionStore, Depends(_missions)]
-EventsDep = Annotated[EventStore, Depends(_events)]
-DiscardsDep = Annotated[DiscardLog, Depends(_discards)]
-HazardsDep = Annotated[HazardRegistry, Depends(_hazards)]
 
 
 def unauthorized(request: Request, why: str, who: str = "(anonymous)") -> HTTPException:
