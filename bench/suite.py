@@ -75,7 +75,8 @@ def run(scenarios: Sequence[Scenario], context: Context, runs: int, progress: Pr
                 one_run(outcome, number, context, progress, task)
             pending.popleft()
     except KeyboardInterrupt:
-        while pending and pending[0][0] in pending[0][1].runs:  # it ended as the signal came
+        # past a run that ended as the signal came, and a scenario skipped
+        while pending and (pending[0][0] in pending[0][1].runs or pending[0][1].skipped is not None):
             pending.popleft()
         if pending:
             number, outcome = pending[0]
