@@ -103,7 +103,10 @@ class Scenario:
     """One run."""
     targets: tuple[Target, ...] = ()
     max_runs: int | None = None
-    """Fewer runs than the suite's ``--runs`` (a scenario that takes minutes)."""
+    """Fewer runs than the suite's ``--runs`` (a scenario that takes minutes, or one with no target)."""
+    budget_s: float = 60.0
+    """What one run may take on a quiet 2-core machine; the suite says which runs took longer,
+    and the default run's budgets add up to less than :data:`bench.registry.DEFAULT_RUN_BUDGET_S`."""
 
     @property
     def needs(self) -> tuple[str, ...]:

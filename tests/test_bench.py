@@ -8,9 +8,13 @@ import json
 import math
 import os
 import signal
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from select import select as readable
 
 import pytest
 from pymongo import MongoClient
@@ -19,7 +23,7 @@ from rich.progress import Progress
 
 from bench import ingest, scaling, suite
 from bench.profile import PROJECT_ROOT, busiest
-from bench.registry import SCENARIOS, by_name
+from bench.registry import DEFAULT_RUN_BUDGET_S, DEFAULT_RUNS, SCENARIOS, budget, by_name
 from bench.report import Outcome, as_json, markdown, verdicts
 from bench.scenario import Context, Figures, Scenario, Skip, Target
 from bench.suite import main, run, select
@@ -193,6 +197,77 @@ def test_stopped_by_sigterm_the_suite_writes_the_runs_measured_so_far(
     (written,) = tmp_path.glob("suite-*.json")
     report = json.loads(written.read_text())["scenarios"]["raw"]
     assert sorted(report["runs"]) == ["0"] and report["errors"] == ["interrupted"]
+
+
+#: The suite as ``python -m bench`` runs it, on two scenarios: one that reports at once, then one
+#: that waits for a signal (as a long measurement would be stopped in the middle).
+STOPPED_SUITE = """
+import signal, sys
+from bench import suite
+from bench.scenario import Scenario
+
+def blocked(context):
+    context.show("waiting to be stopped")
+    signal.pause()
+    return {}
+
+scenarios = (
+    Scenario("raw", "raw", lambda context: {"consume msg/s": 1000.0}),
+    Scenario("blocked", "waits", blocked),
+)
+suite.SCENARIOS = scenarios
+suite.by_name = lambda: {scenario.name: scenario for scenario in scenarios}
+sys.exit(suite.main(["--runs", "1", "--out", sys.argv[1]]))
+"""
+
+
+def test_a_suite_process_stopped_by_sigterm_writes_what_it_measured(bus: Bus, tmp_path: Path) -> None:
+    """A real process, as a CI job's timeout or a supervisor stops it: SIGTERM once a scenario has
+    reported, in the middle of the next one."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", STOPPED_SUITE, str(tmp_path)],
+        cwd=PROJECT_ROOT,
+        env={**bus.worker_env(), "PYTHONUNBUFFERED": "1", "COLUMNS": "200"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        seen = lines_until(process, "run 1/1 raw: ", 60)
+        process.send_signal(signal.SIGTERM)
+        out, _ = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 1, seen + out
+    assert "run 1/1 blocked interrupted: reporting the runs done so far" in out, out
+    (written,) = tmp_path.glob("suite-*.json")
+    report = json.loads(written.read_text())["scenarios"]
+    assert report["raw"]["runs"] == {"0": {"consume msg/s": 1000.0}} and report["raw"]["errors"] == []
+    assert report["blocked"]["runs"] == {} and report["blocked"]["errors"] == ["interrupted"]
+    assert "| raw | consume msg/s | 1,000 |" in written.with_suffix(".md").read_text()
+    assert "the suite took" in out, out
+
+
+def lines_until(process: subprocess.Popen[str], start: str, timeout: float) -> str:
+    """What ``process`` printed up to and with a line that starts with ``start``."""
+    assert process.stdout is not None
+    deadline, seen = time.monotonic() + timeout, ""
+    while time.monotonic() < deadline:
+        ready, _, _ = readable([process.stdout], [], [], deadline - time.monotonic())
+        line = process.stdout.readline() if ready else ""
+        seen += line
+        if line.startswith(start):
+            return seen
+        if not line and process.poll() is not None:
+            break
+    raise AssertionError(f"no line starting {start!r} in {timeout} s: {seen}")
+
+
+def test_the_default_run_fits_in_its_time_by_the_budgets() -> None:
+    assert budget(SCENARIOS, DEFAULT_RUNS) <= DEFAULT_RUN_BUDGET_S
+    assert all(scenario.budget_s > 0 for scenario in SCENARIOS)
 
 
 def test_the_registry_names_are_unique_and_every_baseline_exists() -> None:
