@@ -1,5 +1,5 @@
 """The refusals log: every 401, 403 and 429 the service answers, and every broker password withheld,
-and why, on ``fleetbus.api.security``."""
+and why, on ``fleetbus.api.services.security``."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@
 
 :func:`current_user` turns the bearer token into the stored user (401 when there is no valid
 token, or its login session has ended or expired); :func:`require_role` then admits only the
-given roles (403 otherwise). Both log each refusal on ``fleetbus.api.security``. ``inactive`` is
+given roles (403 otherwise). Both log each refusal on ``fleetbus.api.services.security``. ``inactive`` is
 never admitted.
 """
 
@@ -17,9 +17,9 @@ from fastapi import Depends, HTTPException, Request
 from fastapi.security import OAuth2PasswordBearer
 
 from fleetbus.api import audit
-from fleetbus.api.security import TokenRefused
 from fleetbus.api.service import Service
-from fleetbus.api.sessions import UserGone
+from fleetbus.api.services.security import TokenRefused
+from fleetbus.api.services.sessions import UserGone
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.sessions import Session
 from fleetbus.workers.store.users import User

@@ -6,11 +6,11 @@ from __future__ import annotations
 from fastapi import HTTPException, Request
 
 from fleetbus.api import audit
-from fleetbus.api.accounts import Login, WrongCredentials
-from fleetbus.api.errors import Forbidden
-from fleetbus.api.login_limits import TooManyFailures
 from fleetbus.api.service import Service
-from fleetbus.api.sessions import Origin
+from fleetbus.api.services.accounts import Login, WrongCredentials
+from fleetbus.api.services.errors import Forbidden
+from fleetbus.api.services.login_limits import TooManyFailures
+from fleetbus.api.services.sessions import AGENT_MOST, Origin
 
 
 async def log_in(request: Request, svc: Service, name: str, password: str) -> Login:
@@ -26,7 +26,7 @@ async def log_in(request: Request, svc: Service, name: str, password: str) -> Lo
             429, detail=error.detail, headers={"Retry-After": str(error.retry_after)}
         ) from None
     try:
-        login = await svc.accounts.login(name, password, Origin.of(request))
+        login = await svc.accounts.login(name, password, origin_of(request))
     except WrongCredentials as error:
         svc.login_limits.failed(name, address)
         audit.refused(request, 401, name, str(error))
@@ -36,3 +36,10 @@ async def log_in(request: Request, svc: Service, name: str, password: str) -> Lo
         raise HTTPException(403, detail=error.detail) from None
     svc.login_limits.succeeded(name, address)
     return login
+
+
+def origin_of(request: Request) -> Origin:
+    """Where a login comes from: the client's address and its user agent (shortened)."""
+    agent = request.headers.get("user-agent")
+    address = audit.client_address(request) if request.client else None
+    return Origin(address, agent[:AGENT_MOST] if agent else None)

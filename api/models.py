@@ -7,10 +7,10 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from fleetbus.api.account_check import Drift, DriftKind
-from fleetbus.api.accounts import BrokerCredentials
-from fleetbus.api.channels import BindingReport, CheckOut
-from fleetbus.api.team import TeamView
+from fleetbus.api.services.account_check import Drift, DriftKind
+from fleetbus.api.services.accounts import BrokerCredentials
+from fleetbus.api.services.channels import BindingReport, CheckOut
+from fleetbus.api.services.team import TeamView
 from fleetbus.schemas.identity import RobotId
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole

@@ -25,8 +25,8 @@ from fastapi.routing import APIRoute
 from pydantic.fields import FieldInfo
 
 from fleetbus.api.auth import RoleCheck, service
-from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.problems import PROBLEM_JSON, problem_schemas
+from fleetbus.api.services.errors import ServiceRefusal
 from fleetbus.schemas.roles import UserRole
 
 #: What each refusal means, as the document says it.

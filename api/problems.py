@@ -1,5 +1,5 @@
 """Every refusal of the HTTP API as RFC 9457 problem details (``application/problem+json``), made
-here and nowhere else: the service's own refusals (:class:`~fleetbus.api.errors.ServiceRefusal`),
+here and nowhere else: the service's own refusals (:class:`~fleetbus.api.services.errors.ServiceRefusal`),
 FastAPI's and Starlette's ``HTTPException`` (401 with ``WWW-Authenticate``, 429 with
 ``Retry-After``: their headers are kept), request validation (422, each bad field in ``errors``
 with its location) and an unavailable store (503).
@@ -29,7 +29,7 @@ from pydantic.json_schema import SkipJsonSchema
 from starlette.exceptions import HTTPException
 
 from fleetbus.api import audit
-from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.services.errors import ServiceRefusal
 from fleetbus.broker.management import ManagementError
 from fleetbus.workers.store.base import StoreUnavailable
 

@@ -8,26 +8,26 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
-from fleetbus.api.account_check import AccountCheck, account_check_for
-from fleetbus.api.accounts import Accounts, accounts_for
-from fleetbus.api.alerts import Alerts, alerts_for
-from fleetbus.api.beacons import BeaconDiscards, Beacons
-from fleetbus.api.channels import Channels
-from fleetbus.api.dead_letters import DeadLetters
-from fleetbus.api.hazard_steps import HazardSteps
-from fleetbus.api.hazards import Hazards
-from fleetbus.api.ledger import Ledger
-from fleetbus.api.login_limits import LoginLimits
-from fleetbus.api.maps import Maps
-from fleetbus.api.mission_comments import MissionComments
-from fleetbus.api.missions import Missions
-from fleetbus.api.missions_to_sites import MissionsToSites
-from fleetbus.api.recording import Recording
-from fleetbus.api.security import Secrets
-from fleetbus.api.sessions import Sessions, SignedIn
-from fleetbus.api.sites import Sites
-from fleetbus.api.stored_events import MissionEvents, StoredEvents
-from fleetbus.api.team import Team, team_for
+from fleetbus.api.services.account_check import AccountCheck, account_check_for
+from fleetbus.api.services.accounts import Accounts, accounts_for
+from fleetbus.api.services.alerts import Alerts, alerts_for
+from fleetbus.api.services.beacons import BeaconDiscards, Beacons
+from fleetbus.api.services.channels import Channels
+from fleetbus.api.services.dead_letters import DeadLetters
+from fleetbus.api.services.hazard_steps import HazardSteps
+from fleetbus.api.services.hazards import Hazards
+from fleetbus.api.services.ledger import Ledger
+from fleetbus.api.services.login_limits import LoginLimits
+from fleetbus.api.services.maps import Maps
+from fleetbus.api.services.mission_comments import MissionComments
+from fleetbus.api.services.missions import Missions
+from fleetbus.api.services.missions_to_sites import MissionsToSites
+from fleetbus.api.services.recording import Recording
+from fleetbus.api.services.security import Secrets
+from fleetbus.api.services.sessions import Sessions, SignedIn
+from fleetbus.api.services.sites import Sites
+from fleetbus.api.services.stored_events import MissionEvents, StoredEvents
+from fleetbus.api.services.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting
 from fleetbus.broker.management import ManagementAPI

@@ -21,7 +21,7 @@ from urllib.parse import urlsplit
 
 import pika
 
-from fleetbus.api.accounts import Accounts, open_accounts
+from fleetbus.api.services.accounts import Accounts, open_accounts
 from fleetbus.broker.accounts import Account, Role, fresh_vhost
 from fleetbus.broker.dead_letter_queue import DeadLetter, peek_dead_letters
 from fleetbus.broker.endpoint import BrokerEndpoint

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fleetbus.api.beacons import beacons_of
-from fleetbus.api.errors import BadRequest
+from fleetbus.api.services.beacons import beacons_of
+from fleetbus.api.services.errors import BadRequest
 from fleetbus.broker.accounts import Role, provision_account
 from fleetbus.publishers.rpc import ServiceRefused
 from fleetbus.schemas.routing import RobotKind

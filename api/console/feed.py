@@ -28,7 +28,7 @@ from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 
-from fleetbus.api.stored_events import EventRecord, StoredEvents, StoreError, from_micros, to_micros
+from fleetbus.api.services.stored_events import EventRecord, StoredEvents, StoreError, from_micros, to_micros
 from fleetbus.settings import Settings
 
 log = logging.getLogger("fleetbus.api.console")

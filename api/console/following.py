@@ -2,7 +2,7 @@
 ``fleetbus tail`` reads) receives, told from the store's copy of each event.
 
 Operators and supervisors have a stream (their broker accounts are operator accounts,
-:func:`fleetbus.api.accounts.broker_role`). It is bound to the beacon exchange, so it receives
+:func:`fleetbus.api.services.accounts.broker_role`). It is bound to the beacon exchange, so it receives
 every robot's beacons that passed the broker's header check, and, while an operator has a robot
 mounted, to that robot's events exchange (:func:`fleetbus.broker.mounts.mount_bindings`). The
 workers store an event only when it came through the exchange its type is published to, and keep
@@ -18,10 +18,10 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Sequence
 
-from fleetbus.api.accounts import User, broker_role
-from fleetbus.api.channels import Channels, Mount
 from fleetbus.api.console.templating import fragment
-from fleetbus.api.stored_events import EventRecord, StoredEvents
+from fleetbus.api.services.accounts import User, broker_role
+from fleetbus.api.services.channels import Channels, Mount
+from fleetbus.api.services.stored_events import EventRecord, StoredEvents
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import mount_bindings
 from fleetbus.schemas.routing import beacon_exchange, stream_queue

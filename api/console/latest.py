@@ -20,7 +20,7 @@ from typing import Any
 
 from fastapi import Request
 
-from fleetbus.api.stored_events import EventRecord, StoredEvents
+from fleetbus.api.services.stored_events import EventRecord, StoredEvents
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.telemetry import battery_of
 

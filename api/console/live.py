@@ -31,7 +31,7 @@ from fastapi import Request
 from sse_starlette import EventSourceResponse, ServerSentEvent
 
 from fleetbus.api.console.feed import Batch, Feed, moment_of
-from fleetbus.api.stored_events import EventRecord, to_micros
+from fleetbus.api.services.stored_events import EventRecord, to_micros
 
 FRAGMENT_EVENT = "fragment"
 RELOAD_EVENT = "reload"

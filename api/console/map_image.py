@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from PIL import Image, UnidentifiedImageError
 
-from fleetbus.api.maps import Maps, MapVersion
+from fleetbus.api.services.maps import Maps, MapVersion
 
 
 class ImageUnreadable(Exception):

@@ -1,14 +1,14 @@
 """What the dashboard shows every user of their own work, whatever the role: the missions not yet
-closed that are theirs (:meth:`fleetbus.api.missions.Missions.active_for`), the robots they mounted,
+closed that are theirs (:meth:`fleetbus.api.services.missions.Missions.active_for`), the robots they mounted,
 and their broker login (its URL; the password only on request, once: :mod:`.shown_once`)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from fleetbus.api.accounts import User
-from fleetbus.api.missions import AUTHORS
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.missions import AUTHORS
 
 #: Missions listed; the rest are counted.
 MISSIONS_SHOWN = 20

@@ -3,7 +3,7 @@
 - The session is the API's own login token in a cookie: HttpOnly (no script reads it),
   SameSite=Strict (no other site's page sends it), Secure when the console is served over HTTPS,
   expiring with the token. The token names a login session in the store, checked on every
-  request (:mod:`fleetbus.api.sessions`): logging out ends it there, so a copy of the cookie
+  request (:mod:`fleetbus.api.services.sessions`): logging out ends it there, so a copy of the cookie
   opens nothing afterwards. The role is read from the store on every request, as for the API.
 - CSRF: a random value in a second cookie (HttpOnly, SameSite=Strict), which every form of the
   console carries back as a hidden field and every htmx request as the ``X-CSRF-Token`` header.
@@ -20,11 +20,11 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, Response
 
 from fleetbus.api import audit
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.sitemap import Page
-from fleetbus.api.security import Token, TokenRefused
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.security import Token, TokenRefused
 from fleetbus.schemas.roles import UserRole
 
 SESSION_COOKIE = "fleetbus_session"

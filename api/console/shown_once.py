@@ -18,8 +18,8 @@ from fastapi import Request
 from fastapi.responses import RedirectResponse, Response
 
 from fleetbus.api import audit
-from fleetbus.api.accounts import BrokerCredentials
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import BrokerCredentials
 from fleetbus.api.transport import broker_password_refusal
 
 SHOWN_ONCE_COOKIE = "fleetbus_shown_once"

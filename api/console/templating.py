@@ -12,9 +12,9 @@ from fastapi import Request
 from fastapi.responses import HTMLResponse
 from fastapi.templating import Jinja2Templates
 
-from fleetbus.api.accounts import User
 from fleetbus.api.console.session import CSRF_FIELD, CSRF_HEADER, csrf_token, keep_csrf_cookie
 from fleetbus.api.console.sitemap import Page, pages_for
+from fleetbus.api.services.accounts import User
 
 templates = Jinja2Templates(directory=Path(__file__).parent / "templates")
 

@@ -10,7 +10,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from fleetbus.api.console.latest import Pose
-from fleetbus.api.stored_events import StoredEvents
+from fleetbus.api.services.stored_events import StoredEvents
 from fleetbus.schemas.routing import EventType
 
 #: At most this many poses in one answer (all robots together).

@@ -6,12 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path, Query
 
-from fleetbus.api.accounts import User
-from fleetbus.api.alerts import ACKNOWLEDGERS, ALERT_ID_MAX
 from fleetbus.api.auth import ServiceDep, require_role
-from fleetbus.api.errors import Conflict
 from fleetbus.api.models import AlertOut, AlertsOut
 from fleetbus.api.openapi import refusals
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.alerts import ACKNOWLEDGERS, ALERT_ID_MAX
+from fleetbus.api.services.errors import Conflict
 from fleetbus.schemas.roles import WATCHERS
 
 router = APIRouter(tags=["alerts"])

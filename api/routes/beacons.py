@@ -6,9 +6,9 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.models import DiscardCountOut, DiscardOut, DiscardsOut
+from fleetbus.api.services.accounts import User
 from fleetbus.schemas.roles import UserRole
 
 router = APIRouter(tags=["beacons"])

@@ -6,12 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
-from fleetbus.api.channels import OPERATING, UNMOUNTERS
-from fleetbus.api.errors import Conflict, NotFound
 from fleetbus.api.models import BindingReportOut, ChannelChangeOut, MountIn, MountOut
 from fleetbus.api.openapi import refusals
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.channels import OPERATING, UNMOUNTERS
+from fleetbus.api.services.errors import Conflict, NotFound
 from fleetbus.schemas.roles import UserRole
 
 router = APIRouter(tags=["channels"])

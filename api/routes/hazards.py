@@ -6,14 +6,14 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
-from fleetbus.api.errors import Conflict
-from fleetbus.api.hazard_steps import HazardId
-from fleetbus.api.hazards import HazardState
 from fleetbus.api.models import HazardOut, HazardStepIn, HazardStepOut
 from fleetbus.api.openapi import refusals
-from fleetbus.api.team import DISPATCHERS
+from fleetbus.api.parameters import HazardId
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import Conflict
+from fleetbus.api.services.hazards import HazardState
+from fleetbus.api.services.team import DISPATCHERS
 from fleetbus.schemas.roles import WATCHERS
 
 router = APIRouter(tags=["hazards"])

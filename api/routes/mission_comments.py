@@ -8,11 +8,11 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Query
 from pydantic import BaseModel, ConfigDict, Field
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
-from fleetbus.api.errors import BadRequest
-from fleetbus.api.mission_comments import COMMENT_MAX, COMMENTERS, THREAD_LIMIT, Comment
 from fleetbus.api.openapi import refusals
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import BadRequest
+from fleetbus.api.services.mission_comments import COMMENT_MAX, COMMENTERS, THREAD_LIMIT, Comment
 from fleetbus.schemas.roles import UserRole
 
 router = APIRouter(tags=["missions"])

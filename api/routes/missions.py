@@ -6,11 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
-from fleetbus.api.channels import OPERATING
-from fleetbus.api.errors import Conflict
-from fleetbus.api.missions import AUTHORS, MOVERS
 from fleetbus.api.models import (
     CheckInOut,
     CheckOutOut,
@@ -24,6 +20,10 @@ from fleetbus.api.models import (
     UseCaseOut,
 )
 from fleetbus.api.openapi import refusal_meaning, refusals
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.channels import OPERATING
+from fleetbus.api.services.errors import Conflict
+from fleetbus.api.services.missions import AUTHORS, MOVERS
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 from fleetbus.schemas.use_cases import USE_CASES

@@ -15,9 +15,9 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query
 from pydantic import BaseModel, BeforeValidator, Field
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
-from fleetbus.api.recording import OutcomeStats, RecordedMessage
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.recording import OutcomeStats, RecordedMessage
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import EVALUATORS, WATCHERS
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue

@@ -6,12 +6,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, require_role
-from fleetbus.api.errors import BadRequest
 from fleetbus.api.models import TeamMemberOut, TeamOut
 from fleetbus.api.openapi import refusals
-from fleetbus.api.team import DISPATCHERS
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import BadRequest
+from fleetbus.api.services.team import DISPATCHERS
 from fleetbus.schemas.roles import WATCHERS, UserRole
 
 router = APIRouter(tags=["team"])

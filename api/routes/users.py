@@ -9,9 +9,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep, current_session, require_role
-from fleetbus.api.errors import BadRequest, Conflict, NotFound
 from fleetbus.api.models import (
     PasswordChange,
     PasswordSet,
@@ -24,7 +22,9 @@ from fleetbus.api.models import (
     UserOut,
 )
 from fleetbus.api.openapi import refusals
-from fleetbus.api.sessions import Session
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import BadRequest, Conflict, NotFound
+from fleetbus.api.services.sessions import Session
 from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
 
 router = APIRouter(tags=["users"])

@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from fleetbus.api.accounts import open_accounts
+from fleetbus.api.services.accounts import open_accounts
 from fleetbus.broker.accounts import (
     RECORDER_USER,
     SERVICE_USER,

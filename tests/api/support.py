@@ -20,7 +20,7 @@ from pymongo import MongoClient
 
 from fleetbus.api.app import create_app
 from fleetbus.api.service import Service
-from fleetbus.api.sessions import Origin
+from fleetbus.api.services.sessions import Origin
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind

@@ -8,8 +8,8 @@ from __future__ import annotations
 import pytest
 
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
-from fleetbus.api.errors import Forbidden
-from fleetbus.api.missions import use_case_refusal
+from fleetbus.api.services.errors import Forbidden
+from fleetbus.api.services.missions import use_case_refusal
 from fleetbus.schemas.missions import MissionPlan
 from fleetbus.schemas.roles import UserRole
 from tests.api.support import PROBLEM_JSON, READY_PLAN, Api, problem, refusal, running_api

@@ -8,7 +8,7 @@ import json
 from datetime import datetime
 from typing import Any
 
-from fleetbus.api.mission_comments import COMMENT_MAX
+from fleetbus.api.services.mission_comments import COMMENT_MAX
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from tests.api.support import PROBLEM_JSON, Api, problem, refusal, running_api

@@ -16,7 +16,7 @@ import httpx
 import pytest
 from argon2 import PasswordHasher
 
-from fleetbus.api.security import master_secret
+from fleetbus.api.services.security import master_secret
 from fleetbus.settings import load_settings
 from tests.api.server import api_server
 from tests.support import Bus, wait_for

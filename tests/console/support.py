@@ -31,7 +31,7 @@ from sse_starlette.sse import AppStatus
 from fleetbus.api.app import create_app
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_HEADER, SESSION_COOKIE
 from fleetbus.api.service import Service
-from fleetbus.api.sessions import Origin
+from fleetbus.api.services.sessions import Origin
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings

@@ -13,7 +13,7 @@ import pytest
 from selenium.webdriver.support.ui import Select
 
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD, SESSION_COOKIE
-from fleetbus.api.security import password_problem
+from fleetbus.api.services.security import password_problem
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import UserRole

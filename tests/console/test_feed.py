@@ -15,7 +15,7 @@ from starlette.requests import Request
 from fleetbus.api.console import live
 from fleetbus.api.console.feed import Batch, Feed, Subscription, cursor_of, running
 from fleetbus.api.console.live import FRAGMENT_EVENT, RELOAD_EVENT, Shared, _fragments
-from fleetbus.api.stored_events import StoredEvents
+from fleetbus.api.services.stored_events import StoredEvents
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.repositories import Repositories
 from tests.store.conftest import store  # noqa: F401  (every repository on each backend)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from fleetbus.api.console.latest import Latest
-from fleetbus.api.stored_events import StoredEvents
+from fleetbus.api.services.stored_events import StoredEvents
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.sqlite import sqlite_repositories
 from tests.store.test_contract import T0, record

@@ -9,7 +9,7 @@ import pika
 
 from fleetbus.api.console.session import SESSION_COOKIE
 from fleetbus.api.console.sitemap import MISSION_ROLES, pages_for
-from fleetbus.api.missions import AUTHORS
+from fleetbus.api.services.missions import AUTHORS
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, RobotKind

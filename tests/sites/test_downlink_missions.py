@@ -8,7 +8,7 @@ from datetime import datetime, timedelta, timezone
 
 import pika
 
-from fleetbus.api.missions import Missions
+from fleetbus.api.services.missions import Missions
 from fleetbus.publishers.tls import pika_parameters
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole

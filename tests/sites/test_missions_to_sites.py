@@ -7,7 +7,7 @@ import asyncio
 from datetime import datetime, timedelta, timezone
 from urllib.parse import urlsplit
 
-from fleetbus.api.missions_to_sites import MissionsToSites
+from fleetbus.api.services.missions_to_sites import MissionsToSites
 from fleetbus.publishers.backoff import Backoff
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.routing import DOWNLINK_QUEUE

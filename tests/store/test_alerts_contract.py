@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta, timezone
 
-from fleetbus.api.alerts import AlertKind, Alerts, Thresholds
+from fleetbus.api.services.alerts import AlertKind, Alerts, Thresholds
 from fleetbus.schemas.envelope import build_event
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.site_reports import SiteReport, UplinkDepth

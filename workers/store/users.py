@@ -1,7 +1,7 @@
 """The service layer's users: name, role, password hash and the broker password it hands over.
 
 Passwords are stored only as argon2 hashes; the broker password is stored encrypted by the
-service (``fleetbus.api.security.SecretBox``), because the login reply has to hand it back.
+service (``fleetbus.api.services.security.SecretBox``), because the login reply has to hand it back.
 """
 
 from __future__ import annotations

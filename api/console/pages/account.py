@@ -16,15 +16,15 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console import shown_once
 from fleetbus.api.console.my_work import broker_login
 from fleetbus.api.console.session import Allowed, end_session
 from fleetbus.api.console.sitemap import ACCOUNT
 from fleetbus.api.console.templating import render
-from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import ServiceRefusal
 
 router = APIRouter()
 Owner = Annotated[User, Depends(Allowed.page(ACCOUNT))]

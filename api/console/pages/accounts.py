@@ -19,14 +19,14 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console import shown_once
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ACCOUNTS, ADMINS
 from fleetbus.api.console.templating import render
-from fleetbus.api.errors import BadRequest, ServiceRefusal
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import BadRequest, ServiceRefusal
 from fleetbus.schemas.roles import ROLE_PURPOSE, UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.schemas.use_cases import USE_CASES

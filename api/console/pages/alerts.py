@@ -4,7 +4,7 @@ them all and the last acknowledged (who, when); live.
 Every page loads the banner as it opens (``GET /console/alerts/banner``), and a live page's own
 stream keeps it current (:func:`banner_fragments`, which :mod:`..live` adds to every stream's
 state), without a stream of its own. The roles that acknowledge
-(:data:`~fleetbus.api.alerts.ACKNOWLEDGERS`, the rule the API and the command line ask too) see an
+(:data:`~fleetbus.api.services.alerts.ACKNOWLEDGERS`, the rule the API and the command line ask too) see an
 Acknowledge button; it posts with htmx, which sends the
 CSRF header every console request carries, and the answer says who acknowledged it and when.
 """
@@ -17,15 +17,15 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, Response
 
-from fleetbus.api.accounts import User
-from fleetbus.api.alerts import ACKNOWLEDGERS, MEANING, AlertList, acknowledged_text
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ALERTS
 from fleetbus.api.console.templating import fragment, render
-from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
-from fleetbus.api.stored_events import EventRecord
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.alerts import ACKNOWLEDGERS, MEANING, AlertList, acknowledged_text
+from fleetbus.api.services.errors import ServiceRefusal
+from fleetbus.api.services.stored_events import EventRecord
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(ALERTS))]

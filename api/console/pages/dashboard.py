@@ -23,7 +23,6 @@ import httpx
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.broker_health import BrokerWatch, broker_watch
 from fleetbus.api.console.broker_rates import RATES, Rates
@@ -35,11 +34,12 @@ from fleetbus.api.console.my_work import my_work
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ADMINS, DASHBOARD
 from fleetbus.api.console.templating import fragment, render
-from fleetbus.api.errors import ServiceRefusal
-from fleetbus.api.hazards import HazardState
 from fleetbus.api.service import Service
-from fleetbus.api.stored_events import EventRecord
-from fleetbus.api.team import TeamView
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import ServiceRefusal
+from fleetbus.api.services.hazards import HazardState
+from fleetbus.api.services.stored_events import EventRecord
+from fleetbus.api.services.team import TeamView
 from fleetbus.broker.management import ManagementError
 from fleetbus.schemas.roles import WATCHERS, UserRole
 from fleetbus.schemas.routing import EventType

@@ -19,13 +19,13 @@ import pika.exceptions
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ADMINS, DEAD_LETTERS
 from fleetbus.api.console.templating import render
-from fleetbus.api.errors import NotFound, ServiceRefusal
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import NotFound, ServiceRefusal
 from fleetbus.bounds import bounds
 from fleetbus.broker.dead_letter_actions import (
     DeadLetterGone,

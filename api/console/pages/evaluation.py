@@ -12,14 +12,14 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.charts import BarChart, TimeChart, bar_chart, time_chart
 from fleetbus.api.console.forms import FormProblem, moment, robot_name
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import EVALUATION
 from fleetbus.api.console.templating import render
-from fleetbus.api.recording import OutcomeStats
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.recording import OutcomeStats
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth
 
 router = APIRouter()

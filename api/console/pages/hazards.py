@@ -16,17 +16,17 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Query, Request
 from fastapi.responses import HTMLResponse, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import HAZARDS
 from fleetbus.api.console.templating import fragment, render
-from fleetbus.api.errors import ServiceRefusal
-from fleetbus.api.hazard_steps import HazardId
-from fleetbus.api.hazards import Hazard, HazardState
+from fleetbus.api.parameters import HazardId
 from fleetbus.api.service import Service
-from fleetbus.api.stored_events import EventRecord
-from fleetbus.api.team import DISPATCHERS, TeamView
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import ServiceRefusal
+from fleetbus.api.services.hazards import Hazard, HazardState
+from fleetbus.api.services.stored_events import EventRecord
+from fleetbus.api.services.team import DISPATCHERS, TeamView
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.hazard_steps import steps_from
 from fleetbus.workers.team import why_held

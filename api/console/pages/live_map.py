@@ -20,7 +20,6 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
 from fleetbus.api.console.map_image import ImageUnreadable, MapImages
@@ -29,11 +28,12 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.console.trails import WINDOWS, trails
-from fleetbus.api.errors import NotFound
-from fleetbus.api.hazards import Hazard, HazardState
-from fleetbus.api.maps import MapVersion
 from fleetbus.api.service import Service
-from fleetbus.api.stored_events import EventRecord
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import NotFound
+from fleetbus.api.services.hazards import Hazard, HazardState
+from fleetbus.api.services.maps import MapVersion
+from fleetbus.api.services.stored_events import EventRecord
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.beacons import DEFAULT_WINDOW
 
@@ -116,7 +116,7 @@ class MapView:
             return missing.detail
 
     async def visible(self, user: User, version: int) -> MapVersion:
-        """The stored version if ``user`` may see it (:func:`~fleetbus.api.maps.map_version_for`)."""
+        """The stored version if ``user`` may see it (:func:`~fleetbus.api.services.maps.map_version_for`)."""
         return await self._service.maps.visible(user, version)
 
 

@@ -17,7 +17,6 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel
 
-from fleetbus.api.accounts import User
 from fleetbus.api.auth import ServiceDep
 from fleetbus.api.console.following import MountBook, TailView
 from fleetbus.api.console.forms import FormProblem, limit_of, moment, robot_name
@@ -25,9 +24,10 @@ from fleetbus.api.console.live import live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MESSAGES
 from fleetbus.api.console.templating import fragment, render
-from fleetbus.api.errors import BadRequest
-from fleetbus.api.recording import RecordedMessage, Timeline, Trace
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import BadRequest
+from fleetbus.api.services.recording import RecordedMessage, Timeline, Trace
 from fleetbus.broker.management import ManagementError
 from fleetbus.broker.routes import RouteMap
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue

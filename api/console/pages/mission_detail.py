@@ -7,7 +7,7 @@ the browser with Leaflet.markercluster, each point and cluster coloured by value
 reach the page through the console's live stream (one fragment each, added to a list the map
 script draws from), and so does the discussion, re-read at most every half second.
 
-Comments are added through :class:`~fleetbus.api.mission_comments.MissionComments`, the rule the
+Comments are added through :class:`~fleetbus.api.services.mission_comments.MissionComments`, the rule the
 HTTP API and the command line use.
 """
 
@@ -20,14 +20,14 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import JSONResponse, RedirectResponse, Response
 
-from fleetbus.api.accounts import User
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment
-from fleetbus.api.errors import ServiceRefusal
 from fleetbus.api.service import Service
-from fleetbus.api.stored_events import EventRecord, to_micros
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import ServiceRefusal
+from fleetbus.api.services.stored_events import EventRecord, to_micros
 from fleetbus.schemas.routing import EventType
 
 router = APIRouter()

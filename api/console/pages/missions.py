@@ -17,19 +17,19 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from fleetbus.api.accounts import User
-from fleetbus.api.channels import OPERATING, UNMOUNTERS
 from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.pages import mission_detail
 from fleetbus.api.console.pages.mission_detail import thread_fragment
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment, render
-from fleetbus.api.errors import Conflict, ServiceRefusal
-from fleetbus.api.mission_comments import COMMENT_MAX, may_comment
-from fleetbus.api.missions import AUTHORS, MOVERS, may_see
 from fleetbus.api.service import Service
-from fleetbus.api.stored_events import EventRecord
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.channels import OPERATING, UNMOUNTERS
+from fleetbus.api.services.errors import Conflict, ServiceRefusal
+from fleetbus.api.services.mission_comments import COMMENT_MAX, may_comment
+from fleetbus.api.services.missions import AUTHORS, MOVERS, may_see
+from fleetbus.api.services.stored_events import EventRecord
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.use_cases import CHECK_IN_STATES, USE_CASES, machine_for
 

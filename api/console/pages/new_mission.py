@@ -10,7 +10,7 @@ with the model's reasons (those the HTTP API gives) and nothing is stored.
 
 Authors (clients and planners) may not open the live map, which shows where the team is; this
 form shows them the image of the map's newest version only, served here (older versions are
-refused: :mod:`fleetbus.api.maps`).
+refused: :mod:`fleetbus.api.services.maps`).
 """
 
 from __future__ import annotations
@@ -22,16 +22,16 @@ from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
 
-from fleetbus.api.accounts import User
 from fleetbus.api.console.map_image import Frame
 from fleetbus.api.console.pages.live_map import View, png_answer
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import render
-from fleetbus.api.errors import ServiceRefusal
-from fleetbus.api.maps import MapVersion
-from fleetbus.api.missions import AUTHORS, use_case_refusal
 from fleetbus.api.service import Service
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import ServiceRefusal
+from fleetbus.api.services.maps import MapVersion
+from fleetbus.api.services.missions import AUTHORS, use_case_refusal
 from fleetbus.schemas.missions import MissionPlan
 from fleetbus.schemas.use_cases import USE_CASES, InvalidTransition, machine_for
 
@@ -183,7 +183,7 @@ async def edit_again(request: Request, user: Author, view: View, draft: Posted) 
 
 @router.get("/console/missions/new/map/{version}.png")
 async def map_image(user: Author, view: View, version: int) -> Response:
-    """The newest version's image only (:mod:`fleetbus.api.maps`): what the form draws on."""
+    """The newest version's image only (:mod:`fleetbus.api.services.maps`): what the form draws on."""
     return await png_answer(view, user, version)
 
 

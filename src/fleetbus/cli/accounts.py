@@ -1,4 +1,4 @@
-"""The accounts service (:class:`fleetbus.api.accounts.Accounts`) for a command: the rules of the
+"""The accounts service (:class:`fleetbus.api.services.accounts.Accounts`) for a command: the rules of the
 HTTP API and the console, on the same registry and broker. Its refusals end the command with their
 ``detail`` (the HTTP API's problem ``detail``) and an exit code: 2 for bad input, 1 otherwise."""
 
@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, TypeVar
 from fleetbus.cli.context import fail, settings
 
 if TYPE_CHECKING:
-    from fleetbus.api.accounts import Accounts
+    from fleetbus.api.services.accounts import Accounts
     from fleetbus.broker.endpoint import BrokerEndpoint
     from fleetbus.broker.management import ManagementAPI
     from fleetbus.workers.store import Repositories
@@ -26,8 +26,8 @@ def with_accounts(
     ep: BrokerEndpoint, work: Callable[[Accounts, Repositories, ManagementAPI], Awaitable[T]]
 ) -> T:
     """Run ``work`` with the accounts service, the repositories and the management API it uses."""
-    from fleetbus.api.accounts import open_accounts
-    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.api.services.accounts import open_accounts
+    from fleetbus.api.services.errors import ServiceRefusal
 
     async def go() -> T:
         async with open_accounts(settings(), ep.amqp_url, ep.management_url, ep.public_url) as opened:

@@ -14,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 if TYPE_CHECKING:
-    from fleetbus.api.recording import OutcomeStats
+    from fleetbus.api.services.recording import OutcomeStats
 
 
 def plot_growth(

@@ -1,4 +1,4 @@
-"""The application services (:mod:`fleetbus.api.standalone`) for a command: the rules of the HTTP
+"""The application services (:mod:`fleetbus.api.services.standalone`) for a command: the rules of the HTTP
 API and the console, on the same store and recording. Their refusals end the command with their
 ``detail`` (the HTTP API's problem ``detail``) and the exit code of
 :data:`fleetbus.cli.accounts.EXIT_CODES`."""
@@ -14,9 +14,9 @@ from fleetbus.cli.accounts import EXIT_CODES
 from fleetbus.cli.context import fail, settings
 
 if TYPE_CHECKING:
-    from fleetbus.api.errors import ServiceRefusal
-    from fleetbus.api.recording import Recording
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.errors import ServiceRefusal
+    from fleetbus.api.services.recording import Recording
+    from fleetbus.api.services.standalone import Services
 
 T = TypeVar("T")
 
@@ -31,8 +31,8 @@ def with_services(
 ) -> T:
     """Run ``work`` with the services; ``admin_url``: the administrator's broker, for the changes
     that tell robots or the hazard service. ``refused``: put before a refusal's detail."""
-    from fleetbus.api.errors import ServiceRefusal
-    from fleetbus.api.standalone import open_services
+    from fleetbus.api.services.errors import ServiceRefusal
+    from fleetbus.api.services.standalone import open_services
 
     async def go() -> T:
         async with open_services(settings(), admin_url) as services:
@@ -46,8 +46,8 @@ def with_services(
 
 def with_recording(work: Callable[[Recording], Awaitable[T]], events: bool = False) -> T:
     """Run ``work`` with the recording the settings select; ``events``: with the event log too."""
-    from fleetbus.api.errors import ServiceRefusal
-    from fleetbus.api.standalone import open_recording
+    from fleetbus.api.services.errors import ServiceRefusal
+    from fleetbus.api.services.standalone import open_recording
 
     async def go() -> T:
         async with open_recording(settings(), events) as recording:
@@ -63,9 +63,9 @@ def with_recording(work: Callable[[Recording], Awaitable[T]], events: bool = Fal
 def recording_stream(open_stream: Callable[[Recording], AsyncIterator[T]]) -> Iterator[Iterator[T]]:
     """Open the recording and iterate ``open_stream(recording)`` from synchronous code (pika's
     blocking publishing, say), one item at a time on an event loop of its own; closed on leaving.
-    A refusal comes out of the iteration (:class:`~fleetbus.api.errors.ServiceRefusal`): the
+    A refusal comes out of the iteration (:class:`~fleetbus.api.services.errors.ServiceRefusal`): the
     command ends it with :func:`fail_refused` once what it was writing is cleaned up."""
-    from fleetbus.api.standalone import open_recording
+    from fleetbus.api.services.standalone import open_recording
 
     loop = asyncio.new_event_loop()
     opened = AsyncExitStack()

@@ -14,8 +14,8 @@ from fleetbus.cli.services import with_services
 from fleetbus.schemas.roles import UserRole
 
 if TYPE_CHECKING:
-    from fleetbus.api.alerts import Alert, AlertList, Alerts
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.alerts import Alert, AlertList, Alerts
+    from fleetbus.api.services.standalone import Services
 
 app = typer.Typer(
     help="Alerts the operators acknowledge: a hazard announced or unclaimed, a robot's battery low, a "
@@ -109,7 +109,7 @@ def acknowledge(
     ] = None,
 ) -> None:
     """Acknowledge alert ALERT_ID: who (--by, else your login) and when (UTC) are recorded."""
-    from fleetbus.api.alerts import acknowledged_text
+    from fleetbus.api.services.alerts import acknowledged_text
 
     async def ack(services: Services) -> Alert:
         role = UserRole.ADMIN  # the command line holds the store: an administrator's

@@ -99,8 +99,8 @@ def create_admin(
     ] = False,
 ) -> None:
     """Create an admin on this server (the safe way to make the first one: no default password)."""
-    from fleetbus.api.errors import ServiceRefusal
     from fleetbus.api.service import open_service
+    from fleetbus.api.services.errors import ServiceRefusal
 
     if password_stdin:
         password = sys.stdin.readline().rstrip("\n")

@@ -18,7 +18,7 @@ from fleetbus.cli.services import fail_refused, recording_stream, with_recording
 from fleetbus.cli.times import TIME_FORMS, parse_time_ns
 
 if TYPE_CHECKING:
-    from fleetbus.api.recording import RecordedMessage
+    from fleetbus.api.services.recording import RecordedMessage
 
 PHASES = {"check": "reading the bag", "store": "storing"}
 
@@ -108,7 +108,7 @@ def export(
     `/<robot><topic>` in their native encoding with their definitions; each fleetbus type on a JSON
     channel with its schema, the maps, poses and hazards also as Foxglove messages. Streamed: the
     window's length does not matter."""
-    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.api.services.errors import ServiceRefusal
     from fleetbus.workers.recorder.export_selection import Selection
 
     if (mcap is None) == (bag is None):

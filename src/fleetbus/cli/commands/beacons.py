@@ -15,7 +15,7 @@ from fleetbus.cli.services import with_services
 from fleetbus.cli.times import TIME_FORMS, parse_time
 
 if TYPE_CHECKING:
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.standalone import Services
     from fleetbus.workers.store.beacons import Beacon
 
 app = typer.Typer(help="BLE beacons: the registry and the people likely stranded.", no_args_is_help=True)

@@ -13,8 +13,8 @@ from fleetbus.cli.context import console, endpoint, settings
 from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
-    from fleetbus.api.dead_letters import DeadLetter
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.dead_letters import DeadLetter
+    from fleetbus.api.services.standalone import Services
 
 
 def dlq(

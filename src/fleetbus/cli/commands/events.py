@@ -31,7 +31,7 @@ from fleetbus.workers.recorder.queries import record_view
 from fleetbus.workers.recorder.summary import summarize
 
 if TYPE_CHECKING:
-    from fleetbus.api.recording import RecordedMessage, Recording
+    from fleetbus.api.services.recording import RecordedMessage, Recording
 
 
 def publish(

@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.table import Table
 
-from fleetbus.api.hazards import DEFAULT_MISSION
+from fleetbus.api.services.hazards import DEFAULT_MISSION
 from fleetbus.cli.context import actor, console, endpoint
 from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
-    from fleetbus.api.hazards import OpenHazard
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.hazards import OpenHazard
+    from fleetbus.api.services.standalone import Services
     from fleetbus.workers.hazard_steps import StepTaken
 
 app = typer.Typer(

@@ -13,7 +13,7 @@ from fleetbus.cli.context import console
 from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.standalone import Services
     from fleetbus.workers.store.maps import MapVersion
 
 app = typer.Typer(help="The team's map, every version.", no_args_is_help=True)

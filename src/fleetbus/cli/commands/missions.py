@@ -20,7 +20,7 @@ from fleetbus.cli.context import clock, console, endpoint, fail
 from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.standalone import Services
     from fleetbus.workers.store.comments import Comment
     from fleetbus.workers.store.missions import Mission
 
@@ -47,7 +47,7 @@ def create(
     OWNER may not create missions or may not use the use case (`fleetbus users use-cases`)."""
     from pydantic import ValidationError
 
-    from fleetbus.api.errors import NotFound
+    from fleetbus.api.services.errors import NotFound
     from fleetbus.schemas.missions import MissionPlan
 
     try:
@@ -83,7 +83,7 @@ def comment(
     as_json: Annotated[bool, typer.Option("--json", help="print the comment as JSON")] = False,
 ) -> None:
     """Comment on mission ID as the account --as, as POST /missions/ID/comments does for it."""
-    from fleetbus.api.errors import NotFound
+    from fleetbus.api.services.errors import NotFound
 
     async def add(services: Services) -> Comment:
         user = await services.users.get_user(author)

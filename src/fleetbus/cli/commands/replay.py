@@ -10,7 +10,7 @@ import pika.exceptions
 import typer
 from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
-from fleetbus.api.errors import ServiceRefusal
+from fleetbus.api.services.errors import ServiceRefusal
 from fleetbus.cli.context import console, endpoint, errors, fail
 from fleetbus.cli.services import fail_refused, recording_stream
 from fleetbus.cli.times import TIME_FORMS, parse_time
@@ -22,7 +22,7 @@ from fleetbus.workers.recorder.replay import ReplayReport
 from fleetbus.workers.recorder.replay import replay as replay_records
 
 if TYPE_CHECKING:
-    from fleetbus.api.recording import RecordedMessage
+    from fleetbus.api.services.recording import RecordedMessage
 
 
 class Publisher:

@@ -120,7 +120,7 @@ def replay(
 ) -> None:
     """Publish a recorded window of the robot's ROS messages on the ROS master (ROS_MASTER_URI), as
     their original topics and types, at the recorded pace (or --speed times it)."""
-    from fleetbus.api.errors import ServiceRefusal
+    from fleetbus.api.services.errors import ServiceRefusal
     from fleetbus.cli.services import fail_refused, recording_stream, with_recording
     from fleetbus.cli.times import parse_time_ns
     from fleetbus.workers.recorder.export_selection import Selection

@@ -22,7 +22,7 @@ from fleetbus.workers.recorder.summary import shorten
 from fleetbus.workers.shards import SHARD_PREFIX, WORKER_PREFIX
 
 if TYPE_CHECKING:
-    from fleetbus.api.shards import Lease
+    from fleetbus.api.services.shards import Lease
 
 app = typer.Typer(
     help="The ingest shards: which robots go through each, which worker consumes it.",

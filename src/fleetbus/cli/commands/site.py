@@ -26,7 +26,7 @@ from fleetbus.workers.overflow import dropped_from_queue
 from fleetbus.workers.site_status import site_view
 
 if TYPE_CHECKING:
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.standalone import Services
     from fleetbus.workers.store.housekeeping import BoundCount
 
 app = typer.Typer(

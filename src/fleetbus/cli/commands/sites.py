@@ -17,8 +17,8 @@ from fleetbus.schemas.site_changes import RobotAccount
 from fleetbus.workers.recorder.summary import shorten
 
 if TYPE_CHECKING:
-    from fleetbus.api.sites import SiteRow
-    from fleetbus.api.standalone import Services
+    from fleetbus.api.services.sites import SiteRow
+    from fleetbus.api.services.standalone import Services
 
 app = typer.Typer(
     help="On central: the sites, their robots, and how their links fare.", invoke_without_command=True

@@ -19,9 +19,9 @@ from fleetbus.cli.times import TIME_FORMS, parse_duration, parse_time
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
 
 if TYPE_CHECKING:
-    from fleetbus.api.dead_letters import DeadLetter
-    from fleetbus.api.standalone import Services
-    from fleetbus.api.stats import BoundCount, WorkerStatus
+    from fleetbus.api.services.dead_letters import DeadLetter
+    from fleetbus.api.services.standalone import Services
+    from fleetbus.api.services.stats import BoundCount, WorkerStatus
 
 
 def _view(item: Growth) -> dict[str, object]:
@@ -43,7 +43,7 @@ def _ago(moment: datetime | None, now: datetime) -> str:
 
 def _workers() -> None:
     """Each worker's latest status: what it handled and failed on, and what it is retrying now."""
-    from fleetbus.api.errors import Unavailable
+    from fleetbus.api.services.errors import Unavailable
 
     async def read(services: Services) -> list[WorkerStatus] | str:
         try:

@@ -14,8 +14,8 @@ from fleetbus.cli.services import with_services
 from fleetbus.workers.team import TeamMember, ago
 
 if TYPE_CHECKING:
-    from fleetbus.api.standalone import Services
-    from fleetbus.api.team import TeamView
+    from fleetbus.api.services.standalone import Services
+    from fleetbus.api.services.team import TeamView
 
 app = typer.Typer(
     help="The team the hazard gate follows. Alone: every robot with its kind, localised or not, "

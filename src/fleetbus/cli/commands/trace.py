@@ -14,7 +14,7 @@ from fleetbus.cli.services import with_recording
 from fleetbus.workers.recorder.queries import record_view
 
 if TYPE_CHECKING:
-    from fleetbus.api.recording import RecordedMessage, Recording, Trace
+    from fleetbus.api.services.recording import RecordedMessage, Recording, Trace
 
 
 def _consumers(route: Route) -> str:

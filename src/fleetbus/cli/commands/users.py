@@ -27,8 +27,8 @@ from fleetbus.schemas.routing import RobotKind
 from fleetbus.settings import Settings
 
 if TYPE_CHECKING:
-    from fleetbus.api.account_check import Drift
-    from fleetbus.api.accounts import Accounts
+    from fleetbus.api.services.account_check import Drift
+    from fleetbus.api.services.accounts import Accounts
     from fleetbus.broker.management import ManagementAPI
     from fleetbus.workers.store import Repositories
     from fleetbus.workers.store.users import User
@@ -235,7 +235,7 @@ def list_users(as_json: Annotated[bool, typer.Option("--json", help="one JSON do
     broker (a password, or a client certificate only), and what of it drifted from the registry, as
     `users check` finds it. Drift about no user of the registry (a broker account made outside it,
     a site's account) is listed after them."""
-    from fleetbus.api.account_check import account_check_for
+    from fleetbus.api.services.account_check import account_check_for
 
     ep, config = endpoint(), settings()
 
@@ -291,7 +291,7 @@ def check(
     topic permissions and shard bindings, the team, the sites' accounts at central), as the
     console's dashboard and `GET /registry/drift` do; with --repair, make those the registry's again
     (`POST /registry/repair`). Exits 1 when something differs (after --repair: still differs)."""
-    from fleetbus.api.account_check import account_check_for
+    from fleetbus.api.services.account_check import account_check_for
 
     ep, config = endpoint(), settings()
 

@@ -1,7 +1,7 @@
 """A mission's discussion: who may read it, who may add to it, and what a comment may be.
 
 One rule for the HTTP API, the command line and the console: whoever may see the mission reads
-its thread (:meth:`~fleetbus.api.missions.Missions.get`: a client its own missions); the client
+its thread (:meth:`~fleetbus.api.services.missions.Missions.get`: a client its own missions); the client
 who owns the mission, planners, supervisors, operators and administrators comment on it. Guests
 read only; robots neither.
 """
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from datetime import datetime, timezone
 
-from fleetbus.api.errors import BadRequest, Forbidden
-from fleetbus.api.missions import Missions
+from fleetbus.api.services.errors import BadRequest, Forbidden
+from fleetbus.api.services.missions import Missions
 from fleetbus.schemas.roles import UserRole
 from fleetbus.workers.store.comments import Comment, CommentStore
 from fleetbus.workers.store.missions import Mission

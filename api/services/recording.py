@@ -4,7 +4,7 @@ behaviours' outcomes, the database's growth, a window streamed in recording orde
 export), and a ROS bag imported.
 
 A query the recording refuses (a type or field that cannot be, a condition that does not parse, a
-robot with nothing recorded) is refused as bad input (:class:`~fleetbus.api.errors.BadRequest`),
+robot with nothing recorded) is refused as bad input (:class:`~fleetbus.api.services.errors.BadRequest`),
 with the recording's words, as the HTTP API answers it (422)."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
 
-from fleetbus.api.errors import BadRequest
+from fleetbus.api.services.errors import BadRequest
 from fleetbus.broker.routes import RouteMap
 from fleetbus.schemas.ros import ROS_SCHEMA_TYPE
 from fleetbus.workers.recorder.bag_import import ImportReport, Progress

@@ -14,8 +14,8 @@ import logging
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
-from fleetbus.api.errors import Conflict, Forbidden, NotFound, Unavailable
-from fleetbus.api.missions import Missions
+from fleetbus.api.services.errors import Conflict, Forbidden, NotFound, Unavailable
+from fleetbus.api.services.missions import Missions
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.mounts import (
     QueueBinding,

@@ -1,7 +1,7 @@
 """The account registry's one application service: create, change role, remove, log in; each user
 with its broker account. The command line (``fleetbus users``), the HTTP API (``/users``) and the
 console's Accounts page are adapters of it: the same checks, the same refusals
-(:mod:`fleetbus.api.errors`), the same outcome. So is ``fleetbus sites add | robots``: a site's
+(:mod:`fleetbus.api.services.errors`), the same outcome. So is ``fleetbus sites add | robots``: a site's
 account at central forwards for robots of the registry, and a robot removed or taken from a site
 is removed from the site's broker too (over the downlink).
 
@@ -27,9 +27,9 @@ from urllib.parse import unquote, urlsplit
 
 from pika.exceptions import AMQPError
 
-from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
-from fleetbus.api.security import Secrets, Token, password_problem
-from fleetbus.api.sessions import Origin, Sessions, end_sessions_of
+from fleetbus.api.services.errors import BadRequest, Conflict, Forbidden, NotFound, Unavailable
+from fleetbus.api.services.security import Secrets, Token, password_problem
+from fleetbus.api.services.sessions import Origin, Sessions, end_sessions_of
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
 from fleetbus.broker.accounts import (
     as_public,
@@ -427,7 +427,8 @@ class Accounts:
 
     async def set_use_cases(self, name: str, use_cases: Sequence[str] | None, by: str) -> User:
         """Let ``name`` create missions of these use cases only (``None``: of every one, those
-        added later too); :func:`fleetbus.api.missions.use_case_refusal` is the rule that reads them."""
+        added later too); :func:`fleetbus.api.services.missions.use_case_refusal` is the rule that
+        reads them."""
         allowed = None if use_cases is None else known_use_cases(use_cases)
         await self.get(name)
         changed = await self._users.set_use_cases(name, allowed, datetime.now(timezone.utc))

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from datetime import datetime
 
-from fleetbus.api.missions import Missions
+from fleetbus.api.services.missions import Missions
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
@@ -71,7 +71,7 @@ class StoredEvents:
 
 class MissionEvents:
     """A mission's recorded events, for whoever may see the mission
-    (:meth:`~fleetbus.api.missions.Missions.get`: a client its own missions)."""
+    (:meth:`~fleetbus.api.services.missions.Missions.get`: a client its own missions)."""
 
     def __init__(self, missions: Missions, events: EventStore) -> None:
         self._missions = missions

@@ -12,7 +12,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
-from fleetbus.api.errors import BadRequest, Conflict, Forbidden, NotFound
+from fleetbus.api.services.errors import BadRequest, Conflict, Forbidden, NotFound
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.use_cases import STEPS, InvalidTransition, RoleNotAllowed, machine_for, readiness

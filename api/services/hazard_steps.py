@@ -3,18 +3,10 @@
 
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import Path
-
-from fleetbus.api.errors import Conflict
+from fleetbus.api.services.errors import Conflict
 from fleetbus.workers.hazard_steps import StepRefused, StepTaken, take_step
-from fleetbus.workers.store.base import LARGEST_INTEGER
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.hazards import CoordinationStore
-
-#: A hazard's id in a path: the store numbers each mission's hazards from 1.
-HazardId = Annotated[int, Path(ge=1, le=LARGEST_INTEGER, description="the hazard's id within its mission")]
 
 
 class HazardSteps:

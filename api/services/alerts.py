@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 from enum import Enum
 
-from fleetbus.api.errors import Conflict, Forbidden, NotFound
+from fleetbus.api.services.errors import Conflict, Forbidden, NotFound
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, EventType
 from fleetbus.settings import Settings

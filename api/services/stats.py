@@ -3,7 +3,7 @@ each bound on growth removed since the store began (records pruned, messages ful
 
 from __future__ import annotations
 
-from fleetbus.api.errors import Unavailable
+from fleetbus.api.services.errors import Unavailable
 from fleetbus.workers.store.base import StoreError
 from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
 from fleetbus.workers.store.statuses import StatusBoard, WorkerStatus

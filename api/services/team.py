@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
-from fleetbus.api.errors import BadRequest, NotFound, Unavailable
+from fleetbus.api.services.errors import BadRequest, NotFound, Unavailable
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.schemas.roles import UserRole
 from fleetbus.settings import Settings

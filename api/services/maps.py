@@ -9,8 +9,8 @@ No other role sees the map. The server's own tools (the command line) see every 
 
 from __future__ import annotations
 
-from fleetbus.api.errors import Forbidden, NotFound
-from fleetbus.api.missions import AUTHORS
+from fleetbus.api.services.errors import Forbidden, NotFound
+from fleetbus.api.services.missions import AUTHORS
 from fleetbus.schemas.pgm import read_pgm_header
 from fleetbus.schemas.roles import WATCHERS
 from fleetbus.workers.maps import map_image, missing_version

@@ -4,7 +4,7 @@
   on threads of their own, a bounded number at once, never on the event loop.
 - Tokens: JWT (PyJWT, HS256) with ``sub``, ``iat``, ``exp`` and ``sid``, the login session it
   belongs to; an expired, tampered or foreign token is refused, and so is one whose session has
-  ended (:mod:`fleetbus.api.sessions`). The caller's role is read from the store on every request,
+  ended (:mod:`fleetbus.api.services.sessions`). The caller's role is read from the store on every request,
   never trusted from the token, so a role change or removal takes effect at once.
 - Broker passwords: the login reply must hand them back, so they are stored encrypted (Fernet:
   AES-128-CBC with HMAC-SHA256) under a key derived from the service's master secret.
@@ -113,7 +113,7 @@ class Tokens:
         session: str | None = None,
     ) -> Token:
         """A signed token; it admits nobody until a session ``session`` of ``subject`` is stored
-        (:meth:`fleetbus.api.sessions.Sessions.begin` does both)."""
+        (:meth:`fleetbus.api.services.sessions.Sessions.begin` does both)."""
         issued = now or datetime.now(timezone.utc)
         expires = issued + (lifetime if lifetime is not None else self.lifetime)
         claims = {

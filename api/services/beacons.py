@@ -10,7 +10,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, FiniteFloat, ValidationError
 from pydantic_core import ErrorDetails
 
-from fleetbus.api.errors import BadRequest
+from fleetbus.api.services.errors import BadRequest
 from fleetbus.workers.beacons import stranded
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry

@@ -15,11 +15,8 @@ import secrets
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
-from fastapi import Request
-
-from fleetbus.api import audit
-from fleetbus.api.errors import NotFound
-from fleetbus.api.security import Token, TokenRefused, Tokens
+from fleetbus.api.services.errors import NotFound
+from fleetbus.api.services.security import Token, TokenRefused, Tokens
 from fleetbus.workers.store.sessions import Session, SessionStore
 from fleetbus.workers.store.users import User, UserStore
 
@@ -36,12 +33,6 @@ class Origin:
 
     address: str | None
     agent: str | None
-
-    @classmethod
-    def of(cls, request: Request) -> Origin:
-        agent = request.headers.get("user-agent")
-        address = audit.client_address(request) if request.client else None
-        return cls(address, agent[:AGENT_MOST] if agent else None)
 
 
 class Sessions:

@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal, get_args
 from urllib.parse import unquote, urlsplit
 
-from fleetbus.api.accounts import Accounts, broker_role
+from fleetbus.api.services.accounts import Accounts, broker_role
 from fleetbus.broker.accounts import TOPIC_PATTERN, confined_permissions, keyed_exchanges, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import read_shard_map, unassign_shard

@@ -7,13 +7,13 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import TYPE_CHECKING
 
-from fleetbus.api.beacons import Beacons
-from fleetbus.api.hazard_steps import HazardSteps
-from fleetbus.api.hazards import Hazards
-from fleetbus.api.maps import Maps
-from fleetbus.api.mission_comments import MissionComments
-from fleetbus.api.missions import Missions
-from fleetbus.api.team import Team, team_for
+from fleetbus.api.services.beacons import Beacons
+from fleetbus.api.services.hazard_steps import HazardSteps
+from fleetbus.api.services.hazards import Hazards
+from fleetbus.api.services.maps import Maps
+from fleetbus.api.services.mission_comments import MissionComments
+from fleetbus.api.services.missions import Missions
+from fleetbus.api.services.team import Team, team_for
 from fleetbus.settings import Settings
 from fleetbus.workers.store import Repositories, open_recording_store, open_repositories
 from fleetbus.workers.store.users import UserStore
@@ -21,14 +21,14 @@ from fleetbus.workers.store.users import UserStore
 # The services only some commands use are imported when asked for: every command that opens the
 # services loads this module.
 if TYPE_CHECKING:
-    from fleetbus.api.alerts import Alerts, DeadLetterCount
-    from fleetbus.api.dead_letters import DeadLetters
-    from fleetbus.api.ledger import Ledger
-    from fleetbus.api.recording import Recording
-    from fleetbus.api.sessions import UserSessions
-    from fleetbus.api.shards import Shards
-    from fleetbus.api.sites import Sites, SiteTeam
-    from fleetbus.api.stats import Stats
+    from fleetbus.api.services.alerts import Alerts, DeadLetterCount
+    from fleetbus.api.services.dead_letters import DeadLetters
+    from fleetbus.api.services.ledger import Ledger
+    from fleetbus.api.services.recording import Recording
+    from fleetbus.api.services.sessions import UserSessions
+    from fleetbus.api.services.shards import Shards
+    from fleetbus.api.services.sites import Sites, SiteTeam
+    from fleetbus.api.services.stats import Stats
 
 class Services:
     """Each service built when first asked for, on one set of repositories."""
@@ -66,50 +66,50 @@ class Services:
     def alerts(self, dead_letters: DeadLetterCount | None = None) -> Alerts:
         """The alerts, with the settings' thresholds; ``dead_letters`` counts the dead-letter queue
         (None: its alerts are left as they are)."""
-        from fleetbus.api.alerts import alerts_for
+        from fleetbus.api.services.alerts import alerts_for
 
         return alerts_for(self._settings, self._repos, dead_letters)
 
     @property
     def dead_letters(self) -> DeadLetters:
-        from fleetbus.api.dead_letters import DeadLetters
+        from fleetbus.api.services.dead_letters import DeadLetters
 
         return DeadLetters(self._repos.rejections, self._repos.housekeeping, self._broker())
 
     @property
     def ledger(self) -> Ledger:
-        from fleetbus.api.ledger import Ledger
+        from fleetbus.api.services.ledger import Ledger
 
         return Ledger(self._repos.events)
 
     @property
     def sessions(self) -> UserSessions:
-        from fleetbus.api.sessions import UserSessions
+        from fleetbus.api.services.sessions import UserSessions
 
         return UserSessions(self._repos.users, self._repos.sessions)
 
     @property
     def shards(self) -> Shards:
-        from fleetbus.api.shards import Shards
+        from fleetbus.api.services.shards import Shards
 
         return Shards(self._repos.leases, self._repos.users)
 
     @property
     def sites(self) -> Sites:
         """Central's sites; needs the broker (their reports wait there, missions go there)."""
-        from fleetbus.api.sites import Sites
+        from fleetbus.api.services.sites import Sites
 
         return Sites(self._repos.sites, self._repos.missions, self._broker(), self._settings.uplink_alert_at)
 
     @property
     def site_team(self) -> SiteTeam:
-        from fleetbus.api.sites import SiteTeam
+        from fleetbus.api.services.sites import SiteTeam
 
         return SiteTeam(self._repos.hazards, self._repos.channels)
 
     @property
     def stats(self) -> Stats:
-        from fleetbus.api.stats import Stats
+        from fleetbus.api.services.stats import Stats
 
         return Stats(self._repos.statuses, self._repos.housekeeping)
 
@@ -149,7 +149,7 @@ async def open_services(settings: Settings, admin_url: str | None = None) -> Asy
 @asynccontextmanager
 async def open_recording(settings: Settings, events: bool = False) -> AsyncIterator[Recording]:
     """The recording the settings select; ``events``: with the event log, which a trace reads."""
-    from fleetbus.api.recording import Recording
+    from fleetbus.api.services.recording import Recording
 
     async with open_recording_store(settings) as store:
         if not events:

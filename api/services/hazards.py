@@ -7,11 +7,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
-from fleetbus.workers.store.base import EventStore
+from fleetbus.workers.store.base import LARGEST_INTEGER, EventStore
 from fleetbus.workers.store.hazards import DEFAULT_MISSION, CoordinationStore, Hazard, HazardState
 from fleetbus.workers.team import gate, last_seen_of, why_held
 
-__all__ = ["DEFAULT_MISSION", "Hazard", "HazardState", "Hazards", "OpenHazard"]
+__all__ = ["DEFAULT_MISSION", "LARGEST_INTEGER", "Hazard", "HazardState", "Hazards", "OpenHazard"]
 
 
 @dataclass(frozen=True)
