@@ -6,12 +6,15 @@ store holds, so a browser that reconnects with the last event id it saw is sent,
 everything it missed.
 
 Workers write concurrently, so an event received a moment earlier may be committed a moment
-later than one already read. The reader therefore looks again from ``overlap`` before its cursor,
-at the keys only (an index read), and reads the events from the oldest key it has not handed out
-yet (a bounded set of keys), usually just the new ones. Fragments are keyed by the event, so a
-browser shown an event twice shows it once. An event whose write was held up for longer than
-``overlap`` (the store was down and the worker retried, or the machine overloaded) is not
-streamed: pages show it when they are next loaded.
+later than one already read. The reader therefore looks again before its cursor, at the keys only
+(an index read), and reads the events from the oldest key it has not handed out yet (a bounded set
+of keys), usually just the new ones: at every poll from ``recent`` before its cursor (a write held
+up by another's commit), and once a tick from ``overlap`` before it (a write held up longer). Each
+look reads every key of its window, so looking ``overlap`` back at every poll would read
+``rate x overlap / poll_s`` keys a second (30,000 with 600 events a second). Fragments are keyed by
+the event, so a browser shown an event twice shows it once. An event whose write was held up for
+longer than ``overlap`` (the store was down and the worker retried, or the machine overloaded) is
+not streamed: pages show it when they are next loaded.
 
 A subscriber that does not keep up (its queue of ``queue_size`` batches is full) is dropped: its
 page's stream ends and the browser reconnects with its last event id. Drops are counted
@@ -55,6 +58,9 @@ class Batch:
     rendered: dict[int, tuple[object, list[str]]] = field(default_factory=dict, compare=False, repr=False)
     """What each live view made of ``events`` (by the view's id, the view kept with it), so that
     a view's open pages render a batch once between them (:func:`.live.events_of`)."""
+    encoded: dict[tuple[str, ...], bytes] = field(default_factory=dict, compare=False, repr=False)
+    """The server-sent events made of this batch, by their fragments: pages sent the same
+    fragments share one encoding (:func:`.live.encoded`)."""
 
 
 @dataclass(eq=False)
@@ -69,6 +75,8 @@ class Feed:
     poll_s: float = 0.1
     tick_s: float = 1.0
     overlap: timedelta = timedelta(seconds=5)
+    recent: timedelta = timedelta(seconds=1)
+    """How far back before its cursor the reader looks at every poll (``overlap``: once a tick)."""
     queue_size: int = 64
     batch_limit: int = 1000
     remembered: int = 20_000
@@ -92,10 +100,13 @@ class Feed:
     async def run(self) -> None:
         """Read and hand out until cancelled. A store that does not answer is retried next poll."""
         loop = asyncio.get_running_loop()
-        next_tick = loop.time() + self.tick_s
+        next_tick = next_full = loop.time() + self.tick_s
         while True:
+            full = loop.time() >= next_full
+            if full:
+                next_full = loop.time() + self.tick_s
             try:
-                fresh = await self._read()
+                fresh = await self._read(self.overlap if full else min(self.recent, self.overlap))
             except StoreError as error:
                 self.store_errors += 1
                 log.warning("console feed: the store did not answer (%s); trying again", error)
@@ -107,9 +118,9 @@ class Feed:
                 next_tick = loop.time() + self.tick_s
             await asyncio.sleep(self.poll_s)
 
-    async def _read(self) -> list[EventRecord]:
+    async def _read(self, back: timedelta) -> list[EventRecord]:
         fresh: list[EventRecord] = []
-        since = await self._first_unseen(self._cursor - self.overlap)
+        since = await self._first_unseen(self._cursor - back)
         if since is None:
             return fresh
         while True:

@@ -19,7 +19,6 @@ to reload, which then lands on the login form.
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import json
 import re
 from collections.abc import AsyncIterator, Awaitable, Callable, Collection
@@ -71,15 +70,17 @@ def last_event_id(request: Request) -> str | None:
 
 async def _fragments(
     view: LiveView, feed: Feed, request: Request, closing: anyio.Event
-) -> AsyncIterator[ServerSentEvent]:
+) -> AsyncIterator[ServerSentEvent | bytes]:
+    # the state's fragments as last sent, by their element's id: a shared render hands every page
+    # the same strings, so comparing one with what was sent is mostly an identity check
     sent: dict[str, str] = {}
 
     def changed(fragments: list[str]) -> list[str]:
         fresh = []
         for fragment in fragments:
-            key, digest = _key(fragment), hashlib.blake2b(fragment.encode(), digest_size=16).hexdigest()
-            if sent.get(key) != digest:
-                sent[key] = digest
+            key = _key(fragment)
+            if sent.get(key) != fragment:
+                sent[key] = fragment
                 fresh.append(fragment)
         return fresh
 
@@ -109,7 +110,7 @@ async def _fragments(
                         return
                 news = [*await events_of(view, batch), *changed(await _state(view, request))]
                 if news:
-                    yield ServerSentEvent(data=json.dumps(news), event=FRAGMENT_EVENT, id=batch.cursor)
+                    yield encoded(batch, news)
         finally:
             waker.cancel()
 
@@ -143,6 +144,17 @@ async def events_of(view: LiveView, batch: Batch) -> list[str]:
     if done is None:
         done = batch.rendered[id(view)] = (view, await view.events(batch.events))
     return done[1]
+
+
+def encoded(batch: Batch, fragments: list[str]) -> bytes:
+    """The server-sent event carrying ``fragments`` after ``batch``, encoded once for every page
+    sent the same (the fragments of a shared render are the same strings: the key compares fast)."""
+    key = tuple(fragments)
+    done = batch.encoded.get(key)
+    if done is None:
+        event = ServerSentEvent(data=json.dumps(fragments), event=FRAGMENT_EVENT, id=batch.cursor)
+        done = batch.encoded[key] = event.encode()
+    return done
 
 
 def live_stream(view: LiveView, feed: Feed, request: Request) -> EventSourceResponse:

@@ -385,8 +385,9 @@ class Settings(BaseSettings):
     )
     console_overlap_s: Annotated[float, Positive] = setting(
         5.0,
-        "how far back the console's feed looks again for events stored late (received earlier than "
-        "ones it already showed, committed after them); one stored later still shows on the next page load",
+        "how far back the console's feed looks again, once a tick, for events stored late (received "
+        "earlier than ones it already showed, committed after them; every poll looks back a second at "
+        "most); one stored later still shows on the next page load",
     )
     console_tick_s: Annotated[float, Positive] = setting(
         1.0, "how often open console pages refresh what they show of the team's state when no event came"

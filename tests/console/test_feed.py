@@ -43,11 +43,18 @@ def received(seq: int, at: datetime, robot: str = "explorer1") -> EventRecord:
 Key = tuple[str, str, int]
 
 
-async def handed_out_until(subscription: Subscription, last: Key) -> list[Key]:
-    """The keys of every event handed to ``subscription`` up to and including ``last`` (a sentinel)."""
+def sse_data(encoded: bytes) -> str:
+    """The data of one encoded server-sent event."""
+    lines = encoded.decode().splitlines()
+    return "\n".join(line.removeprefix("data: ") for line in lines if line.startswith("data: "))
+
+
+async def handed_out_until(subscription: Subscription, *last: Key) -> list[Key]:
+    """The keys of every event handed to ``subscription`` up to and including all of ``last``
+    (sentinels)."""
     keys: list[Key] = []
     async with asyncio.timeout(DEADLINE_S):
-        while last not in keys:
+        while not set(last) <= set(keys):
             batch = await subscription.queue.get()
             assert isinstance(batch, Batch), "the subscriber was not dropped"
             keys += [record.key for record in batch.events]
@@ -55,16 +62,38 @@ async def handed_out_until(subscription: Subscription, last: Key) -> list[Key]:
 
 
 async def test_an_event_committed_after_a_later_one_is_handed_out_once(store: Repositories) -> None:  # noqa: F811
-    feed = Feed(StoredEvents(store.events), poll_s=0.01, overlap=timedelta(seconds=5))
+    # every poll looks back a second; once a tick (here often), the whole overlap
+    feed = Feed(StoredEvents(store.events), poll_s=0.01, tick_s=0.05, overlap=timedelta(seconds=5))
     now = datetime.now(timezone.utc)
     async with running(feed), feed.subscribe() as subscription:
         await store.events.write_events([received(1, now)])
         assert await handed_out_until(subscription, ("explorer1", EPOCH, 1)) == [("explorer1", EPOCH, 1)]
         # received 2 s before the event handed out already, but committed only now (another
-        # worker's batch): within the overlap, so the next read finds it
+        # worker's batch): within the overlap, so the next read of the whole overlap finds it
         await store.events.write_events([received(0, now - timedelta(seconds=2))])
         await store.events.write_events([received(2, now + timedelta(milliseconds=1))])
-        later = await handed_out_until(subscription, ("explorer1", EPOCH, 2))
+        later = await handed_out_until(subscription, ("explorer1", EPOCH, 0), ("explorer1", EPOCH, 2))
+        await store.events.write_events([received(3, now + timedelta(milliseconds=2))])
+        later += await handed_out_until(subscription, ("explorer1", EPOCH, 3))
+    assert sorted(later) == [("explorer1", EPOCH, seq) for seq in (0, 2, 3)]
+
+
+async def test_an_event_committed_a_moment_late_is_found_at_the_next_poll(store: Repositories) -> None:  # noqa: F811
+    # no look at the whole overlap during the test (the tick is far): the poll's own look back finds it
+    feed = Feed(
+        StoredEvents(store.events),
+        poll_s=0.01,
+        tick_s=3600,
+        overlap=timedelta(seconds=5),
+        recent=timedelta(seconds=1),
+    )
+    now = datetime.now(timezone.utc)
+    async with running(feed), feed.subscribe() as subscription:
+        await store.events.write_events([received(1, now)])
+        assert await handed_out_until(subscription, ("explorer1", EPOCH, 1)) == [("explorer1", EPOCH, 1)]
+        await store.events.write_events([received(0, now - timedelta(milliseconds=500))])
+        await store.events.write_events([received(2, now + timedelta(milliseconds=1))])
+        later = await handed_out_until(subscription, ("explorer1", EPOCH, 0), ("explorer1", EPOCH, 2))
     assert sorted(later) == [("explorer1", EPOCH, 0), ("explorer1", EPOCH, 2)]
 
 
@@ -171,8 +200,11 @@ async def test_a_batch_is_rendered_once_for_every_open_page_of_a_view(store: Rep
                 assert (await anext(page)).event == FRAGMENT_EVENT  # subscribed, the state sent
             await store.events.write_events([received(0, datetime.now(timezone.utc))])
             async with asyncio.timeout(DEADLINE_S):
-                for page in pages:
-                    assert '<tr id="event-0"><td>0</td></tr>' in json.loads((await anext(page)).data)
+                sent = [await anext(page) for page in pages]
+            for item in sent:
+                assert isinstance(item, bytes)
+                assert '<tr id="event-0"><td>0</td></tr>' in json.loads(sse_data(item))
+            assert sent[0] is sent[1] is sent[2], "three pages, one encoding"
             closing.set()  # the server shuts down: every open page's stream ends, no batch needed
             async with asyncio.timeout(DEADLINE_S):
                 for page in pages:

@@ -53,9 +53,10 @@ Repairer = Annotated[User, Depends(Allowed(ADMINS, "repair the account registry'
 #: Hazard ids listed per state; the rest are counted.
 IDS_SHOWN = 12
 OPEN = [state for state in HazardState if state is not HazardState.CLEARED]
-#: Events that change the team or the hazards at once: shown without waiting for the next refresh.
-#: (Statuses come often; their batteries are in memory and show at the next refresh.)
-NEWS = frozenset({EventType.HAZARD.value, EventType.LOCALISATION.value})
+#: Events that change the hazards at once: shown without waiting for the next refresh. A
+#: localisation does so only from a robot the team did not have localised (it may open the hazard
+#: gate); the others come often, from every robot, and show at the next refresh, as statuses do.
+NEWS = frozenset({EventType.HAZARD.value})
 
 
 async def team_view(service: Service, latest: Latest) -> TeamView:
@@ -124,10 +125,13 @@ class DashboardView:
         self.snapshot = Shared(self._render)
         self.registry = RegistryCheck(service.settings.console_registry_check_s)
         self.recent_limit = service.settings.console_recent_events
+        self._localised: frozenset[str] = frozenset()
+        """The robots the team had localised at the last render."""
 
     async def _render(self) -> list[str]:
         service = self._service
         team = await team_view(self._service, self._latest)
+        self._localised = frozenset(m.robot.name for m in team.members if m.robot.localised)
         settings = self._service.settings
         shown = attention_first(team.members, self._latest, settings.battery_low_percent)[
             : settings.console_team_rows
@@ -175,6 +179,12 @@ class DashboardView:
 
     async def events(self, records: list[EventRecord]) -> list[str]:
         self.snapshot.want(newest_of(records, NEWS))
+        localised = self._localised
+        self.snapshot.want(
+            newest_of(
+                [r for r in records if r.robot_id not in localised], {EventType.LOCALISATION.value}
+            )
+        )
         return [fragment("dashboard/event.html", event=record) for record in records[-self.recent_limit :]]
 
     async def newest(self) -> list[str]:
