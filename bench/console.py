@@ -1,7 +1,7 @@
 """The operator console under a team's traffic: how soon open dashboards show an event, the
 console's memory over many reconnections, and how fast its pages render on a large store.
 
-    .venv/bin/python -m bench.console [--robots 100] [--dashboards 20] [--seconds 60]
+    .venv/bin/python -m bench.console [--robots 100] [--dashboards 20] [--maps 20] [--seconds 60]
         [--reconnects 1000] [--hazards 10000] [--messages 1000000] [--renders 50]
 
 Each part runs on a virtual host, data folder and SQLite store of its own, with every process as
@@ -11,11 +11,13 @@ a second, confirmed, through the broker), and this process the operators: dashbo
 streams of the dashboard's server-sent events (not browsers), logged in as an administrator
 through the console's own form.
 
-  live        for --seconds, --dashboards open dashboards note when each event's row arrives. The
-              latency runs from the event's ``received_at`` (the worker's stamp, read back from the
-              store) to its row's arrival at a dashboard: median and p95 over every (dashboard,
-              event) pair (target: p95 under 200 ms), rows that never arrived, and the console
-              process's CPU time meanwhile.
+  live        for --seconds, --dashboards open dashboards note when each event's row arrives, while
+              --maps live maps are open too (their streams read and counted). The latency runs from
+              the event's ``received_at`` (the worker's stamp, read back from the store) to its row's
+              arrival at a dashboard: median and p95 over every (dashboard, event) pair (targets:
+              p95 under 200 ms with 100 robots, under 300 ms with 300), rows that never arrived, and
+              the console process's CPU time meanwhile. The robots' process runs at --nice (15: on
+              what the server leaves, as robots on machines of their own).
   reconnects  the robots and dashboards going on, one more dashboard's stream opened --reconnects
               times, each sending the Last-Event-ID of the one before (so each is replayed what it
               missed from the store) and dropped after its first event; the console process's
@@ -57,7 +59,7 @@ from bench.replay import write_recording
 from bench.report import load_average
 from bench.results import percentile, save
 from bench.scenario import Context, Figures
-from bench.telemetry import POSE, TelemetryLoad
+from bench.telemetry import FLEET_NICE, POSE, TelemetryLoad
 from fleetbus.api.console.live import FRAGMENT_EVENT
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD
 from fleetbus.api.console.sitemap import PAGES
@@ -73,6 +75,7 @@ from tests.factories import hazard
 ADMIN = "bench-console-admin"
 PASSWORD = "bench console password"
 STREAM = "/console/stream/dashboard"
+MAP_STREAM = "/console/stream/map"
 ROW = re.compile(r'\s*<tr id="(event-[^"]+)"')
 WARDEN_EVERY = 10
 """One robot in ten is a warden (the hazards' claims and clearances are theirs)."""
@@ -108,16 +111,19 @@ class Dashboard:
     arrivals: dict[str, float] = field(default_factory=dict)
     cuts: int = 0
     """Times its stream ended under it (the console cut it for falling behind); it reconnects."""
+    fragments: int = 0
+    """Fragments received (rows, markers, counts)."""
     opened: asyncio.Event = field(default_factory=asyncio.Event)
 
 
-async def follow(client: httpx.AsyncClient, dashboard: Dashboard) -> None:
-    """Read the dashboard's stream until cancelled; reconnect, as live.js does, if it ends."""
+async def follow(client: httpx.AsyncClient, dashboard: Dashboard, stream: str = STREAM) -> None:
+    """Read a page's stream (the dashboard's, or ``stream``) until cancelled; reconnect, as live.js
+    does, if it ends."""
     last_id: str | None = None
     while True:
         headers = {"Last-Event-ID": last_id} if last_id else {}
         try:
-            async with aconnect_sse(client, "GET", STREAM, headers=headers) as source:
+            async with aconnect_sse(client, "GET", stream, headers=headers) as source:
                 source.response.raise_for_status()
                 async for event in source.aiter_sse():
                     now = time.time()
@@ -125,7 +131,9 @@ async def follow(client: httpx.AsyncClient, dashboard: Dashboard) -> None:
                         continue
                     last_id = event.id or last_id
                     dashboard.opened.set()
-                    for fragment in json.loads(event.data):
+                    fragments = json.loads(event.data)
+                    dashboard.fragments += len(fragments)
+                    for fragment in fragments:
                         if found := ROW.match(fragment):
                             dashboard.arrivals.setdefault(found.group(1), now)
         except httpx.HTTPError:
@@ -157,6 +165,8 @@ async def reconnections(
 @dataclass
 class Watched:
     dashboards: list[Dashboard]
+    maps: list[Dashboard]
+    """The open live maps (their streams' fragments and cuts: the load they add)."""
     start: float
     end: float
     console_cpu: float
@@ -166,16 +176,18 @@ class Watched:
 
 async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[str], None]) -> Watched:
     """The dashboards open for ``args.seconds``, then the reconnections (the dashboards still open)."""
-    client = await logged_in(base, args.dashboards + 2)
+    client = await logged_in(base, args.dashboards + args.maps + 2)
     dashboards = [Dashboard() for _ in range(args.dashboards)]
+    maps = [Dashboard() for _ in range(args.maps)]
     followers = [asyncio.create_task(follow(client, dashboard)) for dashboard in dashboards]
+    followers += [asyncio.create_task(follow(client, page, MAP_STREAM)) for page in maps]
     try:
         async with asyncio.timeout(120):
-            for dashboard in dashboards:
+            for dashboard in dashboards + maps:
                 await dashboard.opened.wait()
         await asyncio.sleep(2)  # past the first batches after opening: the measurement's start
         start, cpu = time.time(), cpu_seconds(pid)
-        show(f"{args.dashboards} dashboards open for {args.seconds:g} s")
+        show(f"{args.dashboards} dashboards and {args.maps} maps open for {args.seconds:g} s")
         await asyncio.sleep(args.seconds)
         end = time.time()
         console_cpu = 100 * (cpu_seconds(pid) - cpu) / (end - start)
@@ -186,7 +198,7 @@ async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[s
             follower.cancel()
         await asyncio.gather(*followers, return_exceptions=True)
         await client.aclose()
-    return Watched(dashboards, start, end, console_cpu, resident)
+    return Watched(dashboards, maps, start, end, console_cpu, resident)
 
 
 async def received_between(repos: Repositories, start: float, end: float) -> list[EventRecord]:
@@ -214,7 +226,7 @@ def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
         with (
             worker_process(bus, "--no-recorder"),
             api_process(bus, ADMIN, PASSWORD, **console_settings(args)) as (base, api),
-            TelemetryLoad(bus, urls, 2 * args.robots, pose=True) as load,
+            TelemetryLoad(bus, urls, 2 * args.robots, pose=True, nice=args.nice) as load,
         ):
             context.show(f"{args.robots} robots publishing")
             watched = asyncio.run(watch(base, api.pid, args, context.show))
@@ -244,6 +256,9 @@ def live_figures(rate: float, measured: list[EventRecord], watched: Watched) -> 
         "event to dashboard max ms": max(latencies),
         "rows never shown": missing,
         "dashboard streams cut": sum(d.cuts for d in watched.dashboards),
+        "maps open": len(watched.maps),
+        "map fragments received": sum(m.fragments for m in watched.maps),
+        "map streams cut": sum(m.cuts for m in watched.maps),
         "console CPU % of a core": watched.console_cpu,
         "console RSS MB, first reconnection": resident[0],
         "console RSS MB, last reconnection": resident[-1],
@@ -380,6 +395,13 @@ def main() -> None:
     )
     parser.add_argument("--robots", type=int, default=100, help="robots, each a status and a pose a second")
     parser.add_argument("--dashboards", type=int, default=20, help="open dashboards (SSE streams)")
+    parser.add_argument("--maps", type=int, default=20, help="open live maps (SSE streams)")
+    parser.add_argument(
+        "--nice",
+        type=int,
+        default=FLEET_NICE,
+        help=f"the robots' niceness ({FLEET_NICE}: on what the server leaves, as robots elsewhere; 0: equal)",
+    )
     parser.add_argument("--seconds", type=float, default=60, help="how long the latency is measured")
     parser.add_argument("--reconnects", type=int, default=1000, help="dashboard reconnections")
     parser.add_argument("--hazards", type=int, default=10_000, help="hazards in the store for the renders")

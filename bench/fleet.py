@@ -10,6 +10,7 @@ For each fleet size, in a virtual host and store of its own:
   ``--per-process`` robots (125) to a process (:mod:`bench.telemetry`); with ``--lean``, robots that
   speak the AMQP contract themselves, 500 to an asyncio process (:mod:`bench.lean_robots`: a
   ``RobotClient`` per robot costs this 2-core machine more than the broker and the workers do);
+  the robots' processes run at ``--nice`` (15: on what the server leaves, as robots elsewhere);
   the workers (``fleetbus worker --no-recorder``, as many and with as many shards as
   ``--workers``/``--shards`` or the sizing rule, :func:`sizing`) in processes of their own; the
   warden a robot process of its own (:mod:`bench.warden`);
@@ -54,7 +55,7 @@ from bench.raw import declare_queue, ingest_queue_arguments
 from bench.report import load_average, machine
 from bench.results import percentile, save
 from bench.scenario import Context
-from bench.telemetry import TelemetryLoad
+from bench.telemetry import FLEET_NICE, TelemetryLoad
 from bench.warden import WardenProcess
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.publishers.client import RobotClient
@@ -150,7 +151,9 @@ def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[st
         per = args.per_process or (LEAN_PER_PROCESS if args.lean else PER_PROCESS)
         parts = [names[i : i + per] for i in range(0, robots, per)]
         loads = [
-            TelemetryLoad(bus, [urls[n] for n in part], len(part), ready_timeout=900, lean=args.lean)
+            TelemetryLoad(
+                bus, [urls[n] for n in part], len(part), ready_timeout=900, lean=args.lean, nice=args.nice
+            )
             for part in parts
         ]
         explorer = RobotClient(urls[explorer_name], state_dir=bus.settings.robots_dir)
@@ -206,8 +209,9 @@ def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[st
                 "hazard p50 ms": percentile(hazard_ms, 50),
                 "hazard p99 ms": percentile(hazard_ms, 99),
                 **{
-                    f"hazard {stage} p99 ms": percentile([1000 * t[k] for t in warden.stages.values()], 99)
+                    f"hazard {stage} p{q} ms": percentile([1000 * t[k] for t in warden.stages.values()], q)
                     for k, stage in enumerate(STAGES)
+                    for q in (50, 99)
                 },
                 "raw hop p50 ms": percentile(ping_ms, 50),
                 "raw hop p99 ms": percentile(ping_ms, 99),
@@ -237,6 +241,13 @@ def main() -> None:
         "--lean",
         action="store_true",
         help="the fleet as bench.lean_robots (one asyncio process speaks for many robots), not RobotClients",
+    )
+    parser.add_argument(
+        "--nice",
+        type=int,
+        default=FLEET_NICE,
+        help=f"the simulated robots' niceness ({FLEET_NICE}: they run on what the server leaves, as robots "
+        "elsewhere would; 0: they share the cores equally with the broker and the workers)",
     )
     args = parser.parse_args()
     endpoint = resolve_broker(load_settings(), start=True)

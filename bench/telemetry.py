@@ -102,6 +102,13 @@ def main() -> None:
     print(json.dumps({"published": sum(counts), "seconds": seconds}), flush=True)
 
 
+#: The niceness of a simulated fleet's processes when the bench stands in for robots that run
+#: elsewhere: robots do not share the server's cores, and a fleet of hundreds simulated on them
+#: would otherwise take what the broker and the workers need (on 2 cores, 1,000 simulated robots
+#: took half a core). At 15 they run on what the server leaves.
+FLEET_NICE = 15
+
+
 class TelemetryLoad:
     """``python -m bench.telemetry`` for robots (their URLs) of ``bus``, while the ``with`` lasts."""
 
@@ -113,15 +120,18 @@ class TelemetryLoad:
         pose: bool = False,
         ready_timeout: float = 60,
         lean: bool = False,
+        nice: int = 0,
     ) -> None:
         """``ready_timeout``: seconds its robots may take to connect (many on a loaded machine);
-        ``lean``: status events from :mod:`bench.lean_robots` instead of a ``RobotClient`` each."""
+        ``lean``: status events from :mod:`bench.lean_robots` instead of a ``RobotClient`` each;
+        ``nice``: the process's niceness (see :data:`FLEET_NICE`)."""
         self._ready_timeout = ready_timeout
         urls_file = bus.settings.data_dir / f"telemetry-{uuid.uuid4().hex[:8]}.urls"
         save_secret(urls_file, "\n".join(urls))
         if lean and pose:
             raise ValueError("lean robots publish status events only")
-        self._command = (
+        self._command = ["nice", "-n", str(nice)] if nice else []
+        self._command += (
             [sys.executable, "-m", "bench.lean_robots", str(rate), str(urls_file)]
             if lean
             else [
