@@ -35,6 +35,9 @@ EVENTS = Schema(
     indexes=(
         Index("type", "sent_at"),
         Index("robot_id", "sent_at"),
+        # each robot's newest of a type (the team's statuses): without it SQLite walks the type's
+        # index, every status of the fleet for each robot that sent none
+        Index("robot_id", "type", "sent_at"),
         Index("sent_at"),
         Index("message_id"),
         Index("received_at"),
