@@ -6,6 +6,12 @@ its chunks (:class:`MapChunk`) followed by its :class:`MapChange`, so no message
 broker's largest (16 MiB by default on RabbitMQ 4). A message is one change; its ``change`` field says
 which kind (:data:`SiteChange`, parsed by :func:`parse_site_change`).
 
+Every message about the site's robots carries the ``revision`` of central's list of the site's
+robots it was made from (one more at each change of the list): the site applies one about a robot
+only if no newer one about that robot was applied, so a message that waited (a ``sites sync``
+that read the list before an ``--add``) never undoes a newer change. None: from a central that
+numbers no revisions (applied as it comes).
+
 The password travels as RabbitMQ's own salted hash (``password_hash`` and ``hashing_algorithm``
 as the management API shows them), so a robot logs in to its site with the password central gave
 it, and the password itself never leaves central.
@@ -23,6 +29,9 @@ from fleetbus.schemas.routing import RobotKind
 
 SITE_CHANGE_TYPE = "fleetbus.site-change"
 
+Revision = Annotated[int | None, Field(ge=0)]
+"""The revision of central's list of the site's robots a message was made from."""
+
 
 class RobotAccount(BaseModel):
     model_config = ConfigDict(extra="forbid")
@@ -32,6 +41,7 @@ class RobotAccount(BaseModel):
     kind: RobotKind | None
     password_hash: str
     hashing_algorithm: str
+    revision: Revision = None
 
 
 class RobotAccountRemoved(BaseModel):
@@ -42,6 +52,7 @@ class RobotAccountRemoved(BaseModel):
 
     change: Literal["account_removed"] = "account_removed"
     name: str
+    revision: Revision = None
 
 
 class RobotRoster(BaseModel):
@@ -54,6 +65,7 @@ class RobotRoster(BaseModel):
 
     change: Literal["robots"] = "robots"
     names: list[str]
+    revision: Revision = None
 
 
 class MissionChange(BaseModel):

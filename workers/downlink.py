@@ -5,7 +5,10 @@ works at its site), granted and given its topology as ``fleetbus users add`` wou
 team with its kind, and its events bound into the uplink (forwarded to central); a robot the site
 no longer has loses its account here, its forwarding and its place in the team (the list of the
 site's robots that ``fleetbus sites sync`` sends removes every copy central gave that it does not
-name), unless it is in use at the site (mounted). Each mission is written into the site's missions
+name), unless it is in use at the site (mounted). A message about a robot is applied only if the
+site applied no newer one about it (by the revision of central's list of the site's robots it
+carries): one that waited while a newer change went ahead (a sync that read the list before an
+``--add`` or ``--remove``) is skipped, logged. Each mission is written into the site's missions
 as central has it, unless the site already has that version or a newer one. Each map is stored as
 a new version of the site's maps (once per map event), so the site's map service hands it to the
 site's robots; a large map's chunks are kept in the site's store until the change that names them
@@ -55,7 +58,21 @@ from fleetbus.workers.team import leave_team
 log = logging.getLogger("fleetbus.sites")
 
 
+def newest(settings: Settings, robot: str, revision: int | None, what: str) -> bool:
+    """Whether central's word on ``robot`` (``what``: which), made from its list's ``revision``, is
+    the newest the site has had about it (then kept as such). None: from a central that numbers no
+    revisions (applied as before)."""
+    if revision is None:
+        return True
+    if run_with_repositories(settings, lambda repos: repos.sites.note_revision(robot, revision)):
+        return True
+    log.info("%s of %s skipped: central's revision %d is older than one applied", what, robot, revision)
+    return False
+
+
 def apply_account(settings: Settings, admin_url: str, api: ManagementAPI, account: RobotAccount) -> None:
+    if not newest(settings, account.name, account.revision, "account"):
+        return
     api.put_user_hash(account.name, account.password_hash, account.hashing_algorithm)
     asyncio.run(
         configure_account(
@@ -72,14 +89,19 @@ class RemovalRefused(ValueError):
     """Central asked the site to remove a robot's account that is in use at the site."""
 
 
-def remove_account(settings: Settings, admin_url: str, api: ManagementAPI, name: str) -> None:
+def remove_account(
+    settings: Settings, admin_url: str, api: ManagementAPI, name: str, revision: int | None = None
+) -> None:
     """Remove the site's copy of a robot's account (central removed the robot, or took it from
     this site): it no longer logs in here, its events are no longer forwarded, and it leaves the
     site's team (a warden's leaving is told to the site's hazard service). Its exchange and inbox
     stay, with whatever they hold. Removing one the site does not have changes nothing. Refused
     (:class:`RemovalRefused`, nothing changed) while the robot is in use at the site, as central
     refuses to remove one in use there. A robot of the site's own (not forwarded for central) is
-    not central's to remove: left as it is."""
+    not central's to remove: left as it is. ``revision``: that of central's list the removal was
+    made from (skipped when the site applied a newer message about the robot)."""
+    if not newest(settings, name, revision, "removal"):
+        return
     if name not in forwarded_robots(api, vhost_of(admin_url)):
         log.warning("central asked to remove %s, which is not a robot central gave this site: left", name)
         return
@@ -100,6 +122,8 @@ def apply_roster(settings: Settings, admin_url: str, api: ManagementAPI, roster:
     use stay, and :class:`RemovalRefused` names them once the others are removed."""
     removed, refused = [], []
     for name in sorted(forwarded_robots(api, vhost_of(admin_url)) - set(roster.names)):
+        if not newest(settings, name, roster.revision, "list without it"):
+            continue  # added by a newer change than this list
         try:
             remove_account(settings, admin_url, api, name)
         except RemovalRefused as refusal:
@@ -215,7 +239,7 @@ def apply_downlink(
                 elif isinstance(change, MapChange):
                     apply_map(settings, change)
                 elif isinstance(change, RobotAccountRemoved):
-                    remove_account(settings, admin_url, api, change.name)
+                    remove_account(settings, admin_url, api, change.name, change.revision)
                 elif isinstance(change, RobotRoster):
                     apply_roster(settings, admin_url, api, change)
             except (ValidationError, ValueError) as error:

@@ -1,13 +1,15 @@
 """Central's administration of its sites: the one place that assigns robots to a site, in the
 store (who may forward for whom, :mod:`fleetbus.workers.store.sites`) and on the broker (what the
-site's account may write, :func:`fleetbus.broker.sites.grant_site_robots`), together."""
+site's account may write, :func:`fleetbus.broker.sites.grant_site_robots`), together. A change
+is computed from the site's list as it is when the change is made (compare-and-set on the list's
+revision), and what it sends the site carries that revision, so the newest change always wins."""
 
 from __future__ import annotations
 
 import asyncio
 import dataclasses
 import logging
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 
 import pika
 
@@ -25,11 +27,61 @@ from fleetbus.schemas.site_changes import (
     RobotAccountRemoved,
 )
 from fleetbus.workers.store.missions import Mission, MissionStore
-from fleetbus.workers.store.sites import SiteRegistry
+from fleetbus.workers.store.sites import ListChange, SiteRegistry, StaleRevision
 from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.team import change_service
 
 log = logging.getLogger("fleetbus.sites")
+
+
+Decide = Callable[[tuple[str, ...]], Collection[str]]
+"""A change of a site's robots: from its list as read, the list it becomes."""
+
+#: How often a change is computed again from a newer list before it gives up (each retry means
+#: another change of the same site was made meanwhile).
+CHANGE_ATTEMPTS = 10
+
+
+async def revise(sites: SiteRegistry, site: str, decide: Decide) -> list[ListChange]:
+    """Change ``site``'s list of robots to what ``decide`` makes of it, by compare-and-set on its
+    revision: a list that changed after it was read is read again and ``decide`` applied to the
+    newer one, so no change undoes another made meanwhile. What changed, ``site``'s list first."""
+    validate_name(site)
+    read = 0
+    for _ in range(CHANGE_ATTEMPTS):
+        listed = await sites.robots_of(site)
+        read = listed.revision if listed else 0
+        robots = sorted(set(decide(listed.robots if listed else ())))
+        for robot in robots:
+            validate_name(robot)
+        try:
+            return await sites.set_robots(site, robots, revision=read)
+        except StaleRevision:
+            continue
+    raise StaleRevision(site, read)
+
+
+async def grant_listed(
+    sites: SiteRegistry,
+    api: ManagementAPI,
+    admin_url: str,
+    site: str,
+    returning: Mapping[str, RobotKind | None] | None = None,
+) -> None:
+    """Let ``site``'s account at central write for the robots of its list as the store has it now
+    (``returning``: robots that left it, whose inboxes at central take notifications again), and
+    again until the list did not change meanwhile: a change that granted an older list after a
+    newer one was granted grants the newer one again."""
+    vhost = vhost_of(admin_url)
+    granted = await sites.robots_of(site)
+    while True:
+        robots = granted.robots if granted else ()
+        back = {robot: kind for robot, kind in (returning or {}).items() if robot not in robots}
+        await asyncio.to_thread(grant_site_robots, api, vhost, site, robots, back)
+        now = await sites.robots_of(site)
+        if now == granted:
+            return
+        granted = now
 
 
 async def assign_robots(
@@ -38,36 +90,30 @@ async def assign_robots(
     api: ManagementAPI,
     admin_url: str,
     site: str,
-    robots: Collection[str],
-) -> tuple[str, ...]:
-    """Make ``robots`` exactly the robots of ``site`` (a robot of another site moves here; the
-    other site's account loses it). At central, a site's wardens are out of service (the site's
-    gate counts them, central's must not wait for them); one that leaves its site is back in
-    service. Returns the robots, sorted."""
-    validate_name(site)
-    for robot in robots:
-        validate_name(robot)
-    before = await sites.sites()
-    old = set(before.get(site, ()))
-    new = set(robots)
-    moved_from = {other for other, members in before.items() if other != site and new & set(members)}
-    await sites.set_robots(site, sorted(new))
+    robots: Collection[str] | Decide,
+) -> list[ListChange]:
+    """Make ``robots`` the robots of ``site`` (or what ``robots``, a :data:`Decide`, makes of its
+    list as it is when the change is made; a robot of another site moves here, the other site's
+    account loses it). At central, a site's wardens are out of service (the site's gate counts
+    them, central's must not wait for them); one that leaves its site is back in service. What
+    changed, ``site``'s list first."""
+    decide: Decide = robots if callable(robots) else (lambda _listed: robots)  # type: ignore[assignment]
+    changes = await revise(sites, site, decide)
     kinds = {robot.name: robot.kind for robot in await team.robots()}
-    returning = {r: RobotKind(kinds[r]) if kinds.get(r) else None for r in old - new}
-    vhost = vhost_of(admin_url)
-    grant_site_robots(api, vhost, site, sorted(new), returning)
-    after = await sites.sites()
-    for other in moved_from:
-        grant_site_robots(api, vhost, other, after.get(other, ()))
+    mine = changes[0]
+    returning = {r: RobotKind(kinds[r]) if kinds.get(r) else None for r in mine.left}
+    await grant_listed(sites, api, admin_url, site, returning)
+    for other in changes[1:]:
+        await grant_listed(sites, api, admin_url, other.site)
     # central's hazard gate must not wait for wardens that localise at their site only
     by = f"site {site}"
-    for robot in sorted(new - old):
+    for robot in mine.joined:
         if kinds.get(robot) == RobotKind.WARDEN.value:
             await change_service(team, admin_url, robot, False, by)
-    for robot in sorted(old - new):
+    for robot in mine.left:
         if kinds.get(robot) == RobotKind.WARDEN.value:
             await change_service(team, admin_url, robot, True, by)
-    return tuple(sorted(new))
+    return changes
 
 
 async def set_site_robots(
@@ -76,35 +122,36 @@ async def set_site_robots(
     api: ManagementAPI,
     admin_url: str,
     site: str,
-    robots: Collection[str],
+    robots: Collection[str] | Decide,
 ) -> tuple[tuple[str, ...], list[RobotAccount], list[str]]:
-    """:func:`assign_robots`, then send each site concerned what changed for it: the accounts of
-    the robots new to ``site``, and the removal of the robots a site no longer has (taken from
-    ``site``, or moved here from another), whose copies the site then removes (``fleetbus site
-    apply`` applies both). Returns the robots, the accounts sent and the robots removed from
-    ``site``."""
-    before = await sites.sites()
-    names = await assign_robots(sites, team, api, admin_url, site, robots)
-    accounts = await robot_accounts(team, api, set(names) - set(before.get(site, ())))
+    """:func:`assign_robots`, then send each site concerned what changed for it, with its list's
+    new revision: the accounts of the robots new to ``site``, and the removal of the robots a site
+    no longer has (taken from ``site``, or moved here from another), whose copies the site then
+    removes (``fleetbus site apply`` applies both). Returns the robots, the accounts sent and the
+    robots removed from ``site``."""
+    changes = await assign_robots(sites, team, api, admin_url, site, robots)
+    mine = changes[0]
+    accounts = await robot_accounts(team, api, mine.joined, mine.revision)
     await asyncio.to_thread(send_to_sites, admin_url, [site], accounts)
-    gone: list[str] = []
-    for other, members in before.items():
-        left = sorted(set(members) - set(names)) if other == site else sorted(set(members) & set(names))
-        await asyncio.to_thread(send_removals, admin_url, other, left)
-        if other == site:
-            gone = left
-    return names, accounts, gone
+    for change in changes:
+        await asyncio.to_thread(send_removals, admin_url, change.site, change.left, change.revision)
+    return mine.robots, accounts, list(mine.left)
 
 
-def send_removals(admin_url: str, site: str, robots: Collection[str]) -> None:
-    """Tell ``site`` to remove its copies of ``robots``' accounts (they are no longer its own)."""
+def send_removals(admin_url: str, site: str, robots: Collection[str], revision: int | None) -> None:
+    """Tell ``site`` to remove its copies of ``robots``' accounts (they are no longer its own, as of
+    its list's ``revision``)."""
     if robots:
-        send_to_sites(admin_url, [site], [RobotAccountRemoved(name=name) for name in sorted(robots)])
+        removals = [RobotAccountRemoved(name=name, revision=revision) for name in sorted(robots)]
+        send_to_sites(admin_url, [site], removals)
         log.info("site %s told to remove the accounts of %s", site, ", ".join(sorted(robots)))
 
 
-async def robot_accounts(team: TeamStore, api: ManagementAPI, robots: Collection[str]) -> list[RobotAccount]:
-    """The accounts of ``robots`` as central has them (those without an account are left out)."""
+async def robot_accounts(
+    team: TeamStore, api: ManagementAPI, robots: Collection[str], revision: int | None
+) -> list[RobotAccount]:
+    """The accounts of ``robots`` as central has them (those without an account are left out), for
+    a site whose list is at ``revision``."""
     kinds = {robot.name: robot.kind for robot in await team.robots()}
     accounts = []
     for name in sorted(robots):
@@ -118,6 +165,7 @@ async def robot_accounts(team: TeamStore, api: ManagementAPI, robots: Collection
                 kind=RobotKind(kind) if kind else None,
                 password_hash=user["password_hash"],
                 hashing_algorithm=user.get("hashing_algorithm", "rabbit_password_hashing_sha256"),
+                revision=revision,
             )
         )
     return accounts

@@ -22,11 +22,12 @@ from fleetbus.api.services.accounts import Accounts, broker_role
 from fleetbus.broker.accounts import TOPIC_PATTERN, confined_permissions, keyed_exchanges, vhost_of
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import read_shard_map, unassign_shard
-from fleetbus.broker.sites import grant_site_robots, site_permissions
+from fleetbus.broker.sites import site_permissions
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import SERVICE_PREFIX, beacon_exchange
 from fleetbus.schemas.site_reports import SiteReport
 from fleetbus.workers.site_report_collector import collect_site_reports
+from fleetbus.workers.sites import grant_listed, revise
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
@@ -316,9 +317,10 @@ class AccountCheck:
         elif drift.kind == "site":
             robots = {n for n, u in registry.items() if u.role is UserRole.ROBOT}
             members = [robot for robot in sites.get(name, ()) if robot in robots]
-            if site_exists(name, broker):
-                await self._sites.set_robots(name, members)
-                await asyncio.to_thread(grant_site_robots, self._management, self._vhost, name, members)
+            if site_exists(name, broker):  # its robots as they are now, the registry's only
+                changes = await revise(self._sites, name, lambda listed: [r for r in listed if r in robots])
+                await grant_listed(self._sites, self._management, self._admin_url, name)
+                members = list(changes[0].robots)
             if extra := extra_copies(members, reports.get(name)):
                 await self._accounts.tell_site_to_remove(name, extra)
 

@@ -43,7 +43,7 @@ from fleetbus.broker.certificates import CertificateError, TlsFiles
 from fleetbus.broker.fleet import NewRobot, provision_robots
 from fleetbus.broker.management import ManagementAPI, ManagementError
 from fleetbus.broker.revocation import cannot_revoke, revoke_certificates_of, revoked_summary
-from fleetbus.broker.sites import add_site_account, central_site_topology, grant_site_robots
+from fleetbus.broker.sites import add_site_account, central_site_topology
 from fleetbus.broker.team_changes import HazardServiceNotTold
 from fleetbus.broker.topology import declare_with_url
 from fleetbus.schemas.identity import validate_name
@@ -53,10 +53,18 @@ from fleetbus.schemas.site_changes import RobotAccount, RobotRoster
 from fleetbus.schemas.use_cases import USE_CASES
 from fleetbus.settings import Settings
 from fleetbus.workers.account_use import in_use
-from fleetbus.workers.sites import robot_accounts, send_removals, send_to_sites, set_site_robots
+from fleetbus.workers.sites import (
+    Decide,
+    grant_listed,
+    revise,
+    robot_accounts,
+    send_removals,
+    send_to_sites,
+    set_site_robots,
+)
 from fleetbus.workers.store import Repositories, open_repositories
 from fleetbus.workers.store.channels import ChannelStore
-from fleetbus.workers.store.sites import SiteRegistry
+from fleetbus.workers.store.sites import SiteRegistry, StaleRevision
 from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.store.users import User, UserExists, UserStore
 from fleetbus.workers.team import leave_team
@@ -504,18 +512,22 @@ class Accounts:
             return
         for site, members in (await self._sites.sites()).items():
             if name in members:
-                rest = [member for member in members if member != name]
-                await self._sites.set_robots(site, rest)
-                vhost = vhost_of(self._admin_url)
-                await asyncio.to_thread(grant_site_robots, self._management, vhost, site, rest)
-                await self.tell_site_to_remove(site, [name])
+                change = (await revise(self._sites, site, lambda listed: [r for r in listed if r != name]))[0]
+                await grant_listed(self._sites, self._management, self._admin_url, site)
+                if change.left:
+                    await self.tell_site_to_remove(site, change.left, change.revision)
 
-    async def tell_site_to_remove(self, site: str, robots: Collection[str]) -> bool:
-        """Send ``site`` the removal of its copies of ``robots``' accounts; False (logged) when
-        central's broker did not take it: the site keeps them, and the registry check reports
-        them once the site says so (its repair sends the removal again)."""
+    async def tell_site_to_remove(
+        self, site: str, robots: Collection[str], revision: int | None = None
+    ) -> bool:
+        """Send ``site`` the removal of its copies of ``robots``' accounts, as of its list's
+        ``revision`` (None: as it is now); False (logged) when central's broker did not take it:
+        the site keeps them, and the registry check reports them once the site says so (its
+        repair sends the removal again)."""
+        if revision is None and (listed := await self._site_registry().robots_of(site)) is not None:
+            revision = listed.revision
         try:
-            await asyncio.to_thread(send_removals, self._admin_url, site, robots)
+            await asyncio.to_thread(send_removals, self._admin_url, site, robots, revision)
         except (AMQPError, OSError) as error:
             log.warning("site %s not told to remove %s: %s", site, ", ".join(robots), error)
             return False
@@ -536,11 +548,13 @@ class Accounts:
                 "(make them with `fleetbus users add NAME`)"
             )
 
-    async def _assign_site(self, site: str, robots: Collection[str]) -> SiteRobots:
+    async def _assign_site(self, site: str, robots: Collection[str] | Decide) -> SiteRobots:
         try:
             names, sent, removed = await set_site_robots(
                 self._site_registry(), self._team, self._management, self._admin_url, site, robots
             )
+        except StaleRevision as error:  # changed by others again and again while this one tried
+            raise Conflict(f"{error}; try again") from None
         except ValueError as error:
             raise BadRequest(str(error)) from None
         except (ManagementError, AMQPError, OSError) as error:
@@ -586,7 +600,8 @@ class Accounts:
         if site not in known:
             raise NotFound(f"no site {site!r}; make it with `fleetbus sites add {site}`")
         await self._check_robots(add)
-        changed = await self._assign_site(site, (set(known[site]) | set(add)) - set(remove))
+        # from the site's list as it is when the change is made, not as read here
+        changed = await self._assign_site(site, lambda listed: (set(listed) | set(add)) - set(remove))
         log.info("site %s: robots %s, by %s", site, ", ".join(changed.robots) or "none", by)
         return changed
 
@@ -596,16 +611,15 @@ class Accounts:
         copies of the accounts central gave it that are not on it (robots removed at central or
         taken from the site, whose removal it missed), so a sync with nothing changed changes
         nothing there."""
-        known = await self._site_registry().sites()
-        if site not in known:
+        listed = await self._site_registry().robots_of(site)
+        if listed is None:
             raise NotFound(f"no site {site!r}; make it with `fleetbus sites add {site}`")
-        robots = tuple(sorted(known[site]))
-        accounts = await robot_accounts(self._team, self._management, robots)
+        robots = listed.robots
+        accounts = await robot_accounts(self._team, self._management, robots, listed.revision)
+        roster = RobotRoster(names=list(robots), revision=listed.revision)
         try:  # what central takes from the site (made again if it went), then what it sends it
             await declare_with_url(self._admin_url, [central_site_topology(site, self._cluster)])
-            await asyncio.to_thread(
-                send_to_sites, self._admin_url, [site], [*accounts, RobotRoster(names=list(robots))]
-            )
+            await asyncio.to_thread(send_to_sites, self._admin_url, [site], [*accounts, roster])
         except (AMQPError, OSError) as error:
             raise Unavailable(f"central's broker did not take site {site}'s accounts: {error}") from error
         log.info("site %s sent its robots' accounts and list: %s", site, ", ".join(robots) or "none")

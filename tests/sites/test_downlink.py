@@ -1,15 +1,22 @@
 """Central's accounts reach the site: a robot registered centrally logs in to its site with the
 password central gave it, and works there; removed at central, it is removed at the site (a removal
 the site missed, by the next `fleetbus sites sync`, unless the robot is in use there), and central's
-registry check reports the site's copy until then."""
+registry check reports the site's copy until then. A change made while a sync of the site is under
+way is never undone by the sync's older list."""
 
 from __future__ import annotations
 
 import asyncio
 import json
+import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from datetime import datetime, timezone
+from unittest import mock
 from urllib.parse import unquote, urlsplit
 
+import fleetbus.api.services.accounts as accounts_service
 from fleetbus.broker.accounts import Account, Role, url_for
 from fleetbus.broker.sites import forwarded_robots
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, RobotKind
@@ -90,15 +97,40 @@ def _site_drift(pair: SitePair) -> str:
     return str(drift["problem"])
 
 
+@contextmanager
+def sync_held(pair: SitePair) -> Iterator[None]:
+    """`fleetbus sites sync base1` under way: it has read the site's robots, and sends what it read
+    once the block is done (the block runs between its read and its send)."""
+    read, go = threading.Event(), threading.Event()
+    send = accounts_service.send_to_sites
+
+    def held(*args: object) -> None:
+        read.set()
+        assert go.wait(60), "the test never let the sync go on"
+        send(*args)  # type: ignore[arg-type]
+
+    with mock.patch.object(accounts_service, "send_to_sites", held), ThreadPoolExecutor(1) as pool:
+        synced = pool.submit(pair.central.with_accounts, lambda accounts: accounts.sync_site("base1"))
+        wait_for(lambda: read.is_set() or synced.done(), what="the sync to have read the site's robots")
+        try:
+            assert read.is_set(), synced.result()
+            yield
+        finally:
+            go.set()
+        synced.result(timeout=60)
+
+
 def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> None:
     pair.site.settings = pair.site.settings.updated(downlink_rejected_max=2)
     asyncio.run(pair.start_links())  # as `fleetbus site up` sets the bound of what it cannot apply
     pair.central.add("guide5", kind=RobotKind.GUIDE)
     pair.central.add("explorer5", kind=RobotKind.EXPLORER)
     pair.site.accounts.extend(["guide5", "explorer5"])
-    assert run(pair.central, "sites", "robots", "base1", "--add", "guide5,explorer5").returncode == 0
-    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="the accounts through the downlink")
-    assert run(pair.site, "site", "apply", "--once").returncode == 0
+    # added while a sync is under way: the sync read the list before the add and sends it after
+    with sync_held(pair):
+        assert run(pair.central, "sites", "robots", "base1", "--add", "guide5,explorer5").returncode == 0
+    assert _apply(pair, 3) == 3, "both accounts, then the sync's older list"
+    assert forwarded_robots(pair.site.api, pair.site.vhost) == {"explorer5", "guide5"}, "the add stays"
     pair.site.add("scout5", kind=RobotKind.EXPLORER)  # the site's own robot: not central's copy
     _report(pair)
     assert run(pair.central, "users", "check").returncode == 0, "the site has its own robots' copies"
@@ -112,14 +144,17 @@ def test_a_robot_removed_at_central_is_removed_at_its_site(pair: SitePair) -> No
     assert _copies(pair) == before
     assert pair.site.ready_messages(DOWNLINK_REJECTED_QUEUE) == 0
 
-    removed = run(pair.central, "users", "remove", "guide5")
-    assert removed.returncode == 0, removed.stderr
-    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 1, what="the removal through the downlink")
+    # taken from the site while a sync is under way: the sync read it on the list, and sends its
+    # account and the older list after the removal
+    with sync_held(pair):
+        removed = run(pair.central, "sites", "robots", "base1", "--remove", "guide5")
+        assert removed.returncode == 0, removed.stderr
+    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 4, what="the removal, then the sync's 3")
     _report(pair)  # before the site applied it: it still has the copy
     assert "site base1 keeps the accounts of guide5, which are not its robots" in _site_drift(pair)
 
     applied = run(pair.site, "site", "apply", "--once")
-    assert applied.returncode == 0 and "applied 1 changes" in applied.stdout, applied.stdout
+    assert applied.returncode == 0 and "applied 4 changes" in applied.stdout, applied.stdout
     assert pair.site.api.get_user("guide5") is None, "it no longer logs in at the site"
     assert "guide5" not in forwarded_robots(pair.site.api, pair.site.vhost)
     assert [r.name for r in pair.site.with_store(lambda store: store.hazards.robots())] == [

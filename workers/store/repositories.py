@@ -101,7 +101,8 @@ class Repositories:
     statuses: StatusBoard
     housekeeping: Housekeeping
     sites: SiteRegistry
-    """On central: which robots live at which site, and what each site forwarded."""
+    """On central: which robots live at which site, and what each site forwarded; on a site, how
+    new the downlink's newest word on each robot was."""
     alerts: AlertStore
     """The alerts raised for the operators, and who acknowledged each."""
     comments: CommentStore

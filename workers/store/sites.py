@@ -5,11 +5,20 @@ everything it accepted to central with a shovel. Central keeps here which robots
 site (a robot at one site at most), so that a forwarded event's claim to come from a site is
 believed only for that site's own robots, and one record per forwarded event: its site, when it
 was sent and received, and whether it came late.
+
+Each site's list of robots has a **revision**, greater at each change of the list (a robot added,
+taken away, moved to another site, removed at central): the list and its revision are one
+document, changed by compare-and-set, so a change computed from a list read before another
+change fails (:class:`StaleRevision`) instead of undoing it, on every database. Every downlink
+message about a site's robots carries the revision it was made from. On a site, the newest
+revision central's word on each robot had (:meth:`SiteRegistry.note_revision`) keeps an older
+message from undoing a newer one.
 """
 
 from __future__ import annotations
 
 import abc
+import time
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -65,10 +74,50 @@ class SiteSummary:
     """When central last received an event from the site."""
 
 
+@dataclass(frozen=True)
+class SiteList:
+    """A site's robots, sorted, and the revision of that list (0: never changed)."""
+
+    robots: tuple[str, ...]
+    revision: int
+
+
+@dataclass(frozen=True)
+class ListChange:
+    """What one :meth:`SiteRegistry.set_robots` made of one site's list."""
+
+    site: str
+    revision: int
+    """The list's new revision."""
+    robots: tuple[str, ...]
+    joined: tuple[str, ...]
+    """Robots the list did not have before."""
+    left: tuple[str, ...]
+    """Robots no longer on it (taken away, or moved to the site whose robots were set)."""
+
+
+class StaleRevision(Exception):
+    """A site's list changed since it was read: the change was not made."""
+
+    def __init__(self, site: str, read: int) -> None:
+        super().__init__(f"site {site}'s robots changed since they were read (at revision {read})")
+        self.site = site
+
+
 class SiteRegistry(abc.ABC):
     @abc.abstractmethod
-    async def set_robots(self, site: str, robots: Collection[str]) -> None:
-        """Make ``site`` known with exactly these robots (a robot of another site moves here)."""
+    async def set_robots(
+        self, site: str, robots: Collection[str], *, revision: int | None = None
+    ) -> list[ListChange]:
+        """Make ``site`` known with exactly these robots (a robot of another site moves here, and
+        that site's list is changed too), each list's revision greater (:func:`next_revision`).
+        ``revision``: only if ``site``'s list is still at that revision (as read), else
+        :class:`StaleRevision` and nothing changed. What changed: ``site``'s list first, then each
+        site a robot moved from."""
+
+    @abc.abstractmethod
+    async def robots_of(self, site: str) -> SiteList | None:
+        """The site's robots and their list's revision, read together; None: no such site."""
 
     @abc.abstractmethod
     async def remove_site(self, site: str) -> None:
@@ -102,8 +151,19 @@ class SiteRegistry(abc.ABC):
     async def reports(self) -> dict[str, SiteReport]:
         """Each site's newest report, by site."""
 
+    @abc.abstractmethod
+    async def note_revision(self, robot: str, revision: int) -> bool:
+        """On a site: keep ``revision`` as that of central's newest word on ``robot`` unless a newer
+        one is kept; whether it was (False: the message is older than one applied)."""
 
-SITES = Schema("sites", {"name": TEXT, "added_at": TIME}, key=("name",))
+
+SITES = Schema(
+    "sites",
+    {"name": TEXT, "added_at": TIME, "revision": INTEGER.maybe, "robots": JSON.maybe},
+    key=("name",),
+)
+"""A site, its list of robots and the list's revision (both null for a site stored before lists
+had revisions: its robots are then those of :data:`SITE_ROBOTS`, at revision 0)."""
 SITE_ROBOTS = Schema(
     "site_robots", {"robot_id": TEXT, "site": TEXT}, key=("robot_id",), indexes=(Index("site"),)
 )
@@ -123,6 +183,15 @@ FORWARDS = Schema(
     indexes=(Index("site", "sent_at"),),
 )
 REPORTS = Schema("site_reports", {"site": TEXT, "at": TIME, "report": JSON}, key=("site",))
+CENTRALS_WORD = Schema("site_robot_revisions", {"robot": TEXT, "revision": INTEGER}, key=("robot",))
+"""On a site: the revision of the newest downlink message about each robot it applied."""
+
+
+def next_revision(revision: int) -> int:
+    """The revision after ``revision``: the time in microseconds since the epoch, or one more when
+    that is not greater. Greater than every earlier one however the store was restored (from a
+    copy whose revisions a site has passed already), as long as central's clock runs forward."""
+    return max(revision + 1, time.time_ns() // 1000)
 
 
 class Sites(SiteRegistry):
@@ -132,15 +201,67 @@ class Sites(SiteRegistry):
         self._robots = database.collection(SITE_ROBOTS)
         self._forwards = database.collection(FORWARDS)
         self._reports = database.collection(REPORTS)
+        self._revisions = database.collection(CENTRALS_WORD)
 
-    async def set_robots(self, site: str, robots: Collection[str]) -> None:
-        async def work() -> None:
-            await self._sites.insert([{"name": site, "added_at": datetime.now(timezone.utc)}])
+    async def _list(self, doc: dict[str, Any]) -> SiteList:
+        if doc["robots"] is None:  # stored before lists had revisions
+            rows = await self._robots.find({"site": doc["name"]}, order=["robot_id"])
+            return SiteList(tuple(row["robot_id"] for row in rows), 0)
+        return SiteList(tuple(sorted(doc["robots"])), doc["revision"] or 0)
+
+    async def _replace(self, doc: dict[str, Any], robots: Collection[str]) -> ListChange | None:
+        """Compare-and-set: ``doc``'s list becomes ``robots`` unless it changed since ``doc`` was
+        read (None then). One document, so atomic on every database."""
+        old = await self._list(doc)
+        new = tuple(sorted(set(robots)))
+        where = {"name": doc["name"], "revision": doc["revision"]}
+        revision = next_revision(old.revision)
+        if not await self._sites.update(where, {"robots": list(new), "revision": revision}):
+            return None
+        joined = tuple(r for r in new if r not in old.robots)
+        left = tuple(r for r in old.robots if r not in new)
+        return ListChange(doc["name"], revision, new, joined, left)
+
+    async def set_robots(
+        self, site: str, robots: Collection[str], *, revision: int | None = None
+    ) -> list[ListChange]:
+        async def work() -> list[ListChange]:
+            now = datetime.now(timezone.utc)
+            await self._sites.insert([{"name": site, "added_at": now, "revision": 0, "robots": []}])
+            while True:
+                doc = await self._sites.get(site)
+                assert doc is not None
+                found = (await self._list(doc)).revision
+                if revision is not None and found != revision:
+                    raise StaleRevision(site, revision)
+                changed = await self._replace(doc, robots)
+                if changed is not None:
+                    break
+                if revision is not None:  # another change came in between
+                    raise StaleRevision(site, revision)
+            changes = [changed]
+            for name in [doc["name"] for doc in await self._sites.find({"name": Ne(site)}, order=["name"])]:
+                while (other := await self._sites.get(name)) is not None:  # the sites robots move from
+                    kept = set((await self._list(other)).robots)
+                    if not kept & set(robots):
+                        break
+                    if (moved := await self._replace(other, kept - set(robots))) is not None:
+                        changes.append(moved)
+                        break
+            # the robots' index (a robot's site, for each forwarded event) follows the lists
             await self._robots.delete({"site": site, "robot_id": NotIn(robots)})
             for robot in robots:
                 await self._robots.put({"robot_id": robot, "site": site})
+            return changes
 
-        await self._database.transaction(work)
+        return await self._database.transaction(work)
+
+    async def robots_of(self, site: str) -> SiteList | None:
+        async def read() -> SiteList | None:
+            doc = await self._sites.get(site)
+            return None if doc is None else await self._list(doc)
+
+        return await self._database.snapshot(read)
 
     async def remove_site(self, site: str) -> None:
         async def work() -> None:
@@ -151,10 +272,8 @@ class Sites(SiteRegistry):
 
     async def sites(self) -> dict[str, tuple[str, ...]]:
         async def read() -> dict[str, tuple[str, ...]]:
-            found: dict[str, list[str]] = {doc["name"]: [] for doc in await self._sites.find()}
-            for doc in await self._robots.find(order=["robot_id"]):
-                found.setdefault(doc["site"], []).append(doc["robot_id"])
-            return {name: tuple(found[name]) for name in sorted(found)}
+            docs = await self._sites.find(order=["name"])
+            return {doc["name"]: (await self._list(doc)).robots for doc in docs}
 
         return await self._database.snapshot(read)
 
@@ -199,3 +318,8 @@ class Sites(SiteRegistry):
 
     async def reports(self) -> dict[str, SiteReport]:
         return {doc["site"]: SiteReport.model_validate(doc["report"]) for doc in await self._reports.find()}
+
+    async def note_revision(self, robot: str, revision: int) -> bool:
+        return await self._revisions.put(
+            {"robot": robot, "revision": revision}, where={"revision": Range(le=revision)}
+        )
