@@ -66,6 +66,8 @@ class PipelinedConfirms:
         self._unconfirmed: set[int] = set()
         self._nacked: set[int] = set()
         self._returned: dict[str, str] = {}
+        self._returns = 0
+        """basic.return frames since the last :meth:`take_returns`."""
         self._closed_reason: str | None = None
         self._refused = False
         """The broker itself closed the channel (on a message it refused), rather than the
@@ -108,6 +110,7 @@ class PipelinedConfirms:
         self, _channel: object, method: Basic.Return, properties: pika.BasicProperties, _body: bytes
     ) -> None:
         self._returned[properties.message_id or ""] = f"{method.reply_code} {method.reply_text}"
+        self._returns += 1
         self._wake()
 
     def _on_close(self, _channel: object, reason: Exception) -> None:
@@ -189,6 +192,33 @@ class PipelinedConfirms:
         except pika.exceptions.AMQPError as error:
             raise BrokerUnavailable(f"connection lost while publishing: {error!r}") from error
         return window
+
+    def write_one(self, message: Outgoing) -> int:
+        """:meth:`write` for one message; its delivery tag (for :meth:`answered`, :meth:`nacked`)."""
+        (tag,) = self.write([message]).tags
+        return tag
+
+    def answered(self, tag: int) -> bool:
+        """Whether the broker confirmed or nacked the message written with ``tag``."""
+        return tag not in self._unconfirmed
+
+    def nacked(self, tag: int) -> bool:
+        """Whether the broker nacked the message written with ``tag`` (once it :meth:`answered`)."""
+        return tag in self._nacked
+
+    def wait_for(self, tag: int, timeout: float) -> None:
+        """Wait until the broker answered the message written with ``tag``; raises like :meth:`send`."""
+        self._pump_until(lambda: tag not in self._unconfirmed, timeout, "publisher confirm")
+
+    def take_returns(self) -> int:
+        """How many messages the broker returned (``mandatory``: no queue bound for them) since the
+        last call. RabbitMQ sends a message's basic.return before its basic.ack, so once a message
+        is answered its return, if any, is counted. For a caller that counts returns rather than
+        naming them by message id (a stream whose ids need not be unique): it forgets the names
+        :meth:`wait` would give, so the two are not mixed on one channel."""
+        count, self._returns = self._returns, 0
+        self._returned.clear()
+        return count
 
     def flush(self) -> None:
         """Put what :meth:`write` queued on the wire now, without waiting for anything."""

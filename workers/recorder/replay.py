@@ -3,7 +3,10 @@
 The schedule comes from the recording times: message ``i`` goes out ``(t_i - t_0) / speed``
 seconds after the first (``speed`` 0: as fast as the broker confirms). Each is published at
 that offset from the start, never earlier, so a slow publish delays the next ones only until the
-schedule is caught up again.
+schedule is caught up again. Messages already due go out without waiting for each other's
+confirms (the sender bounds how many await theirs); before waiting for the next one's time, the
+replay waits until the broker answered every message sent, so none is still held on the way
+while the clock runs.
 
 A replayed message keeps its body, routing key, message id, correlation id, type and headers.
 It cannot keep its ``user_id`` (the broker refuses a ``user_id`` other than the publisher's), so
@@ -17,7 +20,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any
+from typing import Any, Protocol
 
 from fleetbus.workers.store.recordings import RecordedMessage
 
@@ -32,8 +35,29 @@ KEPT_PROPERTIES = (
     "priority",
 )
 
-Publish = Callable[[RecordedMessage, bytes, dict[str, Any]], bool]
-"""Publish one message (routing key from the record); False when the broker could not route it."""
+
+@dataclass(frozen=True)
+class Settled:
+    """The broker answered every message sent so far: what it said."""
+
+    confirmed: int
+    """Messages it confirmed, routed or not."""
+    unroutable: int
+    """Of those, how many it returned: no queue is bound for their routing keys."""
+
+
+class Sender(Protocol):
+    """Publishes replayed messages with the broker's confirms, several awaiting theirs at once."""
+
+    def send(self, record: RecordedMessage, body: bytes, properties: dict[str, Any]) -> None:
+        """Publish one message (routing key from the record), in order, without waiting for its
+        confirm; when the sender's window of messages awaiting theirs is full, it waits for room."""
+        ...
+
+    def settle(self) -> Settled:
+        """Wait until the broker answered every message sent; raise when it refused one or did
+        not answer in time, naming the message and how many were confirmed before it."""
+        ...
 
 
 @dataclass
@@ -82,7 +106,7 @@ def replay_properties(record: RecordedMessage) -> dict[str, Any]:
 
 def replay(
     records: Iterable[RecordedMessage],
-    publish: Publish,
+    sender: Sender,
     speed: float = 1.0,
     *,
     clock: Callable[[], float] = time.monotonic,
@@ -90,7 +114,8 @@ def replay(
     on_each: Callable[[RecordedMessage], None] = lambda record: None,
 ) -> ReplayReport:
     """Publish ``records`` (in recording order) on their schedule; they are read as they go out,
-    so a window of any length is replayed in the memory of what its iterator holds."""
+    so a window of any length is replayed in the memory of what its iterator and the sender's
+    messages awaiting their confirms hold."""
     if speed < 0:
         raise ValueError("speed must be 0 (as fast as possible) or more")
     report = ReplayReport()
@@ -99,17 +124,19 @@ def replay(
     for record in records:
         first = first or record.recorded_at
         report.span_s = when = due(first, record, speed)
-        wait = start + when - clock()
-        if wait > 0:
-            sleep(wait)
+        if clock() < start + when:
+            sender.settle()  # nothing still on its way while the clock runs: each goes out on time
+            wait = start + when - clock()
+            if wait > 0:
+                sleep(wait)
         body = record.body_bytes()
         if body is None:
             report.skipped += 1
         else:
             report.sent(when, clock() - start)
-            if publish(record, body, replay_properties(record)):
-                report.published += 1
-            else:
-                report.unroutable += 1
+            sender.send(record, body, replay_properties(record))
         on_each(record)
+    settled = sender.settle()
+    report.published = settled.confirmed - settled.unroutable
+    report.unroutable = settled.unroutable
     return report
