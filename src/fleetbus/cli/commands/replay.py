@@ -99,6 +99,11 @@ class Publisher:
         text = f"the {self._confirmed:,} messages before it were confirmed"
         return f"{text}, the {after:,} sent after it were not waited for" if after else text
 
+    def sleep(self, seconds: float) -> None:
+        """Wait for a paced message's time while answering the broker (its heartbeats: a gap of
+        minutes in the recording must not cost the connection)."""
+        self._connection.sleep(seconds)
+
     def close(self) -> None:
         if self._connection.is_open:
             self._connection.close()
@@ -157,7 +162,9 @@ def replay(
             Progress(*columns, console=errors, transient=as_json) as progress,
         ):
             task = progress.add_task("replay", total=None)
-            report = replay_records(records, publish, speed, on_each=lambda r: progress.advance(task))
+            report = replay_records(
+                records, publish, speed, sleep=publish.sleep, on_each=lambda r: progress.advance(task)
+            )
     except ServiceRefusal as refusal:
         fail_refused(refusal)
     except PublisherError as error:
