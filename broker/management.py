@@ -18,6 +18,9 @@ import httpx
 from fleetbus.broker.urls import masked_in_text
 from fleetbus.publishers.addresses import split_addresses
 
+#: Requests the management API handles the same when sent twice.
+IDEMPOTENT = frozenset({"GET", "HEAD", "PUT", "DELETE"})
+
 
 class ManagementError(RuntimeError):
     """The management API refused or failed a request; the message quotes its answer (with any
@@ -78,7 +81,7 @@ class ManagementAPI:
         for step in range(len(self._clients)):
             index = (self._current + step) % len(self._clients)
             try:
-                response = self._clients[index].request(method, path, **kwargs)
+                response = self._request_once_more(self._clients[index], method, path, **kwargs)
             except httpx.TransportError as error:
                 failed = error
                 continue
@@ -86,6 +89,19 @@ class ManagementAPI:
             return response
         assert failed is not None
         raise failed
+
+    @staticmethod
+    def _request_once_more(client: httpx.Client, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        """The request, sent again once when the node closed a kept-alive connection just as it was
+        reused (no answer at all: the request was not handled). Only for methods that may be
+        repeated; the management API closes connections idle for a while, and a long-lived client
+        (the API's, a site's) reuses one now and then as it closes."""
+        try:
+            return client.request(method, path, **kwargs)
+        except httpx.RemoteProtocolError:
+            if method.upper() not in IDEMPOTENT:
+                raise
+            return client.request(method, path, **kwargs)
 
     @classmethod
     def from_urls(cls, management_url: str, amqp_url: str, timeout: float = 15.0) -> ManagementAPI:

@@ -233,9 +233,10 @@ def test_a_suite_process_stopped_by_sigterm_writes_what_it_measured(bus: Bus, tm
         text=True,
     )
     try:
-        seen = lines_until(process, "run 1/1 raw: ", 60)
+        # the wait is for a line: generous, for a loaded machine whose management API answers late
+        seen = lines_until(process, "run 1/1 raw: ", 240)
         process.send_signal(signal.SIGTERM)
-        out, _ = process.communicate(timeout=30)
+        out, _ = process.communicate(timeout=120)
     finally:
         if process.poll() is None:
             process.kill()

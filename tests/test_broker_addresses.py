@@ -6,6 +6,7 @@ import asyncio
 import logging
 import socket
 
+import httpx
 import pytest
 
 from fleetbus.broker.accounts import url_for
@@ -117,3 +118,26 @@ def test_a_clusters_management_urls_follow_its_broker_addresses() -> None:
     assert derive_management_url(CLUSTER) == "http://10.0.0.1:15672,10.0.0.2:15672,node3:15672/"
     assert derive_management_url("amqps://u:p@a:5671,b:5671/") == "https://a:15671,b:15671/"
     assert derive_management_url("amqp://u:p@h:1/v") == "http://h:15672/"
+
+
+class _ClosesOnce:
+    """An httpx client whose first request finds its kept-alive connection closed by the node."""
+
+    def __init__(self) -> None:
+        self.sent: list[str] = []
+
+    def request(self, method: str, path: str, **kwargs: object) -> httpx.Response:
+        self.sent.append(method)
+        if len(self.sent) == 1:
+            raise httpx.RemoteProtocolError("Server disconnected without sending a response.")
+        return httpx.Response(204)
+
+
+def test_a_kept_alive_connection_the_node_closed_is_retried_once_for_a_repeatable_request() -> None:
+    client = _ClosesOnce()
+    answer = ManagementAPI._request_once_more(client, "DELETE", "vhosts/x")  # type: ignore[arg-type]
+    assert answer.status_code == 204 and client.sent == ["DELETE", "DELETE"]
+    once = _ClosesOnce()
+    with pytest.raises(httpx.RemoteProtocolError):  # a POST may have been handled: not sent again
+        ManagementAPI._request_once_more(once, "POST", "exchanges/x/y/publish")  # type: ignore[arg-type]
+    assert once.sent == ["POST"]
