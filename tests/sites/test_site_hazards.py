@@ -274,8 +274,11 @@ def test_a_full_hazard_uplink_keeps_the_states_unsent_at_the_site_until_there_is
         for _ in events:
             announced(warden)
         wait_for(lambda: pair.site.ready_messages(HAZARD_UPLINK_QUEUE) == 1, what="the hazard uplink full")
-        unsent = pair.site.with_store(lambda repos: repos.hazards.unsent_hazards(10))
-        assert len(unsent) == 2, "the refused states wait in the site's store, not dropped"
+        # the queue shows the first before the uplink marks it sent: wait for the mark
+        wait_for(
+            lambda: len(pair.site.with_store(lambda repos: repos.hazards.unsent_hazards(10))) == 2,
+            what="the two refused states waiting in the site's store, not dropped",
+        )
         pair.link.restore()
         wait_for(
             lambda: (
