@@ -35,7 +35,7 @@ from tests.support import Bus, wait_for
 
 def listen(warden: RobotClient, stop: threading.Event) -> None:
     while not stop.is_set():
-        for note in warden.notifications(timeout=0.5):
+        for note in warden.notifications(stop=stop):
             at, now = time.monotonic(), time.time()
             if note.topic is Topic.HAZARD:
                 stored_at = note.stored_at or note.notified_at

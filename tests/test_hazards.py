@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import threading
+
+import pytest
+
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.hazards import HazardState
 from tests.factories import hazard
@@ -65,3 +69,38 @@ def test_a_warden_that_loses_localisation_holds_new_hazards_again(bus: Bus) -> N
         warden.publish("localisation", {"localised": True})
         [second] = warden.receive(1, timeout=30)
     assert (first.hazard_id, second.hazard_id) == (1, 2)
+
+
+class LookedAtStop(threading.Event):
+    """A stop event that counts how often the listener looked at it (once per quiet spell)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.looks = 0
+
+    def is_set(self) -> bool:
+        self.looks += 1
+        return super().is_set()
+
+
+def test_a_listener_until_stopped_keeps_one_consumer_through_quiet_spells_and_ends_when_told(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    opened: list[object] = []
+    open_channel = warden._open_consumer_channel
+    monkeypatch.setattr(warden, "_open_consumer_channel", lambda: opened.append(open_channel()) or opened[-1])
+    stop, received = LookedAtStop(), []
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        listener = threading.Thread(target=lambda: received.extend(warden.notifications(stop=stop)))
+        listener.start()
+        wait_for(lambda: stop.looks >= 4, what="the listener through four quiet spells")
+        sent = explorer.publish("hazard", hazard(0))
+        wait_for(lambda: len(received) == 1, what="the hazard announced to the listener")
+        assert received[0].event == sent
+        stop.set()
+        listener.join(timeout=10)
+        assert not listener.is_alive(), "the listener ends once told to stop"
+    assert len(opened) == 1, "one consumer channel for the whole listen, not one per quiet spell"

@@ -392,7 +392,7 @@ class Bridge:
     def _notify(self) -> None:
         while not self._stop.is_set():
             try:
-                for note in self.robot.notifications(timeout=0.5):
+                for note in self.robot.notifications(stop=self._stop):
                     self.send_to_ros(notification_messages(note, NOTIFY_PREFIX))
                     self.counters.notifications += 1
                     if self._stop.is_set():
