@@ -122,7 +122,7 @@ SCENARIOS: tuple[Scenario, ...] = (
         replay.figures,
         (Target("replay RSS MB, peak", 150, at_most=True, unit=" MB"),),
         max_runs=1,
-        budget_s=90,
+        budget_s=20,
     ),
 )
 
