@@ -16,8 +16,11 @@ through the console's own form.
               the event's ``received_at`` (the worker's stamp, read back from the store) to its row's
               arrival at a dashboard: median and p95 over every (dashboard, event) pair (targets:
               p95 under 200 ms with 100 robots, under 300 ms with 300), rows that never arrived, and
-              the console process's CPU time meanwhile. The robots' process runs at --nice (15: on
-              what the server leaves, as robots on machines of their own).
+              the console process's CPU time meanwhile. Split in two at the moment this process
+              first saw the event committed in the store (it reads the SQLite file every 20 ms, by
+              itself): the worker's part (stamp to commit) and the console's (commit to row). The
+              robots' process runs at --nice (15: on what the server leaves, as robots on machines
+              of their own).
   reconnects  the robots and dashboards going on, one more dashboard's stream opened --reconnects
               times, each sending the Last-Event-ID of the one before (so each is replayed what it
               missed from the store) and dropped after its first event; the console process's
@@ -37,8 +40,10 @@ import argparse
 import asyncio
 import json
 import re
+import sqlite3
 import statistics
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -162,6 +167,40 @@ async def reconnections(
     return resident
 
 
+#: How often the bench looks in the store for the events the worker committed (the split's edge).
+VISIBLE_EVERY_S = 0.02
+#: How far back each look reaches: the worker commits a batch after stamping its first event.
+VISIBLE_BACK_US = 2_000_000
+
+
+@dataclass
+class Visibility:
+    """When each event was first seen committed in the store (``time.time()``): what splits an
+    event's way to the page into the worker's part and the console's."""
+
+    seen: dict[str, float] = field(default_factory=dict)
+
+
+def look_in_store(path: Path, visibility: Visibility, stop: threading.Event) -> None:
+    """Every :data:`VISIBLE_EVERY_S`, the keys of the events received lately, read straight from
+    the SQLite file (read-only, no decoding: the bench must not take what it measures from the
+    console)."""
+    connection = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    newest = time.time_ns() // 1000
+    try:
+        while not stop.wait(VISIBLE_EVERY_S):
+            rows = connection.execute(
+                "SELECT robot_id, epoch, seq, received_at FROM events WHERE received_at >= ?",
+                (newest - VISIBLE_BACK_US,),
+            ).fetchall()
+            now = time.time()
+            for robot_id, epoch, seq, received_at in rows:
+                visibility.seen.setdefault(f"event-{robot_id}-{epoch}-{seq}", now)
+                newest = max(newest, received_at)
+    finally:
+        connection.close()
+
+
 @dataclass
 class Watched:
     dashboards: list[Dashboard]
@@ -172,13 +211,19 @@ class Watched:
     console_cpu: float
     """The console process's CPU time over the live part, in % of one core."""
     resident: list[float]
+    visibility: Visibility
 
 
-async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[str], None]) -> Watched:
+async def watch(
+    base: str, pid: int, store: Path, args: argparse.Namespace, show: Callable[[str], None]
+) -> Watched:
     """The dashboards open for ``args.seconds``, then the reconnections (the dashboards still open)."""
     client = await logged_in(base, args.dashboards + args.maps + 2)
     dashboards = [Dashboard() for _ in range(args.dashboards)]
     maps = [Dashboard() for _ in range(args.maps)]
+    visibility, stop_looking = Visibility(), threading.Event()
+    looking = threading.Thread(target=look_in_store, args=(store, visibility, stop_looking), daemon=True)
+    looking.start()
     followers = [asyncio.create_task(follow(client, dashboard)) for dashboard in dashboards]
     followers += [asyncio.create_task(follow(client, page, MAP_STREAM)) for page in maps]
     try:
@@ -194,11 +239,12 @@ async def watch(base: str, pid: int, args: argparse.Namespace, show: Callable[[s
         await asyncio.sleep(3)  # the rows of the last events measured are on their way
         resident = await reconnections(client, pid, args.reconnects, show)
     finally:
+        stop_looking.set()
         for follower in followers:
             follower.cancel()
         await asyncio.gather(*followers, return_exceptions=True)
         await client.aclose()
-    return Watched(dashboards, maps, start, end, console_cpu, resident)
+    return Watched(dashboards, maps, start, end, console_cpu, resident, visibility)
 
 
 async def received_between(repos: Repositories, start: float, end: float) -> list[EventRecord]:
@@ -229,7 +275,7 @@ def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
             TelemetryLoad(bus, urls, 2 * args.robots, pose=True, nice=args.nice) as load,
         ):
             context.show(f"{args.robots} robots publishing")
-            watched = asyncio.run(watch(base, api.pid, args, context.show))
+            watched = asyncio.run(watch(base, api.pid, bus.settings.sqlite_path, args, context.show))
         measured = bus.with_store(lambda repos: received_between(repos, watched.start, watched.end))
         figures = live_figures(load.rate, measured, watched)
         console.print(part_table("live and reconnects", figures))  # before the team is taken down
@@ -238,14 +284,22 @@ def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
 
 def live_figures(rate: float, measured: list[EventRecord], watched: Watched) -> Figures:
     latencies: list[float] = []
+    to_store: list[float] = []
+    store_to_page: list[float] = []
     missing = 0
     for record in measured:
+        row = row_id(record)
+        visible = watched.visibility.seen.get(row)
+        if visible is not None:
+            to_store.append((visible - record.received_at.timestamp()) * 1000)
         for dashboard in watched.dashboards:
-            arrived = dashboard.arrivals.get(row_id(record))
+            arrived = dashboard.arrivals.get(row)
             if arrived is None:
                 missing += 1
             else:
                 latencies.append((arrived - record.received_at.timestamp()) * 1000)
+                if visible is not None:
+                    store_to_page.append((arrived - visible) * 1000)
     resident = watched.resident
     return {
         "robots' events/s": rate,
@@ -254,6 +308,10 @@ def live_figures(rate: float, measured: list[EventRecord], watched: Watched) -> 
         "event to dashboard p95 ms": percentile(latencies, 95),
         "event to dashboard p99 ms": percentile(latencies, 99),
         "event to dashboard max ms": max(latencies),
+        "of which worker to store median ms": statistics.median(to_store),
+        "of which worker to store p95 ms": percentile(to_store, 95),
+        "of which store to dashboard median ms": statistics.median(store_to_page),
+        "of which store to dashboard p95 ms": percentile(store_to_page, 95),
         "rows never shown": missing,
         "dashboard streams cut": sum(d.cuts for d in watched.dashboards),
         "maps open": len(watched.maps),
