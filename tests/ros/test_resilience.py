@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pika
 
@@ -106,11 +107,16 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
         bridge.options = dataclasses.replace(options, python="/nonexistent/python3")
         assert bridge._process is not None
         os.kill(bridge._process.pid, signal.SIGKILL)
+
+        def side_in_file() -> dict[str, Any]:  # what `fleetbus ros status` reads
+            return json.loads(bridge.status_file.read_text())["parts"]["ros-side"]
+
+        # the bridge writes its status file just after its counters change: wait for the file itself
         wait_for(
-            lambda: (p := bridge.counters.parts.snapshot()["ros-side"])["state"] == "restarting"
+            lambda: (p := side_in_file())["state"] == "restarting"
             and "/nonexistent/python3" in p.get("last_failure", ""),
             30,
-            "the failed restart noted",
+            "the failed restart noted in the status file",
         )
         status = fleetbus(bus, "ros", "status", "rosres1")
         assert status.returncode == 1, status.stdout + status.stderr

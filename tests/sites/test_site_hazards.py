@@ -93,6 +93,8 @@ def test_states_made_at_the_site_while_central_is_away_reach_central(pair: SiteP
         )
         assert shown.version == cleared.version
         wait_for(lambda: pair.central.count("hazard", "explorer1") == 1, what="the hazard event at central")
+        # stored before the lane's services run; recorded as forwarded after its hazard gate had it
+        wait_for(lambda: len(pair.forwards("explorer1")) == 1, what="the hazard event recorded as forwarded")
         assert len(central_hazards(pair, "explorer1")) == 1, "the event registers no second hazard"
         wait_for(lambda: pair.site.ready_messages(HAZARD_UPLINK_QUEUE) == 0, what="the queue drained")
 
