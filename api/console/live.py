@@ -3,10 +3,12 @@
 A page names the :class:`LiveView` that renders its live parts. On connecting, the page is sent
 the view's snapshot and, when it says (``Last-Event-ID``) what it saw last, the events it missed,
 read from the store (or, past :data:`MISSED_LIMIT`, told to reload); then each batch of the
-:class:`~.feed.Feed`. An SSE event carries a JSON list of fragments. Each fragment is one element
-with an ``id``, parsed on its own (a table row mixed with other elements in one piece of HTML
-would be dropped by the browser's parser): ``static/live.js`` replaces the element with that id,
-or, for a fragment with ``data-into``, adds it to that list. So a fragment sent twice shows once.
+:class:`~.feed.Feed`: its events' fragments, then the state's that changed, each in an SSE event
+of its own (the rows wait for no render of the state). An SSE event carries a JSON list of
+fragments. Each fragment is one element with an ``id``, parsed on its own (a table row mixed with
+other elements in one piece of HTML would be dropped by the browser's parser): ``static/live.js``
+replaces the element with that id, or, for a fragment with ``data-into``, adds it to that list.
+So a fragment sent twice shows once.
 A fragment of the state (the snapshot's) that did not change since this page was last sent it is
 not sent again; an event's fragments are sent as they come (remembering each would grow with
 every event an open page is shown).
@@ -108,9 +110,14 @@ async def _fragments(
                     if not await _session_open(request):
                         yield ServerSentEvent(data="the session has ended", event=RELOAD_EVENT)
                         return
-                news = [*await events_of(view, batch), *changed(await _state(view, request))]
-                if news:
-                    yield encoded(batch, news)
+                # the batch's rows first, on their own: a page waits for none of the state's
+                # render (the team, the hazards: one page renders it, the others wait for it)
+                rows = await events_of(view, batch)
+                if rows:
+                    yield encoded(batch, rows)
+                state = changed(await _state(view, request))
+                if state:
+                    yield encoded(batch, state)
         finally:
             waker.cancel()
 

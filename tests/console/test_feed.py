@@ -214,3 +214,40 @@ async def test_a_batch_is_rendered_once_for_every_open_page_of_a_view(store: Rep
             for page in pages:
                 await page.aclose()
     assert view.rendered == [0], "three pages, one render"
+
+
+class SlowStateView(RowsView):
+    """A view whose state renders, after the first time, only once ``go`` is set: a render of the
+    team and the hazards that takes long on a busy console."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.snapshot = Shared(self._render, interval=0)
+        self.renders = 0
+        self.go = asyncio.Event()
+
+    async def _render(self) -> list[str]:
+        self.renders += 1
+        if self.renders > 1:
+            await self.go.wait()
+        return [f'<section id="state">render {self.renders}</section>']
+
+
+async def test_a_batchs_rows_wait_for_no_render_of_the_state(store: Repositories) -> None:  # noqa: F811
+    view = SlowStateView()
+    opened = Request({"type": "http", "headers": [], "query_string": b""})
+    async with running(Feed(StoredEvents(store.events), poll_s=0.01)) as feed:
+        page = _fragments(view, feed, opened, anyio.Event())
+        try:
+            assert (await anext(page)).event == FRAGMENT_EVENT  # subscribed, the state sent
+            await store.events.write_events([received(0, datetime.now(timezone.utc))])
+            async with asyncio.timeout(DEADLINE_S):
+                rows = await anext(page)  # while the state's render is held
+            assert json.loads(sse_data(rows)) == ['<tr id="event-0"><td>0</td></tr>']
+            assert view.renders == 1 and not view.go.is_set()
+            view.go.set()
+            async with asyncio.timeout(DEADLINE_S):
+                state = await anext(page)
+            assert json.loads(sse_data(state)) == ['<section id="state">render 2</section>']
+        finally:
+            await page.aclose()
