@@ -50,6 +50,7 @@ from fleetbus.workers.store.hazards import (
     NewHazard,
     RobotState,
 )
+from fleetbus.workers.store.team import Localisation
 from fleetbus.workers.team import gate, why_closed
 from fleetbus.workers.validation import Accepted
 
@@ -86,13 +87,15 @@ class HazardCoordinator:
         if not relevant:
             return 0
         hazards: list[NewHazard] = []
+        localisations: list[Localisation] = []
         stored_at = {item.record.key: item.stored_at for item in relevant}
         for item in relevant:
             event = item.event
             if event.type is EventType.LOCALISATION:
-                await self._hazards.set_localised(event.robot_id, event.body.localised, event.sent_at)
+                localisations.append(Localisation(event.robot_id, event.body.localised, event.sent_at))
             else:
                 hazards.append(NewHazard.of(item.record))
+        await self._hazards.set_localisations(localisations)
         # registering (the one place a hazard is registered, on every backend), reading the held
         # list and the gate: one store call on the hazard's way
         return await self._announce(await self._hazards.hold_hazards(hazards), stored_at)

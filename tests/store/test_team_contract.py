@@ -9,6 +9,7 @@ from datetime import datetime, timedelta, timezone
 
 from fleetbus.workers.store.hazards import CLAIM_WHILE_OPEN, HazardState
 from fleetbus.workers.store.repositories import Repositories
+from fleetbus.workers.store.team import Localisation
 from fleetbus.workers.team import NO_WARDEN, gate, read_team, why_closed
 from tests.store.test_contract import EPOCH, record
 
@@ -142,3 +143,31 @@ async def test_a_hazard_claimed_on_its_way_keeps_its_claim_when_marked_announced
         "warden1",
         T0,
     )
+
+
+async def test_a_batch_of_localisations_is_applied_in_order_and_an_older_report_changes_nothing(
+    store: Repositories,
+) -> None:
+    await store.hazards.register_robot("warden1", "warden")
+    await store.hazards.set_localisations(
+        [
+            Localisation("warden1", True, T0 + timedelta(seconds=2)),
+            Localisation("warden1", False, T0 + timedelta(seconds=1)),  # sent before, came after
+            Localisation("guide1", False, T0),  # not registered: recorded without a kind
+            Localisation("guide1", True, T0 + timedelta(seconds=3)),
+        ]
+    )
+    robots = {robot.name: robot for robot in await store.hazards.robots()}
+    assert (robots["warden1"].localised, robots["warden1"].updated_at, robots["warden1"].kind) == (
+        True,
+        T0 + timedelta(seconds=2),
+        "warden",
+    )
+    assert (robots["guide1"].localised, robots["guide1"].updated_at, robots["guide1"].kind) == (
+        True,
+        T0 + timedelta(seconds=3),
+        None,
+    )
+    await store.hazards.set_localisations([])  # nothing to write: no transaction
+    await store.hazards.set_localised("warden1", False, T0 + timedelta(seconds=4))
+    assert not {robot.name: robot for robot in await store.hazards.robots()}["warden1"].localised

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
@@ -27,14 +28,28 @@ class RobotState:
     """Put back in service since the hazard service last sent it the open hazards it missed."""
 
 
+@dataclass(frozen=True)
+class Localisation:
+    """What a robot reported of its localisation, and when."""
+
+    name: str
+    localised: bool
+    at: datetime
+
+
 class TeamStore(abc.ABC):
     @abc.abstractmethod
     async def register_robot(self, name: str, kind: str | None) -> None:
         """Record a robot and its kind (explorer, warden, guide); idempotent."""
 
-    @abc.abstractmethod
     async def set_localised(self, name: str, localised: bool, at: datetime) -> None:
         """Record a robot's localisation state (an unknown robot is recorded without a kind)."""
+        await self.set_localisations([Localisation(name, localised, at)])
+
+    @abc.abstractmethod
+    async def set_localisations(self, reports: Sequence[Localisation]) -> None:
+        """Record robots' localisation states, in order, in one write: a worker's batch of poses
+        costs one commit, not one each. A report older than the one kept changes nothing."""
 
     @abc.abstractmethod
     async def robots(self, kind: str | None = None) -> list[RobotState]: ...
@@ -91,14 +106,17 @@ class Robots(TeamStore):
     async def register_robot(self, name: str, kind: str | None) -> None:
         await self._robots.put(new_robot(name, kind), overwrite=["kind"])
 
-    async def set_localised(self, name: str, localised: bool, at: datetime) -> None:
-        robot = {**new_robot(name), "localised": localised, "updated_at": at}
+    async def set_localisations(self, reports: Sequence[Localisation]) -> None:
+        if not reports:
+            return
         reported = ["localised", "updated_at"]
 
         async def report() -> None:
-            # an older report than the one kept changes nothing
-            if not await self._robots.put(robot, overwrite=reported, where={"updated_at": None}):
-                await self._robots.put(robot, overwrite=reported, where={"updated_at": Range(le=at)})
+            for each in reports:
+                robot = {**new_robot(each.name), "localised": each.localised, "updated_at": each.at}
+                # an older report than the one kept changes nothing
+                if not await self._robots.put(robot, overwrite=reported, where={"updated_at": None}):
+                    await self._robots.put(robot, overwrite=reported, where={"updated_at": Range(le=each.at)})
 
         await self._database.transaction(report, urgent=True)
 
