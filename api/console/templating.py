@@ -23,7 +23,9 @@ def _when(moment: datetime | None) -> str:
     """A time as operators read it: UTC, to the second."""
     if moment is None:
         return ""
-    return moment.astimezone(timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
+    if moment.tzinfo is not timezone.utc:
+        moment = moment.astimezone(timezone.utc)
+    return moment.isoformat(" ", "seconds")[:19]  # half strftime's time: a live page formats thousands
 
 
 def _ago(moment: datetime | None) -> str:
