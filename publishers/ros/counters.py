@@ -56,6 +56,8 @@ class Counters:
     ended: str | None = None
     """Why the bridge itself ended, when it could not go on (its exit code is not 0 then)."""
     _lock: threading.Lock = field(default_factory=threading.Lock)
+    _write_lock: threading.Lock = field(default_factory=threading.Lock)
+    """Held from a write's snapshot to its rename: the file never goes back to an older state."""
 
     def drop(self, topic: str, reason: str, count: int = 1) -> None:
         with self._lock:
@@ -131,13 +133,13 @@ class Counters:
 
     def write(self, path: Path) -> None:
         """The snapshot as JSON, replaced atomically (``fleetbus ros status`` reads it). The
-        bridge's threads write it at once (the master's reader, the status ticker): each through a
-        temporary file of its own, or one thread's rename takes the other's file away and the
-        other dies on it."""
-        text = json.dumps(self.snapshot(), indent=1)
-        temporary = path.with_name(f"{path.stem}.{threading.get_ident()}.tmp")
-        temporary.write_text(text)
-        temporary.replace(path)
+        bridge's threads write it at once (the master's reader, the status ticker): one at a time,
+        snapshot to rename, or an older snapshot could land after a newer one and stay."""
+        with self._write_lock:
+            text = json.dumps(self.snapshot(), indent=1)
+            temporary = path.with_name(f"{path.stem}.tmp")
+            temporary.write_text(text)
+            temporary.replace(path)
 
 
 class RateLimit:

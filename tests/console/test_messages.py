@@ -14,6 +14,7 @@ from selenium.webdriver.support.select import Select
 from fleetbus.api.console.session import CSRF_COOKIE
 from fleetbus.broker.accounts import Account, Role
 from fleetbus.publishers.client import RobotClient
+from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EXPRESS_QUEUE, RECORDER_QUEUE, EventType, RobotKind
@@ -39,11 +40,20 @@ def recording(bus: Bus) -> Iterator[Console]:
         yield console
 
 
+def all_recorded(bus: Bus, sentinel: Event) -> None:
+    """Once ``sentinel`` (published after the test's messages were confirmed) is recorded, so is
+    every message before it: the recorder takes its one queue in order, a batch at a time, each
+    written whole before the next."""
+    wait_for(
+        lambda: bus.recorded(sentinel.type.value, message_id=str(sentinel.message_id)),
+        what="the sentinel recorded",
+    )
+
+
 def recorded(bus: Bus, type: str, count: int, **query: object) -> list[RecordedMessage]:
-    """The records of ``type`` once there are ``count`` of them (the recorder is a moment behind)."""
-    wait_for(lambda: len(bus.recorded(type, **query)) >= count, what=f"{count} {type} recorded")
+    """The records of ``type``: exactly ``count`` (after :func:`all_recorded`)."""
     found = bus.recorded(type, **query)
-    assert len(found) == count
+    assert len(found) == count, f"{len(found)} {type} recorded, not {count}"
     return found
 
 
@@ -64,6 +74,7 @@ def test_a_search_by_robot_type_and_condition_finds_exactly_the_matching_message
         explorer1.publish(BEHAVIOUR, outcome("place", False, 3.0))
         explorer2.publish(BEHAVIOUR, outcome("grab", False, 9.0))  # another robot's failed grab
         explorer1.publish(BEHAVIOUR, outcome("grab", False, 14.0))
+        all_recorded(bus, explorer2.publish("status", status(40)))  # not a behaviour: the sentinel
     every = recorded(bus, BEHAVIOUR, 5)
     expected = [
         r.key
@@ -99,6 +110,7 @@ def test_a_bad_condition_shows_the_parsers_error_in_the_form(
     console = recording
     with bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER)) as explorer1:
         explorer1.publish(BEHAVIOUR, outcome("grab", False, 12.0))
+        all_recorded(bus, explorer1.publish("status", status(40)))
     recorded(bus, BEHAVIOUR, 1)
     console.log_in(browser, "super1")
     browser.go(console.url("/console/messages"))
@@ -123,6 +135,7 @@ def test_a_messages_trace_shows_its_validated_user_and_queues(
     console = recording
     with bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER)) as explorer1:
         detected = explorer1.publish("hazard", hazard(0, description="Smoke in corridor B"))
+        all_recorded(bus, explorer1.publish("status", status(40)))
     recorded(bus, "hazard", 1)
     wait_for(lambda: bus.count("hazard") == 1, what="the hazard stored")
 
@@ -159,6 +172,8 @@ def test_a_robots_timeline_lists_its_messages_in_time_order(
         explorer1.publish("hazard", hazard(1))
         explorer2.publish(BEHAVIOUR, outcome("grab", False, 5.0))
         explorer1.publish("status", status(88))
+        # explorer2's: not on explorer1's timeline, and only its behaviour is counted
+        all_recorded(bus, explorer2.publish("status", status(40)))
     mine = [
         *recorded(bus, "status", 2, robot_id="explorer1"),
         *recorded(bus, BEHAVIOUR, 1, robot_id="explorer1"),

@@ -25,6 +25,7 @@ from fleetbus.workers.recorder.ros_blobs import piece_name
 from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.recordings import RecordedMessage
+from tests.factories import status
 from tests.link import NetworkLink
 from tests.ros.conftest import ROS_PYTHON, RosMaster, ros_peer, running_bridge
 from tests.ros.test_foxglove_export import foxglove_read
@@ -196,14 +197,23 @@ def test_pieces_whose_message_never_comes_are_swept_and_counted(bus: Bus) -> Non
         robot.publish_many([*whole, *cut[:2]], wait=True)  # the bridge killed after 2 of its 3 pieces
         wait_for(lambda: recorder.stats().pieces_swept >= 2, what="the two pieces swept")
         assert bus.recorded("ros", robot_id="sweepcam")[0].document["fields"]["data"][BLOB_KEY] == whole_sha
-    assert recorder.stats().pieces_swept == 2, "only the pieces no message named"
+        # the sentinel: a piece kept after that sweep is swept by a later one (the recorder's one
+        # loop sweeps in turn), once older than the TTL; a piece swept or counted again comes first
+        sentinel, sentinel_sha = ros_message("/camera/image_raw", 2, b"\x05" * (CHUNK_BYTES + 3))
+        robot.publish_many([*sentinel[:1], ("status", status(50))], wait=True)
+        # recorded in order: once the status is, the piece before it was kept
+        wait_for(lambda: bus.recorded("status", robot_id="sweepcam"), what="the sentinel piece kept")
+        piece = piece_name(sentinel_sha, 0)
+        wait_for(lambda: not blobs(bus, [piece])[piece], what="the sentinel piece swept")
+        wait_for(lambda: recorder.stats().pieces_swept >= 3, what="the sentinel piece counted")
+    assert recorder.stats().pieces_swept == 3, "only the pieces no message named, and the sentinel"
     assert not any(blobs(bus, [piece_name(cut_sha, i) for i in range(3)]).values())
     assert blobs(bus, [whole_sha])[whole_sha] == b"\x03" * (CHUNK_BYTES + 9)
     stats = fleetbus(bus, "stats", "--json")
     assert stats.returncode == 0, stats.stderr
     rows = [json.loads(line) for line in stats.stdout.splitlines()]
     swept = [(r["subject"], r["count"]) for r in rows if r.get("bound") == "ros-pieces"]
-    assert swept == [("sweepcam", 2)]
+    assert swept == [("sweepcam", 3)]
 
 
 def test_a_full_outbox_drops_the_large_messages_and_lets_the_small_ones_through(

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import threading
+from pathlib import Path
 
 import pytest
 
 from fleetbus.publishers.ros import parts
-from fleetbus.publishers.ros.counters import Counters
+from fleetbus.publishers.ros.counters import Counters, DropReason
 from tests.support import wait_for
 
 
@@ -49,3 +51,27 @@ def test_a_thread_that_ends_by_itself_counts_as_failed() -> None:
     assert counters.parts.snapshot()["commands"]["last_failure"] == "it ended by itself"
     stop.set()
     thread.join(5)
+
+
+def test_the_status_file_never_goes_back_to_an_older_state(tmp_path: Path) -> None:
+    """The master's reader and the status ticker write the status file at once: a write that
+    returned is never replaced by an older snapshot, and the file ends with the final counts."""
+    counters, path = Counters(), tmp_path / "status.json"
+    went_back: list[str] = []
+
+    def writer(topic: str) -> None:
+        for written in range(1, 301):
+            counters.drop(topic, DropReason.RATE)  # only this thread counts this topic
+            counters.write(path)
+            shown = json.loads(path.read_text())["topics"].get(topic, {}).get("dropped", {}).get("rate", 0)
+            if shown < written:
+                went_back.append(f"{topic}: wrote {written}, the file then showed {shown}")
+
+    threads = [threading.Thread(target=writer, args=(topic,)) for topic in ("/a", "/b")]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert went_back == []
+    final = json.loads(path.read_text())
+    assert {t: v["dropped"] for t, v in final["topics"].items()} == {"/a": {"rate": 300}, "/b": {"rate": 300}}

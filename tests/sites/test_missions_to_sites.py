@@ -10,7 +10,6 @@ from urllib.parse import urlsplit
 from fleetbus.api.services.missions_to_sites import MissionsToSites
 from fleetbus.publishers.backoff import Backoff
 from fleetbus.schemas.missions import MissionState
-from fleetbus.schemas.routing import DOWNLINK_QUEUE
 from fleetbus.workers.downlink import apply_downlink
 from fleetbus.workers.sites import mission_change, send_to_sites
 from fleetbus.workers.store.missions import Mission
@@ -78,10 +77,20 @@ def test_a_mission_changed_while_centrals_broker_is_away_reaches_the_site_when_i
         assert asyncio.run(scenario()) == 0
     finally:
         link.stop()
-    # the sentinel: whatever the sender sent is ahead of it in the site's downlink
-    send_to_sites(central.admin_url, [pair.name], [mission_change(closed)])
-    wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) >= 2, what="the mission and the sentinel")
-    assert pair.site.ready_messages(DOWNLINK_QUEUE) == 2, "the waiting version sent once, the older never"
-    assert apply_downlink(pair.site.settings, pair.site.admin_url, pair.site.api, idle_s=1.0) == 2
+    # the sentinel, a mission of its own: whatever the sender sent is ahead of it on the same way
+    # (central's site exchange, the shovel, the site's downlink, applied in order)
+    sentinel = pair.central_store(
+        lambda repos: repos.missions.create_mission("survey", "sentinel", "client1", {}, now)
+    )
+    send_to_sites(central.admin_url, [pair.name], [mission_change(sentinel)])
+    applied = 0
+
+    def sentinel_applied() -> bool:
+        nonlocal applied
+        applied += apply_downlink(pair.site.settings, pair.site.admin_url, pair.site.api, idle_s=1.0)
+        return pair.site.with_store(lambda repos: repos.missions.get_mission(sentinel.mission_id)) is not None
+
+    wait_for(sentinel_applied, what="the sentinel applied at the site")
+    assert applied == 2, "the waiting version sent once, the older never, then the sentinel"
     at_site = pair.site.with_store(lambda repos: repos.missions.get_mission(created.mission_id))
     assert at_site == closed
