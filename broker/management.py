@@ -217,10 +217,21 @@ class ManagementAPI:
         """Create or replace the dynamic shovel ``name``, started with ``definition``. One that
         exists is deleted first: RabbitMQ 3.10 replacing a running shovel's definition in place
         can keep the old one running, its new definition stored but not started, for as long as
-        the old one's connections stay open."""
-        if self.get_shovel(vhost, name) is not None:
+        the old one's connections stay open.
+
+        A running shovel that already has ``definition`` is left as it is: RabbitMQ restarts a
+        shovel whose definition is put again, even unchanged, and a restart puts back what it had
+        taken and not yet acked (sent again; at a full queue that drops its oldest, dropped and
+        counted although its copy got through)."""
+        current = self.get_shovel(vhost, name)
+        if current == definition and self._shovel_running(vhost, name):
+            return
+        if current is not None:
             self.delete_shovel(vhost, name)
         self._request("PUT", f"parameters/shovel/{_q(vhost)}/{_q(name)}", json={"value": definition})
+
+    def _shovel_running(self, vhost: str, name: str) -> bool:
+        return any(s.get("name") == name and s.get("state") == "running" for s in self.shovel_status(vhost))
 
     def get_shovel(self, vhost: str, name: str) -> dict[str, Any] | None:
         response = self._send("GET", f"parameters/shovel/{_q(vhost)}/{_q(name)}")

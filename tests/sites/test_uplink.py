@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import time
 from collections import Counter
+from dataclasses import dataclass
 
 from fleetbus.broker.uplink import CLASSES, TELEMETRY
 from fleetbus.schemas.envelope import Event
@@ -37,6 +38,26 @@ def test_link_up_events_reach_central_once_with_their_site_and_user(pair: SitePa
     forwards = pair.forwards("explorer1")
     assert {f.site for f in forwards} == {"base1"} and not any(f.late for f in forwards)
     assert pair.uplink_waiting() == 0
+
+
+def test_site_up_again_leaves_the_running_links_as_they_are(pair: SitePair) -> None:
+    """`fleetbus site up` again (a new bound, say) with the same central: RabbitMQ would restart a
+    shovel put again, putting back what it had in flight; the running ones are left running."""
+    site = pair.site
+
+    def links_running() -> dict[str, str]:
+        """Each link's start (to the second), once every one runs."""
+        shovels = site.api.shovel_status(site.vhost)
+        if not shovels or any(s["state"] != "running" for s in shovels):
+            return {}
+        return {s["name"]: s["timestamp"] for s in shovels}
+
+    running = wait_for(links_running, what="every link running")
+    second = time.strftime("%H:%M:%S", time.gmtime())
+    wait_for(lambda: time.strftime("%H:%M:%S", time.gmtime()) != second, what="the next second")
+    site.settings = site.settings.updated(uplink_hazards_max=7)
+    asyncio.run(pair.start_links())
+    assert links_running() == running, "not one restarted"
 
 
 def test_the_uplink_classes_drop_telemetry_refuse_hazards_and_the_refused_robot_backs_off(
@@ -79,11 +100,24 @@ def test_the_uplink_classes_drop_telemetry_refuse_hazards_and_the_refused_robot_
         statuses = len(telemetry) + len(later)
         # a full telemetry class keeps dropping its oldest while the link catches up
         wait_for(
-            lambda: pair.central.count("status") + dropped(pair) == statuses,
+            lambda: Accounted(statuses, pair.central.count("status"), dropped(pair)),
             timeout=90,
             what="every status at central or counted as dropped at the site",
         )
         assert set(pair.central_keys("explorer1").values()) == {1}, "nothing twice at central"
+
+
+@dataclass(frozen=True)
+class Accounted:
+    """The statuses published, those at central and those the site counted as dropped: true when
+    each is one or the other (what a timed-out wait shows, when not)."""
+
+    published: int
+    at_central: int
+    dropped: int
+
+    def __bool__(self) -> bool:
+        return self.at_central + self.dropped == self.published
 
 
 def dropped(pair: SitePair) -> int:
