@@ -62,6 +62,8 @@ log = logging.getLogger("fleetbus.robot")
 
 #: How many notification ids a client remembers to skip repeats of the same announcement.
 SEEN_NOTIFICATIONS = 10_000
+#: The service's setting of when a notification is late, read by the robot too.
+LATE_AFTER_VARIABLE = "FLEETBUS_LATE_AFTER_S"
 #: How often a listener given a ``stop`` event looks at it while its inbox is quiet.
 STOP_CHECK_S = 0.5
 
@@ -75,8 +77,9 @@ def outbox_folder(state_dir: Path, robot_id: str) -> Path:
     return robot_folder(state_dir, robot_id) / "outbox"
 
 
-def missed_hazard(hazard: dict[str, Any], now: datetime) -> Notification:
-    """A hazard from ``hazard.open`` as the notification its warden missed."""
+def missed_hazard(hazard: dict[str, Any], now: datetime, late_after_s: float = LATE_AFTER_S) -> Notification:
+    """A hazard from ``hazard.open`` as the notification its warden missed; ``late`` as the service
+    flags an announcement (``FLEETBUS_LATE_AFTER_S``, the robot's own setting of the same name)."""
     event = EVENT_ADAPTER.validate_python(hazard["event"])
     return Notification(
         topic=Topic.HAZARD,
@@ -86,7 +89,7 @@ def missed_hazard(hazard: dict[str, Any], now: datetime) -> Notification:
         hazard_id=hazard["hazard_id"],
         hazard_state=hazard["state"],
         claimed_by=hazard.get("claimed_by"),
-        late=(now - event.sent_at).total_seconds() > LATE_AFTER_S,
+        late=(now - event.sent_at).total_seconds() > late_after_s,
     )
 
 
@@ -137,12 +140,18 @@ class RobotClient:
         max_reconnect_delay: float = 5.0,
         outbox_policies: Mapping[str, TypePolicy] | None = None,
         durable: bool = True,
+        late_after_s: float | None = None,
     ) -> None:
+        """``late_after_s``: when a hazard the client hands out from its rebuilt list counts as
+        late, as the service's ``FLEETBUS_LATE_AFTER_S`` (default: that variable, else 5 s)."""
         self.robot_id = validate_name(unquote(urlsplit(amqp_url).username or ""))
         self.epoch = new_epoch()
         """This client's epoch: its events are numbered 0, 1, 2, ... in it
         (:mod:`fleetbus.publishers.sequence`)."""
         self._sequence = SequenceCounter()
+        if late_after_s is None:
+            late_after_s = float(os.environ.get(LATE_AFTER_VARIABLE, LATE_AFTER_S))
+        self._late_after_s = late_after_s
         # every address of a cluster's URL, tried in turn at each (re)connection
         self._parameters = pika_parameter_list(
             amqp_url, heartbeat=30, connection_attempts=1, socket_timeout=5
@@ -427,7 +436,7 @@ class RobotClient:
         for hazard in hazards:
             if hazard["state"] == "held":  # not announced yet: it comes through the inbox
                 continue
-            note = missed_hazard(hazard, now)
+            note = missed_hazard(hazard, now, self._late_after_s)
             if not self._seen_before(note):
                 yield note
         self._resynced_on = connection  # only once all were handed out: a caller may stop early

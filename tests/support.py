@@ -165,6 +165,7 @@ class Bus:
     def robot(self, account: Account, via: NetworkLink | None = None, **kwargs: Any) -> RobotClient:
         """A connected robot client (through ``via`` if given), its personal database in the test folder."""
         url = via.url(account.amqp_url) if via else account.amqp_url
+        kwargs.setdefault("late_after_s", self.settings.late_after_s)  # as the test's service flags them
         client = RobotClient(url, state_dir=self.settings.robots_dir, **kwargs)
         self.clients.append(client)
         client.connect()
