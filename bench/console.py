@@ -94,7 +94,11 @@ def robot_name(i: int) -> str:
 
 def row_id(record: EventRecord) -> str:
     """The id of the event's row on the dashboard (``dashboard/event.html``)."""
-    return f"event-{record.robot_id}-{record.epoch}-{record.seq}"
+    return row_id_of(record.robot_id, record.epoch, record.seq)
+
+
+def row_id_of(robot_id: str, epoch: str, seq: int) -> str:
+    return f"event-{robot_id}-{epoch}-{seq}"
 
 
 async def logged_in(base: str, connections: int) -> httpx.AsyncClient:
@@ -195,7 +199,7 @@ def look_in_store(path: Path, visibility: Visibility, stop: threading.Event) -> 
             ).fetchall()
             now = time.time()
             for robot_id, epoch, seq, received_at in rows:
-                visibility.seen.setdefault(f"event-{robot_id}-{epoch}-{seq}", now)
+                visibility.seen.setdefault(row_id_of(robot_id, epoch, seq), now)
                 newest = max(newest, received_at)
     finally:
         connection.close()

@@ -68,6 +68,21 @@ LATE_AFTER_VARIABLE = "FLEETBUS_LATE_AFTER_S"
 STOP_CHECK_S = 0.5
 
 
+def late_after_from_environment() -> float:
+    """:data:`LATE_AFTER_VARIABLE` as the robot's environment sets it, else the default; raises
+    ValueError naming the variable when it is not a number of seconds, 0 or more."""
+    text = os.environ.get(LATE_AFTER_VARIABLE)
+    if text is None:
+        return LATE_AFTER_S
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = -1.0
+    if not seconds >= 0:  # also NaN
+        raise ValueError(f"{LATE_AFTER_VARIABLE}: {text!r} is not a number of seconds, 0 or more")
+    return seconds
+
+
 def robot_folder(state_dir: Path, robot_id: str) -> Path:
     """The robot's personal database: sequence counter, outbox, lock."""
     return state_dir / robot_id
@@ -149,9 +164,7 @@ class RobotClient:
         """This client's epoch: its events are numbered 0, 1, 2, ... in it
         (:mod:`fleetbus.publishers.sequence`)."""
         self._sequence = SequenceCounter()
-        if late_after_s is None:
-            late_after_s = float(os.environ.get(LATE_AFTER_VARIABLE, LATE_AFTER_S))
-        self._late_after_s = late_after_s
+        self._late_after_s = late_after_from_environment() if late_after_s is None else late_after_s
         # every address of a cluster's URL, tried in turn at each (re)connection
         self._parameters = pika_parameter_list(
             amqp_url, heartbeat=30, connection_attempts=1, socket_timeout=5
