@@ -796,23 +796,25 @@ def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> Non
             resolve_broker(node_settings.updated(amqp_url=None), start=False)
 
 
+@pytest.mark.parametrize("taken", ["management", "dist"])
 def test_a_new_node_whose_port_another_process_takes_before_it_listens_starts_on_new_ports(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+    taken: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     """The race a loaded machine runs: a port checked free is bound by another process before the
-    node listens on it. A new node then starts on new ports instead of failing."""
+    node listens on it. A new node then starts on new ports instead of failing. RabbitMQ reports a
+    taken distribution port (Erlang's own) in other words than a taken listener's."""
     fresh = LocalNode(tmp_path / "broker")
     ports = fresh.ports(create=True)
     assert ports is not None
     monkeypatch.setattr(LocalNode, "_check_ports", lambda self, ports: None)  # the check ran before the take
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taker:
-        taker.bind(("127.0.0.1", ports["management"]))
+        taker.bind(("127.0.0.1", ports[taken]))
         taker.listen()
         try:
             with caplog.at_level(logging.WARNING, logger="fleetbus_dev.local_node"):
                 info = fresh.up(timeout=180)
             assert "was taken before it could listen" in caplog.text, "the first start met the taken port"
-            assert info.ports["management"] != ports["management"]
+            assert info.ports[taken] != ports[taken]
             assert info.ports["epmd"] == ports["epmd"], "a cluster's nodes share epmd's port"
             assert json.loads(fresh.node_file.read_text())["ports"] == info.ports
             assert amqp_login(info.amqp_url or "", timeout=10)

@@ -63,6 +63,9 @@ TLS_PORT_NAMES = ("amqps", "management_tls")
 #: How many times a new node starts on new ports when another process took one of its ports
 #: between their choice and the node's listen.
 PORT_RACE_ATTEMPTS = 3
+#: What a start that lost a port writes to its console log: a listener's bind error, or prelaunch's
+#: refusal of a taken distribution port.
+PORT_IN_USE_MARKS = ("eaddrinuse", "dist_port_already_used")
 #: The shovel plugins carry a site's events to central and central's changes back (docs/guides/sites.md);
 #: rabbitmq_auth_mechanism_ssl lets robots log in with a client certificate (EXTERNAL).
 PLUGINS = (
@@ -773,12 +776,13 @@ log.console = false
             self._write_config()
 
     def _lost_a_port(self) -> bool:
-        """Whether the last start ended because a listener's port was in use (its console log is
-        written afresh by every start)."""
+        """Whether the last start ended because a listener's port, or the distribution port, was in
+        use (its console log is written afresh by every start)."""
         try:
-            return "eaddrinuse" in self.console_log.read_text(errors="replace")
+            log_text = self.console_log.read_text(errors="replace")
         except OSError:
             return False
+        return any(mark in log_text for mark in PORT_IN_USE_MARKS)
 
     def _choose_new_ports(self) -> None:
         """New ports for every listener; epmd's is kept (a cluster's nodes share it)."""
