@@ -19,6 +19,7 @@ import queue
 import subprocess
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -52,6 +53,10 @@ log = logging.getLogger("fleetbus.ros")
 ROS_SIDE = Path(__file__).with_name("ros_side.py")
 #: Messages taken from the queue into one outbox write at most.
 BATCH = 256
+#: How often a linger looks whether the bridge is stopping.
+STOP_CHECK_S = 0.2
+#: How long a stopping bridge reads its ROS side's last lines at most, once that side has ended.
+END_READ_S = 5.0
 #: The ROS topics notifications are published on start with this.
 NOTIFY_PREFIX = "/fleetbus"
 STATUS_FILE = "ros-bridge.json"
@@ -133,7 +138,9 @@ class BridgeOptions:
     """The ROS side's environment (default: this process's, with its ``ROS_MASTER_URI``)."""
     extra_args: tuple[str, ...] = field(default=())
 
-    def ros_side_command(self) -> list[str]:
+    def ros_side_command(self, urgent: Sequence[str] = ()) -> list[str]:
+        """``urgent``: the topics (patterns) of the mapping's rules, whose messages the ROS side
+        sends at once; it gathers the others' for a linger, into one write to the pipe."""
         command = [self.python, str(ROS_SIDE), "--discover-every", str(self.discover_every_s)]
         command += ["--retry-most", str(self.retry_most_s), "--parent", str(os.getpid())]
         command += [
@@ -145,7 +152,11 @@ class BridgeOptions:
             str(self.queue_bytes),
             "--own-prefix",
             NOTIFY_PREFIX,
+            "--linger",
+            str(self.linger_s),
         ]
+        for pattern in urgent:
+            command += ["--urgent", pattern]
         for pattern in self.include:
             command += ["--include", pattern]
         for pattern in self.exclude:
@@ -194,7 +205,7 @@ class Bridge:
         self._side_failure = None
         try:
             process = subprocess.Popen(
-                self.options.ros_side_command(),
+                self.options.ros_side_command([rule.topic for rule in self.mapping.rules]),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=self.ros_log.open("ab"),
@@ -432,12 +443,25 @@ class Bridge:
         finally:
             self._stop.set()
             self._end_ros_side()
+            if code == 0:
+                self._forward_the_rest()
             for thread in threads:
                 thread.join(10)
             self.counters.parts.stopped(ROS_SIDE_PART)
             self.counters.parts.stopped(WRITER_PART)
             self.report()
         return code
+
+    def _forward_the_rest(self) -> None:
+        """At a stop, what the ROS side sent before it ended (it sends what it received once its
+        input closes) goes to the outbox, not lost with the bridge's memory."""
+        self._ended.wait(END_READ_S)
+        while batch := self._take(draining=True):
+            try:
+                self._write(batch)
+            except Exception:  # counted as write-failed by _write
+                log.exception("the ROS bridge could not forward its last messages")
+                return
 
     def _restart_ros_side(self) -> None:
         """The ROS side ended by itself (killed, or one of its threads failed): start it again
@@ -473,20 +497,27 @@ class Bridge:
                 parts.started(WRITER_PART)
             return
 
-    def _take(self) -> list[dict[str, Any]]:
-        """The next batch: what comes within ``linger_s`` of its first message (up to BATCH), so that
-        a steady topic costs one outbox write a linger, not one a message; a message of a mapped
-        topic (a hazard, a pose) ends the batch at once."""
+    def _take(self, draining: bool = False) -> list[dict[str, Any]]:
+        """The next batch: what the ROS side received within ``linger_s`` of its first message (up
+        to BATCH), so that a steady topic costs one outbox write a linger, not one a message; a
+        message of a mapped topic (a hazard, a pose) ends the batch at once. ``draining``: what is
+        held now, without waiting."""
         try:
-            batch = [self._queue.get(timeout=0.2)]
+            batch = [self._queue.get(timeout=0.0 if draining else STOP_CHECK_S)]
         except queue.Empty:
             return []
-        deadline = time.monotonic() + self.options.linger_s
+        # the ROS side held the first message for part of the linger already
+        waited = max(0.0, time.time() - batch[0]["received_ns"] / 1e9)
+        deadline = time.monotonic() + (0.0 if draining else max(0.0, self.options.linger_s - waited))
         while len(batch) < BATCH and not self._urgent(batch[-1]):
-            try:
-                batch.append(self._queue.get(timeout=max(0.0, deadline - time.monotonic())))
-            except queue.Empty:
+            left = deadline - time.monotonic()
+            if left > 0 and self._stop.is_set():
                 break
+            try:
+                batch.append(self._queue.get(timeout=min(max(0.0, left), STOP_CHECK_S)))
+            except queue.Empty:
+                if left <= STOP_CHECK_S:
+                    break
         return batch
 
     def _urgent(self, item: dict[str, Any]) -> bool:

@@ -21,8 +21,13 @@ stdout, one object a line (``kind`` says which):
 stdin, one object a line:
   ``publish``     ``topic``, ``type``, ``fields``: publish this message (latched) on the ROS side
 
-The process ends when its standard input closes (the bridge ended), or with the bridge itself
-(the kernel signals it when its parent dies), and its end closes its stdout. It waits for a
+Message lines go out together: those received within ``--linger`` seconds of the first in one
+write (the bridge's reader then wakes once for them, not once a message); a message of an
+``--urgent`` topic (one a mapping rule names) sends what is held at once.
+
+The process ends when its standard input closes (the bridge ended), having sent what it received,
+or with the bridge itself (the kernel signals it when its parent dies), and its end closes its
+stdout. It waits for a
 master that is not there yet, and when the master comes back after a restart it registers its
 subscriptions and publications with the new one (ROS 1 nodes do not do that by themselves).
 """
@@ -54,6 +59,10 @@ import rospy
 import rospy.impl.registration
 from held import HeldQueue  # beside this file: the script's folder is first on its path
 
+#: The most lines the reader holds for one write to the pipe.
+HELD_LINES = 256
+#: How often the reader looks whether the bridge closed its input, while it waits.
+CHECK_S = 0.5
 #: Array types kept as bytes (``{"_base64": ..., "length": n}``), as fleetbus keeps imported bags.
 BYTE_ARRAYS = ("uint8[", "int8[", "char[", "byte[")
 BYTES_KEY, TRUNCATED_KEY = "_base64", "_truncated"  # as fleetbus.schemas.ros names them
@@ -102,10 +111,13 @@ class Output:
         self._lock = threading.Lock()
 
     def write(self, item: dict[str, Any]) -> None:
-        line = json.dumps(item, separators=(",", ":")) + "\n"
+        self.write_lines([json.dumps(item, separators=(",", ":")) + "\n"])
+
+    def write_lines(self, lines: list[str]) -> None:
+        """``lines`` in one write to the pipe (the bridge's reader wakes once for them all)."""
         with self._lock:
             try:
-                sys.stdout.write(line)
+                sys.stdout.write("".join(lines))
                 sys.stdout.flush()
             except (BrokenPipeError, ValueError):
                 rospy.signal_shutdown("the bridge closed the pipe")
@@ -123,6 +135,10 @@ class Recorder:
         self.dropped_lock = threading.Lock()
         self.classes: dict[tuple[str, str], type] = {}
         self.defined: set[tuple[str, str]] = set()
+        self.closing = threading.Event()
+        """Set when the bridge closed our input: what was received is sent, then the reader ends."""
+        self.converting = threading.Event()
+        self.flushed = threading.Event()
 
     def wanted(self, topic: str) -> bool:
         if topic.startswith(self.args.own_prefix + "/") or topic == self.args.own_prefix:
@@ -158,32 +174,68 @@ class Recorder:
             self.classes[key] = cls
         return cls
 
+    def urgent(self, topic: str) -> bool:
+        return any(fnmatch.fnmatchcase(topic, p) for p in self.args.urgent)
+
     def convert_forever(self) -> None:
+        """Read each message into a line; the lines of a linger go to the pipe in one write, and
+        a topic a mapping rule names (``--urgent``) ends the linger at once. Once ``closing``,
+        what is held and queued is sent, and the reader ends."""
+        self.converting.set()
+        held: list[str] = []
+        due = 0.0
         while not rospy.is_shutdown():
+            closing = self.closing.is_set()
+            if held and (closing or time.monotonic() >= due):
+                self.out.write_lines(held)
+                held = []
+            wait = min(CHECK_S, max(0.0, due - time.monotonic())) if held else CHECK_S
             try:
-                topic, raw, received = self.queue.get(timeout=0.5)
+                topic, raw, received = self.queue.get(timeout=0.0 if closing else wait)
             except queue.Empty:
+                if closing:
+                    break
                 continue
-            try:
-                type_name = raw._connection_header["type"]
-                msg = self.message_class(raw)().deserialize(raw._buff)
-                fields = to_document(msg, self.args.bytes_max)
-            except Exception as error:  # a message that cannot be read is reported, not fatal
-                self.out.write({"kind": "error", "topic": topic, "detail": repr(error)})
-                continue
-            item = {
-                "kind": "message",
-                "topic": topic,
-                "type": type_name,
-                "md5sum": raw._connection_header.get("md5sum"),
-                "stamp_ns": header_stamp(msg),
-                "received_ns": received,
-                "fields": fields,
-            }
-            if (topic, item["md5sum"]) not in self.defined:  # the first of its kind says its definition
-                self.defined.add((topic, item["md5sum"]))
-                item["definition"] = raw._connection_header.get("message_definition")
-            self.out.write(item)
+            if not held:
+                due = time.monotonic() + self.args.linger
+            line = self.convert(topic, raw, received)
+            if line is not None:
+                held.append(line)
+                if self.urgent(topic) or len(held) >= HELD_LINES:
+                    self.out.write_lines(held)
+                    held = []
+        if held:
+            self.out.write_lines(held)
+        self.flushed.set()
+
+    def close(self, timeout: float) -> None:
+        """Have the reader send what was received (when it runs), waiting ``timeout`` at most."""
+        self.closing.set()
+        if self.converting.is_set():
+            self.flushed.wait(timeout)
+
+    def convert(self, topic: str, raw: Any, received: int) -> str | None:
+        """The message's line; None when it cannot be read (reported as an error line)."""
+        try:
+            type_name = raw._connection_header["type"]
+            msg = self.message_class(raw)().deserialize(raw._buff)
+            fields = to_document(msg, self.args.bytes_max)
+        except Exception as error:  # a message that cannot be read is reported, not fatal
+            self.out.write({"kind": "error", "topic": topic, "detail": repr(error)})
+            return None
+        item = {
+            "kind": "message",
+            "topic": topic,
+            "type": type_name,
+            "md5sum": raw._connection_header.get("md5sum"),
+            "stamp_ns": header_stamp(msg),
+            "received_ns": received,
+            "fields": fields,
+        }
+        if (topic, item["md5sum"]) not in self.defined:  # the first of its kind says its definition
+            self.defined.add((topic, item["md5sum"]))
+            item["definition"] = raw._connection_header.get("message_definition")
+        return json.dumps(item, separators=(",", ":")) + "\n"
 
     def report_drops(self) -> None:
         with self.dropped_lock:
@@ -230,6 +282,8 @@ class Publishers:
 
 
 FAILED_STATUS = 70  # EX_SOFTWARE
+#: How long the ROS side takes at most, once its input is closed, to send what it received.
+CLOSE_TIMEOUT_S = 5.0
 
 
 def guarded(out: Output, part: str, target: Any, *args: Any) -> threading.Thread:
@@ -367,6 +421,8 @@ def main() -> None:
     parser.add_argument("--queue", type=int, default=10_000)
     parser.add_argument("--queue-bytes", type=int, default=64 * 1024 * 1024)
     parser.add_argument("--own-prefix", default="/fleetbus")
+    parser.add_argument("--linger", type=float, default=0.0, help="seconds a line may wait for others")
+    parser.add_argument("--urgent", action="append", default=[], help="a topic pattern sent at once")
     parser.add_argument("--parent", type=int, help="the bridge's pid: this process ends with it")
     args = parser.parse_args()
 
@@ -387,6 +443,7 @@ def main() -> None:
                 {"kind": "error", "topic": "", "detail": f"cannot publish {line.strip()[:200]}: {error!r}"}
             )
     ended.set()
+    recorder.close(CLOSE_TIMEOUT_S)  # what was received goes to the bridge, which reads to the end
     recorder.report_drops()  # the last counts, before the pipe closes
     if publishers.started:
         rospy.signal_shutdown("the bridge closed its end")

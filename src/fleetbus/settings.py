@@ -194,8 +194,8 @@ class Settings(BaseSettings):
     )
     ros_linger_s: Annotated[float, Field(ge=0)] = setting(
         0.25,
-        "how long the ROS bridge gathers messages into one outbox write (a mapped topic's message "
-        "goes at once)",
+        "how long the ROS bridge gathers messages, from the first one's receipt, into one write to "
+        "its pipe and one outbox write (a mapped topic's message goes at once)",
     )
     ros_status_every_s: Annotated[float, Positive] = setting(
         10.0, "how often the ROS bridge logs its counts and rewrites its status file"

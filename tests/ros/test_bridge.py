@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import xmlrpc.client
 from datetime import datetime, timezone
 from typing import Any
 
@@ -11,6 +12,7 @@ import pytest
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings
+from fleetbus.publishers.ros.mapping import Mapping
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
@@ -20,6 +22,8 @@ from tests.ros.conftest import RosMaster, ros_peer, running_bridge
 from tests.support import Bus, network_link, read_line, wait_for
 
 GOAL, COSTMAP = "/move_base_simple/goal", "/move_base/local_costmap/costmap"
+#: The topics ``ros_peer.py samples`` publishes on (one latched message each).
+SAMPLE_TOPICS = {"/chatter", "/imu", "/robot_pose", "/map", GOAL, COSTMAP}
 #: The header stamp ros_peer.py gives its samples.
 SAMPLE_STAMP = datetime.fromtimestamp(1_700_000_000.25, timezone.utc)
 
@@ -45,7 +49,7 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
         ros_peer(ros_master, "samples"),
         running_bridge(robot, ros_master, bus.settings.robots_dir, commands_url=account.amqp_url) as bridge,
     ):
-        every_topic = {"/chatter", "/imu", "/robot_pose", "/map", GOAL, COSTMAP}
+        every_topic = SAMPLE_TOPICS
         records = wait_for(
             lambda: (r := ros_records(bus, "rosbot1")) and every_topic <= set(r) and r,
             what="every topic stored as ros events, mapped ones too",
@@ -80,8 +84,10 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
         # the bridge counts a batch just after its outbox write, so the store may have it first:
         # wait for every topic counted (a goal or costmap made a map would be counted with it)
         wait_for(
-            lambda: every_topic <= set(bridge.counters.recorded)
-            and bridge.counters.mapped == {"/robot_pose": 1, "/map": 1},
+            lambda: (
+                every_topic <= set(bridge.counters.recorded)
+                and bridge.counters.mapped == {"/robot_pose": 1, "/map": 1}
+            ),
             what="the pose and the grid counted as mapped, the goal and the costmap not",
         )
         stored = explorer.fetch_map()
@@ -173,3 +179,47 @@ def test_filters_and_the_rate_limit_drop_and_count(bus: Bus, ros_master: RosMast
         assert not any(topic.startswith("/rosout") for topic in bridge.counters.types)
     status = json.loads(bridge.status_file.read_text())
     assert status["topics"]["/fast"]["dropped"] == counts["dropped"]
+
+
+def received_by_the_bridge(master: RosMaster) -> set[str]:
+    """The topics on which the bridge's ROS node has received bytes, by its own statistics (ROS's
+    slave API, ``getBusStats``): what its ROS side holds or has sent on."""
+    caller = "/fleetbus_test"
+    ros = xmlrpc.client.ServerProxy(master.env["ROS_MASTER_URI"])
+    _, _, (_, subscribers, _) = ros.getSystemState(caller)
+    nodes = {node for _, names in subscribers for node in names if node.startswith("/fleetbus_bridge")}
+    received: set[str] = set()
+    for node in nodes:
+        _, _, uri = ros.lookupNode(caller, node)
+        _, _, (_, subscribed, _) = xmlrpc.client.ServerProxy(uri).getBusStats(caller)
+        received |= {topic for topic, connections in subscribed if any(c[1] > 0 for c in connections)}
+    return received
+
+
+def test_a_mapped_topics_message_goes_at_once_whatever_the_linger(bus: Bus, ros_master: RosMaster) -> None:
+    """The ROS side gathers lines for a linger into one write to the pipe, and the bridge messages
+    into one outbox write; a message a mapping rule names ends both at once."""
+    robot = bus.robot(bus.add("rosbot4", kind=RobotKind.EXPLORER))
+    with (
+        bus.worker(),
+        ros_peer(ros_master, "samples"),
+        running_bridge(robot, ros_master, bus.settings.robots_dir, linger_s=600),
+    ):
+        wait_for(lambda: bus.count("localisation", "rosbot4"), what="the pose, long before the linger ends")
+        wait_for(lambda: bus.count("map", "rosbot4"), what="the grid, long before the linger ends")
+
+
+def test_a_stopping_bridge_forwards_what_its_ros_side_received(bus: Bus, ros_master: RosMaster) -> None:
+    """Stopped in the middle of a linger, nothing already received is lost: the ROS side sends what
+    it holds once its input closes, and the bridge puts what it read in the outbox before it ends."""
+    robot = bus.robot(bus.add("rosbot5", kind=RobotKind.EXPLORER))
+    with bus.worker(), ros_peer(ros_master, "samples"):
+        with running_bridge(
+            robot, ros_master, bus.settings.robots_dir, mapping=Mapping([]), linger_s=600
+        ) as bridge:
+            wait_for(
+                lambda: SAMPLE_TOPICS <= received_by_the_bridge(ros_master), what="every sample received"
+            )
+            assert not bridge.counters.recorded, "within the linger, nothing was forwarded yet"
+        wait_for(lambda: SAMPLE_TOPICS <= set(ros_records(bus, "rosbot5")), what="every sample stored")
+        assert bus.count("ros", "rosbot5") == len(SAMPLE_TOPICS)

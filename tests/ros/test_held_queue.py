@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import queue
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -37,9 +38,14 @@ def test_images_the_bridge_cannot_take_in_time_are_dropped_by_bytes_and_counted(
     robot = RobotClient("amqp://nobody:unused@127.0.0.1:1/", state_dir=tmp_path)  # never connects
     options = BridgeOptions(queue=10_000, queue_bytes=3 * 1024 * 1024)
     bridge = Bridge(robot, load_mapping(None), options, tmp_path)
-    image = {"kind": "message", "topic": "/camera/image_raw", "type": "sensor_msgs/Image"}
+    image = {
+        "kind": "message",
+        "topic": "/camera/image_raw",
+        "type": "sensor_msgs/Image",
+        "received_ns": time.time_ns(),
+    }
     line = json.dumps({**image, "fields": {"data": {"_base64": "A" * 1_000_000}}}).encode()
     for _ in range(10):
         bridge._take_line(line, threading.Event())
     assert bridge.counters.dropped["/camera/image_raw"][DropReason.BRIDGE_QUEUE] == 7
-    assert len(bridge._take()) == 3
+    assert len(bridge._take(draining=True)) == 3
