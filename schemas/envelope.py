@@ -81,6 +81,10 @@ def derived_message_id(robot_id: str, epoch: str, seq: int, digest: str) -> uuid
     return uuid.uuid5(MESSAGE_ID_NAMESPACE, f"{robot_id}/{epoch}/{seq}/{digest}")
 
 
+#: What ``message_id`` holds until the validator derives it (never seen outside validation).
+_UNDERIVED = uuid.UUID(int=0)
+
+
 def _type_required(schema: dict[str, Any]) -> None:
     """``type`` has a default for Python callers, but a message must carry it: the parser picks
     the event's model by it (a message without one is refused as ``schema``)."""
@@ -93,7 +97,9 @@ class _EnvelopeBase(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_type_required)
 
     message_id: uuid.UUID = Field(
-        default_factory=uuid.uuid4,  # replaced at once by the derived id (_derive_message_id)
+        # replaced at once by the derived id (_derive_message_id); a factory, not a default, keeps
+        # a placeholder out of the published schema, and a constant spares a random id per event
+        default_factory=lambda: _UNDERIVED,
         description="optional: when left out, fleetbus derives it from robot_id, epoch, seq, type "
         "and body, so a resend of the same event carries the same id",
     )
