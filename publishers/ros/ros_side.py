@@ -21,9 +21,10 @@ stdout, one object a line (``kind`` says which):
 stdin, one object a line:
   ``publish``     ``topic``, ``type``, ``fields``: publish this message (latched) on the ROS side
 
-Message lines go out together: those received within ``--linger`` seconds of the first in one
-write (the bridge's reader then wakes once for them, not once a message); a message of an
-``--urgent`` topic (one a mapping rule names) sends what is held at once.
+Message lines go out together: the messages received within ``--linger`` seconds of the first are
+read into fields and sent in one write (the bridge's reader wakes once for them, and the reader
+here once for them, not once a message); a message of an ``--urgent`` topic (one a mapping rule
+names), or a batch that fills the pipe's buffer (an image), sends what is held at once.
 
 The process ends when its standard input closes (the bridge ended), having sent what it received,
 or with the bridge itself (the kernel signals it when its parent dies), and its end closes its
@@ -48,6 +49,7 @@ import sys
 import threading
 import time
 import xmlrpc.client
+from collections.abc import Iterable
 from typing import Any
 
 import genpy
@@ -59,8 +61,11 @@ import rospy
 import rospy.impl.registration
 from held import HeldQueue  # beside this file: the script's folder is first on its path
 
-#: The most lines the reader holds for one write to the pipe.
+#: The most messages the reader sends in one batch.
 HELD_LINES = 256
+#: The pipe's buffer: a batch of small lines goes in one write, and one of this many bytes (an
+#: image) without waiting for the linger, so that large messages are not held in memory.
+PIPE_BUFFER = 1 << 16
 #: How often the reader looks whether the bridge closed its input, while it waits.
 CHECK_S = 0.5
 #: Array types kept as bytes (``{"_base64": ..., "length": n}``), as fleetbus keeps imported bags.
@@ -109,16 +114,20 @@ class Output:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
+        # a buffer that takes a batch of small lines whole: the bridge's reader wakes once for them
+        self._stream = open(sys.stdout.fileno(), "w", encoding="utf-8", buffering=PIPE_BUFFER, closefd=False)
 
     def write(self, item: dict[str, Any]) -> None:
-        self.write_lines([json.dumps(item, separators=(",", ":")) + "\n"])
+        self.write_all([item])
 
-    def write_lines(self, lines: list[str]) -> None:
-        """``lines`` in one write to the pipe (the bridge's reader wakes once for them all)."""
+    def write_all(self, items: Iterable[dict[str, Any]]) -> None:
+        """``items`` one line each, then flushed: one write to the pipe for a batch of small ones.
+        They are made one at a time, so a batch of images is never whole in memory."""
         with self._lock:
             try:
-                sys.stdout.write("".join(lines))
-                sys.stdout.flush()
+                for item in items:
+                    self._stream.write(json.dumps(item, separators=(",", ":")) + "\n")
+                self._stream.flush()
             except (BrokenPipeError, ValueError):
                 rospy.signal_shutdown("the bridge closed the pipe")
 
@@ -139,6 +148,10 @@ class Recorder:
         """Set when the bridge closed our input: what was received is sent, then the reader ends."""
         self.converting = threading.Event()
         self.flushed = threading.Event()
+        self.woken = threading.Event()
+        """Set by an urgent message, a batch of ``PIPE_BUFFER`` bytes or ``closing``: what is held
+        goes at once."""
+        self.urgent_topics: dict[str, bool] = {}
 
     def wanted(self, topic: str) -> bool:
         if topic.startswith(self.args.own_prefix + "/") or topic == self.args.own_prefix:
@@ -159,6 +172,8 @@ class Recorder:
         if not self.queue.offer((topic, raw, time.time_ns()), len(raw._buff)):
             with self.dropped_lock:
                 self.dropped[topic] = self.dropped.get(topic, 0) + 1
+        elif self.urgent(topic) or self.queue.held_bytes >= PIPE_BUFFER:
+            self.woken.set()  # an urgent message, or a batch that fills the pipe: no linger
 
     def message_class(self, raw: Any) -> type:
         header = raw._connection_header
@@ -175,54 +190,54 @@ class Recorder:
         return cls
 
     def urgent(self, topic: str) -> bool:
-        return any(fnmatch.fnmatchcase(topic, p) for p in self.args.urgent)
+        found = self.urgent_topics.get(topic)
+        if found is None:
+            found = self.urgent_topics[topic] = any(fnmatch.fnmatchcase(topic, p) for p in self.args.urgent)
+        return found
 
     def convert_forever(self) -> None:
-        """Read each message into a line; the lines of a linger go to the pipe in one write, and
-        a topic a mapping rule names (``--urgent``) ends the linger at once. Once ``closing``,
-        what is held and queued is sent, and the reader ends."""
+        """From a batch's first message, wait for the linger (or an urgent message: one of a topic
+        a mapping rule names, ``--urgent``), then read every message held into its line and send
+        them in one write: the thread wakes once a batch, not once a message. Once ``closing``,
+        what is held is sent, and the reader ends."""
         self.converting.set()
-        held: list[str] = []
-        due = 0.0
         while not rospy.is_shutdown():
             closing = self.closing.is_set()
-            if held and (closing or time.monotonic() >= due):
-                self.out.write_lines(held)
-                held = []
-            wait = min(CHECK_S, max(0.0, due - time.monotonic())) if held else CHECK_S
             try:
-                topic, raw, received = self.queue.get(timeout=0.0 if closing else wait)
+                first = self.queue.get(timeout=0.0 if closing else CHECK_S)
             except queue.Empty:
                 if closing:
                     break
                 continue
-            if not held:
-                due = time.monotonic() + self.args.linger
-            line = self.convert(topic, raw, received)
-            if line is not None:
-                held.append(line)
-                if self.urgent(topic) or len(held) >= HELD_LINES:
-                    self.out.write_lines(held)
-                    held = []
-        if held:
-            self.out.write_lines(held)
+            due = time.monotonic() + self.args.linger
+            while not self.woken.wait(min(CHECK_S, max(0.0, due - time.monotonic()))):
+                if time.monotonic() >= due or rospy.is_shutdown():
+                    break
+            self.woken.clear()  # an urgent message held after this wakes the next batch at once
+            batch = [first]
+            while len(batch) < HELD_LINES:
+                try:
+                    batch.append(self.queue.get(timeout=0.0))
+                except queue.Empty:
+                    break
+            self.out.write_all(self.convert(*held) for held in batch)
         self.flushed.set()
 
     def close(self, timeout: float) -> None:
         """Have the reader send what was received (when it runs), waiting ``timeout`` at most."""
         self.closing.set()
+        self.woken.set()
         if self.converting.is_set():
             self.flushed.wait(timeout)
 
-    def convert(self, topic: str, raw: Any, received: int) -> str | None:
-        """The message's line; None when it cannot be read (reported as an error line)."""
+    def convert(self, topic: str, raw: Any, received: int) -> dict[str, Any]:
+        """The message's line: a ``message``, or an ``error`` when it cannot be read."""
         try:
             type_name = raw._connection_header["type"]
             msg = self.message_class(raw)().deserialize(raw._buff)
             fields = to_document(msg, self.args.bytes_max)
         except Exception as error:  # a message that cannot be read is reported, not fatal
-            self.out.write({"kind": "error", "topic": topic, "detail": repr(error)})
-            return None
+            return {"kind": "error", "topic": topic, "detail": repr(error)}
         item = {
             "kind": "message",
             "topic": topic,
@@ -235,7 +250,7 @@ class Recorder:
         if (topic, item["md5sum"]) not in self.defined:  # the first of its kind says its definition
             self.defined.add((topic, item["md5sum"]))
             item["definition"] = raw._connection_header.get("message_definition")
-        return json.dumps(item, separators=(",", ":")) + "\n"
+        return item
 
     def report_drops(self) -> None:
         with self.dropped_lock:
