@@ -188,6 +188,8 @@ class Bridge:
         self._stop = threading.Event()
         self._ended = threading.Event()
         """Set when the running ROS side's output ended (it ended, or its reader did)."""
+        self._batch_ended = threading.Event()
+        """Set when the ROS side ended a batch of messages: the writer takes it."""
         self._side_failure: str | None = None
         """What the running ROS side said of its own failure, before it ended."""
         self._stdin_lock = threading.Lock()
@@ -251,6 +253,8 @@ class Bridge:
         if kind == "message":
             if not self._queue.offer(item, len(line)):  # its parsed size, about
                 self.counters.drop(item["topic"], DropReason.BRIDGE_QUEUE)
+        elif kind == "batch-end":
+            self._batch_ended.set()
         elif kind == "subscribed":
             self.counters.types[item["topic"]] = item["type"]
             log.info("recording %s (%s)", item["topic"], item["type"])
@@ -498,30 +502,29 @@ class Bridge:
             return
 
     def _take(self, draining: bool = False) -> list[dict[str, Any]]:
-        """The next batch: what the ROS side received within ``linger_s`` of its first message (up
-        to BATCH), so that a steady topic costs one outbox write a linger, not one a message; a
-        message of a mapped topic (a hazard, a pose) ends the batch at once. ``draining``: what is
-        held now, without waiting."""
+        """The next batch (up to BATCH): what the ROS side sent as one, which it gathered for
+        ``linger_s`` from its first message, so that a steady topic costs one outbox write a linger,
+        not one a message (a message of a mapped topic ends a batch at once). Waiting for the
+        batch's end wakes this thread once a batch, not once a message; a linger after the first
+        message's receipt ends the wait if the end does not come. ``draining``: what is held now,
+        without waiting."""
         try:
             batch = [self._queue.get(timeout=0.0 if draining else STOP_CHECK_S)]
         except queue.Empty:
             return []
-        # the ROS side held the first message for part of the linger already
-        waited = max(0.0, time.time() - batch[0]["received_ns"] / 1e9)
-        deadline = time.monotonic() + (0.0 if draining else max(0.0, self.options.linger_s - waited))
-        while len(batch) < BATCH and not self._urgent(batch[-1]):
-            left = deadline - time.monotonic()
-            if left > 0 and self._stop.is_set():
-                break
-            try:
-                batch.append(self._queue.get(timeout=min(max(0.0, left), STOP_CHECK_S)))
-            except queue.Empty:
-                if left <= STOP_CHECK_S:
+        if not draining:
+            waited = max(0.0, time.time() - batch[0]["received_ns"] / 1e9)
+            deadline = time.monotonic() + max(0.0, self.options.linger_s - waited) + STOP_CHECK_S
+            while not self._batch_ended.wait(max(0.0, min(STOP_CHECK_S, deadline - time.monotonic()))):
+                if time.monotonic() >= deadline or self._stop.is_set():
                     break
+        self._batch_ended.clear()  # a batch that ends while these are taken is taken next, at once
+        while len(batch) < BATCH:
+            try:
+                batch.append(self._queue.get(timeout=0.0))
+            except queue.Empty:
+                break
         return batch
-
-    def _urgent(self, item: dict[str, Any]) -> bool:
-        return self.mapping.rule_for(item["topic"], item["type"]) is not None
 
     def report(self) -> None:
         self.counters.broker = {"connected": self.robot.connected, "last_error": self.robot.last_error}

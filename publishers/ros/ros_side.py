@@ -14,6 +14,7 @@ stdout, one object a line (``kind`` says which):
                   ``received_ns`` (UNIX time in ns), ``fields`` (the message as a document, see
                   :func:`to_document`); the first of each topic and type also ``definition`` (the
                   type's full definition, as its publisher sent it)
+  ``batch-end``   the messages before it are a batch (one linger's, or up to an urgent one)
   ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
   ``error``       ``topic``, ``detail``: a message that could not be read
   ``failed``      ``part``, ``detail``: one of its threads failed; the process ends (status 70) and
@@ -50,6 +51,7 @@ import threading
 import time
 import xmlrpc.client
 from collections.abc import Iterable
+from itertools import chain
 from typing import Any
 
 import genpy
@@ -63,6 +65,8 @@ from held import HeldQueue  # beside this file: the script's folder is first on 
 
 #: The most messages the reader sends in one batch.
 HELD_LINES = 256
+#: The line after a batch's messages: the bridge takes the batch whole.
+BATCH_END = {"kind": "batch-end"}
 #: The pipe's buffer: a batch of small lines goes in one write, and one of this many bytes (an
 #: image) without waiting for the linger, so that large messages are not held in memory.
 PIPE_BUFFER = 1 << 16
@@ -220,7 +224,7 @@ class Recorder:
                     batch.append(self.queue.get(timeout=0.0))
                 except queue.Empty:
                     break
-            self.out.write_all(self.convert(*held) for held in batch)
+            self.out.write_all(chain((self.convert(*held) for held in batch), [BATCH_END]))
         self.flushed.set()
 
     def close(self, timeout: float) -> None:
