@@ -156,6 +156,18 @@ class RosChunk(_Chunk):
 
     blob: str = Field(pattern=r"^[0-9a-f]{64}$", description="the SHA-256 of the whole array")
 
+    @classmethod
+    def pieces_of(cls, blob: str, data: bytes) -> list[RosChunk]:
+        """The chunks that carry ``data`` (``blob``: its SHA-256 in hex, as ``to_blobs`` names
+        it), valid by construction (pieces of :func:`split_chunks`, in order): validating them
+        would encode every piece in base64 only to decode it again, the dearest step of an image
+        on its way to the outbox."""
+        pieces = split_chunks(data)
+        return [
+            cls.model_construct(blob=blob, index=index, count=len(pieces), data=piece)
+            for index, piece in enumerate(pieces)
+        ]
+
 
 class RobotStatus(Strict):
     battery_percent: float = Field(ge=0, le=100)

@@ -11,7 +11,6 @@ its reason, in the log's status lines and the status file.
 
 from __future__ import annotations
 
-import base64
 import json
 import logging
 import os
@@ -43,7 +42,7 @@ from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
 from fleetbus.publishers.ros.held import HeldQueue
 from fleetbus.publishers.ros.mapping import Mapping, Rule
 from fleetbus.publishers.ros.parts import supervised
-from fleetbus.schemas.bodies import split_chunks
+from fleetbus.schemas.bodies import RosChunk
 from fleetbus.schemas.envelope import validate_body
 from fleetbus.schemas.ros import BLOB_FROM, TRUNCATED_KEY, byte_arrays, schema_key, to_blobs
 from fleetbus.schemas.routing import EventType
@@ -83,14 +82,8 @@ def now() -> datetime:
 def chunk_events(blobs: dict[str, bytes]) -> list[Item]:
     """The ``ros_chunk`` events carrying ``blobs`` (by SHA-256), each blob's in order: they go
     before the ``ros`` event that names them."""
-    events: list[Item] = []
-    for digest, data in blobs.items():
-        pieces = split_chunks(data)
-        for index, piece in enumerate(pieces):
-            data64 = base64.b64encode(piece).decode()
-            body = {"blob": digest, "index": index, "count": len(pieces), "data": data64}
-            events.append((EventType.ROS_CHUNK, validate_body(EventType.ROS_CHUNK, body)))
-    return events
+    pieces = (chunk for blob, data in blobs.items() for chunk in RosChunk.pieces_of(blob, data))
+    return [(EventType.ROS_CHUNK, chunk) for chunk in pieces]
 
 
 @dataclass(frozen=True)
