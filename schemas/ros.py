@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from datetime import datetime
 from typing import Any
 
@@ -51,6 +51,10 @@ TRUNCATED_KEY = "_truncated"
 """A byte array over the size cap is kept as ``{"_truncated": true, "length": n, "sha256": "..."}``."""
 BLOB_KEY = "_blob"
 """A large byte array kept whole in the recording's blob store: ``{"_blob": "<sha256>", "length": n}``."""
+RAW_KEY = "_raw"
+"""A byte array that travels beside its document, not in it (the live bridge's pipe):
+``{"_raw": i, "length": n}`` names the ``i``-th that follows; once read, ``{"_raw": b"...",
+"length": n}`` holds it (in memory only: :func:`to_blobs` moves it to a blob)."""
 BLOB_FROM = 64 * 1024
 """Bytes above which a byte array is kept apart, in the recording's blob store (a bag import), or
 travels apart as ``ros_chunk`` events (the live bridge) on its way there."""
@@ -129,20 +133,37 @@ def described(data: bytes, length: int) -> dict[str, Any]:
 
 def to_blobs(value: Any, blobs: dict[str, bytes], blob_max: int) -> Any:
     """``value`` (fields as plain JSON) with its large byte arrays (``{"_base64"}`` over
-    :data:`BLOB_FROM`) moved to ``blobs``: up to ``blob_max`` bytes as ``{"_blob": sha256,
-    "length": n}``, over it only described."""
+    :data:`BLOB_FROM`, and every ``{"_raw"}``) moved to ``blobs``: up to ``blob_max`` bytes as
+    ``{"_blob": sha256, "length": n}``, over it only described."""
     if isinstance(value, list):
         return [to_blobs(item, blobs, blob_max) for item in value]
     if not isinstance(value, dict):
         return value
+    if isinstance(value.get(RAW_KEY), bytes):
+        return _blob(value[RAW_KEY], blobs, blob_max)
     if BYTES_KEY in value and isinstance(value.get("length"), int) and value["length"] > BLOB_FROM:
-        data = base64.b64decode(value[BYTES_KEY])
-        if len(data) > blob_max:
-            return described(data, len(data))
-        digest = hashlib.sha256(data).hexdigest()
-        blobs[digest] = data
-        return {BLOB_KEY: digest, "length": len(data)}
+        return _blob(base64.b64decode(value[BYTES_KEY]), blobs, blob_max)
     return {key: to_blobs(item, blobs, blob_max) for key, item in value.items()}
+
+
+def with_raw(value: Any, raw: Sequence[bytes]) -> Any:
+    """``value`` with each ``{"_raw": i, "length": n}`` holding the ``i``-th of ``raw`` instead of
+    ``i``: the arrays the live bridge's ROS side sends after a message's line."""
+    if isinstance(value, list):
+        return [with_raw(item, raw) for item in value]
+    if not isinstance(value, dict):
+        return value
+    if isinstance(value.get(RAW_KEY), int):
+        return {**value, RAW_KEY: raw[value[RAW_KEY]]}
+    return {key: with_raw(item, raw) for key, item in value.items()}
+
+
+def _blob(data: bytes, blobs: dict[str, bytes], blob_max: int) -> dict[str, Any]:
+    if len(data) > blob_max:
+        return described(data, len(data))
+    digest = hashlib.sha256(data).hexdigest()
+    blobs[digest] = data
+    return {BLOB_KEY: digest, "length": len(data)}
 
 
 def byte_arrays(value: Any, key: str) -> Iterator[dict[str, Any]]:

@@ -44,7 +44,7 @@ from fleetbus.publishers.ros.mapping import Mapping, Rule
 from fleetbus.publishers.ros.parts import supervised
 from fleetbus.schemas.bodies import RosChunk
 from fleetbus.schemas.envelope import validate_body
-from fleetbus.schemas.ros import BLOB_FROM, TRUNCATED_KEY, byte_arrays, schema_key, to_blobs
+from fleetbus.schemas.ros import BLOB_FROM, TRUNCATED_KEY, byte_arrays, schema_key, to_blobs, with_raw
 from fleetbus.schemas.routing import EventType
 
 log = logging.getLogger("fleetbus.ros")
@@ -84,6 +84,13 @@ def chunk_events(blobs: dict[str, bytes]) -> list[Item]:
     before the ``ros`` event that names them."""
     pieces = (chunk for blob, data in blobs.items() for chunk in RosChunk.pieces_of(blob, data))
     return [(EventType.ROS_CHUNK, chunk) for chunk in pieces]
+
+
+def _read_exactly(stream: IO[bytes], length: int) -> bytes:
+    data = stream.read(length)
+    if len(data) != length:
+        raise ValueError(f"the ROS side's output ended inside a byte array ({len(data)} of {length} bytes)")
+    return data
 
 
 @dataclass(frozen=True)
@@ -143,6 +150,8 @@ class BridgeOptions:
             str(self.queue),
             "--queue-bytes",
             str(self.queue_bytes),
+            "--raw-from",
+            str(BLOB_FROM),
             "--own-prefix",
             NOTIFY_PREFIX,
             "--linger",
@@ -233,18 +242,23 @@ class Bridge:
         try:
             for line in stream:
                 try:
-                    self._take_line(line, started)
+                    self._take_line(line, started, stream)
                 except Exception as error:  # a line we did not expect must not stop the reading
                     self.counters.drop("(ros side)", DropReason.UNREADABLE)
                     log.warning("the ROS side wrote a line the bridge cannot take (%r): %r", error, line[:90])
         finally:
             ended.set()
 
-    def _take_line(self, line: bytes, started: threading.Event) -> None:
+    def _take_line(self, line: bytes, started: threading.Event, stream: IO[bytes]) -> None:
         item = json.loads(line)
         kind = item.get("kind")
         if kind == "message":
-            if not self._queue.offer(item, len(line)):  # its parsed size, about
+            size = len(line)
+            if item.get("raw"):  # its large byte arrays follow the line, as they are
+                raw = [_read_exactly(stream, length) for length in item.pop("raw")]
+                item["fields"] = with_raw(item["fields"], raw)
+                size += sum(map(len, raw))
+            if not self._queue.offer(item, size):  # its parsed size, about
                 self.counters.drop(item["topic"], DropReason.BRIDGE_QUEUE)
         elif kind == "batch-end":
             self._batch_ended.set()

@@ -8,7 +8,7 @@ from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.schemas.notifications import Notification
-from fleetbus.schemas.ros import BYTES_KEY, TRUNCATED_KEY
+from fleetbus.schemas.ros import BYTES_KEY, RAW_KEY, TRUNCATED_KEY
 
 #: map_server's thresholds: an occupancy at or above 65 % is occupied, at or below 19.6 % free.
 OCCUPIED_THRESH = 0.65
@@ -117,7 +117,10 @@ def ros_stamp(nanos: int | None) -> datetime | None:
 
 
 def byte_array(value: Any) -> bytes:
-    """A ``uint8[]``/``int8[]`` field as the ROS side sends it (``{"_base64": ..., "length": n}``)."""
+    """A ``uint8[]``/``int8[]`` field as the ROS side sends it (``{"_base64": ..., "length": n}``,
+    or a large one read beside its line, ``{"_raw": b"..."}``)."""
+    if isinstance(value, dict) and isinstance(value.get(RAW_KEY), bytes):
+        return value[RAW_KEY]
     if isinstance(value, dict) and BYTES_KEY in value:
         return base64.b64decode(value[BYTES_KEY])
     if isinstance(value, dict) and value.get(TRUNCATED_KEY):

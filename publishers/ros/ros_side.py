@@ -13,7 +13,9 @@ stdout, one object a line (``kind`` says which):
   ``message``     ``topic``, ``type``, ``md5sum``, ``stamp_ns`` (the header's stamp in ns, or null),
                   ``received_ns`` (UNIX time in ns), ``fields`` (the message as a document, see
                   :func:`to_document`); the first of each topic and type also ``definition`` (the
-                  type's full definition, as its publisher sent it)
+                  type's full definition, as its publisher sent it); a message with byte arrays
+                  over ``--raw-from`` bytes also ``raw``, their lengths: the arrays follow the
+                  line, as they are, in that order
   ``batch-end``   the messages before it are a batch (one linger's, or up to an urgent one)
   ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
   ``error``       ``topic``, ``detail``: a message that could not be read
@@ -74,17 +76,33 @@ PIPE_BUFFER = 1 << 16
 CHECK_S = 0.5
 #: Array types kept as bytes (``{"_base64": ..., "length": n}``), as fleetbus keeps imported bags.
 BYTE_ARRAYS = ("uint8[", "int8[", "char[", "byte[")
-BYTES_KEY, TRUNCATED_KEY = "_base64", "_truncated"  # as fleetbus.schemas.ros names them
+BYTES_KEY, TRUNCATED_KEY, RAW_KEY = "_base64", "_truncated", "_raw"  # as fleetbus.schemas.ros names them
 
 
-def to_document(value: Any, bytes_max: int, slot_type: str = "") -> Any:
+class RawArrays:
+    """The byte arrays of one message over ``least`` bytes: sent as they are after its line, not
+    in base64 inside it (an image would be encoded here and decoded in the bridge)."""
+
+    def __init__(self, least: int) -> None:
+        self.least = least
+        self.arrays: list[bytes] = []
+
+    def take(self, data: bytes) -> dict[str, Any] | None:
+        if len(data) <= self.least:
+            return None
+        self.arrays.append(data)
+        return {RAW_KEY: len(self.arrays) - 1, "length": len(data)}
+
+
+def to_document(value: Any, bytes_max: int, slot_type: str = "", raw: RawArrays | None = None) -> Any:
     """A genpy message (or field value) as plain JSON, in fleetbus's convention for ROS messages
     (``fleetbus.schemas.ros``): nested messages as objects, times as ``{"sec", "nanosec"}``, byte
-    arrays as ``{"_base64", "length"}`` or, over ``bytes_max``, ``{"_truncated", "length", "sha256"}``,
-    floats JSON cannot hold as ``"nan"``, ``"inf"``, ``"-inf"``."""
+    arrays as ``{"_base64", "length"}`` (over ``raw.least``, ``{"_raw": i, "length"}``, the bytes
+    in ``raw``) or, over ``bytes_max``, ``{"_truncated", "length", "sha256"}``, floats JSON cannot
+    hold as ``"nan"``, ``"inf"``, ``"-inf"``."""
     if isinstance(value, genpy.Message):
         return {
-            slot: to_document(getattr(value, slot), bytes_max, kind)
+            slot: to_document(getattr(value, slot), bytes_max, kind, raw)
             for slot, kind in zip(value.__slots__, value._slot_types, strict=True)
         }
     if isinstance(value, (genpy.Time, genpy.Duration)):
@@ -95,10 +113,11 @@ def to_document(value: Any, bytes_max: int, slot_type: str = "") -> Any:
         data = bytes(value) if isinstance(value, (bytes, bytearray)) else bytes(v & 0xFF for v in value)
         if len(data) > bytes_max:
             return {TRUNCATED_KEY: True, "length": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-        return {BYTES_KEY: base64.b64encode(data).decode("ascii"), "length": len(data)}
+        kept = raw.take(data) if raw is not None else None
+        return kept or {BYTES_KEY: base64.b64encode(data).decode("ascii"), "length": len(data)}
     if isinstance(value, (list, tuple)):
         element = slot_type.split("[", 1)[0]
-        return [to_document(item, bytes_max, element) for item in value]
+        return [to_document(item, bytes_max, element, raw) for item in value]
     if isinstance(value, float) and not math.isfinite(value):
         return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
     return value
@@ -119,18 +138,24 @@ class Output:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         # a buffer that takes a batch of small lines whole: the bridge's reader wakes once for them
-        self._stream = open(sys.stdout.fileno(), "w", encoding="utf-8", buffering=PIPE_BUFFER, closefd=False)
+        self._stream = open(sys.stdout.fileno(), "wb", buffering=PIPE_BUFFER, closefd=False)
 
     def write(self, item: dict[str, Any]) -> None:
         self.write_all([item])
 
     def write_all(self, items: Iterable[dict[str, Any]]) -> None:
         """``items`` one line each, then flushed: one write to the pipe for a batch of small ones.
-        They are made one at a time, so a batch of images is never whole in memory."""
+        They are made one at a time, so a batch of images is never whole in memory. A message's
+        ``raw`` arrays follow its line as they are, the line saying their lengths."""
         with self._lock:
             try:
                 for item in items:
-                    self._stream.write(json.dumps(item, separators=(",", ":")) + "\n")
+                    arrays: list[bytes] = item.pop("raw", None) or []
+                    if arrays:
+                        item["raw"] = [len(array) for array in arrays]
+                    self._stream.write(json.dumps(item, separators=(",", ":")).encode() + b"\n")
+                    for array in arrays:
+                        self._stream.write(array)
                 self._stream.flush()
             except (BrokenPipeError, ValueError):
                 rospy.signal_shutdown("the bridge closed the pipe")
@@ -239,7 +264,8 @@ class Recorder:
         try:
             type_name = raw._connection_header["type"]
             msg = self.message_class(raw)().deserialize(raw._buff)
-            fields = to_document(msg, self.args.bytes_max)
+            arrays = RawArrays(self.args.raw_from)
+            fields = to_document(msg, self.args.bytes_max, raw=arrays)
         except Exception as error:  # a message that cannot be read is reported, not fatal
             return {"kind": "error", "topic": topic, "detail": repr(error)}
         item = {
@@ -251,6 +277,8 @@ class Recorder:
             "received_ns": received,
             "fields": fields,
         }
+        if arrays.arrays:
+            item["raw"] = arrays.arrays
         if (topic, item["md5sum"]) not in self.defined:  # the first of its kind says its definition
             self.defined.add((topic, item["md5sum"]))
             item["definition"] = raw._connection_header.get("message_definition")
@@ -437,6 +465,7 @@ def main() -> None:
     parser.add_argument("--include", action="append", default=[])
     parser.add_argument("--exclude", action="append", default=[])
     parser.add_argument("--bytes-max", type=int, default=16 * 1024 * 1024)  # FLEETBUS_ROS_BLOB_MAX_BYTES
+    parser.add_argument("--raw-from", type=int, default=64 * 1024, help="byte arrays sent beside their line")
     parser.add_argument("--queue", type=int, default=10_000)
     parser.add_argument("--queue-bytes", type=int, default=64 * 1024 * 1024)
     parser.add_argument("--own-prefix", default="/fleetbus")

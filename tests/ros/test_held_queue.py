@@ -4,6 +4,7 @@ shows it. (The bridge's writer is not started here, so nothing leaves the queue 
 
 from __future__ import annotations
 
+import io
 import json
 import queue
 import threading
@@ -44,8 +45,10 @@ def test_images_the_bridge_cannot_take_in_time_are_dropped_by_bytes_and_counted(
         "type": "sensor_msgs/Image",
         "received_ns": time.time_ns(),
     }
-    line = json.dumps({**image, "fields": {"data": {"_base64": "A" * 1_000_000}}}).encode()
+    # as the ROS side sends an image: its pixels after its line, as they are
+    fields = {"data": {"_raw": 0, "length": 1_000_000}}
+    line = json.dumps({**image, "fields": fields, "raw": [1_000_000]}).encode()
     for _ in range(10):
-        bridge._take_line(line, threading.Event())
+        bridge._take_line(line, threading.Event(), io.BytesIO(bytes(1_000_000)))
     assert bridge.counters.dropped["/camera/image_raw"][DropReason.BRIDGE_QUEUE] == 7
     assert len(bridge._take(draining=True)) == 3

@@ -17,9 +17,10 @@ import psutil
 
 from fleetbus.publishers.outbox import policies_with_limits
 from fleetbus.publishers.ros.bridge import chunk_events
+from fleetbus.publishers.ros.convert import byte_array
 from fleetbus.schemas.bodies import CHUNK_BYTES
 from fleetbus.schemas.envelope import validate_body
-from fleetbus.schemas.ros import BLOB_KEY, TRUNCATED_KEY, to_blobs
+from fleetbus.schemas.ros import BLOB_KEY, TRUNCATED_KEY, to_blobs, with_raw
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.workers.recorder.ros_blobs import piece_name
 from fleetbus.workers.store import open_recording_store
@@ -240,3 +241,18 @@ def test_a_full_outbox_drops_the_large_messages_and_lets_the_small_ones_through(
         assert robot.outbox.pending() == 1, "the described image waits; no chunk does"
         assert bridge.counters.recorded[IMAGES] == 0 and bridge.counters.recorded[CLOUDS] == 0
         link.restore()  # the bridge stops at once (its notifications wait for the broker)
+
+
+def test_an_array_sent_beside_its_line_becomes_a_blob_and_a_mapping_reads_it() -> None:
+    """The ROS side sends a large byte array after its message's line, as it is: the bridge keeps
+    it as a blob, and a mapped message (an occupancy grid past 64 KiB) reads it as bytes."""
+    data = bytes(range(256)) * 400
+    fields = with_raw({"info": {"width": 320}, "data": {"_raw": 0, "length": len(data)}}, [data])
+    assert byte_array(fields["data"]) == data
+    named: dict[str, bytes] = {}
+    digest = hashlib.sha256(data).hexdigest()
+    assert to_blobs(fields, named, BOUND) == {
+        "info": {"width": 320},
+        "data": {BLOB_KEY: digest, "length": len(data)},
+    }
+    assert named == {digest: data}
