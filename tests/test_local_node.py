@@ -7,6 +7,7 @@ the last test stops it.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import json
 import logging
@@ -822,3 +823,30 @@ def test_a_new_node_whose_port_another_process_takes_before_it_listens_starts_on
             assert httpx.get(f"{info.management_url}api/overview", auth=creds, timeout=10).status_code == 200
         finally:
             fresh.down()
+
+
+def test_a_node_whose_unpublished_ports_were_taken_while_it_was_down_moves_them_and_starts(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A restarting node (a cluster's, in a rolling restart) finds its distribution or stream port
+    taken by another program: no client was given those, so it moves them and starts; the ports
+    clients know (AMQP, AMQPS, the management API) stay where they were."""
+    node = LocalNode(tmp_path / "broker")
+    before = node.up(timeout=180).ports
+    node.down()
+    with contextlib.ExitStack() as takers:
+        for name in ("dist", "stream"):
+            taker = takers.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM))
+            taker.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # the node's own may linger
+            taker.bind(("127.0.0.1", before[name]))
+            taker.listen()
+        try:
+            with caplog.at_level(logging.WARNING, logger="fleetbus_dev.local_node"):
+                after = node.up(timeout=180).ports
+            assert "dist, stream moved" in caplog.text
+            assert after["dist"] != before["dist"] and after["stream"] != before["stream"]
+            published = ("amqp", "amqps", "management", "management_tls", "epmd")
+            assert {name: after[name] for name in published} == {name: before[name] for name in published}
+            assert amqp_login(node.status().amqp_url or "", timeout=10)
+        finally:
+            node.down()

@@ -60,6 +60,9 @@ PORT_NAMES = ("amqp", "management", "dist", "epmd", "stream", "amqps", "manageme
 #: The ports a node made by an older version lacks: chosen at its next start, listened on once it
 #: starts again (a running node keeps the configuration it started with).
 TLS_PORT_NAMES = ("amqps", "management_tls")
+#: Ports no client is given: Erlang's distribution (found through epmd) and the stream listener
+#: (fleetbus does not use streams). A restart moves them when another program took them meanwhile.
+UNPUBLISHED_PORTS = ("dist", "stream")
 #: How many times a new node starts on new ports when another process took one of its ports
 #: between their choice and the node's listen.
 PORT_RACE_ATTEMPTS = 3
@@ -720,6 +723,9 @@ log.console = false
         if _wait_until(lambda: not busy(), timeout=10, interval=0.2):
             return
         taken = busy()
+        if taken and all(item.split()[0] in UNPUBLISHED_PORTS for item in taken):
+            self._move_ports([item.split()[0] for item in taken])
+            return
         if taken:
             raise LocalNodeError(
                 f"ports of the private node are taken by another program ({', '.join(taken)}); "
@@ -774,6 +780,17 @@ log.console = false
             )
             self._choose_new_ports()
             self._write_config()
+
+    def _move_ports(self, names: list[str]) -> None:
+        """New ports for listeners no client is given the address of, taken by another program
+        while the node was down (on a busy machine a restarting cluster node meets that)."""
+        old = self.ports()
+        assert old is not None
+        fresh = iter(port for port in choose_free_ports(len(names) * 2) if port not in old.values())
+        self._save_ports({name: (next(fresh) if name in names else port) for name, port in old.items()})
+        self._write_config()
+        moved = ", ".join(names)
+        log.warning("ports of the private node %s were taken meanwhile; %s moved", self.node_name, moved)
 
     def _lost_a_port(self) -> bool:
         """Whether the last start ended because a listener's port, or the distribution port, was in
