@@ -718,17 +718,21 @@ log.console = false
         names = [name for name in PORT_NAMES if name != "epmd"]
 
         def busy() -> list[str]:
-            return [f"{name} {ports[name]}" for name in names if not _port_free(ports[name])]
+            return [name for name in names if not _port_free(ports[name])]
 
         if _wait_until(lambda: not busy(), timeout=10, interval=0.2):
             return
         taken = busy()
-        if taken and all(item.split()[0] in UNPUBLISHED_PORTS for item in taken):
-            self._move_ports([item.split()[0] for item in taken])
+        if taken and set(taken) <= set(UNPUBLISHED_PORTS):
+            self._move_ports(taken)
+            self._write_config()
+            moved = ", ".join(taken)
+            log.warning("ports of the private node %s were taken meanwhile; %s moved", self.node_name, moved)
             return
         if taken:
+            listed = ", ".join(f"{name} {ports[name]}" for name in taken)
             raise LocalNodeError(
-                f"ports of the private node are taken by another program ({', '.join(taken)}); "
+                f"ports of the private node are taken by another program ({listed}); "
                 f"stop it, or delete {self.node_file} to choose new ports"
             )
 
@@ -778,19 +782,15 @@ log.console = false
                 "a port of the private node %s was taken before it could listen; starting again on new ports",
                 self.node_name,
             )
-            self._choose_new_ports()
+            self._move_ports([name for name in PORT_NAMES if name != "epmd"])  # a cluster shares epmd's
             self._write_config()
 
     def _move_ports(self, names: list[str]) -> None:
-        """New ports for listeners no client is given the address of, taken by another program
-        while the node was down (on a busy machine a restarting cluster node meets that)."""
+        """New free ports for ``names``; the others kept."""
         old = self.ports()
         assert old is not None
         fresh = iter(port for port in choose_free_ports(len(names) * 2) if port not in old.values())
         self._save_ports({name: (next(fresh) if name in names else port) for name, port in old.items()})
-        self._write_config()
-        moved = ", ".join(names)
-        log.warning("ports of the private node %s were taken meanwhile; %s moved", self.node_name, moved)
 
     def _lost_a_port(self) -> bool:
         """Whether the last start ended because a listener's port, or the distribution port, was in
@@ -800,13 +800,6 @@ log.console = false
         except OSError:
             return False
         return any(mark in log_text for mark in PORT_IN_USE_MARKS)
-
-    def _choose_new_ports(self) -> None:
-        """New ports for every listener; epmd's is kept (a cluster's nodes share it)."""
-        old = self.ports()
-        assert old is not None
-        fresh = iter(port for port in choose_free_ports(len(PORT_NAMES) * 2) if port not in old.values())
-        self._save_ports({name: (old[name] if name == "epmd" else next(fresh)) for name in PORT_NAMES})
 
     def heal_quorum_queues(self, deadline: float) -> int:
         """Elect a leader for every quorum queue that came back from a crash without one.
