@@ -45,7 +45,14 @@ from fleetbus.publishers.sequence import SequenceCounter
 from fleetbus.publishers.state_lock import StateLock
 from fleetbus.publishers.tls import pika_parameter_list
 from fleetbus.schemas.bodies import MapMetadata
-from fleetbus.schemas.envelope import EVENT_ADAPTER, Event, build_event, new_epoch, validate_body
+from fleetbus.schemas.envelope import (
+    EVENT_ADAPTER,
+    Event,
+    build_event,
+    keyed_message_id,
+    new_epoch,
+    validate_body,
+)
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.notifications import LATE_AFTER_S, Notification
 from fleetbus.schemas.properties import EVENT_CONTENT_TYPE, PERSISTENT
@@ -278,7 +285,7 @@ class RobotClient:
     # publishing
     def build(self, items: Sequence[tuple[EventType | str, Any]]) -> list[Event]:
         """Validate bodies, then give them this client's epoch and consecutive sequence numbers in it
-        (none wasted on bad input)."""
+        (none wasted on bad input), and ids named by those (:func:`keyed_message_id`)."""
         bodies = [(event_type, validate_body(event_type, body)) for event_type, body in items]
         if any(EventType(t) is EventType.STATUS and b.outbox_dropped is None for t, b in bodies):
             dropped = dict(self.outbox.dropped())
@@ -290,8 +297,10 @@ class RobotClient:
                     for t, b in bodies
                 ]
         first = self._sequence.reserve(len(bodies)) if bodies else 0
+        robot, epoch = self.robot_id, self.epoch
         return [
-            build_event(t, self.robot_id, self.epoch, first + i, body) for i, (t, body) in enumerate(bodies)
+            build_event(t, robot, epoch, seq, body, message_id=keyed_message_id(robot, epoch, seq))
+            for seq, (t, body) in enumerate(bodies, start=first)
         ]
 
     def publish(self, event_type: EventType | str, body: Any, *, wait: bool = True) -> Event:

@@ -13,8 +13,9 @@ from typing import Any
 import pika
 
 from fleetbus.broker.accounts import Account
+from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.tls import blocking_connection
-from fleetbus.schemas.envelope import new_epoch
+from fleetbus.schemas.envelope import keyed_message_id, new_epoch
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
 from tests.factories import hazard, status
@@ -91,3 +92,42 @@ def test_a_client_resending_without_message_ids_gets_duplicates_counted_never_de
     stored = {record.seq: record for record in bus.find(EventQuery(robot_id="explorer1"))}
     assert stored == first, "what was stored stays as it was"
     assert stored[1].body["battery_percent"] == 80.0
+
+
+def test_the_robot_clients_events_are_named_by_their_key_and_a_resend_is_a_duplicate(bus: Bus) -> None:
+    """fleetbus's client names an event by its key, not a digest of its content (it builds each
+    once and resends it from its outbox as it was); the worker still compares content, so a
+    resend is a duplicate and another event under a used number is refused."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    robot = RobotClient(account.amqp_url, state_dir=bus.settings.robots_dir)
+    bus.clients.append(robot)
+    with bus.worker():
+        fire, battery = robot.publish_many([("hazard", hazard(0)), ("status", status(80.0))])
+        assert [fire.message_id, battery.message_id] == [
+            keyed_message_id("explorer1", robot.epoch, 0),
+            keyed_message_id("explorer1", robot.epoch, 1),
+        ]
+        robot.enqueue([fire, battery])  # as the outbox resends after a lost confirm
+        duplicates = wait_for(
+            lambda: (
+                (found := bus.with_store(lambda s: s.events.duplicates("explorer1")))
+                and len(found) == 2
+                and found
+            ),
+            what="the two resends counted as duplicates",
+        )
+        forged = battery.model_copy(
+            update={"body": battery.body.model_copy(update={"battery_percent": 12.0})}
+        )
+        robot.enqueue([forged], wait=False)
+        [letter] = wait_for(lambda: bus.dead_letters(), what="the other content under a used number refused")
+    stored = {record.seq: record for record in bus.find(EventQuery(robot_id="explorer1"))}
+    assert {seq: record.message_id for seq, record in stored.items()} == {
+        0: str(fire.message_id),
+        1: str(battery.message_id),
+    }
+    assert sorted((d.seq, d.message_id) for d in duplicates) == [
+        (0, str(fire.message_id)),
+        (1, str(battery.message_id)),
+    ]
+    assert letter.reason == "sequence-reused" and stored[1].body["battery_percent"] == 80.0
