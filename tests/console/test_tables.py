@@ -125,6 +125,16 @@ def test_the_mission_list_is_live_sorted_and_filtered_by_state_use_case_and_clie
         )
         browser.fill("input.table-filter", "roof")
         browser.until(lambda: shown(browser, rows) == ["mission-m-5"], "the filter field")
+        browser.fill("input.table-filter", "quay")
+
+        # a client made after the page was drawn: its mission arrives live, and the client filter
+        # offers it
+        console.user("client3", UserRole.CLIENT)
+        _mission(console, "client3", "survey", "Quay")  # m-6
+        client_choices = "select[name=client] option"
+        browser.until(lambda: "client3" in browser.texts(client_choices), "client3 offered as it arrives")
+        Select(browser.find("select[name=client]")[0]).select_by_value("client3")
+        browser.until(lambda: shown(browser, rows) == ["mission-m-6"], "client3's mission")
         assert browser.driver.execute_script("return document.body.dataset.marker") == "not reloaded"
 
         # a client's list shows its own missions only

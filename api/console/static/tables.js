@@ -6,7 +6,8 @@
 // cards (<div data-sortable-list>) is sorted by a <select data-sort-list="ID"> (values
 // "key:asc" or "key:desc", the key a data- attribute of each card) and filtered by an
 // <input data-filter-list="ID">. Live updates replace tables and add rows; the choices are kept
-// (by the table's or its section's id) and applied again to what arrives.
+// (by the table's or its section's id) and applied again to what arrives; a value that arrives in a
+// filtered column (a new client's mission) becomes one of its select's choices.
 (function () {
   "use strict";
   const chosen = new Map(); // table key -> {column, descending, text, focused, caret}
@@ -58,6 +59,18 @@
     for (const item of sorted) parent.appendChild(item);
   }
 
+  function offerValues(select, rows) {
+    const offered = new Set(Array.from(select.options, (option) => option.value));
+    const column = Number(select.dataset.column);
+    for (const row of rows) {
+      const value = cellText(row, column);
+      if (value && !offered.has(value)) {
+        offered.add(value);
+        select.add(new Option(value, value));
+      }
+    }
+  }
+
   function applyTable(table) {
     const body = table.tBodies[0];
     if (!body) return;
@@ -66,6 +79,7 @@
     if (state.column >= 0) sortChildren(body, rows, (row) => cellValue(row, state.column), state.descending);
     const wanted = words(state.text);
     const selects = document.querySelectorAll('select[data-filter-table="' + table.id + '"]');
+    for (const select of selects) offerValues(select, rows);
     let shown = 0;
     for (const row of rows) {
       let keep = matches(row, wanted);
