@@ -2,7 +2,7 @@
 console's memory over many reconnections, and how fast its pages render on a large store.
 
     .venv/bin/python -m bench.console [--robots 100] [--dashboards 20] [--maps 20] [--seconds 60]
-        [--reconnects 1000] [--hazards 10000] [--messages 1000000] [--renders 50]
+        [--reconnects 1000] [--hazards 10000] [--messages 1000000] [--renders 50] [--browser-renders 10]
 
 Each part runs on a virtual host, data folder and SQLite store of its own, with every process as
 deployed: `fleetbus worker` and `fleetbus api` (which serves the console) each in a process of its
@@ -29,7 +29,9 @@ through the console's own form.
               of the robots in the event log (--hazards of them hazards, registered in every state:
               held, announced, claimed, reached, cleared), the same number of messages in the
               recorder's recording; then each console page an administrator may open (``sitemap.PAGES``)
-              fetched --renders times: median and p95.
+              fetched --renders times: median and p95; then the dashboard and the live map drawn
+              --browser-renders times in headless chromium (``bench.console_browser``): median and
+              p95, against the target (under 1 s with 1,000 robots in the team).
 
 Results go to ``bench/results/console-<UTC time>.json`` with the command and the load average.
 """
@@ -57,6 +59,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from bench.console_browser import browser_times
 from bench.ingest import status_body
 from bench.proc import cpu_seconds, rss_megabytes
 from bench.processes import worker_process
@@ -85,6 +88,8 @@ ROW = re.compile(r'\s*<tr id="(event-[^"]+)"')
 WARDEN_EVERY = 10
 """One robot in ten is a warden (the hazards' claims and clearances are theirs)."""
 WRITE_BATCH = 10_000
+#: The dashboard and the live map drawn in a browser within this, with 1,000 robots in the team.
+DRAWN_TARGET_MS = 1_000
 console = Console()
 
 
@@ -428,11 +433,16 @@ def renders(context: Context, args: argparse.Namespace) -> dict[str, Any]:
         seeded_s = time.monotonic() - started
         with api_process(bus, ADMIN, PASSWORD) as (base, _):
             times = asyncio.run(page_times(base, args.renders, context.show))
+            drawn = browser_times(base, ADMIN, PASSWORD, args.browser_renders, context.show)
         figures: Figures = {"seeding s": seeded_s}
-        for name, each in times.items():
+        for name, each in {**times, **drawn}.items():
             figures[f"{name} render median ms"] = statistics.median(each)
             figures[f"{name} render p95 ms"] = percentile(each, 95)
         console.print(part_table("renders", figures))
+        for name, each in drawn.items():
+            p95 = percentile(each, 95)
+            verdict = "met" if p95 < DRAWN_TARGET_MS else "NOT met"
+            console.print(f"{name}: p95 {p95:,.0f} ms, target under {DRAWN_TARGET_MS:,} ms: {verdict}")
     return {"figures": figures, "pages": list(times)}
 
 
@@ -469,6 +479,9 @@ def main() -> None:
     parser.add_argument("--hazards", type=int, default=10_000, help="hazards in the store for the renders")
     parser.add_argument("--messages", type=int, default=1_000_000, help="events and recorded messages")
     parser.add_argument("--renders", type=int, default=50, help="fetches of each page")
+    parser.add_argument(
+        "--browser-renders", type=int, default=10, help="the dashboard and the map drawn in chromium"
+    )
     parser.add_argument(
         "--poll-s", type=float, help="the console's FLEETBUS_CONSOLE_POLL_S (default: the setting's own)"
     )
