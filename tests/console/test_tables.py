@@ -12,6 +12,7 @@ from selenium.webdriver.support.select import Select
 
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord
 from tests.console.support import Browser, Console, running_console
 from tests.console.test_missions import PLAN
@@ -32,13 +33,14 @@ def _shown_as(browser: Browser, rows: str, expected: list[str]) -> bool:
     return shown(browser, rows) == expected
 
 
-def _sorted_by(browser: Browser, column: int, order: str) -> bool:
-    """Whether the mission list is sorted by ``column`` in ``order``, as its header says."""
-    header = browser.find(f"#missions-table th:nth-child({column + 1})")[0]
+def _sorted_by(browser: Browser, column: int, order: str, table: str = "missions-table") -> bool:
+    """Whether ``table`` (the mission list) is sorted by ``column`` in ``order``, as its header says."""
+    header = browser.find(f"#{table} th:nth-child({column + 1})")[0]
     values = browser.driver.execute_script(
-        "return Array.from(document.querySelectorAll('#missions-rows tr')).filter((r) => !r.hidden)"
+        "return Array.from(document.querySelectorAll(arguments[1])).filter((r) => !r.hidden)"
         ".map((r) => r.cells[arguments[0]]).map((c) => c.dataset.sort ?? c.textContent.trim())",
         column,
+        f"#{table} tbody tr",
     )
     return header.get_attribute("aria-sort") == order and values == sorted(
         values, reverse=order == "descending"
@@ -168,12 +170,37 @@ def _event(robot: str, seq: int, at: datetime) -> EventRecord:
 def test_the_dashboards_events_and_the_hazards_page_filter_and_sort(bus: Bus, browser: Browser) -> None:
     with running_console(bus) as console:
         console.user("oper1", UserRole.OPERATOR)
+        for name, kind in (
+            ("guide1", RobotKind.GUIDE),
+            ("warden1", RobotKind.WARDEN),
+            ("guide2", RobotKind.GUIDE),
+        ):
+            console.user(name, UserRole.ROBOT, kind)
         now = datetime.now(timezone.utc)
         events = console.service.repositories.events
         console.run(lambda: events.write_events([_event("guide1", 1, now), _event("guide2", 1, now)]))
         console.log_in(browser, "oper1")
         browser.go(console.url("/console/"))
         console.wait_live(browser)
+
+        # the team: sorted by a column, again to reverse, and filtered by a word
+        team = "#team-table tbody tr"
+        browser.until(lambda: len(shown(browser, team)) == 3, "the three robots")
+        browser.click("#team-table th:nth-child(2) button.sort")  # by kind
+        browser.until(partial(_sorted_by, browser, 1, "ascending", "team-table"), "the team by kind")
+        browser.click("#team-table th:nth-child(1) button.sort")  # by robot
+        browser.until(
+            lambda: shown(browser, team) == ["robot-guide1", "robot-guide2", "robot-warden1"], "by robot"
+        )
+        browser.click("#team-table th:nth-child(1) button.sort")
+        browser.until(
+            lambda: shown(browser, team) == ["robot-warden1", "robot-guide2", "robot-guide1"], "reversed"
+        )
+        team_filter = browser.driver.execute_script(
+            "return document.getElementById('team-table').previousElementSibling"
+        )
+        team_filter.send_keys("warden")
+        browser.until(lambda: shown(browser, team) == ["robot-warden1"], "the wardens only")
         rows = "#events tr"
         browser.until(lambda: len(shown(browser, rows)) == 2, "the two events")
         filters = browser.find("input.table-filter")
