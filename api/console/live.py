@@ -25,7 +25,7 @@ import json
 import re
 from collections.abc import AsyncIterator, Awaitable, Callable, Collection
 from contextlib import suppress
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import anyio
 from fastapi import Request
@@ -56,6 +56,14 @@ class LiveView(Protocol):
     async def events(self, records: list[EventRecord]) -> list[str]:
         """The fragments ``records`` add to the page (a row each, say); may be none. A batch is
         rendered once for all the view's open pages: they must not depend on who looks."""
+        ...
+
+
+@runtime_checkable
+class PersonalView(LiveView, Protocol):
+    async def personal(self, request: Request) -> list[str]:
+        """Fragments of the state that depend on who looks (the user ``request`` was signed in
+        as): sent like the snapshot's, when they changed."""
         ...
 
 
@@ -130,11 +138,17 @@ async def _end_on(closing: anyio.Event, queue: asyncio.Queue[Batch | None]) -> N
 
 
 async def _state(view: LiveView, request: Request) -> list[str]:
-    """The view's state and what every live page shows besides (the alerts banner: the app's
-    ``on_every_live_page``, given the request, which says who looks)."""
+    """The view's state, its part for who looks (a :class:`PersonalView`'s), and what every live
+    page shows besides (the alerts banner: the app's ``on_every_live_page``, given the request,
+    which says who looks)."""
     app = request.scope.get("app")  # none for a view streamed outside the app (its tests)
     every_page = getattr(app.state, "on_every_live_page", None) if app is not None else None
-    return [*await view.snapshot(), *(await every_page(request) if every_page else [])]
+    personal = view.personal(request) if isinstance(view, PersonalView) else None
+    return [
+        *await view.snapshot(),
+        *(await personal if personal is not None else []),
+        *(await every_page(request) if every_page else []),
+    ]
 
 
 async def _session_open(request: Request) -> bool:

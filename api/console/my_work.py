@@ -1,11 +1,21 @@
 """What the dashboard shows every user of their own work, whatever the role: the missions not yet
 closed that are theirs (:meth:`fleetbus.api.services.missions.Missions.active_for`), the robots they mounted,
-and their broker login (its URL; the password only on request, once: :mod:`.shown_once`)."""
+and their broker login (its URL; the password only on request, once: :mod:`.shown_once`).
+
+The panel is live: a dashboard's stream sends it again whenever it changed
+(:class:`MyWorkPanels`, rendered at most twice a second for each user however many of their
+pages are open); the broker login is not in it (a rotated password is shown once, on its own
+page)."""
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
+from fastapi import Request
+
+from fleetbus.api.console.live import Shared
+from fleetbus.api.console.templating import fragment
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.missions import AUTHORS
@@ -33,3 +43,37 @@ def broker_login(svc: Service, user: User) -> dict[str, Any]:
         "url": svc.accounts.broker_address(user),
         "has_password": user.broker_secret is not None,
     }
+
+
+class MyWorkPanels:
+    """Each user's My work panel as a live fragment. One render is shared by that user's open
+    pages (a user's, not everyone's: it holds their missions and mounts); one entry a user who
+    opened a live page, so the users' registry bounds them."""
+
+    def __init__(self, service: Service) -> None:
+        self._service = service
+        self._renders: dict[tuple[str, str], Shared] = {}
+
+    async def of(self, user: User) -> list[str]:
+        key = (user.name, user.role.value)  # a new role is a new panel (its actions differ)
+        render = self._renders.get(key)
+        if render is None:
+            render = self._renders[key] = Shared(partial(self._render, user))
+        return await render()
+
+    async def _render(self, user: User) -> list[str]:
+        mine = await my_work(self._service, user)
+        return [fragment("dashboard/my_work.html", user=user, **mine)]
+
+
+def my_work_panels(request: Request) -> MyWorkPanels:
+    state = request.app.state
+    if getattr(state, "my_work_panels", None) is None:
+        state.my_work_panels = MyWorkPanels(state.service)
+    return state.my_work_panels
+
+
+async def my_work_panel(request: Request) -> list[str]:
+    """The signed-in user's panel, for a live page's stream (none for a stream without one)."""
+    user: User | None = getattr(request.state, "user", None)
+    return await my_work_panels(request).of(user) if user is not None else []

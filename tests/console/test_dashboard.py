@@ -165,7 +165,8 @@ def test_planners_and_clients_see_their_own_work_and_not_the_live_team(bus: Bus)
             with console.http_as(name) as http:
                 page = http.get("/console/")
                 assert page.status_code == 200 and 'id="my-work"' in page.text
-                assert 'id="team"' not in page.text and "data-stream" not in page.text
+                assert 'id="team"' not in page.text, "no team"
+                assert 'data-stream="/console/stream/my-work"' in page.text, "their own work, live"
                 refused = http.get("/console/stream/dashboard")
                 assert refused.status_code == 403
                 assert "may not use the live team on the dashboard" in refused.text

@@ -30,7 +30,7 @@ from fleetbus.api.console.charts import TimeChart, time_chart
 from fleetbus.api.console.feed import Feed
 from fleetbus.api.console.latest import Latest, latest_for
 from fleetbus.api.console.live import Shared, live_stream, newest_of
-from fleetbus.api.console.my_work import my_work
+from fleetbus.api.console.my_work import my_work, my_work_panel
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ADMINS, DASHBOARD
 from fleetbus.api.console.templating import fragment, render
@@ -187,6 +187,9 @@ class DashboardView:
         )
         return [fragment("dashboard/event.html", event=record) for record in records[-self.recent_limit :]]
 
+    async def personal(self, request: Request) -> list[str]:
+        return await my_work_panel(request)
+
     async def newest(self) -> list[str]:
         """The newest events, for the page as first rendered (the stream adds the later ones)."""
         found = await self._service.events.newest(self.recent_limit)
@@ -219,7 +222,8 @@ async def dashboard(
 ) -> Response:
     mine = await my_work(svc, user)
     if user.role not in WATCHERS:
-        return render(request, "dashboard/mine.html", user, DASHBOARD, **mine)
+        cursor = request.app.state.feed.cursor
+        return render(request, "dashboard/mine.html", user, DASHBOARD, cursor=cursor, **mine)
     return render(
         request,
         "dashboard/page.html",
@@ -247,3 +251,21 @@ async def repair_registry(admin: Repairer, svc: ServiceDep) -> Response:
 @router.get("/console/stream/dashboard")
 async def dashboard_stream(request: Request, user: Watcher, view: View) -> Response:
     return live_stream(view, request.app.state.feed, request)
+
+
+class MyWorkView:
+    """The dashboard of a user who does not watch the team: their own work alone, live."""
+
+    async def snapshot(self) -> list[str]:
+        return []
+
+    async def events(self, records: list[EventRecord]) -> list[str]:
+        return []  # missions and mounts change through the services: each tick shows them
+
+    async def personal(self, request: Request) -> list[str]:
+        return await my_work_panel(request)
+
+
+@router.get("/console/stream/my-work")
+async def my_work_stream(request: Request, user: Viewer) -> Response:
+    return live_stream(MyWorkView(), request.app.state.feed, request)
