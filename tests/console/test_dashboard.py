@@ -208,3 +208,7 @@ def test_the_team_panel_lists_a_bounded_page_those_that_need_attention_first(bus
         rows = re.findall(r'<tr id="robot-([a-z0-9-]+)"', page)
         assert rows == ["rank-c", "rank-a"], rows  # out of service first, then by name; rank-b counted
         assert "3 robots (the 2 that need attention first" in page
+        assert 'href="/console/map#map-robots"' in page, "the heading points to where all are listed"
+        with console.http_as("oper2") as http:
+            listed = re.findall(r'<tr id="map-robot-([a-z0-9-]+)"', http.get("/console/map").text)
+        assert sorted(listed) == ["rank-a", "rank-b", "rank-c"], "the live map lists every robot"
