@@ -125,13 +125,12 @@ def test_an_admin_sets_use_cases_and_a_supervisor_sees_the_robots_read_only(
         assert browser.find("table.accounts details") == []
 
 
-def test_the_roles_that_neither_create_nor_mount_see_their_own_work_and_broker_login(
-    bus: Bus, browser: Browser
-) -> None:
-    """A supervisor sees the mission waiting for its step, an admin and a guest none (no step is
-    theirs); each has no mount list, and each has a broker login whose password is shown once
-    and can be renewed (the new one logs in, the old one no longer)."""
-    roles = (UserRole.SUPERVISOR, UserRole.ADMIN, UserRole.GUEST)
+def test_the_roles_that_mount_nothing_see_their_own_work_and_broker_login(bus: Bus, browser: Browser) -> None:
+    """A supervisor and a planner see the client's new mission waiting for their steps, an admin
+    and a guest none (no step is theirs); the planner alone may create one; none has a mount list;
+    each has a broker login whose password is shown once and can be renewed (the new one logs in,
+    the old one no longer)."""
+    roles = (UserRole.SUPERVISOR, UserRole.PLANNER, UserRole.ADMIN, UserRole.GUEST)
     with running_console(bus) as console:
         for role in roles:
             console.user_of(role)
@@ -151,12 +150,14 @@ def test_the_roles_that_neither_create_nor_mount_see_their_own_work_and_broker_l
             _open_as(console, browser, name, "/console/")
             steps = machine_for("survey").steps_from(state)
             waiting = [step.target.value for step in steps if role in step.roles]
+            assert bool(waiting) == (role in (UserRole.SUPERVISOR, UserRole.PLANNER)), (name, waiting)
             if waiting:
                 assert browser.text(f"#my-mission-{mission_id} .why") == f"next for you: {', '.join(waiting)}"
             else:
                 assert browser.find("#my-missions") == [] and browser.find("#no-missions"), name
             assert browser.find("#my-mounts") == [] and browser.find("#no-mounts") == [], name
-            assert browser.find("#my-work a[href='/console/missions/new']") == [], f"{name} creates none"
+            creates = bool(browser.find("#my-work a[href='/console/missions/new']"))
+            assert creates == (role is UserRole.PLANNER), name
             assert bool(browser.find("#team")) == (role in WATCHERS), name
             assert browser.text("#my-broker-user") == name
             old_url = _broker_url(console, name)
