@@ -39,6 +39,11 @@ OPERATING = frozenset({UserRole.OPERATOR})
 UNMOUNTERS = frozenset({UserRole.OPERATOR, UserRole.SUPERVISOR})
 
 
+def may_unmount(user: User, mount: Mount) -> bool:
+    """Whether ``user`` may unmount ``mount``'s robot: the operator who mounted it, or a supervisor."""
+    return user.role is UserRole.SUPERVISOR or (user.role in UNMOUNTERS and mount.operator == user.name)
+
+
 @dataclass(frozen=True)
 class BindingReport:
     expected: list[QueueBinding]
@@ -164,7 +169,7 @@ class Channels:
         if not current:
             raise NotFound(f"robot {robot} is not mounted")
         force = user.role is UserRole.SUPERVISOR
-        if not force and current[0].operator != user.name:
+        if not may_unmount(user, current[0]):
             raise Forbidden(
                 f"robot {robot} is mounted by {current[0].operator}; only they or a supervisor can unmount it"
             )

@@ -46,6 +46,11 @@ PASSWORD = "correct horse battery"
 LIVE_WITHIN_S = 2.0
 
 
+def role_user(role: UserRole) -> str:
+    """The name of the user a test makes for each role it sweeps (``guest*`` names are reserved)."""
+    return f"user-{role.value}"
+
+
 class SlowLiveUpdate(UserWarning):
     pass
 
@@ -183,6 +188,10 @@ class Console:
         self.run(lambda: self.service.accounts.create(name, PASSWORD, role, kind, by="test"))
         return name
 
+    def user_of(self, role: UserRole) -> str:
+        """A user of ``role``, named :func:`role_user`."""
+        return self.user(role_user(role), role)
+
     def url(self, path: str) -> str:
         return self.base + path
 
@@ -276,6 +285,18 @@ class _Cut(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         if "graceful shutdown" in record.getMessage():
             self.messages.append(record.getMessage())
+
+
+def shown_once(browser: Browser, form: str) -> tuple[str, str]:
+    """Press the button of ``form`` (one of the broker login's, on the dashboard or the account
+    page); the password and URL the page then shows, after checking that a reload shows them no more."""
+    browser.click(f"{form} button")
+    browser.until(lambda: browser.text("#broker-password"), "the password shown")
+    password, url = browser.text("#broker-password"), browser.text("#broker-url")
+    browser.driver.refresh()
+    browser.until(lambda: "not shown again" in browser.text("#not-shown"), "the reload without it")
+    assert password not in browser.driver.page_source
+    return password, url
 
 
 @contextmanager

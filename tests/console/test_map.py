@@ -17,7 +17,7 @@ from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.beacons import Beacon
 from fleetbus.workers.store.maps import MapVersion
-from tests.console.support import Browser, Console, http_session, report_live, running_console
+from tests.console.support import Browser, Console, http_session, report_live, role_user, running_console
 from tests.factories import hazard, small_map, status
 from tests.support import Bus, wait_for
 
@@ -54,9 +54,11 @@ def stored_maps(bus: Bus, count: int) -> None:
     )
 
 
-def open_map(console: Console, browser: Browser, query: str = "") -> None:
-    console.user("oper1", UserRole.OPERATOR)
-    console.log_in(browser, "oper1")
+def open_map(console: Console, browser: Browser, query: str = "", role: UserRole = UserRole.OPERATOR) -> None:
+    """The live map, live, as a new user of ``role`` (``oper1`` for an operator)."""
+    name = "oper1" if role is UserRole.OPERATOR else role_user(role)
+    console.user(name, role)
+    console.log_in(browser, name)
     browser.go(console.url("/console/map" + query))
     console.wait_live(browser)
 

@@ -1,7 +1,7 @@
 """The live map's Leaflet view in a real browser: a robot's trail over a chosen window from its
 stored localisations (finding a lost robot by the path it reported), the time slider that shows
 the team at a past moment, and a clicked robot followed as it moves; the map's files all from
-fleetbus itself."""
+fleetbus itself; for each role that watches the team (operator, admin, supervisor)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from datetime import datetime, timedelta, timezone
 from selenium.webdriver.support.select import Select
 
 from fleetbus.broker.accounts import Role
+from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord
@@ -66,6 +67,26 @@ def _offset_from_centre(browser: Browser, mark: str) -> float:
     )
 
 
+def _trail_shown(browser: Browser) -> None:
+    """The last hour's trails chosen: explorer1's reported path drawn."""
+    Select(browser.find("#trail-window")[0]).select_by_value("60")
+    browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+    trail = browser.find("path.trail")
+    assert len(trail) == 1 and trail[0].get_attribute("data-robot") == "explorer1"
+    assert len(re.findall(r"[ML]", trail[0].get_attribute("d") or "")) >= 2, "a path, not a point"
+
+
+def _follows(browser: Browser, explorer: RobotClient, x: float) -> None:
+    """Click explorer1: the map centres on it, and stays centred as it moves to ``x``."""
+    mark = ".leaflet-marker-icon[data-mark='mark-robot-explorer1']"
+    browser.click(f"{mark} .glyph")
+    browser.until(lambda: "Following explorer1" in browser.text("#map-following"), "following explorer1")
+    browser.until(lambda: _offset_from_centre(browser, "mark-robot-explorer1") < 3, "centred on explorer1")
+    explorer.publish("status", at(status(79.0), x, 8.0))
+    browser.until(lambda: browser.attributes(mark, "data-x") == [f"{x:.3f}"], "the explorer moved")
+    browser.until(lambda: _offset_from_centre(browser, "mark-robot-explorer1") < 3, "still centred on it")
+
+
 def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser) -> None:
     explorer = bus.robot(bus.add("explorer1", Role.ROBOT, RobotKind.EXPLORER))
     with bus.worker(), running_console(bus) as console:
@@ -79,11 +100,7 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         browser.until(lambda: drawn(browser, "mark-robot-explorer1"), "the explorer on the map")
         assert browser.find("#map-time")[0].get_attribute("disabled") is not None, "no slider without trails"
 
-        Select(browser.find("#trail-window")[0]).select_by_value("60")
-        browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
-        trail = browser.find("path.trail")
-        assert len(trail) == 1 and trail[0].get_attribute("data-robot") == "explorer1"
-        assert len(re.findall(r"[ML]", trail[0].get_attribute("d"))) >= 2, "a path, not a point"
+        _trail_shown(browser)
 
         # three quarters along the last hour: 15 minutes ago, after the pose of 16 minutes ago (x 12)
         _slide(browser, 750)
@@ -100,20 +117,7 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         assert browser.find("[data-past]") == []
 
         # click the robot: the map centres on it and follows it as it moves
-        browser.click(".leaflet-marker-icon[data-mark='mark-robot-explorer1'] .glyph")
-        browser.until(lambda: "Following explorer1" in browser.text("#map-following"), "following explorer1")
-        browser.until(
-            lambda: _offset_from_centre(browser, "mark-robot-explorer1") < 3, "centred on explorer1"
-        )
-        explorer.publish("status", at(status(79.0), 8.5, 8.0))
-        browser.until(
-            lambda: (
-                browser.attributes(".leaflet-marker-icon[data-mark='mark-robot-explorer1']", "data-x")
-                == ["8.500"]
-            ),
-            "the explorer moved",
-        )
-        browser.until(lambda: _offset_from_centre(browser, "mark-robot-explorer1") < 3, "still centred on it")
+        _follows(browser, explorer, 8.5)
 
         # everything the map loaded came from the console's own server
         loaded = browser.driver.execute_script(
@@ -122,6 +126,15 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         assert loaded and all(url.startswith(console.base) for url in loaded), loaded
         assert any("/static/console/vendor/leaflet-1.9.4/leaflet.js" in url for url in loaded)
         assert browser.console_errors() == []
+
+        # the other roles that watch the team: the same trails, the same following
+        for x, role in ((10.5, UserRole.ADMIN), (12.5, UserRole.SUPERVISOR)):
+            browser.reset()
+            open_map(console, browser, role=role)
+            browser.until(lambda: drawn(browser, "mark-robot-explorer1"), f"{role.value}: the explorer")
+            _trail_shown(browser)
+            _follows(browser, explorer, x)
+            assert browser.console_errors() == [], role
 
 
 def test_the_trails_of_a_window_come_from_the_stored_localisations(bus: Bus) -> None:

@@ -11,6 +11,7 @@ from fleetbus.broker.accounts import Account, Role
 from fleetbus.schemas.missions import MissionPlan, MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.use_cases import machine_for
 from fleetbus.workers.store.base import EventRecord
 from tests.console.support import Browser, Console, http_session, report_live, running_console
 from tests.support import Bus
@@ -22,6 +23,16 @@ PLAN = MissionPlan.model_validate(
 RECORDED = 3000
 #: Where they lie: the geofence's lower-left 20 m square (the live one lands far from them).
 SPREAD = 20.0
+#: The users the tests make, by name.
+USERS = {
+    "client1": UserRole.CLIENT,
+    "super1": UserRole.SUPERVISOR,
+    "oper1": UserRole.OPERATOR,
+    "oper2": UserRole.OPERATOR,
+    "planner1": UserRole.PLANNER,
+    "admin1": UserRole.ADMIN,
+    "visitor1": UserRole.GUEST,
+}
 T0 = datetime(2026, 11, 28, 1, 0, tzinfo=timezone.utc)
 
 
@@ -82,13 +93,8 @@ def test_readings_are_mapped_clustered_and_live_and_comments_reach_other_roles(
     bus: Bus, browser: Browser
 ) -> None:
     with running_console(bus) as console:
-        for name, role in (
-            ("client1", UserRole.CLIENT),
-            ("super1", UserRole.SUPERVISOR),
-            ("oper1", UserRole.OPERATOR),
-            ("visitor1", UserRole.GUEST),
-        ):
-            console.user(name, role)
+        for name in ("client1", "super1", "oper1", "visitor1"):
+            console.user(name, USERS[name])
         console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
         mission = in_progress_with_explorer(console)
         page = console.url(f"/console/missions/{mission}")
@@ -147,3 +153,46 @@ def test_readings_are_mapped_clustered_and_live_and_comments_reach_other_roles(
                 assert refused.status_code == 403 and "role guest may not comment" in refused.text
             assert len(console.run(lambda: console.service.repositories.comments.comments(mission))) == 2
             assert browser.console_errors() == []
+
+
+def test_each_role_sees_the_steps_and_controls_it_may_use_and_its_comments_reach_the_client(
+    bus: Bus, browser: Browser
+) -> None:
+    """A planner, an admin and a supervisor on an in-progress mission's page: the step buttons are
+    those of its role, the mount form an operator's only, the Unmount button a supervisor's (and
+    an operator's for the robots it mounted: not another operator's); the supervisor's and the
+    planner's comments, made in the browser, are on the client's page."""
+    with running_console(bus) as console:
+        for name in ("client1", "super1", "oper1", "oper2", "planner1", "admin1"):
+            console.user(name, USERS[name])
+        console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
+        mission = in_progress_with_explorer(console)
+        page = console.url(f"/console/missions/{mission}")
+        steps = machine_for("survey").steps_from(MissionState.IN_PROGRESS)
+        for name in ("planner1", "admin1", "super1", "oper2"):
+            role = USERS[name]
+            browser.reset()
+            console.log_in(browser, name)
+            browser.go(page)
+            browser.until(lambda: browser.find("#mission-mounts #mount-explorer1"), f"{name}: the page")
+            buttons = browser.attributes("#mission-machine button[data-to]", "data-to")
+            assert buttons == [step.target.value for step in steps if role in step.roles], name
+            assert bool(browser.find("#mount-form, #mount-none")) == (role is UserRole.OPERATOR), name
+            unmounts = browser.find("button[data-unmount=explorer1]")
+            assert bool(unmounts) == (role is UserRole.SUPERVISOR), f"{name}: explorer1 is oper1's"
+            assert browser.find("button[data-action=comment]"), f"{name} comments"
+            if role in (UserRole.SUPERVISOR, UserRole.PLANNER):
+                _comment(browser, f"{name} was here")
+        browser.reset()
+        console.log_in(browser, "client1")
+        browser.go(page)
+        comments = browser.until(lambda: browser.texts("#mission-thread li.comment"), "the thread")
+        assert [" ".join(c.split()[:2]) for c in comments] == ["planner1 planner", "super1 supervisor"]
+        assert [c.splitlines()[-1] for c in comments] == ["planner1 was here", "super1 was here"]
+
+
+def _comment(browser: Browser, text: str) -> None:
+    """Comment through the open mission page's form; the thread shows it."""
+    browser.fill("#comment-text", text)
+    browser.click("button[data-action=comment]")
+    browser.until(lambda: text in browser.text("#mission-thread"), f"the comment {text!r}")

@@ -11,11 +11,13 @@ import pika.exceptions
 import pytest
 
 from fleetbus.api.console.session import SESSION_COOKIE
+from fleetbus.api.services.accounts import User
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.missions import MissionPlan
-from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.roles import WATCHERS, UserRole
 from fleetbus.schemas.routing import RobotKind
-from tests.console.support import Browser, Console, running_console
+from fleetbus.schemas.use_cases import machine_for
+from tests.console.support import Browser, Console, role_user, running_console, shown_once
 from tests.support import Bus
 
 
@@ -28,22 +30,14 @@ def _open_as(console: Console, browser: Browser, name: str, path: str) -> None:
     browser.until(lambda: name in browser.text(".who"), f"{path} as {name}")
 
 
-def _broker_url(console: Console, name: str) -> str:
+def _user(console: Console, name: str) -> User:
     user = console.run(lambda: console.service.repositories.users.get_user(name))
     assert user is not None
-    return console.service.accounts.broker_credentials(user).amqp_url
+    return user
 
 
-def _shown_once(browser: Browser, button: str) -> tuple[str, str]:
-    """Press ``button`` on the dashboard; the password and URL the page then shows, after checking
-    that a reload shows them no more."""
-    browser.click(f"{button} button")
-    browser.until(lambda: browser.text("#broker-password"), "the password shown")
-    password, url = browser.text("#broker-password"), browser.text("#broker-url")
-    browser.driver.refresh()
-    browser.until(lambda: "not shown again" in browser.text("#not-shown"), "the reload without it")
-    assert password not in browser.driver.page_source
-    return password, url
+def _broker_url(console: Console, name: str) -> str:
+    return console.service.accounts.broker_credentials(_user(console, name)).amqp_url
 
 
 def test_each_role_sees_its_own_work_and_its_broker_password_once_on_request(
@@ -83,11 +77,11 @@ def test_each_role_sees_its_own_work_and_its_broker_password_once_on_request(
         old_password = service.accounts.broker_credentials(oper).password
         assert old_password not in browser.driver.page_source, "not on the page until asked for"
 
-        password, url = _shown_once(browser, "#show-broker-password")
+        password, url = shown_once(browser, "#show-broker-password")
         assert (password, url) == (old_password, old_url)
 
         browser.go(console.url("/console/"))
-        new_password, new_url = _shown_once(browser, "#new-broker-password")
+        new_password, new_url = shown_once(browser, "#new-broker-password")
         assert new_password != old_password and new_url == _broker_url(console, "oper1")
         connection = blocking_connection(new_url)  # the new password logs in, with its permissions
         connection.channel().queue_declare("oper1.inbox", passive=True)
@@ -129,3 +123,51 @@ def test_an_admin_sets_use_cases_and_a_supervisor_sees_the_robots_read_only(
         assert browser.attributes("table.accounts tbody tr", "id") == ["user-explorer1"]
         assert browser.find("table.accounts form") == [] and browser.find("#create-user") == []
         assert browser.find("table.accounts details") == []
+
+
+def test_the_roles_that_mount_nothing_see_their_own_work_and_broker_login(bus: Bus, browser: Browser) -> None:
+    """A supervisor and a planner see the client's new mission waiting for their steps, an admin
+    and a guest none (no step is theirs); the planner alone may create one; none has a mount list;
+    each has a broker login whose password is shown once and can be renewed (the new one logs in,
+    the old one no longer)."""
+    roles = (UserRole.SUPERVISOR, UserRole.PLANNER, UserRole.ADMIN, UserRole.GUEST)
+    with running_console(bus) as console:
+        for role in roles:
+            console.user_of(role)
+        console.user("client1", UserRole.CLIENT)
+        service = console.service
+
+        async def setup() -> str:
+            client = await service.repositories.users.get_user("client1")
+            assert client is not None
+            mission = await service.missions.create(client, "survey", "North yard", MissionPlan())
+            return mission.mission_id
+
+        mission_id = console.run(setup)
+        state = console.run(lambda: service.missions.get_any(mission_id)).state
+        for role in roles:
+            name = role_user(role)
+            _open_as(console, browser, name, "/console/")
+            steps = machine_for("survey").steps_from(state)
+            waiting = [step.target.value for step in steps if role in step.roles]
+            assert bool(waiting) == (role in (UserRole.SUPERVISOR, UserRole.PLANNER)), (name, waiting)
+            if waiting:
+                assert browser.text(f"#my-mission-{mission_id} .why") == f"next for you: {', '.join(waiting)}"
+            else:
+                assert browser.find("#my-missions") == [] and browser.find("#no-missions"), name
+            assert browser.find("#my-mounts") == [] and browser.find("#no-mounts") == [], name
+            creates = bool(browser.find("#my-work a[href='/console/missions/new']"))
+            assert creates == (role is UserRole.PLANNER), name
+            assert bool(browser.find("#team")) == (role in WATCHERS), name
+            assert browser.text("#my-broker-user") == name
+            old_url = _broker_url(console, name)
+            assert shown_once(browser, "#show-broker-password") == (
+                service.accounts.broker_credentials(_user(console, name)).password,
+                old_url,
+            )
+            browser.go(console.url("/console/"))
+            _, new_url = shown_once(browser, "#new-broker-password")
+            assert new_url == _broker_url(console, name) != old_url, name
+            blocking_connection(new_url).close()
+            with pytest.raises(pika.exceptions.ProbableAuthenticationError):
+                blocking_connection(old_url)

@@ -5,11 +5,17 @@ account page lists their sessions and ends them."""
 
 from __future__ import annotations
 
+from functools import partial
+
 import httpx
+import pika.exceptions
+import pytest
 
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD, SESSION_COOKIE
+from fleetbus.api.console.sitemap import CONSOLE_ROLES
+from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.roles import UserRole
-from tests.console.support import PASSWORD, Browser, Console, running_console
+from tests.console.support import PASSWORD, Browser, Console, role_user, running_console, shown_once
 from tests.support import Bus
 
 NEW_PASSWORD = "a new long password"
@@ -119,3 +125,46 @@ def test_the_own_account_page_lists_and_ends_sessions_and_changes_the_password(
         browser.click("table.sessions tr.current form.end-session button")
         _on_login_form(browser, "the login form after ending this browser's own session")
         assert _replayed(console, mine).status_code == 303
+
+
+def test_every_role_sees_its_account_renews_its_broker_password_and_ends_its_sessions(
+    bus: Bus, browser: Browser
+) -> None:
+    """The own account page for each role that logs in to the console, on one console: its name and
+    role, a token's session listed and ended, a new broker password (shown once; the old one no
+    longer logs in), a password change, and logging out by ending this browser's session."""
+    with running_console(bus) as console:
+        for role in CONSOLE_ROLES:
+            console.user_of(role)
+        for role in sorted(CONSOLE_ROLES, key=lambda r: r.value):
+            name = role_user(role)
+            browser.reset()
+            console.log_in(browser, name)
+            script = _token(console, name, "robot-script/7")
+            browser.click("a.who")
+            browser.until(lambda: len(browser.find("table.sessions tbody tr")) == 2, f"{name}'s two sessions")
+            assert (browser.text("#account-name"), browser.text("#account-role")) == (name, role.value)
+            browser.click("table.sessions tbody tr:not(.current) form.end-session button")
+            ended = lambda: "That session has ended" in browser.text(".notice")  # noqa: E731
+            browser.until(ended, f"{name}'s token ended")
+            assert _api_status(console, script) == 401
+
+            user = console.run(partial(console.service.repositories.users.get_user, name))
+            assert user is not None
+            old_url = console.service.accounts.broker_credentials(user).amqp_url
+            assert old_url not in browser.driver.page_source
+            _, new_url = shown_once(browser, "#new-broker-password")
+            assert new_url != old_url
+            blocking_connection(new_url).close()
+            with pytest.raises(pika.exceptions.ProbableAuthenticationError):
+                blocking_connection(old_url)
+
+            browser.go(console.url("/console/account"))
+            browser.fill("#change-password input[name=current_password]", PASSWORD)
+            browser.fill("#change-password input[name=new_password]", NEW_PASSWORD)
+            browser.click("#change-password button")
+            browser.until(lambda: "Your password is changed" in browser.text(".notice"), f"{name}'s password")
+            mine = _cookie(browser)
+            browser.click("table.sessions tr.current form.end-session button")
+            _on_login_form(browser, f"{name} logged out by ending this browser's session")
+            assert _replayed(console, mine).status_code == 303

@@ -25,7 +25,7 @@ from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
-from fleetbus.api.services.channels import OPERATING, UNMOUNTERS
+from fleetbus.api.services.channels import OPERATING, UNMOUNTERS, may_unmount
 from fleetbus.api.services.errors import Conflict, ServiceRefusal
 from fleetbus.api.services.mission_comments import COMMENT_MAX, may_comment
 from fleetbus.api.services.missions import AUTHORS, MOVERS, may_see
@@ -163,7 +163,7 @@ async def show_detail(
         mounts=mounts,
         check_ins=[(c, [m.robot for m in mounts if m.operator == c.operator]) for c in check_ins],
         may_mount=operating and machine.mountable(mission.state),
-        may_unmount=user.role in UNMOUNTERS,
+        unmountable={m.robot for m in mounts if may_unmount(user, m)},
         may_check_in=operating
         and mission.state in CHECK_IN_STATES
         and all(c.operator != user.name for c in check_ins),
