@@ -8,7 +8,7 @@ from __future__ import annotations
 import pika
 
 from fleetbus.api.console.session import SESSION_COOKIE
-from fleetbus.api.console.sitemap import MISSION_ROLES, pages_for
+from fleetbus.api.console.sitemap import ACCOUNT, MESSAGES, MISSION_ROLES, pages_for
 from fleetbus.api.services.missions import AUTHORS
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
@@ -51,7 +51,13 @@ def _team(console: Console) -> None:
 
 
 def _paths(role: UserRole) -> list[str]:
+    """The navigation's pages, and those reached from them: the own account (linked from the
+    header), a mission, and the messages' trace and a robot's timeline."""
     paths = [page.path for page in pages_for(role)]
+    if ACCOUNT.admits(role):
+        paths.append(ACCOUNT.path)
+    if MESSAGES.admits(role):
+        paths += ["/console/messages/trace", "/console/messages/timeline?robot=explorer1"]
     if role in MISSION_ROLES:
         paths.append("/console/missions/m-1")
     if role in AUTHORS:
