@@ -30,7 +30,7 @@ from fleetbus.api.services.stored_events import MissionEvents, StoredEvents
 from fleetbus.api.services.team import Team, team_for
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.dead_letter_queue import DeadLetter, dead_letters_waiting
-from fleetbus.broker.management import ManagementAPI
+from fleetbus.broker.management import ManagementAPI, connections_by_user
 from fleetbus.broker.routes import RouteMap
 from fleetbus.settings import Settings
 from fleetbus.workers.sites import send_mission_to_sites
@@ -120,7 +120,10 @@ async def open_service(
     sessions = Sessions(repositories.sessions, secrets_.tokens, settings.api_sessions_per_user)
     vhost = vhost_of(admin_url)
     alerts = alerts_for(
-        settings, repositories, lambda: asyncio.to_thread(dead_letters_waiting, management, vhost)
+        settings,
+        repositories,
+        lambda: asyncio.to_thread(dead_letters_waiting, management, vhost),
+        lambda: asyncio.to_thread(connections_by_user, management, vhost),
     )
     checking = asyncio.create_task(
         alerts.keep_checking(settings.alerts_check_s, settings.alerts_hazard_check_s), name="alerts-check"

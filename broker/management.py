@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import ssl
+from collections import Counter
 from collections.abc import Collection
 from typing import Any
 from urllib.parse import quote, urlsplit
@@ -355,3 +356,13 @@ class ManagementAPI:
 
     def overview(self) -> dict[str, Any]:
         return self._request("GET", "overview")
+
+
+def users_of(connections: list[dict[str, Any]]) -> Counter[str]:
+    """How many of ``connections`` (as the management API lists them) each user has open."""
+    return Counter(str(connection.get("user", "?")) for connection in connections)
+
+
+def connections_by_user(management: ManagementAPI, vhost: str) -> Counter[str]:
+    """How many connections each user has open on ``vhost``: one call, however many users."""
+    return users_of(management.list_vhost_connections(vhost))

@@ -26,6 +26,7 @@ from fastapi import Request
 from fleetbus.api.console.broker_rates import AGE_S, EVERY_S, Rates, rates_of
 from fleetbus.api.service import Service
 from fleetbus.broker.dead_letter_queue import DeadLetter
+from fleetbus.broker.management import users_of
 from fleetbus.broker.served_certificate import ServedCertificate, served_certificate
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 
@@ -271,7 +272,7 @@ class BrokerWatch:
                     (Queue.of(queue) for queue in queues if queue["name"].startswith(QUEUE_PREFIX)),
                     key=lambda queue: queue.name,
                 ),
-                Counter(connection.get("user", "?") for connection in connections),
+                users_of(connections),
                 None,
                 _oldest_by_user(connections),
                 rates=rates,

@@ -1,6 +1,6 @@
 """Alerts the operators acknowledge, derived from what the store holds: a hazard announced, a
 hazard no warden claimed in time, a robot's battery low, a robot stale, a site's uplink near its
-bound, dead letters growing.
+bound, dead letters growing, a robot disconnected from the broker.
 
 Each rule is the one the rest of fleetbus uses: the team view's staleness
 (:func:`~fleetbus.workers.team.team_member`), the battery watch's threshold
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 from enum import Enum
@@ -53,6 +53,7 @@ class AlertKind(str, Enum):
     ROBOT_STALE = "robot-stale"
     UPLINK_NEAR_FULL = "uplink-near-full"
     DEAD_LETTERS = "dead-letters-growing"
+    ROBOT_DISCONNECTED = "robot-disconnected"
 
 
 #: What each kind means, as the console and ``fleetbus alerts`` say it.
@@ -65,11 +66,15 @@ MEANING = {
     AlertKind.UPLINK_NEAR_FULL: "a site's uplink holds FLEETBUS_UPLINK_ALERT_AT of a class's bound or more",
     AlertKind.DEAD_LETTERS: "the dead-letter queue holds letters, more than when its last alert was "
     "acknowledged",
+    AlertKind.ROBOT_DISCONNECTED: "a robot that had a broker connection has had none for "
+    "FLEETBUS_ALERTS_DISCONNECTED_S",
 }
 #: Kinds whose condition may grow after an acknowledgement: grown, it is a new occurrence.
 GROWING = frozenset({AlertKind.DEAD_LETTERS.value})
 
 DeadLetterCount = Callable[[], Awaitable[int]]
+#: The open connections on the service's virtual host, by broker user (one management API call).
+ConnectionCount = Callable[[], Awaitable[Mapping[str, int]]]
 
 
 #: The kinds a hazards-only check looks at.
@@ -82,6 +87,7 @@ class Thresholds:
     battery_low_percent: float
     stale_after: timedelta
     uplink_alert_at: float
+    disconnected_after: timedelta = timedelta(seconds=10)
 
     @classmethod
     def of(cls, settings: Settings) -> Thresholds:
@@ -90,6 +96,7 @@ class Thresholds:
             settings.battery_low_percent,
             timedelta(seconds=settings.stale_after_s),
             settings.uplink_alert_at,
+            timedelta(seconds=settings.alerts_disconnected_s),
         )
 
 
@@ -122,6 +129,7 @@ class Alerts:
         thresholds: Thresholds,
         dead_letters: DeadLetterCount | None = None,
         shown: int = 50,
+        connections: ConnectionCount | None = None,
     ) -> None:
         self._alerts = alerts
         self._team = team
@@ -132,6 +140,10 @@ class Alerts:
         self._dead_letters = dead_letters
         self.shown = shown
         """How many acknowledged alerts :meth:`listing` gives."""
+        self._connections = connections
+        self._connected_at: dict[str, datetime] = {}
+        """When each robot was last seen with a broker connection (kept by this process: a robot
+        never seen connected raises no alert)."""
         self._lock = asyncio.Lock()
 
     async def conditions(self, now: datetime, hazards_only: bool = False) -> tuple[list[NewAlert], set[str]]:
@@ -157,7 +169,37 @@ class Alerts:
                     found.append(NewAlert(kind, f"queue {DEAD_LETTER_QUEUE}", now, detail, waiting))
         else:
             unknown.add(AlertKind.DEAD_LETTERS.value)
+        disconnected = await self._disconnected_conditions(now)
+        if disconnected is None:
+            unknown.add(AlertKind.ROBOT_DISCONNECTED.value)
+        else:
+            found += disconnected
         return found, unknown
+
+    async def _disconnected_conditions(self, now: datetime) -> list[NewAlert] | None:
+        """The robots that had a connection and have had none for the threshold; None when the
+        management API could not be asked (nothing raised, nothing ended)."""
+        if self._connections is None:
+            return None
+        try:
+            open_ = await self._connections()
+        except Exception as error:  # the management API is away: the open alerts stay as they were
+            log.warning("alerts: the broker's connections could not be listed: %s", error)
+            return None
+        after = self.thresholds.disconnected_after
+        names = {robot.name for robot in await self._team.robots()}
+        self._connected_at = {name: at for name, at in self._connected_at.items() if name in names}
+        found = []
+        for name in sorted(names):
+            if open_.get(name, 0) > 0:
+                self._connected_at[name] = now
+                continue
+            last = self._connected_at.get(name)
+            if last is not None and now - last >= after:
+                limit = after.total_seconds()
+                detail = f"no broker connection since {_clock(last)} (alert after {limit:g} s)"
+                found.append(NewAlert(AlertKind.ROBOT_DISCONNECTED.value, f"robot {name}", last, detail))
+        return found
 
     async def _hazard_conditions(self, now: datetime) -> list[NewAlert]:
         counts = await self._hazards.hazard_counts()
@@ -279,10 +321,13 @@ class Alerts:
 
 
 def alerts_for(
-    settings: Settings, repositories: Repositories, dead_letters: DeadLetterCount | None
+    settings: Settings,
+    repositories: Repositories,
+    dead_letters: DeadLetterCount | None,
+    connections: ConnectionCount | None = None,
 ) -> Alerts:
     """The alerts over the repositories, with the settings' thresholds; ``dead_letters`` counts the
-    dead-letter queue (None: not looked at)."""
+    dead-letter queue, ``connections`` the broker's connections by user (None: not looked at)."""
     return Alerts(
         repositories.alerts,
         repositories.hazards,
@@ -292,4 +337,5 @@ def alerts_for(
         Thresholds.of(settings),
         dead_letters,
         settings.alerts_acknowledged_shown,
+        connections,
     )

@@ -220,6 +220,12 @@ class Settings(BaseSettings):
         "unclaimed, batteries below `FLEETBUS_BATTERY_LOW_PERCENT`, robots stale after "
         "`FLEETBUS_STALE_AFTER_S`, uplinks at `FLEETBUS_UPLINK_ALERT_AT`, dead letters growing)",
     )
+    alerts_disconnected_s: Annotated[float, Positive] = setting(
+        10.0,
+        "a registered robot that had a broker connection and has had none this long raises an alert "
+        "(looked at with the other alerts, every `FLEETBUS_ALERTS_CHECK_S`, by one call to the broker's "
+        "management API)",
+    )
     alerts_hazard_check_s: Annotated[float, Positive] = setting(
         0.5,
         "how often, between those looks, the API process looks at the hazards alone, so that an "

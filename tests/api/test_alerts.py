@@ -9,6 +9,7 @@ from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.broker.accounts import Account, Role
+from fleetbus.broker.management import connections_by_user
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
@@ -19,10 +20,18 @@ from tests.factories import hazard, status
 from tests.support import Bus, wait_for
 
 
-def battery_alerts(api: Api) -> list[dict[str, Any]]:
-    listed = api.call("oper1", "GET", "/alerts")
+def alerts_of(api: Api, kind: str, acknowledged: bool = False) -> list[dict[str, Any]]:
+    """The unacknowledged alerts of ``kind`` (with ``acknowledged``, the acknowledged ones): each
+    GET /alerts runs the service's check first."""
+    listed = api.call("oper1", "GET", "/alerts", params={"acknowledged": str(acknowledged).lower()})
     assert listed.status_code == 200, listed.text
-    return [a for a in listed.json()["unacknowledged"] if a["kind"] == "battery-low"]
+    return [
+        a for a in listed.json()["acknowledged" if acknowledged else "unacknowledged"] if a["kind"] == kind
+    ]
+
+
+def battery_alerts(api: Api) -> list[dict[str, Any]]:
+    return alerts_of(api, "battery-low")
 
 
 def test_a_low_battery_is_one_alert_per_drop_acknowledged_once_through_api_and_command_line(bus: Bus) -> None:
@@ -111,3 +120,63 @@ def test_an_announced_hazard_is_an_alert_at_the_next_quick_look_of_the_hazards(b
 
         [detail] = wait_for(announced, 30, "the hazard's alert, without a GET /alerts")
         assert detail == "Fire (detected by explorer1)"
+
+
+def test_a_robot_whose_connection_dropped_is_an_alert_that_ends_when_it_connects_again(bus: Bus) -> None:
+    """The check runs at each GET /alerts (the background one is an hour away); a robot that never
+    connected raises nothing."""
+    settings = bus.settings.updated(alerts_check_s=3600, alerts_disconnected_s=0.2)
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.add("scout1", kind=RobotKind.EXPLORER)
+    with running_api(bus, settings) as api:
+        api.user("oper1", UserRole.OPERATOR)
+
+        def connected() -> int:
+            return connections_by_user(bus.api, bus.vhost).get("explorer1", 0)
+
+        explorer = bus.robot(account)
+        wait_for(connected, what="explorer1's connection listed by the management API")
+        assert alerts_of(api, "robot-disconnected") == [], "connected: no alert"
+        explorer.close(flush_timeout=0)
+        [alert] = wait_for(lambda: alerts_of(api, "robot-disconnected"), what="the disconnected alert")
+        assert alert["subject"] == "robot explorer1" and alert["ended_at"] is None, alert
+        assert alert["detail"].startswith("no broker connection since "), alert
+        assert alert["detail"].endswith("(alert after 0.2 s)"), alert
+
+        bus.robot(account)  # connects again: the condition ends, the alert waits to be acknowledged
+        ended = wait_for(
+            lambda: [a for a in alerts_of(api, "robot-disconnected") if a["ended_at"]], what="the alert ended"
+        )
+        assert [a["id"] for a in ended] == [alert["id"]]
+        before = datetime.now(timezone.utc)
+        acknowledged = api.call("oper1", "POST", f"/alerts/{alert['id']}/acknowledge")
+        assert acknowledged.status_code == 200, acknowledged.text
+        assert acknowledged.json()["acknowledged_by"] == "oper1"
+        assert (
+            before
+            <= datetime.fromisoformat(acknowledged.json()["acknowledged_at"])
+            <= datetime.now(timezone.utc)
+        )
+        assert alerts_of(api, "robot-disconnected") == []
+        assert [a["id"] for a in alerts_of(api, "robot-disconnected", acknowledged=True)] == [alert["id"]]
+
+
+def test_a_silent_robot_is_a_stale_alert_raised_by_the_check(bus: Bus) -> None:
+    settings = bus.settings.updated(alerts_check_s=3600, stale_after_s=0.5)
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    with running_api(bus, settings) as api, bus.worker():
+        api.user("oper1", UserRole.OPERATOR)
+        [never] = alerts_of(api, "robot-stale")
+        assert (never["subject"], never["detail"]) == (
+            "robot explorer1",
+            "never heard from (stale after 0.5 s)",
+        )
+        explorer.publish("status", status(80.0))
+
+        def silent_since() -> list[dict[str, Any]]:
+            return [a for a in alerts_of(api, "robot-stale") if a["detail"].startswith("silent since ")]
+
+        [alert] = wait_for(silent_since, what="a stale alert after the robot's status")
+        assert alert["subject"] == "robot explorer1" and alert["detail"].endswith("(stale after 0.5 s)")
+        acknowledged = api.call("oper1", "POST", f"/alerts/{alert['id']}/acknowledge")
+        assert (acknowledged.status_code, acknowledged.json()["acknowledged_by"]) == (200, "oper1")

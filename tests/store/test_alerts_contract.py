@@ -122,3 +122,59 @@ async def test_the_checks_raise_each_occurrence_once_and_dead_letters_again_when
     assert AlertKind.UPLINK_NEAR_FULL.value in still
     await alerts.check(T0 + 67 * SECOND)
     assert AlertKind.DEAD_LETTERS.value not in {a.kind for a in await store.alerts.open_alerts()}
+
+
+class Connections:
+    """The broker's connections by user, as the management API would answer; ``away``: it does not."""
+
+    def __init__(self) -> None:
+        self.open: dict[str, int] = {}
+        self.away = False
+        self.asked = 0
+
+    async def __call__(self) -> dict[str, int]:
+        self.asked += 1
+        if self.away:
+            raise ConnectionError("management API unreachable")
+        return self.open
+
+
+async def test_a_robot_disconnected_is_raised_after_the_threshold_and_left_as_it_is_while_the_broker_is_away(
+    store: Repositories,
+) -> None:
+    connections = Connections()
+    thresholds = Thresholds(timedelta(seconds=60), 20.0, timedelta(hours=1), 0.8, 10 * SECOND)
+    alerts = Alerts(
+        store.alerts,
+        store.hazards,
+        store.hazards,
+        store.events,
+        store.sites,
+        thresholds,
+        connections=connections,
+    )
+    for name in ("explorer1", "scout1"):
+        await store.hazards.register_robot(name, "explorer")
+    disconnected = AlertKind.ROBOT_DISCONNECTED.value
+
+    def kinds(raised: list) -> list[tuple[str, str]]:
+        return [(a.kind, a.subject) for a in raised if a.kind == disconnected]
+
+    connections.open = {"explorer1": 1}
+    assert kinds(await alerts.check(T0)) == []
+    connections.open = {}
+    assert kinds(await alerts.check(T0 + 9 * SECOND)) == [], "not yet: under the threshold"
+    raised = await alerts.check(T0 + 10 * SECOND)
+    assert kinds(raised) == [(disconnected, "robot explorer1")], "scout1 never connected: no alert"
+    assert connections.asked == 3, "one call per check, whatever the team's size"
+
+    connections.away = True
+    connections.open = {"explorer1": 1}
+    assert kinds(await alerts.check(T0 + 20 * SECOND)) == []
+    [still] = [a for a in await store.alerts.open_alerts() if a.kind == disconnected]
+    assert still.ended_at is None, "the broker away: the alert is left as it was"
+    connections.away = False
+    await alerts.check(T0 + 21 * SECOND)
+    ended = await store.alerts.get_alert(still.id)
+    assert ended is not None and ended.ended_at == T0 + 21 * SECOND, "connected again: ended"
+    assert ended.acknowledged_by is None, "ended, it waits to be acknowledged"
