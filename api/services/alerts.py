@@ -189,6 +189,10 @@ class Alerts:
         after = self.thresholds.disconnected_after
         names = {robot.name for robot in await self._team.robots()}
         self._connected_at = {name: at for name, at in self._connected_at.items() if name in names}
+        for alert in await self._alerts.open_alerts():  # raised before this process began: kept
+            name = alert.subject.removeprefix("robot ")
+            if alert.kind == AlertKind.ROBOT_DISCONNECTED.value and name not in self._connected_at:
+                self._connected_at[name] = alert.since
         found = []
         for name in sorted(names):
             if open_.get(name, 0) > 0:

@@ -174,6 +174,19 @@ async def test_a_robot_disconnected_is_raised_after_the_threshold_and_left_as_it
     [still] = [a for a in await store.alerts.open_alerts() if a.kind == disconnected]
     assert still.ended_at is None, "the broker away: the alert is left as it was"
     connections.away = False
+    connections.open = {}
+    restarted = Alerts(  # a new API process: it never saw explorer1 connected, the store did
+        store.alerts,
+        store.hazards,
+        store.hazards,
+        store.events,
+        store.sites,
+        thresholds,
+        connections=connections,
+    )
+    await restarted.check(T0 + 20 * SECOND)
+    assert (await store.alerts.get_alert(still.id)).ended_at is None, "still away after a restart"
+    connections.open = {"explorer1": 1}
     await alerts.check(T0 + 21 * SECOND)
     ended = await store.alerts.get_alert(still.id)
     assert ended is not None and ended.ended_at == T0 + 21 * SECOND, "connected again: ended"
