@@ -797,6 +797,26 @@ def test_down_leaves_no_process(node: LocalNode, node_settings: Settings) -> Non
             resolve_broker(node_settings.updated(amqp_url=None), start=False)
 
 
+def test_a_new_node_whose_amqp_port_another_broker_holds_starts_on_new_ports(
+    node: LocalNode, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Another broker (here the session's node) took the new node's AMQP port between the check
+    and the start: it answers the new node's login with a refusal, so the start repairs the login
+    on a node that has just died of the taken port. It starts again on new ports, not failing."""
+    other = node.status().ports["amqp"]
+    fresh = LocalNode(tmp_path / "broker")
+    ports = fresh.ports(create=True)
+    assert ports is not None
+    fresh._save_ports({**ports, "amqp": other})
+    monkeypatch.setattr(LocalNode, "_check_ports", lambda self, ports: None)  # the check ran before the take
+    try:
+        info = fresh.up(timeout=180)
+        assert info.ports["amqp"] != other
+        assert amqp_login(info.amqp_url or "", timeout=10)
+    finally:
+        fresh.down()
+
+
 @pytest.mark.parametrize("taken", ["management", "dist"])
 def test_a_new_node_whose_port_another_process_takes_before_it_listens_starts_on_new_ports(
     taken: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture

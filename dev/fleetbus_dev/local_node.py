@@ -775,8 +775,8 @@ log.console = false
                 self._wait_ready(deadline, True)
                 return
             except LocalNodeError:
-                lost = self._proc is None and self._lost_a_port()
-                if not (fresh and lost and attempt < PORT_RACE_ATTEMPTS and time.monotonic() < deadline):
+                retry = fresh and attempt < PORT_RACE_ATTEMPTS and time.monotonic() < deadline
+                if not (retry and self._ended_on_a_taken_port()):
                     raise
             log.warning(
                 "a port of the private node %s was taken before it could listen; starting again on new ports",
@@ -791,6 +791,17 @@ log.console = false
         assert old is not None
         fresh = iter(port for port in choose_free_ports(len(names) * 2) if port not in old.values())
         self._save_ports({name: (next(fresh) if name in names else port) for name, port in old.items()})
+
+    def _ended_on_a_taken_port(self) -> bool:
+        """Whether the start just made ended because a port was taken. Whatever failed first:
+        another broker on our AMQP port refuses our login, and repairing the login then finds our
+        node gone, before the loop that waits sees the process end (it writes a crash dump first)."""
+        proc = self._proc
+        if proc is not None:  # a node dying of a taken port may still be booting, or dumping
+            if _wait_until(lambda: proc.poll() is not None, timeout=30) is None:
+                return False  # it lives on: whatever failed, it was not a port
+            self._proc = None
+        return self._lost_a_port()
 
     def _lost_a_port(self) -> bool:
         """Whether the last start ended because a listener's port, or the distribution port, was in
