@@ -143,12 +143,10 @@ async def _state(view: LiveView, request: Request) -> list[str]:
     which says who looks)."""
     app = request.scope.get("app")  # none for a view streamed outside the app (its tests)
     every_page = getattr(app.state, "on_every_live_page", None) if app is not None else None
-    personal = view.personal(request) if isinstance(view, PersonalView) else None
-    return [
-        *await view.snapshot(),
-        *(await personal if personal is not None else []),
-        *(await every_page(request) if every_page else []),
-    ]
+    state = await view.snapshot()
+    if isinstance(view, PersonalView):
+        state += await view.personal(request)
+    return [*state, *(await every_page(request) if every_page else [])]
 
 
 async def _session_open(request: Request) -> bool:
