@@ -141,9 +141,10 @@ class Alerts:
         self.shown = shown
         """How many acknowledged alerts :meth:`listing` gives."""
         self._connections = connections
-        self._connected_at: dict[str, datetime] = {}
+        self._connected_at: dict[str, datetime] | None = None
         """When each robot was last seen with a broker connection (kept by this process: a robot
-        never seen connected raises no alert)."""
+        never seen connected raises no alert); None until the first look, which begins it from the
+        open alerts an earlier process raised."""
         self._lock = asyncio.Lock()
 
     async def conditions(self, now: datetime, hazards_only: bool = False) -> tuple[list[NewAlert], set[str]]:
@@ -188,17 +189,20 @@ class Alerts:
             return None
         after = self.thresholds.disconnected_after
         names = {robot.name for robot in await self._team.robots()}
-        self._connected_at = {name: at for name, at in self._connected_at.items() if name in names}
-        for alert in await self._alerts.open_alerts():  # raised before this process began: kept
-            name = alert.subject.removeprefix("robot ")
-            if alert.kind == AlertKind.ROBOT_DISCONNECTED.value and name not in self._connected_at:
-                self._connected_at[name] = alert.since
+        if self._connected_at is None:  # the first look: a robot still away keeps its open alert
+            self._connected_at = {
+                alert.subject.removeprefix("robot "): alert.since
+                for alert in await self._alerts.open_alerts()
+                if alert.kind == AlertKind.ROBOT_DISCONNECTED.value
+            }
+        connected_at = {name: at for name, at in self._connected_at.items() if name in names}
+        self._connected_at = connected_at
         found = []
         for name in sorted(names):
             if open_.get(name, 0) > 0:
-                self._connected_at[name] = now
+                connected_at[name] = now
                 continue
-            last = self._connected_at.get(name)
+            last = connected_at.get(name)
             if last is not None and now - last >= after:
                 limit = after.total_seconds()
                 detail = f"no broker connection since {_clock(last)} (alert after {limit:g} s)"

@@ -144,15 +144,20 @@ async def test_a_robot_disconnected_is_raised_after_the_threshold_and_left_as_it
 ) -> None:
     connections = Connections()
     thresholds = Thresholds(timedelta(seconds=60), 20.0, timedelta(hours=1), 0.8, 10 * SECOND)
-    alerts = Alerts(
-        store.alerts,
-        store.hazards,
-        store.hazards,
-        store.events,
-        store.sites,
-        thresholds,
-        connections=connections,
-    )
+
+    def api_process() -> Alerts:
+        """The alerts of an API process: its memory of connections begins with it."""
+        return Alerts(
+            store.alerts,
+            store.hazards,
+            store.hazards,
+            store.events,
+            store.sites,
+            thresholds,
+            connections=connections,
+        )
+
+    alerts = api_process()
     for name in ("explorer1", "scout1"):
         await store.hazards.register_robot(name, "explorer")
     disconnected = AlertKind.ROBOT_DISCONNECTED.value
@@ -175,15 +180,7 @@ async def test_a_robot_disconnected_is_raised_after_the_threshold_and_left_as_it
     assert still.ended_at is None, "the broker away: the alert is left as it was"
     connections.away = False
     connections.open = {}
-    restarted = Alerts(  # a new API process: it never saw explorer1 connected, the store did
-        store.alerts,
-        store.hazards,
-        store.hazards,
-        store.events,
-        store.sites,
-        thresholds,
-        connections=connections,
-    )
+    restarted = api_process()  # it never saw explorer1 connected; the store holds its alert
     await restarted.check(T0 + 20 * SECOND)
     assert (await store.alerts.get_alert(still.id)).ended_at is None, "still away after a restart"
     connections.open = {"explorer1": 1}
