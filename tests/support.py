@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import itertools
 import os
-import selectors
 import subprocess
 import sys
 import threading
@@ -362,20 +361,36 @@ def fresh_bus(
 def read_line(process: subprocess.Popen[str], expected: str, timeout: float = 60.0) -> str:
     """Wait until ``process`` prints a line starting with ``expected`` (returned); fail if it ends or
     time runs out."""
+    return printed_until(process, expected, timeout)[-1]
+
+
+def printed_until(process: subprocess.Popen[str], expected: str, timeout: float = 60.0) -> list[str]:
+    """The lines ``process`` prints up to and with one starting with ``expected``; fail if it ends
+    or time runs out. Nothing past that line is read, so the caller may read on.
+
+    The lines are read by a thread, not after a ``select``: the pipe's reader buffers what the
+    process wrote at once, so a line may wait in that buffer while the pipe itself has nothing."""
     assert process.stdout is not None
-    deadline = time.monotonic() + timeout
-    with selectors.DefaultSelector() as selector:
-        selector.register(process.stdout, selectors.EVENT_READ)
-        while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise AssertionError(f"the process did not print {expected!r} within {timeout:.0f} s")
-            if selector.select(remaining):
-                line = process.stdout.readline()
-                if line.startswith(expected):
-                    return line
-                if not line:
-                    raise AssertionError(f"the process ended ({process.wait()}) before printing {expected!r}")
+    stdout = process.stdout
+    lines: list[str] = []
+    found = threading.Event()
+
+    def read() -> None:
+        while line := stdout.readline():
+            lines.append(line)
+            if line.startswith(expected):
+                found.set()
+                return
+        found.set()  # the process ended
+
+    threading.Thread(target=read, name=f"reading {process.pid}", daemon=True).start()
+    if not found.wait(timeout):
+        printed = "".join(lines)
+        raise AssertionError(f"the process did not print {expected!r} within {timeout:.0f} s: {printed}")
+    if not lines or not lines[-1].startswith(expected):
+        printed = "".join(lines)
+        raise AssertionError(f"the process ended ({process.wait()}) before printing {expected!r}: {printed}")
+    return lines
 
 
 #: An event as the store keys it within its robot: (epoch, seq). Sorted, the epochs of one robot

@@ -10,11 +10,9 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from select import select as readable
 
 import pytest
 from pymongo import MongoClient
@@ -30,7 +28,7 @@ from bench.suite import main, run, select
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
 from tests.store.test_contract import LATER, record
-from tests.support import Bus
+from tests.support import Bus, printed_until
 
 RAW = Scenario("raw", "raw", lambda context: {"consume msg/s": 1000.0})
 
@@ -234,7 +232,7 @@ def test_a_suite_process_stopped_by_sigterm_writes_what_it_measured(bus: Bus, tm
     )
     try:
         # the wait is for a line: generous, for a loaded machine whose management API answers late
-        seen = lines_until(process, "run 1/1 raw: ", 240)
+        seen = "".join(printed_until(process, "run 1/1 raw: ", 240))
         process.send_signal(signal.SIGTERM)
         out, _ = process.communicate(timeout=120)
     finally:
@@ -249,21 +247,6 @@ def test_a_suite_process_stopped_by_sigterm_writes_what_it_measured(bus: Bus, tm
     assert report["blocked"]["runs"] == {} and report["blocked"]["errors"] == ["interrupted"]
     assert "| raw | consume msg/s | 1,000 |" in written.with_suffix(".md").read_text()
     assert "the suite took" in out, out
-
-
-def lines_until(process: subprocess.Popen[str], start: str, timeout: float) -> str:
-    """What ``process`` printed up to and with a line that starts with ``start``."""
-    assert process.stdout is not None
-    deadline, seen = time.monotonic() + timeout, ""
-    while time.monotonic() < deadline:
-        ready, _, _ = readable([process.stdout], [], [], deadline - time.monotonic())
-        line = process.stdout.readline() if ready else ""
-        seen += line
-        if line.startswith(start):
-            return seen
-        if not line and process.poll() is not None:
-            break
-    raise AssertionError(f"no line starting {start!r} in {timeout} s: {seen}")
 
 
 def test_the_default_run_fits_in_its_time_by_the_budgets() -> None:
