@@ -29,7 +29,8 @@ through the console's own form.
               of the robots in the event log (--hazards of them hazards, registered in every state:
               held, announced, claimed, reached, cleared), the same number of messages in the
               recorder's recording; then each console page an administrator may open (``sitemap.PAGES``)
-              fetched --renders times: median and p95; then the dashboard and the live map drawn
+              fetched --renders times, and the live map's trails of each window it offers: median
+              and p95; then the dashboard and the live map drawn
               --browser-renders times in headless chromium (``bench.console_browser``): median and
               p95, against the target (under 1 s with 1,000 robots in the team).
 
@@ -71,6 +72,7 @@ from bench.telemetry import FLEET_NICE, POSE, TelemetryLoad
 from fleetbus.api.console.live import FRAGMENT_EVENT
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD
 from fleetbus.api.console.sitemap import PAGES
+from fleetbus.api.console.trails import WINDOWS
 from fleetbus.schemas.envelope import new_epoch
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EventType, RobotKind
@@ -420,6 +422,16 @@ async def page_times(base: str, renders: int, show: Callable[[str], None]) -> di
                 reply = await client.get(page.path)
                 times[page.name].append((time.perf_counter() - started) * 1000)
                 assert reply.status_code == 200, f"{page.path}: {reply.status_code}"
+        for minutes in WINDOWS:  # the live map's trails, sampled when the window holds too many poses
+            name = f"trails {minutes} min"
+            show(f"fetching {name}")
+            times[name] = []
+            for _ in range(renders + 1):
+                started = time.perf_counter()
+                reply = await client.get("/console/map/trails", params={"minutes": minutes})
+                times[name].append((time.perf_counter() - started) * 1000)
+                assert reply.status_code == 200, f"{name}: {reply.status_code}"
+            del times[name][0]
     finally:
         await client.aclose()
     return times

@@ -1,42 +1,76 @@
 """Each robot's trail over a window: the poses its stored ``localisation`` events reported, oldest
 first, as the live map draws them (and replays them under its time slider).
 
-One store read, bounded: the newest :data:`TRAIL_POINTS` localisations of the window; when the
-window holds more, the answer says so (``truncated``) and starts where its points start."""
+The answer holds at most ``points`` poses, however big the team and the window (the setting
+``FLEETBUS_CONSOLE_TRAIL_POINTS``). When the window holds no more, it is every pose. When it holds
+more, the window is cut into equal steps, as many as the budget gives each robot of the team, and
+each robot's trail is its last pose of each step: the whole window at a coarser grain, down to the
+robot's newest pose, where a lost robot was last. That is one store query a step, each an index
+seek for each robot, so the cost follows the budget, not the number of poses stored."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
 from fleetbus.api.console.latest import Pose
-from fleetbus.api.services.stored_events import StoredEvents
+from fleetbus.api.services.stored_events import EventRecord, StoredEvents
 from fleetbus.schemas.routing import EventType
 
-#: At most this many poses in one answer (all robots together).
-TRAIL_POINTS = 20_000
 #: The windows the map offers, in minutes.
 WINDOWS = (10, 60, 360, 1440)
+#: A sampled trail keeps at least this many poses of each robot (its first and its newest), however
+#: many robots share the budget.
+MIN_STEPS = 2
+
+POSES = EventType.LOCALISATION.value
 
 
-async def trails(events: StoredEvents, until: datetime, window: timedelta) -> dict[str, Any]:
-    """``{"since", "until", "truncated", "robots": {name: [[ms, x, y, heading°], ...]}}``: each
-    robot's localised poses sent in [until - window, until), oldest first; times in milliseconds
-    since the epoch (UTC)."""
+async def trails(
+    events: StoredEvents, robots: Sequence[str], until: datetime, window: timedelta, points: int
+) -> dict[str, Any]:
+    """``{"since", "until", "step", "robots": {name: [[ms, x, y, heading°], ...]}}``: each robot's
+    localised poses sent in [until - window, until), oldest first; times in milliseconds since the
+    epoch (UTC). ``step`` is 0 when every pose is there, else the steps' length in milliseconds
+    (each robot's last pose of each step is there)."""
     since = until - window
-    found = await events.sent_between(EventType.LOCALISATION.value, since, until, TRAIL_POINTS + 1)
-    truncated = len(found) > TRAIL_POINTS
-    robots: dict[str, list[list[float]]] = {}
-    for record in reversed(found[:TRAIL_POINTS]):
-        pose = Pose.of(record)
-        if pose is None:
-            continue
-        at = round(record.sent_at.timestamp() * 1000)
-        robots.setdefault(record.robot_id, []).append([at, pose.x, pose.y, round(pose.heading_degrees, 1)])
-    start = found[TRAIL_POINTS - 1].sent_at if truncated else since
+    if await events.more_sent_between(POSES, since, until, points):
+        steps = max(MIN_STEPS, points // max(len(robots), 1))
+        step = window / steps
+        found = await _last_of_each_step(events, robots, since, until, steps)
+    else:
+        step = timedelta(0)
+        found = await events.sent_between(POSES, since, until, points)
     return {
-        "since": round(start.timestamp() * 1000),
-        "until": round(until.timestamp() * 1000),
-        "truncated": truncated,
-        "robots": robots,
+        "since": _ms(since),
+        "until": _ms(until),
+        "step": round(step.total_seconds() * 1000),
+        "robots": _poses_by_robot(found),
     }
+
+
+async def _last_of_each_step(
+    events: StoredEvents, robots: Sequence[str], since: datetime, until: datetime, steps: int
+) -> list[EventRecord]:
+    found: list[EventRecord] = []
+    start = since
+    for number in range(1, steps + 1):
+        end = until if number == steps else since + (until - since) * number / steps
+        found += (await events.newest_of(robots, POSES, since=start, until=end)).values()
+        start = end
+    return found
+
+
+def _poses_by_robot(found: Iterable[EventRecord]) -> dict[str, list[list[float]]]:
+    robots: dict[str, list[list[float]]] = {}
+    for record in sorted(found, key=lambda record: (record.sent_at, record.seq)):
+        pose = Pose.of(record)
+        if pose is not None:
+            point = [_ms(record.sent_at), pose.x, pose.y, round(pose.heading_degrees, 1)]
+            robots.setdefault(record.robot_id, []).append(point)
+    return robots
+
+
+def _ms(at: datetime) -> int:
+    return round(at.timestamp() * 1000)

@@ -56,9 +56,21 @@ class StoredEvents:
             EventQuery(type=type, since=since, until=until, limit=limit, newest_first=True)
         )
 
-    async def newest_of(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
-        """Each of ``robots``' newest event (of ``type`` if given), for those that sent one."""
-        return await self._events.newest_events(robots, type)
+    async def more_sent_between(self, type: str, since: datetime, until: datetime, than: int) -> bool:
+        """Whether more than ``than`` events of ``type`` were sent in [since, until) (an index read)."""
+        return await self._events.holds_more_events(EventQuery(type=type, since=since, until=until), than)
+
+    async def newest_of(
+        self,
+        robots: Sequence[str],
+        type: str | None = None,
+        *,
+        since: datetime | None = None,
+        until: datetime | None = None,
+    ) -> dict[str, EventRecord]:
+        """Each of ``robots``' newest event (of ``type`` if given; sent in [``since``, ``until``)
+        if given), for those that sent one: one query, an index seek for each robot."""
+        return await self._events.newest_events(robots, type, since=since, until=until)
 
     async def received_since(self, since: datetime, limit: int) -> list[EventRecord]:
         """The first ``limit`` events received since ``since``, in the order they were received."""

@@ -420,6 +420,12 @@ class Settings(BaseSettings):
         "most recorded messages a search (the newest that match) or a robot's timeline (the first of "
         "its window) lists on the console's Messages page; the form's limit cannot exceed it",
     )
+    console_trail_points: Annotated[int, Positive] = setting(
+        20_000,
+        "at most this many poses in one answer of the live map's trails (all robots together); a "
+        "window that holds more is sampled: each robot's last pose of each of equal steps, as many "
+        "steps as this gives each robot of the team, down to its newest pose",
+    )
     console_tail_rows: Annotated[int, Positive] = setting(
         100, "how many messages the live tail on the console's Messages page keeps on screen"
     )

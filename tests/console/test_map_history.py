@@ -74,6 +74,7 @@ def _trail_shown(browser: Browser) -> None:
     trail = browser.find("path.trail")
     assert len(trail) == 1 and trail[0].get_attribute("data-robot") == "explorer1"
     assert len(re.findall(r"[ML]", trail[0].get_attribute("d") or "")) >= 2, "a path, not a point"
+    assert browser.text("#trail-grain") == "every pose"
 
 
 def _follows(browser: Browser, explorer: RobotClient, x: float) -> None:
@@ -148,5 +149,44 @@ def test_the_trails_of_a_window_come_from_the_stored_localisations(bus: Bus) -> 
             found = answer.json()
             # the last 10 minutes hold the poses of 8, 6, 4 and 2 minutes ago: x 16 to 19
             assert [point[1] for point in found["robots"]["explorer9"]] == [16.0, 17.0, 18.0, 19.0]
-            assert found["truncated"] is False
+            assert found["step"] == 0, "every pose of the window"
             assert http.get("/console/map/trails", params={"minutes": 0}).status_code == 422
+
+
+def test_a_window_with_more_poses_than_an_answer_holds_is_each_robots_last_pose_of_each_step(
+    bus: Bus, browser: Browser
+) -> None:
+    """A fleet's day of poses does not fit one answer: the window is cut into steps, as many as the
+    budget gives each robot, and each robot's trail is its last pose of each, down to its newest."""
+    with running_console(bus, bus.settings.updated(console_trail_points=8)) as console:
+        now = datetime.now(timezone.utc)
+        lost = ("explorer7", "explorer8", "explorer9")
+        for robot in (*lost, "guide3"):  # the guide is in the team and reported no pose
+            console.run(lambda robot=robot: console.service.repositories.hazards.register_robot(robot, None))
+        for robot in lost:
+            _reported_path(console, robot, now)
+        browser.console_errors()  # what earlier tests' pages logged, read and set aside
+        open_map(console, browser)  # as oper1
+        window = {"minutes": 60, "until": now.isoformat()}
+        with console.http_as("oper1") as http:
+            found = http.get("/console/map/trails", params=window).json()
+        # 60 poses, 8 at most: 8 // 4 robots = 2 steps of 30 minutes; the first's last pose is of
+        # 32 minutes ago (x 4), the second's the newest, of 2 minutes ago (x 19)
+        assert found["step"] == 30 * 60 * 1000
+        assert sorted(found["robots"]) == list(lost)
+        for robot in lost:
+            assert [point[1] for point in found["robots"][robot]] == [4.0, 19.0], robot
+        assert found["since"] == round((now - timedelta(minutes=60)).timestamp() * 1000)
+
+        # the map draws the three trails and says how coarse they are
+        Select(browser.find("#trail-window")[0]).select_by_value("60")
+        browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+        assert sorted(path.get_attribute("data-robot") for path in browser.find("path.trail")) == list(lost)
+        assert browser.text("#trail-grain") == "a pose per 30 min"
+        assert browser.console_errors() == []
+
+    with running_console(bus) as console:  # the default budget holds the whole window (same store)
+        with console.http_as("oper1") as http:
+            found = http.get("/console/map/trails", params=window).json()
+        assert found["step"] == 0
+        assert [point[1] for point in found["robots"]["explorer7"]] == [float(x) for x in range(STEPS)]

@@ -143,10 +143,24 @@ class EventStore(abc.ABC):
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int: ...
 
     @abc.abstractmethod
-    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
-        """Each of ``robots``' newest event (by ``sent_at``; of ``type`` if given), for those that
-        sent one: one query for all of them (a page of the team), each read by the events'
-        (robot, sent_at) index however many events it sent."""
+    async def holds_more_events(self, query: EventQuery, than: int) -> bool:
+        """Whether more than ``than`` events match ``query`` (its type, robot, mission and window;
+        not its limit or order): read from the (type, sent_at) index, not the events, however
+        many match."""
+
+    @abc.abstractmethod
+    async def newest_events(
+        self,
+        robots: Sequence[str],
+        type: str | None = None,
+        *,
+        since: datetime | None = None,
+        until: datetime | None = None,
+    ) -> dict[str, EventRecord]:
+        """Each of ``robots``' newest event (by ``sent_at``; of ``type`` if given; sent in
+        [``since``, ``until``) if given), for those that sent one: one query for all of them (a
+        page of the team), each read by the events' (robot, type, sent_at) index however many
+        events it sent."""
 
     @abc.abstractmethod
     async def keys_received_since(self, since: datetime, limit: int) -> list[Received]:

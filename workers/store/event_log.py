@@ -145,8 +145,15 @@ class Events(Ledger, EventLog):
         )
         return [_record(doc) for doc in found]
 
-    async def newest_events(self, robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
-        where = None if type is None else {"type": type}
+    async def newest_events(
+        self,
+        robots: Sequence[str],
+        type: str | None = None,
+        *,
+        since: datetime | None = None,
+        until: datetime | None = None,
+    ) -> dict[str, EventRecord]:
+        where = _where(type, query=EventQuery(since=since, until=until)) or None
         found = await self._events.first_each("robot_id", robots, order=["-sent_at"], where=where)
         return {robot: _record(doc) for robot, doc in found.items()}
 
@@ -165,6 +172,11 @@ class Events(Ledger, EventLog):
             {"received_at": Range(ge=since)}, order=["received_at", *KEY], limit=limit
         )
         return [_record(doc) for doc in found]
+
+    async def holds_more_events(self, query: EventQuery, than: int) -> bool:
+        where = _where(query.type, query.robot_id, query)
+        found = await self._events.find(where, order=["sent_at"], skip=than, limit=1, fields=["sent_at"])
+        return bool(found)
 
     async def count_events(self, type: str | None = None, robot_id: str | None = None) -> int:
         return await self._events.count(_where(type, robot_id))

@@ -171,10 +171,14 @@ async def map_trails(
     minutes: Annotated[int, Query(ge=1, le=max(WINDOWS))] = 60,
     until: Annotated[datetime | None, Query(description="the window's end (UTC); now by default")] = None,
 ) -> Response:
-    """Each robot's trail over the last ``minutes`` before ``until``, from its stored localisations."""
+    """Each robot's trail over the last ``minutes`` before ``until``, from its stored localisations
+    (sampled when the window holds more than ``FLEETBUS_CONSOLE_TRAIL_POINTS``)."""
     end = until or datetime.now(timezone.utc)
     end = end.replace(tzinfo=timezone.utc) if end.tzinfo is None else end.astimezone(timezone.utc)
-    found = await trails(request.app.state.service.events, end, timedelta(minutes=minutes))
+    service: Service = request.app.state.service
+    robots = [robot.name for robot in await service.team.robots()]
+    points = service.settings.console_trail_points
+    found = await trails(service.events, robots, end, timedelta(minutes=minutes), points)
     return JSONResponse(found, headers={"Cache-Control": "no-store"})
 
 

@@ -14,6 +14,7 @@
   const panel = view.closest(".map-panel");
   const followingText = document.getElementById("map-following");
   const windowSelect = document.getElementById("trail-window");
+  const grain = document.getElementById("trail-grain");
   const slider = document.getElementById("map-time");
   const moment = document.getElementById("map-moment");
 
@@ -148,6 +149,12 @@
 
   // --- trails and the time slider ---------------------------------------------------------------
 
+  function duration(ms) {
+    const seconds = Math.max(1, Math.round(ms / 1000));
+    if (seconds < 120) return seconds + " s";
+    return Math.round(seconds / 60) + " min";
+  }
+
   function atNow() {
     return slider.value === slider.max;
   }
@@ -218,6 +225,7 @@
   async function loadTrails() {
     const minutes = windowSelect.value;
     slider.value = slider.max;
+    grain.textContent = "";
     if (!minutes) {
       trails = null;
       slider.disabled = true;
@@ -236,6 +244,8 @@
       return;
     }
     trails = await answer.json();
+    // a window with more poses than one answer holds comes sampled: each robot's last pose a step
+    grain.textContent = trails.step ? "a pose per " + duration(trails.step) : "every pose";
     slider.disabled = false;
     showMoment();
     view.dataset.trails = "loaded";
