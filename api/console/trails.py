@@ -15,6 +15,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from fleetbus.api.console.latest import Pose
+from fleetbus.api.services.hazards import Hazard
 from fleetbus.api.services.stored_events import EventRecord, StoredEvents
 from fleetbus.schemas.routing import EventType
 
@@ -70,6 +71,41 @@ def _poses_by_robot(found: Iterable[EventRecord]) -> dict[str, list[list[float]]
             point = [_ms(record.sent_at), pose.x, pose.y, round(pose.heading_degrees, 1)]
             robots.setdefault(record.robot_id, []).append(point)
     return robots
+
+
+def position(hazard: Hazard) -> dict[str, Any] | None:
+    """Where the robot saw the hazard (its event's pose), if it says."""
+    pose = hazard.event.get("body", {}).get("pose")
+    return pose if isinstance(pose, dict) and "x" in pose and "y" in pose else None
+
+
+def hazard_times(hazards: Iterable[Hazard]) -> list[dict[str, Any]]:
+    """Each hazard that says where it was, with the times of its steps (ms since the epoch, or
+    None), from which the map shows its state at any moment: held from ``received``, then
+    announced, claimed, reached, and gone once ``cleared``."""
+    found = []
+    for hazard in hazards:
+        at = position(hazard)
+        if at is None:
+            continue
+        steps = {
+            "received": hazard.received_at,
+            "announced": hazard.announced_at,
+            "claimed": hazard.claimed_at,
+            "reached": hazard.reached_at,
+            "cleared": hazard.cleared_at,
+        }
+        found.append(
+            {
+                "id": f"{hazard.mission_id}-{hazard.hazard_id}",
+                "label": hazard.hazard_id,
+                "x": float(at["x"]),
+                "y": float(at["y"]),
+                "description": str(hazard.event.get("body", {}).get("description", "")),
+                **{step: None if time is None else _ms(time) for step, time in steps.items()},
+            }
+        )
+    return found
 
 
 def _ms(at: datetime) -> int:

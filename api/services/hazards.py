@@ -50,6 +50,11 @@ class Hazards:
         """The ``limit`` hazards cleared last, of every mission, the last cleared first."""
         return await self._hazards.cleared_hazards(limit)
 
+    async def during(self, since: datetime, until: datetime, limit: int) -> list[Hazard]:
+        """The hazards that existed at some moment of [since, until) (received before its end, not
+        cleared before its start), the ``limit`` received last, newest first: the live map's past."""
+        return await self._hazards.hazards_during(since, until, limit)
+
     async def counts(self) -> dict[HazardState, int]:
         """How many hazards are in each state, of every mission (a state with none is left out)."""
         return await self._hazards.hazard_counts()

@@ -16,6 +16,7 @@ from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord
+from fleetbus.workers.store.hazards import DEFAULT_MISSION
 from tests.console.support import Browser, Console, running_console
 from tests.console.test_map import at, drawn, open_map, stored_maps
 from tests.factories import small_map, status
@@ -45,6 +46,30 @@ def _reported_path(console: Console, robot: str, now: datetime) -> None:
         for step in range(STEPS)
     ]
     console.run(lambda: console.service.repositories.events.write_events(records))
+
+
+def _hazard_history(console: Console, now: datetime) -> None:
+    """Hazard 1: seen 30 minutes ago (announced at once), claimed 10 and cleared 5 minutes ago, at
+    (5, 6); hazard 2: seen 10 minutes ago and held since, at (9, 3)."""
+    hazards = console.service.repositories.hazards
+
+    async def history() -> None:
+        for seq, (x, y, minutes, held) in enumerate(((5.0, 6.0, 30, False), (9.0, 3.0, 10, True))):
+            event = {"body": {"pose": {"x": x, "y": y}, "description": f"Smoke {seq + 1}"}}
+            at = now - timedelta(minutes=minutes)
+            await hazards.add_hazard(DEFAULT_MISSION, "explorer1", "e-hazards", seq, event, at, held=held)
+        await hazards.register_robot("warden1", RobotKind.WARDEN.value)
+        await hazards.claim(DEFAULT_MISSION, 1, "warden1", now - timedelta(minutes=10))
+        await hazards.mark_reached(DEFAULT_MISSION, 1, "warden1", now - timedelta(minutes=7))
+        await hazards.mark_cleared(DEFAULT_MISSION, 1, "warden1", now - timedelta(minutes=5))
+
+    console.run(history)
+
+
+def _past_hazards(browser: Browser) -> dict[str, str]:
+    """The hazards drawn as they were at the slider's moment: id to state then."""
+    found = browser.find("[data-past-hazard]")
+    return {mark.get_attribute("data-past-hazard"): mark.get_attribute("data-state") for mark in found}
 
 
 def _slide(browser: Browser, value: int) -> None:
@@ -96,6 +121,7 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         stored_maps(bus, 1)
         now = datetime.now(timezone.utc)
         _reported_path(console, "explorer1", now)
+        _hazard_history(console, now)
         browser.console_errors()  # what earlier tests' pages logged, read and set aside
         open_map(console, browser)
         browser.until(lambda: drawn(browser, "mark-robot-explorer1"), "the explorer on the map")
@@ -113,9 +139,20 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         then = datetime.strptime(moment, "%Y-%m-%d %H:%M:%S UTC").replace(tzinfo=timezone.utc)
         assert abs((now - timedelta(minutes=15) - then).total_seconds()) < 60, (moment, now)
         assert "in-past" in browser.find("#map-view")[0].get_attribute("class")
+        # the hazards as they were then: hazard 1 announced, not yet claimed; hazard 2 not yet seen;
+        # the live ones (hazard 1 cleared, 2 held) hidden meanwhile
+        browser.until(lambda: _past_hazards(browser) == {"default-1": "announced"}, "hazard 1 as it was")
+        assert not browser.find("[data-mark='mark-hazard-default-2']")[0].is_displayed()
+        _slide(browser, 890)  # 6.6 minutes ago: hazard 1 reached, hazard 2 held
+        browser.until(
+            lambda: _past_hazards(browser) == {"default-1": "reached", "default-2": "held"}, "both, then"
+        )
+        _slide(browser, 950)  # 3 minutes ago: hazard 1 cleared
+        browser.until(lambda: _past_hazards(browser) == {"default-2": "held"}, "hazard 1 gone, cleared")
         _slide(browser, 1000)
         browser.until(lambda: browser.text("#map-moment") == "now", "back to now")
-        assert browser.find("[data-past]") == []
+        assert browser.find("[data-past]") == [] and _past_hazards(browser) == {}
+        assert browser.find("[data-mark='mark-hazard-default-2']")[0].is_displayed()
 
         # click the robot: the map centres on it and follows it as it moves
         _follows(browser, explorer, 8.5)

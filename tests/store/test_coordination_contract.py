@@ -182,3 +182,26 @@ async def test_beacon_registry(store: Repositories) -> None:
     assert [b.beacon_id for b in await store.beacons.beacons()] == ["b1", "b2"]
     assert await store.beacons.get_beacon("b9") is None
     assert await store.beacons.mark_visited("b9", T0) is None
+
+
+async def test_the_hazards_of_a_window_are_those_received_before_its_end_not_cleared_before_its_start(
+    store: Repositories,
+) -> None:
+    """The live map's past: what existed at some moment of the window, with the times of its steps."""
+    for seq, seconds in enumerate((0, 0, 5, 20)):  # hazards 1 to 4, received at these seconds
+        await store.hazards.add_hazard(
+            "m1", "explorer1", EPOCH, seq, BODY, T0 + timedelta(seconds=seconds), held=False
+        )
+    for hazard_id, cleared_after in ((1, 10), (2, 2)):
+        await store.hazards.claim("m1", hazard_id, "warden1", T0 + timedelta(seconds=1))
+        await store.hazards.mark_reached("m1", hazard_id, "warden1", T0 + timedelta(seconds=1))
+        await store.hazards.mark_cleared("m1", hazard_id, "warden1", T0 + timedelta(seconds=cleared_after))
+    since, until = T0 + timedelta(seconds=3), T0 + timedelta(seconds=15)
+    # 3 open since second 5; 1 cleared at 10, inside; 2 cleared at 2, before; 4 received at 20, after
+    during = await store.hazards.hazards_during(since, until, 10)
+    assert [h.hazard_id for h in during] == [3, 1]
+    assert during[1].claimed_at == T0 + timedelta(seconds=1)
+    assert during[1].cleared_at == T0 + timedelta(seconds=10)
+    assert [h.hazard_id for h in await store.hazards.hazards_during(since, until, 1)] == [3]
+    later = await store.hazards.hazards_during(T0 + timedelta(seconds=30), T0 + timedelta(seconds=31), 10)
+    assert [h.hazard_id for h in later] == [4, 3], "the open ones, however long ago received"

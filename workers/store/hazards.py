@@ -270,6 +270,12 @@ class HazardRegistry(abc.ABC):
         offset: one past :data:`MOST_HAZARDS` gives none)."""
 
     @abc.abstractmethod
+    async def hazards_during(self, since: datetime, until: datetime, limit: int) -> list[Hazard]:
+        """The hazards that existed at some moment of [since, until): received before ``until``
+        and not cleared before ``since``; the ``limit`` received last, newest first (read by the
+        (state, received_at) and (state, cleared_at) indexes)."""
+
+    @abc.abstractmethod
     async def hazard_counts(self) -> dict[HazardState, int]:
         """How many hazards are in each state, of every mission (a state with none is left out)."""
 
@@ -538,6 +544,19 @@ class Coordination(Robots, CoordinationStore):
         where = {"state": state.value} if state is not None else {}
         newest_first = ["-received_at", "-mission_id", "-hazard_id"]
         return await self._find(where, order=newest_first, limit=limit, skip=offset)
+
+    async def hazards_during(self, since: datetime, until: datetime, limit: int) -> list[Hazard]:
+        newest_first = ["-received_at", "-mission_id", "-hazard_id"]
+        received = Range(lt=until)
+        still_open = {"state": In(OPEN), "received_at": received}
+        cleared = HazardState.CLEARED.value
+        cleared_since = {"state": cleared, "cleared_at": Range(ge=since), "received_at": received}
+        found = [
+            *await self._find(still_open, order=newest_first, limit=limit),
+            *await self._find(cleared_since, order=newest_first, limit=limit),
+        ]
+        found.sort(key=lambda hazard: (hazard.received_at, hazard.mission_id, hazard.hazard_id), reverse=True)
+        return found[:limit]
 
     async def hazard_counts(self) -> dict[HazardState, int]:
         return {

@@ -27,11 +27,11 @@ from fleetbus.api.console.pages.dashboard import OPEN
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
-from fleetbus.api.console.trails import WINDOWS, trails
+from fleetbus.api.console.trails import WINDOWS, hazard_times, position, trails
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.errors import NotFound
-from fleetbus.api.services.hazards import Hazard, HazardState
+from fleetbus.api.services.hazards import HazardState
 from fleetbus.api.services.maps import MapVersion
 from fleetbus.api.services.stored_events import EventRecord
 from fleetbus.schemas.routing import EventType
@@ -48,12 +48,6 @@ NEWS = frozenset({EventType.HAZARD.value, EventType.MAP.value})
 SIGHTINGS_EVERY_S = 2.0
 #: The live fragments of the map, in the order :meth:`MapView.snapshot` gives them.
 PARTS = ("marks", "hazards", "robots", "beacons", "newest")
-
-
-def position(hazard: Hazard) -> dict[str, Any] | None:
-    """Where the robot saw the hazard (its event's pose), if it says."""
-    pose = hazard.event.get("body", {}).get("pose")
-    return pose if isinstance(pose, dict) and "x" in pose and "y" in pose else None
 
 
 class MapView:
@@ -172,13 +166,17 @@ async def map_trails(
     until: Annotated[datetime | None, Query(description="the window's end (UTC); now by default")] = None,
 ) -> Response:
     """Each robot's trail over the last ``minutes`` before ``until``, from its stored localisations
-    (sampled when the window holds more than ``FLEETBUS_CONSOLE_TRAIL_POINTS``)."""
+    (sampled when the window holds more than ``FLEETBUS_CONSOLE_TRAIL_POINTS``), and the hazards of
+    the window with the times of their steps (the newest ``FLEETBUS_CONSOLE_MAP_HAZARDS``)."""
     end = until or datetime.now(timezone.utc)
     end = end.replace(tzinfo=timezone.utc) if end.tzinfo is None else end.astimezone(timezone.utc)
     service: Service = request.app.state.service
     robots = [robot.name for robot in await service.team.robots()]
     points = service.settings.console_trail_points
-    found = await trails(service.events, robots, end, timedelta(minutes=minutes), points)
+    window = timedelta(minutes=minutes)
+    found = await trails(service.events, robots, end, window, points)
+    during = await service.hazards.during(end - window, end, service.settings.console_map_hazards)
+    found["hazards"] = hazard_times(during)
     return JSONResponse(found, headers={"Cache-Control": "no-store"})
 
 

@@ -6,7 +6,8 @@
 // The live stream (live.js) and the version select (htmx) replace those elements; this redraws
 // the map from them, keeping the view (the first shows where the team is, or else the whole map). Clicking a robot centres the map on it and follows it
 // until the map is dragged. Trails over a chosen window come from /console/map/trails (the stored
-// localisations); the time slider replays them: the team as it stood at a past moment.
+// localisations, and the window's hazards with the times of their steps); the time slider replays
+// them: the team as it stood at a past moment, with the hazards as they were then.
 (function () {
   "use strict";
   const view = document.getElementById("map-view");
@@ -37,7 +38,7 @@
   let imageKey = "";
   let following = null;
   let fitted = false;
-  let trails = null; // {since, until, robots: {name: [[ms, x, y, heading], ...]}}
+  let trails = null; // {since, until, step, robots: {name: [[ms, x, y, heading], ...]}, hazards: [...]}
 
   function utc(ms) {
     return new Date(ms).toISOString().slice(0, 19).replace("T", " ") + " UTC";
@@ -172,6 +173,33 @@
     if (!last || !last.equals(at)) line.addLatLng(at);
   }
 
+  // a hazard's state at a moment, from the times of its steps; null when it did not exist then
+  function stateAt(hazard, at) {
+    if (hazard.received > at || (hazard.cleared !== null && hazard.cleared <= at)) return null;
+    for (const step of ["reached", "claimed", "announced"]) {
+      if (hazard[step] !== null && hazard[step] <= at) return step;
+    }
+    return "held";
+  }
+
+  function drawPastHazards(until) {
+    for (const hazard of trails.hazards || []) {
+      const state = stateAt(hazard, until);
+      if (!state) continue;
+      const item = document.createElement("li");
+      item.className = "hazard past state-" + state;
+      item.dataset.label = hazard.label;
+      const marker = L.marker(L.latLng(hazard.y, hazard.x), {
+        icon: icon(item),
+        title: "hazard " + hazard.label + " (" + state + " then): " + hazard.description,
+        keyboard: false,
+        interactive: false,
+      }).addTo(layers.past);
+      marker.getElement().dataset.pastHazard = hazard.id;
+      marker.getElement().dataset.state = state;
+    }
+  }
+
   function drawTrails(until) {
     layers.trails.clearLayers();
     layers.past.clearLayers();
@@ -201,6 +229,7 @@
           .getElement().dataset.past = name;
       }
     }
+    if (past) drawPastHazards(until);
   }
 
   function showMoment() {
