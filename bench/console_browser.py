@@ -6,7 +6,8 @@ from a blank page (as in a new tab: no other page of the console to unload first
   styles and scripts, the panels drawn);
 - live map: from the navigation's start to the first frame in which Leaflet has a marker on the
   map for every mark the page lists (robots, hazards, beacons), which is what an operator waits
-  for.
+  for; and, of the map, when its HTML was received, parsed (the document interactive) and its
+  deferred scripts had run, all from the same start.
 
 Times are the browser's own (``performance``), so the driver's round trips are not in them.
 """
@@ -43,6 +44,13 @@ const started = performance.now();
 })();
 """
 _LOADED = "return performance.getEntriesByType('navigation')[0].loadEventEnd;"
+#: Where a page's time went: its HTML received, then parsed (the document interactive), then its
+#: deferred scripts run (DOMContentLoaded's end).
+_STAGES = (
+    "const n = performance.getEntriesByType('navigation')[0];"
+    "return [n.responseEnd, n.domInteractive, n.domContentLoadedEventEnd];"
+)
+STAGES = ("HTML received", "HTML parsed", "scripts run")
 
 
 def browser_times(
@@ -58,6 +66,8 @@ def browser_times(
         driver.find_element("css selector", "input[name=password]").send_keys(password)
         driver.find_element("css selector", "form button[type=submit]").click()
         times: dict[str, list[float]] = {"dashboard in chromium": [], "live map in chromium": []}
+        for stage in STAGES:
+            times[f"live map in chromium: {stage}"] = []
         for counted in [False] + [True] * renders:
             show("the dashboard and the map in chromium")
             driver.get("about:blank")
@@ -68,9 +78,12 @@ def browser_times(
             drawn, listed = driver.execute_async_script(_MAP_DRAWN)
             if drawn < 0:
                 raise RuntimeError(f"the live map drew no marker for some of its {listed} marks in 30 s")
+            stages = driver.execute_script(_STAGES)
             if counted:
                 times["dashboard in chromium"].append(loaded)
                 times["live map in chromium"].append(float(drawn))
+                for stage, at in zip(STAGES, stages, strict=True):
+                    times[f"live map in chromium: {stage}"].append(float(at))
         return times
     finally:
         driver.quit()
