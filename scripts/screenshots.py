@@ -10,8 +10,10 @@ claimed and reached, two missions (one in progress, with depth soundings, a disc
 explorer mounted by the operator, who is checked in), a user of each role (the client limited to
 hazard responses); the worker and the recorder run meanwhile. The console (`fleetbus api`'s app)
 is served on that store; headless chromium (as in the browser tests) logs in as an administrator
-and saves the login form, each page of ``sitemap.PAGES`` (pages added later are included) and the
-survey's page (``mission.png``), then the operator's dashboard (``dashboard-operator.png``: its
+and saves the login form, each page of ``sitemap.PAGES`` (pages added later are included), the
+map with the last hour's trails and its slider a quarter back (``map-past.png``: the team's paths
+of the last 40 minutes are staged), the own account page (``account.png``) and the survey's page
+(``mission.png``), then the operator's dashboard (``dashboard-operator.png``: its
 own work), then, as the planner, the new mission form with a plan drawn on the map and its
 summary; 1280 pixels wide and up to 1,600 tall.
 """
@@ -22,12 +24,13 @@ import argparse
 import math
 import tempfile
 import time
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from rich.console import Console
+from selenium.webdriver.support.select import Select
 
-from fleetbus.api.console.sitemap import DASHBOARD, PAGES
+from fleetbus.api.console.sitemap import ACCOUNT, DASHBOARD, MAP, PAGES
 from fleetbus.broker.accounts import Role, with_vhost
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.cli.context import endpoint as resolved_broker
@@ -82,6 +85,25 @@ def soundings(mission_id: str, count: int = 800) -> list[EventRecord]:
     return records
 
 
+def paths(now: datetime) -> list[EventRecord]:
+    """Where each robot of the team went over the last 40 minutes (a localisation a minute, ending
+    at the pose of its status), for the map's trails and its time slider."""
+    records = []
+    for i, (name, _) in enumerate(TEAM):
+        end = demo_status(10 + 25 * i)["pose"]["x"]
+        for step in range(40):
+            x, y = end - 8 + 8 * step / 39, 1 + 3 * math.sin(step / 6 + i)
+            at = now - timedelta(minutes=40 - step)
+            body = {"localised": True, "pose": {"x": round(x, 2), "y": round(y, 2)}}
+            records.append(
+                EventRecord(
+                    name, "20261128T000000000Z-0a7b0a7b", step, EventType.LOCALISATION.value,
+                    f"path-{name}-{step}", at, at, body, name, f"{name}.events", f"{name}.localisation",
+                )
+            )  # fmt: skip
+    return records
+
+
 def stage(running: RunningConsole) -> str:
     """Beyond the demo: a user of each role, two missions, hazards left claimed and reached; the
     survey's soundings and discussion. The survey's id."""
@@ -106,6 +128,7 @@ def stage(running: RunningConsole) -> str:
         # the client may create hazard responses only (the accounts page shows whose use cases are limited)
         await service.accounts.set_use_cases(client.name, ["hazard-response"], by=ADMIN)
         await service.repositories.events.write_events(soundings(survey.mission_id))
+        await service.repositories.events.write_events(paths(now))
         operator = await accounts.get_user(users[UserRole.OPERATOR])
         assert operator
         await service.channels.mount(operator, EXPLORER, survey.mission_id)  # the soundings' robot
@@ -204,6 +227,20 @@ def screenshots(running: RunningConsole, out: Path, width: int, mission_id: str)
             if page is DASHBOARD:
                 settled(browser)
             shoot(browser, out / f"{page.name}.png", width)
+        # the map's trails, and the team as it stood 15 minutes ago
+        browser.go(running.url(MAP.path))
+        running.wait_live(browser)
+        Select(browser.find("#trail-window")[0]).select_by_value("60")
+        browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+        browser.driver.execute_script(
+            "const s = document.getElementById('map-time'); s.value = 750;"
+            "s.dispatchEvent(new Event('input'))"
+        )
+        browser.until(lambda: browser.find("[data-past]"), "the team as it stood then")
+        shoot(browser, out / "map-past.png", width)
+        # the user's own account (not in the navigation: the name in the header links to it)
+        browser.go(running.url(ACCOUNT.path))
+        shoot(browser, out / "account.png", width)
         # a mission's page (not in the navigation): its sensor data mapped, its discussion
         browser.go(running.url(f"/console/missions/{mission_id}"))
         running.wait_live(browser)
