@@ -6,6 +6,7 @@ show their buttons (the mission's steps, Unmount, Mount with its robots) and the
 from __future__ import annotations
 
 import pika
+from selenium.webdriver.support.select import Select
 
 from fleetbus.api.console.session import SESSION_COOKIE
 from fleetbus.api.console.sitemap import ACCOUNT, MESSAGES, MISSION_ROLES, pages_for
@@ -104,3 +105,46 @@ def test_the_mission_page_offers_the_robots_that_can_be_mounted_or_says_there_ar
         browser.until(lambda: browser.find("#mount-explorer2"), "explorer2 mounted")
         assert browser.find("#mount-form") == []
         assert "each of the team's 2 robots is mounted" in browser.text("#mount-none")
+
+
+def _holds(browser: Browser, where: str) -> list[str]:
+    """The page as it is now (not reloaded), laid out at each size."""
+    problems = []
+    for width, height in SIZES:
+        set_viewport(browser, width, height)
+        problems += [f"{where} at {width}x{height}: {problem}" for problem in overflows(browser)]
+    return problems
+
+
+def test_the_pages_a_button_opens_hold_too(bus: Bus, browser: Browser) -> None:
+    """What no address opens again: a broker password shown once (the own, and one an administrator
+    reset), and the live map with trails and its slider in the past."""
+    problems: list[str] = []
+    with running_console(bus) as console:
+        _team(console)
+        try:
+            for role, opens, form in (
+                (UserRole.OPERATOR, ACCOUNT.path, "#show-broker-password"),
+                (UserRole.OPERATOR, ACCOUNT.path, "#new-broker-password"),
+                (UserRole.ADMIN, "/console/accounts", "#user-explorer1 form.broker-password"),
+            ):
+                browser.reset()
+                browser.go(console.url("/console/login"))
+                browser.driver.add_cookie({"name": SESSION_COOKIE, "value": console.session(ROLES[role])})
+                browser.go(console.url(opens))
+                browser.click(f"{form} button")
+                browser.until(lambda: browser.text("#broker-password"), f"{form}: the password shown")
+                problems += _holds(browser, f"{form}'s password as {role.value}")
+            browser.go(console.url("/console/map"))
+            console.wait_live(browser)
+            Select(browser.find("#trail-window")[0]).select_by_value("60")
+            browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+            browser.driver.execute_script(
+                "const s = document.getElementById('map-time'); s.value = 500;"
+                "s.dispatchEvent(new Event('input'))"
+            )
+            browser.until(lambda: browser.text("#map-moment").endswith(" UTC"), "the map in the past")
+            problems += _holds(browser, "the map with trails, in the past, as admin")
+        finally:
+            reset_viewport(browser)
+    assert problems == [], "\n".join(problems)
