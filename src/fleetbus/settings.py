@@ -468,7 +468,10 @@ class Settings(BaseSettings):
         50, "cleared hazards the live map shows (the last cleared)"
     )
     console_map_hazards: Annotated[int, Positive] = setting(
-        300, "hazards of each open state the live map draws and lists (the newest); the rest are counted"
+        100,
+        "hazards of each open state the live map draws and lists (the newest); the rest are counted "
+        "(the Hazards page lists every one); each drawn hazard is a marker the browser places, so "
+        "this bounds the map's time to draw",
     )
     console_mission_points: Annotated[int, Positive] = setting(
         5000,
