@@ -20,7 +20,9 @@ through the console's own form.
               first saw the event committed in the store (it reads the SQLite file every 20 ms, by
               itself): the worker's part (stamp to commit) and the console's (commit to row). The
               robots' process runs at --nice (15: on what the server leaves, as robots on machines
-              of their own).
+              of their own). Meanwhile a robot of this process reports a hazard a second, and each
+              map notes when a mark of each hazard first arrives (provisional or registered): hazard
+              to map, from the hazard's ``received_at``, median and p95 over every (map, hazard).
   reconnects  the robots and dashboards going on, one more dashboard's stream opened --reconnects
               times, each sending the Last-Event-ID of the one before (so each is replayed what it
               missed from the store) and dropped after its first event; the console process's
@@ -73,11 +75,12 @@ from fleetbus.api.console.live import FRAGMENT_EVENT
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD
 from fleetbus.api.console.sitemap import PAGES
 from fleetbus.api.console.trails import WINDOWS
+from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.envelope import new_epoch
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import EventType, RobotKind
 from fleetbus.workers.store.base import EventRecord
-from fleetbus.workers.store.hazards import NewHazard
+from fleetbus.workers.store.hazards import Hazard, NewHazard
 from fleetbus.workers.store.repositories import Repositories
 from tests.api.server import api_process
 from tests.factories import hazard
@@ -87,6 +90,11 @@ PASSWORD = "bench console password"
 STREAM = "/console/stream/dashboard"
 MAP_STREAM = "/console/stream/map"
 ROW = re.compile(r'\s*<tr id="(event-[^"]+)"')
+#: A hazard's mark on the live map: the provisional one sent at once from its event
+#: (``map/news.html``), or the registered one (``map/marks.html``); either names the event.
+HAZARD_MARK = re.compile(r'<li id="mark-(?:new|hazard)-[^"]+" [^>]*data-event="([^"]+)"')
+#: A hazard a second goes through the whole chain while the dashboards and maps are open.
+HAZARD_EVERY_S = 1.0
 WARDEN_EVERY = 10
 """One robot in ten is a warden (the hazards' claims and clearances are theirs)."""
 WRITE_BATCH = 10_000
@@ -152,6 +160,8 @@ async def follow(client: httpx.AsyncClient, dashboard: Dashboard, stream: str = 
                     for fragment in fragments:
                         if found := ROW.match(fragment):
                             dashboard.arrivals.setdefault(found.group(1), now)
+                        for mark in HAZARD_MARK.finditer(fragment):
+                            dashboard.arrivals.setdefault(f"hazard {mark.group(1)}", now)
         except httpx.HTTPError:
             pass  # counted below, as a stream that ended
         dashboard.cuts += 1
@@ -225,10 +235,24 @@ class Watched:
     visibility: Visibility
 
 
+def publish_hazards(robot: RobotClient, stop: threading.Event) -> None:
+    """A hazard every :data:`HAZARD_EVERY_S` through the robot client (confirmed), until ``stop``."""
+    number = 0
+    while not stop.wait(HAZARD_EVERY_S):
+        robot.publish(EventType.HAZARD, hazard(number, description=f"bench hazard {number}"))
+        number += 1
+
+
 async def watch(
-    base: str, pid: int, store: Path, args: argparse.Namespace, show: Callable[[str], None]
+    base: str,
+    pid: int,
+    store: Path,
+    args: argparse.Namespace,
+    show: Callable[[str], None],
+    robot: RobotClient,
 ) -> Watched:
-    """The dashboards open for ``args.seconds``, then the reconnections (the dashboards still open)."""
+    """The dashboards open for ``args.seconds`` while ``robot`` reports a hazard a second, then the
+    reconnections (the dashboards still open)."""
     client = await logged_in(base, args.dashboards + args.maps + 2)
     dashboards = [Dashboard() for _ in range(args.dashboards)]
     maps = [Dashboard() for _ in range(args.maps)]
@@ -244,8 +268,13 @@ async def watch(
         await asyncio.sleep(2)  # past the first batches after opening: the measurement's start
         start, cpu = time.time(), cpu_seconds(pid)
         show(f"{args.dashboards} dashboards and {args.maps} maps open for {args.seconds:g} s")
+        stop_hazards = threading.Event()
+        hazards = threading.Thread(target=publish_hazards, args=(robot, stop_hazards), daemon=True)
+        hazards.start()
         await asyncio.sleep(args.seconds)
         end = time.time()
+        stop_hazards.set()
+        await asyncio.to_thread(hazards.join)
         console_cpu = 100 * (cpu_seconds(pid) - cpu) / (end - start)
         await asyncio.sleep(3)  # the rows of the last events measured are on their way
         resident = await reconnections(client, pid, args.reconnects, show)
@@ -280,15 +309,19 @@ def live(context: Context, args: argparse.Namespace) -> dict[str, Any]:
     with context.bus() as bus:
         context.show(f"{args.robots} robot accounts")
         urls = [bus.add(robot_name(i), kind=RobotKind.EXPLORER).amqp_url for i in range(args.robots)]
+        reporter = bus.robot(bus.add("bench-console-hazards", kind=RobotKind.EXPLORER))
         with (
             worker_process(bus, "--no-recorder"),
             api_process(bus, ADMIN, PASSWORD, **console_settings(args)) as (base, api),
             TelemetryLoad(bus, urls, 2 * args.robots, pose=True, nice=args.nice) as load,
         ):
             context.show(f"{args.robots} robots publishing")
-            watched = asyncio.run(watch(base, api.pid, bus.settings.sqlite_path, args, context.show))
+            watched = asyncio.run(
+                watch(base, api.pid, bus.settings.sqlite_path, args, context.show, reporter)
+            )
         measured = bus.with_store(lambda repos: received_between(repos, watched.start, watched.end))
-        figures = live_figures(load.rate, measured, watched)
+        hazards = bus.with_store(lambda repos: repos.hazards.recent_hazards(MOST_HAZARDS_MEASURED))
+        figures = {**live_figures(load.rate, measured, watched), **map_figures(hazards, watched)}
         console.print(part_table("live and reconnects", figures))  # before the team is taken down
     return {"figures": figures, "console RSS MB every 10th reconnection": watched.resident[::10]}
 
@@ -333,6 +366,34 @@ def live_figures(rate: float, measured: list[EventRecord], watched: Watched) -> 
         "console RSS MB, last reconnection": resident[-1],
         "console RSS MB, highest": max(resident),
         "console RSS last ÷ first": resident[-1] / resident[0],
+    }
+
+
+#: The live part's hazards read back from the store: more than it can publish in its seconds.
+MOST_HAZARDS_MEASURED = 100_000
+
+
+def map_figures(hazards: list[Hazard], watched: Watched) -> Figures:
+    """How soon each hazard's mark reached every open map: from the hazard's ``received_at`` (the
+    worker's stamp) to the first arrival of a mark of it (provisional or registered) in a map's
+    stream."""
+    latencies: list[float] = []
+    missing = 0
+    for found in hazards:
+        for page in watched.maps:
+            arrived = page.arrivals.get(f"hazard {found.robot_id}-{found.epoch}-{found.seq}")
+            if arrived is None:
+                missing += 1
+            else:
+                latencies.append((arrived - found.received_at.timestamp()) * 1000)
+    if not latencies:
+        return {"hazards published": len(hazards), "hazard markers never shown": missing}
+    return {
+        "hazards published": len(hazards),
+        "hazard to map median ms": statistics.median(latencies),
+        "hazard to map p95 ms": percentile(latencies, 95),
+        "hazard to map max ms": max(latencies),
+        "hazard markers never shown": missing,
     }
 
 

@@ -4,7 +4,7 @@ the feed's batches (the real SQLite store, its reads counted)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from datetime import timedelta
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import pytest
@@ -38,7 +38,10 @@ async def test_robots_are_read_from_the_store_once_then_follow_the_feed(
         reads: list[tuple[list[str], str | None]] = []
         newest_events = store.events.newest_events
 
-        async def counted(robots: Sequence[str], type: str | None = None) -> dict[str, EventRecord]:
+        async def counted(
+            robots: Sequence[str], type: str | None = None, **window: datetime | None
+        ) -> dict[str, EventRecord]:
+            assert window == {"since": None, "until": None}, "the newest of all time"
             reads.append((sorted(robots), type))
             return await newest_events(robots, type)
 

@@ -11,11 +11,15 @@ import httpx
 from PIL import Image
 from selenium.webdriver.support.select import Select
 
+from fleetbus.api.console.latest import Latest
 from fleetbus.api.console.map_image import Frame, png_of
+from fleetbus.api.console.pages.live_map import MapView
 from fleetbus.broker.accounts import Role
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.beacons import Beacon
+from fleetbus.workers.store.hazards import NewHazard
 from fleetbus.workers.store.maps import MapVersion
 from tests.console.support import Browser, Console, http_session, report_live, role_user, running_console
 from tests.factories import hazard, small_map, status
@@ -77,11 +81,22 @@ def test_a_published_hazard_appears_on_the_map_live_with_its_id(bus: Bus, browse
         browser.until(lambda: drawn(browser, "mark-robot-explorer1"), "the explorer's last pose")
         assert where(browser, "mark-robot-explorer1") == ("4.000", "5.000")
         browser.driver.execute_script("document.body.dataset.marker = 'not reloaded'")
+        # what the stream puts in the list of provisional marks, noted as it comes
+        browser.driver.execute_script(
+            "window.__news = []; new MutationObserver((changes) => changes.forEach((c) =>"
+            " c.addedNodes.forEach((n) => window.__news.push(n.id))))"
+            ".observe(document.getElementById('map-news'), {childList: true})"
+        )
 
         published = time.monotonic()
-        explorer.publish("hazard", at(hazard(0, description="Gas leak"), INSIDE["x"], INSIDE["y"]))
+        event = explorer.publish("hazard", at(hazard(0, description="Gas leak"), INSIDE["x"], INSIDE["y"]))
         browser.until(lambda: drawn(browser, "mark-hazard-default-1"), "the hazard's marker")
         shown = time.monotonic() - published
+        # its provisional mark came first, from its event, and went once the hazard was registered
+        key = f"{event.robot_id}-{event.epoch}-{event.seq}"
+        assert browser.driver.execute_script("return window.__news") == [f"mark-new-{key}"]
+        browser.until(lambda: not browser.find("#map-news li"), "the provisional mark dropped")
+        assert not browser.find(f"[data-mark='mark-new-{key}']"), "no marker of it left"
         marker = browser.find(".leaflet-marker-icon[data-mark='mark-hazard-default-1']")[0]
         assert marker.text == "1", "its id"
         assert where(browser, "mark-hazard-default-1") == ("5.000", "6.000"), "where the robot saw it"
@@ -220,3 +235,31 @@ def test_the_map_and_the_dashboard_draw_the_newest_hazards_and_count_the_rest(bu
             assert 'id="hazards-announced">15<' in dashboard and "and 3 more" in dashboard
             assert 'id="dashboard-hazard-default-15"' in dashboard
             assert 'id="dashboard-hazard-default-3"' not in dashboard, "the twelve newest are listed"
+
+
+def test_a_hazard_stored_before_it_is_registered_is_drawn_by_the_next_render(bus: Bus) -> None:
+    """The worker stores a hazard's event, then registers the hazard (gives it its id): a render the
+    event asked for may come in between. The map then renders again at the next call, not after its
+    interval, until it draws the hazard."""
+    with running_console(bus) as console:
+        service = console.service
+        view = MapView(service, Latest(service.events))
+        now = datetime.now(timezone.utc)
+        record = EventRecord(
+            "explorer1", "e-1", 0, "hazard", "m-0", now, now, {**hazard(), "description": "Gas"},
+            "explorer1", "explorer1.events", "explorer1.hazard",
+        )  # fmt: skip
+
+        async def stored_then_registered() -> tuple[str, str]:
+            await service.repositories.events.write_events([record])
+            # at once, from the event: a provisional mark, for the page's list of them
+            (news,) = await view.events([record])
+            assert news.startswith('<li id="mark-new-explorer1-e-1-0" data-into="map-news"'), news
+            assert 'data-event="explorer1-e-1-0"' in news and 'data-label="new"' in news, news
+            before = (await view.snapshot())[0]  # the render the event asked for, too early
+            await service.repositories.hazards.hold_hazards([NewHazard.of(record)])
+            return before, (await view.snapshot())[0]  # well within the interval
+
+        before, after = console.run(stored_then_registered)
+        assert "mark-hazard-default-1" not in before
+        assert 'id="mark-hazard-default-1" class="hazard state-held" data-event="explorer1-e-1-0"' in after

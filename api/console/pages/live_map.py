@@ -14,6 +14,7 @@ markers stay.
 from __future__ import annotations
 
 import asyncio
+import time
 from datetime import datetime, timedelta, timezone
 from typing import Annotated, Any
 
@@ -31,7 +32,7 @@ from fleetbus.api.console.trails import WINDOWS, hazard_times, position, trails
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.errors import NotFound
-from fleetbus.api.services.hazards import HazardState
+from fleetbus.api.services.hazards import Hazard, HazardState
 from fleetbus.api.services.maps import MapVersion
 from fleetbus.api.services.stored_events import EventRecord
 from fleetbus.schemas.routing import EventType
@@ -46,6 +47,12 @@ NEWS = frozenset({EventType.HAZARD.value, EventType.MAP.value})
 #: The recent sightings are read again at most this often: each read is every sighting of the
 #: last ten minutes (:func:`~fleetbus.workers.beacons.stranded`), many when guides report often.
 SIGHTINGS_EVERY_S = 2.0
+#: At most this many provisional marks of new hazards kept on a page (each is drawn until its
+#: hazard is, registered).
+NEWS_MAX = 50
+#: A hazard event not registered this long after the map saw it stored is no longer awaited (a
+#: site's hazard, say, is registered at central by its uplink, not by this event).
+REGISTERING_S = 5.0
 #: The live fragments of the map, in the order :meth:`MapView.snapshot` gives them.
 PARTS = ("marks", "hazards", "robots", "beacons", "newest")
 
@@ -60,6 +67,8 @@ class MapView:
             service.maps, service.settings.console_map_pixels, service.settings.console_map_cache
         )
         self.snapshot = Shared(self._render)
+        self._unregistered: dict[tuple[str, str, int], float] = {}
+        """Hazard events stored and not yet seen registered (by their key; when first seen)."""
         self._heard: list[dict[str, Any]] = []
         self._heard_at = -float("inf")
 
@@ -80,6 +89,7 @@ class MapView:
         grouped = await self._service.hazards.newest_by_state(OPEN, settings.console_map_hazards)
         cleared = await service.hazards.cleared(settings.console_map_cleared)
         grouped[HazardState.CLEARED] = cleared
+        self._look_for_registered(grouped)
         counts = await service.hazards.counts()
         beacons = await service.beacons.registry()
         heard = await self._stranded()
@@ -98,9 +108,37 @@ class MapView:
         }
         return [fragment(f"map/{part}.html", newest=newest, **context) for part in PARTS]
 
+    def _look_for_registered(self, shown: dict[HazardState, list[Hazard]]) -> None:
+        """A hazard's event is stored before the worker registers the hazard (gives it its id), so
+        a render the event asked for may come too early to draw it: until it is drawn (or
+        :data:`REGISTERING_S` passed), each render asks for the next."""
+        if not self._unregistered:
+            return
+        for hazard in (hazard for hazards in shown.values() for hazard in hazards):
+            self._unregistered.pop((hazard.robot_id, hazard.epoch, hazard.seq), None)
+        now = time.monotonic()
+        for key, seen in list(self._unregistered.items()):
+            if now - seen > REGISTERING_S:
+                del self._unregistered[key]
+        if self._unregistered:
+            self.snapshot.want(time.time_ns() // 1000)
+
     async def events(self, records: list[EventRecord]) -> list[str]:
+        """A new hazard's provisional mark, at once, where its event says (the map draws it until
+        the render of the state has the hazard registered, with its id); the rest of what the map
+        shows is state, refreshed by the snapshot."""
+        now = time.monotonic()
+        news = []
+        for record in records:
+            if record.type == EventType.HAZARD.value:
+                self._unregistered.setdefault(record.key, now)
+                pose = record.body.get("pose")
+                if isinstance(pose, dict) and "x" in pose and "y" in pose:
+                    key = "-".join(map(str, record.key))
+                    at = {"x": float(pose["x"]), "y": float(pose["y"])}
+                    news.append(fragment("map/news.html", record=record, key=key, at=at))
         self.snapshot.want(newest_of(records, NEWS))
-        return []  # everything the map shows is state, refreshed by the snapshot
+        return news
 
     async def stored(self, version: int | None) -> MapVersion | str:
         """The stored version (the newest for None), or why there is none."""
@@ -145,6 +183,7 @@ async def live_map(request: Request, user: Viewer, view: View, version: Version 
         versions=versions,
         windows=WINDOWS,
         lists=[parts["hazards"], parts["robots"], parts["beacons"]],
+        news_max=NEWS_MAX,
         newest=parts["newest"],
         **await _frame_context(view, version),
     )

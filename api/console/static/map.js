@@ -2,7 +2,8 @@
 // is (y, x) in the map frame's metres.
 //
 // The server renders what the map shows as data: #map-frame names the stored image and the world
-// rectangle it covers; #map-marks lists the robots, beacons and hazards with their coordinates.
+// rectangle it covers; #map-marks lists the robots, beacons and hazards with their coordinates,
+// #map-news the provisional marks of hazards just reported.
 // The live stream (live.js) and the version select (htmx) replace those elements; this redraws
 // the map from them, keeping the view (the first shows where the team is, or else the whole map). Clicking a robot centres the map on it and follows it
 // until the map is dragged. Trails over a chosen window come from /console/map/trails (the stored
@@ -93,12 +94,26 @@
     followingText.textContent = "Click a robot to centre on it and follow it.";
   }
 
+  // the marks to draw: those of the state, and a new hazard's provisional mark (sent at once, from
+  // its event) until the state has the hazard registered (then the provisional one is dropped)
+  function marksToDraw(list) {
+    const items = Array.from(list.children);
+    const news = document.getElementById("map-news");
+    if (!news) return items;
+    const registered = new Set(items.filter((item) => item.dataset.event).map((item) => item.dataset.event));
+    for (const item of Array.from(news.children)) {
+      if (registered.has(item.dataset.event)) item.remove();
+      else items.push(item);
+    }
+    return items;
+  }
+
   function showMarks() {
     const list = document.getElementById("map-marks");
     if (!list) return;
     const seen = new Set();
     const points = [];
-    for (const item of list.children) {
+    for (const item of marksToDraw(list)) {
       const at = L.latLng(Number(item.dataset.y), Number(item.dataset.x));
       seen.add(item.id);
       points.push(at);
