@@ -1,12 +1,13 @@
-"""Each robot's trail over a window: the poses its stored ``localisation`` events reported, oldest
-first, as the live map draws them (and replays them under its time slider).
+"""Each robot's trail over a window: the poses its stored ``status`` and ``localisation`` events
+reported (the same events its marker on the map follows), oldest first, as the live map draws them
+(and replays them under its time slider).
 
 The answer holds at most ``points`` poses, however big the team and the window (the setting
 ``FLEETBUS_CONSOLE_TRAIL_POINTS``). When the window holds no more, it is every pose. When it holds
 more, the window is cut into equal steps, as many as the budget gives each robot of the team, and
 each robot's trail is its last pose of each step: the whole window at a coarser grain, down to the
-robot's newest pose, where a lost robot was last. That is one store query a step, each an index
-seek for each robot, so the cost follows the budget, not the number of poses stored."""
+robot's newest pose, where a lost robot was last. That is one store query a step and pose type,
+each an index seek for each robot, so the cost follows the budget, not the number of poses stored."""
 
 from __future__ import annotations
 
@@ -14,10 +15,9 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
-from fleetbus.api.console.latest import Pose
+from fleetbus.api.console.latest import POSE_TYPES, Pose
 from fleetbus.api.services.hazards import Hazard
 from fleetbus.api.services.stored_events import EventRecord, StoredEvents
-from fleetbus.schemas.routing import EventType
 
 #: The windows the map offers, in minutes.
 WINDOWS = (10, 60, 360, 1440)
@@ -25,30 +25,41 @@ WINDOWS = (10, 60, 360, 1440)
 #: many robots share the budget.
 MIN_STEPS = 2
 
-POSES = EventType.LOCALISATION.value
-
 
 async def trails(
     events: StoredEvents, robots: Sequence[str], until: datetime, window: timedelta, points: int
 ) -> dict[str, Any]:
     """``{"since", "until", "step", "robots": {name: [[ms, x, y, heading°], ...]}}``: each robot's
-    localised poses sent in [until - window, until), oldest first; times in milliseconds since the
-    epoch (UTC). ``step`` is 0 when every pose is there, else the steps' length in milliseconds
-    (each robot's last pose of each step is there)."""
+    poses sent in [until - window, until), oldest first; times in milliseconds since the epoch
+    (UTC). ``step`` is 0 when every pose is there, else the steps' length in milliseconds (each
+    robot's last pose of each step is there)."""
     since = until - window
-    if await events.more_sent_between(POSES, since, until, points):
+    step = timedelta(0)
+    found = await _every_pose(events, since, until, points)
+    if found is None:
         steps = max(MIN_STEPS, points // max(len(robots), 1))
         step = window / steps
         found = await _last_of_each_step(events, robots, since, until, steps)
-    else:
-        step = timedelta(0)
-        found = await events.sent_between(POSES, since, until, points)
     return {
         "since": _ms(since),
         "until": _ms(until),
         "step": round(step.total_seconds() * 1000),
         "robots": _poses_by_robot(found),
     }
+
+
+async def _every_pose(
+    events: StoredEvents, since: datetime, until: datetime, points: int
+) -> list[EventRecord] | None:
+    """Every event of the pose types sent in the window, or None when there are more than ``points``
+    (known from the index before any is read)."""
+    found: list[EventRecord] = []
+    for type in POSE_TYPES:
+        room = points - len(found)
+        if await events.more_sent_between(type, since, until, room):
+            return None
+        found += await events.sent_between(type, since, until, room) if room else []
+    return found
 
 
 async def _last_of_each_step(
@@ -58,7 +69,14 @@ async def _last_of_each_step(
     start = since
     for number in range(1, steps + 1):
         end = until if number == steps else since + (until - since) * number / steps
-        found += (await events.newest_of(robots, POSES, since=start, until=end)).values()
+        newest: dict[str, EventRecord] = {}
+        for type in POSE_TYPES:
+            for robot, record in (await events.newest_of(robots, type, since=start, until=end)).items():
+                if Pose.of(record) is not None and (
+                    robot not in newest or record.sent_at > newest[robot].sent_at
+                ):
+                    newest[robot] = record
+        found += newest.values()
         start = end
     return found
 

@@ -175,17 +175,30 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
             assert browser.console_errors() == [], role
 
 
-def test_the_trails_of_a_window_come_from_the_stored_localisations(bus: Bus) -> None:
+def test_the_trails_of_a_window_come_from_the_stored_statuses_and_localisations(bus: Bus) -> None:
     with running_console(bus) as console:
         console.user("oper1", UserRole.OPERATOR)
         now = datetime.now(timezone.utc)
         _reported_path(console, "explorer9", now)
+        # a status of 3 and one of 1 minute ago (a status always says where the robot is)
+        reports = [
+            EventRecord(
+                "explorer9", "e-path", STEPS + i, "status", str(uuid.uuid4()), at, at,
+                {**status(70.0), "pose": {"x": x, "y": 2.5}},
+                "explorer9", "explorer9.events", "explorer9.status",
+            )
+            for i, (minutes, x) in enumerate(((3, 18.5), (1, 20.0)))
+            for at in [now - timedelta(minutes=minutes)]
+        ]  # fmt: skip
+        console.run(lambda: console.service.repositories.events.write_events(reports))
         with console.http_as("oper1") as http:
             answer = http.get("/console/map/trails", params={"minutes": 10})
             assert answer.status_code == 200
             found = answer.json()
-            # the last 10 minutes hold the poses of 8, 6, 4 and 2 minutes ago: x 16 to 19
-            assert [point[1] for point in found["robots"]["explorer9"]] == [16.0, 17.0, 18.0, 19.0]
+            # the last 10 minutes hold the localisations of 8, 6, 4 and 2 minutes ago (x 16 to 19)
+            # and the statuses of 3 and 1 minute ago, in the order sent
+            xs = [point[1] for point in found["robots"]["explorer9"]]
+            assert xs == [16.0, 17.0, 18.0, 18.5, 19.0, 20.0]
             assert found["step"] == 0, "every pose of the window"
             assert http.get("/console/map/trails", params={"minutes": 0}).status_code == 422
 
@@ -202,17 +215,25 @@ def test_a_window_with_more_poses_than_an_answer_holds_is_each_robots_last_pose_
             console.run(lambda robot=robot: console.service.repositories.hazards.register_robot(robot, None))
         for robot in lost:
             _reported_path(console, robot, now)
+        # explorer7's newest pose is a status of a minute ago, after its last localisation
+        moved = EventRecord(
+            "explorer7", "e-path", STEPS, "status", str(uuid.uuid4()), now - timedelta(minutes=1),
+            now - timedelta(minutes=1), {**status(70.0), "pose": {"x": 25.0, "y": 2.0}},
+            "explorer7", "explorer7.events", "explorer7.status",
+        )  # fmt: skip
+        console.run(lambda: console.service.repositories.events.write_events([moved]))
         browser.console_errors()  # what earlier tests' pages logged, read and set aside
         open_map(console, browser)  # as oper1
         window = {"minutes": 60, "until": now.isoformat()}
         with console.http_as("oper1") as http:
             found = http.get("/console/map/trails", params=window).json()
-        # 60 poses, 8 at most: 8 // 4 robots = 2 steps of 30 minutes; the first's last pose is of
-        # 32 minutes ago (x 4), the second's the newest, of 2 minutes ago (x 19)
+        # 61 poses, 8 at most: 8 // 4 robots = 2 steps of 30 minutes; the first's last pose is of
+        # 32 minutes ago (x 4), the second's the newest, of 2 minutes ago (x 19; explorer7's status
+        # of a minute ago, x 25)
         assert found["step"] == 30 * 60 * 1000
         assert sorted(found["robots"]) == list(lost)
-        for robot in lost:
-            assert [point[1] for point in found["robots"][robot]] == [4.0, 19.0], robot
+        for robot, newest in zip(lost, (25.0, 19.0, 19.0), strict=True):
+            assert [point[1] for point in found["robots"][robot]] == [4.0, newest], robot
         assert found["since"] == round((now - timedelta(minutes=60)).timestamp() * 1000)
 
         # the map draws the three trails and says how coarse they are
@@ -226,4 +247,4 @@ def test_a_window_with_more_poses_than_an_answer_holds_is_each_robots_last_pose_
         with console.http_as("oper1") as http:
             found = http.get("/console/map/trails", params=window).json()
         assert found["step"] == 0
-        assert [point[1] for point in found["robots"]["explorer7"]] == [float(x) for x in range(STEPS)]
+        assert [point[1] for point in found["robots"]["explorer7"]] == [*map(float, range(STEPS)), 25.0]

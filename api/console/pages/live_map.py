@@ -204,7 +204,7 @@ async def map_trails(
     minutes: Annotated[int, Query(ge=1, le=max(WINDOWS))] = 60,
     until: Annotated[datetime | None, Query(description="the window's end (UTC); now by default")] = None,
 ) -> Response:
-    """Each robot's trail over the last ``minutes`` before ``until``, from its stored localisations
+    """Each robot's trail over the last ``minutes`` before ``until``, from its stored poses
     (sampled when the window holds more than ``FLEETBUS_CONSOLE_TRAIL_POINTS``), and the hazards of
     the window with the times of their steps (the newest ``FLEETBUS_CONSOLE_MAP_HAZARDS``)."""
     end = until or datetime.now(timezone.utc)

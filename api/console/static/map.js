@@ -7,7 +7,7 @@
 // The live stream (live.js) and the version select (htmx) replace those elements; this redraws
 // the map from them, keeping the view (the first shows where the team is, or else the whole map). Clicking a robot centres the map on it and follows it
 // until the map is dragged. Trails over a chosen window come from /console/map/trails (the stored
-// localisations, and the window's hazards with the times of their steps); the time slider replays
+// poses, and the window's hazards with the times of their steps); the time slider replays
 // them: the team as it stood at a past moment, with the hazards as they were then.
 (function () {
   "use strict";
