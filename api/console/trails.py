@@ -2,12 +2,13 @@
 reported (the same events its marker on the map follows), oldest first, as the live map draws them
 (and replays them under its time slider).
 
-The answer holds at most ``points`` poses, however big the team and the window (the setting
+One answer reads at most ``points`` poses, however big the team and the window (the setting
 ``FLEETBUS_CONSOLE_TRAIL_POINTS``). When the window holds no more, it is every pose. When it holds
-more, the window is cut into equal steps, as many as the budget gives each robot of the team, and
-each robot's trail is its last pose of each step: the whole window at a coarser grain, down to the
-robot's newest pose, where a lost robot was last. That is one store query a step and pose type,
-each an index seek for each robot, so the cost follows the budget, not the number of poses stored."""
+more, the window is cut into equal steps, as many as the budget gives each robot of the team and
+each pose type, and each robot's trail is its last pose of each step: the whole window at a coarser
+grain, down to the robot's newest pose, where a lost robot was last. That is one store query a step
+and pose type, each an index seek for each robot, so the cost follows the budget, not the number of
+poses stored."""
 
 from __future__ import annotations
 
@@ -37,7 +38,8 @@ async def trails(
     step = timedelta(0)
     found = await _every_pose(events, since, until, points)
     if found is None:
-        steps = max(MIN_STEPS, points // max(len(robots), 1))
+        # a step reads each robot's newest pose of each type: the reads stay within the budget
+        steps = max(MIN_STEPS, points // max(len(robots) * len(POSE_TYPES), 1))
         step = window / steps
         found = await _last_of_each_step(events, robots, since, until, steps)
     return {

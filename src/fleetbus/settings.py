@@ -422,9 +422,10 @@ class Settings(BaseSettings):
     )
     console_trail_points: Annotated[int, Positive] = setting(
         20_000,
-        "at most this many poses in one answer of the live map's trails (all robots together); a "
-        "window that holds more is sampled: each robot's last pose of each of equal steps, as many "
-        "steps as this gives each robot of the team, down to its newest pose",
+        "at most this many poses read for one answer of the live map's trails (all robots together); "
+        "a window that holds more is sampled: each robot's last pose of each of equal steps, as many "
+        "steps as this gives each robot of the team and each pose type (status, localisation), down "
+        "to its newest pose",
     )
     console_tail_rows: Annotated[int, Positive] = setting(
         100, "how many messages the live tail on the console's Messages page keeps on screen"
