@@ -93,10 +93,15 @@ def _poses_by_robot(found: Iterable[EventRecord]) -> dict[str, list[list[float]]
     return robots
 
 
+def where_seen(body: dict[str, Any]) -> dict[str, Any] | None:
+    """Where a hazard event's robot saw it (the body's pose), if the body says."""
+    pose = body.get("pose")
+    return pose if isinstance(pose, dict) and "x" in pose and "y" in pose else None
+
+
 def position(hazard: Hazard) -> dict[str, Any] | None:
     """Where the robot saw the hazard (its event's pose), if it says."""
-    pose = hazard.event.get("body", {}).get("pose")
-    return pose if isinstance(pose, dict) and "x" in pose and "y" in pose else None
+    return where_seen(hazard.event.get("body", {}))
 
 
 def hazard_times(hazards: Iterable[Hazard]) -> list[dict[str, Any]]:

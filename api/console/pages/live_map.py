@@ -28,7 +28,7 @@ from fleetbus.api.console.pages.dashboard import OPEN
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
-from fleetbus.api.console.trails import WINDOWS, hazard_times, position, trails
+from fleetbus.api.console.trails import WINDOWS, hazard_times, position, trails, where_seen
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.errors import NotFound
@@ -48,7 +48,7 @@ NEWS = frozenset({EventType.HAZARD.value, EventType.MAP.value})
 #: last ten minutes (:func:`~fleetbus.workers.beacons.stranded`), many when guides report often.
 SIGHTINGS_EVERY_S = 2.0
 #: At most this many provisional marks of new hazards kept on a page (each is drawn until its
-#: hazard is, registered).
+#: hazard is registered).
 NEWS_MAX = 50
 #: A hazard event not registered this long after the map saw it stored is no longer awaited (a
 #: site's hazard, say, is registered at central by its uplink, not by this event).
@@ -132,8 +132,7 @@ class MapView:
         for record in records:
             if record.type == EventType.HAZARD.value:
                 self._unregistered.setdefault(record.key, now)
-                pose = record.body.get("pose")
-                if isinstance(pose, dict) and "x" in pose and "y" in pose:
+                if (pose := where_seen(record.body)) is not None:
                     key = "-".join(map(str, record.key))
                     at = {"x": float(pose["x"]), "y": float(pose["y"])}
                     news.append(fragment("map/news.html", record=record, key=key, at=at))
