@@ -338,6 +338,10 @@ class EventOut(BaseModel):
     routing_key: str
     mission_id: str | None
     body: dict[str, Any]
+    redelivered: bool = Field(
+        description="the broker had delivered it before, to a worker that did not acknowledge it (a worker "
+        "or its connection lost): it may have been taken after later events of its robot"
+    )
 
     @classmethod
     def of(cls, record: EventRecord) -> EventOut:

@@ -230,6 +230,36 @@ def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> 
     assert bus.ready_messages(EXPRESS_QUEUE) == 0
 
 
+def test_an_event_stored_from_a_redelivery_says_so(bus: Bus) -> None:
+    """A worker dies with a hazard in hand; the next takes it from the broker again and stores it
+    marked redelivered (RabbitMQ keeps a queue's order only for messages not redelivered, so the
+    mark says which events may have come after later ones). The hazard after it is not marked."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    asyncio.run(declare_with_url(bus.admin_url, [core_topology()]))
+    first = explorer.publish("hazard", hazard(0))
+    check = CrashesOn(first.message_id)
+
+    async def crash_then_store() -> None:
+        connection, consumer = await express_consumer(bus, check)
+        with pytest.raises(Crashed):
+            await asyncio.wait_for(consumer.run(), 30)
+        await connection.close()  # as the dead worker's did: the broker redelivers
+        check.message_id = "none"  # the next worker stores it
+        connection, consumer = await express_consumer(bus, check)
+        lane = asyncio.create_task(consumer.run())
+        try:
+            await asyncio.to_thread(explorer.publish, "hazard", hazard(1))
+            await asyncio.to_thread(wait_for, lambda: bus.count("hazard") == 2, 30, "both hazards stored")
+        finally:
+            await consumer.stop()
+            await lane
+            await connection.close()
+
+    asyncio.run(crash_then_store())
+    assert check.attempts == 1
+    assert [(r.seq, r.redelivered) for r in bus.find()] == [(first.seq, True), (first.seq + 1, False)]
+
+
 class Handled:
     """A batch service that writes down, in one shared log, which consumer handled which event;
     ``hold`` keeps the consumer's first batch in hand until released."""

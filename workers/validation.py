@@ -89,12 +89,19 @@ def classify(
             RejectReason.WRONG_EXCHANGE,
             f"{event.type.value} events are published to {expected_exchange!r}, not {message.exchange!r}",
         )
-    record = event_record(event, received_at, user_id, message.exchange or "", routing_key)
+    exchange, redelivered = message.exchange or "", bool(message.redelivered)
+    record = event_record(event, received_at, user_id, exchange, routing_key, redelivered=redelivered)
     return Accepted(event, record, forwarded=SHOVELLED_HEADER in (message.headers or {}))
 
 
 def event_record(
-    event: Event, received_at: datetime, user_id: str, exchange: str, routing_key: str
+    event: Event,
+    received_at: datetime,
+    user_id: str,
+    exchange: str,
+    routing_key: str,
+    *,
+    redelivered: bool = False,
 ) -> EventRecord:
     """What is stored of a valid event: its envelope, its body as stored, and how it came."""
     return EventRecord(
@@ -110,4 +117,5 @@ def event_record(
         exchange=exchange,
         routing_key=routing_key,
         digest=content_digest(event.type, event.body),
+        redelivered=redelivered,
     )

@@ -62,6 +62,10 @@ class EventRecord:
     """The event's content (:func:`fleetbus.schemas.envelope.content_digest`): what tells a resend
     (the same) from a reused number (another). None for a record stored without one: compared by
     message id."""
+    redelivered: bool = False
+    """The broker had delivered the message before (to a consumer that did not ack it: a worker or
+    its connection lost). RabbitMQ keeps a queue's order only for messages not redelivered, so
+    such an event may have been taken after later ones of its robot."""
 
     @property
     def key(self) -> tuple[str, str, int]:

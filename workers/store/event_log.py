@@ -11,7 +11,19 @@ from fleetbus.workers.store.base import EventQuery, EventRecord, Received, Write
 from fleetbus.workers.store.channels import ChannelStore
 from fleetbus.workers.store.interface import StoredBatch, held_sequences, numbers_of, stamp_missions
 from fleetbus.workers.store.ledger import Ledger
-from fleetbus.workers.store.port import INTEGER, JSON, TEXT, TIME, Database, Doc, Filter, Index, Range, Schema
+from fleetbus.workers.store.port import (
+    BOOL,
+    INTEGER,
+    JSON,
+    TEXT,
+    TIME,
+    Database,
+    Doc,
+    Filter,
+    Index,
+    Range,
+    Schema,
+)
 from fleetbus.workers.store.repositories import EventLog
 
 EVENTS = Schema(
@@ -30,6 +42,7 @@ EVENTS = Schema(
         "routing_key": TEXT,
         "mission_id": TEXT.maybe,
         "digest": TEXT.maybe,
+        "redelivered": BOOL.maybe,  # added later: null in events stored before it
     },
     key=("robot_id", "epoch", "seq"),
     indexes=(
@@ -53,7 +66,7 @@ KEY = ["robot_id", "epoch", "seq"]
 
 
 def _record(doc: Doc) -> EventRecord:
-    return EventRecord(**doc)
+    return EventRecord(**{**doc, "redelivered": bool(doc.get("redelivered"))})
 
 
 def _result(record: EventRecord, stored: Doc | None) -> WriteResult:
