@@ -72,6 +72,7 @@ from bench.results import percentile, save
 from bench.scenario import Context, Figures
 from bench.telemetry import FLEET_NICE, POSE, TelemetryLoad
 from fleetbus.api.console.live import FRAGMENT_EVENT
+from fleetbus.api.console.pages.live_map import event_mark
 from fleetbus.api.console.session import CSRF_COOKIE, CSRF_FIELD
 from fleetbus.api.console.sitemap import PAGES
 from fleetbus.api.console.trails import WINDOWS
@@ -381,7 +382,7 @@ def map_figures(hazards: list[Hazard], watched: Watched) -> Figures:
     missing = 0
     for found in hazards:
         for page in watched.maps:
-            arrived = page.arrivals.get(f"hazard {found.robot_id}-{found.epoch}-{found.seq}")
+            arrived = page.arrivals.get(f"hazard {event_mark(found.robot_id, found.epoch, found.seq)}")
             if arrived is None:
                 missing += 1
             else:

@@ -393,6 +393,8 @@ HAZARDS = Schema(
 newest version is marked sent to central (:meth:`SiteHazardSync.mark_sent`)."""
 FIELDS = [name for name in HAZARDS.fields if name != "unsent"]
 BY_ID = ["mission_id", "hazard_id"]
+#: The hazards received last first (then by mission and id, descending): the lists' order.
+NEWEST_FIRST = ["-received_at", "-mission_id", "-hazard_id"]
 OPEN = [state.value for state in HazardState if state is not HazardState.CLEARED]
 STATE_FIELDS = ("announced_at", "claimed_by", "claimed_at", "reached_at", "cleared_at", "held_reason")
 
@@ -542,18 +544,16 @@ class Coordination(Robots, CoordinationStore):
         if offset > MOST_HAZARDS:
             return []
         where = {"state": state.value} if state is not None else {}
-        newest_first = ["-received_at", "-mission_id", "-hazard_id"]
-        return await self._find(where, order=newest_first, limit=limit, skip=offset)
+        return await self._find(where, order=NEWEST_FIRST, limit=limit, skip=offset)
 
     async def hazards_during(self, since: datetime, until: datetime, limit: int) -> list[Hazard]:
-        newest_first = ["-received_at", "-mission_id", "-hazard_id"]
         received = Range(lt=until)
         still_open = {"state": In(OPEN), "received_at": received}
         cleared = HazardState.CLEARED.value
         cleared_since = {"state": cleared, "cleared_at": Range(ge=since), "received_at": received}
         found = [
-            *await self._find(still_open, order=newest_first, limit=limit),
-            *await self._find(cleared_since, order=newest_first, limit=limit),
+            *await self._find(still_open, order=NEWEST_FIRST, limit=limit),
+            *await self._find(cleared_since, order=NEWEST_FIRST, limit=limit),
         ]
         found.sort(key=lambda hazard: (hazard.received_at, hazard.mission_id, hazard.hazard_id), reverse=True)
         return found[:limit]

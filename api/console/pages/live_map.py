@@ -57,6 +57,12 @@ REGISTERING_S = 5.0
 PARTS = ("marks", "hazards", "robots", "beacons", "newest")
 
 
+def event_mark(robot_id: str, epoch: str, seq: int) -> str:
+    """A hazard's event as its marks name it (``data-event``): the provisional mark sent from the
+    event and the registered hazard's mark share it, so the map knows when to drop the first."""
+    return f"{robot_id}-{epoch}-{seq}"
+
+
 class MapView:
     """What every open map shows live; one per API process, shared by all of them."""
 
@@ -101,6 +107,7 @@ class MapView:
             "hazards": grouped,
             "counts": counts,
             "position": position,
+            "event_mark": event_mark,
             "beacons": beacons,
             "stranded": heard,
             "stranded_ids": {entry["beacon_id"] for entry in heard},
@@ -133,7 +140,7 @@ class MapView:
             if record.type == EventType.HAZARD.value:
                 self._unregistered.setdefault(record.key, now)
                 if (pose := where_seen(record.body)) is not None:
-                    key = "-".join(map(str, record.key))
+                    key = event_mark(*record.key)
                     at = {"x": float(pose["x"]), "y": float(pose["y"])}
                     news.append(fragment("map/news.html", record=record, key=key, at=at))
         self.snapshot.want(newest_of(records, NEWS))
