@@ -28,7 +28,6 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from rich.console import Console
-from selenium.webdriver.support.select import Select
 
 from fleetbus.api.console.sitemap import ACCOUNT, DASHBOARD, MAP, PAGES
 from fleetbus.broker.accounts import Role, with_vhost
@@ -41,7 +40,7 @@ from fleetbus.settings import load_settings
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
 from fleetbus_dev.demo import DEMO_VHOST, EXPLORER, TEAM, WARDENS, demo_status, run_demo
-from tests.console.support import Browser, running_console, start_chromium
+from tests.console.support import Browser, choose_trails, running_console, slide_map, start_chromium
 from tests.console.support import Console as RunningConsole
 from tests.support import Bus, wait_for
 
@@ -169,8 +168,10 @@ def settled(browser: Browser) -> None:
         "  return row && !row.classList.contains('idle') })"
     )
     browser.until(
-        lambda: browser.texts("#team td.connected") == ["yes"] * len(TEAM)
-        and browser.driver.execute_script(consuming),
+        lambda: (
+            browser.texts("#team td.connected") == ["yes"] * len(TEAM)
+            and browser.driver.execute_script(consuming)
+        ),
         "the robots connected and the worker and recorder consuming, on the dashboard",
         timeout=60,
     )
@@ -230,12 +231,8 @@ def screenshots(running: RunningConsole, out: Path, width: int, mission_id: str)
         # the map's trails, and the team as it stood 15 minutes ago
         browser.go(running.url(MAP.path))
         running.wait_live(browser)
-        Select(browser.find("#trail-window")[0]).select_by_value("60")
-        browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
-        browser.driver.execute_script(
-            "const s = document.getElementById('map-time'); s.value = 750;"
-            "s.dispatchEvent(new Event('input'))"
-        )
+        choose_trails(browser, 60)
+        slide_map(browser, 750)
         browser.until(lambda: browser.find("[data-past]"), "the team as it stood then")
         shoot(browser, out / "map-past.png", width)
         # the user's own account (not in the navigation: the name in the header links to it)

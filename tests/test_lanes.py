@@ -22,6 +22,7 @@ import pytest
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.tls import aio_connect
 from fleetbus.broker.topology import core_topology, declare_with_url
+from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import Event
 from fleetbus.schemas.routing import (
@@ -177,6 +178,30 @@ async def express_consumer(
 LIMIT = 3
 
 
+async def dies_in_hand(bus: Bus, check: CrashesOn) -> None:
+    """An express consumer that dies on ``check``'s message, its connection then closed as a dead
+    worker's is: the broker delivers what it had in hand again."""
+    connection, consumer = await express_consumer(bus, check)
+    with pytest.raises(Crashed):
+        await asyncio.wait_for(consumer.run(), 30)
+    await connection.close()
+
+
+async def runs_while(bus: Bus, check: CrashesOn, explorer: RobotClient, hazards: int) -> None:
+    """An express consumer running while ``explorer`` reports one more hazard, until the store
+    holds ``hazards`` hazards."""
+    connection, consumer = await express_consumer(bus, check)
+    lane = asyncio.create_task(consumer.run())
+    try:
+        await asyncio.to_thread(explorer.publish, "hazard", hazard(hazards))
+        what = f"{hazards} hazards stored"
+        await asyncio.to_thread(wait_for, lambda: bus.count("hazard") == hazards, 30, what)
+    finally:
+        await consumer.stop()
+        await lane
+        await connection.close()
+
+
 def test_a_message_is_counted_under_one_key_at_every_delivery_with_or_without_a_message_id() -> None:
     def delivery(tag: int, body: bytes, message_id: str | None = None) -> Any:
         return SimpleNamespace(
@@ -199,28 +224,11 @@ def test_a_message_the_worker_dies_on_is_set_aside_after_the_limit(bus: Bus) -> 
     poison = explorer.publish("hazard", hazard(0))
     check = CrashesOn(poison.message_id)
 
-    async def crash() -> None:
-        connection, consumer = await express_consumer(bus, check)
-        with pytest.raises(Crashed):
-            await asyncio.wait_for(consumer.run(), 30)
-        await connection.close()  # as the dead worker's did: the broker redelivers
-
     for _ in range(1 + LIMIT):  # the first delivery, and LIMIT redeliveries: each one dies
-        asyncio.run(crash())
+        asyncio.run(dies_in_hand(bus, check))
     assert check.attempts == 1 + LIMIT
 
-    async def go_on() -> None:
-        connection, consumer = await express_consumer(bus, check)
-        lane = asyncio.create_task(consumer.run())
-        try:
-            await asyncio.to_thread(explorer.publish, "hazard", hazard(1))
-            await asyncio.to_thread(wait_for, lambda: bus.count("hazard") == 1, 30, "the next hazard stored")
-        finally:
-            await consumer.stop()
-            await lane
-            await connection.close()
-
-    asyncio.run(go_on())
+    asyncio.run(runs_while(bus, check, explorer, hazards=1))  # the next hazard is stored
     assert check.attempts == 1 + LIMIT, "not begun again"
     [letter] = bus.dead_letters()
     assert (letter.message_id, letter.reason) == (str(poison.message_id), "delivery-limit")
@@ -239,23 +247,9 @@ def test_an_event_stored_from_a_redelivery_says_so(bus: Bus) -> None:
     first = explorer.publish("hazard", hazard(0))
     check = CrashesOn(first.message_id)
 
-    async def crash_then_store() -> None:
-        connection, consumer = await express_consumer(bus, check)
-        with pytest.raises(Crashed):
-            await asyncio.wait_for(consumer.run(), 30)
-        await connection.close()  # as the dead worker's did: the broker redelivers
-        check.message_id = "none"  # the next worker stores it
-        connection, consumer = await express_consumer(bus, check)
-        lane = asyncio.create_task(consumer.run())
-        try:
-            await asyncio.to_thread(explorer.publish, "hazard", hazard(1))
-            await asyncio.to_thread(wait_for, lambda: bus.count("hazard") == 2, 30, "both hazards stored")
-        finally:
-            await consumer.stop()
-            await lane
-            await connection.close()
-
-    asyncio.run(crash_then_store())
+    asyncio.run(dies_in_hand(bus, check))
+    check.message_id = "none"  # the next worker stores it
+    asyncio.run(runs_while(bus, check, explorer, hazards=2))  # and one more
     assert check.attempts == 1
     assert [(r.seq, r.redelivered) for r in bus.find()] == [(first.seq, True), (first.seq + 1, False)]
 

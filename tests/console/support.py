@@ -26,6 +26,7 @@ from selenium.common.exceptions import StaleElementReferenceException, WebDriver
 from selenium.webdriver.chrome.service import Service as DriverService
 from selenium.webdriver.common.by import By
 from selenium.webdriver.remote.webelement import WebElement
+from selenium.webdriver.support.select import Select
 from sse_starlette.sse import AppStatus
 
 from fleetbus.api.app import create_app
@@ -285,6 +286,21 @@ class _Cut(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         if "graceful shutdown" in record.getMessage():
             self.messages.append(record.getMessage())
+
+
+def choose_trails(browser: Browser, minutes: int) -> None:
+    """Choose the live map's trails window (its select) and wait until its trails are loaded."""
+    Select(browser.find("#trail-window")[0]).select_by_value(str(minutes))
+    browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+
+
+def slide_map(browser: Browser, value: int) -> None:
+    """Move the live map's time slider to ``value`` (of 1,000: now), as a user's drag does."""
+    browser.driver.execute_script(
+        "const s = document.getElementById('map-time'); s.value = arguments[0];"
+        "s.dispatchEvent(new Event('input'));",
+        value,
+    )
 
 
 def shown_once(browser: Browser, form: str) -> tuple[str, str]:

@@ -6,7 +6,6 @@ show their buttons (the mission's steps, Unmount, Mount with its robots) and the
 from __future__ import annotations
 
 import pika
-from selenium.webdriver.support.select import Select
 
 from fleetbus.api.console.session import SESSION_COOKIE
 from fleetbus.api.console.sitemap import ACCOUNT, MESSAGES, MISSION_ROLES, pages_for
@@ -15,7 +14,7 @@ from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, RobotKind
 from tests.console.layout import SIZES, overflows, reset_viewport, set_viewport
-from tests.console.support import Browser, Console, running_console
+from tests.console.support import Browser, Console, choose_trails, running_console, slide_map
 from tests.console.test_missions import PLAN
 from tests.support import Bus
 
@@ -137,12 +136,8 @@ def test_the_pages_a_button_opens_hold_too(bus: Bus, browser: Browser) -> None:
                 problems += _holds(browser, f"{form}'s password as {role.value}")
             browser.go(console.url("/console/map"))
             console.wait_live(browser)
-            Select(browser.find("#trail-window")[0]).select_by_value("60")
-            browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
-            browser.driver.execute_script(
-                "const s = document.getElementById('map-time'); s.value = 500;"
-                "s.dispatchEvent(new Event('input'))"
-            )
+            choose_trails(browser, 60)
+            slide_map(browser, 500)
             browser.until(lambda: browser.text("#map-moment").endswith(" UTC"), "the map in the past")
             problems += _holds(browser, "the map with trails, in the past, as admin")
         finally:

@@ -9,15 +9,13 @@ import re
 import uuid
 from datetime import datetime, timedelta, timezone
 
-from selenium.webdriver.support.select import Select
-
 from fleetbus.broker.accounts import Role
 from fleetbus.publishers.client import RobotClient
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.hazards import DEFAULT_MISSION
-from tests.console.support import Browser, Console, running_console
+from tests.console.support import Browser, Console, choose_trails, running_console, slide_map
 from tests.console.test_map import at, drawn, open_map, stored_maps
 from tests.factories import small_map, status
 from tests.support import Bus
@@ -27,25 +25,32 @@ from tests.support import Bus
 STEPS = 20
 
 
+def _pose(robot: str, seq: int, type: str, at: datetime, x: float, y: float) -> EventRecord:
+    """A ``localisation`` or ``status`` event of the robot at (x, y), as the worker stores it."""
+    body = {"localised": True} if type == "localisation" else status(70.0)
+    return EventRecord(
+        robot_id=robot,
+        epoch="e-path",
+        seq=seq,
+        type=type,
+        message_id=str(uuid.uuid4()),
+        sent_at=at,
+        received_at=at,
+        body={**body, "pose": {"x": x, "y": y}},
+        user_id=robot,
+        exchange=f"{robot}.events",
+        routing_key=f"{robot}.{type}",
+    )
+
+
+def _store(console: Console, records: list[EventRecord]) -> None:
+    console.run(lambda: console.service.repositories.events.write_events(records))
+
+
 def _reported_path(console: Console, robot: str, now: datetime) -> None:
     """Its localisations, stored as the worker stores them."""
-    records = [
-        EventRecord(
-            robot_id=robot,
-            epoch="e-path",
-            seq=step,
-            type="localisation",
-            message_id=str(uuid.uuid4()),
-            sent_at=now - timedelta(minutes=40 - 2 * step),
-            received_at=now - timedelta(minutes=40 - 2 * step),
-            body={"localised": True, "pose": {"x": float(step), "y": 2.0}},
-            user_id=robot,
-            exchange=f"{robot}.events",
-            routing_key=f"{robot}.localisation",
-        )
-        for step in range(STEPS)
-    ]
-    console.run(lambda: console.service.repositories.events.write_events(records))
+    at = [now - timedelta(minutes=40 - 2 * step) for step in range(STEPS)]
+    _store(console, [_pose(robot, step, "localisation", at[step], float(step), 2.0) for step in range(STEPS)])
 
 
 def _hazard_history(console: Console, now: datetime) -> None:
@@ -72,14 +77,6 @@ def _past_hazards(browser: Browser) -> dict[str, str]:
     return {mark.get_attribute("data-past-hazard"): mark.get_attribute("data-state") for mark in found}
 
 
-def _slide(browser: Browser, value: int) -> None:
-    browser.driver.execute_script(
-        "const s = document.getElementById('map-time'); s.value = arguments[0];"
-        "s.dispatchEvent(new Event('input'));",
-        value,
-    )
-
-
 def _offset_from_centre(browser: Browser, mark: str) -> float:
     """How far (px) the mark's glyph is from the map's centre."""
     return browser.driver.execute_script(
@@ -94,8 +91,7 @@ def _offset_from_centre(browser: Browser, mark: str) -> float:
 
 def _trail_shown(browser: Browser) -> None:
     """The last hour's trails chosen: explorer1's reported path drawn."""
-    Select(browser.find("#trail-window")[0]).select_by_value("60")
-    browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+    choose_trails(browser, 60)
     trail = browser.find("path.trail")
     assert len(trail) == 1 and trail[0].get_attribute("data-robot") == "explorer1"
     assert len(re.findall(r"[ML]", trail[0].get_attribute("d") or "")) >= 2, "a path, not a point"
@@ -130,7 +126,7 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         _trail_shown(browser)
 
         # three quarters along the last hour: 15 minutes ago, after the pose of 16 minutes ago (x 12)
-        _slide(browser, 750)
+        slide_map(browser, 750)
         browser.until(lambda: browser.find("[data-past=explorer1]"), "the explorer as it stood then")
         shown = browser.find("[data-past=explorer1]")[0].get_attribute("title")
         assert "explorer1 at (12.00, 2.00)" in shown, shown
@@ -143,13 +139,13 @@ def test_trails_the_time_slider_and_following_a_robot(bus: Bus, browser: Browser
         # the live ones (hazard 1 cleared, 2 held) hidden meanwhile
         browser.until(lambda: _past_hazards(browser) == {"default-1": "announced"}, "hazard 1 as it was")
         assert not browser.find("[data-mark='mark-hazard-default-2']")[0].is_displayed()
-        _slide(browser, 890)  # 6.6 minutes ago: hazard 1 reached, hazard 2 held
+        slide_map(browser, 890)  # 6.6 minutes ago: hazard 1 reached, hazard 2 held
         browser.until(
             lambda: _past_hazards(browser) == {"default-1": "reached", "default-2": "held"}, "both, then"
         )
-        _slide(browser, 950)  # 3 minutes ago: hazard 1 cleared
+        slide_map(browser, 950)  # 3 minutes ago: hazard 1 cleared
         browser.until(lambda: _past_hazards(browser) == {"default-2": "held"}, "hazard 1 gone, cleared")
-        _slide(browser, 1000)
+        slide_map(browser, 1000)
         browser.until(lambda: browser.text("#map-moment") == "now", "back to now")
         assert browser.find("[data-past]") == [] and _past_hazards(browser) == {}
         assert browser.find("[data-mark='mark-hazard-default-2']")[0].is_displayed()
@@ -182,15 +178,10 @@ def test_the_trails_of_a_window_come_from_the_stored_statuses_and_localisations(
         _reported_path(console, "explorer9", now)
         # a status of 3 and one of 1 minute ago (a status always says where the robot is)
         reports = [
-            EventRecord(
-                "explorer9", "e-path", STEPS + i, "status", str(uuid.uuid4()), at, at,
-                {**status(70.0), "pose": {"x": x, "y": 2.5}},
-                "explorer9", "explorer9.events", "explorer9.status",
-            )
+            _pose("explorer9", STEPS + i, "status", now - timedelta(minutes=minutes), x, 2.5)
             for i, (minutes, x) in enumerate(((3, 18.5), (1, 20.0)))
-            for at in [now - timedelta(minutes=minutes)]
-        ]  # fmt: skip
-        console.run(lambda: console.service.repositories.events.write_events(reports))
+        ]
+        _store(console, reports)
         with console.http_as("oper1") as http:
             answer = http.get("/console/map/trails", params={"minutes": 10})
             assert answer.status_code == 200
@@ -216,12 +207,7 @@ def test_a_window_with_more_poses_than_an_answer_holds_is_each_robots_last_pose_
         for robot in lost:
             _reported_path(console, robot, now)
         # explorer7's newest pose is a status of a minute ago, after its last localisation
-        moved = EventRecord(
-            "explorer7", "e-path", STEPS, "status", str(uuid.uuid4()), now - timedelta(minutes=1),
-            now - timedelta(minutes=1), {**status(70.0), "pose": {"x": 25.0, "y": 2.0}},
-            "explorer7", "explorer7.events", "explorer7.status",
-        )  # fmt: skip
-        console.run(lambda: console.service.repositories.events.write_events([moved]))
+        _store(console, [_pose("explorer7", STEPS, "status", now - timedelta(minutes=1), 25.0, 2.0)])
         browser.console_errors()  # what earlier tests' pages logged, read and set aside
         open_map(console, browser)  # as oper1
         window = {"minutes": 60, "until": now.isoformat()}
@@ -237,8 +223,7 @@ def test_a_window_with_more_poses_than_an_answer_holds_is_each_robots_last_pose_
         assert found["since"] == round((now - timedelta(minutes=60)).timestamp() * 1000)
 
         # the map draws the three trails and says how coarse they are
-        Select(browser.find("#trail-window")[0]).select_by_value("60")
-        browser.until(lambda: browser.find("#map-view[data-trails=loaded]"), "the trails loaded")
+        choose_trails(browser, 60)
         assert sorted(path.get_attribute("data-robot") for path in browser.find("path.trail")) == list(lost)
         assert browser.text("#trail-grain") == "a pose per 30 min"
         assert browser.console_errors() == []
