@@ -71,10 +71,12 @@ async def grant_listed(
     """Let ``site``'s account at central write for the robots of its list as the store has it now
     (``returning``: robots that left it, whose inboxes at central take notifications again), and
     again until the list did not change meanwhile: a change that granted an older list after a
-    newer one was granted grants the newer one again."""
+    newer one was granted grants the newer one again. A list changed meanwhile
+    :data:`CHANGE_ATTEMPTS` times in a row ends in :class:`StaleRevision`; the registry check
+    grants the list it finds later."""
     vhost = vhost_of(admin_url)
     granted = await sites.robots_of(site)
-    while True:
+    for _ in range(CHANGE_ATTEMPTS):
         robots = granted.robots if granted else ()
         back = {robot: kind for robot, kind in (returning or {}).items() if robot not in robots}
         await asyncio.to_thread(grant_site_robots, api, vhost, site, robots, back)
@@ -82,6 +84,7 @@ async def grant_listed(
         if now == granted:
             return
         granted = now
+    raise StaleRevision(site, granted.revision if granted else 0)
 
 
 async def assign_robots(
