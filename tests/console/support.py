@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import re
 import shutil
 import sys
 import threading
@@ -54,6 +55,13 @@ def role_user(role: UserRole) -> str:
 
 class SlowLiveUpdate(UserWarning):
     pass
+
+
+def navigation(page: str) -> str:
+    """The console's navigation in ``page``'s HTML (the header's links to the role's pages)."""
+    found = re.search(r'<nav aria-label="console">(.*?)</nav>', page, re.S)
+    assert found is not None, "a logged-in page has the navigation"
+    return found.group(1)
 
 
 def report_live(what: str, shown: float) -> None:

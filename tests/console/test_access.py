@@ -17,7 +17,7 @@ from fleetbus.api.console.sitemap import ACCOUNT, PAGES
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, DEAD_LETTER_QUEUE, RobotKind
-from tests.console.support import PASSWORD, Console, running_console
+from tests.console.support import PASSWORD, Console, navigation, running_console
 from tests.support import Bus
 
 
@@ -43,9 +43,7 @@ def _session(console: Console, role: UserRole) -> Iterator[httpx.Client]:
 
 
 def _linked(page: str) -> list[str]:
-    nav = re.search(r"<nav>(.*?)</nav>", page, re.S)
-    assert nav is not None, "a logged-in page has the navigation"
-    return re.findall(r'href="([^"]*)"', nav.group(1))
+    return re.findall(r'href="([^"]*)"', navigation(page))
 
 
 def test_each_page_answers_each_role_as_the_sitemap_says_and_links_exactly_its_pages(

@@ -1,7 +1,9 @@
 """Every page of the console, as every role that may open it sees it, holds at a laptop's 1280x800
 and at a tablet's 768-px width: no button, link or field cut off, hidden behind a scrollbar or off
-the screen. The team has a mission in progress with a robot mounted and one free, so the pages
-show their buttons (the mission's steps, Unmount, Mount with its robots) and their tables."""
+the screen. And axe-core, an accessibility engine nobody on the project wrote, finds nothing wrong
+in it (contrast, the names of controls, headings, landmarks: :mod:`tests.console.accessibility`).
+The team has a mission in progress with a robot mounted and one free, so the pages show their
+buttons (the mission's steps, Unmount, Mount with its robots) and their tables."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from fleetbus.api.services.missions import AUTHORS
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, RobotKind
+from tests.console.accessibility import violations
 from tests.console.layout import SIZES, overflows, reset_viewport, set_viewport
 from tests.console.support import Browser, Console, choose_trails, running_console, slide_map
 from tests.console.test_missions import PLAN
@@ -65,7 +68,7 @@ def _paths(role: UserRole) -> list[str]:
     return paths
 
 
-def test_every_page_holds_at_1280x800_and_at_a_tablets_width_for_every_role(
+def test_every_page_holds_at_1280x800_and_at_a_tablets_width_and_passes_axe_for_every_role(
     bus: Bus, browser: Browser
 ) -> None:
     problems: list[str] = []
@@ -75,11 +78,14 @@ def test_every_page_holds_at_1280x800_and_at_a_tablets_width_for_every_role(
             for role, name in ROLES.items():
                 browser.reset()
                 browser.go(console.url("/console/login"))
+                if role is next(iter(ROLES)):
+                    problems += violations(browser, "/console/login")
                 browser.driver.add_cookie({"name": SESSION_COOKIE, "value": console.session(name)})
                 sizes = list(SIZES)
                 for path in _paths(role):
                     browser.go(console.url(path))
                     assert name in browser.text(".who"), f"{path} as {role.value}: not its page"
+                    problems += violations(browser, f"{path} as {role.value}")
                     for width, height in sizes:  # the page laid out again at each size, not reloaded
                         set_viewport(browser, width, height)
                         where = f"{path} as {role.value} at {width}x{height}"
@@ -107,15 +113,15 @@ def test_the_mission_page_offers_the_robots_that_can_be_mounted_or_says_there_ar
 
 
 def _holds(browser: Browser, where: str) -> list[str]:
-    """The page as it is now (not reloaded), laid out at each size."""
-    problems = []
+    """The page as it is now (not reloaded), laid out at each size, and what axe finds in it."""
+    problems = violations(browser, where)
     for width, height in SIZES:
         set_viewport(browser, width, height)
         problems += [f"{where} at {width}x{height}: {problem}" for problem in overflows(browser)]
     return problems
 
 
-def test_the_pages_a_button_opens_hold_too(bus: Bus, browser: Browser) -> None:
+def test_the_pages_a_button_opens_hold_and_pass_axe_too(bus: Bus, browser: Browser) -> None:
     """What no address opens again: a broker password shown once (the own, and one an administrator
     reset), and the live map with trails and its slider in the past."""
     problems: list[str] = []

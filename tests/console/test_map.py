@@ -21,7 +21,15 @@ from fleetbus.workers.store.base import EventRecord
 from fleetbus.workers.store.beacons import Beacon
 from fleetbus.workers.store.hazards import NewHazard
 from fleetbus.workers.store.maps import MapVersion
-from tests.console.support import Browser, Console, http_session, report_live, role_user, running_console
+from tests.console.support import (
+    Browser,
+    Console,
+    http_session,
+    navigation,
+    report_live,
+    role_user,
+    running_console,
+)
 from tests.factories import hazard, small_map, status
 from tests.support import Bus, wait_for
 
@@ -183,10 +191,9 @@ def test_the_map_is_refused_to_planners_and_clients(bus: Bus) -> None:
             assert Image.open(io.BytesIO(png.content)).size == (64, 48)
             missing = http.get("/console/map/7.png")
             assert missing.status_code == 404 and "no map version 7" in missing.text
-            nav = http.get("/console/map").text.split("<nav>")[1].split("</nav>")[0]
-            assert 'href="/console/map"' in nav
+            assert 'href="/console/map"' in navigation(http.get("/console/map").text)
         with console.http_as("plan1") as http:
-            assert 'href="/console/map"' not in http.get("/console/map").text.split("</nav>")[0]
+            assert 'href="/console/map"' not in navigation(http.get("/console/map").text)
 
 
 def test_every_pgm_a_robot_may_send_is_drawn_and_large_ones_scaled_down() -> None:

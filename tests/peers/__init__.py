@@ -31,6 +31,14 @@ def peer_python() -> Path:
     return peer_command("python")
 
 
+def node_module_file(path: str) -> Path:
+    """A file of a package in ``tests/peers/node_modules`` (``axe-core/axe.min.js``)."""
+    found = NODE_MODULES / path
+    if not found.is_file():
+        pytest.fail(f"{found} is missing: {_INSTALL}", pytrace=False)
+    return found
+
+
 def node() -> str:
     """The ``node`` binary, with ``tests/peers/node_modules`` installed beside it."""
     found = shutil.which("node")

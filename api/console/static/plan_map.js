@@ -174,6 +174,11 @@
     rotateMode: false,
     removalMode: true,
   });
+  // Geoman titles each button's container, not the button a keyboard or screen reader lands on
+  for (const button of map.getContainer().querySelectorAll(".leaflet-buttons-control-button")) {
+    const title = button.parentElement.getAttribute("title");
+    if (title && !button.hasAttribute("aria-label")) button.setAttribute("aria-label", title);
+  }
   map.on("pm:create", function (event) {
     const layer = event.layer;
     layer.remove(); // drawn again from the fields, as everything else
