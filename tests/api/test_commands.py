@@ -52,11 +52,13 @@ def test_create_admin_serve_and_log_in_from_the_shell(bus: Bus, env: dict[str, s
     base = f"http://127.0.0.1:{port}"
     try:
         wait_until_serving(server, base, log.name)
-        token = httpx.post(f"{base}/auth/token", data={"username": "admin", "password": PASSWORD}).json()[
-            "access_token"
-        ]
+        # making a user makes its broker account too: on a loaded machine, longer than httpx's 5 s
+        token = httpx.post(
+            f"{base}/auth/token", data={"username": "admin", "password": PASSWORD}, timeout=60
+        ).json()["access_token"]
         made = httpx.post(
             f"{base}/users",
+            timeout=60,
             json={"name": "ops1", "password": "operator password", "role": "operator"},
             headers={"Authorization": f"Bearer {token}"},
         )
