@@ -6,10 +6,10 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Collection
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import datetime
 from typing import Any
 
-from fleetbus.broker.management import ManagementAPI, ManagementError
+from fleetbus.broker.management import ManagementAPI, ManagementError, oldest_by_user
 from fleetbus.broker.sites import forwarded_robots
 from fleetbus.broker.uplink import CLASSES
 from fleetbus.schemas.routing import (
@@ -81,12 +81,7 @@ def central_view(
     reports: dict[str, SiteReport] | None = None,
     alert_at: float = 0.8,
 ) -> list[SiteRow]:
-    opened: dict[str, datetime] = {}
-    for connection in api.list_vhost_connections(vhost):
-        user, at = connection.get("user"), connection.get("connected_at")
-        if user and at:
-            moment = datetime.fromtimestamp(at / 1000, timezone.utc)
-            opened[user] = min(opened.get(user, moment), moment)
+    opened = oldest_by_user(api.list_vhost_connections(vhost))
     rows = []
     for summary in summaries:
         up = summary.site in opened

@@ -26,7 +26,7 @@ from fastapi import Request
 from fleetbus.api.console.broker_rates import AGE_S, EVERY_S, Rates, rates_of
 from fleetbus.api.service import Service
 from fleetbus.broker.dead_letter_queue import DeadLetter
-from fleetbus.broker.management import users_of
+from fleetbus.broker.management import oldest_by_user, users_of
 from fleetbus.broker.served_certificate import ServedCertificate, served_certificate
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 
@@ -102,16 +102,6 @@ class Queue:
         """No consumer, where one is expected (nothing consumes the dead letters: they wait for
         an operator)."""
         return not self.consumers and self.name != DEAD_LETTER_QUEUE
-
-
-def _oldest_by_user(connections: list[dict[str, Any]]) -> dict[str, datetime]:
-    oldest: dict[str, datetime] = {}
-    for connection in connections:
-        user, at = connection.get("user"), connection.get("connected_at")
-        if user and at:
-            moment = datetime.fromtimestamp(at / 1000, timezone.utc)
-            oldest[user] = min(oldest.get(user, moment), moment)
-    return oldest
 
 
 @dataclass(frozen=True)
@@ -274,7 +264,7 @@ class BrokerWatch:
                 ),
                 users_of(connections),
                 None,
-                _oldest_by_user(connections),
+                oldest_by_user(connections),
                 rates=rates,
             )
 
