@@ -8,6 +8,7 @@ service manages them here; queues, exchanges and bindings are declared over AMQP
 from __future__ import annotations
 
 import functools
+import re
 import ssl
 from collections import Counter
 from collections.abc import Collection
@@ -26,6 +27,8 @@ IDEMPOTENT = frozenset({"GET", "HEAD", "PUT", "DELETE"})
 #: these (a connection's whole entry is over a kilobyte of statistics: 370 KB a listing for 300
 #: robots' connections, 16 KB with these two, a third of the broker's time to answer).
 CONNECTION_COLUMNS = {"columns": "user,connected_at", "disable_stats": "true"}
+#: Queues a page of a filtered listing holds (the management API's largest page).
+QUEUES_PAGE = 500
 
 
 class ManagementError(RuntimeError):
@@ -334,6 +337,28 @@ class ManagementAPI:
 
     def list_queues(self, vhost: str) -> list[dict[str, Any]]:
         return self._request("GET", f"queues/{_q(vhost)}")
+
+    def list_queues_named(
+        self, vhost: str, prefix: str, columns: Collection[str], page_size: int = QUEUES_PAGE
+    ) -> list[dict[str, Any]]:
+        """The queues of ``vhost`` whose names begin with ``prefix``, each with ``columns`` only:
+        chosen by the broker, a page at a time, so that a fleet's own queues (two a robot: 2,000
+        entries, 1.7 MB, for 1,000 robots) are never sent."""
+        found: list[dict[str, Any]] = []
+        page = 1
+        while True:
+            params = {
+                "page": page,
+                "page_size": page_size,
+                "name": f"^{re.escape(prefix)}",
+                "use_regex": "true",
+                "columns": ",".join(columns),
+            }
+            answer = self._request("GET", f"queues/{_q(vhost)}", params=params)
+            found += answer["items"]
+            if page >= answer["page_count"]:
+                return found
+            page += 1
 
     def get_queue(self, vhost: str, name: str) -> dict[str, Any]:
         return self._request("GET", f"queues/{_q(vhost)}/{_q(name)}")

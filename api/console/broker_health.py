@@ -38,6 +38,8 @@ WINDOW = timedelta(hours=1)
 RECOUNT_S = 60.0
 #: The queues the dashboard lists: the service's own.
 QUEUE_PREFIX = "fleetbus."
+#: What :meth:`Queue.of` reads of a queue.
+QUEUE_COLUMNS = ("name", "type", "messages_ready", "messages_unacknowledged", "consumers", "state")
 #: Read the broker's certificate again after this long (it changes when an operator replaces it).
 CERTIFICATE_RECHECK_S = 600.0
 
@@ -252,14 +254,14 @@ class BrokerWatch:
 
         def ask() -> BrokerHealth:
             nodes = management.list_nodes()
-            queues = management.list_queues(vhost)
+            queues = management.list_queues_named(vhost, QUEUE_PREFIX, QUEUE_COLUMNS)
             connections = management.list_vhost_connections(vhost)
             rates = rates_of(management.vhost_rate_samples(vhost, AGE_S, EVERY_S))
             return BrokerHealth(
                 datetime.now(timezone.utc),
                 [Node.of(node) for node in nodes],
                 sorted(
-                    (Queue.of(queue) for queue in queues if queue["name"].startswith(QUEUE_PREFIX)),
+                    (Queue.of(queue) for queue in queues),
                     key=lambda queue: queue.name,
                 ),
                 users_of(connections),
