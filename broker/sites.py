@@ -315,19 +315,18 @@ def grant_site_robots(
     their site, with their kinds) are bound again."""
     configure, write, read = site_permissions(site, robots)
     api.put_permissions(vhost, site, configure=configure, write=write, read=read)
+    notified: dict[str, list[str]] = {}  # each inbox's keys on fleetbus.notify, listed once
+    for b in api.exchange_bindings(vhost, NOTIFY_EXCHANGE):
+        if b["destination_type"] == "queue":
+            notified.setdefault(b["destination"], []).append(b["routing_key"])
     for robot in robots:
         # on a robot's exchanges, only that robot's routing keys (as the robot itself may)
         for exchange in (events_exchange(robot), beacon_exchange(robot)):
             api.put_topic_permissions(
                 vhost, site, exchange, write=owner_pattern(robot), read=owner_pattern(robot)
             )
-        queue = inbox_queue(robot)
-        keys = [
-            b["routing_key"]
-            for b in api.exchange_bindings(vhost, NOTIFY_EXCHANGE)
-            if b["destination"] == queue and b["destination_type"] == "queue"
-        ]
-        api.unbind_keys(vhost, NOTIFY_EXCHANGE, queue, keys)
+        if keys := notified.get(inbox_queue(robot)):
+            api.unbind_keys(vhost, NOTIFY_EXCHANGE, inbox_queue(robot), keys)
     for robot, kind in (returning or {}).items():
         for key in inbox_bindings(robot, kind, operator=False):
             api.bind(vhost, NOTIFY_EXCHANGE, inbox_queue(robot), key)
