@@ -19,8 +19,8 @@ _INSTALL = "install the outside peers: FLEETBUS_WITH_PEERS=1 bash scripts/setup"
 
 
 def peer_command(name: str) -> Path:
-    """A console script of ``.venv-peers`` (``schemathesis``, ``sslyze``, ``openapi-python-client``);
-    fails the test, naming the fix, when the peers are not installed."""
+    """A command of ``.venv-peers`` (``schemathesis``, ``sslyze``, ``openapi-python-client``,
+    ``docker-compose``); fails the test, naming the fix, when the peers are not installed."""
     path = PEERS_VENV / "bin" / name
     if not path.exists():
         pytest.fail(f"{path} is missing: {_INSTALL}", pytrace=False)
