@@ -7,65 +7,14 @@ buttons (the mission's steps, Unmount, Mount with its robots) and their tables."
 
 from __future__ import annotations
 
-import pika
-
 from fleetbus.api.console.session import SESSION_COOKIE
-from fleetbus.api.console.sitemap import ACCOUNT, MESSAGES, MISSION_ROLES, pages_for
-from fleetbus.api.services.missions import AUTHORS
-from fleetbus.schemas.missions import MissionState
+from fleetbus.api.console.sitemap import ACCOUNT
 from fleetbus.schemas.roles import UserRole
-from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, RobotKind
 from tests.console.accessibility import violations
+from tests.console.every_page import ROLES, page_paths, stage_team
 from tests.console.layout import SIZES, overflows, reset_viewport, set_viewport
-from tests.console.support import Browser, Console, choose_trails, running_console, slide_map
-from tests.console.test_missions import PLAN
+from tests.console.support import Browser, choose_trails, running_console, slide_map
 from tests.support import Bus
-
-#: Every role with a page in the console, by the name of its user here.
-ROLES = {role: f"as-{role.value}" for role in UserRole if role is not UserRole.ROBOT and pages_for(role)}
-
-
-def _team(console: Console) -> None:
-    """A mission in progress, owned by the client, with explorer1 mounted by the operator; explorer2
-    free; a dead letter."""
-    for role, name in ROLES.items():
-        console.user(name, role)
-    console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
-    console.user("explorer2", UserRole.ROBOT, RobotKind.EXPLORER)
-    svc = console.service
-
-    async def in_progress() -> None:
-        users = svc.repositories.users
-        client, supervisor, operator = [
-            await users.get_user(ROLES[role])
-            for role in (UserRole.CLIENT, UserRole.SUPERVISOR, UserRole.OPERATOR)
-        ]
-        assert client and supervisor and operator
-        created = await svc.missions.create(client, "hazard-response", "Survey the north yard", PLAN)
-        await svc.missions.transition(client, created.mission_id, MissionState.FILED)
-        for state in (MissionState.APPROVED, MissionState.IN_PROGRESS):
-            await svc.missions.transition(supervisor, created.mission_id, state)
-        await svc.channels.mount(operator, "explorer1", created.mission_id)
-
-    console.run(in_progress)
-    with console.bus.admin_channel() as channel:
-        channel.confirm_delivery()
-        channel.basic_publish(DEAD_LETTER_EXCHANGE, "", b"refused", pika.BasicProperties(delivery_mode=2))
-
-
-def _paths(role: UserRole) -> list[str]:
-    """The navigation's pages, and those reached from them: the own account (linked from the
-    header), a mission, and the messages' trace and a robot's timeline."""
-    paths = [page.path for page in pages_for(role)]
-    if ACCOUNT.admits(role):
-        paths.append(ACCOUNT.path)
-    if MESSAGES.admits(role):
-        paths += ["/console/messages/trace", "/console/messages/timeline?robot=explorer1"]
-    if role in MISSION_ROLES:
-        paths.append("/console/missions/m-1")
-    if role in AUTHORS:
-        paths.append("/console/missions/new")
-    return paths
 
 
 def test_every_page_holds_at_1280x800_and_at_a_tablets_width_and_passes_axe_for_every_role(
@@ -73,7 +22,7 @@ def test_every_page_holds_at_1280x800_and_at_a_tablets_width_and_passes_axe_for_
 ) -> None:
     problems: list[str] = []
     with running_console(bus) as console:
-        _team(console)
+        stage_team(console)
         try:
             for role, name in ROLES.items():
                 browser.reset()
@@ -82,7 +31,7 @@ def test_every_page_holds_at_1280x800_and_at_a_tablets_width_and_passes_axe_for_
                     problems += violations(browser, "/console/login")
                 browser.driver.add_cookie({"name": SESSION_COOKIE, "value": console.session(name)})
                 sizes = list(SIZES)
-                for path in _paths(role):
+                for path in page_paths(role):
                     browser.go(console.url(path))
                     assert name in browser.text(".who"), f"{path} as {role.value}: not its page"
                     problems += violations(browser, f"{path} as {role.value}")
@@ -100,7 +49,7 @@ def test_the_mission_page_offers_the_robots_that_can_be_mounted_or_says_there_ar
     bus: Bus, browser: Browser
 ) -> None:
     with running_console(bus) as console:
-        _team(console)
+        stage_team(console)
         operator = ROLES[UserRole.OPERATOR]
         console.log_in(browser, operator)
         browser.go(console.url("/console/missions/m-1"))
@@ -126,7 +75,7 @@ def test_the_pages_a_button_opens_hold_and_pass_axe_too(bus: Bus, browser: Brows
     reset), and the live map with trails and its slider in the past."""
     problems: list[str] = []
     with running_console(bus) as console:
-        _team(console)
+        stage_team(console)
         try:
             for role, opens, form in (
                 (UserRole.OPERATOR, ACCOUNT.path, "#show-broker-password"),
