@@ -1,8 +1,8 @@
 """The HTML the console serves, checked by the Nu Html Checker (vnu, the W3C's validator, pinned
 with the Node.js peers in ``tests/peers/package.json``): the login page, the page that refuses a
 role, and every page for every role that may open it. htmx's own attributes (``hx-get``, ...) are
-the one thing allowed beyond HTML: the console is built on them, and htmx reads no other form
-than ``data-hx-*``, which would change every template and the tests that read them."""
+the one thing allowed beyond HTML: htmx also reads them as ``data-hx-*``, which is valid, but that
+would rename every attribute of every template and of the tests that read them."""
 
 from __future__ import annotations
 
