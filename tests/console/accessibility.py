@@ -29,7 +29,9 @@ def _axe() -> str:
 
 
 def violations(browser: Browser, where: str) -> list[str]:
-    """Each rule the page breaks, as a sentence naming ``where``, the rule and the elements."""
+    """Each rule the page breaks, as a sentence naming ``where``, the rule and the elements; once
+    the page has put its alerts banner in (it loads it as it opens)."""
+    browser.until(lambda: not browser.find("#alerts-banner-slot"), f"{where}: the alerts banner loaded")
     if not browser.driver.execute_script("return typeof window.axe !== 'undefined'"):
         browser.driver.execute_script(_axe())
     found = browser.driver.execute_async_script(RUN, TAGS)

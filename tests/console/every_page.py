@@ -4,13 +4,17 @@ HTML checks walk the same pages."""
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
+
 import pika
 
 from fleetbus.api.console.sitemap import ACCOUNT, MESSAGES, MISSION_ROLES, pages_for
+from fleetbus.api.services.alerts import AlertKind
 from fleetbus.api.services.missions import AUTHORS
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_EXCHANGE, RobotKind
+from fleetbus.workers.store.alerts import NewAlert
 from tests.console.support import Console
 from tests.console.test_missions import PLAN
 
@@ -20,7 +24,7 @@ ROLES = {role: f"as-{role.value}" for role in UserRole if role is not UserRole.R
 
 def stage_team(console: Console) -> None:
     """A mission in progress, owned by the client, with explorer1 mounted by the operator; explorer2
-    free; a dead letter."""
+    free; a dead letter; an alert to acknowledge (every page's banner shows it)."""
     for role, name in ROLES.items():
         console.user(name, role)
     console.user("explorer1", UserRole.ROBOT, RobotKind.EXPLORER)
@@ -39,6 +43,9 @@ def stage_team(console: Console) -> None:
         for state in (MissionState.APPROVED, MissionState.IN_PROGRESS):
             await svc.missions.transition(supervisor, created.mission_id, state)
         await svc.channels.mount(operator, "explorer1", created.mission_id)
+        now = datetime.now(timezone.utc)
+        low = NewAlert(AlertKind.BATTERY_LOW.value, "explorer2", now, "battery at 12 %", 12.0)
+        await svc.repositories.alerts.raise_alerts([low], now)
 
     console.run(in_progress)
     with console.bus.admin_channel() as channel:

@@ -8,7 +8,7 @@ buttons (the mission's steps, Unmount, Mount with its robots) and their tables."
 from __future__ import annotations
 
 from fleetbus.api.console.session import SESSION_COOKIE
-from fleetbus.api.console.sitemap import ACCOUNT
+from fleetbus.api.console.sitemap import ACCOUNT, ALERTS
 from fleetbus.schemas.roles import UserRole
 from tests.console.accessibility import violations
 from tests.console.every_page import ROLES, page_paths, stage_team
@@ -35,6 +35,8 @@ def test_every_page_holds_at_1280x800_and_at_a_tablets_width_and_passes_axe_for_
                     browser.go(console.url(path))
                     assert name in browser.text(".who"), f"{path} as {role.value}: not its page"
                     problems += violations(browser, f"{path} as {role.value}")
+                    if ALERTS.admits(role):  # checked with the banner in, as an operator sees it
+                        assert browser.find("#alerts-banner li"), f"{path} as {role.value}: no alert shown"
                     for width, height in sizes:  # the page laid out again at each size, not reloaded
                         set_viewport(browser, width, height)
                         where = f"{path} as {role.value} at {width}x{height}"
