@@ -22,6 +22,10 @@ For each fleet size, in a virtual host and store of its own:
   of its own; the median of 5 renders after the first);
 - **the broker's share**: its resident memory at the peak of the steady state and what the fleet's
   virtual host holds (connections, queues, exchanges, bindings), the figures a larger fleet scales;
+- **the console's broker poll**: what the dashboard's broker panel asks the management API every
+  few seconds (:func:`~fleetbus.api.console.broker_health.ask_broker`), beside the listing of
+  every queue of the virtual host with its statistics, which the poll asked for before it asked
+  for the service's own queues alone; medians of 5;
 - **nothing lost or doubled**: once the fleet stops, the store holds exactly the status events
   the robots had confirmed.
 
@@ -39,7 +43,7 @@ import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -57,6 +61,7 @@ from bench.results import percentile, save
 from bench.scenario import Context
 from bench.telemetry import FLEET_NICE, TelemetryLoad
 from bench.warden import WardenProcess
+from fleetbus.api.console.broker_health import ask_broker
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.tls import blocking_connection
@@ -123,6 +128,23 @@ async def dashboard_ms(base: str, renders: int = 5) -> float:
         return statistics.median(times)
     finally:
         await client.aclose()
+
+
+def broker_poll(api: ManagementAPI, vhost: str, times: int = 5) -> dict[str, float]:
+    """The console's broker poll, and the whole queue listing it no longer asks for: ms, medians."""
+
+    def median_ms(ask: Callable[[], object]) -> float:
+        taken = []
+        for _ in range(times):
+            started = time.perf_counter()
+            ask()
+            taken.append(1000 * (time.perf_counter() - started))
+        return statistics.median(taken)
+
+    return {
+        "console broker poll ms": median_ms(lambda: ask_broker(api, vhost)),
+        "every queue listed ms": median_ms(lambda: api.list_queues(vhost)),
+    }
 
 
 def broker_objects(api: ManagementAPI, vhost: str) -> dict[str, float]:
@@ -192,6 +214,7 @@ def run_size(context: Context, robots: int, args: argparse.Namespace) -> dict[st
             if broker_pid:
                 figures["broker RSS MB"] = max(watch.rss["broker"], default=float("nan"))
             figures.update(broker_objects(context.api, bus.vhost))
+            figures.update(broker_poll(context.api, bus.vhost))
             context.show(f"{robots} robots: the views")
             figures["fleetbus team s"] = fleetbus(bus, "team")
             figures["fleetbus hazards s"] = fleetbus(bus, "hazards")

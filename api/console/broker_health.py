@@ -26,7 +26,7 @@ from fastapi import Request
 from fleetbus.api.console.broker_rates import AGE_S, EVERY_S, Rates, rates_of
 from fleetbus.api.service import Service
 from fleetbus.broker.dead_letter_queue import DeadLetter
-from fleetbus.broker.management import oldest_by_user, users_of
+from fleetbus.broker.management import ManagementAPI, oldest_by_user, users_of
 from fleetbus.broker.served_certificate import ServedCertificate, served_certificate
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE
 
@@ -218,6 +218,24 @@ def count_recent(letters: list[DeadLetter], since: datetime) -> tuple[Counter[st
     return recent, sum(1 for _, moment in times if moment is None)
 
 
+def ask_broker(management: ManagementAPI, vhost: str) -> BrokerHealth:
+    """The broker as the dashboard shows it, asked now: its nodes, the service's own queues, who
+    is connected and since when, the message rates (blocking: four management API requests)."""
+    nodes = management.list_nodes()
+    queues = management.list_queues_named(vhost, QUEUE_PREFIX, QUEUE_COLUMNS)
+    connections = management.list_vhost_connections(vhost)
+    rates = rates_of(management.vhost_rate_samples(vhost, AGE_S, EVERY_S))
+    return BrokerHealth(
+        datetime.now(timezone.utc),
+        [Node.of(node) for node in nodes],
+        sorted((Queue.of(queue) for queue in queues), key=lambda queue: queue.name),
+        users_of(connections),
+        None,
+        oldest_by_user(connections),
+        rates=rates,
+    )
+
+
 class BrokerWatch:
     def __init__(self, service: Service) -> None:
         self._service = service
@@ -250,28 +268,8 @@ class BrokerWatch:
             self._counted = (now, depth)
 
     async def _ask_broker(self) -> BrokerHealth:
-        management, vhost = self._service.management, self._service.vhost
-
-        def ask() -> BrokerHealth:
-            nodes = management.list_nodes()
-            queues = management.list_queues_named(vhost, QUEUE_PREFIX, QUEUE_COLUMNS)
-            connections = management.list_vhost_connections(vhost)
-            rates = rates_of(management.vhost_rate_samples(vhost, AGE_S, EVERY_S))
-            return BrokerHealth(
-                datetime.now(timezone.utc),
-                [Node.of(node) for node in nodes],
-                sorted(
-                    (Queue.of(queue) for queue in queues),
-                    key=lambda queue: queue.name,
-                ),
-                users_of(connections),
-                None,
-                oldest_by_user(connections),
-                rates=rates,
-            )
-
         try:
-            return await asyncio.to_thread(ask)
+            return await asyncio.to_thread(ask_broker, self._service.management, self._service.vhost)
         except Exception as error:  # any failure to ask is shown, never raised into the pages
             log.warning("console: the management API did not answer: %s", error)
             return BrokerHealth(problem=f"the management API did not answer: {error}")
