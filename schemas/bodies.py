@@ -18,6 +18,10 @@ from pydantic import (
 
 from fleetbus.schemas.pgm import check_pgm
 
+#: The largest integer an event may carry: the stores' integers are 64-bit (SQLite's INTEGER,
+#: MongoDB's int64), so a larger one is refused by the schema, naming its field, not by the store.
+INT64_MAX = 2**63 - 1
+
 
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -92,9 +96,9 @@ class ChunkedImage(Strict):
     """A map image sent ahead as ``map_chunk`` events with this ``map_id``."""
 
     map_id: uuid.UUID
-    size: int = Field(gt=0, description="bytes of the whole PGM file")
+    size: int = Field(gt=0, le=INT64_MAX, description="bytes of the whole PGM file")
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
-    chunks: int = Field(ge=1)
+    chunks: int = Field(ge=1, le=INT64_MAX)
 
 
 class MapUpdate(Strict):
@@ -126,8 +130,8 @@ class MapUpdate(Strict):
 class _Chunk(Strict):
     """One piece of a byte string too large for one event, ``index`` of ``count``."""
 
-    index: int = Field(ge=0)
-    count: int = Field(ge=1)
+    index: int = Field(ge=0, le=INT64_MAX)
+    count: int = Field(ge=1, le=INT64_MAX)
     data: Base64Bytes = Field(description=f"at most {CHUNK_BYTES} bytes")
 
     @field_validator("data")

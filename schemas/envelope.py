@@ -29,13 +29,13 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
-    NonNegativeInt,
     TypeAdapter,
     ValidationError,
     model_validator,
 )
 
 from fleetbus.schemas.bodies import (
+    INT64_MAX,
     BeaconSighting,
     BehaviourOutcome,
     HazardDetected,
@@ -122,7 +122,7 @@ class _EnvelopeBase(BaseModel):
         pattern=EPOCH_PATTERN,
         description="the start of the robot's client that numbered this event (UTC time, random bits)",
     )
-    seq: NonNegativeInt = Field(description="the event's number within its epoch: 0, 1, 2, ...")
+    seq: int = Field(ge=0, le=INT64_MAX, description="the event's number within its epoch: 0, 1, 2, ...")
     sent_at: AwareDatetime = Field(default_factory=lambda: datetime.now(timezone.utc))
     schema_version: Literal[2] = SCHEMA_VERSION
 

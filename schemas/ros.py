@@ -32,6 +32,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from fleetbus.schemas.bodies import INT64_MAX
+
 ROS_TYPE = "ros"
 """The recording type (table or collection) of every ROS message."""
 ROS_TF_TYPE = "ros_tf"
@@ -77,7 +79,9 @@ class RosMessage(BaseModel):
         "``sensor_msgs/Image`` (ROS 1)."
     )
     log_time_ns: int = Field(
-        ge=0, description="The ROS log time in nanoseconds (``recorded_at`` holds it to the microsecond)."
+        ge=0,
+        le=INT64_MAX,
+        description="The ROS log time in nanoseconds (``recorded_at`` holds it to the microsecond).",
     )
     stamp: datetime | None = Field(default=None, description="``header.stamp``, when the message has one.")
     fields: dict[str, Any] = Field(description="The message's fields as plain JSON.")

@@ -91,7 +91,9 @@ def thing(number: int, **fields: object) -> dict[str, object]:
 
 async def test_every_kind_round_trips(database: Database) -> None:
     things = database.collection(THINGS)
-    original = thing(1, label="x☢", at=T0, flag=True, data={"a": [1, 2.5, None, "é"]}, blob=b"\x00\xff")
+    # JSON's integers past 64 bits too (a ROS uint64, 2**64 - 1), as exactly as the rest
+    wide = {"a": [1, 2.5, None, "é"], "wide": [2**64 - 1, -(2**63) - 1, 10**30]}
+    original = thing(1, label="x☢", at=T0, flag=True, data=wide, blob=b"\x00\xff")
     assert await things.insert([original]) == [True]
     assert await things.get("a", 1) == original
     assert await things.get("a", 2) is None
