@@ -277,6 +277,8 @@ class LocalNode:
         digest = hashlib.sha1(str(self.base_dir).encode()).hexdigest()[:10]
         self.node_name = f"fleetbus-{digest}@localhost"
         self._proc: subprocess.Popen[bytes] | None = None
+        self._node_log_start = 0
+        """Where this start's lines begin in the node's log (it is appended to by every start)."""
         self._rabbitmq = rabbitmq
 
     # paths
@@ -804,13 +806,17 @@ log.console = false
         return self._lost_a_port()
 
     def _lost_a_port(self) -> bool:
-        """Whether the last start ended because a listener's port, or the distribution port, was in
-        use (its console log is written afresh by every start)."""
-        try:
-            log_text = self.console_log.read_text(errors="replace")
-        except OSError:
-            return False
-        return any(mark in log_text for mark in PORT_IN_USE_MARKS)
+        """Whether the last start lost a listener's port, or the distribution port, to another
+        process: said in its console log (written afresh by every start) or, once the node logs
+        to its own file, in what this start wrote there. A node that lost a listener's port may
+        run on without that listener (RabbitMQ 3.10 does)."""
+        texts = []
+        with contextlib.suppress(OSError):
+            texts.append(self.console_log.read_text(errors="replace"))
+        with contextlib.suppress(OSError), open(self.node_log, "rb") as node_log:
+            node_log.seek(self._node_log_start)
+            texts.append(node_log.read().decode(errors="replace"))
+        return any(mark in text for text in texts for mark in PORT_IN_USE_MARKS)
 
     def heal_quorum_queues(self, deadline: float) -> int:
         """Elect a leader for every quorum queue that came back from a crash without one.
@@ -842,6 +848,8 @@ log.console = false
         with contextlib.suppress(FileNotFoundError):
             self.pid_file.unlink()  # stale after a kill -9
         private_dir(self.log_dir)
+        # the node's own log is appended to by every start: only what this start writes counts
+        self._node_log_start = self.node_log.stat().st_size if self.node_log.exists() else 0
         log.info(
             "starting the private RabbitMQ node %s in %s (%s)",
             self.node_name,
@@ -874,6 +882,9 @@ log.console = false
                 raise self._startup_failure("the private RabbitMQ node exited while starting")
             if not started and self.pid() is None:
                 raise self._startup_failure("the private RabbitMQ node stopped while we waited for it")
+            if started and self._lost_a_port():
+                self._force_stop()
+                raise self._startup_failure("another process took a port of the private node as it started")
             remaining = deadline - time.monotonic()
             if not amqp_ok:
                 login = amqp_login(amqp_url, timeout=max(0.5, min(3.0, remaining)))
