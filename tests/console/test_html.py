@@ -8,36 +8,26 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
 import httpx
-import pytest
 
 from fleetbus.api.console.sitemap import MESSAGES
 from fleetbus.schemas.roles import UserRole
 from tests.console.every_page import ROLES, page_paths, stage_team
 from tests.console.support import running_console
-from tests.peers import node_module_file
+from tests.peers import java, node_module_file
 from tests.support import Bus
 
-INSTALL = "FLEETBUS_WITH_PEERS=1 bash scripts/setup"
 #: What the checker says of htmx's attributes, left out.
 HTMX = re.compile(r"^Attribute “hx-[a-z-]+” not allowed on element “[a-z]+” at this point\.$")
-
-
-def _java() -> str:
-    found = shutil.which("java")
-    if found is None:
-        pytest.fail("no java to run the Nu Html Checker: " + INSTALL, pytrace=False)
-    return found
 
 
 def checked(pages: dict[Path, str]) -> list[str]:
     """Each error the checker finds in the ``pages`` (files, by what they show), as a sentence."""
     jar = node_module_file("vnu-jar/build/dist/vnu.jar")
-    command = [_java(), "-jar", str(jar), "--errors-only", "--format", "json", *map(str, pages)]
+    command = [java(), "-jar", str(jar), "--errors-only", "--format", "json", *map(str, pages)]
     ran = subprocess.run(command, capture_output=True, text=True, timeout=300)
     shown_in = {path.resolve(): shown for path, shown in pages.items()}
     problems = []

@@ -39,6 +39,14 @@ def node_module_file(path: str) -> Path:
     return found
 
 
+def java() -> str:
+    """The ``java`` binary, which runs the Nu Html Checker (``vnu-jar`` among the Node.js peers)."""
+    found = shutil.which("java")
+    if found is None:
+        pytest.fail(f"no java to run the Nu Html Checker: {_INSTALL}", pytrace=False)
+    return found
+
+
 def node() -> str:
     """The ``node`` binary, with ``tests/peers/node_modules`` installed beside it."""
     found = shutil.which("node")
