@@ -179,7 +179,9 @@ def test_only_supervisors_and_operators_see_the_buttons_and_others_get_403(bus: 
             assert in_state(bus, HazardState.ANNOUNCED), "nothing changed"
             assert console.run(lambda: console.service.team.member("warden1")).robot.in_service
 
-            no_csrf = httpx.post(console.base + claim, data={"warden": "warden1"}, cookies=operator.cookies)
+            no_csrf = httpx.post(
+                console.base + claim, data={"warden": "warden1"}, cookies=operator.cookies, timeout=30
+            )
             assert no_csrf.status_code == 403 and "CSRF" in no_csrf.text
             not_a_warden = operator.post(claim, data={"warden": "explorer1"})
             assert "explorer1 is not a warden of the team" in not_a_warden.text

@@ -215,7 +215,7 @@ def test_the_frame_puts_the_lower_left_pixel_at_the_maps_origin() -> None:
 
 def test_a_session_less_request_for_the_image_is_sent_to_log_in(bus: Bus) -> None:
     with running_console(bus) as console:
-        away = httpx.get(console.url("/console/map/1.png"))
+        away = httpx.get(console.url("/console/map/1.png"), timeout=30)
         assert away.status_code == 303 and away.headers["location"].startswith("/console/login")
 
 

@@ -80,7 +80,9 @@ def test_wrong_passwords_meet_the_same_limit_as_the_api(bus: Bus) -> None:
         blocked = log_in(console, http, "oper1")  # the right password, but too many failures
         assert blocked.status_code == 429 and "too many failed logins" in blocked.text
         assert int(blocked.headers["retry-after"]) > 0
-        api = httpx.post(f"{console.base}/auth/token", data={"username": "oper1", "password": PASSWORD})
+        api = httpx.post(
+            f"{console.base}/auth/token", data={"username": "oper1", "password": PASSWORD}, timeout=30
+        )
         assert api.status_code == 429  # one limit for the API and the console
 
 

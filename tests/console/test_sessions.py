@@ -39,13 +39,15 @@ def _token(console: Console, name: str, agent: str, password: str = PASSWORD) ->
         f"{console.base}/auth/token",
         data={"username": name, "password": password},
         headers={"User-Agent": agent},
+        timeout=30,
     )
     assert reply.status_code == 200, reply.text
     return reply.json()["access_token"]
 
 
 def _api_status(console: Console, token: str) -> int:
-    return httpx.get(f"{console.base}/users/me", headers={"Authorization": f"Bearer {token}"}).status_code
+    me = httpx.get(f"{console.base}/users/me", headers={"Authorization": f"Bearer {token}"}, timeout=30)
+    return me.status_code
 
 
 def _on_login_form(browser: Browser, what: str) -> None:
