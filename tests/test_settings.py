@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 
 from fleetbus.settings import Settings, load_settings, settings_table, variable, with_settings_table
 
-SETTINGS_PAGE = Path(__file__).resolve().parent.parent / "docs" / "reference" / "settings.md"
+ROOT = Path(__file__).resolve().parent.parent
+SETTINGS_PAGE = ROOT / "docs" / "reference" / "settings.md"
 
 
 def test_the_docs_settings_table_is_the_generated_one() -> None:
@@ -24,6 +26,14 @@ def test_every_setting_is_described_and_in_the_table() -> None:
     for name, field in Settings.model_fields.items():
         assert field.description, f"{variable(name)} has no description"
         assert f"| `{variable(name)}` |" in table
+
+
+def test_every_variable_compose_reads_is_in_the_table() -> None:
+    """compose.yaml's own variables (a host name, a password) are listed beside the settings."""
+    table = settings_table()
+    read = set(re.findall(r"\$\{(FLEETBUS_[A-Z0-9_]+)", (ROOT / "compose.yaml").read_text()))
+    assert read, "compose.yaml reads no FLEETBUS_ variable: the pattern is wrong"
+    assert sorted(name for name in read if f"| `{name}` |" not in table) == []
 
 
 def test_a_given_environment_is_the_only_one_read(monkeypatch: pytest.MonkeyPatch) -> None:

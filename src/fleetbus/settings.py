@@ -32,18 +32,30 @@ DEFAULT_DATA_DIR = ".fleetbus"
 DEFAULT_API_URL = "http://127.0.0.1:8000"
 MAX_INGEST_SHARDS = 64
 
-#: Variables only ``compose.yaml`` reads (no fleetbus process does), listed in the settings table.
+#: Variables only ``compose.yaml`` reads (no fleetbus process does), listed in the settings table:
+#: name to (its default as the table shows it, what it means).
 COMPOSE_ONLY = {
-    "FLEETBUS_MONGODB_ROOT_PASSWORD": "the password of MongoDB's root user, made on the volume's first "
-    "boot; no fleetbus process uses it (read by `compose.yaml` only)",
-    "FLEETBUS_MONGODB_PASSWORD": "the password of MongoDB's `fleetbus` user (readWrite on `fleetbus` only), "
-    "made on the volume's first boot by `mongo-init/fleetbus-user.js`; put it in `FLEETBUS_MONGODB_URL` "
-    "(read by `compose.yaml` only)",
-    "FLEETBUS_SITE_NAME": "the site's name, as central knows it (`fleetbus sites add`), for the "
-    "`site` profile's "
-    "`fleetbus site up` (read by `compose.yaml` only)",
-    "FLEETBUS_CENTRAL_URL": "the site's URL at central, which `fleetbus sites add` printed, for the `site` "
-    "profile's `fleetbus site up` (read by `compose.yaml` only)",
+    "FLEETBUS_MONGODB_ROOT_PASSWORD": (
+        "unset (compose asks for it)",
+        "the password of MongoDB's root user, made on the volume's first boot; no fleetbus process uses it "
+        "(read by `compose.yaml` only)",
+    ),
+    "FLEETBUS_MONGODB_PASSWORD": (
+        "unset (compose asks for it)",
+        "the password of MongoDB's `fleetbus` user (readWrite on `fleetbus` only), made on the volume's "
+        "first boot by `mongo-init/fleetbus-user.js`; put it in `FLEETBUS_MONGODB_URL` (read by "
+        "`compose.yaml` only)",
+    ),
+    "FLEETBUS_PUBLIC_HOST": (
+        "`localhost`",
+        "the name robots and sites reach the broker by: the broker's certificate is made for it "
+        "(`fleetbus certs make --host`) besides the services' names (read by `compose.yaml` only)",
+    ),
+    "FLEETBUS_BROKER_HOSTS": (
+        "`rabbitmq:5671`",
+        "the broker's `host:port` list in the services' URLs; the `cluster` profile's three nodes: "
+        "`rabbitmq:5671,rabbitmq-2:5671,rabbitmq-3:5671` (read by `compose.yaml` only)",
+    ),
 }
 
 TABLE_START = (
@@ -114,7 +126,9 @@ class Settings(BaseSettings):
         "node's address: `amqp://user:pw@host1:5672,host2:5672,host3:5672/vhost`",
     )
     management_url: str | None = setting(
-        None, "that broker's management API", shown="`http://<amqp host>:15672/`"
+        None,
+        "that broker's management API",
+        shown="`http://<amqp host>:15672/`; `https://<amqp host>:15671/` for an `amqps://` URL",
     )
     rabbitmq_root: Path | None = setting(
         None,
@@ -279,10 +293,11 @@ class Settings(BaseSettings):
     )
     uplink_max: Annotated[int, Positive] = setting(
         1_000_000,
-        "on a site: the most events other than hazards and telemetry (maps, behaviour, beacons, ROS) "
-        "waiting to be forwarded to central (`fleetbus.uplink`); when it is full the site's broker refuses "
-        "robots' events of that class, which stay in their outboxes (set by `fleetbus site up`); the hazard "
-        "states waiting for central (`fleetbus.hazard-uplink`) have the same bound",
+        "on a site: the most events other than hazards and telemetry (maps, behaviour, beacons, "
+        "measurements, ROS) waiting to be forwarded to central (`fleetbus.uplink`); when it is full the "
+        "site's broker refuses robots' events of that class, which stay in their outboxes (set by "
+        "`fleetbus site up`); the hazard states waiting for central (`fleetbus.hazard-uplink`) have the "
+        "same bound",
     )
     uplink_hazards_max: Annotated[int, Positive] = setting(
         100_000,
@@ -309,11 +324,13 @@ class Settings(BaseSettings):
     central_url: str | None = setting(
         None,
         "on a site: its account's URL at central (`fleetbus sites add` prints it), for `fleetbus site "
-        "up` when `--central` is not given; `amqps://` with `cacertfile=` is verified",
+        "up` when `--central` is not given, and where `fleetbus site apply` reports; `amqps://` with "
+        "`cacertfile=` is verified (compose's `site` profile asks for it)",
     )
     site_name: str | None = setting(
         None,
-        "on a site: its name as central knows it, for `fleetbus site apply` to report to central under it",
+        "on a site: its name as central knows it, for `fleetbus site apply` to report to central under it "
+        "(compose's `site` profile asks for it, and gives it to `fleetbus site up --name`)",
     )
     site_report_every_s: Annotated[float, Positive] = setting(
         30.0,
@@ -679,8 +696,8 @@ def settings_table() -> str:
     rows = ["| variable | default | meaning |", "| --- | --- | --- |"]
     for name, field in Settings.model_fields.items():
         rows.append(f"| `{variable(name)}` | {_shown_default(field)} | {field.description} |")
-    for name, meaning in COMPOSE_ONLY.items():
-        rows.append(f"| `{name}` | unset (compose asks for it) | {meaning} |")
+    for name, (default, meaning) in COMPOSE_ONLY.items():
+        rows.append(f"| `{name}` | {default} | {meaning} |")
     return "\n".join(rows) + "\n"
 
 
