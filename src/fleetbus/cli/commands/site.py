@@ -215,7 +215,8 @@ def apply(
 
 @app.command()
 def down() -> None:
-    """Stop forwarding (delete both shovels); what waits in the uplink stays for the next `site up`."""
+    """Stop forwarding (delete every shovel of the site); what waits in the uplink stays for the
+    next `site up`."""
     ep = endpoint()
     with admin_api(ep) as api:
         stop_site_links(api, vhost_of(ep.amqp_url))
