@@ -24,6 +24,7 @@ from fleetbus.defaults import (
     DEFAULT_FIELD_INDEXES_MAX,
     DEFAULT_MAX_MESSAGE_BYTES,
     DEFAULT_RECORDER_KEEP,
+    DEFAULT_RECORDER_SAMPLES_KEEP,
     LATE_AFTER_S,
 )
 
@@ -285,6 +286,12 @@ class Settings(BaseSettings):
     )
     map_staging_ttl: str = setting(
         "1h", "staged map chunks that no map event named this long after their last chunk are deleted"
+    )
+    recorder_samples_keep: str = setting(
+        DEFAULT_RECORDER_SAMPLES_KEEP,
+        "the recorders' samples of the database's size (one a minute per recorder, read by `fleetbus "
+        "stats` and `GET /recording/growth`), by age (`90d`) or number (`100000`): the recorder deletes "
+        "older ones, and its log says how many",
     )
     ros_pieces_ttl: str = setting(
         "1h",

@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 
+from fleetbus.workers.recorder.retention import SAMPLES, RetentionSweeper, samples_retention
 from fleetbus.workers.store.recordings import (
     Condition,
     Op,
@@ -275,6 +276,25 @@ async def test_retention_primitives(recording: RecordingStore) -> None:
     assert keys(await recording.find_recorded(RecordQuery("tf"))) == ["k3", "k5"]
     assert await recording.delete_recorded_before("never_seen", T0) == 0
     assert await recording.oldest_recorded("never_seen", 3) == []
+
+
+async def test_the_sweep_holds_the_size_samples_to_their_bound(recording: RecordingStore) -> None:
+    samples = [StorageSample(T0 + timedelta(minutes=i), "run-a", 1000 + i, i) for i in range(10)]
+    for sample in samples:
+        await recording.add_sample(sample)
+    now = T0 + timedelta(minutes=9, seconds=30)
+    by_age = RetentionSweeper(recording, {}, samples_retention("5m"))
+    assert await by_age.sweep(now) == {SAMPLES: 5}  # sampled before 04:30
+    assert await recording.samples() == samples[5:]
+    by_number = RetentionSweeper(recording, {}, samples_retention("2"))
+    assert await by_number.sweep(now) == {SAMPLES: 3}
+    assert await recording.samples() == samples[8:]
+    assert await by_number.sweep(now) == {}
+
+
+def test_the_size_samples_are_bounded_by_an_age_or_a_number_not_a_size() -> None:
+    with pytest.raises(ValueError, match="FLEETBUS_RECORDER_SAMPLES_KEEP: bounded by an age"):
+        samples_retention("1GB")
 
 
 async def test_storage_samples_and_size(recording: RecordingStore) -> None:

@@ -20,7 +20,7 @@ import pika.exceptions
 
 from fleetbus.broker.dead_letter_queue import moved_letter_key
 from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
-from fleetbus.defaults import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP
+from fleetbus.defaults import DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_RECORDER_KEEP, DEFAULT_RECORDER_SAMPLES_KEEP
 from fleetbus.limits import Retention, parse_retention
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.dead_letters import last_unsettled, move_to_dead_letters, rejection_of
@@ -33,7 +33,7 @@ from fleetbus.workers.recorder.capture import (
     capture,
 )
 from fleetbus.workers.recorder.filters import RoutingFilter
-from fleetbus.workers.recorder.retention import RetentionSweeper
+from fleetbus.workers.recorder.retention import RetentionSweeper, samples_retention
 from fleetbus.workers.recorder.ros_blobs import RosBlobs
 from fleetbus.workers.recorder.ros_derived import derived_records
 from fleetbus.workers.recorder.source import Delivery, RecorderQueue
@@ -63,6 +63,8 @@ class RecorderOptions:
     sample_interval: float = 60.0
     """Seconds between two looks at the database's size (``fleetbus stats``)."""
     retention_interval: float = 30.0
+    samples_keep: Retention = field(default_factory=lambda: samples_retention(DEFAULT_RECORDER_SAMPLES_KEEP))
+    """The size samples kept (``FLEETBUS_RECORDER_SAMPLES_KEEP``), by age or number."""
     ros_pieces_ttl: timedelta = timedelta(hours=1)
     """Pieces of a large ROS message (``ros_chunk``) that no record named this long are removed."""
     batch_size: int = 256
@@ -116,7 +118,7 @@ class RecorderConsumer:
         self._missions = missions
         self._inbox: BatchInbox[Delivery] = BatchInbox(options.batch_size, options.linger)
         self._stopping = asyncio.Event()
-        self._sweeper = RetentionSweeper(store, options.retention)
+        self._sweeper = RetentionSweeper(store, options.retention, options.samples_keep)
         self._run_id = uuid.uuid4().hex[:12]
         self.blobs = RosBlobs(store, self._retrying)
         """The large byte arrays of live ROS messages, put together from their ``ros_chunk`` events."""

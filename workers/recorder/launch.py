@@ -22,11 +22,13 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fleetbus.defaults import DEFAULT_RECORDER_SAMPLES_KEEP
 from fleetbus.launch_pipe import exec_module, read_launch
 from fleetbus.limits import parse_retention, parse_ttl
 from fleetbus.workers.logs import configure_logging
 from fleetbus.workers.recorder.consumer import RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
+from fleetbus.workers.recorder.retention import samples_retention
 from fleetbus.workers.recorder.runner import run_recorder
 
 if TYPE_CHECKING:
@@ -62,6 +64,7 @@ class Launch:
     keep: list[str] = field(default_factory=list)
     max_message_bytes: int = 0
     sample_interval: float = 60.0
+    samples_keep: str = DEFAULT_RECORDER_SAMPLES_KEEP
     ros_pieces_ttl: str = "1h"
     verbose: bool = False
 
@@ -86,6 +89,7 @@ class Launch:
             keep=list(keep or settings.recorder_keep),
             max_message_bytes=settings.max_message_bytes,
             sample_interval=sample_interval,
+            samples_keep=settings.recorder_samples_keep,
             ros_pieces_ttl=settings.ros_pieces_ttl,
             verbose=verbose,
         )
@@ -99,6 +103,7 @@ class Launch:
             retention=parse_retention(self.keep),
             max_message_bytes=self.max_message_bytes,
             sample_interval=self.sample_interval,
+            samples_keep=samples_retention(self.samples_keep),
             ros_pieces_ttl=parse_ttl(self.ros_pieces_ttl, "FLEETBUS_ROS_PIECES_TTL"),
         )
 

@@ -7,20 +7,31 @@ from collections.abc import Mapping
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING
 
+from fleetbus.bounds import register_retention
 from fleetbus.limits import Retention, policy_for
 
 if TYPE_CHECKING:
     from fleetbus.workers.store.recordings import RecordingStore
 
 SWEEP_CHUNK = 1000
+#: What the sweep calls the recorders' size samples in what it deleted (not a recorded type).
+SAMPLES = "size samples"
+
+
+def samples_retention(text: str) -> Retention:
+    """``FLEETBUS_RECORDER_SAMPLES_KEEP``: an age or a number of samples; ValueError naming it."""
+    return register_retention(text, "FLEETBUS_RECORDER_SAMPLES_KEEP")
 
 
 class RetentionSweeper:
     """Deletes what the policies no longer keep; run it every so often while recording."""
 
-    def __init__(self, store: RecordingStore, policies: Mapping[str, Retention]) -> None:
+    def __init__(
+        self, store: RecordingStore, policies: Mapping[str, Retention], samples: Retention | None = None
+    ) -> None:
         self._store = store
         self._policies = dict(policies)
+        self._samples = samples
 
     async def sweep(self, now: datetime | None = None) -> dict[str, int]:
         """Records deleted, by type."""
@@ -32,7 +43,20 @@ class RetentionSweeper:
                 count = await self._apply(type, policy, now)
                 if count:
                     deleted[type] = count
+        if self._samples is not None:
+            count = await self._prune_samples(self._samples, now)
+            if count:
+                deleted[SAMPLES] = count
         return deleted
+
+    async def _prune_samples(self, policy: Retention, now: datetime) -> int:
+        before = now - policy.max_age if policy.max_age is not None else None
+        deleted = 0
+        while True:
+            count = await self._store.prune_samples(before, policy.max_records, SWEEP_CHUNK)
+            deleted += count
+            if count < SWEEP_CHUNK:
+                return deleted
 
     async def _apply(self, type: str, policy: Retention, now: datetime) -> int:
         deleted = 0

@@ -13,6 +13,7 @@ from fleetbus.schemas.routing import RECORDER_QUEUE
 from fleetbus.workers.recorder.capture import TypeNames
 from fleetbus.workers.recorder.consumer import MissionLookup, RecorderConsumer, RecorderOptions
 from fleetbus.workers.recorder.filters import RoutingFilter
+from fleetbus.workers.recorder.retention import samples_retention
 from fleetbus.workers.recorder.source import RecorderQueue
 from fleetbus.workers.signals import stop_on_signals
 from fleetbus.workers.store import Repositories, StoreSettings, open_recording_store, repositories_for
@@ -47,6 +48,7 @@ def recorder_options(settings: Settings, **overrides: object) -> RecorderOptions
         filter=RoutingFilter(settings.recorder_include, settings.recorder_exclude),
         retention=parse_retention(settings.recorder_keep),
         max_message_bytes=settings.max_message_bytes,
+        samples_keep=samples_retention(settings.recorder_samples_keep),
         ros_pieces_ttl=parse_ttl(settings.ros_pieces_ttl, "FLEETBUS_ROS_PIECES_TTL"),
     )
     return RecorderOptions(**{**options.__dict__, **overrides})  # type: ignore[arg-type]

@@ -22,15 +22,14 @@ from fleetbus.workers.store.hazards import HAZARDS, OPEN
 from fleetbus.workers.store.ledger import DUPLICATES
 from fleetbus.workers.store.port import (
     INTEGER,
-    SERIAL,
     TEXT,
     TIME,
-    Collection,
     Database,
     In,
     NotIn,
     Range,
     Schema,
+    prune_oldest,
 )
 
 
@@ -114,12 +113,12 @@ class StoreHousekeeping(Housekeeping):
 
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int:
         return await self._database.transaction(
-            lambda: _prune(self._duplicates, "seen_at", before, keep, limit)
+            lambda: prune_oldest(self._duplicates, "seen_at", before, keep, limit)
         )
 
     async def prune_discards(self, before: datetime | None, keep: int | None, limit: int) -> int:
         return await self._database.transaction(
-            lambda: _prune(self._discards, "received_at", before, keep, limit)
+            lambda: prune_oldest(self._discards, "received_at", before, keep, limit)
         )
 
     async def count_bounded(self, counts: Mapping[tuple[str, str], int], at: datetime) -> None:
@@ -133,16 +132,3 @@ class StoreHousekeeping(Housekeeping):
 
     async def bound_counts(self) -> list[BoundCount]:
         return [BoundCount(**doc) for doc in await self._counts.find(order=["bound", "subject"])]
-
-
-async def _prune(log: Collection, time: str, before: datetime | None, keep: int | None, limit: int) -> int:
-    """The oldest documents of a serial log, by time, then beyond the newest ``keep`` in the order
-    they were stored (which has no ties)."""
-    deleted = 0
-    if before is not None:
-        deleted += await log.delete({time: Range(lt=before)}, order=[time], limit=limit)
-    if keep is not None and deleted < limit:
-        beyond = await log.count() - keep
-        if beyond > 0:
-            deleted += await log.delete({}, order=[SERIAL], limit=min(beyond, limit - deleted))
-    return deleted

@@ -22,6 +22,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Coroutine, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from datetime import datetime
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -286,3 +287,24 @@ COUNTERS = Schema("counters", {"name": TEXT, "last": INTEGER}, key=("name",))
 async def next_number(counters: Collection, name: str, by: int = 1) -> int:
     """Take the next ``by`` numbers of the counter ``name`` (the first is 1); the last taken."""
     return await counters.increment({"name": name, "last": by}, "last")
+
+
+async def prune_oldest(
+    log: Collection,
+    time: str,
+    before: datetime | None,
+    keep: int | None,
+    limit: int,
+    *,
+    order: str = SERIAL,
+) -> int:
+    """Up to ``limit`` of a log's oldest documents: older than ``before`` by ``time``, then beyond
+    the newest ``keep`` in ``order`` (a serial log's order of storing, which has no ties)."""
+    deleted = 0
+    if before is not None:
+        deleted += await log.delete({time: Range(lt=before)}, order=[time], limit=limit)
+    if keep is not None and deleted < limit:
+        beyond = await log.count() - keep
+        if beyond > 0:
+            deleted += await log.delete({}, order=[order], limit=min(beyond, limit - deleted))
+    return deleted

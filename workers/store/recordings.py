@@ -24,7 +24,18 @@ from enum import Enum
 from typing import Any, Union
 
 from fleetbus.workers.store.base import WriteResult
-from fleetbus.workers.store.port import INTEGER, JSON, TEXT, TIME, Database, In, Index, Range, Schema
+from fleetbus.workers.store.port import (
+    INTEGER,
+    JSON,
+    TEXT,
+    TIME,
+    Database,
+    In,
+    Index,
+    Range,
+    Schema,
+    prune_oldest,
+)
 
 Scalar = Union[str, int, float, bool, None]  # noqa: UP007  (a runtime alias; Python 3.10 reads it)
 
@@ -265,6 +276,10 @@ class Bookkeeping:
     async def add_sample(self, sample: StorageSample) -> None:
         await self._samples.insert([sample.__dict__])
 
+    async def prune_samples(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        """Up to ``limit`` of the oldest samples: older than ``before``, then beyond the newest ``keep``."""
+        return await prune_oldest(self._samples, "sampled_at", before, keep, limit, order="sampled_at")
+
     async def samples(self, since: datetime | None = None) -> list[StorageSample]:
         where = {} if since is None else {"sampled_at": Range(ge=since)}
         return [
@@ -395,6 +410,9 @@ class RecordingStore(abc.ABC):
 
     async def samples(self, since: datetime | None = None) -> list[StorageSample]:
         return await self.bookkeeping.samples(since)
+
+    async def prune_samples(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        return await self.bookkeeping.prune_samples(before, keep, limit)
 
     async def __aenter__(self) -> RecordingStore:
         await self.open()
