@@ -317,7 +317,8 @@ class Bridge:
     def events_of(self, item: dict[str, Any]) -> list[Item]:
         """The fleetbus events of one ROS message (validated): the ``ros_chunk`` events of its
         large byte arrays, the message itself as a ``ros`` event naming them, then what its
-        mapping rule makes of it; raises ConversionError or SchemaError."""
+        mapping rule makes of it; raises ConversionError or SchemaError when the message itself
+        cannot be recorded. A message its rule cannot map is still recorded, and counted."""
         topic, type_name, fields = item["topic"], item["type"], item["fields"]
         stamp = ros_stamp(item.get("stamp_ns"))
         ros_type = ros2_type_name(type_name)
@@ -338,7 +339,12 @@ class Bridge:
         rule = self.mapping.rule_for(topic, type_name)
         if rule is None:
             return recorded
-        return [*recorded, *self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))]
+        try:
+            return [*recorded, *self.mapped(rule, fields, stamp or ros_stamp(item["received_ns"]))]
+        except Exception as error:  # (ConversionError, SchemaError...): the event only, not the record
+            self.counters.drop(topic, DropReason.NOT_MAPPED)
+            log.warning("%s (%s) recorded, but made no %s: %s", topic, type_name, rule.event, error)
+            return recorded
 
     def _schema_key(self, topic: str, ros_type: str, item: dict[str, Any]) -> str | None:
         """The key of the message's type definition: made from the first message of its kind,

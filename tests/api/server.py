@@ -5,7 +5,7 @@ from __future__ import annotations
 import ssl
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -49,11 +49,16 @@ def api_server(bus: Bus, admin: str, password: str, **settings: str) -> Iterator
 
 @contextmanager
 def api_process(
-    bus: Bus, admin: str | None, password: str = "", ca: Path | None = None, **settings: str
+    bus: Bus,
+    admin: str | None,
+    password: str = "",
+    ca: Path | None = None,
+    options: Sequence[str] = (),
+    **settings: str,
 ) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
     """:func:`api_server`, yielding its base URL and its process (to read its memory, say); with
     ``ca``, served over HTTPS (``--tls``) with a certificate that CA signed; with no ``admin``,
-    no account is made (a test of the listener alone)."""
+    no account is made (a test of the listener alone); ``options``: more of `fleetbus api`'s."""
     env = {**bus.worker_env(), **settings}
     env.pop("FLEETBUS_API_SECRET", None)  # the secret the server keeps itself
     fleetbus = [sys.executable, "-m", "fleetbus", "api"]
@@ -72,7 +77,7 @@ def api_process(
     log = open(bus.settings.data_dir / f"api-{port}.log", "wb")
     tls = ["--tls"] if ca else []
     server = subprocess.Popen(
-        [*fleetbus, "--port", str(port), *tls], env=env, stdout=log, stderr=subprocess.STDOUT
+        [*fleetbus, "--port", str(port), *tls, *options], env=env, stdout=log, stderr=subprocess.STDOUT
     )
     base = f"{'https' if ca else 'http'}://127.0.0.1:{port}"
     try:

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from fleetbus.cli import app
 from fleetbus.publishers.tls import blocking_connection
-from tests.api.server import free_port, wait_until_serving
+from tests.api.server import api_process, free_port, wait_until_serving
 from tests.support import Bus
 
 PASSWORD = "first admin password"
@@ -85,3 +85,18 @@ def test_create_admin_serve_and_log_in_from_the_shell(bus: Bus, env: dict[str, s
         server.wait(30)
         log.close()
     assert oct((bus.settings.api_dir / "secret").stat().st_mode & 0o777) == "0o600"
+
+
+def test_a_proxys_forwarded_https_is_believed_only_from_the_addresses_given(bus: Bus) -> None:
+    """Behind a proxy that adds TLS the console's cookies are marked Secure: `fleetbus api` believes
+    X-Forwarded-Proto from this machine by default, and from --forwarded-allow-ips when given."""
+
+    def cookie_behind_tls(base: str) -> str:
+        login = httpx.get(f"{base}/console/login", headers={"X-Forwarded-Proto": "https"}, timeout=30)
+        assert login.status_code == 200, login.text
+        return login.headers["set-cookie"].lower()
+
+    with api_process(bus, None) as (base, _):
+        assert "; secure" in cookie_behind_tls(base)
+    with api_process(bus, None, options=("--forwarded-allow-ips", "192.0.2.10")) as (base, _):
+        assert "; secure" not in cookie_behind_tls(base), "a header from an address not given"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import xmlrpc.client
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any
 
 import pika
@@ -12,7 +13,7 @@ import pytest
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings
-from fleetbus.publishers.ros.mapping import Mapping
+from fleetbus.publishers.ros.mapping import Mapping, load_mapping
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
@@ -179,6 +180,31 @@ def test_filters_and_the_rate_limit_drop_and_count(bus: Bus, ros_master: RosMast
         assert not any(topic.startswith("/rosout") for topic in bridge.counters.types)
     status = json.loads(bridge.status_file.read_text())
     assert status["topics"]["/fast"]["dropped"] == counts["dropped"]
+
+
+def test_a_message_its_rule_cannot_map_is_still_recorded_and_counted(
+    bus: Bus, ros_master: RosMaster, tmp_path: Path
+) -> None:
+    """A hazard rule on /chatter, whose strings hold no pose, with no localisation rule to give
+    the robot's last one: no hazard can be made, and the message is recorded all the same."""
+    path = tmp_path / "mapping.yaml"
+    path.write_text("standard: false\nrules:\n  - {topic: /chatter, type: std_msgs/String, event: hazard}\n")
+    robot = bus.robot(bus.add("rosbot5", kind=RobotKind.EXPLORER))
+    with (
+        bus.worker(),
+        ros_peer(ros_master, "samples"),
+        running_bridge(robot, ros_master, bus.settings.robots_dir, mapping=load_mapping(path)) as bridge,
+    ):
+        records = wait_for(
+            lambda: (r := ros_records(bus, "rosbot5")) and "/chatter" in r and r, what="/chatter recorded"
+        )
+        assert records["/chatter"]["fields"] == {"data": "hello fleetbus"}
+        chatter = wait_for(
+            lambda: (c := bridge.counters.snapshot()["topics"].get("/chatter")) and c["recorded"] and c,
+            what="/chatter counted",
+        )
+        assert chatter["dropped"] == {"not-mapped": 1}
+        assert "/chatter" not in bridge.counters.mapped
 
 
 def received_by_the_bridge(master: RosMaster) -> set[str]:

@@ -43,6 +43,15 @@ def serve(
             "(`fleetbus certs make` makes one)",
         ),
     ] = False,
+    forwarded_allow_ips: Annotated[
+        str | None,
+        typer.Option(
+            help="the reverse proxies whose X-Forwarded-For and X-Forwarded-Proto are believed "
+            "(addresses or networks, comma-separated): the client's address, which the login limits "
+            "count by, and HTTPS, which marks the console's cookies Secure. Default: this machine only "
+            "(uvicorn's FORWARDED_ALLOW_IPS)",
+        ),
+    ] = None,
 ) -> None:
     """Serve the API with uvicorn (OpenAPI at /docs), until Ctrl-C."""
     if ctx.invoked_subcommand is not None:
@@ -76,6 +85,7 @@ def serve(
         host=host,
         port=port,
         log_level="info",
+        forwarded_allow_ips=forwarded_allow_ips,
         timeout_graceful_shutdown=5,  # for requests under way (open console pages' streams end at once)
         ssl_certfile=str(files.cert) if tls else None,
         ssl_keyfile=str(files.key) if tls else None,
