@@ -67,7 +67,7 @@ from fleetbus.schemas.routing import (
 
 log = logging.getLogger("fleetbus.robot")
 
-#: How many notification ids a client remembers to skip repeats of the same announcement.
+#: How many subjects (hazards, maps) a client remembers the last news of, to skip repeats of it.
 SEEN_NOTIFICATIONS = 10_000
 #: The service's setting of when a notification is late, read by the robot too.
 LATE_AFTER_VARIABLE = "FLEETBUS_LATE_AFTER_S"
@@ -204,7 +204,9 @@ class RobotClient:
         self._closed = False
         self._connection: pika.BlockingConnection | None = None
         self._rpc: RpcChannel | None = None
-        self._seen_notes: OrderedDict[str, None] = OrderedDict()
+        self._handed_out: OrderedDict[str, tuple[str | None, str | None]] = OrderedDict()
+        """What this client last knew of each notification's subject (a hazard, by its event):
+        its state and who claimed it, from a notification it handed out or a step it took."""
         self._resynced_on: pika.BlockingConnection | None = None
         """The connection on which this client last rebuilt its list of open hazards."""
 
@@ -356,16 +358,25 @@ class RobotClient:
         return self.call("hazard.open", timeout)
 
     def claim_hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
-        return self.call("hazard.claim", timeout, hazard_id=hazard_id)
+        return self._step("hazard.claim", hazard_id, timeout)
 
     def release_hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
-        return self.call("hazard.release", timeout, hazard_id=hazard_id)
+        return self._step("hazard.release", hazard_id, timeout)
 
     def hazard_reached(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
-        return self.call("hazard.reached", timeout, hazard_id=hazard_id)
+        return self._step("hazard.reached", hazard_id, timeout)
 
     def hazard_cleared(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
-        return self.call("hazard.cleared", timeout, hazard_id=hazard_id)
+        return self._step("hazard.cleared", hazard_id, timeout)
+
+    def _step(self, method: str, hazard_id: int, timeout: float) -> dict[str, Any]:
+        """A step of this warden's; the hazard's new state is what it knows of it from now on, so
+        that the news of a step taken for it later (released by an operator) is handed out."""
+        hazard: dict[str, Any] = self.call(method, timeout, hazard_id=hazard_id)
+        self._know(
+            f"{Topic.HAZARD.value}:{hazard['event']['message_id']}", hazard["state"], hazard.get("claimed_by")
+        )
+        return hazard
 
     def wardens(self, timeout: float = 5.0) -> list[dict[str, Any]]:
         return self.call("wardens", timeout)
@@ -464,15 +475,20 @@ class RobotClient:
         self._resynced_on = connection  # only once all were handed out: a caller may stop early
 
     def _seen_before(self, note: Notification) -> bool:
-        """Whether this client handed out ``note`` already (an announcement's copies, a resync); a
-        hazard in a new state (claimed for this warden by an operator, say) is news."""
-        key = f"{note.topic.value}:{note.event.message_id}:{note.hazard_state or ''}"
-        if key in self._seen_notes:
+        """Whether ``note`` says nothing new: this client last knew its subject as it says (an
+        announcement's copies, a resync, its own step). A hazard in another state is news, an
+        earlier one too: ``announced`` again after an operator released the warden's claim."""
+        key = f"{note.topic.value}:{note.event.message_id}"
+        if self._handed_out.get(key) == (note.hazard_state, note.claimed_by):
             return True
-        self._seen_notes[key] = None
-        if len(self._seen_notes) > SEEN_NOTIFICATIONS:
-            self._seen_notes.popitem(last=False)
+        self._know(key, note.hazard_state, note.claimed_by)
         return False
+
+    def _know(self, key: str, state: str | None, claimed_by: str | None) -> None:
+        self._handed_out[key] = (state, claimed_by)
+        self._handed_out.move_to_end(key)
+        if len(self._handed_out) > SEEN_NOTIFICATIONS:
+            self._handed_out.popitem(last=False)
 
     def _session(self) -> pika.BlockingConnection:
         """The caller's own connection (services, notifications), opened with retries when needed.

@@ -286,4 +286,14 @@ def test_the_cli_claims_for_a_warden_and_refuses_a_step_the_rules_do_not_allow(b
         assert "hazard 1: claimed for warden1 (by ops1)" in claimed.stdout
         [note] = warden.receive(1, timeout=30)
         assert (note.hazard_state, note.claimed_by) == ("claimed", "warden1")
+        # released by an operator: the warden is told it is announced again, as it was at first,
+        # and its client hands that out, not taking it for the first announcement's copy
+        released = fleetbus(bus, "hazards", "release", "1", "--for", "warden1", "--by", "ops1")
+        assert released.returncode == 0, released.stderr
+        [note] = warden.receive(1, timeout=30)
+        assert (note.event, note.hazard_state, note.claimed_by) == (sent, "announced", None)
+        claimed = fleetbus(bus, "hazards", "claim", "1", "--for", "warden1", "--by", "ops1")
+        assert claimed.returncode == 0, claimed.stderr
+        [note] = warden.receive(1, timeout=30)
+        assert (note.hazard_state, note.claimed_by) == ("claimed", "warden1"), "claimed again: news too"
     assert states(bus) == ["claimed"]
