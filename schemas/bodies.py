@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import uuid
-from datetime import datetime
 from typing import Annotated, Literal
 
 from pydantic import (
@@ -45,7 +44,11 @@ class Pose(Strict):
 class HazardDetected(Strict):
     pose: Pose
     frame_id: str = Field(default="map", min_length=1, max_length=64)
-    description: Annotated[str, Field(min_length=1, max_length=512)]
+    description: Annotated[
+        str,
+        # the pattern says in the published schema what the validator below enforces, with its message
+        Field(min_length=1, max_length=512, json_schema_extra={"pattern": r"\S", "description": "not blank"}),
+    ]
     detected_at: AwareDatetime
 
     @field_validator("description")
@@ -104,7 +107,12 @@ class ChunkedImage(Strict):
 class MapUpdate(Strict):
     """A new map: the PGM image (inline when small, else by reference to its chunks) and its YAML fields."""
 
-    pgm: Base64Bytes | None = Field(default=None, description="the PGM image, base64 in JSON (small maps)")
+    pgm: Base64Bytes | None = Field(
+        default=None,
+        description="the PGM image, base64 in JSON: a small map, of at most 256 KiB (262,144 bytes) "
+        "before base64",
+        json_schema_extra={"maxLength": 4 * -(-MAP_INLINE_BYTES // 3)},
+    )
     image: ChunkedImage | None = Field(default=None, description="the PGM image sent as map_chunk events")
     metadata: MapMetadata
     created_at: AwareDatetime
@@ -217,4 +225,4 @@ class BehaviourOutcome(Strict):
     success: bool
     duration_s: float = Field(ge=0)
     error: str | None = Field(default=None, max_length=2048)
-    started_at: datetime | None = None
+    started_at: AwareDatetime | None = None

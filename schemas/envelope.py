@@ -123,7 +123,11 @@ class _EnvelopeBase(BaseModel):
         description="the start of the robot's client that numbered this event (UTC time, random bits)",
     )
     seq: int = Field(ge=0, le=INT64_MAX, description="the event's number within its epoch: 0, 1, 2, ...")
-    sent_at: AwareDatetime = Field(default_factory=lambda: datetime.now(timezone.utc))
+    sent_at: AwareDatetime = Field(
+        default_factory=lambda: datetime.now(timezone.utc),
+        description="when the robot sent it (with its time zone); left out, the time the worker read it: "
+        "the gate orders a warden's localisations by it, and `late` is measured from it",
+    )
     schema_version: Literal[2] = SCHEMA_VERSION
 
     @model_validator(mode="after")
@@ -244,9 +248,13 @@ def describe_validation_error(error: ValidationError, prefix: str = "") -> list[
 
 
 def parse_event(raw: bytes | str) -> Event:
-    """Validate a JSON message body; raise :class:`SchemaError` naming what is wrong."""
+    """Validate a JSON message body; raise :class:`SchemaError` naming what is wrong.
+
+    Strictly, as the AsyncAPI document describes the message: a number or a boolean sent as a
+    string (``"seq": "7"``, ``"localised": "yes"``) is refused, not converted. Python callers of
+    :func:`validate_body` keep pydantic's conversions; the JSON the client sends is canonical."""
     try:
-        return EVENT_ADAPTER.validate_json(raw)
+        return EVENT_ADAPTER.validate_json(raw, strict=True)
     except ValidationError as error:
         problems = describe_validation_error(error)
         if any(item["type"] == "json_invalid" for item in error.errors()):

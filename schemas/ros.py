@@ -27,10 +27,9 @@ from __future__ import annotations
 import base64
 import hashlib
 from collections.abc import Iterator, Sequence
-from datetime import datetime
 from typing import Any
 
-from pydantic import BaseModel, Field
+from pydantic import AwareDatetime, BaseModel, Field
 
 from fleetbus.schemas.bodies import INT64_MAX
 
@@ -83,7 +82,9 @@ class RosMessage(BaseModel):
         le=INT64_MAX,
         description="The ROS log time in nanoseconds (``recorded_at`` holds it to the microsecond).",
     )
-    stamp: datetime | None = Field(default=None, description="``header.stamp``, when the message has one.")
+    stamp: AwareDatetime | None = Field(
+        default=None, description="``header.stamp``, when the message has one."
+    )
     fields: dict[str, Any] = Field(description="The message's fields as plain JSON.")
     schema_key: str | None = Field(
         default=None,

@@ -13,6 +13,8 @@ from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import event_routing_key, split_event_routing_key
 from tests.factories import TABLE1_TIME, hazard, small_map, status
 
+LOCALISED = {"localised": True, "pose": {"x": 1.0, "y": 2.0}}
+
 
 def test_hazard_round_trips_exactly() -> None:
     event = build_event(EventType.HAZARD, "explorer1", new_epoch(), 7, hazard())
@@ -77,3 +79,30 @@ def test_every_type_has_a_json_schema() -> None:
     schemas = json_schemas()
     assert set(schemas) == {"event", *(t.value for t in EventType)}
     assert "body" in schemas["hazard"]["properties"]
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "problem"),
+    [
+        (("seq",), "7", "localisation.seq: Input should be a valid integer"),
+        (("seq",), 7.0, "localisation.seq: Input should be a valid integer"),
+        (("body", "localised"), "yes", "localisation.body.localised: Input should be a valid boolean"),
+        (("body", "localised"), 1, "localisation.body.localised: Input should be a valid boolean"),
+        (("body", "pose", "x"), "1.5", "localisation.body.pose.x: Input should be a valid number"),
+        (("sent_at",), 1767225600, "localisation.sent_at: Input should be a valid datetime"),
+    ],
+)
+def test_a_message_is_read_as_the_asyncapi_document_types_it_not_converted(
+    path: tuple[str, ...], value: object, problem: str
+) -> None:
+    """A string where the document has a number or a boolean is refused, naming the field: the
+    gate must not read ``"localised": "yes"`` as localised, nor a consumer of the stream see it."""
+    message = json.loads(encode_event(build_event(EventType.LOCALISATION, "r1", new_epoch(), 7, LOCALISED)))
+    parse_event(json.dumps(message))  # as the client sends it
+    inner = message
+    for key in path[:-1]:
+        inner = inner[key]
+    inner[path[-1]] = value
+    with pytest.raises(SchemaError) as refused:
+        parse_event(json.dumps(message))
+    assert str(refused.value) == problem
