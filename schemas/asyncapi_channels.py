@@ -68,9 +68,9 @@ def gate_rule() -> str:
     return (
         "**The hazard gate.** Hazards are held until at least one warden is in service and every "
         "warden in service is localised; then they are announced in the order detected. A warden "
-        "counts as localised once its newest `localisation` event (by `sent_at`) says `localised: "
-        "true`. So a warden gets hazard notifications "
-        "only once localised: it publishes its localisation first, then reads its inbox."
+        "counts as localised once its newest `localisation` event (by `sent_at`; an event without "
+        "one is stamped when the worker reads it) says `localised: true`. So a warden gets hazard "
+        "notifications only once localised: it publishes its localisation first, then reads its inbox."
     )
 
 
@@ -79,18 +79,21 @@ EVENT_NOTES: dict[EventType, str] = {
     EventType.HAZARD: "The service registers it in the robot's mission and announces it to the wardens "
     "in service by their inboxes once the gate is open (below); until then it is held, in order.",
     EventType.LOCALISATION: "A warden's `localised` state opens or holds the hazard gate (below).",
-    EventType.STATUS: "Telemetry; `battery_percent` under the threshold notifies the operators (topic "
-    "`battery`).",
-    EventType.MAP: "A new map: inline `pgm` (small), or `image` naming the `map_chunk` events sent "
-    "before it. Once complete it is stored and announced on the topic `map`.",
-    EventType.MAP_CHUNK: "One piece of a large map image, before the `map` event that names it.",
+    EventType.STATUS: "Telemetry; a `battery_percent` that falls under the threshold notifies the "
+    "operators once (topic `battery`), again only after it was above it.",
+    EventType.MAP: "A new map: exactly one of inline `pgm` (a PGM of at most 256 KiB, whose header "
+    "matches its pixels) or `image` naming the `map_chunk` events sent before it; `free_thresh` below "
+    "`occupied_thresh`. Once complete it is stored and announced on the topic `map`.",
+    EventType.MAP_CHUNK: "One piece of a large map image, before the `map` event that names it; "
+    "`index` below `count`.",
     EventType.BEHAVIOUR: "The outcome of a behaviour (what was tried on what, success, duration).",
     EventType.ROS: "A ROS message, recorded (the ROS bridge publishes them). A byte array over 64 KiB "
     '(an image\'s pixels) is named as `{"_blob": sha256, "length": n}` and travels before it as '
     "`ros_chunk` events; one over the robot's bound (`FLEETBUS_ROS_BLOB_MAX_BYTES`) is only described "
     '(`{"_truncated": true, "length": n, "sha256": ...}`).',
     EventType.ROS_CHUNK: "One piece (at most 512 KiB) of a large byte array of a ROS message, before the "
-    "`ros` event that names its `blob`; `index` of `count`, in order. Sent again, it is kept once.",
+    "`ros` event that names its `blob`; `index` (below `count`) of `count`, in order. Sent again, it is "
+    "kept once.",
     EventType.MEASUREMENT: "A sensor reading (`quantity`, `value`, `unit`) taken at `pose`. Recorded under "
     "the mission the robot is checked in to, it is the mission's sensor data: the mission's page maps it, "
     "coloured by value.",
@@ -158,8 +161,14 @@ def robot_channels(robot: dict[str, Any], beacon_headers: dict[str, Any], refs: 
             "in each warden's inbox by name, and only to wardens in service once the gate is open. "
             + gate_rule()
             + " A notification may come twice (sent again when the service could not be sure the "
-            "broker took it): skip one already handled, by its topic, event `message_id` and "
-            "`hazard_state`. `late: true` marks one announced long after the robot sent the event.",
+            "broker took it): skip one that says what you last knew of its subject, by its topic and "
+            "event `message_id`, in the same `hazard_state` with the same `claimed_by` (a step you took "
+            "yourself counts). A hazard in another state is news, an earlier one too: an operator who "
+            "releases a warden's claim makes it `announced` again. `late: true` marks a hazard announced "
+            "long after the robot sent the event (other topics never set it). The inbox is bounded "
+            "(`FLEETBUS_INBOX_MAX`, 10,000 messages or 100 MB by default): when it is full its oldest "
+            "notifications are dropped, so a warden back after a long absence rebuilds its list with "
+            "`hazard.open` (and `map.latest`).",
             "parameters": {"robot": robot},
             "subscribe": {
                 "operationId": "receive_notifications",

@@ -98,7 +98,7 @@ METHODS: tuple[Method, ...] = (
     _hazard_step("hazard.claim", "claim a hazard for the calling warden (refused if another holds it)"),
     _hazard_step("hazard.release", "give a claimed hazard back"),
     _hazard_step("hazard.reached", "the claiming warden reached the hazard"),
-    _hazard_step("hazard.cleared", "the claiming warden cleared the hazard"),
+    _hazard_step("hazard.cleared", "the claiming warden cleared the hazard (once it reported it reached)"),
     Method(
         "wardens",
         "the wardens of the team: localised, when last reported, in service",
