@@ -236,6 +236,8 @@ def test_every_fleetbus_service_reaches_its_broker_over_verified_tls() -> None:
         assert f"@{broker}:5671/" in url or "${FLEETBUS_BROKER_HOSTS:-rabbitmq:5671}" in url, name
         management = environment.get("FLEETBUS_MANAGEMENT_URL", f"https://{broker}:15671/")
         assert management == f"https://{broker}:15671/", name
+        if "${FLEETBUS_BROKER_HOSTS" in url:  # derived from every node's address: it fails over
+            assert "FLEETBUS_MANAGEMENT_URL" not in environment, f"{name}: the management API on one node"
         assert environment["FLEETBUS_TLS_CA"] == "/etc/fleetbus/tls/ca.pem", name
         assert (
             _mounts(SERVICES[name])["/etc/fleetbus/tls"] == _mounts(SERVICES[broker])["/etc/fleetbus/tls"]
