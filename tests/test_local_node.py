@@ -42,7 +42,9 @@ from fleetbus_dev.local_node import (
     PLUGINS,
     TLS_PORT_NAMES,
     LocalNode,
+    LocalNodeError,
     amqp_login,
+    ensure_certificates,
     listening_addresses,
     pid_alive,
     pids_listening_on,
@@ -878,3 +880,17 @@ def test_a_node_whose_unpublished_ports_were_taken_while_it_was_down_moves_them_
             assert amqp_login(node.status().amqp_url or "", timeout=10)
         finally:
             node.down()
+
+
+def test_a_single_node_and_a_cluster_never_make_the_operators_own_certificates(tmp_path: Path) -> None:
+    """Own files (FLEETBUS_TLS_CA/_CERT/_KEY elsewhere than the folder fleetbus makes them in):
+    one missing is an error naming it, for `broker up` and `broker up --nodes 3` alike."""
+    mine = tmp_path / "mine"
+    own = TlsFiles(mine / "ca.pem", mine / "cert.pem", mine / "key.pem", tmp_path / "tls" / "ca.key")
+    with pytest.raises(LocalNodeError, match="FLEETBUS_TLS_CA/_CERT/_KEY name are missing") as refused:
+        ensure_certificates(own)
+    assert str(own.cert) in str(refused.value)
+    assert not mine.exists() and not (tmp_path / "tls").exists(), "nothing made"
+    ours = TlsFiles.in_folder(tmp_path / "tls")
+    ensure_certificates(ours)
+    assert ours.server_ready()

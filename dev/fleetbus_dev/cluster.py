@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
-from fleetbus.broker.certificates import TlsFiles, make_certificates
+from fleetbus.broker.certificates import TlsFiles
 from fleetbus.broker.probe import write_private_file
 from fleetbus.private_files import private_dir
 from fleetbus.publishers.addresses import join_addresses
@@ -37,6 +37,7 @@ from fleetbus_dev.local_node import (
     LocalNodeError,
     NodeInfo,
     choose_free_ports,
+    ensure_certificates,
 )
 
 #: Each node's share of this machine: the broker blocks publishers beyond it (three nodes and the
@@ -141,8 +142,7 @@ class LocalCluster:
         deadline = time.monotonic() + timeout
         self._prepare()
         self._write_cluster_conf()
-        if not self.tls.server_ready():
-            make_certificates(self.tls)
+        ensure_certificates(self.tls)
         self._run_all([i for i, node in enumerate(self.nodes) if node.pid() is None], deadline)
         saved = self._saved()
         joined = list(saved.get("joined", []))  # type: ignore[call-overload]

@@ -101,6 +101,20 @@ log = logging.getLogger("fleetbus.broker")
 T = TypeVar("T")
 
 
+def ensure_certificates(tls: TlsFiles) -> None:
+    """A private node's (or cluster's) server certificate, made (with a CA, unless one exists) when
+    it is missing from the folder fleetbus makes them in; the operator's own files are never made:
+    one of them missing is an error that names it."""
+    if tls.server_ready():
+        return
+    ours = TlsFiles.in_folder(tls.ca_key.parent)
+    if tls != ours:
+        missing = [str(path) for path in (tls.ca, tls.cert, tls.key) if not path.exists()]
+        raise LocalNodeError(f"the TLS files FLEETBUS_TLS_CA/_CERT/_KEY name are missing: {missing}")
+    log.info("making the private node's certificates in %s", ours.ca.parent)
+    make_certificates(ours)
+
+
 class LocalNodeError(RuntimeError):
     """The private node could not be started, reached or stopped; the message says why."""
 
@@ -449,18 +463,6 @@ class LocalNode:
         user, password = (quote(part, safe="") for part in creds)
         return public.replace("amqps://", f"amqps://{user}:{password}@", 1)
 
-    def _ensure_certificates(self) -> None:
-        """The server certificate, made (with a CA, unless one exists) when it is missing from
-        the folder fleetbus makes them in; the operator's own files are never made."""
-        if self.tls.server_ready():
-            return
-        ours = TlsFiles.in_folder(self.tls.ca_key.parent)
-        if self.tls != ours:
-            missing = [str(path) for path in (self.tls.ca, self.tls.cert, self.tls.key) if not path.exists()]
-            raise LocalNodeError(f"the TLS files FLEETBUS_TLS_CA/_CERT/_KEY name are missing: {missing}")
-        log.info("making the private node's certificates in %s", ours.ca.parent)
-        make_certificates(ours)
-
     def env(self) -> dict[str, str]:
         """The whole environment of the server and of its CLI tools: the one place that makes the
         node private. Inherited ``RABBITMQ_*`` and ``ERL_*`` variables are dropped."""
@@ -509,7 +511,7 @@ class LocalNode:
             "# Shadows /etc/rabbitmq/rabbitmq-env.conf: fleetbus sets everything in the environment.\n",
         )
         _write_if_changed(base / "enabled_plugins", "[" + ",".join(PLUGINS) + "].\n")
-        self._ensure_certificates()
+        ensure_certificates(self.tls)
         tls = self.tls
         plain = (
             "listeners.tcp = none\n"
