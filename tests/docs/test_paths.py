@@ -29,3 +29,12 @@ def test_every_path_of_the_architecture_and_the_layout_exists() -> None:
     assert len(named) > 50, "the tables' names were found"
     missing = [f"{package}/: {name}" for package, name in named if not exists(package, name)]
     assert not missing, f"named but not in the repository: {missing}"
+
+
+def test_every_link_of_the_readme_is_to_a_file_of_the_repository() -> None:
+    """The README is read on the forge as well as in the site, where the generated reference
+    pages (docs_hooks) exist only once built: its links must hold without the build."""
+    links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", (ROOT / "README.md").read_text())
+    local = [link for link in links if "://" not in link and not link.startswith("mailto:")]
+    assert len(local) > 10, "the README's links were found"
+    assert [link for link in local if not (ROOT / link).exists()] == []
