@@ -109,9 +109,11 @@ def test_map_versions_keep_the_newest_and_the_fetched_and_unclaimed_chunks_expir
     assert pruned.returncode == 1 and "map version 2 was pruned" in pruned.stderr
 
 
-def test_the_event_of_an_open_hazard_stays_and_goes_once_it_is_cleared(stored_bus: Bus) -> None:
+def test_an_open_hazard_and_its_event_stay_and_go_once_it_is_cleared(stored_bus: Bus) -> None:
     bus = stored_bus
-    bus.settings = bus.settings.updated(events_keep=("hazard=1s",), prune_every_s=QUICK_ROUNDS)
+    bus.settings = bus.settings.updated(
+        events_keep=("hazard=1s",), hazards_keep="1s", prune_every_s=QUICK_ROUNDS
+    )
     explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
     warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
     with bus.worker():
@@ -123,8 +125,12 @@ def test_the_event_of_an_open_hazard_stays_and_goes_once_it_is_cleared(stored_bu
             warden.call(method, hazard_id=notes[1].hazard_id)
         # the cleared one, the later of the two, goes once it is a second old: so is the open one
         wait_for(lambda: bus.count("hazard") == 1, what="the cleared hazard's event pruned")
+        # and the registry's cleared hazard (this broker has no hazard uplink: it is no site)
+        wait_for(lambda: counted(bus).get(("hazards", "cleared")) == 1, what="the cleared hazard pruned")
     [left] = [record for record in bus.find() if record.type == "hazard"]
     assert left.seq == open_one.seq, "the open hazard's event stays, however old"
+    [registered] = bus.with_store(lambda store: store.hazards.recent_hazards(10))
+    assert (registered.hazard_id, registered.state.value) == (notes[0].hazard_id, "announced")
     assert bus.count("localisation") == 1, "a type without a bound is kept"
 
 
@@ -134,6 +140,7 @@ def test_the_event_of_an_open_hazard_stays_and_goes_once_it_is_cleared(stored_bu
         ("FLEETBUS_EVENTS_KEEP", "status=1GB", "not a size"),
         ("FLEETBUS_EVENTS_KEEP", "status", "TYPE=LIMIT"),
         ("FLEETBUS_DUPLICATES_KEEP", "soon", "an age"),
+        ("FLEETBUS_HAZARDS_KEEP", "1GB", "not a size"),
         ("FLEETBUS_INBOX_MAX", "7d", "not '7d'"),
         ("FLEETBUS_MAP_STAGING_TTL", "500", "an age"),
         ("FLEETBUS_MAP_VERSIONS_KEEP", "0", "positive"),

@@ -91,7 +91,7 @@ async def take_step(
     except ServiceError as refused:
         raise StepRefused(str(refused)) from None
     hazard = await hazards.get_hazard(mission_id, hazard_id)
-    assert hazard is not None  # hazards are never deleted
+    assert hazard is not None  # only hazards cleared long ago are pruned: this one just took a step
     log.info("hazard %s:%d %s for %s by %s", mission_id, hazard_id, step, warden, by)
     if not robot.in_service:
         return StepTaken(hazard, f"{warden} is out of service: it is told when put back")

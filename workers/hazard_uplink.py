@@ -61,6 +61,9 @@ class HazardUplink:
         self._task: asyncio.Task[None] | None = None
         self._a_site = False
         """The queue took the last version offered: send whole batches."""
+        self.not_a_site = False
+        """The broker returned the last version offered (it has no hazard uplink queue): this
+        store's hazards go to no central. False until known."""
         self.sent = 0
 
     def start(self) -> None:
@@ -80,6 +83,7 @@ class HazardUplink:
         try:
             for hazard in unsent:
                 self._a_site = await self._put(hazard)
+                self.not_a_site = not self._a_site
                 if not self._a_site:
                     return None
                 sent.append(hazard)

@@ -1,6 +1,6 @@
-"""The worker's background pruning: the event log, the duplicates register, the beacon discards,
-map versions and staged map chunks, and the acknowledged alerts whose condition ended, each held to
-its bound (:mod:`fleetbus.bounds`).
+"""The worker's background pruning: the event log, the hazard registry's cleared hazards, the
+duplicates register, the beacon discards, map versions and staged map chunks, and the acknowledged
+alerts whose condition ended, each held to its bound (:mod:`fleetbus.bounds`).
 
 A round runs every ``FLEETBUS_PRUNE_EVERY_S`` seconds, in one worker at a time (a lease in the
 store), as a task beside the consumers. It deletes in small batches, each its own short write,
@@ -56,6 +56,7 @@ class Pruner:
         bounds: Bounds,
         holder: str,
         *,
+        not_a_site: Callable[[], bool] = lambda: False,
         batch: int = BATCH,
         pause_s: float = PAUSE_S,
     ) -> None:
@@ -65,6 +66,9 @@ class Pruner:
         self._alerts = alerts
         self._bounds = bounds
         self._holder = holder
+        self._not_a_site = not_a_site
+        """Whether this store is known not to be a site's (its broker has no hazard uplink): its
+        hazards' states go to no central, so a cleared one never waits to be sent."""
         self._batch = batch
         self._pause_s = pause_s
         self._stop = asyncio.Event()
@@ -110,6 +114,11 @@ class Pruner:
                     counts[("events", event_type.value)] = await self._apply(
                         policy, now, lambda *a, t=event_type.value: housekeeping.prune_events(t, *a)
                     )
+            counts[("hazards", "cleared")] = await self._apply(
+                bounds.cleared_hazards,
+                now,
+                lambda *a: housekeeping.prune_cleared_hazards(*a, unsent_too=self._not_a_site()),
+            )
             counts[("duplicates", "seen")] = await self._apply(
                 bounds.duplicates, now, housekeeping.prune_duplicates
             )

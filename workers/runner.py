@@ -273,15 +273,6 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
         discard_channel, await discard_channel.get_queue(BEACON_DISCARD_QUEUE), repositories.discards
     )
     await discards.start()
-    pruner = Pruner(
-        repositories.housekeeping,
-        repositories.leases,
-        repositories.maps,
-        repositories.alerts,
-        bounds(settings),
-        shards.holder,
-    )
-    pruner.start()
     overflow = OverflowCounter(
         discard_channel, await discard_channel.get_queue(OVERFLOW_QUEUE), repositories.housekeeping
     )
@@ -302,6 +293,16 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
     await site_hazards.start()
     hazard_uplink = HazardUplink(sites_channel, repositories.hazards)
     hazard_uplink.start()
+    pruner = Pruner(
+        repositories.housekeeping,
+        repositories.leases,
+        repositories.maps,
+        repositories.alerts,
+        bounds(settings),
+        shards.holder,
+        not_a_site=lambda: hazard_uplink.not_a_site,
+    )
+    pruner.start()
     return WorkerContext(
         connection, shards, rpc, discards, repositories, pruner, overflow, site_hazards, hazard_uplink, stats
     )

@@ -29,6 +29,8 @@ class Bounds:
     """The event log's retention per type (``*``: every other type), by age or number of records."""
     duplicates: Retention
     discards: Retention
+    cleared_hazards: Retention
+    """Cleared hazards in the registry, by the time they were cleared, or their number."""
     map_versions: int
     """Versions kept per robot, the newest, besides those being fetched."""
     map_staging_ttl: timedelta
@@ -90,6 +92,7 @@ def bounds(settings: Settings) -> Bounds:
         events=event_retention(settings.events_keep),
         duplicates=register_retention(settings.duplicates_keep, "FLEETBUS_DUPLICATES_KEEP"),
         discards=register_retention(settings.discards_keep, "FLEETBUS_DISCARDS_KEEP"),
+        cleared_hazards=register_retention(settings.hazards_keep, "FLEETBUS_HAZARDS_KEEP"),
         map_versions=settings.map_versions_keep,
         map_staging_ttl=parse_ttl(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),

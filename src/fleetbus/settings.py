@@ -280,6 +280,12 @@ class Settings(BaseSettings):
         "30d", "how long (or how many, `100000`) of the duplicates register the workers keep"
     )
     discards_keep: str = setting("30d", "how long (or how many) of the beacon discard log the workers keep")
+    hazards_keep: str = setting(
+        "90d",
+        "cleared hazards kept in the registry, by the time they were cleared (`90d`) or their number "
+        "(`100000`); a hazard not cleared always stays, and so does a site's cleared hazard central has "
+        "not confirmed; counted as the bound `hazards` in `fleetbus stats`",
+    )
     map_versions_keep: Annotated[int, Positive] = setting(
         10,
         "map versions kept per robot, the newest, besides any a robot began to fetch in the last 10 minutes",

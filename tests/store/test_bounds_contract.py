@@ -10,7 +10,7 @@ import pytest
 
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.discards import Discard
-from fleetbus.workers.store.hazards import NewHazard
+from fleetbus.workers.store.hazards import Hazard, NewHazard
 from fleetbus.workers.store.ledger import Duplicate
 from fleetbus.workers.store.maps import MapVersion, versions_to_prune
 from fleetbus.workers.store.repositories import Repositories
@@ -69,6 +69,40 @@ async def test_the_event_of_a_hazard_not_yet_cleared_is_never_pruned(store: Repo
     assert await store.housekeeping.prune_events("hazard", later, None, 10) == 0
     left = {r.seq for r in await store.events.find_events(EventQuery(type="hazard"))}
     assert left == {second.seq, held[2].seq} == {1, 2}
+
+
+async def _clear(store: Repositories, hazard: Hazard, at: datetime) -> Hazard:
+    for step in (store.hazards.claim, store.hazards.mark_reached, store.hazards.mark_cleared):
+        hazard = await step(hazard.mission_id, hazard.hazard_id, "warden1", at)
+    return hazard
+
+
+async def test_cleared_hazards_are_pruned_by_when_they_were_cleared_and_no_id_is_given_twice(
+    store: Repositories,
+) -> None:
+    events = [received("explorer1", seq, "hazard", seq) for seq in range(6)]
+    await store.events.write_events(events)
+    await store.hazards.hold_hazards([NewHazard.of(event) for event in events[:4]])
+    held = await store.hazards.held_hazards()
+    await store.hazards.mark_announced(held, T0)
+    # hazards 1, 2 and 4 cleared on days 1, 2 and 4; hazard 3 stays open
+    cleared = [await _clear(store, held[i], T0 + timedelta(days=day)) for i, day in ((0, 1), (1, 2), (3, 4))]
+    day3 = T0 + timedelta(days=3)
+    # a cleared state central has not confirmed stays (every state is unsent but at a site's central)
+    assert await store.housekeeping.prune_cleared_hazards(day3, None, 10) == 0
+    await store.hazards.mark_sent(cleared[:1])  # a site: central confirmed hazard 1's cleared state
+    assert await store.housekeeping.prune_cleared_hazards(day3, None, 10) == 1
+    # not a site: none waits for central
+    assert await store.housekeeping.prune_cleared_hazards(day3, None, 10, unsent_too=True) == 1
+    left = await store.hazards.recent_hazards(10)
+    assert sorted(h.hazard_id for h in left) == [3, 4], "the open one and the one cleared since stay"
+    assert await store.housekeeping.prune_cleared_hazards(None, 1, 10, unsent_too=True) == 0, "the newest"
+    assert await store.housekeeping.prune_cleared_hazards(T0 + timedelta(days=5), None, 10, unsent_too=True)
+    assert [h.hazard_id for h in await store.hazards.recent_hazards(10)] == [3]
+    # hazard 4, the mission's highest id, is gone: the next hazard is 5, not 4 again
+    await store.hazards.hold_hazards([NewHazard.of(events[4])])
+    [fifth] = await store.hazards.held_hazards()
+    assert fifth.hazard_id == 5
 
 
 async def test_duplicates_and_discards_are_pruned_by_age_and_by_count(store: Repositories) -> None:

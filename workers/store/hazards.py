@@ -22,6 +22,7 @@ from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventRecord, StoreError
 from fleetbus.workers.store.port import (
     BOOL,
+    COUNTERS,
     INTEGER,
     JSON,
     TEXT,
@@ -396,6 +397,14 @@ BY_ID = ["mission_id", "hazard_id"]
 #: The hazards received last first (then by mission and id, descending): the lists' order.
 NEWEST_FIRST = ["-received_at", "-mission_id", "-hazard_id"]
 OPEN = [state.value for state in HazardState if state is not HazardState.CLEARED]
+
+
+def pruned_ids_counter(mission_id: str) -> str:
+    """The counter of the highest hazard id of a mission whose hazard pruning removed: a new
+    hazard's id stays above it, so that no id is given twice."""
+    return f"hazard-ids:{mission_id}"
+
+
 STATE_FIELDS = ("announced_at", "claimed_by", "claimed_at", "reached_at", "cleared_at", "held_reason")
 
 
@@ -420,6 +429,7 @@ class Coordination(Robots, CoordinationStore):
     def __init__(self, database: Database) -> None:
         super().__init__(database)
         self._hazards = database.collection(HAZARDS)
+        self._counters = database.collection(COUNTERS)
 
     async def _find(self, where: dict[str, Any], **options: Any) -> list[Hazard]:
         return [_hazard(doc) for doc in await self._hazards.find(where, fields=FIELDS, **options)]
@@ -440,7 +450,8 @@ class Coordination(Robots, CoordinationStore):
             last = await self._hazards.find(
                 {"mission_id": mission_id}, order=["-hazard_id"], limit=1, fields=BY_ID
             )
-            next_id = last[0]["hazard_id"] + 1 if last else 1
+            pruned = await self._counters.get(pruned_ids_counter(mission_id))
+            next_id = max(last[0]["hazard_id"] if last else 0, pruned["last"] if pruned else 0) + 1
             doc = {"mission_id": mission_id, "hazard_id": next_id, **source, **fields}
             if (await self._hazards.insert([doc]))[0]:
                 return _hazard(doc), True

@@ -18,9 +18,10 @@ from typing import Any
 
 from fleetbus.workers.store.discards import DISCARDS
 from fleetbus.workers.store.event_log import EVENTS
-from fleetbus.workers.store.hazards import HAZARDS, OPEN
+from fleetbus.workers.store.hazards import HAZARDS, OPEN, HazardState, pruned_ids_counter
 from fleetbus.workers.store.ledger import DUPLICATES
 from fleetbus.workers.store.port import (
+    COUNTERS,
     INTEGER,
     TEXT,
     TIME,
@@ -36,8 +37,8 @@ from fleetbus.workers.store.port import (
 @dataclass(frozen=True)
 class BoundCount:
     bound: str
-    """What was bounded: ``events``, ``duplicates``, ``discards``, ``map-versions``,
-    ``map-staging``, ``overflow``."""
+    """What was bounded: ``events``, ``hazards``, ``duplicates``, ``discards``, ``map-versions``,
+    ``map-staging``, ``alerts``, ``overflow``."""
     subject: str
     """Within it: the event type, the robot, the queue and why (``warden1.inbox maxlen``)."""
     count: int
@@ -57,6 +58,14 @@ class Housekeeping(abc.ABC):
     async def prune_events(self, type: str, before: datetime | None, keep: int | None, limit: int) -> int:
         """The event log's events of ``type``, by the time the store received them; never the
         event of a hazard not yet cleared."""
+
+    @abc.abstractmethod
+    async def prune_cleared_hazards(
+        self, before: datetime | None, keep: int | None, limit: int, *, unsent_too: bool = False
+    ) -> int:
+        """Cleared hazards of the registry, by the time they were cleared; never one that is not
+        cleared. A site's hazard whose cleared state central has not confirmed stays, unless
+        ``unsent_too`` (this store is not a site's). No id a pruned hazard had is given again."""
 
     @abc.abstractmethod
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int: ...
@@ -88,6 +97,7 @@ class StoreHousekeeping(Housekeeping):
         self._database = database
         self._events = database.collection(EVENTS)
         self._hazards = database.collection(HAZARDS)
+        self._counters = database.collection(COUNTERS)
         self._duplicates = database.collection(DUPLICATES)
         self._discards = database.collection(DISCARDS)
         self._counts = database.collection(BOUND_COUNTS)
@@ -108,6 +118,39 @@ class StoreHousekeeping(Housekeeping):
                 open_ones = await self._hazards.find({"state": In(OPEN)}, fields=["event"])
                 where["message_id"] = NotIn([doc["event"]["message_id"] for doc in open_ones])
             return await self._events.delete(where, order=["received_at"], limit=limit)
+
+        return await self._database.transaction(prune)
+
+    async def prune_cleared_hazards(
+        self, before: datetime | None, keep: int | None, limit: int, *, unsent_too: bool = False
+    ) -> int:
+        cleared = HazardState.CLEARED.value
+
+        async def prune() -> int:
+            cut = before
+            if keep is not None:
+                kept = await self._hazards.find(
+                    {"state": cleared}, order=["-cleared_at"], skip=keep - 1, limit=1, fields=["cleared_at"]
+                )
+                if kept:  # the oldest of the newest ``keep``: everything cleared before it goes
+                    cut = kept[0]["cleared_at"] if cut is None else max(cut, kept[0]["cleared_at"])
+            if cut is None:
+                return 0
+            where: dict[str, Any] = {"state": cleared, "cleared_at": Range(lt=cut)}
+            if not unsent_too:
+                where["unsent"] = False
+            doomed = await self._hazards.find(
+                where, order=["cleared_at"], limit=limit, fields=["mission_id", "hazard_id"]
+            )
+            missions: dict[str, list[int]] = {}
+            for doc in doomed:
+                missions.setdefault(doc["mission_id"], []).append(doc["hazard_id"])
+            for mission_id, ids in missions.items():
+                highest = max(ids)  # noted first: the next hazard of the mission is numbered above it
+                counter = {"name": pruned_ids_counter(mission_id), "last": highest}
+                await self._counters.put(counter, where={"last": Range(lt=highest)})
+                await self._hazards.delete({"mission_id": mission_id, "hazard_id": In(ids)})
+            return len(doomed)
 
         return await self._database.transaction(prune)
 
