@@ -7,7 +7,9 @@ import threading
 import pytest
 
 from fleetbus.schemas.routing import RobotKind
+from fleetbus.workers.coordination import HazardCoordinator
 from fleetbus.workers.store.hazards import HazardState
+from fleetbus_dev.worker_thread import WorkerThread
 from tests.factories import hazard
 from tests.support import Bus, notifications_until, wait_for
 
@@ -104,3 +106,40 @@ def test_a_listener_until_stopped_keeps_one_consumer_through_quiet_spells_and_en
         listener.join(timeout=10)
         assert not listener.is_alive(), "the listener ends once told to stop"
     assert len(opened) == 1, "one consumer channel for the whole listen, not one per quiet spell"
+
+
+def test_an_announcement_that_cannot_be_finished_stops_the_worker_and_comes_again(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The operators' copies and the mark come after the wardens' copies, before the ack. When they
+    fail past their retries, the worker stops (to be restarted): it would otherwise hold the
+    express lane's messages unacked, chained behind the failure, while the broker sent no more."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+
+    async def fails(*_: object) -> None:
+        raise RuntimeError("the operators' copies could not be published")
+
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        wait_for(
+            lambda: any(r.localised for r in bus.with_store(lambda s: s.hazards.robots())), what="localised"
+        )
+    monkeypatch.setattr(HazardCoordinator, "_finish", fails)
+    worker = WorkerThread(bus.settings, bus.service_accounts().service_url).start()
+    try:
+        sent = explorer.publish("hazard", hazard(0))
+        [note] = warden.receive(1, timeout=30)  # the wardens' copies went before the failure
+        assert note.event == sent
+        wait_for(lambda: not worker.running, what="the worker stopped by itself")
+    finally:
+        with pytest.raises(Exception, match="could not be published"):
+            worker.stop()
+    assert open_states(bus) == [HazardState.HELD], "told, never marked announced"
+    monkeypatch.undo()
+    with bus.worker():  # the next worker takes the hazard again: announced, and marked
+        wait_for(lambda: open_states(bus) == [HazardState.ANNOUNCED], what="the hazard marked announced")
+
+
+def open_states(bus: Bus) -> list[HazardState]:
+    return [h.state for h in bus.with_store(lambda store: store.hazards.open_hazards(None))]

@@ -143,6 +143,9 @@ class IngestConsumer:
         self._control = control
         self._finishing = finishing
         self._acking: asyncio.Task[None] | None = None
+        self._ack_failed = False
+        """Finishing or acknowledging handled batches failed: this consumer stops (its unacked
+        messages come again), rather than hold them unacked while the broker sends no more."""
         """The last batch's ack, waiting for what was left to finish; each waits for the one
         before, so batches are acked in order."""
         self._exclusive = exclusive
@@ -156,7 +159,9 @@ class IngestConsumer:
     async def run(self) -> None:
         """Consume until :meth:`stop`; then finish what was received and return."""
         self._consumer_tag = await self._queue.consume(self._take, no_ack=False)
-        while not (self._stopping.is_set() and (self._exclusive or self._inbox.empty())):
+        while not self._ack_failed and not (
+            self._stopping.is_set() and (self._exclusive or self._inbox.empty())
+        ):
             batch = await self._inbox.next_batch(self._stopping)
             if batch:
                 try:
@@ -198,6 +203,16 @@ class IngestConsumer:
             await self._retrying(finish)
         if last is not None:
             await last.ack(multiple=True)
+
+    def _on_acked(self, acking: asyncio.Task[None]) -> None:
+        """A batch's finishing or ack that failed (past its retries) ends the consumer: the ones
+        chained after it would wait for it for ever, and the broker, its prefetch spent, sends no
+        more. :meth:`run` raises its error (the worker stops, and its messages come again)."""
+        if acking.cancelled() or acking.exception() is None or self._ack_failed:
+            return
+        self._ack_failed = True
+        log.error("finishing a handled batch failed: %r; this consumer stops", acking.exception())
+        self._stopping.set()  # wakes run() from waiting for the next batch
 
     async def _take(self, message: AbstractIncomingMessage) -> None:
         """The consumer callback: from now the message is the worker's, whatever waits before it."""
@@ -329,6 +344,7 @@ class IngestConsumer:
         finishing = self._finishing() if self._finishing is not None else []
         if finishing or self._acking is not None:
             self._acking = asyncio.create_task(self._ack_after(self._acking, finishing, last))
+            self._acking.add_done_callback(self._on_acked)
         elif last is not None:
             await last.ack(multiple=True)
 

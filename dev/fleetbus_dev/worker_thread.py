@@ -66,6 +66,11 @@ class LoopThread(Generic[C]):
         if self.error is not None:
             raise self.error
 
+    @property
+    def running(self) -> bool:
+        """It has not ended (by itself, or stopped)."""
+        return self._thread.is_alive()
+
     def __enter__(self: T) -> T:
         return self.start()
 
