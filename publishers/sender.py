@@ -284,49 +284,57 @@ class Sender:
         nacks = 0  # tries in a row on which the broker nacked something
         while not self._stopping:
             try:
-                if self._connection is None:
-                    self._connect()  # at once, not on the first event: publish() needs to know
-                    continue
-                with self._condition:
-                    job, self._express = self._express, None
-                    self._busy = True
-                try:
-                    if job is not None:
-                        self._send_express(job)
-                        continue
-                    drained = self._drain()
-                finally:
-                    with self._condition:
-                        self._busy = False
-                if not drained:
-                    self._idle_wait()
-                failures = nacks = 0  # the connection works, and the broker takes what it is sent
-            except Nacked as nacked:
-                delay = reconnect_delay(nacks, self._max_delay)
-                nacks += 1
-                if nacks % NACKS_BEFORE_RECONNECT == 0:
-                    log.warning(
-                        "%s %d times in a row: reconnecting, next try in %.1f s", nacked, nacks, delay
-                    )
-                    self._outbox.release()
-                    self._disconnect(f"{nacked} {nacks} times in a row")
-                    self._backoff(delay)
-                    continue
-                log.warning("%s; they stay in the outbox, next try in %.1f s", nacked, delay)
-                self._pause(delay)
-            except BROKER_LOST as error:
-                self._outbox.release()
-                connecting = self._connection is None
-                self._unverified = connecting and broker_unverified(error)
-                self._disconnect(self._failure(error, connecting))
-                self._backoff(reconnect_delay(failures, self._max_delay))
-                failures += 1
-            except Exception as error:  # never let the sender die silently
+                failures, nacks = self._turn(failures, nacks)
+            except Exception as error:  # never let the sender die: nor of what handling a failure raised
                 log.exception("robot sender failed; retrying")
-                self._outbox.release()
+                try:
+                    self._outbox.release()
+                except Exception:  # the outbox's folder failing too: said above, tried again next turn
+                    log.exception("robot sender could not put its events in flight back in the outbox")
                 self._disconnect(repr(error))
                 self._backoff(1.0)
         self._disconnect(None)
+
+    def _turn(self, failures: int, nacks: int) -> tuple[int, int]:
+        """One turn of the sender: connect, send an express event or drain, or wait; what went
+        wrong handled (and counted in the two numbers it returns: failures and nacks in a row)."""
+        try:
+            if self._connection is None:
+                self._connect()  # at once, not on the first event: publish() needs to know
+                return failures, nacks
+            with self._condition:
+                job, self._express = self._express, None
+                self._busy = True
+            try:
+                if job is not None:
+                    self._send_express(job)
+                    return failures, nacks
+                drained = self._drain()
+            finally:
+                with self._condition:
+                    self._busy = False
+            if not drained:
+                self._idle_wait()
+            return 0, 0  # the connection works, and the broker takes what it is sent
+        except Nacked as nacked:
+            delay = reconnect_delay(nacks, self._max_delay)
+            nacks += 1
+            if nacks % NACKS_BEFORE_RECONNECT == 0:
+                log.warning("%s %d times in a row: reconnecting, next try in %.1f s", nacked, nacks, delay)
+                self._outbox.release()
+                self._disconnect(f"{nacked} {nacks} times in a row")
+                self._backoff(delay)
+                return failures, nacks
+            log.warning("%s; they stay in the outbox, next try in %.1f s", nacked, delay)
+            self._pause(delay)
+            return failures, nacks
+        except BROKER_LOST as error:
+            self._outbox.release()
+            connecting = self._connection is None
+            self._unverified = connecting and broker_unverified(error)
+            self._disconnect(self._failure(error, connecting))
+            self._backoff(reconnect_delay(failures, self._max_delay))
+            return failures + 1, nacks
 
     def _failure(self, error: BaseException, connecting: bool) -> str:
         """What went wrong; for a certificate login that could not connect, what that most

@@ -14,10 +14,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from itertools import pairwise
 
+import pika.exceptions
 import pytest
 
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import PublishRefused
+from fleetbus.publishers.sender import Sender
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import INGEST_EXCHANGE, RobotKind
 from fleetbus_dev.local_node import LocalNode
@@ -168,3 +170,29 @@ def test_nacks_in_a_row_make_the_sender_reconnect_and_the_event_stays(bus: Bus) 
         )
         assert explorer.outbox.pending() == 1 and explorer.outbox.refused() == []
     assert explorer.flush(30), "taken once the queue takes messages again"
+
+
+def test_a_connection_lost_while_waiting_after_a_nack_leaves_the_sender_running(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What handling one failure raises (the connection lost in the wait after a nack) is handled
+    too: the sender thread goes on, connects again, and sends the event once the queue takes it.
+    (The thread used to end there, while the client still said connected.)"""
+    lost: list[float] = []
+    wait_after_nack = Sender._pause
+
+    def pause(sender: Sender, delay: float) -> None:
+        if not lost:
+            lost.append(delay)
+            raise pika.exceptions.StreamLostError("the connection was lost while waiting")
+        wait_after_nack(sender, delay)
+
+    monkeypatch.setattr(Sender, "_pause", pause)
+    explorer = bus.robot(
+        bus.add("explorer1", kind=RobotKind.EXPLORER), confirm_timeout=60, max_reconnect_delay=0.2
+    )
+    with every_publish_nacked(bus, "explorer1"):
+        explorer.publish("status", status(80))
+        wait_for(lambda: "lost while waiting" in (explorer.last_error or ""), what="the failure handled")
+        assert explorer.outbox.pending() == 1 and explorer.outbox.refused() == []
+    assert explorer.flush(30), "sent once the queue takes messages again: the sender still runs"
