@@ -167,6 +167,20 @@ def test_a_body_the_database_cannot_hold_is_kept_raw_and_recording_goes_on(store
         assert odd.document == {"big": 123456789012345678901234567890}
 
 
+def test_a_timestamp_in_milliseconds_is_read_as_such_and_recording_goes_on(bus: Bus) -> None:
+    """Some AMQP clients put milliseconds in the timestamp property: read as seconds it is past
+    any date. The recorder failed on it, lost its connection, got it again first, and recorded
+    nothing more."""
+    robot = bus.add("rec-ms")
+    with bus.recorder() as recorder:
+        bus.publish_raw(robot, "rec-ms.tf", b'{"ms": true}', timestamp=1_767_225_600_000)
+        bus.publish_raw(robot, "rec-ms.tf", b'{"after": true}')
+        wait_for(lambda: recorder.stats().recorded == 2, what="both recorded")
+    in_ms, after = bus.recorded("tf")
+    assert in_ms.properties["timestamp"] == "2026-01-01T00:00:00+00:00"
+    assert after.document == {"after": True}
+
+
 def test_what_the_store_refuses_even_raw_is_dead_lettered_with_its_reason_and_counted(
     stored_bus: Bus, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -35,6 +35,20 @@ class ConnectionLost(ConnectionError):
     """The channel a message came on is gone: it cannot be settled; the broker delivers it again."""
 
 
+def amqp_time(timestamp: int | None) -> datetime | None:
+    """An AMQP ``timestamp`` (seconds in UTC) as a time. Some clients send milliseconds: read as
+    such when seconds would be past datetime's range (as the worker's client, pamqp, does); None
+    when neither reads, so that one message's property never stops the recording."""
+    if timestamp is None:
+        return None
+    for seconds in (timestamp, timestamp / 1000):
+        try:
+            return datetime.fromtimestamp(seconds, timezone.utc)
+        except (ValueError, OverflowError, OSError):
+            continue
+    return None
+
+
 class Delivery:
     """One delivered message, read as the recorder reads aio-pika's (``exchange``, ``user_id``,
     ``headers``…) and settled on the channel it came on."""
@@ -61,7 +75,7 @@ class Delivery:
         self.reply_to: str | None = p.reply_to
         self.expiration: str | None = p.expiration
         # AMQP timestamps are seconds in UTC; aio-pika gave them as times, which capture reads
-        self.timestamp = None if p.timestamp is None else datetime.fromtimestamp(p.timestamp, timezone.utc)
+        self.timestamp = amqp_time(p.timestamp)
         self.type: str | None = p.type
         self.app_id: str | None = p.app_id
 
