@@ -3,6 +3,8 @@ the broker discards the rest and the workers count them, by publisher, with the 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import pika
 import pika.exceptions
 import pytest
@@ -12,7 +14,7 @@ from fleetbus.publishers.errors import PublishRefused
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind
-from fleetbus.workers.store.discards import Discard
+from fleetbus.workers.store.discards import Discard, Discards
 from tests.support import Bus, wait_for
 
 #: The run of a hand-made client that publishes the raw sightings below.
@@ -95,3 +97,27 @@ def test_a_robot_cannot_publish_to_another_robots_beacon_exchange(bus: Bus) -> N
         publish_raw(
             explorer.amqp_url, "fleetbus.beacon", 1, {"type": "beacon", "codename": "x"}, robot="explorer1"
         )
+
+
+def test_a_discard_the_counter_fails_on_is_counted_when_it_comes_again(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A failure the counter does not expect (a bug, a store error that is not transient) is
+    logged and counted, and the message goes back to the queue to be tried again: left unacked,
+    it held a prefetch slot, and a prefetch's worth of them stopped the counting without a word."""
+    account = bus.add("guide1", kind=RobotKind.GUIDE)
+    failures: list[int] = []
+    record = Discards.record_discards
+
+    async def fails_once(log: Discards, discards: Sequence[Discard]) -> int:
+        if not failures:
+            failures.append(len(discards))
+            raise RuntimeError("the discard log failed")
+        return await record(log, discards)
+
+    monkeypatch.setattr(Discards, "record_discards", fails_once)
+    with bus.worker() as worker:
+        publish_raw(account.amqp_url, "guide1.beacon", 100, {"codename": "guide1"})
+        [discard] = wait_for(lambda: recorded_discards(bus, 1), what="the discard recorded at its second try")
+        assert discard.reason == "no 'type' header" and failures == [1]
+        assert worker.context is not None and worker.context.discards.failed == 1

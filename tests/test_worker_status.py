@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import pytest
+
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, EventType, RobotKind
-from fleetbus.workers.store.statuses import WorkerStatus
+from fleetbus.workers.store.statuses import Statuses, WorkerStatus
 from tests.factories import status
 from tests.support import Bus, wait_for
 from tests.test_cli import fleetbus
@@ -48,3 +50,28 @@ def test_a_worker_retrying_shows_what_it_waits_for_and_its_counts(stored_bus: Bu
         )
         assert recovered.name == waiting.name and recovered.counters["stored"] == 1
         assert bus.count(EventType.STATUS.value) == 1
+
+
+def test_a_status_write_that_fails_unexpectedly_does_not_end_the_reports(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The status is how an operator tells a worker is alive: a write failing for any reason is
+    logged and the next one goes (it used to end the reporting task, the worker still running)."""
+    failed: list[str] = []
+    put = Statuses.put_status
+
+    async def fails_once(board: Statuses, worker_status: WorkerStatus) -> None:
+        if not failed:
+            failed.append(worker_status.name)
+            raise RuntimeError("the status could not be written")
+        await put(board, worker_status)
+
+    monkeypatch.setattr(Statuses, "put_status", fails_once)
+    robot = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    with bus.worker():
+        robot.publish(EventType.STATUS, status(80.0))
+        wait_for(
+            lambda: [s for s in _statuses(bus) if s.counters.get("stored") == 1],
+            what="a status written after the failed one",
+        )
+    assert len(failed) == 1

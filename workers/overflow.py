@@ -47,6 +47,10 @@ def dropped_from(headers: dict[str, Any] | None) -> str:
     return f"{_text(latest.get('queue', '?'))} {_text(latest.get('reason', '?'))}"
 
 
+#: After a failure, the pause before the messages given back are taken again.
+AGAIN_AFTER_S = 1.0
+
+
 class OverflowCounter:
     def __init__(self, channel: AbstractChannel, queue: AbstractQueue, store: Housekeeping) -> None:
         self._channel = channel
@@ -85,9 +89,16 @@ class OverflowCounter:
                     retrying,
                     lambda added=added: self._store.count_bounded(added, datetime.now(timezone.utc)),
                 )
+                await batch[-1].ack(multiple=True)
             except Stopped:
                 return  # unacked: the broker gives them to the next worker
-            await batch[-1].ack(multiple=True)
+            except Exception:  # never stop counting: these are counted when they come again
+                log.exception("counting %d dropped messages failed; they are counted again later", len(batch))
+                with contextlib.suppress(Exception):  # a closed channel gives them back itself
+                    await batch[-1].nack(multiple=True, requeue=True)
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(self._stopping.wait(), AGAIN_AFTER_S)
+                continue
             self.counted += len(batch)
             for subject, n in sorted(counts.items()):
                 log.warning("a full queue dropped its %d oldest: %s", n, subject)

@@ -249,7 +249,11 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
         lanes: list[Lane] = [await consume(ingest_shard_queue(shard))]
         if shard == 0:
             express = ExpressLane(repositories, connect, consume_express)
-            await express.start()
+            try:
+                await express.start()
+            except BaseException:  # the shard's lane, started first, must not go on consuming alone
+                await ShardConsumer(shard, lanes).stop()
+                raise
             lanes.append(express)
         return ShardConsumer(shard, lanes)
 

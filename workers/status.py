@@ -47,6 +47,8 @@ async def report_status(
             await board.put_status(status_of(name, stats, extra()))
         except StoreUnavailable as error:  # the retries say so where they happen
             log.debug("status not written: %s", error)
+        except Exception:  # a status that stops changing says the worker is gone: never stop
+            log.exception("status not written; trying again in %.0f s", interval)
         if stop.is_set():
             return
         with contextlib.suppress(asyncio.TimeoutError):

@@ -111,6 +111,10 @@ class Feed:
                 self.store_errors += 1
                 log.warning("console feed: the store did not answer (%s); trying again", error)
                 fresh = []
+            except Exception:  # never end: every live page waits on this feed
+                self.store_errors += 1
+                log.exception("console feed: reading the store failed; trying again")
+                fresh = []
             for watcher in self._watchers if fresh else ():
                 watcher(fresh)
             if fresh or loop.time() >= next_tick:

@@ -78,6 +78,29 @@ async def test_an_event_committed_after_a_later_one_is_handed_out_once(store: Re
     assert sorted(later) == [("explorer1", EPOCH, seq) for seq in (0, 2, 3)]
 
 
+async def test_a_read_that_fails_unexpectedly_is_counted_and_the_feed_goes_on(
+    store: Repositories,  # noqa: F811
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every live page waits on the feed: a read failing for any reason (not only a store that
+    does not answer) is counted and logged, and the next poll reads again. It used to end the
+    feed, every open page then waiting for ever."""
+    feed = Feed(StoredEvents(store.events), poll_s=0.01, tick_s=0.05, overlap=timedelta(seconds=5))
+    read, failed = feed._read, []
+
+    async def fails_once(back: timedelta) -> list[EventRecord]:
+        if not failed:
+            failed.append(back)
+            raise RuntimeError("a bug in reading")
+        return await read(back)
+
+    monkeypatch.setattr(feed, "_read", fails_once)
+    async with running(feed), feed.subscribe() as subscription:
+        await store.events.write_events([received(1, datetime.now(timezone.utc))])
+        assert await handed_out_until(subscription, ("explorer1", EPOCH, 1)) == [("explorer1", EPOCH, 1)]
+    assert failed and feed.store_errors == 1
+
+
 async def test_an_event_committed_a_moment_late_is_found_at_the_next_poll(store: Repositories) -> None:  # noqa: F811
     # no look at the whole overlap during the test (the tick is far): the poll's own look back finds it
     feed = Feed(
