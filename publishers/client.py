@@ -24,6 +24,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from types import TracebackType
@@ -135,6 +136,26 @@ def outgoing(robot_id: str, entry: Entry) -> Outgoing:
     )
 
 
+@dataclass(frozen=True)
+class Known:
+    """What a client knows of a notification's subject: a hazard's state and claimant, as of when
+    the service made them."""
+
+    state: str | None
+    claimed_by: str | None
+    at: datetime
+
+    def says(self, other: Known) -> bool:
+        return (self.state, self.claimed_by) == (other.state, other.claimed_by)
+
+
+def last_step_at(hazard: dict[str, Any]) -> datetime:
+    """When a hazard (as the services give it) last changed: its latest time stamp."""
+    stamps = ("received_at", "announced_at", "claimed_at", "reached_at", "cleared_at")
+    times = [hazard[name] for name in stamps if hazard.get(name)]
+    return max(value if isinstance(value, datetime) else datetime.fromisoformat(value) for value in times)
+
+
 class RobotClient:
     """A robot's connection to fleetbus; one per robot process (its personal database is locked).
 
@@ -204,9 +225,10 @@ class RobotClient:
         self._closed = False
         self._connection: pika.BlockingConnection | None = None
         self._rpc: RpcChannel | None = None
-        self._handed_out: OrderedDict[str, tuple[str | None, str | None]] = OrderedDict()
+        self._handed_out: OrderedDict[str, Known] = OrderedDict()
         """What this client last knew of each notification's subject (a hazard, by its event):
-        its state and who claimed it, from a notification it handed out or a step it took."""
+        its state, who claimed it and as of when, from a notification it handed out, a resync or
+        a step it took."""
         self._resynced_on: pika.BlockingConnection | None = None
         """The connection on which this client last rebuilt its list of open hazards."""
 
@@ -373,9 +395,8 @@ class RobotClient:
         """A step of this warden's; the hazard's new state is what it knows of it from now on, so
         that the news of a step taken for it later (released by an operator) is handed out."""
         hazard: dict[str, Any] = self.call(method, timeout, hazard_id=hazard_id)
-        self._know(
-            f"{Topic.HAZARD.value}:{hazard['event']['message_id']}", hazard["state"], hazard.get("claimed_by")
-        )
+        key = f"{Topic.HAZARD.value}:{hazard['event']['message_id']}"
+        self._know(key, Known(hazard["state"], hazard.get("claimed_by"), last_step_at(hazard)))
         return hazard
 
     def wardens(self, timeout: float = 5.0) -> list[dict[str, Any]]:
@@ -470,22 +491,31 @@ class RobotClient:
             if hazard["state"] == "held":  # not announced yet: it comes through the inbox
                 continue
             note = missed_hazard(hazard, now, self._late_after_s)
-            if not self._seen_before(note):
+            if not self._seen_before(note, resync_as_of=last_step_at(hazard)):
                 yield note
         self._resynced_on = connection  # only once all were handed out: a caller may stop early
 
-    def _seen_before(self, note: Notification) -> bool:
+    def _seen_before(self, note: Notification, resync_as_of: datetime | None = None) -> bool:
         """Whether ``note`` says nothing new: this client last knew its subject as it says (an
-        announcement's copies, a resync, its own step). A hazard in another state is news, an
-        earlier one too: ``announced`` again after an operator released the warden's claim."""
+        announcement's copies, its own step, a resync), or, for a note from the inbox, knew it as
+        of a later time (a note that waited there while a resync told the hazard's state since).
+        A hazard in another state is news, an earlier one too: ``announced`` again after an
+        operator released the warden's claim. ``resync_as_of``: a resync's note, with the time of
+        the hazard's latest step (it is news whenever its state is)."""
         key = f"{note.topic.value}:{note.event.message_id}"
-        if self._handed_out.get(key) == (note.hazard_state, note.claimed_by):
+        known = self._handed_out.get(key)
+        told = Known(note.hazard_state, note.claimed_by, resync_as_of or note.notified_at)
+        if known is not None and (known.says(told) or (resync_as_of is None and told.at <= known.at)):
             return True
-        self._know(key, note.hazard_state, note.claimed_by)
+        self._know(key, told)
         return False
 
-    def _know(self, key: str, state: str | None, claimed_by: str | None) -> None:
-        self._handed_out[key] = (state, claimed_by)
+    def _know(self, key: str, known: Known) -> None:
+        """``known`` is what the client knows of ``key`` from now on; its time never goes back."""
+        before = self._handed_out.get(key)
+        if before is not None and before.at > known.at:
+            known = Known(known.state, known.claimed_by, before.at)
+        self._handed_out[key] = known
         self._handed_out.move_to_end(key)
         if len(self._handed_out) > SEEN_NOTIFICATIONS:
             self._handed_out.popitem(last=False)
