@@ -40,12 +40,14 @@ class RpcChannel:
         self._robot_id = robot_id
         self._channel: BlockingChannel = connection.channel()
         self._replies: dict[str, bytes] = {}
+        self._waiting: set[str] = set()
+        """The calls waiting for their reply: a late one (after its call's timeout) is dropped."""
         self._channel.basic_consume(REPLY_TO, self._on_reply, auto_ack=True)
 
     def _on_reply(
         self, _channel: object, _method: object, properties: pika.BasicProperties, body: bytes
     ) -> None:
-        if properties.correlation_id:
+        if properties.correlation_id in self._waiting:
             self._replies[properties.correlation_id] = body
 
     def call(self, method: str, params: dict[str, Any], timeout: float) -> Any:
@@ -57,6 +59,7 @@ class RpcChannel:
             user_id=self._robot_id,
             expiration=str(max(1, int(timeout * 1000))),
         )
+        self._waiting.add(correlation_id)
         try:
             self._channel.basic_publish(
                 requests_exchange(self._robot_id),
@@ -75,6 +78,8 @@ class RpcChannel:
                 self._connection.process_data_events(time_limit=min(0.05, remaining))
         except pika.exceptions.AMQPError as error:
             raise BrokerUnavailable(f"connection lost during {method!r}: {error!r}") from error
+        finally:
+            self._waiting.discard(correlation_id)
         reply = json.loads(self._replies.pop(correlation_id))
         if not reply.get("ok") and reply.get("internal"):
             raise ServiceFailed(f"{method}: {reply.get('error', 'failed')}")

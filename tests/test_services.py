@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import threading
@@ -13,7 +14,7 @@ import pika
 import pytest
 
 import fleetbus.workers.runner
-from fleetbus.publishers.rpc import ServiceFailed, ServiceRefused, ServiceTimeout
+from fleetbus.publishers.rpc import RpcChannel, ServiceFailed, ServiceRefused, ServiceTimeout
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event
 from fleetbus.schemas.routing import RobotKind, request_routing_key, requests_exchange
@@ -21,7 +22,7 @@ from fleetbus.schemas.services import REPLY_TO
 from fleetbus.workers.store.hazards import Hazard, HazardState, SiteApplied
 from fleetbus.workers.store.repositories import Repositories
 from tests.factories import hazard
-from tests.support import Bus
+from tests.support import Bus, wait_for
 
 
 def team(bus: Bus) -> tuple:
@@ -213,3 +214,47 @@ def test_a_robot_is_answered_only_the_hazards_it_reported_or_that_are_open_to_it
         assert reported == ["announced", "claimed", "cleared"], "its reporter follows each hazard"
         with pytest.raises(ServiceRefused, match="no hazard 5 in mission 'default'"):
             warden1.hazard(5)
+
+
+def test_a_reply_that_comes_after_its_call_gave_up_is_not_kept(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A service that answers after the caller's timeout: the reply reaches the robot's channel
+    with no call waiting for it, and is dropped (it was kept until the connection was replaced)."""
+    real = fleetbus.workers.runner.hazard_services
+    slowed: list[str] = []
+
+    def slow_once(hazards: Any, channels: Any) -> dict[str, Any]:
+        services = real(hazards, channels)
+
+        async def wardens(caller: str, params: dict[str, Any]) -> Any:
+            if not slowed:
+                slowed.append(caller)
+                await asyncio.sleep(1.5)
+            return await services["wardens"](caller, params)
+
+        return {**services, "wardens": wardens}
+
+    arrived: list[str] = []
+    on_reply = RpcChannel._on_reply
+
+    def seen(rpc: RpcChannel, channel: Any, method: Any, properties: Any, body: bytes) -> None:
+        arrived.append(properties.correlation_id)
+        on_reply(rpc, channel, method, properties, body)
+
+    monkeypatch.setattr(fleetbus.workers.runner, "hazard_services", slow_once)
+    monkeypatch.setattr(RpcChannel, "_on_reply", seen)  # before the robot's first call makes its channel
+    explorer, _ = team(bus)
+    with bus.worker():
+        with pytest.raises(ServiceTimeout):
+            explorer.wardens(timeout=0.5)
+        rpc = explorer._rpc
+        assert rpc is not None
+
+        def late_reply_read() -> bool:
+            rpc._connection.process_data_events(time_limit=0.05)
+            return bool(arrived)
+
+        wait_for(late_reply_read, what="the late reply reaching the robot")
+        assert rpc._replies == {}, "the late reply kept"
+        assert explorer.wardens(timeout=10) is not None, "and the next call is answered"

@@ -296,6 +296,7 @@ class IngestConsumer:
             if refused is None:
                 await self._process([message])
             else:
+                self._taken.pop(id(message), None)  # never processed: its arrival time is not needed
                 await self._reject(message, refused)
             await self._retrying(lambda message=message: limit.handled([message]))
 
