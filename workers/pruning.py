@@ -1,6 +1,7 @@
-"""The worker's background pruning: the event log, the hazard registry's cleared hazards, the
-duplicates register, the beacon discards, map versions and staged map chunks, and the acknowledged
-alerts whose condition ended, each held to its bound (:mod:`fleetbus.bounds`).
+"""The worker's background pruning: the event log, the hazard registry's cleared hazards, central's
+log of what sites forwarded, the duplicates register, the beacon discards, map versions and staged
+map chunks, and the acknowledged alerts whose condition ended, each held to its bound
+(:mod:`fleetbus.bounds`).
 
 A round runs every ``FLEETBUS_PRUNE_EVERY_S`` seconds, in one worker at a time (a lease in the
 store), as a task beside the consumers. It deletes in small batches, each its own short write,
@@ -118,6 +119,9 @@ class Pruner:
                 bounds.cleared_hazards,
                 now,
                 lambda *a: housekeeping.prune_cleared_hazards(*a, unsent_too=self._not_a_site()),
+            )
+            counts[("forwards", "sites")] = await self._apply(
+                bounds.forwards, now, housekeeping.prune_forwards
             )
             counts[("duplicates", "seen")] = await self._apply(
                 bounds.duplicates, now, housekeeping.prune_duplicates

@@ -30,6 +30,8 @@ class Bounds:
     duplicates: Retention
     discards: Retention
     cleared_hazards: Retention
+    forwards: Retention
+    """Central's log of what sites forwarded, by when central received each, or its number."""
     """Cleared hazards in the registry, by the time they were cleared, or their number."""
     map_versions: int
     """Versions kept per robot, the newest, besides those being fetched."""
@@ -93,6 +95,7 @@ def bounds(settings: Settings) -> Bounds:
         duplicates=register_retention(settings.duplicates_keep, "FLEETBUS_DUPLICATES_KEEP"),
         discards=register_retention(settings.discards_keep, "FLEETBUS_DISCARDS_KEEP"),
         cleared_hazards=register_retention(settings.hazards_keep, "FLEETBUS_HAZARDS_KEEP"),
+        forwards=register_retention(settings.forwards_keep, "FLEETBUS_FORWARDS_KEEP"),
         map_versions=settings.map_versions_keep,
         map_staging_ttl=parse_ttl(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),

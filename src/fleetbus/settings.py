@@ -280,6 +280,12 @@ class Settings(BaseSettings):
         "30d", "how long (or how many, `100000`) of the duplicates register the workers keep"
     )
     discards_keep: str = setting("30d", "how long (or how many) of the beacon discard log the workers keep")
+    forwards_keep: str = setting(
+        "30d",
+        "at central: its log of the events sites forwarded (one row each), by when central received "
+        "them (`30d`) or their number; each site's sums (`fleetbus sites`, the dashboard) are kept apart "
+        "and stay; counted as the bound `forwards` in `fleetbus stats`",
+    )
     hazards_keep: str = setting(
         "90d",
         "cleared hazards kept in the registry, by the time they were cleared (`90d`) or their number "

@@ -84,6 +84,22 @@ async def test_each_forward_is_kept_once_and_summed_by_site(store: Repositories)
         await other.close()
 
 
+async def test_the_sums_go_on_from_each_batch_and_outlive_the_pruned_log(store: Repositories) -> None:
+    await store.sites.set_robots("base1", ["explorer1"])
+    first = [forward("explorer1", seq, "base1", late=seq == 0) for seq in range(3)]
+    await store.sites.record_forwards(first)  # the site's first sums: read from the log once
+    later = [forward("explorer1", seq, "base1", late=True) for seq in range(3, 5)]
+    await store.sites.record_forwards([*later, first[1]])  # one of them again: counted once
+    expected = SiteSummary("base1", ("explorer1",), 5, 3, later[-1].sent_at, later[-1].received_at)
+    assert await store.sites.summaries() == [expected]
+    # the log is pruned by when central received each forward; the sums stay
+    assert await store.housekeeping.prune_forwards(later[0].received_at, None, 10) == 3
+    assert [f.seq for f in await store.sites.forwards("explorer1")] == [3, 4]
+    assert await store.housekeeping.prune_forwards(None, 1, 10) == 1
+    assert [f.seq for f in await store.sites.forwards("explorer1")] == [4]
+    assert await store.sites.summaries() == [expected]
+
+
 async def test_each_site_keeps_its_newest_report(store: Repositories) -> None:
     from fleetbus.schemas.site_reports import SiteReport
 

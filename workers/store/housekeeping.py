@@ -32,13 +32,14 @@ from fleetbus.workers.store.port import (
     Schema,
     prune_oldest,
 )
+from fleetbus.workers.store.sites import FORWARDS
 
 
 @dataclass(frozen=True)
 class BoundCount:
     bound: str
-    """What was bounded: ``events``, ``hazards``, ``duplicates``, ``discards``, ``map-versions``,
-    ``map-staging``, ``alerts``, ``overflow``."""
+    """What was bounded: ``events``, ``hazards``, ``forwards``, ``duplicates``, ``discards``,
+    ``map-versions``, ``map-staging``, ``alerts``, ``overflow``."""
     subject: str
     """Within it: the event type, the robot, the queue and why (``warden1.inbox maxlen``)."""
     count: int
@@ -66,6 +67,11 @@ class Housekeeping(abc.ABC):
         """Cleared hazards of the registry, by the time they were cleared; never one that is not
         cleared. A site's hazard whose cleared state central has not confirmed stays, unless
         ``unsent_too`` (this store is not a site's). No id a pruned hazard had is given again."""
+
+    @abc.abstractmethod
+    async def prune_forwards(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        """Central's log of the events sites forwarded, by when central received each; the sites'
+        sums (:meth:`~fleetbus.workers.store.sites.SiteRegistry.summaries`) stay as they are."""
 
     @abc.abstractmethod
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int: ...
@@ -99,6 +105,7 @@ class StoreHousekeeping(Housekeeping):
         self._hazards = database.collection(HAZARDS)
         self._counters = database.collection(COUNTERS)
         self._duplicates = database.collection(DUPLICATES)
+        self._forwards = database.collection(FORWARDS)
         self._discards = database.collection(DISCARDS)
         self._counts = database.collection(BOUND_COUNTS)
 
@@ -153,6 +160,11 @@ class StoreHousekeeping(Housekeeping):
             return len(doomed)
 
         return await self._database.transaction(prune)
+
+    async def prune_forwards(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        return await self._database.transaction(
+            lambda: prune_oldest(self._forwards, "received_at", before, keep, limit, order="received_at")
+        )
 
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int:
         return await self._database.transaction(

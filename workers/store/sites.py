@@ -32,7 +32,6 @@ from fleetbus.workers.store.port import (
     TEXT,
     TIME,
     Database,
-    Group,
     In,
     Index,
     Ne,
@@ -180,8 +179,21 @@ FORWARDS = Schema(
         "late": BOOL,
     },
     key=("robot_id", "epoch", "seq"),
-    indexes=(Index("site", "sent_at"),),
+    indexes=(Index("site", "sent_at"), Index("received_at")),
 )
+FORWARD_COUNTS = Schema(
+    "site_forward_counts",
+    {
+        "site": TEXT,
+        "forwarded": INTEGER,
+        "late": INTEGER,
+        "newest_sent_at": TIME,
+        "last_received_at": TIME,
+    },
+    key=("site",),
+)
+"""Each site's forwards summed as they are recorded: what the dashboard and `fleetbus sites` show
+read one row a site, however long the log of forwards (pruned by age) has grown."""
 REPORTS = Schema("site_reports", {"site": TEXT, "at": TIME, "report": JSON}, key=("site",))
 CENTRALS_WORD = Schema("site_robot_revisions", {"robot": TEXT, "revision": INTEGER}, key=("robot",))
 """On a site: the revision of the newest downlink message about each robot it applied."""
@@ -200,6 +212,7 @@ class Sites(SiteRegistry):
         self._sites = database.collection(SITES)
         self._robots = database.collection(SITE_ROBOTS)
         self._forwards = database.collection(FORWARDS)
+        self._counts = database.collection(FORWARD_COUNTS)
         self._reports = database.collection(REPORTS)
         self._revisions = database.collection(CENTRALS_WORD)
 
@@ -286,7 +299,45 @@ class Sites(SiteRegistry):
         return {doc["robot_id"]: doc["site"] for doc in found}
 
     async def record_forwards(self, forwards: Sequence[Forward]) -> None:
-        await self._forwards.insert([forward.__dict__ for forward in forwards])
+        async def record() -> None:
+            inserted = await self._forwards.insert([forward.__dict__ for forward in forwards])
+            new = [forward for forward, fresh in zip(forwards, inserted, strict=True) if fresh]
+            by_site: dict[str, list[Forward]] = {}
+            for forward in new:  # a redelivered one is counted once, as it is kept once
+                if forward.site is not None:
+                    by_site.setdefault(forward.site, []).append(forward)
+            for site, added in by_site.items():
+                await self._count(site, added)
+
+        await self._database.transaction(record)
+
+    async def _count(self, site: str, added: Sequence[Forward]) -> None:
+        newest_sent = max(forward.sent_at for forward in added)
+        last_received = max(forward.received_at for forward in added)
+        if await self._counts.get(site) is None:
+            # the site's first count: from the log as it is (this batch in it), once
+            where = {"site": site}
+            every = await self._forwards.group("site", where, highest=["sent_at", "received_at"])
+            late = await self._forwards.group("site", {**where, "late": True})
+            group = every[site]
+            row = {
+                "site": site,
+                "forwarded": group.count,
+                "late": late[site].count if site in late else 0,
+                "newest_sent_at": group.highest["sent_at"],
+                "last_received_at": group.highest["received_at"],
+            }
+            await self._counts.insert([row])
+            return
+        late = sum(1 for forward in added if forward.late)
+        await self._counts.update({"site": site}, {}, add={"forwarded": len(added), "late": late})
+        await self._counts.update(
+            {"site": site, "newest_sent_at": Range(lt=newest_sent)}, {"newest_sent_at": newest_sent}
+        )
+        await self._counts.update(
+            {"site": site, "last_received_at": Range(lt=last_received)}, {"last_received_at": last_received}
+        )
+
 
     async def forwards(self, robot_id: str | None = None) -> list[Forward]:
         where = {} if robot_id is None else {"robot_id": robot_id}
@@ -295,20 +346,26 @@ class Sites(SiteRegistry):
         ]
 
     async def summaries(self) -> list[SiteSummary]:
-        async def read() -> tuple[dict[str, tuple[str, ...]], dict[Any, Group], dict[Any, Group]]:
-            forwarded = {"site": Ne(None)}
-            counts = await self._forwards.group("site", forwarded, highest=["sent_at", "received_at"])
-            late = await self._forwards.group("site", {**forwarded, "late": True})
-            return await self.sites(), counts, late
+        async def read() -> tuple[dict[str, tuple[str, ...]], list[dict[str, Any]]]:
+            return await self.sites(), await self._counts.find()
 
-        known, counts, late = await self._database.snapshot(read)
+        known, rows = await self._database.snapshot(read)
+        counts = {row["site"]: row for row in rows}
         summaries = []
         for site, robots in known.items():
-            group = counts.get(site, Group(0, {"sent_at": None, "received_at": None}))
-            late_ones = late[site].count if site in late else 0
-            newest = group.highest
+            row = counts.get(site)
+            if row is None:
+                summaries.append(SiteSummary(site, robots, 0, 0, None, None))
+                continue
             summaries.append(
-                SiteSummary(site, robots, group.count, late_ones, newest["sent_at"], newest["received_at"])
+                SiteSummary(
+                    site,
+                    robots,
+                    row["forwarded"],
+                    row["late"],
+                    row["newest_sent_at"],
+                    row["last_received_at"],
+                )
             )
         return summaries
 
