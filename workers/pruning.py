@@ -11,7 +11,8 @@ stats``) and logged.
 
 The event log keeps the event of every hazard not yet cleared, whatever its age. The sequence
 ledger needs no event: it keeps each robot's high-water mark and open gaps itself, and a gap
-closes on the numbers that arrive, not on its neighbours.
+closes on the numbers that arrive, not on its neighbours; a numbering not observed within its
+bound is forgotten whole.
 """
 
 from __future__ import annotations
@@ -119,6 +120,9 @@ class Pruner:
                 bounds.cleared_hazards,
                 now,
                 lambda *a: housekeeping.prune_cleared_hazards(*a, unsent_too=self._not_a_site()),
+            )
+            counts[("ledger", "numberings")] = await self._apply(
+                bounds.numberings, now, housekeeping.prune_numberings
             )
             counts[("forwards", "sites")] = await self._apply(
                 bounds.forwards, now, housekeeping.prune_forwards

@@ -30,9 +30,11 @@ class Bounds:
     duplicates: Retention
     discards: Retention
     cleared_hazards: Retention
+    """Cleared hazards in the registry, by the time they were cleared, or their number."""
     forwards: Retention
     """Central's log of what sites forwarded, by when central received each, or its number."""
-    """Cleared hazards in the registry, by the time they were cleared, or their number."""
+    numberings: Retention
+    """The sequence ledger's numberings, by when each was last observed, or their number."""
     map_versions: int
     """Versions kept per robot, the newest, besides those being fetched."""
     map_staging_ttl: timedelta
@@ -96,6 +98,7 @@ def bounds(settings: Settings) -> Bounds:
         discards=register_retention(settings.discards_keep, "FLEETBUS_DISCARDS_KEEP"),
         cleared_hazards=register_retention(settings.hazards_keep, "FLEETBUS_HAZARDS_KEEP"),
         forwards=register_retention(settings.forwards_keep, "FLEETBUS_FORWARDS_KEEP"),
+        numberings=register_retention(settings.ledger_keep, "FLEETBUS_LEDGER_KEEP"),
         map_versions=settings.map_versions_keep,
         map_staging_ttl=parse_ttl(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),

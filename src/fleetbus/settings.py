@@ -280,6 +280,12 @@ class Settings(BaseSettings):
         "30d", "how long (or how many, `100000`) of the duplicates register the workers keep"
     )
     discards_keep: str = setting("30d", "how long (or how many) of the beacon discard log the workers keep")
+    ledger_keep: str = setting(
+        "30d",
+        "the sequence ledger's numberings (a robot's run: its high-water mark and open gaps) not observed "
+        "for this long (`30d`), or beyond this number; keep it at least as long as the event log's "
+        "retention, for an event sent again is told a duplicate by them; counted as the bound `ledger`",
+    )
     forwards_keep: str = setting(
         "30d",
         "at central: its log of the events sites forwarded (one row each), by when central received "

@@ -11,7 +11,7 @@ import pytest
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.store.discards import Discard
 from fleetbus.workers.store.hazards import Hazard, NewHazard
-from fleetbus.workers.store.ledger import Duplicate
+from fleetbus.workers.store.ledger import Duplicate, RobotEpoch
 from fleetbus.workers.store.maps import MapVersion, versions_to_prune
 from fleetbus.workers.store.repositories import Repositories
 from tests.store.test_contract import EPOCH, record
@@ -103,6 +103,20 @@ async def test_cleared_hazards_are_pruned_by_when_they_were_cleared_and_no_id_is
     await store.hazards.hold_hazards([NewHazard.of(events[4])])
     [fifth] = await store.hazards.held_hazards()
     assert fifth.hazard_id == 5
+
+
+async def test_numberings_not_observed_for_their_bound_leave_the_ledger(store: Repositories) -> None:
+    old, busy, gappy = (RobotEpoch("r1", e) for e in ("e-old", "e-busy", "e-gappy"))
+    await store.events.observe_sequences({old: [0, 1]}, T0)
+    await store.events.observe_sequences({gappy: [0, 3]}, T0 + timedelta(days=1))  # 1 and 2 missing
+    await store.events.observe_sequences({busy: [0]}, T0)
+    await store.events.observe_sequences({busy: [1]}, T0 + timedelta(days=2))  # observed again since
+    assert [(g.epoch, g.first, g.last) for g in await store.events.gaps()] == [("e-gappy", 1, 2)]
+    assert await store.housekeeping.prune_numberings(T0 + timedelta(hours=12), None, 10) == 1
+    assert await store.events.high_water("r1", "e-old") is None, "forgotten: its numbers are new again"
+    assert await store.events.high_water("r1", "e-busy") == 1
+    assert await store.housekeeping.prune_numberings(None, 1, 10) == 1, "beyond the one observed last"
+    assert await store.events.high_water("r1", "e-busy") == 1 and await store.events.gaps() == []
 
 
 async def test_duplicates_and_discards_are_pruned_by_age_and_by_count(store: Repositories) -> None:

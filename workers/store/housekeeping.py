@@ -13,13 +13,13 @@ from __future__ import annotations
 import abc
 from collections.abc import Mapping
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timezone
 from typing import Any
 
 from fleetbus.workers.store.discards import DISCARDS
 from fleetbus.workers.store.event_log import EVENTS
 from fleetbus.workers.store.hazards import HAZARDS, OPEN, HazardState, pruned_ids_counter
-from fleetbus.workers.store.ledger import DUPLICATES
+from fleetbus.workers.store.ledger import DUPLICATES, SEQUENCES
 from fleetbus.workers.store.port import (
     COUNTERS,
     INTEGER,
@@ -74,6 +74,12 @@ class Housekeeping(abc.ABC):
         sums (:meth:`~fleetbus.workers.store.sites.SiteRegistry.summaries`) stay as they are."""
 
     @abc.abstractmethod
+    async def prune_numberings(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        """The sequence ledger's numberings (a robot's epoch: its high-water mark and open gaps) not
+        observed since ``before``, or beyond the ``keep`` observed last. One kept from before the
+        ledger noted when each was observed is taken as observed now, the first time."""
+
+    @abc.abstractmethod
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int: ...
 
     @abc.abstractmethod
@@ -105,6 +111,7 @@ class StoreHousekeeping(Housekeeping):
         self._hazards = database.collection(HAZARDS)
         self._counters = database.collection(COUNTERS)
         self._duplicates = database.collection(DUPLICATES)
+        self._sequences = database.collection(SEQUENCES)
         self._forwards = database.collection(FORWARDS)
         self._discards = database.collection(DISCARDS)
         self._counts = database.collection(BOUND_COUNTS)
@@ -165,6 +172,13 @@ class StoreHousekeeping(Housekeeping):
         return await self._database.transaction(
             lambda: prune_oldest(self._forwards, "received_at", before, keep, limit, order="received_at")
         )
+
+    async def prune_numberings(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        async def prune() -> int:
+            await self._sequences.update({"seen_at": None}, {"seen_at": datetime.now(timezone.utc)})
+            return await prune_oldest(self._sequences, "seen_at", before, keep, limit, order="seen_at")
+
+        return await self._database.transaction(prune)
 
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int:
         return await self._database.transaction(

@@ -21,7 +21,19 @@ from datetime import datetime
 from typing import NamedTuple
 
 from fleetbus.workers.store.base import from_micros, to_micros
-from fleetbus.workers.store.port import BOOL, INTEGER, JSON, SERIAL, TEXT, TIME, Database, Doc, Index, Schema
+from fleetbus.workers.store.port import (
+    BOOL,
+    INTEGER,
+    JSON,
+    SERIAL,
+    TEXT,
+    TIME,
+    Database,
+    Doc,
+    Index,
+    Range,
+    Schema,
+)
 
 
 class RobotEpoch(NamedTuple):
@@ -123,14 +135,25 @@ class SequenceLedger(abc.ABC):
 
 SEQUENCES = Schema(
     "robot_sequences",
-    {"robot_id": TEXT, "epoch": TEXT, "high_water": INTEGER, "gaps": JSON, "version": INTEGER},
+    {
+        "robot_id": TEXT,
+        "epoch": TEXT,
+        "high_water": INTEGER,
+        "gaps": JSON,
+        "version": INTEGER,
+        "seen_at": TIME.maybe,
+        "open": INTEGER.maybe,
+    },
     key=("robot_id", "epoch"),
-    indexes=(Index("robot_id"),),
+    indexes=(Index("robot_id"), Index("open"), Index("seen_at")),
 )
 """One document per numbering: its high-water mark and its open gaps (``[first, last, detected
 at]``), written back only if its version is still the one read, so two workers observing one
 numbering at once lose nothing, and a worker that dies mid-way leaves it as it was. (A robot
-with hundreds of thousands of open gaps would reach MongoDB's 16 MB document limit.)"""
+with hundreds of thousands of open gaps would reach MongoDB's 16 MB document limit.) ``seen_at``:
+when its numbers were last observed (the pruning of numberings no longer in use goes by it);
+``open``: how many gaps it has (the gaps are read from those that have some). Both are None in a
+document written before they were kept, until it is observed again."""
 DUPLICATES = Schema(
     "duplicates",
     {
@@ -194,12 +217,12 @@ class Ledger(SequenceLedger):
         ]
         change = apply_seqs(numbering, high_water, touched, seqs, at)
         kept = [g for g in gaps if g not in touched]
+        now_open = sorted([*kept, *change.gaps], key=lambda g: g.first)
         after = {
             "high_water": change.high_water,
-            "gaps": [
-                [g.first, g.last, to_micros(g.detected_at)]
-                for g in sorted([*kept, *change.gaps], key=lambda g: g.first)
-            ],
+            "gaps": [[g.first, g.last, to_micros(g.detected_at)] for g in now_open],
+            "seen_at": at,
+            "open": len(now_open),
         }
         if doc is None:
             return (await self._sequences.insert([{**numbering._asdict(), **after, "version": 0}]))[0]
@@ -210,7 +233,12 @@ class Ledger(SequenceLedger):
         await self._duplicates.insert([duplicate.__dict__ for duplicate in duplicates])
 
     async def gaps(self, robot_id: str | None = None) -> list[Gap]:
-        found = await self._sequences.find({"robot_id": robot_id} if robot_id else {})
+        robot = {"robot_id": robot_id} if robot_id else {}
+        # the numberings with gaps, and those not observed since their count was kept
+        found = [
+            *await self._sequences.find({**robot, "open": Range(gt=0)}),
+            *await self._sequences.find({**robot, "open": None}),
+        ]
         return sorted(
             (gap for doc in found for gap in _gaps(doc)), key=lambda g: (g.robot_id, g.epoch, g.first)
         )
