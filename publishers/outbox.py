@@ -61,6 +61,10 @@ SEGMENT_EVENTS = 256
 #: larger ones are bulk and go the ordinary way, from the outbox.
 EXPRESS_MAX = 16
 KEEP_LIMIT = 100_000
+#: Refused events whose reasons the refused list keeps, the newest: it is for reading why (the
+#: counts by type are kept whole), and a broker refusing everything a robot sends would otherwise
+#: grow it, and the file rewritten whole at each refusal, for ever.
+REFUSED_KEPT = 1_000
 #: What the sender takes first from what waits: the express lane's types.
 FIRST = frozenset(t.value for t in EXPRESS_TYPES)
 DEFAULT_POLICIES: Mapping[str, TypePolicy] = {
@@ -504,7 +508,7 @@ class Outbox:
                         }
                     )
             if refused_docs:
-                self._refused.table("refused").insert_multiple(refused_docs)
+                self._keep_refused(refused_docs)
             for segment in list(self._segments):
                 leaving = by_segment.get(segment.number)
                 if not leaving:
@@ -602,6 +606,20 @@ class Outbox:
                 for doc in self._refused.table("refused").all()
             ]
 
+    def _keep_refused(self, docs: list[dict[str, Any]]) -> None:
+        """Under the lock: count them, and keep their reasons in the list, its newest only."""
+        table = self._refused.table("refused")
+        if self._counter("refused") == Counter() and len(table):
+            # counted from the list, once: an outbox from before the counts were kept
+            for event_type, n in Counter(doc["type"] for doc in table.all()).items():
+                self._count("refused", event_type, n)
+        for event_type, n in Counter(doc["type"] for doc in docs).items():
+            self._count("refused", event_type, n)
+        table.insert_multiple(docs)
+        beyond = len(table) - REFUSED_KEPT
+        if beyond > 0:
+            table.remove(doc_ids=sorted(doc.doc_id for doc in table.all())[:beyond])
+
     def dropped(self) -> Counter[str]:
         """What the thinning dropped, by type, since the outbox was made (kept on disk)."""
         with self._lock:
@@ -621,7 +639,7 @@ class Outbox:
                     self._release(segment)
             waiting = self.counts()
             dropped = self.dropped()
-            refused = Counter(entry.type for entry in self.refused())
+            refused = self._counter("refused") or Counter(entry.type for entry in self.refused())
             types = sorted(set(waiting) | set(dropped) | set(refused))
             never = datetime.max.replace(tzinfo=timezone.utc)
             return {

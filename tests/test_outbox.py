@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from fleetbus.publishers import outbox as outbox_module
 from fleetbus.publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy, policies_with_limits
 from fleetbus.publishers.sequence import SequenceCounter
 from fleetbus.publishers.storage import AtomicJSONStorage
@@ -53,6 +54,24 @@ def test_settle_removes_confirmed_moves_refused_and_keeps_the_rest(tmp_path: Pat
     assert len(list(tmp_path.glob("seg-*.json"))) == 2, "the emptied segment file is gone"
     outbox.settle(outbox.take(100))
     assert outbox.pending() == 0 and not list(tmp_path.glob("seg-*.json"))
+
+
+def test_the_refused_list_keeps_the_newest_reasons_and_counts_them_all(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A broker that refuses everything a robot sends (a misconfigured exchange, say) must not
+    grow the list, rewritten whole at each refusal, for ever: it keeps the newest reasons, and the
+    counts by type stay whole."""
+    monkeypatch.setattr(outbox_module, "REFUSED_KEPT", 3)
+    outbox = Outbox(tmp_path, segment_events=4)
+    outbox.append(events("hazard", 0, 5) + events("status", 5, 2))
+    for window in (outbox.take(4), outbox.take(3)):
+        outbox.settle(window, {entry.message_id: f"refused {entry.seq}" for entry in window})
+    assert [entry.seq for entry in outbox.refused()] == [4, 5, 6], "the newest"
+    summary = outbox.summary()
+    assert (summary["hazard"].refused, summary["status"].refused) == (5, 2)
+    outbox.close()
+    assert Outbox(tmp_path).summary()["hazard"].refused == 5, "kept on disk"
 
 
 def test_windows_in_flight_are_taken_once_and_a_nacked_entry_is_taken_again(tmp_path: Path) -> None:
