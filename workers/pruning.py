@@ -124,6 +124,9 @@ class Pruner:
             counts[("ledger", "numberings")] = await self._apply(
                 bounds.numberings, now, housekeeping.prune_numberings
             )
+            counts[("rejections", "dead letters")] = await self._apply(
+                bounds.rejections, now, housekeeping.prune_rejections
+            )
             counts[("forwards", "sites")] = await self._apply(
                 bounds.forwards, now, housekeeping.prune_forwards
             )

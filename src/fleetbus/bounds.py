@@ -34,6 +34,8 @@ class Bounds:
     forwards: Retention
     """Central's log of what sites forwarded, by when central received each, or its number."""
     numberings: Retention
+    rejections: Retention
+    """Why each dead letter was refused, by when it was, or their number."""
     """The sequence ledger's numberings, by when each was last observed, or their number."""
     map_versions: int
     """Versions kept per robot, the newest, besides those being fetched."""
@@ -99,6 +101,7 @@ def bounds(settings: Settings) -> Bounds:
         cleared_hazards=register_retention(settings.hazards_keep, "FLEETBUS_HAZARDS_KEEP"),
         forwards=register_retention(settings.forwards_keep, "FLEETBUS_FORWARDS_KEEP"),
         numberings=register_retention(settings.ledger_keep, "FLEETBUS_LEDGER_KEEP"),
+        rejections=register_retention(settings.rejections_keep, "FLEETBUS_REJECTIONS_KEEP"),
         map_versions=settings.map_versions_keep,
         map_staging_ttl=parse_ttl(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),

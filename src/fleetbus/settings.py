@@ -280,6 +280,11 @@ class Settings(BaseSettings):
         "30d", "how long (or how many, `100000`) of the duplicates register the workers keep"
     )
     discards_keep: str = setting("30d", "how long (or how many) of the beacon discard log the workers keep")
+    rejections_keep: str = setting(
+        "30d",
+        "why each dead letter was refused (one row each, what `fleetbus dlq` shows beside it), by when it "
+        "was (`30d`) or their number; counted as the bound `rejections`",
+    )
     ledger_keep: str = setting(
         "30d",
         "the sequence ledger's numberings (a robot's run: its high-water mark and open gaps) not observed "

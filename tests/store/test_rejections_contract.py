@@ -27,3 +27,12 @@ async def test_a_rejection_recorded_again_keeps_the_first_and_survives_a_new_con
         await other.close()
     assert found == {"k1": first, "k2": Rejection("k2", "too-large", "70000 bytes", T0)}
     assert await store.rejections.rejections([]) == {}
+
+
+async def test_rejections_are_pruned_by_when_they_were_made_oldest_first(store: Repositories) -> None:
+    made = [Rejection(f"k{i}", "schema", "body: missing", T0 + timedelta(minutes=i)) for i in range(5)]
+    await store.rejections.record_rejections(made)
+    assert await store.housekeeping.prune_rejections(T0 + timedelta(minutes=2), None, 10) == 2
+    assert await store.housekeeping.prune_rejections(None, 2, 10) == 1, "beyond the newest two"
+    keys = [rejection.key for rejection in made]
+    assert sorted(await store.rejections.rejections(keys)) == ["k3", "k4"]

@@ -32,6 +32,7 @@ from fleetbus.workers.store.port import (
     Schema,
     prune_oldest,
 )
+from fleetbus.workers.store.rejections import REJECTIONS
 from fleetbus.workers.store.sites import FORWARDS
 
 
@@ -80,6 +81,10 @@ class Housekeeping(abc.ABC):
         ledger noted when each was observed is taken as observed now, the first time."""
 
     @abc.abstractmethod
+    async def prune_rejections(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        """Why each dead letter was refused, by when it was."""
+
+    @abc.abstractmethod
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int: ...
 
     @abc.abstractmethod
@@ -112,6 +117,7 @@ class StoreHousekeeping(Housekeeping):
         self._counters = database.collection(COUNTERS)
         self._duplicates = database.collection(DUPLICATES)
         self._sequences = database.collection(SEQUENCES)
+        self._rejections = database.collection(REJECTIONS)
         self._forwards = database.collection(FORWARDS)
         self._discards = database.collection(DISCARDS)
         self._counts = database.collection(BOUND_COUNTS)
@@ -179,6 +185,11 @@ class StoreHousekeeping(Housekeeping):
             return await prune_oldest(self._sequences, "seen_at", before, keep, limit, order="seen_at")
 
         return await self._database.transaction(prune)
+
+    async def prune_rejections(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        return await self._database.transaction(
+            lambda: prune_oldest(self._rejections, "rejected_at", before, keep, limit, order="rejected_at")
+        )
 
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int:
         return await self._database.transaction(

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
-from fleetbus.workers.store.port import TEXT, TIME, Database, In, Schema
+from fleetbus.workers.store.port import TEXT, TIME, Database, In, Index, Schema
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,10 @@ class RejectionLog(abc.ABC):
 
 
 REJECTIONS = Schema(
-    "rejections", {"key": TEXT, "reason": TEXT, "detail": TEXT, "rejected_at": TIME}, key=("key",)
+    "rejections",
+    {"key": TEXT, "reason": TEXT, "detail": TEXT, "rejected_at": TIME},
+    key=("key",),
+    indexes=(Index("rejected_at"),),
 )
 
 
