@@ -124,6 +124,9 @@ class Pruner:
             counts[("ledger", "numberings")] = await self._apply(
                 bounds.numberings, now, housekeeping.prune_numberings
             )
+            counts[("workers", "gone")] = await self._apply(
+                bounds.gone_workers, now, housekeeping.prune_gone_workers
+            )
             counts[("rejections", "dead letters")] = await self._apply(
                 bounds.rejections, now, housekeeping.prune_rejections
             )

@@ -35,6 +35,8 @@ class Bounds:
     """Central's log of what sites forwarded, by when central received each, or its number."""
     numberings: Retention
     rejections: Retention
+    gone_workers: Retention
+    """Statuses not updated (and leases expired) that long ago, or beyond their number."""
     """Why each dead letter was refused, by when it was, or their number."""
     """The sequence ledger's numberings, by when each was last observed, or their number."""
     map_versions: int
@@ -102,6 +104,7 @@ def bounds(settings: Settings) -> Bounds:
         forwards=register_retention(settings.forwards_keep, "FLEETBUS_FORWARDS_KEEP"),
         numberings=register_retention(settings.ledger_keep, "FLEETBUS_LEDGER_KEEP"),
         rejections=register_retention(settings.rejections_keep, "FLEETBUS_REJECTIONS_KEEP"),
+        gone_workers=register_retention(settings.gone_workers_keep, "FLEETBUS_GONE_WORKERS_KEEP"),
         map_versions=settings.map_versions_keep,
         map_staging_ttl=parse_ttl(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),

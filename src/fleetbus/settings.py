@@ -280,6 +280,12 @@ class Settings(BaseSettings):
         "30d", "how long (or how many, `100000`) of the duplicates register the workers keep"
     )
     discards_keep: str = setting("30d", "how long (or how many) of the beacon discard log the workers keep")
+    gone_workers_keep: str = setting(
+        "7d",
+        "a worker's status (`fleetbus stats`: the worker is gone) once it has not been updated for "
+        "this long (`7d`), or beyond this number, and its leases this long after they expired; "
+        "counted as the bound `workers`",
+    )
     rejections_keep: str = setting(
         "30d",
         "why each dead letter was refused (one row each, what `fleetbus dlq` shows beside it), by when it "

@@ -14,6 +14,7 @@ from fleetbus.workers.store.hazards import Hazard, NewHazard
 from fleetbus.workers.store.ledger import Duplicate, RobotEpoch
 from fleetbus.workers.store.maps import MapVersion, versions_to_prune
 from fleetbus.workers.store.repositories import Repositories
+from fleetbus.workers.store.statuses import WorkerStatus
 from tests.store.test_contract import EPOCH, record
 
 T0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
@@ -185,3 +186,15 @@ def test_each_robot_keeps_its_newest_versions_and_those_being_fetched() -> None:
     versions = [version(n, "a") for n in range(1, 6)] + [version(6, "b")]
     reads = {1: T0, 2: T0 - timedelta(hours=1)}
     assert versions_to_prune(versions, reads, keep=2, read_since=T0 - timedelta(minutes=10)) == [2, 3]
+
+
+async def test_the_statuses_and_leases_of_workers_gone_long_ago_are_pruned(store: Repositories) -> None:
+    for minutes, name in ((0, "gone-long-ago"), (10, "gone-lately"), (20, "running")):
+        await store.statuses.put_status(WorkerStatus(name, T0 + timedelta(minutes=minutes)))
+    await store.leases.acquire_lease("worker:gone-long-ago", "gone-long-ago", T0, T0 - timedelta(seconds=5))
+    await store.leases.acquire_lease("shard:0", "running", T0 + timedelta(hours=1), T0)
+    assert await store.housekeeping.prune_gone_workers(T0 + timedelta(minutes=5), None, 10) == 2
+    assert [s.name for s in await store.statuses.statuses()] == ["gone-lately", "running"]
+    assert [lease.name for lease in await store.leases.leases()] == ["shard:0"], "the live lease stays"
+    assert await store.housekeeping.prune_gone_workers(None, 1, 10) == 1, "beyond the one updated last"
+    assert [s.name for s in await store.statuses.statuses()] == ["running"]

@@ -19,6 +19,7 @@ from typing import Any
 from fleetbus.workers.store.discards import DISCARDS
 from fleetbus.workers.store.event_log import EVENTS
 from fleetbus.workers.store.hazards import HAZARDS, OPEN, HazardState, pruned_ids_counter
+from fleetbus.workers.store.leases import LEASES
 from fleetbus.workers.store.ledger import DUPLICATES, SEQUENCES
 from fleetbus.workers.store.port import (
     COUNTERS,
@@ -34,6 +35,7 @@ from fleetbus.workers.store.port import (
 )
 from fleetbus.workers.store.rejections import REJECTIONS
 from fleetbus.workers.store.sites import FORWARDS
+from fleetbus.workers.store.statuses import STATUSES
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,12 @@ class Housekeeping(abc.ABC):
         """Why each dead letter was refused, by when it was."""
 
     @abc.abstractmethod
+    async def prune_gone_workers(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        """The statuses of workers that stopped updating them before ``before`` (or beyond the
+        ``keep`` updated last), and the leases that expired before ``before`` (an expired lease is
+        as good as none: anyone may take it)."""
+
+    @abc.abstractmethod
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int: ...
 
     @abc.abstractmethod
@@ -118,6 +126,8 @@ class StoreHousekeeping(Housekeeping):
         self._duplicates = database.collection(DUPLICATES)
         self._sequences = database.collection(SEQUENCES)
         self._rejections = database.collection(REJECTIONS)
+        self._statuses = database.collection(STATUSES)
+        self._leases = database.collection(LEASES)
         self._forwards = database.collection(FORWARDS)
         self._discards = database.collection(DISCARDS)
         self._counts = database.collection(BOUND_COUNTS)
@@ -190,6 +200,16 @@ class StoreHousekeeping(Housekeeping):
         return await self._database.transaction(
             lambda: prune_oldest(self._rejections, "rejected_at", before, keep, limit, order="rejected_at")
         )
+
+    async def prune_gone_workers(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        async def prune() -> int:
+            gone = await prune_oldest(self._statuses, "updated_at", before, keep, limit, order="updated_at")
+            if before is not None and gone < limit:
+                expired = {"expires_at": Range(lt=before)}
+                gone += await self._leases.delete(expired, order=["expires_at"], limit=limit - gone)
+            return gone
+
+        return await self._database.transaction(prune)
 
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int:
         return await self._database.transaction(
