@@ -26,6 +26,7 @@ from fleetbus.workers.store.port import (
     INTEGER,
     TEXT,
     TIME,
+    Collection,
     Database,
     In,
     NotIn,
@@ -134,13 +135,7 @@ class StoreHousekeeping(Housekeeping):
 
     async def prune_events(self, type: str, before: datetime | None, keep: int | None, limit: int) -> int:
         async def prune() -> int:
-            cut = before
-            if keep is not None:
-                kept = await self._events.find(
-                    {"type": type}, order=["-received_at"], skip=keep - 1, limit=1, fields=["received_at"]
-                )
-                if kept:  # the oldest of the newest ``keep``: everything received before it goes
-                    cut = kept[0]["received_at"] if cut is None else max(cut, kept[0]["received_at"])
+            cut = await _cut(self._events, {"type": type}, "received_at", before, keep)
             if cut is None:
                 return 0
             where: dict[str, Any] = {"type": type, "received_at": Range(lt=cut)}
@@ -157,13 +152,7 @@ class StoreHousekeeping(Housekeeping):
         cleared = HazardState.CLEARED.value
 
         async def prune() -> int:
-            cut = before
-            if keep is not None:
-                kept = await self._hazards.find(
-                    {"state": cleared}, order=["-cleared_at"], skip=keep - 1, limit=1, fields=["cleared_at"]
-                )
-                if kept:  # the oldest of the newest ``keep``: everything cleared before it goes
-                    cut = kept[0]["cleared_at"] if cut is None else max(cut, kept[0]["cleared_at"])
+            cut = await _cut(self._hazards, {"state": cleared}, "cleared_at", before, keep)
             if cut is None:
                 return 0
             where: dict[str, Any] = {"state": cleared, "cleared_at": Range(lt=cut)}
@@ -232,3 +221,16 @@ class StoreHousekeeping(Housekeeping):
 
     async def bound_counts(self) -> list[BoundCount]:
         return [BoundCount(**doc) for doc in await self._counts.find(order=["bound", "subject"])]
+
+
+async def _cut(
+    log: Collection, where: dict[str, Any], time: str, before: datetime | None, keep: int | None
+) -> datetime | None:
+    """What goes of ``where``'s documents: those whose ``time`` is before the returned time,
+    ``before`` or the oldest of the newest ``keep``, whichever is later (None: nothing goes)."""
+    if keep is None:
+        return before
+    kept = await log.find(where, order=[f"-{time}"], skip=keep - 1, limit=1, fields=[time])
+    if not kept:
+        return before
+    return kept[0][time] if before is None else max(before, kept[0][time])
