@@ -338,7 +338,6 @@ class Sites(SiteRegistry):
             {"site": site, "last_received_at": Range(lt=last_received)}, {"last_received_at": last_received}
         )
 
-
     async def forwards(self, robot_id: str | None = None) -> list[Forward]:
         where = {} if robot_id is None else {"robot_id": robot_id}
         return [
