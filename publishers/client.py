@@ -438,7 +438,8 @@ class RobotClient:
         Each notification is acked when the caller asks for the next one or stops iterating, so
         one that was being handled when the robot process died is delivered again. The service
         sends at least once (it announces again when it cannot be sure a broker took the first
-        announcement); a notification this client has already handed out is acked and skipped.
+        announcement); a notification that tells this client nothing new (a copy of one it handed
+        out, or one older than what it learned since) is acked and skipped.
 
         A warden in service first gets the open hazards it missed: on its first call and after
         every reconnect, the client asks the service (``hazard.open``) and hands out, in order,

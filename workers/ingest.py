@@ -143,11 +143,11 @@ class IngestConsumer:
         self._control = control
         self._finishing = finishing
         self._acking: asyncio.Task[None] | None = None
+        """The last batch's ack, waiting for what was left to finish; each waits for the one
+        before, so batches are acked in order."""
         self._ack_failed = False
         """Finishing or acknowledging handled batches failed: this consumer stops (its unacked
         messages come again), rather than hold them unacked while the broker sends no more."""
-        """The last batch's ack, waiting for what was left to finish; each waits for the one
-        before, so batches are acked in order."""
         self._exclusive = exclusive
         """The queue's work must never overlap with the next consumer's (its single active consumer
         is the only lock): on stop, this consumer finishes the batch in hand and leaves the rest
