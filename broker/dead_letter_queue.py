@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import time
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -214,6 +215,23 @@ def _described(fetched: Fetched, kept: Mapping[str, KeptReason]) -> list[DeadLet
     ]
 
 
+#: The longest a listing waits for the letters it read to be back in the queue.
+RETURN_WAIT_S = 2.0
+
+
+def _wait_returned(connection: pika.BlockingConnection, ready: int) -> None:
+    """Until the queue holds as many ready letters as before the listing read some (a quorum
+    queue takes them back a moment after the channel closed: a listing right after would see
+    none), or :data:`RETURN_WAIT_S` passed (another listing holding some)."""
+    channel = connection.channel()
+    deadline = time.monotonic() + RETURN_WAIT_S
+    while channel.queue_declare(DEAD_LETTER_QUEUE, passive=True).method.message_count < ready:
+        if time.monotonic() >= deadline:
+            break
+        connection.sleep(0.01)
+    channel.close()
+
+
 def _peek(amqp_url: str, limit: int) -> tuple[int, Fetched]:
     connection = blocking_connection(amqp_url)
     try:
@@ -226,6 +244,7 @@ def _peek(amqp_url: str, limit: int) -> tuple[int, Fetched]:
                 break
             fetched.append((method.routing_key, properties, body))
         channel.close()  # returns every fetched message to the queue
+        _wait_returned(connection, available)
         return available, fetched
     finally:
         connection.close()
