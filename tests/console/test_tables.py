@@ -184,25 +184,35 @@ def test_the_dashboards_events_and_the_hazards_page_filter_and_sort(bus: Bus, br
         console.wait_live(browser)
 
         # the team: sorted by a column, again to reverse, and filtered by a word; a live render
-        # may replace the team's table (and its filter) at any moment, so each action is one script
+        # may replace the team's table (and its filter) at any moment, so each action is one script,
+        # and a click waits for the sort buttons the page gives a table once it is shown
         team = "#team-table tbody tr"
-        sort_by = "document.querySelector(`#team-table th:nth-child(${arguments[0]}) button.sort`).click()"
+        sort_by = (
+            "const sort = document.querySelector(`#team-table th:nth-child(${arguments[0]}) button.sort`);"
+            "if (sort) { sort.click(); } return sort !== null"
+        )
+
+        def sort_team(column: int, what: str) -> None:
+            browser.until(lambda: browser.driver.execute_script(sort_by, column), what)
+
         browser.until(lambda: len(shown(browser, team)) == 3, "the three robots")
-        browser.driver.execute_script(sort_by, 2)  # by kind
+        sort_team(2, "sorted by kind")
         browser.until(partial(_sorted_by, browser, 1, "ascending", "team-table"), "the team by kind")
-        browser.driver.execute_script(sort_by, 1)  # by robot
+        sort_team(1, "sorted by robot")
         browser.until(
             lambda: shown(browser, team) == ["robot-guide1", "robot-guide2", "robot-warden1"], "by robot"
         )
-        browser.driver.execute_script(sort_by, 1)
+        sort_team(1, "sorted by robot, reversed")
         browser.until(
             lambda: shown(browser, team) == ["robot-warden1", "robot-guide2", "robot-guide1"], "reversed"
         )
-        browser.driver.execute_script(
+        filter_by = (
             "const filter = document.getElementById('team-table').previousElementSibling;"
-            "filter.value = arguments[0]; filter.dispatchEvent(new Event('input', {bubbles: true}))",
-            "warden",
+            "if (!filter || !filter.classList.contains('table-filter')) { return false; }"
+            "filter.value = arguments[0]; filter.dispatchEvent(new Event('input', {bubbles: true}));"
+            "return true"
         )
+        browser.until(lambda: browser.driver.execute_script(filter_by, "warden"), "the team filtered")
         browser.until(lambda: shown(browser, team) == ["robot-warden1"], "the wardens only")
         rows = "#events tr"
         browser.until(lambda: len(shown(browser, rows)) == 2, "the two events")
