@@ -121,24 +121,16 @@ class Pruner:
                 now,
                 lambda *a: housekeeping.prune_cleared_hazards(*a, unsent_too=self._not_a_site()),
             )
-            counts[("ledger", "numberings")] = await self._apply(
-                bounds.numberings, now, housekeeping.prune_numberings
-            )
-            counts[("workers", "gone")] = await self._apply(
-                bounds.gone_workers, now, housekeeping.prune_gone_workers
-            )
-            counts[("rejections", "dead letters")] = await self._apply(
-                bounds.rejections, now, housekeeping.prune_rejections
-            )
-            counts[("forwards", "sites")] = await self._apply(
-                bounds.forwards, now, housekeeping.prune_forwards
-            )
-            counts[("duplicates", "seen")] = await self._apply(
-                bounds.duplicates, now, housekeeping.prune_duplicates
-            )
-            counts[("discards", "beacon")] = await self._apply(
-                bounds.discards, now, housekeeping.prune_discards
-            )
+            logs: list[tuple[tuple[str, str], Retention, Prune]] = [
+                (("ledger", "numberings"), bounds.numberings, housekeeping.prune_numberings),
+                (("workers", "gone"), bounds.gone_workers, housekeeping.prune_gone_workers),
+                (("rejections", "dead letters"), bounds.rejections, housekeeping.prune_rejections),
+                (("forwards", "sites"), bounds.forwards, housekeeping.prune_forwards),
+                (("duplicates", "seen"), bounds.duplicates, housekeeping.prune_duplicates),
+                (("discards", "beacon"), bounds.discards, housekeeping.prune_discards),
+            ]
+            for key, policy, prune in logs:
+                counts[key] = await self._apply(policy, now, prune)
             counts.update(await self._prune_maps(now))
             counts[("map-staging", "chunks")] = await self._expire_staged_chunks(now)
             counts[("alerts", "acknowledged")] = await self._apply(

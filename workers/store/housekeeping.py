@@ -24,6 +24,7 @@ from fleetbus.workers.store.ledger import DUPLICATES, SEQUENCES
 from fleetbus.workers.store.port import (
     COUNTERS,
     INTEGER,
+    SERIAL,
     TEXT,
     TIME,
     Collection,
@@ -174,9 +175,7 @@ class StoreHousekeeping(Housekeeping):
         return await self._database.transaction(prune)
 
     async def prune_forwards(self, before: datetime | None, keep: int | None, limit: int) -> int:
-        return await self._database.transaction(
-            lambda: prune_oldest(self._forwards, "received_at", before, keep, limit, order="received_at")
-        )
+        return await self._prune_log(self._forwards, "received_at", before, keep, limit, order="received_at")
 
     async def prune_numberings(self, before: datetime | None, keep: int | None, limit: int) -> int:
         async def prune() -> int:
@@ -186,9 +185,8 @@ class StoreHousekeeping(Housekeeping):
         return await self._database.transaction(prune)
 
     async def prune_rejections(self, before: datetime | None, keep: int | None, limit: int) -> int:
-        return await self._database.transaction(
-            lambda: prune_oldest(self._rejections, "rejected_at", before, keep, limit, order="rejected_at")
-        )
+        rejections = self._rejections
+        return await self._prune_log(rejections, "rejected_at", before, keep, limit, order="rejected_at")
 
     async def prune_gone_workers(self, before: datetime | None, keep: int | None, limit: int) -> int:
         async def prune() -> int:
@@ -201,13 +199,24 @@ class StoreHousekeeping(Housekeeping):
         return await self._database.transaction(prune)
 
     async def prune_duplicates(self, before: datetime | None, keep: int | None, limit: int) -> int:
-        return await self._database.transaction(
-            lambda: prune_oldest(self._duplicates, "seen_at", before, keep, limit)
-        )
+        return await self._prune_log(self._duplicates, "seen_at", before, keep, limit)
 
     async def prune_discards(self, before: datetime | None, keep: int | None, limit: int) -> int:
+        return await self._prune_log(self._discards, "received_at", before, keep, limit)
+
+    async def _prune_log(
+        self,
+        log: Collection,
+        time: str,
+        before: datetime | None,
+        keep: int | None,
+        limit: int,
+        *,
+        order: str = SERIAL,
+    ) -> int:
+        """:func:`prune_oldest` of one log, as one short unit of work."""
         return await self._database.transaction(
-            lambda: prune_oldest(self._discards, "received_at", before, keep, limit)
+            lambda: prune_oldest(log, time, before, keep, limit, order=order)
         )
 
     async def count_bounded(self, counts: Mapping[tuple[str, str], int], at: datetime) -> None:
