@@ -12,6 +12,7 @@ from fleetbus.workers.store.hazards import HazardState
 from fleetbus_dev.worker_thread import WorkerThread
 from tests.factories import hazard
 from tests.support import Bus, notifications_until, wait_for
+from tests.test_team import states
 
 
 def held_and_announced(bus: Bus) -> tuple[int, int]:
@@ -135,11 +136,7 @@ def test_an_announcement_that_cannot_be_finished_stops_the_worker_and_comes_agai
     finally:
         with pytest.raises(Exception, match="could not be published"):
             worker.stop()
-    assert open_states(bus) == [HazardState.HELD], "told, never marked announced"
+    assert states(bus) == [HazardState.HELD.value], "told, never marked announced"
     monkeypatch.undo()
     with bus.worker():  # the next worker takes the hazard again: announced, and marked
-        wait_for(lambda: open_states(bus) == [HazardState.ANNOUNCED], what="the hazard marked announced")
-
-
-def open_states(bus: Bus) -> list[HazardState]:
-    return [h.state for h in bus.with_store(lambda store: store.hazards.open_hazards(None))]
+        wait_for(lambda: states(bus) == [HazardState.ANNOUNCED.value], what="the hazard marked announced")

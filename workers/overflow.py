@@ -21,6 +21,7 @@ from aio_pika.abc import AbstractChannel, AbstractQueue
 
 from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
 from fleetbus.workers.batches import BatchInbox
+from fleetbus.workers.queue_consumer import AGAIN_AFTER_S
 from fleetbus.workers.store.base import StoreUnavailable
 from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
 
@@ -45,10 +46,6 @@ def dropped_from(headers: dict[str, Any] | None) -> str:
         return "unknown"
     latest = deaths[0]
     return f"{_text(latest.get('queue', '?'))} {_text(latest.get('reason', '?'))}"
-
-
-#: After a failure, the pause before the messages given back are taken again.
-AGAIN_AFTER_S = 1.0
 
 
 class OverflowCounter:
