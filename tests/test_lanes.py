@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import asyncio
 import signal
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from datetime import datetime, timedelta, timezone
 from types import SimpleNamespace
 from typing import Any
 
@@ -30,10 +32,13 @@ from fleetbus.schemas.routing import (
     INGEST_QUEUE,
     NOTIFY_EXCHANGE,
     RobotKind,
+    ingest_shard_queue,
     notification_routing_key,
 )
 from fleetbus.workers.attempts import AttemptLimit, attempt_key
+from fleetbus.workers.express import ExpressLane
 from fleetbus.workers.ingest import IngestConsumer
+from fleetbus.workers.shards import shard_lease
 from fleetbus.workers.store import HazardState, Repositories, repositories_for
 from fleetbus.workers.store.base import EventQuery
 from fleetbus.workers.validation import Accepted, Rejected
@@ -400,3 +405,45 @@ def test_a_hazard_behind_a_backlog_of_telemetry_is_stored_and_announced_before_i
     last = bus.find(EventQuery(type="status", newest_first=True, limit=1))[0]
     assert announced.announced_at is not None
     assert announced.announced_at < last.received_at, "the hazard waited for the telemetry ahead of it"
+
+
+def _consumers(bus: Bus) -> Counter[str]:
+    """Consumers by queue, as the broker lists them (a single active consumer's waiting ones too)."""
+    return Counter(consumer["queue"]["name"] for consumer in bus.api.list_consumers(bus.vhost))
+
+
+def test_shard_0_taken_again_after_the_express_lane_failed_to_start_has_one_consumer(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Taking shard 0 starts its queue's consumer, then the express lane. When the lane fails to
+    start, the heartbeat lets the shard go and takes it again at the next beat: the first consumer
+    must have stopped, or each failed beat would leave one more consumer on the shard's queue."""
+    starts: list[str] = []
+    start = ExpressLane.start
+
+    async def fails_once(lane: ExpressLane) -> None:
+        starts.append("start")
+        if len(starts) == 1:
+            raise RuntimeError("the express lane could not connect")
+        await start(lane)
+
+    monkeypatch.setattr(ExpressLane, "start", fails_once)
+    # shard 0 held by a worker of another host until this worker runs, so that this worker takes
+    # it on a heartbeat (where a failed start is logged and tried again at the next beat)
+    other = "elsewhere:1:worker-x"
+
+    def hold_shard_0(for_s: float) -> bool:
+        now = datetime.now(timezone.utc)
+        return bus.with_store(
+            lambda store: store.leases.acquire_lease(
+                shard_lease(0), other, now + timedelta(seconds=for_s), now
+            )
+        )
+
+    assert hold_shard_0(600)
+    with bus.worker() as worker:
+        assert worker.context is not None and not worker.context.shards.held
+        assert hold_shard_0(0)  # the other worker's lease ends
+        wait_for(lambda: _consumers(bus)[EXPRESS_QUEUE] == 1, 60, "the express lane consuming")
+        assert len(starts) == 2
+        assert _consumers(bus)[ingest_shard_queue(0)] == 1
