@@ -37,7 +37,7 @@ T = TypeVar("T")
 Transient = type[BaseException] | tuple[type[BaseException], ...]
 OnRetry = Callable[[RetryCallState], None]
 
-__all__ = ["Backoff", "GaveUp", "Stopped", "async_retrying", "retrying", "run_retrying"]
+__all__ = ["Backoff", "GaveUp", "Stopped", "async_retrying", "pause", "retrying", "run_retrying"]
 DEFAULT_BACKOFF = Backoff()
 
 
@@ -147,6 +147,13 @@ def retrying(
     return Retrying(sleep=sleep, **_options(what, on, deadline, backoff, stop, logger, on_retry))  # type: ignore[arg-type]
 
 
+async def pause(seconds: float, stop: asyncio.Event) -> bool:
+    """Wait ``seconds``, or less once ``stop`` is set; whether it is set."""
+    with contextlib.suppress(asyncio.TimeoutError):
+        await asyncio.wait_for(stop.wait(), seconds)
+    return stop.is_set()
+
+
 def async_retrying(
     what: str,
     *,
@@ -162,9 +169,8 @@ def async_retrying(
     async def sleep(seconds: float) -> None:
         if stop is None:
             await asyncio.sleep(seconds)
-            return
-        with contextlib.suppress(asyncio.TimeoutError):
-            await asyncio.wait_for(stop.wait(), seconds)
+        else:
+            await pause(seconds, stop)
 
     return AsyncRetrying(sleep=sleep, **_options(what, on, deadline, backoff, stop, logger, on_retry))  # type: ignore[arg-type]
 

@@ -17,7 +17,6 @@ Several workers of one site may send the same version: central applies it once.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import dataclasses
 import logging
 
@@ -25,6 +24,7 @@ import aio_pika
 import aiormq.abc
 from aio_pika.abc import AbstractChannel
 
+from fleetbus.broker.retry import pause
 from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE
 from fleetbus.schemas.site_hazards import SITE_HAZARD_TYPE, SiteHazardState
 from fleetbus.workers.notifier import CONFIRM_TIMEOUT_S
@@ -118,5 +118,4 @@ class HazardUplink:
                 log.warning(
                     "hazard states not sent to central this round (%s: %s)", type(error).__name__, error
                 )
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self._stopping.wait(), wait)
+            await pause(wait, self._stopping)

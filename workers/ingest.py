@@ -23,7 +23,7 @@ from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 from aio_pika.exceptions import AMQPError, ChannelInvalidStateError
 from tenacity import RetryCallState
 
-from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
+from fleetbus.broker.retry import Stopped, async_retrying, pause, run_retrying
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.attempts import AttemptLimit
 from fleetbus.workers.batches import BatchInbox
@@ -256,8 +256,7 @@ class IngestConsumer:
             self._taken.pop(id(message), None)
         if self._channel.is_closed:
             return
-        with contextlib.suppress(asyncio.TimeoutError):
-            await asyncio.wait_for(self._stopping.wait(), 1.0)
+        await pause(1.0, self._stopping)
         last = last_unsettled(batch)
         if last is not None:
             with contextlib.suppress(*BROKER_ERRORS):

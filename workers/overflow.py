@@ -19,7 +19,7 @@ from typing import Any
 
 from aio_pika.abc import AbstractChannel, AbstractQueue
 
-from fleetbus.broker.retry import Stopped, async_retrying, run_retrying
+from fleetbus.broker.retry import Stopped, async_retrying, pause, run_retrying
 from fleetbus.workers.batches import BatchInbox
 from fleetbus.workers.queue_consumer import AGAIN_AFTER_S
 from fleetbus.workers.store.base import StoreUnavailable
@@ -93,8 +93,7 @@ class OverflowCounter:
                 log.exception("counting %d dropped messages failed; they are counted again later", len(batch))
                 with contextlib.suppress(Exception):  # a closed channel gives them back itself
                     await batch[-1].nack(multiple=True, requeue=True)
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(self._stopping.wait(), AGAIN_AFTER_S)
+                await pause(AGAIN_AFTER_S, self._stopping)
                 continue
             self.counted += len(batch)
             for subject, n in sorted(counts.items()):

@@ -24,6 +24,7 @@ from collections.abc import Awaitable, Callable
 from datetime import datetime, timedelta, timezone
 
 from fleetbus.bounds import Bounds
+from fleetbus.broker.retry import pause
 from fleetbus.limits import Retention, policy_for
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.store.alerts import AlertStore
@@ -100,8 +101,7 @@ class Pruner:
                 log.warning("pruning skipped: %s", error)
             except Exception:  # a bug in one round must not end the worker's other tasks
                 log.exception("pruning round failed")
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self._stop.wait(), every)
+            await pause(every, self._stop)
 
     async def prune(self, now: datetime | None = None) -> Counts:
         """One round; what it removed, by bound and subject (also added to the store's counts, even

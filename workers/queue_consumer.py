@@ -15,6 +15,8 @@ from abc import ABC, abstractmethod
 
 from aio_pika.abc import AbstractChannel, AbstractIncomingMessage, AbstractQueue
 
+from fleetbus.broker.retry import pause
+
 log = logging.getLogger("fleetbus.worker")
 
 #: The pause before a message whose handling failed is given back to the queue.
@@ -50,8 +52,7 @@ class QueueConsumer(ABC):
                 message.user_id,
                 self._queue.name,
             )
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self._stopping.wait(), AGAIN_AFTER_S)
+            await pause(AGAIN_AFTER_S, self._stopping)
             with contextlib.suppress(Exception):  # a closed channel gives it back itself
                 await message.nack(requeue=True)
 

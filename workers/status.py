@@ -9,11 +9,11 @@ the store, is gone.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 from collections.abc import Callable
 from datetime import datetime, timezone
 
+from fleetbus.broker.retry import pause
 from fleetbus.workers.ingest import IngestStats
 from fleetbus.workers.store.base import StoreUnavailable
 from fleetbus.workers.store.statuses import StatusBoard, WorkerStatus
@@ -51,5 +51,4 @@ async def report_status(
             log.exception("status not written; trying again in %.0f s", interval)
         if stop.is_set():
             return
-        with contextlib.suppress(asyncio.TimeoutError):
-            await asyncio.wait_for(stop.wait(), interval)
+        await pause(interval, stop)
