@@ -327,8 +327,9 @@ class Sites(SiteRegistry):
                 "newest_sent_at": group.highest["sent_at"],
                 "last_received_at": group.highest["received_at"],
             }
-            await self._counts.insert([row])
-            return
+            if (await self._counts.insert([row]))[0]:
+                return
+            # another worker counted the site first: add this batch to its count
         late = sum(1 for forward in added if forward.late)
         await self._counts.update({"site": site}, {}, add={"forwarded": len(added), "late": late})
         await self._counts.update(
