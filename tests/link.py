@@ -7,6 +7,8 @@
     link.mute_replies()                  # the broker's answers (confirms) are lost on the way back
     link.hold_confirms(5)                # the broker's confirms arrive 5 s late, its other answers at once
     link.drop_connections()              # the open connections break; the link stays up
+    link.stall_after(200_000)            # after 200 kB more from the robot, its side stops moving
+    link.resume()                        # and moves again
     link.attempts                        # when each connection attempt reached the link
 
 It breaks the robot's connection the way a field network does, while the broker, the workers
@@ -34,6 +36,9 @@ class NetworkLink:
         self._hold_confirms_s = 0.0
         self._partial: dict[socket.socket, bytearray] = {}
         self._held: list[tuple[float, socket.socket, bytes]] = []
+        self._budget: int | None = None
+        """Bytes the clients' side may still send before it stalls; None: no limit."""
+        self._stalled: list[tuple[socket.socket, socket.socket]] = []
         """Confirm frames on their way back, with when each goes on (in order)."""
         self._stopped = threading.Event()
         self._selector = selectors.DefaultSelector()
@@ -89,6 +94,27 @@ class NetworkLink:
         """Hold each confirm (``basic.ack``, ``basic.nack``) the broker sends for ``seconds``, and
         pass its other frames at once: a broker that is alive, and slow to confirm."""
         self._hold_confirms_s = seconds
+
+    def stall_after(self, n_bytes: int) -> None:
+        """Pass ``n_bytes`` more from the clients' side, then stop reading from it: its connections
+        stay open and stop moving, mid-stream (the broker's side still answers)."""
+        with self._lock:
+            self._budget = n_bytes
+
+    def resume(self) -> None:
+        """End a stall: what the clients' side sent meanwhile goes on."""
+        with self._lock:
+            self._budget = None
+            stalled, self._stalled = self._stalled, []
+            for client, server in stalled:
+                with contextlib.suppress(KeyError, ValueError, OSError):
+                    self._selector.register(client, selectors.EVENT_READ, (server, False))
+
+    @property
+    def stalled(self) -> bool:
+        """Whether the clients' side has used up its bytes and stopped moving."""
+        with self._lock:
+            return bool(self._stalled)
 
     def drop_connections(self) -> None:
         with self._lock:
@@ -152,11 +178,25 @@ class NetworkLink:
             return
         if is_reply and self._muted:
             return
+        if not is_reply:
+            self._spend(source, destination, len(data))
         if is_reply and self._hold_confirms_s:
             self._pass_frames(source, destination, data)
             return
         if not self._send(destination, data):
             self._close_pair(source)
+
+    def _spend(self, client: socket.socket, server: socket.socket, n_bytes: int) -> None:
+        """Count what the client sent against the stall's budget; at its end, stop reading from it
+        (what was read still goes on: the stall may come a little after the budget)."""
+        with self._lock:
+            if self._budget is None:
+                return
+            self._budget -= n_bytes
+            if self._budget <= 0 and (client, server) in self._pairs:
+                with contextlib.suppress(KeyError, ValueError):
+                    self._selector.unregister(client)
+                self._stalled.append((client, server))
 
     def _pass_frames(self, source: socket.socket, destination: socket.socket, data: bytes) -> None:
         """Each whole AMQP frame of the broker's on, a confirm only after the hold (type 1, a
@@ -168,9 +208,14 @@ class NetworkLink:
             if len(buffer) < end:
                 return
             frame, buffer[:] = bytes(buffer[:end]), buffer[end:]
-            confirm = frame[0] == 1 and frame[7:9] == (60).to_bytes(2, "big") and frame[9:11] in (
-                (80).to_bytes(2, "big"),
-                (120).to_bytes(2, "big"),
+            confirm = (
+                frame[0] == 1
+                and frame[7:9] == (60).to_bytes(2, "big")
+                and frame[9:11]
+                in (
+                    (80).to_bytes(2, "big"),
+                    (120).to_bytes(2, "big"),
+                )
             )
             if confirm:
                 self._held.append((time.monotonic() + self._hold_confirms_s, destination, frame))

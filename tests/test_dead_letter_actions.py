@@ -10,7 +10,9 @@ from typing import Any
 
 import pika
 import pytest
+from pika.adapters.blocking_connection import BlockingChannel
 
+from fleetbus.broker import dead_letter_actions
 from fleetbus.broker.accounts import Account, url_for
 from fleetbus.broker.dead_letter_actions import (
     DeadLetterGone,
@@ -87,20 +89,32 @@ def test_discard_removes_exactly_the_chosen_letter_even_beside_one_with_the_same
     assert _ids(peek_dead_letters(bus.admin_url)) == _ids(left)
 
 
-def test_a_letter_another_reader_holds_for_a_moment_is_still_found(bus: Bus) -> None:
+def test_a_letter_another_reader_holds_for_a_moment_is_still_found(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A listing (the console's, `fleetbus dlq`) holds the letters it peeks, unacked, while it
     reads them: an action at that moment waits for them to come back instead of calling the
     letter gone."""
     _, [letter] = _dead_letters(bus, "held")
-    holding, failures = threading.Event(), []
+    holding, release, failures = threading.Event(), threading.Event(), []
+    looks: list[bool] = []
+    find = dead_letter_actions._find
 
-    def reader() -> None:  # a listing that takes a second to read what it peeked
+    def counted_find(channel: BlockingChannel, wanted: str) -> Any:
+        found = find(channel, wanted)
+        looks.append(found is not None)
+        return found
+
+    monkeypatch.setattr(dead_letter_actions, "_find", counted_find)
+
+    def reader() -> None:  # a listing that reads what it peeked until told it is done
         try:
             with blocking_connection(bus.admin_url) as connection:
                 method, _, _ = connection.channel().basic_get(DEAD_LETTER_QUEUE, auto_ack=False)
                 assert method is not None
                 holding.set()
-                connection.sleep(1.0)
+                while not release.is_set():
+                    connection.sleep(0.05)
         except Exception as error:
             failures.append(error)
             holding.set()
@@ -109,8 +123,17 @@ def test_a_letter_another_reader_holds_for_a_moment_is_still_found(bus: Bus) -> 
     thread.start()
     assert holding.wait(30) and not failures, failures
     assert bus.ready_messages(DEAD_LETTER_QUEUE) == 0, "held by the reader"
-    assert discard_dead_letter(bus.admin_url, letter.letter_id).letter_id == letter.letter_id
+    discarded: list[DeadLetter] = []
+    action = threading.Thread(
+        target=lambda: discarded.append(discard_dead_letter(bus.admin_url, letter.letter_id))
+    )
+    action.start()
+    wait_for(lambda: looks, 30, "the discard looking while the letter is held")
+    release.set()
     thread.join(30)
+    action.join(60)
+    assert looks[0] is False, "the first look found the letter held elsewhere"
+    assert [d.letter_id for d in discarded] == [letter.letter_id]
     assert not failures, failures
     assert peek_dead_letters(bus.admin_url) == []
 

@@ -33,8 +33,8 @@ def test_the_processes_of_a_killed_run_are_killed_and_no_other(tmp_path: Path) -
         pytest_run.wait()
         gone = lambda: node.poll() is not None and epmd.poll() is not None  # noqa: E731
         wait_for(gone, 30, "the run's processes killed")
+        assert watcher.wait(30) == 0, "both sweeps done"
         assert other.poll() is None, "a process outside the run's folder is left alone"
-        assert watcher.wait(30) == 0
     finally:
         for process in (node, epmd, other, pytest_run):
             process.kill()

@@ -321,7 +321,9 @@ def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(b
         [second] = _children(worker.pid)
         explorer.publish(EventType.STATUS, status(60))
         wait_for(lambda: len(bus.recorded("status")) == 2, timeout=60, what="recording again")
-        assert bus.count(EventType.STATUS.value) == 2, "the workers went on meanwhile"
+        wait_for(
+            lambda: bus.count(EventType.STATUS.value) == 2, timeout=60, what="the workers going on meanwhile"
+        )
 
         worker.kill()  # SIGKILL: the worker cannot stop its child itself
         worker.wait(30)

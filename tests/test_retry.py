@@ -64,7 +64,7 @@ def test_the_deadline_ends_the_retries_with_what_was_waited_for_and_the_last_err
     with pytest.raises(GaveUp) as raised:
         retrying("the broker", on=ConnectionError, deadline=0.5, backoff=Backoff(0.05, 0.2, 0.0))(flaky)
     took = time.monotonic() - started
-    assert 0.5 <= took < 1.5, "the last attempt is made at the deadline, not skipped nor long after"
+    assert 0.5 <= took < 3.0, "the last attempt is made at the deadline, not skipped nor long after"
     assert raised.value.attempts == flaky.calls > 2
     assert isinstance(raised.value.error, ConnectionError)
     assert re.match(r"the broker did not succeed in \d+\.\d s ", str(raised.value))

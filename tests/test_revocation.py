@@ -139,9 +139,11 @@ def test_a_revoked_certificate_is_refused_at_its_next_connection_others_still_lo
         refused_as_revoked(revoked_url, log_file)
         assert can_login(kept_url), "another robot's certificate still logs in"
         # a robot sees the handshake end, often without the reason: it is told what that means
-        with RobotClient(revoked_url, state_dir=tmp_path / "again", connect_timeout=3) as again:
+        with RobotClient(revoked_url, state_dir=tmp_path / "again") as again:
+            again.start()
+            wait_for(lambda: again.last_error, 30, "the refused handshake")
             with pytest.raises(BrokerUnavailable, match="client certificate"):
-                again.connect()
+                again.connect(timeout=0)
         # the connection opened before stays open (documented: remove the account to cut it off)
         robot.publish("hazard", hazard())
         assert robot.flush(timeout=20), "the broker confirmed it on the connection opened before"

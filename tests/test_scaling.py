@@ -151,6 +151,14 @@ def test_worker_processes_store_everything_once_in_order_and_announce_hazards_on
             ],
             what="warden1 recorded as localised",
         )
+        # a sentinel behind it on the express lane (one consumer, in order): once it is recorded, the
+        # batch with warden1's localisation was handled, and any hazard the gate let go is in an inbox
+        sent["explorer1"] += keys([robots["explorer1"].publish("localisation", {"localised": True})])
+        wait_for(
+            lambda: {r.name: r.localised for r in bus.with_store(lambda s: s.hazards.robots())}["explorer1"],
+            what="the sentinel recorded",
+        )
+        assert [bus.ready_messages(inbox_queue(w)) for w in ("warden1", "warden2")] == [0, 0]
         assert hazard_states(bus) == {HazardState.HELD: 16}, "one warden localised: still held"
 
         # the last warden localises on another worker while both explorers go on detecting
@@ -239,7 +247,11 @@ def test_a_worker_killed_while_others_run_loses_and_doubles_nothing(bus: Bus) ->
         victim.kill()
         killed_at = time.monotonic()
         assert victim.wait(10) == -9
-        wait_for(lambda: len(bus.shard_holders()) == 1, timeout=30, what="the survivor holding every shard")
+        wait_for(
+            lambda: list(bus.shard_holders().values()) == [SHARDS],
+            timeout=30,
+            what="the survivor holding every shard",
+        )
         takeover = time.monotonic() - killed_at
         stored_at_takeover = bus.count()
         wait_for(

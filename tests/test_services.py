@@ -139,8 +139,13 @@ def test_two_wardens_claim_at_the_same_instant_one_gets_it(bus: Bus) -> None:
             thread.start()
         for thread in threads:
             thread.join(30)
+        assert set(outcomes) == {"warden1", "warden2"}, "each claim was answered"
         winners = [name for name, outcome in outcomes.items() if outcome == name]
         assert len(winners) == 1, outcomes
+        (loser,) = set(outcomes) - set(winners)
+        refused = outcomes[loser]
+        assert isinstance(refused, ServiceRefused), outcomes
+        assert str(refused).endswith(f"hazard 1 is claimed by {winners[0]}"), refused
         winner = dict(zip(("warden1", "warden2"), wardens, strict=True))[winners[0]]
         assert winner.hazard(1)["claimed_by"] == winners[0]
 

@@ -13,17 +13,20 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import psutil
 import pytest
 from argon2 import PasswordHasher
 
 from fleetbus.api.services.security import master_secret
 from fleetbus.settings import load_settings
-from tests.api.server import api_server
+from tests.api.server import api_process, api_server
 from tests.support import Bus, wait_for
 
 ADMIN = "admin-limits"
 PASSWORD = "the admin's password"
 WRONG = "not the password"
+#: CPU the API server spends on a login before the GET is sent: its password check is under way.
+CHECKING_CPU_S = 0.3
 
 
 def client(base: str, address: str) -> httpx.Client:
@@ -86,8 +89,9 @@ def test_a_lockout_ends_by_itself_and_a_success_clears_the_count(bus: Bus) -> No
         assert log_in(admin, ADMIN, PASSWORD).status_code == 200, "the success cleared the earlier failure"
 
 
-async def _log_in_then_get(base: str, name: str, token: str) -> tuple[float, float]:
-    """A login of ``name``, then an authenticated GET sent while it runs: when each answered."""
+async def _log_in_then_get(base: str, server: psutil.Process, name: str, token: str) -> tuple[float, float]:
+    """A login of ``name``, then an authenticated GET sent once the server has spent CPU on checking
+    its password (nothing else in it works meanwhile): when each answered."""
     async with httpx.AsyncClient(base_url=base, timeout=120) as http:
 
         async def log_in_once() -> float:
@@ -95,8 +99,15 @@ async def _log_in_then_get(base: str, name: str, token: str) -> tuple[float, flo
             assert reply.status_code == 200, reply.text
             return time.monotonic()
 
+        def cpu() -> float:
+            times = server.cpu_times()
+            return times.user + times.system
+
         async def get_once() -> float:
-            await asyncio.sleep(0.3)  # the login's password is being checked by now
+            before, deadline = cpu(), time.monotonic() + 60
+            while cpu() - before < CHECKING_CPU_S:  # the login's password is being checked
+                assert time.monotonic() < deadline, "the server never began checking the password"
+                await asyncio.sleep(0.02)
             reply = await http.get("/users/me", headers={"Authorization": f"Bearer {token}"})
             assert reply.status_code == 200, reply.text
             return time.monotonic()
@@ -108,8 +119,8 @@ async def _log_in_then_get(base: str, name: str, token: str) -> tuple[float, flo
 def test_an_authenticated_get_answers_while_a_password_is_being_checked(bus: Bus) -> None:
     """A login whose stored hash has a high time cost keeps argon2 busy for over a second; a GET sent
     meanwhile answers first, which it could not while hashes were computed on the event loop."""
-    slow_hash = PasswordHasher(time_cost=30).hash(PASSWORD)  # about 1.3 s to check here
-    with api_server(bus, ADMIN, PASSWORD) as base, httpx.Client(base_url=base, timeout=60) as http:
+    slow_hash = PasswordHasher(time_cost=60).hash(PASSWORD)  # about 2.6 s to check here
+    with api_process(bus, ADMIN, PASSWORD) as (base, server), httpx.Client(base_url=base, timeout=60) as http:
         token = log_in(http, ADMIN, PASSWORD).json()["access_token"]
         bus.accounts.append("slowpoke")
         body = {"name": "slowpoke", "password": PASSWORD, "role": "client"}
@@ -120,7 +131,7 @@ def test_an_authenticated_get_answers_while_a_password_is_being_checked(bus: Bus
                 "slowpoke", datetime.now(timezone.utc), password_hash=slow_hash
             )
         )
-        logged_in, got = asyncio.run(_log_in_then_get(base, "slowpoke", token))
+        logged_in, got = asyncio.run(_log_in_then_get(base, psutil.Process(server.pid), "slowpoke", token))
     assert got < logged_in, "the GET waited for the password check of the login sent before it"
 
 

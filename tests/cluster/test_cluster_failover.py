@@ -151,6 +151,7 @@ def test_a_partitioned_node_pauses_the_majority_serves_and_nothing_confirmed_is_
     minority = 0
     with bus.admin_channel() as channel:
         channel.queue_declare(MINORITY_PROBE, durable=True, arguments={"x-queue-type": "quorum"})
+    assert minority_accepts(bus, cluster, minority), "the probe works while the cluster is whole"
     with loaded_bus(bus) as (publishing, probe):
         cut_at = time.monotonic()
         cluster.partition(minority)

@@ -9,7 +9,6 @@ import itertools
 import json
 import os
 import socket
-import statistics
 import subprocess
 import sys
 import threading
@@ -69,9 +68,10 @@ def test_a_recorded_window_is_published_again_on_ros_at_its_pace(
         got = [m for m in received if m["topic"] == topic]
         assert [m["type"] for m in got] == [sent["type"]] * len(sent["data"]), "its original type"
         assert [m["data"] for m in got] == sent["data"], f"{topic}: the recorded messages, byte for byte"
-        # at half the recorded pace, once under way (a new subscriber's first deliveries may lag)
+        # at half the recorded pace, once under way (a new subscriber's first deliveries may lag):
+        # the bar lies between that pace and the recorded one, so a late delivery or two cannot fail it
         gaps = [b["t"] - a["t"] for a, b in itertools.pairwise(got)]
-        assert statistics.median(gaps[-3:]) >= APART_S / SPEED * 0.9, f"{topic}: {gaps}"
+        assert got[-1]["t"] - got[1]["t"] >= (len(got) - 2) * APART_S / SPEED * 0.75, f"{topic}: {gaps}"
     assert base64.b64decode(received[0]["data"]), "not empty"
 
 

@@ -17,6 +17,8 @@ from tests.sites.pair import SitePair
 from tests.support import assert_stored_once_in_order, wait_for
 
 EVENTS = 3000
+#: What the site's links send central before the link stalls: a few hundred of the events.
+STALL_AFTER_BYTES = 400_000
 
 
 def backlog(pair: SitePair) -> list[tuple[str, int]]:
@@ -33,10 +35,13 @@ def test_a_node_killed_mid_forward_loses_and_doubles_nothing(pair: SitePair, vic
     node = pair.central_node if victim == "central" else pair.site_node
     with pair.site.worker(), pair.central.worker():
         sent = backlog(pair)
+        # the link to central stops moving part way through the backlog: the kill comes mid-forward
+        pair.link.stall_after(STALL_AFTER_BYTES)
         pair.link.restore()
-        wait_for(lambda: pair.uplink_waiting() < EVENTS, interval=0.01, what="the uplink forwarding")
-        assert pair.central.count() < EVENTS, "killed while forwarding (the backlog was not yet through)"
+        wait_for(lambda: pair.link.stalled, what="the uplink forwarding, then stalled")
+        assert 0 < pair.uplink_waiting() < EVENTS, "killed while forwarding (the backlog not yet through)"
         node.kill()
+        pair.link.resume()
         node.up()
         wait_for(lambda: pair.central.count() == EVENTS, timeout=180, what=f"all {EVENTS} at central")
         wait_for(lambda: pair.uplink_waiting() == 0, timeout=60, what="the uplink empty")
