@@ -150,6 +150,11 @@ def requeue_dead_letter(
             raise RequeueRefused(
                 f"dead letter {wanted} names no sender (no user_id): it cannot be published as anyone"
             )
+        if letter.exchange.partition(".")[0] != letter.user_id:
+            raise RequeueRefused(
+                f"dead letter {wanted} went to exchange {letter.exchange!r}, not one of its sender "
+                f"{letter.user_id}'s: it is published again only as its sender, to its own exchange"
+            )
         _publish_as(sender_url(letter.user_id), letter, held.properties)
         try:
             _acked(held)

@@ -169,9 +169,11 @@ def describe(
         message_id=properties.message_id,
         reason=_text(reason or "unknown"),
         detail=_text(detail),
-        user_id=_text(headers.get("x-original-user-id") or properties.user_id or "") or None,
-        exchange=_text(headers.get("x-original-exchange", death.get("exchange", ""))),
-        routing_key=_text(headers.get("x-original-routing-key", original_keys[0])),
+        # the sender is the user id the broker validated; where it went, the broker's record of
+        # the death: headers a publisher chose (x-original-...) could name another robot
+        user_id=_text(properties.user_id or "") or None,
+        exchange=_text(death.get("exchange", "")),
+        routing_key=_text(original_keys[0]),
         rejected_at=_text(rejected_at) if rejected_at else None,
         size=len(body),
         body_preview=body[:120].decode(errors="replace"),

@@ -7,6 +7,7 @@ import json
 import threading
 import uuid
 from typing import Any
+from urllib.parse import urlsplit
 
 import pika
 import pytest
@@ -183,5 +184,51 @@ def test_a_letter_nobody_sent_cannot_be_requeued_as_anyone(bus: Bus) -> None:
         channel.basic_publish("fleetbus.dlx", "", b"anonymous", pika.BasicProperties(delivery_mode=2))
     [letter] = peek_dead_letters(bus.admin_url)
     with pytest.raises(RequeueRefused, match="no sender"):
+        requeue_dead_letter(bus.admin_url, letter.letter_id, lambda user: bus.admin_url)
+    assert _ids(peek_dead_letters(bus.admin_url)) == [letter.letter_id]
+
+
+def test_a_letter_is_its_validated_senders_whatever_headers_it_carries(bus: Bus) -> None:
+    """A robot's refused message may carry headers naming another robot (``x-original-...``, the
+    names an older worker gave its copies): the letter is still its sender's, as the broker
+    validated it, and is published again only as that sender, to that sender's exchange."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.add("victim1", kind=RobotKind.EXPLORER)
+    forged = {
+        "x-original-user-id": "victim1",
+        "x-original-exchange": "victim1.events",
+        "x-original-routing-key": "victim1.status",
+    }
+    bus.publish_raw(account, "explorer1.status", _status_body(0), message_id="forged", headers=forged)
+    _refuse_everything(bus, 1)
+    [letter] = peek_dead_letters(bus.admin_url)
+    assert (letter.user_id, letter.exchange, letter.routing_key) == (
+        "explorer1",
+        "explorer1.events",
+        "explorer1.status",
+    )
+    asked_for: list[str] = []
+
+    def sender_url(user_id: str) -> str:
+        asked_for.append(user_id)
+        return account.amqp_url
+
+    requeue_dead_letter(bus.admin_url, letter.letter_id, sender_url)
+    assert asked_for == ["explorer1"]
+    with bus.admin_channel() as channel:
+        _, properties, _ = _next_in_ingest(channel)
+    assert (properties.user_id, set(properties.headers or {}) & set(forged)) == ("explorer1", set())
+
+
+def test_a_letter_that_names_an_exchange_not_its_senders_is_not_requeued(bus: Bus) -> None:
+    bus.add("explorer1", kind=RobotKind.EXPLORER)  # the topology
+    admin = urlsplit(bus.admin_url).username
+    death = {"exchange": "explorer1.events", "routing-keys": ["explorer1.status"], "reason": "rejected"}
+    with bus.admin_channel() as channel:
+        channel.confirm_delivery()
+        properties = pika.BasicProperties(delivery_mode=2, user_id=admin, headers={"x-death": [death]})
+        channel.basic_publish("fleetbus.dlx", "", b"{}", properties)
+    [letter] = peek_dead_letters(bus.admin_url)
+    with pytest.raises(RequeueRefused, match="not one of its sender"):
         requeue_dead_letter(bus.admin_url, letter.letter_id, lambda user: bus.admin_url)
     assert _ids(peek_dead_letters(bus.admin_url)) == [letter.letter_id]

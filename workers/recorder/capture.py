@@ -13,7 +13,7 @@ exchange                  type               robot
                           say why)
 ``<robot>.requests``      ``request``        the exchange's owner
 ``fleetbus.notify``       ``notification``   none (the service speaks)
-``fleetbus.dlx``          ``dead_letter``    ``x-original-user-id``
+``fleetbus.dlx``          ``dead_letter``    the sender's user id
 ``<robot>.events``, key   ``ros``, kept as   the exchange's owner
 ``<robot>.ros``           every ROS message
                           (``schemas.ros``)
@@ -106,7 +106,7 @@ def origin(
     if exchange == NOTIFY_EXCHANGE:
         return Origin(NOTIFICATION, None)
     if exchange == DEAD_LETTER_EXCHANGE:
-        return Origin(DEAD_LETTER, _text(headers.get("x-original-user-id")) or user_id)
+        return Origin(DEAD_LETTER, user_id)  # the user id the broker validated when it was sent
     # the owner of <owner>.<kind> is proven: only it may write to that exchange
     owner, _, kind = exchange.partition(".")
     if kind == "requests":
