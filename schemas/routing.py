@@ -150,8 +150,17 @@ def site_hazards_exchange(site: str) -> str:
 
 def site_of_hazards_exchange(exchange: str) -> str | None:
     """The site whose hazards exchange ``exchange`` is; None when it is none."""
+    return _site_of(exchange, "hazards")
+
+
+def site_of_status_exchange(exchange: str) -> str | None:
+    """The site whose status exchange (its reports) ``exchange`` is; None when it is none."""
+    return _site_of(exchange, "status")
+
+
+def _site_of(exchange: str, kind: str) -> str | None:
     site, dot, rest = exchange.partition(".")
-    return site if dot and rest == "hazards" and site else None
+    return site if dot and rest == kind and site else None
 
 
 def site_downlink_key(site: str, kind: str) -> str:

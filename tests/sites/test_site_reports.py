@@ -10,9 +10,12 @@ import sys
 from datetime import datetime, timezone
 from urllib.parse import urlsplit
 
-from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE, RobotKind
+import pika
+
+from fleetbus.publishers.tls import pika_parameters
+from fleetbus.schemas.routing import HAZARD_UPLINK_QUEUE, RobotKind, site_status_exchange
 from fleetbus.schemas.site_reports import SiteReport, UplinkDepth
-from fleetbus.workers.site_report import report_to_central
+from fleetbus.workers.site_report import report_to_central, site_report
 from fleetbus.workers.site_status import SiteLink, near_full, site_view
 from tests.factories import hazard, status
 from tests.sites.pair import SitePair
@@ -115,3 +118,23 @@ def test_central_alerts_on_a_class_near_its_bound() -> None:
     )
     assert near_full(report, 0.8) == ("telemetry 90% of 200,000 (oldest dropped)",)
     assert near_full(report, 0.95) == ()
+
+
+def test_a_report_naming_another_site_is_not_kept_as_that_sites(pair: SitePair) -> None:
+    """Only a site's account may write its status exchange, so the exchange names the site: a
+    report that names another (a site's fleetbus at fault, or its account misused) is skipped,
+    and the other site's reports stay its own."""
+    honest = site_report(pair.site.api, pair.site.vhost, pair.name)
+    forged = honest.model_copy(update={"site": "other-site", "waiting": 0})
+    connection = pika.BlockingConnection(pika_parameters(pair.central_url))
+    try:
+        channel = connection.channel()
+        channel.confirm_delivery()
+        for report in (forged, honest):  # the site's own report after it: proof both were read
+            body = report.model_dump_json().encode()
+            channel.basic_publish(site_status_exchange(pair.name), "", body, mandatory=True)
+    finally:
+        connection.close()
+    wait_for(lambda: _row(pair)["reported_at"] is not None, what="the site's own report kept")
+    reports = pair.central.with_store(lambda store: store.sites.reports())
+    assert set(reports) == {pair.name}
