@@ -249,10 +249,14 @@ def stop_site_links(api: ManagementAPI, vhost: str) -> None:
 
 def site_permissions(site: str, robots: Collection[str]) -> tuple[str, str, str]:
     """(configure, write, read) of a site's account at central: its own ``<site>.*`` (its
-    downlink queue), and writing to its robots' exchanges only (``<robot>.events``, ``.beacon``)."""
+    downlink queue), and writing to exactly its robots' ``<robot>.events`` and ``<robot>.beacon``
+    and its own ``<site>.status`` and ``<site>.hazards``: not a robot's inbox, commands or
+    requests (a site calls no service of central's in a robot's name)."""
     own = f"^{re.escape(site)}\\."
-    names = "|".join(re.escape(name) for name in sorted({site, *robots}))
-    return own, f"^({names})\\.", own
+    names = "|".join(re.escape(name) for name in sorted(robots))
+    robots_exchanges = [f"({names})\\.(events|beacon)"] if robots else []
+    write = "|".join([*robots_exchanges, f"{re.escape(site)}\\.(status|hazards)"])
+    return own, f"^({write})$", own
 
 
 def central_site_topology(site: str, cluster: bool = False) -> Topology:

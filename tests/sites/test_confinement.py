@@ -12,7 +12,8 @@ import pytest
 from fleetbus.broker.sites import add_site_account
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
-from fleetbus.schemas.routing import RobotKind, site_downlink_queue
+from fleetbus.schemas.routing import RobotKind, inbox_queue, site_downlink_queue
+from fleetbus.workers.site_report import report_to_central
 from fleetbus.workers.sites import assign_robots
 from tests.factories import hazard
 from tests.sites.pair import SitePair
@@ -88,3 +89,31 @@ def test_a_site_cannot_write_as_robots_not_its_own_nor_as_another_site(pair: Sit
     assert sorted(letter.user_id or "" for letter in letters) == ["base2", "explorer8"]
     assert {letter.reason for letter in letters} == {"identity-mismatch"}
     assert [r.robot_id for r in pair.central.find()] == ["explorer1"]
+
+
+def test_a_site_writes_only_its_robots_event_and_beacon_exchanges_and_its_own_reports(pair: SitePair) -> None:
+    """Not its robot's inbox, commands or requests (a site would speak to a robot, or call central's
+    services, in its name), nor its own downlink: only what its links send."""
+    pair.add_robot("explorer1", RobotKind.EXPLORER)
+    assert pair.account is not None
+    refused: dict[str, int] = {}
+    for exchange, key in (
+        ("", inbox_queue("explorer1")),  # the default exchange writes to the queue it names
+        ("explorer1.commands", "explorer1.go"),
+        ("explorer1.requests", "explorer1.hazard.claim"),
+        ("", site_downlink_queue(pair.name)),
+    ):
+        connection = blocking_connection(pair.account.amqp_url)
+        try:
+            channel = connection.channel()
+            channel.confirm_delivery()
+            with pytest.raises(pika.exceptions.ChannelClosedByBroker) as closed:
+                channel.basic_publish(exchange, key, b"{}", pika.BasicProperties(user_id="explorer1"))
+            refused[exchange or key] = closed.value.reply_code
+        finally:
+            if connection.is_open:
+                connection.close()
+    assert set(refused.values()) == {403}, refused
+    # what its links send still goes: its robot's events, its report
+    publish_as_site(pair, "explorer1", "explorer1")
+    assert report_to_central(pair.site.api, pair.site.vhost, pair.name, pair.central_url)

@@ -43,9 +43,15 @@ def test_sites_add_sends_its_robots_accounts_and_a_removed_robot_leaves_it(pair:
     added = _add_site(pair.central, "base6", "roamer1")
     assert "sent base6 the accounts of roamer1" in added.stdout
     assert pair.central.ready_messages(site_downlink_queue("base6")) == 1, "its account waits for the site"
-    assert pair.central.api.get_permissions(pair.central.vhost, "base6")["write"] == "^(base6|roamer1)\\."
+    assert (
+        pair.central.api.get_permissions(pair.central.vhost, "base6")["write"]
+        == "^((roamer1)\\.(events|beacon)|base6\\.(status|hazards))$"
+    )
     assert fleetbus(pair.central, "users", "remove", "roamer1").returncode == 0
-    assert pair.central.api.get_permissions(pair.central.vhost, "base6")["write"] == "^(base6)\\."
+    assert (
+        pair.central.api.get_permissions(pair.central.vhost, "base6")["write"]
+        == "^(base6\\.(status|hazards))$"
+    )
     assert fleetbus(pair.central, "users", "check").returncode == 0, "the site no longer has it"
 
 
