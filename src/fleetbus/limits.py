@@ -79,6 +79,8 @@ def parse_limit(text: str, what: str = "limit") -> Retention:
             f"{what}: write an age (30s, 10m, 12h, 7d), a size (500KB, 1GB) or a number, not {text!r}"
         )
     amount, unit = float(match["amount"]), match["unit"]
+    if amount <= 0:
+        raise ValueError(f"{what}: a limit above 0 (a limit of 0 would keep nothing), not {text!r}")
     if unit in AGE_UNITS:
         return Retention(max_age=read_duration(text))
     if unit.upper() in SIZE_UNITS:
