@@ -23,11 +23,12 @@ from fleetbus.schemas.roles import EVALUATORS, WATCHERS
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
 from fleetbus.workers.recorder.capture import KNOWN_TYPES
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET
+from fleetbus.workers.recorder.queries import LIMIT_MAX, SEARCH_LIMIT, TIMELINE_LIMIT
 
 router = APIRouter(prefix="/recording", tags=["recording"])
 Analyst = Annotated[User, Depends(require_role(*WATCHERS))]
 Evaluator = Annotated[User, Depends(require_role(*EVALUATORS))]
-Limit = Annotated[int, Query(ge=1, le=10_000)]
+Limit = Annotated[int, Query(ge=1, le=LIMIT_MAX)]
 
 
 def read_time(text: str) -> datetime:
@@ -173,7 +174,7 @@ async def records(
     mission: str | None = None,
     since: Moment | None = None,
     until: Moment | None = None,
-    limit: Limit = 100,
+    limit: Limit = SEARCH_LIMIT,
     latest: bool = False,
 ) -> list[RecordOut]:
     """Recorded messages of a type meeting every condition, oldest first (the newest ``limit``);
@@ -198,7 +199,7 @@ async def robot_timeline(
     svc: ServiceDep,
     since: Moment | None = None,
     until: Moment | None = None,
-    limit: Limit = 1000,
+    limit: Limit = TIMELINE_LIMIT,
 ) -> TimelineOut:
     """What the robot sent and was sent in the window (default: the last hour), every type in time order."""
     try:

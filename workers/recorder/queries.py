@@ -47,6 +47,12 @@ from fleetbus.workers.store.recordings import (
 
 T = TypeVar("T")
 
+#: How many records a search (a type's, with conditions) and a robot's timeline return unless told,
+#: and the most either returns: one rule for the command line, the HTTP API and the console.
+SEARCH_LIMIT = 100
+TIMELINE_LIMIT = 1000
+LIMIT_MAX = 10_000
+
 #: The top-level fields of a fleetbus event envelope; any other field of an event type is its body's.
 ENVELOPE_FIELDS = frozenset(
     {"message_id", "robot_id", "epoch", "seq", "sent_at", "schema_version", "type", "body"}
@@ -299,6 +305,7 @@ async def trace(
 ) -> Trace:
     """All that is known of ``message_id``; empty ``records`` when it was never recorded."""
     types = await store.recorded_types()
+
     records: list[RecordedMessage] = []
     for type in types:
         records.extend(await store.find_recorded(RecordQuery(type, message_id=message_id)))

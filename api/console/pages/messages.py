@@ -31,11 +31,12 @@ from fleetbus.api.services.recording import RecordedMessage, Timeline, Trace
 from fleetbus.broker.management import ManagementError
 from fleetbus.broker.routes import RouteMap
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
+from fleetbus.workers.recorder.queries import SEARCH_LIMIT
 from fleetbus.workers.recorder.summary import summarize
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(MESSAGES))]
-DEFAULT_LIMIT = 100
+DEFAULT_LIMIT = SEARCH_LIMIT
 SUMMARY_WIDTH = 120
 #: A timeline's window when the form gives no start (as ``fleetbus timeline`` and the API).
 TIMELINE_WINDOW = timedelta(hours=1)

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
 
 def dlq(
-    limit: Annotated[int, typer.Option(help="at most this many")] = 1000,
+    limit: Annotated[int, typer.Option(min=1, help="at most this many")] = 1000,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
     """List the dead-letter queue without removing anything from it, and how many older dead

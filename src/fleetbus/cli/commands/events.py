@@ -27,7 +27,7 @@ from fleetbus.publishers.state_lock import RobotStateInUse
 from fleetbus.schemas.envelope import SchemaError, validate_body
 from fleetbus.schemas.routing import EventType
 from fleetbus.workers.recorder.capture import LEDGER_VIEWS
-from fleetbus.workers.recorder.queries import record_view
+from fleetbus.workers.recorder.queries import LIMIT_MAX, SEARCH_LIMIT, record_view
 from fleetbus.workers.recorder.summary import summarize
 
 if TYPE_CHECKING:
@@ -107,7 +107,9 @@ def query(
     mission: Annotated[str | None, typer.Option(help="only messages recorded under this mission")] = None,
     since: Annotated[str | None, typer.Option(help=f"recorded from this time: {TIME_FORMS}")] = None,
     until: Annotated[str | None, typer.Option(help="recorded before this time (the same forms)")] = None,
-    limit: Annotated[int, typer.Option(help="at most this many, the newest")] = 50,
+    limit: Annotated[
+        int, typer.Option(min=1, max=LIMIT_MAX, help="at most this many, the newest")
+    ] = SEARCH_LIMIT,
     latest: Annotated[bool, typer.Option("--latest", help="only the newest match")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:

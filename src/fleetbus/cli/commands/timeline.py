@@ -14,7 +14,7 @@ from fleetbus.cli.services import with_recording, with_services
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, RobotKind, inbox_queue
-from fleetbus.workers.recorder.queries import record_view
+from fleetbus.workers.recorder.queries import LIMIT_MAX, TIMELINE_LIMIT, record_view
 from fleetbus.workers.recorder.summary import summarize
 
 
@@ -30,7 +30,9 @@ def timeline(
     robot: Annotated[str, typer.Argument(help="the robot (or operator) account")],
     since: Annotated[str, typer.Option(help=f"from this time: {TIME_FORMS}")] = "1h",
     until: Annotated[str | None, typer.Option(help="until this time (default: now; the same forms)")] = None,
-    limit: Annotated[int, typer.Option(help="at most this many, the oldest first")] = 500,
+    limit: Annotated[
+        int, typer.Option(min=1, max=LIMIT_MAX, help="at most this many, the oldest first")
+    ] = TIMELINE_LIMIT,
     as_json: Annotated[bool, typer.Option("--json", help="JSON lines instead of a table")] = False,
 ) -> None:
     """Fault analysis: every message ROBOT sent or was sent, all types merged in time order.
