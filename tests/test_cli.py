@@ -35,6 +35,13 @@ def test_users_publish_query_and_dlq(bus: Bus, tmp_path: Path) -> None:
     assert "fleetbus-demo" not in added.stdout
     again = fleetbus(bus, "users", "add", "cli-explorer")
     assert again.returncode == 1 and "exists" in again.stderr
+    # a new password keeps what the account is: a robot, an explorer (as the console's re-key does)
+    rotated = fleetbus(bus, "users", "add", "cli-explorer", "--rotate")
+    assert rotated.returncode == 0, rotated.stderr
+    assert "gave a new password to robot cli-explorer" in rotated.stdout
+    users = json.loads(fleetbus(bus, "users", "list", "--json").stdout)["users"]
+    [listed] = [u for u in users if u["name"] == "cli-explorer"]
+    assert (listed["role"], listed["kind"]) == ("robot", "explorer")
 
     data = tmp_path / "hazard.yaml"
     data.write_text(yaml.safe_dump(hazard()))

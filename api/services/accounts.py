@@ -278,7 +278,7 @@ class Accounts:
     async def provision(
         self,
         name: str,
-        role: UserRole,
+        role: UserRole | None,
         kind: RobotKind | None,
         by: str,
         *,
@@ -289,15 +289,22 @@ class Accounts:
         """Record ``name`` in the registry and make its broker account (with its permissions,
         exchanges, inbox, and a robot's shard and place in the team); revoke the certificates the
         CA signed for the name. ``rotate``: an existing user (or a broker account made outside the
-        registry, which it then records) gets a new broker password, and the role and kind given.
+        registry, which it then records) gets a new broker password, and the role and kind given;
+        ``role`` None: a new account is a robot, a re-keyed one keeps its role, and its kind too
+        when ``kind`` is None.
         ``certificate``: the broker account has no password (it logs in with a client certificate).
         ``password`` is the HTTP API login's (``None``: none yet)."""
         await self._check_name(name)
-        if kind is not None and role is not UserRole.ROBOT:
-            raise BadRequest("kind applies to robots only")
         if password is not None and (problem := password_problem(password)):
             raise BadRequest(problem)
         existing = await self._users.get_user(name)
+        if role is None:
+            keeps = existing if rotate else None  # re-keyed: its password changes, nothing else
+            role = keeps.role if keeps is not None else UserRole.ROBOT
+            if keeps is not None and kind is None and keeps.kind:
+                kind = RobotKind(keeps.kind)
+        if kind is not None and role is not UserRole.ROBOT:
+            raise BadRequest("kind applies to robots only")
         if not rotate:
             if existing is not None:
                 raise Conflict(f"user {name!r} exists")
@@ -672,9 +679,7 @@ def known_use_cases(names: Iterable[str]) -> tuple[str, ...]:
     """``names`` in the order the service lists its use cases; :class:`BadRequest` naming an unknown one."""
     wanted = {name.strip() for name in names if name.strip()}
     if unknown := sorted(wanted - USE_CASES.keys()):
-        raise BadRequest(
-            f"no use case {', '.join(map(repr, unknown))}; use cases: {', '.join(USE_CASES)}"
-        )
+        raise BadRequest(f"no use case {', '.join(map(repr, unknown))}; use cases: {', '.join(USE_CASES)}")
     return tuple(name for name in USE_CASES if name in wanted)
 
 

@@ -39,9 +39,19 @@ app = typer.Typer(help="Broker accounts for users, robots and services.", no_arg
 @app.command("add")
 def add(
     name: str,
-    role: Annotated[UserRole, typer.Option(help="its role (as the HTTP API's users have)")] = UserRole.ROBOT,
-    kind: Annotated[RobotKind | None, typer.Option(help="robot kind; decides its notifications")] = None,
-    rotate: Annotated[bool, typer.Option(help="give an existing account a new password")] = False,
+    role: Annotated[
+        UserRole | None,
+        typer.Option(
+            help="its role (as the HTTP API's users have); default: robot, or with --rotate its own"
+        ),
+    ] = None,
+    kind: Annotated[
+        RobotKind | None,
+        typer.Option(help="robot kind; decides its notifications (with --rotate: default its own)"),
+    ] = None,
+    rotate: Annotated[
+        bool, typer.Option(help="give an existing account a new password, keeping its role and kind")
+    ] = False,
     save: Annotated[
         bool, typer.Option(help="keep the URL in FLEETBUS_DATA_DIR/accounts for `publish`")
     ] = True,
@@ -79,7 +89,8 @@ def add(
         url = with_client_certificate(url, client.cert, client.key)
     if save:
         save_secret(config.accounts_dir / f"{name}.url", url)
-    console.print(f"created {role.value} [bold]{name}[/]; its AMQP URL (shown once):")
+    done = "gave a new password to" if rotate else "created"
+    console.print(f"{done} {made.user.role.value} [bold]{name}[/]; its AMQP URL (shown once):")
     console.print(url, soft_wrap=True, highlight=False)
     if client is not None:
         _say_certificate(client, url)
@@ -203,7 +214,7 @@ def use_cases(
     name: str,
     allow: Annotated[
         str | None,
-        typer.Option(help="the use cases NAME may create missions of, comma-separated (\"\": none)"),
+        typer.Option(help='the use cases NAME may create missions of, comma-separated ("": none)'),
     ] = None,
     every: Annotated[
         bool, typer.Option("--all", help="every use case, those added later too (the default)")
