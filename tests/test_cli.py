@@ -107,6 +107,13 @@ def test_a_password_on_the_command_line_is_refused_naming_where_it_goes(bus: Bus
     assert kept.split("@")[0].rsplit(":", 1)[1] not in refused.stderr, "the password is not repeated"
     by_bridge = in_process(bus, "ros", "bridge", "argv-explorer", "--url", kept)  # refused first thing
     assert by_bridge.returncode == 2 and "--url holds a password" in by_bridge.stderr.replace("\n", " ")
+    for command, instead in (
+        (["tail"], "FLEETBUS_USER_URL"),
+        (["replay", "--to", "x", "--since", "1h"], "FLEETBUS_AMQP_URL"),
+    ):
+        other = fleetbus(bus, *command, "--url", kept)
+        said = other.stderr.replace("\n", " ")
+        assert other.returncode == 2 and "--url holds a password" in said and instead in said, said
     # in the environment it is taken, by the ROS bridge too (it gets as far as starting its ROS side)
     bridge = fleetbus(
         bus,

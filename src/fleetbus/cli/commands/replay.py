@@ -12,7 +12,7 @@ import typer
 from rich.progress import Progress, TextColumn, TimeElapsedColumn
 
 from fleetbus.api.services.errors import ServiceRefusal
-from fleetbus.cli.context import console, endpoint, errors, fail
+from fleetbus.cli.context import console, endpoint, errors, fail, no_password_in_argv
 from fleetbus.cli.services import fail_refused, recording_stream
 from fleetbus.cli.times import TIME_FORMS, parse_time
 from fleetbus.publishers.confirms import SERVICE_CONFIRM_TIMEOUT_S, Outgoing, PipelinedConfirms
@@ -150,6 +150,7 @@ def replay(
         fail(str(error), code=2)
     if speed < 0:
         fail("--speed must be 0 or more", code=2)
+    no_password_in_argv(url, "--url", "in FLEETBUS_AMQP_URL (the account replay publishes as)")
     publish = Publisher(url or endpoint().amqp_url, to, declare)
     columns = (TextColumn("replaying: {task.completed:,.0f} messages"), TimeElapsedColumn())
     try:

@@ -20,7 +20,7 @@ import typer
 from rich.markup import escape
 
 from fleetbus.broker.tail import Seen, follow
-from fleetbus.cli.context import console, fail, settings
+from fleetbus.cli.context import console, fail, no_password_in_argv, settings
 from fleetbus.cli.times import TIME_FORMS, parse_time
 
 #: Seconds Ctrl-C waits for the broker to close the follow before the command ends anyway.
@@ -28,6 +28,9 @@ STOP_S = 3.0
 
 
 def user_url(user: str | None, url: str | None) -> str:
+    no_password_in_argv(
+        url, "--url", "in FLEETBUS_USER_URL, or keep it with `fleetbus api login NAME` and use --user"
+    )
     url = url or settings().user_url
     if url:
         return url
