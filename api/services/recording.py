@@ -221,4 +221,3 @@ class Recording:
         """Every message of the bag at ``path`` as ``robot``'s, or none (a
         :class:`~fleetbus.workers.recorder.bags.BagError` says why)."""
         return await import_bag_into(self._store, path, robot, max_bytes, progress, blob_max)
-

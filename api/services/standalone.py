@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from fleetbus.api.services.sites import Sites, SiteTeam
     from fleetbus.api.services.stats import Stats
 
+
 class Services:
     """Each service built when first asked for, on one set of repositories."""
 

@@ -181,9 +181,7 @@ class DashboardView:
         self.snapshot.want(newest_of(records, NEWS))
         localised = self._localised
         self.snapshot.want(
-            newest_of(
-                [r for r in records if r.robot_id not in localised], {EventType.LOCALISATION.value}
-            )
+            newest_of([r for r in records if r.robot_id not in localised], {EventType.LOCALISATION.value})
         )
         return [fragment("dashboard/event.html", event=record) for record in records[-self.recent_limit :]]
 
