@@ -4,20 +4,20 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Path, Query
+from fastapi import APIRouter, Depends, Query
 
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.models import AlertOut, AlertsOut
 from fleetbus.api.openapi import refusals
+from fleetbus.api.parameters import AlertId
 from fleetbus.api.services.accounts import User
-from fleetbus.api.services.alerts import ACKNOWLEDGERS, ALERT_ID_MAX
+from fleetbus.api.services.alerts import ACKNOWLEDGERS
 from fleetbus.api.services.errors import Conflict
 from fleetbus.schemas.roles import WATCHERS
 
 router = APIRouter(tags=["alerts"])
 Watcher = Annotated[User, Depends(require_role(*WATCHERS))]
 Acknowledger = Annotated[User, Depends(require_role(*ACKNOWLEDGERS))]
-AlertId = Annotated[int, Path(ge=1, le=ALERT_ID_MAX, description="the alert's id")]
 
 
 @router.get("/alerts", response_model=AlertsOut)

@@ -128,3 +128,20 @@ def test_the_administrators_actions_are_refused_to_every_other_role(console: Con
     assert (before.use_cases, after.use_cases) == (None, ())
     assert console.run(lambda: sessions.of("target1")) == []
     assert console.bus.ready_messages(DEAD_LETTER_QUEUE) == 0
+
+
+def test_a_number_beyond_the_stores_integers_in_an_address_is_a_422_not_a_500(console: Console) -> None:
+    """As the HTTP API bounds its ids: an alert, a map version or a page beyond 2**63 - 1 (SQLite's
+    largest integer) is refused naming the parameter, not a store error."""
+    huge = 2**64
+    with _session(console, UserRole.ADMIN) as http:
+        csrf = {CSRF_FIELD: http.cookies[CSRF_COOKIE]}
+        answers = {
+            "alert": http.post(f"/console/alerts/{huge}/acknowledge", data=csrf),
+            "map": http.get(f"/console/map/{huge}.png"),
+            "map query": http.get(f"/console/map?version={huge}"),
+            "hazards page": http.get(f"/console/hazards?page={huge}"),
+        }
+    with _session(console, UserRole.PLANNER) as http:
+        answers["plan map"] = http.get(f"/console/missions/new/map/{huge}.png")
+    assert {what: answer.status_code for what, answer in answers.items()} == dict.fromkeys(answers, 422)

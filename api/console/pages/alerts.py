@@ -21,6 +21,7 @@ from fleetbus.api.console.live import Shared, live_stream
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import ALERTS
 from fleetbus.api.console.templating import fragment, render
+from fleetbus.api.parameters import AlertId
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.alerts import ACKNOWLEDGERS, MEANING, AlertList, acknowledged_text
@@ -118,7 +119,7 @@ async def alerts_stream(request: Request, user: Viewer, view: View) -> Response:
 
 
 @router.post("/console/alerts/{alert_id}/acknowledge", response_class=HTMLResponse)
-async def acknowledge_alert(request: Request, user: Acknowledger, alert_id: int) -> Response:
+async def acknowledge_alert(request: Request, user: Acknowledger, alert_id: AlertId) -> Response:
     """Acknowledge an alert (as ``POST /alerts/{alert_id}/acknowledge``); the answer says who and
     when, and brings the banner (and, on the Alerts page, its panel) up to date."""
     service: Service = request.app.state.service

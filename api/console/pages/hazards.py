@@ -35,6 +35,8 @@ router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(HAZARDS))]
 Dispatcher = Annotated[User, Depends(Allowed(DISPATCHERS, "the buttons that act for wardens"))]
 TEAM_CHANGES = {"out": False, "in": True}
+#: The last page a listing may ask for: far beyond any registry, and within the store's integers.
+MAX_PAGE = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -156,7 +158,7 @@ View = Annotated[HazardsView, Depends(hazards_view)]
 
 @router.get("/console/hazards", response_class=HTMLResponse)
 async def hazards(
-    request: Request, user: Viewer, view: View, page: Annotated[int, Query(ge=1)] = 1
+    request: Request, user: Viewer, view: View, page: Annotated[int, Query(ge=1, le=MAX_PAGE)] = 1
 ) -> Response:
     found = await listing(request.app.state.service, page, view.size)
     may_act = acts(user)

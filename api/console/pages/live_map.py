@@ -29,10 +29,11 @@ from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MAP
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.console.trails import WINDOWS, hazard_times, position, trails, where_seen
+from fleetbus.api.parameters import MapVersionNumber
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.errors import NotFound
-from fleetbus.api.services.hazards import Hazard, HazardState
+from fleetbus.api.services.hazards import LARGEST_INTEGER, Hazard, HazardState
 from fleetbus.api.services.maps import MapVersion
 from fleetbus.api.services.stored_events import EventRecord
 from fleetbus.schemas.routing import EventType
@@ -40,7 +41,9 @@ from fleetbus.workers.beacons import DEFAULT_WINDOW
 
 router = APIRouter()
 Viewer = Annotated[User, Depends(Allowed.page(MAP))]
-Version = Annotated[int | None, Query(ge=1, description="a stored map version; the newest by default")]
+Version = Annotated[
+    int | None, Query(ge=1, le=LARGEST_INTEGER, description="a stored map version; the newest by default")
+]
 #: Events that change the map at once: shown without waiting for the next refresh. (Poses come
 #: with statuses, often; they are in memory and show at the next refresh.)
 NEWS = frozenset({EventType.HAZARD.value, EventType.MAP.value})
@@ -240,7 +243,7 @@ async def png_answer(view: MapView, user: User, version: int) -> Response:
 
 
 @router.get("/console/map/{version}.png")
-async def map_png(user: Viewer, view: View, version: int) -> Response:
+async def map_png(user: Viewer, view: View, version: MapVersionNumber) -> Response:
     return await png_answer(view, user, version)
 
 

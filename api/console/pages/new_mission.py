@@ -27,6 +27,7 @@ from fleetbus.api.console.pages.live_map import View, png_answer
 from fleetbus.api.console.session import Allowed
 from fleetbus.api.console.sitemap import MISSIONS
 from fleetbus.api.console.templating import render
+from fleetbus.api.parameters import MapVersionNumber
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.errors import ServiceRefusal
@@ -182,7 +183,7 @@ async def edit_again(request: Request, user: Author, view: View, draft: Posted) 
 
 
 @router.get("/console/missions/new/map/{version}.png")
-async def map_image(user: Author, view: View, version: int) -> Response:
+async def map_image(user: Author, view: View, version: MapVersionNumber) -> Response:
     """The newest version's image only (:mod:`fleetbus.api.services.maps`): what the form draws on."""
     return await png_answer(view, user, version)
 
