@@ -41,3 +41,6 @@ ACTIVE_ROLES = frozenset(UserRole) - {UserRole.INACTIVE}
 WATCHERS = frozenset({UserRole.ADMIN, UserRole.SUPERVISOR, UserRole.OPERATOR})
 #: Who reads the recording's figures (the performance evaluation, its growth), not its traffic.
 EVALUATORS = WATCHERS | {UserRole.PLANNER}
+#: Who reads what the robots recorded under a mission (its sensor readings), of a mission it may
+#: see: a guest reads the mission list only.
+MISSION_DATA_READERS = EVALUATORS | {UserRole.CLIENT}

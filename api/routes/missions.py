@@ -25,7 +25,7 @@ from fleetbus.api.services.channels import OPERATING
 from fleetbus.api.services.errors import Conflict
 from fleetbus.api.services.missions import AUTHORS, MOVERS
 from fleetbus.schemas.missions import MissionPlan, MissionState
-from fleetbus.schemas.roles import ACTIVE_ROLES, UserRole
+from fleetbus.schemas.roles import ACTIVE_ROLES, MISSION_DATA_READERS, UserRole
 from fleetbus.schemas.use_cases import USE_CASES
 
 router = APIRouter(tags=["missions"])
@@ -34,7 +34,7 @@ Anyone = Annotated[User, Depends(require_role(*ACTIVE_ROLES))]
 Reader = Annotated[
     User, Depends(require_role(R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR, R.GUEST))
 ]
-DataReader = Annotated[User, Depends(require_role(R.ADMIN, R.CLIENT, R.PLANNER, R.SUPERVISOR, R.OPERATOR))]
+DataReader = Annotated[User, Depends(require_role(*MISSION_DATA_READERS))]
 Author = Annotated[User, Depends(require_role(*AUTHORS))]
 Mover = Annotated[User, Depends(require_role(*MOVERS))]
 Operator = Annotated[User, Depends(require_role(*OPERATING))]

@@ -11,7 +11,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from datetime import datetime
 
+from fleetbus.api.services.errors import Forbidden
 from fleetbus.api.services.missions import Missions
+from fleetbus.schemas.roles import MISSION_DATA_READERS
 from fleetbus.workers.store.base import (
     EventQuery,
     EventRecord,
@@ -97,7 +99,10 @@ class MissionEvents:
         limit: int | None = None,
         newest_first: bool = False,
     ) -> list[EventRecord]:
-        """The events recorded under the mission (of ``type`` if given), at most ``limit``."""
+        """The events recorded under the mission (of ``type`` if given), at most ``limit``; for a
+        role of :data:`MISSION_DATA_READERS` only."""
+        if user.role not in MISSION_DATA_READERS:
+            raise Forbidden(f"a {user.role.value} may not read what was recorded under a mission")
         await self._missions.get(user, mission_id)
         return await self._events.find_events(
             EventQuery(type=type, mission_id=mission_id, limit=limit, newest_first=newest_first)

@@ -151,6 +151,10 @@ def test_readings_are_mapped_clustered_and_live_and_comments_reach_other_roles(
                 assert "Thank you, the pier tomorrow." in seen and 'data-action="comment"' not in seen
                 refused = guest.post(f"/console/missions/{mission}/comments", data={"text": "may I?"})
                 assert refused.status_code == 403 and "role guest may not comment" in refused.text
+                # a guest reads the mission list, not the robots' readings (as GET /missions/{id}/events)
+                assert 'id="mission-sensors"' not in seen
+                readings = guest.get(f"/console/missions/{mission}/points")
+                assert readings.status_code == 403 and "guest may not read" in readings.text, readings.text
             assert len(console.run(lambda: console.service.repositories.comments.comments(mission))) == 2
             assert browser.console_errors() == []
 

@@ -28,6 +28,7 @@ from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.errors import ServiceRefusal
 from fleetbus.api.services.stored_events import EventRecord, to_micros
+from fleetbus.schemas.roles import MISSION_DATA_READERS
 from fleetbus.schemas.routing import EventType
 
 router = APIRouter()
@@ -91,6 +92,8 @@ class MissionPage:
         return await self._thread()
 
     async def events(self, records: list[EventRecord]) -> list[str]:
+        if self.user.role not in MISSION_DATA_READERS:
+            return []
         return [
             fragment("missions/point.html", point=point_of(record))
             for record in records

@@ -31,6 +31,7 @@ from fleetbus.api.services.mission_comments import COMMENT_MAX, may_comment
 from fleetbus.api.services.missions import AUTHORS, MOVERS, may_see
 from fleetbus.api.services.stored_events import EventRecord
 from fleetbus.schemas.missions import MissionPlan, MissionState
+from fleetbus.schemas.roles import MISSION_DATA_READERS
 from fleetbus.schemas.use_cases import CHECK_IN_STATES, USE_CASES, machine_for
 
 router = APIRouter()
@@ -173,6 +174,7 @@ async def show_detail(
         cursor=request.app.state.feed.cursor,
         thread=await thread_fragment(svc, user, mission_id),
         may_comment=may_comment(user, mission),
+        may_read_data=user.role in MISSION_DATA_READERS,
         comment=comment,
         comment_max=COMMENT_MAX,
         points_limit=svc.settings.console_mission_points,
