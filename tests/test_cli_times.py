@@ -49,3 +49,12 @@ def test_durations() -> None:
     assert read_duration("1m") == timedelta(minutes=1)
     with pytest.raises(ValueError, match="s, m, h or d"):
         read_duration("1w")
+
+
+def test_the_http_api_and_the_command_line_read_a_time_the_same_way() -> None:
+    """One reader of ISO 8601 for both, a ``Z`` taken on every Python (3.10's fromisoformat reads none)."""
+    from fleetbus.api.routes.recording import read_time as api_time
+    from fleetbus.cli.times import read_time as cli_time
+
+    for text in ("2026-11-27T08:00:00Z", "2026-11-27T08:00:00+00:00", "2026-11-27T08:00:00"):
+        assert api_time(text) == cli_time(text) == datetime(2026, 11, 27, 8, tzinfo=timezone.utc), text

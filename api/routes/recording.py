@@ -18,6 +18,7 @@ from pydantic import BaseModel, BeforeValidator, Field
 from fleetbus.api.auth import ServiceDep, require_role
 from fleetbus.api.services.accounts import User
 from fleetbus.api.services.recording import OutcomeStats, RecordedMessage
+from fleetbus.limits import read_iso_time
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.roles import EVALUATORS, WATCHERS
 from fleetbus.schemas.routing import NOTIFY_EXCHANGE, inbox_queue
@@ -34,8 +35,7 @@ Limit = Annotated[int, Query(ge=1, le=LIMIT_MAX)]
 def read_time(text: str) -> datetime:
     """A time written in ISO 8601 (``2026-11-27T08:00:00Z``); one without a zone is UTC. A
     :class:`ValueError` when it is not one."""
-    moment = datetime.fromisoformat(text)
-    return moment if moment.tzinfo else moment.replace(tzinfo=timezone.utc)
+    return read_iso_time(text)
 
 
 def _time_in_query(value: Any) -> Any:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
-from datetime import timedelta
+from datetime import datetime, timedelta, timezone
 
 ANY_TYPE = "*"
 AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
@@ -20,6 +20,7 @@ SIZE_UNITS = {"B": 1, "KB": 1000, "MB": 1000**2, "GB": 1000**3, "KIB": 1024, "MI
 SPEC = re.compile(r"^(?P<type>\*|[a-z][a-z0-9_]{0,39})=(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
 DURATION = re.compile(r"(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[smhd])")
 LIMIT = re.compile(r"^(?P<amount>[0-9]+(?:\.[0-9]+)?)(?P<unit>[A-Za-z]*)$")
+
 
 @dataclass(frozen=True)
 class Retention:
@@ -88,6 +89,14 @@ def parse_limit(text: str, what: str = "limit") -> Retention:
     if not unit and amount.is_integer():
         return Retention(max_records=int(amount))
     raise ValueError(f"{what}: unknown unit {unit!r}; use s, m, h, d, KB, MB, GB or none")
+
+
+def read_iso_time(text: str) -> datetime:
+    """A time in ISO 8601 (``2026-11-27T08:00:00Z``), the one way fleetbus reads one: a ``Z`` on
+    every Python (3.10 reads none), and one without a zone is UTC; ValueError otherwise."""
+    iso = text[:-1] + "+00:00" if text.endswith(("Z", "z")) else text
+    moment = datetime.fromisoformat(iso)
+    return moment if moment.tzinfo else moment.replace(tzinfo=timezone.utc)
 
 
 def read_duration(text: str) -> timedelta:

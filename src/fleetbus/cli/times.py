@@ -18,7 +18,7 @@ import re
 from datetime import datetime, time, timedelta, timezone
 
 from fleetbus.cli.context import fail
-from fleetbus.limits import DURATION, read_duration
+from fleetbus.limits import DURATION, read_duration, read_iso_time
 
 #: What a time option takes, for its help: every option says the same.
 TIME_FORMS = (
@@ -34,16 +34,15 @@ def read_time(text: str, now: datetime | None = None) -> datetime:
     value = text.strip()
     if DURATION.fullmatch(value):
         return now - read_duration(value)
-    iso = value[:-1] + "+00:00" if value.endswith("Z") else value  # Python 3.10 reads no "Z"
     try:
         if TIME_OF_DAY.fullmatch(value):
+            iso = value[:-1] + "+00:00" if value.endswith("Z") else value  # Python 3.10 reads no "Z"
             of_day = time.fromisoformat(iso)
             zone = of_day.tzinfo or timezone.utc
             return datetime.combine(now.astimezone(zone).date(), of_day.replace(tzinfo=None), tzinfo=zone)
-        moment = datetime.fromisoformat(iso)
+        return read_iso_time(value)
     except ValueError:
         raise ValueError(f"cannot read the time {text!r}: write {TIME_FORMS}") from None
-    return moment if moment.tzinfo else moment.replace(tzinfo=timezone.utc)
 
 
 def parse_time(value: str | None, option: str = "time") -> datetime | None:
