@@ -3,20 +3,24 @@ The HTTP API's ``POST /auth/token`` and the console's login form both go through
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from fastapi import HTTPException, Request
 
 from fleetbus.api import audit
 from fleetbus.api.service import Service
-from fleetbus.api.services.accounts import Login, WrongCredentials
+from fleetbus.api.services.accounts import Login, User, WrongCredentials
 from fleetbus.api.services.errors import Forbidden
 from fleetbus.api.services.login_limits import TooManyFailures
 from fleetbus.api.services.sessions import AGENT_MOST, Origin
 
 
-async def log_in(request: Request, svc: Service, name: str, password: str) -> Login:
+async def log_in(
+    request: Request, svc: Service, name: str, password: str, admit: Callable[[User], None] | None = None
+) -> Login:
     """The login, or an :class:`HTTPException` saying why not: 429 with Retry-After when too many
     logins failed (answered before the password is checked), 401 for a wrong name or password,
-    403 for an inactive account."""
+    403 for an inactive account or one ``admit`` refuses (no session begun)."""
     address = audit.client_address(request)
     try:
         svc.login_limits.check(name, address)
@@ -26,7 +30,7 @@ async def log_in(request: Request, svc: Service, name: str, password: str) -> Lo
             429, detail=error.detail, headers={"Retry-After": str(error.retry_after)}
         ) from None
     try:
-        login = await svc.accounts.login(name, password, origin_of(request))
+        login = await svc.accounts.login(name, password, origin_of(request), admit)
     except WrongCredentials as error:
         svc.login_limits.failed(name, address)
         audit.refused(request, 401, name, str(error))

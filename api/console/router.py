@@ -26,6 +26,8 @@ from fleetbus.api.console.session import (
 from fleetbus.api.console.sitemap import home_for
 from fleetbus.api.console.templating import render
 from fleetbus.api.login import log_in
+from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import Forbidden
 from fleetbus.schemas.roles import UserRole
 
 STATIC = Path(__file__).parent / "static"
@@ -56,6 +58,13 @@ async def login_form(request: Request, next: str | None = None) -> Response:
     return render(request, "login.html", None, next=_safe_next(next), problem=None)
 
 
+def _has_pages(user: User) -> None:
+    """A console login is for a user with pages: refused before a session begins (a robot's API
+    sessions are kept to a number, and a session begun here would end its oldest)."""
+    if home_for(user.role) is None or user.role is UserRole.ROBOT:
+        raise Forbidden(f"role {user.role.value} has no page in the console")
+
+
 @router.post("/console/login", response_class=HTMLResponse)
 async def login(
     request: Request,
@@ -65,7 +74,7 @@ async def login(
     next: Annotated[str | None, Form()] = None,
 ) -> Response:
     try:
-        done = await log_in(request, svc, username, password)
+        done = await log_in(request, svc, username, password, admit=_has_pages)
     except HTTPException as refused:
         return render(
             request,
@@ -77,15 +86,7 @@ async def login(
             headers=refused.headers,
         )
     home = home_for(done.user.role)
-    if home is None or done.user.role is UserRole.ROBOT:
-        return render(
-            request,
-            "login.html",
-            None,
-            status_code=403,
-            next=None,
-            problem=f"role {done.user.role.value} has no page in the console",
-        )
+    assert home is not None  # admitted by _has_pages
     response = RedirectResponse(_safe_next(next) or home.path, status_code=303)
     start_session(request, response, done.token)
     return response

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
-from collections.abc import AsyncIterator, Collection, Iterable, Sequence
+from collections.abc import AsyncIterator, Callable, Collection, Iterable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -632,8 +632,11 @@ class Accounts:
         log.info("site %s sent its robots' accounts and list: %s", site, ", ".join(robots) or "none")
         return SiteRobots(robots, accounts, [])
 
-    async def login(self, name: str, password: str, origin: Origin) -> Login:
-        """Check the password and begin a session seen from ``origin``."""
+    async def login(
+        self, name: str, password: str, origin: Origin, admit: Callable[[User], None] | None = None
+    ) -> Login:
+        """Check the password and begin a session seen from ``origin``; ``admit`` raises
+        :class:`Forbidden` for a user this way in does not serve (before any session begins)."""
         user = await self._users.get_user(name)
         if (
             not await self._secrets.passwords.verify(user.password_hash if user else None, password)
@@ -642,6 +645,8 @@ class Accounts:
             raise WrongCredentials("wrong user name or password")
         if user.role is UserRole.INACTIVE:
             raise Forbidden(f"user {name} is inactive: an admin must give it a role first")
+        if admit is not None:
+            admit(user)
         token = await self._sessions.begin(user.name, origin)
         return Login(user, token, self.broker_credentials(user))
 

@@ -8,6 +8,7 @@ import pytest
 from fleetbus.api.console.headers import CONTENT_SECURITY_POLICY
 from fleetbus.api.console.session import CSRF_COOKIE, SESSION_COOKIE
 from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import RobotKind
 from tests.console.support import PASSWORD, Console, navigation, running_console
 from tests.support import Bus
 
@@ -100,3 +101,17 @@ def test_a_role_without_the_page_gets_403_and_no_link_to_it(console: Console) ->
         robot = log_in(console, http, "robot1")
         assert robot.status_code == 403 and "no page in the console" in robot.text
         assert SESSION_COOKIE not in http.cookies
+
+
+def test_a_robot_refused_at_the_console_login_keeps_its_api_sessions(console: Console) -> None:
+    """A robot has no page: its console login is refused before a session begins, so it does not
+    take the place of one of its HTTP API sessions (a user keeps a bounded number)."""
+    console.user("robot1", UserRole.ROBOT, RobotKind.EXPLORER)
+    console.session("robot1")  # one of its API sessions
+    sessions = console.service.sessions
+    before = console.run(lambda: sessions.of("robot1"))
+    with client(console) as http:
+        refused = log_in(console, http, "robot1")
+    assert refused.status_code == 403 and "role robot has no page in the console" in refused.text
+    assert SESSION_COOKIE not in refused.cookies
+    assert console.run(lambda: sessions.of("robot1")) == before
