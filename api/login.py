@@ -23,23 +23,24 @@ async def log_in(
     403 for an inactive account or one ``admit`` refuses (no session begun)."""
     address = audit.client_address(request)
     try:
-        svc.login_limits.check(name, address)
+        attempt = svc.login_limits.begin(name, address)
     except TooManyFailures as error:
         audit.refused(request, 429, name, error.detail)
         raise HTTPException(
             429, detail=error.detail, headers={"Retry-After": str(error.retry_after)}
         ) from None
-    try:
-        login = await svc.accounts.login(name, password, origin_of(request), admit)
-    except WrongCredentials as error:
-        svc.login_limits.failed(name, address)
-        audit.refused(request, 401, name, str(error))
-        raise HTTPException(401, detail=str(error), headers={"WWW-Authenticate": "Bearer"}) from None
-    except Forbidden as error:
-        audit.refused(request, 403, name, error.detail)
-        raise HTTPException(403, detail=error.detail) from None
-    svc.login_limits.succeeded(name, address)
-    return login
+    with attempt:
+        try:
+            login = await svc.accounts.login(name, password, origin_of(request), admit)
+        except WrongCredentials as error:
+            svc.login_limits.failed(name, address)
+            audit.refused(request, 401, name, str(error))
+            raise HTTPException(401, detail=str(error), headers={"WWW-Authenticate": "Bearer"}) from None
+        except Forbidden as error:
+            audit.refused(request, 403, name, error.detail)
+            raise HTTPException(403, detail=error.detail) from None
+        svc.login_limits.succeeded(name, address)
+        return login
 
 
 def origin_of(request: Request) -> Origin:

@@ -7,8 +7,10 @@
 - An address: ``FLEETBUS_API_ADDRESS_FAILURES`` (20 per 5 minutes) failures to any accounts, and
   it gets 429 for every account: guessing across many accounts is slowed down too.
 
-A refused attempt is answered before its password is checked, so it costs no hashing. A login
-that succeeds clears its account's count from that address. The counts live in the API process:
+A refused attempt is answered before its password is checked, so it costs no hashing. Attempts
+whose passwords are being checked count as failures until they end, so that many logins sent at
+once cannot all pass the check before the first failure is counted. A login that succeeds clears
+its account's count from that address. The counts live in the API process:
 a restart clears them, and several replicas each count their own.
 """
 
@@ -16,6 +18,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 
 from limits import RateLimitItem, parse
 from limits.storage import MemoryStorage
@@ -36,6 +41,8 @@ class LoginLimits:
         self._limiter = MovingWindowRateLimiter(MemoryStorage())
         self._per_account = parse(per_account)
         self._per_address = parse(per_address)
+        self._checking: Counter[tuple[str, ...]] = Counter()
+        """Attempts under way (their passwords being checked), by window key."""
 
     def _windows(self, account: str, address: str) -> list[tuple[RateLimitItem, tuple[str, ...], str]]:
         return [
@@ -43,13 +50,29 @@ class LoginLimits:
             (self._per_account, ("account", account, address), f"to {account} from {address}"),
         ]
 
-    def check(self, account: str, address: str) -> None:
-        """Raise :class:`TooManyFailures` when either limit is reached."""
+    def begin(self, account: str, address: str) -> AbstractContextManager[None]:
+        """A login attempt, to be used as a context while its password is checked: raise
+        :class:`TooManyFailures` when either limit would be reached were the attempts under way to
+        fail too; else count this one among them until the context ends."""
+        keys = []
         for limit, key, what in self._windows(account, address):
-            if not self._limiter.test(limit, *key):
+            if not self._limiter.test(limit, *key, cost=self._checking[key] + 1):
                 reset = self._limiter.get_window_stats(limit, *key).reset_time
                 wait = max(1, math.ceil(reset - time.time()))
                 raise TooManyFailures(f"too many failed logins {what}; try again in {wait} s", wait)
+            keys.append(key)
+        self._checking.update(keys)
+        return self._under_way(keys)
+
+    @contextmanager
+    def _under_way(self, keys: list[tuple[str, ...]]) -> Iterator[None]:
+        try:
+            yield
+        finally:
+            self._checking.subtract(keys)
+            for key in keys:
+                if self._checking[key] <= 0:
+                    del self._checking[key]
 
     def failed(self, account: str, address: str) -> None:
         for limit, key, _ in self._windows(account, address):

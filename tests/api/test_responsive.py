@@ -168,3 +168,17 @@ def test_api_processes_started_at_once_end_with_the_same_secret(tmp_path: Path) 
     assert all(len(next(iter(s))) >= 48 for s in seen.values()), "an empty or partial secret was read"
     for data_dir in data_dirs:
         assert [p.name for p in (Path(data_dir) / "api").iterdir()] == ["secret"], "a draft was left behind"
+
+
+def test_logins_sent_at_once_are_limited_as_if_sent_one_after_another(strict_api: str) -> None:
+    """The attempts whose passwords are being checked count against the limit: ten guesses sent
+    at once get no more password checks than three sent in turn (the rest are answered 429)."""
+
+    async def guesses() -> list[int]:
+        transport = httpx.AsyncHTTPTransport(local_address="127.0.0.4")
+        async with httpx.AsyncClient(base_url=strict_api, transport=transport, timeout=60) as http:
+            data = {"username": ADMIN, "password": WRONG}
+            answers = await asyncio.gather(*(http.post("/auth/token", data=data) for _ in range(10)))
+        return sorted(answer.status_code for answer in answers)
+
+    assert asyncio.run(guesses()) == [401] * 3 + [429] * 7
