@@ -270,14 +270,17 @@ class Bus:
             env.setdefault("FLEETBUS_TLS_CA", str(load_settings().ca_file))
         return env
 
-    def spawn_worker(self, *options: str, module: str = "fleetbus") -> subprocess.Popen[bytes]:
+    def spawn_worker(
+        self, *options: str, module: str = "fleetbus", env: dict[str, str] | None = None
+    ) -> subprocess.Popen[bytes]:
         """The worker as its own process (``python -m fleetbus worker``), to be killed for real;
-        ``module`` runs another entry point (``tests.faulty_worker``) with the same options."""
+        ``module`` runs another entry point (``tests.faulty_worker``) with the same options;
+        ``env``: settings over :meth:`service_env`'s."""
         log = open(self.settings.data_dir / f"worker-{uuid.uuid4().hex[:6]}.log", "wb")
         command = [sys.executable, "-m", module, *(["worker"] if module == "fleetbus" else []), *options]
         return subprocess.Popen(
             command,
-            env=self.service_env(),
+            env={**self.service_env(), **(env or {})},
             stdout=log,
             stderr=subprocess.STDOUT,
         )

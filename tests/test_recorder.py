@@ -9,6 +9,7 @@ import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import pika
 import pika.exceptions
@@ -309,10 +310,15 @@ def _children(pid: int) -> list[int]:
 
 def test_fleetbus_worker_records_in_a_child_that_is_restarted_and_dies_with_it(bus: Bus) -> None:
     explorer = bus.robot(bus.add("rec-explorer", kind=RobotKind.EXPLORER))
-    worker = bus.spawn_worker()
+    worker_password = urlsplit(bus.service_accounts().service_url).password
+    # the worker started with its password in FLEETBUS_SERVICE_URL, as an operator may start it
+    worker = bus.spawn_worker(env={"FLEETBUS_SERVICE_URL": bus.service_accounts().service_url})
     try:
         wait_for(lambda: len(_children(worker.pid)) == 1, timeout=30, what="the recorder's process")
         [first] = _children(worker.pid)
+        # it logs in as fleetbus-recorder: no broker password of the worker's is in its environment
+        environment = Path(f"/proc/{first}/environ").read_bytes().decode()
+        assert worker_password and worker_password not in environment
         explorer.publish(EventType.STATUS, status(70))
         wait_for(lambda: len(bus.recorded("status")) == 1, timeout=60, what="the status recorded")
 

@@ -24,6 +24,7 @@ import sys
 import time
 
 from fleetbus.broker.retry import Backoff, Stopped, async_retrying
+from fleetbus.broker.urls import without_password
 
 log = logging.getLogger("fleetbus.recorder")
 
@@ -34,6 +35,22 @@ HEALTHY_AFTER_S = 60.0
 RESTART_BACKOFF = Backoff(initial=1.0, maximum=30.0, jitter=0.5)
 PARENT_ENV = "FLEETBUS_DIE_WITH_PARENT"
 """Set by the worker for its recorder child: the pid of the parent it must not outlive."""
+#: The worker's secrets its recorder child is not given: it logs in as ``fleetbus-recorder`` with
+#: the password kept in the data folder, so of a broker URL it needs the address alone.
+NOT_FOR_THE_RECORDER = frozenset({"FLEETBUS_BROKER_PASSWORD", "FLEETBUS_API_SECRET"})
+#: The one URL whose password it needs: the store's.
+STORE_URL = "FLEETBUS_MONGODB_URL"
+
+
+def recorder_environment(environ: dict[str, str] | os._Environ[str], parent: int) -> dict[str, str]:
+    """The environment of the worker's recorder child: the worker's, with no broker password (the
+    ``fleetbus`` account's, the administrator's) where ``ps e`` or ``/proc`` would show it."""
+    env = {name: value for name, value in environ.items() if name not in NOT_FOR_THE_RECORDER}
+    for name, value in env.items():
+        if name.startswith("FLEETBUS_") and name.endswith("_URL") and name != STORE_URL and "@" in value:
+            env[name] = without_password(value)
+    env[PARENT_ENV] = str(parent)
+    return env
 
 
 class RecorderExited(Exception):
@@ -62,7 +79,7 @@ async def _run_once(stop: asyncio.Event, verbose: bool) -> None:
     # a session of its own: Ctrl-C in the terminal reaches the worker alone, which stops the child
     child = await asyncio.create_subprocess_exec(
         *recorder_command(verbose),
-        env={**os.environ, PARENT_ENV: str(os.getpid())},
+        env=recorder_environment(os.environ, os.getpid()),
         start_new_session=True,
     )
     log.info("recorder started as process %d", child.pid)
