@@ -23,13 +23,13 @@ async def log_in(
     403 for an inactive account or one ``admit`` refuses (no session begun)."""
     address = audit.client_address(request)
     try:
-        attempt = svc.login_limits.begin(name, address)
+        attempt = await svc.login_limits.begin(name, address)
     except TooManyFailures as error:
         audit.refused(request, 429, name, error.detail)
         raise HTTPException(
             429, detail=error.detail, headers={"Retry-After": str(error.retry_after)}
         ) from None
-    with attempt:
+    async with attempt:
         try:
             login = await svc.accounts.login(name, password, origin_of(request), admit)
         except WrongCredentials as error:

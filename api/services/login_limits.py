@@ -7,20 +7,22 @@
 - An address: ``FLEETBUS_API_ADDRESS_FAILURES`` (20 per 5 minutes) failures to any accounts, and
   it gets 429 for every account: guessing across many accounts is slowed down too.
 
-A refused attempt is answered before its password is checked, so it costs no hashing. Attempts
-whose passwords are being checked count as failures until they end, so that many logins sent at
-once cannot all pass the check before the first failure is counted. A login that succeeds clears
-its account's count from that address. The counts live in the API process:
+A refused attempt is answered before its password is checked, so it costs no hashing. No more
+passwords are checked at once than the failures a window has room for: a login beyond that waits
+for one under way to end, so that many logins sent at once cannot all pass the check before the
+first failure is counted (and logins that succeed, sent at once, all go through). A login that
+succeeds clears its account's count from that address. The counts live in the API process:
 a restart clears them, and several replicas each count their own.
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections import Counter
-from collections.abc import Iterator
-from contextlib import AbstractContextManager, contextmanager
+from collections.abc import AsyncIterator
+from contextlib import AbstractAsyncContextManager, asynccontextmanager
 
 from limits import RateLimitItem, parse
 from limits.storage import MemoryStorage
@@ -43,6 +45,8 @@ class LoginLimits:
         self._per_address = parse(per_address)
         self._checking: Counter[tuple[str, ...]] = Counter()
         """Attempts under way (their passwords being checked), by window key."""
+        self._ended = asyncio.Condition()
+        """Notified when an attempt under way ends."""
 
     def _windows(self, account: str, address: str) -> list[tuple[RateLimitItem, tuple[str, ...], str]]:
         return [
@@ -50,22 +54,32 @@ class LoginLimits:
             (self._per_account, ("account", account, address), f"to {account} from {address}"),
         ]
 
-    def begin(self, account: str, address: str) -> AbstractContextManager[None]:
-        """A login attempt, to be used as a context while its password is checked: raise
-        :class:`TooManyFailures` when either limit would be reached were the attempts under way to
-        fail too; else count this one among them until the context ends."""
-        keys = []
-        for limit, key, what in self._windows(account, address):
-            if not self._limiter.test(limit, *key, cost=self._checking[key] + 1):
-                reset = self._limiter.get_window_stats(limit, *key).reset_time
-                wait = max(1, math.ceil(reset - time.time()))
-                raise TooManyFailures(f"too many failed logins {what}; try again in {wait} s", wait)
-            keys.append(key)
-        self._checking.update(keys)
+    async def begin(self, account: str, address: str) -> AbstractAsyncContextManager[None]:
+        """A login attempt, to be used as a context while its password is checked. Raise
+        :class:`TooManyFailures` when either limit is reached; wait while the attempts under way
+        would reach it were they to fail (until one ends); then count this one among them until
+        the context ends."""
+        windows = self._windows(account, address)
+        async with self._ended:  # held while looking, so that no end is missed before the wait
+            while True:
+                for limit, key, what in windows:
+                    if not self._limiter.test(limit, *key):
+                        reset = self._limiter.get_window_stats(limit, *key).reset_time
+                        wait = max(1, math.ceil(reset - time.time()))
+                        raise TooManyFailures(f"too many failed logins {what}; try again in {wait} s", wait)
+                if all(self._room(limit, key) for limit, key, _ in windows):
+                    break
+                await self._ended.wait()
+            keys = [key for _, key, _ in windows]
+            self._checking.update(keys)
         return self._under_way(keys)
 
-    @contextmanager
-    def _under_way(self, keys: list[tuple[str, ...]]) -> Iterator[None]:
+    def _room(self, limit: RateLimitItem, key: tuple[str, ...]) -> bool:
+        """Whether one more attempt fits the window were every one under way to fail."""
+        return self._limiter.test(limit, *key, cost=self._checking[key] + 1)
+
+    @asynccontextmanager
+    async def _under_way(self, keys: list[tuple[str, ...]]) -> AsyncIterator[None]:
         try:
             yield
         finally:
@@ -73,6 +87,8 @@ class LoginLimits:
             for key in keys:
                 if self._checking[key] <= 0:
                     del self._checking[key]
+            async with self._ended:
+                self._ended.notify_all()
 
     def failed(self, account: str, address: str) -> None:
         for limit, key, _ in self._windows(account, address):

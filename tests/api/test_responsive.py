@@ -182,3 +182,17 @@ def test_logins_sent_at_once_are_limited_as_if_sent_one_after_another(strict_api
         return sorted(answer.status_code for answer in answers)
 
     assert asyncio.run(guesses()) == [401] * 3 + [429] * 7
+
+
+def test_logins_that_succeed_sent_at_once_all_go_through(strict_api: str) -> None:
+    """No more passwords are checked at once than the limit has room for, and a login beyond them
+    waits for one to end rather than being refused: ten right passwords at once all log in."""
+
+    async def logins() -> list[int]:
+        transport = httpx.AsyncHTTPTransport(local_address="127.0.0.5")
+        async with httpx.AsyncClient(base_url=strict_api, transport=transport, timeout=60) as http:
+            data = {"username": ADMIN, "password": PASSWORD}
+            answers = await asyncio.gather(*(http.post("/auth/token", data=data) for _ in range(10)))
+        return [answer.status_code for answer in answers]
+
+    assert asyncio.run(logins()) == [200] * 10
