@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from fleetbus.api.services.account_check import Drift, DriftKind
 from fleetbus.api.services.accounts import BrokerCredentials
 from fleetbus.api.services.channels import BindingReport, CheckOut
+from fleetbus.api.services.missions import TITLE_MOST
 from fleetbus.api.services.team import TeamView
 from fleetbus.schemas.identity import RobotId
 from fleetbus.schemas.missions import MissionPlan, MissionState
@@ -172,7 +173,7 @@ class TokenOut(BaseModel):
 
 class MissionCreate(_In):
     use_case: str = Field(description="see GET /use-cases")
-    title: str = Field(min_length=1, max_length=200)
+    title: str = Field(min_length=1, max_length=TITLE_MOST)
     plan: MissionPlan = MissionPlan()
 
 

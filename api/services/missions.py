@@ -29,6 +29,8 @@ AUTHORS = frozenset({UserRole.CLIENT, UserRole.PLANNER})
 #: Who may ask for a step at all: every role some step admits (the machine says which step).
 MOVERS = frozenset(role for step in STEPS.values() for role in step.roles)
 SERVICE_ACTOR = "fleetbus"
+#: The longest title a mission may have (the HTTP API, the console and the command line alike).
+TITLE_MOST = 200
 
 log = logging.getLogger("fleetbus.api")
 
@@ -93,8 +95,9 @@ class Missions:
         return mission
 
     async def create(self, user: User, use_case: str, title: str, plan: MissionPlan) -> Mission:
-        """A new mission of ``user``'s, in planning; refused to a role that does not create missions
-        and for a use case the user is not allowed (:func:`use_case_refusal`)."""
+        """A new mission of ``user``'s, in planning, its title stripped; refused to a role that does
+        not create missions, for a use case the user is not allowed (:func:`use_case_refusal`), and
+        for a title blank or longer than :data:`TITLE_MOST`."""
         if user.role not in AUTHORS:
             who = " or ".join(sorted(role.value for role in AUTHORS))
             raise Forbidden(f"{user.name} is {user.role.value}: missions are created by a {who}")
@@ -104,6 +107,9 @@ class Missions:
             raise BadRequest(str(error)) from None
         if refusal := use_case_refusal(user, use_case):
             raise Forbidden(refusal)
+        title = title.strip()
+        if not 1 <= len(title) <= TITLE_MOST:
+            raise BadRequest(f"title: a mission's title has 1 to {TITLE_MOST} characters, not {len(title)}")
         created = await self._missions.create_mission(
             use_case, title, user.name, plan.model_dump(mode="json"), datetime.now(timezone.utc)
         )

@@ -71,6 +71,14 @@ def test_a_use_case_the_client_is_not_allowed_is_refused_alike_everywhere(bus: B
         assert made.returncode == 0, made.stderr
         assert [(m.owner, m.use_case) for m in api.run(missions.missions)] == [("client1", "survey")] * 2
 
+        # a blank title is refused alike by each (the rule is the service's)
+        blank = ("missions", "create", "--owner", "client1", "--title", "   ", "--use-case", "survey")
+        by_cli = fleetbus(bus, *blank)
+        assert by_cli.returncode == 2 and "title: a mission's title has 1 to 200" in _said(by_cli.stderr)
+        by_api = api.call("client1", "POST", "/missions", json={**body, "use_case": "survey", "title": "   "})
+        assert by_api.status_code == 422 and "title" in by_api.json()["detail"], by_api.text
+        assert len(api.run(missions.missions)) == 2, "nothing was created"
+
         # a use case that does not exist is refused alike, changing nothing; null allows every one
         unknown = api.call("admin1", "PUT", "/users/client1/use-cases", json={"use_cases": ["joyride"]})
         assert unknown.status_code == 422 and "joyride" in unknown.json()["detail"]
