@@ -29,7 +29,7 @@ from pydantic.json_schema import SkipJsonSchema
 from starlette.exceptions import HTTPException
 
 from fleetbus.api import audit
-from fleetbus.api.services.errors import ServiceRefusal
+from fleetbus.api.services.errors import ServiceRefusal, unavailable
 from fleetbus.broker.management import ManagementError
 from fleetbus.workers.store.base import StoreUnavailable
 
@@ -107,18 +107,13 @@ def install_problem_handlers(app: FastAPI) -> None:
         problems = field_problems(error)
         return problem_response(request, 422, validation_detail(problems), errors=problems)
 
-    @app.exception_handler(StoreUnavailable)
-    async def store_down(request: Request, error: StoreUnavailable) -> Response:
-        return problem_response(request, 503, f"the store is unavailable: {error}")
+    async def part_down(request: Request, error: Exception) -> Response:
+        down = unavailable(error)
+        assert down is not None
+        return problem_response(request, down.status, down.detail)
 
-    @app.exception_handler(ManagementError)
-    async def management_down(request: Request, error: ManagementError) -> Response:
-        return problem_response(request, 503, f"the broker's management API failed: {error}")
-
-    @app.exception_handler(httpx.TransportError)
-    async def management_unreachable(request: Request, error: httpx.TransportError) -> Response:
-        # the only HTTP the service makes is to the broker's management API
-        return problem_response(request, 503, f"the broker's management API is unreachable: {error}")
+    for part in (StoreUnavailable, ManagementError, httpx.TransportError):
+        app.add_exception_handler(part, part_down)
 
 
 def problem_schemas() -> dict[str, Any]:

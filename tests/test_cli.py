@@ -14,6 +14,7 @@ import yaml
 
 from fleetbus.schemas.routing import EventType
 from fleetbus.schemas.services import METHODS
+from tests.api.server import free_port
 from tests.commands import fleetbus as in_process
 from tests.factories import hazard, status
 from tests.support import Bus, wait_for
@@ -133,3 +134,14 @@ def test_a_robots_url_option_is_declared_once_for_every_command_that_takes_it() 
 
     for command in (publish, bridge):
         assert typing.get_type_hints(command, include_extras=True)["url"] == RobotUrl, command.__name__
+
+
+def test_a_part_that_fails_under_a_command_is_named_as_the_http_api_names_it(bus: Bus) -> None:
+    """The broker's management API away: the command says so in the API's words (its 503), with
+    no traceback."""
+    listed = fleetbus(
+        bus, "users", "list", env={"FLEETBUS_MANAGEMENT_URL": f"http://127.0.0.1:{free_port()}/"}
+    )
+    assert listed.returncode == 1
+    assert "the broker's management API is unreachable" in listed.stderr.replace("\n", " "), listed.stderr
+    assert "Traceback" not in listed.stderr

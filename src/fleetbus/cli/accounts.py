@@ -4,11 +4,10 @@ HTTP API and the console, on the same registry and broker. Its refusals end the 
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, TypeVar
 
-from fleetbus.cli.context import fail, settings
+from fleetbus.cli.context import settings
 
 if TYPE_CHECKING:
     from fleetbus.api.services.accounts import Accounts
@@ -27,13 +26,10 @@ def with_accounts(
 ) -> T:
     """Run ``work`` with the accounts service, the repositories and the management API it uses."""
     from fleetbus.api.services.accounts import open_accounts
-    from fleetbus.api.services.errors import ServiceRefusal
+    from fleetbus.cli.services import run_service
 
     async def go() -> T:
         async with open_accounts(settings(), ep.amqp_url, ep.management_url, ep.public_url) as opened:
             return await work(opened.accounts, opened.repositories, opened.management)
 
-    try:
-        return asyncio.run(go())
-    except ServiceRefusal as refusal:
-        fail(refusal.detail, EXIT_CODES.get(refusal.status, 1))
+    return run_service(go)

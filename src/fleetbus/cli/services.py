@@ -6,9 +6,9 @@ API and the console, on the same store and recording. Their refusals end the com
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
+from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine, Iterator
 from contextlib import AsyncExitStack, contextmanager
-from typing import TYPE_CHECKING, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 from fleetbus.cli.accounts import EXIT_CODES
 from fleetbus.cli.context import fail, settings
@@ -26,37 +26,44 @@ def fail_refused(refusal: ServiceRefusal, before: str = "") -> NoReturn:
     fail(f"{before}{refusal.detail}", EXIT_CODES.get(refusal.status, 1))
 
 
+def run_service(go: Callable[[], Coroutine[Any, Any, T]], before: str = "") -> T:
+    """Run a service call to its end: a refusal, or a part of the system that failed under it (the
+    store, the broker's management API), ends the command with what the HTTP API would answer."""
+    from fleetbus.api.services.errors import ServiceRefusal, unavailable
+
+    try:
+        return asyncio.run(go())
+    except ServiceRefusal as refusal:
+        fail_refused(refusal, before)
+    except Exception as error:
+        if (down := unavailable(error)) is None:
+            raise
+        fail_refused(down, before)
+
+
 def with_services(
     work: Callable[[Services], Awaitable[T]], admin_url: str | None = None, refused: str = ""
 ) -> T:
     """Run ``work`` with the services; ``admin_url``: the administrator's broker, for the changes
     that tell robots or the hazard service. ``refused``: put before a refusal's detail."""
-    from fleetbus.api.services.errors import ServiceRefusal
     from fleetbus.api.services.standalone import open_services
 
     async def go() -> T:
         async with open_services(settings(), admin_url) as services:
             return await work(services)
 
-    try:
-        return asyncio.run(go())
-    except ServiceRefusal as refusal:
-        fail_refused(refusal, refused)
+    return run_service(go, refused)
 
 
 def with_recording(work: Callable[[Recording], Awaitable[T]], events: bool = False) -> T:
     """Run ``work`` with the recording the settings select; ``events``: with the event log too."""
-    from fleetbus.api.services.errors import ServiceRefusal
     from fleetbus.api.services.standalone import open_recording
 
     async def go() -> T:
         async with open_recording(settings(), events) as recording:
             return await work(recording)
 
-    try:
-        return asyncio.run(go())
-    except ServiceRefusal as refusal:
-        fail_refused(refusal)
+    return run_service(go)
 
 
 @contextmanager
