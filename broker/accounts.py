@@ -24,19 +24,23 @@ import pika.exceptions
 from fleetbus.broker.account_roles import ROLE_TAGS, Role
 from fleetbus.broker.management import ManagementAPI
 from fleetbus.broker.shards import assign_shard, unassign_shard
-from fleetbus.broker.topology import account_topology, core_topology, declare_with_url
+from fleetbus.broker.topology import account_topology, core_topology, declare_with_url, inbox_bindings
 from fleetbus.private_files import private_dir
 from fleetbus.publishers.addresses import address_count, map_addresses
 from fleetbus.publishers.tls import pika_parameter_list
 from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.routing import (
+    NOTIFY_EXCHANGE,
     RECORDER_QUEUE,
     SERVICE_PREFIX,
     RobotKind,
     beacon_exchange,
+    commands_exchange,
     events_exchange,
+    inbox_queue,
     owner_pattern,
     requests_exchange,
+    stream_queue,
 )
 
 SERVICE_USER = SERVICE_PREFIX
@@ -188,10 +192,28 @@ async def configure_account(
         admin_url,
         [core_topology(shards, cluster=cluster), account_topology(name, role, kind=kind, cluster=cluster)],
     )
+    _drop_other_roles(api, vhost, name, role, kind)
     if role is Role.ROBOT:
         assign_shard(api, vhost, name, shards)
     else:  # a robot given another role publishes no events of its own
         unassign_shard(api, vhost, name)
+
+
+def _drop_other_roles(api: ManagementAPI, vhost: str, name: str, role: Role, kind: RobotKind | None) -> None:
+    """What an account's earlier role had and its role now has not: an operator's notifications
+    (every one), stream (every beacon) and commands exchange, when it is one no longer."""
+    wanted = set(inbox_bindings(name, kind, role is Role.OPERATOR))
+    inbox = inbox_queue(name)
+    stale = [
+        b["routing_key"]
+        for b in api.exchange_bindings(vhost, NOTIFY_EXCHANGE)
+        if b["destination"] == inbox and b["destination_type"] == "queue" and b["routing_key"] not in wanted
+    ]
+    if stale:
+        api.unbind_keys(vhost, NOTIFY_EXCHANGE, inbox, stale)
+    if role is not Role.OPERATOR:
+        api.delete_queue(vhost, stream_queue(name))
+        api.delete_exchange(vhost, commands_exchange(name))
 
 
 def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:
@@ -272,6 +294,7 @@ def can_login(amqp_url: str) -> bool:
 def save_secret(path: Path, secret: str) -> None:
     private_dir(path.parent)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    os.fchmod(fd, 0o600)  # a file that was there keeps its mode through O_CREAT: narrowed first
     with os.fdopen(fd, "w") as handle:
         handle.write(secret + "\n")
 

@@ -376,6 +376,27 @@ class ManagementAPI:
     def list_connections(self) -> list[dict[str, Any]]:
         return self._request("GET", "connections")
 
+    def delete_queue(self, vhost: str, name: str) -> None:
+        """Delete the queue (and its bindings); nothing when there is none."""
+        self._request("DELETE", f"queues/{_q(vhost)}/{_q(name)}")
+
+    def delete_exchange(self, vhost: str, name: str) -> None:
+        """Delete the exchange (and the bindings from it); nothing when there is none."""
+        self._request("DELETE", f"exchanges/{_q(vhost)}/{_q(name)}")
+
+    def close_connections_of(self, user: str, reason: str) -> int:
+        """Close every connection ``user`` has open on the broker (the broker tells each client
+        ``reason``); how many. A connection that closed meanwhile is not counted."""
+        listed = self._request("GET", "connections", params={"columns": "name,user", "disable_stats": "true"})
+        closed = 0
+        for connection in listed:
+            if connection.get("user") == user:
+                answer = self._send(
+                    "DELETE", f"connections/{_q(connection['name'])}", headers={"X-Reason": reason}
+                )
+                closed += answer.status_code < 300
+        return closed
+
     def list_vhost_connections(self, vhost: str) -> list[dict[str, Any]]:
         """The connections open on ``vhost``, each with its ``user`` and ``connected_at`` only."""
         return self._request("GET", f"vhosts/{_q(vhost)}/connections", params=CONNECTION_COLUMNS)

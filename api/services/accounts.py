@@ -433,10 +433,16 @@ class Accounts:
         user = await self.get(name)
         if user.kind is not None and role is not UserRole.ROBOT and role is not UserRole.INACTIVE:
             raise BadRequest(f"{name} is a robot ({user.kind}); it can be a robot or inactive")
+        leaving = broker_role(user.role) is Role.OPERATOR and broker_role(role) is not Role.OPERATOR
+        if leaving and (problem := await in_use(self._channels, name)):
+            raise Conflict(f"{problem} (its mounts are an operator's)")
         await self._broker(name, role, user.kind)
         changed = await self._users.update_user(name, datetime.now(timezone.utc), role=role)
         if role is UserRole.INACTIVE:  # else they would open again when it is given a role
             await self._sessions.end_all(name)
+        if role is not user.role:  # its open connections keep what they were allowed: they end
+            reason = f"{name}'s role changed to {role.value}"
+            await asyncio.to_thread(self._management.close_connections_of, name, reason)
         log.info("user %s: role %s -> %s, by %s", name, user.role.value, role.value, by)
         return changed
 

@@ -16,8 +16,9 @@ import pytest
 from fleetbus.broker.accounts import can_login
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.roles import UserRole
+from fleetbus.schemas.routing import ALL_TOPICS_BINDING, NOTIFY_EXCHANGE, inbox_queue
 from tests.api.support import PASSWORD, PROBLEM_JSON, Api, problem, refusal, running_api
-from tests.support import Bus
+from tests.support import Bus, wait_for
 
 SECURITY_LOG = "fleetbus.api.security"
 
@@ -173,6 +174,43 @@ def test_a_role_change_takes_effect_on_the_next_request(api: Api) -> None:
     ended = "the session has ended (logged out, ended by an admin, or a password change); log in again"
     assert (gone.status_code, gone.json()["detail"]) == (401, ended)  # a removal ends its sessions
     assert api.bus.api.get_user("alice") is None, "its broker account went with it"
+
+
+def test_a_user_disabled_is_cut_off_the_broker_at_once(api: Api) -> None:
+    """A disabled user's permissions go, and so do the connections it has open: a connection keeps
+    what it was allowed when it opened (a consumer goes on receiving), so the broker closes them."""
+    api.user("carol", UserRole.CLIENT)
+    stored = api.run(lambda: api.service.repositories.users.get_user("carol"))
+    assert stored is not None
+    connection = blocking_connection(api.service.accounts.broker_credentials(stored).amqp_url)
+    try:
+        connection.channel().queue_declare("carol.inbox", passive=True)
+        # a connection is listed by the broker a moment after it opens (as every long-lived one is)
+        wait_for(lambda: "carol" in {c["user"] for c in api.bus.api.list_connections()}, what="listed")
+        assert api.call("admin1", "PUT", "/users/carol/role", json={"role": "inactive"}).status_code == 200
+        with pytest.raises(pika.exceptions.ConnectionClosedByBroker) as closed:
+            connection.process_data_events(time_limit=30)
+        assert "carol's role changed to inactive" in str(closed.value)
+    finally:
+        if connection.is_open:
+            connection.close()
+
+
+def test_an_operator_given_another_role_keeps_nothing_of_an_operators_on_the_broker(api: Api) -> None:
+    """Its inbox no longer takes every notification, its stream (every beacon) and its commands
+    exchange go; while it has robots mounted, the change is refused, as a removal is."""
+    broker, vhost = api.bus.api, api.bus.vhost
+    api.user("dave", UserRole.OPERATOR)
+
+    def inbox_keys() -> list[str]:
+        bound = broker.exchange_bindings(vhost, NOTIFY_EXCHANGE)
+        return [b["routing_key"] for b in bound if b["destination"] == inbox_queue("dave")]
+
+    assert inbox_keys() == [ALL_TOPICS_BINDING] and broker.get_exchange(vhost, "dave.commands") is not None
+    assert api.call("admin1", "PUT", "/users/dave/role", json={"role": "guest"}).status_code == 200
+    assert inbox_keys() == []
+    assert broker.get_exchange(vhost, "dave.commands") is None
+    assert "dave.stream" not in {q["name"] for q in broker.list_queues(vhost)}
 
 
 def test_users_cannot_be_created_twice_or_with_bad_names_or_short_passwords(api: Api) -> None:
