@@ -26,9 +26,10 @@ class Hazards:
         self._hazards = hazards
         self._events = events
 
-    async def open(self, mission: str) -> list[OpenHazard]:
-        """The mission's hazards not cleared yet, in the order detected; the team and when its
-        awaited wardens were last heard from are read only when one is held."""
+    async def open(self, mission: str | None) -> list[OpenHazard]:
+        """The mission's hazards not cleared yet (``None``: every mission's, by mission), in the
+        order detected; the team and when its awaited wardens were last heard from are read only
+        when one is held."""
         found = await self._hazards.open_hazards(mission)
         if not any(hazard.state is HazardState.HELD for hazard in found):
             return [OpenHazard(hazard, "") for hazard in found]

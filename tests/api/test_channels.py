@@ -4,6 +4,7 @@ what the service believes (read back through the management API)."""
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import uuid
@@ -25,6 +26,7 @@ from fleetbus.workers.store.base import EventQuery
 from tests.api.support import READY_PLAN, Api, running_api_on_each_store
 from tests.factories import hazard
 from tests.support import Bus, wait_for
+from tests.test_cli import fleetbus
 
 S = MissionState
 
@@ -86,6 +88,9 @@ def test_events_are_recorded_under_the_mission_only_while_checked_in(api: Api) -
         QueueBinding("explorer1.events", "oper1.stream", "#"),
         QueueBinding("oper1.commands", "explorer1.commands", "explorer1.#"),
     }
+    # an operator with a robot mounted stays one: its mount is on its stream and commands exchange
+    demoted = api.call("admin1", "PUT", "/users/oper1/role", json={"role": "client"})
+    assert demoted.status_code == 409 and "oper1 is in use" in demoted.json()["detail"], demoted.text
     explorer = api.bus.robot(Account("explorer1", Role.ROBOT, robot_url(api, "explorer1")))
 
     def stored_and_recorded(count: int) -> bool:
@@ -130,6 +135,13 @@ def test_events_are_recorded_under_the_mission_only_while_checked_in(api: Api) -
     }
     numbered = api.run(lambda: api.service.repositories.hazards.open_hazards(mission_id))
     assert [(h.hazard_id, h.seq) for h in numbered] == [(1, 2), (2, 3), (3, 4)], "hazard ids per mission"
+    # the command line lists them all, as GET /hazards does, each with its mission
+    every = [("default", n) for n in (1, 2, 3)] + [(mission_id, n) for n in (1, 2, 3)]
+    for only, expected in ((None, every), (mission_id, every[3:])):
+        listed = fleetbus(api.bus, "hazards", "--json", *(["--mission", only] if only else []))
+        assert listed.returncode == 0, listed.stderr
+        rows = [json.loads(line) for line in listed.stdout.splitlines()]
+        assert [(r["mission_id"], r["hazard_id"]) for r in rows] == expected, rows
     actions = [
         (c.actor, c.action.value)
         for c in api.run(lambda: api.service.repositories.channels.channel_changes(mission_id))

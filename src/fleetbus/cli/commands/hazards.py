@@ -1,4 +1,5 @@
-"""``fleetbus hazards``: every hazard of a mission, where it stands, and why a held one waits;
+"""``fleetbus hazards``: every open hazard (of every mission, or of one), where it stands, and why
+a held one waits;
 ``fleetbus hazards claim|reached|cleared|release ID --for WARDEN``: a step taken for a warden."""
 
 from __future__ import annotations
@@ -23,13 +24,15 @@ app = typer.Typer(
     "reached. `claim`, `reached`, `cleared` and `release` take a hazard's step for a warden.",
     invoke_without_command=True,
 )
-Mission = Annotated[str, typer.Option(help="the mission")]
+Mission = Annotated[str, typer.Option(help="the hazard's mission (`fleetbus hazards` lists it)")]
 
 
 @app.callback()
 def hazards(
     ctx: typer.Context,
-    mission: Mission = DEFAULT_MISSION,
+    mission: Annotated[
+        str | None, typer.Option(help="only this mission's (default: every mission's)")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json")] = False,
     offset: Annotated[int, typer.Option(min=0, help="skip this many hazards")] = 0,
     limit: Annotated[int | None, typer.Option(min=1, help="show at most this many hazards")] = None,
@@ -47,6 +50,7 @@ def hazards(
             typer.echo(json.dumps({**each.hazard.as_dict(), "held_because": each.held_because or None}))
         return
     table = Table(
+        "mission",
         "id",
         "state",
         "description",
@@ -56,11 +60,12 @@ def hazards(
         "site",
         "claimed by",
         "held because",
-        title=f"mission {mission}",
+        title=f"mission {mission}" if mission else "every mission",
     )
     for each in found:
         hazard, body = each.hazard, each.hazard.event["body"]
         table.add_row(
+            hazard.mission_id,
             str(hazard.hazard_id),
             hazard.state.value,
             body["description"],
