@@ -95,3 +95,6 @@ def test_a_full_dead_letter_queue_keeps_the_newest_refusals_and_counts_the_dropp
     listed = fleetbus(bus, "dlq")
     assert listed.returncode == 0, listed.stderr
     assert "3 dead letters" in listed.stdout and "2 older ones were dropped" in listed.stdout
+    # a listing cut short says how many there are, and the stats count the queue, not the listing
+    shorter = fleetbus(bus, "dlq", "--limit", "2")
+    assert "3 dead letters, the oldest 2 listed" in " ".join(shorter.stdout.split()), shorter.stdout

@@ -13,7 +13,7 @@ from fleetbus.cli.context import console, endpoint, settings
 from fleetbus.cli.services import with_services
 
 if TYPE_CHECKING:
-    from fleetbus.api.services.dead_letters import DeadLetter
+    from fleetbus.api.services.dead_letters import Listing
     from fleetbus.api.services.standalone import Services
 
 
@@ -24,19 +24,21 @@ def dlq(
     """List the dead-letter queue without removing anything from it, and how many older dead
     letters the queue dropped when full (FLEETBUS_DEAD_LETTERS_MAX)."""
 
-    async def read(services: Services) -> tuple[list[DeadLetter], int]:
+    async def read(services: Services) -> tuple[Listing, int]:
         queue = services.dead_letters
-        letters = (await queue.listing(limit)).letters
-        return letters, 0 if as_json else await queue.dropped()
+        listing = await queue.listing(limit)
+        return listing, 0 if as_json else await queue.dropped()
 
-    letters, dropped = with_services(read, endpoint().amqp_url)
+    listing, dropped = with_services(read, endpoint().amqp_url)
+    letters = listing.letters
     if as_json:
         for letter in letters:
             typer.echo(json.dumps(letter.as_dict()))
         return
-    table = Table(
-        "reason", "from", "routing key", "rejected at", "detail", title=f"{len(letters)} dead letters"
-    )
+    title = f"{listing.in_queue:,} dead letters"
+    if len(letters) < listing.in_queue:
+        title += f", the oldest {len(letters):,} listed (--limit)"
+    table = Table("reason", "from", "routing key", "rejected at", "detail", title=title)
     for letter in letters:
         table.add_row(
             letter.reason, letter.user_id or "?", letter.routing_key, letter.rejected_at or "", letter.detail

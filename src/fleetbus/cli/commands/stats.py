@@ -19,7 +19,7 @@ from fleetbus.cli.times import TIME_FORMS, parse_duration, parse_time
 from fleetbus.workers.recorder.growth import LONGEST_BUCKET, SHORTEST_BUCKET, Growth, growth
 
 if TYPE_CHECKING:
-    from fleetbus.api.services.dead_letters import DeadLetter
+    from fleetbus.api.services.dead_letters import Listing
     from fleetbus.api.services.standalone import Services
     from fleetbus.api.services.stats import BoundCount, WorkerStatus
 
@@ -85,14 +85,16 @@ def _workers() -> None:
 
 def _dead_letters() -> None:
 
-    async def read(services: Services) -> list[DeadLetter]:
-        return (await services.dead_letters.listing(1000)).letters
+    async def read(services: Services) -> Listing:
+        return await services.dead_letters.listing(1000)
 
-    letters = with_services(read, endpoint().amqp_url)
-    reasons = Counter(letter.reason for letter in letters)
+    listing = with_services(read, endpoint().amqp_url)
+    reasons = Counter(letter.reason for letter in listing.letters)
     shown = ", ".join(f"{reason} {count}" for reason, count in reasons.most_common())
+    if shown and len(listing.letters) < listing.in_queue:
+        shown += f" among the oldest {len(listing.letters):,}"
     console.print(
-        f"dead letters: {len(letters)}" + (f" ({shown}); `fleetbus dlq` lists them" if shown else "")
+        f"dead letters: {listing.in_queue:,}" + (f" ({shown}); `fleetbus dlq` lists them" if shown else "")
     )
 
 
