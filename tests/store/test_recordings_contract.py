@@ -127,6 +127,7 @@ DOCS: dict[str, Any] = {
     "s5": {"v": 10},
     "s6": ["not", "an", "object"],
     "s7": 42,
+    "s8": {"tags": ["red", "blue"], "items": [{"name": "a"}], "zones": {"1": "x"}, "ranges": [1, 9]},
 }
 
 
@@ -134,8 +135,8 @@ DOCS: dict[str, Any] = {
     ("conditions", "expected"),
     [
         ([("name", Op.EQ, "grab")], ["s1"]),
-        ([("name", Op.NE, "grab")], ["s2", "s3", "s4", "s5", "s6", "s7"]),
-        ([("name", Op.EQ, None)], ["s4", "s5", "s6", "s7"]),
+        ([("name", Op.NE, "grab")], ["s2", "s3", "s4", "s5", "s6", "s7", "s8"]),
+        ([("name", Op.EQ, None)], ["s4", "s5", "s6", "s7", "s8"]),
         ([("name", Op.NE, None)], ["s1", "s2", "s3"]),
         ([("v", Op.EQ, 1)], ["s1"]),
         ([("v", Op.EQ, 1.0)], ["s1"]),
@@ -146,11 +147,22 @@ DOCS: dict[str, Any] = {
         ([("flag", Op.EQ, True)], ["s1"]),
         ([("flag", Op.EQ, False)], ["s2"]),
         ([("flag", Op.EQ, 1)], ["s3"]),
-        ([("flag", Op.NE, True)], ["s2", "s3", "s4", "s5", "s6", "s7"]),
+        ([("flag", Op.NE, True)], ["s2", "s3", "s4", "s5", "s6", "s7", "s8"]),
         ([("nested.deep", Op.CONTAINS, "bc")], ["s1", "s2"]),
         ([("nested.deep", Op.CONTAINS, "a.c")], []),
         ([("nested", Op.EQ, "flat")], ["s4"]),
         ([("arr.1", Op.EQ, 6)], ["s1"]),
+        # a path names one value: it goes through no array, and a digit is an array's index only
+        ([("tags", Op.EQ, "red")], []),
+        ([("tags", Op.NE, "red")], ["s1", "s2", "s3", "s4", "s5", "s6", "s7", "s8"]),
+        ([("tags", Op.NE, None)], ["s8"]),
+        ([("items.name", Op.EQ, "a")], []),
+        ([("items.name", Op.EQ, None)], ["s1", "s2", "s3", "s4", "s5", "s6", "s7", "s8"]),
+        ([("items.0.name", Op.EQ, "a")], ["s8"]),
+        ([("zones.1", Op.EQ, "x")], []),
+        ([("ranges", Op.GT, 5)], []),
+        ([("ranges.1", Op.GT, 5)], ["s8"]),
+        ([("1", Op.EQ, "an")], ["s6"]),
         ([("name", Op.EQ, "grab"), ("flag", Op.EQ, True), ("v", Op.LT, 2)], ["s1"]),
     ],
 )

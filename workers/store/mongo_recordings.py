@@ -62,16 +62,47 @@ def field(path: str) -> str:
 
 
 def condition_filter(condition: Condition) -> dict[str, Any]:
-    name = field(condition.path)
+    """The condition as the SQLite store reads it (:mod:`.sqlite_recordings`, a JSON path): a path
+    names one value, so it goes through no array (``tags=red`` does not match ``["red"]``, nor
+    ``items.name=a`` ``[{"name": "a"}]``, as MongoDB's own matching would), and a digit segment
+    is an array's index only (not an object's key ``"1"``)."""
+    name, value = field(condition.path), condition.value
+    if condition.op is Op.EQ and value is None:
+        return {"$nor": [_resolves(condition.path)]}
+    if condition.op is Op.NE and value is None:
+        return _resolves(condition.path)
     if condition.op is Op.EQ:
-        return {name: condition.value}
-    if condition.op is Op.CONTAINS:
-        return {name: {"$regex": re.escape(str(condition.value))}}
+        return _scalar_at(condition.path, {name: value})
     if condition.op is Op.NE:
-        return {name: {"$ne": condition.value}}
+        return {"$nor": [_scalar_at(condition.path, {name: value})]}
+    if condition.op is Op.CONTAINS:
+        return _scalar_at(condition.path, {name: {"$regex": re.escape(str(value))}})
     # MongoDB orders within one type only; saying so keeps every engine to it
-    kind = "string" if isinstance(condition.value, str) else "number"
-    return {name: {MONGO_OPS[condition.op]: condition.value, "$type": kind}}
+    kind = "string" if isinstance(value, str) else "number"
+    return _scalar_at(condition.path, {name: {MONGO_OPS[condition.op]: value, "$type": kind}})
+
+
+def _on_the_path(path: str) -> list[dict[str, Any]]:
+    """What each step of ``path`` stands on: an array before an index, anything else before a name."""
+    segments = check_path(path)
+    steps = []
+    for depth in range(len(segments)):
+        parent = field(".".join(segments[:depth])) if depth else "document"
+        array = {"$type": "array"}
+        steps.append({parent: array if segments[depth].isdigit() else {"$not": array}})
+    return steps
+
+
+def _scalar_at(path: str, test: dict[str, Any]) -> dict[str, Any]:
+    """``test`` of the one value at ``path``, itself no array."""
+    return {"$and": [*_on_the_path(path), {field(path): {"$not": {"$type": "array"}}}, test]}
+
+
+def _resolves(path: str) -> dict[str, Any]:
+    """``path`` names a value that is not null (an array counts)."""
+    name = field(path)
+    present = {"$or": [{name: {"$type": "array"}}, {name: {"$exists": True, "$ne": None}}]}
+    return {"$and": [*_on_the_path(path), present]}
 
 
 def provenance_filter(
