@@ -311,12 +311,14 @@ class MongoCollection(Collection):
             update["$setOnInsert"] = stored
         # when the stored document does not match, the upsert tries to insert a second one
         # under the same _id, which the unique _id refuses
+        matching = {**self._filter(where), ID: self._id(self.schema.key_of(doc))}
         try:
-            await self._collection().update_one(
-                {**self._filter(where), ID: self._id(self.schema.key_of(doc))}, update, upsert=True
-            )
+            await self._collection().update_one(matching, update, upsert=True)
         except DuplicateKeyError:
-            return False
+            # or another writer inserted it between this upsert's look and its insert (two first
+            # writes at once): the document there now may match, and is then written over
+            changed_only = {"$set": update["$set"]}
+            return bool((await self._collection().update_one(matching, changed_only)).matched_count)
         return True
 
     async def increment(self, doc: Doc, counter: str, *, overwrite: Sequence[str] = ()) -> int:

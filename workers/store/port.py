@@ -306,5 +306,11 @@ async def prune_oldest(
     if keep is not None and deleted < limit:
         beyond = await log.count() - keep
         if beyond > 0:
-            deleted += await log.delete({}, order=[order], limit=min(beyond, limit - deleted))
+            doomed = min(beyond, limit - deleted)
+            last = await log.find({}, order=[order], skip=doomed - 1, limit=1, fields=[order])
+            # by value, not by the documents found: where a delete is not in one transaction with
+            # the find (MongoDB), one made newer meanwhile (a numbering observed again) stays
+            if last:
+                cut = {order: Range(le=last[0][order])}
+                deleted += await log.delete(cut, order=[order], limit=doomed)
     return deleted
