@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from fleetbus.defaults import DEFAULT_FIELD_INDEXES_MAX
+from fleetbus.private_files import FILE_MODE, private_dir
+from fleetbus.publishers.storage import fsync_dir
 from fleetbus.workers.store.base import WriteResult, from_micros, to_micros
 from fleetbus.workers.store.recordings import (
     Bookkeeping,
@@ -435,13 +437,20 @@ class SQLiteRecordingStore(SQLiteStore, RecordingStore):
         def put() -> bool:
             if path.exists():
                 return False
-            path.parent.mkdir(parents=True, exist_ok=True)
+            made = not path.parent.exists()
+            private_dir(path.parent)  # the recording is its owner's only, whoever's umask writes it
             temporary = path.with_name(f"{digest}.{uuid.uuid4().hex}.tmp")
-            with temporary.open("wb") as stream:
+            with os.fdopen(
+                os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE), "wb"
+            ) as stream:
                 stream.write(data)
                 stream.flush()
                 os.fsync(stream.fileno())
             temporary.replace(path)
+            # the name, and a new folder's, durable too: a record acked after this names the blob
+            fsync_dir(path.parent)
+            if made:
+                fsync_dir(path.parent.parent)
             return True
 
         return await asyncio.to_thread(put)
