@@ -667,10 +667,12 @@ log.console = false
         return bool(amqp_login(amqp_url, timeout)) and management_answers(management_url, *creds, timeout)
 
     def rabbitmqctl(
-        self, *args: str, timeout: float = 60.0, check: bool = True
+        self, *args: str, timeout: float = 60.0, check: bool = True, stdin: str | None = None
     ) -> subprocess.CompletedProcess[str]:
-        """Run ``rabbitmqctl ARGS`` against this node; raises LocalNodeError when it fails and ``check``."""
-        return self._tool("rabbitmqctl", args, timeout, check)
+        """Run ``rabbitmqctl ARGS`` against this node; raises LocalNodeError when it fails and
+        ``check``. ``stdin``: what it reads (a password: never on a command line, which every user
+        of the machine sees)."""
+        return self._tool("rabbitmqctl", args, timeout, check, stdin)
 
     def rabbitmq_plugins(
         self, *args: str, timeout: float = 60.0, check: bool = True
@@ -679,7 +681,7 @@ log.console = false
         return self._tool("rabbitmq-plugins", args, timeout, check)
 
     def _tool(
-        self, tool: str, args: tuple[str, ...], timeout: float, check: bool
+        self, tool: str, args: tuple[str, ...], timeout: float, check: bool, stdin: str | None = None
     ) -> subprocess.CompletedProcess[str]:
         rabbitmq = self._require_installation()
         try:
@@ -687,7 +689,7 @@ log.console = false
                 rabbitmq.command(tool, args, self._shared_folders(), self.base_dir),
                 env=self.env(),
                 cwd=self.base_dir,
-                stdin=subprocess.DEVNULL,
+                input=stdin if stdin is not None else "",
                 capture_output=True,
                 text=True,
                 timeout=timeout,
@@ -915,10 +917,11 @@ log.console = false
     def _repair_admin(self, user: str, password: str) -> None:
         log.warning("resetting the password of %s on the private node from %s", user, self.admin_file)
         listing = self.rabbitmqctl("list_users", "--silent", "--no-table-headers", check=False).stdout
+        # the password on standard input: a command line is every local user's to read
         if user not in {line.split("\t")[0].strip() for line in listing.splitlines()}:
-            self.rabbitmqctl("add_user", user, password)
+            self.rabbitmqctl("add_user", user, stdin=password + "\n")
         else:
-            self.rabbitmqctl("change_password", user, password)
+            self.rabbitmqctl("change_password", user, stdin=password + "\n")
         self.rabbitmqctl("set_user_tags", user, "administrator")
         self.rabbitmqctl("set_permissions", "-p", "/", user, ".*", ".*", ".*")
 
