@@ -28,7 +28,12 @@ def test_hazards_are_held_until_every_warden_is_localised_tables_3_4_5(bus: Bus)
         sent = explorer.publish_many([("hazard", hazard(0, "Fire")), ("hazard", hazard(1, "Gas leak"))])
         # Table 3: before the wardens localise, the server holds both and announces none
         wait_for(lambda: held_and_announced(bus) == (2, 0), what="2 held hazards")
+        # a sentinel behind them on the express lane (one consumer, in order): once it is stored, a
+        # hazard the gate had let go would be in an inbox
+        wardens["warden2"].publish("localisation", {"localised": False})
+        wait_for(lambda: bus.count("localisation") == 1, what="the sentinel stored")
         assert bus.ready_messages("warden1.inbox") == bus.ready_messages("warden2.inbox") == 0
+        assert held_and_announced(bus) == (2, 0)
 
         # Table 4: one warden localised, the other not: still held
         wardens["warden1"].publish("localisation", {"localised": True})
@@ -38,8 +43,10 @@ def test_hazards_are_held_until_every_warden_is_localised_tables_3_4_5(bus: Bus)
             ],
             what="warden1 recorded as localised",
         )
+        wardens["warden2"].publish("localisation", {"localised": False})  # the sentinel again
+        wait_for(lambda: bus.count("localisation") == 3, what="the sentinel stored")
+        assert bus.ready_messages("warden1.inbox") == bus.ready_messages("warden2.inbox") == 0
         assert held_and_announced(bus) == (2, 0)
-        assert bus.ready_messages("warden1.inbox") == 0
 
     # the held list is in the store: a new worker process carries on from it
     with bus.worker():

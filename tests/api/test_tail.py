@@ -47,16 +47,17 @@ def test_since_replays_history_then_live_messages_follow(bus: Bus) -> None:
         explorer2 = bus.robot(Account("explorer2", Role.ROBOT, url_of(api, "explorer2")))
         explorer1.publish_many([("hazard", hazard(0)), ("status", status()), ("hazard", hazard(1))])
         explorer2.publish("hazard", hazard(9))  # not mounted by oper1: never in its stream
+        explorer1.publish("hazard", hazard(2))  # a sentinel after it: explorer2's would come before
 
         history: list[Seen] = []
         start = datetime.now(timezone.utc) - timedelta(minutes=10)
         asyncio.run(
-            follow(operator_url, "*.hazard", since=start, on_message=history.append, count=2, idle_timeout=5)
+            follow(operator_url, "*.hazard", since=start, on_message=history.append, count=3, idle_timeout=5)
         )
         assert [(s.user_id, s.exchange, s.routing_key) for s in history] == [
             ("explorer1", "explorer1.events", "explorer1.hazard")
-        ] * 2
-        assert [json.loads(s.body)["seq"] for s in history] == [0, 2]
+        ] * 3
+        assert [json.loads(s.body)["seq"] for s in history] == [0, 2, 3]
 
         live: list[Seen] = []
         ready = threading.Event()

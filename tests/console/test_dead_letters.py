@@ -135,6 +135,9 @@ def test_an_admin_requeues_a_letter_once_the_bug_is_fixed_and_discards_a_poison_
             assert [(n.event.robot_id, n.event.body.battery_percent) for n in warnings] == [
                 ("explorer1", 13.0)
             ]
+            # a sentinel behind it on its lane: once stored, the requeued one's batch was done
+            robot.publish(EventType.STATUS, status(60.0))
+            wait_for(lambda: bus.count(EventType.STATUS.value) == 3, what="the sentinel stored")
             assert worker.stats().internal_errors == 0
         assert bus.ready_messages(DEAD_LETTER_QUEUE) == 1, "not refused again"
 
