@@ -212,7 +212,7 @@ class Bridge:
                 self.options.ros_side_command([rule.topic for rule in self.mapping.rules]),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
-                stderr=self.ros_log.open("ab"),
+                stderr=os.fdopen(os.open(self.ros_log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "ab"),
                 env=self.options.ros_env,
                 bufsize=1 << 16,
             )

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from fleetbus.publishers.ros.parts import Parts
+from fleetbus.publishers.storage import write_atomically
 
 
 class DropReason:
@@ -139,9 +140,7 @@ class Counters:
         snapshot to rename, or an older snapshot could land after a newer one and stay."""
         with self._write_lock:
             text = json.dumps(self.snapshot(), indent=1)
-            temporary = path.with_name(f"{path.stem}.tmp")
-            temporary.write_text(text)
-            temporary.replace(path)
+            write_atomically(path, text.encode(), durable=False)  # 0600, as the robot's other files
 
 
 class RateLimit:

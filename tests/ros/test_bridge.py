@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import stat
 import xmlrpc.client
 from datetime import datetime, timezone
 from pathlib import Path
@@ -56,6 +57,12 @@ def test_every_topic_is_recorded_mapped_ones_become_events_and_hazards_come_back
             what="every topic stored as ros events, mapped ones too",
         )
         assert records["/chatter"]["ros_type"] == "std_msgs/msg/String", "named as bag imports name types"
+        # the bridge's files in the robot's folder are its owner's only, as the outbox is
+        folder = bus.settings.robots_dir / "rosbot1"
+        modes = {
+            name: stat.S_IMODE((folder / name).stat().st_mode) for name in ("ros-bridge.json", "ros-side.log")
+        }
+        assert modes == {"ros-bridge.json": 0o600, "ros-side.log": 0o600}
         assert records["/chatter"]["fields"] == {"data": "hello fleetbus"}
         assert records["/chatter"]["stamp"] is None, "a message without a header has no stamp"
         imu = records["/imu"]  # a type fleetbus has no model of
