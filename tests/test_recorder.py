@@ -143,11 +143,19 @@ def test_what_arrives_while_the_recorder_is_down_is_recorded_when_it_is_back(bus
 def test_retention_bounds_each_type_while_recording(bus: Bus) -> None:
     robot = bus.add("rec-bounded")
     policies = parse_retention(["status=5", "*=1GB"])
+    def counted() -> list[tuple[str, int]]:
+        shown = fleetbus(bus, "stats", "--json")
+        assert shown.returncode == 0, shown.stderr
+        rows = [json.loads(line) for line in shown.stdout.splitlines()]
+        return [(r["subject"], r["count"]) for r in rows if r.get("bound") == "recording"]
+
     with bus.recorder(retention=policies, retention_interval=0.1) as recorder, bus.robot(robot) as client:
         client.publish_many([(EventType.STATUS, status(float(i))) for i in range(20)])
         client.publish(EventType.HAZARD, hazard())
         wait_for(lambda: recorder.stats().recorded == 21, what="all recorded")
         wait_for(lambda: len(bus.recorded("status")) == 5, what="status cut to its newest five")
+        # what the recording's bound deleted, where an operator sees it
+        wait_for(lambda: counted() == [("status", 15)], what="the deleted counted in fleetbus stats")
     assert [r.seq for r in bus.recorded("status")] == [15, 16, 17, 18, 19]
     assert len(bus.recorded("hazard")) == 1
 

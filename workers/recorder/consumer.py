@@ -49,6 +49,7 @@ BoundCounter = Callable[[Mapping[tuple[str, str], int], datetime], Awaitable[Non
 """Adds what a bound removed, by bound and subject, to the counts ``fleetbus stats`` shows
 (:meth:`~fleetbus.workers.store.housekeeping.Housekeeping.count_bounded`)."""
 ROS_PIECES_BOUND = "ros-pieces"
+RECORDING_BOUND = "recording"
 CONNECTION_LOST = (pika.exceptions.AMQPError, ConnectionError)
 
 
@@ -312,6 +313,7 @@ class RecorderConsumer:
         if deleted:
             self.stats.swept += sum(deleted.values())
             log.info("retention deleted %s", ", ".join(f"{n} {t}" for t, n in sorted(deleted.items())))
+            await self._count_bounded({(RECORDING_BOUND, type): n for type, n in deleted.items()})
         await self._sweep_pieces()
 
     async def _sweep_pieces(self) -> None:
@@ -330,7 +332,13 @@ class RecorderConsumer:
             self._options.ros_pieces_ttl,
             ", ".join(f"{n} of {robot}" for robot, n in sorted(removed.items())),
         )
+        await self._count_bounded({(ROS_PIECES_BOUND, robot): n for robot, n in removed.items()}, now)
+
+    async def _count_bounded(
+        self, counts: Mapping[tuple[str, str], int], now: datetime | None = None
+    ) -> None:
+        """Add what a bound removed to the counts ``fleetbus stats`` shows (when this recorder has
+        the service's store to count in)."""
         if self._bounded is not None:
-            bounded = self._bounded
-            counts = {(ROS_PIECES_BOUND, robot): n for robot, n in removed.items()}
-            await self._retrying(lambda: bounded(counts, now))
+            bounded, at = self._bounded, now or datetime.now(timezone.utc)
+            await self._retrying(lambda: bounded(counts, at))
