@@ -16,6 +16,7 @@ from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.discards import Discard, Discards
 from tests.support import Bus, wait_for
+from tests.test_cli import fleetbus
 
 #: The run of a hand-made client that publishes the raw sightings below.
 EPOCH = new_epoch()
@@ -71,6 +72,8 @@ def test_beacons_without_the_headers_are_discarded_and_counted(bus: Bus) -> None
     }
     [count] = bus.with_store(lambda s: s.discards.discard_counts())
     assert (count.exchange, count.count) == ("guide1.beacon", 4)
+    shown = fleetbus(bus, "stats")  # where an operator looks
+    assert "beacons the broker discarded: guide1.beacon 4 " in " ".join(shown.stdout.split()), shown.stdout
     stored = bus.find()
     assert {r.seq for r in stored} == {200, 0} and {r.exchange for r in stored} == {"guide1.beacon"}
 

@@ -7,7 +7,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import TYPE_CHECKING
 
-from fleetbus.api.services.beacons import Beacons
+from fleetbus.api.services.beacons import BeaconDiscards, Beacons
 from fleetbus.api.services.hazard_steps import HazardSteps
 from fleetbus.api.services.hazards import Hazards
 from fleetbus.api.services.maps import Maps
@@ -59,6 +59,10 @@ class Services:
     @property
     def beacons(self) -> Beacons:
         return Beacons(self._repos.beacons, self._repos.events)
+
+    @property
+    def beacon_discards(self) -> BeaconDiscards:
+        return BeaconDiscards(self._repos.discards)
 
     @property
     def maps(self) -> Maps:

@@ -98,6 +98,17 @@ def _dead_letters() -> None:
     )
 
 
+def _beacon_discards() -> None:
+    counts = with_services(lambda services: services.beacon_discards.counts())
+    if counts:
+        each = ", ".join(
+            f"{c.exchange} {c.count:,} (the last at {clock(c.last_at)[:-4]}: {c.last_reason})" for c in counts
+        )
+        console.print(
+            f"beacons the broker discarded: {each}; `GET /beacons/discards` lists them", soft_wrap=True
+        )
+
+
 def stats(
     since: Annotated[str, typer.Option(help=f"from this time: {TIME_FORMS}")] = "1h",
     every: Annotated[str, typer.Option(help="one row per this much time: 1m, 10m, 1h")] = "1m",
@@ -114,6 +125,7 @@ def stats(
     if not as_json:
         _workers()
         _dead_letters()
+        _beacon_discards()
     rows = growth(with_recording(lambda recording: recording.samples(start)), bucket)
     removed = with_services(lambda services: services.stats.removed())
     if as_json:
