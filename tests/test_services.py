@@ -79,6 +79,8 @@ def test_services(bus: Bus) -> None:
             warden2.call("hazard.claim", hazard_id="one")
         with pytest.raises(ServiceRefused, match=r"no service 'hazard\.teleport'"):
             warden2.call("hazard.teleport")
+        assert worker.context is not None
+        assert worker.context.rpc.bad_requests == 1, "a service that does not exist: counted (fleetbus stats)"
         assert warden1.hazard(1)["claimed_by"] == "warden1", "a refused claim changes nothing"
 
         reached = warden1.hazard_reached(1)

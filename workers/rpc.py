@@ -64,10 +64,7 @@ class RpcServer:
             return self._bad(problem)
         handler = self._handlers.get(method)
         if handler is None:
-            return {
-                "ok": False,
-                "error": f"no service {method!r}; services: {', '.join(sorted(self._handlers))}",
-            }
+            return self._bad(f"no service {method!r}; services: {', '.join(sorted(self._handlers))}")
         try:
             params = json.loads(message.body or b"{}")
         except (json.JSONDecodeError, UnicodeDecodeError) as error:
@@ -93,6 +90,7 @@ class RpcServer:
         async with message.process(requeue=False):
             reply = await self.answer(message)
             if not message.reply_to:
+                self.bad_requests += 1
                 log.warning(
                     "request %s from %s has no reply_to; dropped", message.routing_key, message.user_id
                 )
