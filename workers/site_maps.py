@@ -5,7 +5,10 @@ site's robots fetch the team's newest map from their own site."""
 
 from __future__ import annotations
 
+import logging
+
 import aio_pika
+import aiormq.abc
 from aio_pika.abc import AbstractChannel, ExchangeType
 
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
@@ -14,6 +17,8 @@ from fleetbus.schemas.site_changes import SITE_CHANGE_TYPE, MapChange, MapChunk
 from fleetbus.workers.maps import map_image
 from fleetbus.workers.store.maps import MapStore, MapVersion
 from fleetbus.workers.store.sites import SiteRegistry
+
+log = logging.getLogger("fleetbus.sites")
 
 
 class SiteMapRelay:
@@ -27,7 +32,8 @@ class SiteMapRelay:
         self._channel = channel
 
     async def relay(self, version: MapVersion) -> list[str]:
-        """The sites it was sent to."""
+        """The sites it was sent to (a site whose maps queue the broker has not is logged and left
+        out: `fleetbus sites sync` makes it again)."""
         targets = [
             site for site, robots in (await self._sites.sites()).items() if version.robot_id not in robots
         ]
@@ -35,16 +41,32 @@ class SiteMapRelay:
             return []
         changes = downlink_map(version, await map_image(self._maps, version))
         exchange = await self._channel.declare_exchange(SITES_EXCHANGE, ExchangeType.TOPIC, durable=True)
+        sent = []
         for site in sorted(targets):
-            for change in changes:  # in order: the chunks before the change that commits them
+            for n, change in enumerate(changes):  # in order: the chunks before the change that commits them
                 message = aio_pika.Message(
                     change.model_dump_json().encode(),
                     delivery_mode=aio_pika.DeliveryMode.PERSISTENT,
                     content_type="application/json",
                     type=SITE_CHANGE_TYPE,
+                    # aiormq matches a returned message to its publish by its id
+                    message_id=f"map:{version.robot_id}:{version.version}:{site}:{n}",
                 )
-                await exchange.publish(message, routing_key=site_downlink_key(site, change.change))
-        return sorted(targets)
+                taken = await exchange.publish(
+                    message, routing_key=site_downlink_key(site, change.change), mandatory=True
+                )
+                if isinstance(taken, aiormq.abc.DeliveredMessage):  # returned: no queue took it
+                    log.error(
+                        "map %d of %s not sent to site %s: central's broker has no maps queue bound for it "
+                        "(`fleetbus sites sync` makes it)",
+                        version.version,
+                        version.robot_id,
+                        site,
+                    )
+                    break
+            else:
+                sent.append(site)
+        return sent
 
 
 def downlink_map(

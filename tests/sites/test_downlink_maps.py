@@ -4,10 +4,13 @@ the site from its own site; the site's own maps are not sent back to it."""
 from __future__ import annotations
 
 import hashlib
+import logging
 from datetime import datetime, timezone
 
+import pytest
+
 from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
-from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, RobotKind
+from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, RobotKind, site_maps_queue
 from fleetbus.schemas.site_changes import MapChange, MapChunk
 from fleetbus.workers.downlink import apply_downlink
 from fleetbus.workers.sites import send_to_sites
@@ -80,3 +83,23 @@ def test_a_chunked_map_with_a_chunk_missing_is_kept_aside_and_nothing_is_stored(
     )
     assert pair.site.ready_messages(DOWNLINK_REJECTED_QUEUE) == 1, "the change kept, not lost"
     assert pair.site.with_store(lambda repos: repos.maps.map_versions()) == []
+
+
+def test_a_map_no_queue_takes_for_a_site_is_said_and_the_map_is_still_announced(
+    pair: SitePair, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Central's maps queue for the site gone (deleted by hand, a broker restored without it): the
+    broker returns the map; the worker says which site missed it and how to make the queue again,
+    and central's own wardens still get the map."""
+    explorer = pair.central.robot(pair.central.add("explorer9", kind=RobotKind.EXPLORER))
+    warden = pair.central.robot(pair.central.add("warden9", kind=RobotKind.WARDEN))
+    pair.central.api.delete_queue(pair.central.vhost, site_maps_queue(pair.name))
+    with pair.central.worker(), caplog.at_level(logging.ERROR, logger="fleetbus.sites"):
+        sentinel = explorer.publish_map(pgm(30, 20), TABLE2)[-1]
+        [note] = warden.receive(1, timeout=30)
+        assert note.event == sentinel and note.map_version == 1
+    said = [r.getMessage() for r in caplog.records if "not sent to site" in r.getMessage()]
+    assert said == [
+        f"map 1 of explorer9 not sent to site {pair.name}: central's broker has no maps queue "
+        "bound for it (`fleetbus sites sync` makes it)"
+    ]
