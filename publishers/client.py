@@ -34,6 +34,7 @@ from urllib.parse import unquote, urlsplit
 import pika
 import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel
+from pydantic import ValidationError
 
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outgoing
@@ -439,7 +440,9 @@ class RobotClient:
         one that was being handled when the robot process died is delivered again. The service
         sends at least once (it announces again when it cannot be sure a broker took the first
         announcement); a notification that tells this client nothing new (a copy of one it handed
-        out, or one older than what it learned since) is acked and skipped.
+        out, or one older than what it learned since) is acked and skipped. One it cannot read (a
+        newer server's) is logged and rejected: the workers count it (`fleetbus stats`,
+        ``<robot>.inbox rejected``).
 
         A warden in service first gets the open hazards it missed: on its first call and after
         every reconnect, the client asks the service (``hazard.open``) and hands out, in order,
@@ -463,6 +466,13 @@ class RobotClient:
                 quiet_since = time.monotonic()
                 try:
                     note = Notification.model_validate_json(body)
+                except ValidationError as error:
+                    # set aside, not acked: the inbox's dead-letter exchange has the workers count
+                    # it (`fleetbus stats`: <robot>.inbox rejected); a server newer than this client?
+                    log.error("a notification this client cannot read, set aside: %s", error)
+                    channel.basic_reject(method.delivery_tag, requeue=False)
+                    continue
+                try:
                     if self._seen_before(note):
                         continue
                     yield note

@@ -98,3 +98,24 @@ def test_a_full_dead_letter_queue_keeps_the_newest_refusals_and_counts_the_dropp
     # a listing cut short says how many there are, and the stats count the queue, not the listing
     shorter = fleetbus(bus, "dlq", "--limit", "2")
     assert "3 dead letters, the oldest 2 listed" in " ".join(shorter.stdout.split()), shorter.stdout
+
+
+def test_a_notification_the_client_cannot_read_is_set_aside_and_counted(stored_bus: Bus) -> None:
+    """A note this client cannot read (a newer server's, say) is rejected, not acked and lost: the
+    inbox's dead-letter exchange has the workers count it, and the next one is handed out."""
+    bus = stored_bus
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    bus.service_accounts()  # `fleetbus setup`: the policies
+    wait_for(lambda: bounded_by(bus, inbox_queue("warden1"), "fleetbus-inboxes"), what="the inbox policy")
+    with bus.admin_channel() as channel:
+        channel.confirm_delivery()
+        channel.basic_publish("", inbox_queue("warden1"), b'{"topic": "hazard", "new_field": 1}')
+    with bus.worker():
+        warden.publish("localisation", LOCALISED)
+        # its client reads the inbox: the note it cannot read is not handed out, but set aside
+        assert list(warden.notifications(timeout=2)) == []
+        wait_for(lambda: overflow_counts(bus).get("warden1.inbox rejected") == 1, what="it counted")
+        sent = explorer.publish("hazard", hazard(0))  # and the next one is handed out
+        [note] = warden.receive(1, timeout=30)
+        assert note.event == sent
