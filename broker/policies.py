@@ -86,16 +86,16 @@ def _major(version: str) -> int:
 
 
 def _per_type(
-    name: str, pattern: str, common: dict[str, Any], quorum: dict[str, Any], version: str
+    name: str, pattern: str, common: dict[str, Any], quorum: dict[str, Any], version: str, cluster: bool
 ) -> list[QueuePolicy]:
     """``common`` for the queues ``pattern`` matches, and ``quorum`` besides for the quorum ones.
 
-    RabbitMQ 4 does not apply a policy to a queue whose type ignores one of its keys (a classic
+    RabbitMQ does not apply a policy to a queue whose type ignores one of its keys (a classic
     queue, ``delivery-limit``): it would leave a classic inbox unbounded. So on 4.x the classic and
-    the quorum queues get a policy each (``apply-to``, which RabbitMQ 3 does not know); RabbitMQ 3
-    applies such a policy to both, each type taking the keys it knows."""
+    the quorum queues get a policy each (``apply-to``); RabbitMQ 3 knows no ``apply-to`` by queue
+    type, so there the policy is the one for the type the queues are (``cluster``: quorum)."""
     if _major(version) < 4:
-        return [QueuePolicy(name, pattern, {**common, **quorum})]
+        return [QueuePolicy(name, pattern, {**common, **quorum} if cluster else common)]
     return [
         QueuePolicy(name, pattern, common, apply_to="classic_queues"),
         QueuePolicy(f"{name}-quorum", pattern, {**common, **quorum}, apply_to="quorum_queues"),
@@ -109,21 +109,28 @@ def unlimited_deliveries(version: str) -> dict[str, Any]:
     return {"delivery-limit": -1} if _major(version) >= 4 else {}
 
 
-def bound_policies(inbox: QueueLimit, dead_letters: QueueLimit, version: str) -> list[QueuePolicy]:
+def bound_policies(
+    inbox: QueueLimit, dead_letters: QueueLimit, version: str, cluster: bool = False
+) -> list[QueuePolicy]:
     """The inboxes and the dead-letter queue (of RabbitMQ ``version``): bounded, and (quorum queues,
     on a cluster) never a drop for how often a message was delivered. A robot whose link drops
     while it holds a notification gets it again however often that happens; ``fleetbus dlq`` reads
     the dead letters and puts them back, which counts as a delivery each time."""
     unlimited = unlimited_deliveries(version)
     return [
-        *_per_type("fleetbus-inboxes", INBOX_PATTERN, _bounded(inbox), unlimited, version),
+        *_per_type("fleetbus-inboxes", INBOX_PATTERN, _bounded(inbox), unlimited, version, cluster),
         *_per_type(
-            "fleetbus-dead-letters", _exactly(DEAD_LETTER_QUEUE), _bounded(dead_letters), unlimited, version
+            "fleetbus-dead-letters",
+            _exactly(DEAD_LETTER_QUEUE),
+            _bounded(dead_letters),
+            unlimited,
+            version,
+            cluster,
         ),
     ]
 
 
-def delivery_policies(version: str) -> list[QueuePolicy]:
+def delivery_policies(version: str, cluster: bool = False) -> list[QueuePolicy]:
     """Every other quorum queue's delivery limit (they are quorum queues on a cluster; a classic
     queue has none: the workers keep the express lane's themselves, :mod:`fleetbus.workers.attempts`).
 
@@ -132,25 +139,35 @@ def delivery_policies(version: str) -> list[QueuePolicy]:
     connection, died while it held that message. It goes to the dead letters (the express lane and
     the sites' hazards by their dead-letter exchange, the rest by ``fleetbus.poison``), where
     ``fleetbus dlq`` shows it with the reason ``delivery_limit``. A command that its robot took
-    :data:`COMMAND_DELIVERY_LIMIT` times without acknowledging it goes there too; one that expired
-    unread is dropped, as before. What its limit removes from the recorder's backlog is counted
-    with the dropped messages (the recorder's own dead-letter exchange). The overflow queue never
-    drops for deliveries: its counter reads no body, so no message can be poison to it."""
+    :data:`COMMAND_DELIVERY_LIMIT` times without acknowledging it goes there too. A command or a
+    service request that expired unread (its robot away, the workers behind) is counted with the
+    dropped messages (``<queue> expired``): ``fleetbus.poison`` passes it to ``fleetbus.overflow``,
+    on a classic queue too. What its limit removes from the recorder's backlog is counted with the
+    dropped messages (the recorder's own dead-letter exchange). The overflow queue never drops for
+    deliveries: its counter reads no body, so no message can be poison to it."""
     limit = {"delivery-limit": WORKER_DELIVERY_LIMIT}
     poison = {"dead-letter-exchange": POISON_EXCHANGE}
     quorum_only = "quorum_queues" if _major(version) >= 4 else "queues"
     policies = [
         QueuePolicy("fleetbus-express", _exactly(EXPRESS_QUEUE), limit),
-        QueuePolicy("fleetbus-requests", _exactly(RPC_QUEUE), {**limit, **poison}),
         QueuePolicy("fleetbus-beacon-discards", _exactly(BEACON_DISCARD_QUEUE), {**limit, **poison}),
         QueuePolicy("fleetbus-site-hazards", _exactly(SITE_HAZARDS_QUEUE), limit),
         QueuePolicy("fleetbus-recorder", _exactly(RECORDER_QUEUE), limit),
         QueuePolicy("fleetbus-overflow", _exactly(OVERFLOW_QUEUE), unlimited_deliveries(version)),
-        QueuePolicy(
-            "fleetbus-commands", COMMANDS_PATTERN, {"delivery-limit": COMMAND_DELIVERY_LIMIT, **poison}
+    ]
+    return [
+        *(replace(policy, apply_to=quorum_only) for policy in policies if policy.definition),
+        # what expires in them is counted whatever their type: a policy for each type on RabbitMQ 4
+        *_per_type("fleetbus-requests", _exactly(RPC_QUEUE), poison, limit, version, cluster),
+        *_per_type(
+            "fleetbus-commands",
+            COMMANDS_PATTERN,
+            poison,
+            {"delivery-limit": COMMAND_DELIVERY_LIMIT},
+            version,
+            cluster,
         ),
     ]
-    return [replace(policy, apply_to=quorum_only) for policy in policies if policy.definition]
 
 
 def uplink_policies(bounds: UplinkBounds) -> list[QueuePolicy]:

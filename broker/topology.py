@@ -142,8 +142,10 @@ EXPRESS_QUEUE_ARGUMENTS: dict[str, Any] = {
 
 
 #: What fleetbus.poison passes on to the dead letters: a message a delivery limit removed
-#: (:func:`fleetbus.broker.policies.delivery_policies`); an expired one matches nothing and is dropped.
+#: (:func:`fleetbus.broker.policies.delivery_policies`).
 POISONED = {"x-match": "all-with-x", "x-first-death-reason": "delivery_limit"}
+#: What it passes on to be counted with the dropped messages: a command or request that expired.
+EXPIRED = {"x-match": "all-with-x", "x-first-death-reason": "expired"}
 
 
 def queue_type(cluster: bool) -> dict[str, Any]:
@@ -209,6 +211,7 @@ def core_topology(shards: int = 1, *, cluster: bool = False) -> Topology:
             BindingSpec(BEACON_DISCARD_EXCHANGE, BEACON_DISCARD_QUEUE, ""),
             BindingSpec(OVERFLOW_EXCHANGE, OVERFLOW_QUEUE, ""),
             BindingSpec(POISON_EXCHANGE, DEAD_LETTER_EXCHANGE, "", to_exchange=True, arguments=POISONED),
+            BindingSpec(POISON_EXCHANGE, OVERFLOW_EXCHANGE, "", to_exchange=True, arguments=EXPIRED),
         ),
     )
 

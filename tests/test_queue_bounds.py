@@ -7,11 +7,12 @@ import json
 import subprocess
 import sys
 
+import pika
 import pytest
 
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.schemas.notifications import Notification
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RobotKind, inbox_queue
+from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RPC_QUEUE, RobotKind, commands_queue, inbox_queue
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 
@@ -119,3 +120,24 @@ def test_a_notification_the_client_cannot_read_is_set_aside_and_counted(stored_b
         sent = explorer.publish("hazard", hazard(0))  # and the next one is handed out
         [note] = warden.receive(1, timeout=30)
         assert note.event == sent
+
+
+@pytest.mark.rabbitmq_versions  # a policy for each queue type on RabbitMQ 4, one for both on 3
+def test_a_command_or_a_request_that_expires_unread_is_counted(stored_bus: Bus) -> None:
+    """Commands live 30 s, a request until its caller gives up: what expired unread (the robot away,
+    the workers behind) is counted with the dropped messages, on a classic queue too."""
+    bus = stored_bus
+    bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.service_accounts()  # `fleetbus setup`: the policies (a queue has its policy once it is set)
+    with bus.admin_channel() as channel:
+        channel.confirm_delivery()
+        for queue in (commands_queue("explorer1"), RPC_QUEUE):  # no worker consuming yet
+            channel.basic_publish("", queue, b"{}", pika.BasicProperties(expiration="1"))
+    with bus.worker():
+        wait_for(
+            lambda: (
+                {k: v for k, v in overflow_counts(bus).items() if k.endswith("expired")}
+                == {"explorer1.commands expired": 1, "fleetbus.rpc.requests expired": 1}
+            ),
+            what="both counted",
+        )

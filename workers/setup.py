@@ -58,5 +58,8 @@ def set_queue_bounds(settings: Settings, admin: BrokerEndpoint) -> None:
         apply_policies(
             api,
             vhost_of(admin.amqp_url),
-            [*bound_policies(limits.inbox, limits.dead_letters, version), *delivery_policies(version)],
+            [
+                *bound_policies(limits.inbox, limits.dead_letters, version, settings.cluster),
+                *delivery_policies(version, settings.cluster),
+            ],
         )
