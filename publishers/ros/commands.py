@@ -44,6 +44,11 @@ def command_messages(
         }
     ]
     if name == "goal" and isinstance(content, dict) and {"x", "y"} <= set(content):
+        try:
+            x, y = float(content["x"]), float(content["y"])
+        except (TypeError, ValueError):  # not a place: it goes as the command's text alone
+            log.warning("commands: a goal from %s with no place in it (x, y): %r", operator, content)
+            return messages
         orientation = content.get("orientation") or {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
         messages.append(
             {
@@ -53,7 +58,7 @@ def command_messages(
                 "fields": {
                     "header": {"frame_id": str(content.get("frame_id", "map"))},
                     "pose": {
-                        "position": {"x": float(content["x"]), "y": float(content["y"]), "z": 0.0},
+                        "position": {"x": x, "y": y, "z": 0.0},
                         "orientation": orientation,
                     },
                 },

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from fleetbus.publishers.ros import parts
+from fleetbus.publishers.ros.commands import command_messages
 from fleetbus.publishers.ros.counters import Counters, DropReason
 from tests.support import wait_for
 
@@ -75,3 +76,17 @@ def test_the_status_file_never_goes_back_to_an_older_state(tmp_path: Path) -> No
     assert went_back == []
     final = json.loads(path.read_text())
     assert {t: v["dropped"] for t, v in final["topics"].items()} == {"/a": {"rate": 300}, "/b": {"rate": 300}}
+
+
+def test_a_goal_with_no_place_in_it_goes_as_its_text_and_does_not_stop_the_commands() -> None:
+    """A goal whose x or y is no number: its text is published (the robot's software may read it),
+    no pose; the thread that follows the commands raised on it and took it again until it expired."""
+    bad = command_messages(
+        "bot1", "bot1.goal", "ops1", json.dumps({"x": "north", "y": 2}).encode(), "/fleetbus"
+    )
+    assert [m["topic"] for m in bad] == ["/fleetbus/command"]
+    good = command_messages(
+        "bot1", "bot1.goal", "ops1", json.dumps({"x": "4.5", "y": 2}).encode(), "/fleetbus"
+    )
+    assert [m["topic"] for m in good] == ["/fleetbus/command", "/fleetbus/goal"]
+    assert good[1]["fields"]["pose"]["position"] == {"x": 4.5, "y": 2.0, "z": 0.0}
