@@ -143,6 +143,7 @@ def test_what_arrives_while_the_recorder_is_down_is_recorded_when_it_is_back(bus
 def test_retention_bounds_each_type_while_recording(bus: Bus) -> None:
     robot = bus.add("rec-bounded")
     policies = parse_retention(["status=5", "*=1GB"])
+
     def counted() -> list[tuple[str, int]]:
         shown = fleetbus(bus, "stats", "--json")
         assert shown.returncode == 0, shown.stderr
