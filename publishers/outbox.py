@@ -627,6 +627,11 @@ class Outbox:
                 self._dropped = self._counter("dropped")
             return Counter(self._dropped)
 
+    def refused_counts(self) -> Counter[str]:
+        """What the broker refused, by type, since the outbox was made (its list keeps the newest)."""
+        with self._lock:
+            return self._counter("refused") or Counter(entry.type for entry in self.refused())
+
     def summary(self) -> dict[str, TypeSummary]:
         """Per type: how many wait, the oldest one's time, how many were dropped or refused."""
         with self._lock:
@@ -639,7 +644,7 @@ class Outbox:
                     self._release(segment)
             waiting = self.counts()
             dropped = self.dropped()
-            refused = self._counter("refused") or Counter(entry.type for entry in self.refused())
+            refused = self.refused_counts()
             types = sorted(set(waiting) | set(dropped) | set(refused))
             never = datetime.max.replace(tzinfo=timezone.utc)
             return {

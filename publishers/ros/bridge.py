@@ -540,7 +540,18 @@ class Bridge:
         return batch
 
     def report(self) -> None:
-        self.counters.broker = {"connected": self.robot.connected, "last_error": self.robot.last_error}
+        outbox = self.robot.outbox
+        self.counters.broker = {
+            "connected": self.robot.connected,
+            "last_error": self.robot.last_error,
+            # what waits for the broker, what the outbox's bounds dropped and the broker refused, by
+            # type: the bridge's robot sends no status, so `fleetbus team` cannot show them
+            "outbox": {
+                "waiting": dict(outbox.counts()),
+                "dropped": dict(outbox.dropped()),
+                "refused": dict(outbox.refused_counts()),
+            },
+        }
         self.counters.write(self.status_file)
         log.info("ROS bridge: %s", self.counters.status_line())
 

@@ -240,6 +240,9 @@ def test_a_full_outbox_drops_the_large_messages_and_lets_the_small_ones_through(
         )
         assert robot.outbox.pending() == 1, "the described image waits; no chunk does"
         assert bridge.counters.recorded[IMAGES] == 0 and bridge.counters.recorded[CLOUDS] == 0
+        bridge.report()  # `fleetbus ros status` shows what waits in the outbox, by type
+        outbox = json.loads(bridge.status_file.read_text())["broker"]["outbox"]
+        assert (sum(outbox["waiting"].values()), outbox["dropped"], outbox["refused"]) == (1, {}, {})
         link.restore()  # the bridge stops at once (its notifications wait for the broker)
 
 
