@@ -619,12 +619,13 @@ class Accounts:
         return changed
 
     async def sync_site(self, site: str) -> SiteRobots:
-        """Declare central's side of ``site``'s links again, and send the site every one of its
-        robots' accounts as central has them, then the list of its robots: the site removes its
-        copies of the accounts central gave it that are not on it (robots removed at central or
-        taken from the site, whose removal it missed), so a sync with nothing changed changes
-        nothing there."""
-        listed = await self._site_registry().robots_of(site)
+        """Declare central's side of ``site``'s links again and grant its account its permissions
+        (as this release has them), and send the site every one of its robots' accounts as central
+        has them, then the list of its robots: the site removes its copies of the accounts central
+        gave it that are not on it (robots removed at central or taken from the site, whose removal
+        it missed), so a sync with nothing changed changes nothing there."""
+        registry = self._site_registry()
+        listed = await registry.robots_of(site)
         if listed is None:
             raise NotFound(f"no site {site!r}; make it with `fleetbus sites add {site}`")
         robots = listed.robots
@@ -632,6 +633,7 @@ class Accounts:
         roster = RobotRoster(names=list(robots), revision=listed.revision)
         try:  # what central takes from the site (made again if it went), then what it sends it
             await declare_with_url(self._admin_url, [central_site_topology(site, self._cluster)])
+            await grant_listed(registry, self._management, self._admin_url, site)
             await asyncio.to_thread(send_to_sites, self._admin_url, [site], [*accounts, roster])
         except (AMQPError, OSError) as error:
             raise Unavailable(f"central's broker did not take site {site}'s accounts: {error}") from error
