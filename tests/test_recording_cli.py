@@ -118,6 +118,9 @@ def test_a_bad_query_names_its_problem(bus: Bus) -> None:
         result = fleetbus(bus, "query", "tf", "-w", where)
         assert result.returncode == 2 and problem in result.stderr, result.stderr
     assert "nothing recorded of type 'nothing'" in fleetbus(bus, "query", "nothing").stdout
+    # a name no robot can have: refused as the HTTP API refuses it (422), not an empty answer
+    named = fleetbus(bus, "query", "hazard", "--robot", "Robot.1")
+    assert named.returncode == 2 and "robot: invalid name 'Robot.1'" in named.stderr, named.stderr
     retention = fleetbus(bus, "recorder", "run", "--keep", "status=7x")
     assert retention.returncode == 2 and "retention 'status=7x'" in retention.stderr
 

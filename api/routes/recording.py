@@ -16,7 +16,9 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from pydantic import BaseModel, BeforeValidator, Field
 
 from fleetbus.api.auth import ServiceDep, require_role
+from fleetbus.api.openapi import refusals
 from fleetbus.api.services.accounts import User
+from fleetbus.api.services.errors import BadRequest
 from fleetbus.api.services.recording import OutcomeStats, RecordedMessage
 from fleetbus.limits import read_iso_time
 from fleetbus.schemas.identity import validate_name
@@ -162,7 +164,7 @@ async def recorded_types(user: Analyst, svc: ServiceDep) -> list[TypeOut]:
     return out
 
 
-@router.get("/records/{message_type}", response_model=list[RecordOut])
+@router.get("/records/{message_type}", response_model=list[RecordOut], responses=refusals(BadRequest))
 async def records(
     message_type: str,
     user: Analyst,

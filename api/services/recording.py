@@ -17,6 +17,7 @@ from pathlib import Path
 
 from fleetbus.api.services.errors import BadRequest
 from fleetbus.broker.routes import RouteMap
+from fleetbus.schemas.identity import validate_name
 from fleetbus.schemas.ros import ROS_SCHEMA_TYPE
 from fleetbus.workers.recorder.bag_import import ImportReport, Progress
 from fleetbus.workers.recorder.bag_import import import_bag as import_bag_into
@@ -116,9 +117,15 @@ class Recording:
         limit: int | None = None,
         newest_first: bool = False,
     ) -> list[RecordedMessage]:
-        """Records of ``type`` meeting every condition, in the window."""
+        """Records of ``type`` meeting every condition, in the window; a robot's name that no robot
+        can have is refused (an empty answer would look like a robot that sent nothing)."""
+        if robot_id is not None:
+            try:
+                validate_name(robot_id)
+            except ValueError as error:
+                raise BadRequest(f"robot: {error}") from None
         with _refused():
-            return await find(
+            found = await find(
                 self._store,
                 type,
                 conditions,
@@ -129,6 +136,7 @@ class Recording:
                 limit=limit,
                 newest_first=newest_first,
             )
+        return found
 
     async def timeline(
         self,

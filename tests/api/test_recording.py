@@ -65,6 +65,8 @@ def test_the_reference_queries_over_http(scene: tuple[Api, dict[str, Any]]) -> N
     assert found[0]["known"] is False and found[0]["exchange"] == "http-herb.events"
     bad = api.call("super1", "GET", "/recording/records/tf?where=frame")
     assert bad.status_code == 422 and "write FIELD=VALUE" in bad.json()["detail"]
+    named = api.call("super1", "GET", "/recording/records/tf?robot=Robot.1")
+    assert named.status_code == 422 and "robot: invalid name" in named.json()["detail"]
     types = {t["type"]: t for t in get(api, "super1", "/recording/types")}
     assert types["tf"]["known"] is False and types["tf"]["records"] == 3
     assert ["child_frame", "frame"] in types["tf"]["field_indexes"], "the query made its index"

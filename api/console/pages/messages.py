@@ -26,7 +26,7 @@ from fleetbus.api.console.sitemap import MESSAGES
 from fleetbus.api.console.templating import fragment, render
 from fleetbus.api.service import Service
 from fleetbus.api.services.accounts import User
-from fleetbus.api.services.errors import BadRequest
+from fleetbus.api.services.errors import ServiceRefusal
 from fleetbus.api.services.recording import RecordedMessage, Timeline, Trace
 from fleetbus.broker.management import ManagementError
 from fleetbus.broker.routes import RouteMap
@@ -92,7 +92,7 @@ async def search(svc: Service, form: SearchForm) -> SearchResult:
             limit=limit,
             newest_first=True,
         )
-    except (BadRequest, FormProblem) as error:
+    except (ServiceRefusal, FormProblem) as error:
         return SearchResult(problem=str(error))
     return SearchResult(list(reversed(found)), limit)
 
