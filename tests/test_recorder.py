@@ -22,7 +22,7 @@ from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import INGEST_EXCHANGE, INGEST_QUEUE, RECORDER_QUEUE, EventType, RobotKind
 from fleetbus.workers.recorder.capture import refusal
 from fleetbus.workers.recorder.filters import RoutingFilter
-from fleetbus.workers.recorder.process import PARENT_ENV
+from fleetbus.workers.recorder.process import PARENT_ENV, recorder_environment
 from fleetbus.workers.store import open_recording_store
 from fleetbus.workers.store.base import WriteResult
 from fleetbus.workers.store.recordings import Condition, Op, RecordedMessage, RecordingStore
@@ -376,3 +376,13 @@ def test_no_process_of_the_project_forks_with_preexec_fn() -> None:
         if "preexec_fn=" in path.read_text()
     ]
     assert found == []
+
+
+def test_the_recorders_environment_holds_no_broker_password_but_the_development_brokers() -> None:
+    """With a URL naming the broker, the child needs no password of the worker's; with none, it
+    finds the development broker as the worker did, by its password (else it would make another)."""
+    named = {"FLEETBUS_SERVICE_URL": "amqp://fleetbus:secret@h/", "FLEETBUS_BROKER_PASSWORD": "dev"}
+    env = recorder_environment(named, 7)
+    assert env["FLEETBUS_SERVICE_URL"] == "amqp://fleetbus@h/" and "FLEETBUS_BROKER_PASSWORD" not in env
+    unnamed = recorder_environment({"FLEETBUS_BROKER_PASSWORD": "dev", "FLEETBUS_API_SECRET": "s"}, 7)
+    assert unnamed == {"FLEETBUS_BROKER_PASSWORD": "dev", "FLEETBUS_DIE_WITH_PARENT": "7"}

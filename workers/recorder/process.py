@@ -45,7 +45,11 @@ STORE_URL = "FLEETBUS_MONGODB_URL"
 def recorder_environment(environ: dict[str, str] | os._Environ[str], parent: int) -> dict[str, str]:
     """The environment of the worker's recorder child: the worker's, with no broker password (the
     ``fleetbus`` account's, the administrator's) where ``ps e`` or ``/proc`` would show it."""
-    env = {name: value for name, value in environ.items() if name not in NOT_FOR_THE_RECORDER}
+    # the development broker's password stays when no URL names the broker: the child finds the
+    # broker by it as the worker did (without it, it would make a new one and restart the broker)
+    given = any(environ.get(name) for name in ("FLEETBUS_SERVICE_URL", "FLEETBUS_AMQP_URL"))
+    kept = NOT_FOR_THE_RECORDER if given else NOT_FOR_THE_RECORDER - {"FLEETBUS_BROKER_PASSWORD"}
+    env = {name: value for name, value in environ.items() if name not in kept}
     for name, value in env.items():
         if name.startswith("FLEETBUS_") and name.endswith("_URL") and name != STORE_URL and "@" in value:
             env[name] = without_password(value)
