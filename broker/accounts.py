@@ -217,10 +217,13 @@ def _drop_other_roles(api: ManagementAPI, vhost: str, name: str, role: Role, kin
 
 
 def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:
-    """Take every permission in the virtual host away: the account can no longer even connect."""
+    """Take every permission in the virtual host away: the account can no longer even connect; and
+    what feeds it (its inbox's notifications, an operator's stream and commands exchange)."""
     validate_name(name)
-    api.delete_permissions(vhost_of(admin_url), name)
+    vhost = vhost_of(admin_url)
+    api.delete_permissions(vhost, name)
     api.put_user_tags(name, "")
+    _drop_other_roles(api, vhost, name, Role.USER, None)
 
 
 def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, name: str, role: Role) -> str:

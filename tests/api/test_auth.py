@@ -211,6 +211,13 @@ def test_an_operator_given_another_role_keeps_nothing_of_an_operators_on_the_bro
     assert inbox_keys() == []
     assert broker.get_exchange(vhost, "dave.commands") is None
     assert "dave.stream" not in {q["name"] for q in broker.list_queues(vhost)}
+    # an operator disabled likewise: nothing goes on filling its inbox and stream
+    api.user("erin", UserRole.OPERATOR)
+    assert api.call("admin1", "PUT", "/users/erin/role", json={"role": "inactive"}).status_code == 200
+    bound = broker.exchange_bindings(vhost, NOTIFY_EXCHANGE)
+    assert [b for b in bound if b["destination"] == inbox_queue("erin")] == []
+    assert broker.get_exchange(vhost, "erin.commands") is None
+    assert "erin.stream" not in {q["name"] for q in broker.list_queues(vhost)}
 
 
 def test_users_cannot_be_created_twice_or_with_bad_names_or_short_passwords(api: Api) -> None:
