@@ -635,6 +635,8 @@ class Accounts:
             await declare_with_url(self._admin_url, [central_site_topology(site, self._cluster)])
             await grant_listed(registry, self._management, self._admin_url, site)
             await asyncio.to_thread(send_to_sites, self._admin_url, [site], [*accounts, roster])
+        except StaleRevision as error:
+            raise Conflict(str(error)) from None
         except (AMQPError, OSError) as error:
             raise Unavailable(f"central's broker did not take site {site}'s accounts: {error}") from error
         log.info("site %s sent its robots' accounts and list: %s", site, ", ".join(robots) or "none")
