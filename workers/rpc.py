@@ -88,13 +88,13 @@ class RpcServer:
 
     async def _on_request(self, message: AbstractIncomingMessage) -> None:
         async with message.process(requeue=False):
-            reply = await self.answer(message)
-            if not message.reply_to:
+            if not message.reply_to:  # no answer could reach its caller: not handled at all
                 self.bad_requests += 1
                 log.warning(
                     "request %s from %s has no reply_to; dropped", message.routing_key, message.user_id
                 )
                 return
+            reply = await self.answer(message)
             await self._channel.default_exchange.publish(
                 aio_pika.Message(
                     json.dumps(reply, default=str).encode(),
