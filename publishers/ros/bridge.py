@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, BinaryIO
 
 import pika.exceptions
 
@@ -203,6 +203,12 @@ class Bridge:
         self._schema_keys: dict[tuple[str, str], str] = {}
 
     # the ROS side
+    def _ros_log_file(self) -> BinaryIO:
+        """The ROS side's log, 0600 (one an older version made wider is narrowed)."""
+        descriptor = os.open(self.ros_log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+        os.fchmod(descriptor, 0o600)
+        return os.fdopen(descriptor, "ab")
+
     def start_ros_side(self) -> None:
         """Start the ROS side and wait until it runs; RosSideError (it is ended) when it does not."""
         started, ended = threading.Event(), threading.Event()
@@ -212,7 +218,7 @@ class Bridge:
                 self.options.ros_side_command([rule.topic for rule in self.mapping.rules]),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
-                stderr=os.fdopen(os.open(self.ros_log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600), "ab"),
+                stderr=self._ros_log_file(),
                 env=self.options.ros_env,
                 bufsize=1 << 16,
             )
