@@ -4,15 +4,17 @@ and what a site sends in another's name is refused by central's worker."""
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 import pika
 import pika.exceptions
 import pytest
+from pika.adapters.blocking_connection import BlockingChannel
 
 from fleetbus.broker.sites import add_site_account
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.envelope import build_event, encode_event, new_epoch
-from fleetbus.schemas.routing import RobotKind, inbox_queue, site_downlink_queue
+from fleetbus.schemas.routing import RobotKind, inbox_queue, site_downlink_queue, site_status_exchange
 from fleetbus.workers.site_report import report_to_central
 from fleetbus.workers.sites import assign_robots
 from tests.factories import hazard
@@ -96,20 +98,32 @@ def test_a_site_writes_only_its_robots_event_and_beacon_exchanges_and_its_own_re
     services, in its name), nor its own downlink: only what its links send."""
     pair.add_robot("explorer1", RobotKind.EXPLORER)
     assert pair.account is not None
+    status = site_status_exchange(pair.name)
+
+    def publish(channel: BlockingChannel, exchange: str, key: str) -> None:
+        channel.basic_publish(exchange, key, b"{}", pika.BasicProperties(user_id="explorer1"))
+
+    attempts: dict[str, Callable[[BlockingChannel], object]] = {
+        # its robot's commands and requests, by their exchanges
+        "publish to explorer1.commands": lambda channel: publish(
+            channel, "explorer1.commands", "explorer1.go"
+        ),
+        "publish to explorer1.requests": lambda channel: publish(
+            channel, "explorer1.requests", "explorer1.x"
+        ),
+        # a queue bound to an exchange it may write, to write into it (write on the queue)
+        "bind explorer1.inbox": lambda channel: channel.queue_bind(inbox_queue("explorer1"), status, "x"),
+        "bind its downlink": lambda channel: channel.queue_bind(site_downlink_queue(pair.name), status, "x"),
+    }
     refused: dict[str, int] = {}
-    for exchange, key in (
-        ("", inbox_queue("explorer1")),  # the default exchange writes to the queue it names
-        ("explorer1.commands", "explorer1.go"),
-        ("explorer1.requests", "explorer1.hazard.claim"),
-        ("", site_downlink_queue(pair.name)),
-    ):
+    for what, attempt in attempts.items():
         connection = blocking_connection(pair.account.amqp_url)
         try:
             channel = connection.channel()
             channel.confirm_delivery()
             with pytest.raises(pika.exceptions.ChannelClosedByBroker) as closed:
-                channel.basic_publish(exchange, key, b"{}", pika.BasicProperties(user_id="explorer1"))
-            refused[exchange or key] = closed.value.reply_code
+                attempt(channel)
+            refused[what] = closed.value.reply_code
         finally:
             if connection.is_open:
                 connection.close()
