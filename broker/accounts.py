@@ -192,16 +192,17 @@ async def configure_account(
         admin_url,
         [core_topology(shards, cluster=cluster), account_topology(name, role, kind=kind, cluster=cluster)],
     )
-    _drop_other_roles(api, vhost, name, role, kind)
     if role is Role.ROBOT:
         assign_shard(api, vhost, name, shards)
     else:  # a robot given another role publishes no events of its own
         unassign_shard(api, vhost, name)
 
 
-def _drop_other_roles(api: ManagementAPI, vhost: str, name: str, role: Role, kind: RobotKind | None) -> None:
+def drop_other_roles(api: ManagementAPI, vhost: str, name: str, role: Role, kind: RobotKind | None) -> None:
     """What an account's earlier role had and its role now has not: an operator's notifications
-    (every one), stream (every beacon) and commands exchange, when it is one no longer."""
+    (every one), stream (every beacon) and commands exchange, when it is one no longer. For a
+    change of role only: a new account has nothing of another role's (and the broker's management
+    API is not asked three more questions for each account made)."""
     wanted = set(inbox_bindings(name, kind, role is Role.OPERATOR))
     inbox = inbox_queue(name)
     stale = [
@@ -223,7 +224,7 @@ def revoke_account(admin_url: str, api: ManagementAPI, name: str) -> None:
     vhost = vhost_of(admin_url)
     api.delete_permissions(vhost, name)
     api.put_user_tags(name, "")
-    _drop_other_roles(api, vhost, name, Role.USER, None)
+    drop_other_roles(api, vhost, name, Role.USER, None)
 
 
 def _keyed_account(admin_url: str, api: ManagementAPI, credentials_dir: Path, name: str, role: Role) -> str:

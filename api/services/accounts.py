@@ -35,6 +35,7 @@ from fleetbus.broker.accounts import (
     as_public,
     configure_account,
     delete_account,
+    drop_other_roles,
     revoke_account,
     url_for,
     vhost_of,
@@ -330,6 +331,7 @@ class Accounts:
                 await asyncio.to_thread(self._management.delete_user, name)
             raise
         if existing is not None:
+            await self._drop_earlier_role(name, existing.role, role, user.kind)
             await self._users.put_user(user)
         if role is UserRole.ROBOT:
             await self._team.register_robot(name, user.kind)
@@ -426,6 +428,16 @@ class Accounts:
         _seen_role(viewer, user.role)
         return user
 
+    async def _drop_earlier_role(self, name: str, was: UserRole, role: UserRole, kind: str | None) -> None:
+        """What the broker account had for its earlier role and not for this one (an operator's
+        stream, say); the inactive role's revocation drops it itself."""
+        if role is UserRole.INACTIVE or broker_role(was) is broker_role(role):
+            return
+        vhost, robot_kind = vhost_of(self._admin_url), RobotKind(kind) if kind else None
+        await asyncio.to_thread(
+            drop_other_roles, self._management, vhost, name, broker_role(role), robot_kind
+        )
+
     async def set_role(self, name: str, role: UserRole, by: str) -> User:
         """Give ``name`` another role (``inactive`` disables it); ``by`` is the admin who does it."""
         if name == by and role is not UserRole.ADMIN:
@@ -437,6 +449,7 @@ class Accounts:
         if leaving and (problem := await in_use(self._channels, name)):
             raise Conflict(f"{problem} (its mounts are an operator's)")
         await self._broker(name, role, user.kind)
+        await self._drop_earlier_role(name, user.role, role, user.kind)
         changed = await self._users.update_user(name, datetime.now(timezone.utc), role=role)
         if role is UserRole.INACTIVE:  # else they would open again when it is given a role
             await self._sessions.end_all(name)
