@@ -53,8 +53,8 @@ def test_durations() -> None:
 
 def test_the_http_api_and_the_command_line_read_a_time_the_same_way() -> None:
     """One reader of ISO 8601 for both, a ``Z`` taken on every Python (3.10's fromisoformat reads none)."""
-    from fleetbus.api.routes.recording import read_time as api_time
     from fleetbus.cli.times import read_time as cli_time
+    from fleetbus.limits import read_iso_time as api_time
 
     for text in ("2026-11-27T08:00:00Z", "2026-11-27T08:00:00+00:00", "2026-11-27T08:00:00"):
         assert api_time(text) == cli_time(text) == datetime(2026, 11, 27, 8, tzinfo=timezone.utc), text

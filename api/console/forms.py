@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from fleetbus.api.routes.recording import read_time
+from fleetbus.limits import read_iso_time
 from fleetbus.schemas.identity import validate_name
 
 
@@ -18,7 +18,7 @@ def moment(name: str, text: str) -> datetime | None:
     if not text.strip():
         return None
     try:
-        return read_time(text.strip())
+        return read_iso_time(text.strip())
     except ValueError:
         example = "2024-05-01T10:00:00 (UTC)"
         raise FormProblem(f"{name}: cannot read {text!r} as a time; write {example}") from None

@@ -34,19 +34,13 @@ Evaluator = Annotated[User, Depends(require_role(*EVALUATORS))]
 Limit = Annotated[int, Query(ge=1, le=LIMIT_MAX)]
 
 
-def read_time(text: str) -> datetime:
-    """A time written in ISO 8601 (``2026-11-27T08:00:00Z``); one without a zone is UTC. A
-    :class:`ValueError` when it is not one."""
-    return read_iso_time(text)
-
-
 def _time_in_query(value: Any) -> Any:
-    """:func:`read_time`, as the document's ``date-time`` says: pydantic alone would also take a
-    number, as seconds since 1970."""
+    """:func:`~fleetbus.limits.read_iso_time`, as the document's ``date-time`` says: pydantic
+    alone would also take a number, as seconds since 1970."""
     if not isinstance(value, str):
         return value
     try:
-        return read_time(value)
+        return read_iso_time(value)
     except ValueError:
         raise ValueError(f"{value!r} is not an ISO 8601 time, such as 2026-11-27T08:00:00Z") from None
 

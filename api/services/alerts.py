@@ -30,7 +30,7 @@ from fleetbus.settings import Settings
 from fleetbus.workers.site_status import near_full
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.alerts import Alert, AlertStore, NewAlert
-from fleetbus.workers.store.base import LARGEST_INTEGER, EventStore
+from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.hazards import HazardRegistry, HazardState
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
@@ -42,8 +42,6 @@ log = logging.getLogger("fleetbus.api.alerts")
 #: Who acknowledges alerts: the roles that watch the team (the API, the console and the command line
 #: all ask this).
 ACKNOWLEDGERS = frozenset({UserRole.ADMIN, UserRole.SUPERVISOR, UserRole.OPERATOR})
-#: The largest id an alert may have (the store's integers): the bound of an id a caller sends.
-ALERT_ID_MAX = LARGEST_INTEGER
 
 
 class AlertKind(str, Enum):

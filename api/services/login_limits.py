@@ -83,10 +83,7 @@ class LoginLimits:
         try:
             yield
         finally:
-            self._checking.subtract(keys)
-            for key in keys:
-                if self._checking[key] <= 0:
-                    del self._checking[key]
+            self._checking -= Counter(keys)  # keeps the keys with attempts still under way only
             async with self._ended:
                 self._ended.notify_all()
 

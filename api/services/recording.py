@@ -125,7 +125,7 @@ class Recording:
             except ValueError as error:
                 raise BadRequest(f"robot: {error}") from None
         with _refused():
-            found = await find(
+            return await find(
                 self._store,
                 type,
                 conditions,
@@ -136,7 +136,6 @@ class Recording:
                 limit=limit,
                 newest_first=newest_first,
             )
-        return found
 
     async def timeline(
         self,

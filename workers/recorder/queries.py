@@ -305,7 +305,6 @@ async def trace(
 ) -> Trace:
     """All that is known of ``message_id``; empty ``records`` when it was never recorded."""
     types = await store.recorded_types()
-
     records: list[RecordedMessage] = []
     for type in types:
         records.extend(await store.find_recorded(RecordQuery(type, message_id=message_id)))
