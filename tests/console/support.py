@@ -169,12 +169,24 @@ class Browser:
         return text if len(text) <= limit else text[:limit] + " …"
 
     def fill(self, css: str, value: str) -> None:
-        element = self.find(css)[0]
-        element.clear()
-        element.send_keys(value)
+        try:
+            element = self.find(css)[0]
+            element.clear()
+            element.send_keys(value)
+        except WebDriverException as error:
+            if not _replaced(error):
+                raise
+            self.fill(css, value)  # the new element gets the whole value
 
     def click(self, css: str) -> None:
-        self.find(css)[0].click()
+        """Click the first match; one swapped out by a live update is found again and clicked
+        (a stale element refuses the click before anything happens, so nothing is clicked twice)."""
+        try:
+            self.find(css)[0].click()
+        except WebDriverException as error:
+            if not _replaced(error):
+                raise
+            self.click(css)
 
     def console_errors(self) -> list[str]:
         return [entry["message"] for entry in self.driver.get_log("browser") if entry["level"] == "SEVERE"]
