@@ -12,7 +12,9 @@ passwords are checked at once than the failures a window has room for: a login b
 for one under way to end, so that many logins sent at once cannot all pass the check before the
 first failure is counted (and logins that succeed, sent at once, all go through). A login that
 succeeds clears its account's count from that address. The counts live in the API process:
-a restart clears them, and several replicas each count their own.
+a restart clears them, and several replicas each count their own; a window with no failure left
+in it is forgotten (:class:`ForgettingStorage`), so they take memory for the failures of the last
+window only, and a name that no account can have is counted under one key, whatever its length.
 """
 
 from __future__ import annotations
@@ -28,6 +30,13 @@ from limits import RateLimitItem, parse
 from limits.storage import MemoryStorage
 from limits.strategies import MovingWindowRateLimiter
 
+from fleetbus.schemas.identity import NAME_PATTERN
+
+#: How often (seconds, at most) failed logins look for windows to forget.
+FORGET_EVERY_S = 60.0
+#: The account key of a name no account can have (any length: it is the client's to choose).
+NO_SUCH_NAME = "(not an account name)"
+
 
 class TooManyFailures(Exception):
     """A login refused before its password is checked; ``retry_after`` is in whole seconds."""
@@ -38,9 +47,38 @@ class TooManyFailures(Exception):
         self.retry_after = retry_after
 
 
+class ForgettingStorage(MemoryStorage):
+    """``limits``' memory storage, forgetting windows with no entry left in them.
+
+    Its own expiry (limits 5.8) empties a moving window's list of expired entries but keeps the
+    key for good: one for every address that ever failed a login, and one for every name it tried
+    from there, kept as long as the process runs.
+    """
+
+    def forget_expired(self, now: float | None = None) -> int:
+        """Forget the windows whose every entry has expired by ``now``; return how many."""
+        now = time.time() if now is None else now
+        forgotten = 0
+        for key in list(self.events):
+            with self.locks[key]:
+                entries = self.events.get(key)
+                if entries is not None and all(entry.expiry <= now for entry in entries):
+                    del self.events[key]
+                    forgotten += 1
+            if key not in self.events:
+                self.locks.pop(key, None)
+        return forgotten
+
+    def windows(self) -> int:
+        """How many windows are kept."""
+        return len(self.events)
+
+
 class LoginLimits:
     def __init__(self, per_account: str, per_address: str) -> None:
-        self._limiter = MovingWindowRateLimiter(MemoryStorage())
+        self.storage = ForgettingStorage()
+        self._limiter = MovingWindowRateLimiter(self.storage)
+        self._forgot_at = time.monotonic()
         self._per_account = parse(per_account)
         self._per_address = parse(per_address)
         self._checking: Counter[tuple[str, ...]] = Counter()
@@ -49,9 +87,10 @@ class LoginLimits:
         """Notified when an attempt under way ends."""
 
     def _windows(self, account: str, address: str) -> list[tuple[RateLimitItem, tuple[str, ...], str]]:
+        name = account if NAME_PATTERN.fullmatch(account) else NO_SUCH_NAME
         return [
             (self._per_address, ("address", address), f"from {address}"),
-            (self._per_account, ("account", account, address), f"to {account} from {address}"),
+            (self._per_account, ("account", name, address), f"to {name} from {address}"),
         ]
 
     async def begin(self, account: str, address: str) -> AbstractAsyncContextManager[None]:
@@ -90,6 +129,10 @@ class LoginLimits:
     def failed(self, account: str, address: str) -> None:
         for limit, key, _ in self._windows(account, address):
             self._limiter.hit(limit, *key)
+        if time.monotonic() - self._forgot_at >= FORGET_EVERY_S:
+            self._forgot_at = time.monotonic()
+            self.storage.forget_expired()
 
     def succeeded(self, account: str, address: str) -> None:
-        self._limiter.clear(self._per_account, "account", account, address)
+        [_, (_, key, _)] = self._windows(account, address)
+        self._limiter.clear(self._per_account, *key)
