@@ -27,6 +27,8 @@ TRANSIENT = ("locked", "busy", "unable to open", "disk i/o error", "readonly")
 #: small call) holds what it needs. SQLite's own busy handler sleeps 1, 2, 5, 10, 15, 20, 25 ms
 #: and more between tries, and a process that writes in a loop takes the lock again in between.
 RETRY_S = 0.001
+#: The size (bytes) SQLite cuts its write-ahead log back to once it is checkpointed.
+WAL_KEPT_BYTES = 64 * 1024 * 1024
 
 
 class _Busy(Exception):
@@ -204,6 +206,9 @@ class SQLiteDatabase:
         db.row_factory = sqlite3.Row
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA synchronous=FULL")
+        # A WAL grows while a long read (an export, a replay) keeps it from being checkpointed
+        # and, without this, keeps that size on disk for good once it is.
+        db.execute(f"PRAGMA journal_size_limit={WAL_KEPT_BYTES}")
         return db
 
     async def open(self) -> None:
