@@ -52,16 +52,21 @@ class MyWorkPanels:
 
     def __init__(self, service: Service) -> None:
         self._service = service
-        self._renders: dict[tuple[str, str], Shared] = {}
+        self._renders: dict[str, tuple[str, Shared]] = {}
+        """By user name: the role rendered for, and its shared render."""
+        self._users: dict[str, User] = {}
+        """The user as the latest page asking knew it (its use cases, its broker login)."""
 
     async def of(self, user: User) -> list[str]:
-        key = (user.name, user.role.value)  # a new role is a new panel (its actions differ)
-        render = self._renders.get(key)
-        if render is None:
-            render = self._renders[key] = Shared(partial(self._render, user))
+        self._users[user.name] = user
+        role, render = self._renders.get(user.name, (None, None))
+        if render is None or role != user.role.value:  # a new role is a new panel (its actions differ)
+            render = Shared(partial(self._render, user.name))
+            self._renders[user.name] = (user.role.value, render)
         return await render()
 
-    async def _render(self, user: User) -> list[str]:
+    async def _render(self, name: str) -> list[str]:
+        user = self._users[name]
         mine = await my_work(self._service, user)
         return [fragment("dashboard/my_work.html", user=user, **mine)]
 
