@@ -19,8 +19,9 @@ stdout, one object a line (``kind`` says which):
   ``batch-end``   the messages before it are a batch (one linger's, or up to an urgent one)
   ``dropped``     ``counts``: {topic: messages dropped here since the last report} (queue full)
   ``error``       ``topic``, ``detail``: a message that could not be read
-  ``failed``      ``part``, ``detail``: one of its threads failed; the process ends (status 70) and
-                  the bridge starts it again
+  ``failed``      ``part``, ``detail``: one of its threads failed, or ended while the process was not
+                  stopping (its node was shut down from outside: ``rosnode kill``); the process
+                  ends (status 70) and the bridge starts it again
 stdin, one object a line:
   ``publish``     ``topic``, ``type``, ``fields``: publish this message (latched) on the ROS side
 
@@ -54,7 +55,7 @@ import time
 import xmlrpc.client
 from collections.abc import Iterable
 from itertools import chain
-from typing import Any
+from typing import Any, NoReturn
 
 import genpy
 import genpy.dynamic
@@ -331,21 +332,42 @@ class Publishers:
 FAILED_STATUS = 70  # EX_SOFTWARE
 #: How long the ROS side takes at most, once its input is closed, to send what it received.
 CLOSE_TIMEOUT_S = 5.0
+#: Held by the thread that ends the process: the first part to fail is the one reported.
+LEAVING = threading.Lock()
+#: Why rospy shut the node down (``rosnode kill``: an external request), once it did.
+SHUT_DOWN_BECAUSE: list[str] = []
 
 
-def guarded(out: Output, part: str, target: Any, *args: Any) -> threading.Thread:
-    """A daemon thread running ``target(*args)``; should it raise, the process says so and ends
-    (the bridge starts it again): never a process with one of its threads gone."""
+def fail(out: Output, part: str, detail: str) -> NoReturn:
+    """Say that ``part`` failed, leave the master and end the process: the bridge starts it again."""
+    LEAVING.acquire()  # never released: a second failing part waits here for the end
+    out.write({"kind": "failed", "part": part, "detail": detail})
+    leaving = threading.Thread(target=rospy.signal_shutdown, args=(f"{part} failed",), daemon=True)
+    leaving.start()  # unregister from the master, if it answers soon
+    leaving.join(2.0)
+    os._exit(FAILED_STATUS)
+
+
+def why_it_returned() -> str:
+    if not rospy.is_shutdown():
+        return "it ended while the node runs"
+    because = SHUT_DOWN_BECAUSE[0] if SHUT_DOWN_BECAUSE else "no reason given"
+    return f"the ROS node was shut down ({because})"
+
+
+def guarded(out: Output, part: str, stopping: threading.Event, target: Any, *args: Any) -> threading.Thread:
+    """A daemon thread running ``target(*args)``; should it raise, or return while the process is
+    not ``stopping``, the process says so and ends (the bridge starts it again): never a process
+    with one of its threads gone. A master's ``shutdown`` call (``rosnode kill``) shuts rospy down
+    with no error: the threads return, and the main thread, reading our input, would go on."""
 
     def run() -> None:
         try:
             target(*args)
         except BaseException as error:
-            out.write({"kind": "failed", "part": part, "detail": f"{type(error).__name__}: {error}"})
-            leaving = threading.Thread(target=rospy.signal_shutdown, args=(f"{part} failed",), daemon=True)
-            leaving.start()  # unregister from the master, if it answers soon
-            leaving.join(2.0)
-            os._exit(FAILED_STATUS)
+            fail(out, part, f"{type(error).__name__}: {error}")
+        if not stopping.is_set():
+            fail(out, part, why_it_returned())
 
     thread = threading.Thread(target=run, name=part, daemon=True)
     thread.start()
@@ -447,9 +469,10 @@ def start_node(
     if not watch.wait(ended):
         return
     rospy.init_node(args.node, anonymous=True, disable_signals=True)
+    rospy.core.add_preshutdown_hook(SHUT_DOWN_BECAUSE.append)
     watch.master = rosgraph.masterapi.Master(rospy.get_name())
-    guarded(out, "drop counter", every, 1.0, recorder.report_drops)
-    guarded(out, "reader", recorder.convert_forever)
+    guarded(out, "drop counter", ended, every, 1.0, recorder.report_drops)
+    guarded(out, "reader", ended, recorder.convert_forever)
     publishers.start()
     out.write({"kind": "ready"})
     watch.watch(recorder)
@@ -477,10 +500,11 @@ def main() -> None:
     end_with_parent(args.parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the bridge, which closes our input
     out = Output()
+    sys.stdout = sys.stderr  # rospy prints (a shutdown request): to the log, not among our lines
     out.write({"kind": "started"})
-    ended = threading.Event()
+    ended = threading.Event()  # the bridge closed our input: the process stops, its threads may end
     recorder, publishers = Recorder(out, args), Publishers(out)
-    guarded(out, "discovery", start_node, args, out, recorder, publishers, ended)
+    guarded(out, "discovery", ended, start_node, args, out, recorder, publishers, ended)
     for line in sys.stdin:  # ends when the bridge closes our stdin (or dies)
         try:
             item = json.loads(line)

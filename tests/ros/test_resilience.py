@@ -1,6 +1,6 @@
 """A bridge that keeps working: a master that starts after it, a master restarted under it, a ROS
-side killed under it, and a ROS side that never outlives it; every failure retried and shown in
-``fleetbus ros status``."""
+side killed under it or whose node is shut down from outside, and a ROS side that never outlives
+it; every failure retried and shown in ``fleetbus ros status``."""
 
 from __future__ import annotations
 
@@ -113,8 +113,10 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
 
         # the bridge writes its status file just after its counters change: wait for the file itself
         wait_for(
-            lambda: (p := side_in_file())["state"] == "restarting"
-            and "/nonexistent/python3" in p.get("last_failure", ""),
+            lambda: (
+                (p := side_in_file())["state"] == "restarting"
+                and "/nonexistent/python3" in p.get("last_failure", "")
+            ),
             30,
             "the failed restart noted in the status file",
         )
@@ -140,6 +142,47 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
             "commands": "running",
         }
     assert bridge._process is not None and bridge._process.poll() is not None, "its ROS side ended with it"
+
+
+def bridge_node(master: RosMaster) -> str | None:
+    """The bridge's ROS node, as ``rosnode list`` names it (anonymous: ``/fleetbus_bridge_...``)."""
+    listed = subprocess.run(["rosnode", "list"], env=master.env, capture_output=True, text=True, timeout=60)
+    return next((name for name in listed.stdout.split() if name.startswith("/fleetbus_bridge")), None)
+
+
+def test_a_ros_side_whose_node_is_shut_down_from_outside_is_started_again(
+    bus: Bus, ros_master: RosMaster
+) -> None:
+    robot = bus.robot(bus.add("rosres2", kind=RobotKind.EXPLORER))
+    with running_bridge(robot, ros_master, bus.settings.robots_dir, include=("/revived",)) as bridge:
+        first = bridge._process
+        assert first is not None
+        node = wait_for(lambda: bridge_node(ros_master), 30, "the bridge's node listed by the master")
+        # what an operator's `rosnode kill` does: the master's XML-RPC `shutdown` call to the node
+        killed = subprocess.run(
+            ["rosnode", "kill", node], env=ros_master.env, capture_output=True, text=True, timeout=60
+        )
+        assert killed.returncode == 0 and "killed" in killed.stdout, killed.stdout + killed.stderr
+
+        def side() -> dict[str, Any]:
+            return bridge.counters.parts.snapshot()["ros-side"]
+
+        wait_for(
+            lambda: side()["restarts"] == 1 and side()["state"] == "running", 60, "the ROS side restarted"
+        )
+        assert first.poll() == 70, "the shut down ROS side ended itself, saying why"
+        assert "the ROS node was shut down" in side()["last_failure"], side()
+        burst_recorded(bridge, ros_master, "/revived")  # the new ROS side records
+        bridge.report()
+        status = fleetbus(bus, "ros", "status", "rosres2")
+        assert status.returncode == 0, status.stdout + status.stderr
+        shown = json.loads(status.stdout)
+        part = shown["parts"]["ros-side"]
+        assert shown["ros_side"] == "running" and part["state"] == "running" and part["restarts"] == 1
+        assert "external shutdown request" in part["last_failure"], part
+        assert "(ros side)" not in shown["topics"], "rospy's print of the request kept out of the lines"
+    assert bridge.counters.ros_side == "ended (0)", "the bridge's own stop is no failure of its ROS side"
+    assert bridge.counters.parts.snapshot()["ros-side"]["restarts"] == 1
 
 
 def test_without_a_master_the_ros_side_ends_when_the_bridge_stops_or_is_killed(
