@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import time
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -454,3 +455,37 @@ def test_shard_0_taken_again_after_the_express_lane_failed_to_start_has_one_cons
         wait_for(lambda: _consumers(bus)[EXPRESS_QUEUE] == 1, 60, "the express lane consuming")
         assert len(starts) == 2
         assert _consumers(bus)[ingest_shard_queue(0)] == 1
+
+
+def _connected_since(bus: Bus, at_ms: float) -> int:
+    """How many connections the worker's account opened on the test's virtual host since ``at_ms``."""
+    connections = bus.api.list_vhost_connections(bus.vhost)
+    return sum(c.get("user") == "fleetbus" and c.get("connected_at", 0) > at_ms for c in connections)
+
+
+def test_a_worker_whose_express_lane_lost_its_ack_to_the_broker_exits_with_that_error(bus: Bus) -> None:
+    """A hazard's operators' copy refused, its batch waits unacked; the broker then closes the
+    worker's connections. The lane's deferred ack fails on the closed channel and the lane stops
+    by itself: the worker must stop too, and say why, not end as if asked to."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    worker = bus.spawn_worker("--no-recorder")
+    try:
+        warden.publish("localisation", {"localised": True})
+        wait_for(lambda: localised(bus), what="warden1 localised")
+        with operators_copies_refused(bus):
+            explorer.publish("hazard", hazard(0))
+            warden.receive(1, timeout=30)
+            wait_for(lambda: in_queue(bus, EXPRESS_QUEUE) == (0, 1), what="the hazard in hand, unacked")
+            closed_at = time.time() * 1000
+            assert bus.api.close_connections_of("fleetbus", "the test closes the worker's connections")
+            wait_for(lambda: _connected_since(bus, closed_at) == 2, what="the worker connected again")
+        # the copy goes through on the new channel; the ack, on the old one, cannot
+        code = worker.wait(60)
+    finally:
+        if worker.poll() is None:
+            worker.send_signal(signal.SIGTERM)
+            worker.wait(60)
+    printed = b"".join(path.read_bytes() for path in bus.settings.data_dir.glob("worker-*.log")).decode()
+    assert code != 0, f"the worker exited {code} as if stopped on purpose: {printed}"
+    assert "consuming shard 0 ended by itself: ChannelInvalidStateError" in printed, printed

@@ -145,9 +145,10 @@ class IngestConsumer:
         self._acking: asyncio.Task[None] | None = None
         """The last batch's ack, waiting for what was left to finish; each waits for the one
         before, so batches are acked in order."""
-        self._ack_failed = False
-        """Finishing or acknowledging handled batches failed: this consumer stops (its unacked
-        messages come again), rather than hold them unacked while the broker sends no more."""
+        self._ack_error: BaseException | None = None
+        """What failed finishing or acknowledging handled batches: this consumer stops (its unacked
+        messages come again) and :meth:`run` raises it, rather than hold them unacked while the
+        broker sends no more."""
         self._exclusive = exclusive
         """The queue's work must never overlap with the next consumer's (its single active consumer
         is the only lock): on stop, this consumer finishes the batch in hand and leaves the rest
@@ -157,9 +158,15 @@ class IngestConsumer:
         self.stats = stats if stats is not None else IngestStats()
 
     async def run(self) -> None:
-        """Consume until :meth:`stop`; then finish what was received and return."""
+        """Consume until :meth:`stop`; then finish what was received and return. Raise what kept a
+        handled batch from its ack (:meth:`_on_acked`): the consumer stopped by itself."""
+        await self._consume()
+        if self._ack_error is not None:
+            raise self._ack_error
+
+    async def _consume(self) -> None:
         self._consumer_tag = await self._queue.consume(self._take, no_ack=False)
-        while not self._ack_failed and not (
+        while self._ack_error is None and not (
             self._stopping.is_set() and (self._exclusive or self._inbox.empty())
         ):
             batch = await self._inbox.next_batch(self._stopping)
@@ -208,10 +215,11 @@ class IngestConsumer:
         """A batch's finishing or ack that failed (past its retries) ends the consumer: the ones
         chained after it would wait for it for ever, and the broker, its prefetch spent, sends no
         more. :meth:`run` raises its error (the worker stops, and its messages come again)."""
-        if acking.cancelled() or acking.exception() is None or self._ack_failed:
-            return
-        self._ack_failed = True
-        log.error("finishing a handled batch failed: %r; this consumer stops", acking.exception())
+        error = None if acking.cancelled() else acking.exception()
+        if error is None or isinstance(error, Stopped) or self._ack_error is not None:
+            return  # Stopped: asked to stop meanwhile, run() leaves the batches for redelivery
+        self._ack_error = error
+        log.error("finishing a handled batch failed: %r; this consumer stops", error)
         self._stopping.set()  # wakes run() from waiting for the next batch
 
     async def _take(self, message: AbstractIncomingMessage) -> None:
