@@ -84,6 +84,8 @@ class Feed:
     dropped: int = 0
     """Subscribers dropped for not keeping up since the process started."""
     store_errors: int = 0
+    watcher_errors: int = 0
+    """Batches a watcher raised on (a bug): logged, and the other watchers and the pages still get them."""
     _cursor: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
     _seen: OrderedDict[tuple[str, str, int], None] = field(default_factory=OrderedDict)
     _subscribers: set[Subscription] = field(default_factory=set)
@@ -115,12 +117,22 @@ class Feed:
                 self.store_errors += 1
                 log.exception("console feed: reading the store failed; trying again")
                 fresh = []
-            for watcher in self._watchers if fresh else ():
-                watcher(fresh)
+            if fresh:
+                self._watch(fresh)
             if fresh or loop.time() >= next_tick:
                 self._publish(Batch(fresh, self.cursor))
                 next_tick = loop.time() + self.tick_s
             await asyncio.sleep(self.poll_s)
+
+    def _watch(self, fresh: list[EventRecord]) -> None:
+        for watcher in self._watchers:
+            try:
+                watcher(fresh)
+            except Exception:  # never end: every live page waits on this feed
+                self.watcher_errors += 1
+                log.exception(
+                    "console feed: %r failed on a batch of %d events; going on", watcher, len(fresh)
+                )
 
     async def _read(self, back: timedelta) -> list[EventRecord]:
         fresh: list[EventRecord] = []
@@ -171,7 +183,8 @@ class Feed:
     def watch(self, watcher: Callable[[list[EventRecord]], None]) -> None:
         """Call ``watcher`` with every batch of new events, before the pages get it,
         for as long as the process runs: how state kept in memory (the newest status of each robot)
-        follows the store without a read of its own. It must be quick and must not raise."""
+        follows the store without a read of its own. It must be quick and should not raise (what
+        it raises is logged and counted in :attr:`watcher_errors`, and the feed goes on)."""
         self._watchers.append(watcher)
 
     @contextlib.asynccontextmanager
@@ -199,12 +212,20 @@ class Feed:
 async def running(feed: Feed) -> AsyncIterator[Feed]:
     """``feed`` reading the store until the ``with`` ends."""
     task = asyncio.create_task(feed.run(), name="console-feed")
+    task.add_done_callback(_ended)
     try:
         yield feed
     finally:
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await task
+
+
+def _ended(task: asyncio.Task[None]) -> None:
+    """Said at once: the pages' pings go on, so a browser would show a frozen page as connected."""
+    if not task.cancelled():
+        error = task.exception()
+        log.error("console feed ended (%r): live pages get no more updates", error, exc_info=error)
 
 
 @contextlib.asynccontextmanager

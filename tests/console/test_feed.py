@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
+from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
 import anyio
@@ -14,6 +16,7 @@ from starlette.requests import Request
 
 from fleetbus.api.console import live
 from fleetbus.api.console.feed import Batch, Feed, Subscription, cursor_of, running
+from fleetbus.api.console.latest import Latest
 from fleetbus.api.console.live import FRAGMENT_EVENT, RELOAD_EVENT, Shared, _fragments
 from fleetbus.api.services.stored_events import StoredEvents
 from fleetbus.workers.store.base import EventRecord
@@ -99,6 +102,67 @@ async def test_a_read_that_fails_unexpectedly_is_counted_and_the_feed_goes_on(
         await store.events.write_events([received(1, datetime.now(timezone.utc))])
         assert await handed_out_until(subscription, ("explorer1", EPOCH, 1)) == [("explorer1", EPOCH, 1)]
     assert failed and feed.store_errors == 1
+
+
+async def test_a_watcher_that_fails_is_counted_and_the_feed_goes_on(
+    store: Repositories,  # noqa: F811
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A watcher raising on a batch (the newest values, on a pose without its ``y``) is counted
+    and logged; the pages get that batch and the next, and the watcher the next. It used to end
+    the feed: every live page frozen, its pings still keeping the browser connected."""
+    feed = Feed(StoredEvents(store.events), poll_s=0.01, tick_s=0.05)
+    latest = Latest(StoredEvents(store.events))
+    feed.watch(latest.observe)
+    now = datetime.now(timezone.utc)
+    unexpected = replace(received(1, now), body={"pose": {"x": 1.0}})
+    with caplog.at_level(logging.ERROR, logger="fleetbus.api.console"):
+        async with running(feed), feed.subscribe() as subscription:
+            await store.events.write_events([unexpected])
+            assert await handed_out_until(subscription, ("explorer1", EPOCH, 1)) == [("explorer1", EPOCH, 1)]
+            await store.events.write_events([received(2, now + timedelta(milliseconds=1))])
+            assert await handed_out_until(subscription, ("explorer1", EPOCH, 2)) == [("explorer1", EPOCH, 2)]
+    assert feed.watcher_errors == 1
+    assert [r.exc_info[0] for r in caplog.records if r.exc_info] == [KeyError], caplog.text
+    status = latest.of("explorer1").status
+    assert status is not None and status.seq == 2, "the watcher is still called"
+
+
+class Errors(logging.Handler):
+    """The errors logged, and an event set at the first."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.logged: list[str] = []
+        self.first = asyncio.Event()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.logged.append(record.getMessage())
+        self.first.set()
+
+
+async def test_a_feed_that_ends_says_so_at_once(
+    store: Repositories,  # noqa: F811
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Not only once the API stops (awaiting the task): live pages wait on it meanwhile."""
+    feed = Feed(StoredEvents(store.events))
+
+    async def ends() -> None:
+        raise RuntimeError("a bug in the feed")
+
+    monkeypatch.setattr(feed, "run", ends)
+    errors = Errors()
+    logger = logging.getLogger("fleetbus.api.console")
+    logger.addHandler(errors)
+    try:
+        with pytest.raises(RuntimeError):
+            async with running(feed):
+                await asyncio.wait_for(errors.first.wait(), DEADLINE_S)
+    finally:
+        logger.removeHandler(errors)
+    [said] = errors.logged
+    assert said.startswith("console feed ended (RuntimeError('a bug in the feed'))"), said
 
 
 async def test_an_event_committed_a_moment_late_is_found_at_the_next_poll(store: Repositories) -> None:  # noqa: F811
