@@ -12,7 +12,14 @@ import pytest
 
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
 from fleetbus.schemas.notifications import Notification
-from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, RPC_QUEUE, RobotKind, commands_queue, inbox_queue
+from fleetbus.schemas.routing import (
+    DEAD_LETTER_QUEUE,
+    OVERFLOW_QUEUE,
+    RPC_QUEUE,
+    RobotKind,
+    commands_queue,
+    inbox_queue,
+)
 from tests.factories import hazard
 from tests.support import Bus, wait_for
 
@@ -36,6 +43,12 @@ def in_inbox(bus: Bus, robot: str) -> list[Notification]:
         while (got := channel.basic_get(inbox_queue(robot)))[0] is not None:
             held.append(Notification.model_validate_json(got[2]))
         return held
+
+
+def held(bus: Bus, queue: str) -> int:
+    """Messages ready or unacked in ``queue``, as the management API reports them (seconds late)."""
+    stats = bus.api.get_queue(bus.vhost, queue)
+    return int(stats.get("messages_ready", 0)) + int(stats.get("messages_unacknowledged", 0))
 
 
 def fleetbus(bus: Bus, *args: str) -> subprocess.CompletedProcess[str]:
@@ -141,3 +154,29 @@ def test_a_command_or_a_request_that_expires_unread_is_counted(stored_bus: Bus) 
             ),
             what="both counted",
         )
+
+
+def test_a_dropped_message_with_an_x_death_not_the_brokers_is_counted_unreadable_and_counting_goes_on(
+    bus: Bus,
+) -> None:
+    """Anyone who may publish to the overflow queue can send any ``x-death``: one that is not a
+    list of tables is counted as unreadable and acked. It used to end the counting for good, its
+    consumer left on the queue holding what came next unacked."""
+    bus.add("explorer1", kind=RobotKind.EXPLORER)
+    bus.service_accounts()  # `fleetbus setup`: the policies (a queue has its policy once it is set)
+    with bus.worker():
+        with bus.admin_channel() as channel:
+            channel.confirm_delivery()
+            bad = pika.BasicProperties(headers={"x-death": "not the broker's"})
+            channel.basic_publish("", OVERFLOW_QUEUE, b"{}", bad)
+        wait_for(lambda: bus.ready_messages(OVERFLOW_QUEUE) == 0, what="the malformed one taken")
+        with bus.admin_channel() as channel:  # a real drop: a command that expires unread
+            channel.confirm_delivery()
+            channel.basic_publish(
+                "", commands_queue("explorer1"), b"{}", pika.BasicProperties(expiration="1")
+            )
+        wait_for(
+            lambda: overflow_counts(bus).get("explorer1.commands expired") == 1, what="the real drop counted"
+        )
+        wait_for(lambda: not held(bus, OVERFLOW_QUEUE), what="both acked")
+    assert overflow_counts(bus) == {"unreadable": 1, "explorer1.commands expired": 1}

@@ -27,6 +27,7 @@ from fleetbus.workers.store.housekeeping import BoundCount, Housekeeping
 
 log = logging.getLogger("fleetbus.overflow")
 BOUND = "overflow"
+UNREADABLE = "unreadable"
 
 
 def dropped_from_queue(counts: Iterable[BoundCount], queue: str) -> int:
@@ -40,11 +41,15 @@ def _text(value: Any) -> str:
 
 
 def dropped_from(headers: dict[str, Any] | None) -> str:
-    """``<queue> <reason>`` of the message's latest death (the broker puts it first)."""
+    """``<queue> <reason>`` of the message's latest death (the broker puts it first); ``unreadable``
+    for an ``x-death`` that is not a list of tables (not the broker's: anyone who may publish to
+    the queue can send one)."""
     deaths = (headers or {}).get("x-death") or []
     if not deaths:
         return "unknown"
-    latest = deaths[0]
+    latest = deaths[0] if isinstance(deaths, list) else None
+    if not isinstance(latest, dict):
+        return UNREADABLE
     return f"{_text(latest.get('queue', '?'))} {_text(latest.get('reason', '?'))}"
 
 
@@ -62,6 +67,7 @@ class OverflowCounter:
     async def start(self) -> None:
         self._tag = await self._queue.consume(self._inbox.put)
         self._task = asyncio.create_task(self._run(), name="fleetbus-overflow")
+        self._task.add_done_callback(_ended)
 
     async def stop(self) -> None:
         if self._tag is not None and not self._channel.is_closed:
@@ -69,19 +75,19 @@ class OverflowCounter:
                 await self._queue.cancel(self._tag)
         self._stopping.set()
         if self._task is not None:
-            await asyncio.gather(self._task, return_exceptions=True)
+            await asyncio.gather(self._task, return_exceptions=True)  # its error: logged by _ended
 
     async def _run(self) -> None:
         while not self._stopping.is_set():
             batch = await self._inbox.next_batch(self._stopping)
             if not batch:
                 continue
-            counts = Counter(dropped_from(message.headers) for message in batch)
-            added = {(BOUND, subject): n for subject, n in counts.items()}
             retrying = async_retrying(
                 "the store (overflow counts)", on=StoreUnavailable, stop=self._stopping, logger=log
             )
             try:
+                counts = Counter(dropped_from(message.headers) for message in batch)
+                added = {(BOUND, subject): n for subject, n in counts.items()}
                 await run_retrying(
                     retrying,
                     lambda added=added: self._store.count_bounded(added, datetime.now(timezone.utc)),
@@ -98,3 +104,9 @@ class OverflowCounter:
             self.counted += len(batch)
             for subject, n in sorted(counts.items()):
                 log.warning("a full queue dropped its %d oldest: %s", n, subject)
+
+
+def _ended(task: asyncio.Task[None]) -> None:
+    """Said at once: its consumer stays on the queue, the messages it holds unacked, nothing counted."""
+    if not task.cancelled() and (error := task.exception()) is not None:
+        log.error("counting dropped messages stopped: %r", error, exc_info=error)
