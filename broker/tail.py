@@ -18,6 +18,7 @@ from datetime import datetime, timedelta, timezone
 from typing import Any
 from urllib.parse import unquote, urlsplit
 
+import aiormq.exceptions
 from aio_pika.abc import AbstractIncomingMessage
 
 from fleetbus.broker.tls import aio_connect
@@ -27,6 +28,11 @@ from fleetbus.schemas.topics import topic_matches
 #: Stream offsets by time are found per chunk, so a replay may start a little early: messages
 #: stamped more than this before the requested time are left out.
 CHUNK_SLACK = timedelta(seconds=1)
+
+
+class StreamClosed(Exception):
+    """The broker ended a follow: it closed the connection or the channel (an administrator, the
+    account disabled or deleted, the node shutting down)."""
 
 
 @dataclass(frozen=True)
@@ -91,11 +97,13 @@ async def follow(
 ) -> int:
     """Show what the account's stream receives (from ``since``, else from now) whose routing key
     matches ``pattern``; stop after ``count`` messages or ``idle_timeout`` seconds of silence.
-    Returns how many were shown."""
+    Returns how many were shown; raises :class:`StreamClosed` when the broker ends it first."""
     connection = await aio_connect(amqp_url)
     shown = 0
     async with connection:
         channel = await connection.channel()
+        closed: list[BaseException | None] = []
+        channel.close_callbacks.add(lambda _, error: closed.append(error))
         await channel.set_qos(prefetch_count=200)  # a stream consumer needs a prefetch
         owner = user or unquote(urlsplit(amqp_url).username or "")
         queue = await channel.get_queue(stream_queue(owner))
@@ -107,9 +115,12 @@ async def follow(
             while count is None or shown < count:
                 try:
                     message = await asyncio.wait_for(iterator.__anext__(), idle_timeout)
-                except (asyncio.TimeoutError, StopAsyncIteration):
+                except asyncio.TimeoutError:
                     break
-                await message.ack()
+                except StopAsyncIteration:  # what ends the iterator: its channel closed
+                    raise StreamClosed(_why(closed[0] if closed else None)) from None
+                if not channel.is_closed:  # else the messages it had taken are shown, then it ends
+                    await message.ack()
                 seen = _seen(message)
                 if since is not None and seen.timestamp is not None and seen.timestamp < since - CHUNK_SLACK:
                     continue
@@ -117,3 +128,20 @@ async def follow(
                     on_message(seen)
                     shown += 1
     return shown
+
+
+def _why(error: BaseException | None) -> str:
+    """What ended the follow's channel: the broker closing it or the connection (with its reply
+    text), or the connection lost."""
+    if error is None:
+        return "the broker closed the connection"
+    if isinstance(error, aiormq.exceptions.ChannelClosed | aiormq.exceptions.ConnectionClosed):
+        what = "channel" if isinstance(error, aiormq.exceptions.ChannelClosed) else "connection"
+        return f"the broker closed the {what}: {_reply_text(error)}"
+    return f"the connection to the broker was lost: {error!r}"
+
+
+def _reply_text(error: BaseException) -> str:
+    """The broker's reply text of a close (aiormq's error holds its code, then the text)."""
+    code_and_text = len(error.args) == 2 and isinstance(error.args[1], str)
+    return error.args[1] if code_and_text else str(error)

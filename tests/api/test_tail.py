@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import subprocess
+import sys
 import threading
 from datetime import datetime, timedelta, timezone
+from urllib.parse import unquote, urlsplit
 
 from typer.testing import CliRunner
 
@@ -15,10 +19,10 @@ from fleetbus.broker.tail import Seen, follow
 from fleetbus.cli import app
 from fleetbus.schemas.missions import MissionState
 from fleetbus.schemas.roles import UserRole
-from fleetbus.schemas.routing import RobotKind
+from fleetbus.schemas.routing import RobotKind, stream_queue
 from tests.api.support import Api, running_api
 from tests.factories import hazard, status
-from tests.support import Bus
+from tests.support import Bus, wait_for
 
 
 def url_of(api: Api, name: str) -> str:
@@ -115,3 +119,35 @@ def test_a_user_without_a_stream_is_told_so(bus: Bus) -> None:
     assert (
         "no stream to follow" in result.output and "only operators and supervisors have one" in result.output
     )
+
+
+def test_the_tail_command_says_so_and_fails_when_the_broker_closes_its_connection(bus: Bus) -> None:
+    """Not an end as after ``--idle`` (status 0, nothing said): a script or a person watching
+    would take the silence for a quiet stream."""
+    with running_api(bus) as api:
+        operator_url, _ = setup_team(api)
+        tail = subprocess.Popen(
+            [sys.executable, "-m", "fleetbus", "tail"],
+            env={**os.environ, "FLEETBUS_USER_URL": operator_url},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            wait_for(
+                lambda: any(
+                    c["queue"]["name"] == stream_queue("oper1") for c in bus.api.list_consumers(bus.vhost)
+                ),
+                what="the tail following",
+            )
+            user = unquote(urlsplit(operator_url).username or "")
+            # the management API lists a new connection a moment after its consumer
+            wait_for(lambda: bus.api.close_connections_of(user, "an administrator closed it"), what="closed")
+            out, err = tail.communicate(timeout=30)
+        finally:
+            tail.kill()
+    assert tail.returncode == 1, out + err
+    said = " ".join(err.split())
+    assert (
+        "error: the broker closed the connection: CONNECTION_FORCED - an administrator closed it" in said
+    ), said

@@ -19,7 +19,7 @@ import aiormq.exceptions
 import typer
 from rich.markup import escape
 
-from fleetbus.broker.tail import Seen, follow
+from fleetbus.broker.tail import Seen, StreamClosed, follow
 from fleetbus.cli.context import console, fail, no_password_in_argv, settings
 from fleetbus.cli.times import TIME_FORMS, parse_time
 
@@ -99,6 +99,8 @@ def tail(
         asyncio.run(following())
     except KeyboardInterrupt:
         pass
+    except StreamClosed as error:
+        fail(str(error))
     except aiormq.exceptions.ChannelNotFoundEntity as error:
         fail(f"no stream to follow: {error} (only operators and supervisors have one)")
     except (aiormq.exceptions.AMQPError, ConnectionError) as error:
