@@ -3,6 +3,12 @@ processes, killed for real, in ``test_scaling.py``)."""
 
 from __future__ import annotations
 
+import logging
+
+import pytest
+
+from fleetbus.schemas.routing import EXPRESS_QUEUE, ingest_shard_queue
+from fleetbus.workers.ingest import IngestConsumer
 from fleetbus.workers.shards import share
 from tests.support import Bus, wait_for
 
@@ -41,3 +47,36 @@ def test_the_command_line_sets_the_number_of_shards(bus: Bus) -> None:
     finally:
         worker.terminate()
         assert worker.wait(60) == 0
+
+
+def test_what_a_consumer_ends_with_when_its_shard_is_handed_over_or_its_worker_stops_is_logged(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Giving a shard back and stopping wait for each consumer to end: what one ends with is said
+    (it was thrown away), on the shard's queue as on the express lane's thread."""
+    bus.settings = bus.settings.updated(ingest_shards=2)
+    run = IngestConsumer.run
+
+    async def fails_once_stopped(consumer: IngestConsumer) -> None:
+        await run(consumer)
+        raise RuntimeError(f"a bug stopping {consumer._queue.name}")
+
+    monkeypatch.setattr(IngestConsumer, "run", fails_once_stopped)
+
+    def said() -> list[str]:
+        return sorted(r.getMessage() for r in caplog.records if r.name == "fleetbus.worker" and r.exc_info)
+
+    def ended(what: str, queue: str) -> str:
+        return f"consuming {what} ended with an error: RuntimeError('a bug stopping {queue}')"
+
+    shard_0, shard_1 = ingest_shard_queue(0), ingest_shard_queue(1)
+    with caplog.at_level(logging.ERROR, logger="fleetbus.worker"), bus.worker() as first:
+        assert first.context is not None
+        with bus.worker():
+            wait_for(lambda: sorted(first.context.shards.held) == [0], what="shard 1 handed over")
+            wait_for(lambda: said() == [ended(shard_1, shard_1)], what="what it ended with said")
+        caplog.clear()
+        wait_for(lambda: sorted(first.context.shards.held) == [0, 1], what="shard 1 taken back")
+    assert said() == sorted(
+        [ended(shard_0, shard_0), ended(shard_1, shard_1), ended("the express lane", EXPRESS_QUEUE)]
+    )

@@ -25,6 +25,7 @@ from aio_pika.abc import AbstractRobustConnection
 
 from fleetbus.workers.ingest import BROKER_ERRORS, IngestConsumer
 from fleetbus.workers.store import Repositories
+from fleetbus.workers.tasks import stopped
 
 log = logging.getLogger("fleetbus.express")
 
@@ -74,7 +75,7 @@ class ExpressLane:
         if loop is not None and stopping is not None and self._thread.is_alive():
             with contextlib.suppress(RuntimeError):  # its loop just closed
                 loop.call_soon_threadsafe(stopping.set)
-        await asyncio.gather(self.task, return_exceptions=True)
+        await stopped(self.task, "consuming the express lane")
         await asyncio.to_thread(self._thread.join)
 
     def _main(self) -> None:

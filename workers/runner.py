@@ -49,6 +49,7 @@ from fleetbus.workers.site_hazards import SiteHazards
 from fleetbus.workers.site_maps import SiteMapRelay
 from fleetbus.workers.status import report_status
 from fleetbus.workers.store import Repositories, repositories_for
+from fleetbus.workers.tasks import stopped
 from fleetbus.workers.telemetry import BatteryWatch
 
 log = logging.getLogger("fleetbus.worker")
@@ -92,7 +93,7 @@ class QueueConsumer:
 
     async def stop(self) -> None:
         await self.consumer.stop()
-        await asyncio.gather(self.task, return_exceptions=True)
+        await stopped(self.task, f"consuming {self.queue}")
         # what was received but not acked (the store down at SIGTERM) goes back to the queue
         with contextlib.suppress(*BROKER_ERRORS):
             await self.channel.close()

@@ -57,7 +57,8 @@ class RunningShard(Protocol):
         ...
 
     async def stop(self) -> None:
-        """Stop taking messages, finish and ack the ones received, let the queue go."""
+        """Stop taking messages, finish and ack the ones received, let the queue go; log what
+        consuming ended with (the pool reports only a shard that ends by itself first)."""
         ...
 
 
@@ -164,9 +165,9 @@ class ShardPool:
         running.done.add_done_callback(lambda done, shard=shard: self._ended(shard, done))
 
     def _ended(self, shard: int, done: asyncio.Future[None]) -> None:
-        if self.held.get(shard) is None or self._failed.done():
-            return  # stopped on purpose
         error = done.exception() if not done.cancelled() else None
+        if self.held.get(shard) is None or self._failed.done():
+            return  # stopped on purpose, or the worker stops: the shard's stop logs its error
         log.error("consuming shard %d ended by itself: %r", shard, error)
         self._failed.set_result(error)
 
