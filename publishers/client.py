@@ -22,9 +22,7 @@ import logging
 import os
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from types import TracebackType
@@ -38,12 +36,19 @@ from pydantic import ValidationError
 
 from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outgoing
-from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublisherError, PublishRefused
+from fleetbus.publishers.errors import (
+    CONNECTION_FAILED,
+    BrokerUnavailable,
+    ClientClosed,
+    PublisherError,
+    PublishRefused,
+)
+from fleetbus.publishers.known import Known, KnownSubjects
 from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
 from fleetbus.publishers.outbox import LIMITS_VARIABLE, Entry, Outbox, TypePolicy, policies_with_limits
-from fleetbus.publishers.rpc import RpcChannel
 from fleetbus.publishers.sender import Sender
 from fleetbus.publishers.sequence import SequenceCounter
+from fleetbus.publishers.sessions import Sessions
 from fleetbus.publishers.state_lock import StateLock
 from fleetbus.publishers.tls import pika_parameter_list
 from fleetbus.schemas.bodies import MapMetadata
@@ -69,8 +74,6 @@ from fleetbus.schemas.routing import (
 
 log = logging.getLogger("fleetbus.robot")
 
-#: How many subjects (hazards, maps) a client remembers the last news of, to skip repeats of it.
-SEEN_NOTIFICATIONS = 10_000
 #: The service's setting of when a notification is late, read by the robot too.
 LATE_AFTER_VARIABLE = "FLEETBUS_LATE_AFTER_S"
 #: How often a listener given a ``stop`` event looks at it while its inbox is quiet.
@@ -135,19 +138,6 @@ def outgoing(robot_id: str, entry: Entry) -> Outgoing:
         entry.body,
         properties,
     )
-
-
-@dataclass(frozen=True)
-class Known:
-    """What a client knows of a notification's subject: a hazard's state and claimant, as of when
-    the service made them."""
-
-    state: str | None
-    claimed_by: str | None
-    at: datetime
-
-    def says(self, other: Known) -> bool:
-        return (self.state, self.claimed_by) == (other.state, other.claimed_by)
 
 
 def last_step_at(hazard: dict[str, Any]) -> datetime:
@@ -223,22 +213,21 @@ class RobotClient:
             name=f"fleetbus-sender-{self.robot_id}",
         )
         self._started = False
+        self._start_lock = threading.Lock()
         self._closed = False
-        self._connection: pika.BlockingConnection | None = None
-        self._rpc: RpcChannel | None = None
-        self._handed_out: OrderedDict[str, Known] = OrderedDict()
-        """What this client last knew of each notification's subject (a hazard, by its event):
-        its state, who claimed it and as of when, from a notification it handed out, a resync or
-        a step it took."""
-        self._resynced_on: pika.BlockingConnection | None = None
-        """The connection on which this client last rebuilt its list of open hazards."""
+        self._sessions = Sessions(self._open_connection, self.robot_id)
+        """Each calling thread's connection for services and notifications (pika's are not
+        thread-safe), apart from the sender's."""
+        self._known = KnownSubjects()
 
     # connection
     def start(self) -> None:
         """Start draining the outbox in the background (connecting whenever the broker answers)."""
-        if not self._started:
+        with self._start_lock:
+            if self._started:
+                return
             self._started = True
-            self._sender.start()
+        self._sender.start()
 
     def connect(self, timeout: float | None = None) -> None:
         """Start, and wait until the sender reached the broker; raise BrokerUnavailable if it did not."""
@@ -284,13 +273,7 @@ class RobotClient:
                         self._sender.last_error or f"not confirmed within {timeout:g} s",
                     )
         finally:
-            if self._connection is not None and self._connection.is_open:
-                try:
-                    self._connection.close()
-                except pika.exceptions.AMQPError:
-                    pass  # already broken
-            self._connection = None
-            self._rpc = None
+            self._sessions.close()
             if self._started:
                 self._sender.stop()
             self.outbox.close()
@@ -367,10 +350,9 @@ class RobotClient:
 
     # services
     def call(self, method: str, timeout: float = 5.0, **params: Any) -> Any:
-        """Call a fleetbus service; raise ServiceTimeout when no reply comes within ``timeout``."""
-        if self._rpc is None or self._connection is None or not self._connection.is_open:
-            self._rpc = RpcChannel(self._session(), self.robot_id)
-        return self._rpc.call(method, params, timeout)
+        """Call a fleetbus service; raise ServiceTimeout when no reply comes within ``timeout``.
+        Each thread calls on a connection of its own."""
+        return self._sessions.rpc().call(method, params, timeout)
 
     def hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
         """One hazard this robot reported, or one open to it as :meth:`open_hazards` would list
@@ -397,7 +379,7 @@ class RobotClient:
         that the news of a step taken for it later (released by an operator) is handed out."""
         hazard: dict[str, Any] = self.call(method, timeout, hazard_id=hazard_id)
         key = f"{Topic.HAZARD.value}:{hazard['event']['message_id']}"
-        self._know(key, Known(hazard["state"], hazard.get("claimed_by"), last_step_at(hazard)))
+        self._known.know(key, Known(hazard["state"], hazard.get("claimed_by"), last_step_at(hazard)))
         return hazard
 
     def wardens(self, timeout: float = 5.0) -> list[dict[str, Any]]:
@@ -436,6 +418,10 @@ class RobotClient:
         passes ``stop`` and no ``timeout``: it keeps one consumer open instead of opening and
         closing one per quiet ``timeout`` (four round trips to the broker each time).
 
+        Each thread listens on a connection of its own, so one thread may listen while others
+        publish and call the services; :meth:`close` ends a listener on another thread quietly
+        (within :data:`STOP_CHECK_S` when it waits with ``stop``).
+
         Each notification is acked when the caller asks for the next one or stops iterating, so
         one that was being handled when the robot process died is delivered again. The service
         sends at least once (it announces again when it cannot be sure a broker took the first
@@ -450,6 +436,18 @@ class RobotClient:
         while it was away), with its state; the service leaves out those another warden holds
         (claimed or reached), and gives back those this warden holds.
         """
+        if self._sessions.closed:
+            raise ClientClosed("the robot client is closed")
+        try:
+            yield from self._listen(timeout, prefetch, stop)
+        except (pika.exceptions.AMQPError, ClientClosed):
+            if self._sessions.closed:
+                return  # close() closed this thread's connection: the listen is over
+            raise
+
+    def _listen(
+        self, timeout: float | None, prefetch: int, stop: threading.Event | None
+    ) -> Iterator[Notification]:
         channel = self._open_consumer_channel()
         try:
             yield from self._missed_hazards()
@@ -473,7 +471,7 @@ class RobotClient:
                     channel.basic_reject(method.delivery_tag, requeue=False)
                     continue
                 try:
-                    if self._seen_before(note):
+                    if self._known.seen_before(note):
                         continue
                     yield note
                 finally:  # the caller asked for the next one, or stopped iterating
@@ -486,8 +484,9 @@ class RobotClient:
 
     def _missed_hazards(self) -> Iterator[Notification]:
         """Once per connection, for a warden in service: the open hazards not handed out yet."""
-        connection = self._connection
-        if connection is None or connection is self._resynced_on:
+        session = self._sessions.mine()
+        connection = session.connection
+        if connection is None or connection is session.resynced_on:
             return
         try:
             me = next((w for w in self.wardens() if w["name"] == self.robot_id), None)
@@ -502,49 +501,20 @@ class RobotClient:
             if hazard["state"] == "held":  # not announced yet: it comes through the inbox
                 continue
             note = missed_hazard(hazard, now, self._late_after_s)
-            if not self._seen_before(note, resync_as_of=last_step_at(hazard)):
+            if not self._known.seen_before(note, resync_as_of=last_step_at(hazard)):
                 yield note
-        self._resynced_on = connection  # only once all were handed out: a caller may stop early
+        session.resynced_on = connection  # only once all were handed out: a caller may stop early
 
-    def _seen_before(self, note: Notification, resync_as_of: datetime | None = None) -> bool:
-        """Whether ``note`` says nothing new: this client last knew its subject as it says (an
-        announcement's copies, its own step, a resync), or, for a note from the inbox, knew it as
-        of a later time (a note that waited there while a resync told the hazard's state since).
-        A hazard in another state is news, an earlier one too: ``announced`` again after an
-        operator released the warden's claim. ``resync_as_of``: a resync's note, with the time of
-        the hazard's latest step (it is news whenever its state is)."""
-        key = f"{note.topic.value}:{note.event.message_id}"
-        known = self._handed_out.get(key)
-        told = Known(note.hazard_state, note.claimed_by, resync_as_of or note.notified_at)
-        if known is not None and (known.says(told) or (resync_as_of is None and told.at <= known.at)):
-            return True
-        self._know(key, told)
-        return False
-
-    def _know(self, key: str, known: Known) -> None:
-        """``known`` is what the client knows of ``key`` from now on; its time never goes back."""
-        before = self._handed_out.get(key)
-        if before is not None and before.at > known.at:
-            known = Known(known.state, known.claimed_by, before.at)
-        self._handed_out[key] = known
-        self._handed_out.move_to_end(key)
-        if len(self._handed_out) > SEEN_NOTIFICATIONS:
-            self._handed_out.popitem(last=False)
-
-    def _session(self) -> pika.BlockingConnection:
-        """The caller's own connection (services, notifications), opened with retries when needed.
+    def _open_connection(self) -> pika.BlockingConnection:
+        """A new connection for the calling thread (services, notifications), with retries.
 
         Separate from the sender's: a pika connection belongs to one thread.
         """
-        if self._connection is not None and self._connection.is_open:
-            return self._connection
-        self._rpc = None
         deadline = time.monotonic() + self._connect_timeout
         attempt = 0
         while True:
             try:
-                self._connection = pika.BlockingConnection(self._parameters)
-                return self._connection
+                return pika.BlockingConnection(self._parameters)
             except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
                 raise
             except CONNECTION_FAILED as error:
@@ -560,10 +530,10 @@ class RobotClient:
     def _open_consumer_channel(self) -> BlockingChannel:
         """A new channel, reconnecting first when the connection is gone (the broker restarted)."""
         try:
-            return self._session().channel()
+            return self._sessions.connection().channel()
         except pika.exceptions.AMQPError:
-            self._connection = None  # it died under us; start a new one
-            return self._session().channel()
+            self._sessions.forget()  # it died under us; start a new one
+            return self._sessions.connection().channel()
 
     def receive(self, count: int, timeout: float) -> list[Notification]:
         """Exactly ``count`` notifications, or fewer if ``timeout`` passes first."""

@@ -13,6 +13,10 @@ class BrokerUnavailable(PublisherError):
     server side alike."""
 
 
+class ClientClosed(PublisherError):
+    """The robot client was closed: it opens no more connections to call the services or listen."""
+
+
 class PublishRefused(PublisherError):
     """The broker refused a message: access refused, forged user id, nack or unroutable."""
 

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import threading
+from typing import Any
 
+import pika
 import pytest
+from pika.adapters.blocking_connection import BlockingChannel
 
+from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.coordination import HazardCoordinator
 from fleetbus.workers.store.hazards import HazardState
@@ -114,6 +118,75 @@ def test_a_listener_until_stopped_keeps_one_consumer_through_quiet_spells_and_en
         listener.join(timeout=10)
         assert not listener.is_alive(), "the listener ends once told to stop"
     assert len(opened) == 1, "one consumer channel for the whole listen, not one per quiet spell"
+
+
+def test_a_listener_thread_and_service_calls_on_another_each_use_a_connection_of_their_own(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The guide's listener: one thread on ``notifications(stop=...)`` while the main thread calls
+    the services. pika's connections are not thread-safe, so two threads on one connection may
+    pass by luck and fail another time; every pika round trip is recorded with its thread, which
+    shows a shared connection at once."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    users: dict[int, tuple[Any, set[str]]] = {}  # id -> the connection (kept alive), its threads
+    flush = pika.BlockingConnection._flush_output
+
+    def recorded(connection: pika.BlockingConnection, *waiters: Any) -> None:
+        users.setdefault(id(connection), (connection, set()))[1].add(threading.current_thread().name)
+        flush(connection, *waiters)
+
+    monkeypatch.setattr(pika.BlockingConnection, "_flush_output", recorded)
+    consuming: list[str] = []
+    consume = BlockingChannel._basic_consume_impl
+
+    def consumer(channel: BlockingChannel, *args: Any, **kwargs: Any) -> Any:
+        consuming.append(threading.current_thread().name)
+        return consume(channel, *args, **kwargs)
+
+    monkeypatch.setattr(BlockingChannel, "_basic_consume_impl", consumer)
+    received: list[Notification] = []
+    failed: list[BaseException] = []
+
+    def listen(stop: threading.Event) -> None:
+        try:
+            received.extend(warden.notifications(stop=stop))
+        except BaseException as error:  # the test's thread says it below
+            failed.append(error)
+
+    stop = threading.Event()
+    listener = threading.Thread(target=listen, args=(stop,), name="listener")
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        listener.start()
+        sent, claimed, calls = [], set(), 0
+        for i in range(120):
+            if i % 6 == 0:
+                sent.append(explorer.publish("hazard", hazard(i // 6)))
+            assert "warden1" in [w["name"] for w in warden.wardens()]
+            calls += 1
+            for note in list(received):
+                if note.hazard_id not in claimed:
+                    assert warden.claim_hazard(note.hazard_id)["claimed_by"] == "warden1"
+                    claimed.add(note.hazard_id)
+        wanted = {e.message_id for e in sent}
+        wait_for(lambda: wanted <= {n.event.message_id for n in received}, what="every hazard announced")
+        stop.set()
+        listener.join(timeout=10)
+        assert not listener.is_alive() and not failed, failed
+        assert calls == 120 and len(claimed) >= 10
+        shared = {names for _, names in users.values() if len(names) > 1}
+        assert not any(shared), f"a connection used by several threads: {shared}"
+        assert any("listener" in names for _, names in users.values())
+
+        # close() on the main thread ends a listener on another thread quietly
+        listener = threading.Thread(target=listen, args=(threading.Event(),), name="listener2")
+        listener.start()
+        wait_for(lambda: "listener2" in consuming, what="listener2 consuming its inbox")
+        warden.close(flush_timeout=0)
+        listener.join(timeout=10)
+        assert not listener.is_alive(), "close() ends the listener"
+        assert not failed, failed
 
 
 def test_an_announcement_that_cannot_be_finished_stops_the_worker_and_comes_again(

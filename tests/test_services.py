@@ -256,7 +256,7 @@ def test_a_reply_that_comes_after_its_call_gave_up_is_not_kept(
     with bus.worker():
         with pytest.raises(ServiceTimeout):
             explorer.wardens(timeout=0.5)
-        rpc = explorer._rpc
+        rpc = explorer._sessions.mine().rpc  # the calling thread's
         assert rpc is not None
 
         def late_reply_read() -> bool:
