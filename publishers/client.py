@@ -40,10 +40,12 @@ from fleetbus.publishers.errors import (
     CONNECTION_FAILED,
     BrokerUnavailable,
     ClientClosed,
+    LoginRefused,
     PublisherError,
     PublishRefused,
 )
 from fleetbus.publishers.known import Known, KnownSubjects
+from fleetbus.publishers.login import LOGIN_REFUSED, login_refusal
 from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
 from fleetbus.publishers.outbox import LIMITS_VARIABLE, Entry, Outbox, TypePolicy, policies_with_limits
 from fleetbus.publishers.sender import Sender
@@ -211,6 +213,7 @@ class RobotClient:
             confirm_timeout=confirm_timeout,
             max_reconnect_delay=max_reconnect_delay,
             name=f"fleetbus-sender-{self.robot_id}",
+            robot_id=self.robot_id,
         )
         self._started = False
         self._start_lock = threading.Lock()
@@ -230,10 +233,14 @@ class RobotClient:
         self._sender.start()
 
     def connect(self, timeout: float | None = None) -> None:
-        """Start, and wait until the sender reached the broker; raise BrokerUnavailable if it did not."""
+        """Start, and wait until the sender reached the broker; raise BrokerUnavailable if it did
+        not, LoginRefused (a BrokerUnavailable) at once when the broker refused the robot's login."""
         self.start()
         timeout = self._connect_timeout if timeout is None else timeout
         if not self._sender.wait_connected(timeout):
+            refusal = self._sender.login_refused
+            if refusal:
+                raise LoginRefused(f"{refusal} (broker at {self._where})")
             raise BrokerUnavailable(
                 f"cannot reach the broker at {self._where} within "
                 f"{timeout:g} s: {self._sender.last_error or 'no answer'}"
@@ -515,8 +522,10 @@ class RobotClient:
         while True:
             try:
                 return pika.BlockingConnection(self._parameters)
-            except (pika.exceptions.ProbableAuthenticationError, pika.exceptions.ProbableAccessDeniedError):
-                raise
+            except LOGIN_REFUSED as error:  # trying again would not help
+                raise LoginRefused(
+                    f"{login_refusal(error, self.robot_id)} (broker at {self._where})"
+                ) from error
             except CONNECTION_FAILED as error:
                 delay = reconnect_delay(attempt, self._max_reconnect_delay)
                 attempt += 1

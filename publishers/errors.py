@@ -13,6 +13,12 @@ class BrokerUnavailable(PublisherError):
     server side alike."""
 
 
+class LoginRefused(BrokerUnavailable):
+    """The broker refused the robot's login: its credentials (a wrong or changed password, an
+    account removed) or its access to the virtual host. Trying again does not help until they are
+    fixed on the robot or on the broker; the message names the robot, never the password."""
+
+
 class ClientClosed(PublisherError):
     """The robot client was closed: it opens no more connections to call the services or listen."""
 

@@ -44,6 +44,7 @@ from fleetbus.publishers.backoff import reconnect_delay
 from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
 from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublishRefused, PublishTimeout
 from fleetbus.publishers.handshake import broker_unverified, certificate_refusal
+from fleetbus.publishers.login import login_refusal
 from fleetbus.publishers.outbox import SEGMENT_EVENTS, Entry, Outbox
 
 log = logging.getLogger("fleetbus.robot.sender")
@@ -135,11 +136,15 @@ class Sender:
         confirm_timeout: float,
         max_reconnect_delay: float,
         name: str,
+        robot_id: str,
     ) -> None:
         self._outbox = outbox
+        self._robot_id = robot_id
         self._parameters = parameters
         self._unverified = False
         """The last try to connect could not verify the broker's certificate."""
+        self._login_refused: str | None = None
+        """Why the broker refused the last try's login (the robot's credentials), or None."""
         self._certificate_login = any(
             isinstance(each.credentials, pika.credentials.ExternalCredentials) for each in parameters
         )
@@ -200,11 +205,20 @@ class Sender:
             self._condition.notify_all()
             return job
 
+    @property
+    def login_refused(self) -> str | None:
+        """Why the broker refused the robot's login at the last try to connect, or None."""
+        return self._login_refused
+
     def wait_connected(self, timeout: float) -> bool:
         """Wait until connected; False at ``timeout``, or at once when the broker's certificate
-        could not be verified (the sender goes on trying in the background)."""
+        could not be verified or the broker refused the robot's login (the sender goes on trying
+        in the background: either may be fixed on the broker)."""
         with self._condition:
-            self._condition.wait_for(lambda: self._connected or self._stopping or self._unverified, timeout)
+            self._condition.wait_for(
+                lambda: self._connected or self._stopping or self._unverified or self._login_refused,
+                timeout,
+            )
             return self._connected
 
     def watch(self, message_ids: Sequence[str]) -> Waiter:
@@ -332,9 +346,23 @@ class Sender:
             self._outbox.release()
             connecting = self._connection is None
             self._unverified = connecting and broker_unverified(error)
-            self._disconnect(self._failure(error, connecting))
+            refusal = self._refusal(error) if connecting else None
+            self._disconnect(refusal or self._failure(error, connecting))
             self._backoff(reconnect_delay(failures, self._max_delay))
             return failures + 1, nacks
+
+    def _refusal(self, error: BaseException) -> str | None:
+        """Whether a try to connect failed on the robot's login; said once per refusal in a row."""
+        refusal = login_refusal(error, self._robot_id)
+        if refusal and not self._login_refused:
+            log.error(
+                "%s; events wait in the outbox, and the sender keeps trying (every %g s at most) "
+                "in case the credentials are fixed on the broker",
+                refusal,
+                self._max_delay,
+            )
+        self._login_refused = refusal
+        return refusal
 
     def _failure(self, error: BaseException, connecting: bool) -> str:
         """What went wrong; for a certificate login that could not connect, what that most
@@ -384,8 +412,11 @@ class Sender:
         with self._condition:
             self._connected = True
             self._unverified = False
+            refused, self._login_refused = self._login_refused, None
             self.last_error = None
             self._condition.notify_all()
+        if refused:
+            log.warning("the broker accepts robot %s's login again", self._robot_id)
         params = getattr(connection._impl, "params", None)
         log.info(
             "robot sender connected to %s:%s", getattr(params, "host", "?"), getattr(params, "port", "?")

@@ -7,6 +7,7 @@ the network or are killed, a confirm is lost on the way back, MongoDB goes away.
 from __future__ import annotations
 
 import json
+import logging
 import signal
 import time
 from dataclasses import replace
@@ -15,6 +16,8 @@ from urllib.parse import urlsplit
 
 import pytest
 
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.errors import BrokerUnavailable, LoginRefused
 from fleetbus.publishers.outbox import Overflow, TypePolicy
 from fleetbus.schemas.envelope import build_event, encode_event
 from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
@@ -165,6 +168,52 @@ def test_a_broker_slow_to_confirm_is_waited_for_and_a_silent_one_is_left(
         wait_for(lambda: bus.count() == 23, what="the second sentinel stored, after the first one's batch")
         stats = worker.stats()
         assert stats.duplicates <= 1, "only the event in doubt when the broker went silent was sent again"
+
+
+def test_a_robot_whose_password_was_changed_says_so_once_and_gets_in_again_once_it_is_restored(
+    bus: Bus, tmp_path: Path, link_for: list[NetworkLink], caplog: pytest.LogCaptureFixture
+) -> None:
+    """A refused login is no outage: said once (naming the robot, never the password), kept in
+    ``last_error``, raised at once by ``connect()`` and by a service call; the sender keeps
+    trying, so a password fixed on the broker lets the robot in without a restart."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    robot = bus.robot(account, via=link, max_reconnect_delay=0.2)
+    before = bus.api.get_user("explorer1")
+    assert before is not None
+    caplog.set_level(logging.INFO, logger="fleetbus.robot")
+    bus.add("explorer1", kind=RobotKind.EXPLORER)  # rotated: the robot's password is the old one
+    link.drop_connections()  # the broker keeps a connection made before: the robot reconnects
+    said = "the broker refused robot explorer1's credentials"
+    wait_for(lambda: said in (robot.last_error or ""), what="the refusal in last_error")
+    tries = robot._sender._failures
+    wait_for(lambda: robot._sender._failures >= tries + 5, what="five more tries, refused too")
+    refusals = [record for record in caplog.records if said in record.getMessage()]
+    assert [record.levelno for record in refusals] == [logging.ERROR], "said once, as an error"
+    password = urlsplit(account.amqp_url).password
+    assert password and password not in caplog.text
+
+    started = time.monotonic()
+    robot.publish("hazard", hazard(0))  # cut off: on disk, and back at once
+    assert time.monotonic() - started < 2 and robot.outbox.pending() == 1
+    with pytest.raises(LoginRefused, match=said):
+        robot.wardens()
+    other = RobotClient(account.amqp_url, state_dir=tmp_path / "other", connect_timeout=20)
+    try:
+        started = time.monotonic()
+        with pytest.raises(LoginRefused, match=said) as refused:
+            other.connect()
+        assert time.monotonic() - started < 5, "at the first refusal, not after connect_timeout"
+        assert isinstance(refused.value, BrokerUnavailable), "code that catches BrokerUnavailable still does"
+    finally:
+        other.close(flush_timeout=0)
+
+    tags = before["tags"]
+    tags = ",".join(tags) if isinstance(tags, list) else tags
+    bus.api.put_user_hash("explorer1", before["password_hash"], before["hashing_algorithm"], tags)
+    wait_for(lambda: robot.connected, what="the robot back in with its password restored")
+    assert robot.flush(10) and robot.last_error is None
+    assert any("accepts robot explorer1's login again" in r.getMessage() for r in caplog.records)
 
 
 def test_gaps_are_recorded_and_cleared_when_the_missing_events_arrive(bus: Bus) -> None:
