@@ -48,7 +48,7 @@ from fleetbus.publishers.known import Known, KnownSubjects
 from fleetbus.publishers.login import LOGIN_REFUSED, login_refusal
 from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
 from fleetbus.publishers.outbox import LIMITS_VARIABLE, Entry, Outbox, TypePolicy, policies_with_limits
-from fleetbus.publishers.sender import Sender
+from fleetbus.publishers.sender import Sender, Waiter
 from fleetbus.publishers.sequence import SequenceCounter
 from fleetbus.publishers.sessions import Sessions
 from fleetbus.publishers.state_lock import StateLock
@@ -185,6 +185,8 @@ class RobotClient:
         """This client's epoch: its events are numbered 0, 1, 2, ... in it
         (:mod:`fleetbus.publishers.sequence`)."""
         self._sequence = SequenceCounter()
+        self._storing = threading.Lock()
+        """Held while events are numbered and appended to the outbox: they enter it in order."""
         self._late_after_s = late_after_from_environment() if late_after_s is None else late_after_s
         # every address of a cluster's URL, tried in turn at each (re)connection
         self._parameters = pika_parameter_list(
@@ -300,8 +302,17 @@ class RobotClient:
     # publishing
     def build(self, items: Sequence[tuple[EventType | str, Any]]) -> list[Event]:
         """Validate bodies, then give them this client's epoch and consecutive sequence numbers in it
-        (none wasted on bad input), and ids named by those (:func:`keyed_message_id`)."""
-        bodies = [(event_type, validate_body(event_type, body)) for event_type, body in items]
+        (none wasted on bad input), and ids named by those (:func:`keyed_message_id`).
+
+        Events built here and handed to :meth:`enqueue` enter the outbox in the order the calls
+        to ``enqueue`` come; :meth:`publish_many` numbers and stores in one step instead, so that
+        the events of robot code publishing from several threads are stored in number order."""
+        return self._numbered(self._validated(items))
+
+    def _validated(self, items: Iterable[tuple[EventType | str, Any]]) -> list[tuple[EventType | str, Any]]:
+        return [(event_type, validate_body(event_type, body)) for event_type, body in items]
+
+    def _numbered(self, bodies: list[tuple[EventType | str, Any]]) -> list[Event]:
         if any(EventType(t) is EventType.STATUS and b.outbox_dropped is None for t, b in bodies):
             dropped = dict(self.outbox.dropped())
             if dropped:
@@ -324,11 +335,19 @@ class RobotClient:
     def publish_many(self, items: Iterable[tuple[EventType | str, Any]], *, wait: bool = True) -> list[Event]:
         """Validate, number and store the events in the outbox, then (``wait``) await their confirms.
 
+        Numbering and storing are one step, under one lock (not held while the confirms are
+        awaited): with several threads publishing, the outbox holds, and the broker and the
+        store receive, the robot's events in the order they were numbered.
+
         Raises SchemaError for a bad body (nothing is stored), OutboxFull when a type that is never
         dropped reached its outbox limit, PublishRefused when the broker refused one of them.
         """
-        events = self.build(list(items))
-        self.enqueue(events, wait=wait)
+        bodies = self._validated(items)
+        self.start()
+        with self._storing:
+            events = self._numbered(bodies)
+            waiter = self._store(events, wait)
+        self._await_settled(waiter)
         return events
 
     def enqueue(self, events: Sequence[Event], *, wait: bool = True) -> None:
@@ -341,6 +360,12 @@ class RobotClient:
         go out when the broker is back. Without ``wait``, return once they are in the outbox.
         """
         self.start()
+        with self._storing:
+            waiter = self._store(events, wait)
+        self._await_settled(waiter)
+
+    def _store(self, events: Sequence[Event], wait: bool) -> Waiter | None:
+        """Append ``events`` to the outbox (under :attr:`_storing`); their waiter when ``wait``."""
         waiter = self._sender.watch([str(e.message_id) for e in events]) if wait else None
         try:
             self.outbox.append(events, express=self._sender.offer_express)
@@ -349,6 +374,9 @@ class RobotClient:
                 self._sender.unwatch(waiter)
             raise
         self._sender.wake()
+        return waiter
+
+    def _await_settled(self, waiter: Waiter | None) -> None:
         if waiter is None:
             return
         refused = self._sender.wait_settled(waiter, self._confirm_timeout, self._connect_timeout)

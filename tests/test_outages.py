@@ -6,9 +6,11 @@ the network or are killed, a confirm is lost on the way back, MongoDB goes away.
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import signal
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -19,7 +21,7 @@ import pytest
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, LoginRefused
 from fleetbus.publishers.outbox import Overflow, TypePolicy
-from fleetbus.schemas.envelope import build_event, encode_event
+from fleetbus.schemas.envelope import Event, build_event, encode_event
 from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
 from fleetbus.workers.store.base import EventQuery
 from fleetbus_dev.local_node import LocalNode
@@ -214,6 +216,41 @@ def test_a_robot_whose_password_was_changed_says_so_once_and_gets_in_again_once_
     wait_for(lambda: robot.connected, what="the robot back in with its password restored")
     assert robot.flush(10) and robot.last_error is None
     assert any("accepts robot explorer1's login again" in r.getMessage() for r in caplog.records)
+
+
+def test_threads_publishing_at_once_are_stored_in_the_order_their_events_were_numbered(
+    bus: Bus, link_for: list[NetworkLink]
+) -> None:
+    """Six threads publish at once, first while the robot is cut off (everything waits in the
+    outbox, in number order), then connected: the store receives every event once, in order."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    robot = bus.robot(account, via=link)
+    sent: list[Event] = []  # list.append is atomic
+
+    def publish_from_threads(count: int) -> None:
+        def publish() -> None:
+            for i in range(count):
+                sent.append(robot.publish("status", status(float(i % 100)), wait=False))
+
+        threads = [threading.Thread(target=publish) for _ in range(6)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+
+    link.cut()
+    wait_for(lambda: not robot.connected, what="the robot cut off")
+    publish_from_threads(100)
+    waiting = [entry.seq for entry in robot.outbox.entries()]
+    inversions = sum(a > b for a, b in itertools.pairwise(waiting))
+    assert len(waiting) == 600 and inversions == 0, f"{inversions} inversions in the outbox"
+    link.restore()
+    with bus.worker():
+        publish_from_threads(100)  # connected: each thread's publishes go out while others' do
+        assert robot.flush(60)
+        wait_for(lambda: bus.count(robot_id="explorer1") == 1200, what="the 1,200 events stored")
+    assert_stored_once_in_order(bus, "explorer1", keys(sent))
 
 
 def test_gaps_are_recorded_and_cleared_when_the_missing_events_arrive(bus: Bus) -> None:
