@@ -255,7 +255,8 @@ class RobotClient:
 
     @property
     def last_error(self) -> str | None:
-        """Why the sender last lost or could not reach the broker."""
+        """Why the sender last lost or could not reach the broker (a refused login among them), or
+        why the outbox's files fail while they do (:class:`~fleetbus.publishers.outbox.OutboxError`)."""
         return self._sender.last_error
 
     def flush(self, timeout: float = 30.0) -> bool:

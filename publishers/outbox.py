@@ -26,7 +26,8 @@ import enum
 import re
 import threading
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -124,6 +125,17 @@ class OutboxFull(Exception):
     """A type that is never dropped reached its limit; the events were not taken."""
 
 
+class OutboxError(Exception):
+    """The outbox's own files failed while the sender took or settled events (a full disk, a
+    file missing or unreadable, one that no longer parses): not the network's doing, which
+    reconnecting or sending again would not mend. What was taken or settled is as it was."""
+
+
+#: What reading or writing the outbox's files raises when they fail: the file system's errors,
+#: and a file that no longer parses (JSON) or holds something else than the outbox wrote.
+_FILE_ERRORS = (OSError, ValueError, KeyError, TypeError)
+
+
 @dataclass(frozen=True)
 class Entry:
     """One waiting event, as it goes on the wire."""
@@ -217,6 +229,14 @@ class Outbox:
         self._segments: list[_Segment] = []
         self._dropped: Counter[str] | None = None
         self._recover()
+
+    @contextmanager
+    def _own_files(self, doing: str) -> Iterator[None]:
+        """Raise what the outbox's files fail with, while ``doing``, as :class:`OutboxError`."""
+        try:
+            yield
+        except _FILE_ERRORS as error:
+            raise OutboxError(f"the outbox in {self.folder} could not {doing}: {error!r}") from error
 
     # ------------------------------------------------------------------ opening and recovery
 
@@ -407,8 +427,18 @@ class Outbox:
         A sender may take the next window while the broker still confirms the last one. With
         ``whole_segments`` the take of the others stops before a segment it could only take part
         of (unless that is the first): settling it then deletes segment files without reading
-        them again.
+        them again. Raises :class:`OutboxError` when a file fails, taking nothing.
         """
+        with self._lock:
+            in_flight, first_in_flight = set(self._in_flight), set(self._first_in_flight)
+            try:
+                with self._own_files("read the events to send"):
+                    return self._take(limit, whole_segments)
+            except OutboxError:
+                self._in_flight, self._first_in_flight = in_flight, first_in_flight
+                raise
+
+    def _take(self, limit: int, whole_segments: bool) -> list[Entry]:
         with self._lock:
             entries, stopped = self._take_first(limit, whole_segments)
             flying = Counter(number for number, _ in self._in_flight)
@@ -484,9 +514,15 @@ class Outbox:
         """Remove confirmed entries and move refused ones (message id -> reason) aside.
 
         ``window`` is the whole take they came from (default: all in flight). Entries of it neither
-        confirmed nor refused (nacked) stay, in their place, for the next take.
+        confirmed nor refused (nacked) stay, in their place, for the next take. Raises
+        :class:`OutboxError` when a file fails; settling the same again then finishes the work.
         """
-        refused = refused or {}
+        with self._lock, self._own_files("settle the events the broker answered"):
+            self._settle(confirmed, refused or {}, window)
+
+    def _settle(
+        self, confirmed: Iterable[Entry], refused: Mapping[str, str], window: Iterable[Entry] | None
+    ) -> None:
         with self._lock:
             taken = list(confirmed)
             done = None if window is None else {entry.position for entry in window}
@@ -525,13 +561,15 @@ class Outbox:
 
     def release(self) -> None:
         """Nothing of the last take was settled (the connection broke): it waits again, and counts
-        again against the drop limits it was spared while in flight."""
+        again against the drop limits it was spared while in flight. Raises :class:`OutboxError`
+        when a file fails while the limits are applied (the take waits again all the same)."""
         with self._lock:
             types = {t for segment in self._segments for t, n in segment.counts.items() if n}
             self._in_flight = set()
             self._first_in_flight = set()
-            for event_type in types:
-                self._enforce_drop_limit(event_type)
+            with self._own_files("apply the drop limits to the events put back"):
+                for event_type in types:
+                    self._enforce_drop_limit(event_type)
 
     def _blob_path(self, message_id: str, body: bytes) -> Path | None:
         """Where a body too large to wait inside a segment waits instead; None for the others."""
@@ -613,6 +651,8 @@ class Outbox:
             # counted from the list, once: an outbox from before the counts were kept
             for event_type, n in Counter(doc["type"] for doc in table.all()).items():
                 self._count("refused", event_type, n)
+        kept = {doc["message_id"] for doc in table.all()}
+        docs = [doc for doc in docs if doc["message_id"] not in kept]  # a settle tried again
         for event_type, n in Counter(doc["type"] for doc in docs).items():
             self._count("refused", event_type, n)
         table.insert_multiple(docs)

@@ -45,7 +45,7 @@ from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, W
 from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublishRefused, PublishTimeout
 from fleetbus.publishers.handshake import broker_unverified, certificate_refusal
 from fleetbus.publishers.login import login_refusal
-from fleetbus.publishers.outbox import SEGMENT_EVENTS, Entry, Outbox
+from fleetbus.publishers.outbox import SEGMENT_EVENTS, Entry, Outbox, OutboxError
 
 log = logging.getLogger("fleetbus.robot.sender")
 
@@ -66,6 +66,7 @@ NACKS_BEFORE_RECONNECT = 3
 #: How often an idle sender lets pika answer heartbeats.
 IDLE_TICK = 1.0
 #: What ends a connection or a try to make one: the sender connects again after its backoff.
+#: (OSError for the sockets: the outbox's own files raise :class:`OutboxError` instead.)
 BROKER_LOST = (BrokerUnavailable, PublishTimeout, OSError, pika.exceptions.AMQPError, *CONNECTION_FAILED)
 #: The window after a nack: one event, to learn whether the broker takes messages again.
 PROBE_WINDOW = 1
@@ -167,6 +168,10 @@ class Sender:
         self._connection: pika.BlockingConnection | None = None
         self._confirms: PipelinedConfirms | None = None
         self.last_error: str | None = None
+        self._outbox_error: str | None = None
+        """What the outbox's files last failed with, while they fail; None once they work."""
+        self._outbox_failures = 0
+        """Turns in a row that ended on an outbox error (the bound of the next wait doubles)."""
         self.sent = 0
         self._window = PUBLISH_WINDOW
         """Events a window takes now: :data:`PROBE_WINDOW` after a nack, doubling back up."""
@@ -327,15 +332,27 @@ class Sender:
             finally:
                 with self._condition:
                     self._busy = False
+            self._outbox_failures = 0
             if not drained:
                 self._idle_wait()
             return 0, 0  # the connection works, and the broker takes what it is sent
+        except OutboxError as error:
+            # the outbox's files, not the network: neither reconnect nor send anything again
+            delay = reconnect_delay(self._outbox_failures, self._max_delay)
+            self._outbox_failures += 1
+            self._outbox_failed(error, delay)
+            self._release()
+            if self._connection is not None:
+                self._pause(delay)
+            else:
+                self._backoff(delay)
+            return failures, nacks
         except Nacked as nacked:
             delay = reconnect_delay(nacks, self._max_delay)
             nacks += 1
             if nacks % NACKS_BEFORE_RECONNECT == 0:
                 log.warning("%s %d times in a row: reconnecting, next try in %.1f s", nacked, nacks, delay)
-                self._outbox.release()
+                self._release()
                 self._disconnect(f"{nacked} {nacks} times in a row")
                 self._backoff(delay)
                 return failures, nacks
@@ -343,13 +360,45 @@ class Sender:
             self._pause(delay)
             return failures, nacks
         except BROKER_LOST as error:
-            self._outbox.release()
+            self._release()
             connecting = self._connection is None
             self._unverified = connecting and broker_unverified(error)
             refusal = self._refusal(error) if connecting else None
             self._disconnect(refusal or self._failure(error, connecting))
             self._backoff(reconnect_delay(failures, self._max_delay))
             return failures + 1, nacks
+
+    def _release(self) -> None:
+        """Put what is in flight back in the outbox; an outbox error doing so is said, not raised."""
+        try:
+            self._outbox.release()
+        except OutboxError as error:
+            self._outbox_failed(error, None)
+
+    def _outbox_failed(self, error: OutboxError, delay: float | None) -> None:
+        """Say an outbox error once (until the outbox works again or fails otherwise); keep it."""
+        message = str(error)
+        with self._condition:
+            new = message != self._outbox_error
+            self._outbox_error = self.last_error = message
+        if new:
+            log.error(
+                "robot %s: %s; the sender tries again (every %g s at most) without reconnecting or "
+                "sending again what the broker has confirmed",
+                self._robot_id,
+                message,
+                self._max_delay,
+            )
+        elif delay is not None:
+            log.debug("robot %s: the outbox still fails; next try in %.1f s", self._robot_id, delay)
+
+    def _outbox_works(self) -> None:
+        with self._condition:
+            failed, self._outbox_error = self._outbox_error, None
+            if failed is not None and self.last_error == failed:
+                self.last_error = None
+        if failed is not None:
+            log.warning("robot %s: the outbox works again", self._robot_id)
 
     def _refusal(self, error: BaseException) -> str | None:
         """Whether a try to connect failed on the robot's login; said once per refusal in a row."""
@@ -457,19 +506,29 @@ class Sender:
         outstanding: deque[tuple[list[Entry], list[Outgoing], Window]] = deque()
         drained = False
         nacked = 0
+        failed: OutboxError | None = None  # taking the next window: raised once those in flight settle
         try:
             while True:
                 probing = self._window < PUBLISH_WINDOW
-                if len(outstanding) < (1 if probing else WINDOWS_IN_FLIGHT) and not nacked:
-                    entries = self._outbox.take(self._window, whole_segments=True)
+                if len(outstanding) < (1 if probing else WINDOWS_IN_FLIGHT) and not nacked and not failed:
+                    try:
+                        entries = self._outbox.take(self._window, whole_segments=True)
+                    except OutboxError as error:
+                        if not outstanding:
+                            raise
+                        failed, entries = error, []
                     if entries:
                         messages = [self._to_outgoing(entry) for entry in entries]
                         outstanding.append((entries, messages, confirms.write(messages)))
                         drained = True
                         continue
                 if not outstanding:
+                    if failed is not None:
+                        raise failed
                     if nacked:
                         raise Nacked(nacked)
+                    if drained:
+                        self._outbox_works()
                     return drained
                 entries, messages, window = outstanding[0]
                 outcome = confirms.wait(window, self._confirm_timeout)
@@ -568,7 +627,7 @@ class Sender:
         window: list[Entry] | None = None,
         nacked: set[str] | frozenset[str] = frozenset(),
     ) -> None:
-        self._outbox.settle(confirmed, refused, window)
+        self._settle_in_outbox(confirmed, refused, window)
         self.sent += len(confirmed) - len(refused)
         ids = {entry.message_id for entry in confirmed}
         with self._condition:
@@ -579,3 +638,25 @@ class Sender:
                     waiter.deferred = True
             self._settled += 1
             self._condition.notify_all()
+
+    def _settle_in_outbox(
+        self, confirmed: list[Entry], refused: dict[str, str], window: list[Entry] | None
+    ) -> None:
+        """Settle in the outbox, trying again after a growing wait while its files fail: the broker
+        answered already, so nothing is sent again meanwhile, and the connection is kept (pika
+        answers its heartbeats during the wait). Raises the error once the sender is stopping."""
+        attempt = 0
+        while True:
+            try:
+                self._outbox.settle(confirmed, refused, window)
+            except OutboxError as error:
+                if self._stopping:
+                    raise
+                delay = reconnect_delay(attempt, self._max_delay)
+                attempt += 1
+                self._outbox_failed(error, delay)
+                self._pause(delay)
+                continue
+            if attempt:
+                self._outbox_works()
+            return

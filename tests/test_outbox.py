@@ -9,7 +9,14 @@ from pathlib import Path
 import pytest
 
 from fleetbus.publishers import outbox as outbox_module
-from fleetbus.publishers.outbox import Outbox, OutboxFull, Overflow, TypePolicy, policies_with_limits
+from fleetbus.publishers.outbox import (
+    Outbox,
+    OutboxError,
+    OutboxFull,
+    Overflow,
+    TypePolicy,
+    policies_with_limits,
+)
 from fleetbus.publishers.sequence import SequenceCounter
 from fleetbus.publishers.storage import AtomicJSONStorage
 from fleetbus.schemas.envelope import Event, build_event, new_epoch, parse_event
@@ -148,6 +155,46 @@ def test_large_bodies_wait_in_files_of_their_own(tmp_path: Path) -> None:
     assert parse_event(outbox.entries()[0].body) == big
     outbox.settle(outbox.take(1))
     assert not blobs[0].exists()
+
+
+def test_a_missing_body_file_is_an_outbox_error_and_the_take_takes_nothing(tmp_path: Path) -> None:
+    """The sender tells the outbox's own failures from the network's (both raise OSErrors)."""
+    outbox = Outbox(tmp_path, blob_bytes=600)
+    big = build_event("hazard", "explorer1", EPOCH, 1, {**hazard(), "description": "x" * 500})
+    outbox.append([*events("hazard", 0, 1), big, *events("hazard", 2, 1)])
+    [blob] = tmp_path.glob("blob-*.json")
+    kept = blob.read_bytes()
+    blob.unlink()
+    with pytest.raises(OutboxError, match=r"could not read the events to send: FileNotFoundError"):
+        outbox.take(10)
+    blob.write_bytes(kept)
+    assert [entry.seq for entry in outbox.take(10)] == [0, 1, 2], "nothing was left in flight"
+
+
+def test_a_settle_that_failed_on_a_file_finishes_when_tried_again(tmp_path: Path) -> None:
+    outbox = Outbox(tmp_path)
+    outbox.append(events("hazard", 0, 3))
+    window = outbox.take(3)
+    refused = {window[1].message_id: "unroutable (312 NO_ROUTE)"}
+    real = outbox._delete_segment
+
+    def no_space(*args: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    outbox._delete_segment = no_space  # type: ignore[method-assign]
+    with pytest.raises(OutboxError, match=r"could not settle .*No space left"):
+        outbox.settle(window, refused, window)
+    outbox._delete_segment = real  # type: ignore[method-assign]
+    outbox.settle(window, refused, window)
+    assert outbox.pending() == 0
+    assert len(outbox.refused()) == 1 and outbox.refused_counts() == {"hazard": 1}, "counted once"
+    outbox.close()
+    (tmp_path / "refused.json").write_text("{not json")  # read when first needed
+    outbox = Outbox(tmp_path)
+    outbox.append(events("hazard", 3, 1))
+    window = outbox.take(1)
+    with pytest.raises(OutboxError, match="could not settle"):
+        outbox.settle(window, {window[0].message_id: "refused"}, window)
 
 
 def test_leftovers_of_a_write_cut_short_are_cleaned(tmp_path: Path) -> None:

@@ -9,6 +9,8 @@ capped wait; nothing is ever marked refused for it.
 
 from __future__ import annotations
 
+import errno
+import logging
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -196,3 +198,77 @@ def test_a_connection_lost_while_waiting_after_a_nack_leaves_the_sender_running(
         wait_for(lambda: "lost while waiting" in (explorer.last_error or ""), what="the failure handled")
         assert explorer.outbox.pending() == 1 and explorer.outbox.refused() == []
     assert explorer.flush(30), "sent once the queue takes messages again: the sender still runs"
+
+
+def test_an_outbox_that_cannot_settle_is_tried_again_without_sending_anything_again(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A full disk while the confirmed events leave the outbox is the outbox's fault, not the
+    network's: the sender keeps its connection, sends nothing again, says it once and keeps it in
+    ``last_error``, and settles them once the disk has room."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER), max_reconnect_delay=0.5)
+    full = True
+
+    real = {name: getattr(explorer.outbox, name) for name in ("_delete_segment", "_remove")}
+
+    def no_space_for(name: str, *args: object, **kwargs: object) -> None:
+        if full:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real[name](*args, **kwargs)
+
+    for name in real:  # what a settle writes: a segment deleted, or rewritten without the settled
+        monkeypatch.setattr(explorer.outbox, name, lambda *a, _n=name, **k: no_space_for(_n, *a, **k))
+
+    caplog.set_level(logging.INFO, logger="fleetbus.robot")
+    failures = explorer._sender._failures
+    with bus.admin_channel() as channel:
+        channel.queue_declare(COPIES_QUEUE)
+        channel.queue_bind(COPIES_QUEUE, "explorer1.events", "#")
+        explorer.publish_many([("status", status(80 - i)) for i in range(10)], wait=False)
+        wait_for(lambda: "No space left" in (explorer.last_error or ""), what="the outbox's error")
+        time.sleep(3)  # the sender had sent them 340 times by now, reconnecting after each
+        assert bus.ready_messages(COPIES_QUEUE) == 10, "each sent once"
+        assert explorer.connected and explorer._sender._failures == failures, "no reconnect"
+        assert explorer.outbox.pending() == 10
+        said = [r for r in caplog.records if "could not settle" in r.getMessage()]
+        assert [r.levelno for r in said] == [logging.ERROR], "said once"
+
+        full = False
+        wait_for(lambda: explorer.outbox.pending() == 0, what="the events settled once there is room")
+        assert bus.ready_messages(COPIES_QUEUE) == 10 and explorer.last_error is None
+        assert any("the outbox works again" in r.getMessage() for r in caplog.records)
+
+
+def test_an_outbox_file_that_cannot_be_read_holds_the_sender_back_without_reconnecting(
+    bus: Bus, link_for: list[NetworkLink], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A body file gone missing (or unreadable) when the sender takes the next window: it waits
+    and tries again, connected, and sends what waits once the file is back."""
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = network_link(link_for, account)
+    explorer = bus.robot(account, via=link, max_reconnect_delay=0.5)
+    link.cut()
+    wait_for(lambda: not explorer.connected, what="the robot cut off")
+    explorer.publish_many([("status", status(80 - i)) for i in range(5)], wait=False)
+    real = explorer.outbox._entry
+    missing = True
+
+    def entry(*args: object) -> object:
+        if missing:
+            raise FileNotFoundError(2, "No such file or directory", "blob-x.json")
+        return real(*args)
+
+    monkeypatch.setattr(explorer.outbox, "_entry", entry)
+    with bus.admin_channel() as channel:
+        channel.queue_declare(COPIES_QUEUE)
+        channel.queue_bind(COPIES_QUEUE, "explorer1.events", "#")
+        link.restore()
+        wait_for(lambda: explorer.connected, what="the robot back")
+        failures = explorer._sender._failures
+        wait_for(lambda: "could not read the events" in (explorer.last_error or ""), what="the error")
+        time.sleep(2)
+        assert explorer.connected and explorer._sender._failures == failures, "no reconnect"
+        assert bus.ready_messages(COPIES_QUEUE) == 0 and explorer.outbox.pending() == 5
+        missing = False
+        assert explorer.flush(10)
+        assert bus.ready_messages(COPIES_QUEUE) == 5 and explorer.last_error is None
