@@ -458,8 +458,12 @@ class RobotClient:
         publish and call the services; :meth:`close` ends a listener on another thread quietly
         (within :data:`STOP_CHECK_S` when it waits with ``stop``).
 
-        Each notification is acked when the caller asks for the next one or stops iterating, so
-        one that was being handled when the robot process died is delivered again. The service
+        Each notification is acked when the caller asks for the next one or leaves the loop,
+        however it leaves it: ``break``, ``return`` and an exception raised while handling it
+        alike (Python closes a generator the same way for each, and does not tell it why), so a
+        notification whose handling raised is acked and not delivered again; robot code that
+        must not lose one catches its own errors inside the loop. One that was being handled
+        when the robot process died is delivered again. The service
         sends at least once (it announces again when it cannot be sure a broker took the first
         announcement); a notification that tells this client nothing new (a copy of one it handed
         out, or one older than what it learned since) is acked and skipped. One it cannot read (a

@@ -15,7 +15,7 @@ from fleetbus.workers.coordination import HazardCoordinator
 from fleetbus.workers.store.hazards import HazardState
 from fleetbus_dev.worker_thread import WorkerThread
 from tests.factories import hazard
-from tests.support import Bus, notifications_until, wait_for
+from tests.support import Bus, notifications_until, read_inbox, wait_for
 from tests.test_team import states
 
 
@@ -187,6 +187,22 @@ def test_a_listener_thread_and_service_calls_on_another_each_use_a_connection_of
         listener.join(timeout=10)
         assert not listener.is_alive(), "close() ends the listener"
         assert not failed, failed
+
+
+def test_a_notification_whose_handler_raised_is_acked_as_documented(bus: Bus) -> None:
+    """Python closes the generator alike for ``break`` and for an exception in the loop's body:
+    the notification being handled is acked either way (the guide says so, and how to keep it)."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    account = bus.add("warden1", kind=RobotKind.WARDEN)
+    warden = bus.robot(account)
+    with bus.worker():
+        warden.publish("localisation", {"localised": True})
+        assert list(warden.notifications(timeout=0.5)) == []  # the resync done: the inbox next
+        explorer.publish("hazard", hazard(0))
+        with pytest.raises(RuntimeError):
+            for _ in warden.notifications(timeout=30):
+                raise RuntimeError("the handler failed")
+        assert read_inbox(account.amqp_url, "warden1", until=lambda _: True, timeout=1.0) == []
 
 
 def test_an_announcement_that_cannot_be_finished_stops_the_worker_and_comes_again(
