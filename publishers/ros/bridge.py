@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import IO, Any, BinaryIO
+from typing import IO, Any
 
 import pika.exceptions
 
@@ -42,6 +42,7 @@ from fleetbus.publishers.ros.counters import Counters, DropReason, RateLimit
 from fleetbus.publishers.ros.held import HeldQueue
 from fleetbus.publishers.ros.mapping import Mapping, Rule
 from fleetbus.publishers.ros.parts import supervised
+from fleetbus.publishers.ros.side_log import BoundedLog, copy_lines
 from fleetbus.schemas.bodies import RosChunk
 from fleetbus.schemas.envelope import validate_body
 from fleetbus.schemas.ros import BLOB_FROM, TRUNCATED_KEY, byte_arrays, schema_key, to_blobs, with_raw
@@ -59,10 +60,13 @@ END_READ_S = 5.0
 #: The ROS topics notifications are published on start with this.
 NOTIFY_PREFIX = "/fleetbus"
 STATUS_FILE = "ros-bridge.json"
+ROS_LOG_FILE = "ros-side.log"
+#: Where the lines the ROS side's log could not take are counted, as a topic.
+ROS_LOG_TOPIC = f"({ROS_LOG_FILE})"
 ROS1_DEFINITION = "ros1msg"
 """A live connection's definition: ROS 1's message definition text (MCAP's schema encoding)."""
 #: The parts of the bridge, as ``fleetbus ros status`` names them (:mod:`.parts`).
-ROS_SIDE_PART, WRITER_PART = "ros-side", "writer"
+ROS_SIDE_PART, WRITER_PART, ROS_LOG_PART = "ros-side", "writer", "ros-log"
 NOTIFICATIONS_PART, COMMANDS_PART = "notifications", "commands"
 
 Item = tuple[EventType, Any]
@@ -133,6 +137,8 @@ class BridgeOptions:
     status_every_s: float = 10.0
     linger_s: float = 0.25
     """How long the bridge gathers messages into one outbox write (``FLEETBUS_ROS_LINGER_S``)."""
+    log_max_bytes: int = 10 * 1024 * 1024
+    """The ROS side's log's size at most, and its older file's (``FLEETBUS_ROS_LOG_MAX_BYTES``)."""
     ready_timeout_s: float = 30.0
     ros_env: dict[str, str] | None = None
     """The ROS side's environment (default: this process's, with its ``ROS_MASTER_URI``)."""
@@ -184,7 +190,9 @@ class Bridge:
         self.options = options
         self.counters = Counters()
         self.status_file = robot_folder(state_dir, robot.robot_id) / STATUS_FILE
-        self.ros_log = robot_folder(state_dir, robot.robot_id) / "ros-side.log"
+        self.ros_log = robot_folder(state_dir, robot.robot_id) / ROS_LOG_FILE
+        self._side_log = BoundedLog(self.ros_log, options.log_max_bytes)
+        self._log_copy: threading.Thread | None = None
         self._queue: HeldQueue[dict[str, Any]] = HeldQueue(options.queue, options.queue_bytes)
         self._rate = RateLimit(options.max_rate_hz)
         self._stop = threading.Event()
@@ -203,22 +211,20 @@ class Bridge:
         self._schema_keys: dict[tuple[str, str], str] = {}
 
     # the ROS side
-    def _ros_log_file(self) -> BinaryIO:
-        """The ROS side's log, 0600 (one an older version made wider is narrowed)."""
-        descriptor = os.open(self.ros_log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
-        os.fchmod(descriptor, 0o600)
-        return os.fdopen(descriptor, "ab")
-
     def start_ros_side(self) -> None:
         """Start the ROS side and wait until it runs; RosSideError (it is ended) when it does not."""
         started, ended = threading.Event(), threading.Event()
         self._side_failure = None
         try:
+            self._side_log.open()  # there, 0600, from the first start
+        except OSError as error:  # its lines are counted as dropped: no reason not to record
+            log.warning("cannot open %s: %s", self.ros_log, error)
+        try:
             process = subprocess.Popen(
                 self.options.ros_side_command([rule.topic for rule in self.mapping.rules]),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
-                stderr=self._ros_log_file(),
+                stderr=subprocess.PIPE,
                 env=self.options.ros_env,
                 bufsize=1 << 16,
             )
@@ -226,6 +232,7 @@ class Bridge:
             raise RosSideError(
                 f"cannot start the ROS side with {self.options.python!r} (FLEETBUS_ROS_PYTHON): {error}"
             ) from None
+        self._log_copy = self._copy_log(process)
         with self._stdin_lock:  # before any newer message, so that the newest stays latched
             self._process, self._ended = process, ended
             self._write_to_ros(process, list(self._latched.values()))
@@ -241,6 +248,20 @@ class Bridge:
                     f"see {self.ros_log}"
                 )
         self.counters.parts.started(ROS_SIDE_PART)
+
+    def _copy_log(self, process: subprocess.Popen[bytes]) -> threading.Thread:
+        """The ROS side's stderr into its bounded log until it ends, as a part of its own: started
+        again should it fail, as a ROS side whose pipe is not read would block once it is full."""
+        assert process.stderr is not None
+        stream, ended = process.stderr, threading.Event()
+
+        def copy() -> None:
+            copy_lines(
+                stream, self._side_log, lambda: self.counters.drop(ROS_LOG_TOPIC, DropReason.LOG_FAILED)
+            )
+            ended.set()
+
+        return supervised(ROS_LOG_PART, copy, self.counters.parts, ended)
 
     def _read(self, stream: IO[bytes], started: threading.Event, ended: threading.Event) -> None:
         """Every line of the ROS side, until its output ends: then ``ended`` (the bridge starts it
@@ -472,6 +493,7 @@ class Bridge:
                 thread.join(10)
             self.counters.parts.stopped(ROS_SIDE_PART)
             self.counters.parts.stopped(WRITER_PART)
+            self._side_log.close()
             self.report()
         return code
 
@@ -579,5 +601,7 @@ class Bridge:
         except subprocess.TimeoutExpired:
             process.kill()
             code = process.wait()
+        if self._log_copy is not None:  # its last lines in the file before its end is reported
+            self._log_copy.join(END_READ_S)
         self.counters.ros_side = f"ended ({code})"
         return code

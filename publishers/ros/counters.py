@@ -32,6 +32,8 @@ class DropReason:
     """The outbox could not be written (its error is in the status's parts) until the bridge stopped."""
     ROS_SIDE_GONE = "ros-side-gone"
     """A notification or command for ROS came while the ROS side was down (restarting)."""
+    LOG_FAILED = "log-write-failed"
+    """A line of the ROS side's log (its stderr) could not be written to ``ros-side.log`` (a full disk)."""
 
 
 @dataclass

@@ -215,6 +215,12 @@ class Settings(BaseSettings):
     ros_status_every_s: Annotated[float, Positive] = setting(
         10.0, "how often the ROS bridge logs its counts and rewrites its status file"
     )
+    ros_log_max_bytes: Annotated[int, Field(ge=1024)] = setting(
+        10 * 1024 * 1024,
+        "the size of the ROS bridge's ROS side log (`ros-side.log` in the robot's folder: what the ROS "
+        "side writes on stderr, rospy's warnings, why it ended at each restart) at most, 1024 at least; then "
+        "it becomes `ros-side.log.1`, replacing the one before: at most twice this on disk",
+    )
     battery_low_percent: float = setting(20.0, "a status below it warns the operators")
     late_after_s: float = setting(
         LATE_AFTER_S,

@@ -4,12 +4,16 @@ it; every failure retried and shown in ``fleetbus ros status``."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
+import re
 import signal
+import stat
 import subprocess
 import sys
+import xmlrpc.client
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +21,7 @@ import pika
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings
-from fleetbus.publishers.ros.bridge import ROS_SIDE
+from fleetbus.publishers.ros.bridge import ROS_LOG_TOPIC, ROS_SIDE
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from tests.ros.conftest import ROS_PYTHON, RosMaster, ros_peer, running_bridge
@@ -137,6 +141,7 @@ def test_a_late_master_and_a_restarted_master_lose_nothing(bus: Bus, ros_master:
         shown = json.loads(status.stdout)
         assert {name: part["state"] for name, part in shown["parts"].items()} == {
             "ros-side": "running",
+            "ros-log": "running",
             "writer": "running",
             "notifications": "running",
             "commands": "running",
@@ -183,6 +188,55 @@ def test_a_ros_side_whose_node_is_shut_down_from_outside_is_started_again(
         assert "(ros side)" not in shown["topics"], "rospy's print of the request kept out of the lines"
     assert bridge.counters.ros_side == "ended (0)", "the bridge's own stop is no failure of its ROS side"
     assert bridge.counters.parts.snapshot()["ros-side"]["restarts"] == 1
+
+
+def shut_down(master: RosMaster, node: str, reason: str) -> None:
+    """What `rosnode kill` does, with a reason of our own: the node's XML-RPC ``shutdown`` call
+    (the ROS side's rospy prints ``shutdown request: <reason>`` to its log)."""
+    code, _, uri = xmlrpc.client.ServerProxy(master.uri).lookupNode("/test", node)
+    assert code == 1, f"{node} is not registered: {uri}"
+    with contextlib.suppress(ConnectionError):  # it may end before it answers: its log says it did
+        xmlrpc.client.ServerProxy(uri).shutdown("/test", reason)
+
+
+def new_bridge_node(master: RosMaster, gone: set[str]) -> str | None:
+    listed = subprocess.run(["rosnode", "list"], env=master.env, capture_output=True, text=True, timeout=60)
+    return next(
+        (n for n in listed.stdout.split() if n.startswith("/fleetbus_bridge") and n not in gone), None
+    )
+
+
+def shut_down_the_side(bridge: Any, master: RosMaster, gone: set[str], n: int, restarted: bool) -> None:
+    """Shut down the running ROS side's node (not one in ``gone``: it is added), as the ``n``-th
+    time; wait for its line in the log and, if ``restarted``, for the next ROS side."""
+    node = wait_for(lambda: new_bridge_node(master, gone), 30, f"ROS side {n}'s node listed")
+    shut_down(master, node, f"shutdown {n} of the test")
+    gone.add(node)
+    wait_for(lambda: f"shutdown {n} of the test" in bridge.ros_log.read_text(), 30, f"shutdown {n} logged")
+    if restarted:
+        wait_for(lambda: bridge.counters.parts.snapshot()["ros-side"]["restarts"] == n, 60, "restarted")
+
+
+def test_the_ros_side_log_keeps_its_newest_lines_within_its_bound(bus: Bus, ros_master: RosMaster) -> None:
+    """Shut down from outside again and again, the ROS side writes more to its log than the
+    bound: the log and its older file each stay within it, 0600, and hold the newest lines."""
+    robot = bus.robot(bus.add("rosres3", kind=RobotKind.EXPLORER))
+    bound, shutdowns = 100, 5  # a line is "shutdown request: shutdown N of the test\n", 41 bytes
+    with running_bridge(robot, ros_master, bus.settings.robots_dir, log_max_bytes=bound) as bridge:
+        log, older = bridge.ros_log, bridge.ros_log.with_name("ros-side.log.1")
+        gone: set[str] = set()
+        for n in range(1, shutdowns + 1):
+            shut_down_the_side(bridge, ros_master, gone, n, restarted=n < shutdowns)
+        sizes = {path.name: path.stat().st_size for path in (older, log) if path.exists()}
+        assert len(sizes) == 2 and max(sizes.values()) <= bound, f"over {bound} bytes: {sizes}"
+        files = {path: path.read_bytes() for path in (older, log)}
+        assert {path.name: stat.S_IMODE(path.stat().st_mode) for path in files} == {
+            "ros-side.log.1": 0o600,
+            "ros-side.log": 0o600,
+        }
+        kept = [int(m) for m in re.findall(rb"shutdown (\d+) of the test", b"".join(files.values()))]
+        assert kept == list(range(shutdowns - len(kept) + 1, shutdowns + 1)) and len(kept) >= 2, files
+        assert ROS_LOG_TOPIC not in bridge.counters.snapshot()["topics"], "no line of the log dropped"
 
 
 def test_without_a_master_the_ros_side_ends_when_the_bridge_stops_or_is_killed(

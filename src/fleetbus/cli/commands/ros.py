@@ -58,6 +58,7 @@ def bridge(
         blob_max=config.ros_blob_max_bytes,
         status_every_s=config.ros_status_every_s,
         linger_s=config.ros_linger_s,
+        log_max_bytes=config.ros_log_max_bytes,
     )
     amqp_url = robot_url(robot, url)
     launch = BridgeLaunch(
