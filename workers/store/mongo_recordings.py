@@ -257,7 +257,7 @@ class MongoRecordingStore(MongoStore, RecordingStore):
         await collection.create_index([("mission_id", ASCENDING), ("recorded_at_us", ASCENDING)])
         self._indexed.add(type)
 
-    async def write_recorded(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
+    async def _write_records(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
         by_type: dict[str, list[int]] = {}
         for index, record in enumerate(records):
             by_type.setdefault(record.type, []).append(index)
@@ -416,7 +416,7 @@ class MongoRecordingStore(MongoStore, RecordingStore):
             for row in rows
         ]
 
-    async def delete_recorded_before(self, type: str, before: datetime) -> int:
+    async def _delete_records_before(self, type: str, before: datetime) -> int:
         result = await self._recorded(type).delete_many({"recorded_at_us": {"$lt": to_micros(before)}})
         return result.deleted_count
 
@@ -429,7 +429,7 @@ class MongoRecordingStore(MongoStore, RecordingStore):
         )
         return [(doc["_id"], doc.get("size", 0)) async for doc in cursor]
 
-    async def delete_recorded(self, type: str, keys: Sequence[str]) -> int:
+    async def _delete_records(self, type: str, keys: Sequence[str]) -> int:
         if not keys:
             return 0
         result = await self._recorded(type).delete_many({"_id": {"$in": list(keys)}})
@@ -440,4 +440,11 @@ class MongoRecordingStore(MongoStore, RecordingStore):
         for type in await self.recorded_types():
             stats = await self._database().command("collStats", collection_name(type))
             total += int(stats.get("storageSize", 0)) + int(stats.get("totalIndexSize", 0))
-        return total
+        return total + await self._blob_bytes()
+
+    async def _blob_bytes(self) -> int:
+        """The blobs' bytes, as GridFS notes each file's length (the chunks' storage size lags:
+        the server updates it at its checkpoints)."""
+        pipeline = [{"$group": {"_id": None, "bytes": {"$sum": "$length"}}}]
+        rows = [row async for row in await self._database()[f"{BLOB_BUCKET}.files"].aggregate(pipeline)]
+        return int(rows[0]["bytes"]) if rows else 0

@@ -23,6 +23,7 @@ from datetime import datetime
 from enum import Enum
 from typing import Any, Union
 
+from fleetbus.schemas.ros import BLOB_KEY, byte_arrays
 from fleetbus.workers.store.base import WriteResult
 from fleetbus.workers.store.port import (
     INTEGER,
@@ -261,6 +262,23 @@ PIECES = Schema(
 )
 """The pieces of large ROS byte arrays (``ros_chunk``) waiting in the blob store for the message
 that names them, by their name there, from when: those whose message never came are swept."""
+BLOB_REFS = Schema(
+    "recording_blob_refs",
+    {"type": TEXT, "key": TEXT, "digest": TEXT, "recorded_at": TIME},
+    key=("type", "key", "digest"),
+    indexes=(Index("digest"), Index("type", "recorded_at")),
+)
+"""Which record names which blob: retention deletes a blob with the last record naming it (the
+same bytes are kept once, and may be named by records of other types or times)."""
+#: References a deletion reads and forgets in one step.
+REFS_BATCH = 500
+
+
+def blobs_named(record: RecordedMessage) -> set[str]:
+    """The digests of the blobs a record's document names (``{"_blob": sha256, ...}``)."""
+    if not isinstance(record.document, dict):
+        return set()
+    return {str(found[BLOB_KEY]) for found in byte_arrays(record.document, BLOB_KEY)}
 
 
 class Bookkeeping:
@@ -272,6 +290,7 @@ class Bookkeeping:
         self._samples = database.collection(SAMPLES)
         self._indexes = database.collection(FIELD_INDEXES)
         self._pieces = database.collection(PIECES)
+        self._refs = database.collection(BLOB_REFS)
 
     async def add_sample(self, sample: StorageSample) -> None:
         await self._samples.insert([sample.__dict__])
@@ -316,6 +335,35 @@ class Bookkeeping:
         found = await self._pieces.find(where, order=["staged_at", "name"], limit=limit)
         return [(doc["name"], doc["robot_id"]) for doc in found]
 
+    async def blobs_referenced(self, records: Sequence[RecordedMessage]) -> None:
+        """Note the blobs each record names (before the records are written: a record stored is
+        never without its references)."""
+        refs = [
+            {"type": record.type, "key": record.key, "digest": digest, "recorded_at": record.recorded_at}
+            for record in records
+            for digest in sorted(blobs_named(record))
+        ]
+        if refs:
+            await self._refs.insert(refs)
+
+    async def refs_of(self, type: str, keys: Sequence[str]) -> list[dict[str, Any]]:
+        found: list[dict[str, Any]] = []
+        for start in range(0, len(keys), REFS_BATCH):
+            found += await self._refs.find({"type": type, "key": In(list(keys[start : start + REFS_BATCH]))})
+        return found
+
+    async def refs_before(self, type: str, before: datetime, limit: int) -> list[dict[str, Any]]:
+        where = {"type": type, "recorded_at": Range(lt=before)}
+        return await self._refs.find(where, order=["recorded_at", "key"], limit=limit)
+
+    async def release(self, type: str, refs: Sequence[dict[str, Any]]) -> list[str]:
+        """Forget ``refs`` (of records of ``type`` deleted); the digests no record names any more."""
+        keys = sorted({ref["key"] for ref in refs})
+        for start in range(0, len(keys), REFS_BATCH):
+            await self._refs.delete({"type": type, "key": In(keys[start : start + REFS_BATCH])})
+        digests = sorted({ref["digest"] for ref in refs})
+        return [digest for digest in digests if not await self._refs.find({"digest": digest}, limit=1)]
+
     async def field_indexes(self, type: str) -> list[tuple[str, ...]]:
         return sorted(tuple(index["paths"]) for index in await self._indexes.find({"type": type}))
 
@@ -333,7 +381,6 @@ class RecordingStore(abc.ABC):
     @abc.abstractmethod
     async def close(self) -> None: ...
 
-    @abc.abstractmethod
     async def write_recorded(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
         """Store a batch durably (one collection per type, made on first sight), skipping known keys.
 
@@ -341,6 +388,12 @@ class RecordingStore(abc.ABC):
         document is stored with its body raw and a ``problem`` saying so, never dropped.
         Raises :class:`~workers.store.base.StoreUnavailable` when the database cannot be reached.
         """
+        await self.bookkeeping.blobs_referenced(records)
+        return await self._write_records(records)
+
+    @abc.abstractmethod
+    async def _write_records(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
+        """:meth:`write_recorded` in the database, the blobs' references noted already."""
 
     @abc.abstractmethod
     async def find_recorded(self, query: RecordQuery) -> list[RecordedMessage]:
@@ -389,21 +442,41 @@ class RecordingStore(abc.ABC):
         """Per name: successes (``success`` is true), failures, and mean and standard deviation of
         ``duration`` over records with a string name and a numeric duration, by name."""
 
-    # retention
+    # retention: a record goes with the blobs no other record names
+    async def delete_recorded_before(self, type: str, before: datetime) -> int:
+        deleted = await self._delete_records_before(type, before)
+        # the references go after their records (a crash between leaves them for the next sweep)
+        while batch := await self.bookkeeping.refs_before(type, before, REFS_BATCH):
+            refs = await self.bookkeeping.refs_of(type, sorted({ref["key"] for ref in batch}))
+            await self._forget_blobs(type, refs)
+        return deleted
+
     @abc.abstractmethod
-    async def delete_recorded_before(self, type: str, before: datetime) -> int: ...
+    async def _delete_records_before(self, type: str, before: datetime) -> int: ...
 
     @abc.abstractmethod
     async def oldest_recorded(self, type: str, limit: int) -> list[tuple[str, int]]:
         """``(key, size)`` of the oldest records of a type."""
 
+    async def delete_recorded(self, type: str, keys: Sequence[str]) -> int:
+        refs = await self.bookkeeping.refs_of(type, keys)
+        deleted = await self._delete_records(type, keys)
+        await self._forget_blobs(type, refs)
+        return deleted
+
     @abc.abstractmethod
-    async def delete_recorded(self, type: str, keys: Sequence[str]) -> int: ...
+    async def _delete_records(self, type: str, keys: Sequence[str]) -> int: ...
+
+    async def _forget_blobs(self, type: str, refs: Sequence[dict[str, Any]]) -> None:
+        orphans = await self.bookkeeping.release(type, refs)
+        if orphans:
+            await self.delete_blobs(orphans)
 
     # statistics
     @abc.abstractmethod
     async def database_bytes(self) -> int:
-        """What the recording takes in the database now (files on disk, or data and indexes)."""
+        """What the recording takes in the database now (files on disk, or data and indexes),
+        its blobs included."""
 
     async def add_sample(self, sample: StorageSample) -> None:
         await self.bookkeeping.add_sample(sample)

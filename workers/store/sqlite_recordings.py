@@ -234,6 +234,18 @@ def _record(type: str, row: sqlite3.Row) -> RecordedMessage:
     )
 
 
+def folder_bytes(folder: Path) -> int:
+    """The bytes of the files under ``folder`` (none when there is none)."""
+    total = 0
+    for parent, _, names in os.walk(folder):
+        for name in names:
+            try:
+                total += (Path(parent) / name).stat().st_size
+            except FileNotFoundError:  # deleted meanwhile
+                pass
+    return total
+
+
 def _sqrt(value: float | None) -> float | None:
     return None if value is None else math.sqrt(max(0.0, value))
 
@@ -266,7 +278,7 @@ class SQLiteRecordingStore(SQLiteStore, RecordingStore):
         ).fetchone()
         return row is not None
 
-    async def write_recorded(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
+    async def _write_records(self, records: Sequence[RecordedMessage]) -> list[WriteResult]:
         rows = [(record.type, _row(record)) for record in records]
         types = sorted({type for type, _ in rows})
         placeholders = ",".join("?" * len(COLUMNS))
@@ -378,7 +390,7 @@ class SQLiteRecordingStore(SQLiteStore, RecordingStore):
 
         return await self._run(compute)
 
-    async def delete_recorded_before(self, type: str, before: datetime) -> int:
+    async def _delete_records_before(self, type: str, before: datetime) -> int:
         def delete(db: sqlite3.Connection) -> int:
             if not self._exists(db, type):
                 return 0
@@ -404,7 +416,7 @@ class SQLiteRecordingStore(SQLiteStore, RecordingStore):
 
         return await self._run(oldest)
 
-    async def delete_recorded(self, type: str, keys: Sequence[str]) -> int:
+    async def _delete_records(self, type: str, keys: Sequence[str]) -> int:
         keys = list(keys)
 
         def delete(db: sqlite3.Connection) -> int:
@@ -476,4 +488,5 @@ class SQLiteRecordingStore(SQLiteStore, RecordingStore):
 
     async def database_bytes(self) -> int:
         files = (self.path, self.path.with_name(self.path.name + "-wal"))
-        return await self._run(lambda db: sum(path.stat().st_size for path in files if path.exists()))
+        database = await self._run(lambda db: sum(path.stat().st_size for path in files if path.exists()))
+        return database + await asyncio.to_thread(folder_bytes, self.blob_folder())
