@@ -119,11 +119,14 @@ async def open_service(
     to_sites.start()
     sessions = Sessions(repositories.sessions, secrets_.tokens, settings.api_sessions_per_user)
     vhost = vhost_of(admin_url)
+    sites = Sites(repositories.sites, repositories.missions, admin_url, settings.uplink_alert_at)
     alerts = alerts_for(
         settings,
         repositories,
         lambda: asyncio.to_thread(dead_letters_waiting, management, vhost),
         lambda: asyncio.to_thread(connections_by_user, management, vhost),
+        # the reports wait in the broker until read: with no dashboard open, the alerts read them
+        sites.collect,
     )
     checking = asyncio.create_task(
         alerts.keep_checking(settings.alerts_check_s, settings.alerts_hazard_check_s), name="alerts-check"
@@ -157,7 +160,7 @@ async def open_service(
             events=StoredEvents(repositories.events),
             mission_events=MissionEvents(missions, repositories.events),
             hazards=Hazards(repositories.hazards, repositories.events),
-            sites=Sites(repositories.sites, repositories.missions, admin_url, settings.uplink_alert_at),
+            sites=sites,
             ledger=Ledger(repositories.events),
             maps=Maps(repositories.maps),
             beacons=Beacons(repositories.beacons, repositories.events),

@@ -39,6 +39,7 @@ from fleetbus.schemas.routing import (
     RECORDER_QUEUE,
     RPC_QUEUE,
     SITE_HAZARDS_QUEUE,
+    SITE_REPORTS_QUEUE,
     UPLINK_QUEUE,
 )
 
@@ -128,6 +129,14 @@ def bound_policies(
             cluster,
         ),
     ]
+
+
+def central_policies(site_reports: QueueLimit) -> list[QueuePolicy]:
+    """Central's queues of the sites: the reports wait in ``fleetbus.site-reports`` until someone
+    reads them (a dashboard, ``fleetbus sites``, the API's alerts); central keeps each site's
+    newest, so a full queue drops (and counts) the oldest. Set on a site too, where no queue
+    matches."""
+    return [QueuePolicy("fleetbus-site-reports", _exactly(SITE_REPORTS_QUEUE), _bounded(site_reports))]
 
 
 def delivery_policies(version: str, cluster: bool = False) -> list[QueuePolicy]:

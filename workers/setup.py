@@ -19,7 +19,7 @@ from fleetbus.bounds import bounds
 from fleetbus.broker.accounts import vhost_of
 from fleetbus.broker.endpoint import BrokerEndpoint
 from fleetbus.broker.management import ManagementAPI
-from fleetbus.broker.policies import apply_policies, bound_policies, delivery_policies
+from fleetbus.broker.policies import apply_policies, bound_policies, central_policies, delivery_policies
 from fleetbus.broker.topology import core_topology, declare_with_url, recorder_topology
 from fleetbus.settings import Settings
 from fleetbus.workers.recorder.runner import recorder_url
@@ -61,5 +61,6 @@ def set_queue_bounds(settings: Settings, admin: BrokerEndpoint) -> None:
             [
                 *bound_policies(limits.inbox, limits.dead_letters, version, settings.cluster),
                 *delivery_policies(version, settings.cluster),
+                *central_policies(limits.site_reports),
             ],
         )

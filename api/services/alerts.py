@@ -73,6 +73,8 @@ GROWING = frozenset({AlertKind.DEAD_LETTERS.value})
 DeadLetterCount = Callable[[], Awaitable[int]]
 #: The open connections on the service's virtual host, by broker user (one management API call).
 ConnectionCount = Callable[[], Awaitable[Mapping[str, int]]]
+#: Takes the sites' reports waiting in central's broker into the store (how many).
+ReportCollector = Callable[[], Awaitable[int]]
 
 
 #: The kinds a hazards-only check looks at.
@@ -128,6 +130,7 @@ class Alerts:
         dead_letters: DeadLetterCount | None = None,
         shown: int = 50,
         connections: ConnectionCount | None = None,
+        collect_reports: ReportCollector | None = None,
     ) -> None:
         self._alerts = alerts
         self._team = team
@@ -139,6 +142,8 @@ class Alerts:
         self.shown = shown
         """How many acknowledged alerts :meth:`listing` gives."""
         self._connections = connections
+        self._collect_reports = collect_reports
+        """Without it the stored reports are read as they are (someone else takes them in)."""
         self._connected_at: dict[str, datetime] | None = None
         """When each robot was last seen with a broker connection (kept by this process: a robot
         never seen connected raises no alert); None until the first look, which begins it from the
@@ -152,8 +157,12 @@ class Alerts:
         if hazards_only:
             return await self._hazard_conditions(now), {kind.value for kind in AlertKind} - HAZARD_KINDS
         found = [*await self._hazard_conditions(now), *await self._robot_conditions(now)]
-        found += await self._uplink_conditions()
         unknown: set[str] = set()
+        uplinks = await self._uplink_conditions()
+        if uplinks is None:
+            unknown.add(AlertKind.UPLINK_NEAR_FULL.value)
+        else:
+            found += uplinks
         if self._dead_letters is not None:
             try:
                 waiting = await self._dead_letters()
@@ -248,7 +257,16 @@ class Alerts:
                 found.append(NewAlert(kind, f"robot {name}", status.sent_at, detail, percent))
         return found
 
-    async def _uplink_conditions(self) -> list[NewAlert]:
+    async def _uplink_conditions(self) -> list[NewAlert] | None:
+        """The sites whose newest report says an uplink class is near full; None when the reports
+        waiting in the broker could not be taken in (the stored ones may be old: nothing raised,
+        nothing ended)."""
+        if self._collect_reports is not None:
+            try:
+                await self._collect_reports()
+            except Exception as error:  # the broker is away: the open alerts stay as they were
+                log.warning("alerts: the sites' reports could not be taken in: %s", error)
+                return None
         found = []
         for site, report in sorted((await self._sites.reports()).items()):
             full = near_full(report, self.thresholds.uplink_alert_at)
@@ -331,6 +349,7 @@ def alerts_for(
     repositories: Repositories,
     dead_letters: DeadLetterCount | None,
     connections: ConnectionCount | None = None,
+    collect_reports: ReportCollector | None = None,
 ) -> Alerts:
     """The alerts over the repositories, with the settings' thresholds; ``dead_letters`` counts the
     dead-letter queue, ``connections`` the broker's connections by user (None: not looked at)."""
@@ -344,4 +363,5 @@ def alerts_for(
         dead_letters,
         settings.alerts_acknowledged_shown,
         connections,
+        collect_reports,
     )

@@ -41,11 +41,15 @@ class Sites:
         """Each known site: its robots, how much it forwarded, the newest, by name."""
         return await self._sites.summaries()
 
+    async def collect(self) -> int:
+        """Take the reports waiting in the broker into the store (each site's newest is kept); how many."""
+        return await collect_site_reports(self._admin_url, self._sites, alert_at=self._alert_at)
+
     async def reports(self) -> dict[str, SiteReport]:
         """Each site's newest report, those waiting in the broker taken into the store first; the
         broker away, the stored ones (aged)."""
         try:
-            await collect_site_reports(self._admin_url, self._sites, alert_at=self._alert_at)
+            await self.collect()
         except Exception as error:  # the broker is away: the stored reports still show, aged
             log.warning("site reports not collected: %s", type(error).__name__)
         return await self._sites.reports()

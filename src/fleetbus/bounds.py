@@ -44,6 +44,8 @@ class Bounds:
     map_staging_ttl: timedelta
     dead_letters: QueueLimit
     inbox: QueueLimit
+    site_reports: QueueLimit
+    """At central, the sites' reports not read yet (each site's newest is what central keeps)."""
     field_indexes: int
     prune_every_s: float
     acknowledged_alerts: timedelta
@@ -109,6 +111,7 @@ def bounds(settings: Settings) -> Bounds:
         map_staging_ttl=parse_ttl(settings.map_staging_ttl, "FLEETBUS_MAP_STAGING_TTL"),
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),
         inbox=queue_limit(settings.inbox_max, "FLEETBUS_INBOX_MAX"),
+        site_reports=queue_limit(settings.site_reports_max, "FLEETBUS_SITE_REPORTS_MAX"),
         field_indexes=field_index_cap(settings.field_indexes_max),
         prune_every_s=settings.prune_every_s,
         acknowledged_alerts=timedelta(days=settings.alerts_keep_days),

@@ -402,6 +402,12 @@ class Settings(BaseSettings):
         "and counted (set by `fleetbus setup`)",
     )
     dead_letters_max: Words = setting(("100000", "1GB"), "the dead-letter queue's length, the same way")
+    site_reports_max: Words = setting(
+        ("10000", "100MB"),
+        "on central: the sites' reports waiting to be read (`fleetbus.site-reports`, one a site every "
+        "30 s), the same way; central keeps each site's newest, so the oldest are dropped, and counted "
+        "(set by `fleetbus setup`)",
+    )
     field_indexes_max: Annotated[int, Positive] = setting(
         DEFAULT_FIELD_INDEXES_MAX,
         "indexes the recording keeps per type for field queries, at most 50 (MongoDB allows 64 per "
