@@ -50,6 +50,10 @@ if TYPE_CHECKING:  # every process that loads the settings imports this module: 
 PRIORITY = 10
 #: Every account's inbox (account names: :data:`fleetbus.schemas.identity.NAME_PATTERN`).
 INBOX_PATTERN = r"^[a-z][a-z0-9_-]{1,31}\.inbox$"
+#: Each site's downlink queues at central (a site's name is an account's: none starts ``fleetbus``,
+#: so a site's own ``fleetbus.downlink`` is not matched).
+SITE_DOWNLINK_PATTERN = r"^(?!fleetbus)[a-z][a-z0-9_-]{1,31}\.downlink$"
+SITE_MAPS_PATTERN = r"^(?!fleetbus)[a-z][a-z0-9_-]{1,31}\.downlink\.maps$"
 #: Every robot's commands queue.
 COMMANDS_PATTERN = r"^[a-z][a-z0-9_-]{1,31}\.commands$"
 #: Deliveries of one message after which a queue the workers consume sets it aside: the ingest
@@ -131,12 +135,22 @@ def bound_policies(
     ]
 
 
-def central_policies(site_reports: QueueLimit) -> list[QueuePolicy]:
-    """Central's queues of the sites: the reports wait in ``fleetbus.site-reports`` until someone
-    reads them (a dashboard, ``fleetbus sites``, the API's alerts); central keeps each site's
-    newest, so a full queue drops (and counts) the oldest. Set on a site too, where no queue
-    matches."""
-    return [QueuePolicy("fleetbus-site-reports", _exactly(SITE_REPORTS_QUEUE), _bounded(site_reports))]
+def central_policies(
+    site_reports: QueueLimit, site_downlink: QueueLimit, site_maps: QueueLimit
+) -> list[QueuePolicy]:
+    """Central's queues of the sites, each dropping (and counting) its oldest when full. The
+    reports wait in ``fleetbus.site-reports`` until someone reads them (a dashboard, ``fleetbus
+    sites``, the API's alerts): central keeps each site's newest. A site away fills its
+    ``<site>.downlink.maps`` with every map version central stores, and needs only the newest.
+    Its ``<site>.downlink`` (accounts, removals, missions) gets a large bound: a drop there is
+    alerted on, and ``fleetbus sites sync`` sends them again (refusing instead would hold every
+    site's missions in the API behind one site that never comes back). Set on a site too, where
+    no queue matches (its own ``fleetbus.downlink`` is not a site's: no name starts ``fleetbus``)."""
+    return [
+        QueuePolicy("fleetbus-site-reports", _exactly(SITE_REPORTS_QUEUE), _bounded(site_reports)),
+        QueuePolicy("fleetbus-site-downlink", SITE_DOWNLINK_PATTERN, _bounded(site_downlink)),
+        QueuePolicy("fleetbus-site-maps", SITE_MAPS_PATTERN, _bounded(site_maps)),
+    ]
 
 
 def delivery_policies(version: str, cluster: bool = False) -> list[QueuePolicy]:

@@ -61,6 +61,6 @@ def set_queue_bounds(settings: Settings, admin: BrokerEndpoint) -> None:
             [
                 *bound_policies(limits.inbox, limits.dead_letters, version, settings.cluster),
                 *delivery_policies(version, settings.cluster),
-                *central_policies(limits.site_reports),
+                *central_policies(limits.site_reports, limits.site_downlink, limits.site_maps),
             ],
         )

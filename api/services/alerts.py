@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import re
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -27,11 +28,13 @@ from fleetbus.api.services.errors import Conflict, Forbidden, NotFound
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, EventType
 from fleetbus.settings import Settings
+from fleetbus.workers.overflow import BOUND as OVERFLOW
 from fleetbus.workers.site_status import near_full
 from fleetbus.workers.store import Repositories
 from fleetbus.workers.store.alerts import Alert, AlertStore, NewAlert
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.hazards import HazardRegistry, HazardState
+from fleetbus.workers.store.housekeeping import Housekeeping
 from fleetbus.workers.store.sites import SiteRegistry
 from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.team import team_members
@@ -52,6 +55,7 @@ class AlertKind(str, Enum):
     UPLINK_NEAR_FULL = "uplink-near-full"
     DEAD_LETTERS = "dead-letters-growing"
     ROBOT_DISCONNECTED = "robot-disconnected"
+    DOWNLINK_DROPPED = "downlink-dropped"
 
 
 #: What each kind means, as the console and ``fleetbus alerts`` say it.
@@ -66,9 +70,14 @@ MEANING = {
     "acknowledged",
     AlertKind.ROBOT_DISCONNECTED: "a robot that had a broker connection has had none for "
     "FLEETBUS_ALERTS_DISCONNECTED_S",
+    AlertKind.DOWNLINK_DROPPED: "a site's downlink queue at central (accounts, removals, missions) was "
+    "full (FLEETBUS_SITE_DOWNLINK_MAX) and dropped its oldest, more than when its last alert was "
+    "acknowledged",
 }
 #: Kinds whose condition may grow after an acknowledgement: grown, it is a new occurrence.
-GROWING = frozenset({AlertKind.DEAD_LETTERS.value})
+GROWING = frozenset({AlertKind.DEAD_LETTERS.value, AlertKind.DOWNLINK_DROPPED.value})
+#: The overflow counts of a site's downlink queue at central (``base1.downlink maxlen``).
+DOWNLINK_DROPS = re.compile(r"^(?P<site>[a-z][a-z0-9_-]{1,31})\.downlink maxlen$")
 
 DeadLetterCount = Callable[[], Awaitable[int]]
 #: The open connections on the service's virtual host, by broker user (one management API call).
@@ -131,6 +140,7 @@ class Alerts:
         shown: int = 50,
         connections: ConnectionCount | None = None,
         collect_reports: ReportCollector | None = None,
+        housekeeping: Housekeeping | None = None,
     ) -> None:
         self._alerts = alerts
         self._team = team
@@ -144,6 +154,8 @@ class Alerts:
         self._connections = connections
         self._collect_reports = collect_reports
         """Without it the stored reports are read as they are (someone else takes them in)."""
+        self._housekeeping = housekeeping
+        """The bounds' counts: what the sites' full downlink queues dropped (None: not looked at)."""
         self._connected_at: dict[str, datetime] | None = None
         """When each robot was last seen with a broker connection (kept by this process: a robot
         never seen connected raises no alert); None until the first look, which begins it from the
@@ -177,6 +189,10 @@ class Alerts:
                     found.append(NewAlert(kind, f"queue {DEAD_LETTER_QUEUE}", now, detail, waiting))
         else:
             unknown.add(AlertKind.DEAD_LETTERS.value)
+        if self._housekeeping is None:
+            unknown.add(AlertKind.DOWNLINK_DROPPED.value)
+        else:
+            found += await self._downlink_conditions()
         disconnected = await self._disconnected_conditions(now)
         if disconnected is None:
             unknown.add(AlertKind.ROBOT_DISCONNECTED.value)
@@ -277,6 +293,24 @@ class Alerts:
                 found.append(NewAlert(kind, f"site {site}", report.at, detail, share))
         return found
 
+    async def _downlink_conditions(self) -> list[NewAlert]:
+        """The sites whose downlink queue at central dropped accounts, removals or missions."""
+        assert self._housekeeping is not None
+        found = []
+        for count in await self._housekeeping.bound_counts():
+            dropped = DOWNLINK_DROPS.match(count.subject) if count.bound == OVERFLOW else None
+            if dropped is None:
+                continue
+            site = dropped["site"]
+            detail = (
+                f"{count.count:,} accounts, removals or missions dropped from {site}.downlink, full while "
+                f"the site was away (last {_clock(count.last_at)}): `fleetbus sites sync {site}` sends "
+                "them again"
+            )
+            kind = AlertKind.DOWNLINK_DROPPED.value
+            found.append(NewAlert(kind, f"site {site}", count.first_at, detail, count.count))
+        return found
+
     async def check(self, now: datetime | None = None, hazards_only: bool = False) -> list[Alert]:
         """Raise an alert for each condition that holds without one open, end those whose condition
         ended; the alerts raised. ``hazards_only``: only the hazards' alerts (a cheap look)."""
@@ -364,4 +398,5 @@ def alerts_for(
         settings.alerts_acknowledged_shown,
         connections,
         collect_reports,
+        repositories.housekeeping,
     )

@@ -46,6 +46,10 @@ class Bounds:
     inbox: QueueLimit
     site_reports: QueueLimit
     """At central, the sites' reports not read yet (each site's newest is what central keeps)."""
+    site_downlink: QueueLimit
+    """At central, each site's accounts, removals and missions waiting for it."""
+    site_maps: QueueLimit
+    """At central, each site's maps waiting for it."""
     field_indexes: int
     prune_every_s: float
     acknowledged_alerts: timedelta
@@ -112,6 +116,8 @@ def bounds(settings: Settings) -> Bounds:
         dead_letters=queue_limit(settings.dead_letters_max, "FLEETBUS_DEAD_LETTERS_MAX"),
         inbox=queue_limit(settings.inbox_max, "FLEETBUS_INBOX_MAX"),
         site_reports=queue_limit(settings.site_reports_max, "FLEETBUS_SITE_REPORTS_MAX"),
+        site_downlink=queue_limit(settings.site_downlink_max, "FLEETBUS_SITE_DOWNLINK_MAX"),
+        site_maps=queue_limit(settings.site_maps_max, "FLEETBUS_SITE_MAPS_MAX"),
         field_indexes=field_index_cap(settings.field_indexes_max),
         prune_every_s=settings.prune_every_s,
         acknowledged_alerts=timedelta(days=settings.alerts_keep_days),

@@ -408,6 +408,18 @@ class Settings(BaseSettings):
         "30 s), the same way; central keeps each site's newest, so the oldest are dropped, and counted "
         "(set by `fleetbus setup`)",
     )
+    site_downlink_max: Words = setting(
+        ("100000", "1GB"),
+        "on central: each site's queue of accounts, removals and missions (`<site>.downlink`) while the "
+        "site is away, the same way; full, the oldest are dropped, counted, and alerted on "
+        "(`downlink-dropped`: `fleetbus sites sync` sends them again) (set by `fleetbus setup`)",
+    )
+    site_maps_max: Words = setting(
+        ("1000", "1GB"),
+        "on central: each site's queue of maps (`<site>.downlink.maps`, a map's 512 KiB chunks each a "
+        "message) while the site is away, the same way; a site needs only the newest, so the oldest are "
+        "dropped, and counted (set by `fleetbus setup`)",
+    )
     field_indexes_max: Annotated[int, Positive] = setting(
         DEFAULT_FIELD_INDEXES_MAX,
         "indexes the recording keeps per type for field queries, at most 50 (MongoDB allows 64 per "

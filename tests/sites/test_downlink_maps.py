@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from dataclasses import replace
 from datetime import datetime, timezone
 
 import pytest
@@ -13,10 +14,12 @@ from fleetbus.schemas.bodies import MAP_CHUNK_BYTES
 from fleetbus.schemas.routing import DOWNLINK_QUEUE, DOWNLINK_REJECTED_QUEUE, RobotKind, site_maps_queue
 from fleetbus.schemas.site_changes import MapChange, MapChunk
 from fleetbus.workers.downlink import apply_downlink
+from fleetbus.workers.setup import set_queue_bounds
 from fleetbus.workers.sites import send_to_sites
 from tests.sites.pair import SitePair
-from tests.support import wait_for
+from tests.support import Bus, wait_for
 from tests.test_maps import TABLE2, pgm
+from tests.test_queue_bounds import bounded_by, overflow_counts
 
 
 def test_a_map_stored_at_central_is_fetched_by_a_site_robot_from_the_site(pair: SitePair) -> None:
@@ -103,3 +106,31 @@ def test_a_map_no_queue_takes_for_a_site_is_said_and_the_map_is_still_announced(
         f"map 1 of explorer9 not sent to site {pair.name}: central's broker has no maps queue "
         "bound for it (`fleetbus sites sync` makes it)"
     ]
+
+
+def held_maps(bus: Bus, queue: str) -> list[MapChange]:
+    """What ``queue`` holds, oldest first (taken, not acked: it stays)."""
+    with bus.admin_channel() as channel:
+        held = []
+        while (got := channel.basic_get(queue))[0] is not None:
+            held.append(MapChange.model_validate_json(got[2]))
+        return held
+
+
+def test_an_away_sites_maps_queue_keeps_the_newest_and_counts_the_dropped(pair: SitePair) -> None:
+    """A site away needs only the newest map: its queue at central keeps FLEETBUS_SITE_MAPS_MAX."""
+    central, maps = pair.central, site_maps_queue(pair.name)
+    central.settings = central.settings.updated(site_maps_max=("2",))
+    set_queue_bounds(
+        central.settings, replace(central.endpoint, amqp_url=central.admin_url)
+    )  # `fleetbus setup`
+    wait_for(lambda: bounded_by(central, maps, "fleetbus-site-maps"), what="the maps policy")
+    pair.stop()  # the site away: its shovels no longer take its maps
+    wait_for(lambda: central.api.get_queue(central.vhost, maps).get("consumers") == 0, what="no consumer")
+    explorer = central.robot(central.add("explorer9", kind=RobotKind.EXPLORER))
+    with central.worker():
+        sent = [explorer.publish_map(pgm(30 + n, 20), TABLE2) for n in range(4)]
+        wait_for(
+            lambda: overflow_counts(central).get(f"{maps} maxlen") == 2, what="two maps dropped, counted"
+        )
+    assert [change.seq for change in held_maps(central, maps)] == [events[-1].seq for events in sent[2:]]

@@ -4,6 +4,8 @@ message the site cannot parse is kept aside and counted, and the next one still 
 from __future__ import annotations
 
 import asyncio
+import json
+from dataclasses import replace
 from datetime import datetime, timedelta, timezone
 
 import pika
@@ -20,6 +22,7 @@ from fleetbus.schemas.routing import (
     site_maps_queue,
 )
 from fleetbus.workers.downlink import apply_downlink
+from fleetbus.workers.setup import set_queue_bounds
 from fleetbus.workers.site_status import site_view
 from fleetbus.workers.sites import mission_change, send_mission_to_sites, send_to_sites
 from fleetbus.workers.store import Repositories
@@ -27,6 +30,8 @@ from fleetbus.workers.store.missions import Mission
 from fleetbus.workers.store.users import User
 from tests.sites.pair import SitePair
 from tests.support import wait_for
+from tests.test_cli import fleetbus
+from tests.test_queue_bounds import bounded_by, overflow_counts
 
 
 def _apply(pair: SitePair) -> int:
@@ -127,3 +132,35 @@ def test_a_mission_goes_to_the_site_it_names_only_and_no_map_holds_it_back(pair:
     wait_for(lambda: pair.site.ready_messages(DOWNLINK_QUEUE) == 2, what="both down, by two shovels")
     with pair.site.admin_channel() as channel:
         channel.queue_purge(DOWNLINK_QUEUE)  # the test's map is not one to apply
+
+
+def test_an_away_sites_full_downlink_drops_its_oldest_counted_and_alerted_on(pair: SitePair) -> None:
+    """A site's accounts, removals and missions wait at central within FLEETBUS_SITE_DOWNLINK_MAX; a
+    drop there is counted and alerted on (`fleetbus sites sync` sends them again)."""
+    central, queue = pair.central, site_downlink_queue(pair.name)
+    central.settings = central.settings.updated(site_downlink_max=("2",))
+    central.service_accounts()  # `fleetbus setup`: the overflow exchange, where drops are counted
+    set_queue_bounds(
+        central.settings, replace(central.endpoint, amqp_url=central.admin_url)
+    )  # `fleetbus setup`
+    wait_for(lambda: bounded_by(central, queue, "fleetbus-site-downlink"), what="the downlink policy")
+    pair.stop()  # the site away
+    wait_for(lambda: central.api.get_queue(central.vhost, queue).get("consumers") == 0, what="no consumer")
+    now = datetime.now(timezone.utc)
+    plan = MissionPlan(site=pair.name).model_dump(mode="json")
+    missions = [
+        pair.central_store(
+            lambda repos, n=n: repos.missions.create_mission("survey", f"shaft {n}", "client1", plan, now)
+        )
+        for n in range(3)
+    ]
+    send_to_sites(central.admin_url, [pair.name], [mission_change(m) for m in missions])
+    with central.worker():
+        wait_for(
+            lambda: overflow_counts(central).get(f"{queue} maxlen") == 1, what="the oldest dropped, counted"
+        )
+    assert central.ready_messages(queue) == 2, "the newest two wait"
+    shown = fleetbus(central, "alerts", "--json")
+    assert shown.returncode == 0, shown.stderr
+    [alert] = [a for a in json.loads(shown.stdout)["unacknowledged"] if a["kind"] == "downlink-dropped"]
+    assert alert["subject"] == f"site {pair.name}" and f"fleetbus sites sync {pair.name}" in alert["detail"]

@@ -188,3 +188,29 @@ async def test_a_robot_disconnected_is_raised_after_the_threshold_and_left_as_it
     ended = await store.alerts.get_alert(still.id)
     assert ended is not None and ended.ended_at == T0 + 21 * SECOND, "connected again: ended"
     assert ended.acknowledged_by is None, "ended, it waits to be acknowledged"
+
+
+async def test_a_sites_downlink_that_dropped_accounts_or_missions_is_alerted_on_again_when_it_drops_more(
+    store: Repositories,
+) -> None:
+    thresholds = Thresholds(timedelta(seconds=60), 20.0, timedelta(seconds=60), 0.8)
+    alerts = Alerts(
+        store.alerts, store.hazards, store.hazards, store.events, store.sites, thresholds,
+        housekeeping=store.housekeeping,
+    )  # fmt: skip
+    dropped = AlertKind.DOWNLINK_DROPPED.value
+
+    def kinds(raised: list) -> list[tuple[str, str, float]]:
+        return [(a.kind, a.subject, a.level) for a in raised if a.kind == dropped]
+
+    # maps are dropped for the newest to go down: no alert for them
+    await store.housekeeping.count_bounded({("overflow", "base1.downlink.maps maxlen"): 5}, T0)
+    assert kinds(await alerts.check(T0)) == []
+    await store.housekeeping.count_bounded({("overflow", "base1.downlink maxlen"): 2}, T0)
+    [alert] = await alerts.check(T0 + SECOND)
+    assert kinds([alert]) == [(dropped, "site base1", 2)]
+    assert "fleetbus sites sync base1" in alert.detail
+    assert await alerts.check(T0 + 2 * SECOND) == [], "raised once"
+    await store.alerts.acknowledge(alert.id, "oper1", T0 + 3 * SECOND)
+    await store.housekeeping.count_bounded({("overflow", "base1.downlink maxlen"): 1}, T0 + 4 * SECOND)
+    assert kinds(await alerts.check(T0 + 5 * SECOND)) == [(dropped, "site base1", 3)], "more dropped: again"
