@@ -7,6 +7,7 @@ import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from datetime import timedelta
 
 from fleetbus.api.services.account_check import AccountCheck, account_check_for
 from fleetbus.api.services.accounts import Accounts, accounts_for
@@ -163,7 +164,11 @@ async def open_service(
             sites=sites,
             ledger=Ledger(repositories.events),
             maps=Maps(repositories.maps),
-            beacons=Beacons(repositories.beacons, repositories.events),
+            beacons=Beacons(
+                repositories.beacons,
+                repositories.events,
+                timedelta(minutes=settings.beacon_window_max_minutes),
+            ),
             recording_queries=Recording(recording, repositories.events),
             beacon_discards=BeaconDiscards(repositories.discards),
             signed_in=SignedIn(sessions, repositories.users),

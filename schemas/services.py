@@ -21,7 +21,12 @@ MISSION = {
     "description": "the mission (default: the one the caller is being recorded under, else `default`)",
 }
 HAZARD_ID = {"type": "integer", "minimum": 1, "description": "the hazard's number within its mission"}
-MINUTES = {"type": "number", "exclusiveMinimum": 0, "description": "how far back to look (default 10)"}
+MINUTES = {
+    "type": "number",
+    "exclusiveMinimum": 0,
+    "description": "how far back to look (default 10; at most FLEETBUS_BEACON_WINDOW_MAX_MINUTES, 60 "
+    "by default)",
+}
 BEACON_ID = {"type": "string", "minLength": 1}
 TIME = {"type": ["string", "null"], "format": "date-time"}
 

@@ -65,6 +65,24 @@ def test_sightings_stranded_people_and_the_guides_goal(bus: Bus, tmp_path: Path)
             guide.beacon_info("b7")
 
 
+def test_a_look_further_back_than_the_bound_is_refused_naming_it(bus: Bus) -> None:
+    """Each sighting in the window is read into memory: the window is bounded, the same through the
+    robot client's services and the command line."""
+    bus.settings = bus.settings.updated(beacon_window_max_minutes=30.0)
+    bounded = {"FLEETBUS_BEACON_WINDOW_MAX_MINUTES": "30"}
+    refusal = r"looked at 30 minutes back at most \(FLEETBUS_BEACON_WINDOW_MAX_MINUTES\), not "
+    guide = bus.robot(bus.add("guide1", kind=RobotKind.GUIDE))
+    with bus.worker():
+        assert guide.stranded(minutes=30) == [] and guide.beacon_goal(minutes=30) is None
+        with pytest.raises(ServiceRefused, match=refusal + "31"):
+            guide.stranded(minutes=31)
+        with pytest.raises(ServiceRefused, match=refusal + "10,000,000$"):
+            guide.beacon_goal(minutes=10_000_000)
+    listed = fleetbus(bus, "beacons", "stranded", "--since", "2h", env=bounded)
+    assert listed.returncode != 0 and "30 minutes back at most" in " ".join(listed.stderr.split())
+    assert fleetbus(bus, "beacons", "stranded", "--since", "20m", env=bounded).returncode == 0
+
+
 def test_sighting_from_an_unknown_robot_is_dead_lettered(bus: Bus) -> None:
     # a broker account the team's registry does not know
     stranger = asyncio.run(provision_account(bus.admin_url, bus.api, "stranger1", Role.ROBOT))

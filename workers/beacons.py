@@ -7,6 +7,7 @@ stranded, and the guide's goal is the one first heard among those not visited ye
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
 from typing import Any
@@ -19,6 +20,18 @@ from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.validation import Accepted, Rejected, RejectReason
 
 DEFAULT_WINDOW = timedelta(minutes=10)
+#: How far back a look at the beacons may go (``FLEETBUS_BEACON_WINDOW_MAX_MINUTES``): each
+#: sighting in the window is read into memory.
+DEFAULT_MAX_WINDOW = timedelta(minutes=60)
+
+
+def window_refusal(window: timedelta, limit: timedelta) -> str | None:
+    """Why a look ``window`` back at the beacons is refused (it goes further than ``limit``), or None."""
+    if window <= limit:
+        return None
+    asked, most = (f"{d.total_seconds() / 60:,.1f}".removesuffix(".0") for d in (window, limit))
+    setting = "FLEETBUS_BEACON_WINDOW_MAX_MINUTES"
+    return f"the beacons are looked at {most} minutes back at most ({setting}), not {asked}"
 
 
 class KnownRobotsOnly:
@@ -71,11 +84,15 @@ async def stranded(beacons: BeaconRegistry, events: EventStore, since: datetime)
     return list(seen.values())
 
 
-def beacon_services(beacons: BeaconRegistry, events: EventStore) -> dict[str, Handler]:
+def beacon_services(
+    beacons: BeaconRegistry, events: EventStore, max_window: timedelta = DEFAULT_MAX_WINDOW
+) -> dict[str, Handler]:
     def window(params: dict[str, Any]) -> datetime:
         minutes = params.get("minutes", DEFAULT_WINDOW.total_seconds() / 60)
-        if not isinstance(minutes, (int, float)) or minutes <= 0:
+        if isinstance(minutes, bool) or not isinstance(minutes, (int, float)) or not 0 < minutes < math.inf:
             raise ServiceError(f"minutes must be a positive number, not {minutes!r}")
+        if refusal := window_refusal(timedelta(minutes=minutes), max_window):
+            raise ServiceError(refusal)
         return datetime.now(timezone.utc) - timedelta(minutes=minutes)
 
     def beacon_id(params: dict[str, Any]) -> str:

@@ -267,7 +267,11 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
         await rpc_channel.get_queue(RPC_QUEUE),
         {
             **hazard_services(repositories.hazards, repositories.channels),
-            **beacon_services(repositories.beacons, repositories.events),
+            **beacon_services(
+                repositories.beacons,
+                repositories.events,
+                timedelta(minutes=settings.beacon_window_max_minutes),
+            ),
             **map_services(repositories.maps),
         },
     )

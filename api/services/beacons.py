@@ -4,14 +4,14 @@ discarded (:class:`BeaconDiscards`)."""
 
 from __future__ import annotations
 
-from datetime import datetime
+from datetime import datetime, timedelta, timezone
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, FiniteFloat, ValidationError
 from pydantic_core import ErrorDetails
 
 from fleetbus.api.services.errors import BadRequest
-from fleetbus.workers.beacons import stranded
+from fleetbus.workers.beacons import DEFAULT_MAX_WINDOW, stranded, window_refusal
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
 from fleetbus.workers.store.discards import Discard, DiscardCount, DiscardLog
@@ -55,9 +55,12 @@ def beacons_of(entries: object) -> list[Beacon]:
 
 
 class Beacons:
-    def __init__(self, registry: BeaconRegistry, events: EventStore) -> None:
+    def __init__(
+        self, registry: BeaconRegistry, events: EventStore, max_window: timedelta = DEFAULT_MAX_WINDOW
+    ) -> None:
         self._registry = registry
         self._events = events
+        self._max_window = max_window
 
     async def load(self, entries: object) -> list[Beacon]:
         """Add or update the beacons of ``entries`` (:func:`beacons_of`): all of them, or none
@@ -70,7 +73,10 @@ class Beacons:
         return await self._registry.beacons()
 
     async def stranded(self, since: datetime) -> list[dict[str, Any]]:
-        """Beacons heard since ``since``: where people are likely stranded, first heard first."""
+        """Beacons heard since ``since``: where people are likely stranded, first heard first;
+        :class:`BadRequest` for a ``since`` further back than the bound."""
+        if refusal := window_refusal(datetime.now(timezone.utc) - since, self._max_window):
+            raise BadRequest(refusal)
         return await stranded(self._registry, self._events, since)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from datetime import timedelta
 from typing import TYPE_CHECKING
 
 from fleetbus.api.services.beacons import BeaconDiscards, Beacons
@@ -58,7 +59,11 @@ class Services:
 
     @property
     def beacons(self) -> Beacons:
-        return Beacons(self._repos.beacons, self._repos.events)
+        return Beacons(
+            self._repos.beacons,
+            self._repos.events,
+            timedelta(minutes=self._settings.beacon_window_max_minutes),
+        )
 
     @property
     def beacon_discards(self) -> BeaconDiscards:

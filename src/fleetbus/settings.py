@@ -285,6 +285,12 @@ class Settings(BaseSettings):
     duplicates_keep: str = setting(
         "30d", "how long (or how many, `100000`) of the duplicates register the workers keep"
     )
+    beacon_window_max_minutes: Annotated[float, Field(ge=10)] = setting(
+        60.0,
+        "how far back, in minutes, a look at the beacons heard (`beacon.stranded`, `beacon.goal`, "
+        "`fleetbus beacons stranded`) may go; each sighting in it is read into memory. At least 10, "
+        "the default look (the console's live map)",
+    )
     discards_keep: str = setting("30d", "how long (or how many) of the beacon discard log the workers keep")
     gone_workers_keep: str = setting(
         "7d",

@@ -54,7 +54,10 @@ def list_beacons() -> None:
 
 @app.command("stranded")
 def stranded_people(
-    since: Annotated[str, typer.Option(help=f"heard since: {TIME_FORMS}")] = "10m",
+    since: Annotated[
+        str,
+        typer.Option(help=f"heard since: {TIME_FORMS}; at most FLEETBUS_BEACON_WINDOW_MAX_MINUTES (60) back"),
+    ] = "10m",
     as_json: Annotated[bool, typer.Option("--json")] = False,
 ) -> None:
     """Beacons heard recently: where people are likely stranded, and when they were last heard."""
