@@ -23,7 +23,7 @@ from datetime import datetime
 from enum import Enum
 from typing import Any, Union
 
-from fleetbus.schemas.ros import BLOB_KEY, byte_arrays
+from fleetbus.schemas.ros import BLOB_KEY, ROS_TYPE, byte_arrays
 from fleetbus.workers.store.base import WriteResult
 from fleetbus.workers.store.port import (
     INTEGER,
@@ -276,7 +276,8 @@ REFS_BATCH = 500
 
 def blobs_named(record: RecordedMessage) -> set[str]:
     """The digests of the blobs a record's document names (``{"_blob": sha256, ...}``)."""
-    if not isinstance(record.document, dict):
+    # only ROS messages (live or from a bag) name blobs: every other record is not walked
+    if record.type != ROS_TYPE or not isinstance(record.document, dict):
         return set()
     return {str(found[BLOB_KEY]) for found in byte_arrays(record.document, BLOB_KEY)}
 
