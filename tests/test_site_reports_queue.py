@@ -55,6 +55,7 @@ def test_the_reports_nobody_reads_are_bounded_and_the_dropped_counted(bus: Bus) 
 
 def test_the_api_alerts_on_the_reports_waiting_in_the_broker(bus: Bus) -> None:
     bus.service_accounts()
+    bus.with_store(lambda store: store.sites.set_robots(SITE, ()))  # `fleetbus sites add`, in the store
     send_reports(bus, [report(0), report(190_000)])  # the newest: telemetry at 95 % of its bound
 
     async def check() -> list[str]:

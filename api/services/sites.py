@@ -42,7 +42,10 @@ class Sites:
         return await self._sites.summaries()
 
     async def collect(self) -> int:
-        """Take the reports waiting in the broker into the store (each site's newest is kept); how many."""
+        """Take the reports waiting in the broker into the store (each site's newest is kept); how
+        many. With no site known, none can wait: the broker is not asked."""
+        if not await self._sites.sites():
+            return 0
         return await collect_site_reports(self._admin_url, self._sites, alert_at=self._alert_at)
 
     async def reports(self) -> dict[str, SiteReport]:
