@@ -4,6 +4,7 @@ oldest messages, and every drop is counted in the store, against the real broker
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -180,3 +181,12 @@ def test_a_dropped_message_with_an_x_death_not_the_brokers_is_counted_unreadable
         )
         wait_for(lambda: not held(bus, OVERFLOW_QUEUE), what="both acked")
     assert overflow_counts(bus) == {"unreadable": 1, "explorer1.commands expired": 1}
+
+
+def test_the_policies_of_the_sites_downlinks_match_central_queues_of_sites_only() -> None:
+    """A site runs `fleetbus setup` too: its own downlink queues must keep their own bounds."""
+    from fleetbus.broker.policies import SITE_DOWNLINK_PATTERN, SITE_MAPS_PATTERN
+
+    queues = ("base1.downlink", "base1.downlink.maps", "fleetbus.downlink", "fleetbus.downlink.rejected")
+    assert [q for q in queues if re.search(SITE_DOWNLINK_PATTERN, q)] == ["base1.downlink"]
+    assert [q for q in queues if re.search(SITE_MAPS_PATTERN, q)] == ["base1.downlink.maps"]
