@@ -12,6 +12,7 @@ import pika
 import pytest
 
 from fleetbus.broker.dead_letter_queue import peek_dead_letters
+from fleetbus.broker.policies import SITE_DOWNLINK_PATTERN, SITE_MAPS_PATTERN
 from fleetbus.schemas.notifications import Notification
 from fleetbus.schemas.routing import (
     DEAD_LETTER_QUEUE,
@@ -185,8 +186,6 @@ def test_a_dropped_message_with_an_x_death_not_the_brokers_is_counted_unreadable
 
 def test_the_policies_of_the_sites_downlinks_match_central_queues_of_sites_only() -> None:
     """A site runs `fleetbus setup` too: its own downlink queues must keep their own bounds."""
-    from fleetbus.broker.policies import SITE_DOWNLINK_PATTERN, SITE_MAPS_PATTERN
-
     queues = ("base1.downlink", "base1.downlink.maps", "fleetbus.downlink", "fleetbus.downlink.rejected")
     assert [q for q in queues if re.search(SITE_DOWNLINK_PATTERN, q)] == ["base1.downlink"]
     assert [q for q in queues if re.search(SITE_MAPS_PATTERN, q)] == ["base1.downlink.maps"]
