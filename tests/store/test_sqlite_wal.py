@@ -26,7 +26,7 @@ class Blobs(SQLiteDatabase):
         await self._run(write)
 
     async def checkpoint(self) -> None:
-        await self._run(lambda db: db.execute("PRAGMA wal_checkpoint(PASSIVE)"))
+        await self._run(lambda db: db.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchall())
 
 
 def test_the_write_ahead_log_is_cut_back_after_a_large_transaction(
