@@ -48,6 +48,7 @@ from fleetbus.publishers.known import Known, KnownSubjects
 from fleetbus.publishers.login import LOGIN_REFUSED, login_refusal
 from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
 from fleetbus.publishers.outbox import LIMITS_VARIABLE, Entry, Outbox, TypePolicy, policies_with_limits
+from fleetbus.publishers.rpc import RequestNotSent
 from fleetbus.publishers.sender import Sender, Waiter
 from fleetbus.publishers.sequence import SequenceCounter
 from fleetbus.publishers.sessions import Sessions
@@ -387,8 +388,18 @@ class RobotClient:
     # services
     def call(self, method: str, timeout: float = 5.0, **params: Any) -> Any:
         """Call a fleetbus service; raise ServiceTimeout when no reply comes within ``timeout``.
-        Each thread calls on a connection of its own."""
-        return self._sessions.rpc().call(method, params, timeout)
+        Each thread calls on a connection of its own.
+
+        A call whose connection or channel is found dead before its request is sent (the broker
+        restarted, or closed the connection while the robot was idle) reconnects and sends it
+        once more; a request that may have reached the service is never sent again: a call that
+        loses its connection after sending raises BrokerUnavailable, one not answered in time
+        ServiceTimeout."""
+        try:
+            return self._sessions.rpc().call(method, params, timeout)
+        except RequestNotSent as error:
+            log.info("%s; reconnecting to call it", error)
+            return self._sessions.rpc().call(method, params, timeout)
 
     def hazard(self, hazard_id: int, timeout: float = 5.0) -> dict[str, Any]:
         """One hazard this robot reported, or one open to it as :meth:`open_hazards` would list

@@ -34,6 +34,11 @@ class ServiceFailed(PublisherError):
     message gives): not the request's fault; the same call may work once the service is fixed."""
 
 
+class RequestNotSent(BrokerUnavailable):
+    """The call's connection or channel was found dead before its request was published: the
+    request never left, so the call may be made again on a new one (the client does so, once)."""
+
+
 class RpcChannel:
     def __init__(self, connection: BlockingConnection, robot_id: str) -> None:
         self._connection = connection
@@ -43,6 +48,10 @@ class RpcChannel:
         self._waiting: set[str] = set()
         """The calls waiting for their reply: a late one (after its call's timeout) is dropped."""
         self._channel.basic_consume(REPLY_TO, self._on_reply, auto_ack=True)
+
+    @property
+    def is_open(self) -> bool:
+        return self._connection.is_open and self._channel.is_open
 
     def _on_reply(
         self, _channel: object, _method: object, properties: pika.BasicProperties, body: bytes
@@ -61,12 +70,7 @@ class RpcChannel:
         )
         self._waiting.add(correlation_id)
         try:
-            self._channel.basic_publish(
-                requests_exchange(self._robot_id),
-                request_routing_key(self._robot_id, method),
-                json.dumps(params).encode(),
-                properties,
-            )
+            self._publish(method, params, properties)
             deadline = time.monotonic() + timeout
             while correlation_id not in self._replies:
                 remaining = deadline - time.monotonic()
@@ -86,3 +90,27 @@ class RpcChannel:
         if not reply.get("ok"):
             raise ServiceRefused(f"{method}: {reply.get('error', 'refused')}")
         return reply.get("result")
+
+    def _publish(self, method: str, params: dict[str, Any], properties: pika.BasicProperties) -> None:
+        """Publish a request; :class:`RequestNotSent` when the connection or the channel is found
+        dead first. Between calls nothing runs pika on this connection (no heartbeats): a broker
+        that restarted, or closed the connection of an idle robot, or closed this channel (a 404),
+        is only learnt of here, by reading what it sent meanwhile, before anything is written."""
+        try:
+            self._connection.process_data_events(0)
+        except pika.exceptions.AMQPError as error:
+            raise RequestNotSent(f"connection lost before {method!r} was sent: {error!r}") from error
+        if not self.is_open:
+            raise RequestNotSent(f"the service channel was closed before {method!r} was sent")
+        try:
+            self._channel.basic_publish(
+                requests_exchange(self._robot_id),
+                request_routing_key(self._robot_id, method),
+                json.dumps(params).encode(),
+                properties,
+            )
+        except (pika.exceptions.ChannelWrongStateError, pika.exceptions.ConnectionWrongStateError) as error:
+            # raised before pika queued a byte of the request
+            raise RequestNotSent(f"connection lost before {method!r} was sent: {error!r}") from error
+        except pika.exceptions.AMQPError as error:  # while writing: it may have reached the broker
+            raise BrokerUnavailable(f"connection lost during {method!r}: {error!r}") from error

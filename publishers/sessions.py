@@ -91,8 +91,8 @@ class Sessions:
     def rpc(self) -> RpcChannel:
         """The calling thread's service channel, on its connection."""
         session = self.mine()
-        if session.rpc is None or session.connection is None or not session.connection.is_open:
-            connection = self.connection()
+        connection = self.connection()  # a new one, without a service channel, if it broke
+        if session.rpc is None or not session.rpc.is_open:  # the broker may close just the channel
             session.rpc = RpcChannel(connection, self._robot_id)
         return session.rpc
 

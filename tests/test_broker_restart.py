@@ -167,3 +167,19 @@ def test_a_recorder_that_gives_up_on_the_broker_ends_instead_of_staying_half_ali
         assert connection is not None
         recorder._loop.call_soon_threadsafe(connection.close)  # as if the broker had dropped it
         wait_for(lambda: not recorder._thread.is_alive(), 30, "the recorder ending")
+
+
+def test_a_service_call_after_the_broker_restarted_succeeds_at_the_first_try(
+    killable_bus: Bus, killable_node: LocalNode
+) -> None:
+    """Between two calls nothing runs the service connection (no heartbeats), so the client only
+    learns at the next call that the broker restarted: it reconnects and sends that call's
+    request then, which never left on the dead connection, instead of failing once."""
+    bus = killable_bus
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN), connect_timeout=60)
+    with bus.worker():
+        assert [w["name"] for w in warden.wardens(timeout=30)] == ["warden1"]
+        killable_node.kill()
+        killable_node.up()
+        # the request waits in its queue until the worker reconnected too
+        assert [w["name"] for w in warden.wardens(timeout=60)] == ["warden1"]
