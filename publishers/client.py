@@ -261,7 +261,9 @@ class RobotClient:
         return self._sender.last_error
 
     def flush(self, timeout: float = 30.0) -> bool:
-        """Wait until every waiting event is confirmed; False if ``timeout`` passed first."""
+        """Wait until every waiting event is confirmed; False if ``timeout`` passed first.
+        Raises :class:`ClientClosed` once the client was closed."""
+        self._refuse_if_closed()
         self.start()
         return self._sender.wait_drained(timeout)
 
@@ -270,9 +272,10 @@ class RobotClient:
         ``close_timeout``), then stop. The delivery ends early when the broker is away: a sender
         that is cut off tries once more at once, and its failure ends the wait. Events not yet
         confirmed stay in the outbox for the next run."""
-        if self._closed:
-            return
-        self._closed = True
+        with self._storing:  # a publish under way stores its events first; later ones are refused
+            if self._closed:
+                return
+            self._closed = True
         try:
             timeout = self._close_timeout if flush_timeout is None else flush_timeout
             if timeout > 0 and self._started and self.outbox.pending():
@@ -342,8 +345,10 @@ class RobotClient:
         store receive, the robot's events in the order they were numbered.
 
         Raises SchemaError for a bad body (nothing is stored), OutboxFull when a type that is never
-        dropped reached its outbox limit, PublishRefused when the broker refused one of them.
+        dropped reached its outbox limit, PublishRefused when the broker refused one of them,
+        ClientClosed once the client was closed (nothing is stored).
         """
+        self._refuse_if_closed()
         bodies = self._validated(items)
         self.start()
         with self._storing:
@@ -360,14 +365,22 @@ class RobotClient:
         when the sender is cut off (that attempt failed, or the connection was lost since), and
         after ``confirm_timeout`` at most while connected: the events then wait in the outbox and
         go out when the broker is back. Without ``wait``, return once they are in the outbox.
+        Raises ClientClosed once the client was closed (nothing is stored).
         """
+        self._refuse_if_closed()
         self.start()
         with self._storing:
             waiter = self._store(events, wait)
         self._await_settled(waiter)
 
+    def _refuse_if_closed(self) -> None:
+        if self._closed:
+            raise ClientClosed(f"the robot client of {self.robot_id} is closed: it takes no more events")
+
     def _store(self, events: Sequence[Event], wait: bool) -> Waiter | None:
-        """Append ``events`` to the outbox (under :attr:`_storing`); their waiter when ``wait``."""
+        """Append ``events`` to the outbox (under :attr:`_storing`); their waiter when ``wait``.
+        Raises :class:`ClientClosed` once the client was closed (its outbox and lock let go)."""
+        self._refuse_if_closed()
         waiter = self._sender.watch([str(e.message_id) for e in events]) if wait else None
         try:
             self.outbox.append(events, express=self._sender.offer_express)

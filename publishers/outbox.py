@@ -36,6 +36,7 @@ from typing import Any, Protocol
 from tinydb import TinyDB
 from tinydb.table import Document
 
+from fleetbus.publishers.errors import PublisherError
 from fleetbus.publishers.storage import AtomicJSONStorage, own_folder, write_atomically
 from fleetbus.schemas.envelope import Event, encode_event
 from fleetbus.schemas.routing import EXPRESS_TYPES, EventType
@@ -121,11 +122,11 @@ EXPRESS_HEAD_START = 0.05
 ExpressOffer = Callable[[list["Entry"]], "ExpressJob | None"]
 
 
-class OutboxFull(Exception):
+class OutboxFull(PublisherError):
     """A type that is never dropped reached its limit; the events were not taken."""
 
 
-class OutboxError(Exception):
+class OutboxError(PublisherError):
     """The outbox's own files failed while the sender took or settled events (a full disk, a
     file missing or unreadable, one that no longer parses): not the network's doing, which
     reconnecting or sending again would not mend. What was taken or settled is as it was."""

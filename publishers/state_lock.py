@@ -6,11 +6,12 @@ import fcntl
 import os
 from pathlib import Path
 
+from fleetbus.publishers.errors import PublisherError
 from fleetbus.publishers.storage import own_folder
 
 
-class RobotStateInUse(RuntimeError):
-    """Another process holds this robot's personal database."""
+class RobotStateInUse(PublisherError, RuntimeError):
+    """Another process holds this robot's personal database (a RuntimeError too, as it was)."""
 
 
 class StateLock:

@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 from fleetbus.publishers import outbox as outbox_module
+from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.errors import ClientClosed, PublisherError
 from fleetbus.publishers.outbox import (
     Outbox,
     OutboxError,
@@ -18,6 +20,7 @@ from fleetbus.publishers.outbox import (
     policies_with_limits,
 )
 from fleetbus.publishers.sequence import SequenceCounter
+from fleetbus.publishers.state_lock import RobotStateInUse
 from fleetbus.publishers.storage import AtomicJSONStorage
 from fleetbus.schemas.envelope import Event, build_event, new_epoch, parse_event
 from tests.factories import hazard, status
@@ -299,3 +302,28 @@ def test_limits_from_a_setting_keep_each_types_overflow(tmp_path: Path) -> None:
     for text, error in (("stats=3", "unknown type 'stats'"), ("status=0", "a whole number, 1 or more")):
         with pytest.raises(ValueError, match=error):
             policies_with_limits(text)
+
+
+def test_a_closed_client_takes_no_more_events(tmp_path: Path) -> None:
+    """After close() the outbox's files and the robot's lock are let go (another client may own
+    them): publishing, enqueueing and flushing raise ClientClosed, and nothing is stored."""
+    url = "amqp://explorer1:secret@127.0.0.1:1/"  # no broker needed: nothing is to be sent
+    robot = RobotClient(url, state_dir=tmp_path, connect_timeout=0.5, durable=False)
+    built = robot.build([("status", status())])
+    robot.close()
+    with pytest.raises(ClientClosed, match="closed"):
+        robot.publish("status", status(), wait=False)
+    with pytest.raises(ClientClosed):
+        robot.publish_many([("status", status())], wait=False)
+    with pytest.raises(ClientClosed):
+        robot.enqueue(built, wait=False)
+    with pytest.raises(ClientClosed):
+        robot.flush(timeout=0.1)
+    assert Outbox(tmp_path / "explorer1" / "outbox", read_only=True).pending() == 0
+
+
+def test_the_clients_own_errors_are_publisher_errors_and_keep_their_old_bases() -> None:
+    """Robot code catches PublisherError for whatever the client raises of its own."""
+    for error in (OutboxFull, OutboxError, RobotStateInUse, ClientClosed):
+        assert issubclass(error, PublisherError), error
+    assert issubclass(RobotStateInUse, RuntimeError)
