@@ -23,6 +23,7 @@ the reason, so one bad event cannot block the ones behind it.
 from __future__ import annotations
 
 import enum
+import logging
 import re
 import threading
 from collections import Counter
@@ -38,8 +39,18 @@ from tinydb.table import Document
 
 from fleetbus.publishers.errors import PublisherError
 from fleetbus.publishers.storage import AtomicJSONStorage, own_folder, write_atomically
+from fleetbus.publishers.unreadable import (
+    UNREADABLE,
+    UNREADABLE_COUNT,
+    check_counters,
+    check_event,
+    check_tables,
+    set_aside,
+)
 from fleetbus.schemas.envelope import Event, encode_event
 from fleetbus.schemas.routing import EXPRESS_TYPES, EventType
+
+log = logging.getLogger("fleetbus.robot.outbox")
 
 SEGMENT_NAME = re.compile(r"^seg-(\d{12})\.json$")
 BLOB_PREFIX = "blob-"
@@ -225,11 +236,21 @@ class Outbox:
             own_folder(folder)
         elif not folder.is_dir():
             raise FileNotFoundError(f"no outbox at {folder}")
-        self._meta = TinyDB(folder / "meta.json", storage=AtomicJSONStorage, durable=durable)
-        self._refused = TinyDB(folder / "refused.json", storage=AtomicJSONStorage, durable=durable)
+        self._set_aside = 0
+        """Files found unreadable on opening and set aside, not yet counted as dropped."""
+        self._meta = self._readable_db(
+            "meta.json", check_counters, "the counts of the events dropped and refused until now"
+        )
+        self._refused = self._readable_db(
+            "refused.json",
+            check_tables,
+            "the reasons of the events the broker refused (those events were not to be sent again)",
+        )
         self._segments: list[_Segment] = []
         self._dropped: Counter[str] | None = None
         self._recover()
+        if self._set_aside:
+            self._count("dropped", UNREADABLE_COUNT, self._set_aside)
 
     @contextmanager
     def _own_files(self, doing: str) -> Iterator[None]:
@@ -240,6 +261,35 @@ class Outbox:
             raise OutboxError(f"the outbox in {self.folder} could not {doing}: {error!r}") from error
 
     # ------------------------------------------------------------------ opening and recovery
+
+    def _readable_db(self, name: str, check: Callable[[Any], None], holds: str) -> TinyDB:
+        """The TinyDB file ``name``, set aside first if what it holds does not parse (``check``)."""
+        path = self.folder / name
+        db = TinyDB(path, storage=AtomicJSONStorage, durable=self._durable)
+        try:
+            check(db.storage.read())
+        except UNREADABLE as error:
+            db.close()
+            self._unreadable(path, error, holds)
+            db = TinyDB(path, storage=AtomicJSONStorage, durable=self._durable)
+        return db
+
+    def _unreadable(self, path: Path, error: Exception, holds: str) -> None:
+        """Set aside a file found unreadable on opening, so that the robot starts all the same;
+        one only looked into (``read_only``) raises :class:`OutboxError` naming it instead."""
+        if self._read_only:
+            raise OutboxError(f"the outbox in {self.folder} cannot read {path.name}: {error!r}") from error
+        moved = set_aside(path)
+        self._set_aside += 1
+        log.error(
+            "the outbox file %s cannot be read (%r): set aside as %s, never deleted, and counted as "
+            "dropped (%s); lost with it: %s",
+            path,
+            error,
+            moved.name,
+            UNREADABLE_COUNT,
+            holds,
+        )
 
     def _recover(self) -> None:
         """Index the segments left by an earlier run; drop leftovers of writes a crash cut short."""
@@ -253,7 +303,18 @@ class Outbox:
             if not match:
                 continue
             segment = _Segment(int(match[1]), path)
-            for doc in self._docs(segment):
+            try:
+                docs = self._docs(segment)
+                for doc in docs:
+                    check_event(doc)
+            except UNREADABLE as error:
+                if segment.db is not None:
+                    segment.db.close()
+                    segment.db = None
+                lost = path.read_bytes().count(b'"message_id"')
+                self._unreadable(path, error, f"about {lost} events that waited in it, not sent")
+                continue
+            for doc in docs:
                 segment.counts[doc["type"]] += 1
                 segment.bytes += len(doc.get("body", ""))
                 if "blob" in doc:
@@ -265,8 +326,12 @@ class Outbox:
                 path.unlink()
         if self._read_only:
             return
-        for path in self.folder.glob(f"{BLOB_PREFIX}*"):
-            if path.name not in referenced:
+        for path in self.folder.glob(f"{BLOB_PREFIX}*.json"):
+            if path.name in referenced:
+                continue
+            if self._set_aside:  # perhaps a body of an event in a file set aside: kept with it
+                set_aside(path)
+            else:
                 path.unlink()  # written just before a crash, never appended
 
     def _open(self, segment: _Segment) -> TinyDB:

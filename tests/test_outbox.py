@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -192,12 +193,13 @@ def test_a_settle_that_failed_on_a_file_finishes_when_tried_again(tmp_path: Path
     assert outbox.pending() == 0
     assert len(outbox.refused()) == 1 and outbox.refused_counts() == {"hazard": 1}, "counted once"
     outbox.close()
-    (tmp_path / "refused.json").write_text("{not json")  # read when first needed
+    (tmp_path / "refused.json").write_text("{not json")  # found when the outbox opens: set aside
     outbox = Outbox(tmp_path)
     outbox.append(events("hazard", 3, 1))
     window = outbox.take(1)
-    with pytest.raises(OutboxError, match="could not settle"):
-        outbox.settle(window, {window[0].message_id: "refused"}, window)
+    outbox.settle(window, {window[0].message_id: "refused"}, window)
+    assert outbox.refused_counts() == {"hazard": 2}, "the counts in meta.json are kept"
+    assert len(outbox.refused()) == 1
 
 
 def test_leftovers_of_a_write_cut_short_are_cleaned(tmp_path: Path) -> None:
@@ -327,3 +329,56 @@ def test_the_clients_own_errors_are_publisher_errors_and_keep_their_old_bases() 
     for error in (OutboxFull, OutboxError, RobotStateInUse, ClientClosed):
         assert issubclass(error, PublisherError), error
     assert issubclass(RobotStateInUse, RuntimeError)
+
+
+def test_a_truncated_segment_is_set_aside_counted_and_the_outbox_opens(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    outbox = Outbox(tmp_path, segment_events=10, durable=False)
+    outbox.append(events("hazard", 0, 20))
+    outbox.close()
+    first = tmp_path / "seg-000000000000.json"
+    first.write_bytes(first.read_bytes()[:300])  # a disk that failed in the middle of it
+
+    with caplog.at_level(logging.ERROR, logger="fleetbus.robot.outbox"):
+        reopened = Outbox(tmp_path, segment_events=10, durable=False)
+    assert seqs(reopened) == list(range(10, 20)), "the readable segment still waits"
+    assert not first.exists()
+    [aside] = tmp_path.glob("seg-000000000000.json.unreadable-*")
+    assert aside.stat().st_size == 300, "kept as it was"
+    assert reopened.dropped() == {"unreadable-file": 1}
+    assert str(first) in caplog.text and aside.name in caplog.text and "events" in caplog.text
+    reopened.close()
+    assert Outbox(tmp_path, segment_events=10).dropped() == {"unreadable-file": 1}, "counted once, on disk"
+
+
+def test_a_corrupt_meta_file_is_set_aside_and_the_counts_start_again(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    outbox = Outbox(tmp_path, {"status": TypePolicy(Overflow.DROP_OLDEST, 2)}, durable=False)
+    outbox.append(events("status", 0, 5))
+    assert outbox.dropped() == {"status": 3}
+    outbox.close()
+    (tmp_path / "meta.json").write_text('{"counters": {"1": {"dropped": {"status": "three"}}}}')
+
+    with caplog.at_level(logging.ERROR, logger="fleetbus.robot.outbox"):
+        reopened = Outbox(tmp_path, durable=False)
+    assert reopened.dropped() == {"unreadable-file": 1}
+    assert seqs(reopened) == [3, 4]
+    assert len(list(tmp_path.glob("meta.json.unreadable-*"))) == 1
+    assert "meta.json" in caplog.text and "counts" in caplog.text
+
+
+def test_a_robot_whose_outbox_has_a_corrupt_file_starts_and_says_so_in_its_status(tmp_path: Path) -> None:
+    url = "amqp://explorer1:secret@127.0.0.1:1/"  # no broker needed: nothing is sent
+    folder = tmp_path / "explorer1" / "outbox"
+    Outbox(folder, durable=False).append(events("hazard", 0, 3))
+    (folder / "seg-000000000000.json").write_text('{"events": {"1": {"epoch": ')
+    (folder / "meta.json").write_text("not json")
+
+    robot = RobotClient(url, state_dir=tmp_path, durable=False)
+    try:
+        [event] = robot.build([("status", status())])
+        assert event.body.outbox_dropped == {"unreadable-file": 2}
+    finally:
+        robot.close()

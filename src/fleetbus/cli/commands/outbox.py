@@ -13,7 +13,7 @@ from rich.table import Table
 
 from fleetbus.cli.context import console, fail, settings
 from fleetbus.publishers.client import outbox_folder
-from fleetbus.publishers.outbox import Outbox
+from fleetbus.publishers.outbox import Outbox, OutboxError
 
 
 def _age(moment: datetime | None) -> str:
@@ -43,6 +43,8 @@ def outbox(
         box = Outbox(folder, read_only=True)
     except FileNotFoundError:
         fail(f"{robot} has no outbox at {folder}")
+    except OutboxError as error:  # the robot sets such a file aside when it starts
+        fail(str(error))
     try:
         summary = box.summary()
         oldest = box.entries(show) if show else []
