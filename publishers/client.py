@@ -346,7 +346,9 @@ class RobotClient:
 
         Raises SchemaError for a bad body (nothing is stored), OutboxFull when a type that is never
         dropped reached its outbox limit, PublishRefused when the broker refused one of them,
-        ClientClosed once the client was closed (nothing is stored).
+        ClientClosed once the client was closed (nothing is stored), OutboxWriteFailed when the
+        outbox could not store them all (a full disk): it says how many were kept and whether the
+        others may have been sent, and holds the events, to hand to :meth:`enqueue` again.
         """
         self._refuse_if_closed()
         bodies = self._validated(items)
@@ -388,7 +390,8 @@ class RobotClient:
             if waiter is not None:
                 self._sender.unwatch(waiter)
             raise
-        self._sender.wake()
+        finally:
+            self._sender.wake()  # also for those an OutboxWriteFailed says were kept
         return waiter
 
     def _await_settled(self, waiter: Waiter | None) -> None:

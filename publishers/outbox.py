@@ -120,8 +120,12 @@ def policies_with_limits(
 class ExpressJob(Protocol):
     entries: list[Entry]
 
-    def stored(self, entries: list[Entry] | None) -> None:
-        """Where the entries were written (positions filled in), or None if the write failed."""
+    def stored(self, entries: list[Entry]) -> None:
+        """Where the entries were written (positions filled in)."""
+
+    def abandon(self) -> bool:
+        """The write failed: the sender must not send them if it has not yet; True if it has (or is
+        sending them), so that they may have reached the broker."""
 
     def wait_sent(self, timeout: float) -> None:
         """Return once the sender wrote the events to its socket (or gave up), or after ``timeout``."""
@@ -141,6 +145,41 @@ class OutboxError(PublisherError):
     """The outbox's own files failed while the sender took or settled events (a full disk, a
     file missing or unreadable, one that no longer parses): not the network's doing, which
     reconnecting or sending again would not mend. What was taken or settled is as it was."""
+
+
+class OutboxWriteFailed(OutboxError):
+    """A publish's events could not all be stored (a full disk): :attr:`kept` of them, the first,
+    are in the outbox and will be sent; the others (:attr:`not_kept`) are not, and were not sent
+    either unless :attr:`sent` says they may have been (the sender put them on the wire while they
+    were being written). To try again, hand the same events to ``RobotClient.enqueue``: the same
+    epoch and sequence numbers, so the server keeps one copy of any that did reach it."""
+
+    def __init__(self, folder: Path, events: Sequence[Event], kept: int, sent: bool, error: OSError) -> None:
+        self.events = list(events)
+        self.kept = kept
+        self.sent = sent
+        total, lost = len(self.events), len(self.events) - kept
+        if kept:
+            what = (
+                f"stored only the first {kept} of {total} events, which will be sent; the other "
+                f"{lost} were neither stored nor sent"
+            )
+        elif sent:
+            what = (
+                f"stored none of the {total} events, which the sender had already sent: the broker "
+                "may have them, but they will not be sent again"
+            )
+        else:
+            what = f"stored none of the {total} events, and none was sent"
+        super().__init__(
+            f"the outbox in {folder} {what} ({error!r}); to try again, enqueue the same events "
+            "(error.not_kept), not new ones: the server keeps one copy of each"
+        )
+
+    @property
+    def not_kept(self) -> list[Event]:
+        """The events not in the outbox, to hand to ``enqueue`` again once the disk has room."""
+        return self.events[self.kept :]
 
 
 #: What reading or writing the outbox's files raises when they fail: the file system's errors,
@@ -396,6 +435,7 @@ class Outbox:
                 and len(events) <= EXPRESS_MAX
                 and not self._segments
                 and not self._in_flight
+                and len(events) <= self._segment_events  # one segment: stored whole or not at all
             ):
                 job = express(
                     [_entry_of(event, body, (-1, -1)) for event, body in zip(events, bodies, strict=True)]
@@ -405,11 +445,15 @@ class Outbox:
                     # hold the interpreter lock and keep the sender thread from running for most
                     # of the write (about 1 ms); the fsync then overlaps the broker's work.
                     job.wait_sent(EXPRESS_HEAD_START)
+            positions: list[tuple[int, int]] = []
             try:
-                positions = self._write(events, bodies)
+                self._write(events, bodies, positions)
+            except OSError as error:
+                sent = job.abandon() if job is not None else False
+                raise OutboxWriteFailed(self.folder, events, len(positions), sent, error) from error
             except BaseException:
                 if job is not None:
-                    job.stored(None)
+                    job.abandon()
                 raise
             if job is not None:
                 self._in_flight |= set(positions)
@@ -419,21 +463,32 @@ class Outbox:
             for event_type in adding:
                 self._enforce_drop_limit(event_type)
 
-    def _write(self, events: Sequence[Event], bodies: Sequence[bytes]) -> list[tuple[int, int]]:
-        docs = [self._doc(event, body) for event, body in zip(events, bodies, strict=True)]
-        positions: list[tuple[int, int]] = []
+    def _write(
+        self, events: Sequence[Event], bodies: Sequence[bytes], positions: list[tuple[int, int]]
+    ) -> None:
+        """Write the events, segment after segment, adding where each went to ``positions``: when
+        a write fails, those it holds are stored (and will be sent), the others are not."""
         start = 0
-        while start < len(docs):
+        while start < len(events):
             segment = self._tail_with_room()
             room = max(1, self._segment_events - segment.size)
-            part = docs[start : start + room]
-            ids = self._open(segment).table("events").insert_multiple(part)
+            part = [
+                self._doc(event, body)
+                for event, body in zip(
+                    events[start : start + room], bodies[start : start + room], strict=True
+                )
+            ]
+            try:
+                ids = self._open(segment).table("events").insert_multiple(part)
+            except BaseException:
+                if not segment.size:  # begun for this write, never written
+                    self._unlink_segment(segment, missing_ok=True)
+                raise
             positions += [(segment.number, doc_id) for doc_id in ids]
             for doc in part:
                 segment.counts[doc["type"]] += 1
                 segment.bytes += len(doc.get("body", ""))
             start += len(part)
-        return positions
 
     def _doc(self, event: Event, body: bytes) -> dict[str, Any]:
         doc: dict[str, Any] = {
@@ -649,11 +704,11 @@ class Outbox:
             if blob is not None:
                 blob.unlink(missing_ok=True)
 
-    def _unlink_segment(self, segment: _Segment) -> None:
+    def _unlink_segment(self, segment: _Segment, missing_ok: bool = False) -> None:
         if segment.db is not None:
             segment.db.close()
             segment.db = None
-        segment.path.unlink()
+        segment.path.unlink(missing_ok=missing_ok)
         self._segments.remove(segment)
 
     def _remove(self, segment: _Segment, docs: Sequence[Any]) -> None:

@@ -97,6 +97,16 @@ class ExpressJob:
         self._sent = threading.Event()
         self._written = threading.Event()
         self._positioned: list[Entry] | None = None
+        self._lock = threading.Lock()
+        self._sending = False
+        self._abandoned = False
+
+    def start_sending(self) -> bool:
+        """The sender is about to write them to its socket; False if their outbox write failed
+        first (then they must not go: the publisher raised, saying none was sent)."""
+        with self._lock:
+            self._sending = not self._abandoned
+            return self._sending
 
     def sent(self) -> None:
         self._sent.set()
@@ -104,9 +114,17 @@ class ExpressJob:
     def wait_sent(self, timeout: float) -> None:
         self._sent.wait(timeout)
 
-    def stored(self, entries: list[Entry] | None) -> None:
+    def stored(self, entries: list[Entry]) -> None:
         self._positioned = entries
         self._written.set()
+
+    def abandon(self) -> bool:
+        """Their outbox write failed; True if the sender had begun sending them already."""
+        with self._lock:
+            self._abandoned = True
+            sending = self._sending
+        self._written.set()
+        return sending
 
     def wait_stored(self, timeout: float) -> list[Entry] | None:
         """The entries with their outbox positions; None if the write failed or took too long."""
@@ -553,6 +571,8 @@ class Sender:
         confirms = self._confirms
         try:
             try:
+                if not job.start_sending():
+                    return  # the publisher could not store them, and said they were not sent
                 window = confirms.write([self._to_outgoing(entry) for entry in job.entries])
                 confirms.flush()
             finally:
@@ -566,7 +586,11 @@ class Sender:
             return
         positioned = job.wait_stored(self._confirm_timeout)
         if positioned is None:
-            log.error("the outbox could not store %d events the broker took", len(job.entries))
+            log.error(
+                "the outbox could not store %d events sent already: the publish raised "
+                "OutboxWriteFailed, and they are not sent again unless enqueued again",
+                len(job.entries),
+            )
             self._outbox.release()
             return
         nacked = self._settle_outcome(positioned, outcome)

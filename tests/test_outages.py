@@ -6,6 +6,7 @@ the network or are killed, a confirm is lost on the way back, MongoDB goes away.
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import logging
@@ -18,9 +19,10 @@ from urllib.parse import urlsplit
 
 import pytest
 
+from fleetbus.publishers import storage as storage_module
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, LoginRefused
-from fleetbus.publishers.outbox import Overflow, TypePolicy
+from fleetbus.publishers.outbox import OutboxWriteFailed, Overflow, TypePolicy
 from fleetbus.schemas.envelope import Event, build_event, encode_event
 from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
 from fleetbus.workers.store.base import EventQuery
@@ -342,3 +344,67 @@ def test_mongodb_gone_while_events_arrive(bus: Bus, tmp_path: Path) -> None:
         assert_stored_once_in_order(bus, "explorer1", keys(first + second))
     finally:
         server.stop()
+
+
+def no_space_for(name: str, before: float = 0.0) -> object:
+    """``write_atomically`` failing with ENOSPC for the outbox file ``name`` (after ``before`` s)."""
+    real = storage_module.write_atomically
+
+    def write(path: Path, data: bytes, durable: bool = True) -> None:
+        if path.name == name:
+            time.sleep(before)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(path, data, durable)
+
+    return write
+
+
+def test_a_publish_whose_outbox_write_fails_after_the_event_was_sent_says_so_and_a_resend_is_stored_once(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The express path puts an event on the wire before its outbox write ends: when the disk is
+    full the publish raises OutboxWriteFailed saying it may have been sent, and enqueueing the
+    same event again does not make a second record."""
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    with bus.worker():
+        explorer.publish("status", status(90))  # the express lane is open, the outbox empty
+        wait_for(lambda: bus.count("status") == 1, what="the first event in the store")
+        # the write ends after the sender had time to send (a full disk, and slow); the outbox was
+        # emptied, so its next segment is numbered 0 again
+        monkeypatch.setattr(storage_module, "write_atomically", no_space_for("seg-000000000000.json", 0.5))
+        with pytest.raises(
+            OutboxWriteFailed, match="stored none of the 1 events, which the sender had"
+        ) as raised:
+            explorer.publish("hazard", hazard())
+        monkeypatch.undo()
+        failed = raised.value
+        assert failed.sent and failed.kept == 0 and [e.type.value for e in failed.not_kept] == ["hazard"]
+        assert explorer.outbox.pending() == 0
+        wait_for(lambda: bus.count("hazard") == 1, what="the hazard that was sent")
+
+        explorer.enqueue(failed.not_kept)  # as the guide says: the same events, not new ones
+        assert explorer.flush(timeout=30)
+        time.sleep(1)  # a second record would have come by now
+    [stored] = bus.find(EventQuery(type="hazard"))
+    assert (stored.epoch, stored.seq) == (failed.events[0].epoch, failed.events[0].seq)
+
+
+def test_a_publish_of_many_whose_outbox_write_fails_on_a_later_segment_sends_only_those_kept(
+    bus: Bus, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    explorer = bus.robot(bus.add("explorer1", kind=RobotKind.EXPLORER))
+    with bus.worker():
+        # 600 events fill segments 0 and 1 (256 each); the disk is full when segment 2 is written
+        monkeypatch.setattr(storage_module, "write_atomically", no_space_for("seg-000000000002.json"))
+        with pytest.raises(OutboxWriteFailed, match="only the first 512 of 600 events") as raised:
+            explorer.publish_many([("status", status(80)) for _ in range(600)])
+        monkeypatch.undo()
+        failed = raised.value
+        assert (failed.kept, failed.sent, len(failed.not_kept)) == (512, False, 88)
+        wait_for(lambda: bus.count("status") == 512, what="the 512 events kept")
+        time.sleep(1)
+        assert bus.count("status") == 512, "none of those not kept was sent"
+
+        explorer.enqueue(failed.not_kept)
+        wait_for(lambda: bus.count("status") == 600, what="all 600 once the rest was enqueued again")
+    assert [r.seq for r in bus.find(EventQuery(type="status"))] == [e.seq for e in failed.events]
