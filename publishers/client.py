@@ -79,6 +79,10 @@ log = logging.getLogger("fleetbus.robot")
 
 #: The service's setting of when a notification is late, read by the robot too.
 LATE_AFTER_VARIABLE = "FLEETBUS_LATE_AFTER_S"
+#: How long :meth:`RobotClient.close` waits for the sender to stop once the delivery is over. The
+#: sender's waits for the broker look at the stop flag every 50 ms: this is for the rest of a
+#: connection attempt or of a write of the outbox. Past it, the state stays locked until it stops.
+SENDER_STOP_S = 2.0
 #: How often a listener given a ``stop`` event looks at it while its inbox is quiet.
 STOP_CHECK_S = 0.5
 
@@ -271,7 +275,12 @@ class RobotClient:
         """Deliver what waits in the outbox, for ``flush_timeout`` at most (default: the client's
         ``close_timeout``), then stop. The delivery ends early when the broker is away: a sender
         that is cut off tries once more at once, and its failure ends the wait. Events not yet
-        confirmed stay in the outbox for the next run."""
+        confirmed stay in the outbox for the next run.
+
+        Returns within ``flush_timeout`` and :data:`SENDER_STOP_S` more: a sender waiting for a
+        broker slow to confirm stops waiting. One still busy then (opening a connection, writing
+        the outbox's files) is left to end in the background, logged, and the robot's state stays
+        locked until it does, so that it never writes into files another client owns."""
         with self._storing:  # a publish under way stores its events first; later ones are refused
             if self._closed:
                 return
@@ -288,10 +297,28 @@ class RobotClient:
                     )
         finally:
             self._sessions.close()
-            if self._started:
-                self._sender.stop()
-            self.outbox.close()
-            self._lock.release()
+            if not self._started or self._sender.stop(SENDER_STOP_S):
+                self._let_go()
+            else:
+                log.error(
+                    "%s's sender did not stop within %g s (opening a connection, or writing to the "
+                    "outbox's files): the robot's state stays locked until it does",
+                    self.robot_id,
+                    SENDER_STOP_S,
+                )
+                threading.Thread(
+                    target=self._let_go_once_stopped, name=f"fleetbus-closing-{self.robot_id}", daemon=True
+                ).start()
+
+    def _let_go(self) -> None:
+        """Close the outbox and unlock the robot's state: another client may own them now."""
+        self.outbox.close()
+        self._lock.release()
+
+    def _let_go_once_stopped(self) -> None:
+        self._sender.join()
+        self._let_go()
+        log.warning("%s's sender stopped at last: the robot's state is unlocked", self.robot_id)
 
     def __enter__(self) -> RobotClient:
         self.start()

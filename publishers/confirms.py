@@ -17,13 +17,18 @@ import pika.exceptions
 from pika.adapters.blocking_connection import BlockingChannel, BlockingConnection
 from pika.spec import Basic
 
-from fleetbus.publishers.errors import BrokerUnavailable, PublishRefused, PublishTimeout
+from fleetbus.publishers.errors import BrokerUnavailable, PublisherError, PublishRefused, PublishTimeout
 
 _SLICE = 0.05
 
 
 def _nothing() -> None:
     pass
+
+
+class WaitStopped(PublisherError):
+    """A wait for the broker's answers was given up because its caller is stopping: what it waited
+    for is in doubt, as after a lost connection."""
 
 
 @dataclass(frozen=True)
@@ -58,8 +63,17 @@ SLOW_BROKER_PERIODS = 6
 
 
 class PipelinedConfirms:
-    def __init__(self, connection: BlockingConnection, channel: BlockingChannel, timeout: float) -> None:
+    def __init__(
+        self,
+        connection: BlockingConnection,
+        channel: BlockingChannel,
+        timeout: float,
+        stopping: Callable[[], bool] = lambda: False,
+    ) -> None:
+        """``stopping``: looked at while waiting (every 50 ms); once true, a wait raises
+        :class:`WaitStopped` (a slow broker may otherwise hold it ``SLOW_BROKER_PERIODS`` timeouts)."""
         self._connection = connection
+        self._stopping = stopping
         self._channel = channel
         self._impl = channel._impl  # the async channel under the blocking facade
         self._next_tag = 1
@@ -140,6 +154,8 @@ class PipelinedConfirms:
         while not done():
             if self._closed_reason is not None:
                 raise self._closed_error()
+            if self._stopping():
+                raise WaitStopped(f"stopped waiting for the {what} after {time.monotonic() - started:.1f} s")
             now = time.monotonic()
             remaining = deadline - now
             if remaining <= 0:

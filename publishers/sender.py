@@ -41,7 +41,7 @@ import pika.credentials
 import pika.exceptions
 
 from fleetbus.publishers.backoff import reconnect_delay
-from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, Window
+from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, WaitStopped, Window
 from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublishRefused, PublishTimeout
 from fleetbus.publishers.handshake import broker_unverified, certificate_refusal
 from fleetbus.publishers.login import login_refusal
@@ -200,11 +200,19 @@ class Sender:
     def start(self) -> None:
         self._thread.start()
 
-    def stop(self, timeout: float = 10.0) -> None:
+    def stop(self, timeout: float = 10.0) -> bool:
+        """Tell the thread to stop, and wait ``timeout`` at most for it to end; whether it ended.
+        Its waits for the broker look at the stop: it ends within a fraction of a second, unless
+        it is in the middle of opening a connection or of a write to the outbox's files."""
         with self._condition:
             self._stopping = True
             self._condition.notify_all()
         self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    def join(self) -> None:
+        """Wait for the thread to end, however long that takes (after :meth:`stop`)."""
+        self._thread.join()
 
     def wake(self) -> None:
         with self._condition:
@@ -354,6 +362,12 @@ class Sender:
             if not drained:
                 self._idle_wait()
             return 0, 0  # the connection works, and the broker takes what it is sent
+        except WaitStopped as stopped:
+            # what was in flight waits in the outbox for the next run (the server drops a copy)
+            log.info("robot sender stopping: %s", stopped)
+            self._release()
+            self._disconnect(None, abort=True)
+            return failures, nacks
         except OutboxError as error:
             # the outbox's files, not the network: neither reconnect nor send anything again
             delay = reconnect_delay(self._outbox_failures, self._max_delay)
@@ -471,9 +485,14 @@ class Sender:
     def _connect(self) -> None:
         connection = pika.BlockingConnection(self._parameters)
         try:
-            confirms = PipelinedConfirms(connection, connection.channel(), self._confirm_timeout)
+            confirms = PipelinedConfirms(
+                connection, connection.channel(), self._confirm_timeout, lambda: self._stopping
+            )
         except Exception:
-            connection.close()
+            if self._stopping:
+                _abort(connection)  # a graceful close waits for a broker that may not answer
+            else:
+                connection.close()
             raise
         self._connection, self._confirms = connection, confirms
         with self._condition:
@@ -489,7 +508,8 @@ class Sender:
             "robot sender connected to %s:%s", getattr(params, "host", "?"), getattr(params, "port", "?")
         )
 
-    def _disconnect(self, error: str | None) -> None:
+    def _disconnect(self, error: str | None, abort: bool = False) -> None:
+        """Forget the connection, and close it: gracefully unless ``error`` or ``abort``."""
         connection, self._connection, self._confirms = self._connection, None, None
         with self._condition:
             if self._connected and error:
@@ -501,7 +521,7 @@ class Sender:
             self._condition.notify_all()
         if connection is not None and connection.is_open:
             try:
-                if error:
+                if error or abort:
                     _abort(connection)
                 else:
                     connection.close()
@@ -511,7 +531,9 @@ class Sender:
     def _fresh_channel(self) -> PipelinedConfirms:
         assert self._connection is not None
         channel = self._connection.channel()
-        self._confirms = PipelinedConfirms(self._connection, channel, self._confirm_timeout)
+        self._confirms = PipelinedConfirms(
+            self._connection, channel, self._confirm_timeout, lambda: self._stopping
+        )
         return self._confirms
 
     def _drain(self) -> bool:

@@ -11,6 +11,7 @@ import itertools
 import json
 import logging
 import signal
+import socket
 import threading
 import time
 from dataclasses import replace
@@ -23,6 +24,7 @@ from fleetbus.publishers import storage as storage_module
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.errors import BrokerUnavailable, LoginRefused
 from fleetbus.publishers.outbox import OutboxWriteFailed, Overflow, TypePolicy
+from fleetbus.publishers.state_lock import RobotStateInUse
 from fleetbus.schemas.envelope import Event, build_event, encode_event
 from fleetbus.schemas.routing import EXPRESS_QUEUE, INGEST_QUEUE, RobotKind
 from fleetbus.workers.store.base import EventQuery
@@ -408,3 +410,62 @@ def test_a_publish_of_many_whose_outbox_write_fails_on_a_later_segment_sends_onl
         explorer.enqueue(failed.not_kept)
         wait_for(lambda: bus.count("status") == 600, what="all 600 once the rest was enqueued again")
     assert [r.seq for r in bus.find(EventQuery(type="status"))] == [e.seq for e in failed.events]
+
+
+def test_close_returns_in_its_time_while_the_broker_holds_the_confirms_and_unlocks_only_a_stopped_sender(
+    bus: Bus, link_for: list[NetworkLink], broker_node: LocalNode | None
+) -> None:
+    """A broker that is alive but does not confirm is waited for up to six confirm timeouts; a
+    close() does not wait that long: the sender stops waiting, its events stay in the outbox for
+    the next run, and the robot's state is unlocked once the sender has ended."""
+    if broker_node is None:
+        pytest.skip("needs the private node's plain AMQP listener; the run's broker is a configured one")
+    ports = broker_node.ports()
+    assert ports is not None
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = NetworkLink(ports["amqp"]).start()
+    link_for.append(link)
+    plain = replace(account, amqp_url=urlsplit(account.amqp_url)._replace(scheme="amqp", query="").geturl())
+    explorer = bus.robot(plain, via=link, confirm_timeout=5.0, close_timeout=1.0)
+    link.hold_confirms(120)
+    explorer.publish_many([("status", status(90 - i)) for i in range(20)], wait=False)
+    time.sleep(0.5)  # the window is on the wire, its confirms held
+
+    started = time.monotonic()
+    explorer.close()
+    assert time.monotonic() - started < 1.0 + 2.0 + 1.0, "close_timeout, and the sender's stop"
+    assert not explorer._sender._thread.is_alive()
+
+    again = RobotClient(plain.amqp_url, state_dir=bus.settings.robots_dir)  # the state is unlocked
+    try:
+        assert again.outbox.pending() == 20, "they wait for the next run"
+    finally:
+        again.close(flush_timeout=0)
+
+
+def test_a_sender_that_cannot_stop_in_time_keeps_the_robots_state_locked_until_it_ends(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A broker that takes the TCP connection and never answers holds the sender in pika's
+    connection handshake, which the stop cannot cut short: close() returns all the same, says so,
+    and the robot's state stays locked until the sender ends (it would write into files a new
+    client owns)."""
+    silent = socket.create_server(("127.0.0.1", 0))  # the kernel accepts; nobody answers
+    try:
+        url = f"amqp://explorer1:secret@127.0.0.1:{silent.getsockname()[1]}/"
+        robot = RobotClient(url, state_dir=tmp_path, close_timeout=0.5, durable=False)
+        robot.start()
+        time.sleep(0.5)  # the sender is in its first connection attempt
+        started = time.monotonic()
+        with caplog.at_level(logging.ERROR, logger="fleetbus.robot"):
+            robot.close()
+        assert time.monotonic() - started < 0.5 + 2.0 + 1.0
+        assert "did not stop" in caplog.text
+        assert robot._sender._thread.is_alive()
+        with pytest.raises(RobotStateInUse):
+            RobotClient(url, state_dir=tmp_path)
+        wait_for(lambda: not robot._sender._thread.is_alive(), 60, "the sender's attempt ending")
+        wait_for(lambda: robot._lock._fd is None, 5, "the state unlocked")
+        RobotClient(url, state_dir=tmp_path).close()
+    finally:
+        silent.close()
