@@ -391,7 +391,8 @@ class TeamMemberOut(BaseModel):
     service_changed_at: datetime | None
     outbox_dropped: dict[str, int] = Field(
         default_factory=dict,
-        description="what its outbox dropped so far by type (its thinning policy), as its newest status said",
+        description="what its outbox dropped so far by type (its thinning policy), and files it set aside "
+        "as unreadable (`unreadable-file`), as its newest status said",
     )
 
     @classmethod

@@ -189,7 +189,8 @@ class RobotStatus(Strict):
     outbox_dropped: dict[str, Annotated[int, Field(ge=0)]] | None = Field(
         default=None,
         max_length=16,
-        description="events the robot's outbox dropped by its thinning policy since it was made, by type "
+        description="events the robot's outbox dropped by its thinning policy since it was made, by type, "
+        "and under `unreadable-file` the outbox files it found unreadable at a start and set aside "
         "(the robot client fills it in)",
     )
 
