@@ -266,3 +266,20 @@ def test_a_reply_that_comes_after_its_call_gave_up_is_not_kept(
         wait_for(late_reply_read, what="the late reply reaching the robot")
         assert rpc._replies == {}, "the late reply kept"
         assert explorer.wardens(timeout=10) is not None, "and the next call is answered"
+
+
+def test_a_service_call_after_the_broker_closed_the_service_channel_opens_a_new_one(bus: Bus) -> None:
+    """The broker may close the service channel alone (here: a publish it refuses, 403; a 404 is
+    alike) and the client only learns of it at its next call, which then goes on a new channel of
+    the same connection instead of failing."""
+    warden = bus.robot(bus.add("warden1", kind=RobotKind.WARDEN))
+    with bus.worker():
+        assert [w["name"] for w in warden.wardens(timeout=30)] == ["warden1"]
+        session = warden._sessions.mine()
+        connection, rpc = session.connection, session.rpc
+        assert connection is not None and rpc is not None
+        rpc._channel.basic_publish("no-such-exchange", "x", b"{}")
+        time.sleep(0.5)  # the broker's channel.close is on its way; nobody reads it yet
+        assert [w["name"] for w in warden.wardens(timeout=30)] == ["warden1"]
+        assert session.connection is connection, "the same connection, a new channel"
+        assert session.rpc is not rpc
