@@ -209,7 +209,13 @@ class IngestConsumer:
         for finish in finishing:
             await self._retrying(finish)
         if last is not None:
-            await last.ack(multiple=True)
+            try:
+                await last.ack(multiple=True)
+            except BROKER_ERRORS as error:
+                # The channel the batch came on is gone, and the broker gives its unacked messages
+                # again (on the robust connection's new channel): handled again, idempotently, its
+                # finishing done. Nothing to stop for; the batches after it are acked as they come.
+                log.warning("a handled batch's channel closed before its ack (%r); it comes again", error)
 
     def _on_acked(self, acking: asyncio.Task[None]) -> None:
         """A batch's finishing or ack that failed (past its retries) ends the consumer: the ones
