@@ -29,7 +29,7 @@ import pika.exceptions
 from fleetbus.publishers.client import RobotClient, robot_folder
 from fleetbus.publishers.errors import PublisherError
 from fleetbus.publishers.maps import map_events
-from fleetbus.publishers.outbox import OutboxFull
+from fleetbus.publishers.outbox import OutboxFull, OutboxWriteFailed
 from fleetbus.publishers.ros.commands import follow_commands
 from fleetbus.publishers.ros.convert import (
     hazard_body,
@@ -428,7 +428,11 @@ class Bridge:
 
     def _publish(self, converted: list[Converted]) -> None:
         """Into the outbox in one write, and counted; raises OutboxFull having taken none."""
-        self.robot.publish_many([event for message in converted for event in message.events], wait=False)
+        events = [event for message in converted for event in message.events]
+        try:
+            self.robot.publish_many(events, wait=False)
+        except OutboxWriteFailed as error:
+            self._keep(error)
         for message in converted:
             self.counters.recorded[message.topic] += 1
             if message.mapped:
@@ -522,6 +526,21 @@ class Bridge:
             self.start_ros_side()
         except RosSideError as error:  # self._ended is set: the next round tries again
             self._side_failure = str(error)
+
+    def _keep(self, error: OutboxWriteFailed) -> None:
+        """Put in the outbox the events a failed write did not keep (a full disk), tried again after
+        a backoff until it has room: the same events, with their numbers, never built again, since
+        the first part is kept and the broker may have the rest (it keeps one copy of each).
+        Stopped while it still fails, raise the error (:meth:`_write` counts the batch dropped)."""
+        parts = self.counters.parts
+        while True:
+            if self._stop.wait(parts.failed(WRITER_PART, f"{type(error).__name__}: {error}")):
+                raise error
+            try:
+                self.robot.enqueue(error.not_kept, wait=False)
+                return
+            except OutboxWriteFailed as again:
+                error = again
 
     def _write(self, batch: list[dict[str, Any]]) -> None:
         """Forward ``batch``, again after a backoff while the outbox cannot be written (a full

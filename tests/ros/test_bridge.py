@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import stat
+import time
 import xmlrpc.client
 from datetime import datetime, timezone
 from pathlib import Path
@@ -14,11 +16,13 @@ import pytest
 
 from fleetbus.broker.accounts import Role
 from fleetbus.broker.mounts import bind_all, mount_bindings
+from fleetbus.publishers import storage as storage_module
+from fleetbus.publishers.ros.bridge import WRITER_PART
 from fleetbus.publishers.ros.mapping import Mapping, load_mapping
 from fleetbus.publishers.tls import blocking_connection
 from fleetbus.schemas.routing import RobotKind
 from fleetbus.workers.store.base import EventQuery
-from tests.factories import hazard
+from tests.factories import hazard, status
 from tests.link import NetworkLink
 from tests.ros.conftest import RosMaster, ros_peer, running_bridge
 from tests.support import Bus, network_link, read_line, wait_for
@@ -157,6 +161,40 @@ def test_the_outbox_keeps_what_the_bridge_records_while_the_broker_is_away(
         link.restore()
         wait_for(lambda: {"/chatter", "/imu"} <= set(ros_records(bus, "rosbot2")), what="delivered")
         wait_for(lambda: bus.count("map", "rosbot2") and bus.count("localisation", "rosbot2"), what="events")
+
+
+def test_a_batch_the_full_disk_kept_only_on_the_wire_is_stored_once(
+    bus: Bus, ros_master: RosMaster, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A batch into an empty outbox goes on the wire while it is written; when that write fails (a
+    full disk) the bridge puts the same events in the outbox again once it has room, with their
+    numbers: the server keeps one copy. Built again, they had new numbers and were stored twice."""
+    robot = bus.robot(bus.add("rosbot6", kind=RobotKind.EXPLORER))
+    real, failed = storage_module.write_atomically, []
+
+    def first_write_fails_after_the_send(path: Path, data: bytes, durable: bool = True) -> None:
+        if not failed and path.name.startswith("seg-"):
+            failed.append(path.name)
+            time.sleep(0.5)  # a slow, full disk: the sender has put the batch on the wire meanwhile
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(path, data, durable)
+
+    monkeypatch.setattr(storage_module, "write_atomically", first_write_fails_after_the_send)
+    with (
+        bus.worker(),
+        running_bridge(robot, ros_master, bus.settings.robots_dir) as bridge,
+        ros_peer(ros_master, "burst", "/once", "5"),
+    ):
+        wait_for(lambda: failed, what="the first outbox write failed")
+        wait_for(lambda: bridge.counters.recorded.get("/once") == 6, what="the burst (and its last) recorded")
+        assert WRITER_PART not in bridge.counters.parts.failing(), "the writer recovered"
+        assert robot.flush(timeout=30)
+        recorded = dict(bridge.counters.recorded)
+        # after every ros event the bridge sent, in the robot's shard: once it is stored, so are they
+        robot.publish("status", status())
+        wait_for(lambda: bus.count("status", "rosbot6") == 1, what="a status sent after them stored")
+    stored = [r.body["topic"] for r in bus.find(EventQuery(type="ros", robot_id="rosbot6"))]
+    assert {topic: stored.count(topic) for topic in recorded} == recorded, "each message stored once"
 
 
 def test_filters_and_the_rate_limit_drop_and_count(bus: Bus, ros_master: RosMaster) -> None:
