@@ -41,6 +41,7 @@ import pika.credentials
 import pika.exceptions
 
 from fleetbus.publishers.backoff import reconnect_delay
+from fleetbus.publishers.closing import close_quietly
 from fleetbus.publishers.confirms import Outcome, Outgoing, PipelinedConfirms, WaitStopped, Window
 from fleetbus.publishers.errors import CONNECTION_FAILED, BrokerUnavailable, PublishRefused, PublishTimeout
 from fleetbus.publishers.handshake import broker_unverified, certificate_refusal
@@ -524,7 +525,7 @@ class Sender:
                 if error or abort:
                     _abort(connection)
                 else:
-                    connection.close()
+                    close_quietly(connection)
             except Exception:  # the connection is already broken; nothing more to do with it
                 pass
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import pika
 import pika.exceptions
 
+from fleetbus.publishers.closing import close_quietly
 from fleetbus.publishers.errors import ClientClosed
 from fleetbus.publishers.rpc import RpcChannel
 
@@ -29,15 +30,6 @@ class ThreadSession:
     rpc: RpcChannel | None = None
     resynced_on: pika.BlockingConnection | None = None
     """The connection on which this thread last rebuilt its list of open hazards."""
-
-
-def close_quietly(connection: pika.BlockingConnection) -> None:
-    """Close ``connection`` from its own thread (or once that thread is gone), broken or not."""
-    if connection.is_open:
-        try:
-            connection.close()
-        except pika.exceptions.AMQPError:
-            pass  # already broken
 
 
 class Sessions:

@@ -22,6 +22,7 @@ import pytest
 
 from fleetbus.publishers import storage as storage_module
 from fleetbus.publishers.client import RobotClient
+from fleetbus.publishers.closing import CLOSE_WAIT_S
 from fleetbus.publishers.errors import BrokerUnavailable, LoginRefused
 from fleetbus.publishers.outbox import OutboxWriteFailed, Overflow, TypePolicy
 from fleetbus.publishers.state_lock import RobotStateInUse
@@ -441,6 +442,30 @@ def test_close_returns_in_its_time_while_the_broker_holds_the_confirms_and_unloc
         assert again.outbox.pending() == 20, "they wait for the next run"
     finally:
         again.close(flush_timeout=0)
+
+
+def test_close_returns_in_its_time_when_the_network_went_silent_after_a_service_call(
+    bus: Bus, link_for: list[NetworkLink], broker_node: LocalNode | None
+) -> None:
+    """A service call opened the calling thread's own connection; then nothing the broker sends
+    reaches the robot any more (no reset: a silent network). Closing that connection waits for the
+    broker's answer for a moment only, then drops the socket, where it waited for the heartbeat."""
+    if broker_node is None:
+        pytest.skip("needs the private node's plain AMQP listener; the run's broker is a configured one")
+    ports = broker_node.ports()
+    assert ports is not None
+    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
+    link = NetworkLink(ports["amqp"]).start()
+    link_for.append(link)
+    plain = replace(account, amqp_url=urlsplit(account.amqp_url)._replace(scheme="amqp", query="").geturl())
+    explorer = bus.robot(plain, via=link, close_timeout=1.0)
+    with bus.worker():
+        assert explorer.wardens(timeout=10) == []
+        link.mute_replies()
+        started = time.monotonic()
+        explorer.close()
+    assert time.monotonic() - started < 1.0 + 2.0 + CLOSE_WAIT_S + 1.0
+    assert not explorer._sender._thread.is_alive(), "the sender closed its connection in time too"
 
 
 def test_a_sender_that_cannot_stop_in_time_keeps_the_robots_state_locked_until_it_ends(
