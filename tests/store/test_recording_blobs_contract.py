@@ -67,3 +67,18 @@ async def test_retention_deletes_the_blobs_no_record_kept_names(recording: Recor
     assert await recording.delete_recorded_before(ROS_TYPE, T0 + timedelta(seconds=2.5)) == 2
     assert await recording.get_blob(b) is None and await recording.get_blob(c) is None
     assert await recording.database_bytes() < empty + 262144, "their bytes are no longer counted"
+
+
+async def test_a_message_recorded_again_later_keeps_its_blob_until_its_record_goes(
+    recording: RecordingStore,
+) -> None:
+    """The recorder noted a message's blobs, then died before its record was written; the message
+    came again an hour later and was recorded then. Retention by age must go by that time."""
+    digest, data = image(1)
+    await recording.put_blob(digest, data)
+    await recording.bookkeeping.blobs_referenced([ros("r0", 0, digest)])  # the record never written
+    await recording.write_recorded([ros("r0", 3600, digest)])  # the message again
+    assert await recording.delete_recorded_before(ROS_TYPE, T0 + timedelta(seconds=60)) == 0
+    assert await recording.get_blob(digest) == data, "its record is kept: so is its blob"
+    assert await recording.delete_recorded_before(ROS_TYPE, T0 + timedelta(seconds=3601)) == 1
+    assert await recording.get_blob(digest) is None

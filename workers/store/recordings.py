@@ -344,8 +344,13 @@ class Bookkeeping:
             for record in records
             for digest in sorted(blobs_named(record))
         ]
-        if refs:
-            await self._refs.insert(refs)
+        if not refs:
+            return
+        for ref, inserted in zip(refs, await self._refs.insert(refs), strict=True):
+            if not inserted:  # the message again (redelivered): its record, if not yet written, takes
+                # this time, so the reference does too, lest retention by age release it first
+                where = {"type": ref["type"], "key": ref["key"], "digest": ref["digest"]}
+                await self._refs.update({**where, "recorded_at": Range(lt=ref["recorded_at"])}, ref)
 
     async def refs_of(self, type: str, keys: Sequence[str]) -> list[dict[str, Any]]:
         found: list[dict[str, Any]] = []
