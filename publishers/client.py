@@ -233,11 +233,13 @@ class RobotClient:
     # connection
     def start(self) -> None:
         """Start draining the outbox in the background (connecting whenever the broker answers)."""
-        with self._start_lock:
+        with self._start_lock:  # close() reads whether it started under it: never a sender it missed
+            if self._closed:
+                raise ClientClosed("the robot client is closed")
             if self._started:
                 return
             self._started = True
-        self._sender.start()
+            self._sender.start()
 
     def connect(self, timeout: float | None = None) -> None:
         """Start, and wait until the sender reached the broker; raise BrokerUnavailable if it did
@@ -285,9 +287,11 @@ class RobotClient:
             if self._closed:
                 return
             self._closed = True
+        with self._start_lock:
+            started = self._started
         try:
             timeout = self._close_timeout if flush_timeout is None else flush_timeout
-            if timeout > 0 and self._started and self.outbox.pending():
+            if timeout > 0 and started and self.outbox.pending():
                 if not self._sender.deliver(timeout):
                     log.warning(
                         "%d events wait in %s's outbox for the next run: %s",
@@ -297,7 +301,7 @@ class RobotClient:
                     )
         finally:
             self._sessions.close()
-            if not self._started or self._sender.stop(SENDER_STOP_S):
+            if not started or self._sender.stop(SENDER_STOP_S):
                 self._let_go()
             else:
                 log.error(

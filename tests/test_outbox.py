@@ -321,6 +321,9 @@ def test_a_closed_client_takes_no_more_events(tmp_path: Path) -> None:
         robot.enqueue(built, wait=False)
     with pytest.raises(ClientClosed):
         robot.flush(timeout=0.1)
+    with pytest.raises(ClientClosed):
+        robot.start()  # a sender started now would work on files the client no longer holds
+    assert not robot._sender._thread.is_alive()
     assert Outbox(tmp_path / "explorer1" / "outbox", read_only=True).pending() == 0
 
 
