@@ -111,6 +111,11 @@ class NetworkLink:
                     self._selector.register(client, selectors.EVENT_READ, (server, False))
 
     @property
+    def held_confirms(self) -> int:
+        """How many confirms the link holds back now (:meth:`hold_confirms`)."""
+        return len(self._held)
+
+    @property
     def stalled(self) -> bool:
         """Whether the clients' side has used up its bytes and stopped moving."""
         with self._lock:

@@ -387,9 +387,10 @@ def test_a_publish_whose_outbox_write_fails_after_the_event_was_sent_says_so_and
 
         explorer.enqueue(failed.not_kept)  # as the guide says: the same events, not new ones
         assert explorer.flush(timeout=30)
-        time.sleep(1)  # a second record would have come by now
-    [stored] = bus.find(EventQuery(type="hazard"))
-    assert (stored.epoch, stored.seq) == (failed.events[0].epoch, failed.events[0].seq)
+        sentinel = explorer.publish("hazard", hazard())  # on the express lane, behind the resend
+        wait_for(lambda: bus.count("hazard") >= 2, what="the hazard sent after the resend stored")
+    stored = [(r.epoch, r.seq) for r in bus.find(EventQuery(type="hazard"))]
+    assert stored == [(failed.events[0].epoch, failed.events[0].seq), (sentinel.epoch, sentinel.seq)]
 
 
 def test_a_publish_of_many_whose_outbox_write_fails_on_a_later_segment_sends_only_those_kept(
@@ -404,13 +405,14 @@ def test_a_publish_of_many_whose_outbox_write_fails_on_a_later_segment_sends_onl
         monkeypatch.undo()
         failed = raised.value
         assert (failed.kept, failed.sent, len(failed.not_kept)) == (512, False, 88)
-        wait_for(lambda: bus.count("status") == 512, what="the 512 events kept")
-        time.sleep(1)
-        assert bus.count("status") == 512, "none of those not kept was sent"
+        sentinel = explorer.publish("status", status(70))  # in the robot's shard, behind them
+        wait_for(lambda: bus.count("status") >= 513, what="the 512 events kept, and one sent after")
+        assert bus.count("status") == 513, "none of those not kept was sent"
 
         explorer.enqueue(failed.not_kept)
-        wait_for(lambda: bus.count("status") == 600, what="all 600 once the rest was enqueued again")
-    assert [r.seq for r in bus.find(EventQuery(type="status"))] == [e.seq for e in failed.events]
+        wait_for(lambda: bus.count("status") == 601, what="all 600 once the rest was enqueued again")
+    stored = [r.seq for r in bus.find(EventQuery(type="status"))]
+    assert sorted(stored) == sorted([e.seq for e in failed.events] + [sentinel.seq])
 
 
 def test_close_returns_in_its_time_while_the_broker_holds_the_confirms_and_unlocks_only_a_stopped_sender(
@@ -430,7 +432,7 @@ def test_close_returns_in_its_time_while_the_broker_holds_the_confirms_and_unloc
     explorer = bus.robot(plain, via=link, confirm_timeout=5.0, close_timeout=1.0)
     link.hold_confirms(120)
     explorer.publish_many([("status", status(90 - i)) for i in range(20)], wait=False)
-    time.sleep(0.5)  # the window is on the wire, its confirms held
+    wait_for(lambda: link.held_confirms > 0, what="the window on the wire, its confirms held")
 
     started = time.monotonic()
     explorer.close()
@@ -476,11 +478,13 @@ def test_a_sender_that_cannot_stop_in_time_keeps_the_robots_state_locked_until_i
     and the robot's state stays locked until the sender ends (it would write into files a new
     client owns)."""
     silent = socket.create_server(("127.0.0.1", 0))  # the kernel accepts; nobody answers
+    accepted: socket.socket | None = None
     try:
         url = f"amqp://explorer1:secret@127.0.0.1:{silent.getsockname()[1]}/"
         robot = RobotClient(url, state_dir=tmp_path, close_timeout=0.5, durable=False)
         robot.start()
-        time.sleep(0.5)  # the sender is in its first connection attempt
+        silent.settimeout(30)
+        accepted, _ = silent.accept()  # the sender is in its first connection attempt
         started = time.monotonic()
         with caplog.at_level(logging.ERROR, logger="fleetbus.robot"):
             robot.close()
@@ -493,4 +497,6 @@ def test_a_sender_that_cannot_stop_in_time_keeps_the_robots_state_locked_until_i
         wait_for(lambda: robot._lock._fd is None, 5, "the state unlocked")
         RobotClient(url, state_dir=tmp_path).close()
     finally:
+        if accepted is not None:
+            accepted.close()
         silent.close()

@@ -210,9 +210,11 @@ def test_an_outbox_that_cannot_settle_is_tried_again_without_sending_anything_ag
     full = True
 
     real = {name: getattr(explorer.outbox, name) for name in ("_delete_segment", "_remove")}
+    tries: list[str] = []
 
     def no_space_for(name: str, *args: object, **kwargs: object) -> None:
         if full:
+            tries.append(name)
             raise OSError(errno.ENOSPC, "No space left on device")
         real[name](*args, **kwargs)
 
@@ -226,7 +228,9 @@ def test_an_outbox_that_cannot_settle_is_tried_again_without_sending_anything_ag
         channel.queue_bind(COPIES_QUEUE, "explorer1.events", "#")
         explorer.publish_many([("status", status(80 - i)) for i in range(10)], wait=False)
         wait_for(lambda: "No space left" in (explorer.last_error or ""), what="the outbox's error")
-        time.sleep(3)  # the sender had sent them 340 times by now, reconnecting after each
+        # it tried again and again: reconnecting and sending the window again after each, it had
+        # sent them once more for every try
+        wait_for(lambda: len(tries) >= 4, what="the settle tried again three times")
         assert bus.ready_messages(COPIES_QUEUE) == 10, "each sent once"
         assert explorer.connected and explorer._sender._failures == failures, "no reconnect"
         assert explorer.outbox.pending() == 10
@@ -252,9 +256,11 @@ def test_an_outbox_file_that_cannot_be_read_holds_the_sender_back_without_reconn
     explorer.publish_many([("status", status(80 - i)) for i in range(5)], wait=False)
     real = explorer.outbox._entry
     missing = True
+    tries: list[object] = []
 
     def entry(*args: object) -> object:
         if missing:
+            tries.append(args)
             raise FileNotFoundError(2, "No such file or directory", "blob-x.json")
         return real(*args)
 
@@ -266,7 +272,7 @@ def test_an_outbox_file_that_cannot_be_read_holds_the_sender_back_without_reconn
         wait_for(lambda: explorer.connected, what="the robot back")
         failures = explorer._sender._failures
         wait_for(lambda: "could not read the events" in (explorer.last_error or ""), what="the error")
-        time.sleep(2)
+        wait_for(lambda: len(tries) >= 3, what="the take tried again twice")
         assert explorer.connected and explorer._sender._failures == failures, "no reconnect"
         assert bus.ready_messages(COPIES_QUEUE) == 0 and explorer.outbox.pending() == 5
         missing = False

@@ -279,7 +279,12 @@ def test_a_service_call_after_the_broker_closed_the_service_channel_opens_a_new_
         connection, rpc = session.connection, session.rpc
         assert connection is not None and rpc is not None
         rpc._channel.basic_publish("no-such-exchange", "x", b"{}")
-        time.sleep(0.5)  # the broker's channel.close is on its way; nobody reads it yet
+
+        def closed_by_the_broker() -> bool:  # read here as the next call would read it first
+            connection.process_data_events(0)
+            return not rpc._channel.is_open
+
+        wait_for(closed_by_the_broker, what="the broker's channel.close")
         assert [w["name"] for w in warden.wardens(timeout=30)] == ["warden1"]
         assert session.connection is connection, "the same connection, a new channel"
         assert session.rpc is not rpc
