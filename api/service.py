@@ -7,7 +7,6 @@ import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
-from datetime import timedelta
 
 from fleetbus.api.services.account_check import AccountCheck, account_check_for
 from fleetbus.api.services.accounts import Accounts, accounts_for
@@ -167,7 +166,7 @@ async def open_service(
             beacons=Beacons(
                 repositories.beacons,
                 repositories.events,
-                timedelta(minutes=settings.beacon_window_max_minutes),
+                settings.beacon_window_max,
             ),
             recording_queries=Recording(recording, repositories.events),
             beacon_discards=BeaconDiscards(repositories.discards),

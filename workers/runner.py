@@ -270,7 +270,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
             **beacon_services(
                 repositories.beacons,
                 repositories.events,
-                timedelta(minutes=settings.beacon_window_max_minutes),
+                settings.beacon_window_max,
             ),
             **map_services(repositories.maps),
         },

@@ -25,6 +25,7 @@ from datetime import datetime, timedelta, timezone
 from enum import Enum
 
 from fleetbus.api.services.errors import Conflict, Forbidden, NotFound
+from fleetbus.broker.policies import SITE_DOWNLINK_PATTERN
 from fleetbus.schemas.roles import UserRole
 from fleetbus.schemas.routing import DEAD_LETTER_QUEUE, EventType
 from fleetbus.settings import Settings
@@ -76,8 +77,16 @@ MEANING = {
 }
 #: Kinds whose condition may grow after an acknowledgement: grown, it is a new occurrence.
 GROWING = frozenset({AlertKind.DEAD_LETTERS.value, AlertKind.DOWNLINK_DROPPED.value})
-#: The overflow counts of a site's downlink queue at central (``base1.downlink maxlen``).
-DOWNLINK_DROPS = re.compile(r"^(?P<site>[a-z][a-z0-9_-]{1,31})\.downlink maxlen$")
+
+
+def downlink_site(subject: str) -> str | None:
+    """The site whose downlink queue at central an overflow count is of (``base1.downlink
+    maxlen``: ``base1``); None for any other count. The queue as the bound's policy matches it."""
+    queue, _, reason = subject.rpartition(" ")
+    if reason != "maxlen" or not re.match(SITE_DOWNLINK_PATTERN, queue):
+        return None
+    return queue.removesuffix(".downlink")
+
 
 DeadLetterCount = Callable[[], Awaitable[int]]
 #: The open connections on the service's virtual host, by broker user (one management API call).
@@ -298,10 +307,9 @@ class Alerts:
         assert self._housekeeping is not None
         found = []
         for count in await self._housekeeping.bound_counts():
-            dropped = DOWNLINK_DROPS.match(count.subject) if count.bound == OVERFLOW else None
-            if dropped is None:
+            site = downlink_site(count.subject) if count.bound == OVERFLOW else None
+            if site is None:
                 continue
-            site = dropped["site"]
             detail = (
                 f"{count.count:,} accounts, removals or missions dropped from {site}.downlink, full while "
                 f"the site was away (last {_clock(count.last_at)}): `fleetbus sites sync {site}` sends "

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from datetime import timedelta
 from typing import TYPE_CHECKING
 
 from fleetbus.api.services.beacons import BeaconDiscards, Beacons
@@ -62,7 +61,7 @@ class Services:
         return Beacons(
             self._repos.beacons,
             self._repos.events,
-            timedelta(minutes=self._settings.beacon_window_max_minutes),
+            self._settings.beacon_window_max,
         )
 
     @property

@@ -13,6 +13,7 @@ import argparse
 import re
 import sys
 from collections.abc import Mapping
+from datetime import timedelta
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -665,6 +666,11 @@ class Settings(BaseSettings):
     @property
     def sqlite_path(self) -> Path:
         return self.data_dir / "store.sqlite3"
+
+    @property
+    def beacon_window_max(self) -> timedelta:
+        """How far back a look at the beacons heard may go (``beacon_window_max_minutes``)."""
+        return timedelta(minutes=self.beacon_window_max_minutes)
 
     @property
     def recording_path(self) -> Path:
