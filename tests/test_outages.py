@@ -20,6 +20,7 @@ from urllib.parse import urlsplit
 
 import pytest
 
+from fleetbus.broker.accounts import Account
 from fleetbus.publishers import storage as storage_module
 from fleetbus.publishers.client import RobotClient
 from fleetbus.publishers.closing import CLOSE_WAIT_S
@@ -139,13 +140,11 @@ def test_a_lost_confirm_makes_a_resend_not_a_second_record(bus: Bus, link_for: l
     assert bus.gaps() == []
 
 
-def test_a_broker_slow_to_confirm_is_waited_for_and_a_silent_one_is_left(
+def plain_explorer_link(
     bus: Bus, link_for: list[NetworkLink], broker_node: LocalNode | None
-) -> None:
-    """A loaded broker confirms late but answers: the robot keeps its connection (reconnecting
-    would add to the load, a storm with a whole team). One that answers nothing is given up on
-    after the confirm timeout, as before. (The link reads the broker's frames to hold its
-    confirms, so the robot comes in over the node's plain AMQP listener.)"""
+) -> tuple[Account, NetworkLink]:
+    """explorer1's account with a plain AMQP URL, and a link to the private node's plain listener
+    (the link reads AMQP frames: it cannot see into TLS)."""
     if broker_node is None:
         pytest.skip("needs the private node's plain AMQP listener; the run's broker is a configured one")
     ports = broker_node.ports()
@@ -153,8 +152,19 @@ def test_a_broker_slow_to_confirm_is_waited_for_and_a_silent_one_is_left(
     account = bus.add("explorer1", kind=RobotKind.EXPLORER)
     link = NetworkLink(ports["amqp"]).start()
     link_for.append(link)
-    plain = urlsplit(account.amqp_url)._replace(scheme="amqp", query="")
-    explorer = bus.robot(replace(account, amqp_url=plain.geturl()), via=link, confirm_timeout=2.0)
+    plain = urlsplit(account.amqp_url)._replace(scheme="amqp", query="").geturl()
+    return replace(account, amqp_url=plain), link
+
+
+def test_a_broker_slow_to_confirm_is_waited_for_and_a_silent_one_is_left(
+    bus: Bus, link_for: list[NetworkLink], broker_node: LocalNode | None
+) -> None:
+    """A loaded broker confirms late but answers: the robot keeps its connection (reconnecting
+    would add to the load, a storm with a whole team). One that answers nothing is given up on
+    after the confirm timeout, as before. (The link reads the broker's frames to hold its
+    confirms, so the robot comes in over the node's plain AMQP listener.)"""
+    plain, link = plain_explorer_link(bus, link_for, broker_node)
+    explorer = bus.robot(plain, via=link, confirm_timeout=2.0)
     with bus.worker() as worker:
         link.hold_confirms(5)  # two and a half confirm timeouts
         explorer.publish_many([("status", status(90 - i)) for i in range(20)], wait=False)
@@ -421,14 +431,7 @@ def test_close_returns_in_its_time_while_the_broker_holds_the_confirms_and_unloc
     """A broker that is alive but does not confirm is waited for up to six confirm timeouts; a
     close() does not wait that long: the sender stops waiting, its events stay in the outbox for
     the next run, and the robot's state is unlocked once the sender has ended."""
-    if broker_node is None:
-        pytest.skip("needs the private node's plain AMQP listener; the run's broker is a configured one")
-    ports = broker_node.ports()
-    assert ports is not None
-    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
-    link = NetworkLink(ports["amqp"]).start()
-    link_for.append(link)
-    plain = replace(account, amqp_url=urlsplit(account.amqp_url)._replace(scheme="amqp", query="").geturl())
+    plain, link = plain_explorer_link(bus, link_for, broker_node)
     explorer = bus.robot(plain, via=link, confirm_timeout=5.0, close_timeout=1.0)
     link.hold_confirms(120)
     explorer.publish_many([("status", status(90 - i)) for i in range(20)], wait=False)
@@ -452,14 +455,7 @@ def test_close_returns_in_its_time_when_the_network_went_silent_after_a_service_
     """A service call opened the calling thread's own connection; then nothing the broker sends
     reaches the robot any more (no reset: a silent network). Closing that connection waits for the
     broker's answer for a moment only, then drops the socket, where it waited for the heartbeat."""
-    if broker_node is None:
-        pytest.skip("needs the private node's plain AMQP listener; the run's broker is a configured one")
-    ports = broker_node.ports()
-    assert ports is not None
-    account = bus.add("explorer1", kind=RobotKind.EXPLORER)
-    link = NetworkLink(ports["amqp"]).start()
-    link_for.append(link)
-    plain = replace(account, amqp_url=urlsplit(account.amqp_url)._replace(scheme="amqp", query="").geturl())
+    plain, link = plain_explorer_link(bus, link_for, broker_node)
     explorer = bus.robot(plain, via=link, close_timeout=1.0)
     with bus.worker():
         assert explorer.wardens(timeout=10) == []
