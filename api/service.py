@@ -163,11 +163,7 @@ async def open_service(
             sites=sites,
             ledger=Ledger(repositories.events),
             maps=Maps(repositories.maps),
-            beacons=Beacons(
-                repositories.beacons,
-                repositories.events,
-                settings.beacon_window_max,
-            ),
+            beacons=Beacons(repositories.beacons, repositories.events, settings.beacon_window_max),
             recording_queries=Recording(recording, repositories.events),
             beacon_discards=BeaconDiscards(repositories.discards),
             signed_in=SignedIn(sessions, repositories.users),

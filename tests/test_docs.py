@@ -16,6 +16,7 @@ from referencing import Registry, Resource
 
 from fleetbus.schemas.asyncapi import asyncapi_document
 from fleetbus.schemas.services import METHODS
+from fleetbus.settings import Settings
 from fleetbus.workers.beacons import beacon_services
 from fleetbus.workers.maps import map_services
 from fleetbus.workers.services import hazard_services
@@ -106,7 +107,7 @@ def test_every_amqp_binding_is_valid_against_the_official_binding_schemas(
 def test_the_documented_services_are_the_workers_own() -> None:
     handlers = {
         **hazard_services(None, None),  # type: ignore[arg-type]
-        **beacon_services(None, None),  # type: ignore[arg-type]
+        **beacon_services(None, None, Settings().beacon_window_max),  # type: ignore[arg-type]
         **map_services(None),  # type: ignore[arg-type]
     }
     assert [method.name for method in METHODS] == list(handlers)

@@ -20,9 +20,6 @@ from fleetbus.workers.store.team import TeamStore
 from fleetbus.workers.validation import Accepted, Rejected, RejectReason
 
 DEFAULT_WINDOW = timedelta(minutes=10)
-#: How far back a look at the beacons may go (``FLEETBUS_BEACON_WINDOW_MAX_MINUTES``): each
-#: sighting in the window is read into memory.
-DEFAULT_MAX_WINDOW = timedelta(minutes=60)
 
 
 def window_refusal(window: timedelta, limit: timedelta) -> str | None:
@@ -84,9 +81,10 @@ async def stranded(beacons: BeaconRegistry, events: EventStore, since: datetime)
     return list(seen.values())
 
 
-def beacon_services(
-    beacons: BeaconRegistry, events: EventStore, max_window: timedelta = DEFAULT_MAX_WINDOW
-) -> dict[str, Handler]:
+def beacon_services(beacons: BeaconRegistry, events: EventStore, max_window: timedelta) -> dict[str, Handler]:
+    """``max_window``: how far back a look at the beacons may go (each sighting in it is read into
+    memory; the setting ``beacon_window_max``)."""
+
     def window(params: dict[str, Any]) -> datetime:
         minutes = params.get("minutes", DEFAULT_WINDOW.total_seconds() / 60)
         if isinstance(minutes, bool) or not isinstance(minutes, (int, float)) or not 0 < minutes < math.inf:

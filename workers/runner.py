@@ -267,11 +267,7 @@ async def start_worker(settings: Settings, url: str) -> WorkerContext:
         await rpc_channel.get_queue(RPC_QUEUE),
         {
             **hazard_services(repositories.hazards, repositories.channels),
-            **beacon_services(
-                repositories.beacons,
-                repositories.events,
-                settings.beacon_window_max,
-            ),
+            **beacon_services(repositories.beacons, repositories.events, settings.beacon_window_max),
             **map_services(repositories.maps),
         },
     )

@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, FiniteFloat, ValidationError
 from pydantic_core import ErrorDetails
 
 from fleetbus.api.services.errors import BadRequest
-from fleetbus.workers.beacons import DEFAULT_MAX_WINDOW, stranded, window_refusal
+from fleetbus.workers.beacons import stranded, window_refusal
 from fleetbus.workers.store.base import EventStore
 from fleetbus.workers.store.beacons import Beacon, BeaconRegistry
 from fleetbus.workers.store.discards import Discard, DiscardCount, DiscardLog
@@ -55,9 +55,7 @@ def beacons_of(entries: object) -> list[Beacon]:
 
 
 class Beacons:
-    def __init__(
-        self, registry: BeaconRegistry, events: EventStore, max_window: timedelta = DEFAULT_MAX_WINDOW
-    ) -> None:
+    def __init__(self, registry: BeaconRegistry, events: EventStore, max_window: timedelta) -> None:
         self._registry = registry
         self._events = events
         self._max_window = max_window

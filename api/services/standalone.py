@@ -58,11 +58,7 @@ class Services:
 
     @property
     def beacons(self) -> Beacons:
-        return Beacons(
-            self._repos.beacons,
-            self._repos.events,
-            self._settings.beacon_window_max,
-        )
+        return Beacons(self._repos.beacons, self._repos.events, self._settings.beacon_window_max)
 
     @property
     def beacon_discards(self) -> BeaconDiscards:

@@ -51,9 +51,7 @@ def record_source(robot: str, digest: str) -> str:
     return f"{robot}\0{digest}"
 
 
-def bag_record(
-    robot: str, digest: str, bag_file: str, item: BagMessage
-) -> RecordedMessage:
+def bag_record(robot: str, digest: str, bag_file: str, item: BagMessage) -> RecordedMessage:
     """The record of one bag message: keyed by its robot, its bag and its index."""
     return ros_record(
         robot,
