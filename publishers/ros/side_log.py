@@ -6,6 +6,10 @@ new one begins, so a ROS side that warns for weeks, or leaves a traceback at eve
 at most twice the bound on the robot's disk. Both files are 0600. The reader waits for nothing but
 the file: a line it cannot write (a full disk) is dropped and counted, and the ROS side never
 blocks on a full pipe.
+
+Written here rather than with ``logging.handlers.RotatingFileHandler``: that one formats log
+records (these are another process's raw bytes, partial lines included), and the files it makes
+take the process's umask, where these must be 0600 from their first byte.
 """
 
 from __future__ import annotations
