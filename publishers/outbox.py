@@ -560,30 +560,29 @@ class Outbox:
                 raise
 
     def _take(self, limit: int, whole_segments: bool) -> list[Entry]:
-        with self._lock:
-            entries, stopped = self._take_first(limit, whole_segments)
-            flying = Counter(number for number, _ in self._in_flight)
-            read: list[_Segment] = []
-            # the first segment this take reads may be taken in part, unless the first take stopped
-            taken_first = 0 if stopped else len(entries)
-            for segment in self._segments:
+        entries, stopped = self._take_first(limit, whole_segments)
+        flying = Counter(number for number, _ in self._in_flight)
+        read: list[_Segment] = []
+        # the first segment this take reads may be taken in part, unless the first take stopped
+        taken_first = 0 if stopped else len(entries)
+        for segment in self._segments:
+            if len(entries) == limit:
+                break
+            waiting = segment.size - flying[segment.number]
+            if waiting <= 0:
+                continue  # all of it is being sent already
+            if whole_segments and len(entries) > taken_first and len(entries) + waiting > limit:
+                break
+            read.append(segment)
+            for doc_id, doc in self._raw_docs(segment):
                 if len(entries) == limit:
                     break
-                waiting = segment.size - flying[segment.number]
-                if waiting <= 0:
-                    continue  # all of it is being sent already
-                if whole_segments and len(entries) > taken_first and len(entries) + waiting > limit:
-                    break
-                read.append(segment)
-                for doc_id, doc in self._raw_docs(segment):
-                    if len(entries) == limit:
-                        break
-                    if (segment.number, doc_id) not in self._in_flight:
-                        entries.append(self._entry(segment, doc_id, doc))
-                        self._in_flight.add((segment.number, doc_id))
-            for segment in read:
-                self._release(segment)
-            return entries
+                if (segment.number, doc_id) not in self._in_flight:
+                    entries.append(self._entry(segment, doc_id, doc))
+                    self._in_flight.add((segment.number, doc_id))
+        for segment in read:
+            self._release(segment)
+        return entries
 
     def _take_first(self, limit: int, whole_segments: bool) -> tuple[list[Entry], bool]:
         """Up to ``limit`` waiting entries of :data:`FIRST`'s types, oldest first, marked in flight.
@@ -644,41 +643,40 @@ class Outbox:
     def _settle(
         self, confirmed: Iterable[Entry], refused: Mapping[str, str], window: Iterable[Entry] | None
     ) -> None:
-        with self._lock:
-            taken = list(confirmed)
-            done = None if window is None else {entry.position for entry in window}
-            by_segment: dict[int, list[Entry]] = {}
-            refused_docs: list[dict[str, Any]] = []
-            now = datetime.now(timezone.utc).isoformat()
-            for entry in taken:
-                by_segment.setdefault(entry.position[0], []).append(entry)
-                if entry.message_id in refused:
-                    refused_docs.append(
-                        {
-                            "epoch": entry.epoch,
-                            "seq": entry.seq,
-                            "type": entry.type,
-                            "message_id": entry.message_id,
-                            "sent_at": entry.sent_at.isoformat(),
-                            "reason": refused[entry.message_id],
-                            "refused_at": now,
-                        }
-                    )
-            if refused_docs:
-                self._keep_refused(refused_docs)
-            for segment in list(self._segments):
-                leaving = by_segment.get(segment.number)
-                if not leaving:
-                    continue
-                ids = {entry.position[1] for entry in leaving}
-                if len(ids) == segment.size and all(entry.position in self._in_flight for entry in leaving):
-                    # every event it holds is confirmed (in flight, nothing else removed them):
-                    # delete it without reading it again
-                    self._delete_segment(segment, leaving)
-                else:
-                    self._remove(segment, [doc for doc in self._docs(segment) if doc.doc_id in ids])
-            self._in_flight = set() if done is None else self._in_flight - done
-            self._first_in_flight &= self._in_flight
+        taken = list(confirmed)
+        done = None if window is None else {entry.position for entry in window}
+        by_segment: dict[int, list[Entry]] = {}
+        refused_docs: list[dict[str, Any]] = []
+        now = datetime.now(timezone.utc).isoformat()
+        for entry in taken:
+            by_segment.setdefault(entry.position[0], []).append(entry)
+            if entry.message_id in refused:
+                refused_docs.append(
+                    {
+                        "epoch": entry.epoch,
+                        "seq": entry.seq,
+                        "type": entry.type,
+                        "message_id": entry.message_id,
+                        "sent_at": entry.sent_at.isoformat(),
+                        "reason": refused[entry.message_id],
+                        "refused_at": now,
+                    }
+                )
+        if refused_docs:
+            self._keep_refused(refused_docs)
+        for segment in list(self._segments):
+            leaving = by_segment.get(segment.number)
+            if not leaving:
+                continue
+            ids = {entry.position[1] for entry in leaving}
+            if len(ids) == segment.size and all(entry.position in self._in_flight for entry in leaving):
+                # every event it holds is confirmed (in flight, nothing else removed them):
+                # delete it without reading it again
+                self._delete_segment(segment, leaving)
+            else:
+                self._remove(segment, [doc for doc in self._docs(segment) if doc.doc_id in ids])
+        self._in_flight = set() if done is None else self._in_flight - done
+        self._first_in_flight &= self._in_flight
 
     def release(self) -> None:
         """Nothing of the last take was settled (the connection broke): it waits again, and counts
@@ -768,18 +766,19 @@ class Outbox:
     def _keep_refused(self, docs: list[dict[str, Any]]) -> None:
         """Under the lock: count them, and keep their reasons in the list, its newest only."""
         table = self._refused.table("refused")
-        if self._counter("refused") == Counter() and len(table):
+        rows = table.all()  # read once: the file is read again at each of TinyDB's reads
+        if self._counter("refused") == Counter() and rows:
             # counted from the list, once: an outbox from before the counts were kept
-            for event_type, n in Counter(doc["type"] for doc in table.all()).items():
+            for event_type, n in Counter(doc["type"] for doc in rows).items():
                 self._count("refused", event_type, n)
-        kept = {doc["message_id"] for doc in table.all()}
+        kept = {doc["message_id"] for doc in rows}
         docs = [doc for doc in docs if doc["message_id"] not in kept]  # a settle tried again
         for event_type, n in Counter(doc["type"] for doc in docs).items():
             self._count("refused", event_type, n)
-        table.insert_multiple(docs)
-        beyond = len(table) - REFUSED_KEPT
+        ids = [row.doc_id for row in rows] + table.insert_multiple(docs)
+        beyond = len(ids) - REFUSED_KEPT
         if beyond > 0:
-            table.remove(doc_ids=sorted(doc.doc_id for doc in table.all())[:beyond])
+            table.remove(doc_ids=sorted(ids)[:beyond])
 
     def dropped(self) -> Counter[str]:
         """What the thinning dropped, by type, since the outbox was made (kept on disk)."""
