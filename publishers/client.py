@@ -44,7 +44,7 @@ from fleetbus.publishers.errors import (
     PublisherError,
     PublishRefused,
 )
-from fleetbus.publishers.known import Known, KnownSubjects
+from fleetbus.publishers.known import Known, KnownSubjects, subject_key
 from fleetbus.publishers.login import LOGIN_REFUSED, login_refusal
 from fleetbus.publishers.maps import FetchedMap, fetch_map, map_events
 from fleetbus.publishers.outbox import LIMITS_VARIABLE, Entry, Outbox, TypePolicy, policies_with_limits
@@ -234,8 +234,7 @@ class RobotClient:
     def start(self) -> None:
         """Start draining the outbox in the background (connecting whenever the broker answers)."""
         with self._start_lock:  # close() reads whether it started under it: never a sender it missed
-            if self._closed:
-                raise ClientClosed("the robot client is closed")
+            self._refuse_if_closed()
             if self._started:
                 return
             self._started = True
@@ -269,7 +268,6 @@ class RobotClient:
     def flush(self, timeout: float = 30.0) -> bool:
         """Wait until every waiting event is confirmed; False if ``timeout`` passed first.
         Raises :class:`ClientClosed` once the client was closed."""
-        self._refuse_if_closed()
         self.start()
         return self._sender.wait_drained(timeout)
 
@@ -400,7 +398,6 @@ class RobotClient:
         go out when the broker is back. Without ``wait``, return once they are in the outbox.
         Raises ClientClosed once the client was closed (nothing is stored).
         """
-        self._refuse_if_closed()
         self.start()
         with self._storing:
             waiter = self._store(events, wait)
@@ -472,7 +469,7 @@ class RobotClient:
         """A step of this warden's; the hazard's new state is what it knows of it from now on, so
         that the news of a step taken for it later (released by an operator) is handed out."""
         hazard: dict[str, Any] = self.call(method, timeout, hazard_id=hazard_id)
-        key = f"{Topic.HAZARD.value}:{hazard['event']['message_id']}"
+        key = subject_key(Topic.HAZARD, hazard["event"]["message_id"])
         self._known.know(key, Known(hazard["state"], hazard.get("claimed_by"), last_step_at(hazard)))
         return hazard
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from datetime import datetime
 
 from fleetbus.schemas.notifications import Notification
+from fleetbus.schemas.routing import Topic
 
 #: How many subjects (hazards, maps) a client remembers the last news of, to skip repeats of it.
 SEEN_NOTIFICATIONS = 10_000
@@ -30,8 +31,9 @@ class Known:
         return (self.state, self.claimed_by) == (other.state, other.claimed_by)
 
 
-def subject_key(note: Notification) -> str:
-    return f"{note.topic.value}:{note.event.message_id}"
+def subject_key(topic: Topic, message_id: object) -> str:
+    """What a notification is about: its topic and its event's message id (a hazard, by its event)."""
+    return f"{topic.value}:{message_id}"
 
 
 class KnownSubjects:
@@ -52,7 +54,7 @@ class KnownSubjects:
         operator released the warden's claim. ``resync_as_of``: a resync's note, with the time of
         the hazard's latest step (it is news whenever its state is). A note that is news is what
         the client knows from now on."""
-        key = subject_key(note)
+        key = subject_key(note.topic, note.event.message_id)
         told = Known(note.hazard_state, note.claimed_by, resync_as_of or note.notified_at)
         with self._lock:
             known = self._known.get(key)
